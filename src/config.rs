@@ -1,0 +1,200 @@
+//! The typed configuration: TOML files in `configs/`, every key with a default, unknown
+//! keys refused by name, values validated. ORB-SLAM2 settings YAML files can supply the
+//! calibration and ORB parameters (see [`crate::io::orbslam_settings`]).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::eval::associate::AssociationRule;
+use crate::eval::report::AlignMode;
+use crate::geometry::camera::PinholeCamera;
+use crate::io::orbslam_settings::OrbSlamSettings;
+
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("config {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+    #[error(transparent)]
+    Settings(#[from] crate::io::IoError),
+}
+
+/// ORB extractor parameters (ORB-SLAM2's `ORBextractor.*`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OrbConfig {
+    /// Keypoints per image over all pyramid levels.
+    pub n_features: usize,
+    /// Scale between pyramid levels.
+    pub scale_factor: f64,
+    pub n_levels: usize,
+    /// FAST threshold tried first in each cell.
+    pub ini_th_fast: u8,
+    /// FAST threshold used where the first finds nothing.
+    pub min_th_fast: u8,
+}
+
+impl Default for OrbConfig {
+    fn default() -> Self {
+        Self { n_features: 1000, scale_factor: 1.2, n_levels: 8, ini_th_fast: 20, min_th_fast: 7 }
+    }
+}
+
+/// How a sequence is read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DatasetConfig {
+    /// Raw depth units per metre (TUM: 5000). Unset: the sequence's calibration, else 5000.
+    pub depth_scale: Option<f64>,
+    /// Tolerance in seconds for pairing rgb.txt and depth.txt (TUM associate.py: 0.02).
+    pub max_difference: f64,
+    /// An ORB-SLAM-style association file to use instead of pairing by timestamp.
+    pub association_file: Option<PathBuf>,
+    /// An ORB-SLAM2 settings YAML file with the calibration (overrides the sequence's).
+    pub settings: Option<PathBuf>,
+    /// Camera intrinsics (override both the settings file and the sequence's).
+    pub camera: Option<PinholeCamera>,
+}
+
+impl Default for DatasetConfig {
+    fn default() -> Self {
+        Self { depth_scale: None, max_difference: 0.02, association_file: None, settings: None, camera: None }
+    }
+}
+
+/// Defaults of `dopslam eval` and of the evaluations the pipeline writes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalConfig {
+    pub association: AssociationRule,
+    /// Seconds; unset: the rule's own default (evo 0.01, TUM 0.02).
+    pub max_diff: Option<f64>,
+    pub align: AlignMode,
+    /// Fail below this fraction of matched poses.
+    pub min_coverage: f64,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self { association: AssociationRule::Evo, max_diff: None, align: AlignMode::Se3, min_coverage: 0.5 }
+    }
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub orb: OrbConfig,
+    pub dataset: DatasetConfig,
+    pub eval: EvalConfig,
+}
+
+impl Config {
+    /// Reads and validates a TOML config file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        let config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid { path: path.to_path_buf(), message })?;
+        Ok(config)
+    }
+
+    /// Parses and validates TOML text; the message names the offending key.
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        let config: Config = toml::from_str(text).map_err(|e| e.to_string().trim().to_string())?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks every value's range; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let orb = &self.orb;
+        if orb.n_features == 0 {
+            return Err("orb.n_features must be positive".into());
+        }
+        if !(orb.scale_factor > 1.0 && orb.scale_factor < 2.0) {
+            return Err(format!("orb.scale_factor must be in (1, 2), got {}", orb.scale_factor));
+        }
+        if !(1..=16).contains(&orb.n_levels) {
+            return Err(format!("orb.n_levels must be in 1..=16, got {}", orb.n_levels));
+        }
+        if orb.min_th_fast > orb.ini_th_fast {
+            return Err(format!("orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})", orb.min_th_fast, orb.ini_th_fast));
+        }
+        if let Some(scale) = self.dataset.depth_scale {
+            if !(scale.is_finite() && scale > 0.0) {
+                return Err(format!("dataset.depth_scale must be positive, got {scale}"));
+            }
+        }
+        if !(self.dataset.max_difference > 0.0) {
+            return Err(format!("dataset.max_difference must be positive, got {}", self.dataset.max_difference));
+        }
+        if let Some(camera) = &self.dataset.camera {
+            camera.validate().map_err(|m| format!("dataset.camera: {m}"))?;
+        }
+        if !(0.0..=1.0).contains(&self.eval.min_coverage) {
+            return Err(format!("eval.min_coverage must be in [0, 1], got {}", self.eval.min_coverage));
+        }
+        if let Some(max_diff) = self.eval.max_diff {
+            if !(max_diff >= 0.0) {
+                return Err(format!("eval.max_diff must not be negative, got {max_diff}"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Takes the ORB parameters of an ORB-SLAM2 settings file (those it sets) and
+    /// remembers the file for the calibration.
+    pub fn apply_orbslam_settings(&mut self, path: &Path) -> Result<OrbSlamSettings, ConfigError> {
+        let settings = OrbSlamSettings::read(path)?;
+        let orb = &settings.orb;
+        if let Some(v) = orb.n_features {
+            self.orb.n_features = v;
+        }
+        if let Some(v) = orb.scale_factor {
+            self.orb.scale_factor = v;
+        }
+        if let Some(v) = orb.n_levels {
+            self.orb.n_levels = v;
+        }
+        if let Some(v) = orb.ini_th_fast {
+            self.orb.ini_th_fast = v;
+        }
+        if let Some(v) = orb.min_th_fast {
+            self.orb.min_th_fast = v;
+        }
+        self.dataset.settings = Some(path.to_path_buf());
+        self.validate().map_err(|message| ConfigError::Invalid { path: path.to_path_buf(), message })?;
+        Ok(settings)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_partial_files() {
+        let config = Config::from_toml("[orb]\nn_features = 1500\n").unwrap();
+        assert_eq!(config.orb.n_features, 1500);
+        assert_eq!(config.orb.scale_factor, 1.2);
+        assert_eq!(config.eval.min_coverage, 0.5);
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        let message = Config::from_toml("[orb]\nn_featurez = 1500\n").unwrap_err();
+        assert!(message.contains("n_featurez"), "{message}");
+        let message = Config::from_toml("[nonsense]\n").unwrap_err();
+        assert!(message.contains("nonsense"), "{message}");
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        let message = Config::from_toml("[orb]\nscale_factor = 0.5\n").unwrap_err();
+        assert!(message.contains("orb.scale_factor"), "{message}");
+        let message = Config::from_toml("[dataset]\ndepth_scale = -5000.0\n").unwrap_err();
+        assert!(message.contains("dataset.depth_scale"), "{message}");
+    }
+}

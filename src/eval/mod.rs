@@ -1,0 +1,11 @@
+//! Trajectory evaluation: ATE and RPE exactly as evo (1.38) and TUM's
+//! `evaluate_ate.py` / `evaluate_rpe.py` define them, with statistics, reports and plots.
+
+pub mod associate;
+pub mod ate;
+pub mod plot;
+pub mod report;
+pub mod rpe;
+pub mod stats;
+
+pub use report::{evaluate, EvalError, EvalOptions, EvalReport};

@@ -1,0 +1,83 @@
+//! Pinhole camera intrinsics with Brown-Conrady distortion, and the stereo
+//! baseline used by RGB-D (virtual stereo) and stereo rigs.
+
+use nalgebra::{Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Intrinsics of a pinhole camera, in pixels; distortion as OpenCV's
+/// `(k1, k2, p1, p2, k3)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinholeCamera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub width: u32,
+    pub height: u32,
+    #[serde(default)]
+    pub distortion: [f64; 5],
+}
+
+impl PinholeCamera {
+    /// TUM RGB-D freiburg3 (Kinect) intrinsics, already undistorted.
+    pub fn tum_fr3() -> Self {
+        Self { fx: 535.4, fy: 539.2, cx: 320.1, cy: 247.6, width: 640, height: 480, distortion: [0.0; 5] }
+    }
+
+    /// \(u = f_x x/z + c_x,\ v = f_y y/z + c_y\) for a point in the camera frame.
+    pub fn project(&self, p_camera: &Vector3<f64>) -> Vector2<f64> {
+        Vector2::new(self.fx * p_camera.x / p_camera.z + self.cx, self.fy * p_camera.y / p_camera.z + self.cy)
+    }
+
+    /// The camera-frame point at depth `z` (metres) seen at pixel `(u, v)`.
+    pub fn unproject(&self, pixel: &Vector2<f64>, z: f64) -> Vector3<f64> {
+        Vector3::new((pixel.x - self.cx) * z / self.fx, (pixel.y - self.cy) * z / self.fy, z)
+    }
+
+    /// Whether all distortion coefficients are zero.
+    pub fn is_undistorted(&self) -> bool {
+        self.distortion.iter().all(|&k| k == 0.0)
+    }
+
+    /// Checks that the intrinsics are usable, naming the first bad value.
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, value) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("camera {name} must be a positive number, got {value}"));
+            }
+        }
+        for (name, value) in [("cx", self.cx), ("cy", self.cy)] {
+            if !value.is_finite() {
+                return Err(format!("camera {name} must be finite, got {value}"));
+            }
+        }
+        if self.width == 0 || self.height == 0 {
+            return Err(format!("camera size must be positive, got {}x{}", self.width, self.height));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn unproject_inverts_project(x in -2.0..2.0f64, y in -2.0..2.0f64, z in 0.1..10.0f64) {
+            let camera = PinholeCamera::tum_fr3();
+            let p = Vector3::new(x, y, z);
+            let back = camera.unproject(&camera.project(&p), z);
+            prop_assert!((back - p).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn validation_names_the_bad_value() {
+        let mut camera = PinholeCamera::tum_fr3();
+        camera.fy = -1.0;
+        assert!(camera.validate().unwrap_err().contains("fy"));
+    }
+}

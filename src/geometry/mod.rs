@@ -1,0 +1,14 @@
+//! Rigid and similarity transforms, their Lie algebras, camera intrinsics and
+//! point-set alignment.
+//!
+//! Poses are named for the frames they map between: `world_from_camera * p_camera`
+//! gives the point in world coordinates.
+
+pub mod alignment;
+pub mod camera;
+pub mod se3;
+pub mod sim3;
+pub mod so3;
+
+pub use se3::Se3;
+pub use sim3::Sim3;

@@ -1,0 +1,111 @@
+//! Image files: 8-bit colour and grey images, 16-bit depth maps scaled to metres.
+
+use std::path::Path;
+
+use image::{GrayImage, RgbImage};
+
+use super::IoError;
+
+/// A depth map in metres, row-major; 0 marks a pixel without depth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthImage {
+    pub width: u32,
+    pub height: u32,
+    pub metres: Vec<f32>,
+}
+
+impl DepthImage {
+    pub fn new(width: u32, height: u32) -> Self {
+        Self { width, height, metres: vec![0.0; (width * height) as usize] }
+    }
+
+    /// The depth at pixel `(u, v)` in metres; 0 when invalid.
+    pub fn at(&self, u: u32, v: u32) -> f32 {
+        self.metres[(v * self.width + u) as usize]
+    }
+
+    /// The fraction of pixels that hold a depth.
+    pub fn valid_fraction(&self) -> f64 {
+        let valid = self.metres.iter().filter(|&&d| d > 0.0).count();
+        valid as f64 / self.metres.len().max(1) as f64
+    }
+}
+
+fn open(path: &Path) -> Result<image::DynamicImage, IoError> {
+    if !path.exists() {
+        return Err(IoError::Missing { path: path.to_path_buf(), what: "image file listed by the sequence".into() });
+    }
+    image::open(path).map_err(|e| IoError::Image { path: path.to_path_buf(), message: e.to_string() })
+}
+
+/// Reads a colour image (any 8-bit layout; grey is expanded to RGB).
+pub fn read_rgb(path: &Path) -> Result<RgbImage, IoError> {
+    Ok(open(path)?.to_rgb8())
+}
+
+/// Reads an image as 8-bit grey.
+pub fn read_gray(path: &Path) -> Result<GrayImage, IoError> {
+    Ok(open(path)?.to_luma8())
+}
+
+/// Reads a 16-bit depth PNG and divides by `depth_scale` (5000 for TUM: a value of
+/// 5000 is one metre). An 8-bit image is refused: it cannot be a depth map.
+pub fn read_depth(path: &Path, depth_scale: f64) -> Result<DepthImage, IoError> {
+    let image = open(path)?;
+    let raw = match image {
+        image::DynamicImage::ImageLuma16(raw) => raw,
+        other => {
+            return Err(IoError::Image {
+                path: path.to_path_buf(),
+                message: format!("a depth map must be a 16-bit single-channel PNG, found {:?}", other.color()),
+            })
+        }
+    };
+    let scale = (1.0 / depth_scale) as f32;
+    Ok(DepthImage {
+        width: raw.width(),
+        height: raw.height(),
+        metres: raw.as_raw().iter().map(|&d| d as f32 * scale).collect(),
+    })
+}
+
+/// Writes a depth map as a 16-bit PNG with the given scale (values rounded, clamped to
+/// 65535; 0 stays invalid).
+pub fn depth_to_png16(depth: &DepthImage, depth_scale: f64) -> image::ImageBuffer<image::Luma<u16>, Vec<u16>> {
+    let data = depth
+        .metres
+        .iter()
+        .map(|&d| if d > 0.0 { (d as f64 * depth_scale).round().min(65535.0) as u16 } else { 0 })
+        .collect();
+    image::ImageBuffer::from_raw(depth.width, depth.height, data).expect("buffer size matches")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_roundtrip_and_errors() {
+        let dir = std::env::temp_dir().join(format!("dopslam-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut depth = DepthImage::new(4, 3);
+        depth.metres[5] = 1.25;
+        depth.metres[7] = 3.0;
+        let path = dir.join("d.png");
+        depth_to_png16(&depth, 5000.0).save(&path).unwrap();
+        let back = read_depth(&path, 5000.0).unwrap();
+        assert_eq!(back, depth);
+        assert!((back.valid_fraction() - 2.0 / 12.0).abs() < 1e-12);
+
+        let rgb_path = dir.join("c.png");
+        RgbImage::new(2, 2).save(&rgb_path).unwrap();
+        let message = read_depth(&rgb_path, 5000.0).unwrap_err().to_string();
+        assert!(message.contains("c.png") && message.contains("16-bit"), "{message}");
+
+        let corrupt = dir.join("corrupt.png");
+        std::fs::write(&corrupt, b"\x89PNG\r\n\x1a\nnot really").unwrap();
+        let message = read_rgb(&corrupt).unwrap_err().to_string();
+        assert!(message.contains("corrupt.png"), "{message}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

@@ -1,0 +1,14 @@
+//! Reading datasets and trajectories, writing outputs atomically.
+
+pub mod atomic;
+pub mod errors;
+pub mod file_list;
+pub mod image_files;
+pub mod kitti;
+pub mod orbslam_settings;
+pub mod sequence;
+pub mod trajectory;
+pub mod tum;
+
+pub use errors::IoError;
+pub use trajectory::Trajectory;

@@ -1,0 +1,188 @@
+//! ORB-SLAM2 settings files (OpenCV FileStorage YAML, `%YAML:1.0`), so users can
+//! reuse their calibration: `Camera.fx/fy/cx/cy/k1/k2/p1/p2/k3`, `Camera.width/height`,
+//! `Camera.bf`, `Camera.fps`, `DepthMapFactor`, `ThDepth`, `ORBextractor.*`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::errors::{read_text, IoError};
+use crate::geometry::camera::PinholeCamera;
+
+/// A camera calibration: intrinsics plus what RGB-D and stereo need.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Calibration {
+    pub camera: PinholeCamera,
+    /// Stereo baseline times fx, in pixel·metres (`Camera.bf`); for RGB-D the virtual baseline.
+    pub bf: Option<f64>,
+    /// Raw depth units per metre (`DepthMapFactor`, 5000 for TUM).
+    pub depth_scale: Option<f64>,
+    /// Close/far threshold in baselines (`ThDepth`).
+    pub th_depth: Option<f64>,
+    pub fps: Option<f64>,
+}
+
+/// The ORB extractor settings of an ORB-SLAM2 file (absent keys stay `None`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct OrbSettings {
+    pub n_features: Option<usize>,
+    pub scale_factor: Option<f64>,
+    pub n_levels: Option<usize>,
+    pub ini_th_fast: Option<u8>,
+    pub min_th_fast: Option<u8>,
+}
+
+/// Everything dopslam reads from an ORB-SLAM2 settings file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OrbSlamSettings {
+    pub calibration: Calibration,
+    pub orb: OrbSettings,
+}
+
+/// Reads the scalar `key: value` lines of an OpenCV YAML file. Matrices
+/// (`!!opencv-matrix` blocks) and nested maps are skipped.
+fn read_scalars(path: &Path) -> Result<BTreeMap<String, (String, usize)>, IoError> {
+    let text = read_text(path)?;
+    let mut scalars = BTreeMap::new();
+    for (index, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or_default();
+        if line.trim().is_empty() || line.starts_with('%') || line.trim() == "---" || line.starts_with([' ', '\t']) {
+            continue;
+        }
+        let Some((key, value)) = line.split_once(':') else {
+            return Err(IoError::parse(path, index + 1, format!("expected `key: value`, found {:?}", line.trim())));
+        };
+        let value = value.trim();
+        if value.is_empty() || value.starts_with("!!") {
+            continue;
+        }
+        scalars.insert(key.trim().to_owned(), (value.trim_matches('"').to_owned(), index + 1));
+    }
+    Ok(scalars)
+}
+
+impl OrbSlamSettings {
+    /// Reads an ORB-SLAM2 settings file. `Camera.fx`, `fy`, `cx`, `cy` are required;
+    /// the image size defaults to 640x480 when absent.
+    pub fn read(path: &Path) -> Result<Self, IoError> {
+        let scalars = read_scalars(path)?;
+        let number = |key: &str| -> Result<Option<f64>, IoError> {
+            match scalars.get(key) {
+                None => Ok(None),
+                Some((value, line)) => value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .map(Some)
+                    .ok_or_else(|| IoError::parse(path, *line, format!("{key} must be a number, found {value:?}"))),
+            }
+        };
+        let required = |key: &str| -> Result<f64, IoError> {
+            number(key)?.ok_or_else(|| IoError::invalid(path, format!("missing {key} (an ORB-SLAM2 settings file needs Camera.fx, fy, cx, cy)")))
+        };
+        let camera = PinholeCamera {
+            fx: required("Camera.fx")?,
+            fy: required("Camera.fy")?,
+            cx: required("Camera.cx")?,
+            cy: required("Camera.cy")?,
+            width: number("Camera.width")?.unwrap_or(640.0) as u32,
+            height: number("Camera.height")?.unwrap_or(480.0) as u32,
+            distortion: [
+                number("Camera.k1")?.unwrap_or(0.0),
+                number("Camera.k2")?.unwrap_or(0.0),
+                number("Camera.p1")?.unwrap_or(0.0),
+                number("Camera.p2")?.unwrap_or(0.0),
+                number("Camera.k3")?.unwrap_or(0.0),
+            ],
+        };
+        camera.validate().map_err(|message| IoError::invalid(path, message))?;
+        let calibration = Calibration {
+            camera,
+            bf: number("Camera.bf")?,
+            depth_scale: number("DepthMapFactor")?,
+            th_depth: number("ThDepth")?,
+            fps: number("Camera.fps")?,
+        };
+        if let Some(scale) = calibration.depth_scale {
+            if scale <= 0.0 {
+                return Err(IoError::invalid(path, format!("DepthMapFactor must be positive, got {scale}")));
+            }
+        }
+        let orb = OrbSettings {
+            n_features: number("ORBextractor.nFeatures")?.map(|v| v as usize),
+            scale_factor: number("ORBextractor.scaleFactor")?,
+            n_levels: number("ORBextractor.nLevels")?.map(|v| v as usize),
+            ini_th_fast: number("ORBextractor.iniThFAST")?.map(|v| v as u8),
+            min_th_fast: number("ORBextractor.minThFAST")?.map(|v| v as u8),
+        };
+        Ok(Self { calibration, orb })
+    }
+
+    /// Writes an ORB-SLAM2-style settings file for a calibration (used by `synth`, so
+    /// ORB-SLAM2 itself can run the generated sequences).
+    pub fn to_yaml(calibration: &Calibration, orb: &OrbSettings) -> String {
+        let c = &calibration.camera;
+        let mut out = String::from("%YAML:1.0\n\n# Written by dopslam\n");
+        let mut line = |key: &str, value: String| out.push_str(&format!("{key}: {value}\n"));
+        for (key, value) in [("Camera.fx", c.fx), ("Camera.fy", c.fy), ("Camera.cx", c.cx), ("Camera.cy", c.cy)] {
+            line(key, format!("{value:?}"));
+        }
+        for (key, value) in ["Camera.k1", "Camera.k2", "Camera.p1", "Camera.p2", "Camera.k3"].iter().zip(c.distortion) {
+            line(key, format!("{value:?}"));
+        }
+        line("Camera.width", c.width.to_string());
+        line("Camera.height", c.height.to_string());
+        line("Camera.fps", format!("{:?}", calibration.fps.unwrap_or(30.0)));
+        if let Some(bf) = calibration.bf {
+            line("Camera.bf", format!("{bf:?}"));
+        }
+        line("Camera.RGB", "1".into());
+        if let Some(th) = calibration.th_depth {
+            line("ThDepth", format!("{th:?}"));
+        }
+        if let Some(scale) = calibration.depth_scale {
+            line("DepthMapFactor", format!("{scale:?}"));
+        }
+        line("ORBextractor.nFeatures", orb.n_features.unwrap_or(1000).to_string());
+        line("ORBextractor.scaleFactor", format!("{:?}", orb.scale_factor.unwrap_or(1.2)));
+        line("ORBextractor.nLevels", orb.n_levels.unwrap_or(8).to_string());
+        line("ORBextractor.iniThFAST", orb.ini_th_fast.unwrap_or(20).to_string());
+        line("ORBextractor.minThFAST", orb.min_th_fast.unwrap_or(7).to_string());
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn roundtrip_and_errors() {
+        let dir = std::env::temp_dir().join(format!("dopslam-yaml-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let calibration = Calibration {
+            camera: PinholeCamera::tum_fr3(),
+            bf: Some(40.0),
+            depth_scale: Some(5000.0),
+            th_depth: Some(40.0),
+            fps: Some(30.0),
+        };
+        let orb = OrbSettings { n_features: Some(1500), ..Default::default() };
+        let path = dir.join("cam.yaml");
+        std::fs::write(&path, OrbSlamSettings::to_yaml(&calibration, &orb)).unwrap();
+        let back = OrbSlamSettings::read(&path).unwrap();
+        assert_eq!(back.calibration, calibration);
+        assert_eq!(back.orb.n_features, Some(1500));
+        assert_eq!(back.orb.scale_factor, Some(1.2));
+
+        std::fs::write(&path, "%YAML:1.0\nCamera.fx: 500\nCamera.fy: abc\n").unwrap();
+        let message = OrbSlamSettings::read(&path).unwrap_err().to_string();
+        assert!(message.contains("cam.yaml:3") && message.contains("Camera.fy"), "{message}");
+
+        std::fs::write(&path, "%YAML:1.0\nCamera.fx: 500\n").unwrap();
+        let message = OrbSlamSettings::read(&path).unwrap_err().to_string();
+        assert!(message.contains("missing Camera.fy"), "{message}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

@@ -1,0 +1,58 @@
+//! The `Sequence` abstraction: an indexed, timestamped source of frames that loads
+//! each frame's images only when asked (a sequence is never held in memory).
+
+use image::{GrayImage, RgbImage};
+
+use super::image_files::DepthImage;
+use super::orbslam_settings::Calibration;
+use super::{IoError, Trajectory};
+
+/// The images of one frame.
+#[derive(Debug, Clone)]
+pub enum FrameImages {
+    /// A colour image and a registered depth map in metres.
+    Rgbd { rgb: RgbImage, depth: DepthImage },
+    /// A rectified stereo pair.
+    Stereo { left: GrayImage, right: GrayImage },
+}
+
+/// One frame of a sequence.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub index: usize,
+    pub timestamp: f64,
+    pub images: FrameImages,
+}
+
+/// Which sensor a sequence comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SensorKind {
+    Rgbd,
+    Stereo,
+}
+
+/// A recorded sequence of frames.
+pub trait Sequence: Send + Sync {
+    /// A short name (the folder's name).
+    fn name(&self) -> &str;
+    fn sensor(&self) -> SensorKind;
+    /// The number of frames.
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// The timestamp of frame `index` in seconds.
+    fn timestamp(&self, index: usize) -> f64;
+    /// Loads frame `index` from disk.
+    fn load(&self, index: usize) -> Result<Frame, IoError>;
+    /// The ground-truth trajectory, when the sequence has one.
+    fn ground_truth(&self) -> Option<&Trajectory>;
+    /// The calibration the sequence carries, when it has one.
+    fn calibration(&self) -> Option<&Calibration>;
+}
+
+/// Iterates over all frames, loading each one lazily.
+pub fn frames(sequence: &dyn Sequence) -> impl Iterator<Item = Result<Frame, IoError>> + '_ {
+    (0..sequence.len()).map(move |i| sequence.load(i))
+}

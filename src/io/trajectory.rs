@@ -1,0 +1,268 @@
+//! Trajectory files: TUM (`t tx ty tz qx qy qz qw`) and KITTI (the 3x4 matrix
+//! `world_from_camera`, row-major, 12 numbers a line), read and written.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::atomic::write_atomic;
+use super::errors::{read_text, IoError};
+use super::file_list::split_fields;
+use crate::geometry::se3::{self, Se3};
+
+/// Timestamped poses `world_from_camera`. KITTI files carry no timestamps; they get
+/// their line index (or the times from a `times.txt`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Trajectory {
+    pub timestamps: Vec<f64>,
+    pub poses: Vec<Se3>,
+}
+
+/// The trajectory file formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TrajectoryFormat {
+    Tum,
+    Kitti,
+}
+
+impl Trajectory {
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+
+    pub fn push(&mut self, timestamp: f64, pose: Se3) {
+        self.timestamps.push(timestamp);
+        self.poses.push(pose);
+    }
+
+    /// Camera centres in the world frame.
+    pub fn positions(&self) -> Vec<Vector3<f64>> {
+        self.poses.iter().map(|p| p.translation.vector).collect()
+    }
+
+    /// The sub-trajectory at the given indices.
+    pub fn select(&self, indices: &[usize]) -> Trajectory {
+        Trajectory {
+            timestamps: indices.iter().map(|&i| self.timestamps[i]).collect(),
+            poses: indices.iter().map(|&i| self.poses[i]).collect(),
+        }
+    }
+
+    /// Total path length \(\sum_i \|p_{i+1} - p_i\|\) in metres.
+    pub fn path_length(&self) -> f64 {
+        self.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum()
+    }
+
+    /// Reads a trajectory in the given format.
+    pub fn read(path: &Path, format: TrajectoryFormat) -> Result<Self, IoError> {
+        match format {
+            TrajectoryFormat::Tum => Self::read_tum(path),
+            TrajectoryFormat::Kitti => Self::read_kitti(path),
+        }
+    }
+
+    /// Reads a TUM trajectory. Comment lines (`#`) and blank lines are skipped; every
+    /// other line must hold exactly eight numbers; timestamps must not decrease.
+    pub fn read_tum(path: &Path) -> Result<Self, IoError> {
+        let text = read_text(path)?;
+        let mut trajectory = Trajectory::default();
+        let mut previous: Option<(f64, usize)> = None;
+        for (index, raw) in text.lines().enumerate() {
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let values = parse_numbers(path, index + 1, line, 8, "TUM: timestamp tx ty tz qx qy qz qw")?;
+            let q = [values[4], values[5], values[6], values[7]];
+            if q.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                return Err(IoError::parse(path, index + 1, "the quaternion has zero length"));
+            }
+            let timestamp = values[0];
+            if let Some((before, before_line)) = previous {
+                if timestamp < before {
+                    return Err(IoError::parse(
+                        path,
+                        index + 1,
+                        format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
+                    ));
+                }
+            }
+            previous = Some((timestamp, index + 1));
+            trajectory.push(timestamp, se3::from_translation_quaternion(Vector3::new(values[1], values[2], values[3]), q));
+        }
+        Ok(trajectory)
+    }
+
+    /// Reads a KITTI pose file; timestamps are the line indices 0, 1, 2, …
+    pub fn read_kitti(path: &Path) -> Result<Self, IoError> {
+        let text = read_text(path)?;
+        let mut trajectory = Trajectory::default();
+        for (index, raw) in text.lines().enumerate() {
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let v = parse_numbers(path, index + 1, line, 12, "KITTI: a 3x4 matrix, row-major")?;
+            let rotation = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+            let translation = Vector3::new(v[3], v[7], v[11]);
+            let timestamp = trajectory.len() as f64;
+            trajectory.push(timestamp, se3::from_parts(translation, rotation));
+        }
+        Ok(trajectory)
+    }
+
+    /// Replaces the timestamps with those of a KITTI `times.txt` (one number a line).
+    pub fn with_times_file(mut self, path: &Path) -> Result<Self, IoError> {
+        let times = read_times(path)?;
+        if times.len() != self.len() {
+            return Err(IoError::invalid(
+                path,
+                format!("holds {} times but the trajectory has {} poses", times.len(), self.len()),
+            ));
+        }
+        self.timestamps = times;
+        Ok(self)
+    }
+
+    /// The TUM text of the trajectory: timestamps with six decimals (as TUM's files),
+    /// pose numbers in Rust's shortest round-trip form, so they read back exactly.
+    pub fn to_tum_string(&self) -> String {
+        let mut out = String::from("# timestamp tx ty tz qx qy qz qw\n");
+        for (t, pose) in self.timestamps.iter().zip(&self.poses) {
+            let p = pose.translation.vector;
+            let q = se3::quaternion_xyzw(pose);
+            let _ = writeln!(out, "{t:.6} {} {} {} {} {} {} {}", p.x, p.y, p.z, q[0], q[1], q[2], q[3]);
+        }
+        out
+    }
+
+    /// The KITTI text of the trajectory (timestamps are dropped).
+    pub fn to_kitti_string(&self) -> String {
+        let mut out = String::new();
+        for pose in &self.poses {
+            let r = pose.rotation.matrix();
+            let t = pose.translation.vector;
+            let row = |i: usize| format!("{} {} {} {}", r[(i, 0)], r[(i, 1)], r[(i, 2)], t[i]);
+            let _ = writeln!(out, "{} {} {}", row(0), row(1), row(2));
+        }
+        out
+    }
+
+    /// Writes the trajectory atomically in the given format.
+    pub fn write(&self, path: &Path, format: TrajectoryFormat) -> Result<(), IoError> {
+        let text = match format {
+            TrajectoryFormat::Tum => self.to_tum_string(),
+            TrajectoryFormat::Kitti => self.to_kitti_string(),
+        };
+        write_atomic(path, text.as_bytes())
+    }
+}
+
+/// Reads a KITTI `times.txt`: one time in seconds a line.
+pub fn read_times(path: &Path) -> Result<Vec<f64>, IoError> {
+    let text = read_text(path)?;
+    let mut times = Vec::new();
+    for (index, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        times.push(parse_numbers(path, index + 1, line, 1, "one time in seconds")?[0]);
+    }
+    Ok(times)
+}
+
+/// Parses exactly `expected` finite numbers from a line, naming file, line and format on failure.
+fn parse_numbers(path: &Path, line_number: usize, line: &str, expected: usize, format: &str) -> Result<Vec<f64>, IoError> {
+    let fields: Vec<&str> = split_fields(line).collect();
+    if fields.len() != expected {
+        return Err(IoError::parse(
+            path,
+            line_number,
+            format!("expected {expected} numbers ({format}), found {}", fields.len()),
+        ));
+    }
+    fields
+        .iter()
+        .map(|field| {
+            field
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| IoError::parse(path, line_number, format!("{field:?} is not a finite number ({format})")))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector6;
+
+    fn temp_dir(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("dopslam-traj-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn sample() -> Trajectory {
+        let mut t = Trajectory::default();
+        for i in 0..5 {
+            let xi = Vector6::new(0.1 * i as f64, -0.2, 0.3 * i as f64, 0.05 * i as f64, 0.2, -0.1);
+            t.push(100.0 + 0.033 * i as f64, se3::exp(&xi));
+        }
+        t
+    }
+
+    #[test]
+    fn tum_and_kitti_roundtrip() {
+        let dir = temp_dir("roundtrip");
+        let original = sample();
+        for format in [TrajectoryFormat::Tum, TrajectoryFormat::Kitti] {
+            let path = dir.join("t.txt");
+            original.write(&path, format).unwrap();
+            let back = Trajectory::read(&path, format).unwrap();
+            assert_eq!(back.len(), original.len());
+            for (a, b) in back.poses.iter().zip(&original.poses) {
+                assert!((se3::to_matrix(a) - se3::to_matrix(b)).norm() < 1e-12);
+            }
+            if format == TrajectoryFormat::Tum {
+                for (a, b) in back.timestamps.iter().zip(&original.timestamps) {
+                    assert!((a - b).abs() < 1e-6);
+                }
+            }
+        }
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn malformed_lines_are_named() {
+        let dir = temp_dir("malformed");
+        let path = dir.join("bad.txt");
+        std::fs::write(&path, "# header\n1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n").unwrap();
+        let message = Trajectory::read_tum(&path).unwrap_err().to_string();
+        assert!(message.contains("bad.txt:3") && message.contains("expected 8 numbers"), "{message}");
+
+        std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap();
+        let message = Trajectory::read_tum(&path).unwrap_err().to_string();
+        assert!(message.contains("bad.txt:2") && message.contains("\"x\""), "{message}");
+
+        std::fs::write(&path, "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap();
+        let message = Trajectory::read_tum(&path).unwrap_err().to_string();
+        assert!(message.contains("not sorted") && message.contains("bad.txt:2"), "{message}");
+
+        std::fs::write(&path, "1 0 0 0 0 1 0 0 0 0 1\n").unwrap();
+        let message = Trajectory::read_kitti(&path).unwrap_err().to_string();
+        assert!(message.contains("expected 12 numbers") && message.contains("found 11"), "{message}");
+
+        let missing = Trajectory::read_tum(&dir.join("nope.txt")).unwrap_err().to_string();
+        assert!(missing.contains("nope.txt") && missing.contains("not found"), "{missing}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

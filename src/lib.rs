@@ -1,0 +1,13 @@
+//! dopslam: dynamic-object-probability SLAM for RGB-D and stereo sequences.
+//!
+//! The crate follows the data flow of the system (Ai et al. 2021):
+//! sequences in (`io`), geometry helpers (`geometry`), configuration (`config`),
+//! and evaluation against ground truth (`eval`). Lower layers never import higher
+//! ones: `geometry` knows nothing of datasets, `io` nothing of evaluation.
+
+pub mod config;
+pub mod demo;
+pub mod eval;
+pub mod geometry;
+pub mod io;
+pub mod random;

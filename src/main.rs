@@ -1,0 +1,253 @@
+//! The `dopslam` command line: parses arguments, calls the library, prints.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+
+use dopslam::config::Config;
+use dopslam::eval::associate::AssociationRule;
+use dopslam::eval::ate::PoseRelation;
+use dopslam::eval::plot::write_plots;
+use dopslam::eval::report::{AlignMode, RpeSpec};
+use dopslam::eval::rpe::DeltaUnit;
+use dopslam::eval::{evaluate, EvalOptions};
+use dopslam::io::atomic::write_atomic;
+use dopslam::io::sequence::Sequence;
+use dopslam::io::trajectory::TrajectoryFormat;
+use dopslam::io::tum::{TumOptions, TumSequence};
+use dopslam::io::kitti::KittiSequence;
+use dopslam::io::Trajectory;
+
+#[derive(Parser)]
+#[command(name = "dopslam", version, about = "Dynamic-object-probability SLAM for RGB-D and stereo sequences")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Evaluate an estimated trajectory against a reference: ATE/APE and RPE as evo and TUM's scripts define them.
+    Eval(EvalArgs),
+    /// Generate the bundled example (ground truth + drifting estimate) and evaluate it.
+    Demo(DemoArgs),
+    /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
+    Info(InfoArgs),
+}
+
+#[derive(Args)]
+struct EvalArgs {
+    /// The reference (ground-truth) trajectory file.
+    reference: PathBuf,
+    /// The estimated trajectory file.
+    estimate: PathBuf,
+    /// Format of both files (tum: `t tx ty tz qx qy qz qw`; kitti: 12 numbers a line).
+    #[arg(long, value_enum, default_value = "tum")]
+    format: TrajectoryFormat,
+    /// A KITTI times.txt giving both KITTI trajectories timestamps (else poses pair by index).
+    #[arg(long)]
+    times: Option<PathBuf>,
+    /// A TOML config whose [eval] section sets the defaults below.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// How poses are paired: evo (nearest timestamp), tum-greedy (associate.py) or by-index.
+    #[arg(long, value_enum)]
+    association: Option<AssociationRule>,
+    /// Association tolerance in seconds (default: evo 0.01, tum-greedy 0.02).
+    #[arg(long)]
+    max_diff: Option<f64>,
+    /// Time offset added to the estimate's timestamps, in seconds.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    offset: f64,
+    /// Alignment of the estimate to the reference.
+    #[arg(long, value_enum)]
+    align: Option<AlignMode>,
+    /// Align using only the first N matched poses.
+    #[arg(long)]
+    n_align: Option<usize>,
+    /// Pose relation of the APE.
+    #[arg(long, value_enum, default_value = "trans_part")]
+    pose_relation: PoseRelation,
+    /// RPE deltas, each a number and a unit: f (frames), m (metres), d (degrees), r (radians), s (seconds, reported per second). Repeat for several.
+    #[arg(long = "rpe", default_values_t = vec!["1f".to_string()])]
+    rpe: Vec<String>,
+    /// Pose relation of the RPE.
+    #[arg(long, value_enum, default_value = "trans_part")]
+    rpe_relation: PoseRelation,
+    /// Fail when fewer than this fraction of the shorter trajectory's poses are matched.
+    #[arg(long)]
+    min_coverage: Option<f64>,
+    /// Print the report as JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Write SVG plots (trajectory top view, errors over time) into this folder.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Also write the JSON report to this file.
+    #[arg(long)]
+    save_report: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct DemoArgs {
+    /// Output folder.
+    #[arg(long, default_value = "outputs/demo")]
+    out: PathBuf,
+    /// Seed of the generated drift and noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Args)]
+struct InfoArgs {
+    /// The sequence folder.
+    sequence: PathBuf,
+    /// A TOML config ([dataset] section: depth scale, association tolerance or file).
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+fn parse_rpe(text: &str) -> Result<RpeSpec> {
+    let split = text.find(|c: char| c.is_ascii_alphabetic()).with_context(|| format!("--rpe {text:?}: expected a number and a unit, e.g. 1f, 1s, 0.5m"))?;
+    let (number, unit) = text.split_at(split);
+    let delta: f64 = number.parse().with_context(|| format!("--rpe {text:?}: {number:?} is not a number"))?;
+    if !(delta > 0.0) {
+        bail!("--rpe {text:?}: the delta must be positive");
+    }
+    let unit = match unit {
+        "f" => DeltaUnit::Frames,
+        "m" => DeltaUnit::Metres,
+        "d" => DeltaUnit::Degrees,
+        "r" => DeltaUnit::Radians,
+        "s" => DeltaUnit::Seconds,
+        other => bail!("--rpe {text:?}: unknown unit {other:?} (f, m, d, r or s)"),
+    };
+    Ok(RpeSpec { delta, unit })
+}
+
+fn load_config(path: Option<&Path>) -> Result<Config> {
+    match path {
+        Some(path) => Ok(Config::load(path)?),
+        None => Ok(Config::default()),
+    }
+}
+
+fn read_trajectory(path: &Path, format: TrajectoryFormat, times: Option<&Path>) -> Result<Trajectory> {
+    let trajectory = Trajectory::read(path, format)?;
+    Ok(match times {
+        Some(times) => trajectory.with_times_file(times)?,
+        None => trajectory,
+    })
+}
+
+fn run_eval(args: EvalArgs) -> Result<()> {
+    let config = load_config(args.config.as_deref())?;
+    let reference = read_trajectory(&args.reference, args.format, args.times.as_deref())?;
+    let estimate = read_trajectory(&args.estimate, args.format, args.times.as_deref())?;
+    let default_rule = if args.format == TrajectoryFormat::Kitti && args.times.is_none() { AssociationRule::ByIndex } else { config.eval.association };
+    let options = EvalOptions {
+        association: args.association.unwrap_or(default_rule),
+        max_diff: args.max_diff.or(config.eval.max_diff),
+        offset: args.offset,
+        align: args.align.unwrap_or(config.eval.align),
+        n_align: args.n_align,
+        ape_relation: args.pose_relation,
+        rpe: args.rpe.iter().map(|s| parse_rpe(s)).collect::<Result<_>>()?,
+        rpe_relation: args.rpe_relation,
+        min_coverage: args.min_coverage.unwrap_or(config.eval.min_coverage),
+    };
+    let report = evaluate(&reference, &estimate, &options)
+        .with_context(|| format!("evaluating {} against {}", args.estimate.display(), args.reference.display()))?;
+    let json = serde_json::to_string_pretty(&report)?;
+    if args.json {
+        println!("{json}");
+    } else {
+        print!("{}", report.to_table());
+    }
+    if let Some(path) = &args.save_report {
+        write_atomic(path, json.as_bytes())?;
+    }
+    if let Some(dir) = &args.plot {
+        for path in write_plots(&report, dir)? {
+            eprintln!("wrote {}", path.display());
+        }
+    }
+    Ok(())
+}
+
+fn run_demo(args: DemoArgs) -> Result<()> {
+    let (ground_truth, estimate) = dopslam::demo::demo_trajectories(args.seed, 30.0, 0.004);
+    let gt_path = args.out.join("groundtruth.txt");
+    let est_path = args.out.join("estimate.txt");
+    ground_truth.write(&gt_path, TrajectoryFormat::Tum)?;
+    estimate.write(&est_path, TrajectoryFormat::Tum)?;
+    println!("generated {} ({} poses) and {} ({} poses)", gt_path.display(), ground_truth.len(), est_path.display(), estimate.len());
+    run_eval(EvalArgs {
+        reference: gt_path,
+        estimate: est_path,
+        format: TrajectoryFormat::Tum,
+        times: None,
+        config: None,
+        association: None,
+        max_diff: None,
+        offset: 0.0,
+        align: None,
+        n_align: None,
+        pose_relation: PoseRelation::TransPart,
+        rpe: vec!["1f".into(), "1s".into()],
+        rpe_relation: PoseRelation::TransPart,
+        min_coverage: None,
+        json: false,
+        plot: Some(args.out.join("plots")),
+        save_report: Some(args.out.join("report.json")),
+    })
+}
+
+fn run_info(args: InfoArgs) -> Result<()> {
+    let config = load_config(args.config.as_deref())?;
+    let root = &args.sequence;
+    let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
+        Box::new(KittiSequence::open(root, None)?)
+    } else {
+        let options = TumOptions {
+            depth_scale: config.dataset.depth_scale,
+            max_difference: config.dataset.max_difference,
+            association_file: config.dataset.association_file.clone(),
+        };
+        let tum = TumSequence::open(root, &options)?;
+        println!("rgb.txt / depth.txt entries: {} / {}, paired: {} (tolerance {} s)", tum.listed.0, tum.listed.1, tum.len(), options.max_difference);
+        Box::new(tum)
+    };
+    println!("sequence {} ({:?}): {} frames", sequence.name(), sequence.sensor(), sequence.len());
+    if !sequence.is_empty() {
+        let (first, last) = (sequence.timestamp(0), sequence.timestamp(sequence.len() - 1));
+        println!("time span {:.3} s ({first:.6} .. {last:.6})", last - first);
+    }
+    match sequence.calibration() {
+        Some(c) => println!("calibration: {:?}, bf {:?}, depth scale {:?}", c.camera, c.bf, c.depth_scale),
+        None => println!("calibration: none found (give one with [dataset] settings = \"camera.yaml\")"),
+    }
+    match sequence.ground_truth() {
+        Some(gt) => println!("ground truth: {} poses, path length {:.3} m", gt.len(), gt.path_length()),
+        None => println!("ground truth: none"),
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Eval(args) => run_eval(args),
+        Command::Demo(args) => run_demo(args),
+        Command::Info(args) => run_info(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
