@@ -15,7 +15,10 @@ use crate::io::orbslam_settings::OrbSlamSettings;
 #[derive(Debug, Error)]
 pub enum ConfigError {
     #[error("cannot read config {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("config {path}: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error(transparent)]
@@ -39,7 +42,13 @@ pub struct OrbConfig {
 
 impl Default for OrbConfig {
     fn default() -> Self {
-        Self { n_features: 1000, scale_factor: 1.2, n_levels: 8, ini_th_fast: 20, min_th_fast: 7 }
+        Self {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
     }
 }
 
@@ -61,7 +70,13 @@ pub struct DatasetConfig {
 
 impl Default for DatasetConfig {
     fn default() -> Self {
-        Self { depth_scale: None, max_difference: 0.02, association_file: None, settings: None, camera: None }
+        Self {
+            depth_scale: None,
+            max_difference: 0.02,
+            association_file: None,
+            settings: None,
+            camera: None,
+        }
     }
 }
 
@@ -79,7 +94,12 @@ pub struct EvalConfig {
 
 impl Default for EvalConfig {
     fn default() -> Self {
-        Self { association: AssociationRule::Evo, max_diff: None, align: AlignMode::Se3, min_coverage: 0.5 }
+        Self {
+            association: AssociationRule::Evo,
+            max_diff: None,
+            align: AlignMode::Se3,
+            min_coverage: 0.5,
+        }
     }
 }
 
@@ -95,8 +115,14 @@ pub struct Config {
 impl Config {
     /// Reads and validates a TOML config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
-        let config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid { path: path.to_path_buf(), message })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
         Ok(config)
     }
 
@@ -114,31 +140,50 @@ impl Config {
             return Err("orb.n_features must be positive".into());
         }
         if !(orb.scale_factor > 1.0 && orb.scale_factor < 2.0) {
-            return Err(format!("orb.scale_factor must be in (1, 2), got {}", orb.scale_factor));
+            return Err(format!(
+                "orb.scale_factor must be in (1, 2), got {}",
+                orb.scale_factor
+            ));
         }
         if !(1..=16).contains(&orb.n_levels) {
-            return Err(format!("orb.n_levels must be in 1..=16, got {}", orb.n_levels));
+            return Err(format!(
+                "orb.n_levels must be in 1..=16, got {}",
+                orb.n_levels
+            ));
         }
         if orb.min_th_fast > orb.ini_th_fast {
-            return Err(format!("orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})", orb.min_th_fast, orb.ini_th_fast));
+            return Err(format!(
+                "orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})",
+                orb.min_th_fast, orb.ini_th_fast
+            ));
         }
         if let Some(scale) = self.dataset.depth_scale {
             if !(scale.is_finite() && scale > 0.0) {
                 return Err(format!("dataset.depth_scale must be positive, got {scale}"));
             }
         }
-        if !(self.dataset.max_difference > 0.0) {
-            return Err(format!("dataset.max_difference must be positive, got {}", self.dataset.max_difference));
+        if self.dataset.max_difference.is_nan() || self.dataset.max_difference <= 0.0 {
+            return Err(format!(
+                "dataset.max_difference must be positive, got {}",
+                self.dataset.max_difference
+            ));
         }
         if let Some(camera) = &self.dataset.camera {
-            camera.validate().map_err(|m| format!("dataset.camera: {m}"))?;
+            camera
+                .validate()
+                .map_err(|m| format!("dataset.camera: {m}"))?;
         }
         if !(0.0..=1.0).contains(&self.eval.min_coverage) {
-            return Err(format!("eval.min_coverage must be in [0, 1], got {}", self.eval.min_coverage));
+            return Err(format!(
+                "eval.min_coverage must be in [0, 1], got {}",
+                self.eval.min_coverage
+            ));
         }
         if let Some(max_diff) = self.eval.max_diff {
-            if !(max_diff >= 0.0) {
-                return Err(format!("eval.max_diff must not be negative, got {max_diff}"));
+            if max_diff.is_nan() || max_diff < 0.0 {
+                return Err(format!(
+                    "eval.max_diff must not be negative, got {max_diff}"
+                ));
             }
         }
         Ok(())
@@ -165,7 +210,10 @@ impl Config {
             self.orb.min_th_fast = v;
         }
         self.dataset.settings = Some(path.to_path_buf());
-        self.validate().map_err(|message| ConfigError::Invalid { path: path.to_path_buf(), message })?;
+        self.validate().map_err(|message| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
         Ok(settings)
     }
 }

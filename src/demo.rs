@@ -19,15 +19,26 @@ pub fn demo_pose(t: f64) -> Se3 {
         -0.4 + 0.15 * (0.8 * t + 0.3).sin(),
         1.5 + 0.2 * (0.3 * t).sin(),
     );
-    let rotation = Vector3::new(0.1 * (0.4 * t).sin(), 0.15 * (0.25 * t).sin(), 0.05 * (0.6 * t).cos());
+    let rotation = Vector3::new(
+        0.1 * (0.4 * t).sin(),
+        0.15 * (0.25 * t).sin(),
+        0.05 * (0.6 * t).cos(),
+    );
     let base = se3::exp(&Vector6::new(0.0, 0.0, 0.0, -1.9, 0.2, 0.3));
-    Se3::from_parts(position.into(), base.rotation * crate::geometry::so3::exp(&rotation))
+    Se3::from_parts(
+        position.into(),
+        base.rotation * crate::geometry::so3::exp(&rotation),
+    )
 }
 
 /// Ground truth (100 Hz) and a drifting estimate (30 Hz, timestamps jittered by ±2 ms)
 /// over `duration_s` seconds. The estimate's drift is a seeded random walk of
 /// `drift_m_per_sqrt_s` metres per square-root second plus white noise of 3 mm.
-pub fn demo_trajectories(seed: u64, duration_s: f64, drift_m_per_sqrt_s: f64) -> (Trajectory, Trajectory) {
+pub fn demo_trajectories(
+    seed: u64,
+    duration_s: f64,
+    drift_m_per_sqrt_s: f64,
+) -> (Trajectory, Trajectory) {
     let mut rng = Rng::new(seed);
     let t0 = 1_700_000_000.0;
     let mut ground_truth = Trajectory::default();
@@ -75,7 +86,11 @@ mod tests {
         assert!((0.004..0.007).contains(&rmse), "{rmse}");
         assert_eq!(report.matched_poses, est.len());
         let (_, drifting) = demo_trajectories(1, 20.0, 0.01);
-        let worse = evaluate(&gt, &drifting, &EvalOptions::default()).unwrap().ape.statistics.rmse;
+        let worse = evaluate(&gt, &drifting, &EvalOptions::default())
+            .unwrap()
+            .ape
+            .statistics
+            .rmse;
         assert!(worse > rmse);
     }
 }

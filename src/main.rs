@@ -14,14 +14,18 @@ use dopslam::eval::report::{AlignMode, RpeSpec};
 use dopslam::eval::rpe::DeltaUnit;
 use dopslam::eval::{evaluate, EvalOptions};
 use dopslam::io::atomic::write_atomic;
+use dopslam::io::kitti::KittiSequence;
 use dopslam::io::sequence::Sequence;
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::tum::{TumOptions, TumSequence};
-use dopslam::io::kitti::KittiSequence;
 use dopslam::io::Trajectory;
 
 #[derive(Parser)]
-#[command(name = "dopslam", version, about = "Dynamic-object-probability SLAM for RGB-D and stereo sequences")]
+#[command(
+    name = "dopslam",
+    version,
+    about = "Dynamic-object-probability SLAM for RGB-D and stereo sequences"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -110,10 +114,16 @@ struct InfoArgs {
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
-    let split = text.find(|c: char| c.is_ascii_alphabetic()).with_context(|| format!("--rpe {text:?}: expected a number and a unit, e.g. 1f, 1s, 0.5m"))?;
+    let split = text
+        .find(|c: char| c.is_ascii_alphabetic())
+        .with_context(|| {
+            format!("--rpe {text:?}: expected a number and a unit, e.g. 1f, 1s, 0.5m")
+        })?;
     let (number, unit) = text.split_at(split);
-    let delta: f64 = number.parse().with_context(|| format!("--rpe {text:?}: {number:?} is not a number"))?;
-    if !(delta > 0.0) {
+    let delta: f64 = number
+        .parse()
+        .with_context(|| format!("--rpe {text:?}: {number:?} is not a number"))?;
+    if delta.is_nan() || delta <= 0.0 {
         bail!("--rpe {text:?}: the delta must be positive");
     }
     let unit = match unit {
@@ -134,7 +144,11 @@ fn load_config(path: Option<&Path>) -> Result<Config> {
     }
 }
 
-fn read_trajectory(path: &Path, format: TrajectoryFormat, times: Option<&Path>) -> Result<Trajectory> {
+fn read_trajectory(
+    path: &Path,
+    format: TrajectoryFormat,
+    times: Option<&Path>,
+) -> Result<Trajectory> {
     let trajectory = Trajectory::read(path, format)?;
     Ok(match times {
         Some(times) => trajectory.with_times_file(times)?,
@@ -146,7 +160,11 @@ fn run_eval(args: EvalArgs) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let reference = read_trajectory(&args.reference, args.format, args.times.as_deref())?;
     let estimate = read_trajectory(&args.estimate, args.format, args.times.as_deref())?;
-    let default_rule = if args.format == TrajectoryFormat::Kitti && args.times.is_none() { AssociationRule::ByIndex } else { config.eval.association };
+    let default_rule = if args.format == TrajectoryFormat::Kitti && args.times.is_none() {
+        AssociationRule::ByIndex
+    } else {
+        config.eval.association
+    };
     let options = EvalOptions {
         association: args.association.unwrap_or(default_rule),
         max_diff: args.max_diff.or(config.eval.max_diff),
@@ -154,12 +172,21 @@ fn run_eval(args: EvalArgs) -> Result<()> {
         align: args.align.unwrap_or(config.eval.align),
         n_align: args.n_align,
         ape_relation: args.pose_relation,
-        rpe: args.rpe.iter().map(|s| parse_rpe(s)).collect::<Result<_>>()?,
+        rpe: args
+            .rpe
+            .iter()
+            .map(|s| parse_rpe(s))
+            .collect::<Result<_>>()?,
         rpe_relation: args.rpe_relation,
         min_coverage: args.min_coverage.unwrap_or(config.eval.min_coverage),
     };
-    let report = evaluate(&reference, &estimate, &options)
-        .with_context(|| format!("evaluating {} against {}", args.estimate.display(), args.reference.display()))?;
+    let report = evaluate(&reference, &estimate, &options).with_context(|| {
+        format!(
+            "evaluating {} against {}",
+            args.estimate.display(),
+            args.reference.display()
+        )
+    })?;
     let json = serde_json::to_string_pretty(&report)?;
     if args.json {
         println!("{json}");
@@ -183,7 +210,13 @@ fn run_demo(args: DemoArgs) -> Result<()> {
     let est_path = args.out.join("estimate.txt");
     ground_truth.write(&gt_path, TrajectoryFormat::Tum)?;
     estimate.write(&est_path, TrajectoryFormat::Tum)?;
-    println!("generated {} ({} poses) and {} ({} poses)", gt_path.display(), ground_truth.len(), est_path.display(), estimate.len());
+    println!(
+        "generated {} ({} poses) and {} ({} poses)",
+        gt_path.display(),
+        ground_truth.len(),
+        est_path.display(),
+        estimate.len()
+    );
     run_eval(EvalArgs {
         reference: gt_path,
         estimate: est_path,
@@ -217,20 +250,43 @@ fn run_info(args: InfoArgs) -> Result<()> {
             association_file: config.dataset.association_file.clone(),
         };
         let tum = TumSequence::open(root, &options)?;
-        println!("rgb.txt / depth.txt entries: {} / {}, paired: {} (tolerance {} s)", tum.listed.0, tum.listed.1, tum.len(), options.max_difference);
+        println!(
+            "rgb.txt / depth.txt entries: {} / {}, paired: {} (tolerance {} s)",
+            tum.listed.0,
+            tum.listed.1,
+            tum.len(),
+            options.max_difference
+        );
         Box::new(tum)
     };
-    println!("sequence {} ({:?}): {} frames", sequence.name(), sequence.sensor(), sequence.len());
+    println!(
+        "sequence {} ({:?}): {} frames",
+        sequence.name(),
+        sequence.sensor(),
+        sequence.len()
+    );
     if !sequence.is_empty() {
-        let (first, last) = (sequence.timestamp(0), sequence.timestamp(sequence.len() - 1));
+        let (first, last) = (
+            sequence.timestamp(0),
+            sequence.timestamp(sequence.len() - 1),
+        );
         println!("time span {:.3} s ({first:.6} .. {last:.6})", last - first);
     }
     match sequence.calibration() {
-        Some(c) => println!("calibration: {:?}, bf {:?}, depth scale {:?}", c.camera, c.bf, c.depth_scale),
-        None => println!("calibration: none found (give one with [dataset] settings = \"camera.yaml\")"),
+        Some(c) => println!(
+            "calibration: {:?}, bf {:?}, depth scale {:?}",
+            c.camera, c.bf, c.depth_scale
+        ),
+        None => {
+            println!("calibration: none found (give one with [dataset] settings = \"camera.yaml\")")
+        }
     }
     match sequence.ground_truth() {
-        Some(gt) => println!("ground truth: {} poses, path length {:.3} m", gt.len(), gt.path_length()),
+        Some(gt) => println!(
+            "ground truth: {} poses, path length {:.3} m",
+            gt.len(),
+            gt.path_length()
+        ),
         None => println!("ground truth: none"),
     }
     Ok(())

@@ -46,7 +46,12 @@ pub struct Association {
 /// evo's `matching_time_indices`: for each stamp of `first`, the index of the nearest
 /// stamp of `second + offset` within `max_diff`. Binary search when `second` is sorted,
 /// else evo's linear fallback (first minimum).
-pub fn matching_time_indices(first: &[f64], second: &[f64], max_diff: f64, offset: f64) -> Vec<(usize, usize)> {
+pub fn matching_time_indices(
+    first: &[f64],
+    second: &[f64],
+    max_diff: f64,
+    offset: f64,
+) -> Vec<(usize, usize)> {
     let shifted: Vec<f64> = second.iter().map(|t| t + offset).collect();
     let mut matches = Vec::new();
     if shifted.is_empty() {
@@ -58,7 +63,10 @@ pub fn matching_time_indices(first: &[f64], second: &[f64], max_diff: f64, offse
                 .iter()
                 .enumerate()
                 .map(|(j, s)| (j, (s - t).abs()))
-                .fold((0, f64::INFINITY), |acc, x| if x.1 < acc.1 { x } else { acc });
+                .fold(
+                    (0, f64::INFINITY),
+                    |acc, x| if x.1 < acc.1 { x } else { acc },
+                );
             if diff <= max_diff {
                 matches.push((i, best));
             }
@@ -72,7 +80,11 @@ pub fn matching_time_indices(first: &[f64], second: &[f64], max_diff: f64, offse
         }
         let upper = shifted.partition_point(|&s| s <= t).min(last);
         let diff_upper = shifted[upper] - t;
-        let diff_lower = if upper > 0 { t - shifted[upper - 1] } else { f64::INFINITY };
+        let diff_lower = if upper > 0 {
+            t - shifted[upper - 1]
+        } else {
+            f64::INFINITY
+        };
         if diff_upper <= max_diff && diff_upper < diff_lower {
             matches.push((i, upper));
         } else if diff_lower <= max_diff && diff_lower <= diff_upper {
@@ -84,19 +96,40 @@ pub fn matching_time_indices(first: &[f64], second: &[f64], max_diff: f64, offse
 
 /// Pairs the poses of `reference` and `estimate` by the given rule.
 /// `offset` is added to the estimate's timestamps.
-pub fn associate(reference: &Trajectory, estimate: &Trajectory, rule: AssociationRule, max_diff: f64, offset: f64) -> Association {
+pub fn associate(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    rule: AssociationRule,
+    max_diff: f64,
+    offset: f64,
+) -> Association {
     let max_pairs = reference.len().min(estimate.len());
     let pairs = match rule {
         AssociationRule::ByIndex => (0..max_pairs).map(|i| (i, i)).collect(),
-        AssociationRule::TumGreedy => associate_greedy(&reference.timestamps, &estimate.timestamps, offset, max_diff),
+        AssociationRule::TumGreedy => associate_greedy(
+            &reference.timestamps,
+            &estimate.timestamps,
+            offset,
+            max_diff,
+        ),
         AssociationRule::Evo => {
             if estimate.len() > reference.len() {
-                matching_time_indices(&reference.timestamps, &estimate.timestamps, max_diff, offset)
+                matching_time_indices(
+                    &reference.timestamps,
+                    &estimate.timestamps,
+                    max_diff,
+                    offset,
+                )
             } else {
-                matching_time_indices(&estimate.timestamps, &reference.timestamps, max_diff, -offset)
-                    .into_iter()
-                    .map(|(e, r)| (r, e))
-                    .collect()
+                matching_time_indices(
+                    &estimate.timestamps,
+                    &reference.timestamps,
+                    max_diff,
+                    -offset,
+                )
+                .into_iter()
+                .map(|(e, r)| (r, e))
+                .collect()
             }
         }
     };
@@ -116,7 +149,10 @@ mod tests {
                 .iter()
                 .enumerate()
                 .map(|(j, s)| (j, (s - t).abs()))
-                .fold((0, f64::INFINITY), |acc, x| if x.1 < acc.1 { x } else { acc });
+                .fold(
+                    (0, f64::INFINITY),
+                    |acc, x| if x.1 < acc.1 { x } else { acc },
+                );
             if diff <= max_diff {
                 out.push((i, best));
             }

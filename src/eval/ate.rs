@@ -33,6 +33,17 @@ pub enum PoseRelation {
 }
 
 impl PoseRelation {
+    /// evo's wording of the relation.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::TransPart => "translation part",
+            Self::AngleDeg => "rotation angle in degrees",
+            Self::AngleRad => "rotation angle in radians",
+            Self::RotPart => "rotation part",
+            Self::Full => "full transformation",
+        }
+    }
+
     pub fn unit(self) -> &'static str {
         match self {
             Self::TransPart => "m",

@@ -24,19 +24,28 @@ struct Frame {
 
 impl Frame {
     fn new(xs: impl Iterator<Item = f64> + Clone, ys: impl Iterator<Item = f64> + Clone) -> Self {
-        let range = |v: &mut dyn Iterator<Item = f64>| v.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)));
+        let range = |v: &mut dyn Iterator<Item = f64>| {
+            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            })
+        };
         let (mut x_min, mut x_max) = range(&mut xs.clone());
         let (mut y_min, mut y_max) = range(&mut ys.clone());
-        if !(x_max > x_min) {
+        if x_max.is_nan() || x_max <= x_min {
             x_min -= 0.5;
             x_max += 0.5;
         }
-        if !(y_max > y_min) {
+        if y_max.is_nan() || y_max <= y_min {
             y_min -= 0.5;
             y_max += 0.5;
         }
         let (px, py) = (0.05 * (x_max - x_min), 0.05 * (y_max - y_min));
-        Self { x_min: x_min - px, x_max: x_max + px, y_min: y_min - py, y_max: y_max + py }
+        Self {
+            x_min: x_min - px,
+            x_max: x_max + px,
+            y_min: y_min - py,
+            y_max: y_max + py,
+        }
     }
 
     /// Makes both axes use the same metres per pixel (for a map view).
@@ -44,8 +53,14 @@ impl Frame {
         let sx = (self.x_max - self.x_min) / (WIDTH - 2.0 * MARGIN);
         let sy = (self.y_max - self.y_min) / (HEIGHT - 2.0 * MARGIN);
         let s = sx.max(sy);
-        let (cx, cy) = (0.5 * (self.x_min + self.x_max), 0.5 * (self.y_min + self.y_max));
-        let (hw, hh) = (0.5 * s * (WIDTH - 2.0 * MARGIN), 0.5 * s * (HEIGHT - 2.0 * MARGIN));
+        let (cx, cy) = (
+            0.5 * (self.x_min + self.x_max),
+            0.5 * (self.y_min + self.y_max),
+        );
+        let (hw, hh) = (
+            0.5 * s * (WIDTH - 2.0 * MARGIN),
+            0.5 * s * (HEIGHT - 2.0 * MARGIN),
+        );
         self.x_min = cx - hw;
         self.x_max = cx + hw;
         self.y_min = cy - hh;
@@ -66,7 +81,10 @@ impl Frame {
         for (x, y) in points {
             let _ = write!(d, "{:.1},{:.1} ", self.px(x), self.py(y));
         }
-        format!("<polyline fill=\"none\" {style} points=\"{}\"/>\n", d.trim_end())
+        format!(
+            "<polyline fill=\"none\" {style} points=\"{}\"/>\n",
+            d.trim_end()
+        )
     }
 
     fn axes(&self, x_label: &str, y_label: &str, title: &str) -> String {
@@ -76,13 +94,40 @@ impl Frame {
             let f = i as f64 / 5.0;
             let x = self.x_min + f * (self.x_max - self.x_min);
             let y = self.y_min + f * (self.y_max - self.y_min);
-            let _ = writeln!(out, "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"11\" text-anchor=\"middle\">{}</text>", self.px(x), HEIGHT - MARGIN + 16.0, tick(x));
-            let _ = writeln!(out, "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"11\" text-anchor=\"end\">{}</text>", MARGIN - 6.0, self.py(y) + 4.0, tick(y));
-            let _ = writeln!(out, "<line x1=\"{MARGIN}\" x2=\"{}\" y1=\"{:.1}\" y2=\"{:.1}\" stroke=\"#eee\"/>", WIDTH - MARGIN, self.py(y), self.py(y));
+            let _ = writeln!(
+                out,
+                "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"11\" text-anchor=\"middle\">{}</text>",
+                self.px(x),
+                HEIGHT - MARGIN + 16.0,
+                tick(x)
+            );
+            let _ = writeln!(
+                out,
+                "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"11\" text-anchor=\"end\">{}</text>",
+                MARGIN - 6.0,
+                self.py(y) + 4.0,
+                tick(y)
+            );
+            let _ = writeln!(
+                out,
+                "<line x1=\"{MARGIN}\" x2=\"{}\" y1=\"{:.1}\" y2=\"{:.1}\" stroke=\"#eee\"/>",
+                WIDTH - MARGIN,
+                self.py(y),
+                self.py(y)
+            );
         }
-        let _ = writeln!(out, "<text x=\"{}\" y=\"{}\" font-size=\"13\" text-anchor=\"middle\">{x_label}</text>", WIDTH / 2.0, HEIGHT - 18.0);
+        let _ = writeln!(
+            out,
+            "<text x=\"{}\" y=\"{}\" font-size=\"13\" text-anchor=\"middle\">{x_label}</text>",
+            WIDTH / 2.0,
+            HEIGHT - 18.0
+        );
         let _ = writeln!(out, "<text x=\"16\" y=\"{}\" font-size=\"13\" text-anchor=\"middle\" transform=\"rotate(-90 16 {})\">{y_label}</text>", HEIGHT / 2.0, HEIGHT / 2.0);
-        let _ = writeln!(out, "<text x=\"{}\" y=\"30\" font-size=\"15\" text-anchor=\"middle\">{title}</text>", WIDTH / 2.0);
+        let _ = writeln!(
+            out,
+            "<text x=\"{}\" y=\"30\" font-size=\"15\" text-anchor=\"middle\">{title}</text>",
+            WIDTH / 2.0
+        );
         out
     }
 }
@@ -103,7 +148,12 @@ fn legend(entries: &[(&str, &str)]) -> String {
     for (i, (label, colour)) in entries.iter().enumerate() {
         let y = MARGIN + 16.0 + 18.0 * i as f64;
         let _ = writeln!(out, "<line x1=\"{}\" x2=\"{}\" y1=\"{y}\" y2=\"{y}\" stroke=\"{colour}\" stroke-width=\"2\"/>", WIDTH - MARGIN - 150.0, WIDTH - MARGIN - 125.0);
-        let _ = writeln!(out, "<text x=\"{}\" y=\"{}\" font-size=\"12\">{label}</text>", WIDTH - MARGIN - 118.0, y + 4.0);
+        let _ = writeln!(
+            out,
+            "<text x=\"{}\" y=\"{}\" font-size=\"12\">{label}</text>",
+            WIDTH - MARGIN - 118.0,
+            y + 4.0
+        );
     }
     out
 }
@@ -111,7 +161,10 @@ fn legend(entries: &[(&str, &str)]) -> String {
 /// The two world axes along which the reference moves most (the "top view").
 fn view_axes(points: &[Vector3<f64>]) -> (usize, usize) {
     let mean = points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64;
-    let spread = points.iter().map(|p| (p - mean).abs()).fold(Vector3::zeros(), |a, b| a + b);
+    let spread = points
+        .iter()
+        .map(|p| (p - mean).abs())
+        .fold(Vector3::zeros(), |a, b| a + b);
     let mut axes = [0, 1, 2];
     axes.sort_by(|&a, &b| spread[b].total_cmp(&spread[a]));
     (axes[0].min(axes[1]), axes[0].max(axes[1]))
@@ -129,10 +182,19 @@ pub fn trajectory_svg(report: &EvalReport) -> String {
     let mut body = frame.axes(
         &format!("{} (m)", names[a]),
         &format!("{} (m)", names[b]),
-        &format!("trajectory, APE RMSE {:.4} {}", report.ape.statistics.rmse, report.ape.unit),
+        &format!(
+            "trajectory, APE RMSE {:.4} {}",
+            report.ape.statistics.rmse, report.ape.unit
+        ),
     );
-    body += &frame.polyline(reference.iter().map(|p| (p[a], p[b])), "stroke=\"#888\" stroke-width=\"1.5\" stroke-dasharray=\"5,3\"");
-    body += &frame.polyline(estimate.iter().map(|p| (p[a], p[b])), "stroke=\"#1f5fbf\" stroke-width=\"1.5\"");
+    body += &frame.polyline(
+        reference.iter().map(|p| (p[a], p[b])),
+        "stroke=\"#888\" stroke-width=\"1.5\" stroke-dasharray=\"5,3\"",
+    );
+    body += &frame.polyline(
+        estimate.iter().map(|p| (p[a], p[b])),
+        "stroke=\"#1f5fbf\" stroke-width=\"1.5\"",
+    );
     body += &legend(&[("reference", "#888"), ("estimate (aligned)", "#1f5fbf")]);
     svg(&body)
 }
@@ -140,17 +202,34 @@ pub fn trajectory_svg(report: &EvalReport) -> String {
 /// Errors of one metric over time, with its RMSE as a horizontal line.
 pub fn errors_svg(metric: &MetricResult) -> String {
     let t0 = metric.timestamps.first().copied().unwrap_or(0.0);
-    let points: Vec<(f64, f64)> = metric.timestamps.iter().map(|t| t - t0).zip(metric.errors.iter().copied()).collect();
-    let frame = Frame::new(points.iter().map(|p| p.0), points.iter().map(|p| p.1).chain([0.0]));
-    let mut title = format!("{} {:?}", metric.metric, metric.relation);
+    let points: Vec<(f64, f64)> = metric
+        .timestamps
+        .iter()
+        .map(|t| t - t0)
+        .zip(metric.errors.iter().copied())
+        .collect();
+    let frame = Frame::new(
+        points.iter().map(|p| p.0),
+        points.iter().map(|p| p.1).chain([0.0]),
+    );
+    let mut title = format!("{} w.r.t. {}", metric.metric, metric.relation.label());
     if let Some(spec) = metric.delta {
         let _ = write!(title, ", delta {} {}", spec.delta, spec.unit.symbol());
     }
     let mut body = frame.axes("time (s)", &format!("error ({})", metric.unit), &title);
-    body += &frame.polyline(points.iter().copied(), "stroke=\"#c0392b\" stroke-width=\"1.2\"");
+    body += &frame.polyline(
+        points.iter().copied(),
+        "stroke=\"#c0392b\" stroke-width=\"1.2\"",
+    );
     let rmse = metric.statistics.rmse;
-    body += &frame.polyline([(frame.x_min, rmse), (frame.x_max, rmse)].into_iter(), "stroke=\"#333\" stroke-dasharray=\"4,4\"");
-    body += &legend(&[("error", "#c0392b"), (&format!("rmse {}", tick(rmse)), "#333")]);
+    body += &frame.polyline(
+        [(frame.x_min, rmse), (frame.x_max, rmse)].into_iter(),
+        "stroke=\"#333\" stroke-dasharray=\"4,4\"",
+    );
+    body += &legend(&[
+        ("error", "#c0392b"),
+        (&format!("rmse {}", tick(rmse)), "#333"),
+    ]);
     svg(&body)
 }
 

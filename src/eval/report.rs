@@ -8,7 +8,10 @@ use thiserror::Error;
 
 use super::associate::{associate, AssociationRule};
 use super::ate::{absolute_errors, PoseRelation};
-use super::rpe::{pairs_by_angle, pairs_by_index, pairs_by_path, relative_errors, relative_errors_seconds, DeltaUnit};
+use super::rpe::{
+    pairs_by_angle, pairs_by_index, pairs_by_path, relative_errors, relative_errors_seconds,
+    DeltaUnit,
+};
 use super::stats::Statistics;
 use crate::geometry::alignment::{umeyama, AlignmentError, AlignmentKind};
 use crate::geometry::se3::Se3;
@@ -65,7 +68,10 @@ impl Default for EvalOptions {
             align: AlignMode::Se3,
             n_align: None,
             ape_relation: PoseRelation::TransPart,
-            rpe: vec![RpeSpec { delta: 1.0, unit: DeltaUnit::Frames }],
+            rpe: vec![RpeSpec {
+                delta: 1.0,
+                unit: DeltaUnit::Frames,
+            }],
             rpe_relation: PoseRelation::TransPart,
             min_coverage: 0.5,
         }
@@ -77,9 +83,22 @@ pub enum EvalError {
     #[error("the {which} trajectory is empty")]
     Empty { which: &'static str },
     #[error("no matching timestamps between the reference ({reference_first:.6}..{reference_last:.6} s) and the estimate ({estimate_first:.6}..{estimate_last:.6} s) with max. time difference {max_diff} s and offset {offset} s; check that both use the same clock, or set --offset / --max-diff")]
-    NoOverlap { max_diff: f64, offset: f64, reference_first: f64, reference_last: f64, estimate_first: f64, estimate_last: f64 },
+    NoOverlap {
+        max_diff: f64,
+        offset: f64,
+        reference_first: f64,
+        reference_last: f64,
+        estimate_first: f64,
+        estimate_last: f64,
+    },
     #[error("only {matched} of {max_pairs} poses ({percent:.1} %) could be matched with max. time difference {max_diff} s, below the required {required:.1} %; lower --min-coverage to accept this")]
-    LowCoverage { matched: usize, max_pairs: usize, percent: f64, max_diff: f64, required: f64 },
+    LowCoverage {
+        matched: usize,
+        max_pairs: usize,
+        percent: f64,
+        max_diff: f64,
+        required: f64,
+    },
     #[error("pairing by index needs equally long trajectories: the reference has {reference} poses, the estimate {estimate}")]
     LengthMismatch { reference: usize, estimate: usize },
     #[error("alignment failed: {0}")]
@@ -146,8 +165,15 @@ fn check_not_empty(trajectory: &Trajectory, which: &'static str) -> Result<(), E
 }
 
 /// Computes the transform that aligns the associated estimate to the reference.
-fn alignment_transform(reference: &Trajectory, estimate: &Trajectory, options: &EvalOptions) -> Result<(Sim3, usize), EvalError> {
-    let n = options.n_align.unwrap_or(estimate.len()).min(estimate.len());
+fn alignment_transform(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    options: &EvalOptions,
+) -> Result<(Sim3, usize), EvalError> {
+    let n = options
+        .n_align
+        .unwrap_or(estimate.len())
+        .min(estimate.len());
     let kind = match options.align {
         AlignMode::None => return Ok((Sim3::identity(), 0)),
         AlignMode::Origin => {
@@ -164,14 +190,29 @@ fn alignment_transform(reference: &Trajectory, estimate: &Trajectory, options: &
 }
 
 /// Associates, aligns and computes APE and the requested RPEs.
-pub fn evaluate(reference: &Trajectory, estimate: &Trajectory, options: &EvalOptions) -> Result<EvalReport, EvalError> {
+pub fn evaluate(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    options: &EvalOptions,
+) -> Result<EvalReport, EvalError> {
     check_not_empty(reference, "reference")?;
     check_not_empty(estimate, "estimate")?;
     if options.association == AssociationRule::ByIndex && reference.len() != estimate.len() {
-        return Err(EvalError::LengthMismatch { reference: reference.len(), estimate: estimate.len() });
+        return Err(EvalError::LengthMismatch {
+            reference: reference.len(),
+            estimate: estimate.len(),
+        });
     }
-    let max_diff = options.max_diff.unwrap_or(options.association.default_max_diff());
-    let association = associate(reference, estimate, options.association, max_diff, options.offset);
+    let max_diff = options
+        .max_diff
+        .unwrap_or(options.association.default_max_diff());
+    let association = associate(
+        reference,
+        estimate,
+        options.association,
+        max_diff,
+        options.offset,
+    );
     let matched = association.pairs.len();
     if matched == 0 {
         return Err(EvalError::NoOverlap {
@@ -201,7 +242,11 @@ pub fn evaluate(reference: &Trajectory, estimate: &Trajectory, options: &EvalOpt
     let (transform, poses_used) = alignment_transform(&reference_sync, &estimate_sync, options)?;
     let align = |trajectory: &Trajectory| Trajectory {
         timestamps: trajectory.timestamps.clone(),
-        poses: trajectory.poses.iter().map(|p| transform.apply_to_pose(p)).collect::<Vec<Se3>>(),
+        poses: trajectory
+            .poses
+            .iter()
+            .map(|p| transform.apply_to_pose(p))
+            .collect::<Vec<Se3>>(),
     };
     let aligned = align(&estimate_sync);
 
@@ -220,26 +265,41 @@ pub fn evaluate(reference: &Trajectory, estimate: &Trajectory, options: &EvalOpt
     for spec in &options.rpe {
         let (errors, timestamps, unit) = match spec.unit {
             DeltaUnit::Seconds => {
-                let (stamps, errors) =
-                    relative_errors_seconds(reference, &align(estimate), spec.delta, options.offset, options.rpe_relation)
-                        .into_iter()
-                        .unzip();
+                let (stamps, errors) = relative_errors_seconds(
+                    reference,
+                    &align(estimate),
+                    spec.delta,
+                    options.offset,
+                    options.rpe_relation,
+                )
+                .into_iter()
+                .unzip();
                 (errors, stamps, format!("{}/s", options.rpe_relation.unit()))
             }
             unit => {
                 let pairs = match unit {
-                    DeltaUnit::Frames => pairs_by_index(aligned.len(), spec.delta.round().max(1.0) as usize),
+                    DeltaUnit::Frames => {
+                        pairs_by_index(aligned.len(), spec.delta.round().max(1.0) as usize)
+                    }
                     DeltaUnit::Metres => pairs_by_path(&aligned.poses, spec.delta),
                     DeltaUnit::Degrees => pairs_by_angle(&aligned.poses, spec.delta, true),
                     DeltaUnit::Radians => pairs_by_angle(&aligned.poses, spec.delta, false),
                     DeltaUnit::Seconds => unreachable!("handled above"),
                 };
-                let errors = relative_errors(&reference_sync.poses, &aligned.poses, &pairs, options.rpe_relation);
+                let errors = relative_errors(
+                    &reference_sync.poses,
+                    &aligned.poses,
+                    &pairs,
+                    options.rpe_relation,
+                );
                 let stamps = pairs.iter().map(|&(_, j)| aligned.timestamps[j]).collect();
                 (errors, stamps, options.rpe_relation.unit().to_string())
             }
         };
-        let statistics = Statistics::of(&errors).ok_or(EvalError::NoRpePairs { delta: spec.delta, unit: spec.unit.symbol() })?;
+        let statistics = Statistics::of(&errors).ok_or(EvalError::NoRpePairs {
+            delta: spec.delta,
+            unit: spec.unit.symbol(),
+        })?;
         rpe.push(MetricResult {
             metric: "RPE",
             relation: options.rpe_relation,
@@ -263,7 +323,11 @@ pub fn evaluate(reference: &Trajectory, estimate: &Trajectory, options: &EvalOpt
         offset: options.offset,
         alignment: AlignmentUsed {
             mode: options.align,
-            rotation: [[r[(0, 0)], r[(0, 1)], r[(0, 2)]], [r[(1, 0)], r[(1, 1)], r[(1, 2)]], [r[(2, 0)], r[(2, 1)], r[(2, 2)]]],
+            rotation: [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
             translation: transform.translation.into(),
             scale: transform.scale,
             poses_used,
@@ -299,12 +363,20 @@ impl EvalReport {
             AlignMode::None => "none".to_string(),
             AlignMode::Origin => "origin (first poses made equal)".to_string(),
             AlignMode::Se3 => format!("SE(3) Umeyama on {} poses", self.alignment.poses_used),
-            AlignMode::Sim3 => format!("Sim(3) Umeyama on {} poses, scale {:.6}", self.alignment.poses_used, self.alignment.scale),
+            AlignMode::Sim3 => format!(
+                "Sim(3) Umeyama on {} poses, scale {:.6}",
+                self.alignment.poses_used, self.alignment.scale
+            ),
             AlignMode::Scale => format!("scale only, scale {:.6}", self.alignment.scale),
         };
         let _ = writeln!(out, "alignment: {alignment}");
         for metric in std::iter::once(&self.ape).chain(&self.rpe) {
-            let mut title = format!("{} w.r.t. {:?} ({})", metric.metric, metric.relation, metric.unit);
+            let mut title = format!(
+                "{} w.r.t. {} ({})",
+                metric.metric,
+                metric.relation.label(),
+                metric.unit
+            );
             if let Some(spec) = metric.delta {
                 let _ = write!(title, ", delta {} {}", spec.delta, spec.unit.symbol());
             }

@@ -62,7 +62,11 @@ pub fn pairs_by_index(len: usize, delta: usize) -> Vec<(usize, usize)> {
 
 /// evo's consecutive pairs by accumulated motion: a new id each time the motion
 /// accumulated since the last id reaches `delta`.
-fn pairs_by_accumulation(len: usize, delta: f64, step: impl Fn(usize) -> f64) -> Vec<(usize, usize)> {
+fn pairs_by_accumulation(
+    len: usize,
+    delta: f64,
+    step: impl Fn(usize) -> f64,
+) -> Vec<(usize, usize)> {
     let mut ids = vec![0];
     let mut accumulated = 0.0;
     for i in 1..len {
@@ -77,7 +81,9 @@ fn pairs_by_accumulation(len: usize, delta: f64, step: impl Fn(usize) -> f64) ->
 
 /// Consecutive pairs by travelled path (metres).
 pub fn pairs_by_path(poses: &[Se3], delta: f64) -> Vec<(usize, usize)> {
-    pairs_by_accumulation(poses.len(), delta, |i| (poses[i].translation.vector - poses[i - 1].translation.vector).norm())
+    pairs_by_accumulation(poses.len(), delta, |i| {
+        (poses[i].translation.vector - poses[i - 1].translation.vector).norm()
+    })
 }
 
 /// Consecutive pairs by accumulated rotation angle.
@@ -93,7 +99,12 @@ pub fn pairs_by_angle(poses: &[Se3], delta: f64, degrees: bool) -> Vec<(usize, u
 }
 
 /// The RPE errors of associated, equally long pose lists (frames, metres, angles).
-pub fn relative_errors(reference: &[Se3], estimate: &[Se3], pairs: &[(usize, usize)], relation: PoseRelation) -> Vec<f64> {
+pub fn relative_errors(
+    reference: &[Se3],
+    estimate: &[Se3],
+    pairs: &[(usize, usize)],
+    relation: PoseRelation,
+) -> Vec<f64> {
     pairs
         .iter()
         .map(|&(i, j)| {
@@ -130,7 +141,13 @@ pub fn find_closest_index(sorted: &[f64], t: f64) -> usize {
 /// RPE with a delta in seconds, as TUM's `evaluate_rpe.py --fixed_delta` (see the module
 /// doc). Works on the whole (aligned) estimate and the whole reference, not on the
 /// associated pairs. Returns `(t_i, error / delta_s)` for each pair.
-pub fn relative_errors_seconds(reference: &Trajectory, estimate: &Trajectory, delta_s: f64, offset: f64, relation: PoseRelation) -> Vec<(f64, f64)> {
+pub fn relative_errors_seconds(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    delta_s: f64,
+    offset: f64,
+    relation: PoseRelation,
+) -> Vec<(f64, f64)> {
     let (gt_t, est_t) = (&reference.timestamps, &estimate.timestamps);
     if gt_t.len() < 2 || est_t.len() < 2 {
         return Vec::new();
@@ -138,7 +155,11 @@ pub fn relative_errors_seconds(reference: &Trajectory, estimate: &Trajectory, de
     let mut intervals: Vec<f64> = gt_t.windows(2).map(|w| w[1] - w[0]).collect();
     intervals.sort_by(f64::total_cmp);
     let m = intervals.len() / 2;
-    let median = if intervals.len() % 2 == 0 { 0.5 * (intervals[m - 1] + intervals[m]) } else { intervals[m] };
+    let median = if intervals.len() % 2 == 0 {
+        0.5 * (intervals[m - 1] + intervals[m])
+    } else {
+        intervals[m]
+    };
     let max_gap = 2.0 * median;
     let last = est_t.len() - 1;
     let mut errors = Vec::new();
@@ -149,7 +170,9 @@ pub fn relative_errors_seconds(reference: &Trajectory, estimate: &Trajectory, de
         }
         let g0 = find_closest_index(gt_t, est_t[i] + offset);
         let g1 = find_closest_index(gt_t, est_t[j] + offset);
-        if (gt_t[g0] - (est_t[i] + offset)).abs() > max_gap || (gt_t[g1] - (est_t[j] + offset)).abs() > max_gap {
+        if (gt_t[g0] - (est_t[i] + offset)).abs() > max_gap
+            || (gt_t[g1] - (est_t[j] + offset)).abs() > max_gap
+        {
             continue;
         }
         let est_motion = se3::relative(&estimate.poses[j], &estimate.poses[i]);
@@ -200,10 +223,22 @@ mod tests {
             gt.push(t, se3::exp(&Vector6::new(t, 0.0, 0.0, 0.0, 0.0, 0.0)));
             est.push(t, se3::exp(&Vector6::new(1.1 * t, 0.0, 0.0, 0.0, 0.0, 0.0)));
         }
-        let errors = relative_errors(&gt.poses, &est.poses, &pairs_by_index(50, 10), PoseRelation::TransPart);
+        let errors = relative_errors(
+            &gt.poses,
+            &est.poses,
+            &pairs_by_index(50, 10),
+            PoseRelation::TransPart,
+        );
         assert!(errors.iter().all(|e| (e - 0.1).abs() < 1e-12));
         let per_second = relative_errors_seconds(&gt, &est, 1.0, 0.0, PoseRelation::TransPart);
-        assert_eq!(per_second.len(), 39, "pairs whose end is the last pose are dropped");
-        assert!(per_second.iter().all(|e| (e.1 - 0.1).abs() < 1e-9), "{per_second:?}");
+        assert_eq!(
+            per_second.len(),
+            39,
+            "pairs whose end is the last pose are dropped"
+        );
+        assert!(
+            per_second.iter().all(|e| (e.1 - 0.1).abs() < 1e-9),
+            "{per_second:?}"
+        );
     }
 }

@@ -32,7 +32,11 @@ impl Statistics {
         let mut sorted = errors.to_vec();
         sorted.sort_by(f64::total_cmp);
         let middle = sorted.len() / 2;
-        let median = if sorted.len() % 2 == 0 { 0.5 * (sorted[middle - 1] + sorted[middle]) } else { sorted[middle] };
+        let median = if sorted.len() % 2 == 0 {
+            0.5 * (sorted[middle - 1] + sorted[middle])
+        } else {
+            sorted[middle]
+        };
         Some(Self {
             rmse: (sse / n).sqrt(),
             mean,

@@ -20,8 +20,13 @@ use super::sim3::Sim3;
 pub enum AlignmentError {
     #[error("alignment needs at least {needed} point pairs, got {got}")]
     TooFewPoints { needed: usize, got: usize },
-    #[error("alignment needs as many source points ({source_len}) as target points ({target_len})")]
-    LengthMismatch { source_len: usize, target_len: usize },
+    #[error(
+        "alignment needs as many source points ({source_len}) as target points ({target_len})"
+    )]
+    LengthMismatch {
+        source_len: usize,
+        target_len: usize,
+    },
     #[error("the source points are all at one place: the scale cannot be estimated")]
     Degenerate,
 }
@@ -41,24 +46,50 @@ fn centroid(points: &[Vector3<f64>]) -> Vector3<f64> {
     points.iter().sum::<Vector3<f64>>() / points.len() as f64
 }
 
-fn check_lengths(source: &[Vector3<f64>], target: &[Vector3<f64>], needed: usize) -> Result<(), AlignmentError> {
+fn check_lengths(
+    source: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+    needed: usize,
+) -> Result<(), AlignmentError> {
     if source.len() != target.len() {
-        return Err(AlignmentError::LengthMismatch { source_len: source.len(), target_len: target.len() });
+        return Err(AlignmentError::LengthMismatch {
+            source_len: source.len(),
+            target_len: target.len(),
+        });
     }
     if source.len() < needed {
-        return Err(AlignmentError::TooFewPoints { needed, got: source.len() });
+        return Err(AlignmentError::TooFewPoints {
+            needed,
+            got: source.len(),
+        });
     }
     Ok(())
 }
 
 /// Umeyama's least-squares similarity (or rigid transform when `kind` is
 /// [`AlignmentKind::Se3`]) mapping `source` onto `target`.
-pub fn umeyama(source: &[Vector3<f64>], target: &[Vector3<f64>], kind: AlignmentKind) -> Result<Sim3, AlignmentError> {
-    check_lengths(source, target, if kind == AlignmentKind::ScaleOnly { 1 } else { 2 })?;
+pub fn umeyama(
+    source: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+    kind: AlignmentKind,
+) -> Result<Sim3, AlignmentError> {
+    check_lengths(
+        source,
+        target,
+        if kind == AlignmentKind::ScaleOnly {
+            1
+        } else {
+            2
+        },
+    )?;
     let n = source.len() as f64;
     let mean_x = centroid(source);
     let mean_y = centroid(target);
-    let sigma_x = source.iter().map(|x| (x - mean_x).norm_squared()).sum::<f64>() / n;
+    let sigma_x = source
+        .iter()
+        .map(|x| (x - mean_x).norm_squared())
+        .sum::<f64>()
+        / n;
     let mut cov = Matrix3::zeros();
     for (x, y) in source.iter().zip(target) {
         cov += (y - mean_y) * (x - mean_x).transpose();
@@ -84,7 +115,11 @@ pub fn umeyama(source: &[Vector3<f64>], target: &[Vector3<f64>], kind: Alignment
         return Ok(Sim3::new(Rotation3::identity(), Vector3::zeros(), scale));
     }
     let translation = mean_y - scale * (rotation * mean_x);
-    Ok(Sim3::new(Rotation3::from_matrix_unchecked(rotation), translation, scale))
+    Ok(Sim3::new(
+        Rotation3::from_matrix_unchecked(rotation),
+        translation,
+        scale,
+    ))
 }
 
 /// Horn's closed-form absolute orientation with unit quaternions (rigid, no scale):
@@ -102,16 +137,29 @@ pub fn horn(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Result<Sim3, Al
     let (syx, syy, syz) = (m[(1, 0)], m[(1, 1)], m[(1, 2)]);
     let (szx, szy, szz) = (m[(2, 0)], m[(2, 1)], m[(2, 2)]);
     let n = Matrix4::new(
-        sxx + syy + szz, syz - szy, szx - sxz, sxy - syx,
-        syz - szy, sxx - syy - szz, sxy + syx, szx + sxz,
-        szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy,
-        sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz,
+        sxx + syy + szz,
+        syz - szy,
+        szx - sxz,
+        sxy - syx,
+        syz - szy,
+        sxx - syy - szz,
+        sxy + syx,
+        szx + sxz,
+        szx - sxz,
+        sxy + syx,
+        -sxx + syy - szz,
+        syz + szy,
+        sxy - syx,
+        szx + sxz,
+        syz + szy,
+        -sxx - syy + szz,
     );
     let eigen = n.symmetric_eigen();
     let best = eigen.eigenvalues.imax();
     let q = eigen.eigenvectors.column(best);
-    let rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]))
-        .to_rotation_matrix();
+    let rotation =
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]))
+            .to_rotation_matrix();
     let translation = mean_y - rotation * mean_x;
     Ok(Sim3::new(rotation, translation, 1.0))
 }
@@ -123,7 +171,10 @@ mod tests {
     use proptest::prelude::*;
 
     fn cloud(seed_points: &[(f64, f64, f64)]) -> Vec<Vector3<f64>> {
-        seed_points.iter().map(|&(x, y, z)| Vector3::new(x, y, z)).collect()
+        seed_points
+            .iter()
+            .map(|&(x, y, z)| Vector3::new(x, y, z))
+            .collect()
     }
 
     fn points() -> impl Strategy<Value = Vec<(f64, f64, f64)>> {
@@ -131,11 +182,18 @@ mod tests {
     }
 
     fn transform() -> impl Strategy<Value = Sim3> {
-        ((-3.0..3.0, -3.0..3.0, -3.0..3.0), (-1.5..1.5, -1.5..1.5, -1.5..1.5), -1.0..1.0f64).prop_map(
-            |((a, b, c), (d, e, f), sigma)| {
-                Sim3::exp(&Sim3Tangent { rho: Vector3::new(a, b, c), phi: Vector3::new(d, e, f), sigma })
-            },
+        (
+            (-3.0..3.0, -3.0..3.0, -3.0..3.0),
+            (-1.5..1.5, -1.5..1.5, -1.5..1.5),
+            -1.0..1.0f64,
         )
+            .prop_map(|((a, b, c), (d, e, f), sigma)| {
+                Sim3::exp(&Sim3Tangent {
+                    rho: Vector3::new(a, b, c),
+                    phi: Vector3::new(d, e, f),
+                    sigma,
+                })
+            })
     }
 
     /// Points spread in all three directions, so that the alignment is unique.
@@ -177,18 +235,35 @@ mod tests {
     #[test]
     fn errors_on_bad_input() {
         let one = vec![Vector3::zeros()];
-        assert_eq!(umeyama(&one, &one, AlignmentKind::Se3), Err(AlignmentError::TooFewPoints { needed: 2, got: 1 }));
+        assert_eq!(
+            umeyama(&one, &one, AlignmentKind::Se3),
+            Err(AlignmentError::TooFewPoints { needed: 2, got: 1 })
+        );
         let two = vec![Vector3::zeros(), Vector3::x()];
-        assert!(matches!(umeyama(&one, &two, AlignmentKind::Se3), Err(AlignmentError::LengthMismatch { .. })));
+        assert!(matches!(
+            umeyama(&one, &two, AlignmentKind::Se3),
+            Err(AlignmentError::LengthMismatch { .. })
+        ));
         let same = vec![Vector3::new(1.0, 2.0, 3.0); 5];
-        assert_eq!(umeyama(&same, &same, AlignmentKind::Sim3), Err(AlignmentError::Degenerate));
+        assert_eq!(
+            umeyama(&same, &same, AlignmentKind::Sim3),
+            Err(AlignmentError::Degenerate)
+        );
     }
 
     #[test]
     fn reflection_is_not_returned() {
         // A mirrored target: the best proper rotation must still have det +1.
-        let source = cloud(&[(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 1.0)]);
-        let target: Vec<_> = source.iter().map(|p| Vector3::new(-p.x, p.y, p.z)).collect();
+        let source = cloud(&[
+            (1.0, 0.0, 0.0),
+            (0.0, 1.0, 0.0),
+            (0.0, 0.0, 1.0),
+            (1.0, 1.0, 1.0),
+        ]);
+        let target: Vec<_> = source
+            .iter()
+            .map(|p| Vector3::new(-p.x, p.y, p.z))
+            .collect();
         let found = umeyama(&source, &target, AlignmentKind::Se3).unwrap();
         assert!((found.rotation.matrix().determinant() - 1.0).abs() < 1e-12);
     }

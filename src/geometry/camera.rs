@@ -22,17 +22,32 @@ pub struct PinholeCamera {
 impl PinholeCamera {
     /// TUM RGB-D freiburg3 (Kinect) intrinsics, already undistorted.
     pub fn tum_fr3() -> Self {
-        Self { fx: 535.4, fy: 539.2, cx: 320.1, cy: 247.6, width: 640, height: 480, distortion: [0.0; 5] }
+        Self {
+            fx: 535.4,
+            fy: 539.2,
+            cx: 320.1,
+            cy: 247.6,
+            width: 640,
+            height: 480,
+            distortion: [0.0; 5],
+        }
     }
 
     /// \(u = f_x x/z + c_x,\ v = f_y y/z + c_y\) for a point in the camera frame.
     pub fn project(&self, p_camera: &Vector3<f64>) -> Vector2<f64> {
-        Vector2::new(self.fx * p_camera.x / p_camera.z + self.cx, self.fy * p_camera.y / p_camera.z + self.cy)
+        Vector2::new(
+            self.fx * p_camera.x / p_camera.z + self.cx,
+            self.fy * p_camera.y / p_camera.z + self.cy,
+        )
     }
 
     /// The camera-frame point at depth `z` (metres) seen at pixel `(u, v)`.
     pub fn unproject(&self, pixel: &Vector2<f64>, z: f64) -> Vector3<f64> {
-        Vector3::new((pixel.x - self.cx) * z / self.fx, (pixel.y - self.cy) * z / self.fy, z)
+        Vector3::new(
+            (pixel.x - self.cx) * z / self.fx,
+            (pixel.y - self.cy) * z / self.fy,
+            z,
+        )
     }
 
     /// Whether all distortion coefficients are zero.
@@ -44,7 +59,9 @@ impl PinholeCamera {
     pub fn validate(&self) -> Result<(), String> {
         for (name, value) in [("fx", self.fx), ("fy", self.fy)] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(format!("camera {name} must be a positive number, got {value}"));
+                return Err(format!(
+                    "camera {name} must be a positive number, got {value}"
+                ));
             }
         }
         for (name, value) in [("cx", self.cx), ("cy", self.cy)] {
@@ -53,7 +70,10 @@ impl PinholeCamera {
             }
         }
         if self.width == 0 || self.height == 0 {
-            return Err(format!("camera size must be positive, got {}x{}", self.width, self.height));
+            return Err(format!(
+                "camera size must be positive, got {}x{}",
+                self.width, self.height
+            ));
         }
         Ok(())
     }

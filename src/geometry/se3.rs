@@ -30,14 +30,20 @@ pub fn from_parts(translation: Vector3<f64>, rotation: Matrix3<f64>) -> Se3 {
 /// Builds a pose from a translation and a quaternion `(qx, qy, qz, qw)`, which is
 /// normalised first (as evo and TUM's scripts do).
 pub fn from_translation_quaternion(translation: Vector3<f64>, q_xyzw: [f64; 4]) -> Se3 {
-    let q = UnitQuaternion::from_quaternion(Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]));
+    let q = UnitQuaternion::from_quaternion(Quaternion::new(
+        q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2],
+    ));
     from_parts(translation, *q.to_rotation_matrix().matrix())
 }
 
 /// The unit quaternion `(qx, qy, qz, qw)` of a pose's rotation, with `qw >= 0`.
 pub fn quaternion_xyzw(pose: &Se3) -> [f64; 4] {
     let q = UnitQuaternion::from_rotation_matrix(&pose.rotation);
-    let q = if q.w < 0.0 { UnitQuaternion::new_unchecked(-q.into_inner()) } else { q };
+    let q = if q.w < 0.0 {
+        UnitQuaternion::new_unchecked(-q.into_inner())
+    } else {
+        q
+    };
     [q.i, q.j, q.k, q.w]
 }
 

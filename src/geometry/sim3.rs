@@ -37,11 +37,19 @@ pub struct Sim3Tangent {
 
 impl Sim3 {
     pub fn identity() -> Self {
-        Self { rotation: Rotation3::identity(), translation: Vector3::zeros(), scale: 1.0 }
+        Self {
+            rotation: Rotation3::identity(),
+            translation: Vector3::zeros(),
+            scale: 1.0,
+        }
     }
 
     pub fn new(rotation: Rotation3<f64>, translation: Vector3<f64>, scale: f64) -> Self {
-        Self { rotation, translation, scale }
+        Self {
+            rotation,
+            translation,
+            scale,
+        }
     }
 
     /// The similarity with unit scale equal to a rigid transform.
@@ -66,7 +74,11 @@ impl Sim3 {
     /// \((s, R, t)^{-1} = (1/s,\ R^\top,\ -R^\top t / s)\).
     pub fn inverse(&self) -> Sim3 {
         let r_inv = self.rotation.inverse();
-        Sim3::new(r_inv, -(r_inv * self.translation) / self.scale, 1.0 / self.scale)
+        Sim3::new(
+            r_inv,
+            -(r_inv * self.translation) / self.scale,
+            1.0 / self.scale,
+        )
     }
 
     /// Applies the similarity to a camera pose `world_from_camera`, as evo's

@@ -36,14 +36,22 @@ pub fn exp(omega: &Vector3<f64>) -> Rotation3<f64> {
 /// the digits there).
 pub fn log(rotation: &Rotation3<f64>) -> Vector3<f64> {
     let q = nalgebra::UnitQuaternion::from_rotation_matrix(rotation);
-    let (w, v) = if q.w < 0.0 { (-q.w, -q.imag()) } else { (q.w, q.imag()) };
+    let (w, v) = if q.w < 0.0 {
+        (-q.w, -q.imag())
+    } else {
+        (q.w, q.imag())
+    };
     let sin_half = v.norm();
     if sin_half < 1e-300 {
         return Vector3::zeros();
     }
     let theta = 2.0 * sin_half.atan2(w);
     // theta / sin(theta / 2) -> 2 as theta -> 0
-    let factor = if sin_half < 1e-8 { 2.0 / w } else { theta / sin_half };
+    let factor = if sin_half < 1e-8 {
+        2.0 / w
+    } else {
+        theta / sin_half
+    };
     v * factor
 }
 
@@ -140,6 +148,8 @@ mod tests {
         let v_big = v * 1e3;
         assert!((left_jacobian(&v) - Matrix3::identity()).norm() < 1e-8);
         assert!((left_jacobian(&v_big) - left_jacobian(&(v_big * 0.999_999))).norm() < 1e-9);
-        assert!((left_jacobian_inverse(&v) * left_jacobian(&v) - Matrix3::identity()).norm() < 1e-12);
+        assert!(
+            (left_jacobian_inverse(&v) * left_jacobian(&v) - Matrix3::identity()).norm() < 1e-12
+        );
     }
 }

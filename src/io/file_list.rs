@@ -37,16 +37,29 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
             .parse()
             .ok()
             .filter(|t: &f64| t.is_finite())
-            .ok_or_else(|| IoError::parse(path, index + 1, format!("expected a timestamp, found {first:?}")))?;
+            .ok_or_else(|| {
+                IoError::parse(
+                    path,
+                    index + 1,
+                    format!("expected a timestamp, found {first:?}"),
+                )
+            })?;
         let fields: Vec<String> = fields.map(str::to_owned).collect();
         if fields.len() < min_fields {
             return Err(IoError::parse(
                 path,
                 index + 1,
-                format!("expected a timestamp and {min_fields} more field(s), found {}", fields.len()),
+                format!(
+                    "expected a timestamp and {min_fields} more field(s), found {}",
+                    fields.len()
+                ),
             ));
         }
-        entries.push(ListEntry { timestamp, fields, line: index + 1 });
+        entries.push(ListEntry {
+            timestamp,
+            fields,
+            line: index + 1,
+        });
     }
     entries.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     let mut deduplicated: Vec<ListEntry> = Vec::with_capacity(entries.len());
@@ -70,13 +83,22 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
 ///
 /// Runs in \(O((n + m)\log(n + m) + k\log k)\) for \(k\) candidates instead of the
 /// script's \(O(nm)\), with the same result.
-pub fn associate_greedy(first: &[f64], second: &[f64], offset: f64, max_difference: f64) -> Vec<(usize, usize)> {
-    debug_assert!(first.windows(2).all(|w| w[0] <= w[1]) && second.windows(2).all(|w| w[0] <= w[1]));
+pub fn associate_greedy(
+    first: &[f64],
+    second: &[f64],
+    offset: f64,
+    max_difference: f64,
+) -> Vec<(usize, usize)> {
+    debug_assert!(
+        first.windows(2).all(|w| w[0] <= w[1]) && second.windows(2).all(|w| w[0] <= w[1])
+    );
     let mut candidates = Vec::new();
     for (i, &a) in first.iter().enumerate() {
         // Candidates b with b + offset in (a - max, a + max); widen by one on each side
         // and keep the script's exact test so rounding cannot change the set.
-        let low = second.partition_point(|&b| b + offset < a - max_difference).saturating_sub(1);
+        let low = second
+            .partition_point(|&b| b + offset < a - max_difference)
+            .saturating_sub(1);
         for (j, &b) in second.iter().enumerate().skip(low) {
             let difference = (a - (b + offset)).abs();
             if difference < max_difference {
@@ -107,7 +129,12 @@ mod tests {
     use proptest::prelude::*;
 
     /// The script's own quadratic algorithm, as a reference.
-    fn associate_reference(first: &[f64], second: &[f64], offset: f64, max: f64) -> Vec<(usize, usize)> {
+    fn associate_reference(
+        first: &[f64],
+        second: &[f64],
+        offset: f64,
+        max: f64,
+    ) -> Vec<(usize, usize)> {
         let mut potential = Vec::new();
         for (i, &a) in first.iter().enumerate() {
             for (j, &b) in second.iter().enumerate() {
@@ -148,7 +175,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("dopslam-list-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("rgb.txt");
-        std::fs::write(&path, "# color images\n2.0 rgb/2.png\n1.0,rgb/1.png\n\n2.0\trgb/2b.png\n").unwrap();
+        std::fs::write(
+            &path,
+            "# color images\n2.0 rgb/2.png\n1.0,rgb/1.png\n\n2.0\trgb/2b.png\n",
+        )
+        .unwrap();
         let entries = read_file_list(&path, 1).unwrap();
         assert_eq!(entries.len(), 2);
         assert_eq!(entries[0].fields, vec!["rgb/1.png"]);

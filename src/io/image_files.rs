@@ -16,7 +16,11 @@ pub struct DepthImage {
 
 impl DepthImage {
     pub fn new(width: u32, height: u32) -> Self {
-        Self { width, height, metres: vec![0.0; (width * height) as usize] }
+        Self {
+            width,
+            height,
+            metres: vec![0.0; (width * height) as usize],
+        }
     }
 
     /// The depth at pixel `(u, v)` in metres; 0 when invalid.
@@ -33,9 +37,15 @@ impl DepthImage {
 
 fn open(path: &Path) -> Result<image::DynamicImage, IoError> {
     if !path.exists() {
-        return Err(IoError::Missing { path: path.to_path_buf(), what: "image file listed by the sequence".into() });
+        return Err(IoError::Missing {
+            path: path.to_path_buf(),
+            what: "image file listed by the sequence".into(),
+        });
     }
-    image::open(path).map_err(|e| IoError::Image { path: path.to_path_buf(), message: e.to_string() })
+    image::open(path).map_err(|e| IoError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
 }
 
 /// Reads a colour image (any 8-bit layout; grey is expanded to RGB).
@@ -57,7 +67,10 @@ pub fn read_depth(path: &Path, depth_scale: f64) -> Result<DepthImage, IoError> 
         other => {
             return Err(IoError::Image {
                 path: path.to_path_buf(),
-                message: format!("a depth map must be a 16-bit single-channel PNG, found {:?}", other.color()),
+                message: format!(
+                    "a depth map must be a 16-bit single-channel PNG, found {:?}",
+                    other.color()
+                ),
             })
         }
     };
@@ -71,11 +84,20 @@ pub fn read_depth(path: &Path, depth_scale: f64) -> Result<DepthImage, IoError> 
 
 /// Writes a depth map as a 16-bit PNG with the given scale (values rounded, clamped to
 /// 65535; 0 stays invalid).
-pub fn depth_to_png16(depth: &DepthImage, depth_scale: f64) -> image::ImageBuffer<image::Luma<u16>, Vec<u16>> {
+pub fn depth_to_png16(
+    depth: &DepthImage,
+    depth_scale: f64,
+) -> image::ImageBuffer<image::Luma<u16>, Vec<u16>> {
     let data = depth
         .metres
         .iter()
-        .map(|&d| if d > 0.0 { (d as f64 * depth_scale).round().min(65535.0) as u16 } else { 0 })
+        .map(|&d| {
+            if d > 0.0 {
+                (d as f64 * depth_scale).round().min(65535.0) as u16
+            } else {
+                0
+            }
+        })
         .collect();
     image::ImageBuffer::from_raw(depth.width, depth.height, data).expect("buffer size matches")
 }
@@ -100,7 +122,10 @@ mod tests {
         let rgb_path = dir.join("c.png");
         RgbImage::new(2, 2).save(&rgb_path).unwrap();
         let message = read_depth(&rgb_path, 5000.0).unwrap_err().to_string();
-        assert!(message.contains("c.png") && message.contains("16-bit"), "{message}");
+        assert!(
+            message.contains("c.png") && message.contains("16-bit"),
+            "{message}"
+        );
 
         let corrupt = dir.join("corrupt.png");
         std::fs::write(&corrupt, b"\x89PNG\r\n\x1a\nnot really").unwrap();

@@ -24,16 +24,27 @@ pub struct KittiSequence {
 }
 
 /// Reads `calib.txt`: fx, fy, cx, cy from `P0`, and `bf = -P1[0,3]`.
-pub fn read_kitti_calibration(path: &Path, width: u32, height: u32) -> Result<Calibration, IoError> {
+pub fn read_kitti_calibration(
+    path: &Path,
+    width: u32,
+    height: u32,
+) -> Result<Calibration, IoError> {
     let text = read_text(path)?;
     let mut p0 = None;
     let mut p1 = None;
     for (index, line) in text.lines().enumerate() {
-        let Some((key, rest)) = line.split_once(':') else { continue };
+        let Some((key, rest)) = line.split_once(':') else {
+            continue;
+        };
         let values: Result<Vec<f64>, _> = split_fields(rest).map(str::parse::<f64>).collect();
-        let values = values.map_err(|_| IoError::parse(path, index + 1, format!("{key}: expected 12 numbers")))?;
+        let values = values
+            .map_err(|_| IoError::parse(path, index + 1, format!("{key}: expected 12 numbers")))?;
         if values.len() != 12 && (key == "P0" || key == "P1") {
-            return Err(IoError::parse(path, index + 1, format!("{key}: expected 12 numbers, found {}", values.len())));
+            return Err(IoError::parse(
+                path,
+                index + 1,
+                format!("{key}: expected 12 numbers, found {}", values.len()),
+            ));
         }
         match key.trim() {
             "P0" => p0 = Some(values),
@@ -41,15 +52,36 @@ pub fn read_kitti_calibration(path: &Path, width: u32, height: u32) -> Result<Ca
             _ => {}
         }
     }
-    let p0 = p0.ok_or_else(|| IoError::invalid(path, "missing the line P0: (left camera projection)"))?;
-    let p1 = p1.ok_or_else(|| IoError::invalid(path, "missing the line P1: (right camera projection)"))?;
-    let camera = PinholeCamera { fx: p0[0], fy: p0[5], cx: p0[2], cy: p0[6], width, height, distortion: [0.0; 5] };
-    camera.validate().map_err(|message| IoError::invalid(path, message))?;
+    let p0 =
+        p0.ok_or_else(|| IoError::invalid(path, "missing the line P0: (left camera projection)"))?;
+    let p1 =
+        p1.ok_or_else(|| IoError::invalid(path, "missing the line P1: (right camera projection)"))?;
+    let camera = PinholeCamera {
+        fx: p0[0],
+        fy: p0[5],
+        cx: p0[2],
+        cy: p0[6],
+        width,
+        height,
+        distortion: [0.0; 5],
+    };
+    camera
+        .validate()
+        .map_err(|message| IoError::invalid(path, message))?;
     let bf = -p1[3];
     if bf <= 0.0 {
-        return Err(IoError::invalid(path, format!("P1 gives a non-positive baseline times fx ({bf})")));
+        return Err(IoError::invalid(
+            path,
+            format!("P1 gives a non-positive baseline times fx ({bf})"),
+        ));
     }
-    Ok(Calibration { camera, bf: Some(bf), depth_scale: None, th_depth: Some(35.0), fps: Some(10.0) })
+    Ok(Calibration {
+        camera,
+        bf: Some(bf),
+        depth_scale: None,
+        th_depth: Some(35.0),
+        fps: Some(10.0),
+    })
 }
 
 impl KittiSequence {
@@ -57,31 +89,57 @@ impl KittiSequence {
     /// when given, else from `../../poses/<name>.txt` when that file exists.
     pub fn open(root: &Path, ground_truth: Option<&Path>) -> Result<Self, IoError> {
         if !root.is_dir() {
-            return Err(IoError::Missing { path: root.to_path_buf(), what: "sequence folder (KITTI layout: image_0/, image_1/, calib.txt, times.txt)".into() });
+            return Err(IoError::Missing {
+                path: root.to_path_buf(),
+                what: "sequence folder (KITTI layout: image_0/, image_1/, calib.txt, times.txt)"
+                    .into(),
+            });
         }
-        let name = root.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "sequence".into());
+        let name = root
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "sequence".into());
         let times_path = root.join("times.txt");
         let times = read_times(&times_path)?;
         let first = root.join("image_0").join(format!("{:06}.png", 0));
-        let (width, height) = image::image_dimensions(&first)
-            .map_err(|e| IoError::Image { path: first.clone(), message: e.to_string() })?;
+        let (width, height) = image::image_dimensions(&first).map_err(|e| IoError::Image {
+            path: first.clone(),
+            message: e.to_string(),
+        })?;
         let calibration = read_kitti_calibration(&root.join("calib.txt"), width, height)?;
         let gt_path = ground_truth.map(Path::to_path_buf).or_else(|| {
-            let candidate = root.parent()?.parent()?.join("poses").join(format!("{name}.txt"));
+            let candidate = root
+                .parent()?
+                .parent()?
+                .join("poses")
+                .join(format!("{name}.txt"));
             candidate.exists().then_some(candidate)
         });
         let ground_truth = match gt_path {
             Some(path) => {
                 let mut gt = Trajectory::read_kitti(&path)?;
                 if gt.len() != times.len() {
-                    return Err(IoError::invalid(&path, format!("holds {} poses but times.txt has {} frames", gt.len(), times.len())));
+                    return Err(IoError::invalid(
+                        &path,
+                        format!(
+                            "holds {} poses but times.txt has {} frames",
+                            gt.len(),
+                            times.len()
+                        ),
+                    ));
                 }
                 gt.timestamps.clone_from(&times);
                 Some(gt)
             }
             None => None,
         };
-        Ok(Self { name, root: root.to_path_buf(), times, calibration, ground_truth })
+        Ok(Self {
+            name,
+            root: root.to_path_buf(),
+            times,
+            calibration,
+            ground_truth,
+        })
     }
 }
 
@@ -106,7 +164,11 @@ impl Sequence for KittiSequence {
         let file = format!("{index:06}.png");
         let left = read_gray(&self.root.join("image_0").join(&file))?;
         let right = read_gray(&self.root.join("image_1").join(&file))?;
-        Ok(Frame { index, timestamp: self.times[index], images: FrameImages::Stereo { left, right } })
+        Ok(Frame {
+            index,
+            timestamp: self.times[index],
+            images: FrameImages::Stereo { left, right },
+        })
     }
 
     fn ground_truth(&self) -> Option<&Trajectory> {

@@ -47,17 +47,28 @@ fn read_scalars(path: &Path) -> Result<BTreeMap<String, (String, usize)>, IoErro
     let mut scalars = BTreeMap::new();
     for (index, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or_default();
-        if line.trim().is_empty() || line.starts_with('%') || line.trim() == "---" || line.starts_with([' ', '\t']) {
+        if line.trim().is_empty()
+            || line.starts_with('%')
+            || line.trim() == "---"
+            || line.starts_with([' ', '\t'])
+        {
             continue;
         }
         let Some((key, value)) = line.split_once(':') else {
-            return Err(IoError::parse(path, index + 1, format!("expected `key: value`, found {:?}", line.trim())));
+            return Err(IoError::parse(
+                path,
+                index + 1,
+                format!("expected `key: value`, found {:?}", line.trim()),
+            ));
         };
         let value = value.trim();
         if value.is_empty() || value.starts_with("!!") {
             continue;
         }
-        scalars.insert(key.trim().to_owned(), (value.trim_matches('"').to_owned(), index + 1));
+        scalars.insert(
+            key.trim().to_owned(),
+            (value.trim_matches('"').to_owned(), index + 1),
+        );
     }
     Ok(scalars)
 }
@@ -75,11 +86,24 @@ impl OrbSlamSettings {
                     .ok()
                     .filter(|v| v.is_finite())
                     .map(Some)
-                    .ok_or_else(|| IoError::parse(path, *line, format!("{key} must be a number, found {value:?}"))),
+                    .ok_or_else(|| {
+                        IoError::parse(
+                            path,
+                            *line,
+                            format!("{key} must be a number, found {value:?}"),
+                        )
+                    }),
             }
         };
         let required = |key: &str| -> Result<f64, IoError> {
-            number(key)?.ok_or_else(|| IoError::invalid(path, format!("missing {key} (an ORB-SLAM2 settings file needs Camera.fx, fy, cx, cy)")))
+            number(key)?.ok_or_else(|| {
+                IoError::invalid(
+                    path,
+                    format!(
+                        "missing {key} (an ORB-SLAM2 settings file needs Camera.fx, fy, cx, cy)"
+                    ),
+                )
+            })
         };
         let camera = PinholeCamera {
             fx: required("Camera.fx")?,
@@ -96,7 +120,9 @@ impl OrbSlamSettings {
                 number("Camera.k3")?.unwrap_or(0.0),
             ],
         };
-        camera.validate().map_err(|message| IoError::invalid(path, message))?;
+        camera
+            .validate()
+            .map_err(|message| IoError::invalid(path, message))?;
         let calibration = Calibration {
             camera,
             bf: number("Camera.bf")?,
@@ -106,7 +132,10 @@ impl OrbSlamSettings {
         };
         if let Some(scale) = calibration.depth_scale {
             if scale <= 0.0 {
-                return Err(IoError::invalid(path, format!("DepthMapFactor must be positive, got {scale}")));
+                return Err(IoError::invalid(
+                    path,
+                    format!("DepthMapFactor must be positive, got {scale}"),
+                ));
             }
         }
         let orb = OrbSettings {
@@ -125,15 +154,32 @@ impl OrbSlamSettings {
         let c = &calibration.camera;
         let mut out = String::from("%YAML:1.0\n\n# Written by dopslam\n");
         let mut line = |key: &str, value: String| out.push_str(&format!("{key}: {value}\n"));
-        for (key, value) in [("Camera.fx", c.fx), ("Camera.fy", c.fy), ("Camera.cx", c.cx), ("Camera.cy", c.cy)] {
+        for (key, value) in [
+            ("Camera.fx", c.fx),
+            ("Camera.fy", c.fy),
+            ("Camera.cx", c.cx),
+            ("Camera.cy", c.cy),
+        ] {
             line(key, format!("{value:?}"));
         }
-        for (key, value) in ["Camera.k1", "Camera.k2", "Camera.p1", "Camera.p2", "Camera.k3"].iter().zip(c.distortion) {
+        for (key, value) in [
+            "Camera.k1",
+            "Camera.k2",
+            "Camera.p1",
+            "Camera.p2",
+            "Camera.k3",
+        ]
+        .iter()
+        .zip(c.distortion)
+        {
             line(key, format!("{value:?}"));
         }
         line("Camera.width", c.width.to_string());
         line("Camera.height", c.height.to_string());
-        line("Camera.fps", format!("{:?}", calibration.fps.unwrap_or(30.0)));
+        line(
+            "Camera.fps",
+            format!("{:?}", calibration.fps.unwrap_or(30.0)),
+        );
         if let Some(bf) = calibration.bf {
             line("Camera.bf", format!("{bf:?}"));
         }
@@ -144,11 +190,26 @@ impl OrbSlamSettings {
         if let Some(scale) = calibration.depth_scale {
             line("DepthMapFactor", format!("{scale:?}"));
         }
-        line("ORBextractor.nFeatures", orb.n_features.unwrap_or(1000).to_string());
-        line("ORBextractor.scaleFactor", format!("{:?}", orb.scale_factor.unwrap_or(1.2)));
-        line("ORBextractor.nLevels", orb.n_levels.unwrap_or(8).to_string());
-        line("ORBextractor.iniThFAST", orb.ini_th_fast.unwrap_or(20).to_string());
-        line("ORBextractor.minThFAST", orb.min_th_fast.unwrap_or(7).to_string());
+        line(
+            "ORBextractor.nFeatures",
+            orb.n_features.unwrap_or(1000).to_string(),
+        );
+        line(
+            "ORBextractor.scaleFactor",
+            format!("{:?}", orb.scale_factor.unwrap_or(1.2)),
+        );
+        line(
+            "ORBextractor.nLevels",
+            orb.n_levels.unwrap_or(8).to_string(),
+        );
+        line(
+            "ORBextractor.iniThFAST",
+            orb.ini_th_fast.unwrap_or(20).to_string(),
+        );
+        line(
+            "ORBextractor.minThFAST",
+            orb.min_th_fast.unwrap_or(7).to_string(),
+        );
         out
     }
 }
@@ -168,7 +229,10 @@ mod tests {
             th_depth: Some(40.0),
             fps: Some(30.0),
         };
-        let orb = OrbSettings { n_features: Some(1500), ..Default::default() };
+        let orb = OrbSettings {
+            n_features: Some(1500),
+            ..Default::default()
+        };
         let path = dir.join("cam.yaml");
         std::fs::write(&path, OrbSlamSettings::to_yaml(&calibration, &orb)).unwrap();
         let back = OrbSlamSettings::read(&path).unwrap();
@@ -178,7 +242,10 @@ mod tests {
 
         std::fs::write(&path, "%YAML:1.0\nCamera.fx: 500\nCamera.fy: abc\n").unwrap();
         let message = OrbSlamSettings::read(&path).unwrap_err().to_string();
-        assert!(message.contains("cam.yaml:3") && message.contains("Camera.fy"), "{message}");
+        assert!(
+            message.contains("cam.yaml:3") && message.contains("Camera.fy"),
+            "{message}"
+        );
 
         std::fs::write(&path, "%YAML:1.0\nCamera.fx: 500\n").unwrap();
         let message = OrbSlamSettings::read(&path).unwrap_err().to_string();

@@ -20,7 +20,9 @@ pub struct Trajectory {
 }
 
 /// The trajectory file formats.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum TrajectoryFormat {
     Tum,
@@ -56,7 +58,10 @@ impl Trajectory {
 
     /// Total path length \(\sum_i \|p_{i+1} - p_i\|\) in metres.
     pub fn path_length(&self) -> f64 {
-        self.poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum()
+        self.poses
+            .windows(2)
+            .map(|w| (w[1].translation.vector - w[0].translation.vector).norm())
+            .sum()
     }
 
     /// Reads a trajectory in the given format.
@@ -78,10 +83,20 @@ impl Trajectory {
             if line.is_empty() || line.starts_with('#') {
                 continue;
             }
-            let values = parse_numbers(path, index + 1, line, 8, "TUM: timestamp tx ty tz qx qy qz qw")?;
+            let values = parse_numbers(
+                path,
+                index + 1,
+                line,
+                8,
+                "TUM: timestamp tx ty tz qx qy qz qw",
+            )?;
             let q = [values[4], values[5], values[6], values[7]];
             if q.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-                return Err(IoError::parse(path, index + 1, "the quaternion has zero length"));
+                return Err(IoError::parse(
+                    path,
+                    index + 1,
+                    "the quaternion has zero length",
+                ));
             }
             let timestamp = values[0];
             if let Some((before, before_line)) = previous {
@@ -94,7 +109,10 @@ impl Trajectory {
                 }
             }
             previous = Some((timestamp, index + 1));
-            trajectory.push(timestamp, se3::from_translation_quaternion(Vector3::new(values[1], values[2], values[3]), q));
+            trajectory.push(
+                timestamp,
+                se3::from_translation_quaternion(Vector3::new(values[1], values[2], values[3]), q),
+            );
         }
         Ok(trajectory)
     }
@@ -123,7 +141,11 @@ impl Trajectory {
         if times.len() != self.len() {
             return Err(IoError::invalid(
                 path,
-                format!("holds {} times but the trajectory has {} poses", times.len(), self.len()),
+                format!(
+                    "holds {} times but the trajectory has {} poses",
+                    times.len(),
+                    self.len()
+                ),
             ));
         }
         self.timestamps = times;
@@ -137,7 +159,11 @@ impl Trajectory {
         for (t, pose) in self.timestamps.iter().zip(&self.poses) {
             let p = pose.translation.vector;
             let q = se3::quaternion_xyzw(pose);
-            let _ = writeln!(out, "{t:.6} {} {} {} {} {} {} {}", p.x, p.y, p.z, q[0], q[1], q[2], q[3]);
+            let _ = writeln!(
+                out,
+                "{t:.6} {} {} {} {} {} {} {}",
+                p.x, p.y, p.z, q[0], q[1], q[2], q[3]
+            );
         }
         out
     }
@@ -179,13 +205,22 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, IoError> {
 }
 
 /// Parses exactly `expected` finite numbers from a line, naming file, line and format on failure.
-fn parse_numbers(path: &Path, line_number: usize, line: &str, expected: usize, format: &str) -> Result<Vec<f64>, IoError> {
+fn parse_numbers(
+    path: &Path,
+    line_number: usize,
+    line: &str,
+    expected: usize,
+    format: &str,
+) -> Result<Vec<f64>, IoError> {
     let fields: Vec<&str> = split_fields(line).collect();
     if fields.len() != expected {
         return Err(IoError::parse(
             path,
             line_number,
-            format!("expected {expected} numbers ({format}), found {}", fields.len()),
+            format!(
+                "expected {expected} numbers ({format}), found {}",
+                fields.len()
+            ),
         ));
     }
     fields
@@ -195,7 +230,13 @@ fn parse_numbers(path: &Path, line_number: usize, line: &str, expected: usize, f
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| IoError::parse(path, line_number, format!("{field:?} is not a finite number ({format})")))
+                .ok_or_else(|| {
+                    IoError::parse(
+                        path,
+                        line_number,
+                        format!("{field:?} is not a finite number ({format})"),
+                    )
+                })
         })
         .collect()
 }
@@ -214,7 +255,14 @@ mod tests {
     fn sample() -> Trajectory {
         let mut t = Trajectory::default();
         for i in 0..5 {
-            let xi = Vector6::new(0.1 * i as f64, -0.2, 0.3 * i as f64, 0.05 * i as f64, 0.2, -0.1);
+            let xi = Vector6::new(
+                0.1 * i as f64,
+                -0.2,
+                0.3 * i as f64,
+                0.05 * i as f64,
+                0.2,
+                -0.1,
+            );
             t.push(100.0 + 0.033 * i as f64, se3::exp(&xi));
         }
         t
@@ -247,22 +295,39 @@ mod tests {
         let path = dir.join("bad.txt");
         std::fs::write(&path, "# header\n1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n").unwrap();
         let message = Trajectory::read_tum(&path).unwrap_err().to_string();
-        assert!(message.contains("bad.txt:3") && message.contains("expected 8 numbers"), "{message}");
+        assert!(
+            message.contains("bad.txt:3") && message.contains("expected 8 numbers"),
+            "{message}"
+        );
 
         std::fs::write(&path, "1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap();
         let message = Trajectory::read_tum(&path).unwrap_err().to_string();
-        assert!(message.contains("bad.txt:2") && message.contains("\"x\""), "{message}");
+        assert!(
+            message.contains("bad.txt:2") && message.contains("\"x\""),
+            "{message}"
+        );
 
         std::fs::write(&path, "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap();
         let message = Trajectory::read_tum(&path).unwrap_err().to_string();
-        assert!(message.contains("not sorted") && message.contains("bad.txt:2"), "{message}");
+        assert!(
+            message.contains("not sorted") && message.contains("bad.txt:2"),
+            "{message}"
+        );
 
         std::fs::write(&path, "1 0 0 0 0 1 0 0 0 0 1\n").unwrap();
         let message = Trajectory::read_kitti(&path).unwrap_err().to_string();
-        assert!(message.contains("expected 12 numbers") && message.contains("found 11"), "{message}");
+        assert!(
+            message.contains("expected 12 numbers") && message.contains("found 11"),
+            "{message}"
+        );
 
-        let missing = Trajectory::read_tum(&dir.join("nope.txt")).unwrap_err().to_string();
-        assert!(missing.contains("nope.txt") && missing.contains("not found"), "{missing}");
+        let missing = Trajectory::read_tum(&dir.join("nope.txt"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            missing.contains("nope.txt") && missing.contains("not found"),
+            "{missing}"
+        );
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -28,7 +28,11 @@ pub struct TumOptions {
 
 impl Default for TumOptions {
     fn default() -> Self {
-        Self { depth_scale: None, max_difference: 0.02, association_file: None }
+        Self {
+            depth_scale: None,
+            max_difference: 0.02,
+            association_file: None,
+        }
     }
 }
 
@@ -61,24 +65,52 @@ const CALIBRATION_FILES: [&str; 2] = ["calibration.yaml", "camera.yaml"];
 /// (fr1 and fr2 are distorted; their ORB-SLAM2 settings files carry the coefficients).
 pub fn tum_calibration_for_name(name: &str) -> Option<Calibration> {
     let camera = if name.contains("freiburg1") || name.contains("fr1") {
-        PinholeCamera { fx: 517.306408, fy: 516.469215, cx: 318.643040, cy: 255.313989, width: 640, height: 480, distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314] }
+        PinholeCamera {
+            fx: 517.306408,
+            fy: 516.469215,
+            cx: 318.643040,
+            cy: 255.313989,
+            width: 640,
+            height: 480,
+            distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+        }
     } else if name.contains("freiburg2") || name.contains("fr2") {
-        PinholeCamera { fx: 520.908620, fy: 521.007327, cx: 325.141442, cy: 249.701764, width: 640, height: 480, distortion: [0.231222, -0.784899, -0.003257, -0.000105, 0.917205] }
+        PinholeCamera {
+            fx: 520.908620,
+            fy: 521.007327,
+            cx: 325.141442,
+            cy: 249.701764,
+            width: 640,
+            height: 480,
+            distortion: [0.231222, -0.784899, -0.003257, -0.000105, 0.917205],
+        }
     } else if name.contains("freiburg3") || name.contains("fr3") {
         PinholeCamera::tum_fr3()
     } else {
         return None;
     };
-    Some(Calibration { camera, bf: Some(40.0), depth_scale: Some(5000.0), th_depth: Some(40.0), fps: Some(30.0) })
+    Some(Calibration {
+        camera,
+        bf: Some(40.0),
+        depth_scale: Some(5000.0),
+        th_depth: Some(40.0),
+        fps: Some(30.0),
+    })
 }
 
 impl TumSequence {
     /// Opens a TUM-layout folder.
     pub fn open(root: &Path, options: &TumOptions) -> Result<Self, IoError> {
         if !root.is_dir() {
-            return Err(IoError::Missing { path: root.to_path_buf(), what: "sequence folder (TUM layout: rgb.txt, depth.txt, rgb/, depth/)".into() });
+            return Err(IoError::Missing {
+                path: root.to_path_buf(),
+                what: "sequence folder (TUM layout: rgb.txt, depth.txt, rgb/, depth/)".into(),
+            });
         }
-        let name = root.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "sequence".into());
+        let name = root
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "sequence".into());
         let (entries, listed) = match &options.association_file {
             Some(file) => {
                 let entries = read_association_file(root, file)?;
@@ -88,8 +120,16 @@ impl TumSequence {
             None => pair_by_timestamp(root, options.max_difference)?,
         };
         let gt_path = root.join("groundtruth.txt");
-        let ground_truth = if gt_path.exists() { Some(Trajectory::read_tum(&gt_path)?) } else { None };
-        let calibration = match CALIBRATION_FILES.iter().map(|f| root.join(f)).find(|p| p.exists()) {
+        let ground_truth = if gt_path.exists() {
+            Some(Trajectory::read_tum(&gt_path)?)
+        } else {
+            None
+        };
+        let calibration = match CALIBRATION_FILES
+            .iter()
+            .map(|f| root.join(f))
+            .find(|p| p.exists())
+        {
             Some(path) => Some(OrbSlamSettings::read(&path)?.calibration),
             None => tum_calibration_for_name(&name),
         };
@@ -98,9 +138,20 @@ impl TumSequence {
             .or(calibration.as_ref().and_then(|c| c.depth_scale))
             .unwrap_or(5000.0);
         if !(depth_scale.is_finite() && depth_scale > 0.0) {
-            return Err(IoError::invalid(root, format!("depth scale must be positive, got {depth_scale}")));
+            return Err(IoError::invalid(
+                root,
+                format!("depth scale must be positive, got {depth_scale}"),
+            ));
         }
-        Ok(Self { name, root: root.to_path_buf(), entries, depth_scale, ground_truth, calibration, listed })
+        Ok(Self {
+            name,
+            root: root.to_path_buf(),
+            entries,
+            depth_scale,
+            ground_truth,
+            calibration,
+            listed,
+        })
     }
 
     pub fn entries(&self) -> &[RgbdEntry] {
@@ -117,7 +168,10 @@ impl TumSequence {
 }
 
 /// Pairs `rgb.txt` and `depth.txt` with TUM's greedy rule.
-fn pair_by_timestamp(root: &Path, max_difference: f64) -> Result<(Vec<RgbdEntry>, (usize, usize)), IoError> {
+fn pair_by_timestamp(
+    root: &Path,
+    max_difference: f64,
+) -> Result<(Vec<RgbdEntry>, (usize, usize)), IoError> {
     let rgb = read_file_list(&root.join("rgb.txt"), 1)?;
     let depth = read_file_list(&root.join("depth.txt"), 1)?;
     let rgb_t: Vec<f64> = rgb.iter().map(|e| e.timestamp).collect();
@@ -142,7 +196,14 @@ pub fn read_association_file(root: &Path, file: &Path) -> Result<Vec<RgbdEntry>,
     list.into_iter()
         .map(|entry| {
             let depth_timestamp = entry.fields[1].parse::<f64>().map_err(|_| {
-                IoError::parse(file, entry.line, format!("expected the depth timestamp as the third field, found {:?}", entry.fields[1]))
+                IoError::parse(
+                    file,
+                    entry.line,
+                    format!(
+                        "expected the depth timestamp as the third field, found {:?}",
+                        entry.fields[1]
+                    ),
+                )
             })?;
             Ok(RgbdEntry {
                 rgb_timestamp: entry.timestamp,
@@ -178,10 +239,20 @@ impl Sequence for TumSequence {
         if (rgb.width(), rgb.height()) != (depth.width, depth.height) {
             return Err(IoError::invalid(
                 &entry.depth_path,
-                format!("depth is {}x{} but its colour image is {}x{}", depth.width, depth.height, rgb.width(), rgb.height()),
+                format!(
+                    "depth is {}x{} but its colour image is {}x{}",
+                    depth.width,
+                    depth.height,
+                    rgb.width(),
+                    rgb.height()
+                ),
             ));
         }
-        Ok(Frame { index, timestamp: entry.rgb_timestamp, images: FrameImages::Rgbd { rgb, depth } })
+        Ok(Frame {
+            index,
+            timestamp: entry.rgb_timestamp,
+            images: FrameImages::Rgbd { rgb, depth },
+        })
     }
 
     fn ground_truth(&self) -> Option<&Trajectory> {

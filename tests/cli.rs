@@ -1,0 +1,164 @@
+//! The command line on bad input: a clear message naming the file (and line), a
+//! non-zero exit. And the demo end to end.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn dopslam(args: &[&str]) -> (bool, String, String) {
+    let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+fn write(path: &Path, text: &str) -> String {
+    std::fs::write(path, text).unwrap();
+    path.to_string_lossy().into_owned()
+}
+
+fn good_tum(dir: &Path, name: &str, start: f64) -> String {
+    let mut text = String::new();
+    for i in 0..20 {
+        let t = start + i as f64 * 0.1;
+        text += &format!(
+            "{t:.4} {} {} 0.5 0 0 0 1\n",
+            0.1 * i as f64,
+            (0.3 * i as f64).sin()
+        );
+    }
+    write(&dir.join(name), &text)
+}
+
+#[test]
+fn eval_reports_bad_input_clearly() {
+    let dir = common::temp_dir("cli-bad");
+    let gt = good_tum(&dir, "gt.txt", 100.0);
+
+    let malformed = write(
+        &dir.join("malformed.txt"),
+        "100.0 0 0 0 0 0 0 1\n100.1 0 0 0 0 0 1\n",
+    );
+    let (ok, _, err) = dopslam(&["eval", &gt, &malformed]);
+    assert!(
+        !ok && err.contains("malformed.txt:2") && err.contains("expected 8 numbers"),
+        "{err}"
+    );
+
+    let unsorted = write(
+        &dir.join("unsorted.txt"),
+        "100.2 0 0 0 0 0 0 1\n100.1 0 0 0 0 0 0 1\n",
+    );
+    let (ok, _, err) = dopslam(&["eval", &gt, &unsorted]);
+    assert!(
+        !ok && err.contains("unsorted.txt:2") && err.contains("not sorted"),
+        "{err}"
+    );
+
+    let elsewhere = good_tum(&dir, "elsewhere.txt", 500.0);
+    let (ok, _, err) = dopslam(&["eval", &gt, &elsewhere]);
+    assert!(!ok && err.contains("no matching timestamps"), "{err}");
+
+    let partial = good_tum(&dir, "partial.txt", 101.5);
+    let (ok, _, err) = dopslam(&["eval", &gt, &partial, "--min-coverage", "0.9"]);
+    assert!(!ok && err.contains("only 5 of 20 poses"), "{err}");
+
+    let kitti_gt = write(
+        &dir.join("kitti_gt.txt"),
+        "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n",
+    );
+    let kitti_bad = write(
+        &dir.join("kitti_bad.txt"),
+        "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1\n",
+    );
+    let (ok, _, err) = dopslam(&["eval", "--format", "kitti", &kitti_gt, &kitti_bad]);
+    assert!(
+        !ok && err.contains("kitti_bad.txt:2") && err.contains("expected 12 numbers"),
+        "{err}"
+    );
+
+    let config = write(
+        &dir.join("bad.toml"),
+        "[eval]\nalign = \"se3\"\nmin_coverag = 0.3\n",
+    );
+    let (ok, _, err) = dopslam(&["eval", &gt, &gt, "--config", &config]);
+    assert!(
+        !ok && err.contains("bad.toml") && err.contains("min_coverag"),
+        "{err}"
+    );
+
+    let missing = dir.join("no_such_sequence");
+    let (ok, _, err) = dopslam(&["info", &missing.to_string_lossy()]);
+    assert!(
+        !ok && err.contains("no_such_sequence") && err.contains("not found"),
+        "{err}"
+    );
+
+    let (ok, _, err) = dopslam(&["eval", &gt, &dir.join("absent.txt").to_string_lossy()]);
+    assert!(!ok && err.contains("absent.txt"), "{err}");
+}
+
+#[test]
+fn eval_prints_table_json_and_plots() {
+    let dir = common::temp_dir("cli-good");
+    let gt = good_tum(&dir, "gt.txt", 100.0);
+    let est = good_tum(&dir, "est.txt", 100.003);
+    let (ok, out, err) = dopslam(&["eval", &gt, &est, "--rpe", "1f", "--rpe", "0.5s"]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("matched 20 of 20 poses")
+            && out.contains("SE(3) Umeyama")
+            && out.contains("rmse"),
+        "{out}"
+    );
+    let plots = dir.join("plots");
+    let (ok, out, err) = dopslam(&[
+        "eval",
+        &gt,
+        &est,
+        "--json",
+        "--plot",
+        &plots.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(json["ape"]["statistics"]["rmse"].as_f64().unwrap() < 1e-9);
+    assert!(plots.join("trajectory.svg").exists() && plots.join("ape.svg").exists());
+}
+
+#[test]
+fn demo_runs_end_to_end() {
+    let dir = common::temp_dir("cli-demo");
+    let (ok, out, err) = dopslam(&["demo", "--out", &dir.to_string_lossy()]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("APE")
+            && dir.join("report.json").exists()
+            && dir.join("plots/trajectory.svg").exists(),
+        "{out}"
+    );
+}
+
+#[test]
+fn info_reads_a_tum_layout() {
+    let Some(data) = common::shared_data("info_reads_a_tum_layout") else {
+        return;
+    };
+    let (ok, out, err) = dopslam(&["info", &data.join("tum-timing/fr1_xyz").to_string_lossy()]);
+    assert!(ok, "{err}");
+    assert!(out.contains("798 / 798, paired: 792"), "{out}");
+    assert!(out.contains("ground truth: 3000 poses"), "{out}");
+}
+
+#[test]
+fn bundled_default_config_is_valid() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/default.toml");
+    let config = dopslam::config::Config::load(&path).unwrap();
+    assert_eq!(config, dopslam::config::Config::default());
+}

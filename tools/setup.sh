@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Quick start, step 1: installs what is missing (idempotent), builds dopslam, and runs
+# the main job on the bundled default (the generated demo) into outputs/demo.
+#
+#   bash tools/setup.sh            # everything
+#   bash tools/setup.sh --no-demo  # install and build only
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
+run_demo=1
+[ "${1:-}" = "--no-demo" ] && run_demo=0
+
+# 1. System packages (Debian). A C toolchain and pkg-config for -sys crates; python3 and
+#    pip fetch the ONNX Runtime wheel. apt runs only when something is missing.
+need_apt=()
+for pkg in build-essential pkg-config python3 python3-pip unzip curl ca-certificates; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
+done
+if [ ${#need_apt[@]} -gt 0 ]; then
+    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+        say "installing ${need_apt[*]}"
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" >/dev/null
+    else
+        say "warning: missing Debian packages ${need_apt[*]} (run as root on Debian to install them)"
+    fi
+fi
+
+# 2. Rust: the toolchain through rustup when cargo is absent.
+if ! command -v cargo >/dev/null 2>&1; then
+    [ -x "$HOME/.cargo/bin/cargo" ] || { say "installing Rust (rustup)"; curl -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal >/dev/null; }
+    export PATH="$HOME/.cargo/bin:$PATH"
+fi
+
+# 3. ONNX Runtime (for the keyframe detector): the shared library from the PyPI wheel
+#    onnxruntime==1.31.1, unpacked into data/ort/ (nothing is downloaded at run time).
+ORT_VERSION=1.31.1
+ORT_LIB="data/ort/libonnxruntime.so.$ORT_VERSION"
+if [ ! -f "$ORT_LIB" ]; then
+    say "fetching ONNX Runtime $ORT_VERSION (PyPI wheel) into data/ort/"
+    tmp=$(mktemp -d)
+    if python3 -m pip download -q --no-deps --only-binary=:all: --platform manylinux_2_27_x86_64 --platform manylinux_2_28_x86_64 \
+        --python-version 3.11 -d "$tmp" "onnxruntime==$ORT_VERSION" 2>"$tmp/log"; then
+        mkdir -p data/ort
+        unzip -q -o -j "$tmp"/onnxruntime-*.whl "onnxruntime/capi/libonnxruntime.so.$ORT_VERSION" -d data/ort
+        ln -sf "libonnxruntime.so.$ORT_VERSION" data/ort/libonnxruntime.so
+    else
+        say "warning: could not fetch onnxruntime==$ORT_VERSION ($(tail -1 "$tmp/log")); detection will be unavailable"
+    fi
+    rm -rf "$tmp"
+fi
+
+# 4. Build.
+say "building dopslam (release)"
+cargo build --release --quiet
+
+# 5. The main job on the bundled default.
+if [ "$run_demo" = 1 ]; then
+    say "running: dopslam demo --out outputs/demo"
+    ./target/release/dopslam demo --out outputs/demo
+    say "report: outputs/demo/report.json, plots: outputs/demo/plots/"
+fi
