@@ -20,10 +20,17 @@ fn write_tum_folder(root: &Path, frames: usize) {
         let t_depth = t_rgb + 0.004;
         let rgb_name = format!("rgb/{t_rgb:.6}.png");
         let depth_name = format!("depth/{t_depth:.6}.png");
-        image::RgbImage::from_pixel(8, 6, image::Rgb([i as u8, 10, 20])).save(root.join(&rgb_name)).unwrap();
+        image::RgbImage::from_pixel(8, 6, image::Rgb([i as u8, 10, 20]))
+            .save(root.join(&rgb_name))
+            .unwrap();
         let mut depth = DepthImage::new(8, 6);
-        depth.metres.iter_mut().for_each(|d| *d = 1.0 + 0.1 * i as f32);
-        depth_to_png16(&depth, 5000.0).save(root.join(&depth_name)).unwrap();
+        depth
+            .metres
+            .iter_mut()
+            .for_each(|d| *d = 1.0 + 0.1 * i as f32);
+        depth_to_png16(&depth, 5000.0)
+            .save(root.join(&depth_name))
+            .unwrap();
         rgb_txt += &format!("{t_rgb:.6} {rgb_name}\n");
         depth_txt += &format!("{t_depth:.6} {depth_name}\n");
     }
@@ -37,7 +44,11 @@ fn tum_layout_loads_lazily_with_scaled_depth() {
     write_tum_folder(&root, 5);
     let sequence = TumSequence::open(&root, &TumOptions::default()).unwrap();
     assert_eq!(sequence.len(), 5);
-    assert_eq!(sequence.calibration().unwrap().camera.fx, 535.4, "fr3 intrinsics from the folder name");
+    assert_eq!(
+        sequence.calibration().unwrap().camera.fx,
+        535.4,
+        "fr3 intrinsics from the folder name"
+    );
     let loaded: Vec<_> = frames(&sequence).collect::<Result<_, _>>().unwrap();
     match &loaded[3].images {
         FrameImages::Rgbd { rgb, depth } => {
@@ -51,16 +62,29 @@ fn tum_layout_loads_lazily_with_scaled_depth() {
     std::fs::remove_file(&victim).unwrap();
     assert!(sequence.load(1).is_ok());
     let message = sequence.load(2).unwrap_err().to_string();
-    assert!(message.contains(&victim.file_name().unwrap().to_string_lossy().into_owned()), "{message}");
+    assert!(
+        message.contains(&victim.file_name().unwrap().to_string_lossy().into_owned()),
+        "{message}"
+    );
 }
 
 #[test]
 fn tum_layout_errors_name_the_file() {
     let root = common::temp_dir("tum-missing");
-    let message = TumSequence::open(&root, &TumOptions::default()).unwrap_err().to_string();
-    assert!(message.contains("rgb.txt") && message.contains("not found"), "{message}");
-    let message = TumSequence::open(&root.join("nope"), &TumOptions::default()).unwrap_err().to_string();
-    assert!(message.contains("nope") && message.contains("TUM layout"), "{message}");
+    let message = TumSequence::open(&root, &TumOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("rgb.txt") && message.contains("not found"),
+        "{message}"
+    );
+    let message = TumSequence::open(&root.join("nope"), &TumOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("nope") && message.contains("TUM layout"),
+        "{message}"
+    );
 }
 
 #[test]
@@ -70,7 +94,9 @@ fn kitti_layout_reads_calibration_times_and_poses() {
     for side in ["image_0", "image_1"] {
         std::fs::create_dir_all(root.join(side)).unwrap();
         for i in 0..3 {
-            image::GrayImage::from_pixel(12, 4, image::Luma([i as u8 * 40])).save(root.join(side).join(format!("{i:06}.png"))).unwrap();
+            image::GrayImage::from_pixel(12, 4, image::Luma([i as u8 * 40]))
+                .save(root.join(side).join(format!("{i:06}.png")))
+                .unwrap();
         }
     }
     std::fs::write(
@@ -79,7 +105,11 @@ fn kitti_layout_reads_calibration_times_and_poses() {
          P1: 7.070912e+02 0.000000e+00 6.018873e+02 -3.798145e+02 0.000000e+00 7.070912e+02 1.831104e+02 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00\n",
     )
     .unwrap();
-    std::fs::write(root.join("times.txt"), "0.000000e+00\n1.036000e-01\n2.073000e-01\n").unwrap();
+    std::fs::write(
+        root.join("times.txt"),
+        "0.000000e+00\n1.036000e-01\n2.073000e-01\n",
+    )
+    .unwrap();
     std::fs::create_dir_all(base.join("poses")).unwrap();
     std::fs::write(
         base.join("poses/04.txt"),
@@ -90,11 +120,16 @@ fn kitti_layout_reads_calibration_times_and_poses() {
     assert_eq!(sequence.len(), 3);
     let calibration = sequence.calibration().unwrap();
     assert!((calibration.bf.unwrap() - 379.8145).abs() < 1e-9);
-    assert_eq!((calibration.camera.width, calibration.camera.height), (12, 4));
+    assert_eq!(
+        (calibration.camera.width, calibration.camera.height),
+        (12, 4)
+    );
     let gt = sequence.ground_truth().unwrap();
     assert!((gt.timestamps[2] - 0.2073).abs() < 1e-12 && (gt.path_length() - 1.6).abs() < 1e-12);
     match sequence.load(2).unwrap().images {
-        FrameImages::Stereo { left, right } => assert_eq!((left.get_pixel(0, 0)[0], right.width()), (80, 12)),
+        FrameImages::Stereo { left, right } => {
+            assert_eq!((left.get_pixel(0, 0)[0], right.width()), (80, 12))
+        }
         FrameImages::Rgbd { .. } => panic!("expected stereo"),
     }
 }

@@ -58,20 +58,7 @@ pub fn matching_time_indices(
         return matches;
     }
     if shifted.windows(2).any(|w| w[1] < w[0]) {
-        for (i, &t) in first.iter().enumerate() {
-            let (best, diff) = shifted
-                .iter()
-                .enumerate()
-                .map(|(j, s)| (j, (s - t).abs()))
-                .fold(
-                    (0, f64::INFINITY),
-                    |acc, x| if x.1 < acc.1 { x } else { acc },
-                );
-            if diff <= max_diff {
-                matches.push((i, best));
-            }
-        }
-        return matches;
+        return nearest_linear(first, &shifted, max_diff);
     }
     let last = shifted.len() - 1;
     for (i, &t) in first.iter().enumerate() {
@@ -89,6 +76,26 @@ pub fn matching_time_indices(
             matches.push((i, upper));
         } else if diff_lower <= max_diff && diff_lower <= diff_upper {
             matches.push((i, upper - 1));
+        }
+    }
+    matches
+}
+
+/// evo's linear fallback for unsorted stamps: the first stamp of `second` with the
+/// smallest \(|\Delta t|\), kept when within `max_diff`.
+fn nearest_linear(first: &[f64], second: &[f64], max_diff: f64) -> Vec<(usize, usize)> {
+    let mut matches = Vec::new();
+    for (i, &t) in first.iter().enumerate() {
+        let (best, diff) = second
+            .iter()
+            .enumerate()
+            .map(|(j, s)| (j, (s - t).abs()))
+            .fold(
+                (0, f64::INFINITY),
+                |acc, x| if x.1 < acc.1 { x } else { acc },
+            );
+        if diff <= max_diff {
+            matches.push((i, best));
         }
     }
     matches
@@ -141,25 +148,6 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    /// evo's linear rule, the definition the binary search must reproduce.
-    fn linear(first: &[f64], second: &[f64], max_diff: f64) -> Vec<(usize, usize)> {
-        let mut out = Vec::new();
-        for (i, &t) in first.iter().enumerate() {
-            let (best, diff) = second
-                .iter()
-                .enumerate()
-                .map(|(j, s)| (j, (s - t).abs()))
-                .fold(
-                    (0, f64::INFINITY),
-                    |acc, x| if x.1 < acc.1 { x } else { acc },
-                );
-            if diff <= max_diff {
-                out.push((i, best));
-            }
-        }
-        out
-    }
-
     proptest! {
         #[test]
         fn binary_search_equals_linear_rule(
@@ -172,7 +160,8 @@ mod tests {
             second.dedup();
             let a: Vec<f64> = first.iter().map(|&v| v as f64 * 0.01).collect();
             let b: Vec<f64> = second.iter().map(|&v| v as f64 * 0.01).collect();
-            prop_assert_eq!(matching_time_indices(&a, &b, 0.015, 0.0), linear(&a, &b, 0.015));
+            // The linear rule is evo's definition; the binary search must reproduce it.
+            prop_assert_eq!(matching_time_indices(&a, &b, 0.015, 0.0), nearest_linear(&a, &b, 0.015));
         }
     }
 

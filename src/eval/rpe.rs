@@ -20,6 +20,7 @@ use crate::geometry::so3;
 use crate::io::Trajectory;
 
 use super::ate::PoseRelation;
+use super::stats::median_of_sorted;
 
 /// The unit of the RPE delta.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -154,13 +155,7 @@ pub fn relative_errors_seconds(
     }
     let mut intervals: Vec<f64> = gt_t.windows(2).map(|w| w[1] - w[0]).collect();
     intervals.sort_by(f64::total_cmp);
-    let m = intervals.len() / 2;
-    let median = if intervals.len() % 2 == 0 {
-        0.5 * (intervals[m - 1] + intervals[m])
-    } else {
-        intervals[m]
-    };
-    let max_gap = 2.0 * median;
+    let max_gap = 2.0 * median_of_sorted(&intervals);
     let last = est_t.len() - 1;
     let mut errors = Vec::new();
     for i in 0..est_t.len() {

@@ -77,6 +77,17 @@ impl Statistics {
     }
 }
 
+/// numpy's median of a sorted, non-empty slice (the mean of the two middle values
+/// for an even count).
+pub fn median_of_sorted(sorted: &[f64]) -> f64 {
+    let middle = sorted.len() / 2;
+    if sorted.len() % 2 == 0 {
+        0.5 * (sorted[middle - 1] + sorted[middle])
+    } else {
+        sorted[middle]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,15 @@ pub struct ListEntry {
     pub line: usize,
 }
 
+/// The lines of a text file that hold data, trimmed, with their 1-based numbers:
+/// blank lines and `#` comments are skipped.
+pub fn content_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.lines()
+        .enumerate()
+        .map(|(index, raw)| (index + 1, raw.trim()))
+        .filter(|(_, line)| !line.is_empty() && !line.starts_with('#'))
+}
+
 /// Splits a line as TUM's scripts do: commas and tabs count as spaces.
 pub fn split_fields(line: &str) -> impl Iterator<Item = &str> {
     line.split([' ', ',', '\t']).filter(|s| !s.is_empty())
@@ -26,11 +35,7 @@ pub fn split_fields(line: &str) -> impl Iterator<Item = &str> {
 pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, IoError> {
     let text = read_text(path)?;
     let mut entries = Vec::new();
-    for (index, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
+    for (line_number, line) in content_lines(&text) {
         let mut fields = split_fields(line);
         let first = fields.next().unwrap_or_default();
         let timestamp: f64 = first
@@ -40,7 +45,7 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
             .ok_or_else(|| {
                 IoError::parse(
                     path,
-                    index + 1,
+                    line_number,
                     format!("expected a timestamp, found {first:?}"),
                 )
             })?;
@@ -48,7 +53,7 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
         if fields.len() < min_fields {
             return Err(IoError::parse(
                 path,
-                index + 1,
+                line_number,
                 format!(
                     "expected a timestamp and {min_fields} more field(s), found {}",
                     fields.len()
@@ -58,7 +63,7 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
         entries.push(ListEntry {
             timestamp,
             fields,
-            line: index + 1,
+            line: line_number,
         });
     }
     entries.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));

@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::atomic::write_atomic;
 use super::errors::{read_text, IoError};
-use super::file_list::split_fields;
+use super::file_list::{content_lines, split_fields};
 use crate::geometry::se3::{self, Se3};
 
 /// Timestamped poses `world_from_camera`. KITTI files carry no timestamps; they get
@@ -78,14 +78,10 @@ impl Trajectory {
         let text = read_text(path)?;
         let mut trajectory = Trajectory::default();
         let mut previous: Option<(f64, usize)> = None;
-        for (index, raw) in text.lines().enumerate() {
-            let line = raw.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
+        for (line_number, line) in content_lines(&text) {
             let values = parse_numbers(
                 path,
-                index + 1,
+                line_number,
                 line,
                 8,
                 "TUM: timestamp tx ty tz qx qy qz qw",
@@ -94,7 +90,7 @@ impl Trajectory {
             if q.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
                 return Err(IoError::parse(
                     path,
-                    index + 1,
+                    line_number,
                     "the quaternion has zero length",
                 ));
             }
@@ -103,12 +99,12 @@ impl Trajectory {
                 if timestamp < before {
                     return Err(IoError::parse(
                         path,
-                        index + 1,
+                        line_number,
                         format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
                     ));
                 }
             }
-            previous = Some((timestamp, index + 1));
+            previous = Some((timestamp, line_number));
             trajectory.push(
                 timestamp,
                 se3::from_translation_quaternion(Vector3::new(values[1], values[2], values[3]), q),
@@ -121,12 +117,14 @@ impl Trajectory {
     pub fn read_kitti(path: &Path) -> Result<Self, IoError> {
         let text = read_text(path)?;
         let mut trajectory = Trajectory::default();
-        for (index, raw) in text.lines().enumerate() {
-            let line = raw.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let v = parse_numbers(path, index + 1, line, 12, "KITTI: a 3x4 matrix, row-major")?;
+        for (line_number, line) in content_lines(&text) {
+            let v = parse_numbers(
+                path,
+                line_number,
+                line,
+                12,
+                "KITTI: a 3x4 matrix, row-major",
+            )?;
             let rotation = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
             let translation = Vector3::new(v[3], v[7], v[11]);
             let timestamp = trajectory.len() as f64;
@@ -194,12 +192,8 @@ impl Trajectory {
 pub fn read_times(path: &Path) -> Result<Vec<f64>, IoError> {
     let text = read_text(path)?;
     let mut times = Vec::new();
-    for (index, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        times.push(parse_numbers(path, index + 1, line, 1, "one time in seconds")?[0]);
+    for (line_number, line) in content_lines(&text) {
+        times.push(parse_numbers(path, line_number, line, 1, "one time in seconds")?[0]);
     }
     Ok(times)
 }
