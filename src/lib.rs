@@ -11,3 +11,4 @@ pub mod eval;
 pub mod geometry;
 pub mod io;
 pub mod random;
+pub mod synth;

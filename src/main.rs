@@ -37,6 +37,8 @@ enum Command {
     Eval(EvalArgs),
     /// Generate the bundled example (ground truth + drifting estimate) and evaluate it.
     Demo(DemoArgs),
+    /// Generate a synthetic RGB-D sequence in the TUM layout with exact ground truth.
+    Synth(SynthArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
     Info(InfoArgs),
 }
@@ -102,6 +104,25 @@ struct DemoArgs {
     /// Seed of the generated drift and noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+}
+
+#[derive(Args)]
+struct SynthArgs {
+    /// A synth preset, e.g. configs/synth/static_room.toml.
+    #[arg(long)]
+    config: PathBuf,
+    /// Output folder (must be empty or absent unless --force).
+    #[arg(long)]
+    out: PathBuf,
+    /// Overrides the preset's seed.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Overrides the preset's number of frames.
+    #[arg(long)]
+    frames: Option<usize>,
+    /// Overwrite a non-empty output folder.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Args)]
@@ -238,6 +259,25 @@ fn run_demo(args: DemoArgs) -> Result<()> {
     })
 }
 
+fn run_synth(args: SynthArgs) -> Result<()> {
+    let mut config = dopslam::synth::SynthConfig::load(&args.config).map_err(anyhow::Error::msg)?;
+    if let Some(seed) = args.seed {
+        config.sequence.seed = seed;
+    }
+    if let Some(frames) = args.frames {
+        config.sequence.frames = frames;
+    }
+    let summary = dopslam::synth::generate(&config, &args.out, args.force)?;
+    println!(
+        "wrote {} frames to {} in {:.1} s ({:.1} frames/s)",
+        summary.frames,
+        summary.out.display(),
+        summary.seconds,
+        summary.frames as f64 / summary.seconds
+    );
+    Ok(())
+}
+
 fn run_info(args: InfoArgs) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let root = &args.sequence;
@@ -297,6 +337,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Eval(args) => run_eval(args),
         Command::Demo(args) => run_demo(args),
+        Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
     };
     match result {

@@ -1,0 +1,107 @@
+//! The synth config: TOML files in `configs/synth/`, one per preset.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::motion::MotionConfig;
+use super::render::SensorConfig;
+use crate::geometry::camera::PinholeCamera;
+
+/// How many frames, how fast, from which seed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SequenceConfig {
+    pub frames: usize,
+    /// Frame rate when no timing file is given.
+    pub fps: f64,
+    pub seed: u64,
+    /// Real frame timing: a TUM association file or rgb.txt (the first column is used).
+    pub timing: Option<PathBuf>,
+}
+
+impl Default for SequenceConfig {
+    fn default() -> Self {
+        Self {
+            frames: 300,
+            fps: 30.0,
+            seed: 1,
+            timing: None,
+        }
+    }
+}
+
+/// The room and its furniture.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SceneConfig {
+    /// Distance from the camera path's bounding box to the walls, in metres.
+    pub room_margin: f64,
+    pub furniture: usize,
+    /// Furniture keeps at least this far from every camera position, in metres.
+    pub clearance: f64,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        Self {
+            room_margin: 2.5,
+            furniture: 14,
+            clearance: 0.9,
+        }
+    }
+}
+
+/// A whole synth preset.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SynthConfig {
+    /// The preset's name (written into scene.toml).
+    pub name: String,
+    pub sequence: SequenceConfig,
+    pub camera: Option<PinholeCamera>,
+    pub motion: MotionConfig,
+    pub scene: SceneConfig,
+    pub sensor: SensorConfig,
+}
+
+impl SynthConfig {
+    /// Reads a preset; relative paths inside it are taken from the current folder.
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read synth config {}: {e}", path.display()))?;
+        let config: SynthConfig = toml::from_str(&text)
+            .map_err(|e| format!("synth config {}: {}", path.display(), e.to_string().trim()))?;
+        config
+            .validate()
+            .map_err(|m| format!("synth config {}: {m}", path.display()))?;
+        Ok(config)
+    }
+
+    /// The camera intrinsics (TUM fr3 unless the config gives others).
+    pub fn camera(&self) -> PinholeCamera {
+        self.camera.unwrap_or_else(PinholeCamera::tum_fr3)
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if self.sequence.frames == 0 {
+            return Err("sequence.frames must be positive".into());
+        }
+        if self.sequence.fps.is_nan() || self.sequence.fps <= 0.0 {
+            return Err(format!(
+                "sequence.fps must be positive, got {}",
+                self.sequence.fps
+            ));
+        }
+        self.camera()
+            .validate()
+            .map_err(|m| format!("camera: {m}"))?;
+        if self.sensor.max_depth.is_nan() || self.sensor.max_depth <= 0.0 {
+            return Err(format!(
+                "sensor.max_depth must be positive, got {}",
+                self.sensor.max_depth
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,205 @@
+//! Camera motions: procedural imitations of TUM's fr3 walking set (static, xyz, rpy,
+//! halfsphere), or a recorded trajectory file resampled at given frame times.
+//!
+//! Camera frames follow the computer-vision convention: x right, y down, z forward.
+//! Procedural motions start at the origin looking along world +z, with world -y up.
+
+use std::path::PathBuf;
+
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::se3::{self, Se3};
+use crate::geometry::so3;
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::{IoError, Trajectory};
+
+/// The kind of camera motion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionKind {
+    /// Almost still: a few millimetres and tenths of a degree of hand tremor.
+    Static,
+    /// Translation back and forth along the three axes (about ±0.3 m).
+    Xyz,
+    /// Rotation in place about the three axes (about ±20°).
+    Rpy,
+    /// Moving over a half sphere of about 1 m diameter, looking at its centre.
+    Halfsphere,
+    /// A recorded trajectory file (`file`, `format`).
+    File,
+}
+
+/// The motion section of a synth config.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionConfig {
+    pub kind: MotionKind,
+    /// For `file`: the trajectory (TUM or KITTI format).
+    pub file: Option<PathBuf>,
+    pub format: TrajectoryFormat,
+    /// Multiplies the speed of procedural motions.
+    pub speed: f64,
+}
+
+impl Default for MotionConfig {
+    fn default() -> Self {
+        Self {
+            kind: MotionKind::Xyz,
+            file: None,
+            format: TrajectoryFormat::Tum,
+            speed: 1.0,
+        }
+    }
+}
+
+/// The pose `world_from_camera` of a procedural motion at time `t` seconds.
+pub fn procedural_pose(kind: MotionKind, t: f64) -> Se3 {
+    let s = |f: f64, phase: f64| (std::f64::consts::TAU * f * t + phase).sin();
+    match kind {
+        MotionKind::Static | MotionKind::File => {
+            let p = Vector3::new(
+                0.004 * s(0.3, 0.0),
+                0.003 * s(0.23, 1.0),
+                0.004 * s(0.17, 2.0),
+            );
+            let r = Vector3::new(
+                0.004 * s(0.21, 0.5),
+                0.005 * s(0.13, 1.5),
+                0.003 * s(0.27, 2.5),
+            );
+            Se3::from_parts(p.into(), so3::exp(&r))
+        }
+        MotionKind::Xyz => {
+            let p = Vector3::new(0.3 * s(0.11, 0.0), 0.15 * s(0.07, 1.0), 0.25 * s(0.05, 0.5));
+            let r = Vector3::new(0.03 * s(0.09, 0.3), 0.04 * s(0.06, 1.3), 0.02 * s(0.1, 2.0));
+            Se3::from_parts(p.into(), so3::exp(&r))
+        }
+        MotionKind::Rpy => {
+            let r = Vector3::new(0.3 * s(0.06, 0.0), 0.35 * s(0.045, 1.0), 0.3 * s(0.08, 2.0));
+            let p = Vector3::new(0.02 * s(0.1, 0.0), 0.02 * s(0.07, 0.0), 0.02 * s(0.05, 0.0));
+            Se3::from_parts(p.into(), so3::exp(&r))
+        }
+        MotionKind::Halfsphere => {
+            // Azimuth sweeps ±70°, elevation ±35°, radius 0.5 m around a centre 1.5 m ahead.
+            let azimuth = 1.2 * s(0.03, 0.0);
+            let elevation = 0.6 * s(0.047, 0.7);
+            let centre = Vector3::new(0.0, 0.0, 1.5);
+            let offset = Vector3::new(
+                azimuth.sin() * elevation.cos(),
+                -elevation.sin(),
+                -azimuth.cos() * elevation.cos(),
+            ) * 0.5;
+            let position = centre + offset + Vector3::new(0.0, 0.0, -1.0);
+            let forward = (centre - position).normalize();
+            let up = Vector3::new(0.0, -1.0, 0.0);
+            let right = up.cross(&forward).normalize() * -1.0;
+            let down = forward.cross(&right);
+            let rotation = nalgebra::Matrix3::from_columns(&[right, down, forward]);
+            se3::from_parts(position, rotation)
+        }
+    }
+}
+
+/// Interpolates a trajectory at time `t` (linear in translation, slerp in rotation),
+/// clamped to its ends. The trajectory's timestamps must be sorted.
+pub fn interpolate(trajectory: &Trajectory, t: f64) -> Se3 {
+    let stamps = &trajectory.timestamps;
+    let upper = stamps.partition_point(|&s| s <= t);
+    if upper == 0 {
+        return trajectory.poses[0];
+    }
+    if upper == stamps.len() {
+        return trajectory.poses[stamps.len() - 1];
+    }
+    let (a, b) = (&trajectory.poses[upper - 1], &trajectory.poses[upper]);
+    let span = stamps[upper] - stamps[upper - 1];
+    let alpha = if span > 0.0 {
+        (t - stamps[upper - 1]) / span
+    } else {
+        0.0
+    };
+    let qa = UnitQuaternion::from_rotation_matrix(&a.rotation);
+    let qb = UnitQuaternion::from_rotation_matrix(&b.rotation);
+    let q = qa.slerp(&qb, alpha);
+    se3::from_parts(
+        a.translation.vector.lerp(&b.translation.vector, alpha),
+        *q.to_rotation_matrix().matrix(),
+    )
+}
+
+/// The camera poses at the given frame times (seconds from the start).
+pub fn poses_at(config: &MotionConfig, times: &[f64]) -> Result<Vec<Se3>, IoError> {
+    if config.kind != MotionKind::File {
+        return Ok(times
+            .iter()
+            .map(|&t| procedural_pose(config.kind, t * config.speed))
+            .collect());
+    }
+    let path = config.file.as_ref().ok_or_else(|| {
+        IoError::invalid("synth config", "motion.kind = \"file\" needs motion.file")
+    })?;
+    let trajectory = Trajectory::read(path, config.format)?;
+    if trajectory.is_empty() {
+        return Err(IoError::invalid(path, "the trajectory is empty"));
+    }
+    let start = trajectory.timestamps[0];
+    let duration = trajectory.timestamps[trajectory.len() - 1] - start;
+    if let Some(&last) = times.last() {
+        if last * config.speed > duration + 1e-9 {
+            return Err(IoError::invalid(
+                path,
+                format!(
+                    "covers {duration:.3} s but {} frames need {:.3} s; ask for fewer frames",
+                    times.len(),
+                    last * config.speed
+                ),
+            ));
+        }
+    }
+    Ok(times
+        .iter()
+        .map(|&t| interpolate(&trajectory, start + t * config.speed))
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn procedural_motions_are_proper_poses() {
+        for kind in [
+            MotionKind::Static,
+            MotionKind::Xyz,
+            MotionKind::Rpy,
+            MotionKind::Halfsphere,
+        ] {
+            for i in 0..50 {
+                let pose = procedural_pose(kind, i as f64 * 0.7);
+                let r = pose.rotation.matrix();
+                assert!(
+                    (r.transpose() * r - nalgebra::Matrix3::identity()).norm() < 1e-9,
+                    "{kind:?}"
+                );
+                assert!((r.determinant() - 1.0).abs() < 1e-9, "{kind:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn interpolation_hits_samples_and_midpoints() {
+        let mut trajectory = Trajectory::default();
+        trajectory.push(
+            0.0,
+            se3::exp(&nalgebra::Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+        );
+        trajectory.push(
+            1.0,
+            se3::exp(&nalgebra::Vector6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+        );
+        let mid = interpolate(&trajectory, 0.5);
+        assert!((mid.translation.vector.x - 0.5).abs() < 1e-12);
+        assert_eq!(interpolate(&trajectory, 5.0), trajectory.poses[1]);
+    }
+}

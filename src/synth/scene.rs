@@ -1,0 +1,249 @@
+//! The static scene: a room (an axis-aligned box seen from inside) and furniture
+//! (axis-aligned boxes), each surface with a procedural texture.
+//!
+//! Ray casting against boxes uses the slab test: for a ray \(o + t d\), each axis gives
+//! the interval \([(b_{min} - o)/d, (b_{max} - o)/d]\); the ray is inside the box over the
+//! intersection of the three intervals.
+
+use nalgebra::Vector3;
+
+use crate::random::Rng;
+
+/// An axis-aligned box.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cuboid {
+    pub min: Vector3<f64>,
+    pub max: Vector3<f64>,
+    pub texture: u32,
+}
+
+/// What a ray hits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// The ray parameter: with a direction whose camera-frame z is 1, this is the depth.
+    pub t: f64,
+    /// The surface normal, facing the ray.
+    pub normal: Vector3<f64>,
+    pub texture: u32,
+    /// Surface coordinates in metres (the two world coordinates along the face).
+    pub uv: (f64, f64),
+}
+
+/// A room with furniture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    pub room: Cuboid,
+    pub furniture: Vec<Cuboid>,
+}
+
+/// The slab interval \([t_{enter}, t_{exit}]\) of a ray through a box, with the entry and
+/// exit axes.
+fn slab(
+    cuboid: &Cuboid,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+) -> (f64, usize, f64, usize) {
+    let (mut t_enter, mut enter_axis, mut t_exit, mut exit_axis) =
+        (f64::NEG_INFINITY, 0, f64::INFINITY, 0);
+    for axis in 0..3 {
+        let inverse = 1.0 / direction[axis];
+        let (mut a, mut b) = (
+            (cuboid.min[axis] - origin[axis]) * inverse,
+            (cuboid.max[axis] - origin[axis]) * inverse,
+        );
+        if a > b {
+            std::mem::swap(&mut a, &mut b);
+        }
+        if a > t_enter {
+            t_enter = a;
+            enter_axis = axis;
+        }
+        if b < t_exit {
+            t_exit = b;
+            exit_axis = axis;
+        }
+    }
+    (t_enter, enter_axis, t_exit, exit_axis)
+}
+
+fn face_hit(
+    cuboid: &Cuboid,
+    point: Vector3<f64>,
+    axis: usize,
+    direction: &Vector3<f64>,
+    t: f64,
+) -> Hit {
+    let mut normal = Vector3::zeros();
+    normal[axis] = -direction[axis].signum();
+    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+    Hit {
+        t,
+        normal,
+        texture: cuboid.texture * 8 + axis as u32 * 2 + (normal[axis] > 0.0) as u32,
+        uv: (point[a], point[b]),
+    }
+}
+
+impl Scene {
+    /// The nearest surface along the ray `origin + t * direction`, `t > 0`.
+    pub fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        for cuboid in &self.furniture {
+            let (t_enter, axis, t_exit, _) = slab(cuboid, origin, direction);
+            if t_enter > 1e-6 && t_enter <= t_exit && best.is_none_or(|h| t_enter < h.t) {
+                best = Some(face_hit(
+                    cuboid,
+                    origin + direction * t_enter,
+                    axis,
+                    direction,
+                    t_enter,
+                ));
+            }
+        }
+        if best.is_none() {
+            let (_, _, t_exit, axis) = slab(&self.room, origin, direction);
+            if t_exit > 1e-6 && t_exit.is_finite() {
+                return Some(face_hit(
+                    &self.room,
+                    origin + direction * t_exit,
+                    axis,
+                    direction,
+                    t_exit,
+                ));
+            }
+        }
+        best
+    }
+
+    /// The distance from a point to the nearest surface of the scene (walls and furniture).
+    pub fn distance_to_surface(&self, p: &Vector3<f64>) -> f64 {
+        let box_distance = |c: &Cuboid, inside_room: bool| {
+            let mut outside = Vector3::zeros();
+            let mut inside = f64::INFINITY;
+            for axis in 0..3 {
+                let below = c.min[axis] - p[axis];
+                let above = p[axis] - c.max[axis];
+                outside[axis] = below.max(above).max(0.0);
+                inside = inside.min((-below).min(-above));
+            }
+            let outside_norm = outside.norm();
+            if inside_room || outside_norm == 0.0 {
+                if outside_norm > 0.0 {
+                    outside_norm
+                } else {
+                    inside.abs()
+                }
+            } else {
+                outside_norm
+            }
+        };
+        self.furniture
+            .iter()
+            .map(|c| box_distance(c, false))
+            .fold(box_distance(&self.room, true), f64::min)
+    }
+
+    /// A room around the camera positions, `margin` metres beyond them on every side,
+    /// with `count` furniture boxes that keep `clearance` metres from every camera
+    /// position (tables, shelves, boxes of assorted sizes standing on the floor or
+    /// hanging on walls).
+    pub fn around(
+        cameras: &[Vector3<f64>],
+        margin: f64,
+        count: usize,
+        clearance: f64,
+        seed: u64,
+    ) -> Scene {
+        let mut lo = Vector3::repeat(f64::INFINITY);
+        let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+        for c in cameras {
+            lo = lo.inf(c);
+            hi = hi.sup(c);
+        }
+        let room = Cuboid {
+            min: lo.add_scalar(-margin),
+            max: hi.add_scalar(margin),
+            texture: 1,
+        };
+        let mut rng = Rng::new(seed);
+        let mut furniture = Vec::new();
+        let mut attempts = 0;
+        while furniture.len() < count && attempts < 100 * count.max(1) {
+            attempts += 1;
+            let size = Vector3::new(
+                rng.range(0.2, 1.2),
+                rng.range(0.2, 1.2),
+                rng.range(0.2, 1.2),
+            );
+            let mut min = Vector3::zeros();
+            for axis in 0..3 {
+                min[axis] = rng.range(room.min[axis], room.max[axis] - size[axis]);
+            }
+            // Push each box against the nearest wall along a random axis, as furniture stands.
+            let axis = (rng.next_u64() % 3) as usize;
+            if rng.uniform() < 0.5 {
+                min[axis] = room.min[axis];
+            } else {
+                min[axis] = room.max[axis] - size[axis];
+            }
+            let candidate = Cuboid {
+                min,
+                max: min + size,
+                texture: 2 + furniture.len() as u32,
+            };
+            let clear = cameras.iter().all(|c| {
+                let nearest = c.sup(&candidate.min).inf(&candidate.max);
+                (nearest - c).norm() > clearance
+            });
+            if clear {
+                furniture.push(candidate);
+            }
+        }
+        Scene { room, furniture }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rays_hit_the_nearest_surface() {
+        let scene = Scene {
+            room: Cuboid {
+                min: Vector3::repeat(-3.0),
+                max: Vector3::repeat(3.0),
+                texture: 1,
+            },
+            furniture: vec![Cuboid {
+                min: Vector3::new(-0.5, -0.5, 1.0),
+                max: Vector3::new(0.5, 0.5, 2.0),
+                texture: 2,
+            }],
+        };
+        let hit = scene
+            .cast(&Vector3::zeros(), &Vector3::new(0.0, 0.0, 1.0))
+            .unwrap();
+        assert!((hit.t - 1.0).abs() < 1e-12 && hit.normal == Vector3::new(0.0, 0.0, -1.0));
+        let wall = scene
+            .cast(&Vector3::zeros(), &Vector3::new(1.0, 0.0, 0.0))
+            .unwrap();
+        assert!((wall.t - 3.0).abs() < 1e-12 && wall.normal == Vector3::new(-1.0, 0.0, 0.0));
+        let p = Vector3::new(0.0, 0.0, 0.9);
+        assert!((scene.distance_to_surface(&p) - 0.1).abs() < 1e-12);
+        assert!((scene.distance_to_surface(&Vector3::new(2.5, 0.0, -2.0)) - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn furniture_keeps_clear_of_the_cameras() {
+        let cameras = vec![Vector3::zeros(), Vector3::new(0.3, 0.0, 0.0)];
+        let scene = Scene::around(&cameras, 2.5, 10, 0.8, 4);
+        assert_eq!(scene.furniture.len(), 10);
+        for c in &cameras {
+            for f in &scene.furniture {
+                let nearest = c.sup(&f.min).inf(&f.max);
+                assert!((nearest - c).norm() > 0.8);
+            }
+        }
+    }
+}

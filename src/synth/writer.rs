@@ -1,0 +1,178 @@
+//! Writing a generated sequence in the TUM RGB-D layout: `rgb/`, `depth/` (16-bit,
+//! 5000 per metre), `rgb.txt`, `depth.txt`, `groundtruth.txt`, `associations.txt`
+//! (ORB-SLAM style), `calibration.yaml` (ORB-SLAM2 settings) and `scene.toml` (the
+//! config as used, enough to regenerate the sequence).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Vector3;
+use thiserror::Error;
+
+use super::config::SynthConfig;
+use super::motion::poses_at;
+use super::render::render;
+use super::scene::Scene;
+use crate::io::atomic::write_atomic;
+use crate::io::file_list::read_file_list;
+use crate::io::image_files::depth_to_png16;
+use crate::io::orbslam_settings::{Calibration, OrbSettings, OrbSlamSettings};
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::{IoError, Trajectory};
+
+/// The depth PNG scale of generated sequences (TUM's).
+pub const DEPTH_SCALE: f64 = 5000.0;
+
+#[derive(Debug, Error)]
+pub enum SynthError {
+    #[error("output folder {0} is not empty; choose another or pass --force to overwrite")]
+    NotEmpty(PathBuf),
+    #[error("{0}")]
+    Config(String),
+    #[error(transparent)]
+    Io(#[from] IoError),
+}
+
+/// What `generate` wrote.
+#[derive(Debug, Clone)]
+pub struct SynthSummary {
+    pub frames: usize,
+    pub out: PathBuf,
+    pub seconds: f64,
+}
+
+/// Frame times in seconds from the start and the absolute timestamp of the first frame.
+fn frame_times(config: &SynthConfig) -> Result<(Vec<f64>, f64), SynthError> {
+    let n = config.sequence.frames;
+    match &config.sequence.timing {
+        Some(path) => {
+            let entries = read_file_list(path, 1)?;
+            if entries.len() < n {
+                return Err(IoError::invalid(
+                    path,
+                    format!(
+                        "has {} frame times but {n} frames were asked for",
+                        entries.len()
+                    ),
+                )
+                .into());
+            }
+            let t0 = entries[0].timestamp;
+            Ok((entries[..n].iter().map(|e| e.timestamp - t0).collect(), t0))
+        }
+        None => Ok((
+            (0..n).map(|i| i as f64 / config.sequence.fps).collect(),
+            1_700_000_000.0,
+        )),
+    }
+}
+
+fn check_output_folder(out: &Path, force: bool) -> Result<(), SynthError> {
+    if out.exists() {
+        let empty = std::fs::read_dir(out)
+            .map_err(|source| IoError::Read {
+                path: out.to_path_buf(),
+                source,
+            })?
+            .next()
+            .is_none();
+        if !empty && !force {
+            return Err(SynthError::NotEmpty(out.to_path_buf()));
+        }
+    }
+    for sub in ["rgb", "depth"] {
+        std::fs::create_dir_all(out.join(sub)).map_err(|source| IoError::Write {
+            path: out.join(sub),
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+/// Generates the sequence described by `config` into `out`.
+pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSummary, SynthError> {
+    config.validate().map_err(SynthError::Config)?;
+    let start = std::time::Instant::now();
+    let (times, t0) = frame_times(config)?;
+    let poses = poses_at(&config.motion, &times)?;
+    check_output_folder(out, force)?;
+    let camera = config.camera();
+    let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
+    let scene = Scene::around(
+        &positions,
+        config.scene.room_margin,
+        config.scene.furniture,
+        config.scene.clearance,
+        config.sequence.seed,
+    );
+
+    let progress = ProgressBar::new(times.len() as u64);
+    progress.set_style(
+        ProgressStyle::with_template("synth {bar:40} {pos}/{len} frames ({eta} left)")
+            .expect("valid template"),
+    );
+    let (mut rgb_txt, mut depth_txt, mut associations) = (
+        String::from("# color images\n# timestamp filename\n"),
+        String::from("# depth maps\n# timestamp filename\n"),
+        String::new(),
+    );
+    let mut ground_truth = Trajectory::default();
+    for (index, (t, pose)) in times.iter().zip(&poses).enumerate() {
+        let stamp = t0 + t;
+        let frame_seed = config
+            .sequence
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(index as u64);
+        let rendered = render(&scene, &camera, pose, &config.sensor, frame_seed);
+        let rgb_name = format!("rgb/{stamp:.6}.png");
+        let depth_name = format!("depth/{stamp:.6}.png");
+        let save_err = |path: &str, e: image::ImageError| IoError::Write {
+            path: out.join(path),
+            source: std::io::Error::other(e),
+        };
+        rendered
+            .rgb
+            .save(out.join(&rgb_name))
+            .map_err(|e| save_err(&rgb_name, e))?;
+        depth_to_png16(&rendered.depth, DEPTH_SCALE)
+            .save(out.join(&depth_name))
+            .map_err(|e| save_err(&depth_name, e))?;
+        let _ = writeln!(rgb_txt, "{stamp:.6} {rgb_name}");
+        let _ = writeln!(depth_txt, "{stamp:.6} {depth_name}");
+        let _ = writeln!(
+            associations,
+            "{stamp:.6} {rgb_name} {stamp:.6} {depth_name}"
+        );
+        ground_truth.push(stamp, *pose);
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    write_atomic(&out.join("rgb.txt"), rgb_txt.as_bytes())?;
+    write_atomic(&out.join("depth.txt"), depth_txt.as_bytes())?;
+    write_atomic(&out.join("associations.txt"), associations.as_bytes())?;
+    ground_truth.write(&out.join("groundtruth.txt"), TrajectoryFormat::Tum)?;
+    let calibration = Calibration {
+        camera,
+        bf: Some(40.0),
+        depth_scale: Some(DEPTH_SCALE),
+        th_depth: Some(40.0),
+        fps: Some(config.sequence.fps),
+    };
+    write_atomic(
+        &out.join("calibration.yaml"),
+        OrbSlamSettings::to_yaml(&calibration, &OrbSettings::default()).as_bytes(),
+    )?;
+    let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
+    write_atomic(
+        &out.join("scene.toml"),
+        format!("# dopslam synth: the config this sequence was generated with\n{scene_toml}")
+            .as_bytes(),
+    )?;
+    Ok(SynthSummary {
+        frames: times.len(),
+        out: out.to_path_buf(),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
