@@ -7,6 +7,7 @@
 
 pub mod config;
 pub mod demo;
+pub mod detect;
 pub mod eval;
 pub mod geometry;
 pub mod io;

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use dopslam::io::sequence::{FrameImages, Sequence};
 use dopslam::io::tum::{TumOptions, TumSequence};
 use dopslam::synth::motion::poses_at;
-use dopslam::synth::scene::Scene;
+use dopslam::synth::writer::{build_world, frame_times};
 use dopslam::synth::{generate, SynthConfig};
 
 fn small_config(frames: usize) -> SynthConfig {
@@ -63,19 +63,8 @@ fn depth_back_projects_onto_the_scene() {
     let gt = sequence.ground_truth().unwrap().clone();
     let camera = sequence.calibration().unwrap().camera;
     // Rebuild the scene exactly as generate() did.
-    let times: Vec<f64> = (0..4).map(|i| i as f64 / config.sequence.fps).collect();
-    let positions: Vec<_> = poses_at(&config.motion, &times)
-        .unwrap()
-        .iter()
-        .map(|p| p.translation.vector)
-        .collect();
-    let scene = Scene::around(
-        &positions,
-        config.scene.room_margin,
-        config.scene.furniture,
-        config.scene.clearance,
-        config.sequence.seed,
-    );
+    let (times, _) = frame_times(&config).unwrap();
+    let (scene, _) = build_world(&config, &poses_at(&config.motion, &times).unwrap());
     for index in 0..sequence.len() {
         let FrameImages::Rgbd { depth, .. } = sequence.load(index).unwrap().images else {
             panic!("RGB-D expected")
@@ -126,5 +115,81 @@ fn bad_input_is_refused() {
     assert!(
         message.contains("short_rgb.txt") && message.contains("2 frame times"),
         "{message}"
+    );
+}
+
+#[test]
+fn masks_match_the_movers_and_detections_box_them() {
+    let out = common::temp_dir("synth-movers").join("walking");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
+    let mut config = SynthConfig::load(&path).unwrap();
+    config.sequence.frames = 30;
+    config.sequence.timing = None;
+    config.sensor.depth_noise = false;
+    generate(&config, &out, false).unwrap();
+    let sequence = TumSequence::open(&out, &TumOptions::default()).unwrap();
+    let camera = sequence.calibration().unwrap().camera;
+    let (times, _) = frame_times(&config).unwrap();
+    let poses = poses_at(&config.motion, &times).unwrap();
+    let (scene, movers) = build_world(&config, &poses);
+    assert_eq!(movers.len(), 2);
+    let mut mover_pixels = 0;
+    for index in (0..sequence.len()).step_by(5) {
+        let FrameImages::Rgbd { depth, .. } = sequence.load(index).unwrap().images else {
+            panic!("RGB-D expected")
+        };
+        let stamp = sequence.timestamp(index);
+        let mask = image::open(out.join(format!("masks/{stamp:.6}.png")))
+            .unwrap()
+            .to_luma8();
+        let json = std::fs::read_to_string(out.join(format!("detections_oracle/{stamp:.6}.json")))
+            .unwrap();
+        let detections: dopslam::detect::FrameDetections = serde_json::from_str(&json).unwrap();
+        for v in (0..camera.height).step_by(5) {
+            for u in (0..camera.width).step_by(5) {
+                let z = depth.at(u, v) as f64;
+                let id = mask.get_pixel(u, v)[0] as u16;
+                if id > 0 {
+                    let d = detections
+                        .detections
+                        .iter()
+                        .find(|d| d.instance == Some(id))
+                        .expect("a box for every visible mover");
+                    assert!(
+                        d.bbox[0] <= u as f32
+                            && (u as f32) < d.bbox[2]
+                            && d.bbox[1] <= v as f32
+                            && (v as f32) < d.bbox[3]
+                    );
+                }
+                if z <= 0.0 {
+                    continue;
+                }
+                let p = poses[index]
+                    * nalgebra::Point3::from(
+                        camera.unproject(&nalgebra::Vector2::new(u as f64, v as f64), z),
+                    );
+                let distance = if id == 0 {
+                    scene.distance_to_surface(&p.coords)
+                } else {
+                    mover_pixels += 1;
+                    let mover = movers.iter().find(|m| m.instance == id).unwrap();
+                    let cuboid = mover.cuboid_at(times[index]);
+                    let single = dopslam::synth::scene::Scene {
+                        room: cuboid,
+                        furniture: vec![],
+                    };
+                    single.distance_to_surface(&p.coords)
+                };
+                assert!(
+                    distance < 1e-3,
+                    "frame {index} pixel ({u}, {v}) id {id}: {distance} m off"
+                );
+            }
+        }
+    }
+    assert!(
+        mover_pixels > 100,
+        "the people must be in view: {mover_pixels} sampled pixels"
     );
 }

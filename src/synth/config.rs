@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::motion::MotionConfig;
+use super::movers::PeopleConfig;
 use super::render::SensorConfig;
 use crate::geometry::camera::PinholeCamera;
 
@@ -62,6 +63,7 @@ pub struct SynthConfig {
     pub camera: Option<PinholeCamera>,
     pub motion: MotionConfig,
     pub scene: SceneConfig,
+    pub people: PeopleConfig,
     pub sensor: SensorConfig,
 }
 

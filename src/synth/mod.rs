@@ -7,6 +7,7 @@
 
 pub mod config;
 pub mod motion;
+pub mod movers;
 pub mod render;
 pub mod scene;
 pub mod texture;

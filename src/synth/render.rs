@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::scene::Scene;
+use super::scene::{Cuboid, Scene};
 use super::texture::texel;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -48,11 +48,13 @@ pub fn kinect_depth_sigma(z: f64) -> f64 {
     0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
 }
 
-/// One rendered frame: colour, noisy sensor depth, and the exact depth.
+/// One rendered frame: colour, noisy sensor depth, the exact depth, and the instance
+/// mask (row-major; 0 = static scene, else the mover's instance id).
 pub struct Rendered {
     pub rgb: RgbImage,
     pub depth: DepthImage,
     pub exact_depth: DepthImage,
+    pub mask: Vec<u16>,
 }
 
 /// Renders the scene seen by a camera at `world_from_camera`. `noise_seed` makes the
@@ -60,21 +62,24 @@ pub struct Rendered {
 /// order does not matter).
 pub fn render(
     scene: &Scene,
+    movers: &[(Cuboid, u16)],
     camera: &PinholeCamera,
     world_from_camera: &Se3,
     sensor: &SensorConfig,
     noise_seed: u64,
 ) -> Rendered {
+    let mover_boxes: Vec<Cuboid> = movers.iter().map(|m| m.0).collect();
     let (width, height) = (camera.width as usize, camera.height as usize);
     let rotation = world_from_camera.rotation.matrix();
     let origin = world_from_camera.translation.vector;
     let light = Vector3::new(0.3, -0.8, 0.5).normalize();
-    let rows: Vec<(Vec<[u8; 3]>, Vec<f32>)> = (0..height)
+    let rows: Vec<(Vec<[u8; 3]>, Vec<f32>, Vec<u16>)> = (0..height)
         .into_par_iter()
         .map(|v| {
             let mut rng = Rng::new(noise_seed.wrapping_mul(0x9E37_79B9).wrapping_add(v as u64));
             let mut colours = Vec::with_capacity(width);
             let mut depths = Vec::with_capacity(width);
+            let mut instances = Vec::with_capacity(width);
             for u in 0..width {
                 let ray_camera = Vector3::new(
                     (u as f64 - camera.cx) / camera.fx,
@@ -82,14 +87,20 @@ pub fn render(
                     1.0,
                 );
                 let direction = rotation * ray_camera;
-                let (colour, depth) = match scene.cast(&origin, &direction) {
-                    Some(hit) => {
-                        let base = texel(hit.texture, hit.uv.0, hit.uv.1);
-                        let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
-                        (base.map(|c| c * shade), hit.t)
-                    }
-                    None => ([0.0; 3], 0.0),
-                };
+                let (colour, depth, instance) =
+                    match scene.cast_with_movers(&mover_boxes, &origin, &direction) {
+                        Some((hit, mover)) => {
+                            let base = texel(hit.texture, hit.uv.0, hit.uv.1);
+                            let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
+                            (
+                                base.map(|c| c * shade),
+                                hit.t,
+                                mover.map_or(0, |i| movers[i].1),
+                            )
+                        }
+                        None => ([0.0; 3], 0.0, 0),
+                    };
+                instances.push(instance);
                 let noisy = colour.map(|c| {
                     (c * 255.0 + sensor.rgb_noise * rng.normal())
                         .round()
@@ -98,12 +109,14 @@ pub fn render(
                 colours.push(noisy);
                 depths.push(depth as f32);
             }
-            (colours, depths)
+            (colours, depths, instances)
         })
         .collect();
     let mut rgb = RgbImage::new(camera.width, camera.height);
     let mut exact_depth = DepthImage::new(camera.width, camera.height);
-    for (v, (colours, depths)) in rows.into_iter().enumerate() {
+    let mut mask = Vec::with_capacity(width * height);
+    for (v, (colours, depths, instances)) in rows.into_iter().enumerate() {
+        mask.extend(instances);
         for (u, colour) in colours.into_iter().enumerate() {
             rgb.put_pixel(u as u32, v as u32, image::Rgb(colour));
         }
@@ -114,6 +127,7 @@ pub fn render(
         rgb,
         depth,
         exact_depth,
+        mask,
     }
 }
 
@@ -158,7 +172,6 @@ pub fn sensor_depth(exact: &DepthImage, sensor: &SensorConfig, noise_seed: u64) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::scene::Cuboid;
 
     #[test]
     fn noise_grows_with_distance() {
@@ -183,6 +196,7 @@ mod tests {
         camera.cy = 24.0;
         let rendered = render(
             &scene,
+            &[],
             &camera,
             &Se3::identity(),
             &SensorConfig::default(),

@@ -84,35 +84,62 @@ fn face_hit(
     }
 }
 
+/// The nearest entry into any of `boxes` along a ray, with the box's index.
+fn nearest_entry<'a>(
+    boxes: impl Iterator<Item = &'a Cuboid>,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+) -> Option<(Hit, usize)> {
+    let mut best: Option<(Hit, usize)> = None;
+    for (index, cuboid) in boxes.enumerate() {
+        let (t_enter, axis, t_exit, _) = slab(cuboid, origin, direction);
+        if t_enter > 1e-6 && t_enter <= t_exit && best.is_none_or(|(h, _)| t_enter < h.t) {
+            let hit = face_hit(
+                cuboid,
+                origin + direction * t_enter,
+                axis,
+                direction,
+                t_enter,
+            );
+            best = Some((hit, index));
+        }
+    }
+    best
+}
+
 impl Scene {
-    /// The nearest surface along the ray `origin + t * direction`, `t > 0`.
+    /// The nearest static surface along the ray `origin + t * direction`, `t > 0`.
     pub fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        for cuboid in &self.furniture {
-            let (t_enter, axis, t_exit, _) = slab(cuboid, origin, direction);
-            if t_enter > 1e-6 && t_enter <= t_exit && best.is_none_or(|h| t_enter < h.t) {
-                best = Some(face_hit(
-                    cuboid,
-                    origin + direction * t_enter,
-                    axis,
-                    direction,
-                    t_enter,
-                ));
-            }
+        if let Some((hit, _)) = nearest_entry(self.furniture.iter(), origin, direction) {
+            return Some(hit);
         }
-        if best.is_none() {
-            let (_, _, t_exit, axis) = slab(&self.room, origin, direction);
-            if t_exit > 1e-6 && t_exit.is_finite() {
-                return Some(face_hit(
-                    &self.room,
-                    origin + direction * t_exit,
-                    axis,
-                    direction,
-                    t_exit,
-                ));
+        let (_, _, t_exit, axis) = slab(&self.room, origin, direction);
+        (t_exit > 1e-6 && t_exit.is_finite()).then(|| {
+            face_hit(
+                &self.room,
+                origin + direction * t_exit,
+                axis,
+                direction,
+                t_exit,
+            )
+        })
+    }
+
+    /// The nearest surface including movers (boxes at their current place): the hit and
+    /// the index of the mover hit, `None` for a static surface.
+    pub fn cast_with_movers(
+        &self,
+        movers: &[Cuboid],
+        origin: &Vector3<f64>,
+        direction: &Vector3<f64>,
+    ) -> Option<(Hit, Option<usize>)> {
+        let static_hit = self.cast(origin, direction);
+        match nearest_entry(movers.iter(), origin, direction) {
+            Some((hit, index)) if static_hit.is_none_or(|s| hit.t < s.t) => {
+                Some((hit, Some(index)))
             }
+            _ => static_hit.map(|hit| (hit, None)),
         }
-        best
     }
 
     /// The distance from a point to the nearest surface of the scene (walls and furniture).

@@ -12,8 +12,11 @@ use thiserror::Error;
 
 use super::config::SynthConfig;
 use super::motion::poses_at;
+use super::movers::{place_people, Mover};
 use super::render::render;
-use super::scene::Scene;
+use super::scene::{Cuboid, Scene};
+use crate::detect::{Detection, FrameDetections};
+use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::file_list::read_file_list;
 use crate::io::image_files::depth_to_png16;
@@ -43,7 +46,7 @@ pub struct SynthSummary {
 }
 
 /// Frame times in seconds from the start and the absolute timestamp of the first frame.
-fn frame_times(config: &SynthConfig) -> Result<(Vec<f64>, f64), SynthError> {
+pub fn frame_times(config: &SynthConfig) -> Result<(Vec<f64>, f64), SynthError> {
     let n = config.sequence.frames;
     match &config.sequence.timing {
         Some(path) => {
@@ -81,13 +84,58 @@ fn check_output_folder(out: &Path, force: bool) -> Result<(), SynthError> {
             return Err(SynthError::NotEmpty(out.to_path_buf()));
         }
     }
-    for sub in ["rgb", "depth"] {
+    for sub in ["rgb", "depth", "masks", "detections_oracle"] {
         std::fs::create_dir_all(out.join(sub)).map_err(|source| IoError::Write {
             path: out.join(sub),
             source,
         })?;
     }
     Ok(())
+}
+
+/// Exact boxes of the movers seen in a frame, from its instance mask (x2, y2
+/// exclusive); instances covering fewer than 20 pixels are left out.
+pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Detection> {
+    let mut detections = Vec::new();
+    for mover in movers {
+        let (mut x1, mut y1, mut x2, mut y2, mut count) = (u32::MAX, u32::MAX, 0, 0, 0usize);
+        for (index, _) in mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &id)| id == mover.instance)
+        {
+            let (x, y) = (index as u32 % width, index as u32 / width);
+            x1 = x1.min(x);
+            y1 = y1.min(y);
+            x2 = x2.max(x + 1);
+            y2 = y2.max(y + 1);
+            count += 1;
+        }
+        if count >= 20 {
+            detections.push(Detection {
+                class: mover.class.to_string(),
+                class_id: mover.class_id,
+                score: 1.0,
+                bbox: [x1 as f32, y1 as f32, x2 as f32, y2 as f32],
+                instance: Some(mover.instance),
+            });
+        }
+    }
+    detections
+}
+
+/// The static scene and the movers of a config along the given camera poses.
+pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> (Scene, Vec<Mover>) {
+    let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
+    let mut scene = Scene::around(
+        &positions,
+        config.scene.room_margin,
+        config.scene.furniture,
+        config.scene.clearance,
+        config.sequence.seed,
+    );
+    let movers = place_people(&config.people, poses, &mut scene);
+    (scene, movers)
 }
 
 /// Generates the sequence described by `config` into `out`.
@@ -98,15 +146,7 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     let poses = poses_at(&config.motion, &times)?;
     check_output_folder(out, force)?;
     let camera = config.camera();
-    let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
-    let scene = Scene::around(
-        &positions,
-        config.scene.room_margin,
-        config.scene.furniture,
-        config.scene.clearance,
-        config.sequence.seed,
-    );
-
+    let (scene, movers) = build_world(config, &poses);
     let progress = ProgressBar::new(times.len() as u64);
     progress.set_style(
         ProgressStyle::with_template("synth {bar:40} {pos}/{len} frames ({eta} left)")
@@ -125,7 +165,11 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             .seed
             .wrapping_mul(1_000_003)
             .wrapping_add(index as u64);
-        let rendered = render(&scene, &camera, pose, &config.sensor, frame_seed);
+        let boxes: Vec<(Cuboid, u16)> = movers
+            .iter()
+            .map(|m| (m.cuboid_at(*t), m.instance))
+            .collect();
+        let rendered = render(&scene, &boxes, &camera, pose, &config.sensor, frame_seed);
         let rgb_name = format!("rgb/{stamp:.6}.png");
         let depth_name = format!("depth/{stamp:.6}.png");
         let save_err = |path: &str, e: image::ImageError| IoError::Write {
@@ -139,6 +183,25 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         depth_to_png16(&rendered.depth, DEPTH_SCALE)
             .save(out.join(&depth_name))
             .map_err(|e| save_err(&depth_name, e))?;
+        let mask_name = format!("masks/{stamp:.6}.png");
+        let mask = image::GrayImage::from_raw(
+            camera.width,
+            camera.height,
+            rendered.mask.iter().map(|&i| i.min(255) as u8).collect(),
+        )
+        .expect("mask size matches");
+        mask.save(out.join(&mask_name))
+            .map_err(|e| save_err(&mask_name, e))?;
+        let detections = FrameDetections {
+            timestamp: stamp,
+            detections: oracle_detections(&rendered.mask, camera.width, &movers),
+        };
+        let json = serde_json::to_string_pretty(&detections)
+            .map_err(|e| SynthError::Config(e.to_string()))?;
+        write_atomic(
+            &out.join(format!("detections_oracle/{stamp:.6}.json")),
+            json.as_bytes(),
+        )?;
         let _ = writeln!(rgb_txt, "{stamp:.6} {rgb_name}");
         let _ = writeln!(depth_txt, "{stamp:.6} {depth_name}");
         let _ = writeln!(
