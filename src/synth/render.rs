@@ -48,6 +48,9 @@ pub fn kinect_depth_sigma(z: f64) -> f64 {
     0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
 }
 
+/// One rendered image row: colours, exact depths, instance ids.
+type RenderedRow = (Vec<[u8; 3]>, Vec<f32>, Vec<u16>);
+
 /// One rendered frame: colour, noisy sensor depth, the exact depth, and the instance
 /// mask (row-major; 0 = static scene, else the mover's instance id).
 pub struct Rendered {
@@ -73,7 +76,7 @@ pub fn render(
     let rotation = world_from_camera.rotation.matrix();
     let origin = world_from_camera.translation.vector;
     let light = Vector3::new(0.3, -0.8, 0.5).normalize();
-    let rows: Vec<(Vec<[u8; 3]>, Vec<f32>, Vec<u16>)> = (0..height)
+    let rows: Vec<RenderedRow> = (0..height)
         .into_par_iter()
         .map(|v| {
             let mut rng = Rng::new(noise_seed.wrapping_mul(0x9E37_79B9).wrapping_add(v as u64));

@@ -13,9 +13,10 @@ use thiserror::Error;
 use super::config::SynthConfig;
 use super::motion::poses_at;
 use super::movers::{place_people, Mover};
-use super::render::render;
+use super::render::{render, Rendered};
 use super::scene::{Cuboid, Scene};
 use crate::detect::{Detection, FrameDetections};
+use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::file_list::read_file_list;
@@ -23,6 +24,7 @@ use crate::io::image_files::depth_to_png16;
 use crate::io::orbslam_settings::{Calibration, OrbSettings, OrbSlamSettings};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
+use rayon::prelude::*;
 
 /// The depth PNG scale of generated sequences (TUM's).
 pub const DEPTH_SCALE: f64 = 5000.0;
@@ -124,6 +126,49 @@ pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Dete
     detections
 }
 
+/// Writes one frame's colour, depth and mask PNGs and its oracle detections.
+fn write_frame(
+    out: &Path,
+    stamp: f64,
+    rendered: &Rendered,
+    camera: &PinholeCamera,
+    movers: &[Mover],
+) -> Result<(), SynthError> {
+    let save_err = |path: &str, e: image::ImageError| IoError::Write {
+        path: out.join(path),
+        source: std::io::Error::other(e),
+    };
+    let rgb_name = format!("rgb/{stamp:.6}.png");
+    rendered
+        .rgb
+        .save(out.join(&rgb_name))
+        .map_err(|e| save_err(&rgb_name, e))?;
+    let depth_name = format!("depth/{stamp:.6}.png");
+    depth_to_png16(&rendered.depth, DEPTH_SCALE)
+        .save(out.join(&depth_name))
+        .map_err(|e| save_err(&depth_name, e))?;
+    let mask_name = format!("masks/{stamp:.6}.png");
+    let mask = image::GrayImage::from_raw(
+        camera.width,
+        camera.height,
+        rendered.mask.iter().map(|&i| i.min(255) as u8).collect(),
+    )
+    .expect("mask size matches");
+    mask.save(out.join(&mask_name))
+        .map_err(|e| save_err(&mask_name, e))?;
+    let detections = FrameDetections {
+        timestamp: stamp,
+        detections: oracle_detections(&rendered.mask, camera.width, movers),
+    };
+    let json =
+        serde_json::to_string_pretty(&detections).map_err(|e| SynthError::Config(e.to_string()))?;
+    write_atomic(
+        &out.join(format!("detections_oracle/{stamp:.6}.json")),
+        json.as_bytes(),
+    )?;
+    Ok(())
+}
+
 /// The static scene and the movers of a config along the given camera poses.
 pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> (Scene, Vec<Mover>) {
     let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
@@ -157,51 +202,38 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         String::from("# depth maps\n# timestamp filename\n"),
         String::new(),
     );
-    let mut ground_truth = Trajectory::default();
-    for (index, (t, pose)) in times.iter().zip(&poses).enumerate() {
-        let stamp = t0 + t;
+    // Frames render and encode in parallel (each frame's noise has its own seed, so the
+    // files do not depend on the order); the index files are written afterwards.
+    (0..times.len()).into_par_iter().try_for_each(|index| {
+        let stamp = t0 + times[index];
+        let boxes: Vec<(Cuboid, u16)> = movers
+            .iter()
+            .map(|m| (m.cuboid_at(times[index]), m.instance))
+            .collect();
         let frame_seed = config
             .sequence
             .seed
             .wrapping_mul(1_000_003)
             .wrapping_add(index as u64);
-        let boxes: Vec<(Cuboid, u16)> = movers
-            .iter()
-            .map(|m| (m.cuboid_at(*t), m.instance))
-            .collect();
-        let rendered = render(&scene, &boxes, &camera, pose, &config.sensor, frame_seed);
-        let rgb_name = format!("rgb/{stamp:.6}.png");
-        let depth_name = format!("depth/{stamp:.6}.png");
-        let save_err = |path: &str, e: image::ImageError| IoError::Write {
-            path: out.join(path),
-            source: std::io::Error::other(e),
-        };
-        rendered
-            .rgb
-            .save(out.join(&rgb_name))
-            .map_err(|e| save_err(&rgb_name, e))?;
-        depth_to_png16(&rendered.depth, DEPTH_SCALE)
-            .save(out.join(&depth_name))
-            .map_err(|e| save_err(&depth_name, e))?;
-        let mask_name = format!("masks/{stamp:.6}.png");
-        let mask = image::GrayImage::from_raw(
-            camera.width,
-            camera.height,
-            rendered.mask.iter().map(|&i| i.min(255) as u8).collect(),
-        )
-        .expect("mask size matches");
-        mask.save(out.join(&mask_name))
-            .map_err(|e| save_err(&mask_name, e))?;
-        let detections = FrameDetections {
-            timestamp: stamp,
-            detections: oracle_detections(&rendered.mask, camera.width, &movers),
-        };
-        let json = serde_json::to_string_pretty(&detections)
-            .map_err(|e| SynthError::Config(e.to_string()))?;
-        write_atomic(
-            &out.join(format!("detections_oracle/{stamp:.6}.json")),
-            json.as_bytes(),
-        )?;
+        let rendered = render(
+            &scene,
+            &boxes,
+            &camera,
+            &poses[index],
+            &config.sensor,
+            frame_seed,
+        );
+        write_frame(out, stamp, &rendered, &camera, &movers)?;
+        progress.inc(1);
+        Ok::<(), SynthError>(())
+    })?;
+    let mut ground_truth = Trajectory::default();
+    for (t, pose) in times.iter().zip(&poses) {
+        let stamp = t0 + t;
+        let (rgb_name, depth_name) = (
+            format!("rgb/{stamp:.6}.png"),
+            format!("depth/{stamp:.6}.png"),
+        );
         let _ = writeln!(rgb_txt, "{stamp:.6} {rgb_name}");
         let _ = writeln!(depth_txt, "{stamp:.6} {depth_name}");
         let _ = writeln!(
@@ -209,7 +241,6 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             "{stamp:.6} {rgb_name} {stamp:.6} {depth_name}"
         );
         ground_truth.push(stamp, *pose);
-        progress.inc(1);
     }
     progress.finish_and_clear();
     write_atomic(&out.join("rgb.txt"), rgb_txt.as_bytes())?;
