@@ -193,3 +193,31 @@ fn masks_match_the_movers_and_detections_box_them() {
         "the people must be in view: {mover_pixels} sampled pixels"
     );
 }
+
+#[test]
+fn every_preset_loads_and_validates() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth");
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let config = SynthConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            Some(config.name.as_str()),
+            path.file_stem().and_then(|s| s.to_str()),
+            "{}",
+            path.display()
+        );
+        names.push(config.name);
+    }
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "static_room",
+            "walking_halfsphere",
+            "walking_rpy",
+            "walking_static",
+            "walking_xyz"
+        ]
+    );
+}

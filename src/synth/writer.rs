@@ -258,6 +258,7 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         &out.join("calibration.yaml"),
         OrbSlamSettings::to_yaml(&calibration, &OrbSettings::default()).as_bytes(),
     )?;
+    write_atomic(&out.join("static_scene.ply"), scene.to_ply().as_bytes())?;
     let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
     write_atomic(
         &out.join("scene.toml"),
