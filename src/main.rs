@@ -123,6 +123,9 @@ struct SynthArgs {
     /// Overwrite a non-empty output folder.
     #[arg(long)]
     force: bool,
+    /// Also write preview.png: a contact sheet of 4 frames (colour, depth, mask).
+    #[arg(long)]
+    preview: bool,
 }
 
 #[derive(Args)]
@@ -275,6 +278,13 @@ fn run_synth(args: SynthArgs) -> Result<()> {
         summary.seconds,
         summary.frames as f64 / summary.seconds
     );
+    if args.preview {
+        let path = args.out.join("preview.png");
+        dopslam::synth::preview::contact_sheet(&args.out, 4)?
+            .save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }
 
