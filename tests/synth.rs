@@ -57,6 +57,7 @@ fn depth_back_projects_onto_the_scene() {
     let out = common::temp_dir("synth-consistency").join("static_room");
     let mut config = small_config(4);
     config.sensor.depth_noise = false;
+    config.sensor.disparity_step = 0.0;
     generate(&config, &out, false).unwrap();
     let sequence = TumSequence::open(&out, &TumOptions::default()).unwrap();
     assert_eq!(sequence.len(), 4);
@@ -126,6 +127,7 @@ fn masks_match_the_movers_and_detections_box_them() {
     config.sequence.frames = 30;
     config.sequence.timing = None;
     config.sensor.depth_noise = false;
+    config.sensor.disparity_step = 0.0;
     generate(&config, &out, false).unwrap();
     let sequence = TumSequence::open(&out, &TumOptions::default()).unwrap();
     let camera = sequence.calibration().unwrap().camera;

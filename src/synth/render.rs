@@ -30,6 +30,10 @@ pub struct SensorConfig {
     pub discontinuity_fraction: f64,
     /// Standard deviation of the colour noise, in 8-bit grey levels.
     pub rgb_noise: f64,
+    /// Disparity quantisation step in pixels (Kinect: 1/8); 0 turns it off.
+    pub disparity_step: f64,
+    /// Baseline times focal length of the depth sensor (pixel·metres; Kinect about 40).
+    pub bf: f64,
 }
 
 impl Default for SensorConfig {
@@ -39,6 +43,8 @@ impl Default for SensorConfig {
             max_depth: 4.5,
             discontinuity_fraction: 0.05,
             rgb_noise: 2.0,
+            disparity_step: 0.125,
+            bf: 40.0,
         }
     }
 }
@@ -166,15 +172,36 @@ pub fn sensor_depth(exact: &DepthImage, sensor: &SensorConfig, noise_seed: u64) 
             } else {
                 z
             };
-            out.metres[v * w + u] = noisy.max(0.0) as f32;
+            out.metres[v * w + u] = quantise_disparity(noisy, sensor).max(0.0) as f32;
         }
     }
     out
 }
 
+/// Rounds a depth to the nearest disparity step: \(d = bf / z\),
+/// \(z' = bf / (\mathrm{round}(d / \Delta d)\,\Delta d)\).
+pub fn quantise_disparity(z: f64, sensor: &SensorConfig) -> f64 {
+    if sensor.disparity_step <= 0.0 || z <= 0.0 {
+        return z;
+    }
+    let steps = (sensor.bf / z / sensor.disparity_step).round().max(1.0);
+    sensor.bf / (steps * sensor.disparity_step)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn disparity_steps_grow_with_distance() {
+        let sensor = SensorConfig::default();
+        // At 4 m, d = 10 px; neighbouring steps 9.875 and 10.125 px are about 5 cm apart.
+        assert!((quantise_disparity(4.0, &sensor) - 4.0).abs() < 1e-12);
+        let step_far = 40.0 / 9.875 - 4.0;
+        assert!((quantise_disparity(4.0 + 0.6 * step_far, &sensor) - 40.0 / 9.875).abs() < 1e-12);
+        let near = quantise_disparity(1.0003, &sensor);
+        assert!((near - 1.0003).abs() < 0.004, "{near}");
+    }
 
     #[test]
     fn noise_grows_with_distance() {
