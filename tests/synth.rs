@@ -126,6 +126,7 @@ fn masks_match_the_movers_and_detections_box_them() {
     let mut config = SynthConfig::load(&path).unwrap();
     config.sequence.frames = 30;
     config.sequence.timing = None;
+    config.oracle = dopslam::synth::oracle::OracleConfig::exact();
     config.sensor.depth_noise = false;
     config.sensor.disparity_step = 0.0;
     generate(&config, &out, false).unwrap();

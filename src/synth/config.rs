@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::motion::MotionConfig;
 use super::movers::PeopleConfig;
+use super::oracle::OracleConfig;
 use super::render::SensorConfig;
 use crate::geometry::camera::PinholeCamera;
 
@@ -64,6 +65,7 @@ pub struct SynthConfig {
     pub motion: MotionConfig,
     pub scene: SceneConfig,
     pub people: PeopleConfig,
+    pub oracle: OracleConfig,
     pub sensor: SensorConfig,
 }
 
@@ -98,6 +100,7 @@ impl SynthConfig {
         self.camera()
             .validate()
             .map_err(|m| format!("camera: {m}"))?;
+        self.oracle.validate()?;
         if self.sensor.max_depth.is_nan() || self.sensor.max_depth <= 0.0 {
             return Err(format!(
                 "sensor.max_depth must be positive, got {}",

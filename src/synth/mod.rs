@@ -8,6 +8,7 @@
 pub mod config;
 pub mod motion;
 pub mod movers;
+pub mod oracle;
 pub mod preview;
 pub mod render;
 pub mod scene;

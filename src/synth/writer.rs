@@ -13,6 +13,7 @@ use thiserror::Error;
 use super::config::SynthConfig;
 use super::motion::poses_at;
 use super::movers::{place_people, Mover};
+use super::oracle::OracleConfig;
 use super::render::{render, Rendered};
 use super::scene::{Cuboid, Scene};
 use crate::detect::{Detection, FrameDetections};
@@ -24,6 +25,7 @@ use crate::io::image_files::depth_to_png16;
 use crate::io::orbslam_settings::{Calibration, OrbSettings, OrbSlamSettings};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
+use crate::random::Rng;
 use rayon::prelude::*;
 
 /// The depth PNG scale of generated sequences (TUM's).
@@ -95,7 +97,7 @@ fn check_output_folder(out: &Path, force: bool) -> Result<(), SynthError> {
     Ok(())
 }
 
-/// Exact boxes of the movers seen in a frame, from its instance mask (x2, y2
+/// Exact boxes of the movers seen in a frame (before [`OracleConfig::apply`]), from its instance mask (x2, y2
 /// exclusive); instances covering fewer than 20 pixels are left out.
 pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Detection> {
     let mut detections = Vec::new();
@@ -133,6 +135,8 @@ fn write_frame(
     rendered: &Rendered,
     camera: &PinholeCamera,
     movers: &[Mover],
+    oracle: &OracleConfig,
+    seed: u64,
 ) -> Result<(), SynthError> {
     let save_err = |path: &str, e: image::ImageError| IoError::Write {
         path: out.join(path),
@@ -158,7 +162,12 @@ fn write_frame(
         .map_err(|e| save_err(&mask_name, e))?;
     let detections = FrameDetections {
         timestamp: stamp,
-        detections: oracle_detections(&rendered.mask, camera.width, movers),
+        detections: oracle.apply(
+            &oracle_detections(&rendered.mask, camera.width, movers),
+            camera.width,
+            camera.height,
+            &mut Rng::new(seed),
+        ),
     };
     let json =
         serde_json::to_string_pretty(&detections).map_err(|e| SynthError::Config(e.to_string()))?;
@@ -223,7 +232,15 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             &config.sensor,
             frame_seed,
         );
-        write_frame(out, stamp, &rendered, &camera, &movers)?;
+        write_frame(
+            out,
+            stamp,
+            &rendered,
+            &camera,
+            &movers,
+            &config.oracle,
+            frame_seed ^ 0x0AC1_E5EE,
+        )?;
         progress.inc(1);
         Ok::<(), SynthError>(())
     })?;
