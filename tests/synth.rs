@@ -216,6 +216,9 @@ fn every_preset_loads_and_validates() {
     assert_eq!(
         names,
         [
+            "loop_room",
+            "seated_leaves",
+            "sitting",
             "static_room",
             "walking_halfsphere",
             "walking_rpy",

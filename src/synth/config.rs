@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::motion::MotionConfig;
-use super::movers::PeopleConfig;
+use super::movers::{PeopleConfig, SeatedConfig};
 use super::oracle::OracleConfig;
 use super::render::SensorConfig;
 use crate::geometry::camera::PinholeCamera;
@@ -65,6 +65,7 @@ pub struct SynthConfig {
     pub motion: MotionConfig,
     pub scene: SceneConfig,
     pub people: PeopleConfig,
+    pub seated: SeatedConfig,
     pub oracle: OracleConfig,
     pub sensor: SensorConfig,
 }

@@ -26,6 +26,9 @@ pub enum MotionKind {
     Rpy,
     /// Moving over a half sphere of about 1 m diameter, looking at its centre.
     Halfsphere,
+    /// A full turn on a circle of 0.6 m radius looking outwards, every 30 s: the camera
+    /// returns to where it started (for loop closure).
+    Loop,
     /// A recorded trajectory file (`file`, `format`).
     File,
 }
@@ -79,6 +82,14 @@ pub fn procedural_pose(kind: MotionKind, t: f64) -> Se3 {
             let r = Vector3::new(0.3 * s(0.06, 0.0), 0.35 * s(0.045, 1.0), 0.3 * s(0.08, 2.0));
             let p = Vector3::new(0.02 * s(0.1, 0.0), 0.02 * s(0.07, 0.0), 0.02 * s(0.05, 0.0));
             Se3::from_parts(p.into(), so3::exp(&r))
+        }
+        MotionKind::Loop => {
+            let angle = std::f64::consts::TAU * t / 30.0;
+            let position = Vector3::new(0.6 * angle.sin(), 0.02 * s(0.2, 0.0), 0.6 * angle.cos());
+            Se3::from_parts(
+                position.into(),
+                so3::exp(&Vector3::new(0.05 * s(0.1, 0.3), angle, 0.0)),
+            )
         }
         MotionKind::Halfsphere => {
             // Azimuth sweeps ±70°, elevation ±35°, radius 0.5 m around a centre 1.5 m ahead.
@@ -185,6 +196,18 @@ mod tests {
                 assert!((r.determinant() - 1.0).abs() < 1e-9, "{kind:?}");
             }
         }
+    }
+
+    #[test]
+    fn the_loop_returns_to_its_start() {
+        let (a, b) = (
+            procedural_pose(MotionKind::Loop, 0.0),
+            procedural_pose(MotionKind::Loop, 30.0),
+        );
+        assert!((a.translation.vector - b.translation.vector).norm() < 0.03);
+        assert!((a.rotation.matrix() - b.rotation.matrix()).norm() < 0.1);
+        let half = procedural_pose(MotionKind::Loop, 15.0);
+        assert!((a.translation.vector - half.translation.vector).norm() > 1.1);
     }
 
     #[test]

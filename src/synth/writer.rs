@@ -12,7 +12,7 @@ use thiserror::Error;
 
 use super::config::SynthConfig;
 use super::motion::poses_at;
-use super::movers::{place_people, Mover};
+use super::movers::{place_people, place_seated, Mover};
 use super::oracle::OracleConfig;
 use super::render::{render, Rendered};
 use super::scene::{Cuboid, Scene};
@@ -188,7 +188,15 @@ pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> (Scene, Vec<Mover>) {
         config.scene.clearance,
         config.sequence.seed,
     );
-    let movers = place_people(&config.people, poses, &mut scene);
+    let mut movers = place_people(&config.people, poses, &mut scene);
+    let next_instance = movers.len() as u16 + 1;
+    movers.extend(place_seated(
+        &config.seated,
+        config.people.height,
+        poses,
+        &scene,
+        next_instance,
+    ));
     (scene, movers)
 }
 
