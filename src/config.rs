@@ -9,6 +9,7 @@ use thiserror::Error;
 
 use crate::eval::associate::AssociationRule;
 use crate::eval::report::AlignMode;
+pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
 
@@ -23,33 +24,6 @@ pub enum ConfigError {
     Invalid { path: PathBuf, message: String },
     #[error(transparent)]
     Settings(#[from] crate::io::IoError),
-}
-
-/// ORB extractor parameters (ORB-SLAM2's `ORBextractor.*`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct OrbConfig {
-    /// Keypoints per image over all pyramid levels.
-    pub n_features: usize,
-    /// Scale between pyramid levels.
-    pub scale_factor: f64,
-    pub n_levels: usize,
-    /// FAST threshold tried first in each cell.
-    pub ini_th_fast: u8,
-    /// FAST threshold used where the first finds nothing.
-    pub min_th_fast: u8,
-}
-
-impl Default for OrbConfig {
-    fn default() -> Self {
-        Self {
-            n_features: 1000,
-            scale_factor: 1.2,
-            n_levels: 8,
-            ini_th_fast: 20,
-            min_th_fast: 7,
-        }
-    }
 }
 
 /// How a sequence is read.
@@ -135,28 +109,7 @@ impl Config {
 
     /// Checks every value's range; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
-        let orb = &self.orb;
-        if orb.n_features == 0 {
-            return Err("orb.n_features must be positive".into());
-        }
-        if !(orb.scale_factor > 1.0 && orb.scale_factor < 2.0) {
-            return Err(format!(
-                "orb.scale_factor must be in (1, 2), got {}",
-                orb.scale_factor
-            ));
-        }
-        if !(1..=16).contains(&orb.n_levels) {
-            return Err(format!(
-                "orb.n_levels must be in 1..=16, got {}",
-                orb.n_levels
-            ));
-        }
-        if orb.min_th_fast > orb.ini_th_fast {
-            return Err(format!(
-                "orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})",
-                orb.min_th_fast, orb.ini_th_fast
-            ));
-        }
+        self.orb.validate()?;
         if let Some(scale) = self.dataset.depth_scale {
             if !(scale.is_finite() && scale > 0.0) {
                 return Err(format!("dataset.depth_scale must be positive, got {scale}"));

@@ -9,6 +9,7 @@ pub mod config;
 pub mod demo;
 pub mod detect;
 pub mod eval;
+pub mod features;
 pub mod geometry;
 pub mod io;
 pub mod random;

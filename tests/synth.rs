@@ -7,8 +7,7 @@ use std::path::{Path, PathBuf};
 
 use dopslam::io::sequence::{FrameImages, Sequence};
 use dopslam::io::tum::{TumOptions, TumSequence};
-use dopslam::synth::motion::poses_at;
-use dopslam::synth::writer::{build_world, frame_times};
+use dopslam::synth::writer::World;
 use dopslam::synth::{generate, SynthConfig};
 
 fn small_config(frames: usize) -> SynthConfig {
@@ -64,8 +63,7 @@ fn depth_back_projects_onto_the_scene() {
     let gt = sequence.ground_truth().unwrap().clone();
     let camera = sequence.calibration().unwrap().camera;
     // Rebuild the scene exactly as generate() did.
-    let (times, _) = frame_times(&config).unwrap();
-    let (scene, _) = build_world(&config, &poses_at(&config.motion, &times).unwrap());
+    let scene = World::new(&config).unwrap().scene;
     for index in 0..sequence.len() {
         let FrameImages::Rgbd { depth, .. } = sequence.load(index).unwrap().images else {
             panic!("RGB-D expected")
@@ -132,9 +130,13 @@ fn masks_match_the_movers_and_detections_box_them() {
     generate(&config, &out, false).unwrap();
     let sequence = TumSequence::open(&out, &TumOptions::default()).unwrap();
     let camera = sequence.calibration().unwrap().camera;
-    let (times, _) = frame_times(&config).unwrap();
-    let poses = poses_at(&config.motion, &times).unwrap();
-    let (scene, movers) = build_world(&config, &poses);
+    let World {
+        times,
+        poses,
+        scene,
+        movers,
+        ..
+    } = World::new(&config).unwrap();
     assert_eq!(movers.len(), 2);
     let mut mover_pixels = 0;
     for index in (0..sequence.len()).step_by(5) {
@@ -217,6 +219,8 @@ fn every_preset_loads_and_validates() {
         names,
         [
             "loop_room",
+            "moving_chair",
+            "people_from_photos",
             "seated_leaves",
             "sitting",
             "static_room",

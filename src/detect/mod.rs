@@ -5,6 +5,8 @@
 //! "class_id": 0, "score": 0.97, "box": [x1, y1, x2, y2], "instance": 3}]}` with boxes in
 //! image pixels (x2, y2 exclusive) and `instance` present only for oracle detections.
 
+pub mod coco;
+
 use serde::{Deserialize, Serialize};
 
 /// One detected object.

@@ -36,10 +36,15 @@ impl DepthImage {
 }
 
 fn open(path: &Path) -> Result<image::DynamicImage, IoError> {
+    open_as(path, "image file listed by the sequence")
+}
+
+/// Opens an image; `what` says what the missing file was meant to be.
+fn open_as(path: &Path, what: &str) -> Result<image::DynamicImage, IoError> {
     if !path.exists() {
         return Err(IoError::Missing {
             path: path.to_path_buf(),
-            what: "image file listed by the sequence".into(),
+            what: what.into(),
         });
     }
     image::open(path).map_err(|e| IoError::Image {
@@ -51,6 +56,22 @@ fn open(path: &Path) -> Result<image::DynamicImage, IoError> {
 /// Reads a colour image (any 8-bit layout; grey is expanded to RGB).
 pub fn read_rgb(path: &Path) -> Result<RgbImage, IoError> {
     Ok(open(path)?.to_rgb8())
+}
+
+/// Reads an 8-bit image with an alpha channel (a cut-out); `what` names its use in
+/// the error when the file is missing.
+pub fn read_rgba(path: &Path, what: &str) -> Result<image::RgbaImage, IoError> {
+    let image = open_as(path, what)?;
+    if !image.color().has_alpha() {
+        return Err(IoError::Image {
+            path: path.to_path_buf(),
+            message: format!(
+                "a cut-out needs an alpha channel, found {:?}",
+                image.color()
+            ),
+        });
+    }
+    Ok(image.to_rgba8())
 }
 
 /// Reads an image as 8-bit grey.

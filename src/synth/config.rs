@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::motion::MotionConfig;
-use super::movers::{PeopleConfig, SeatedConfig};
+use super::movers::{ObjectsConfig, PeopleConfig, SeatedConfig};
 use super::oracle::OracleConfig;
 use super::render::SensorConfig;
 use crate::geometry::camera::PinholeCamera;
@@ -54,6 +54,14 @@ impl Default for SceneConfig {
     }
 }
 
+/// Stereo output: a second, right camera `baseline` metres along the left camera's x
+/// axis, written in the KITTI odometry layout under `kitti/`; 0 turns it off.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StereoConfig {
+    pub baseline: f64,
+}
+
 /// A whole synth preset.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -66,8 +74,10 @@ pub struct SynthConfig {
     pub scene: SceneConfig,
     pub people: PeopleConfig,
     pub seated: SeatedConfig,
+    pub objects: ObjectsConfig,
     pub oracle: OracleConfig,
     pub sensor: SensorConfig,
+    pub stereo: StereoConfig,
 }
 
 impl SynthConfig {
@@ -102,10 +112,12 @@ impl SynthConfig {
             .validate()
             .map_err(|m| format!("camera: {m}"))?;
         self.oracle.validate()?;
-        if self.sensor.max_depth.is_nan() || self.sensor.max_depth <= 0.0 {
+        self.sensor.validate()?;
+        self.objects.validate()?;
+        if !(0.0..=2.0).contains(&self.stereo.baseline) {
             return Err(format!(
-                "sensor.max_depth must be positive, got {}",
-                self.sensor.max_depth
+                "stereo.baseline must be 0 (off) to 2 m, got {}",
+                self.stereo.baseline
             ));
         }
         Ok(())

@@ -1,9 +1,13 @@
 //! `dopslam synth`: synthetic RGB-D sequences with exact ground truth, written in the
 //! real TUM layout so every reader and outside tool takes them unchanged.
 //!
-//! This first part renders static scenes (a textured room with furniture) along
-//! procedural or recorded camera motions. Movers, masks, oracle detections and stereo
-//! output are still to come (issue 3).
+//! A textured room with furniture ([`scene`]), seen along procedural or recorded camera
+//! motions ([`motion`]), with movers ([`movers`]: people as boxes or real cut-outs on
+//! billboards ([`sprite`]), seated people who leave, pushed objects of static classes),
+//! rendered by ray casting with Kinect-like depth, colour noise, optional motion blur
+//! and exposure drift ([`render`]), written with instance masks, oracle detections
+//! ([`oracle`]), the exact static geometry and, optionally, a stereo pair in the KITTI
+//! layout ([`writer`]).
 
 pub mod config;
 pub mod motion;
@@ -12,6 +16,7 @@ pub mod oracle;
 pub mod preview;
 pub mod render;
 pub mod scene;
+pub mod sprite;
 pub mod texture;
 pub mod writer;
 

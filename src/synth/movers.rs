@@ -1,11 +1,17 @@
-//! Movers: people walking back and forth across the camera's view, as boxes of a
-//! person's size (1.75 x 0.5 x 0.3 m) moving at walking speed. Each has an instance id
-//! (1, 2, …; 0 is the static scene in the masks) and a COCO class.
+//! Movers: people walking back and forth across the camera's view, seated people who
+//! leave, and objects of a "static" class (a chair, a box) pushed around. A person is a
+//! textured box of a person's size or a real cut-out on a camera-facing billboard. Each
+//! has an instance id (1, 2, …; 0 is the static scene in the masks) and a COCO class.
+
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::scene::{Cuboid, Scene};
+use super::sprite::{Billboard, Sprite};
+use crate::detect::coco;
 use crate::geometry::se3::Se3;
 
 /// The people section of a synth config.
@@ -24,6 +30,9 @@ pub struct PeopleConfig {
     pub height: f64,
     /// Height of the mean camera position above the floor (m), like a hand-held camera.
     pub camera_height: f64,
+    /// A standing person's RGBA cut-out: people become camera-facing billboards of it
+    /// instead of textured boxes.
+    pub sprite: Option<PathBuf>,
 }
 
 impl Default for PeopleConfig {
@@ -35,6 +44,7 @@ impl Default for PeopleConfig {
             span: 1.8,
             height: 1.75,
             camera_height: 1.2,
+            sprite: None,
         }
     }
 }
@@ -53,6 +63,9 @@ pub struct SeatedConfig {
     pub sway: f64,
     /// Height of a seated person (m).
     pub seated_height: f64,
+    /// A seated person's RGBA cut-out, shown while seated (the standing one from
+    /// `people.sprite`, if any, once they get up).
+    pub sprite: Option<PathBuf>,
 }
 
 impl Default for SeatedConfig {
@@ -63,8 +76,74 @@ impl Default for SeatedConfig {
             distance: 1.6,
             sway: 0.02,
             seated_height: 1.25,
+            sprite: None,
         }
     }
+}
+
+/// Objects of a class the detector calls static (a chair, a suitcase) that are pushed
+/// back and forth in view: the DOP model must notice that they move.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObjectsConfig {
+    pub count: usize,
+    /// COCO class name.
+    pub class: String,
+    /// Size in metres: width, height, depth.
+    pub size: [f64; 3],
+    /// Speed in m/s.
+    pub speed: f64,
+    /// Distance in front of the mean camera position (m).
+    pub distance: f64,
+    /// Half length of the path (m).
+    pub span: f64,
+}
+
+impl Default for ObjectsConfig {
+    fn default() -> Self {
+        Self {
+            count: 0,
+            class: "chair".into(),
+            size: [0.5, 0.9, 0.5],
+            speed: 0.3,
+            distance: 1.4,
+            span: 0.8,
+        }
+    }
+}
+
+impl ObjectsConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if coco::class_id(&self.class).is_none() {
+            return Err(format!(
+                "objects.class: {:?} is not a COCO class name",
+                self.class
+            ));
+        }
+        if self.size.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(format!("objects.size must be positive, got {:?}", self.size));
+        }
+        Ok(())
+    }
+}
+
+/// What a mover looks like.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Appearance {
+    /// A textured box.
+    Box,
+    /// A cut-out on a billboard; a seated person may have a second cut-out.
+    Sprite {
+        standing: Option<Arc<Sprite>>,
+        seated: Option<Arc<Sprite>>,
+    },
+}
+
+/// A mover's geometry in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape {
+    Box(Cuboid),
+    Billboard(Billboard),
 }
 
 /// How a mover moves.
@@ -85,7 +164,7 @@ pub enum Behaviour {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mover {
     pub instance: u16,
-    pub class: &'static str,
+    pub class: String,
     pub class_id: u32,
     /// The box's minimum corner at the two ends of its path.
     pub start: Vector3<f64>,
@@ -97,9 +176,59 @@ pub struct Mover {
     pub behaviour: Behaviour,
     /// The world axis that points up, and its sign.
     pub up: (usize, f64),
+    pub appearance: Appearance,
 }
 
 impl Mover {
+    /// The box swept by the mover over its whole path.
+    pub fn swept_box(&self) -> Cuboid {
+        let end = self.end + self.size;
+        Cuboid {
+            min: self.start.inf(&self.end),
+            max: (self.start + self.size).sup(&end),
+            texture: 0,
+        }
+    }
+
+    /// Whether a seated mover is still seated at time `t`.
+    pub fn seated_at(&self, t: f64) -> bool {
+        matches!(self.behaviour, Behaviour::Seated { sit_seconds, .. } if t < sit_seconds)
+    }
+
+    /// The mover's geometry at time `t` seen from a camera at `camera`: its box, or a
+    /// billboard standing on the box's bottom face, as tall as the box, facing the camera.
+    pub fn shape_at(&self, t: f64, camera: &Vector3<f64>) -> Shape {
+        let cuboid = self.cuboid_at(t);
+        let Appearance::Sprite { standing, seated } = &self.appearance else {
+            return Shape::Box(cuboid);
+        };
+        let sprite = if self.seated_at(t) {
+            seated.as_ref().or(standing.as_ref())
+        } else {
+            standing.as_ref().or(seated.as_ref())
+        };
+        let Some(sprite) = sprite else {
+            return Shape::Box(cuboid);
+        };
+        let (axis, sign) = self.up;
+        let mut up = Vector3::zeros();
+        up[axis] = sign;
+        let mut base = (cuboid.min + cuboid.max) * 0.5;
+        base[axis] = if sign > 0.0 {
+            cuboid.min[axis]
+        } else {
+            cuboid.max[axis]
+        };
+        let height = cuboid.max[axis] - cuboid.min[axis];
+        Shape::Billboard(Billboard::facing(
+            base,
+            up,
+            height,
+            camera,
+            sprite.clone(),
+        ))
+    }
+
     /// The box at time `t` seconds.
     pub fn cuboid_at(&self, t: f64) -> Cuboid {
         let texture = 1000 + self.instance as u32;
@@ -160,7 +289,12 @@ pub fn up_axis(poses: &[Se3]) -> (usize, f64) {
 /// Places the floor `camera_height` below the mean camera position, and `count` people
 /// on paths across the mean viewing direction, the first at `distance`, each next one
 /// 0.8 m farther, walking in alternating directions.
-pub fn place_people(config: &PeopleConfig, poses: &[Se3], scene: &mut Scene) -> Vec<Mover> {
+pub fn place_people(
+    config: &PeopleConfig,
+    appearance: &Appearance,
+    poses: &[Se3],
+    scene: &mut Scene,
+) -> Vec<Mover> {
     if poses.is_empty() {
         return Vec::new();
     }
@@ -196,7 +330,7 @@ pub fn place_people(config: &PeopleConfig, poses: &[Se3], scene: &mut Scene) -> 
             };
             Mover {
                 instance: i as u16 + 1,
-                class: "person",
+                class: "person".into(),
                 class_id: 0,
                 start: corner(a),
                 end: corner(b),
@@ -205,6 +339,7 @@ pub fn place_people(config: &PeopleConfig, poses: &[Se3], scene: &mut Scene) -> 
                 phase: 1.7 * i as f64,
                 behaviour: Behaviour::Walk,
                 up: (up, sign),
+                appearance: appearance.clone(),
             }
         })
         .collect()
@@ -215,6 +350,7 @@ pub fn place_people(config: &PeopleConfig, poses: &[Se3], scene: &mut Scene) -> 
 /// continue after `first_instance - 1`. Call after [`place_people`] (which sets the floor).
 pub fn place_seated(
     config: &SeatedConfig,
+    appearance: &Appearance,
     height: f64,
     poses: &[Se3],
     scene: &Scene,
@@ -244,7 +380,7 @@ pub fn place_seated(
             };
             Mover {
                 instance: first_instance + i as u16,
-                class: "person",
+                class: "person".into(),
                 class_id: 0,
                 start: corner(seat),
                 end: corner(exit),
@@ -257,6 +393,57 @@ pub fn place_seated(
                     sway: config.sway,
                 },
                 up: (up, sign),
+                appearance: appearance.clone(),
+            }
+        })
+        .collect()
+}
+
+/// Places `count` objects on the floor `distance` in front of the mean camera position,
+/// each pushed back and forth sideways along its own path (0.7 m farther each). Call
+/// after [`place_people`] (which sets the floor).
+pub fn place_objects(
+    config: &ObjectsConfig,
+    poses: &[Se3],
+    scene: &Scene,
+    first_instance: u16,
+) -> Vec<Mover> {
+    if poses.is_empty() || config.count == 0 {
+        return Vec::new();
+    }
+    let (up, sign) = up_axis(poses);
+    let (centre, forward, lateral) = viewing_frame(poses, up, sign);
+    let floor = if sign > 0.0 {
+        scene.room.min[up]
+    } else {
+        scene.room.max[up]
+    };
+    let class_id = coco::class_id(&config.class).unwrap_or(56);
+    // Width across the path, height along up, depth along the viewing direction.
+    let mut size = Vector3::zeros();
+    size[(up + 1) % 3] = config.size[0];
+    size[up] = config.size[1];
+    size[(up + 2) % 3] = config.size[2];
+    (0..config.count)
+        .map(|i| {
+            let middle = centre + forward * (config.distance + 0.7 * i as f64);
+            let corner = |p: Vector3<f64>| {
+                let mut c = p - size * 0.5;
+                c[up] = if sign > 0.0 { floor } else { floor - size[up] };
+                c
+            };
+            Mover {
+                instance: first_instance + i as u16,
+                class: config.class.clone(),
+                class_id,
+                start: corner(middle - lateral * config.span),
+                end: corner(middle + lateral * config.span),
+                size,
+                speed: config.speed,
+                phase: 0.9 * i as f64,
+                behaviour: Behaviour::Walk,
+                up: (up, sign),
+                appearance: Appearance::Box,
             }
         })
         .collect()
@@ -297,7 +484,7 @@ mod tests {
     fn walks_back_and_forth() {
         let mover = Mover {
             instance: 1,
-            class: "person",
+            class: "person".into(),
             class_id: 0,
             start: Vector3::zeros(),
             end: Vector3::new(2.0, 0.0, 0.0),
@@ -306,6 +493,7 @@ mod tests {
             phase: 0.0,
             behaviour: Behaviour::Walk,
             up: (1, -1.0),
+            appearance: Appearance::Box,
         };
         assert!((mover.cuboid_at(1.0).min.x - 1.0).abs() < 1e-12);
         assert!((mover.cuboid_at(3.0).min.x - 1.0).abs() < 1e-12);
@@ -317,7 +505,7 @@ mod tests {
                 sway: 0.0,
             },
             size: Vector3::new(0.5, 1.75, 0.5),
-            ..mover
+            ..mover.clone()
         };
         // Up is -y: the seated box keeps its feet (max y) and is 1.2 m tall.
         let sitting = seated.cuboid_at(1.0);

@@ -11,7 +11,8 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::scene::{Cuboid, Scene};
+use super::movers::Shape;
+use super::scene::Scene;
 use super::texture::texel;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -34,6 +35,13 @@ pub struct SensorConfig {
     pub disparity_step: f64,
     /// Baseline times focal length of the depth sensor (pixel·metres; Kinect about 40).
     pub bf: f64,
+    /// Exposure time in seconds for motion blur (colour averaged over the camera's and
+    /// the movers' motion during the exposure); 0 turns it off.
+    pub exposure_time: f64,
+    /// How many instants the exposure is sampled at.
+    pub blur_samples: usize,
+    /// Relative amplitude of slow brightness changes (auto exposure); 0 turns it off.
+    pub exposure_variation: f64,
 }
 
 impl Default for SensorConfig {
@@ -45,7 +53,59 @@ impl Default for SensorConfig {
             rgb_noise: 2.0,
             disparity_step: 0.125,
             bf: 40.0,
+            exposure_time: 0.0,
+            blur_samples: 4,
+            exposure_variation: 0.0,
         }
+    }
+}
+
+impl SensorConfig {
+    /// The brightness gain at time `t` seconds: \(1 + a \sin(2\pi t / 7.3)\sin(2\pi t / 2.9 + 1)\),
+    /// a slow, irregular drift like a camera's auto exposure.
+    pub fn gain(&self, t: f64) -> f64 {
+        use std::f64::consts::TAU;
+        1.0 + self.exposure_variation * (TAU * t / 7.3).sin() * (TAU * t / 2.9 + 1.0).sin()
+    }
+
+    /// The instants (seconds) at which a frame at `t` is sampled: `t` alone, or
+    /// `blur_samples` instants spread over the exposure centred on `t`.
+    pub fn exposure_instants(&self, t: f64) -> Vec<f64> {
+        if self.exposure_time <= 0.0 || self.blur_samples < 2 {
+            return vec![t];
+        }
+        let n = self.blur_samples;
+        (0..n)
+            .map(|k| t + self.exposure_time * (k as f64 / (n - 1) as f64 - 0.5))
+            .collect()
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if self.max_depth.is_nan() || self.max_depth <= 0.0 {
+            return Err(format!(
+                "sensor.max_depth must be positive, got {}",
+                self.max_depth
+            ));
+        }
+        if !(0.0..1.0).contains(&self.exposure_variation) {
+            return Err(format!(
+                "sensor.exposure_variation must be in [0, 1), got {}",
+                self.exposure_variation
+            ));
+        }
+        if !(0.0..=0.2).contains(&self.exposure_time) {
+            return Err(format!(
+                "sensor.exposure_time must be 0 to 0.2 s, got {}",
+                self.exposure_time
+            ));
+        }
+        if self.blur_samples == 0 || self.blur_samples > 32 {
+            return Err(format!(
+                "sensor.blur_samples must be 1 to 32, got {}",
+                self.blur_samples
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -54,8 +114,13 @@ pub fn kinect_depth_sigma(z: f64) -> f64 {
     0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
 }
 
-/// One rendered image row: colours, exact depths, instance ids.
-type RenderedRow = (Vec<[u8; 3]>, Vec<f32>, Vec<u16>);
+/// What the camera sees at one instant: its pose and the movers' shapes with their
+/// instance ids.
+#[derive(Debug, Clone)]
+pub struct View {
+    pub world_from_camera: Se3,
+    pub movers: Vec<(Shape, u16)>,
+}
 
 /// One rendered frame: colour, noisy sensor depth, the exact depth, and the instance
 /// mask (row-major; 0 = static scene, else the mover's instance id).
@@ -66,78 +131,151 @@ pub struct Rendered {
     pub mask: Vec<u16>,
 }
 
-/// Renders the scene seen by a camera at `world_from_camera`. `noise_seed` makes the
-/// sensor noise repeatable (each row draws from its own generator, so the parallel
-/// order does not matter).
-pub fn render(
-    scene: &Scene,
-    movers: &[(Cuboid, u16)],
-    camera: &PinholeCamera,
-    world_from_camera: &Se3,
-    sensor: &SensorConfig,
-    noise_seed: u64,
-) -> Rendered {
-    let mover_boxes: Vec<Cuboid> = movers.iter().map(|m| m.0).collect();
+/// Traced rays of one image: linear colours (0..1), exact depths, instance ids.
+struct Traced {
+    colour: Vec<[f32; 3]>,
+    depth: Vec<f32>,
+    mask: Vec<u16>,
+}
+
+/// Casts one ray per pixel (rows in parallel).
+fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -> Traced {
     let (width, height) = (camera.width as usize, camera.height as usize);
-    let rotation = world_from_camera.rotation.matrix();
-    let origin = world_from_camera.translation.vector;
+    let shapes: Vec<Shape> = view.movers.iter().map(|m| m.0.clone()).collect();
+    let rotation = view.world_from_camera.rotation.matrix();
+    let origin = view.world_from_camera.translation.vector;
     let light = Vector3::new(0.3, -0.8, 0.5).normalize();
-    let rows: Vec<RenderedRow> = (0..height)
+    let rows: Vec<Traced> = (0..height)
         .into_par_iter()
         .map(|v| {
-            let mut rng = Rng::new(noise_seed.wrapping_mul(0x9E37_79B9).wrapping_add(v as u64));
-            let mut colours = Vec::with_capacity(width);
-            let mut depths = Vec::with_capacity(width);
-            let mut instances = Vec::with_capacity(width);
+            let mut row = Traced {
+                colour: Vec::with_capacity(width),
+                depth: Vec::with_capacity(if with_depth { width } else { 0 }),
+                mask: Vec::with_capacity(if with_depth { width } else { 0 }),
+            };
+            let y = (v as f64 - camera.cy) / camera.fy;
             for u in 0..width {
-                let ray_camera = Vector3::new(
-                    (u as f64 - camera.cx) / camera.fx,
-                    (v as f64 - camera.cy) / camera.fy,
-                    1.0,
-                );
+                let ray_camera = Vector3::new((u as f64 - camera.cx) / camera.fx, y, 1.0);
                 let direction = rotation * ray_camera;
                 let (colour, depth, instance) =
-                    match scene.cast_with_movers(&mover_boxes, &origin, &direction) {
+                    match scene.cast_with_movers(&shapes, &origin, &direction) {
                         Some((hit, mover)) => {
-                            let base = texel(hit.texture, hit.uv.0, hit.uv.1);
-                            let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
-                            (
-                                base.map(|c| c * shade),
-                                hit.t,
-                                mover.map_or(0, |i| movers[i].1),
-                            )
+                            let colour = hit.colour.unwrap_or_else(|| {
+                                let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
+                                texel(hit.texture, hit.uv.0, hit.uv.1).map(|c| c * shade)
+                            });
+                            (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
                         }
                         None => ([0.0; 3], 0.0, 0),
                     };
-                instances.push(instance);
-                let noisy = colour.map(|c| {
-                    (c * 255.0 + sensor.rgb_noise * rng.normal())
-                        .round()
-                        .clamp(0.0, 255.0) as u8
-                });
-                colours.push(noisy);
-                depths.push(depth as f32);
+                row.colour.push(colour.map(|c| c as f32));
+                if with_depth {
+                    row.depth.push(depth as f32);
+                    row.mask.push(instance);
+                }
             }
-            (colours, depths, instances)
+            row
         })
         .collect();
-    let mut rgb = RgbImage::new(camera.width, camera.height);
-    let mut exact_depth = DepthImage::new(camera.width, camera.height);
-    let mut mask = Vec::with_capacity(width * height);
-    for (v, (colours, depths, instances)) in rows.into_iter().enumerate() {
-        mask.extend(instances);
-        for (u, colour) in colours.into_iter().enumerate() {
-            rgb.put_pixel(u as u32, v as u32, image::Rgb(colour));
-        }
-        exact_depth.metres[v * width..(v + 1) * width].copy_from_slice(&depths);
+    let mut traced = Traced {
+        colour: Vec::with_capacity(width * height),
+        depth: Vec::with_capacity(width * height),
+        mask: Vec::with_capacity(width * height),
+    };
+    for row in rows {
+        traced.colour.extend(row.colour);
+        traced.depth.extend(row.depth);
+        traced.mask.extend(row.mask);
     }
+    traced
+}
+
+/// Renders a frame: depth and mask from `view`; colour averaged over `exposure` (the
+/// views during the exposure, or just `view` when empty), times `gain`, plus noise.
+/// `noise_seed` makes the sensor noise repeatable (each row draws from its own
+/// generator, so the parallel order does not matter).
+pub fn render(
+    scene: &Scene,
+    view: &View,
+    exposure: &[View],
+    camera: &PinholeCamera,
+    sensor: &SensorConfig,
+    gain: f64,
+    noise_seed: u64,
+) -> Rendered {
+    let traced = trace(scene, view, camera, true);
+    let rgb = expose(scene, &traced, exposure, camera, sensor, gain, noise_seed);
+    let exact_depth = DepthImage {
+        width: camera.width,
+        height: camera.height,
+        metres: traced.depth,
+    };
     let depth = sensor_depth(&exact_depth, sensor, noise_seed);
     Rendered {
         rgb,
         depth,
         exact_depth,
-        mask,
+        mask: traced.mask,
     }
+}
+
+/// Renders only the colour image seen from `view` (the right camera of a stereo pair).
+pub fn render_colour(
+    scene: &Scene,
+    view: &View,
+    exposure: &[View],
+    camera: &PinholeCamera,
+    sensor: &SensorConfig,
+    gain: f64,
+    noise_seed: u64,
+) -> RgbImage {
+    let traced = trace(scene, view, camera, false);
+    expose(scene, &traced, exposure, camera, sensor, gain, noise_seed)
+}
+
+/// Averages the exposure's colours with the traced ones' (when blurred), applies the
+/// gain and noise, and quantises to 8 bits.
+fn expose(
+    scene: &Scene,
+    traced: &Traced,
+    exposure: &[View],
+    camera: &PinholeCamera,
+    sensor: &SensorConfig,
+    gain: f64,
+    noise_seed: u64,
+) -> RgbImage {
+    let width = camera.width as usize;
+    let mut colour = traced.colour.clone();
+    if !exposure.is_empty() {
+        colour.iter_mut().for_each(|c| *c = [0.0; 3]);
+        for instant in exposure {
+            let sample = trace(scene, instant, camera, false);
+            for (sum, c) in colour.iter_mut().zip(&sample.colour) {
+                for k in 0..3 {
+                    sum[k] += c[k];
+                }
+            }
+        }
+        let n = exposure.len() as f32;
+        colour.iter_mut().for_each(|c| *c = c.map(|v| v / n));
+    }
+    let gain = gain as f32;
+    let bytes: Vec<u8> = colour
+        .par_chunks(width)
+        .enumerate()
+        .flat_map_iter(|(v, row)| {
+            let mut rng = Rng::new(noise_seed.wrapping_mul(0x9E37_79B9).wrapping_add(v as u64));
+            let noise = sensor.rgb_noise as f32;
+            row.iter()
+                .flat_map(|c| c.map(|x| {
+                    (x * gain * 255.0 + noise * rng.normal() as f32)
+                        .round()
+                        .clamp(0.0, 255.0) as u8
+                }))
+                .collect::<Vec<u8>>()
+        })
+        .collect();
+    RgbImage::from_raw(camera.width, camera.height, bytes).expect("size matches")
 }
 
 /// Applies range limits, discontinuity holes and noise to an exact depth map.
@@ -212,7 +350,7 @@ mod tests {
     #[test]
     fn exact_depth_is_the_distance_along_the_optical_axis() {
         let scene = Scene {
-            room: Cuboid {
+            room: super::super::scene::Cuboid {
                 min: Vector3::repeat(-4.0),
                 max: Vector3::new(4.0, 4.0, 2.0),
                 texture: 1,
@@ -224,14 +362,11 @@ mod tests {
         camera.height = 48;
         camera.cx = 32.0;
         camera.cy = 24.0;
-        let rendered = render(
-            &scene,
-            &[],
-            &camera,
-            &Se3::identity(),
-            &SensorConfig::default(),
-            1,
-        );
+        let view = View {
+            world_from_camera: Se3::identity(),
+            movers: vec![],
+        };
+        let rendered = render(&scene, &view, &[], &camera, &SensorConfig::default(), 1.0, 1);
         // The wall at z = 2 faces the camera: every pixel's depth is 2.
         assert!(rendered
             .exact_depth

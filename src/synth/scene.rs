@@ -7,6 +7,7 @@
 
 use nalgebra::Vector3;
 
+use super::movers::Shape;
 use crate::random::Rng;
 
 /// An axis-aligned box.
@@ -27,6 +28,8 @@ pub struct Hit {
     pub texture: u32,
     /// Surface coordinates in metres (the two world coordinates along the face).
     pub uv: (f64, f64),
+    /// A fixed colour (a cut-out's pixel) instead of the procedural texture.
+    pub colour: Option<[f64; 3]>,
 }
 
 /// A room with furniture.
@@ -81,6 +84,7 @@ fn face_hit(
         normal,
         texture: cuboid.texture * 8 + axis as u32 * 2 + (normal[axis] > 0.0) as u32,
         uv: (point[a], point[b]),
+        colour: None,
     }
 }
 
@@ -125,20 +129,52 @@ impl Scene {
         })
     }
 
-    /// The nearest surface including movers (boxes at their current place): the hit and
-    /// the index of the mover hit, `None` for a static surface.
+    /// The nearest surface including movers (at their current place): the hit and the
+    /// index of the mover hit, `None` for a static surface.
     pub fn cast_with_movers(
         &self,
-        movers: &[Cuboid],
+        movers: &[Shape],
         origin: &Vector3<f64>,
         direction: &Vector3<f64>,
     ) -> Option<(Hit, Option<usize>)> {
-        let static_hit = self.cast(origin, direction);
-        match nearest_entry(movers.iter(), origin, direction) {
-            Some((hit, index)) if static_hit.is_none_or(|s| hit.t < s.t) => {
-                Some((hit, Some(index)))
+        let mut best = self.cast(origin, direction).map(|hit| (hit, None));
+        for (index, shape) in movers.iter().enumerate() {
+            let hit = match shape {
+                Shape::Box(cuboid) => nearest_entry(std::iter::once(cuboid), origin, direction)
+                    .map(|(hit, _)| hit),
+                Shape::Billboard(board) => {
+                    board.intersect(origin, direction).map(|(t, colour)| Hit {
+                        t,
+                        normal: board.normal,
+                        texture: 0,
+                        uv: (0.0, 0.0),
+                        colour: Some(colour),
+                    })
+                }
+            };
+            if let Some(hit) = hit {
+                if best.as_ref().is_none_or(|(b, _)| hit.t < b.t) {
+                    best = Some((hit, Some(index)));
+                }
             }
-            _ => static_hit.map(|hit| (hit, None)),
+        }
+        best
+    }
+
+    /// Makes way for movers: the walls move out to keep `margin` metres from every box
+    /// in `keep_clear` (floor and ceiling, along axis `up`, stay), and furniture that
+    /// overlaps one of them goes.
+    pub fn make_room_for(&mut self, keep_clear: &[Cuboid], up: usize, margin: f64) {
+        let overlaps = |a: &Cuboid, b: &Cuboid| {
+            (0..3).all(|axis| a.min[axis] < b.max[axis] && b.min[axis] < a.max[axis])
+        };
+        self.furniture
+            .retain(|f| !keep_clear.iter().any(|c| overlaps(f, c)));
+        for c in keep_clear {
+            for axis in (0..3).filter(|&a| a != up) {
+                self.room.min[axis] = self.room.min[axis].min(c.min[axis] - margin);
+                self.room.max[axis] = self.room.max[axis].max(c.max[axis] + margin);
+            }
         }
     }
 

@@ -1,7 +1,9 @@
 //! Writing a generated sequence in the TUM RGB-D layout: `rgb/`, `depth/` (16-bit,
 //! 5000 per metre), `rgb.txt`, `depth.txt`, `groundtruth.txt`, `associations.txt`
 //! (ORB-SLAM style), `calibration.yaml` (ORB-SLAM2 settings) and `scene.toml` (the
-//! config as used, enough to regenerate the sequence).
+//! config as used, enough to regenerate the sequence); with stereo on, also the KITTI
+//! odometry layout under `kitti/` (`sequences/00/{image_0,image_1,calib.txt,times.txt}`,
+//! `poses/00.txt`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -12,10 +14,11 @@ use thiserror::Error;
 
 use super::config::SynthConfig;
 use super::motion::poses_at;
-use super::movers::{place_people, place_seated, Mover};
+use super::movers::{place_objects, place_people, place_seated, Appearance, Mover};
 use super::oracle::OracleConfig;
-use super::render::{render, Rendered};
-use super::scene::{Cuboid, Scene};
+use super::render::{render, render_colour, Rendered, View};
+use super::scene::Scene;
+use super::sprite::Sprite;
 use crate::detect::{Detection, FrameDetections};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -178,8 +181,142 @@ fn write_frame(
     Ok(())
 }
 
+/// Everything needed to render any frame of a config: frame times, camera poses, the
+/// static scene and the movers.
+pub struct World {
+    pub config: SynthConfig,
+    pub camera: PinholeCamera,
+    /// Frame times in seconds from the first frame, and the first frame's timestamp.
+    pub times: Vec<f64>,
+    pub t0: f64,
+    /// `world_from_camera` of each frame (the ground truth).
+    pub poses: Vec<Se3>,
+    pub scene: Scene,
+    pub movers: Vec<Mover>,
+    /// Per frame, the instants and poses sampled over the exposure (empty without blur).
+    exposure: Vec<Vec<(f64, Se3)>>,
+}
+
+impl World {
+    /// Builds the world of a config: reads timing, trajectory and cut-out files.
+    pub fn new(config: &SynthConfig) -> Result<Self, SynthError> {
+        config.validate().map_err(SynthError::Config)?;
+        let (times, t0) = frame_times(config)?;
+        let poses = poses_at(&config.motion, &times)?;
+        let (scene, movers) = build_world(config, &poses)?;
+        let mut exposure = vec![Vec::new(); times.len()];
+        if config.sensor.exposure_instants(0.0).len() > 1 {
+            let (first, last) = (times[0], times[times.len() - 1]);
+            let instants: Vec<Vec<f64>> = times
+                .iter()
+                .map(|&t| {
+                    config
+                        .sensor
+                        .exposure_instants(t)
+                        .into_iter()
+                        .map(|s| s.clamp(first, last))
+                        .collect()
+                })
+                .collect();
+            let flat: Vec<f64> = instants.iter().flatten().copied().collect();
+            let mut flat_poses = poses_at(&config.motion, &flat)?.into_iter();
+            for (frame, instants) in exposure.iter_mut().zip(instants) {
+                *frame = instants
+                    .into_iter()
+                    .map(|s| (s, flat_poses.next().expect("one pose per instant")))
+                    .collect();
+            }
+        }
+        Ok(Self {
+            config: config.clone(),
+            camera: config.camera(),
+            times,
+            t0,
+            poses,
+            scene,
+            movers,
+            exposure,
+        })
+    }
+
+    /// The timestamp of frame `index` (as written in rgb.txt).
+    pub fn stamp(&self, index: usize) -> f64 {
+        self.t0 + self.times[index]
+    }
+
+    /// The view at time `t` from a camera at `world_from_camera`.
+    pub fn view(&self, t: f64, world_from_camera: Se3) -> View {
+        let centre = world_from_camera.translation.vector;
+        View {
+            world_from_camera,
+            movers: self
+                .movers
+                .iter()
+                .map(|m| (m.shape_at(t, &centre), m.instance))
+                .collect(),
+        }
+    }
+
+    fn frame_seed(&self, index: usize) -> u64 {
+        self.config
+            .sequence
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(index as u64)
+    }
+
+    /// The views over frame `index`'s exposure, each camera moved by `camera_offset`.
+    fn exposure_views(&self, index: usize, camera_offset: &Se3) -> Vec<View> {
+        self.exposure[index]
+            .iter()
+            .map(|(t, pose)| self.view(*t, pose * camera_offset))
+            .collect()
+    }
+
+    /// Renders frame `index` (the colour, or left, camera).
+    pub fn render(&self, index: usize) -> Rendered {
+        let t = self.times[index];
+        render(
+            &self.scene,
+            &self.view(t, self.poses[index]),
+            &self.exposure_views(index, &Se3::identity()),
+            &self.camera,
+            &self.config.sensor,
+            self.config.sensor.gain(t),
+            self.frame_seed(index),
+        )
+    }
+
+    /// The right camera's image of frame `index`: the left camera moved by the stereo
+    /// baseline along its x axis.
+    pub fn render_right(&self, index: usize) -> image::RgbImage {
+        let t = self.times[index];
+        let offset = Se3::from_parts(
+            nalgebra::Translation3::new(self.config.stereo.baseline, 0.0, 0.0),
+            nalgebra::Rotation3::identity(),
+        );
+        render_colour(
+            &self.scene,
+            &self.view(t, self.poses[index] * offset),
+            &self.exposure_views(index, &offset),
+            &self.camera,
+            &self.config.sensor,
+            self.config.sensor.gain(t),
+            self.frame_seed(index) ^ 0x5EC0_4D00,
+        )
+    }
+}
+
+/// Loads a cut-out named by the config, if any.
+fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>, SynthError> {
+    path.as_deref()
+        .map(Sprite::load)
+        .transpose()
+        .map_err(SynthError::from)
+}
+
 /// The static scene and the movers of a config along the given camera poses.
-pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> (Scene, Vec<Mover>) {
+pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> Result<(Scene, Vec<Mover>), SynthError> {
     let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
     let mut scene = Scene::around(
         &positions,
@@ -188,27 +325,57 @@ pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> (Scene, Vec<Mover>) {
         config.scene.clearance,
         config.sequence.seed,
     );
-    let mut movers = place_people(&config.people, poses, &mut scene);
-    let next_instance = movers.len() as u16 + 1;
+    let standing = load_sprite(&config.people.sprite)?;
+    let seated = load_sprite(&config.seated.sprite)?;
+    let appearance = |seated: Option<_>| {
+        if standing.is_none() && seated.is_none() {
+            Appearance::Box
+        } else {
+            Appearance::Sprite {
+                standing: standing.clone(),
+                seated,
+            }
+        }
+    };
+    let mut movers = place_people(&config.people, &appearance(None), poses, &mut scene);
     movers.extend(place_seated(
         &config.seated,
+        &appearance(seated.clone()),
         config.people.height,
         poses,
         &scene,
-        next_instance,
+        movers.len() as u16 + 1,
     ));
-    (scene, movers)
+    movers.extend(place_objects(
+        &config.objects,
+        poses,
+        &scene,
+        movers.len() as u16 + 1,
+    ));
+    if let Some(first) = movers.first() {
+        let swept: Vec<_> = movers.iter().map(Mover::swept_box).collect();
+        scene.make_room_for(&swept, first.up.0, 0.6);
+    }
+    Ok((scene, movers))
 }
 
 /// Generates the sequence described by `config` into `out`.
 pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSummary, SynthError> {
-    config.validate().map_err(SynthError::Config)?;
     let start = std::time::Instant::now();
-    let (times, t0) = frame_times(config)?;
-    let poses = poses_at(&config.motion, &times)?;
+    let world = World::new(config)?;
     check_output_folder(out, force)?;
-    let camera = config.camera();
-    let (scene, movers) = build_world(config, &poses);
+    let stereo = config.stereo.baseline > 0.0;
+    let kitti = out.join("kitti/sequences/00");
+    if stereo {
+        for sub in ["image_0", "image_1"] {
+            std::fs::create_dir_all(kitti.join(sub)).map_err(|source| IoError::Write {
+                path: kitti.join(sub),
+                source,
+            })?;
+        }
+    }
+    let camera = world.camera;
+    let times = &world.times;
     let progress = ProgressBar::new(times.len() as u64);
     progress.set_style(
         ProgressStyle::with_template("synth {bar:40} {pos}/{len} frames ({eta} left)")
@@ -222,38 +389,34 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     // Frames render and encode in parallel (each frame's noise has its own seed, so the
     // files do not depend on the order); the index files are written afterwards.
     (0..times.len()).into_par_iter().try_for_each(|index| {
-        let stamp = t0 + times[index];
-        let boxes: Vec<(Cuboid, u16)> = movers
-            .iter()
-            .map(|m| (m.cuboid_at(times[index]), m.instance))
-            .collect();
-        let frame_seed = config
-            .sequence
-            .seed
-            .wrapping_mul(1_000_003)
-            .wrapping_add(index as u64);
-        let rendered = render(
-            &scene,
-            &boxes,
-            &camera,
-            &poses[index],
-            &config.sensor,
-            frame_seed,
-        );
+        let rendered = world.render(index);
         write_frame(
             out,
-            stamp,
+            world.stamp(index),
             &rendered,
             &camera,
-            &movers,
+            &world.movers,
             &config.oracle,
-            frame_seed ^ 0x0AC1_E5EE,
+            world.frame_seed(index) ^ 0x0AC1_E5EE,
         )?;
+        if stereo {
+            let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
+            let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
+            for (sub, grey) in [("image_0", left), ("image_1", right)] {
+                let path = kitti.join(format!("{sub}/{index:06}.png"));
+                grey.save(&path).map_err(|e| IoError::Write {
+                    path: path.clone(),
+                    source: std::io::Error::other(e),
+                })?;
+            }
+        }
         progress.inc(1);
         Ok::<(), SynthError>(())
     })?;
+    let poses = &world.poses;
+    let t0 = world.t0;
     let mut ground_truth = Trajectory::default();
-    for (t, pose) in times.iter().zip(&poses) {
+    for (t, pose) in times.iter().zip(poses) {
         let stamp = t0 + t;
         let (rgb_name, depth_name) = (
             format!("rgb/{stamp:.6}.png"),
@@ -283,7 +446,10 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         &out.join("calibration.yaml"),
         OrbSlamSettings::to_yaml(&calibration, &OrbSettings::default()).as_bytes(),
     )?;
-    write_atomic(&out.join("static_scene.ply"), scene.to_ply().as_bytes())?;
+    write_atomic(&out.join("static_scene.ply"), world.scene.to_ply().as_bytes())?;
+    if stereo {
+        write_kitti_files(&world, &out.join("kitti"))?;
+    }
     let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
     write_atomic(
         &out.join("scene.toml"),
@@ -291,8 +457,38 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             .as_bytes(),
     )?;
     Ok(SynthSummary {
-        frames: times.len(),
+        frames: world.times.len(),
         out: out.to_path_buf(),
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// The KITTI odometry side files: `calib.txt` (P0/P2 left, P1/P3 right with
+/// \(P_1[0,3] = -f_x b\)), `times.txt` (seconds from the first frame) and
+/// `poses/00.txt` (left camera poses relative to the first frame, 12 numbers a line).
+fn write_kitti_files(world: &World, root: &Path) -> Result<(), SynthError> {
+    let c = &world.camera;
+    let projection = |tx: f64| {
+        format!(
+            "{:e} 0 {:e} {:e} 0 {:e} {:e} 0 0 0 1 0",
+            c.fx, c.cx, tx, c.fy, c.cy
+        )
+    };
+    let (left, right) = (projection(0.0), projection(-c.fx * world.config.stereo.baseline));
+    let calib = format!("P0: {left}\nP1: {right}\nP2: {left}\nP3: {right}\n");
+    let sequence = root.join("sequences/00");
+    write_atomic(&sequence.join("calib.txt"), calib.as_bytes())?;
+    let times: String = world.times.iter().map(|t| format!("{t:e}\n")).collect();
+    write_atomic(&sequence.join("times.txt"), times.as_bytes())?;
+    let first_from_world = world.poses[0].inverse();
+    let mut poses = Trajectory::default();
+    for (t, pose) in world.times.iter().zip(&world.poses) {
+        poses.push(*t, first_from_world * pose);
+    }
+    std::fs::create_dir_all(root.join("poses")).map_err(|source| IoError::Write {
+        path: root.join("poses"),
+        source,
+    })?;
+    poses.write(&root.join("poses/00.txt"), TrajectoryFormat::Kitti)?;
+    Ok(())
 }

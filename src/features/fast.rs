@@ -1,0 +1,155 @@
+//! FAST-9 corners (Rosten and Drummond 2006): a pixel \(p\) is a corner at threshold
+//! \(t\) when 9 contiguous pixels of the 16 on the Bresenham circle of radius 3 are all
+//! brighter than \(I_p + t\) or all darker than \(I_p - t\). The score of a corner is the
+//! largest such \(t\) (so a corner found at threshold \(t\) has score \(> t\)), which
+//! lets one pass at the fallback threshold serve both ORB-SLAM thresholds.
+
+use image::GrayImage;
+
+/// The circle of radius 3, clockwise from the top.
+const CIRCLE: [(isize, isize); 16] = [
+    (0, -3),
+    (1, -3),
+    (2, -2),
+    (3, -1),
+    (3, 0),
+    (3, 1),
+    (2, 2),
+    (1, 3),
+    (0, 3),
+    (-1, 3),
+    (-2, 2),
+    (-3, 1),
+    (-3, 0),
+    (-3, -1),
+    (-2, -2),
+    (-1, -3),
+];
+
+/// A corner at integer pixel `(x, y)` with its score.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Corner {
+    pub x: u32,
+    pub y: u32,
+    pub score: u8,
+}
+
+/// Whether the 16-bit circle mask has 9 contiguous set bits (with wrap-around).
+fn has_arc_of_nine(mask: u32) -> bool {
+    let doubled = mask | (mask << 16);
+    let mut run = doubled;
+    for shift in 1..9 {
+        run &= doubled >> shift;
+    }
+    run != 0
+}
+
+/// The largest \(t\) for which the arc test holds: the best over the 16 arcs of the
+/// smallest difference on the arc, for brighter and darker arcs.
+fn score(differences: &[i16; 16]) -> u8 {
+    let mut best = 0i16;
+    for start in 0..16 {
+        let (mut brighter, mut darker) = (i16::MAX, i16::MAX);
+        for k in 0..9 {
+            let d = differences[(start + k) % 16];
+            brighter = brighter.min(d);
+            darker = darker.min(-d);
+        }
+        best = best.max(brighter).max(darker);
+    }
+    best.clamp(0, 255) as u8
+}
+
+/// Corners with score above `threshold` inside `[border, width - border)` ×
+/// `[border, height - border)`, after 3×3 non-maximum suppression on the score.
+pub fn detect(image: &GrayImage, threshold: u8, border: u32) -> Vec<Corner> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let border = border.max(3) as usize;
+    if w <= 2 * border || h <= 2 * border {
+        return Vec::new();
+    }
+    let src = image.as_raw();
+    let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy * w as isize + dx);
+    let t = threshold as i16;
+    let mut scores = vec![0u8; w * h];
+    let mut candidates = Vec::new();
+    for y in border..h - border {
+        for x in border..w - border {
+            let i = y * w + x;
+            let p = src[i] as i16;
+            let at = |k: usize| src[(i as isize + offsets[k]) as usize] as i16;
+            // Quick rejection: an arc of 9 covers two neighbouring compass points.
+            let compass = [at(0), at(4), at(8), at(12)];
+            let bright = compass.map(|c| c > p + t);
+            let dark = compass.map(|c| c < p - t);
+            let pair = |b: [bool; 4]| (0..4).any(|k| b[k] && b[(k + 1) % 4]);
+            if !pair(bright) && !pair(dark) {
+                continue;
+            }
+            let mut differences = [0i16; 16];
+            let (mut bright_mask, mut dark_mask) = (0u32, 0u32);
+            for (k, d) in differences.iter_mut().enumerate() {
+                *d = at(k) - p;
+                bright_mask |= ((*d > t) as u32) << k;
+                dark_mask |= ((*d < -t) as u32) << k;
+            }
+            if has_arc_of_nine(bright_mask) || has_arc_of_nine(dark_mask) {
+                let s = score(&differences);
+                scores[i] = s;
+                candidates.push(i);
+            }
+        }
+    }
+    candidates
+        .into_iter()
+        .filter(|&i| {
+            // A neighbour beats this corner with a higher score, or with an equal one
+            // when it comes earlier in raster order.
+            let s = scores[i];
+            let stride = w as isize;
+            let earlier = [-stride - 1, -stride, -stride + 1, -1];
+            let later = [1, stride - 1, stride, stride + 1];
+            let at = |o: isize| scores[(i as isize + o) as usize];
+            earlier.iter().all(|&o| at(o) < s) && later.iter().all(|&o| at(o) <= s)
+        })
+        .map(|i| Corner {
+            x: (i % w) as u32,
+            y: (i / w) as u32,
+            score: scores[i],
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arcs_wrap_around() {
+        assert!(has_arc_of_nine(0b1111_1111_1000_0000));
+        assert!(has_arc_of_nine(0b1111_0000_0001_1111));
+        assert!(!has_arc_of_nine(0b1111_0000_0000_1111));
+        assert!(!has_arc_of_nine(0b0101_0101_0101_0101));
+    }
+
+    #[test]
+    fn a_bright_square_corner_is_found_with_its_score() {
+        // A dark image with a bright quadrant: the quadrant's corner is a FAST corner.
+        let mut image = GrayImage::from_pixel(40, 40, image::Luma([20]));
+        for y in 20..40 {
+            for x in 20..40 {
+                image.put_pixel(x, y, image::Luma([200]));
+            }
+        }
+        let corners = detect(&image, 20, 3);
+        assert!(!corners.is_empty());
+        assert!(corners
+            .iter()
+            .all(|c| (c.x as i32 - 20).abs() <= 2 && (c.y as i32 - 20).abs() <= 2));
+        // Differences are 0 or ±180: the best arc's minimum is 180.
+        assert_eq!(corners[0].score, 180);
+        assert!(detect(&image, 180, 3).is_empty());
+        let flat = GrayImage::from_pixel(40, 40, image::Luma([90]));
+        assert!(detect(&flat, 7, 3).is_empty());
+    }
+}

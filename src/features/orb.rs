@@ -1,0 +1,269 @@
+//! The ORB extractor: per pyramid level, FAST corners in 30-pixel cells (the initial
+//! threshold, else the fallback one), spread by the quadtree to the level's share of the
+//! budget, oriented by the intensity centroid and described by rotated BRIEF on the
+//! level smoothed with a 7×7 Gaussian (\(\sigma = 2\)). Levels run in parallel.
+
+use image::GrayImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::descriptor::{describe, orientation, Descriptor, HALF_PATCH};
+use super::distribute::spread;
+use super::fast;
+use super::pyramid::{gaussian_blur, ScalePyramid};
+
+/// Side of the cells in which the FAST threshold falls back (pixels).
+const CELL: u32 = 30;
+/// Keypoints keep this far from the level's borders, so that the orientation disc and
+/// the rotated pattern stay inside.
+const BORDER: u32 = HALF_PATCH as u32 + 1;
+
+/// ORB extractor parameters (ORB-SLAM2's `ORBextractor.*`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OrbConfig {
+    /// Keypoints per image over all pyramid levels.
+    pub n_features: usize,
+    /// Scale between pyramid levels.
+    pub scale_factor: f64,
+    pub n_levels: usize,
+    /// FAST threshold tried first in each cell.
+    pub ini_th_fast: u8,
+    /// FAST threshold used where the first finds nothing.
+    pub min_th_fast: u8,
+}
+
+impl Default for OrbConfig {
+    fn default() -> Self {
+        Self {
+            n_features: 1000,
+            scale_factor: 1.2,
+            n_levels: 8,
+            ini_th_fast: 20,
+            min_th_fast: 7,
+        }
+    }
+}
+
+impl OrbConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let orb = self;
+        if orb.n_features == 0 {
+            return Err("orb.n_features must be positive".into());
+        }
+        if !(orb.scale_factor > 1.0 && orb.scale_factor < 2.0) {
+            return Err(format!(
+                "orb.scale_factor must be in (1, 2), got {}",
+                orb.scale_factor
+            ));
+        }
+        if !(1..=16).contains(&orb.n_levels) {
+            return Err(format!(
+                "orb.n_levels must be in 1..=16, got {}",
+                orb.n_levels
+            ));
+        }
+        if orb.min_th_fast > orb.ini_th_fast {
+            return Err(format!(
+                "orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})",
+                orb.min_th_fast, orb.ini_th_fast
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A keypoint in level-0 pixel coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct KeyPoint {
+    pub x: f32,
+    pub y: f32,
+    /// The pyramid level (ORB-SLAM's octave).
+    pub level: u8,
+    /// Orientation in radians.
+    pub angle: f32,
+    /// FAST score.
+    pub response: f32,
+}
+
+/// The keypoints of one image and their descriptors (same order).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct OrbFeatures {
+    pub keypoints: Vec<KeyPoint>,
+    pub descriptors: Vec<Descriptor>,
+}
+
+impl OrbFeatures {
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+}
+
+/// Extracts ORB features with a fixed configuration.
+#[derive(Debug, Clone)]
+pub struct OrbExtractor {
+    pub config: OrbConfig,
+    pub pyramid: ScalePyramid,
+    per_level: Vec<usize>,
+}
+
+impl OrbExtractor {
+    pub fn new(config: &OrbConfig) -> Self {
+        let pyramid = ScalePyramid::new(config.n_levels, config.scale_factor);
+        Self {
+            per_level: pyramid.keypoints_per_level(config.n_features),
+            config: config.clone(),
+            pyramid,
+        }
+    }
+
+    /// The ORB features of a grey image.
+    pub fn extract(&self, image: &GrayImage) -> OrbFeatures {
+        let levels = self.pyramid.build(image);
+        let per_level: Vec<(Vec<KeyPoint>, Vec<Descriptor>)> = levels
+            .par_iter()
+            .enumerate()
+            .map(|(level, level_image)| self.extract_level(level, level_image))
+            .collect();
+        let mut features = OrbFeatures::default();
+        for (keypoints, descriptors) in per_level {
+            features.keypoints.extend(keypoints);
+            features.descriptors.extend(descriptors);
+        }
+        features
+    }
+
+    fn extract_level(&self, level: usize, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
+        let corners = fast::detect(image, self.config.min_th_fast, BORDER);
+        let selected = threshold_per_cell(&corners, image.width(), self.config.ini_th_fast);
+        let positions: Vec<(f32, f32)> = selected
+            .iter()
+            .map(|c| (c.x as f32, c.y as f32))
+            .collect();
+        let responses: Vec<f32> = selected.iter().map(|c| c.score as f32).collect();
+        let rect = (
+            BORDER as f32,
+            BORDER as f32,
+            (image.width() - BORDER) as f32,
+            (image.height() - BORDER) as f32,
+        );
+        let chosen = spread(&positions, &responses, rect, self.per_level[level]);
+        if chosen.is_empty() {
+            return (Vec::new(), Vec::new());
+        }
+        let smoothed = gaussian_blur(image, 2.0, 3);
+        let scale = self.pyramid.factors[level] as f32;
+        chosen
+            .into_iter()
+            .map(|i| {
+                let c = selected[i];
+                let (x, y) = (c.x as i32, c.y as i32);
+                let angle = orientation(image, x, y);
+                let keypoint = KeyPoint {
+                    x: c.x as f32 * scale,
+                    y: c.y as f32 * scale,
+                    level: level as u8,
+                    angle,
+                    response: c.score as f32,
+                };
+                (keypoint, describe(&smoothed, x, y, angle))
+            })
+            .unzip()
+    }
+}
+
+/// ORB-SLAM2's two thresholds: in each cell, the corners above the initial threshold if
+/// there are any, else all corners (which are above the fallback threshold).
+fn threshold_per_cell(corners: &[fast::Corner], width: u32, initial: u8) -> Vec<fast::Corner> {
+    let columns = width.div_ceil(CELL) as usize;
+    let cell = |c: &fast::Corner| (c.y / CELL) as usize * columns + (c.x / CELL) as usize;
+    let cells = corners.iter().map(cell).max().map_or(0, |m| m + 1);
+    let mut strong = vec![false; cells];
+    for c in corners.iter().filter(|c| c.score > initial) {
+        strong[cell(c)] = true;
+    }
+    corners
+        .iter()
+        .filter(|c| !strong[cell(c)] || c.score > initial)
+        .copied()
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::hamming;
+    use crate::random::Rng;
+
+    /// A blocky random texture, rich in corners at every scale.
+    fn texture(width: u32, height: u32, seed: u64) -> GrayImage {
+        let mut rng = Rng::new(seed);
+        let cells: Vec<u8> = (0..(width / 8 + 1) * (height / 8 + 1))
+            .map(|_| (rng.uniform() * 255.0) as u8)
+            .collect();
+        GrayImage::from_fn(width, height, |x, y| {
+            let big = cells[((y / 32) * (width / 8 + 1) + x / 32) as usize] / 2;
+            let small = cells[((y / 8) * (width / 8 + 1) + x / 8) as usize] / 2;
+            image::Luma([big + small])
+        })
+    }
+
+    #[test]
+    fn budget_is_met_and_keypoints_fit_the_image() {
+        let extractor = OrbExtractor::new(&OrbConfig::default());
+        let image = texture(640, 480, 1);
+        let features = extractor.extract(&image);
+        assert!(features.len() > 950 && features.len() <= 1000, "{}", features.len());
+        assert_eq!(features.keypoints.len(), features.descriptors.len());
+        for k in &features.keypoints {
+            assert!(k.x >= 0.0 && k.x < 640.0 && k.y >= 0.0 && k.y < 480.0);
+        }
+        let levels: std::collections::BTreeSet<u8> =
+            features.keypoints.iter().map(|k| k.level).collect();
+        assert_eq!(levels.len(), 8);
+    }
+
+    #[test]
+    fn a_shifted_image_gives_matching_descriptors() {
+        let extractor = OrbExtractor::new(&OrbConfig::default());
+        let image = texture(640, 480, 2);
+        let shifted = GrayImage::from_fn(640, 480, |x, y| {
+            *image.get_pixel((x + 637) % 640, (y + 475) % 480)
+        });
+        let (a, b) = (extractor.extract(&image), extractor.extract(&shifted));
+        // Level-0 keypoints away from the wrap seam: the same corner, moved by (3, 5),
+        // has (nearly) the same descriptor.
+        let (mut total, mut found, mut matched) = (0, 0, 0);
+        for (ka, da) in a.keypoints.iter().zip(&a.descriptors) {
+            if ka.level != 0 || ka.x > 600.0 || ka.y > 440.0 {
+                continue;
+            }
+            total += 1;
+            if let Some((_, db)) = b.keypoints.iter().zip(&b.descriptors).find(|(kb, _)| {
+                kb.level == 0 && kb.x == ka.x + 3.0 && kb.y == ka.y + 5.0
+            }) {
+                found += 1;
+                if hamming(da, db) <= 10 {
+                    matched += 1;
+                }
+            }
+        }
+        // The quadtree's cells do not move with the image, so not every corner is
+        // chosen again; those that are have the same descriptor.
+        assert!(total > 100 && found * 10 >= total * 6, "{found}/{total}");
+        assert!(matched * 100 >= found * 95, "{matched}/{found}");
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let bad = OrbConfig {
+            min_th_fast: 30,
+            ..OrbConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("min_th_fast"));
+    }
+}
