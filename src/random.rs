@@ -1,17 +1,20 @@
 //! A small seeded random number generator (SplitMix64) with uniform and normal
-//! samples. Its sequence is fixed by this code, not by a dependency's version, so
+//! samples (Marsaglia's polar method, which makes two normals per accepted pair). Its sequence is fixed by this code, not by a dependency's version, so
 //! generated data stays byte-identical across builds.
 
 /// SplitMix64 (Steele, Lea, Flood 2014).
 #[derive(Debug, Clone)]
 pub struct Rng {
     state: u64,
+    /// The second normal of the last polar pair, not yet used.
+    spare: Option<f64>,
 }
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
         Self {
             state: seed ^ 0x9E37_79B9_7F4A_7C15,
+            spare: None,
         }
     }
 
@@ -33,11 +36,23 @@ impl Rng {
         lo + (hi - lo) * self.uniform()
     }
 
-    /// A standard normal sample (Box-Muller).
+    /// A standard normal sample: for \((x, y)\) uniform in the unit disc with
+    /// \(s = x^2 + y^2\), both \(x\sqrt{-2\ln s / s}\) and \(y\sqrt{-2\ln s / s}\) are
+    /// independent standard normals (Marsaglia's polar method: no trigonometry).
     pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(f64::MIN_POSITIVE);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        if let Some(spare) = self.spare.take() {
+            return spare;
+        }
+        loop {
+            let x = 2.0 * self.uniform() - 1.0;
+            let y = 2.0 * self.uniform() - 1.0;
+            let s = x * x + y * y;
+            if s > 0.0 && s < 1.0 {
+                let factor = (-2.0 * s.ln() / s).sqrt();
+                self.spare = Some(y * factor);
+                return x * factor;
+            }
+        }
     }
 }
 

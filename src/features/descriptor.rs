@@ -136,7 +136,9 @@ mod tests {
         // A random texture and the same texture rotated by 90°: with the angles found
         // by `orientation`, the descriptors at the centre agree.
         let mut rng = Rng::new(5);
-        let base: Vec<u8> = (0..61 * 61).map(|_| (rng.uniform() * 255.0) as u8).collect();
+        let base: Vec<u8> = (0..61 * 61)
+            .map(|_| (rng.uniform() * 255.0) as u8)
+            .collect();
         let image = GrayImage::from_raw(61, 61, base.clone()).unwrap();
         let smooth = super::super::pyramid::gaussian_blur(&image, 2.0, 3);
         // Rotating by +90°: new(x, y) = old(y, 60 - x).

@@ -140,10 +140,8 @@ impl OrbExtractor {
     fn extract_level(&self, level: usize, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
         let corners = fast::detect(image, self.config.min_th_fast, BORDER);
         let selected = threshold_per_cell(&corners, image.width(), self.config.ini_th_fast);
-        let positions: Vec<(f32, f32)> = selected
-            .iter()
-            .map(|c| (c.x as f32, c.y as f32))
-            .collect();
+        let positions: Vec<(f32, f32)> =
+            selected.iter().map(|c| (c.x as f32, c.y as f32)).collect();
         let responses: Vec<f32> = selected.iter().map(|c| c.score as f32).collect();
         let rect = (
             BORDER as f32,
@@ -217,7 +215,11 @@ mod tests {
         let extractor = OrbExtractor::new(&OrbConfig::default());
         let image = texture(640, 480, 1);
         let features = extractor.extract(&image);
-        assert!(features.len() > 950 && features.len() <= 1000, "{}", features.len());
+        assert!(
+            features.len() > 950 && features.len() <= 1000,
+            "{}",
+            features.len()
+        );
         assert_eq!(features.keypoints.len(), features.descriptors.len());
         for k in &features.keypoints {
             assert!(k.x >= 0.0 && k.x < 640.0 && k.y >= 0.0 && k.y < 480.0);
@@ -243,9 +245,12 @@ mod tests {
                 continue;
             }
             total += 1;
-            if let Some((_, db)) = b.keypoints.iter().zip(&b.descriptors).find(|(kb, _)| {
-                kb.level == 0 && kb.x == ka.x + 3.0 && kb.y == ka.y + 5.0
-            }) {
+            if let Some((_, db)) = b
+                .keypoints
+                .iter()
+                .zip(&b.descriptors)
+                .find(|(kb, _)| kb.level == 0 && kb.x == ka.x + 3.0 && kb.y == ka.y + 5.0)
+            {
                 found += 1;
                 if hamming(da, db) <= 10 {
                     matched += 1;

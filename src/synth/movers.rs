@@ -121,7 +121,10 @@ impl ObjectsConfig {
             ));
         }
         if self.size.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(format!("objects.size must be positive, got {:?}", self.size));
+            return Err(format!(
+                "objects.size must be positive, got {:?}",
+                self.size
+            ));
         }
         Ok(())
     }
@@ -220,13 +223,7 @@ impl Mover {
             cuboid.max[axis]
         };
         let height = cuboid.max[axis] - cuboid.min[axis];
-        Shape::Billboard(Billboard::facing(
-            base,
-            up,
-            height,
-            camera,
-            sprite.clone(),
-        ))
+        Shape::Billboard(Billboard::facing(base, up, height, camera, sprite.clone()))
     }
 
     /// The box at time `t` seconds.

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::movers::Shape;
-use super::scene::Scene;
+use super::scene::{Cuboid, Scene};
 use super::texture::texel;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -138,10 +138,78 @@ struct Traced {
     mask: Vec<u16>,
 }
 
-/// Casts one ray per pixel (rows in parallel).
+/// The pixel rectangle `[u0, u1] x [v0, v1]` (one pixel wider each side) that holds the
+/// projection of a convex object with these corners; unbounded when a corner is not in
+/// front of the camera.
+fn screen_bounds(
+    corners: &[Vector3<f64>],
+    camera: &PinholeCamera,
+    camera_from_world: &Se3,
+) -> [f64; 4] {
+    let mut bounds = [
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for corner in corners {
+        let p = camera_from_world * nalgebra::Point3::from(*corner);
+        if p.z <= 1e-3 {
+            return [
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+            ];
+        }
+        let pixel = camera.project(&p.coords);
+        bounds = [
+            bounds[0].min(pixel.x - 1.0),
+            bounds[1].max(pixel.x + 1.0),
+            bounds[2].min(pixel.y - 1.0),
+            bounds[3].max(pixel.y + 1.0),
+        ];
+    }
+    bounds
+}
+
+/// The corners of a mover's shape.
+fn shape_corners(shape: &Shape) -> Vec<Vector3<f64>> {
+    match shape {
+        Shape::Box(cuboid) => cuboid.corners().to_vec(),
+        Shape::Billboard(board) => {
+            let half = board.right * (board.width * 0.5);
+            let top = board.up * board.height;
+            vec![
+                board.base - half,
+                board.base + half,
+                board.base - half + top,
+                board.base + half + top,
+            ]
+        }
+    }
+}
+
+/// Casts one ray per pixel (rows in parallel). Each ray tries only the furniture and
+/// movers whose screen rectangle holds its pixel.
 fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -> Traced {
     let (width, height) = (camera.width as usize, camera.height as usize);
-    let shapes: Vec<Shape> = view.movers.iter().map(|m| m.0.clone()).collect();
+    let camera_from_world = view.world_from_camera.inverse();
+    let furniture: Vec<(&Cuboid, [f64; 4])> = scene
+        .furniture
+        .iter()
+        .map(|c| (c, screen_bounds(&c.corners(), camera, &camera_from_world)))
+        .filter(|(_, b)| b[0] <= b[1])
+        .collect();
+    let movers: Vec<(usize, &Shape, [f64; 4])> = view
+        .movers
+        .iter()
+        .enumerate()
+        .map(|(i, (shape, _))| {
+            let bounds = screen_bounds(&shape_corners(shape), camera, &camera_from_world);
+            (i, shape, bounds)
+        })
+        .collect();
     let rotation = view.world_from_camera.rotation.matrix();
     let origin = view.world_from_camera.translation.vector;
     let light = Vector3::new(0.3, -0.8, 0.5).normalize();
@@ -153,21 +221,44 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
                 depth: Vec::with_capacity(if with_depth { width } else { 0 }),
                 mask: Vec::with_capacity(if with_depth { width } else { 0 }),
             };
-            let y = (v as f64 - camera.cy) / camera.fy;
+            let vf = v as f64;
+            let row_furniture: Vec<(&Cuboid, f64, f64)> = furniture
+                .iter()
+                .filter(|(_, b)| b[2] <= vf && vf <= b[3])
+                .map(|(c, b)| (*c, b[0], b[1]))
+                .collect();
+            let row_movers: Vec<(usize, &Shape, f64, f64)> = movers
+                .iter()
+                .filter(|(_, _, b)| b[2] <= vf && vf <= b[3])
+                .map(|(i, s, b)| (*i, *s, b[0], b[1]))
+                .collect();
+            let y = (vf - camera.cy) / camera.fy;
             for u in 0..width {
-                let ray_camera = Vector3::new((u as f64 - camera.cx) / camera.fx, y, 1.0);
+                let uf = u as f64;
+                let ray_camera = Vector3::new((uf - camera.cx) / camera.fx, y, 1.0);
                 let direction = rotation * ray_camera;
-                let (colour, depth, instance) =
-                    match scene.cast_with_movers(&shapes, &origin, &direction) {
-                        Some((hit, mover)) => {
-                            let colour = hit.colour.unwrap_or_else(|| {
-                                let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
-                                texel(hit.texture, hit.uv.0, hit.uv.1).map(|c| c * shade)
-                            });
-                            (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
-                        }
-                        None => ([0.0; 3], 0.0, 0),
-                    };
+                let hit = scene.cast_with_movers_among(
+                    row_furniture
+                        .iter()
+                        .filter(|(_, u0, u1)| *u0 <= uf && uf <= *u1)
+                        .map(|(c, _, _)| *c),
+                    row_movers
+                        .iter()
+                        .filter(|(_, _, u0, u1)| *u0 <= uf && uf <= *u1)
+                        .map(|(i, s, _, _)| (*i, *s)),
+                    &origin,
+                    &direction,
+                );
+                let (colour, depth, instance) = match hit {
+                    Some((hit, mover)) => {
+                        let colour = hit.colour.unwrap_or_else(|| {
+                            let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
+                            texel(hit.texture, hit.uv.0, hit.uv.1).map(|c| c * shade)
+                        });
+                        (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
+                    }
+                    None => ([0.0; 3], 0.0, 0),
+                };
                 row.colour.push(colour.map(|c| c as f32));
                 if with_depth {
                     row.depth.push(depth as f32);
@@ -267,11 +358,12 @@ fn expose(
             let mut rng = Rng::new(noise_seed.wrapping_mul(0x9E37_79B9).wrapping_add(v as u64));
             let noise = sensor.rgb_noise as f32;
             row.iter()
-                .flat_map(|c| c.map(|x| {
-                    (x * gain * 255.0 + noise * rng.normal() as f32)
-                        .round()
-                        .clamp(0.0, 255.0) as u8
-                }))
+                .flat_map(|c| {
+                    c.map(|x| {
+                        // Round half up; `as u8` saturates below 0 and above 255.
+                        (x * gain * 255.0 + noise * rng.normal() as f32 + 0.5) as u8
+                    })
+                })
                 .collect::<Vec<u8>>()
         })
         .collect();
@@ -366,7 +458,15 @@ mod tests {
             world_from_camera: Se3::identity(),
             movers: vec![],
         };
-        let rendered = render(&scene, &view, &[], &camera, &SensorConfig::default(), 1.0, 1);
+        let rendered = render(
+            &scene,
+            &view,
+            &[],
+            &camera,
+            &SensorConfig::default(),
+            1.0,
+            1,
+        );
         // The wall at z = 2 faces the camera: every pixel's depth is 2.
         assert!(rendered
             .exact_depth

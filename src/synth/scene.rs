@@ -48,8 +48,9 @@ fn slab(
 ) -> (f64, usize, f64, usize) {
     let (mut t_enter, mut enter_axis, mut t_exit, mut exit_axis) =
         (f64::NEG_INFINITY, 0, f64::INFINITY, 0);
+    let inverse_direction = direction.map(|d| 1.0 / d);
     for axis in 0..3 {
-        let inverse = 1.0 / direction[axis];
+        let inverse = inverse_direction[axis];
         let (mut a, mut b) = (
             (cuboid.min[axis] - origin[axis]) * inverse,
             (cuboid.max[axis] - origin[axis]) * inverse,
@@ -111,10 +112,34 @@ fn nearest_entry<'a>(
     best
 }
 
+impl Cuboid {
+    /// The eight corners.
+    pub fn corners(&self) -> [Vector3<f64>; 8] {
+        std::array::from_fn(|i| {
+            Vector3::new(
+                if i & 1 == 1 { self.max.x } else { self.min.x },
+                if i & 2 == 2 { self.max.y } else { self.min.y },
+                if i & 4 == 4 { self.max.z } else { self.min.z },
+            )
+        })
+    }
+}
+
 impl Scene {
     /// The nearest static surface along the ray `origin + t * direction`, `t > 0`.
     pub fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<Hit> {
-        if let Some((hit, _)) = nearest_entry(self.furniture.iter(), origin, direction) {
+        self.cast_among(self.furniture.iter(), origin, direction)
+    }
+
+    /// [`Scene::cast`] trying only the furniture boxes `furniture` yields (a renderer
+    /// that knows which boxes a ray can meet passes only those).
+    pub fn cast_among<'a>(
+        &self,
+        furniture: impl Iterator<Item = &'a Cuboid>,
+        origin: &Vector3<f64>,
+        direction: &Vector3<f64>,
+    ) -> Option<Hit> {
+        if let Some((hit, _)) = nearest_entry(furniture, origin, direction) {
             return Some(hit);
         }
         let (_, _, t_exit, axis) = slab(&self.room, origin, direction);
@@ -137,11 +162,31 @@ impl Scene {
         origin: &Vector3<f64>,
         direction: &Vector3<f64>,
     ) -> Option<(Hit, Option<usize>)> {
-        let mut best = self.cast(origin, direction).map(|hit| (hit, None));
-        for (index, shape) in movers.iter().enumerate() {
+        self.cast_with_movers_among(
+            self.furniture.iter(),
+            movers.iter().enumerate(),
+            origin,
+            direction,
+        )
+    }
+
+    /// [`Scene::cast_with_movers`] trying only the given furniture and movers (with
+    /// their indices).
+    pub fn cast_with_movers_among<'a>(
+        &self,
+        furniture: impl Iterator<Item = &'a Cuboid>,
+        movers: impl Iterator<Item = (usize, &'a Shape)>,
+        origin: &Vector3<f64>,
+        direction: &Vector3<f64>,
+    ) -> Option<(Hit, Option<usize>)> {
+        let mut best = self
+            .cast_among(furniture, origin, direction)
+            .map(|hit| (hit, None));
+        for (index, shape) in movers {
             let hit = match shape {
-                Shape::Box(cuboid) => nearest_entry(std::iter::once(cuboid), origin, direction)
-                    .map(|(hit, _)| hit),
+                Shape::Box(cuboid) => {
+                    nearest_entry(std::iter::once(cuboid), origin, direction).map(|(hit, _)| hit)
+                }
                 Shape::Billboard(board) => {
                     board.intersect(origin, direction).map(|(t, colour)| Hit {
                         t,

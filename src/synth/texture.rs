@@ -15,13 +15,24 @@ fn hash(id: u32, x: i64, y: i64) -> u32 {
     (h & 0xFFFF_FFFF) as u32
 }
 
+/// \(\lfloor x \rfloor\) without a libm call (the hot loop of the renderer).
+#[inline]
+fn floor(x: f64) -> f64 {
+    let truncated = x as i64 as f64;
+    if truncated > x {
+        truncated - 1.0
+    } else {
+        truncated
+    }
+}
+
 fn lattice(id: u32, x: i64, y: i64) -> f64 {
     hash(id, x, y) as f64 / u32::MAX as f64
 }
 
 /// Bilinear value noise in [0, 1] at (x, y) in lattice units.
 fn value_noise(id: u32, x: f64, y: f64) -> f64 {
-    let (x0, y0) = (x.floor(), y.floor());
+    let (x0, y0) = (floor(x), floor(y));
     let (fx, fy) = (x - x0, y - y0);
     let (xi, yi) = (x0 as i64, y0 as i64);
     let a = lattice(id, xi, yi);
@@ -39,6 +50,21 @@ fn value_noise(id: u32, x: f64, y: f64) -> f64 {
 /// colour; on top, a grid of hard-edged blobs ("posters", "books") with random colours
 /// gives sharp corners at 2-10 cm scale.
 pub fn texel(id: u32, u: f64, v: f64) -> [f64; 3] {
+    // Hard-edged rectangles on a 0.15 m grid: present in about half the cells.
+    let cell = 0.15;
+    let (cx, cy) = (floor(u / cell) as i64, floor(v / cell) as i64);
+    let h = hash(id ^ 0xABCD, cx, cy);
+    if h % 2 == 0 {
+        let (fu, fv) = (u / cell - cx as f64, v / cell - cy as f64);
+        let (w, hgt) = (
+            0.3 + 0.6 * ((h >> 8) & 0xFF) as f64 / 255.0,
+            0.3 + 0.6 * ((h >> 16) & 0xFF) as f64 / 255.0,
+        );
+        if fu < w && fv < hgt {
+            let shade = ((h >> 24) & 0xFF) as f64 / 255.0;
+            return [shade, lattice(id, cx, cy), 1.0 - shade];
+        }
+    }
     let base = [lattice(id, -7, 3), lattice(id, 11, -5), lattice(id, 2, 17)];
     let mut noise = 0.0;
     let mut amplitude = 0.5;
@@ -49,26 +75,7 @@ pub fn texel(id: u32, u: f64, v: f64) -> [f64; 3] {
         amplitude *= 0.5;
         frequency *= 2.0;
     }
-    let mut colour = [0.0; 3];
-    for (c, b) in colour.iter_mut().zip(base) {
-        *c = (0.25 + 0.5 * b) * (0.55 + 0.9 * noise);
-    }
-    // Hard-edged rectangles on a 0.15 m grid: present in about half the cells.
-    let cell = 0.15;
-    let (cx, cy) = ((u / cell).floor() as i64, (v / cell).floor() as i64);
-    let h = hash(id ^ 0xABCD, cx, cy);
-    if h % 2 == 0 {
-        let (fu, fv) = (u / cell - cx as f64, v / cell - cy as f64);
-        let (w, hgt) = (
-            0.3 + 0.6 * ((h >> 8) & 0xFF) as f64 / 255.0,
-            0.3 + 0.6 * ((h >> 16) & 0xFF) as f64 / 255.0,
-        );
-        if fu < w && fv < hgt {
-            let shade = ((h >> 24) & 0xFF) as f64 / 255.0;
-            colour = [shade, lattice(id, cx, cy), 1.0 - shade];
-        }
-    }
-    colour.map(|c| c.clamp(0.0, 1.0))
+    base.map(|b| ((0.25 + 0.5 * b) * (0.55 + 0.9 * noise)).clamp(0.0, 1.0))
 }
 
 #[cfg(test)]

@@ -446,7 +446,10 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         &out.join("calibration.yaml"),
         OrbSlamSettings::to_yaml(&calibration, &OrbSettings::default()).as_bytes(),
     )?;
-    write_atomic(&out.join("static_scene.ply"), world.scene.to_ply().as_bytes())?;
+    write_atomic(
+        &out.join("static_scene.ply"),
+        world.scene.to_ply().as_bytes(),
+    )?;
     if stereo {
         write_kitti_files(&world, &out.join("kitti"))?;
     }
@@ -474,7 +477,10 @@ fn write_kitti_files(world: &World, root: &Path) -> Result<(), SynthError> {
             c.fx, c.cx, tx, c.fy, c.cy
         )
     };
-    let (left, right) = (projection(0.0), projection(-c.fx * world.config.stereo.baseline));
+    let (left, right) = (
+        projection(0.0),
+        projection(-c.fx * world.config.stereo.baseline),
+    );
     let calib = format!("P0: {left}\nP1: {right}\nP2: {left}\nP3: {right}\n");
     let sequence = root.join("sequences/00");
     write_atomic(&sequence.join("calib.txt"), calib.as_bytes())?;

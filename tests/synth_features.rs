@@ -1,0 +1,58 @@
+//! ORB finds enough well-spread keypoints on frames of every synth preset: the test bed's
+//! textures are rich enough for tracking at every pyramid level.
+
+mod common;
+
+use std::path::Path;
+
+use dopslam::features::{OrbConfig, OrbExtractor};
+use dopslam::synth::writer::World;
+use dopslam::synth::SynthConfig;
+
+/// The presets' frames, rendered in memory: a few frames spread over a shortened run.
+#[test]
+fn orb_finds_a_thousand_spread_keypoints_in_every_preset() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth");
+    let extractor = OrbExtractor::new(&OrbConfig::default());
+    let mut presets: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    presets.sort();
+    for path in presets {
+        let mut config = SynthConfig::load(&path).unwrap();
+        let uses_shared = config.people.sprite.is_some() || config.seated.sprite.is_some();
+        if uses_shared && common::shared_data("orb on people_from_photos").is_none() {
+            continue;
+        }
+        config.sequence.timing = None;
+        config.sequence.frames = 240;
+        let world = World::new(&config).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        for index in [0, 120, 239] {
+            let rgb = world.render(index).rgb;
+            let grey = image::DynamicImage::ImageRgb8(rgb).to_luma8();
+            let features = extractor.extract(&grey);
+            // Spread: the image in 8 x 6 cells of 80 x 80 pixels; nearly all hold keypoints.
+            let mut cells = [0usize; 48];
+            for k in &features.keypoints {
+                cells[(k.y as usize / 80) * 8 + k.x as usize / 80] += 1;
+            }
+            let occupied = cells.iter().filter(|&&c| c > 0).count();
+            let levels: std::collections::BTreeSet<u8> =
+                features.keypoints.iter().map(|k| k.level).collect();
+            assert_eq!(levels.len(), 8, "{}: keypoints on every level", config.name);
+            let busiest = *cells.iter().max().unwrap();
+            println!(
+                "{} frame {index}: {} keypoints, {occupied}/48 cells, busiest {busiest}",
+                config.name,
+                features.len()
+            );
+            assert!(
+                features.len() >= 1000 && occupied >= 44 && busiest <= 100,
+                "{} frame {index}: {} keypoints, {occupied}/48 cells occupied, busiest {busiest}",
+                config.name,
+                features.len()
+            );
+        }
+    }
+}
