@@ -12,6 +12,7 @@ use crate::eval::report::AlignMode;
 pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
+pub use crate::tracking::TrackerConfig;
 
 #[derive(Debug, Error)]
 pub enum ConfigError {
@@ -82,6 +83,7 @@ impl Default for EvalConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
     pub orb: OrbConfig,
+    pub tracking: TrackerConfig,
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
 }

@@ -39,6 +39,8 @@ enum Command {
     Demo(DemoArgs),
     /// Generate a synthetic RGB-D sequence in the TUM layout with exact ground truth.
     Synth(SynthArgs),
+    /// Track a sequence (the tracking pass): trajectory, keyframes, sparse map and report.
+    Run(RunArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
     Info(InfoArgs),
 }
@@ -135,6 +137,24 @@ struct InfoArgs {
     /// A TOML config ([dataset] section: depth scale, association tolerance or file).
     #[arg(long)]
     config: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// The sequence folder (TUM/Bonn RGB-D layout, or one written by `dopslam synth`).
+    sequence: PathBuf,
+    /// A TOML config (configs/default.toml lists every key).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Output folder: trajectory.txt, keyframes.txt, report.json, map.ply.
+    #[arg(long, default_value = "outputs/run")]
+    out: PathBuf,
+    /// Track only the first N frames.
+    #[arg(long)]
+    frames: Option<usize>,
+    /// ORB-SLAM2 behaviour: no dynamic-object model (the only mode until the DOP model lands).
+    #[arg(long)]
+    no_dop: bool,
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -342,6 +362,38 @@ fn run_info(args: InfoArgs) -> Result<()> {
     Ok(())
 }
 
+fn run_run(args: RunArgs) -> Result<()> {
+    let config = load_config(args.config.as_deref())?;
+    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    let options = dopslam::pipeline::RunOptions {
+        max_frames: args.frames,
+        progress: true,
+    };
+    let _ = args.no_dop;
+    let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
+    let t = &report.totals;
+    println!(
+        "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
+        report.sequence, t.tracked, t.frames, t.coverage_percent, t.lost, t.keyframes, t.map_points
+    );
+    println!(
+        "tracking time per frame: median {:.1} ms, mean {:.1} ms (ORB {:.1} ms, matching {:.1} ms, optimisation {:.1} ms, medians)",
+        t.median_tracking_ms,
+        t.mean_tracking_ms,
+        t.median_extraction_ms,
+        t.median_matching_ms,
+        t.median_optimisation_ms
+    );
+    if let Some(ate) = &report.ate {
+        println!(
+            "ATE RMSE {:.4} m (SE(3) alignment, {} poses matched)",
+            ate.ape.statistics.rmse, ate.matched_poses
+        );
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -349,6 +401,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => run_demo(args),
         Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
+        Command::Run(args) => run_run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

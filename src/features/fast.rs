@@ -60,6 +60,56 @@ fn score(differences: &[i16; 16]) -> u8 {
     best.clamp(0, 255) as u8
 }
 
+/// The arc score at any interior pixel (at least 3 from the border): negative where no
+/// arc is uniformly brighter or darker.
+pub fn score_at(image: &GrayImage, x: u32, y: u32) -> i16 {
+    let w = image.width() as isize;
+    let src = image.as_raw();
+    let i = y as isize * w + x as isize;
+    let p = src[i as usize] as i16;
+    let mut differences = [0i16; 16];
+    for (k, (dx, dy)) in CIRCLE.iter().enumerate() {
+        differences[k] = src[(i + dy * w + dx) as usize] as i16 - p;
+    }
+    let mut best = i16::MIN;
+    for start in 0..16 {
+        let (mut brighter, mut darker) = (i16::MAX, i16::MAX);
+        for k in 0..9 {
+            let d = differences[(start + k) % 16];
+            brighter = brighter.min(d);
+            darker = darker.min(-d);
+        }
+        best = best.max(brighter).max(darker);
+    }
+    best
+}
+
+/// Sub-pixel position of a corner: the vertex of the parabola through the scores at
+/// \(x-1, x, x+1\) (and likewise in y), \(\delta = rac{s_{-} - s_{+}}{2(s_{-} - 2 s_0 + s_{+})}\),
+/// clamped to half a pixel. Removes the bias of integer positions, which at coarse
+/// pyramid levels is the same for all points of a translating view.
+pub fn refine(image: &GrayImage, corner: &Corner) -> (f32, f32) {
+    let (x, y) = (corner.x, corner.y);
+    let centre = score_at(image, x, y) as f32;
+    let offset = |minus: f32, plus: f32| {
+        let curvature = minus - 2.0 * centre + plus;
+        if curvature < 0.0 {
+            (0.5 * (minus - plus) / curvature).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let dx = offset(
+        score_at(image, x - 1, y) as f32,
+        score_at(image, x + 1, y) as f32,
+    );
+    let dy = offset(
+        score_at(image, x, y - 1) as f32,
+        score_at(image, x, y + 1) as f32,
+    );
+    (x as f32 + dx, y as f32 + dy)
+}
+
 /// Corners with score above `threshold` inside `[border, width - border)` ×
 /// `[border, height - border)`, after 3×3 non-maximum suppression on the score.
 pub fn detect(image: &GrayImage, threshold: u8, border: u32) -> Vec<Corner> {

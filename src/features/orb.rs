@@ -161,9 +161,12 @@ impl OrbExtractor {
                 let c = selected[i];
                 let (x, y) = (c.x as i32, c.y as i32);
                 let angle = orientation(image, x, y);
+                let (sub_x, sub_y) = fast::refine(image, &c);
+                // Pixel centres of a level map to level 0 as the resize sampled them:
+                // x0 = (x + 0.5) s - 0.5.
                 let keypoint = KeyPoint {
-                    x: c.x as f32 * scale,
-                    y: c.y as f32 * scale,
+                    x: (sub_x + 0.5) * scale - 0.5,
+                    y: (sub_y + 0.5) * scale - 0.5,
                     level: level as u8,
                     angle,
                     response: c.score as f32,

@@ -47,6 +47,16 @@ pub fn quaternion_xyzw(pose: &Se3) -> [f64; 4] {
     [q.i, q.j, q.k, q.w]
 }
 
+/// The pose with its rotation re-orthonormalised. Products of poses accumulate
+/// rounding error, and chains like a constant-velocity model (\(V = T_k T_{k-1}^{-1}\),
+/// \(\hat T_{k+1} = V T_k\)) amplify it every frame: call this on poses that feed
+/// back into themselves.
+pub fn normalised(pose: &Se3) -> Se3 {
+    let mut rotation = pose.rotation;
+    rotation.renormalize();
+    Se3::from_parts(pose.translation, rotation)
+}
+
 /// The homogeneous 4x4 matrix of a pose.
 pub fn to_matrix(pose: &Se3) -> Matrix4<f64> {
     pose.to_homogeneous()

@@ -253,7 +253,12 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
                     Some((hit, mover)) => {
                         let colour = hit.colour.unwrap_or_else(|| {
                             let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
-                            texel(hit.texture, hit.uv.0, hit.uv.1).map(|c| c * shade)
+                            // The pixel's footprint on the surface: its angular size
+                            // 1/fx times the distance, stretched by the incidence.
+                            let length = direction.norm();
+                            let incidence = (hit.normal.dot(&direction).abs() / length).max(0.2);
+                            let footprint = hit.t * length / camera.fx / incidence;
+                            texel(hit.texture, hit.uv.0, hit.uv.1, footprint).map(|c| c * shade)
                         });
                         (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
                     }

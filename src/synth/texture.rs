@@ -49,22 +49,44 @@ fn value_noise(id: u32, x: f64, y: f64) -> f64 {
 /// Four octaves of value noise (cell sizes 0.4 m to 0.05 m) modulate a per-texture base
 /// colour; on top, a grid of hard-edged blobs ("posters", "books") with random colours
 /// gives sharp corners at 2-10 cm scale.
-pub fn texel(id: u32, u: f64, v: f64) -> [f64; 3] {
+///
+/// `footprint` is the size of the pixel on the surface in metres: rectangle edges are
+/// blended over it (the area a camera pixel integrates), so edges and corners land at
+/// sub-pixel positions as in a real image instead of snapping to the pixel grid.
+pub fn texel(id: u32, u: f64, v: f64, footprint: f64) -> [f64; 3] {
     // Hard-edged rectangles on a 0.15 m grid: present in about half the cells.
     let cell = 0.15;
     let (cx, cy) = (floor(u / cell) as i64, floor(v / cell) as i64);
     let h = hash(id ^ 0xABCD, cx, cy);
+    let mut rectangle = None;
     if h % 2 == 0 {
         let (fu, fv) = (u / cell - cx as f64, v / cell - cy as f64);
         let (w, hgt) = (
             0.3 + 0.6 * ((h >> 8) & 0xFF) as f64 / 255.0,
             0.3 + 0.6 * ((h >> 16) & 0xFF) as f64 / 255.0,
         );
-        if fu < w && fv < hgt {
+        // Coverage of the pixel footprint by [0, w) x [0, hgt), per axis a linear ramp.
+        let f = (footprint / cell).max(1e-6);
+        let ramp = |x: f64| (x / f + 0.5).clamp(0.0, 1.0);
+        let coverage = ramp(fu).min(ramp(w - fu)) * ramp(fv).min(ramp(hgt - fv));
+        if coverage > 0.0 {
             let shade = ((h >> 24) & 0xFF) as f64 / 255.0;
-            return [shade, lattice(id, cx, cy), 1.0 - shade];
+            let colour = [shade, lattice(id, cx, cy), 1.0 - shade];
+            if coverage >= 1.0 {
+                return colour;
+            }
+            rectangle = Some((colour, coverage));
         }
     }
+    let background = noise_colour(id, u, v);
+    match rectangle {
+        Some((colour, c)) => std::array::from_fn(|k| colour[k] * c + background[k] * (1.0 - c)),
+        None => background,
+    }
+}
+
+/// The multi-octave noise colour under the rectangles.
+fn noise_colour(id: u32, u: f64, v: f64) -> [f64; 3] {
     let base = [lattice(id, -7, 3), lattice(id, 11, -5), lattice(id, 2, 17)];
     let mut noise = 0.0;
     let mut amplitude = 0.5;
@@ -86,10 +108,10 @@ mod tests {
     fn deterministic_and_in_range() {
         for i in 0..200 {
             let (u, v) = (i as f64 * 0.037, i as f64 * -0.051);
-            let a = texel(3, u, v);
-            assert_eq!(a, texel(3, u, v));
+            let a = texel(3, u, v, 0.001);
+            assert_eq!(a, texel(3, u, v, 0.001));
             assert!(a.iter().all(|c| (0.0..=1.0).contains(c)));
         }
-        assert_ne!(texel(1, 0.3, 0.3), texel(2, 0.3, 0.3));
+        assert_ne!(texel(1, 0.3, 0.3, 0.001), texel(2, 0.3, 0.3, 0.001));
     }
 }

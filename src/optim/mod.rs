@@ -1,0 +1,6 @@
+//! Nonlinear least squares for SLAM: robust kernels and the pose-only optimisation of
+//! tracking. Knows nothing of ORB or detectors: it sees points, pixels and weights.
+
+pub mod pose_only;
+pub mod robust;
+pub mod stereo_projection;

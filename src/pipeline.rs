@@ -1,0 +1,308 @@
+//! The tracking pass over a whole sequence: read frames lazily, extract ORB, track,
+//! and write what was computed — also when a frame fails to load or tracking never
+//! starts — atomically: `trajectory.txt` (TUM format, every tracked frame),
+//! `keyframes.txt`, `report.json` (per-frame state, matches, inliers and times; totals,
+//! lost spans, coverage, ATE when the sequence has ground truth) and `map.ply` (the
+//! sparse map).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::config::Config;
+use crate::eval::report::{evaluate, EvalOptions, EvalReport};
+use crate::features::OrbExtractor;
+use crate::io::atomic::write_atomic;
+use crate::io::kitti::KittiSequence;
+use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
+use crate::io::sequence::{FrameImages, Sequence};
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::tum::{TumOptions, TumSequence};
+use crate::io::{IoError, Trajectory};
+use crate::optim::stereo_projection::StereoCamera;
+use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
+
+#[derive(Debug, Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error("{0}")]
+    Input(String),
+    #[error("{message} (outputs of the {done} frames done are in {out})")]
+    Interrupted {
+        message: String,
+        done: usize,
+        out: PathBuf,
+    },
+}
+
+/// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
+pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, IoError> {
+    if !root.is_dir() {
+        return Err(IoError::Missing {
+            path: root.to_path_buf(),
+            what: "sequence folder".into(),
+        });
+    }
+    if root.join("image_0").is_dir() {
+        return Ok(Box::new(KittiSequence::open(root, None)?));
+    }
+    let options = TumOptions {
+        depth_scale: config.dataset.depth_scale,
+        max_difference: config.dataset.max_difference,
+        association_file: config.dataset.association_file.clone(),
+    };
+    Ok(Box::new(TumSequence::open(root, &options)?))
+}
+
+/// The calibration to use: the config's camera, else its settings file, else the
+/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m.
+pub fn resolve_calibration(
+    sequence: &dyn Sequence,
+    config: &Config,
+) -> Result<Calibration, RunError> {
+    let mut calibration = match &config.dataset.settings {
+        Some(path) => OrbSlamSettings::read(path)?.calibration,
+        None => sequence.calibration().cloned().ok_or_else(|| {
+            RunError::Input(format!(
+                "sequence {} has no calibration; give one with [dataset] settings = \"camera.yaml\" or [dataset.camera]",
+                sequence.name()
+            ))
+        })?,
+    };
+    if let Some(camera) = config.dataset.camera {
+        calibration.camera = camera;
+    }
+    if calibration.bf.is_none() {
+        calibration.bf = Some(40.0);
+    }
+    Ok(calibration)
+}
+
+/// Totals of a run.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunTotals {
+    pub frames: usize,
+    pub tracked: usize,
+    pub lost: usize,
+    pub not_initialised: usize,
+    /// Tracked frames over all frames, in %.
+    pub coverage_percent: f64,
+    /// Inclusive frame index ranges where tracking was lost.
+    pub lost_spans: Vec<(usize, usize)>,
+    pub keyframes: usize,
+    pub map_points: usize,
+    /// Tracking time per frame (ORB extraction + tracking), as ORB-SLAM2 prints it.
+    pub median_tracking_ms: f64,
+    pub mean_tracking_ms: f64,
+    pub median_extraction_ms: f64,
+    pub median_matching_ms: f64,
+    pub median_optimisation_ms: f64,
+}
+
+/// One frame's line in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameLine {
+    #[serde(flatten)]
+    pub tracking: FrameReport,
+    pub extraction_ms: f64,
+    pub tracking_ms: f64,
+}
+
+/// What `report.json` holds.
+#[derive(Debug, Serialize)]
+pub struct RunReport {
+    pub sequence: String,
+    pub totals: RunTotals,
+    pub ate: Option<EvalReport>,
+    pub frames: Vec<FrameLine>,
+}
+
+/// Options of a run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Stop after this many frames.
+    pub max_frames: Option<usize>,
+    pub progress: bool,
+}
+
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f64::total_cmp);
+    crate::eval::stats::median_of_sorted(values)
+}
+
+/// Tracks every frame of `sequence` and writes the outputs into `out`.
+pub fn run_sequence(
+    sequence: &dyn Sequence,
+    config: &Config,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<RunReport, RunError> {
+    if sequence.is_empty() {
+        return Err(RunError::Input(format!(
+            "sequence {} has no frames",
+            sequence.name()
+        )));
+    }
+    let calibration = resolve_calibration(sequence, config)?;
+    let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
+    let extractor = OrbExtractor::new(&config.orb);
+    let mut tracker = Tracker::new(
+        config.tracking.clone(),
+        camera,
+        extractor.pyramid.clone(),
+        calibration.camera.width,
+        calibration.camera.height,
+    );
+    std::fs::create_dir_all(out).map_err(|source| IoError::Write {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let total = options
+        .max_frames
+        .map_or(sequence.len(), |m| m.min(sequence.len()));
+    let progress = if options.progress {
+        ProgressBar::new(total as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    progress.set_style(
+        ProgressStyle::with_template(
+            "track {bar:40} {pos}/{len} frames {msg} ({per_sec}, {eta} left)",
+        )
+        .expect("valid template"),
+    );
+    let mut lines = Vec::with_capacity(total);
+    let mut failure: Option<String> = None;
+    let mut frames_without_depth = 0;
+    for index in 0..total {
+        let loaded = match sequence.load(index) {
+            Ok(frame) => frame,
+            Err(e) => {
+                failure = Some(format!("frame {index}: {e}"));
+                break;
+            }
+        };
+        let FrameImages::Rgbd { rgb, depth } = loaded.images else {
+            failure = Some("stereo tracking is not implemented yet; use an RGB-D sequence".into());
+            break;
+        };
+        if depth.valid_fraction() == 0.0 {
+            frames_without_depth += 1;
+            if tracker.state == TrackingState::NotInitialised && frames_without_depth >= 10 {
+                failure = Some(format!(
+                    "the first {frames_without_depth} depth images hold no depth at all: is depth_scale right ({}), and does depth.txt list depth maps?",
+                    calibration.depth_scale.unwrap_or(5000.0)
+                ));
+                break;
+            }
+        }
+        let start = Instant::now();
+        let grey = image::DynamicImage::ImageRgb8(rgb).to_luma8();
+        let frame = Frame::from_rgbd(index, loaded.timestamp, &grey, &depth, &extractor, &camera);
+        let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
+        let report = tracker.track(frame);
+        let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
+        progress.set_message(format!("{:?}", report.state));
+        progress.inc(1);
+        lines.push(FrameLine {
+            tracking: report,
+            extraction_ms,
+            tracking_ms,
+        });
+    }
+    progress.finish_and_clear();
+    if failure.is_none() && tracker.state == TrackingState::NotInitialised {
+        failure = Some(format!(
+            "tracking never started: no frame had {} keypoints with depth (check depth_scale and the depth images)",
+            config.tracking.min_initial_points
+        ));
+    }
+    let report = write_outputs(sequence, &tracker, lines, out)?;
+    match failure {
+        Some(message) => Err(RunError::Interrupted {
+            message,
+            done: report.frames.len(),
+            out: out.to_path_buf(),
+        }),
+        None => Ok(report),
+    }
+}
+
+/// Writes trajectory, keyframes, map and report; evaluates against ground truth.
+fn write_outputs(
+    sequence: &dyn Sequence,
+    tracker: &Tracker,
+    lines: Vec<FrameLine>,
+    out: &Path,
+) -> Result<RunReport, RunError> {
+    let mut trajectory = Trajectory::default();
+    for line in &lines {
+        if let Some(pose) = line.tracking.camera_from_world {
+            trajectory.push(line.tracking.timestamp, pose.inverse());
+        }
+    }
+    trajectory.write(&out.join("trajectory.txt"), TrajectoryFormat::Tum)?;
+    let mut keyframes = Trajectory::default();
+    for key in &tracker.map.keyframe_order {
+        let kf = &tracker.map.keyframes[*key];
+        keyframes.push(kf.timestamp, kf.world_from_camera());
+    }
+    keyframes.write(&out.join("keyframes.txt"), TrajectoryFormat::Tum)?;
+    write_atomic(&out.join("map.ply"), tracker.map.to_ply().as_bytes())?;
+    let mut lost_spans: Vec<(usize, usize)> = Vec::new();
+    for line in &lines {
+        if line.tracking.state == TrackingState::Lost {
+            match lost_spans.last_mut() {
+                Some(span) if span.1 + 1 == line.tracking.index => span.1 = line.tracking.index,
+                _ => lost_spans.push((line.tracking.index, line.tracking.index)),
+            }
+        }
+    }
+    let count = |state| lines.iter().filter(|l| l.tracking.state == state).count();
+    let tracked = trajectory.len();
+    let column = |f: fn(&FrameLine) -> f64| median(&mut lines.iter().map(f).collect::<Vec<_>>());
+    let totals = RunTotals {
+        frames: lines.len(),
+        tracked,
+        lost: count(TrackingState::Lost),
+        not_initialised: count(TrackingState::NotInitialised),
+        coverage_percent: 100.0 * tracked as f64 / lines.len().max(1) as f64,
+        lost_spans,
+        keyframes: tracker.map.keyframes.len(),
+        map_points: tracker.map.points.len(),
+        median_tracking_ms: column(|l| l.tracking_ms),
+        mean_tracking_ms: lines.iter().map(|l| l.tracking_ms).sum::<f64>()
+            / lines.len().max(1) as f64,
+        median_extraction_ms: column(|l| l.extraction_ms),
+        median_matching_ms: column(|l| l.tracking.matching_ms),
+        median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
+    };
+    let ate = match sequence.ground_truth() {
+        Some(gt) if trajectory.len() >= 3 => evaluate(
+            gt,
+            &trajectory,
+            &EvalOptions {
+                min_coverage: 0.0,
+                ..EvalOptions::default()
+            },
+        )
+        .ok(),
+        _ => None,
+    };
+    let report = RunReport {
+        sequence: sequence.name().to_string(),
+        totals,
+        ate,
+        frames: lines,
+    };
+    let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;
+    write_atomic(&out.join("report.json"), json.as_bytes())?;
+    Ok(report)
+}

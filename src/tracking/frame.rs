@@ -1,0 +1,134 @@
+//! A frame ready for tracking (ORB-SLAM2 §III-A): ORB keypoints (undistorted), their
+//! descriptors, for RGB-D a depth per keypoint and the virtual right coordinate
+//! \(u_R = u - bf / z\) so that one stereo reprojection model serves RGB-D and stereo,
+//! and a grid over the image for fast radius searches.
+
+use image::GrayImage;
+
+use crate::features::{Descriptor, KeyPoint, OrbExtractor};
+use crate::io::image_files::DepthImage;
+use crate::optim::stereo_projection::StereoCamera;
+
+/// Grid cells over the image, for keypoint lookups by position.
+const GRID_COLUMNS: usize = 64;
+const GRID_ROWS: usize = 48;
+
+/// One frame's features and depth.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub index: usize,
+    pub timestamp: f64,
+    pub keypoints: Vec<KeyPoint>,
+    pub descriptors: Vec<Descriptor>,
+    /// Depth in metres per keypoint; 0 when unknown.
+    pub depth: Vec<f32>,
+    /// Virtual right-image coordinate per keypoint; negative when unknown.
+    pub right_u: Vec<f32>,
+    pub width: u32,
+    pub height: u32,
+    grid: Vec<Vec<u32>>,
+}
+
+impl Frame {
+    /// Extracts features from a grey image and reads each keypoint's depth at its
+    /// (rounded) pixel.
+    pub fn from_rgbd(
+        index: usize,
+        timestamp: f64,
+        grey: &GrayImage,
+        depth: &DepthImage,
+        extractor: &OrbExtractor,
+        camera: &StereoCamera,
+    ) -> Self {
+        let features = extractor.extract(grey);
+        let (depths, right_u): (Vec<f32>, Vec<f32>) = features
+            .keypoints
+            .iter()
+            .map(|k| {
+                let (u, v) = (k.x.round() as u32, k.y.round() as u32);
+                let z = if u < depth.width && v < depth.height {
+                    depth.at(u, v)
+                } else {
+                    0.0
+                };
+                if z > 0.0 {
+                    (z, k.x - (camera.bf / z as f64) as f32)
+                } else {
+                    (0.0, -1.0)
+                }
+            })
+            .unzip();
+        let mut frame = Self {
+            index,
+            timestamp,
+            keypoints: features.keypoints,
+            descriptors: features.descriptors,
+            depth: depths,
+            right_u,
+            width: grey.width(),
+            height: grey.height(),
+            grid: vec![Vec::new(); GRID_COLUMNS * GRID_ROWS],
+        };
+        frame.build_grid();
+        frame
+    }
+
+    fn cell(&self, x: f32, y: f32) -> Option<(usize, usize)> {
+        let cx = (x / self.width as f32 * GRID_COLUMNS as f32).floor();
+        let cy = (y / self.height as f32 * GRID_ROWS as f32).floor();
+        (cx >= 0.0 && cy >= 0.0 && (cx as usize) < GRID_COLUMNS && (cy as usize) < GRID_ROWS)
+            .then_some((cx as usize, cy as usize))
+    }
+
+    fn build_grid(&mut self) {
+        for (i, k) in self.keypoints.iter().enumerate() {
+            if let Some((cx, cy)) = self.cell(k.x, k.y) {
+                self.grid[cy * GRID_COLUMNS + cx].push(i as u32);
+            }
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+
+    /// Keypoints within `radius` pixels of `(x, y)` on levels `min_level..=max_level`.
+    pub fn features_in_area(
+        &self,
+        x: f32,
+        y: f32,
+        radius: f32,
+        min_level: u8,
+        max_level: u8,
+    ) -> Vec<usize> {
+        let mut found = Vec::new();
+        let cell_w = self.width as f32 / GRID_COLUMNS as f32;
+        let cell_h = self.height as f32 / GRID_ROWS as f32;
+        let x0 = ((x - radius) / cell_w).floor().max(0.0) as usize;
+        let x1 = (((x + radius) / cell_w).floor() as isize).min(GRID_COLUMNS as isize - 1);
+        let y0 = ((y - radius) / cell_h).floor().max(0.0) as usize;
+        let y1 = (((y + radius) / cell_h).floor() as isize).min(GRID_ROWS as isize - 1);
+        if x1 < 0 || y1 < 0 {
+            return found;
+        }
+        for cy in y0..=y1 as usize {
+            for cx in x0..=x1 as usize {
+                for &i in &self.grid[cy * GRID_COLUMNS + cx] {
+                    let k = &self.keypoints[i as usize];
+                    if k.level < min_level || k.level > max_level {
+                        continue;
+                    }
+                    let (dx, dy) = (k.x - x, k.y - y);
+                    if dx.abs() < radius && dy.abs() < radius {
+                        found.push(i as usize);
+                    }
+                }
+            }
+        }
+        found
+    }
+}
