@@ -137,6 +137,17 @@ fn median(values: &mut [f64]) -> f64 {
     crate::eval::stats::median_of_sorted(values)
 }
 
+/// The median of the valid depths, if any.
+fn median_depth(depth: &crate::io::image_files::DepthImage) -> Option<f64> {
+    let mut valid: Vec<f64> = depth
+        .metres
+        .iter()
+        .filter(|&&z| z > 0.0)
+        .map(|&z| z as f64)
+        .collect();
+    (!valid.is_empty()).then(|| median(&mut valid))
+}
+
 /// Tracks every frame of `sequence` and writes the outputs into `out`.
 pub fn run_sequence(
     sequence: &dyn Sequence,
@@ -193,6 +204,17 @@ pub fn run_sequence(
             failure = Some("stereo tracking is not implemented yet; use an RGB-D sequence".into());
             break;
         };
+        if index == 0 {
+            if let Some(median) = median_depth(&depth) {
+                if !(0.05..=100.0).contains(&median) {
+                    failure = Some(format!(
+                        "frame {index}: the median depth is {median:.3} m, which no RGB-D sensor gives: is depth_scale right ({} raw units per metre)?",
+                        calibration.depth_scale.unwrap_or(5000.0)
+                    ));
+                    break;
+                }
+            }
+        }
         if depth.valid_fraction() == 0.0 {
             frames_without_depth += 1;
             if tracker.state == TrackingState::NotInitialised && frames_without_depth >= 10 {

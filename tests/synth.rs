@@ -218,6 +218,8 @@ fn every_preset_loads_and_validates() {
     assert_eq!(
         names,
         [
+            "fr1_xyz_room",
+            "fr2_desk_room",
             "loop_room",
             "moving_chair",
             "people_from_photos",

@@ -94,9 +94,12 @@ pub fn describe(smoothed: &GrayImage, x: i32, y: i32, angle: f32) -> Descriptor 
     let w = smoothed.width() as i32;
     let src = smoothed.as_raw();
     let (sin, cos) = angle.sin_cos();
+    // Round to nearest without a libm call: shift into positive range and truncate
+    // (pattern offsets stay within ±16).
+    let round = |x: f32| (x + 64.5) as i32 - 64;
     let sample = |px: f32, py: f32| {
-        let u = (px * cos - py * sin).round() as i32;
-        let v = (px * sin + py * cos).round() as i32;
+        let u = round(px * cos - py * sin);
+        let v = round(px * sin + py * cos);
         src[((y + v) * w + x + u) as usize]
     };
     let mut descriptor = [0u64; 4];

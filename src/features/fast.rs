@@ -47,30 +47,11 @@ fn has_arc_of_nine(mask: u32) -> bool {
 /// The largest \(t\) for which the arc test holds: the best over the 16 arcs of the
 /// smallest difference on the arc, for brighter and darker arcs.
 fn score(differences: &[i16; 16]) -> u8 {
-    let mut best = 0i16;
-    for start in 0..16 {
-        let (mut brighter, mut darker) = (i16::MAX, i16::MAX);
-        for k in 0..9 {
-            let d = differences[(start + k) % 16];
-            brighter = brighter.min(d);
-            darker = darker.min(-d);
-        }
-        best = best.max(brighter).max(darker);
-    }
-    best.clamp(0, 255) as u8
+    arc_score(differences).clamp(0, 255) as u8
 }
 
-/// The arc score at any interior pixel (at least 3 from the border): negative where no
-/// arc is uniformly brighter or darker.
-pub fn score_at(image: &GrayImage, x: u32, y: u32) -> i16 {
-    let w = image.width() as isize;
-    let src = image.as_raw();
-    let i = y as isize * w + x as isize;
-    let p = src[i as usize] as i16;
-    let mut differences = [0i16; 16];
-    for (k, (dx, dy)) in CIRCLE.iter().enumerate() {
-        differences[k] = src[(i + dy * w + dx) as usize] as i16 - p;
-    }
+/// [`score`] before clamping: negative where no arc is uniformly brighter or darker.
+fn arc_score(differences: &[i16; 16]) -> i16 {
     let mut best = i16::MIN;
     for start in 0..16 {
         let (mut brighter, mut darker) = (i16::MAX, i16::MAX);
@@ -84,8 +65,22 @@ pub fn score_at(image: &GrayImage, x: u32, y: u32) -> i16 {
     best
 }
 
+/// The arc score at any interior pixel (at least 3 from the border): negative where no
+/// arc is uniformly brighter or darker.
+pub fn score_at(image: &GrayImage, x: u32, y: u32) -> i16 {
+    let w = image.width() as isize;
+    let src = image.as_raw();
+    let i = y as isize * w + x as isize;
+    let p = src[i as usize] as i16;
+    let mut differences = [0i16; 16];
+    for (k, (dx, dy)) in CIRCLE.iter().enumerate() {
+        differences[k] = src[(i + dy * w + dx) as usize] as i16 - p;
+    }
+    arc_score(&differences)
+}
+
 /// Sub-pixel position of a corner: the vertex of the parabola through the scores at
-/// \(x-1, x, x+1\) (and likewise in y), \(\delta = rac{s_{-} - s_{+}}{2(s_{-} - 2 s_0 + s_{+})}\),
+/// \(x-1, x, x+1\) (and likewise in y), \(\delta = \frac{s_{-} - s_{+}}{2(s_{-} - 2 s_0 + s_{+})}\),
 /// clamped to half a pixel. Removes the bias of integer positions, which at coarse
 /// pyramid levels is the same for all points of a translating view.
 pub fn refine(image: &GrayImage, corner: &Corner) -> (f32, f32) {

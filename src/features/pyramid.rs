@@ -93,6 +93,8 @@ pub fn resize_bilinear(image: &GrayImage, width: u32, height: u32) -> GrayImage 
 }
 
 /// A separable Gaussian blur (kernel of `2 * radius + 1` taps, borders replicated).
+/// The interior runs without bounds clamping, and the vertical pass works a whole row
+/// at a time, so both vectorise.
 pub fn gaussian_blur(image: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let kernel: Vec<f32> = {
@@ -106,28 +108,35 @@ pub fn gaussian_blur(image: &GrayImage, sigma: f32, radius: usize) -> GrayImage 
         k.into_iter().map(|v| v / sum).collect()
     };
     let src = image.as_raw();
-    let r = radius as isize;
+    let r = radius;
+    // Horizontal pass into a padded float row buffer per image row.
     let mut horizontal = vec![0f32; w * h];
+    let mut padded = vec![0f32; w + 2 * r];
     for y in 0..h {
         let row = &src[y * w..(y + 1) * w];
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (i, k) in kernel.iter().enumerate() {
-                let xx = (x as isize + i as isize - r).clamp(0, w as isize - 1) as usize;
-                acc += k * row[xx] as f32;
-            }
-            horizontal[y * w + x] = acc;
+        for (i, p) in padded.iter_mut().enumerate() {
+            *p = row[i.saturating_sub(r).min(w - 1)] as f32;
+        }
+        let out = &mut horizontal[y * w..(y + 1) * w];
+        for (x, o) in out.iter_mut().enumerate() {
+            let window = &padded[x..x + 2 * r + 1];
+            *o = window.iter().zip(&kernel).map(|(a, k)| a * k).sum();
         }
     }
+    // Vertical pass: each output row is a weighted sum of whole input rows.
     let mut out = vec![0u8; w * h];
+    let mut accumulator = vec![0f32; w];
     for y in 0..h {
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (i, k) in kernel.iter().enumerate() {
-                let yy = (y as isize + i as isize - r).clamp(0, h as isize - 1) as usize;
-                acc += k * horizontal[yy * w + x];
+        accumulator.iter_mut().for_each(|a| *a = 0.0);
+        for (i, k) in kernel.iter().enumerate() {
+            let yy = (y + i).saturating_sub(r).min(h - 1);
+            let row = &horizontal[yy * w..(yy + 1) * w];
+            for (a, v) in accumulator.iter_mut().zip(row) {
+                *a += k * v;
             }
-            out[y * w + x] = (acc + 0.5) as u8;
+        }
+        for (o, a) in out[y * w..(y + 1) * w].iter_mut().zip(&accumulator) {
+            *o = (a + 0.5) as u8;
         }
     }
     GrayImage::from_raw(w as u32, h as u32, out).expect("size matches")

@@ -316,15 +316,7 @@ pub fn place_people(
                 std::mem::swap(&mut a, &mut b);
             }
             // Box corners: the floor level along `up`, centred on the path otherwise.
-            let corner = |p: Vector3<f64>| {
-                let mut c = p - size * 0.5;
-                c[up] = if sign > 0.0 {
-                    floor
-                } else {
-                    floor - config.height
-                };
-                c
-            };
+            let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
             Mover {
                 instance: i as u16 + 1,
                 class: "person".into(),
@@ -358,11 +350,7 @@ pub fn place_seated(
     }
     let (up, sign) = up_axis(poses);
     let (centre, forward, lateral) = viewing_frame(poses, up, sign);
-    let floor = if sign > 0.0 {
-        scene.room.min[up]
-    } else {
-        scene.room.max[up]
-    };
+    let floor = floor_level(scene, up, sign);
     let mut size = Vector3::repeat(0.5);
     size[up] = height;
     (0..config.count)
@@ -370,11 +358,7 @@ pub fn place_seated(
             let offset = (i as f64 - (config.count as f64 - 1.0) / 2.0) * 0.9;
             let seat = centre + forward * config.distance + lateral * offset;
             let exit = seat + lateral * if offset >= 0.0 { 4.0 } else { -4.0 };
-            let corner = |p: Vector3<f64>| {
-                let mut c = p - size * 0.5;
-                c[up] = if sign > 0.0 { floor } else { floor - height };
-                c
-            };
+            let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
             Mover {
                 instance: first_instance + i as u16,
                 class: "person".into(),
@@ -410,11 +394,7 @@ pub fn place_objects(
     }
     let (up, sign) = up_axis(poses);
     let (centre, forward, lateral) = viewing_frame(poses, up, sign);
-    let floor = if sign > 0.0 {
-        scene.room.min[up]
-    } else {
-        scene.room.max[up]
-    };
+    let floor = floor_level(scene, up, sign);
     let class_id = coco::class_id(&config.class).unwrap_or(56);
     // Width across the path, height along up, depth along the viewing direction.
     let mut size = Vector3::zeros();
@@ -424,11 +404,7 @@ pub fn place_objects(
     (0..config.count)
         .map(|i| {
             let middle = centre + forward * (config.distance + 0.7 * i as f64);
-            let corner = |p: Vector3<f64>| {
-                let mut c = p - size * 0.5;
-                c[up] = if sign > 0.0 { floor } else { floor - size[up] };
-                c
-            };
+            let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
             Mover {
                 instance: first_instance + i as u16,
                 class: config.class.clone(),
@@ -444,6 +420,29 @@ pub fn place_objects(
             }
         })
         .collect()
+}
+
+/// The floor's coordinate along the up axis (the room's face below the cameras).
+fn floor_level(scene: &Scene, up: usize, sign: f64) -> f64 {
+    if sign > 0.0 {
+        scene.room.min[up]
+    } else {
+        scene.room.max[up]
+    }
+}
+
+/// The minimum corner of a box of `size` centred on `p` across the floor and standing
+/// on the floor.
+fn standing_corner(
+    p: Vector3<f64>,
+    size: &Vector3<f64>,
+    up: usize,
+    sign: f64,
+    floor: f64,
+) -> Vector3<f64> {
+    let mut c = p - size * 0.5;
+    c[up] = if sign > 0.0 { floor } else { floor - size[up] };
+    c
 }
 
 /// The mean camera position, and the horizontal forward and lateral directions.

@@ -286,27 +286,32 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
     traced
 }
 
-/// Renders a frame: depth and mask from `view`; colour averaged over `exposure` (the
-/// views during the exposure, or just `view` when empty), times `gain`, plus noise.
-/// `noise_seed` makes the sensor noise repeatable (each row draws from its own
-/// generator, so the parallel order does not matter).
+/// How a frame is exposed: the views sampled during the exposure (empty: just the
+/// frame's own view), the brightness gain, and the seed of the sensor noise (each row
+/// draws from its own generator, so the parallel order does not matter).
+#[derive(Debug, Clone, Copy)]
+pub struct Exposure<'a> {
+    pub views: &'a [View],
+    pub gain: f64,
+    pub noise_seed: u64,
+}
+
+/// Renders a frame: depth and mask from `view`, colour as `exposure` says.
 pub fn render(
     scene: &Scene,
     view: &View,
-    exposure: &[View],
     camera: &PinholeCamera,
     sensor: &SensorConfig,
-    gain: f64,
-    noise_seed: u64,
+    exposure: &Exposure,
 ) -> Rendered {
     let traced = trace(scene, view, camera, true);
-    let rgb = expose(scene, &traced, exposure, camera, sensor, gain, noise_seed);
+    let rgb = expose(scene, &traced, camera, sensor, exposure);
     let exact_depth = DepthImage {
         width: camera.width,
         height: camera.height,
         metres: traced.depth,
     };
-    let depth = sensor_depth(&exact_depth, sensor, noise_seed);
+    let depth = sensor_depth(&exact_depth, sensor, exposure.noise_seed);
     Rendered {
         rgb,
         depth,
@@ -319,14 +324,12 @@ pub fn render(
 pub fn render_colour(
     scene: &Scene,
     view: &View,
-    exposure: &[View],
     camera: &PinholeCamera,
     sensor: &SensorConfig,
-    gain: f64,
-    noise_seed: u64,
+    exposure: &Exposure,
 ) -> RgbImage {
     let traced = trace(scene, view, camera, false);
-    expose(scene, &traced, exposure, camera, sensor, gain, noise_seed)
+    expose(scene, &traced, camera, sensor, exposure)
 }
 
 /// Averages the exposure's colours with the traced ones' (when blurred), applies the
@@ -334,12 +337,12 @@ pub fn render_colour(
 fn expose(
     scene: &Scene,
     traced: &Traced,
-    exposure: &[View],
     camera: &PinholeCamera,
     sensor: &SensorConfig,
-    gain: f64,
-    noise_seed: u64,
+    exposure: &Exposure,
 ) -> RgbImage {
+    let (gain, noise_seed) = (exposure.gain, exposure.noise_seed);
+    let exposure = exposure.views;
     let width = camera.width as usize;
     let mut colour = traced.colour.clone();
     if !exposure.is_empty() {
@@ -463,15 +466,12 @@ mod tests {
             world_from_camera: Se3::identity(),
             movers: vec![],
         };
-        let rendered = render(
-            &scene,
-            &view,
-            &[],
-            &camera,
-            &SensorConfig::default(),
-            1.0,
-            1,
-        );
+        let exposure = Exposure {
+            views: &[],
+            gain: 1.0,
+            noise_seed: 1,
+        };
+        let rendered = render(&scene, &view, &camera, &SensorConfig::default(), &exposure);
         // The wall at z = 2 faces the camera: every pixel's depth is 2.
         assert!(rendered
             .exact_depth

@@ -16,7 +16,7 @@ use super::config::SynthConfig;
 use super::motion::poses_at;
 use super::movers::{place_objects, place_people, place_seated, Appearance, Mover};
 use super::oracle::OracleConfig;
-use super::render::{render, render_colour, Rendered, View};
+use super::render::{render, render_colour, Exposure, Rendered, View};
 use super::scene::Scene;
 use super::sprite::Sprite;
 use crate::detect::{Detection, FrameDetections};
@@ -276,14 +276,18 @@ impl World {
     /// Renders frame `index` (the colour, or left, camera).
     pub fn render(&self, index: usize) -> Rendered {
         let t = self.times[index];
+        let views = self.exposure_views(index, &Se3::identity());
+        let exposure = Exposure {
+            views: &views,
+            gain: self.config.sensor.gain(t),
+            noise_seed: self.frame_seed(index),
+        };
         render(
             &self.scene,
             &self.view(t, self.poses[index]),
-            &self.exposure_views(index, &Se3::identity()),
             &self.camera,
             &self.config.sensor,
-            self.config.sensor.gain(t),
-            self.frame_seed(index),
+            &exposure,
         )
     }
 
@@ -295,14 +299,18 @@ impl World {
             nalgebra::Translation3::new(self.config.stereo.baseline, 0.0, 0.0),
             nalgebra::Rotation3::identity(),
         );
+        let views = self.exposure_views(index, &offset);
+        let exposure = Exposure {
+            views: &views,
+            gain: self.config.sensor.gain(t),
+            noise_seed: self.frame_seed(index) ^ 0x5EC0_4D00,
+        };
         render_colour(
             &self.scene,
             &self.view(t, self.poses[index] * offset),
-            &self.exposure_views(index, &offset),
             &self.camera,
             &self.config.sensor,
-            self.config.sensor.gain(t),
-            self.frame_seed(index) ^ 0x5EC0_4D00,
+            &exposure,
         )
     }
 }

@@ -529,8 +529,7 @@ impl Tracker {
             .filter(|&i| frame.depth[i] > 0.0 && points[i].is_none())
             .collect();
         candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
-        let mut created = 0;
-        for i in candidates {
+        for (created, i) in candidates.into_iter().enumerate() {
             if !first && frame.depth[i] > close && created >= 100 {
                 break;
             }
@@ -557,7 +556,6 @@ impl Tracker {
                 last_seen_frame: frame.index,
             });
             points[i] = Some(point);
-            created += 1;
         }
         for (i, point) in points.iter().enumerate() {
             let Some(point) = point else { continue };

@@ -1,0 +1,139 @@
+//! `dopslam run` on short synthetic sequences: accuracy on a static room, and bad input
+//! (no depth, a missing image mid-sequence, an empty sequence) ends with a clear error
+//! and keeps the outputs of the frames already done.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use dopslam::config::Config;
+use dopslam::pipeline::{open_sequence, run_sequence, RunOptions};
+use dopslam::synth::{generate, SynthConfig};
+
+fn static_room(frames: usize, name: &str) -> PathBuf {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    let mut config = SynthConfig::load(&path).unwrap();
+    config.sequence.frames = frames;
+    let out = common::temp_dir(name).join("seq");
+    generate(&config, &out, false).unwrap();
+    out
+}
+
+fn dopslam() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_dopslam"))
+}
+
+#[test]
+fn tracks_a_static_room_within_a_centimetre() {
+    let seq = static_room(90, "track-static");
+    let out = seq.parent().unwrap().join("run");
+    let config = Config::default();
+    let sequence = open_sequence(&seq, &config).unwrap();
+    let report = run_sequence(sequence.as_ref(), &config, &out, &RunOptions::default()).unwrap();
+    assert_eq!(report.totals.frames, 90);
+    assert_eq!(report.totals.coverage_percent, 100.0);
+    assert!(report.totals.keyframes >= 2);
+    let ate = report
+        .ate
+        .as_ref()
+        .expect("synth sequences have ground truth");
+    assert!(
+        ate.ape.statistics.rmse < 0.01,
+        "ATE RMSE {} m",
+        ate.ape.statistics.rmse
+    );
+    for file in ["trajectory.txt", "keyframes.txt", "report.json", "map.ply"] {
+        assert!(out.join(file).is_file(), "{file}");
+    }
+    let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
+    assert_eq!(
+        trajectory.lines().filter(|l| !l.starts_with('#')).count(),
+        90
+    );
+}
+
+#[test]
+fn bad_input_fails_clearly_and_keeps_what_was_done() {
+    let seq = static_room(12, "track-bad");
+    let base = seq.parent().unwrap().to_path_buf();
+    // A missing colour image in the middle: the error names it; frames before it are kept.
+    let mut names: Vec<PathBuf> = std::fs::read_dir(seq.join("rgb"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    names.sort();
+    std::fs::remove_file(&names[8]).unwrap();
+    let output = dopslam()
+        .args(["run", seq.to_str().unwrap(), "--out"])
+        .arg(base.join("run-missing"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains(names[8].file_name().unwrap().to_str().unwrap())
+            && stderr.contains("frame 8"),
+        "{stderr}"
+    );
+    let trajectory = std::fs::read_to_string(base.join("run-missing/trajectory.txt")).unwrap();
+    assert_eq!(
+        trajectory.lines().filter(|l| !l.starts_with('#')).count(),
+        8
+    );
+
+    // Depth read with a wrong scale: every depth beyond reach, so tracking never starts.
+    let config_path = base.join("wrong-scale.toml");
+    std::fs::write(&config_path, "[dataset]\ndepth_scale = 1.0\n").unwrap();
+    let output = dopslam()
+        .args(["run", seq.to_str().unwrap(), "--frames", "6", "--config"])
+        .arg(&config_path)
+        .arg("--out")
+        .arg(base.join("run-scale"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("median depth") && stderr.contains("depth_scale"),
+        "{stderr}"
+    );
+    assert!(base.join("run-scale/report.json").is_file());
+
+    // Depth maps that hold no depth at all.
+    let mut depths: Vec<PathBuf> = std::fs::read_dir(seq.join("depth"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    depths.sort();
+    for path in &depths {
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(640, 480)
+            .save(path)
+            .unwrap();
+    }
+    let output = dopslam()
+        .args(["run", seq.to_str().unwrap(), "--frames", "8", "--out"])
+        .arg(base.join("run-zero"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("never started"), "{stderr}");
+
+    // An empty sequence.
+    let empty = base.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    std::fs::write(empty.join("rgb.txt"), "# nothing\n").unwrap();
+    std::fs::write(empty.join("depth.txt"), "# nothing\n").unwrap();
+    let output = dopslam()
+        .args(["run", empty.to_str().unwrap(), "--out"])
+        .arg(base.join("run-empty"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("no frames") || stderr.contains("empty"),
+        "{stderr}"
+    );
+}
