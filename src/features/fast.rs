@@ -108,23 +108,47 @@ pub fn refine(image: &GrayImage, corner: &Corner) -> (f32, f32) {
 /// Corners with score above `threshold` inside `[border, width - border)` ×
 /// `[border, height - border)`, after 3×3 non-maximum suppression on the score.
 pub fn detect(image: &GrayImage, threshold: u8, border: u32) -> Vec<Corner> {
-    let (w, h) = (image.width() as usize, image.height() as usize);
-    let border = border.max(3) as usize;
+    let (w, h) = (image.width(), image.height());
+    let border = border.max(3);
     if w <= 2 * border || h <= 2 * border {
         return Vec::new();
     }
+    detect_in(image, threshold, (border, border, w - border, h - border))
+}
+
+/// Corners with score above `threshold` in the rectangle `[x0, x1) × [y0, y1)`, which
+/// must keep 3 pixels from the image borders; non-maximum suppression looks only
+/// inside the rectangle.
+pub fn detect_in(image: &GrayImage, threshold: u8, rect: (u32, u32, u32, u32)) -> Vec<Corner> {
+    let (x0, y0, x1, y1) = (
+        rect.0 as usize,
+        rect.1 as usize,
+        rect.2 as usize,
+        rect.3 as usize,
+    );
+    if x1 <= x0 || y1 <= y0 {
+        return Vec::new();
+    }
+    let w = image.width() as usize;
     let src = image.as_raw();
     let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy * w as isize + dx);
     let t = threshold as i16;
-    let mut scores = vec![0u8; w * h];
+    // Scores of the rectangle with a one-pixel frame of zeros, for the suppression.
+    let (rw, rh) = (x1 - x0 + 2, y1 - y0 + 2);
+    let mut scores = vec![0u8; rw * rh];
     let mut candidates = Vec::new();
-    for y in border..h - border {
-        for x in border..w - border {
+    for y in y0..y1 {
+        for x in x0..x1 {
             let i = y * w + x;
             let p = src[i] as i16;
             let at = |k: usize| src[(i as isize + offsets[k]) as usize] as i16;
-            // Quick rejection: an arc of 9 covers two neighbouring compass points.
-            let compass = [at(0), at(4), at(8), at(12)];
+            // Quickest rejection: an arc of 9 covers circle point 0 or 8.
+            let (top, bottom) = (at(0), at(8));
+            if (top - p).abs() <= t && (bottom - p).abs() <= t {
+                continue;
+            }
+            // Then: an arc of 9 covers two neighbouring compass points.
+            let compass = [top, at(4), bottom, at(12)];
             let bright = compass.map(|c| c > p + t);
             let dark = compass.map(|c| c < p - t);
             let pair = |b: [bool; 4]| (0..4).any(|k| b[k] && b[(k + 1) % 4]);
@@ -139,9 +163,9 @@ pub fn detect(image: &GrayImage, threshold: u8, border: u32) -> Vec<Corner> {
                 dark_mask |= ((*d < -t) as u32) << k;
             }
             if has_arc_of_nine(bright_mask) || has_arc_of_nine(dark_mask) {
-                let s = score(&differences);
-                scores[i] = s;
-                candidates.push(i);
+                let local = (y - y0 + 1) * rw + (x - x0 + 1);
+                scores[local] = score(&differences);
+                candidates.push(local);
             }
         }
     }
@@ -151,15 +175,15 @@ pub fn detect(image: &GrayImage, threshold: u8, border: u32) -> Vec<Corner> {
             // A neighbour beats this corner with a higher score, or with an equal one
             // when it comes earlier in raster order.
             let s = scores[i];
-            let stride = w as isize;
+            let stride = rw as isize;
             let earlier = [-stride - 1, -stride, -stride + 1, -1];
             let later = [1, stride - 1, stride, stride + 1];
             let at = |o: isize| scores[(i as isize + o) as usize];
             earlier.iter().all(|&o| at(o) < s) && later.iter().all(|&o| at(o) <= s)
         })
         .map(|i| Corner {
-            x: (i % w) as u32,
-            y: (i / w) as u32,
+            x: (i % rw + x0 - 1) as u32,
+            y: (i / rw + y0 - 1) as u32,
             score: scores[i],
         })
         .collect()

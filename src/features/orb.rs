@@ -138,8 +138,7 @@ impl OrbExtractor {
     }
 
     fn extract_level(&self, level: usize, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {
-        let corners = fast::detect(image, self.config.min_th_fast, BORDER);
-        let selected = threshold_per_cell(&corners, image.width(), self.config.ini_th_fast);
+        let selected = detect_per_cell(image, self.config.ini_th_fast, self.config.min_th_fast);
         let positions: Vec<(f32, f32)> =
             selected.iter().map(|c| (c.x as f32, c.y as f32)).collect();
         let responses: Vec<f32> = selected.iter().map(|c| c.score as f32).collect();
@@ -177,21 +176,38 @@ impl OrbExtractor {
     }
 }
 
-/// ORB-SLAM2's two thresholds: in each cell, the corners above the initial threshold if
-/// there are any, else all corners (which are above the fallback threshold).
-fn threshold_per_cell(corners: &[fast::Corner], width: u32, initial: u8) -> Vec<fast::Corner> {
-    let columns = width.div_ceil(CELL) as usize;
-    let cell = |c: &fast::Corner| (c.y / CELL) as usize * columns + (c.x / CELL) as usize;
-    let cells = corners.iter().map(cell).max().map_or(0, |m| m + 1);
-    let mut strong = vec![false; cells];
-    for c in corners.iter().filter(|c| c.score > initial) {
-        strong[cell(c)] = true;
+/// ORB-SLAM2's two thresholds: FAST at the initial threshold over the level, then at the
+/// fallback threshold in the 30-pixel cells where the first found nothing.
+fn detect_per_cell(image: &GrayImage, initial: u8, fallback: u8) -> Vec<fast::Corner> {
+    let mut corners = fast::detect(image, initial, BORDER);
+    let (x1, y1) = (
+        image.width().saturating_sub(BORDER),
+        image.height().saturating_sub(BORDER),
+    );
+    if x1 <= BORDER || y1 <= BORDER {
+        return corners;
+    }
+    let columns = (x1 - BORDER).div_ceil(CELL) as usize;
+    let rows = (y1 - BORDER).div_ceil(CELL) as usize;
+    let mut occupied = vec![false; columns * rows];
+    for c in &corners {
+        occupied[((c.y - BORDER) / CELL) as usize * columns + ((c.x - BORDER) / CELL) as usize] =
+            true;
+    }
+    for row in 0..rows as u32 {
+        for column in 0..columns as u32 {
+            if occupied[(row * columns as u32 + column) as usize] {
+                continue;
+            }
+            let (cx, cy) = (BORDER + column * CELL, BORDER + row * CELL);
+            corners.extend(fast::detect_in(
+                image,
+                fallback,
+                (cx, cy, (cx + CELL).min(x1), (cy + CELL).min(y1)),
+            ));
+        }
     }
     corners
-        .iter()
-        .filter(|c| !strong[cell(c)] || c.score > initial)
-        .copied()
-        .collect()
 }
 
 #[cfg(test)]
