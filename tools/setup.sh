@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Quick start, step 1: installs what is missing (idempotent), builds dopslam, and runs
-# the main job on the bundled default (the generated demo) into outputs/demo.
+# the main job on the bundled default (a generated static room: synth, run, eval)
+# into outputs/demo.
 #
 #   bash tools/setup.sh            # everything
 #   bash tools/setup.sh --no-demo  # install and build only
@@ -55,8 +56,14 @@ say "building dopslam (release)"
 cargo build --release --quiet
 
 # 5. The main job on the bundled default.
+# A generated static room (300 frames, exact ground truth), tracked, then evaluated.
 if [ "$run_demo" = 1 ]; then
-    say "running: dopslam demo --out outputs/demo"
-    ./target/release/dopslam demo --out outputs/demo
-    say "report: outputs/demo/report.json, plots: outputs/demo/plots/"
+    say "running: dopslam synth (static_room) -> dopslam run -> dopslam eval, into outputs/demo"
+    ./target/release/dopslam synth --config configs/synth/static_room.toml \
+        --out outputs/demo/sequence --force
+    ./target/release/dopslam run outputs/demo/sequence --out outputs/demo/run
+    ./target/release/dopslam eval outputs/demo/sequence/groundtruth.txt \
+        outputs/demo/run/trajectory.txt --plot outputs/demo/run/plots \
+        --save-report outputs/demo/run/evaluation.json
+    say "outputs/demo/run: trajectory.txt, keyframes.txt, map.ply, report.json, plots/"
 fi
