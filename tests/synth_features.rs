@@ -21,9 +21,25 @@ fn orb_finds_a_thousand_spread_keypoints_in_every_preset() {
     presets.sort();
     for path in presets {
         let mut config = SynthConfig::load(&path).unwrap();
-        let uses_shared = config.people.sprite.is_some() || config.seated.sprite.is_some();
-        if uses_shared && common::shared_data("orb on people_from_photos").is_none() {
-            continue;
+        // Presets that read cut-outs or a recorded trajectory from the shared data take
+        // them from where it is (or skip, saying why, when it is absent).
+        let uses_shared = config.people.sprite.is_some()
+            || config.seated.sprite.is_some()
+            || config.motion.file.is_some();
+        if uses_shared {
+            let Some(shared) = common::shared_data(&format!("orb on {}", config.name)) else {
+                continue;
+            };
+            let relocate = |p: &mut Option<std::path::PathBuf>| {
+                if let Some(path) = p {
+                    if let Ok(rest) = path.strip_prefix("../shared/data") {
+                        *path = shared.join(rest);
+                    }
+                }
+            };
+            relocate(&mut config.people.sprite);
+            relocate(&mut config.seated.sprite);
+            relocate(&mut config.motion.file);
         }
         config.sequence.timing = None;
         config.sequence.frames = 240;
