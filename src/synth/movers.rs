@@ -345,19 +345,17 @@ pub fn place_seated(
     scene: &Scene,
     first_instance: u16,
 ) -> Vec<Mover> {
-    if poses.is_empty() || config.count == 0 {
+    let Some(p) = placement(poses, scene, config.count) else {
         return Vec::new();
-    }
-    let (up, sign) = up_axis(poses);
-    let (centre, forward, lateral) = viewing_frame(poses, up, sign);
-    let floor = floor_level(scene, up, sign);
+    };
+    let (up, sign, floor) = (p.up, p.sign, p.floor);
     let mut size = Vector3::repeat(0.5);
     size[up] = height;
     (0..config.count)
         .map(|i| {
             let offset = (i as f64 - (config.count as f64 - 1.0) / 2.0) * 0.9;
-            let seat = centre + forward * config.distance + lateral * offset;
-            let exit = seat + lateral * if offset >= 0.0 { 4.0 } else { -4.0 };
+            let seat = p.centre + p.forward * config.distance + p.lateral * offset;
+            let exit = seat + p.lateral * if offset >= 0.0 { 4.0 } else { -4.0 };
             let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
             Mover {
                 instance: first_instance + i as u16,
@@ -389,12 +387,10 @@ pub fn place_objects(
     scene: &Scene,
     first_instance: u16,
 ) -> Vec<Mover> {
-    if poses.is_empty() || config.count == 0 {
+    let Some(p) = placement(poses, scene, config.count) else {
         return Vec::new();
-    }
-    let (up, sign) = up_axis(poses);
-    let (centre, forward, lateral) = viewing_frame(poses, up, sign);
-    let floor = floor_level(scene, up, sign);
+    };
+    let (up, sign, floor) = (p.up, p.sign, p.floor);
     let class_id = coco::class_id(&config.class).unwrap_or(56);
     // Width across the path, height along up, depth along the viewing direction.
     let mut size = Vector3::zeros();
@@ -403,14 +399,14 @@ pub fn place_objects(
     size[(up + 2) % 3] = config.size[2];
     (0..config.count)
         .map(|i| {
-            let middle = centre + forward * (config.distance + 0.7 * i as f64);
+            let middle = p.centre + p.forward * (config.distance + 0.7 * i as f64);
             let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
             Mover {
                 instance: first_instance + i as u16,
                 class: config.class.clone(),
                 class_id,
-                start: corner(middle - lateral * config.span),
-                end: corner(middle + lateral * config.span),
+                start: corner(middle - p.lateral * config.span),
+                end: corner(middle + p.lateral * config.span),
                 size,
                 speed: config.speed,
                 phase: 0.9 * i as f64,
@@ -420,6 +416,35 @@ pub fn place_objects(
             }
         })
         .collect()
+}
+
+/// Where movers go: the up axis and its sign, the mean camera position, the horizontal
+/// viewing directions, and the floor level.
+struct Placement {
+    up: usize,
+    sign: f64,
+    centre: Vector3<f64>,
+    forward: Vector3<f64>,
+    lateral: Vector3<f64>,
+    floor: f64,
+}
+
+/// The placement frame of `count` movers along the camera poses (`None` when there is
+/// nothing to place).
+fn placement(poses: &[Se3], scene: &Scene, count: usize) -> Option<Placement> {
+    if poses.is_empty() || count == 0 {
+        return None;
+    }
+    let (up, sign) = up_axis(poses);
+    let (centre, forward, lateral) = viewing_frame(poses, up, sign);
+    Some(Placement {
+        up,
+        sign,
+        centre,
+        forward,
+        lateral,
+        floor: floor_level(scene, up, sign),
+    })
 }
 
 /// The floor's coordinate along the up axis (the room's face below the cameras).
