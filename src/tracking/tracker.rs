@@ -5,7 +5,9 @@
 //! pose-only optimisation after each search; the keyframe decision; new map points from
 //! depth at keyframes; states OK / LOST with relocalisation against recent keyframes.
 //!
-//! Not yet here: local mapping (triangulation, local BA, keyframe culling) and
+//! After each new keyframe a local bundle adjustment refines the covisible window (run
+//! in the tracking thread, in a fixed order). Not yet here: the rest of local mapping
+//! (triangulation, map point and keyframe culling) in its own thread, and
 //! relocalisation by PnP RANSAC over bag-of-words candidates.
 
 use std::time::Instant;
@@ -18,6 +20,7 @@ use super::matching::{brute_force, search_by_projection, Query};
 use crate::features::ScalePyramid;
 use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey};
+use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem};
 use crate::optim::pose_only::{optimise_pose, PoseObservation};
 use crate::optim::stereo_projection::StereoCamera;
 
@@ -37,6 +40,11 @@ pub struct TrackerConfig {
     pub local_keyframes: usize,
     /// Search radius factor of the motion-model projection search (pixels at level 0).
     pub motion_search_radius: f32,
+    /// Run local bundle adjustment after each new keyframe (off by default: without
+    /// multi-view triangulation it does not yet improve accuracy on the benchmark).
+    pub local_ba: bool,
+    /// Keyframes optimised by local BA (the new one and its best covisible ones).
+    pub local_ba_keyframes: usize,
 }
 
 impl Default for TrackerConfig {
@@ -48,6 +56,8 @@ impl Default for TrackerConfig {
             min_inliers: 30,
             local_keyframes: 20,
             motion_search_radius: 15.0,
+            local_ba: false,
+            local_ba_keyframes: 10,
         }
     }
 }
@@ -205,15 +215,21 @@ impl Tracker {
             }
         }
         self.frames_since_keyframe += 1;
-        let points = if self.need_keyframe(&frame, &points, inliers) {
+        let (pose, points) = if self.need_keyframe(&frame, &points, inliers) {
             report.keyframe = true;
             self.insert_keyframe(&frame, pose, points, false);
-            self.map.keyframes[self.reference.unwrap()]
-                .map_points
-                .clone()
+            let key = self.reference.expect("just inserted");
+            if self.config.local_ba {
+                let start = Instant::now();
+                self.local_bundle_adjustment(key);
+                report.optimisation_ms += start.elapsed().as_secs_f64() * 1e3;
+            }
+            let keyframe = &self.map.keyframes[key];
+            (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
-            points
+            (pose, points)
         };
+        report.camera_from_world = Some(pose);
         self.last = Some(LastFrame {
             frame,
             camera_from_world: pose,
@@ -501,6 +517,101 @@ impl Tracker {
         let timeout = self.frames_since_keyframe >= self.config.max_frames_between_keyframes;
         let weak = (inliers as f64) < 0.75 * reference_points as f64 || need_close;
         (timeout || weak) && inliers > 15
+    }
+
+    /// Local bundle adjustment around keyframe `key` (ORB-SLAM2 §III-D): the keyframe
+    /// and its best covisible keyframes are free, the other keyframes that see their
+    /// points are fixed (the map's first keyframe always is); observations that end
+    /// above the chi-square gate are removed, and points left unobserved go.
+    fn local_bundle_adjustment(&mut self, key: KeyFrameKey) {
+        let first = self.map.keyframe_order[0];
+        let mut local = vec![key];
+        local.extend(
+            self.map
+                .covisible_keyframes(
+                    self.map.keyframes[key].map_points.iter().flatten().copied(),
+                    self.config.local_ba_keyframes + 1,
+                )
+                .into_iter()
+                .filter(|k| *k != key)
+                .take(self.config.local_ba_keyframes.saturating_sub(1)),
+        );
+        let mut point_index = std::collections::HashMap::new();
+        let mut points = Vec::new();
+        for kf in &local {
+            for p in self.map.keyframes[*kf].map_points.iter().flatten() {
+                if let Some(point) = self.map.points.get(*p) {
+                    point_index.entry(*p).or_insert_with(|| {
+                        points.push((*p, point.position));
+                        points.len() - 1
+                    });
+                }
+            }
+        }
+        let mut cameras: Vec<KeyFrameKey> = local.clone();
+        let mut fixed: Vec<bool> = local.iter().map(|k| *k == first).collect();
+        for (p, _) in &points {
+            for (kf, _) in &self.map.points[*p].observations {
+                if !cameras.contains(kf) && self.map.keyframes.contains_key(*kf) {
+                    cameras.push(*kf);
+                    fixed.push(true);
+                }
+            }
+        }
+        if !fixed.iter().any(|f| *f) {
+            return;
+        }
+        let mut observations = Vec::new();
+        let mut sources = Vec::new();
+        for (c, kf) in cameras.iter().enumerate() {
+            let keyframe = &self.map.keyframes[*kf];
+            for (i, p) in keyframe.map_points.iter().enumerate() {
+                let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
+                    continue;
+                };
+                let k = &keyframe.keypoints[i];
+                observations.push(BaObservation {
+                    camera: c,
+                    point: j,
+                    measurement: Vector3::new(k.x as f64, k.y as f64, keyframe.right_u[i] as f64),
+                    stereo: keyframe.right_u[i] > 0.0,
+                    information: self.pyramid.inverse_sigma2[k.level as usize],
+                });
+                sources.push((*kf, i));
+            }
+        }
+        let mut problem = BaProblem {
+            poses: cameras
+                .iter()
+                .map(|k| self.map.keyframes[*k].camera_from_world)
+                .collect(),
+            fixed,
+            points: points.iter().map(|(_, x)| *x).collect(),
+            observations,
+        };
+        let report = bundle_adjust(&mut problem, &self.camera, 5, 10);
+        for (c, kf) in cameras.iter().enumerate() {
+            if !problem.fixed[c] {
+                self.map.keyframes[*kf].camera_from_world = problem.poses[c];
+            }
+        }
+        for ((p, _), x) in points.iter().zip(&problem.points) {
+            self.map.points[*p].position = *x;
+        }
+        for ((kf, i), inlier) in sources.iter().zip(&report.inliers) {
+            if *inlier {
+                continue;
+            }
+            let keyframe = &mut self.map.keyframes[*kf];
+            if let Some(p) = keyframe.map_points[*i].take() {
+                if let Some(point) = self.map.points.get_mut(p) {
+                    point.observations.retain(|(k, j)| !(k == kf && j == i));
+                    if point.observations.is_empty() {
+                        self.map.remove_point(p);
+                    }
+                }
+            }
+        }
     }
 
     /// Makes `frame` a keyframe: map points from depth for its unmatched close keypoints
