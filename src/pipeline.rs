@@ -227,7 +227,15 @@ pub fn run_sequence(
         }
         let start = Instant::now();
         let grey = image::DynamicImage::ImageRgb8(rgb).to_luma8();
-        let frame = Frame::from_rgbd(index, loaded.timestamp, &grey, &depth, &extractor, &camera);
+        let frame = Frame::from_rgbd(
+            index,
+            loaded.timestamp,
+            &grey,
+            &depth,
+            &extractor,
+            &camera,
+            &calibration.camera,
+        );
         let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
         let report = tracker.track(frame);
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;

@@ -55,6 +55,40 @@ impl PinholeCamera {
         self.distortion.iter().all(|&k| k == 0.0)
     }
 
+    /// The distorted pixel of an ideal (undistorted) one: with normalised
+    /// \((x, y)\), \(r^2 = x^2 + y^2\),
+    /// \(x_d = x (1 + k_1 r^2 + k_2 r^4 + k_3 r^6) + 2 p_1 x y + p_2 (r^2 + 2 x^2)\) and
+    /// \(y_d = y (\dots) + p_1 (r^2 + 2 y^2) + 2 p_2 x y\) (OpenCV's model).
+    pub fn distort(&self, pixel: &Vector2<f64>) -> Vector2<f64> {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (x, y) = ((pixel.x - self.cx) / self.fx, (pixel.y - self.cy) / self.fy);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+        Vector2::new(self.fx * xd + self.cx, self.fy * yd + self.cy)
+    }
+
+    /// The ideal pixel of a distorted one (inverse of [`PinholeCamera::distort`], by
+    /// fixed-point iteration as OpenCV's `undistortPoints`); unchanged without distortion.
+    pub fn undistort(&self, pixel: &Vector2<f64>) -> Vector2<f64> {
+        if self.is_undistorted() {
+            return *pixel;
+        }
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (xd, yd) = ((pixel.x - self.cx) / self.fx, (pixel.y - self.cy) / self.fy);
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..20 {
+            let r2 = x * x + y * y;
+            let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+            let dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+            let dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+            x = (xd - dx) / radial;
+            y = (yd - dy) / radial;
+        }
+        Vector2::new(self.fx * x + self.cx, self.fy * y + self.cy)
+    }
+
     /// Checks that the intrinsics are usable, naming the first bad value.
     pub fn validate(&self) -> Result<(), String> {
         for (name, value) in [("fx", self.fx), ("fy", self.fy)] {
@@ -91,6 +125,18 @@ mod tests {
             let p = Vector3::new(x, y, z);
             let back = camera.unproject(&camera.project(&p), z);
             prop_assert!((back - p).norm() < 1e-12);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn undistort_inverts_distort(u in 0.0..640.0f64, v in 0.0..480.0f64) {
+            // TUM fr1's published distortion.
+            let mut camera = PinholeCamera::tum_fr3();
+            camera.distortion = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633];
+            let ideal = Vector2::new(u, v);
+            let back = camera.undistort(&camera.distort(&ideal));
+            prop_assert!((back - ideal).norm() < 1e-3, "{back} vs {ideal}");
         }
     }
 

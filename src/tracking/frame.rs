@@ -5,7 +5,10 @@
 
 use image::GrayImage;
 
+use nalgebra::Vector2;
+
 use crate::features::{Descriptor, KeyPoint, OrbExtractor};
+use crate::geometry::camera::PinholeCamera;
 use crate::io::image_files::DepthImage;
 use crate::optim::stereo_projection::StereoCamera;
 
@@ -30,8 +33,8 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// Extracts features from a grey image and reads each keypoint's depth at its
-    /// (rounded) pixel.
+    /// Extracts features from a grey image, reads each keypoint's depth at its
+    /// (rounded, distorted) pixel, then undistorts the keypoints with `lens`.
     pub fn from_rgbd(
         index: usize,
         timestamp: f64,
@@ -39,9 +42,10 @@ impl Frame {
         depth: &DepthImage,
         extractor: &OrbExtractor,
         camera: &StereoCamera,
+        lens: &PinholeCamera,
     ) -> Self {
-        let features = extractor.extract(grey);
-        let (depths, right_u): (Vec<f32>, Vec<f32>) = features
+        let mut features = extractor.extract(grey);
+        let depths: Vec<f32> = features
             .keypoints
             .iter()
             .map(|k| {
@@ -51,13 +55,27 @@ impl Frame {
                 } else {
                     0.0
                 };
+                z.max(0.0)
+            })
+            .collect();
+        if !lens.is_undistorted() {
+            for k in &mut features.keypoints {
+                let ideal = lens.undistort(&Vector2::new(k.x as f64, k.y as f64));
+                (k.x, k.y) = (ideal.x as f32, ideal.y as f32);
+            }
+        }
+        let right_u = features
+            .keypoints
+            .iter()
+            .zip(&depths)
+            .map(|(k, &z)| {
                 if z > 0.0 {
-                    (z, k.x - (camera.bf / z as f64) as f32)
+                    k.x - (camera.bf / z as f64) as f32
                 } else {
-                    (0.0, -1.0)
+                    -1.0
                 }
             })
-            .unzip();
+            .collect();
         let mut frame = Self {
             index,
             timestamp,
