@@ -290,14 +290,9 @@ mod tests {
     use super::*;
     use crate::random::Rng;
 
+    /// TUM fr3 intrinsics with ORB-SLAM2's virtual RGB-D baseline.
     fn camera() -> StereoCamera {
-        StereoCamera {
-            fx: 535.4,
-            fy: 539.2,
-            cx: 320.1,
-            cy: 247.6,
-            bf: 40.0,
-        }
+        StereoCamera::new(&crate::geometry::camera::PinholeCamera::tum_fr3(), 40.0)
     }
 
     /// Six cameras along a line looking at 300 points 2-4 m away; observations with

@@ -176,14 +176,9 @@ mod tests {
     use crate::random::Rng;
     use proptest::prelude::*;
 
+    /// TUM fr3 intrinsics with ORB-SLAM2's virtual RGB-D baseline.
     fn camera() -> StereoCamera {
-        StereoCamera {
-            fx: 535.4,
-            fy: 539.2,
-            cx: 320.1,
-            cy: 247.6,
-            bf: 40.0,
-        }
+        StereoCamera::new(&crate::geometry::camera::PinholeCamera::tum_fr3(), 40.0)
     }
 
     /// Points in front of a camera at `truth`, observed with 0.5 px noise; a fraction are
