@@ -12,6 +12,7 @@ use crate::eval::report::AlignMode;
 pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
+use crate::io::tum::TumOptions;
 pub use crate::tracking::TrackerConfig;
 
 #[derive(Debug, Error)]
@@ -41,6 +42,17 @@ pub struct DatasetConfig {
     pub settings: Option<PathBuf>,
     /// Camera intrinsics (override both the settings file and the sequence's).
     pub camera: Option<PinholeCamera>,
+}
+
+impl DatasetConfig {
+    /// How to read a TUM/Bonn folder under this config.
+    pub fn tum_options(&self) -> TumOptions {
+        TumOptions {
+            depth_scale: self.depth_scale,
+            max_difference: self.max_difference,
+            association_file: self.association_file.clone(),
+        }
+    }
 }
 
 impl Default for DatasetConfig {

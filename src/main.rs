@@ -17,7 +17,7 @@ use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::KittiSequence;
 use dopslam::io::sequence::Sequence;
 use dopslam::io::trajectory::TrajectoryFormat;
-use dopslam::io::tum::{TumOptions, TumSequence};
+use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
 #[derive(Parser)]
@@ -314,11 +314,7 @@ fn run_info(args: InfoArgs) -> Result<()> {
     let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
         Box::new(KittiSequence::open(root, None)?)
     } else {
-        let options = TumOptions {
-            depth_scale: config.dataset.depth_scale,
-            max_difference: config.dataset.max_difference,
-            association_file: config.dataset.association_file.clone(),
-        };
+        let options = config.dataset.tum_options();
         let tum = TumSequence::open(root, &options)?;
         println!(
             "rgb.txt / depth.txt entries: {} / {}, paired: {} (tolerance {} s)",

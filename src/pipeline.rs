@@ -20,7 +20,7 @@ use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
-use crate::io::tum::{TumOptions, TumSequence};
+use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
 use crate::optim::stereo_projection::StereoCamera;
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
@@ -50,12 +50,10 @@ pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, 
     if root.join("image_0").is_dir() {
         return Ok(Box::new(KittiSequence::open(root, None)?));
     }
-    let options = TumOptions {
-        depth_scale: config.dataset.depth_scale,
-        max_difference: config.dataset.max_difference,
-        association_file: config.dataset.association_file.clone(),
-    };
-    Ok(Box::new(TumSequence::open(root, &options)?))
+    Ok(Box::new(TumSequence::open(
+        root,
+        &config.dataset.tum_options(),
+    )?))
 }
 
 /// The calibration to use: the config's camera, else its settings file, else the

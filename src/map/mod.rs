@@ -27,11 +27,6 @@ pub struct MapPoint {
     pub max_distance: f64,
     /// Keyframes that see the point and the keypoint index in each.
     pub observations: Vec<(KeyFrameKey, usize)>,
-    /// How often it was predicted in view and how often it was found (for culling).
-    pub visible: u32,
-    pub found: u32,
-    /// The frame that last projected it during local-map tracking (avoids repeats).
-    pub last_seen_frame: usize,
 }
 
 /// A keyframe: a frame kept in the map.
@@ -157,9 +152,6 @@ mod tests {
             min_distance: 0.0,
             max_distance: 10.0,
             observations: vec![(a, 1), (b, 2)],
-            visible: 1,
-            found: 1,
-            last_seen_frame: 0,
         });
         map.keyframes[a].map_points[1] = Some(point);
         map.keyframes[b].map_points[2] = Some(point);
@@ -182,9 +174,6 @@ mod tests {
             min_distance: 0.0,
             max_distance: 1.0,
             observations: vec![],
-            visible: 0,
-            found: 0,
-            last_seen_frame: 0,
         }
     }
 }

@@ -304,19 +304,23 @@ pub fn render(
     sensor: &SensorConfig,
     exposure: &Exposure,
 ) -> Rendered {
-    let traced = trace(scene, view, camera, true);
-    let rgb = expose(scene, &traced, camera, sensor, exposure);
+    let Traced {
+        colour,
+        depth: metres,
+        mask,
+    } = trace(scene, view, camera, true);
+    let rgb = expose(scene, colour, camera, sensor, exposure);
     let exact_depth = DepthImage {
         width: camera.width,
         height: camera.height,
-        metres: traced.depth,
+        metres,
     };
     let depth = sensor_depth(&exact_depth, sensor, exposure.noise_seed);
     Rendered {
         rgb,
         depth,
         exact_depth,
-        mask: traced.mask,
+        mask,
     }
 }
 
@@ -328,15 +332,15 @@ pub fn render_colour(
     sensor: &SensorConfig,
     exposure: &Exposure,
 ) -> RgbImage {
-    let traced = trace(scene, view, camera, false);
-    expose(scene, &traced, camera, sensor, exposure)
+    let colour = trace(scene, view, camera, false).colour;
+    expose(scene, colour, camera, sensor, exposure)
 }
 
-/// Averages the exposure's colours with the traced ones' (when blurred), applies the
+/// Replaces the traced colours by the exposure's average (when blurred), applies the
 /// gain and noise, and quantises to 8 bits.
 fn expose(
     scene: &Scene,
-    traced: &Traced,
+    mut colour: Vec<[f32; 3]>,
     camera: &PinholeCamera,
     sensor: &SensorConfig,
     exposure: &Exposure,
@@ -344,7 +348,6 @@ fn expose(
     let (gain, noise_seed) = (exposure.gain, exposure.noise_seed);
     let exposure = exposure.views;
     let width = camera.width as usize;
-    let mut colour = traced.colour.clone();
     if !exposure.is_empty() {
         colour.iter_mut().for_each(|c| *c = [0.0; 3]);
         for instant in exposure {

@@ -154,24 +154,10 @@ impl Scene {
         })
     }
 
-    /// The nearest surface including movers (at their current place): the hit and the
-    /// index of the mover hit, `None` for a static surface.
-    pub fn cast_with_movers(
-        &self,
-        movers: &[Shape],
-        origin: &Vector3<f64>,
-        direction: &Vector3<f64>,
-    ) -> Option<(Hit, Option<usize>)> {
-        self.cast_with_movers_among(
-            self.furniture.iter(),
-            movers.iter().enumerate(),
-            origin,
-            direction,
-        )
-    }
-
-    /// [`Scene::cast_with_movers`] trying only the given furniture and movers (with
-    /// their indices).
+    /// The nearest surface among the static room, the given furniture and the given
+    /// movers (with their indices, at their current place): the hit and the index of
+    /// the mover hit, `None` for a static surface. A renderer passes only what a ray
+    /// can meet.
     pub fn cast_with_movers_among<'a>(
         &self,
         furniture: impl Iterator<Item = &'a Cuboid>,

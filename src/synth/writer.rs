@@ -103,32 +103,33 @@ fn check_output_folder(out: &Path, force: bool) -> Result<(), SynthError> {
 /// Exact boxes of the movers seen in a frame (before [`OracleConfig::apply`]), from its instance mask (x2, y2
 /// exclusive); instances covering fewer than 20 pixels are left out.
 pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Detection> {
-    let mut detections = Vec::new();
-    for mover in movers {
-        let (mut x1, mut y1, mut x2, mut y2, mut count) = (u32::MAX, u32::MAX, 0, 0, 0usize);
-        for (index, _) in mask
-            .iter()
-            .enumerate()
-            .filter(|(_, &id)| id == mover.instance)
-        {
-            let (x, y) = (index as u32 % width, index as u32 / width);
-            x1 = x1.min(x);
-            y1 = y1.min(y);
-            x2 = x2.max(x + 1);
-            y2 = y2.max(y + 1);
-            count += 1;
-        }
-        if count >= 20 {
-            detections.push(Detection {
+    // One pass over the mask: per instance id, the bounding box and pixel count.
+    let mut boxes: std::collections::HashMap<u16, (u32, u32, u32, u32, usize)> =
+        std::collections::HashMap::new();
+    for (index, &id) in mask.iter().enumerate().filter(|(_, &id)| id > 0) {
+        let (x, y) = (index as u32 % width, index as u32 / width);
+        let b = boxes.entry(id).or_insert((u32::MAX, u32::MAX, 0, 0, 0));
+        *b = (
+            b.0.min(x),
+            b.1.min(y),
+            b.2.max(x + 1),
+            b.3.max(y + 1),
+            b.4 + 1,
+        );
+    }
+    movers
+        .iter()
+        .filter_map(|mover| {
+            let &(x1, y1, x2, y2, count) = boxes.get(&mover.instance)?;
+            (count >= 20).then(|| Detection {
                 class: mover.class.to_string(),
                 class_id: mover.class_id,
                 score: 1.0,
                 bbox: [x1 as f32, y1 as f32, x2 as f32, y2 as f32],
                 instance: Some(mover.instance),
-            });
-        }
-    }
-    detections
+            })
+        })
+        .collect()
 }
 
 /// Writes one frame's colour, depth and mask PNGs and its oracle detections.

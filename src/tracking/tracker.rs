@@ -165,8 +165,7 @@ impl Tracker {
             let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
             if with_depth >= self.config.min_initial_points {
                 let pose = Se3::identity();
-                let points = vec![None; frame.len()];
-                self.insert_keyframe(&frame, pose, points.clone(), true);
+                self.insert_keyframe(&frame, pose, vec![None; frame.len()], true);
                 report.keyframe = true;
                 report.state = TrackingState::Ok;
                 report.camera_from_world = Some(pose);
@@ -205,14 +204,8 @@ impl Tracker {
         report.state = TrackingState::Ok;
         report.inliers = inliers;
         report.matches = points.iter().filter(|p| p.is_some()).count();
-        report.camera_from_world = Some(pose);
         if let Some(last) = &self.last {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
-        }
-        for key in points.iter().flatten() {
-            if let Some(point) = self.map.points.get_mut(*key) {
-                point.found += 1;
-            }
         }
         self.frames_since_keyframe += 1;
         let (pose, points) = if self.need_keyframe(&frame, &points, inliers) {
@@ -475,11 +468,6 @@ impl Tracker {
                 });
             }
         }
-        for key in &keys {
-            if let Some(point) = self.map.points.get_mut(*key) {
-                point.visible += 1;
-            }
-        }
         let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
         let matches = search_by_projection(frame, &queries, &mut taken, 0.8, false);
         for (q, i) in matches {
@@ -662,9 +650,6 @@ impl Tracker {
                 min_distance: max_distance / self.pyramid.factors[self.pyramid.levels() - 1],
                 max_distance,
                 observations: Vec::new(),
-                visible: 1,
-                found: 1,
-                last_seen_frame: frame.index,
             });
             points[i] = Some(point);
         }
