@@ -7,12 +7,14 @@
 //! complement: with \(U\) the pose blocks, \(V\) the (block-diagonal) point blocks and
 //! \(W\) the coupling, \((U - W V^{-1} W^\top)\,\delta_T = b_T - W V^{-1} b_X\), then
 //! \(\delta_X = V^{-1}(b_X - W^\top \delta_T)\). The reduced camera system of a local
-//! window (at most a few dozen poses) is small and dense. As in ORB-SLAM2, a first pass
+//! window is block-sparse (poses couple only through shared points) and is solved by
+//! `faer`'s sparse Cholesky ([`BlockSystem`]), which the global pass reuses. As in ORB-SLAM2, a first pass
 //! with the Huber kernel is followed by a second without it after removing the
 //! observations above the chi-square gate.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
+use nalgebra::{DMatrix, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
 
+use super::block_sparse::BlockSystem;
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::{point_jacobian_wrt_pose, StereoCamera};
 use crate::geometry::se3::{self, Se3};
@@ -178,40 +180,41 @@ fn levenberg_marquardt(
                     d.try_inverse()
                 })
                 .collect();
-            let mut s = DMatrix::<f64>::zeros(6 * free, 6 * free);
-            let mut rhs = DVector::<f64>::zeros(6 * free);
+            let mut blocks = std::collections::BTreeMap::<(usize, usize), Matrix6<f64>>::new();
+            let mut system = BlockSystem::new(free, 6);
             for c in 0..free {
-                let mut d = u[c];
-                for k in 0..6 {
-                    d[(k, k)] += lambda * u[c][(k, k)] + 1e-12;
-                }
-                let mut block = s.fixed_view_mut::<6, 6>(6 * c, 6 * c);
-                block += d;
-                let mut rows = rhs.fixed_rows_mut::<6>(6 * c);
+                blocks.insert((c, c), u[c]);
+                let mut rows = system.rhs.fixed_rows_mut::<6>(6 * c);
                 rows += b_pose[c];
             }
             for j in 0..n_points {
                 let Some(v_inv) = damped_v[j] else { continue };
                 for &(c1, w1) in &coupling[j] {
                     let w1_vinv = w1 * v_inv;
-                    let mut rows = rhs.fixed_rows_mut::<6>(6 * c1);
+                    let mut rows = system.rhs.fixed_rows_mut::<6>(6 * c1);
                     rows -= w1_vinv * b_point[j];
-                    for &(c2, w2) in &coupling[j] {
-                        let mut block = s.fixed_view_mut::<6, 6>(6 * c1, 6 * c2);
-                        block -= w1_vinv * w2.transpose();
+                    for &(c2, w2) in coupling[j].iter().filter(|(c2, _)| *c2 <= c1) {
+                        *blocks.entry((c1, c2)).or_insert_with(Matrix6::zeros) -=
+                            w1_vinv * w2.transpose();
                     }
                 }
             }
-            let delta_pose = if free > 0 {
-                match s.clone().cholesky() {
-                    Some(ch) => ch.solve(&rhs),
-                    None => {
-                        lambda *= 10.0;
-                        continue;
+            for ((c1, c2), m) in &blocks {
+                let m = if c1 == c2 {
+                    // Damp the pose diagonal with the undamped U only.
+                    let mut d = *m;
+                    for k in 0..6 {
+                        d[(k, k)] += lambda * u[*c1][(k, k)] + 1e-12;
                     }
-                }
-            } else {
-                DVector::zeros(0)
+                    d
+                } else {
+                    *m
+                };
+                system.add(*c1, *c2, &DMatrix::from_column_slice(6, 6, m.as_slice()));
+            }
+            let Some(delta_pose) = system.solve() else {
+                lambda *= 10.0;
+                continue;
             };
             let mut candidate = problem.clone();
             for (i, pose) in candidate.poses.iter_mut().enumerate() {

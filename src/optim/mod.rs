@@ -1,6 +1,7 @@
 //! Nonlinear least squares for SLAM: robust kernels and the pose-only optimisation of
 //! tracking. Knows nothing of ORB or detectors: it sees points, pixels and weights.
 
+pub mod block_sparse;
 pub mod local_ba;
 pub mod pose_only;
 pub mod robust;
