@@ -13,6 +13,7 @@ pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
 use crate::io::tum::TumOptions;
+pub use crate::mapping::MappingConfig;
 pub use crate::tracking::TrackerConfig;
 
 #[derive(Debug, Error)]
@@ -96,6 +97,7 @@ impl Default for EvalConfig {
 pub struct Config {
     pub orb: OrbConfig,
     pub tracking: TrackerConfig,
+    pub mapping: MappingConfig,
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
 }
@@ -124,6 +126,15 @@ impl Config {
     /// Checks every value's range; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         self.orb.validate()?;
+        if !(0.0..=1.0).contains(&self.mapping.redundancy) {
+            return Err(format!(
+                "mapping.redundancy must be in [0, 1], got {}",
+                self.mapping.redundancy
+            ));
+        }
+        if self.mapping.local_ba_keyframes == 0 {
+            return Err("mapping.local_ba_keyframes must be at least 1".into());
+        }
         if let Some(scale) = self.dataset.depth_scale {
             if !(scale.is_finite() && scale > 0.0) {
                 return Err(format!("dataset.depth_scale must be positive, got {scale}"));

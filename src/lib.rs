@@ -13,6 +13,7 @@ pub mod features;
 pub mod geometry;
 pub mod io;
 pub mod map;
+pub mod mapping;
 pub mod optim;
 pub mod pipeline;
 pub mod random;

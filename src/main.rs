@@ -155,6 +155,10 @@ struct RunArgs {
     /// ORB-SLAM2 behaviour: no dynamic-object model (the only mode until the DOP model lands).
     #[arg(long)]
     no_dop: bool,
+    /// Run local mapping after each keyframe in the tracking thread instead of beside
+    /// it, so that a run repeats exactly (tests use this; slower).
+    #[arg(long)]
+    deterministic: bool,
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -364,6 +368,7 @@ fn run_run(args: RunArgs) -> Result<()> {
     let options = dopslam::pipeline::RunOptions {
         max_frames: args.frames,
         progress: true,
+        deterministic: args.deterministic,
     };
     let _ = args.no_dop;
     let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;

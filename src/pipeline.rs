@@ -23,6 +23,8 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
 use crate::optim::stereo_projection::StereoCamera;
+use crate::map::Map;
+use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
 
 #[derive(Debug, Error)]
@@ -116,6 +118,7 @@ pub struct RunReport {
     pub sequence: String,
     pub totals: RunTotals,
     pub ate: Option<EvalReport>,
+    pub mapping: MappingStats,
     pub frames: Vec<FrameLine>,
 }
 
@@ -125,6 +128,9 @@ pub struct RunOptions {
     /// Stop after this many frames.
     pub max_frames: Option<usize>,
     pub progress: bool,
+    /// Run local mapping inline after each keyframe instead of in its own thread, so
+    /// that results repeat exactly.
+    pub deterministic: bool,
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -169,6 +175,15 @@ pub fn run_sequence(
         calibration.camera.width,
         calibration.camera.height,
     );
+    let close_depth = (config.tracking.th_depth * camera.bf / camera.fx) as f32;
+    let mapper = LocalMapper::new(
+        config.mapping.clone(),
+        camera,
+        extractor.pyramid.clone(),
+        (calibration.camera.width, calibration.camera.height),
+        close_depth,
+    );
+    let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
     std::fs::create_dir_all(out).map_err(|source| IoError::Write {
         path: out.to_path_buf(),
         source,
@@ -237,6 +252,9 @@ pub fn run_sequence(
         let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
         let report = tracker.track(frame);
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
+        if let Some(key) = report.new_keyframe {
+            mapping.insert(key);
+        }
         progress.set_message(format!("{:?}", report.state));
         progress.inc(1);
         lines.push(FrameLine {
@@ -252,7 +270,9 @@ pub fn run_sequence(
             config.tracking.min_initial_points
         ));
     }
-    let report = write_outputs(sequence, &tracker, lines, out)?;
+    let stats = mapping.finish();
+    let map = tracker.map.read().expect("map lock poisoned");
+    let report = write_outputs(sequence, &map, stats, lines, out)?;
     match failure {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -266,24 +286,29 @@ pub fn run_sequence(
 /// Writes trajectory, keyframes, map and report; evaluates against ground truth.
 fn write_outputs(
     sequence: &dyn Sequence,
-    tracker: &Tracker,
+    map: &Map,
+    mapping: MappingStats,
     lines: Vec<FrameLine>,
     out: &Path,
 ) -> Result<RunReport, RunError> {
     let mut trajectory = Trajectory::default();
     for line in &lines {
-        if let Some(pose) = line.tracking.camera_from_world {
+        // The pose relative to the reference keyframe, placed on its corrected pose.
+        let corrected = line.tracking.reference.and_then(|(key, camera_from_reference)| {
+            Some(camera_from_reference * map.keyframe_pose(key)?)
+        });
+        if let Some(pose) = corrected.or(line.tracking.camera_from_world) {
             trajectory.push(line.tracking.timestamp, pose.inverse());
         }
     }
     trajectory.write(&out.join("trajectory.txt"), TrajectoryFormat::Tum)?;
     let mut keyframes = Trajectory::default();
-    for key in &tracker.map.keyframe_order {
-        let kf = &tracker.map.keyframes[*key];
-        keyframes.push(kf.timestamp, kf.world_from_camera());
+    for key in &map.keyframe_order {
+        let kf = &map.keyframes[*key];
+        keyframes.push(kf.frame.timestamp, kf.world_from_camera());
     }
     keyframes.write(&out.join("keyframes.txt"), TrajectoryFormat::Tum)?;
-    write_atomic(&out.join("map.ply"), tracker.map.to_ply().as_bytes())?;
+    write_atomic(&out.join("map.ply"), map.to_ply().as_bytes())?;
     let mut lost_spans: Vec<(usize, usize)> = Vec::new();
     for line in &lines {
         if line.tracking.state == TrackingState::Lost {
@@ -303,8 +328,8 @@ fn write_outputs(
         not_initialised: count(TrackingState::NotInitialised),
         coverage_percent: 100.0 * tracked as f64 / lines.len().max(1) as f64,
         lost_spans,
-        keyframes: tracker.map.keyframes.len(),
-        map_points: tracker.map.points.len(),
+        keyframes: map.keyframes.len(),
+        map_points: map.points.len(),
         median_tracking_ms: column(|l| l.tracking_ms),
         mean_tracking_ms: lines.iter().map(|l| l.tracking_ms).sum::<f64>()
             / lines.len().max(1) as f64,
@@ -328,6 +353,7 @@ fn write_outputs(
         sequence: sequence.name().to_string(),
         totals,
         ate,
+        mapping,
         frames: lines,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;

@@ -74,7 +74,7 @@ impl OrbConfig {
 }
 
 /// A keypoint in level-0 pixel coordinates.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct KeyPoint {
     pub x: f32,
     pub y: f32,

@@ -1,10 +1,13 @@
 //! The sparse map: keyframes and map points in arenas with typed keys (`slotmap`), so
 //! that removing an entity is safe and a key of one kind can never index the other.
 
+pub mod visibility;
+
 use nalgebra::Vector3;
 use slotmap::{new_key_type, SlotMap};
 
-use crate::features::{Descriptor, KeyPoint};
+use crate::features::Descriptor;
+use crate::tracking::Frame;
 use crate::geometry::se3::Se3;
 
 new_key_type! {
@@ -27,23 +30,76 @@ pub struct MapPoint {
     pub max_distance: f64,
     /// Keyframes that see the point and the keypoint index in each.
     pub observations: Vec<(KeyFrameKey, usize)>,
+    /// Frames in whose frustum tracking predicted the point, and frames where it was
+    /// matched as an inlier: their ratio culls points that are rarely re-found.
+    pub visible: u32,
+    pub found: u32,
+    /// Sequence number ([`KeyFrame::id`]) of the keyframe that created the point.
+    pub first_keyframe_id: usize,
+}
+
+impl MapPoint {
+    /// A point first seen by keyframe `first_keyframe_id`; no observations yet.
+    pub fn new(
+        position: Vector3<f64>,
+        descriptor: Descriptor,
+        normal: Vector3<f64>,
+        (min_distance, max_distance): (f64, f64),
+        first_keyframe_id: usize,
+    ) -> Self {
+        Self {
+            position,
+            descriptor,
+            normal,
+            min_distance,
+            max_distance,
+            observations: Vec::new(),
+            visible: 1,
+            found: 1,
+            first_keyframe_id,
+        }
+    }
+
+    /// \(found / visible\): how often the point is matched when it should be seen.
+    pub fn found_ratio(&self) -> f64 {
+        self.found as f64 / self.visible.max(1) as f64
+    }
 }
 
 /// A keyframe: a frame kept in the map.
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
-    pub frame_index: usize,
-    pub timestamp: f64,
+    /// Insertion sequence number (0 for the map's first keyframe).
+    pub id: usize,
+    /// The frame's features, depth and keypoint grid.
+    pub frame: Frame,
     pub camera_from_world: Se3,
-    pub keypoints: Vec<KeyPoint>,
-    pub descriptors: Vec<Descriptor>,
-    pub depth: Vec<f32>,
-    pub right_u: Vec<f32>,
     /// The map point each keypoint observes.
     pub map_points: Vec<Option<MapPointKey>>,
+    /// Covisibility edges: keyframes sharing at least 15 points (or the best one),
+    /// with the number shared, most first.
+    pub connections: Vec<(KeyFrameKey, usize)>,
+    /// Spanning tree: the keyframe this one was attached to, and those attached to it.
+    pub parent: Option<KeyFrameKey>,
+    pub children: Vec<KeyFrameKey>,
 }
 
 impl KeyFrame {
+    /// A keyframe made from `frame`, observing no points yet (its id is given when it
+    /// is added to the map).
+    pub fn new(frame: Frame, camera_from_world: Se3) -> Self {
+        let n = frame.len();
+        Self {
+            id: 0,
+            frame,
+            camera_from_world,
+            map_points: vec![None; n],
+            connections: Vec::new(),
+            parent: None,
+            children: Vec::new(),
+        }
+    }
+
     pub fn world_from_camera(&self) -> Se3 {
         self.camera_from_world.inverse()
     }
@@ -52,7 +108,26 @@ impl KeyFrame {
     pub fn centre(&self) -> Vector3<f64> {
         self.camera_from_world.inverse().translation.vector
     }
+
+    /// The covisibility weight to `other` (0 when not connected).
+    pub fn weight_to(&self, other: KeyFrameKey) -> usize {
+        self.connections
+            .iter()
+            .find(|(k, _)| *k == other)
+            .map_or(0, |(_, w)| *w)
+    }
+
+    /// Up to `n` best covisible keyframes.
+    pub fn best_covisible(&self, n: usize) -> Vec<KeyFrameKey> {
+        self.connections.iter().take(n).map(|(k, _)| *k).collect()
+    }
 }
+
+/// Covisibility edges need at least this many shared points (ORB-SLAM's 15).
+const MIN_COVISIBILITY: usize = 15;
+
+/// The map shared by tracking and local mapping.
+pub type SharedMap = std::sync::Arc<std::sync::RwLock<Map>>;
 
 /// The map.
 #[derive(Debug, Default)]
@@ -61,13 +136,219 @@ pub struct Map {
     pub points: SlotMap<MapPointKey, MapPoint>,
     /// Keyframes in insertion order.
     pub keyframe_order: Vec<KeyFrameKey>,
+    /// Keyframes ever inserted (the next keyframe's id).
+    pub keyframes_created: usize,
+    /// Culled keyframes: their parent at removal and \(T_{cp}\) (camera from parent),
+    /// so frames tracked against them keep a pose that follows later corrections.
+    pub culled: std::collections::HashMap<KeyFrameKey, (KeyFrameKey, Se3)>,
 }
 
 impl Map {
-    pub fn add_keyframe(&mut self, keyframe: KeyFrame) -> KeyFrameKey {
+    /// Inserts a keyframe, giving it the next id.
+    pub fn add_keyframe(&mut self, mut keyframe: KeyFrame) -> KeyFrameKey {
+        keyframe.id = self.keyframes_created;
+        self.keyframes_created += 1;
         let key = self.keyframes.insert(keyframe);
         self.keyframe_order.push(key);
         key
+    }
+
+    /// The current camera-from-world pose of a keyframe, following the spanning tree
+    /// through culled keyframes (\(T_{cw} = T_{cp} T_{pw}\)).
+    pub fn keyframe_pose(&self, mut key: KeyFrameKey) -> Option<Se3> {
+        let mut camera_from_key = Se3::identity();
+        loop {
+            if let Some(kf) = self.keyframes.get(key) {
+                return Some(camera_from_key * kf.camera_from_world);
+            }
+            let (parent, camera_from_parent) = self.culled.get(&key)?;
+            camera_from_key *= camera_from_parent;
+            key = *parent;
+        }
+    }
+
+    /// Records that keypoint `index` of `keyframe` observes `point`.
+    pub fn add_observation(&mut self, point: MapPointKey, keyframe: KeyFrameKey, index: usize) {
+        let (Some(p), Some(kf)) = (self.points.get_mut(point), self.keyframes.get_mut(keyframe))
+        else {
+            return;
+        };
+        if kf.map_points[index].is_none() && !p.observations.iter().any(|(k, _)| *k == keyframe) {
+            kf.map_points[index] = Some(point);
+            p.observations.push((keyframe, index));
+        }
+    }
+
+    /// Removes one observation; the point goes when no keyframe sees it any more.
+    pub fn remove_observation(&mut self, keyframe: KeyFrameKey, index: usize) {
+        let Some(point) = self
+            .keyframes
+            .get_mut(keyframe)
+            .and_then(|kf| kf.map_points[index].take())
+        else {
+            return;
+        };
+        if let Some(p) = self.points.get_mut(point) {
+            p.observations
+                .retain(|(k, i)| !(*k == keyframe && *i == index));
+            if p.observations.is_empty() {
+                self.points.remove(point);
+            }
+        }
+    }
+
+    /// Merges `old` into `new` (a duplicate found by fusion): the keyframes that saw
+    /// `old` see `new` instead, unless they already do; the counters add up.
+    pub fn replace_point(&mut self, old: MapPointKey, new: MapPointKey) {
+        if old == new || !self.points.contains_key(new) {
+            return;
+        }
+        let Some(removed) = self.points.remove(old) else {
+            return;
+        };
+        for (kf, index) in removed.observations {
+            let Some(keyframe) = self.keyframes.get_mut(kf) else {
+                continue;
+            };
+            keyframe.map_points[index] = None;
+            self.add_observation(new, kf, index);
+        }
+        let p = &mut self.points[new];
+        p.visible += removed.visible;
+        p.found += removed.found;
+    }
+
+    /// Recomputes a point's normal (mean viewing direction), its scale-invariance
+    /// distances (from its reference keyframe, the first that still observes it, and the
+    /// level there) and its descriptor: the observed descriptor with the least median
+    /// Hamming distance to the others.
+    pub fn update_point(&mut self, point: MapPointKey, scale_factors: &[f64]) {
+        let Some(p) = self.points.get(point) else {
+            return;
+        };
+        let mut normal = Vector3::zeros();
+        let mut descriptors = Vec::new();
+        let mut reference: Option<(f64, usize)> = None;
+        for (kf, index) in &p.observations {
+            let Some(keyframe) = self.keyframes.get(*kf) else {
+                continue;
+            };
+            let offset = p.position - keyframe.centre();
+            let distance = offset.norm();
+            normal += offset / distance.max(1e-9);
+            descriptors.push(keyframe.frame.descriptors[*index]);
+            if reference.is_none() {
+                reference = Some((distance, keyframe.frame.keypoints[*index].level as usize));
+            }
+        }
+        let Some((distance, level)) = reference else {
+            return;
+        };
+        let best = (0..descriptors.len())
+            .min_by_key(|&i| {
+                let mut d: Vec<u32> = descriptors
+                    .iter()
+                    .map(|o| crate::features::hamming(&descriptors[i], o))
+                    .collect();
+                d.sort_unstable();
+                d[(d.len() - 1) / 2]
+            })
+            .map(|i| descriptors[i]);
+        let max_distance = distance * scale_factors[level];
+        let p = &mut self.points[point];
+        if normal.norm() > 0.0 {
+            p.normal = normal.normalize();
+        }
+        p.max_distance = max_distance;
+        p.min_distance = max_distance / scale_factors[scale_factors.len() - 1];
+        if let Some(d) = best {
+            p.descriptor = d;
+        }
+    }
+
+    /// Rebuilds `keyframe`'s covisibility edges (both directions) from the points it
+    /// sees and attaches it to the spanning tree under its best covisible keyframe.
+    pub fn update_connections(&mut self, keyframe: KeyFrameKey) {
+        let Some(kf) = self.keyframes.get(keyframe) else {
+            return;
+        };
+        let mut counts: std::collections::BTreeMap<KeyFrameKey, usize> = Default::default();
+        for point in kf.map_points.iter().flatten() {
+            if let Some(p) = self.points.get(*point) {
+                for (other, _) in &p.observations {
+                    if *other != keyframe {
+                        *counts.entry(*other).or_default() += 1;
+                    }
+                }
+            }
+        }
+        let mut ranked: Vec<(KeyFrameKey, usize)> = counts.into_iter().collect();
+        ranked.sort_by(|a, b| {
+            b.1.cmp(&a.1)
+                .then(self.keyframes[b.0].id.cmp(&self.keyframes[a.0].id))
+        });
+        let best = ranked.first().copied();
+        ranked.retain(|(_, w)| *w >= MIN_COVISIBILITY);
+        if ranked.is_empty() {
+            ranked.extend(best);
+        }
+        for (other, weight) in &ranked {
+            let o = &mut self.keyframes[*other];
+            o.connections.retain(|(k, _)| *k != keyframe);
+            o.connections.push((keyframe, *weight));
+            o.connections.sort_by(|a, b| b.1.cmp(&a.1));
+        }
+        let is_first = self.keyframe_order.first() == Some(&keyframe);
+        let kf = &mut self.keyframes[keyframe];
+        kf.connections = ranked;
+        if kf.parent.is_none() && !is_first {
+            if let Some((parent, _)) = kf.connections.first().copied() {
+                kf.parent = Some(parent);
+                self.keyframes[parent].children.push(keyframe);
+            }
+        }
+    }
+
+    /// Removes a keyframe (redundant-keyframe culling): its observations, its
+    /// covisibility edges, and its place in the spanning tree, whose children move to
+    /// the candidate parent (its own parent or an already moved sibling) they share
+    /// the most points with.
+    pub fn remove_keyframe(&mut self, keyframe: KeyFrameKey) {
+        let Some(kf) = self.keyframes.get(keyframe) else {
+            return;
+        };
+        let (parent, children) = (kf.parent, kf.children.clone());
+        let Some(parent) = parent else {
+            return; // the root stays
+        };
+        for index in 0..kf.map_points.len() {
+            self.remove_observation(keyframe, index);
+        }
+        let mut candidates = vec![parent];
+        for child in &children {
+            let Some(c) = self.keyframes.get(*child) else {
+                continue;
+            };
+            let new_parent = candidates
+                .iter()
+                .copied()
+                .max_by_key(|k| c.weight_to(*k))
+                .unwrap_or(parent);
+            self.keyframes[*child].parent = Some(new_parent);
+            self.keyframes[new_parent].children.push(*child);
+            candidates.push(*child);
+        }
+        let camera_from_parent =
+            self.keyframes[keyframe].camera_from_world * self.keyframes[parent].world_from_camera();
+        self.culled.insert(keyframe, (parent, camera_from_parent));
+        let removed = self.keyframes.remove(keyframe).expect("present");
+        self.keyframes[parent].children.retain(|k| *k != keyframe);
+        for (other, _) in removed.connections {
+            if let Some(o) = self.keyframes.get_mut(other) {
+                o.connections.retain(|(k, _)| *k != keyframe);
+            }
+        }
+        self.keyframe_order.retain(|k| *k != keyframe);
     }
 
     /// Removes a map point and its observations from every keyframe.
@@ -129,15 +410,46 @@ mod tests {
 
     fn keyframe(n: usize) -> KeyFrame {
         KeyFrame {
-            frame_index: 0,
-            timestamp: 0.0,
+            id: 0,
+            frame: Frame::from_parts(
+                0,
+                0.0,
+                vec![crate::features::KeyPoint::default(); n],
+                vec![[0; 4]; n],
+                vec![0.0; n],
+                vec![-1.0; n],
+                (640, 480),
+            ),
             camera_from_world: Se3::identity(),
-            keypoints: vec![],
-            descriptors: vec![],
-            depth: vec![],
-            right_u: vec![],
             map_points: vec![None; n],
+            connections: vec![],
+            parent: None,
+            children: vec![],
         }
+    }
+
+    fn point() -> MapPoint {
+        MapPoint::new(Vector3::new(0.0, 0.0, 2.0), [0; 4], Vector3::z(), (0.1, 10.0), 0)
+    }
+
+    /// A map of `keyframes` keyframes of 40 keypoints; points `0..shared[k]` of
+    /// keyframe k+1 are also seen by keyframe k (keypoint i sees point i of its row).
+    fn chain(shared: &[usize]) -> (Map, Vec<KeyFrameKey>) {
+        let mut map = Map::default();
+        let keys: Vec<KeyFrameKey> = (0..=shared.len())
+            .map(|_| map.add_keyframe(keyframe(40)))
+            .collect();
+        for (k, &n) in shared.iter().enumerate() {
+            for i in 0..n {
+                let p = map.points.insert(point());
+                map.add_observation(p, keys[k], i);
+                map.add_observation(p, keys[k + 1], 20 + i);
+            }
+        }
+        for key in &keys {
+            map.update_connections(*key);
+        }
+        (map, keys)
     }
 
     #[test]
@@ -145,35 +457,71 @@ mod tests {
         let mut map = Map::default();
         let a = map.add_keyframe(keyframe(3));
         let b = map.add_keyframe(keyframe(3));
-        let point = map.points.insert(MapPoint {
-            position: Vector3::zeros(),
-            descriptor: [0; 4],
-            normal: Vector3::z(),
-            min_distance: 0.0,
-            max_distance: 10.0,
-            observations: vec![(a, 1), (b, 2)],
-        });
-        map.keyframes[a].map_points[1] = Some(point);
-        map.keyframes[b].map_points[2] = Some(point);
-        assert_eq!(map.covisible_keyframes([point].into_iter(), 5).len(), 2);
-        map.remove_point(point);
-        assert!(map.points.get(point).is_none());
+        let p = map.points.insert(point());
+        map.add_observation(p, a, 1);
+        map.add_observation(p, b, 2);
+        assert_eq!(map.covisible_keyframes([p].into_iter(), 5).len(), 2);
+        map.remove_point(p);
+        assert!(map.points.get(p).is_none());
         assert_eq!(map.keyframes[a].map_points[1], None);
         assert_eq!(map.keyframes[b].map_points[2], None);
         // A new point may reuse the slot, but the old key stays dead.
-        let other = map.points.insert(map_point_like());
-        assert_ne!(other, point);
-        assert!(map.points.get(point).is_none());
+        let other = map.points.insert(point());
+        assert_ne!(other, p);
+        assert!(map.points.get(p).is_none());
     }
 
-    fn map_point_like() -> MapPoint {
-        MapPoint {
-            position: Vector3::zeros(),
-            descriptor: [0; 4],
-            normal: Vector3::z(),
-            min_distance: 0.0,
-            max_distance: 1.0,
-            observations: vec![],
-        }
+    #[test]
+    fn connections_need_fifteen_shared_points_or_are_the_best_one() {
+        let (map, k) = chain(&[20, 5]);
+        assert_eq!(map.keyframes[k[0]].connections, vec![(k[1], 20)]);
+        // k1 shares 20 with k0 and 5 with k2: k2's weak edge is its best one, so it
+        // is kept (on both sides) although it is below the threshold.
+        assert_eq!(map.keyframes[k[1]].connections, vec![(k[0], 20), (k[2], 5)]);
+        assert_eq!(map.keyframes[k[2]].connections, vec![(k[1], 5)]);
+        assert_eq!(map.keyframes[k[1]].parent, Some(k[0]));
+        assert_eq!(map.keyframes[k[2]].parent, Some(k[1]));
+        assert_eq!(map.keyframes[k[0]].parent, None);
+    }
+
+    #[test]
+    fn removing_a_keyframe_reattaches_its_children_and_drops_lone_points() {
+        let (mut map, k) = chain(&[20, 18]);
+        let points_before = map.points.len();
+        map.keyframes[k[1]].camera_from_world = Se3::translation(0.0, 0.0, 1.0);
+        map.remove_keyframe(k[1]);
+        assert!(!map.keyframes.contains_key(k[1]));
+        // Its pose follows its parent's later corrections.
+        map.keyframes[k[0]].camera_from_world = Se3::translation(1.0, 0.0, 0.0);
+        let pose = map.keyframe_pose(k[1]).unwrap();
+        assert!((pose.translation.vector - nalgebra::Vector3::new(1.0, 0.0, 1.0)).norm() < 1e-12);
+        assert_eq!(map.keyframe_order, vec![k[0], k[2]]);
+        assert_eq!(map.keyframes[k[2]].parent, Some(k[0]));
+        assert!(map.keyframes[k[0]].children.contains(&k[2]));
+        assert!(map.keyframes[k[0]].connections.iter().all(|(o, _)| *o != k[1]));
+        // Every point was seen by k1 and one other keyframe: each keeps one observation.
+        assert_eq!(map.points.len(), points_before);
+        assert!(map.points.values().all(|p| p.observations.len() == 1));
+        // The root is never removed.
+        map.remove_keyframe(k[0]);
+        assert!(map.keyframes.contains_key(k[0]));
+    }
+
+    #[test]
+    fn replacing_a_point_moves_its_observations() {
+        let mut map = Map::default();
+        let a = map.add_keyframe(keyframe(3));
+        let b = map.add_keyframe(keyframe(3));
+        let old = map.points.insert(point());
+        let new = map.points.insert(point());
+        map.add_observation(old, a, 0);
+        map.add_observation(old, b, 1);
+        map.add_observation(new, b, 2);
+        map.replace_point(old, new);
+        assert!(!map.points.contains_key(old));
+        assert_eq!(map.keyframes[a].map_points[0], Some(new));
+        // b already saw `new`: its observation of `old` is dropped, not duplicated.
+        assert_eq!(map.keyframes[b].map_points[1], None);
+        assert_eq!(map.points[new].observations.len(), 2);
     }
 }

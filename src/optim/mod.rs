@@ -3,6 +3,7 @@
 
 pub mod block_sparse;
 pub mod local_ba;
+pub mod pnp;
 pub mod pose_only;
 pub mod robust;
 pub mod stereo_projection;

@@ -76,15 +76,36 @@ impl Frame {
                 }
             })
             .collect();
+        Self::from_parts(
+            index,
+            timestamp,
+            features.keypoints,
+            features.descriptors,
+            depths,
+            right_u,
+            (grey.width(), grey.height()),
+        )
+    }
+
+    /// A frame from already extracted features (keypoints undistorted).
+    pub fn from_parts(
+        index: usize,
+        timestamp: f64,
+        keypoints: Vec<KeyPoint>,
+        descriptors: Vec<Descriptor>,
+        depth: Vec<f32>,
+        right_u: Vec<f32>,
+        (width, height): (u32, u32),
+    ) -> Self {
         let mut frame = Self {
             index,
             timestamp,
-            keypoints: features.keypoints,
-            descriptors: features.descriptors,
-            depth: depths,
+            keypoints,
+            descriptors,
+            depth,
             right_u,
-            width: grey.width(),
-            height: grey.height(),
+            width,
+            height,
             grid: vec![Vec::new(); GRID_COLUMNS * GRID_ROWS],
         };
         frame.build_grid();

@@ -3,12 +3,12 @@
 //! last frame, else brute-force matching against the reference keyframe; local-map
 //! tracking (map points of the covisible keyframes projected with scale prediction);
 //! pose-only optimisation after each search; the keyframe decision; new map points from
-//! depth at keyframes; states OK / LOST with relocalisation against recent keyframes.
+//! depth at keyframes; states OK / LOST with relocalisation by EPnP RANSAC against the
+//! keyframes that share the most descriptors with the frame.
 //!
-//! After each new keyframe a local bundle adjustment refines the covisible window (run
-//! in the tracking thread, in a fixed order). Not yet here: the rest of local mapping
-//! (triangulation, map point and keyframe culling) in its own thread, and
-//! relocalisation by PnP RANSAC over bag-of-words candidates.
+//! The map is shared with local mapping ([`crate::mapping`]), which may run in its own
+//! thread: tracking holds the map's write lock while it tracks one frame (feature
+//! extraction happens before, without it) and hands each new keyframe on.
 
 use std::time::Instant;
 
@@ -16,12 +16,15 @@ use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
-use super::matching::{brute_force, search_by_projection, Query};
+use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
+use crate::features::hamming;
 use crate::features::ScalePyramid;
 use crate::geometry::se3::{self, Se3};
-use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey};
-use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem};
+use crate::map::visibility::predict_view;
+use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey, SharedMap};
+use crate::optim::pnp::{epnp_ransac, Correspondence, Ransac};
 use crate::optim::pose_only::{optimise_pose, PoseObservation};
+use crate::optim::robust::CHI2_MONO;
 use crate::optim::stereo_projection::StereoCamera;
 
 /// Tracking parameters (ORB-SLAM2's values by default).
@@ -40,11 +43,6 @@ pub struct TrackerConfig {
     pub local_keyframes: usize,
     /// Search radius factor of the motion-model projection search (pixels at level 0).
     pub motion_search_radius: f32,
-    /// Run local bundle adjustment after each new keyframe (off by default: without
-    /// multi-view triangulation it does not yet improve accuracy on the benchmark).
-    pub local_ba: bool,
-    /// Keyframes optimised by local BA (the new one and its best covisible ones).
-    pub local_ba_keyframes: usize,
 }
 
 impl Default for TrackerConfig {
@@ -56,8 +54,6 @@ impl Default for TrackerConfig {
             min_inliers: 30,
             local_keyframes: 20,
             motion_search_radius: 15.0,
-            local_ba: false,
-            local_ba_keyframes: 10,
         }
     }
 }
@@ -81,12 +77,19 @@ pub struct FrameReport {
     pub matches: usize,
     pub inliers: usize,
     pub keyframe: bool,
+    /// The keyframe made from this frame, for local mapping.
+    #[serde(skip)]
+    pub new_keyframe: Option<KeyFrameKey>,
     /// Milliseconds: matching and local-map search, pose optimisation, total tracking
     /// (feature extraction is timed by the caller).
     pub matching_ms: f64,
     pub optimisation_ms: f64,
     #[serde(skip)]
     pub camera_from_world: Option<Se3>,
+    /// The reference keyframe and the pose relative to it, \(T_{cr}\): the final
+    /// trajectory is \(T_{cr} T_{rw}\) with the reference's corrected pose.
+    #[serde(skip)]
+    pub reference: Option<(KeyFrameKey, Se3)>,
 }
 
 /// The last tracked frame, kept for the motion model.
@@ -101,7 +104,7 @@ pub struct Tracker {
     pub config: TrackerConfig,
     pub camera: StereoCamera,
     pub pyramid: ScalePyramid,
-    pub map: Map,
+    pub map: SharedMap,
     pub state: TrackingState,
     last: Option<LastFrame>,
     velocity: Option<Se3>,
@@ -130,7 +133,7 @@ impl Tracker {
             config,
             camera,
             pyramid,
-            map: Map::default(),
+            map: SharedMap::default(),
             state: TrackingState::NotInitialised,
             last: None,
             velocity: None,
@@ -146,8 +149,10 @@ impl Tracker {
         (self.config.th_depth * self.camera.bf / self.camera.fx) as f32
     }
 
-    /// Tracks one frame.
+    /// Tracks one frame; a new keyframe is returned in the report for local mapping.
     pub fn track(&mut self, frame: Frame) -> FrameReport {
+        let shared = self.map.clone();
+        let mut map = shared.write().expect("map lock poisoned");
         let mut timing = Timing::default();
         let mut report = FrameReport {
             index: frame.index,
@@ -157,21 +162,29 @@ impl Tracker {
             matches: 0,
             inliers: 0,
             keyframe: false,
+            new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
             camera_from_world: None,
+            reference: None,
         };
+        // Local mapping may have culled the reference keyframe: take the newest.
+        if self.reference.is_some_and(|k| !map.keyframes.contains_key(k)) {
+            self.reference = map.keyframe_order.last().copied();
+        }
         if self.state == TrackingState::NotInitialised {
             let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
             if with_depth >= self.config.min_initial_points {
                 let pose = Se3::identity();
-                self.insert_keyframe(&frame, pose, vec![None; frame.len()], true);
+                self.insert_keyframe(&mut map, &frame, pose, vec![None; frame.len()], true);
                 report.keyframe = true;
+                report.new_keyframe = self.reference;
                 report.state = TrackingState::Ok;
                 report.camera_from_world = Some(pose);
+                report.reference = self.reference.map(|k| (k, Se3::identity()));
                 report.inliers = with_depth;
                 self.state = TrackingState::Ok;
-                let points = self.map.keyframes[self.reference.unwrap()]
+                let points = map.keyframes[self.reference.unwrap()]
                     .map_points
                     .clone();
                 self.last = Some(LastFrame {
@@ -183,13 +196,13 @@ impl Tracker {
             return report;
         }
         let outcome = if self.state == TrackingState::Ok {
-            self.track_motion_model(&frame, &mut timing)
-                .or_else(|| self.track_reference_keyframe(&frame, &mut timing))
+            self.track_motion_model(&map, &frame, &mut timing)
+                .or_else(|| self.track_reference_keyframe(&map, &frame, &mut timing))
         } else {
-            self.relocalise(&frame, &mut timing)
+            self.relocalise(&map, &frame, &mut timing)
         };
         let tracked = outcome.and_then(|(pose, points)| {
-            let (pose, points, inliers) = self.track_local_map(&frame, pose, points, &mut timing);
+            let (pose, points, inliers) = self.track_local_map(&mut map, &frame, pose, points, &mut timing);
             (inliers >= self.config.min_inliers).then_some((pose, points, inliers))
         });
         report.matching_ms = timing.matching;
@@ -208,21 +221,21 @@ impl Tracker {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
         }
         self.frames_since_keyframe += 1;
-        let (pose, points) = if self.need_keyframe(&frame, &points, inliers) {
-            report.keyframe = true;
-            self.insert_keyframe(&frame, pose, points, false);
+        let (pose, points) = if self.need_keyframe(&map, &frame, &points, inliers) {
+            self.insert_keyframe(&mut map, &frame, pose, points, false);
             let key = self.reference.expect("just inserted");
-            if self.config.local_ba {
-                let start = Instant::now();
-                self.local_bundle_adjustment(key);
-                report.optimisation_ms += start.elapsed().as_secs_f64() * 1e3;
-            }
-            let keyframe = &self.map.keyframes[key];
+            report.keyframe = true;
+            report.new_keyframe = Some(key);
+            let keyframe = &map.keyframes[key];
             (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
             (pose, points)
         };
         report.camera_from_world = Some(pose);
+        report.reference = self.reference.and_then(|k| {
+            let keyframe = map.keyframes.get(k)?;
+            Some((k, pose * keyframe.world_from_camera()))
+        });
         self.last = Some(LastFrame {
             frame,
             camera_from_world: pose,
@@ -235,6 +248,7 @@ impl Tracker {
     /// their count.
     fn optimise(
         &self,
+        map: &Map,
         frame: &Frame,
         initial: &Se3,
         points: &[Option<MapPointKey>],
@@ -244,7 +258,7 @@ impl Tracker {
         let mut indices = Vec::new();
         let mut observations = Vec::new();
         for (i, key) in points.iter().enumerate() {
-            let Some(point) = key.and_then(|k| self.map.points.get(k)) else {
+            let Some(point) = key.and_then(|k| map.points.get(k)) else {
                 continue;
             };
             let k = &frame.keypoints[i];
@@ -277,6 +291,7 @@ impl Tracker {
     /// Projects the last frame's map points with the constant-velocity prediction.
     fn track_motion_model(
         &mut self,
+        map: &Map,
         frame: &Frame,
         timing: &mut Timing,
     ) -> Option<(Se3, Vec<Option<MapPointKey>>)> {
@@ -288,7 +303,7 @@ impl Tracker {
         let mut queries = Vec::new();
         for (i, key) in last.points.iter().enumerate() {
             let Some(key) = key else { continue };
-            let Some(point) = self.map.points.get(*key) else {
+            let Some(point) = map.points.get(*key) else {
                 continue;
             };
             let Some((u, v, ur)) = self.project(&predicted, &point.position) else {
@@ -326,26 +341,27 @@ impl Tracker {
         for (q, i) in matches {
             points[i] = Some(keys[q]);
         }
-        let (pose, points, inliers) = self.optimise(frame, &predicted, &points, timing);
+        let (pose, points, inliers) = self.optimise(map, frame, &predicted, &points, timing);
         (inliers >= 10).then_some((pose, points))
     }
 
     /// Brute-force matches against a keyframe's map points, starting from `initial`.
     fn track_against_keyframe(
         &self,
+        map: &Map,
         frame: &Frame,
         keyframe: KeyFrameKey,
         initial: Se3,
         timing: &mut Timing,
     ) -> Option<(Se3, Vec<Option<MapPointKey>>, usize)> {
         let start = Instant::now();
-        let kf = self.map.keyframes.get(keyframe)?;
+        let kf = map.keyframes.get(keyframe)?;
         let mut keys = Vec::new();
         let mut descriptors = Vec::new();
         for (i, key) in kf.map_points.iter().enumerate() {
-            if let Some(key) = key.filter(|k| self.map.points.contains_key(*k)) {
+            if let Some(key) = key.filter(|k| map.points.contains_key(*k)) {
                 keys.push(key);
-                descriptors.push(kf.descriptors[i]);
+                descriptors.push(kf.frame.descriptors[i]);
             }
         }
         let matches = brute_force(frame, &descriptors, 0.7);
@@ -357,45 +373,150 @@ impl Tracker {
         for (q, i) in matches {
             points[i] = Some(keys[q]);
         }
-        let (pose, points, inliers) = self.optimise(frame, &initial, &points, timing);
+        let (pose, points, inliers) = self.optimise(map, frame, &initial, &points, timing);
         (inliers >= 10).then_some((pose, points, inliers))
     }
 
     fn track_reference_keyframe(
         &mut self,
+        map: &Map,
         frame: &Frame,
         timing: &mut Timing,
     ) -> Option<(Se3, Vec<Option<MapPointKey>>)> {
         let initial = self.last.as_ref()?.camera_from_world;
-        self.track_against_keyframe(frame, self.reference?, initial, timing)
+        self.track_against_keyframe(map, frame, self.reference?, initial, timing)
             .map(|(pose, points, _)| (pose, points))
     }
 
-    /// After a loss: tries the most recent keyframes, each from its own pose.
+    /// After a loss (ORB-SLAM §V-A): keyframes ranked by how many of a sample of the
+    /// frame's descriptors match their points; for the best five, brute-force matches,
+    /// EPnP in RANSAC, pose-only optimisation, and when that leaves fewer than 50
+    /// inliers a projection search of the keyframe's points for more. Accepted with 50.
     fn relocalise(
         &mut self,
+        map: &Map,
         frame: &Frame,
         timing: &mut Timing,
     ) -> Option<(Se3, Vec<Option<MapPointKey>>)> {
-        let candidates: Vec<KeyFrameKey> = self
-            .map
+        let start = Instant::now();
+        let sample: Vec<usize> = (0..frame.len()).step_by(4).collect();
+        let mut ranked: Vec<(usize, usize, KeyFrameKey)> = map
             .keyframe_order
             .iter()
-            .rev()
-            .take(10)
-            .copied()
+            .map(|&key| {
+                let kf = &map.keyframes[key];
+                let descriptors: Vec<_> = kf
+                    .map_points
+                    .iter()
+                    .zip(&kf.frame.descriptors)
+                    .filter(|(p, _)| p.is_some())
+                    .map(|(_, d)| d)
+                    .collect();
+                let hits = sample
+                    .iter()
+                    .filter(|&&i| {
+                        descriptors
+                            .iter()
+                            .any(|d| hamming(&frame.descriptors[i], d) <= TH_LOW)
+                    })
+                    .count();
+                (hits, kf.id, key)
+            })
             .collect();
-        let mut best: Option<(Se3, Vec<Option<MapPointKey>>, usize)> = None;
-        for key in candidates {
-            let initial = self.map.keyframes[key].camera_from_world;
-            if let Some(found) = self.track_against_keyframe(frame, key, initial, timing) {
-                if best.as_ref().is_none_or(|b| found.2 > b.2) {
-                    best = Some(found);
-                }
+        ranked.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.cmp(&a.1)));
+        timing.matching += start.elapsed().as_secs_f64() * 1e3;
+        for (_, _, key) in ranked.into_iter().take(5) {
+            if let Some(found) = self.relocalise_against(map, frame, key, timing) {
+                return Some(found);
             }
         }
-        best.filter(|b| b.2 >= 30)
-            .map(|(pose, points, _)| (pose, points))
+        None
+    }
+
+    fn relocalise_against(
+        &self,
+        map: &Map,
+        frame: &Frame,
+        key: KeyFrameKey,
+        timing: &mut Timing,
+    ) -> Option<(Se3, Vec<Option<MapPointKey>>)> {
+        let start = Instant::now();
+        let kf = &map.keyframes[key];
+        let (mut keys, mut descriptors) = (Vec::new(), Vec::new());
+        for (i, p) in kf.map_points.iter().enumerate() {
+            if let Some(p) = p.filter(|p| map.points.contains_key(*p)) {
+                keys.push(p);
+                descriptors.push(kf.frame.descriptors[i]);
+            }
+        }
+        let matches = brute_force(frame, &descriptors, 0.75);
+        timing.matching += start.elapsed().as_secs_f64() * 1e3;
+        if matches.len() < 15 {
+            return None;
+        }
+        let start = Instant::now();
+        let fx2 = self.camera.fx * self.camera.fx;
+        let correspondences: Vec<Correspondence> = matches
+            .iter()
+            .map(|&(q, i)| {
+                let k = &frame.keypoints[i];
+                Correspondence {
+                    world: map.points[keys[q]].position,
+                    normalised: nalgebra::Vector2::new(
+                        (k.x as f64 - self.camera.cx) / self.camera.fx,
+                        (k.y as f64 - self.camera.cy) / self.camera.fy,
+                    ),
+                }
+            })
+            .collect();
+        let thresholds: Vec<f64> = matches
+            .iter()
+            .map(|&(_, i)| CHI2_MONO * self.pyramid.sigma2[frame.keypoints[i].level as usize] / fx2)
+            .collect();
+        let (pose, inliers) = epnp_ransac(&correspondences, &thresholds, &Ransac::default())?;
+        timing.optimisation += start.elapsed().as_secs_f64() * 1e3;
+        let mut points = vec![None; frame.len()];
+        for (&(q, i), inlier) in matches.iter().zip(&inliers) {
+            if *inlier {
+                points[i] = Some(keys[q]);
+            }
+        }
+        let (mut pose, mut points, mut count) = self.optimise(map, frame, &pose, &points, timing);
+        if count < 10 {
+            return None;
+        }
+        if count < 50 {
+            let start = Instant::now();
+            let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
+            let (mut query_keys, mut queries) = (Vec::new(), Vec::new());
+            for (i, p) in kf.map_points.iter().enumerate() {
+                let Some(p) = p.filter(|p| !points.contains(&Some(*p))) else {
+                    continue;
+                };
+                let Some(point) = map.points.get(p) else { continue };
+                let Some((u, v, ur)) = self.project(&pose, &point.position) else {
+                    continue;
+                };
+                let level = kf.frame.keypoints[i].level;
+                query_keys.push(p);
+                queries.push(Query {
+                    u,
+                    v,
+                    min_level: level.saturating_sub(1),
+                    max_level: (level + 1).min(self.pyramid.levels() as u8 - 1),
+                    radius: 10.0 * self.pyramid.factors[level as usize] as f32,
+                    descriptor: point.descriptor,
+                    right_u: Some(ur),
+                    angle: None,
+                });
+            }
+            for (q, i) in search_by_projection(frame, &queries, &mut taken, 0.9, false) {
+                points[i] = Some(query_keys[q]);
+            }
+            timing.matching += start.elapsed().as_secs_f64() * 1e3;
+            (pose, points, count) = self.optimise(map, frame, &pose, &points, timing);
+        }
+        (count >= 50).then_some((pose, points))
     }
 
     /// Pixel and right coordinate of a world point, if in front and inside the image.
@@ -412,58 +533,51 @@ impl Tracker {
     /// Searches the local map (points of the covisible keyframes) and optimises again.
     fn track_local_map(
         &mut self,
+        map: &mut Map,
         frame: &Frame,
         pose: Se3,
         mut points: Vec<Option<MapPointKey>>,
         timing: &mut Timing,
     ) -> (Se3, Vec<Option<MapPointKey>>, usize) {
         let start = Instant::now();
-        let local = self.map.covisible_keyframes(
+        let local = map.covisible_keyframes(
             points.iter().flatten().copied(),
             self.config.local_keyframes,
         );
         let matched: std::collections::HashSet<MapPointKey> =
             points.iter().flatten().copied().collect();
-        let centre = pose.inverse().translation.vector;
         let mut keys = Vec::new();
         let mut queries = Vec::new();
         let mut seen = std::collections::HashSet::new();
-        let levels = self.pyramid.levels();
         for kf in local {
-            for key in self.map.keyframes[kf].map_points.iter().flatten() {
+            for key in map.keyframes[kf].map_points.iter().flatten() {
                 if matched.contains(key) || !seen.insert(*key) {
                     continue;
                 }
-                let Some(point) = self.map.points.get(*key) else {
+                let Some(point) = map.points.get(*key) else {
                     continue;
                 };
-                let Some((u, v, ur)) = self.project(&pose, &point.position) else {
+                let Some(view) = predict_view(
+                    point,
+                    &pose,
+                    &self.camera,
+                    (self.width, self.height),
+                    &self.pyramid,
+                ) else {
                     continue;
                 };
-                let offset = point.position - centre;
-                let distance = offset.norm();
-                if distance < 0.8 * point.min_distance || distance > 1.2 * point.max_distance {
-                    continue;
-                }
-                let view_cos = offset.dot(&point.normal) / distance;
-                if view_cos < 0.5 {
-                    continue;
-                }
-                // Scale prediction: the level at which the point appears this far away.
-                let level = ((point.max_distance / distance).ln() / self.pyramid.scale_factor.ln())
-                    .ceil()
-                    .clamp(0.0, levels as f64 - 1.0) as u8;
-                let radius = if view_cos > 0.998 { 2.5 } else { 4.0 }
+                let level = view.level;
+                let radius = if view.view_cos > 0.998 { 2.5 } else { 4.0 }
                     * self.pyramid.factors[level as usize] as f32;
                 keys.push(*key);
                 queries.push(Query {
-                    u,
-                    v,
+                    u: view.u,
+                    v: view.v,
                     min_level: level.saturating_sub(1),
                     max_level: level,
                     radius,
                     descriptor: point.descriptor,
-                    right_u: Some(ur),
+                    right_u: Some(view.right_u),
                     angle: None,
                 });
             }
@@ -474,21 +588,33 @@ impl Tracker {
             points[i] = Some(keys[q]);
         }
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
-        self.optimise(frame, &pose, &points, timing)
+        let (pose, points, inliers) = self.optimise(map, frame, &pose, &points, timing);
+        // Counters for map point culling: predicted visible here, found as an inlier.
+        for key in keys.iter().chain(&matched) {
+            if let Some(p) = map.points.get_mut(*key) {
+                p.visible += 1;
+            }
+        }
+        for key in points.iter().flatten() {
+            if let Some(p) = map.points.get_mut(*key) {
+                p.found += 1;
+            }
+        }
+        (pose, points, inliers)
     }
 
     /// ORB-SLAM2's keyframe decision for RGB-D: enough frames since the last keyframe,
     /// or too few tracked points compared with the reference keyframe, or too few
     /// tracked close points while many untracked close ones are available.
-    fn need_keyframe(&self, frame: &Frame, points: &[Option<MapPointKey>], inliers: usize) -> bool {
-        let Some(reference) = self.reference.and_then(|k| self.map.keyframes.get(k)) else {
+    fn need_keyframe(&self, map: &Map, frame: &Frame, points: &[Option<MapPointKey>], inliers: usize) -> bool {
+        let Some(reference) = self.reference.and_then(|k| map.keyframes.get(k)) else {
             return true;
         };
         let reference_points = reference
             .map_points
             .iter()
             .flatten()
-            .filter(|k| self.map.points.contains_key(**k))
+            .filter(|k| map.points.contains_key(**k))
             .count();
         let close = self.close_depth();
         let (mut tracked_close, mut untracked_close) = (0, 0);
@@ -507,123 +633,25 @@ impl Tracker {
         (timeout || weak) && inliers > 15
     }
 
-    /// Local bundle adjustment around keyframe `key` (ORB-SLAM2 §III-D): the keyframe
-    /// and its best covisible keyframes are free, the other keyframes that see their
-    /// points are fixed (the map's first keyframe always is); observations that end
-    /// above the chi-square gate are removed, and points left unobserved go.
-    fn local_bundle_adjustment(&mut self, key: KeyFrameKey) {
-        let first = self.map.keyframe_order[0];
-        let mut local = vec![key];
-        local.extend(
-            self.map
-                .covisible_keyframes(
-                    self.map.keyframes[key].map_points.iter().flatten().copied(),
-                    self.config.local_ba_keyframes + 1,
-                )
-                .into_iter()
-                .filter(|k| *k != key)
-                .take(self.config.local_ba_keyframes.saturating_sub(1)),
-        );
-        let mut point_index = std::collections::HashMap::new();
-        let mut points = Vec::new();
-        for kf in &local {
-            for p in self.map.keyframes[*kf].map_points.iter().flatten() {
-                if let Some(point) = self.map.points.get(*p) {
-                    point_index.entry(*p).or_insert_with(|| {
-                        points.push((*p, point.position));
-                        points.len() - 1
-                    });
-                }
-            }
-        }
-        let mut cameras: Vec<KeyFrameKey> = local.clone();
-        let mut fixed: Vec<bool> = local.iter().map(|k| *k == first).collect();
-        for (p, _) in &points {
-            for (kf, _) in &self.map.points[*p].observations {
-                if !cameras.contains(kf) && self.map.keyframes.contains_key(*kf) {
-                    cameras.push(*kf);
-                    fixed.push(true);
-                }
-            }
-        }
-        if !fixed.iter().any(|f| *f) {
-            return;
-        }
-        let mut observations = Vec::new();
-        let mut sources = Vec::new();
-        for (c, kf) in cameras.iter().enumerate() {
-            let keyframe = &self.map.keyframes[*kf];
-            for (i, p) in keyframe.map_points.iter().enumerate() {
-                let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
-                    continue;
-                };
-                let k = &keyframe.keypoints[i];
-                observations.push(BaObservation {
-                    camera: c,
-                    point: j,
-                    measurement: Vector3::new(k.x as f64, k.y as f64, keyframe.right_u[i] as f64),
-                    stereo: keyframe.right_u[i] > 0.0,
-                    information: self.pyramid.inverse_sigma2[k.level as usize],
-                });
-                sources.push((*kf, i));
-            }
-        }
-        let mut problem = BaProblem {
-            poses: cameras
-                .iter()
-                .map(|k| self.map.keyframes[*k].camera_from_world)
-                .collect(),
-            fixed,
-            points: points.iter().map(|(_, x)| *x).collect(),
-            observations,
-        };
-        let report = bundle_adjust(&mut problem, &self.camera, 5, 10);
-        for (c, kf) in cameras.iter().enumerate() {
-            if !problem.fixed[c] {
-                self.map.keyframes[*kf].camera_from_world = problem.poses[c];
-            }
-        }
-        for ((p, _), x) in points.iter().zip(&problem.points) {
-            self.map.points[*p].position = *x;
-        }
-        for ((kf, i), inlier) in sources.iter().zip(&report.inliers) {
-            if *inlier {
-                continue;
-            }
-            let keyframe = &mut self.map.keyframes[*kf];
-            if let Some(p) = keyframe.map_points[*i].take() {
-                if let Some(point) = self.map.points.get_mut(p) {
-                    point.observations.retain(|(k, j)| !(k == kf && j == i));
-                    if point.observations.is_empty() {
-                        self.map.remove_point(p);
-                    }
-                }
-            }
-        }
-    }
-
     /// Makes `frame` a keyframe: map points from depth for its unmatched close keypoints
     /// (nearest first; far ones too until 100 are made).
     fn insert_keyframe(
         &mut self,
+        map: &mut Map,
         frame: &Frame,
         camera_from_world: Se3,
-        mut points: Vec<Option<MapPointKey>>,
+        points: Vec<Option<MapPointKey>>,
         first: bool,
     ) {
-        let key = self.map.add_keyframe(KeyFrame {
-            frame_index: frame.index,
-            timestamp: frame.timestamp,
-            camera_from_world,
-            keypoints: frame.keypoints.clone(),
-            descriptors: frame.descriptors.clone(),
-            depth: frame.depth.clone(),
-            right_u: frame.right_u.clone(),
-            map_points: vec![None; frame.len()],
-        });
+        let key = map.add_keyframe(KeyFrame::new(frame.clone(), camera_from_world));
+        let id = map.keyframes[key].id;
         let world_from_camera = camera_from_world.inverse();
-        let centre = world_from_camera.translation.vector;
         let close = self.close_depth();
+        for (i, point) in points.iter().enumerate() {
+            if let Some(point) = point {
+                map.add_observation(*point, key, i);
+            }
+        }
         let mut candidates: Vec<usize> = (0..frame.len())
             .filter(|&i| frame.depth[i] > 0.0 && points[i].is_none())
             .collect();
@@ -632,35 +660,29 @@ impl Tracker {
             if !first && frame.depth[i] > close && created >= 100 {
                 break;
             }
-            let k = &frame.keypoints[i];
-            let z = frame.depth[i] as f64;
-            let p_camera = Vector3::new(
-                (k.x as f64 - self.camera.cx) * z / self.camera.fx,
-                (k.y as f64 - self.camera.cy) * z / self.camera.fy,
-                z,
-            );
-            let position = (world_from_camera * Point3::from(p_camera)).coords;
-            let offset = position - centre;
-            let distance = offset.norm();
-            let max_distance = distance * self.pyramid.factors[k.level as usize];
-            let point = self.map.points.insert(MapPoint {
+            let position = (world_from_camera * Point3::from(self.back_project(frame, i))).coords;
+            let point = map.points.insert(MapPoint::new(
                 position,
-                descriptor: frame.descriptors[i],
-                normal: offset / distance,
-                min_distance: max_distance / self.pyramid.factors[self.pyramid.levels() - 1],
-                max_distance,
-                observations: Vec::new(),
-            });
-            points[i] = Some(point);
-        }
-        for (i, point) in points.iter().enumerate() {
-            let Some(point) = point else { continue };
-            if let Some(p) = self.map.points.get_mut(*point) {
-                p.observations.push((key, i));
-                self.map.keyframes[key].map_points[i] = Some(*point);
-            }
+                frame.descriptors[i],
+                Vector3::z(),
+                (0.0, 0.0),
+                id,
+            ));
+            map.add_observation(point, key, i);
+            map.update_point(point, &self.pyramid.factors);
         }
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
+    }
+
+    /// Camera-frame position of keypoint `i` from its depth.
+    fn back_project(&self, frame: &Frame, i: usize) -> Vector3<f64> {
+        let k = &frame.keypoints[i];
+        let z = frame.depth[i] as f64;
+        Vector3::new(
+            (k.x as f64 - self.camera.cx) * z / self.camera.fx,
+            (k.y as f64 - self.camera.cy) * z / self.camera.fy,
+            z,
+        )
     }
 }

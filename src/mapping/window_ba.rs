@@ -1,0 +1,145 @@
+//! Local bundle adjustment over the covisible window of a keyframe (ORB-SLAM2 §III-D):
+//! the keyframe and its covisible keyframes are free, the other keyframes that see
+//! their points are fixed (and so is the map's first keyframe); after the solve,
+//! observations above the chi-square gate are removed.
+//!
+//! The problem is copied out of the map ([`Window::build`], under a read lock), solved
+//! without any lock, and written back ([`Window::apply`], under the write lock), so
+//! tracking goes on while the solver runs.
+
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+
+use crate::features::ScalePyramid;
+use crate::map::{KeyFrameKey, Map, MapPointKey};
+use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem, BaReport};
+use crate::optim::stereo_projection::StereoCamera;
+
+/// A copied-out window: the problem and where each of its parts came from.
+pub struct Window {
+    pub problem: BaProblem,
+    cameras: Vec<KeyFrameKey>,
+    points: Vec<MapPointKey>,
+    /// Per observation: the keyframe and keypoint index.
+    sources: Vec<(KeyFrameKey, usize)>,
+}
+
+impl Window {
+    /// The window around `key` with at most `size` free keyframes; `None` when there
+    /// is nothing to hold the gauge.
+    pub fn build(map: &Map, key: KeyFrameKey, size: usize, pyramid: &ScalePyramid) -> Option<Self> {
+        let kf = map.keyframes.get(key)?;
+        let first = *map.keyframe_order.first()?;
+        let mut local = vec![key];
+        local.extend(
+            kf.best_covisible(size.saturating_sub(1))
+                .into_iter()
+                .filter(|k| map.keyframes.contains_key(*k)),
+        );
+        let mut point_index = HashMap::new();
+        let mut points = Vec::new();
+        let mut positions = Vec::new();
+        for k in &local {
+            for p in map.keyframes[*k].map_points.iter().flatten() {
+                if let Some(point) = map.points.get(*p) {
+                    point_index.entry(*p).or_insert_with(|| {
+                        points.push(*p);
+                        positions.push(point.position);
+                        points.len() - 1
+                    });
+                }
+            }
+        }
+        let mut cameras = local.clone();
+        let mut fixed: Vec<bool> = local.iter().map(|k| *k == first).collect();
+        for p in &points {
+            for (k, _) in &map.points[*p].observations {
+                if !cameras.contains(k) && map.keyframes.contains_key(*k) {
+                    cameras.push(*k);
+                    fixed.push(true);
+                }
+            }
+        }
+        if !fixed.iter().any(|f| *f) {
+            return None;
+        }
+        let mut observations = Vec::new();
+        let mut sources = Vec::new();
+        for (c, k) in cameras.iter().enumerate() {
+            let keyframe = &map.keyframes[*k];
+            for (i, p) in keyframe.map_points.iter().enumerate() {
+                let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
+                    continue;
+                };
+                let kp = &keyframe.frame.keypoints[i];
+                let right = keyframe.frame.right_u[i];
+                observations.push(BaObservation {
+                    camera: c,
+                    point: j,
+                    measurement: Vector3::new(kp.x as f64, kp.y as f64, right as f64),
+                    stereo: right > 0.0,
+                    information: pyramid.inverse_sigma2[kp.level as usize],
+                });
+                sources.push((*k, i));
+            }
+        }
+        let problem = BaProblem {
+            poses: cameras
+                .iter()
+                .map(|k| map.keyframes[*k].camera_from_world)
+                .collect(),
+            fixed,
+            points: positions,
+            observations,
+        };
+        Some(Self {
+            problem,
+            cameras,
+            points,
+            sources,
+        })
+    }
+
+    /// Solves the problem (ORB-SLAM2's 5 robust then 10 inlier iterations).
+    pub fn solve(&mut self, camera: &StereoCamera) -> BaReport {
+        bundle_adjust(&mut self.problem, camera, 5, 10)
+    }
+
+    /// Writes poses and points back and removes the outlier observations; entities
+    /// removed meanwhile are skipped. Returns the number of observations removed.
+    pub fn apply(&self, map: &mut Map, report: &BaReport, scale_factors: &[f64]) -> usize {
+        for (c, k) in self.cameras.iter().enumerate() {
+            if !self.problem.fixed[c] {
+                if let Some(kf) = map.keyframes.get_mut(*k) {
+                    kf.camera_from_world = self.problem.poses[c];
+                }
+            }
+        }
+        for (p, x) in self.points.iter().zip(&self.problem.points) {
+            if let Some(point) = map.points.get_mut(*p) {
+                point.position = *x;
+            }
+        }
+        let mut removed = 0;
+        for (((k, i), inlier), o) in self
+            .sources
+            .iter()
+            .zip(&report.inliers)
+            .zip(&self.problem.observations)
+        {
+            let same = map
+                .keyframes
+                .get(*k)
+                .is_some_and(|kf| kf.map_points[*i] == Some(self.points[o.point]));
+            if !inlier && same {
+                map.remove_observation(*k, *i);
+                removed += 1;
+            }
+        }
+        for p in &self.points {
+            map.update_point(*p, scale_factors);
+        }
+        removed
+    }
+}
