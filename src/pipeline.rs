@@ -22,9 +22,9 @@ use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
-use crate::optim::stereo_projection::StereoCamera;
 use crate::map::Map;
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
+use crate::optim::stereo_projection::StereoCamera;
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
 
 #[derive(Debug, Error)]
@@ -250,7 +250,7 @@ pub fn run_sequence(
             &calibration.camera,
         );
         let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
-        let report = tracker.track(frame);
+        let report = tracker.track(frame, mapping.is_idle());
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(key) = report.new_keyframe {
             mapping.insert(key);
@@ -294,9 +294,12 @@ fn write_outputs(
     let mut trajectory = Trajectory::default();
     for line in &lines {
         // The pose relative to the reference keyframe, placed on its corrected pose.
-        let corrected = line.tracking.reference.and_then(|(key, camera_from_reference)| {
-            Some(camera_from_reference * map.keyframe_pose(key)?)
-        });
+        let corrected = line
+            .tracking
+            .reference
+            .and_then(|(key, camera_from_reference)| {
+                Some(camera_from_reference * map.keyframe_pose(key)?)
+            });
         if let Some(pose) = corrected.or(line.tracking.camera_from_world) {
             trajectory.push(line.tracking.timestamp, pose.inverse());
         }

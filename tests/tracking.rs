@@ -137,3 +137,63 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
         "{stderr}"
     );
 }
+
+#[test]
+fn deterministic_runs_repeat_exactly_with_local_mapping() {
+    let seq = static_room(90, "track-deterministic");
+    let base = seq.parent().unwrap().to_path_buf();
+    let config = Config::default();
+    let sequence = open_sequence(&seq, &config).unwrap();
+    let options = RunOptions {
+        deterministic: true,
+        ..RunOptions::default()
+    };
+    let first = run_sequence(sequence.as_ref(), &config, &base.join("a"), &options).unwrap();
+    run_sequence(sequence.as_ref(), &config, &base.join("b"), &options).unwrap();
+    for file in ["trajectory.txt", "keyframes.txt", "map.ply"] {
+        let a = std::fs::read(base.join("a").join(file)).unwrap();
+        let b = std::fs::read(base.join("b").join(file)).unwrap();
+        assert!(a == b, "{file} differs between two deterministic runs");
+    }
+    // Local mapping ran on every keyframe and connected them: duplicates were fused,
+    // bundle adjustment ran, and the map is still accurate.
+    let m = &first.mapping;
+    assert_eq!(
+        m.keyframes_processed,
+        first.totals.keyframes + m.keyframes_culled
+    );
+    assert!(m.fusions > 100, "{m:?}");
+    assert!(m.ba_ms > 0.0);
+    let rmse = first.ate.unwrap().ape.statistics.rmse;
+    assert!(rmse < 0.01, "ATE RMSE {rmse} m");
+}
+
+#[test]
+fn relocalises_after_a_blackout() {
+    let seq = static_room(120, "track-blackout");
+    let base = seq.parent().unwrap().to_path_buf();
+    // Frames 60..70 are black: no features, tracking is lost; the camera moves on
+    // meanwhile, so only relocalisation (EPnP RANSAC against keyframes) can recover.
+    let mut names: Vec<PathBuf> = std::fs::read_dir(seq.join("rgb"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    names.sort();
+    for path in &names[60..70] {
+        image::RgbImage::new(640, 480).save(path).unwrap();
+    }
+    let config = Config::default();
+    let sequence = open_sequence(&seq, &config).unwrap();
+    let options = RunOptions {
+        deterministic: true,
+        ..RunOptions::default()
+    };
+    let report = run_sequence(sequence.as_ref(), &config, &base.join("run"), &options).unwrap();
+    let spans = &report.totals.lost_spans;
+    assert_eq!(spans.len(), 1, "{spans:?}");
+    assert_eq!(spans[0].0, 60);
+    assert!(spans[0].1 >= 69 && spans[0].1 <= 72, "{spans:?}");
+    assert_eq!(report.totals.tracked, 120 - (spans[0].1 - 59));
+    let rmse = report.ate.unwrap().ape.statistics.rmse;
+    assert!(rmse < 0.01, "ATE RMSE {rmse} m after relocalisation");
+}

@@ -4,6 +4,7 @@
 # (--no-dop) until the DOP model lands.
 #
 #   bash tools/bench_tracking.sh [PRESET ...]
+#   DOPSLAM_RUN_ARGS=--deterministic bash tools/bench_tracking.sh   (local mapping inline)
 # Prints one line per preset: frames, coverage, keyframes, ATE RMSE, median/mean
 # tracking time with its breakdown (ORB extraction, matching, optimisation).
 set -euo pipefail
@@ -21,7 +22,8 @@ for preset in "${presets[@]}"; do
   if [ ! -f "$seq/rgb.txt" ]; then
     ./target/release/dopslam synth --config "configs/synth/$preset.toml" --out "$seq" --force >/dev/null
   fi
-  ./target/release/dopslam run "$seq" --out "outputs/bench/run-$preset" --no-dop >/dev/null 2>&1 || true
+  rm -rf "outputs/bench/run-$preset"
+  ./target/release/dopslam run "$seq" --out "outputs/bench/run-$preset" --no-dop ${DOPSLAM_RUN_ARGS:-} >/dev/null 2>&1 || echo "$preset: dopslam run failed (see outputs/bench/run-$preset)"
   python3 - "$preset" "outputs/bench/run-$preset/report.json" <<'PY'
 import json, sys
 name, path = sys.argv[1], sys.argv[2]

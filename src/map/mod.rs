@@ -7,8 +7,8 @@ use nalgebra::Vector3;
 use slotmap::{new_key_type, SlotMap};
 
 use crate::features::Descriptor;
-use crate::tracking::Frame;
 use crate::geometry::se3::Se3;
+use crate::tracking::Frame;
 
 new_key_type! {
     /// A keyframe in the map.
@@ -244,14 +244,14 @@ impl Map {
         let Some((distance, level)) = reference else {
             return;
         };
+        let mut distances = vec![0u32; descriptors.len()];
         let best = (0..descriptors.len())
             .min_by_key(|&i| {
-                let mut d: Vec<u32> = descriptors
-                    .iter()
-                    .map(|o| crate::features::hamming(&descriptors[i], o))
-                    .collect();
-                d.sort_unstable();
-                d[(d.len() - 1) / 2]
+                for (d, o) in distances.iter_mut().zip(&descriptors) {
+                    *d = crate::features::hamming(&descriptors[i], o);
+                }
+                let middle = (distances.len() - 1) / 2;
+                *distances.select_nth_unstable(middle).1
             })
             .map(|i| descriptors[i]);
         let max_distance = distance * scale_factors[level];
@@ -296,13 +296,20 @@ impl Map {
             let o = &mut self.keyframes[*other];
             o.connections.retain(|(k, _)| *k != keyframe);
             o.connections.push((keyframe, *weight));
-            o.connections.sort_by(|a, b| b.1.cmp(&a.1));
+            o.connections.sort_by_key(|c| std::cmp::Reverse(c.1));
         }
         let is_first = self.keyframe_order.first() == Some(&keyframe);
+        let id = self.keyframes[keyframe].id;
+        // The parent is older, so the tree has no cycles even when local mapping runs
+        // behind tracking and newer keyframes already share points with this one.
+        let parent = ranked
+            .iter()
+            .find(|(k, _)| self.keyframes[*k].id < id)
+            .map(|(k, _)| *k);
         let kf = &mut self.keyframes[keyframe];
         kf.connections = ranked;
         if kf.parent.is_none() && !is_first {
-            if let Some((parent, _)) = kf.connections.first().copied() {
+            if let Some(parent) = parent {
                 kf.parent = Some(parent);
                 self.keyframes[parent].children.push(keyframe);
             }
@@ -429,15 +436,26 @@ mod tests {
     }
 
     fn point() -> MapPoint {
-        MapPoint::new(Vector3::new(0.0, 0.0, 2.0), [0; 4], Vector3::z(), (0.1, 10.0), 0)
+        MapPoint::new(
+            Vector3::new(0.0, 0.0, 2.0),
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            0,
+        )
     }
 
     /// A map of `keyframes` keyframes of 40 keypoints; points `0..shared[k]` of
     /// keyframe k+1 are also seen by keyframe k (keypoint i sees point i of its row).
     fn chain(shared: &[usize]) -> (Map, Vec<KeyFrameKey>) {
+        chain_updated_in(shared, &(0..=shared.len()).collect::<Vec<_>>())
+    }
+
+    /// [`chain`] with the connections updated in the given keyframe order.
+    fn chain_updated_in(shared: &[usize], order: &[usize]) -> (Map, Vec<KeyFrameKey>) {
         let mut map = Map::default();
         let keys: Vec<KeyFrameKey> = (0..=shared.len())
-            .map(|_| map.add_keyframe(keyframe(40)))
+            .map(|_| map.add_keyframe(keyframe(64)))
             .collect();
         for (k, &n) in shared.iter().enumerate() {
             for i in 0..n {
@@ -446,8 +464,8 @@ mod tests {
                 map.add_observation(p, keys[k + 1], 20 + i);
             }
         }
-        for key in &keys {
-            map.update_connections(*key);
+        for &k in order {
+            map.update_connections(keys[k]);
         }
         (map, keys)
     }
@@ -485,6 +503,17 @@ mod tests {
     }
 
     #[test]
+    fn parents_are_older_whatever_order_mapping_runs_in() {
+        // k1 shares most with k2, but k2 is newer: k1 hangs under k0, never under k2,
+        // so removing k1 cannot make k2 its own parent.
+        let (mut map, k) = chain_updated_in(&[20, 30], &[0, 2, 1]);
+        assert_eq!(map.keyframes[k[2]].parent, Some(k[1]));
+        assert_eq!(map.keyframes[k[1]].parent, Some(k[0]));
+        map.remove_keyframe(k[1]);
+        assert_eq!(map.keyframes[k[2]].parent, Some(k[0]));
+    }
+
+    #[test]
     fn removing_a_keyframe_reattaches_its_children_and_drops_lone_points() {
         let (mut map, k) = chain(&[20, 18]);
         let points_before = map.points.len();
@@ -498,7 +527,10 @@ mod tests {
         assert_eq!(map.keyframe_order, vec![k[0], k[2]]);
         assert_eq!(map.keyframes[k[2]].parent, Some(k[0]));
         assert!(map.keyframes[k[0]].children.contains(&k[2]));
-        assert!(map.keyframes[k[0]].connections.iter().all(|(o, _)| *o != k[1]));
+        assert!(map.keyframes[k[0]]
+            .connections
+            .iter()
+            .all(|(o, _)| *o != k[1]));
         // Every point was seen by k1 and one other keyframe: each keeps one observation.
         assert_eq!(map.points.len(), points_before);
         assert!(map.points.values().all(|p| p.observations.len() == 1));

@@ -83,7 +83,12 @@ mod tests {
             0,
         );
         let at = |z: f64| Se3::translation(0.0, 0.0, z - 2.0);
-        assert_eq!(predict_view(&point, &at(2.0), &camera, size, &pyramid).unwrap().level, 0);
+        assert_eq!(
+            predict_view(&point, &at(2.0), &camera, size, &pyramid)
+                .unwrap()
+                .level,
+            0
+        );
         // 2 / 1.44 m away: two levels up (1.2^2 = 1.44).
         let near = predict_view(&point, &at(2.0 / 1.44 + 1e-9), &camera, size, &pyramid).unwrap();
         assert_eq!(near.level, 2);

@@ -126,7 +126,9 @@ mod tests {
     #[test]
     fn a_keyframe_whose_points_four_others_see_is_redundant() {
         let mut map = Map::default();
-        let keys: Vec<KeyFrameKey> = (0..5).map(|_| map.add_keyframe(keyframe(10, 1.0))).collect();
+        let keys: Vec<KeyFrameKey> = (0..5)
+            .map(|_| map.add_keyframe(keyframe(10, 1.0)))
+            .collect();
         for i in 0..10 {
             let p = map.points.insert(point(0));
             // Points 0..9 seen by all five keyframes, except point 9 only by two.

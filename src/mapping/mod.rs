@@ -16,7 +16,9 @@ pub mod fusion;
 pub mod triangulation;
 pub mod window_ba;
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Sender};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -67,6 +69,8 @@ pub struct MappingStats {
     pub fusions: usize,
     pub ba_outliers_removed: usize,
     pub keyframes_culled: usize,
+    /// Keyframes whose local BA was skipped because more were waiting.
+    pub ba_skipped: usize,
     /// Milliseconds spent in local mapping in total and in local BA.
     pub total_ms: f64,
     pub ba_ms: f64,
@@ -81,6 +85,10 @@ pub struct LocalMapper {
     /// RGB-D close/far limit in metres.
     close_depth: f32,
     recent: Vec<MapPointKey>,
+    /// Keyframes handed over and not yet processed (this one included), in the
+    /// threaded mode: with more waiting, local BA and keyframe culling are skipped, as
+    /// ORB-SLAM2 does, so that mapping keeps up.
+    pending: Option<Arc<AtomicUsize>>,
     pub stats: MappingStats,
 }
 
@@ -99,8 +107,15 @@ impl LocalMapper {
             size: (width as f32, height as f32),
             close_depth,
             recent: Vec::new(),
+            pending: None,
             stats: MappingStats::default(),
         }
+    }
+
+    fn more_waiting(&self) -> bool {
+        self.pending
+            .as_ref()
+            .is_some_and(|p| p.load(Ordering::SeqCst) > 1)
     }
 
     /// Runs the six steps for keyframe `key`.
@@ -118,7 +133,10 @@ impl LocalMapper {
                 if m.points.get(p).is_some_and(|p| p.first_keyframe_id == id) {
                     self.recent.push(p);
                 }
-                m.update_point(p, &factors);
+                // Fusion updates every point of the keyframe at its end anyway.
+                if !self.config.fusion {
+                    m.update_point(p, &factors);
+                }
             }
             m.update_connections(key);
             if self.config.cull_points {
@@ -132,7 +150,9 @@ impl LocalMapper {
         if self.config.fusion {
             self.fuse(map, key);
         }
-        if self.config.local_ba {
+        if self.more_waiting() {
+            self.stats.ba_skipped += 1;
+        } else if self.config.local_ba {
             let ba_start = Instant::now();
             let window = {
                 let m = map.read().expect("map lock poisoned");
@@ -145,7 +165,7 @@ impl LocalMapper {
             }
             self.stats.ba_ms += ba_start.elapsed().as_secs_f64() * 1e3;
         }
-        if self.config.cull_keyframes {
+        if self.config.cull_keyframes && !self.more_waiting() {
             let mut m = map.write().expect("map lock poisoned");
             let neighbours: Vec<KeyFrameKey> = m.keyframes[key]
                 .connections
@@ -260,7 +280,12 @@ impl LocalMapper {
         };
         let mut m = map.write().expect("map lock poisoned");
         self.stats.fusions += fusion::apply(&mut m, &fusions);
-        let points: Vec<MapPointKey> = m.keyframes[key].map_points.iter().flatten().copied().collect();
+        let points: Vec<MapPointKey> = m.keyframes[key]
+            .map_points
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
         for p in points {
             m.update_point(p, &self.pyramid.factors);
         }
@@ -277,6 +302,7 @@ pub enum LocalMapping {
     Thread {
         sender: Sender<KeyFrameKey>,
         handle: JoinHandle<MappingStats>,
+        pending: Arc<AtomicUsize>,
     },
 }
 
@@ -290,24 +316,43 @@ impl LocalMapping {
             };
         }
         let (sender, receiver) = channel::<KeyFrameKey>();
+        let pending = Arc::new(AtomicUsize::new(0));
+        let mut mapper = mapper;
+        mapper.pending = Some(pending.clone());
         let handle = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
-                let mut mapper = mapper;
+                let pending = mapper.pending.clone().expect("set above");
                 for key in receiver {
                     mapper.process(&map, key);
+                    pending.fetch_sub(1, Ordering::SeqCst);
                 }
                 mapper.stats
             })
             .expect("spawn the local mapping thread");
-        Self::Thread { sender, handle }
+        Self::Thread {
+            sender,
+            handle,
+            pending,
+        }
+    }
+
+    /// Whether every keyframe handed over has been processed.
+    pub fn is_idle(&self) -> bool {
+        match self {
+            Self::Inline { .. } => true,
+            Self::Thread { pending, .. } => pending.load(Ordering::SeqCst) == 0,
+        }
     }
 
     /// Hands a new keyframe over (processed at once when inline).
     pub fn insert(&mut self, key: KeyFrameKey) {
         match self {
             Self::Inline { mapper, map } => mapper.process(map, key),
-            Self::Thread { sender, .. } => {
+            Self::Thread {
+                sender, pending, ..
+            } => {
+                pending.fetch_add(1, Ordering::SeqCst);
                 // The thread only ends when the sender is dropped, so this cannot fail
                 // unless it panicked, which `finish` reports.
                 let _ = sender.send(key);
@@ -319,7 +364,7 @@ impl LocalMapping {
     pub fn finish(self) -> MappingStats {
         match self {
             Self::Inline { mapper, .. } => mapper.stats,
-            Self::Thread { sender, handle } => {
+            Self::Thread { sender, handle, .. } => {
                 drop(sender);
                 handle.join().expect("local mapping thread panicked")
             }

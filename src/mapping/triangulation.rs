@@ -79,10 +79,7 @@ pub fn triangulate_pair(
     let t12 = kf1.camera_from_world * kf2.world_from_camera();
     let k = intrinsics(camera);
     let k_inv = k.try_inverse().expect("invertible intrinsics");
-    let f12 = k_inv.transpose()
-        * skew(&t12.translation.vector)
-        * t12.rotation.matrix()
-        * k_inv;
+    let f12 = k_inv.transpose() * skew(&t12.translation.vector) * t12.rotation.matrix() * k_inv;
     // The epipole in image 2: camera 1's centre seen from camera 2.
     let e2 = kf2.camera_from_world * Point3::from(c1);
     let epipole2 = (e2.z > 0.0).then(|| {
@@ -125,8 +122,7 @@ pub fn triangulate_pair(
                 continue;
             }
             let kp2 = &f2.keypoints[j];
-            let distance =
-                (line.x * kp2.x as f64 + line.y * kp2.y as f64 + line.z) / norm;
+            let distance = (line.x * kp2.x as f64 + line.y * kp2.y as f64 + line.z) / norm;
             if distance * distance >= 3.84 * pyramid.sigma2[kp2.level as usize] {
                 continue;
             }
@@ -191,20 +187,19 @@ fn place(
     };
     let (cos1, cos2) = (stereo_cos(f1.depth[i]), stereo_cos(f2.depth[j]));
     let (stereo1, stereo2) = (f1.depth[i] > 0.0, f2.depth[j] > 0.0);
-    let position: Vector3<f64> = if cos_rays < cos1.min(cos2)
-        && cos_rays > 0.0
-        && (stereo1 || stereo2 || cos_rays < 0.9998)
-    {
-        triangulate(p1, p2, &x1, &x2)?
-    } else if stereo1 && cos1 < cos2 {
-        let z = f1.depth[i] as f64;
-        (kf1.world_from_camera() * Point3::new(x1.x * z, x1.y * z, z)).coords
-    } else if stereo2 && cos2 < cos1 {
-        let z = f2.depth[j] as f64;
-        (kf2.world_from_camera() * Point3::new(x2.x * z, x2.y * z, z)).coords
-    } else {
-        return None;
-    };
+    let position: Vector3<f64> =
+        if cos_rays < cos1.min(cos2) && cos_rays > 0.0 && (stereo1 || stereo2 || cos_rays < 0.9998)
+        {
+            triangulate(p1, p2, &x1, &x2)?
+        } else if stereo1 && cos1 < cos2 {
+            let z = f1.depth[i] as f64;
+            (kf1.world_from_camera() * Point3::new(x1.x * z, x1.y * z, z)).coords
+        } else if stereo2 && cos2 < cos1 {
+            let z = f2.depth[j] as f64;
+            (kf2.world_from_camera() * Point3::new(x2.x * z, x2.y * z, z)).coords
+        } else {
+            return None;
+        };
     for (kf, index) in [(kf1, i), (kf2, j)] {
         let p = kf.camera_from_world * Point3::from(position);
         if p.z <= 0.0 {

@@ -216,7 +216,13 @@ fn levenberg_marquardt(
                 lambda *= 10.0;
                 continue;
             };
-            let mut candidate = problem.clone();
+            // Only poses and points change: the observations stay where they are.
+            let mut candidate = BaProblem {
+                poses: problem.poses.clone(),
+                fixed: Vec::new(),
+                points: problem.points.clone(),
+                observations: std::mem::take(&mut problem.observations),
+            };
             for (i, pose) in candidate.poses.iter_mut().enumerate() {
                 let c = free_index[i];
                 if c != usize::MAX {
@@ -234,9 +240,11 @@ fn levenberg_marquardt(
                 candidate.points[j] += v_inv * r;
             }
             let candidate_cost = cost(&candidate, camera, active, robust);
+            problem.observations = std::mem::take(&mut candidate.observations);
             if candidate_cost < current {
                 let improvement = current - candidate_cost;
-                *problem = candidate;
+                problem.poses = candidate.poses;
+                problem.points = candidate.points;
                 current = candidate_cost;
                 lambda = (lambda * 0.3).max(1e-9);
                 accepted = improvement > 1e-9 * current.max(1e-9);

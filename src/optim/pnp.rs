@@ -137,14 +137,19 @@ fn solve_betas(v: &[DVector<f64>], world_distance2: &[f64]) -> Option<Vec<f64>> 
     let svd = l.clone().svd(true, true);
     let products_solution = svd.solve(&rho, 1e-12).ok()?;
     // beta_k from the squares on the diagonal, signs from the cross products with beta_0.
-    let square = |k: usize| products.iter().position(|&p| p == (k, k)).map(|i| products_solution[i]);
+    let square = |k: usize| {
+        products
+            .iter()
+            .position(|&p| p == (k, k))
+            .map(|i| products_solution[i])
+    };
     let b00 = square(0)?;
     let mut betas = vec![b00.abs().sqrt(); dims];
     let sign0 = if b00 < 0.0 { -1.0 } else { 1.0 };
-    for k in 1..dims {
+    for (k, beta) in betas.iter_mut().enumerate().skip(1) {
         let cross = products.iter().position(|&p| p == (0, k))?;
         let bkk = square(k)?.abs().sqrt();
-        betas[k] = if products_solution[cross] * sign0 < 0.0 {
+        *beta = if products_solution[cross] * sign0 < 0.0 {
             -bkk
         } else {
             bkk
@@ -157,18 +162,32 @@ fn solve_betas(v: &[DVector<f64>], world_distance2: &[f64]) -> Option<Vec<f64>> 
 }
 
 /// The pose from camera-frame control points `x` (sign fixed so points are in front).
-fn pose_from_control(points: &[Correspondence], alphas: &[[f64; 4]], x: &DVector<f64>) -> Option<Se3> {
+fn pose_from_control(
+    points: &[Correspondence],
+    alphas: &[[f64; 4]],
+    x: &DVector<f64>,
+) -> Option<Se3> {
     let camera_point = |a: &[f64; 4], sign: f64| -> Vector3<f64> {
         (0..4)
             .map(|j| Vector3::new(x[3 * j], x[3 * j + 1], x[3 * j + 2]) * a[j] * sign)
             .sum()
     };
-    let in_front = alphas.iter().filter(|a| camera_point(a, 1.0).z > 0.0).count();
-    let sign = if 2 * in_front >= alphas.len() { 1.0 } else { -1.0 };
+    let in_front = alphas
+        .iter()
+        .filter(|a| camera_point(a, 1.0).z > 0.0)
+        .count();
+    let sign = if 2 * in_front >= alphas.len() {
+        1.0
+    } else {
+        -1.0
+    };
     let source: Vec<Vector3<f64>> = points.iter().map(|p| p.world).collect();
     let target: Vec<Vector3<f64>> = alphas.iter().map(|a| camera_point(a, sign)).collect();
     let transform = umeyama(&source, &target, AlignmentKind::Se3).ok()?;
-    Some(se3::from_parts(transform.translation, *transform.rotation.matrix()))
+    Some(se3::from_parts(
+        transform.translation,
+        *transform.rotation.matrix(),
+    ))
 }
 
 /// Mean squared reprojection error in normalised coordinates.
@@ -274,7 +293,11 @@ mod tests {
     fn correspondences(pose: &Se3, rng: &mut Rng, n: usize) -> Vec<Correspondence> {
         (0..n)
             .map(|_| {
-                let camera = Vector3::new(rng.range(-1.0, 1.0), rng.range(-0.8, 0.8), rng.range(1.0, 4.0));
+                let camera = Vector3::new(
+                    rng.range(-1.0, 1.0),
+                    rng.range(-0.8, 0.8),
+                    rng.range(1.0, 4.0),
+                );
                 let world = (pose.inverse() * Point3::from(camera)).coords;
                 Correspondence {
                     world,
@@ -314,8 +337,15 @@ mod tests {
                 }
             }
             let thresholds = vec![5.991 / (535.0 * 535.0); points.len()];
-            let (found, inliers) =
-                epnp_ransac(&points, &thresholds, &Ransac { seed, ..Ransac::default() }).unwrap();
+            let (found, inliers) = epnp_ransac(
+                &points,
+                &thresholds,
+                &Ransac {
+                    seed,
+                    ..Ransac::default()
+                },
+            )
+            .unwrap();
             let count = inliers.iter().filter(|&&b| b).count();
             assert!((55..=62).contains(&count), "seed {seed}: {count} inliers");
             let error = pose_error(&found, &pose);
