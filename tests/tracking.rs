@@ -20,6 +20,16 @@ fn static_room(frames: usize, name: &str) -> PathBuf {
     out
 }
 
+/// The files of a folder, sorted by name.
+fn sorted_files(dir: &Path) -> Vec<PathBuf> {
+    let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    names.sort();
+    names
+}
+
 fn dopslam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_dopslam"))
 }
@@ -58,11 +68,7 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     let seq = static_room(12, "track-bad");
     let base = seq.parent().unwrap().to_path_buf();
     // A missing colour image in the middle: the error names it; frames before it are kept.
-    let mut names: Vec<PathBuf> = std::fs::read_dir(seq.join("rgb"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    names.sort();
+    let names = sorted_files(&seq.join("rgb"));
     std::fs::remove_file(&names[8]).unwrap();
     let output = dopslam()
         .args(["run", seq.to_str().unwrap(), "--out"])
@@ -101,11 +107,7 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     assert!(base.join("run-scale/report.json").is_file());
 
     // Depth maps that hold no depth at all.
-    let mut depths: Vec<PathBuf> = std::fs::read_dir(seq.join("depth"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    depths.sort();
+    let depths = sorted_files(&seq.join("depth"));
     for path in &depths {
         image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(640, 480)
             .save(path)
@@ -174,11 +176,7 @@ fn relocalises_after_a_blackout() {
     let base = seq.parent().unwrap().to_path_buf();
     // Frames 60..70 are black: no features, tracking is lost; the camera moves on
     // meanwhile, so only relocalisation (EPnP RANSAC against keyframes) can recover.
-    let mut names: Vec<PathBuf> = std::fs::read_dir(seq.join("rgb"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    names.sort();
+    let names = sorted_files(&seq.join("rgb"));
     for path in &names[60..70] {
         image::RgbImage::new(640, 480).save(path).unwrap();
     }
