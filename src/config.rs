@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use crate::detect::DetectorConfig;
 use crate::eval::associate::AssociationRule;
 use crate::eval::report::AlignMode;
 pub use crate::features::orb::OrbConfig;
@@ -98,6 +99,7 @@ pub struct Config {
     pub orb: OrbConfig,
     pub tracking: TrackerConfig,
     pub mapping: MappingConfig,
+    pub detector: DetectorConfig,
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
 }
@@ -126,6 +128,7 @@ impl Config {
     /// Checks every value's range; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         self.orb.validate()?;
+        self.detector.validate()?;
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(
                 "mapping.redundancy must be in [0, 1], got {}",

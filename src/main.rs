@@ -43,6 +43,35 @@ enum Command {
     Run(RunArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
     Info(InfoArgs),
+    /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
+    Detect(DetectArgs),
+}
+
+#[derive(Args)]
+struct DetectArgs {
+    /// An image file, or a sequence folder (TUM/Bonn RGB-D layout).
+    input: PathBuf,
+    /// A TOML config whose [detector] section picks the model (default: YOLOv4-tiny ONNX).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The model: yolov4-tiny or yolox-nano (overrides the config).
+    #[arg(long, value_enum)]
+    model: Option<DetectModelArg>,
+    /// The model file (overrides the config).
+    #[arg(long)]
+    model_path: Option<PathBuf>,
+    /// Output folder: annotated PNGs and per-frame JSON (a detection cache).
+    #[arg(long, default_value = "outputs/detect")]
+    out: PathBuf,
+    /// For a sequence: detect every Nth frame.
+    #[arg(long, default_value_t = 1)]
+    every: usize,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum DetectModelArg {
+    Yolov4Tiny,
+    YoloxNano,
 }
 
 #[derive(Args)]
@@ -183,6 +212,82 @@ fn parse_rpe(text: &str) -> Result<RpeSpec> {
         other => bail!("--rpe {text:?}: unknown unit {other:?} (f, m, d, r or s)"),
     };
     Ok(RpeSpec { delta, unit })
+}
+
+fn run_detect(args: DetectArgs) -> Result<()> {
+    use dopslam::detect::{draw::draw_detections, FrameDetections, Model, Source};
+    let config = load_config(args.config.as_deref())?;
+    let mut detector_config = config.detector.clone();
+    if detector_config.source == Source::None {
+        detector_config.source = Source::Onnx;
+    }
+    if let Some(model) = args.model {
+        detector_config.model = match model {
+            DetectModelArg::Yolov4Tiny => Model::Yolov4Tiny,
+            DetectModelArg::YoloxNano => Model::YoloxNano,
+        };
+    }
+    if args.model_path.is_some() {
+        detector_config.model_path = args.model_path.clone();
+    }
+    let mut detector = detector_config
+        .open(args.input.is_dir().then_some(args.input.as_path()))?
+        .expect("a source other than none");
+    let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir() {
+        let sequence = dopslam::pipeline::open_sequence(&args.input, &config)?;
+        let mut frames = Vec::new();
+        for index in (0..sequence.len()).step_by(args.every.max(1)) {
+            let frame = sequence.load(index)?;
+            let dopslam::io::sequence::FrameImages::Rgbd { rgb, .. } = frame.images else {
+                anyhow::bail!(
+                    "{}: only RGB-D sequences are supported",
+                    args.input.display()
+                );
+            };
+            frames.push((format!("{:.6}", frame.timestamp), frame.timestamp, rgb));
+        }
+        frames
+    } else {
+        let image = image::open(&args.input)
+            .with_context(|| format!("cannot read image {}", args.input.display()))?
+            .to_rgb8();
+        let name = args
+            .input
+            .file_stem()
+            .map_or("image".into(), |s| s.to_string_lossy().into_owned());
+        vec![(name, 0.0, image)]
+    };
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    for (name, timestamp, mut image) in frames {
+        let start = std::time::Instant::now();
+        let detections = detector.detect(timestamp, &image)?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        println!("{name}: {} detections ({ms:.1} ms)", detections.len());
+        for d in &detections {
+            let [x1, y1, x2, y2] = d.bbox;
+            println!(
+                "  {} {:.2} [{x1:.0},{y1:.0},{x2:.0},{y2:.0}]",
+                d.class, d.score
+            );
+        }
+        draw_detections(&mut image, &detections);
+        let png = args.out.join(format!("{name}.png"));
+        image
+            .save(&png)
+            .with_context(|| format!("cannot write {}", png.display()))?;
+        if args.input.is_dir() {
+            dopslam::detect::write_cache(
+                &args.out.join("detections"),
+                &FrameDetections {
+                    timestamp,
+                    detections,
+                },
+            )?;
+        }
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
 }
 
 fn load_config(path: Option<&Path>) -> Result<Config> {
@@ -403,6 +508,7 @@ fn main() -> ExitCode {
         Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
         Command::Run(args) => run_run(args),
+        Command::Detect(args) => run_detect(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

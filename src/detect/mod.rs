@@ -6,8 +6,232 @@
 //! image pixels (x2, y2 exclusive) and `instance` present only for oracle detections.
 
 pub mod coco;
+pub mod draw;
+pub mod onnx;
+pub mod worker;
+pub mod yolo;
 
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use yolo::Layout;
+
+/// What can go wrong when detecting.
+#[derive(Debug, Error)]
+pub enum DetectError {
+    #[error("detector model {path}: {message}")]
+    Model { path: PathBuf, message: String },
+    #[error("{0}")]
+    Runtime(String),
+    #[error("detection cache {path}: {message}")]
+    Cache { path: PathBuf, message: String },
+    #[error("detector config: {0}")]
+    Config(String),
+}
+
+/// A source of detections for a frame: a model, a cache, or the synthetic oracle.
+pub trait Detector: Send {
+    fn detect(&mut self, timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError>;
+}
+
+/// Where detections come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Source {
+    /// No detection (ORB-SLAM2 behaviour; the default until the DOP model lands).
+    None,
+    /// The ONNX model.
+    Onnx,
+    /// A folder of per-frame JSON files (`cache_dir`), from an earlier run or any detector.
+    Cache,
+    /// The ground-truth boxes `dopslam synth` writes (`detections_oracle/` in the sequence).
+    Oracle,
+}
+
+/// Which model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Model {
+    /// The paper's family: YOLOv4-tiny converted from Darknet by tools/setup.sh.
+    Yolov4Tiny,
+    /// YOLOX-nano (Apache-2.0), an ONNX file brought by the user.
+    YoloxNano,
+}
+
+impl Model {
+    pub fn layout(self) -> Layout {
+        match self {
+            Model::Yolov4Tiny => Layout::Yolov4,
+            Model::YoloxNano => Layout::Yolox,
+        }
+    }
+
+    /// Where the model file is looked for when `model_path` is not set.
+    pub fn default_path(self) -> PathBuf {
+        match self {
+            Model::Yolov4Tiny => PathBuf::from("data/models/yolov4-tiny.onnx"),
+            Model::YoloxNano => PathBuf::from("../shared/models/yolox_nano.onnx"),
+        }
+    }
+}
+
+/// The `[detector]` section.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    pub source: Source,
+    pub model: Model,
+    /// The model file (default: the model's own default path).
+    pub model_path: Option<PathBuf>,
+    /// The ONNX Runtime library (default: `ORT_DYLIB_PATH`, else data/ort/libonnxruntime.so).
+    pub ort_library: Option<PathBuf>,
+    /// ONNX Runtime intra-op threads.
+    pub threads: usize,
+    pub score_threshold: f32,
+    pub nms_threshold: f32,
+    /// The folder of a detection cache (`source = "cache"`).
+    pub cache_dir: Option<PathBuf>,
+    /// Classes that move (COCO names); the DOP model treats their boxes as dynamic.
+    pub dynamic_classes: Vec<String>,
+    /// Classes known to be static (their boxes can refine dynamic ones).
+    pub static_classes: Vec<String>,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        Self {
+            source: Source::None,
+            model: Model::Yolov4Tiny,
+            model_path: None,
+            ort_library: None,
+            threads: 1,
+            score_threshold: 0.3,
+            nms_threshold: 0.45,
+            cache_dir: None,
+            dynamic_classes: ["person", "bicycle", "car", "motorcycle", "bus", "truck"]
+                .map(String::from)
+                .to_vec(),
+            static_classes: Vec::new(),
+        }
+    }
+}
+
+impl DetectorConfig {
+    /// Checks thresholds and class names.
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, v) in [
+            ("score_threshold", self.score_threshold),
+            ("nms_threshold", self.nms_threshold),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("detector.{name} must be in [0, 1], got {v}"));
+            }
+        }
+        for class in self.dynamic_classes.iter().chain(&self.static_classes) {
+            if coco::class_id(class).is_none() {
+                return Err(format!("detector: {class:?} is not a COCO class name"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The model file this config uses.
+    pub fn model_file(&self) -> PathBuf {
+        self.model_path
+            .clone()
+            .unwrap_or_else(|| self.model.default_path())
+    }
+
+    /// Opens the configured source; `sequence` is the sequence folder (for the oracle).
+    /// `None` when detection is off.
+    pub fn open(&self, sequence: Option<&Path>) -> Result<Option<Box<dyn Detector>>, DetectError> {
+        Ok(Some(match self.source {
+            Source::None => return Ok(None),
+            Source::Onnx => {
+                let mut detector = onnx::OnnxDetector::load(
+                    &self.model_file(),
+                    self.model.layout(),
+                    &onnx::runtime_library(self.ort_library.as_deref()),
+                    self.threads,
+                )?;
+                detector.score_threshold = self.score_threshold;
+                detector.nms_threshold = self.nms_threshold;
+                Box::new(detector)
+            }
+            Source::Cache => {
+                let dir = self.cache_dir.clone().ok_or_else(|| {
+                    DetectError::Config("source = \"cache\" needs cache_dir".into())
+                })?;
+                Box::new(CacheDetector::open(&dir)?)
+            }
+            Source::Oracle => {
+                let dir = sequence
+                    .ok_or_else(|| {
+                        DetectError::Config("the oracle needs a sequence folder".into())
+                    })?
+                    .join("detections_oracle");
+                Box::new(CacheDetector::open(&dir)?)
+            }
+        }))
+    }
+}
+
+/// The cache file name of a frame: its timestamp with 6 decimals.
+pub fn cache_file(dir: &Path, timestamp: f64) -> PathBuf {
+    dir.join(format!("{timestamp:.6}.json"))
+}
+
+/// Detections read back from a folder of per-frame JSON files.
+pub struct CacheDetector {
+    dir: PathBuf,
+}
+
+impl CacheDetector {
+    pub fn open(dir: &Path) -> Result<Self, DetectError> {
+        if !dir.is_dir() {
+            return Err(DetectError::Cache {
+                path: dir.to_path_buf(),
+                message: "no such folder".into(),
+            });
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+        })
+    }
+}
+
+impl Detector for CacheDetector {
+    fn detect(&mut self, timestamp: f64, _image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+        let path = cache_file(&self.dir, timestamp);
+        let text = std::fs::read_to_string(&path).map_err(|e| DetectError::Cache {
+            path: path.clone(),
+            message: format!("cannot read: {e}"),
+        })?;
+        let frame: FrameDetections =
+            serde_json::from_str(&text).map_err(|e| DetectError::Cache {
+                path: path.clone(),
+                message: format!("not a detections file: {e}"),
+            })?;
+        Ok(frame.detections)
+    }
+}
+
+/// Writes one frame's detections into a cache folder (atomically).
+pub fn write_cache(dir: &Path, frame: &FrameDetections) -> Result<(), DetectError> {
+    let path = cache_file(dir, frame.timestamp);
+    let text = serde_json::to_string_pretty(frame).expect("detections serialise");
+    std::fs::create_dir_all(dir)
+        .and_then(|_| {
+            crate::io::atomic::write_atomic(&path, text.as_bytes()).map_err(std::io::Error::other)
+        })
+        .map_err(|e| DetectError::Cache {
+            path,
+            message: format!("cannot write: {e}"),
+        })
+}
 
 /// One detected object.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

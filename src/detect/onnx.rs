@@ -1,0 +1,157 @@
+//! The ONNX detector: a YOLO model run by ONNX Runtime through `ort`, with the runtime
+//! library loaded at run time (`load-dynamic`) from the path in the config, else
+//! `ORT_DYLIB_PATH`, else `data/ort/libonnxruntime.so` (what `tools/setup.sh` installs).
+
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+use ort::session::Session;
+use ort::value::Tensor;
+
+use super::yolo::{non_maximum_suppression, Layout};
+use super::{DetectError, Detection, Detector};
+
+/// Where the ONNX Runtime library is: `configured`, else `ORT_DYLIB_PATH`, else
+/// `data/ort/libonnxruntime.so` under the current folder.
+pub fn runtime_library(configured: Option<&Path>) -> PathBuf {
+    configured
+        .map(Path::to_path_buf)
+        .or_else(|| std::env::var_os("ORT_DYLIB_PATH").map(PathBuf::from))
+        .unwrap_or_else(|| PathBuf::from("data/ort/libonnxruntime.so"))
+}
+
+static RUNTIME: std::sync::OnceLock<Result<ort::environment::Environment, String>> =
+    std::sync::OnceLock::new();
+
+fn environment(library: &Path) -> Result<&'static ort::environment::Environment, DetectError> {
+    let result = RUNTIME.get_or_init(|| {
+        if !library.is_file() {
+            return Err(format!(
+                "the ONNX Runtime library {} does not exist: run `bash tools/setup.sh` (it installs onnxruntime 1.31.1 into data/ort/), or set ORT_DYLIB_PATH or [detector] ort_library",
+                library.display()
+            ));
+        }
+        ort::init_from(library)
+            .map_err(|e| format!("cannot load the ONNX Runtime library {}: {e}", library.display()))?
+            .with_name("dopslam")
+            .build()
+            .map_err(|e| format!("cannot start ONNX Runtime from {}: {e}", library.display()))
+    });
+    result.as_ref().map_err(|m| DetectError::Runtime(m.clone()))
+}
+
+/// A YOLO model in an ONNX Runtime session.
+pub struct OnnxDetector {
+    session: Session,
+    layout: Layout,
+    width: u32,
+    height: u32,
+    model: PathBuf,
+    pub score_threshold: f32,
+    pub nms_threshold: f32,
+}
+
+impl OnnxDetector {
+    /// Loads `model` with `threads` intra-op threads and checks that its input is
+    /// `[1, 3, H, W]` and its output `[1, N, 85]` as `layout` expects.
+    pub fn load(
+        model: &Path,
+        layout: Layout,
+        library: &Path,
+        threads: usize,
+    ) -> Result<Self, DetectError> {
+        let environment = environment(library)?;
+        if !model.is_file() {
+            return Err(DetectError::Model {
+                path: model.to_path_buf(),
+                message: "no such file (tools/setup.sh converts YOLOv4-tiny into data/models/)"
+                    .into(),
+            });
+        }
+        let bad = |message: String| DetectError::Model {
+            path: model.to_path_buf(),
+            message,
+        };
+        let session = Session::builder(environment)
+            .and_then(|b| Ok(b.with_intra_threads(threads.max(1))?))
+            .and_then(|mut b| b.commit_from_file(model))
+            .map_err(|e| bad(format!("not a loadable ONNX model: {e}")))?;
+        let input = session
+            .inputs()
+            .first()
+            .ok_or_else(|| bad("the model has no input".into()))?;
+        let shape = match input.dtype() {
+            ort::value::ValueType::Tensor { shape, .. } => shape.to_vec(),
+            other => return Err(bad(format!("input is {other:?}, not a tensor"))),
+        };
+        if shape.len() != 4 || shape[1] != 3 || shape[2] <= 0 || shape[3] <= 0 {
+            return Err(bad(format!(
+                "input shape {shape:?} is not [1, 3, H, W] with a fixed size"
+            )));
+        }
+        let mut detector = Self {
+            session,
+            layout,
+            width: shape[3] as u32,
+            height: shape[2] as u32,
+            model: model.to_path_buf(),
+            score_threshold: 0.3,
+            nms_threshold: 0.45,
+        };
+        // One blank image checks the output layout now rather than on the first keyframe.
+        let blank = RgbImage::new(detector.width, detector.height);
+        detector.infer(&blank)?;
+        Ok(detector)
+    }
+
+    /// Network input size.
+    pub fn input_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+        let input = self.layout.prepare(image, self.width, self.height);
+        let shape = [1usize, 3, self.height as usize, self.width as usize];
+        let tensor = Tensor::from_array((shape, input.data.clone()))
+            .map_err(|e| DetectError::Runtime(e.to_string()))?;
+        let model = self.model.clone();
+        let outputs = self
+            .session
+            .run(ort::inputs![tensor])
+            .map_err(|e| DetectError::Runtime(format!("{}: {e}", model.display())))?;
+        let (shape, data) = outputs[0]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| DetectError::Runtime(e.to_string()))?;
+        let dims: Vec<i64> = shape.iter().copied().collect();
+        let size = (self.width as usize, self.height as usize);
+        let expected = self.layout.predictions(size.0, size.1);
+        let fits = dims.len() == 3
+            && dims[0] == 1
+            && dims[2] == 85
+            && expected.is_none_or(|n| dims[1] as usize == n);
+        if !fits {
+            return Err(DetectError::Model {
+                path: model,
+                message: format!(
+                    "output shape {dims:?} matches neither layout: {:?} expects [1, {}, 85]",
+                    self.layout,
+                    expected.map_or("N".to_string(), |n| n.to_string())
+                ),
+            });
+        }
+        let found = self
+            .layout
+            .decode(data, dims[1] as usize, size, &input, self.score_threshold);
+        Ok(non_maximum_suppression(
+            found,
+            self.nms_threshold,
+            (image.width(), image.height()),
+        ))
+    }
+}
+
+impl Detector for OnnxDetector {
+    fn detect(&mut self, _timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+        self.infer(image)
+    }
+}

@@ -1,0 +1,180 @@
+//! Detection beside tracking: keyframe images go to a worker thread through a channel
+//! and their detections come back through another, so tracking never waits for the
+//! detector (real-time mode). In deterministic mode the detector runs inline when a
+//! keyframe is submitted, so results arrive in a fixed order.
+
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use image::RgbImage;
+
+use super::{Detection, Detector};
+
+/// A keyframe image to detect in; `id` is the caller's (a frame index).
+pub struct Job {
+    pub id: usize,
+    pub timestamp: f64,
+    pub image: RgbImage,
+}
+
+/// The detections of a job (or the detector's error) and the inference time.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub id: usize,
+    pub timestamp: f64,
+    pub detections: Result<Vec<Detection>, String>,
+    pub milliseconds: f64,
+}
+
+fn run(detector: &mut dyn Detector, job: Job) -> Outcome {
+    let start = Instant::now();
+    let detections = detector
+        .detect(job.timestamp, &job.image)
+        .map_err(|e| e.to_string());
+    Outcome {
+        id: job.id,
+        timestamp: job.timestamp,
+        detections,
+        milliseconds: start.elapsed().as_secs_f64() * 1e3,
+    }
+}
+
+/// The detection worker.
+pub enum DetectionWorker {
+    Inline {
+        detector: Box<dyn Detector>,
+        done: Vec<Outcome>,
+    },
+    Thread {
+        jobs: Sender<Job>,
+        outcomes: Receiver<Outcome>,
+        handle: JoinHandle<()>,
+    },
+}
+
+impl DetectionWorker {
+    pub fn start(detector: Box<dyn Detector>, deterministic: bool) -> Self {
+        if deterministic {
+            return Self::Inline {
+                detector,
+                done: Vec::new(),
+            };
+        }
+        let (jobs, job_receiver) = channel::<Job>();
+        let (outcome_sender, outcomes) = channel::<Outcome>();
+        let handle = std::thread::Builder::new()
+            .name("detection".into())
+            .spawn(move || {
+                let mut detector = detector;
+                for job in job_receiver {
+                    if outcome_sender.send(run(detector.as_mut(), job)).is_err() {
+                        break;
+                    }
+                }
+            })
+            .expect("spawn the detection thread");
+        Self::Thread {
+            jobs,
+            outcomes,
+            handle,
+        }
+    }
+
+    /// Hands a keyframe image over (detected at once when inline).
+    pub fn submit(&mut self, job: Job) {
+        match self {
+            Self::Inline { detector, done } => done.push(run(detector.as_mut(), job)),
+            Self::Thread { jobs, .. } => {
+                // Fails only if the thread panicked, which `finish` reports.
+                let _ = jobs.send(job);
+            }
+        }
+    }
+
+    /// The outcomes finished so far, without waiting.
+    pub fn poll(&mut self) -> Vec<Outcome> {
+        match self {
+            Self::Inline { done, .. } => std::mem::take(done),
+            Self::Thread { outcomes, .. } => outcomes.try_iter().collect(),
+        }
+    }
+
+    /// Waits for every submitted job and returns the outcomes not yet polled.
+    pub fn finish(self) -> Vec<Outcome> {
+        match self {
+            Self::Inline { done, .. } => done,
+            Self::Thread {
+                jobs,
+                outcomes,
+                handle,
+            } => {
+                drop(jobs);
+                handle.join().expect("detection thread panicked");
+                outcomes.try_iter().collect()
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detect::DetectError;
+
+    /// Finds one "person" whose box is the image's size, slowly.
+    struct Slow;
+
+    impl Detector for Slow {
+        fn detect(
+            &mut self,
+            timestamp: f64,
+            image: &RgbImage,
+        ) -> Result<Vec<Detection>, DetectError> {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            if timestamp < 0.0 {
+                return Err(DetectError::Runtime("negative time".into()));
+            }
+            Ok(vec![Detection {
+                class: "person".into(),
+                class_id: 0,
+                score: 1.0,
+                bbox: [0.0, 0.0, image.width() as f32, image.height() as f32],
+                instance: None,
+            }])
+        }
+    }
+
+    fn job(id: usize) -> Job {
+        Job {
+            id,
+            timestamp: if id == 2 { -1.0 } else { id as f64 },
+            image: RgbImage::new(4 + id as u32, 3),
+        }
+    }
+
+    #[test]
+    fn thread_and_inline_give_the_same_outcomes_in_order() {
+        for deterministic in [false, true] {
+            let mut worker = DetectionWorker::start(Box::new(Slow), deterministic);
+            let start = Instant::now();
+            for id in 0..4 {
+                worker.submit(job(id));
+            }
+            if !deterministic {
+                // Submitting does not wait for the detector.
+                assert!(start.elapsed().as_millis() < 20);
+            }
+            let mut outcomes = worker.poll();
+            outcomes.extend(worker.finish());
+            let ids: Vec<usize> = outcomes.iter().map(|o| o.id).collect();
+            assert_eq!(ids, vec![0, 1, 2, 3]);
+            assert_eq!(outcomes[3].detections.as_ref().unwrap()[0].bbox[2], 7.0);
+            assert!(outcomes[2]
+                .detections
+                .as_ref()
+                .unwrap_err()
+                .contains("negative"));
+        }
+    }
+}

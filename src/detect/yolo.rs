@@ -1,0 +1,354 @@
+//! What is specific to each YOLO model family, around one ONNX session: how an image
+//! becomes the input tensor, how the output tensor becomes boxes, and one NMS.
+//!
+//! Both resize with Pillow's antialiased bilinear filter ([`resize_rgb`]), which the
+//! reference figures were computed with.
+//!
+//! - **YOLOv4 (Darknet, converted by `tools/darknet_to_onnx.py`)**: input RGB / 255,
+//!   plain resize to the network size; output `[1, N, 85]` already decoded: cx, cy, w, h
+//!   in network pixels, objectness, class scores. Score = objectness x class.
+//! - **YOLOX**: input BGR 0-255, letterbox at the top left with ratio
+//!   \(r = \min(H/h, W/w)\) padded with 114; output `[1, N, 85]` raw on grids of strides
+//!   8, 16, 32 (row-major): \(c_x = (t_x + g_x) s\), \(w = e^{t_w} s\); objectness and
+//!   class scores already through the logistic. Boxes are divided by \(r\).
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use super::{coco, Detection};
+
+/// Which model family (and so which pre-processing and decoder).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Layout {
+    /// Darknet YOLOv4 / YOLOv4-tiny converted by our tool (decoded in the graph).
+    Yolov4,
+    /// Megvii YOLOX (raw grid output).
+    Yolox,
+}
+
+/// An input tensor (NCHW, f32) and how to map boxes back to the image.
+pub struct Input {
+    pub data: Vec<f32>,
+    pub scale_x: f32,
+    pub scale_y: f32,
+}
+
+impl Layout {
+    /// The number of predictions the layout gives for a `width` x `height` input, or
+    /// `None` when any count is possible (YOLOv4 heads depend on the cfg).
+    pub fn predictions(self, width: usize, height: usize) -> Option<usize> {
+        match self {
+            Layout::Yolov4 => None,
+            Layout::Yolox => Some([8, 16, 32].iter().map(|s| (width / s) * (height / s)).sum()),
+        }
+    }
+
+    /// The input tensor of `image` for a `width` x `height` network.
+    pub fn prepare(self, image: &RgbImage, width: u32, height: u32) -> Input {
+        let plane = (width * height) as usize;
+        let mut data = vec![0f32; 3 * plane];
+        match self {
+            Layout::Yolov4 => {
+                let resized = resize_rgb(image, width, height);
+                for (i, p) in resized.pixels().enumerate() {
+                    for c in 0..3 {
+                        data[c * plane + i] = p[c] as f32 / 255.0;
+                    }
+                }
+                Input {
+                    data,
+                    scale_x: image.width() as f32 / width as f32,
+                    scale_y: image.height() as f32 / height as f32,
+                }
+            }
+            Layout::Yolox => {
+                let r = (height as f32 / image.height() as f32)
+                    .min(width as f32 / image.width() as f32);
+                let (w, h) = (
+                    (image.width() as f32 * r) as u32,
+                    (image.height() as f32 * r) as u32,
+                );
+                data.iter_mut().for_each(|v| *v = 114.0);
+                let resized = resize_rgb(image, w, h);
+                for (x, y, p) in resized.enumerate_pixels() {
+                    let i = (y * width + x) as usize;
+                    // BGR order.
+                    for c in 0..3 {
+                        data[c * plane + i] = p[2 - c] as f32;
+                    }
+                }
+                Input {
+                    data,
+                    scale_x: 1.0 / r,
+                    scale_y: 1.0 / r,
+                }
+            }
+        }
+    }
+
+    /// Boxes (image pixels) and scores above `threshold` from the output rows.
+    pub fn decode(
+        self,
+        output: &[f32],
+        rows: usize,
+        (width, height): (usize, usize),
+        input: &Input,
+        threshold: f32,
+    ) -> Vec<Detection> {
+        let per = output.len() / rows.max(1);
+        let classes = per - 5;
+        let mut grid = Vec::new();
+        if self == Layout::Yolox {
+            for s in [8usize, 16, 32] {
+                for gy in 0..height / s {
+                    for gx in 0..width / s {
+                        grid.push((gx as f32, gy as f32, s as f32));
+                    }
+                }
+            }
+        }
+        let mut found = Vec::new();
+        for (n, row) in output.chunks_exact(per).enumerate() {
+            let objectness = row[4];
+            if objectness < threshold {
+                continue;
+            }
+            let (class, best) = row[5..5 + classes]
+                .iter()
+                .enumerate()
+                .fold((0, f32::MIN), |a, (i, &v)| if v > a.1 { (i, v) } else { a });
+            let score = objectness * best;
+            if score < threshold {
+                continue;
+            }
+            let (cx, cy, w, h) = match self {
+                Layout::Yolov4 => (row[0], row[1], row[2], row[3]),
+                Layout::Yolox => {
+                    let (gx, gy, s) = grid[n];
+                    (
+                        (row[0] + gx) * s,
+                        (row[1] + gy) * s,
+                        row[2].exp() * s,
+                        row[3].exp() * s,
+                    )
+                }
+            };
+            let class_id = class as u32;
+            found.push(Detection {
+                class: coco::class_name(class_id).unwrap_or("unknown").to_string(),
+                class_id,
+                score,
+                bbox: [
+                    (cx - w / 2.0) * input.scale_x,
+                    (cy - h / 2.0) * input.scale_y,
+                    (cx + w / 2.0) * input.scale_x,
+                    (cy + h / 2.0) * input.scale_y,
+                ],
+                instance: None,
+            });
+        }
+        found
+    }
+}
+
+/// Fixed-point bits of the resampling weights (as Pillow).
+const PRECISION_BITS: u32 = 22;
+
+/// Per output index: the first input index and the fixed-point weights of the
+/// triangle filter widened by the downscale factor (antialiased bilinear).
+fn coefficients(input: u32, output: u32) -> Vec<(usize, Vec<i32>)> {
+    let scale = input as f64 / output as f64;
+    let filter_scale = scale.max(1.0);
+    let support = filter_scale;
+    (0..output)
+        .map(|x| {
+            let centre = (x as f64 + 0.5) * scale;
+            let min = ((centre - support + 0.5) as i64).max(0) as usize;
+            let max = ((centre + support + 0.5) as i64).min(input as i64) as usize;
+            let weights: Vec<f64> = (min..max)
+                .map(|i| (1.0 - ((i as f64 - centre + 0.5) / filter_scale).abs()).max(0.0))
+                .collect();
+            let total: f64 = weights.iter().sum();
+            let fixed = weights
+                .iter()
+                .map(|w| {
+                    let v = w / total * (1u64 << PRECISION_BITS) as f64;
+                    (if v < 0.0 { v - 0.5 } else { v + 0.5 }) as i32
+                })
+                .collect();
+            (min, fixed)
+        })
+        .collect()
+}
+
+fn clip8(sum: i64) -> u8 {
+    (sum >> PRECISION_BITS).clamp(0, 255) as u8
+}
+
+/// Antialiased bilinear resize, the same arithmetic as Pillow's `Image.resize(...,
+/// BILINEAR)` (horizontal pass, rounding to 8 bits, vertical pass), which the
+/// reference detections were computed with.
+pub fn resize_rgb(image: &RgbImage, width: u32, height: u32) -> RgbImage {
+    let (w0, h0) = image.dimensions();
+    let columns = coefficients(w0, width);
+    let rows = coefficients(h0, height);
+    let half = 1i64 << (PRECISION_BITS - 1);
+    let source = image.as_raw();
+    let mut horizontal = vec![0u8; (width * h0 * 3) as usize];
+    for y in 0..h0 as usize {
+        let row = &source[y * w0 as usize * 3..(y + 1) * w0 as usize * 3];
+        for (x, (start, weights)) in columns.iter().enumerate() {
+            for c in 0..3 {
+                let mut sum = half;
+                for (k, w) in weights.iter().enumerate() {
+                    sum += row[(start + k) * 3 + c] as i64 * *w as i64;
+                }
+                horizontal[(y * width as usize + x) * 3 + c] = clip8(sum);
+            }
+        }
+    }
+    let mut out = vec![0u8; (width * height * 3) as usize];
+    let stride = width as usize * 3;
+    for (y, (start, weights)) in rows.iter().enumerate() {
+        for i in 0..stride {
+            let mut sum = half;
+            for (k, w) in weights.iter().enumerate() {
+                sum += horizontal[(start + k) * stride + i] as i64 * *w as i64;
+            }
+            out[y * stride + i] = clip8(sum);
+        }
+    }
+    RgbImage::from_raw(width, height, out).expect("sized buffer")
+}
+
+/// Intersection over union of two `[x1, y1, x2, y2]` boxes.
+pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let w = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
+    let h = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let inter = w * h;
+    let union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter;
+    if union > 0.0 {
+        inter / union
+    } else {
+        0.0
+    }
+}
+
+/// Greedy non-maximum suppression per class: best score first, dropping boxes of the
+/// same class that overlap a kept one by more than `threshold` IoU. Boxes are clipped
+/// to the image.
+pub fn non_maximum_suppression(
+    mut detections: Vec<Detection>,
+    threshold: f32,
+    (width, height): (u32, u32),
+) -> Vec<Detection> {
+    detections.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let mut kept: Vec<Detection> = Vec::new();
+    for mut d in detections {
+        if kept
+            .iter()
+            .any(|k| k.class_id == d.class_id && iou(&k.bbox, &d.bbox) > threshold)
+        {
+            continue;
+        }
+        d.bbox = [
+            d.bbox[0].clamp(0.0, width as f32),
+            d.bbox[1].clamp(0.0, height as f32),
+            d.bbox[2].clamp(0.0, width as f32),
+            d.bbox[3].clamp(0.0, height as f32),
+        ];
+        kept.push(d);
+    }
+    kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn detection(class_id: u32, score: f32, bbox: [f32; 4]) -> Detection {
+        Detection {
+            class: String::new(),
+            class_id,
+            score,
+            bbox,
+            instance: None,
+        }
+    }
+
+    #[test]
+    fn iou_of_hand_computed_boxes() {
+        assert_eq!(iou(&[0.0, 0.0, 2.0, 2.0], &[1.0, 1.0, 3.0, 3.0]), 1.0 / 7.0);
+        assert_eq!(iou(&[0.0, 0.0, 1.0, 1.0], &[2.0, 2.0, 3.0, 3.0]), 0.0);
+    }
+
+    #[test]
+    fn nms_keeps_the_best_of_overlapping_boxes_of_one_class() {
+        let kept = non_maximum_suppression(
+            vec![
+                detection(0, 0.6, [0.0, 0.0, 10.0, 10.0]),
+                detection(0, 0.9, [1.0, 0.0, 11.0, 10.0]),
+                detection(2, 0.5, [0.0, 0.0, 10.0, 10.0]),
+                detection(0, 0.4, [50.0, 50.0, 60.0, 70.0]),
+            ],
+            0.45,
+            (55, 100),
+        );
+        let scores: Vec<f32> = kept.iter().map(|d| d.score).collect();
+        assert_eq!(scores, vec![0.9, 0.5, 0.4]);
+        assert_eq!(kept[2].bbox, [50.0, 50.0, 55.0, 70.0]);
+    }
+
+    #[test]
+    fn yolox_rows_decode_on_their_grid_and_scale_back() {
+        let (w, h) = (64usize, 64usize);
+        let rows = Layout::Yolox.predictions(w, h).unwrap();
+        assert_eq!(rows, 64 + 16 + 4);
+        let mut output = vec![0f32; rows * 85];
+        // Row 9 is cell (1, 1) of the stride-8 grid: tx = ty = 0.5, tw = th = ln 2.
+        let row = &mut output[9 * 85..10 * 85];
+        row[..4].copy_from_slice(&[0.5, 0.5, 2f32.ln(), 2f32.ln()]);
+        row[4] = 0.9;
+        row[5] = 0.8; // person
+        let input = Input {
+            data: vec![],
+            scale_x: 2.0,
+            scale_y: 2.0,
+        };
+        let found = Layout::Yolox.decode(&output, rows, (w, h), &input, 0.3);
+        assert_eq!(found.len(), 1);
+        // cx = (0.5 + 1) * 8 = 12, w = 2 * 8 = 16: [4, 4, 20, 20] x 2.
+        assert_eq!(found[0].bbox, [8.0, 8.0, 40.0, 40.0]);
+        assert!((found[0].score - 0.72).abs() < 1e-6);
+        assert_eq!(found[0].class, "person");
+    }
+
+    #[test]
+    fn resizing_keeps_a_flat_image_flat_and_averages_when_shrinking() {
+        let flat = RgbImage::from_pixel(37, 23, image::Rgb([200, 100, 7]));
+        let small = resize_rgb(&flat, 11, 5);
+        assert!(small.pixels().all(|p| p.0 == [200, 100, 7]));
+        // A one-pixel checkerboard halved is mid-grey (antialiased, not sampled).
+        let board = RgbImage::from_fn(64, 64, |x, y| {
+            let v = if (x + y) % 2 == 0 { 255 } else { 0 };
+            image::Rgb([v, v, v])
+        });
+        let half = resize_rgb(&board, 32, 32);
+        assert!(half.pixels().all(|p| (p.0[0] as i32 - 128).abs() <= 2));
+    }
+
+    #[test]
+    fn letterbox_keeps_the_aspect_and_pads_with_114() {
+        let image = RgbImage::from_pixel(80, 40, image::Rgb([10, 20, 30]));
+        let input = Layout::Yolox.prepare(&image, 32, 32);
+        assert_eq!(input.scale_x, 2.5);
+        let plane = 32 * 32;
+        // Top-left inside the image: B, G, R planes.
+        assert_eq!(input.data[0], 30.0);
+        assert_eq!(input.data[plane], 20.0);
+        assert_eq!(input.data[2 * plane], 10.0);
+        // Below the 16 image rows: padding.
+        assert_eq!(input.data[20 * 32], 114.0);
+    }
+}
