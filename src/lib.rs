@@ -18,4 +18,5 @@ pub mod optim;
 pub mod pipeline;
 pub mod random;
 pub mod synth;
+pub mod threads;
 pub mod tracking;

@@ -184,10 +184,15 @@ struct RunArgs {
     /// ORB-SLAM2 behaviour: no dynamic-object model (the only mode until the DOP model lands).
     #[arg(long)]
     no_dop: bool,
-    /// Run local mapping after each keyframe in the tracking thread instead of beside
-    /// it, so that a run repeats exactly (tests use this; slower).
+    /// Run local mapping and detection after each keyframe in the tracking thread
+    /// instead of beside it, so that a run repeats exactly (tests use this; slower).
     #[arg(long)]
     deterministic: bool,
+    /// Keyframe detections: none, onnx (the [detector] model), cache ([detector]
+    /// cache_dir) or oracle (a synthetic sequence's ground-truth boxes). Default: the
+    /// config's [detector] source (none).
+    #[arg(long, value_enum)]
+    detections: Option<dopslam::detect::Source>,
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -468,12 +473,16 @@ fn run_info(args: InfoArgs) -> Result<()> {
 }
 
 fn run_run(args: RunArgs) -> Result<()> {
-    let config = load_config(args.config.as_deref())?;
+    let mut config = load_config(args.config.as_deref())?;
+    if let Some(source) = args.detections {
+        config.detector.source = source;
+    }
     let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
     let options = dopslam::pipeline::RunOptions {
         max_frames: args.frames,
         progress: true,
         deterministic: args.deterministic,
+        sequence_dir: Some(args.sequence.clone()),
     };
     let _ = args.no_dop;
     let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;

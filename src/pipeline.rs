@@ -13,6 +13,8 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::config::Config;
+use crate::detect::worker::{DetectionWorker, Job, Outcome};
+use crate::detect::{write_cache, FrameDetections};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
 use crate::features::OrbExtractor;
 use crate::io::atomic::write_atomic;
@@ -119,6 +121,7 @@ pub struct RunReport {
     pub totals: RunTotals,
     pub ate: Option<EvalReport>,
     pub mapping: MappingStats,
+    pub detection: DetectionTotals,
     pub frames: Vec<FrameLine>,
 }
 
@@ -128,9 +131,24 @@ pub struct RunOptions {
     /// Stop after this many frames.
     pub max_frames: Option<usize>,
     pub progress: bool,
-    /// Run local mapping inline after each keyframe instead of in its own thread, so
-    /// that results repeat exactly.
+    /// Run local mapping and detection inline after each keyframe instead of in their
+    /// own threads, so that results repeat exactly.
     pub deterministic: bool,
+    /// The sequence folder, where the oracle detections are (`detections_oracle/`).
+    pub sequence_dir: Option<PathBuf>,
+}
+
+/// What the keyframe detector did over a run.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct DetectionTotals {
+    /// Keyframes handed to the detector and those whose detections came back.
+    pub submitted: usize,
+    pub detected: usize,
+    /// Detections per class name over all keyframes.
+    pub per_class: std::collections::BTreeMap<String, usize>,
+    /// Detector time per keyframe (in its own thread), milliseconds.
+    pub median_ms: f64,
+    pub errors: Vec<String>,
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -184,6 +202,14 @@ pub fn run_sequence(
         close_depth,
     );
     let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
+    let mut detection = config
+        .detector
+        .open(options.sequence_dir.as_deref())
+        .map_err(|e| RunError::Input(e.to_string()))?
+        .map(|d| DetectionWorker::start(d, options.deterministic));
+    let mut detection_totals = DetectionTotals::default();
+    let mut detection_ms = Vec::new();
+    let mut keyframe_of_frame = std::collections::HashMap::new();
     std::fs::create_dir_all(out).map_err(|source| IoError::Write {
         path: out.to_path_buf(),
         source,
@@ -239,7 +265,7 @@ pub fn run_sequence(
             }
         }
         let start = Instant::now();
-        let grey = image::DynamicImage::ImageRgb8(rgb).to_luma8();
+        let grey = image::DynamicImage::ImageRgb8(rgb.clone()).to_luma8();
         let frame = Frame::from_rgbd(
             index,
             loaded.timestamp,
@@ -254,6 +280,26 @@ pub fn run_sequence(
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(key) = report.new_keyframe {
             mapping.insert(key);
+            if let Some(worker) = detection.as_mut() {
+                keyframe_of_frame.insert(index, key);
+                detection_totals.submitted += 1;
+                worker.submit(Job {
+                    id: index,
+                    timestamp: loaded.timestamp,
+                    image: rgb,
+                });
+            }
+        }
+        if let Some(worker) = detection.as_mut() {
+            let outcomes = worker.poll();
+            receive_detections(
+                &tracker,
+                &keyframe_of_frame,
+                outcomes,
+                out,
+                &mut detection_totals,
+                &mut detection_ms,
+            );
         }
         progress.set_message(format!("{:?}", report.state));
         progress.inc(1);
@@ -270,9 +316,21 @@ pub fn run_sequence(
             config.tracking.min_initial_points
         ));
     }
+    if let Some(worker) = detection {
+        let outcomes = worker.finish();
+        receive_detections(
+            &tracker,
+            &keyframe_of_frame,
+            outcomes,
+            out,
+            &mut detection_totals,
+            &mut detection_ms,
+        );
+    }
+    detection_totals.median_ms = median(&mut detection_ms);
     let stats = mapping.finish();
     let map = tracker.map.read().expect("map lock poisoned");
-    let report = write_outputs(sequence, &map, stats, lines, out)?;
+    let report = write_outputs(sequence, &map, (stats, detection_totals), lines, out)?;
     match failure {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -283,11 +341,53 @@ pub fn run_sequence(
     }
 }
 
+/// Attaches detections that came back to their keyframes (which local mapping may
+/// have culled meanwhile) and writes them to the run's detection cache
+/// (`OUT/detections/`, readable back with `source = "cache"`).
+fn receive_detections(
+    tracker: &Tracker,
+    keyframe_of_frame: &std::collections::HashMap<usize, crate::map::KeyFrameKey>,
+    outcomes: Vec<Outcome>,
+    out: &Path,
+    totals: &mut DetectionTotals,
+    milliseconds: &mut Vec<f64>,
+) {
+    if outcomes.is_empty() {
+        return;
+    }
+    let mut map = tracker.map.write().expect("map lock poisoned");
+    for outcome in outcomes {
+        match outcome.detections {
+            Ok(detections) => {
+                totals.detected += 1;
+                milliseconds.push(outcome.milliseconds);
+                for d in &detections {
+                    *totals.per_class.entry(d.class.clone()).or_default() += 1;
+                }
+                let frame = FrameDetections {
+                    timestamp: outcome.timestamp,
+                    detections,
+                };
+                if let Err(e) = write_cache(&out.join("detections"), &frame) {
+                    totals.errors.push(e.to_string());
+                }
+                if let Some(kf) = keyframe_of_frame
+                    .get(&outcome.id)
+                    .and_then(|k| map.keyframes.get_mut(*k))
+                {
+                    kf.detections = Some(frame.detections);
+                }
+            }
+            Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
+        }
+    }
+}
+
 /// Writes trajectory, keyframes, map and report; evaluates against ground truth.
 fn write_outputs(
     sequence: &dyn Sequence,
     map: &Map,
-    mapping: MappingStats,
+    (mapping, detection): (MappingStats, DetectionTotals),
     lines: Vec<FrameLine>,
     out: &Path,
 ) -> Result<RunReport, RunError> {
@@ -357,6 +457,7 @@ fn write_outputs(
         totals,
         ate,
         mapping,
+        detection,
         frames: lines,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;

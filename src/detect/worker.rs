@@ -66,6 +66,7 @@ impl DetectionWorker {
         let handle = std::thread::Builder::new()
             .name("detection".into())
             .spawn(move || {
+                crate::threads::lower_priority(10);
                 let mut detector = detector;
                 for job in job_receiver {
                     if outcome_sender.send(run(detector.as_mut(), job)).is_err() {

@@ -82,6 +82,8 @@ pub struct KeyFrame {
     /// Spanning tree: the keyframe this one was attached to, and those attached to it.
     pub parent: Option<KeyFrameKey>,
     pub children: Vec<KeyFrameKey>,
+    /// The detector's boxes, once they come back from the detection thread.
+    pub detections: Option<Vec<crate::detect::Detection>>,
 }
 
 impl KeyFrame {
@@ -97,6 +99,7 @@ impl KeyFrame {
             connections: Vec::new(),
             parent: None,
             children: Vec::new(),
+            detections: None,
         }
     }
 
@@ -416,9 +419,8 @@ mod tests {
     use super::*;
 
     fn keyframe(n: usize) -> KeyFrame {
-        KeyFrame {
-            id: 0,
-            frame: Frame::from_parts(
+        KeyFrame::new(
+            Frame::from_parts(
                 0,
                 0.0,
                 vec![crate::features::KeyPoint::default(); n],
@@ -427,12 +429,8 @@ mod tests {
                 vec![-1.0; n],
                 (640, 480),
             ),
-            camera_from_world: Se3::identity(),
-            map_points: vec![None; n],
-            connections: vec![],
-            parent: None,
-            children: vec![],
-        }
+            Se3::identity(),
+        )
     }
 
     fn point() -> MapPoint {

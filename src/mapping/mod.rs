@@ -322,6 +322,7 @@ impl LocalMapping {
         let handle = std::thread::Builder::new()
             .name("local-mapping".into())
             .spawn(move || {
+                crate::threads::lower_priority(5);
                 let pending = mapper.pending.clone().expect("set above");
                 for key in receiver {
                     mapper.process(&map, key);

@@ -1,0 +1,190 @@
+//! The real detectors on real photos (reference boxes from the issue, computed with
+//! Python's ONNX Runtime and Pillow), and their errors. Tests that need the ONNX
+//! Runtime library (data/ort, from tools/setup.sh), the converted YOLOv4-tiny model
+//! (data/models) or the shared data skip, saying why, when those are absent.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use dopslam::detect::onnx::{runtime_library, OnnxDetector};
+use dopslam::detect::yolo::Layout;
+use dopslam::detect::{DetectError, Detection, Detector, DetectorConfig, Model, Source};
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+fn library() -> Option<PathBuf> {
+    let path = runtime_library(Some(&repo("data/ort/libonnxruntime.so")));
+    if path.is_file() {
+        Some(path)
+    } else {
+        eprintln!(
+            "skipping: no ONNX Runtime library at {} (bash tools/setup.sh installs it)",
+            path.display()
+        );
+        None
+    }
+}
+
+/// `(model file, layout)` of both models where present.
+fn models(shared: &Path) -> Vec<(PathBuf, Layout)> {
+    let mut found = Vec::new();
+    for (path, layout) in [
+        (repo("data/models/yolov4-tiny.onnx"), Layout::Yolov4),
+        (shared.join("../models/yolox_nano.onnx"), Layout::Yolox),
+    ] {
+        if path.is_file() {
+            found.push((path, layout));
+        } else {
+            eprintln!("skipping {}: not present", path.display());
+        }
+    }
+    found
+}
+
+fn load(path: &Path, layout: Layout, library: &Path) -> OnnxDetector {
+    OnnxDetector::load(path, layout, library, 1).unwrap()
+}
+
+fn detect(detector: &mut OnnxDetector, image: &Path) -> Vec<Detection> {
+    let image = image::open(image).unwrap().to_rgb8();
+    detector.detect(0.0, &image).unwrap()
+}
+
+/// Checks a reference detection: a detection of the class within 3 px and 0.01.
+fn assert_found(found: &[Detection], class: &str, score: f32, bbox: Option<[f32; 4]>) {
+    let hit = found.iter().any(|d| {
+        d.class == class
+            && (d.score - score).abs() <= 0.01
+            && bbox.is_none_or(|b| d.bbox.iter().zip(b).all(|(x, y)| (x - y).abs() <= 3.0))
+    });
+    assert!(hit, "{class} {score} {bbox:?} not in {found:#?}");
+}
+
+#[test]
+fn both_models_reproduce_the_reference_boxes_on_bus_jpg() {
+    let Some(shared) = common::shared_data("bus.jpg references") else {
+        return;
+    };
+    let Some(library) = library() else { return };
+    let bus = shared.join("frames/photos/bus.jpg");
+    for (path, layout) in models(&shared) {
+        let found = detect(&mut load(&path, layout, &library), &bus);
+        match layout {
+            Layout::Yolov4 => {
+                assert_found(&found, "person", 0.99, Some([52.0, 392.0, 221.0, 909.0]));
+                assert_found(&found, "person", 0.90, Some([673.0, 380.0, 809.0, 875.0]));
+                assert_found(&found, "person", 0.89, Some([214.0, 409.0, 350.0, 847.0]));
+                assert_found(&found, "bus", 0.74, Some([0.0, 170.0, 707.0, 780.0]));
+            }
+            Layout::Yolox => {
+                assert_found(&found, "bus", 0.91, None);
+                assert_found(&found, "person", 0.85, Some([56.0, 388.0, 211.0, 900.0]));
+                assert_found(&found, "person", 0.82, Some([218.0, 404.0, 350.0, 855.0]));
+                assert_found(&found, "person", 0.68, Some([682.0, 447.0, 810.0, 876.0]));
+            }
+        }
+        assert_eq!(found.len(), 4, "{found:#?}");
+    }
+}
+
+#[test]
+fn both_models_find_both_people_in_the_real_walking_frame() {
+    let Some(shared) = common::shared_data("TUM walking frame") else {
+        return;
+    };
+    let Some(library) = library() else { return };
+    let frame = shared.join("frames/tum/fr3_walking_xyz_1341846313.553992.png");
+    for (path, layout) in models(&shared) {
+        let found = detect(&mut load(&path, layout, &library), &frame);
+        let people: Vec<&Detection> = found.iter().filter(|d| d.class == "person").collect();
+        assert_eq!(people.len(), 2, "{layout:?}: {people:#?}");
+        // One on each side of the image (the two walkers).
+        assert!(
+            people.iter().any(|p| p.bbox[2] < 320.0) && people.iter().any(|p| p.bbox[0] > 320.0)
+        );
+    }
+}
+
+#[test]
+fn bad_models_and_a_missing_runtime_say_what_to_do() {
+    let dir = common::temp_dir("detect-bad");
+    // No runtime library (a fresh process, so nothing is loaded yet): the message
+    // names the file and the fix, and the exit status is non-zero.
+    let config = dir.join("config.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[detector]\nort_library = \"{}\"\n",
+            dir.join("libonnxruntime.so").display()
+        ),
+    )
+    .unwrap();
+    let image = dir.join("blank.png");
+    image::RgbImage::new(64, 48).save(&image).unwrap();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args(["detect", image.to_str().unwrap(), "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("tools/setup.sh")
+            && stderr.contains("libonnxruntime.so")
+            && stderr.contains("does not exist"),
+        "{stderr}"
+    );
+    let Some(library) = library() else { return };
+    let Some(shared) = common::shared_data("bad models") else {
+        return;
+    };
+    // A corrupt model file.
+    let corrupt = dir.join("corrupt.onnx");
+    std::fs::write(&corrupt, b"not an onnx model").unwrap();
+    let error = OnnxDetector::load(&corrupt, Layout::Yolov4, &library, 1)
+        .err()
+        .unwrap();
+    assert!(matches!(error, DetectError::Model { .. }), "{error}");
+    assert!(error.to_string().contains("corrupt.onnx"), "{error}");
+    // A model whose output does not match the layout asked for.
+    for (path, layout) in models(&shared) {
+        if layout == Layout::Yolov4 {
+            let error = OnnxDetector::load(&path, Layout::Yolox, &library, 1)
+                .err()
+                .unwrap();
+            let text = error.to_string();
+            assert!(
+                text.contains("matches neither layout") && text.contains("3549"),
+                "{text}"
+            );
+        }
+    }
+}
+
+#[test]
+fn missing_model_and_cache_errors_name_the_path() {
+    let dir = common::temp_dir("detect-missing");
+    let config = DetectorConfig {
+        source: Source::Cache,
+        cache_dir: Some(dir.join("nowhere")),
+        ..DetectorConfig::default()
+    };
+    let error = config.open(None).err().unwrap().to_string();
+    assert!(error.contains("nowhere"), "{error}");
+    if library().is_some() {
+        let config = DetectorConfig {
+            source: Source::Onnx,
+            model: Model::Yolov4Tiny,
+            model_path: Some(dir.join("absent.onnx")),
+            ort_library: Some(repo("data/ort/libonnxruntime.so")),
+            ..DetectorConfig::default()
+        };
+        let error = config.open(None).err().unwrap().to_string();
+        assert!(error.contains("absent.onnx"), "{error}");
+    }
+}
