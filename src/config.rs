@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use crate::detect::DetectorConfig;
+pub use crate::dop::DopConfig;
 use crate::eval::associate::AssociationRule;
 use crate::eval::report::AlignMode;
 pub use crate::features::orb::OrbConfig;
@@ -100,6 +101,7 @@ pub struct Config {
     pub tracking: TrackerConfig,
     pub mapping: MappingConfig,
     pub detector: DetectorConfig,
+    pub dop: DopConfig,
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
 }
@@ -129,6 +131,7 @@ impl Config {
     pub fn validate(&self) -> Result<(), String> {
         self.orb.validate()?;
         self.detector.validate()?;
+        self.dop.validate()?;
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(
                 "mapping.redundancy must be in [0, 1], got {}",

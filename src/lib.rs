@@ -8,6 +8,7 @@
 pub mod config;
 pub mod demo;
 pub mod detect;
+pub mod dop;
 pub mod eval;
 pub mod features;
 pub mod geometry;

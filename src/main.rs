@@ -181,9 +181,15 @@ struct RunArgs {
     /// Track only the first N frames.
     #[arg(long)]
     frames: Option<usize>,
-    /// ORB-SLAM2 behaviour: no dynamic-object model (the only mode until the DOP model lands).
-    #[arg(long)]
+    /// ORB-SLAM2 behaviour: detections are not used against moving objects.
+    #[arg(long, conflicts_with_all = ["mask_boxes", "dop"])]
     no_dop: bool,
+    /// The naive method: map points seen inside dynamic boxes of detected keyframes go.
+    #[arg(long, conflicts_with = "dop")]
+    mask_boxes: bool,
+    /// The DOP model (the default when there are detections).
+    #[arg(long)]
+    dop: bool,
     /// Run local mapping and detection after each keyframe in the tracking thread
     /// instead of beside it, so that a run repeats exactly (tests use this; slower).
     #[arg(long)]
@@ -193,6 +199,9 @@ struct RunArgs {
     /// config's [detector] source (none).
     #[arg(long, value_enum)]
     detections: Option<dopslam::detect::Source>,
+    /// Write every frame with its keypoints coloured by DOP state into this folder.
+    #[arg(long)]
+    debug_frames: Option<PathBuf>,
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -483,8 +492,15 @@ fn run_run(args: RunArgs) -> Result<()> {
         progress: true,
         deterministic: args.deterministic,
         sequence_dir: Some(args.sequence.clone()),
+        debug_frames: args.debug_frames.clone(),
     };
-    let _ = args.no_dop;
+    if args.no_dop {
+        config.dop.mode = dopslam::dop::Mode::Off;
+    } else if args.mask_boxes {
+        config.dop.mode = dopslam::dop::Mode::MaskBoxes;
+    } else if args.dop {
+        config.dop.mode = dopslam::dop::Mode::Dop;
+    }
     let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
     let t = &report.totals;
     println!(

@@ -15,6 +15,7 @@ use thiserror::Error;
 use crate::config::Config;
 use crate::detect::worker::{DetectionWorker, Job, Outcome};
 use crate::detect::{write_cache, FrameDetections};
+use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
 use crate::features::OrbExtractor;
 use crate::io::atomic::write_atomic;
@@ -25,6 +26,7 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
 use crate::map::Map;
+use crate::mapping::dynamic::apply_detections;
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::optim::stereo_projection::StereoCamera;
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
@@ -136,6 +138,10 @@ pub struct RunOptions {
     pub deterministic: bool,
     /// The sequence folder, where the oracle detections are (`detections_oracle/`).
     pub sequence_dir: Option<PathBuf>,
+    /// Write each frame with its keypoints coloured by DOP state here (the paper's
+    /// Fig. 4): green high-confidence static, yellow low-confidence static, orange
+    /// low-confidence dynamic, red high-confidence dynamic (removed: orange and red).
+    pub debug_frames: Option<PathBuf>,
 }
 
 /// What the keyframe detector did over a run.
@@ -148,6 +154,14 @@ pub struct DetectionTotals {
     pub per_class: std::collections::BTreeMap<String, usize>,
     /// Detector time per keyframe (in its own thread), milliseconds.
     pub median_ms: f64,
+    /// Map points whose moving probability a keyframe's detections updated, and those
+    /// removed as dynamic (by the DOP model or, with --mask-boxes, inside a box).
+    pub map_points_updated: usize,
+    pub map_points_removed: usize,
+    /// Keypoints called dynamic against the synthetic ground-truth masks (`masks/` of
+    /// a `dopslam synth` sequence): every tracked frame with --dop, the detected
+    /// keyframes with --mask-boxes.
+    pub classification: Option<Classification>,
     pub errors: Vec<String>,
 }
 
@@ -201,12 +215,29 @@ pub fn run_sequence(
         (calibration.camera.width, calibration.camera.height),
         close_depth,
     );
-    let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
     let mut detection = config
         .detector
         .open(options.sequence_dir.as_deref())
         .map_err(|e| RunError::Input(e.to_string()))?
         .map(|d| DetectionWorker::start(d, options.deterministic));
+    // The detections' use: without any, every mode is ORB-SLAM2's.
+    let mode = if detection.is_some() {
+        config.dop.mode
+    } else {
+        Mode::Off
+    };
+    let mut mapper = mapper;
+    if mode == Mode::Dop {
+        tracker.dop = Some(config.dop.clone());
+        mapper.moving_threshold = config.dop.removal_threshold;
+    }
+    let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
+    let effect = DetectionUse {
+        config: &config.dop,
+        mode,
+        dynamic_classes: &config.detector.dynamic_classes,
+        sequence_dir: options.sequence_dir.as_deref(),
+    };
     let mut detection_totals = DetectionTotals::default();
     let mut detection_ms = Vec::new();
     let mut keyframe_of_frame = std::collections::HashMap::new();
@@ -278,6 +309,20 @@ pub fn run_sequence(
         let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
         let report = tracker.track(frame, mapping.is_idle());
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
+        if let (Some(dir), Some(frame)) = (&options.debug_frames, tracker.last_frame()) {
+            if frame.index == index {
+                let mut picture = rgb.clone();
+                let dop = tracker.dop.clone().unwrap_or_default();
+                crate::detect::draw::draw_keypoints(&mut picture, frame, &dop);
+                let path = dir.join(format!("{index:06}.png"));
+                if let Err(e) = std::fs::create_dir_all(dir)
+                    .and_then(|_| picture.save(&path).map_err(std::io::Error::other))
+                {
+                    failure = Some(format!("cannot write {}: {e}", path.display()));
+                    break;
+                }
+            }
+        }
         if let Some(key) = report.new_keyframe {
             mapping.insert(key);
             if let Some(worker) = detection.as_mut() {
@@ -290,6 +335,21 @@ pub fn run_sequence(
                 });
             }
         }
+        if let (Some(dop), Some(frame)) = (&tracker.dop, tracker.last_frame()) {
+            if report.state == TrackingState::Ok && frame.index == index {
+                if let Some(mask) =
+                    ground_truth_mask(options.sequence_dir.as_deref(), loaded.timestamp)
+                {
+                    let positions: Vec<(f32, f32)> =
+                        frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+                    let called: Vec<bool> = frame.moving.iter().map(|p| dop.removed(*p)).collect();
+                    detection_totals
+                        .classification
+                        .get_or_insert_with(Classification::default)
+                        .add(&mask, &positions, &called);
+                }
+            }
+        }
         if let Some(worker) = detection.as_mut() {
             let outcomes = worker.poll();
             receive_detections(
@@ -297,6 +357,7 @@ pub fn run_sequence(
                 &keyframe_of_frame,
                 outcomes,
                 out,
+                &effect,
                 &mut detection_totals,
                 &mut detection_ms,
             );
@@ -323,6 +384,7 @@ pub fn run_sequence(
             &keyframe_of_frame,
             outcomes,
             out,
+            &effect,
             &mut detection_totals,
             &mut detection_ms,
         );
@@ -341,6 +403,63 @@ pub fn run_sequence(
     }
 }
 
+/// Keypoints called dynamic (removed) against the ground-truth masks.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Classification {
+    pub frames: usize,
+    pub true_positives: usize,
+    pub false_positives: usize,
+    pub false_negatives: usize,
+    pub precision: f64,
+    pub recall: f64,
+}
+
+impl Classification {
+    /// Adds one frame: `called[i]` for keypoints at `positions[i]`, truth from `mask`
+    /// (non-zero on movers).
+    fn add(
+        &mut self,
+        mask: &image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
+        positions: &[(f32, f32)],
+        called: &[bool],
+    ) {
+        self.frames += 1;
+        for (&(x, y), &c) in positions.iter().zip(called) {
+            let (u, v) = (x.round() as u32, y.round() as u32);
+            if u >= mask.width() || v >= mask.height() {
+                continue;
+            }
+            let truth = mask.get_pixel(u, v)[0] != 0;
+            match (c, truth) {
+                (true, true) => self.true_positives += 1,
+                (true, false) => self.false_positives += 1,
+                (false, true) => self.false_negatives += 1,
+                _ => {}
+            }
+        }
+        let tp = self.true_positives as f64;
+        self.precision = tp / (tp + self.false_positives as f64).max(1.0);
+        self.recall = tp / (tp + self.false_negatives as f64).max(1.0);
+    }
+}
+
+/// The ground-truth mover mask of a frame, when the sequence has one.
+fn ground_truth_mask(
+    sequence_dir: Option<&Path>,
+    timestamp: f64,
+) -> Option<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
+    let path = sequence_dir?.join(format!("masks/{timestamp:.6}.png"));
+    image::open(path).ok().map(|m| m.to_luma16())
+}
+
+/// How detections act on the map.
+struct DetectionUse<'a> {
+    config: &'a DopConfig,
+    mode: Mode,
+    dynamic_classes: &'a [String],
+    sequence_dir: Option<&'a Path>,
+}
+
 /// Attaches detections that came back to their keyframes (which local mapping may
 /// have culled meanwhile) and writes them to the run's detection cache
 /// (`OUT/detections/`, readable back with `source = "cache"`).
@@ -349,6 +468,7 @@ fn receive_detections(
     keyframe_of_frame: &std::collections::HashMap<usize, crate::map::KeyFrameKey>,
     outcomes: Vec<Outcome>,
     out: &Path,
+    effect: &DetectionUse,
     totals: &mut DetectionTotals,
     milliseconds: &mut Vec<f64>,
 ) {
@@ -371,16 +491,67 @@ fn receive_detections(
                 if let Err(e) = write_cache(&out.join("detections"), &frame) {
                     totals.errors.push(e.to_string());
                 }
-                if let Some(kf) = keyframe_of_frame
-                    .get(&outcome.id)
-                    .and_then(|k| map.keyframes.get_mut(*k))
-                {
+                let Some(&key) = keyframe_of_frame.get(&outcome.id) else {
+                    continue;
+                };
+                if effect.mode == Mode::MaskBoxes {
+                    mask_boxes_classification(&map, key, &frame, effect, totals);
+                }
+                if effect.mode != Mode::Off {
+                    let done = apply_detections(
+                        &mut map,
+                        key,
+                        &frame.detections,
+                        effect.dynamic_classes,
+                        &DopConfig {
+                            mode: effect.mode,
+                            ..effect.config.clone()
+                        },
+                        effect.config.alpha_rgbd,
+                    );
+                    totals.map_points_updated += done.updated;
+                    totals.map_points_removed += done.removed;
+                }
+                if let Some(kf) = map.keyframes.get_mut(key) {
                     kf.detections = Some(frame.detections);
                 }
             }
             Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
         }
     }
+}
+
+/// With --mask-boxes: the keyframe's keypoints inside dynamic boxes against its mask.
+fn mask_boxes_classification(
+    map: &Map,
+    key: crate::map::KeyFrameKey,
+    frame: &FrameDetections,
+    effect: &DetectionUse,
+    totals: &mut DetectionTotals,
+) {
+    let (Some(kf), Some(mask)) = (
+        map.keyframes.get(key),
+        ground_truth_mask(effect.sequence_dir, frame.timestamp),
+    ) else {
+        return;
+    };
+    let positions: Vec<(f32, f32)> = kf.frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+    let called: Vec<bool> = positions
+        .iter()
+        .map(|&(x, y)| {
+            frame.detections.iter().any(|d| {
+                effect.dynamic_classes.contains(&d.class)
+                    && x >= d.bbox[0]
+                    && x < d.bbox[2]
+                    && y >= d.bbox[1]
+                    && y < d.bbox[3]
+            })
+        })
+        .collect();
+    totals
+        .classification
+        .get_or_insert_with(Classification::default)
+        .add(&mask, &positions, &called);
 }
 
 /// Writes trajectory, keyframes, map and report; evaluates against ground truth.

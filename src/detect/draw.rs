@@ -106,6 +106,25 @@ pub fn draw_detections(image: &mut RgbImage, detections: &[Detection]) {
     }
 }
 
+/// Draws each keypoint of `frame` as a 5x5 square coloured by its DOP state.
+pub fn draw_keypoints(
+    image: &mut RgbImage,
+    frame: &crate::tracking::Frame,
+    dop: &crate::dop::DopConfig,
+) {
+    use crate::dop::State;
+    for (k, p) in frame.keypoints.iter().zip(&frame.moving) {
+        let c = match dop.state(*p) {
+            State::StaticHigh => Rgb([0, 200, 0]),
+            State::StaticLow => Rgb([230, 230, 0]),
+            State::DynamicLow => Rgb([255, 140, 0]),
+            State::DynamicHigh => Rgb([230, 0, 0]),
+        };
+        let (x, y) = (k.x.round() as i64, k.y.round() as i64);
+        fill(image, (x - 2, y - 2, x + 3, y + 3), c);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

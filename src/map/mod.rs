@@ -36,6 +36,8 @@ pub struct MapPoint {
     pub found: u32,
     /// Sequence number ([`KeyFrame::id`]) of the keyframe that created the point.
     pub first_keyframe_id: usize,
+    /// Moving probability \(P(X)\) of the DOP model (0.5 until a detection speaks).
+    pub moving: f32,
 }
 
 impl MapPoint {
@@ -57,6 +59,7 @@ impl MapPoint {
             visible: 1,
             found: 1,
             first_keyframe_id,
+            moving: 0.5,
         }
     }
 

@@ -12,6 +12,7 @@
 //! map; heavy searches take the read lock and the solver runs with no lock at all.
 
 pub mod culling;
+pub mod dynamic;
 pub mod fusion;
 pub mod triangulation;
 pub mod window_ba;
@@ -89,6 +90,9 @@ pub struct LocalMapper {
     /// threaded mode: with more waiting, local BA and keyframe culling are skipped, as
     /// ORB-SLAM2 does, so that mapping keeps up.
     pending: Option<Arc<AtomicUsize>>,
+    /// Keypoints with a moving probability above this make no new points (1: none
+    /// excluded; the DOP model sets its removal threshold).
+    pub moving_threshold: f32,
     pub stats: MappingStats,
 }
 
@@ -108,6 +112,7 @@ impl LocalMapper {
             close_depth,
             recent: Vec::new(),
             pending: None,
+            moving_threshold: 1.0,
             stats: MappingStats::default(),
         }
     }
@@ -200,6 +205,7 @@ impl LocalMapper {
                         &self.camera,
                         &self.pyramid,
                         self.close_depth,
+                        self.moving_threshold,
                     );
                     Some((other, points))
                 })

@@ -27,6 +27,8 @@ pub struct Frame {
     pub depth: Vec<f32>,
     /// Virtual right-image coordinate per keypoint; negative when unknown.
     pub right_u: Vec<f32>,
+    /// Moving probability per keypoint (the DOP model; 0.5, unknown, until set).
+    pub moving: Vec<f32>,
     pub width: u32,
     pub height: u32,
     grid: Vec<Vec<u32>>,
@@ -97,12 +99,14 @@ impl Frame {
         right_u: Vec<f32>,
         (width, height): (u32, u32),
     ) -> Self {
+        let n = keypoints.len();
         let mut frame = Self {
             index,
             timestamp,
             keypoints,
             descriptors,
             depth,
+            moving: vec![0.5; n],
             right_u,
             width,
             height,

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
 use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
+use crate::dop::DopConfig;
 use crate::features::hamming;
 use crate::features::ScalePyramid;
 use crate::geometry::se3::{self, Se3};
@@ -77,6 +78,10 @@ pub struct FrameReport {
     pub matches: usize,
     pub inliers: usize,
     pub keyframe: bool,
+    /// DOP: keypoints in a removed (dynamic) state, and local-map points left out as
+    /// dynamic.
+    pub dynamic_keypoints: usize,
+    pub dynamic_map_points: usize,
     /// The keyframe made from this frame, for local mapping.
     #[serde(skip)]
     pub new_keyframe: Option<KeyFrameKey>,
@@ -112,6 +117,9 @@ pub struct Tracker {
     frames_since_keyframe: usize,
     width: f32,
     height: f32,
+    /// The DOP model, when on: dynamic keypoints and map points stay out of pose
+    /// estimation and new points.
+    pub dop: Option<DopConfig>,
 }
 
 /// Timers of one frame.
@@ -141,7 +149,70 @@ impl Tracker {
             frames_since_keyframe: 0,
             width: width as f32,
             height: height as f32,
+            dop: None,
         }
+    }
+
+    /// The last tracked frame (with its moving probabilities).
+    pub fn last_frame(&self) -> Option<&Frame> {
+        self.last.as_ref().map(|l| &l.frame)
+    }
+
+    /// Whether a map point is left out as dynamic.
+    fn excluded(&self, point: &MapPoint) -> bool {
+        self.dop.as_ref().is_some_and(|d| d.removed(point.moving))
+    }
+
+    /// The DOP model's probabilities for a tracked frame (propagation from its map
+    /// points, else from the last frame's keypoints, else P_init; then expansion).
+    fn moving_probabilities(
+        &self,
+        map: &Map,
+        frame: &Frame,
+        points: &[Option<MapPointKey>],
+    ) -> Vec<f32> {
+        let Some(dop) = &self.dop else {
+            return vec![0.5; frame.len()];
+        };
+        let from_map: Vec<Option<f32>> = points
+            .iter()
+            .map(|k| k.and_then(|k| map.points.get(k)).map(|p| p.moving))
+            .collect();
+        let from_last: Vec<Option<f32>> = match (&self.last, dop.propagation) {
+            (Some(last), true) => (0..frame.len())
+                .map(|i| {
+                    if from_map[i].is_some() {
+                        return None;
+                    }
+                    let k = &frame.keypoints[i];
+                    let candidates = last.frame.features_in_area(
+                        k.x,
+                        k.y,
+                        20.0,
+                        k.level.saturating_sub(1),
+                        k.level + 1,
+                    );
+                    candidates
+                        .into_iter()
+                        .map(|j| {
+                            (
+                                hamming(&frame.descriptors[i], &last.frame.descriptors[j]),
+                                j,
+                            )
+                        })
+                        .filter(|(d, _)| *d <= TH_LOW)
+                        .min()
+                        .map(|(_, j)| last.frame.moving[j])
+                })
+                .collect(),
+            _ => vec![None; frame.len()],
+        };
+        let (p, origins) = crate::dop::propagate(&from_map, &from_last, dop.p_init);
+        if !dop.expansion {
+            return p;
+        }
+        let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+        crate::dop::expand(dop, &positions, &p, &origins)
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).
@@ -155,7 +226,7 @@ impl Tracker {
     /// mode); while it has not, a keyframe is only made when tracking gets weak.
     /// Searches and pose optimisation hold the map's read lock, so they run while local
     /// mapping searches too; only the counters and a new keyframe take the write lock.
-    pub fn track(&mut self, frame: Frame, mapping_idle: bool) -> FrameReport {
+    pub fn track(&mut self, mut frame: Frame, mapping_idle: bool) -> FrameReport {
         let shared = self.map.clone();
         let mut timing = Timing::default();
         let mut report = FrameReport {
@@ -166,6 +237,8 @@ impl Tracker {
             matches: 0,
             inliers: 0,
             keyframe: false,
+            dynamic_keypoints: 0,
+            dynamic_map_points: 0,
             new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
@@ -209,9 +282,16 @@ impl Tracker {
             self.relocalise(&map, &frame, &mut timing)
         };
         let mut visible = Vec::new();
+        let mut dynamic_map_points = 0;
         let tracked = outcome.and_then(|(pose, points)| {
-            let (pose, points, inliers) =
-                self.track_local_map(&map, &frame, pose, points, &mut visible, &mut timing);
+            let (pose, points, inliers) = self.track_local_map(
+                &map,
+                &frame,
+                pose,
+                points,
+                (&mut visible, &mut dynamic_map_points),
+                &mut timing,
+            );
             (inliers >= self.config.min_inliers).then_some((pose, points, inliers))
         });
         drop(map);
@@ -244,6 +324,11 @@ impl Tracker {
         if let Some(last) = &self.last {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
         }
+        if let Some(dop) = &self.dop {
+            frame.moving = self.moving_probabilities(&map, &frame, &points);
+            report.dynamic_keypoints = frame.moving.iter().filter(|p| dop.removed(**p)).count();
+        }
+        report.dynamic_map_points = dynamic_map_points;
         self.frames_since_keyframe += 1;
         let (pose, points) = if self.need_keyframe(&map, &frame, &points, inliers, mapping_idle) {
             self.insert_keyframe(&mut map, &frame, pose, points, false);
@@ -268,8 +353,8 @@ impl Tracker {
         report
     }
 
-    /// Optimises a pose from matched points; returns the pose, the inlier matches and
-    /// their count.
+    /// Optimises a pose from matched points; returns the pose, the inlier matches (and
+    /// the matches of dynamic points, which take no part) and the inlier count.
     fn optimise(
         &self,
         map: &Map,
@@ -281,10 +366,17 @@ impl Tracker {
         let start = Instant::now();
         let mut indices = Vec::new();
         let mut observations = Vec::new();
+        let mut kept = vec![None; points.len()];
         for (i, key) in points.iter().enumerate() {
             let Some(point) = key.and_then(|k| map.points.get(k)) else {
                 continue;
             };
+            if self.excluded(point) {
+                // Dynamic: no part in the pose, but the match is kept so that its
+                // keypoint inherits the point's probability.
+                kept[i] = points[i];
+                continue;
+            }
             let k = &frame.keypoints[i];
             let stereo = frame.right_u[i] > 0.0;
             observations.push(PoseObservation {
@@ -295,7 +387,6 @@ impl Tracker {
             });
             indices.push(i);
         }
-        let mut kept = vec![None; points.len()];
         if observations.len() < 10 {
             timing.optimisation += start.elapsed().as_secs_f64() * 1e3;
             return (*initial, kept, 0);
@@ -563,7 +654,7 @@ impl Tracker {
         frame: &Frame,
         pose: Se3,
         mut points: Vec<Option<MapPointKey>>,
-        visible: &mut Vec<MapPointKey>,
+        (visible, dynamic): (&mut Vec<MapPointKey>, &mut usize),
         timing: &mut Timing,
     ) -> (Se3, Vec<Option<MapPointKey>>, usize) {
         let start = Instant::now();
@@ -584,6 +675,9 @@ impl Tracker {
                 let Some(point) = map.points.get(*key) else {
                     continue;
                 };
+                if self.excluded(point) {
+                    *dynamic += 1;
+                }
                 let Some(view) = predict_view(
                     point,
                     &pose,
@@ -638,11 +732,12 @@ impl Tracker {
         let Some(reference) = self.reference.and_then(|k| map.keyframes.get(k)) else {
             return true;
         };
+        // Points the DOP model leaves out cannot be tracked: they do not count.
         let reference_points = reference
             .map_points
             .iter()
             .flatten()
-            .filter(|k| map.points.contains_key(**k))
+            .filter(|k| map.points.get(**k).is_some_and(|p| !self.excluded(p)))
             .count();
         let close = self.close_depth();
         let (mut tracked_close, mut untracked_close) = (0, 0);
@@ -681,8 +776,13 @@ impl Tracker {
                 map.add_observation(*point, key, i);
             }
         }
+        let dynamic = |i: usize| {
+            self.dop
+                .as_ref()
+                .is_some_and(|d| d.removed(frame.moving[i]))
+        };
         let mut candidates: Vec<usize> = (0..frame.len())
-            .filter(|&i| frame.depth[i] > 0.0 && points[i].is_none())
+            .filter(|&i| frame.depth[i] > 0.0 && points[i].is_none() && !dynamic(i))
             .collect();
         candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
         for (created, i) in candidates.into_iter().enumerate() {

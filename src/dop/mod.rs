@@ -1,0 +1,323 @@
+//! The dynamic object probability (DOP) model (Ai et al. 2021, written out in
+//! `../shared/reference/dop-model.md`). It knows nothing of ORB or of the detector's
+//! internals: it takes keypoint positions and depths, their matches, and boxes, and
+//! returns moving probabilities and states.
+//!
+//! - Map-point update at a detected keyframe ([`update`]):
+//!   \(P_t(X) = (1 - \alpha) P_{t-1}(X) + \alpha S_t(x)\).
+//! - Propagation to every frame ([`propagate`]): map-point match first, then a
+//!   last-frame match, else \(P_{init}\).
+//! - Matching point expansion ([`expand`]):
+//!   \(P(x) = \mathrm{clamp}(P_{init} + \sum_{h} \lambda(|x - h|)(P(h) - P_{init}), 0, 1)\)
+//!   over high-confidence keypoints \(h\) within \(\gamma\) pixels,
+//!   \(\lambda(d) = C e^{-d / C}\) (a reconstruction).
+//! - Four states ([`State`]; thresholds are a reconstruction) and the removal rule.
+//! - Box refinement by depth ([`boxes`], the paper's Algorithm 1, a reconstruction).
+
+pub mod boxes;
+
+use serde::{Deserialize, Serialize};
+
+/// How detections are used against moving objects (`dopslam run --no-dop |
+/// --mask-boxes | --dop`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// ORB-SLAM2 behaviour: detections are not used.
+    Off,
+    /// The naive method: every map point seen inside a dynamic box of a detected
+    /// keyframe is removed.
+    MaskBoxes,
+    /// The DOP model.
+    Dop,
+}
+
+/// The model's parameters; every step can be switched off for ablations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DopConfig {
+    /// Which method runs (with no detections every mode behaves as `off`).
+    pub mode: Mode,
+    /// Smoothing weight of the latest detection: 0.3 RGB-D, 0.5 stereo (paper).
+    pub alpha_rgbd: f32,
+    pub alpha_stereo: f32,
+    /// Probability of anything unknown (paper: 0.5).
+    pub p_init: f32,
+    /// Expansion radius in pixels (reconstruction).
+    pub gamma: f32,
+    /// Expansion weight scale \(C\) of \(\lambda(d) = C e^{-d/C}\), pixels (reconstruction).
+    pub c: f32,
+    /// State thresholds: high-confidence static below the first, low-confidence static
+    /// below the second, low-confidence dynamic below the third (reconstruction).
+    pub thresholds: [f32; 3],
+    /// Keypoints and map points with \(P\) above this are removed before pose
+    /// estimation. Strictly above: \(P_{init}\) itself (nothing known) is kept.
+    pub removal_threshold: f32,
+    /// Map points at or above this after a keyframe update are culled.
+    pub cull_threshold: f32,
+    /// Depth tolerance of box refinement, metres (reconstruction).
+    pub delta_z: f32,
+    /// Central part of a box (fraction of width and height) whose depths give the
+    /// object's depth.
+    pub central_fraction: f32,
+    pub propagation: bool,
+    pub expansion: bool,
+    pub refine_boxes: bool,
+}
+
+impl Default for DopConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::Dop,
+            alpha_rgbd: 0.3,
+            alpha_stereo: 0.5,
+            p_init: 0.5,
+            gamma: 15.0,
+            c: 5.0,
+            thresholds: [0.25, 0.5, 0.75],
+            removal_threshold: 0.5,
+            cull_threshold: 0.75,
+            delta_z: 0.4,
+            central_fraction: 0.5,
+            propagation: true,
+            expansion: true,
+            refine_boxes: true,
+        }
+    }
+}
+
+impl DopConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let unit = |name: &str, v: f32| {
+            if (0.0..=1.0).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!("dop.{name} must be in [0, 1], got {v}"))
+            }
+        };
+        unit("alpha_rgbd", self.alpha_rgbd)?;
+        unit("alpha_stereo", self.alpha_stereo)?;
+        unit("p_init", self.p_init)?;
+        unit("removal_threshold", self.removal_threshold)?;
+        unit("cull_threshold", self.cull_threshold)?;
+        unit("central_fraction", self.central_fraction)?;
+        let t = self.thresholds;
+        if !(t[0] <= t[1] && t[1] <= t[2]) {
+            return Err(format!("dop.thresholds must increase, got {t:?}"));
+        }
+        if self.gamma < 0.0 || self.c <= 0.0 || self.delta_z <= 0.0 {
+            return Err("dop.gamma must be >= 0, dop.c and dop.delta_z > 0".into());
+        }
+        Ok(())
+    }
+
+    /// The state of probability `p`.
+    pub fn state(&self, p: f32) -> State {
+        let t = self.thresholds;
+        if p < t[0] {
+            State::StaticHigh
+        } else if p < t[1] {
+            State::StaticLow
+        } else if p < t[2] {
+            State::DynamicLow
+        } else {
+            State::DynamicHigh
+        }
+    }
+
+    /// Whether `p` is removed before pose estimation.
+    pub fn removed(&self, p: f32) -> bool {
+        p > self.removal_threshold
+    }
+}
+
+/// The four confidence states (paper's Fig. 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum State {
+    StaticHigh,
+    StaticLow,
+    DynamicLow,
+    DynamicHigh,
+}
+
+impl State {
+    pub fn high_confidence(self) -> bool {
+        matches!(self, State::StaticHigh | State::DynamicHigh)
+    }
+}
+
+/// The keyframe update of one map point (paper's Eq. 2).
+pub fn update(previous: f32, on_dynamic_object: bool, alpha: f32) -> f32 {
+    (1.0 - alpha) * previous + alpha * if on_dynamic_object { 1.0 } else { 0.0 }
+}
+
+/// Where a keypoint's probability came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Origin {
+    MapPoint,
+    LastFrame,
+    Initial,
+}
+
+/// Propagation (step 2): per keypoint, the probability of its matched map point, else of
+/// its matched last-frame keypoint, else \(P_{init}\).
+pub fn propagate(
+    map_point: &[Option<f32>],
+    last_frame: &[Option<f32>],
+    p_init: f32,
+) -> (Vec<f32>, Vec<Origin>) {
+    map_point
+        .iter()
+        .zip(last_frame)
+        .map(|(m, l)| match (m, l) {
+            (Some(p), _) => (*p, Origin::MapPoint),
+            (None, Some(p)) => (*p, Origin::LastFrame),
+            (None, None) => (p_init, Origin::Initial),
+        })
+        .unzip()
+}
+
+/// Matching point expansion (step 3): keypoints that got \(P_{init}\) take the summed,
+/// distance-weighted influence of the high-confidence keypoints within \(\gamma\).
+/// `positions` are pixels; `probabilities` and `origins` come from [`propagate`].
+pub fn expand(
+    config: &DopConfig,
+    positions: &[(f32, f32)],
+    probabilities: &[f32],
+    origins: &[Origin],
+) -> Vec<f32> {
+    let high: Vec<usize> = (0..positions.len())
+        .filter(|&i| {
+            origins[i] != Origin::Initial && config.state(probabilities[i]).high_confidence()
+        })
+        .collect();
+    let mut out = probabilities.to_vec();
+    for i in 0..positions.len() {
+        if origins[i] != Origin::Initial {
+            continue;
+        }
+        let (x, y) = positions[i];
+        let mut sum = 0.0;
+        for &h in &high {
+            let (hx, hy) = positions[h];
+            let d = ((x - hx).powi(2) + (y - hy).powi(2)).sqrt();
+            if d < config.gamma {
+                sum += config.c * (-d / config.c).exp() * (probabilities[h] - config.p_init);
+            }
+        }
+        out[i] = (config.p_init + sum).clamp(0.0, 1.0);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn update_rule_by_hand() {
+        // 0.7 * 0.5 + 0.3 * 1 = 0.65; then 0.7 * 0.65 + 0 = 0.455.
+        let p = update(0.5, true, 0.3);
+        assert!((p - 0.65).abs() < 1e-6);
+        assert!((update(p, false, 0.3) - 0.455).abs() < 1e-6);
+        // Stereo alpha 0.5: 0.5 * 0.5 + 0.5 = 0.75.
+        assert!((update(0.5, true, 0.5) - 0.75).abs() < 1e-6);
+    }
+
+    #[test]
+    fn propagation_prefers_the_map_point_then_the_last_frame() {
+        let (p, origin) = propagate(
+            &[Some(0.9), None, None, Some(0.1)],
+            &[Some(0.2), Some(0.8), None, None],
+            0.5,
+        );
+        assert_eq!(p, vec![0.9, 0.8, 0.5, 0.1]);
+        assert_eq!(
+            origin,
+            vec![
+                Origin::MapPoint,
+                Origin::LastFrame,
+                Origin::Initial,
+                Origin::MapPoint
+            ]
+        );
+    }
+
+    #[test]
+    fn expansion_with_one_and_two_high_confidence_neighbours() {
+        let config = DopConfig {
+            gamma: 15.0,
+            c: 5.0,
+            ..DopConfig::default()
+        };
+        // Keypoint 0 (dynamic, 0.9) at the origin; keypoint 2 unknown 10 px away:
+        // lambda(10) = 5 e^-2 = 0.67668; P = 0.5 + 0.67668 * 0.4 = 0.77067.
+        let positions = [(0.0, 0.0), (100.0, 0.0), (10.0, 0.0), (40.0, 0.0)];
+        let probabilities = [0.9, 0.3, 0.5, 0.5];
+        let origins = [
+            Origin::MapPoint,
+            Origin::MapPoint,
+            Origin::Initial,
+            Origin::Initial,
+        ];
+        let p = expand(&config, &positions, &probabilities, &origins);
+        assert!((p[2] - 0.770_67).abs() < 1e-4, "{}", p[2]);
+        // Keypoint 3 is beyond gamma of everything: stays P_init; others unchanged.
+        assert_eq!((p[0], p[1], p[3]), (0.9, 0.3, 0.5));
+        // Two neighbours add up: a static one (0.1) 12 px away on the other side,
+        // lambda(12) = 5 e^-2.4 = 0.45359; sum = 0.27067 - 0.18144 = 0.08924.
+        let positions = [(0.0, 0.0), (22.0, 0.0), (10.0, 0.0)];
+        let p = expand(
+            &config,
+            &positions,
+            &[0.9, 0.1, 0.5],
+            &[Origin::MapPoint, Origin::LastFrame, Origin::Initial],
+        );
+        assert!((p[2] - 0.589_24).abs() < 1e-4, "{}", p[2]);
+    }
+
+    #[test]
+    fn expansion_clamps_and_ignores_low_confidence_neighbours() {
+        let config = DopConfig::default();
+        // Two dynamic neighbours 1 px away: 0.5 + 2 * 5 e^-0.2 * 0.45 > 1 -> 1.
+        let p = expand(
+            &config,
+            &[(0.0, 0.0), (2.0, 0.0), (1.0, 0.0), (1.0, 1.0)],
+            &[0.95, 0.95, 0.5, 0.6],
+            &[
+                Origin::MapPoint,
+                Origin::MapPoint,
+                Origin::Initial,
+                Origin::LastFrame,
+            ],
+        );
+        assert_eq!(p[2], 1.0);
+        // 0.6 is low-confidence dynamic: it spreads nothing, and keeps its value.
+        assert_eq!(p[3], 0.6);
+        let lonely = expand(
+            &config,
+            &[(0.0, 0.0), (3.0, 0.0)],
+            &[0.6, 0.5],
+            &[Origin::MapPoint, Origin::Initial],
+        );
+        assert_eq!(lonely[1], 0.5);
+    }
+
+    #[test]
+    fn states_and_removal() {
+        let config = DopConfig::default();
+        assert_eq!(config.state(0.1), State::StaticHigh);
+        assert_eq!(config.state(0.3), State::StaticLow);
+        assert_eq!(config.state(0.5), State::DynamicLow);
+        assert_eq!(config.state(0.75), State::DynamicHigh);
+        assert!(!config.removed(0.5), "P_init is kept");
+        assert!(config.removed(0.51));
+        assert!(DopConfig {
+            thresholds: [0.5, 0.4, 0.9],
+            ..DopConfig::default()
+        }
+        .validate()
+        .is_err());
+    }
+}
