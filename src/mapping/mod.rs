@@ -161,7 +161,13 @@ impl LocalMapper {
             let ba_start = Instant::now();
             let window = {
                 let m = map.read().expect("map lock poisoned");
-                window_ba::Window::build(&m, key, self.config.local_ba_keyframes, &self.pyramid)
+                window_ba::Window::build(
+                    &m,
+                    key,
+                    self.config.local_ba_keyframes,
+                    &self.pyramid,
+                    self.moving_threshold,
+                )
             };
             if let Some(mut window) = window {
                 let report = window.solve(&self.camera);

@@ -26,9 +26,16 @@ pub struct Window {
 }
 
 impl Window {
-    /// The window around `key` with at most `size` free keyframes; `None` when there
-    /// is nothing to hold the gauge.
-    pub fn build(map: &Map, key: KeyFrameKey, size: usize, pyramid: &ScalePyramid) -> Option<Self> {
+    /// The window around `key` with at most `size` free keyframes; points whose moving
+    /// probability is above `moving_threshold` stay out. `None` when there is nothing
+    /// to hold the gauge.
+    pub fn build(
+        map: &Map,
+        key: KeyFrameKey,
+        size: usize,
+        pyramid: &ScalePyramid,
+        moving_threshold: f32,
+    ) -> Option<Self> {
         let kf = map.keyframes.get(key)?;
         let first = *map.keyframe_order.first()?;
         let mut local = vec![key];
@@ -42,7 +49,7 @@ impl Window {
         let mut positions = Vec::new();
         for k in &local {
             for p in map.keyframes[*k].map_points.iter().flatten() {
-                if let Some(point) = map.points.get(*p) {
+                if let Some(point) = map.points.get(*p).filter(|x| x.moving <= moving_threshold) {
                     point_index.entry(*p).or_insert_with(|| {
                         points.push(*p);
                         positions.push(point.position);
