@@ -194,9 +194,9 @@ struct RunArgs {
     /// instead of beside it, so that a run repeats exactly (tests use this; slower).
     #[arg(long)]
     deterministic: bool,
-    /// Keyframe detections: none, onnx (the [detector] model), cache ([detector]
-    /// cache_dir) or oracle (a synthetic sequence's ground-truth boxes). Default: the
-    /// config's [detector] source (none).
+    /// Keyframe detections: auto (onnx when setup installed the model, else none), none,
+    /// onnx (the [detector] model), cache ([detector] cache_dir) or oracle (a synthetic
+    /// sequence's ground-truth boxes). Default: the config's [detector] source (auto).
     #[arg(long, value_enum)]
     detections: Option<dopslam::detect::Source>,
     /// Write every frame with its keypoints coloured by DOP state into this folder.
@@ -232,7 +232,7 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     use dopslam::detect::{draw::draw_detections, FrameDetections, Model, Source};
     let config = load_config(args.config.as_deref())?;
     let mut detector_config = config.detector.clone();
-    if detector_config.source == Source::None {
+    if matches!(detector_config.source, Source::None | Source::Auto) {
         detector_config.source = Source::Onnx;
     }
     if let Some(model) = args.model {
@@ -482,11 +482,17 @@ fn run_info(args: InfoArgs) -> Result<()> {
 }
 
 fn run_run(args: RunArgs) -> Result<()> {
+    use clap::ValueEnum;
     let mut config = load_config(args.config.as_deref())?;
     if let Some(source) = args.detections {
         config.detector.source = source;
     }
     let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    let (source, note) = config.detector.resolved_source();
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
+    config.detector.source = source;
     let options = dopslam::pipeline::RunOptions {
         max_frames: args.frames,
         progress: true,
@@ -501,6 +507,19 @@ fn run_run(args: RunArgs) -> Result<()> {
     } else if args.dop {
         config.dop.mode = dopslam::dop::Mode::Dop;
     }
+    let mode = if source == dopslam::detect::Source::None {
+        dopslam::dop::Mode::Off
+    } else {
+        config.dop.mode
+    };
+    eprintln!(
+        "detections: {}; moving objects: {}",
+        source
+            .to_possible_value()
+            .map_or("?".into(), |v| v.get_name().to_string()),
+        mode.to_possible_value()
+            .map_or("?".into(), |v| v.get_name().to_string())
+    );
     let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
     let t = &report.totals;
     println!(

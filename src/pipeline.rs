@@ -105,6 +105,8 @@ pub struct RunTotals {
     pub median_extraction_ms: f64,
     pub median_matching_ms: f64,
     pub median_optimisation_ms: f64,
+    /// The DOP model per frame (propagation and expansion; 0 without it).
+    pub median_dop_ms: f64,
 }
 
 /// One frame's line in the report.
@@ -114,6 +116,9 @@ pub struct FrameLine {
     pub tracking: FrameReport,
     pub extraction_ms: f64,
     pub tracking_ms: f64,
+    /// Against the ground-truth masks of a synthetic sequence (absent elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub truth: Option<TruthCounts>,
 }
 
 /// What `report.json` holds.
@@ -335,18 +340,30 @@ pub fn run_sequence(
                 });
             }
         }
-        if let (Some(dop), Some(frame)) = (&tracker.dop, tracker.last_frame()) {
+        let mut truth = None;
+        if let Some(frame) = tracker.last_frame() {
             if report.state == TrackingState::Ok && frame.index == index {
                 if let Some(mask) =
                     ground_truth_mask(options.sequence_dir.as_deref(), loaded.timestamp)
                 {
                     let positions: Vec<(f32, f32)> =
                         frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
-                    let called: Vec<bool> = frame.moving.iter().map(|p| dop.removed(*p)).collect();
-                    detection_totals
-                        .classification
-                        .get_or_insert_with(Classification::default)
-                        .add(&mask, &positions, &called);
+                    let called: Vec<bool> = match &tracker.dop {
+                        Some(dop) => frame.moving.iter().map(|p| dop.removed(*p)).collect(),
+                        None => vec![false; positions.len()],
+                    };
+                    truth = Some(TruthCounts::new(
+                        &mask,
+                        &positions,
+                        &called,
+                        &report.pose_keypoints,
+                    ));
+                    if tracker.dop.is_some() {
+                        detection_totals
+                            .classification
+                            .get_or_insert_with(Classification::default)
+                            .add(&mask, &positions, &called);
+                    }
                 }
             }
         }
@@ -368,6 +385,7 @@ pub fn run_sequence(
             tracking: report,
             extraction_ms,
             tracking_ms,
+            truth,
         });
     }
     progress.finish_and_clear();
@@ -440,6 +458,55 @@ impl Classification {
         let tp = self.true_positives as f64;
         self.precision = tp / (tp + self.false_positives as f64).max(1.0);
         self.recall = tp / (tp + self.false_negatives as f64).max(1.0);
+    }
+}
+
+/// One tracked frame's keypoints against its ground-truth mover mask: how many lie on
+/// the static scene and on movers, how many of each the DOP model removed, and how
+/// many of each took part in the pose as inliers.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct TruthCounts {
+    pub static_keypoints: usize,
+    pub mover_keypoints: usize,
+    pub static_removed: usize,
+    pub mover_removed: usize,
+    pub static_in_pose: usize,
+    pub mover_in_pose: usize,
+}
+
+impl TruthCounts {
+    fn new(
+        mask: &image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
+        positions: &[(f32, f32)],
+        called: &[bool],
+        in_pose: &[u32],
+    ) -> Self {
+        let on_mover = |(x, y): (f32, f32)| {
+            let (u, v) = (x.round() as u32, y.round() as u32);
+            u < mask.width() && v < mask.height() && mask.get_pixel(u, v)[0] != 0
+        };
+        let mut counts = Self::default();
+        for (&position, &removed) in positions.iter().zip(called) {
+            let mover = on_mover(position);
+            match (mover, removed) {
+                (true, r) => {
+                    counts.mover_keypoints += 1;
+                    counts.mover_removed += r as usize;
+                }
+                (false, r) => {
+                    counts.static_keypoints += 1;
+                    counts.static_removed += r as usize;
+                }
+            }
+        }
+        for &i in in_pose {
+            if on_mover(positions[i as usize]) {
+                counts.mover_in_pose += 1;
+            } else {
+                counts.static_in_pose += 1;
+            }
+        }
+        counts
     }
 }
 
@@ -610,6 +677,7 @@ fn write_outputs(
         median_extraction_ms: column(|l| l.extraction_ms),
         median_matching_ms: column(|l| l.tracking.matching_ms),
         median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
+        median_dop_ms: column(|l| l.tracking.dop_ms),
     };
     let ate = match sequence.ground_truth() {
         Some(gt) if trajectory.len() >= 3 => evaluate(

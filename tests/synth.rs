@@ -218,6 +218,7 @@ fn every_preset_loads_and_validates() {
     assert_eq!(
         names,
         [
+            "demo_walking",
             "fr1_xyz_room",
             "fr2_desk_room",
             "loop_room",

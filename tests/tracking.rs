@@ -30,6 +30,13 @@ fn sorted_files(dir: &Path) -> Vec<PathBuf> {
     names
 }
 
+/// The default config without the detector (`auto` would use it where installed).
+fn without_detector() -> Config {
+    let mut config = Config::default();
+    config.detector.source = dopslam::detect::Source::None;
+    config
+}
+
 fn dopslam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_dopslam"))
 }
@@ -38,7 +45,7 @@ fn dopslam() -> Command {
 fn tracks_a_static_room_within_a_centimetre() {
     let seq = static_room(90, "track-static");
     let out = seq.parent().unwrap().join("run");
-    let config = Config::default();
+    let config = without_detector();
     let sequence = open_sequence(&seq, &config).unwrap();
     let report = run_sequence(sequence.as_ref(), &config, &out, &RunOptions::default()).unwrap();
     assert_eq!(report.totals.frames, 90);
@@ -71,7 +78,13 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     let names = sorted_files(&seq.join("rgb"));
     std::fs::remove_file(&names[8]).unwrap();
     let output = dopslam()
-        .args(["run", seq.to_str().unwrap(), "--out"])
+        .args([
+            "run",
+            seq.to_str().unwrap(),
+            "--detections",
+            "none",
+            "--out",
+        ])
         .arg(base.join("run-missing"))
         .output()
         .unwrap();
@@ -92,7 +105,15 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     let config_path = base.join("wrong-scale.toml");
     std::fs::write(&config_path, "[dataset]\ndepth_scale = 1.0\n").unwrap();
     let output = dopslam()
-        .args(["run", seq.to_str().unwrap(), "--frames", "6", "--config"])
+        .args([
+            "run",
+            seq.to_str().unwrap(),
+            "--detections",
+            "none",
+            "--frames",
+            "6",
+            "--config",
+        ])
         .arg(&config_path)
         .arg("--out")
         .arg(base.join("run-scale"))
@@ -114,7 +135,15 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
             .unwrap();
     }
     let output = dopslam()
-        .args(["run", seq.to_str().unwrap(), "--frames", "8", "--out"])
+        .args([
+            "run",
+            seq.to_str().unwrap(),
+            "--detections",
+            "none",
+            "--frames",
+            "8",
+            "--out",
+        ])
         .arg(base.join("run-zero"))
         .output()
         .unwrap();
@@ -128,7 +157,13 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     std::fs::write(empty.join("rgb.txt"), "# nothing\n").unwrap();
     std::fs::write(empty.join("depth.txt"), "# nothing\n").unwrap();
     let output = dopslam()
-        .args(["run", empty.to_str().unwrap(), "--out"])
+        .args([
+            "run",
+            empty.to_str().unwrap(),
+            "--detections",
+            "none",
+            "--out",
+        ])
         .arg(base.join("run-empty"))
         .output()
         .unwrap();
@@ -144,7 +179,7 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
 fn deterministic_runs_repeat_exactly_with_local_mapping() {
     let seq = static_room(90, "track-deterministic");
     let base = seq.parent().unwrap().to_path_buf();
-    let config = Config::default();
+    let config = without_detector();
     let sequence = open_sequence(&seq, &config).unwrap();
     let options = RunOptions {
         deterministic: true,
@@ -180,7 +215,7 @@ fn relocalises_after_a_blackout() {
     for path in &names[60..70] {
         image::RgbImage::new(640, 480).save(path).unwrap();
     }
-    let config = Config::default();
+    let config = without_detector();
     let sequence = open_sequence(&seq, &config).unwrap();
     let options = RunOptions {
         deterministic: true,

@@ -2,41 +2,76 @@
 # Benchmark (not a test): ATE of the three ways of treating moving objects on the
 # synthetic presets, with the oracle detections (the detector's errors left out) or a
 # real model:
-#   bash tools/bench_dop.sh [--detections oracle|onnx] [PRESET ...]
-# Runs `dopslam run --deterministic` with --no-dop, --mask-boxes and --dop on each
-# preset (sequences generated once into outputs/bench/) and prints one line per preset:
-# ATE RMSE per mode, keyframes, and with --dop the median keypoints removed per frame.
+#   bash tools/bench_dop.sh [--detections oracle|onnx] [--seeds N] [--modes "no-dop mask-boxes dop"] [PRESET ...]
+# Runs `dopslam run --deterministic` in each mode on each preset (sequences generated
+# once into outputs/bench/; with --seeds N also N-1 more sequences of the preset drawn
+# with seeds 1001, 1002, ... for the sensor noise and the movers) and prints per preset
+# the ATE RMSE per mode (the median over the seeds, then each seed's), the keyframes
+# and the median keypoints removed per frame with --dop; then tools/dop_compare.py on
+# the preset's own seed: keypoints on the static scene and on movers used in the pose
+# where the boxes are large.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 detections=oracle
-if [ "${1:-}" = "--detections" ]; then detections=$2; shift 2; fi
+seeds=1
+modes="no-dop mask-boxes dop"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --detections) detections=$2; shift 2 ;;
+    --seeds) seeds=$2; shift 2 ;;
+    --modes) modes=$2; shift 2 ;;
+    *) break ;;
+  esac
+done
 presets=("$@")
 if [ ${#presets[@]} -eq 0 ]; then
-  presets=(walking_xyz walking_static walking_rpy walking_halfsphere sitting static_room)
+  presets=(walking_xyz walking_static walking_rpy walking_halfsphere sitting static_room seated_leaves)
 fi
 cargo build --release --quiet
 mkdir -p outputs/bench
-printf '%-20s %12s %12s %12s %8s %10s\n' preset "no-dop (m)" "mask (m)" "dop (m)" "dop kfs" "removed/fr"
 for preset in "${presets[@]}"; do
-  seq=outputs/bench/$preset
-  if [ ! -f "$seq/rgb.txt" ]; then
-    ./target/release/dopslam synth --config "configs/synth/$preset.toml" --out "$seq" --force >/dev/null
-  fi
-  for mode in no-dop mask-boxes dop; do
-    out=outputs/bench/dop-$detections-$preset-$mode
-    rm -rf "$out"
-    ./target/release/dopslam run "$seq" --out "$out" --detections "$detections" --$mode --deterministic >/dev/null 2>&1 \
-      || echo "$preset $mode: dopslam run failed (see $out)"
+  runs=()
+  for ((s = 1; s <= seeds; s++)); do
+    seq=outputs/bench/$preset
+    seed_args=()
+    if [ "$s" -gt 1 ]; then
+      seq=outputs/bench/$preset-seed$((1000 + s - 1))
+      seed_args=(--seed $((1000 + s - 1)))
+    fi
+    if [ ! -f "$seq/rgb.txt" ]; then
+      ./target/release/dopslam synth --config "configs/synth/$preset.toml" "${seed_args[@]}" --out "$seq" --force >/dev/null
+    fi
+    for mode in $modes; do
+      out=outputs/bench/dop-$detections-$(basename "$seq")-$mode
+      rm -rf "$out"
+      ./target/release/dopslam run "$seq" --out "$out" --detections "$detections" --$mode --deterministic >/dev/null 2>&1 \
+        || echo "$preset $mode: dopslam run failed (see $out)"
+    done
+    runs+=("outputs/bench/dop-$detections-$(basename "$seq")")
   done
-  python3 - "$preset" outputs/bench/dop-$detections-$preset <<'PY'
+  python3 - "$preset" "$modes" "${runs[@]}" <<'PY'
 import json, statistics, sys
-name, base = sys.argv[1], sys.argv[2]
-def load(mode):
+name, modes, bases = sys.argv[1], sys.argv[2].split(), sys.argv[3:]
+def load(base, mode):
     return json.load(open(f"{base}-{mode}/report.json"))
-ate = {m: load(m)["ate"]["ape"]["statistics"]["rmse"] for m in ("no-dop", "mask-boxes", "dop")}
-dop = load("dop")
-removed = statistics.median(f["dynamic_keypoints"] for f in dop["frames"])
-print(f'{name:20s} {ate["no-dop"]:12.4f} {ate["mask-boxes"]:12.4f} {ate["dop"]:12.4f} '
-      f'{dop["totals"]["keyframes"]:8d} {removed:10.0f}')
+cells = []
+for mode in modes:
+    ates = [load(b, mode)["ate"]["ape"]["statistics"]["rmse"] for b in bases]
+    each = "" if len(ates) == 1 else " (" + " ".join(f"{a:.4f}" for a in ates) + ")"
+    cells.append(f"{mode} {statistics.median(ates):.4f}{each}")
+line = f"{name:20s} ATE RMSE (m): " + ", ".join(cells)
+if "dop" in modes:
+    dop = load(bases[0], "dop")
+    removed = statistics.median(f["dynamic_keypoints"] for f in dop["frames"])
+    c = dop["detection"].get("classification") or {}
+    line += (f"; dop keyframes {dop['totals']['keyframes']}, removed/frame {removed:.0f}, "
+             f"precision {c.get('precision', float('nan')):.3f} recall {c.get('recall', float('nan')):.3f}")
+if "mask-boxes" in modes:
+    c = load(bases[0], "mask-boxes")["detection"].get("classification") or {}
+    line += f"; mask-boxes precision {c.get('precision', float('nan')):.3f} recall {c.get('recall', float('nan')):.3f}"
+print(line, flush=True)
 PY
+  if [ "$modes" = "no-dop mask-boxes dop" ]; then
+    python3 tools/dop_compare.py "outputs/bench/$preset" "outputs/bench/dop-$detections-$preset"
+  fi
 done

@@ -41,7 +41,10 @@ pub trait Detector: Send {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Source {
-    /// No detection (ORB-SLAM2 behaviour; the default until the DOP model lands).
+    /// The ONNX model when it and the ONNX Runtime library are installed (by
+    /// `tools/setup.sh`), else none (the default).
+    Auto,
+    /// No detection (ORB-SLAM2 behaviour).
     None,
     /// The ONNX model.
     Onnx,
@@ -103,7 +106,7 @@ pub struct DetectorConfig {
 impl Default for DetectorConfig {
     fn default() -> Self {
         Self {
-            source: Source::None,
+            source: Source::Auto,
             model: Model::Yolov4Tiny,
             model_path: None,
             ort_library: None,
@@ -145,11 +148,34 @@ impl DetectorConfig {
             .unwrap_or_else(|| self.model.default_path())
     }
 
+    /// The source `auto` stands for: the ONNX model when its file and the ONNX Runtime
+    /// library exist, else none, with the reason.
+    pub fn resolved_source(&self) -> (Source, Option<String>) {
+        if self.source != Source::Auto {
+            return (self.source, None);
+        }
+        let model = self.model_file();
+        let library = onnx::runtime_library(self.ort_library.as_deref());
+        let missing = [(&model, "model"), (&library, "ONNX Runtime library")]
+            .into_iter()
+            .find(|(path, _)| !path.is_file());
+        match missing {
+            None => (Source::Onnx, None),
+            Some((path, what)) => (
+                Source::None,
+                Some(format!(
+                    "no detector: the {what} {} is missing (run `bash tools/setup.sh`); tracking without detections (ORB-SLAM2 behaviour)",
+                    path.display()
+                )),
+            ),
+        }
+    }
+
     /// Opens the configured source; `sequence` is the sequence folder (for the oracle).
     /// `None` when detection is off.
     pub fn open(&self, sequence: Option<&Path>) -> Result<Option<Box<dyn Detector>>, DetectError> {
-        Ok(Some(match self.source {
-            Source::None => return Ok(None),
+        Ok(Some(match self.resolved_source().0 {
+            Source::None | Source::Auto => return Ok(None),
             Source::Onnx => {
                 let mut detector = onnx::OnnxDetector::load(
                     &self.model_file(),

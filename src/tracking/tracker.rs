@@ -89,12 +89,18 @@ pub struct FrameReport {
     /// (feature extraction is timed by the caller).
     pub matching_ms: f64,
     pub optimisation_ms: f64,
+    /// The DOP model's probabilities (propagation and expansion).
+    pub dop_ms: f64,
     #[serde(skip)]
     pub camera_from_world: Option<Se3>,
     /// The reference keyframe and the pose relative to it, \(T_{cr}\): the final
     /// trajectory is \(T_{cr} T_{rw}\) with the reference's corrected pose.
     #[serde(skip)]
     pub reference: Option<(KeyFrameKey, Se3)>,
+    /// Indices of the keypoints whose map points took part in the final pose as
+    /// inliers (for scoring against ground-truth masks).
+    #[serde(skip)]
+    pub pose_keypoints: Vec<u32>,
 }
 
 /// The last tracked frame, kept for the motion model.
@@ -161,6 +167,13 @@ impl Tracker {
     /// Whether a map point is left out as dynamic.
     fn excluded(&self, point: &MapPoint) -> bool {
         self.dop.as_ref().is_some_and(|d| d.removed(point.moving))
+    }
+
+    /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
+    fn dynamic_keypoint(&self, frame: &Frame, i: usize) -> bool {
+        self.dop
+            .as_ref()
+            .is_some_and(|d| d.removed(frame.moving[i]))
     }
 
     /// The DOP model's probabilities for a tracked frame (propagation from its map
@@ -242,8 +255,10 @@ impl Tracker {
             new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
+            dop_ms: 0.0,
             camera_from_world: None,
             reference: None,
+            pose_keypoints: Vec::new(),
         };
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
@@ -321,12 +336,23 @@ impl Tracker {
         report.state = TrackingState::Ok;
         report.inliers = inliers;
         report.matches = points.iter().filter(|p| p.is_some()).count();
+        report.pose_keypoints = points
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| {
+                k.and_then(|k| map.points.get(k))
+                    .is_some_and(|p| !self.excluded(p))
+            })
+            .map(|(i, _)| i as u32)
+            .collect();
         if let Some(last) = &self.last {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
         }
         if let Some(dop) = &self.dop {
+            let start = Instant::now();
             frame.moving = self.moving_probabilities(&map, &frame, &points);
             report.dynamic_keypoints = frame.moving.iter().filter(|p| dop.removed(**p)).count();
+            report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
         }
         report.dynamic_map_points = dynamic_map_points;
         self.frames_since_keyframe += 1;
@@ -739,14 +765,18 @@ impl Tracker {
             .flatten()
             .filter(|k| map.points.get(**k).is_some_and(|p| !self.excluded(p)))
             .count();
+        // Close points: tracked ones that take part in the pose, and untracked ones that
+        // could make new points (dynamic keypoints cannot, so they do not ask for a
+        // keyframe; otherwise a person close to the camera makes one every frame).
         let close = self.close_depth();
         let (mut tracked_close, mut untracked_close) = (0, 0);
         for (i, z) in frame.depth.iter().enumerate() {
             if *z > 0.0 && *z < close {
-                if points[i].is_some() {
-                    tracked_close += 1;
-                } else {
-                    untracked_close += 1;
+                match points[i].and_then(|k| map.points.get(k)) {
+                    Some(p) if !self.excluded(p) => tracked_close += 1,
+                    Some(_) => {}
+                    None if !self.dynamic_keypoint(frame, i) => untracked_close += 1,
+                    None => {}
                 }
             }
         }
@@ -776,13 +806,10 @@ impl Tracker {
                 map.add_observation(*point, key, i);
             }
         }
-        let dynamic = |i: usize| {
-            self.dop
-                .as_ref()
-                .is_some_and(|d| d.removed(frame.moving[i]))
-        };
         let mut candidates: Vec<usize> = (0..frame.len())
-            .filter(|&i| frame.depth[i] > 0.0 && points[i].is_none() && !dynamic(i))
+            .filter(|&i| {
+                frame.depth[i] > 0.0 && points[i].is_none() && !self.dynamic_keypoint(frame, i)
+            })
             .collect();
         candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
         for (created, i) in candidates.into_iter().enumerate() {
