@@ -243,9 +243,7 @@ pub fn run_sequence(
         dynamic_classes: &config.detector.dynamic_classes,
         sequence_dir: options.sequence_dir.as_deref(),
     };
-    let mut detection_totals = DetectionTotals::default();
-    let mut detection_ms = Vec::new();
-    let mut keyframe_of_frame = std::collections::HashMap::new();
+    let mut book = DetectionBook::default();
     std::fs::create_dir_all(out).map_err(|source| IoError::Write {
         path: out.to_path_buf(),
         source,
@@ -331,8 +329,8 @@ pub fn run_sequence(
         if let Some(key) = report.new_keyframe {
             mapping.insert(key);
             if let Some(worker) = detection.as_mut() {
-                keyframe_of_frame.insert(index, key);
-                detection_totals.submitted += 1;
+                book.keyframe_of_frame.insert(index, key);
+                book.totals.submitted += 1;
                 worker.submit(Job {
                     id: index,
                     timestamp: loaded.timestamp,
@@ -359,7 +357,7 @@ pub fn run_sequence(
                         &report.pose_keypoints,
                     ));
                     if tracker.dop.is_some() {
-                        detection_totals
+                        book.totals
                             .classification
                             .get_or_insert_with(Classification::default)
                             .add(&mask, &positions, &called);
@@ -368,16 +366,7 @@ pub fn run_sequence(
             }
         }
         if let Some(worker) = detection.as_mut() {
-            let outcomes = worker.poll();
-            receive_detections(
-                &tracker,
-                &keyframe_of_frame,
-                outcomes,
-                out,
-                &effect,
-                &mut detection_totals,
-                &mut detection_ms,
-            );
+            book.receive(&tracker, worker.poll(), out, &effect);
         }
         progress.set_message(format!("{:?}", report.state));
         progress.inc(1);
@@ -396,21 +385,12 @@ pub fn run_sequence(
         ));
     }
     if let Some(worker) = detection {
-        let outcomes = worker.finish();
-        receive_detections(
-            &tracker,
-            &keyframe_of_frame,
-            outcomes,
-            out,
-            &effect,
-            &mut detection_totals,
-            &mut detection_ms,
-        );
+        book.receive(&tracker, worker.finish(), out, &effect);
     }
-    detection_totals.median_ms = median(&mut detection_ms);
+    book.totals.median_ms = median(&mut book.milliseconds);
     let stats = mapping.finish();
     let map = tracker.map.read().expect("map lock poisoned");
-    let report = write_outputs(sequence, &map, (stats, detection_totals), lines, out)?;
+    let report = write_outputs(sequence, &map, (stats, book.totals), lines, out)?;
     match failure {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -487,16 +467,12 @@ impl TruthCounts {
         };
         let mut counts = Self::default();
         for (&position, &removed) in positions.iter().zip(called) {
-            let mover = on_mover(position);
-            match (mover, removed) {
-                (true, r) => {
-                    counts.mover_keypoints += 1;
-                    counts.mover_removed += r as usize;
-                }
-                (false, r) => {
-                    counts.static_keypoints += 1;
-                    counts.static_removed += r as usize;
-                }
+            if on_mover(position) {
+                counts.mover_keypoints += 1;
+                counts.mover_removed += removed as usize;
+            } else {
+                counts.static_keypoints += 1;
+                counts.static_removed += removed as usize;
             }
         }
         for &i in in_pose {
@@ -527,63 +503,73 @@ struct DetectionUse<'a> {
     sequence_dir: Option<&'a Path>,
 }
 
-/// Attaches detections that came back to their keyframes (which local mapping may
-/// have culled meanwhile) and writes them to the run's detection cache
-/// (`OUT/detections/`, readable back with `source = "cache"`).
-fn receive_detections(
-    tracker: &Tracker,
-    keyframe_of_frame: &std::collections::HashMap<usize, crate::map::KeyFrameKey>,
-    outcomes: Vec<Outcome>,
-    out: &Path,
-    effect: &DetectionUse,
-    totals: &mut DetectionTotals,
-    milliseconds: &mut Vec<f64>,
-) {
-    if outcomes.is_empty() {
-        return;
-    }
-    let mut map = tracker.map.write().expect("map lock poisoned");
-    for outcome in outcomes {
-        match outcome.detections {
-            Ok(detections) => {
-                totals.detected += 1;
-                milliseconds.push(outcome.milliseconds);
-                for d in &detections {
-                    *totals.per_class.entry(d.class.clone()).or_default() += 1;
+/// What the run keeps of the detector's work: the keyframe made from each submitted
+/// frame, the totals for the report, and the detector's time per keyframe.
+#[derive(Default)]
+struct DetectionBook {
+    keyframe_of_frame: std::collections::HashMap<usize, crate::map::KeyFrameKey>,
+    totals: DetectionTotals,
+    milliseconds: Vec<f64>,
+}
+
+impl DetectionBook {
+    /// Attaches detections that came back to their keyframes (which local mapping may
+    /// have culled meanwhile) and writes them to the run's detection cache
+    /// (`OUT/detections/`, readable back with `source = "cache"`).
+    fn receive(
+        &mut self,
+        tracker: &Tracker,
+        outcomes: Vec<Outcome>,
+        out: &Path,
+        effect: &DetectionUse,
+    ) {
+        let (totals, milliseconds) = (&mut self.totals, &mut self.milliseconds);
+        if outcomes.is_empty() {
+            return;
+        }
+        let mut map = tracker.map.write().expect("map lock poisoned");
+        for outcome in outcomes {
+            match outcome.detections {
+                Ok(detections) => {
+                    totals.detected += 1;
+                    milliseconds.push(outcome.milliseconds);
+                    for d in &detections {
+                        *totals.per_class.entry(d.class.clone()).or_default() += 1;
+                    }
+                    let frame = FrameDetections {
+                        timestamp: outcome.timestamp,
+                        detections,
+                    };
+                    if let Err(e) = write_cache(&out.join("detections"), &frame) {
+                        totals.errors.push(e.to_string());
+                    }
+                    let Some(&key) = self.keyframe_of_frame.get(&outcome.id) else {
+                        continue;
+                    };
+                    if effect.mode == Mode::MaskBoxes {
+                        mask_boxes_classification(&map, key, &frame, effect, totals);
+                    }
+                    if effect.mode != Mode::Off {
+                        let done = apply_detections(
+                            &mut map,
+                            key,
+                            &frame.detections,
+                            effect.dynamic_classes,
+                            &DopConfig {
+                                mode: effect.mode,
+                                ..effect.config.clone()
+                            },
+                            effect.config.alpha_rgbd,
+                        );
+                        totals.map_points_updated += done.updated;
+                        totals.map_points_removed += done.removed;
+                    }
+                    if let Some(kf) = map.keyframes.get_mut(key) {
+                        kf.detections = Some(frame.detections);
+                    }
                 }
-                let frame = FrameDetections {
-                    timestamp: outcome.timestamp,
-                    detections,
-                };
-                if let Err(e) = write_cache(&out.join("detections"), &frame) {
-                    totals.errors.push(e.to_string());
-                }
-                let Some(&key) = keyframe_of_frame.get(&outcome.id) else {
-                    continue;
-                };
-                if effect.mode == Mode::MaskBoxes {
-                    mask_boxes_classification(&map, key, &frame, effect, totals);
-                }
-                if effect.mode != Mode::Off {
-                    let done = apply_detections(
-                        &mut map,
-                        key,
-                        &frame.detections,
-                        effect.dynamic_classes,
-                        &DopConfig {
-                            mode: effect.mode,
-                            ..effect.config.clone()
-                        },
-                        effect.config.alpha_rgbd,
-                    );
-                    totals.map_points_updated += done.updated;
-                    totals.map_points_removed += done.removed;
-                }
-                if let Some(kf) = map.keyframes.get_mut(key) {
-                    kf.detections = Some(frame.detections);
-                }
+                Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
             }
-            Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
         }
     }
 }

@@ -188,3 +188,27 @@ fn missing_model_and_cache_errors_name_the_path() {
         assert!(error.contains("absent.onnx"), "{error}");
     }
 }
+
+#[test]
+fn auto_falls_back_to_no_detector_and_says_why() {
+    let dir = common::temp_dir("detect-auto");
+    let config = DetectorConfig {
+        model_path: Some(dir.join("absent.onnx")),
+        ..DetectorConfig::default()
+    };
+    assert_eq!(config.source, Source::Auto);
+    let (source, note) = config.resolved_source();
+    assert_eq!(source, Source::None);
+    let note = note.unwrap();
+    assert!(
+        note.contains("absent.onnx") && note.contains("tools/setup.sh"),
+        "{note}"
+    );
+    assert!(config.open(None).unwrap().is_none());
+    // An explicit source is taken as it is.
+    let explicit = DetectorConfig {
+        source: Source::Oracle,
+        ..config
+    };
+    assert_eq!(explicit.resolved_source(), (Source::Oracle, None));
+}

@@ -37,6 +37,13 @@ fn without_detector() -> Config {
     config
 }
 
+/// `dopslam run SEQ --detections none`.
+fn run_without_detector(seq: &Path) -> Command {
+    let mut command = dopslam();
+    command.arg("run").arg(seq).args(["--detections", "none"]);
+    command
+}
+
 fn dopslam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_dopslam"))
 }
@@ -77,14 +84,8 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     // A missing colour image in the middle: the error names it; frames before it are kept.
     let names = sorted_files(&seq.join("rgb"));
     std::fs::remove_file(&names[8]).unwrap();
-    let output = dopslam()
-        .args([
-            "run",
-            seq.to_str().unwrap(),
-            "--detections",
-            "none",
-            "--out",
-        ])
+    let output = run_without_detector(&seq)
+        .arg("--out")
         .arg(base.join("run-missing"))
         .output()
         .unwrap();
@@ -104,16 +105,8 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     // Depth read with a wrong scale: every depth beyond reach, so tracking never starts.
     let config_path = base.join("wrong-scale.toml");
     std::fs::write(&config_path, "[dataset]\ndepth_scale = 1.0\n").unwrap();
-    let output = dopslam()
-        .args([
-            "run",
-            seq.to_str().unwrap(),
-            "--detections",
-            "none",
-            "--frames",
-            "6",
-            "--config",
-        ])
+    let output = run_without_detector(&seq)
+        .args(["--frames", "6", "--config"])
         .arg(&config_path)
         .arg("--out")
         .arg(base.join("run-scale"))
@@ -134,16 +127,8 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
             .save(path)
             .unwrap();
     }
-    let output = dopslam()
-        .args([
-            "run",
-            seq.to_str().unwrap(),
-            "--detections",
-            "none",
-            "--frames",
-            "8",
-            "--out",
-        ])
+    let output = run_without_detector(&seq)
+        .args(["--frames", "8", "--out"])
         .arg(base.join("run-zero"))
         .output()
         .unwrap();
@@ -156,14 +141,8 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     std::fs::create_dir_all(&empty).unwrap();
     std::fs::write(empty.join("rgb.txt"), "# nothing\n").unwrap();
     std::fs::write(empty.join("depth.txt"), "# nothing\n").unwrap();
-    let output = dopslam()
-        .args([
-            "run",
-            empty.to_str().unwrap(),
-            "--detections",
-            "none",
-            "--out",
-        ])
+    let output = run_without_detector(&empty)
+        .arg("--out")
         .arg(base.join("run-empty"))
         .output()
         .unwrap();

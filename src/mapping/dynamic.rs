@@ -93,3 +93,135 @@ pub fn apply_detections(
     }
     effect
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::KeyPoint;
+    use crate::map::{KeyFrame, MapPoint};
+    use crate::tracking::Frame;
+    use nalgebra::Vector3;
+
+    /// A keyframe whose keypoints lie at `(x, y, depth)`, each observing a map point.
+    fn map_with(keypoints: &[(f32, f32, f32)]) -> (Map, KeyFrameKey, Vec<crate::map::MapPointKey>) {
+        let n = keypoints.len();
+        let frame = Frame::from_parts(
+            0,
+            0.0,
+            keypoints
+                .iter()
+                .map(|&(x, y, _)| KeyPoint {
+                    x,
+                    y,
+                    ..KeyPoint::default()
+                })
+                .collect(),
+            vec![[0; 4]; n],
+            keypoints.iter().map(|k| k.2).collect(),
+            vec![-1.0; n],
+            (640, 480),
+        );
+        let mut map = Map::default();
+        let key = map.add_keyframe(KeyFrame::new(frame, crate::geometry::se3::Se3::identity()));
+        let points = (0..n)
+            .map(|i| {
+                let p = map.points.insert(MapPoint::new(
+                    Vector3::z(),
+                    [0; 4],
+                    Vector3::z(),
+                    (0.1, 10.0),
+                    0,
+                ));
+                map.add_observation(p, key, i);
+                p
+            })
+            .collect();
+        (map, key, points)
+    }
+
+    fn person() -> Vec<Detection> {
+        vec![Detection {
+            class: "person".into(),
+            class_id: 0,
+            score: 0.9,
+            bbox: [80.0, 80.0, 160.0, 240.0],
+            instance: None,
+        }]
+    }
+
+    /// Four keypoints on a person 2 m away, one on the wall 5 m behind inside the box,
+    /// one outside the box.
+    const SCENE: [(f32, f32, f32); 6] = [
+        (110.0, 130.0, 2.0),
+        (120.0, 150.0, 2.0),
+        (130.0, 170.0, 2.05),
+        (115.0, 190.0, 1.95),
+        (125.0, 140.0, 5.0),
+        (400.0, 300.0, 3.0),
+    ];
+
+    #[test]
+    fn dop_updates_by_hand_and_culls_points_that_stay_dynamic() {
+        let (mut map, key, points) = map_with(&SCENE);
+        let config = DopConfig::default();
+        let classes = vec!["person".to_string()];
+        // P on the person: 0.65, 0.755, 0.8285, 0.87995, then 0.915965 >= 0.9: culled.
+        let expected = [0.65, 0.755, 0.8285, 0.87995];
+        for (n, p) in expected.iter().enumerate() {
+            let effect = apply_detections(&mut map, key, &person(), &classes, &config, 0.3);
+            assert_eq!(
+                effect,
+                DetectionEffect {
+                    updated: 6,
+                    removed: 0
+                },
+                "update {n}"
+            );
+            for &point in &points[..4] {
+                assert!((map.points[point].moving - p).abs() < 1e-5);
+            }
+        }
+        // The wall behind the person and the point outside the box decay towards 0:
+        // 0.5 * 0.7^4.
+        for &point in &points[4..] {
+            assert!((map.points[point].moving - 0.12005).abs() < 1e-5);
+        }
+        let effect = apply_detections(&mut map, key, &person(), &classes, &config, 0.3);
+        assert_eq!(
+            effect,
+            DetectionEffect {
+                updated: 6,
+                removed: 4
+            }
+        );
+        assert!(points[..4].iter().all(|p| !map.points.contains_key(*p)));
+        assert!(points[4..].iter().all(|p| map.points.contains_key(*p)));
+    }
+
+    #[test]
+    fn mask_boxes_removes_everything_in_the_box_at_once() {
+        let (mut map, key, points) = map_with(&SCENE);
+        let config = DopConfig {
+            mode: Mode::MaskBoxes,
+            ..DopConfig::default()
+        };
+        let classes = vec!["person".to_string()];
+        let effect = apply_detections(&mut map, key, &person(), &classes, &config, 0.3);
+        assert_eq!(
+            effect,
+            DetectionEffect {
+                updated: 0,
+                removed: 5
+            }
+        );
+        assert!(map.points.contains_key(points[5]));
+        // A static class removes nothing.
+        let (mut map, key, _) = map_with(&SCENE);
+        let chair = vec![Detection {
+            class: "chair".into(),
+            ..person()[0].clone()
+        }];
+        let effect = apply_detections(&mut map, key, &chair, &classes, &config, 0.3);
+        assert_eq!(effect, DetectionEffect::default());
+    }
+}
