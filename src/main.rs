@@ -507,11 +507,7 @@ fn run_run(args: RunArgs) -> Result<()> {
     } else if args.dop {
         config.dop.mode = dopslam::dop::Mode::Dop;
     }
-    let mode = if source == dopslam::detect::Source::None {
-        dopslam::dop::Mode::Off
-    } else {
-        config.dop.mode
-    };
+    let mode = dopslam::pipeline::effective_mode(&config);
     eprintln!(
         "detections: {}; moving objects: {}",
         source

@@ -15,6 +15,7 @@ use thiserror::Error;
 use crate::config::Config;
 use crate::detect::worker::{DetectionWorker, Job, Outcome};
 use crate::detect::{write_cache, FrameDetections};
+use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
 use crate::features::OrbExtractor;
@@ -26,7 +27,7 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
 use crate::map::Map;
-use crate::mapping::dynamic::apply_detections;
+use crate::mapping::dynamic::{apply_detections, object_boxes};
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::optim::stereo_projection::StereoCamera;
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
@@ -189,6 +190,15 @@ fn median_depth(depth: &crate::io::image_files::DepthImage) -> Option<f64> {
     (!valid.is_empty()).then(|| median(&mut valid))
 }
 
+/// How moving objects are treated in a run of `config`: without detections every mode
+/// is ORB-SLAM2's.
+pub fn effective_mode(config: &Config) -> Mode {
+    match config.detector.resolved_source().0 {
+        crate::detect::Source::None | crate::detect::Source::Auto => Mode::Off,
+        _ => config.dop.mode,
+    }
+}
+
 /// Tracks every frame of `sequence` and writes the outputs into `out`.
 pub fn run_sequence(
     sequence: &dyn Sequence,
@@ -225,12 +235,7 @@ pub fn run_sequence(
         .open(options.sequence_dir.as_deref())
         .map_err(|e| RunError::Input(e.to_string()))?
         .map(|d| DetectionWorker::start(d, options.deterministic));
-    // The detections' use: without any, every mode is ORB-SLAM2's.
-    let mode = if detection.is_some() {
-        config.dop.mode
-    } else {
-        Mode::Off
-    };
+    let mode = effective_mode(config);
     let mut mapper = mapper;
     if mode == Mode::Dop {
         tracker.dop = Some(config.dop.clone());
@@ -350,18 +355,15 @@ pub fn run_sequence(
                         Some(dop) => frame.moving.iter().map(|p| dop.removed(*p)).collect(),
                         None => vec![false; positions.len()],
                     };
-                    truth = Some(TruthCounts::new(
-                        &mask,
-                        &positions,
-                        &called,
-                        &report.pose_keypoints,
-                    ));
+                    let counts =
+                        TruthCounts::new(&mask, &positions, &called, &report.pose_keypoints);
                     if tracker.dop.is_some() {
                         book.totals
                             .classification
                             .get_or_insert_with(Classification::default)
-                            .add(&mask, &positions, &called);
+                            .add(&counts);
                     }
+                    truth = Some(counts);
                 }
             }
         }
@@ -413,28 +415,12 @@ pub struct Classification {
 }
 
 impl Classification {
-    /// Adds one frame: `called[i]` for keypoints at `positions[i]`, truth from `mask`
-    /// (non-zero on movers).
-    fn add(
-        &mut self,
-        mask: &image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
-        positions: &[(f32, f32)],
-        called: &[bool],
-    ) {
+    /// Adds one frame's counts.
+    fn add(&mut self, counts: &TruthCounts) {
         self.frames += 1;
-        for (&(x, y), &c) in positions.iter().zip(called) {
-            let (u, v) = (x.round() as u32, y.round() as u32);
-            if u >= mask.width() || v >= mask.height() {
-                continue;
-            }
-            let truth = mask.get_pixel(u, v)[0] != 0;
-            match (c, truth) {
-                (true, true) => self.true_positives += 1,
-                (true, false) => self.false_positives += 1,
-                (false, true) => self.false_negatives += 1,
-                _ => {}
-            }
-        }
+        self.true_positives += counts.mover_removed;
+        self.false_positives += counts.static_removed;
+        self.false_negatives += counts.mover_keypoints - counts.mover_removed;
         let tp = self.true_positives as f64;
         self.precision = tp / (tp + self.false_positives as f64).max(1.0);
         self.recall = tp / (tp + self.false_negatives as f64).max(1.0);
@@ -442,8 +428,9 @@ impl Classification {
 }
 
 /// One tracked frame's keypoints against its ground-truth mover mask: how many lie on
-/// the static scene and on movers, how many of each the DOP model removed, and how
-/// many of each took part in the pose as inliers.
+/// the static scene and on movers, how many of each were called dynamic (removed), and
+/// how many of each took part in the pose as inliers. Keypoints outside the mask (an
+/// undistorted position off the image) are not counted.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct TruthCounts {
     pub static_keypoints: usize,
@@ -461,25 +448,30 @@ impl TruthCounts {
         called: &[bool],
         in_pose: &[u32],
     ) -> Self {
+        // Some(true) on a mover, Some(false) on the static scene, None off the mask.
         let on_mover = |(x, y): (f32, f32)| {
             let (u, v) = (x.round() as u32, y.round() as u32);
-            u < mask.width() && v < mask.height() && mask.get_pixel(u, v)[0] != 0
+            (u < mask.width() && v < mask.height()).then(|| mask.get_pixel(u, v)[0] != 0)
         };
         let mut counts = Self::default();
         for (&position, &removed) in positions.iter().zip(called) {
-            if on_mover(position) {
-                counts.mover_keypoints += 1;
-                counts.mover_removed += removed as usize;
-            } else {
-                counts.static_keypoints += 1;
-                counts.static_removed += removed as usize;
+            match on_mover(position) {
+                Some(true) => {
+                    counts.mover_keypoints += 1;
+                    counts.mover_removed += removed as usize;
+                }
+                Some(false) => {
+                    counts.static_keypoints += 1;
+                    counts.static_removed += removed as usize;
+                }
+                None => {}
             }
         }
         for &i in in_pose {
-            if on_mover(positions[i as usize]) {
-                counts.mover_in_pose += 1;
-            } else {
-                counts.static_in_pose += 1;
+            match on_mover(positions[i as usize]) {
+                Some(true) => counts.mover_in_pose += 1,
+                Some(false) => counts.static_in_pose += 1,
+                None => {}
             }
         }
         counts
@@ -588,23 +580,16 @@ fn mask_boxes_classification(
     ) else {
         return;
     };
+    let boxes = object_boxes(&frame.detections, effect.dynamic_classes);
     let positions: Vec<(f32, f32)> = kf.frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
     let called: Vec<bool> = positions
         .iter()
-        .map(|&(x, y)| {
-            frame.detections.iter().any(|d| {
-                effect.dynamic_classes.contains(&d.class)
-                    && x >= d.bbox[0]
-                    && x < d.bbox[2]
-                    && y >= d.bbox[1]
-                    && y < d.bbox[3]
-            })
-        })
+        .map(|&(x, y)| in_dynamic_box(&boxes, x, y))
         .collect();
     totals
         .classification
         .get_or_insert_with(Classification::default)
-        .add(&mask, &positions, &called);
+        .add(&TruthCounts::new(&mask, &positions, &called, &[]));
 }
 
 /// Writes trajectory, keyframes, map and report; evaluates against ground truth.

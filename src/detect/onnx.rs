@@ -104,15 +104,11 @@ impl OnnxDetector {
         Ok(detector)
     }
 
-    /// Network input size.
-    pub fn input_size(&self) -> (u32, u32) {
-        (self.width, self.height)
-    }
-
     fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
-        let input = self.layout.prepare(image, self.width, self.height);
+        let mut input = self.layout.prepare(image, self.width, self.height);
         let shape = [1usize, 3, self.height as usize, self.width as usize];
-        let tensor = Tensor::from_array((shape, input.data.clone()))
+        // The tensor takes the pixels; decoding needs only the scales.
+        let tensor = Tensor::from_array((shape, std::mem::take(&mut input.data)))
             .map_err(|e| DetectError::Runtime(e.to_string()))?;
         let model = self.model.clone();
         let outputs = self

@@ -33,6 +33,11 @@ impl ObjectBox {
     }
 }
 
+/// The naive verdict (`--mask-boxes`): whether `(x, y)` lies inside any dynamic box.
+pub fn in_dynamic_box(boxes: &[ObjectBox], x: f32, y: f32) -> bool {
+    boxes.iter().any(|b| b.dynamic && b.contains(x, y))
+}
+
 /// A keypoint: pixel position and depth in metres (0 when unknown).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Keypoint {

@@ -6,7 +6,7 @@
 //! - Mask boxes (the naive method): every map point seen inside a dynamic box goes.
 
 use crate::detect::Detection;
-use crate::dop::boxes::{verdicts, Keypoint, ObjectBox};
+use crate::dop::boxes::{in_dynamic_box, verdicts, Keypoint, ObjectBox};
 use crate::dop::{update, DopConfig, Mode};
 use crate::map::{KeyFrameKey, Map};
 
@@ -15,6 +15,17 @@ use crate::map::{KeyFrameKey, Map};
 pub struct DetectionEffect {
     pub updated: usize,
     pub removed: usize,
+}
+
+/// The model's boxes of `detections`; `dynamic_classes` are COCO names.
+pub fn object_boxes(detections: &[Detection], dynamic_classes: &[String]) -> Vec<ObjectBox> {
+    detections
+        .iter()
+        .map(|d| ObjectBox {
+            bbox: d.bbox,
+            dynamic: dynamic_classes.contains(&d.class),
+        })
+        .collect()
 }
 
 /// Applies `detections` of keyframe `key`; `dynamic_classes` are COCO names.
@@ -30,13 +41,7 @@ pub fn apply_detections(
     let Some(kf) = map.keyframes.get(key) else {
         return effect;
     };
-    let boxes: Vec<ObjectBox> = detections
-        .iter()
-        .map(|d| ObjectBox {
-            bbox: d.bbox,
-            dynamic: dynamic_classes.contains(&d.class),
-        })
-        .collect();
+    let boxes = object_boxes(detections, dynamic_classes);
     if !boxes.iter().any(|b| b.dynamic) && config.mode == Mode::MaskBoxes {
         return effect;
     }
@@ -55,15 +60,7 @@ pub fn apply_detections(
         Mode::Off => return effect,
         Mode::MaskBoxes => keypoints
             .iter()
-            .map(|k| {
-                Some(boxes.iter().any(|b| {
-                    b.dynamic
-                        && k.x >= b.bbox[0]
-                        && k.x < b.bbox[2]
-                        && k.y >= b.bbox[1]
-                        && k.y < b.bbox[3]
-                }))
-            })
+            .map(|k| Some(in_dynamic_box(&boxes, k.x, k.y)))
             .collect(),
         Mode::Dop => verdicts(config, &keypoints, &boxes),
     };

@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 use super::frame::Frame;
 use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
 use crate::dop::DopConfig;
-use crate::features::hamming;
 use crate::features::ScalePyramid;
+use crate::features::{hamming, Descriptor};
 use crate::geometry::se3::{self, Se3};
 use crate::map::visibility::predict_view;
 use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey, SharedMap};
@@ -103,6 +103,16 @@ pub struct FrameReport {
     pub pose_keypoints: Vec<u32>,
 }
 
+/// A keyframe's map points that still exist, with the descriptors of the keypoints
+/// that observe them (for brute-force matching).
+fn live_points(map: &Map, kf: &KeyFrame) -> (Vec<MapPointKey>, Vec<Descriptor>) {
+    kf.map_points
+        .iter()
+        .zip(&kf.frame.descriptors)
+        .filter_map(|(p, d)| p.filter(|p| map.points.contains_key(*p)).map(|p| (p, *d)))
+        .unzip()
+}
+
 /// The last tracked frame, kept for the motion model.
 struct LastFrame {
     frame: Frame,
@@ -180,13 +190,11 @@ impl Tracker {
     /// points, else from the last frame's keypoints, else P_init; then expansion).
     fn moving_probabilities(
         &self,
+        dop: &DopConfig,
         map: &Map,
         frame: &Frame,
         points: &[Option<MapPointKey>],
     ) -> Vec<f32> {
-        let Some(dop) = &self.dop else {
-            return vec![0.5; frame.len()];
-        };
         let from_map: Vec<Option<f32>> = points
             .iter()
             .map(|k| k.and_then(|k| map.points.get(k)).map(|p| p.moving))
@@ -350,7 +358,7 @@ impl Tracker {
         }
         if let Some(dop) = &self.dop {
             let start = Instant::now();
-            frame.moving = self.moving_probabilities(&map, &frame, &points);
+            frame.moving = self.moving_probabilities(dop, &map, &frame, &points);
             report.dynamic_keypoints = frame.moving.iter().filter(|p| dop.removed(**p)).count();
             report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
         }
@@ -496,15 +504,7 @@ impl Tracker {
         timing: &mut Timing,
     ) -> Option<(Se3, Vec<Option<MapPointKey>>, usize)> {
         let start = Instant::now();
-        let kf = map.keyframes.get(keyframe)?;
-        let mut keys = Vec::new();
-        let mut descriptors = Vec::new();
-        for (i, key) in kf.map_points.iter().enumerate() {
-            if let Some(key) = key.filter(|k| map.points.contains_key(*k)) {
-                keys.push(key);
-                descriptors.push(kf.frame.descriptors[i]);
-            }
-        }
+        let (keys, descriptors) = live_points(map, map.keyframes.get(keyframe)?);
         let matches = brute_force(frame, &descriptors, 0.7);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         if matches.len() < 15 {
@@ -583,13 +583,7 @@ impl Tracker {
     ) -> Option<(Se3, Vec<Option<MapPointKey>>)> {
         let start = Instant::now();
         let kf = &map.keyframes[key];
-        let (mut keys, mut descriptors) = (Vec::new(), Vec::new());
-        for (i, p) in kf.map_points.iter().enumerate() {
-            if let Some(p) = p.filter(|p| map.points.contains_key(*p)) {
-                keys.push(p);
-                descriptors.push(kf.frame.descriptors[i]);
-            }
-        }
+        let (keys, descriptors) = live_points(map, kf);
         let matches = brute_force(frame, &descriptors, 0.75);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         if matches.len() < 15 {
