@@ -27,7 +27,7 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
 use crate::map::Map;
-use crate::mapping::dynamic::{apply_detections, object_boxes};
+use crate::mapping::dynamic::{apply_detections, object_boxes, DynamicObjects};
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::optim::stereo_projection::StereoCamera;
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
@@ -153,9 +153,19 @@ pub struct RunOptions {
 /// What the keyframe detector did over a run.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct DetectionTotals {
-    /// Keyframes handed to the detector and those whose detections came back.
+    /// Keyframes handed to the detector, those whose detections came back, and those
+    /// skipped because a newer keyframe was waiting (real-time mode).
     pub submitted: usize,
     pub detected: usize,
+    pub skipped: usize,
+    /// Boxes predicted for followed people the detector missed, and keyframes that a
+    /// late detection reached after they were made.
+    pub predicted_boxes: usize,
+    pub later_keyframes_reached: usize,
+    /// Person recall on detected keyframes against the ground-truth masks of a
+    /// synthetic sequence: people covering at least 1 % of the image, found by a
+    /// dynamic box used there (detected or predicted) with IoU >= 0.5.
+    pub person_recall: Option<Recall>,
     /// Detections per class name over all keyframes.
     pub per_class: std::collections::BTreeMap<String, usize>,
     /// Detector time per keyframe (in its own thread), milliseconds.
@@ -190,10 +200,15 @@ fn median_depth(depth: &crate::io::image_files::DepthImage) -> Option<f64> {
     (!valid.is_empty()).then(|| median(&mut valid))
 }
 
-/// How moving objects are treated in a run of `config`: without detections every mode
-/// is ORB-SLAM2's.
+/// How moving objects are treated in a run of `config`: without detections the DOP
+/// model runs on its geometric check alone (when on), else every mode is ORB-SLAM2's.
 pub fn effective_mode(config: &Config) -> Mode {
     match config.detector.resolved_source().0 {
+        crate::detect::Source::None | crate::detect::Source::Auto
+            if config.dop.mode == Mode::Dop && config.dop.geometric =>
+        {
+            Mode::Dop
+        }
         crate::detect::Source::None | crate::detect::Source::Auto => Mode::Off,
         _ => config.dop.mode,
     }
@@ -234,7 +249,7 @@ pub fn run_sequence(
         .detector
         .open(options.sequence_dir.as_deref())
         .map_err(|e| RunError::Input(e.to_string()))?
-        .map(|d| DetectionWorker::start(d, options.deterministic));
+        .map(|d| DetectionWorker::start(d, options.deterministic, config.detector.latency()));
     let mode = effective_mode(config);
     let mut mapper = mapper;
     if mode == Mode::Dop {
@@ -248,7 +263,10 @@ pub fn run_sequence(
         dynamic_classes: &config.detector.dynamic_classes,
         sequence_dir: options.sequence_dir.as_deref(),
     };
-    let mut book = DetectionBook::default();
+    let mut book = DetectionBook {
+        objects: (mode == Mode::Dop).then(|| DynamicObjects::new(calibration.camera)),
+        ..DetectionBook::default()
+    };
     std::fs::create_dir_all(out).map_err(|source| IoError::Write {
         path: out.to_path_buf(),
         source,
@@ -368,7 +386,7 @@ pub fn run_sequence(
             }
         }
         if let Some(worker) = detection.as_mut() {
-            book.receive(&tracker, worker.poll(), out, &effect);
+            book.receive(&mut tracker, worker.poll(), out, &effect);
         }
         progress.set_message(format!("{:?}", report.state));
         progress.inc(1);
@@ -387,7 +405,7 @@ pub fn run_sequence(
         ));
     }
     if let Some(worker) = detection {
-        book.receive(&tracker, worker.finish(), out, &effect);
+        book.receive(&mut tracker, worker.finish(), out, &effect);
     }
     book.totals.median_ms = median(&mut book.milliseconds);
     let stats = mapping.finish();
@@ -487,6 +505,77 @@ fn ground_truth_mask(
     image::open(path).ok().map(|m| m.to_luma16())
 }
 
+/// People found on keyframes against the ground truth.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Recall {
+    pub keyframes: usize,
+    pub people: usize,
+    pub found: usize,
+    pub recall: f64,
+    /// People covering over 20 % of the image that were missed.
+    pub missed_large: usize,
+}
+
+impl Recall {
+    fn add(&mut self, people: &[[f32; 4]], boxes: &[[f32; 4]], image_area: f32) {
+        self.keyframes += 1;
+        for person in people {
+            self.people += 1;
+            if boxes.iter().any(|b| iou(person, b) >= 0.5) {
+                self.found += 1;
+            } else if area(person) > 0.2 * image_area {
+                self.missed_large += 1;
+            }
+        }
+        self.recall = self.found as f64 / self.people.max(1) as f64;
+    }
+}
+
+fn area(b: &[f32; 4]) -> f32 {
+    (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
+}
+
+fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let inter = area(&[a[0].max(b[0]), a[1].max(b[1]), a[2].min(b[2]), a[3].min(b[3])]);
+    inter / (area(a) + area(b) - inter).max(1e-6)
+}
+
+/// The tight boxes of the people in a synthetic frame's mask that cover at least 1 %
+/// of it (the class of each instance from the frame's oracle file).
+fn ground_truth_people(sequence_dir: Option<&Path>, timestamp: f64) -> Option<(Vec<[f32; 4]>, f32)> {
+    let dir = sequence_dir?;
+    let mask = ground_truth_mask(Some(dir), timestamp)?;
+    let text = std::fs::read_to_string(crate::detect::cache_file(
+        &dir.join("detections_oracle"),
+        timestamp,
+    ))
+    .ok()?;
+    let oracle: FrameDetections = serde_json::from_str(&text).ok()?;
+    let people: std::collections::HashSet<u16> = oracle
+        .detections
+        .iter()
+        .filter(|d| d.class == "person")
+        .filter_map(|d| d.instance)
+        .collect();
+    let mut boxes: std::collections::BTreeMap<u16, ([u32; 4], usize)> = Default::default();
+    for (x, y, p) in mask.enumerate_pixels() {
+        let id = p[0];
+        if id == 0 || !people.contains(&id) {
+            continue;
+        }
+        let entry = boxes.entry(id).or_insert(([x, y, x + 1, y + 1], 0));
+        entry.0 = [entry.0[0].min(x), entry.0[1].min(y), entry.0[2].max(x + 1), entry.0[3].max(y + 1)];
+        entry.1 += 1;
+    }
+    let image_area = (mask.width() * mask.height()) as f32;
+    let people = boxes
+        .into_values()
+        .filter(|(_, count)| *count as f32 >= 0.01 * image_area)
+        .map(|(b, _)| b.map(|v| v as f32))
+        .collect();
+    Some((people, image_area))
+}
+
 /// How detections act on the map.
 struct DetectionUse<'a> {
     config: &'a DopConfig,
@@ -502,6 +591,8 @@ struct DetectionBook {
     keyframe_of_frame: std::collections::HashMap<usize, crate::map::KeyFrameKey>,
     totals: DetectionTotals,
     milliseconds: Vec<f64>,
+    /// The DOP model's followed objects (DOP mode only).
+    objects: Option<DynamicObjects>,
 }
 
 impl DetectionBook {
@@ -510,7 +601,7 @@ impl DetectionBook {
     /// (`OUT/detections/`, readable back with `source = "cache"`).
     fn receive(
         &mut self,
-        tracker: &Tracker,
+        tracker: &mut Tracker,
         outcomes: Vec<Outcome>,
         out: &Path,
         effect: &DetectionUse,
@@ -519,8 +610,13 @@ impl DetectionBook {
         if outcomes.is_empty() {
             return;
         }
-        let mut map = tracker.map.write().expect("map lock poisoned");
+        let shared = tracker.map.clone();
+        let mut map = shared.write().expect("map lock poisoned");
         for outcome in outcomes {
+            if outcome.skipped {
+                totals.skipped += 1;
+                continue;
+            }
             match outcome.detections {
                 Ok(detections) => {
                     totals.detected += 1;
@@ -541,7 +637,28 @@ impl DetectionBook {
                     if effect.mode == Mode::MaskBoxes {
                         mask_boxes_classification(&map, key, &frame, effect, totals);
                     }
-                    if effect.mode != Mode::Off {
+                    if let Some(objects) = self.objects.as_mut() {
+                        let done = objects.receive(
+                            &mut map,
+                            key,
+                            &frame.detections,
+                            effect.dynamic_classes,
+                            effect.config,
+                            effect.config.alpha_rgbd,
+                        );
+                        totals.map_points_updated += done.effect.updated;
+                        totals.map_points_removed += done.effect.removed;
+                        totals.predicted_boxes += done.predicted_boxes;
+                        totals.later_keyframes_reached += done.later_keyframes;
+                        if let Some((people, image_area)) =
+                            ground_truth_people(effect.sequence_dir, frame.timestamp)
+                        {
+                            totals
+                                .person_recall
+                                .get_or_insert_with(Recall::default)
+                                .add(&people, &done.boxes, image_area);
+                        }
+                    } else if effect.mode != Mode::Off {
                         let done = apply_detections(
                             &mut map,
                             key,
@@ -563,6 +680,9 @@ impl DetectionBook {
                 Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
             }
         }
+        // The last frame's keypoints take their points' new probabilities, so that the
+        // next frame propagates what the detections said.
+        tracker.refresh_moving(&map);
     }
 }
 

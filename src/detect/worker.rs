@@ -2,6 +2,13 @@
 //! and their detections come back through another, so tracking never waits for the
 //! detector (real-time mode). In deterministic mode the detector runs inline when a
 //! keyframe is submitted, so results arrive in a fixed order.
+//!
+//! In real-time mode the detector must not fall behind: when several keyframes wait,
+//! only the newest is detected and the older ones come back marked `skipped` (their
+//! boxes reach them through the newer keyframe's, see [`crate::mapping::dynamic`]).
+//! Without this a detector slower than the keyframe rate answers seconds late.
+//! A simulated latency makes an instant source (the synthetic oracle) answer as late
+//! as the real detector would.
 
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
@@ -25,6 +32,8 @@ pub struct Outcome {
     pub timestamp: f64,
     pub detections: Result<Vec<Detection>, String>,
     pub milliseconds: f64,
+    /// Not detected: a newer keyframe was waiting (real-time mode only).
+    pub skipped: bool,
 }
 
 fn run(detector: &mut dyn Detector, job: Job) -> Outcome {
@@ -37,6 +46,18 @@ fn run(detector: &mut dyn Detector, job: Job) -> Outcome {
         timestamp: job.timestamp,
         detections,
         milliseconds: start.elapsed().as_secs_f64() * 1e3,
+        skipped: false,
+    }
+}
+
+/// The outcome of a job that was dropped for a newer one.
+fn skipped(job: &Job) -> Outcome {
+    Outcome {
+        id: job.id,
+        timestamp: job.timestamp,
+        detections: Ok(Vec::new()),
+        milliseconds: 0.0,
+        skipped: true,
     }
 }
 
@@ -54,7 +75,13 @@ pub enum DetectionWorker {
 }
 
 impl DetectionWorker {
-    pub fn start(detector: Box<dyn Detector>, deterministic: bool) -> Self {
+    /// Starts the worker; `latency` is added to each detection in real-time mode (a
+    /// simulated detector time for instant sources).
+    pub fn start(
+        detector: Box<dyn Detector>,
+        deterministic: bool,
+        latency: std::time::Duration,
+    ) -> Self {
         if deterministic {
             return Self::Inline {
                 detector,
@@ -68,8 +95,20 @@ impl DetectionWorker {
             .spawn(move || {
                 crate::threads::lower_priority(10);
                 let mut detector = detector;
-                for job in job_receiver {
-                    if outcome_sender.send(run(detector.as_mut(), job)).is_err() {
+                while let Ok(mut job) = job_receiver.recv() {
+                    // Only the newest waiting keyframe is detected.
+                    while let Ok(newer) = job_receiver.try_recv() {
+                        if outcome_sender.send(skipped(&job)).is_err() {
+                            return;
+                        }
+                        job = newer;
+                    }
+                    let outcome = run(detector.as_mut(), job);
+                    let elapsed = std::time::Duration::from_secs_f64(outcome.milliseconds / 1e3);
+                    if let Some(rest) = latency.checked_sub(elapsed) {
+                        std::thread::sleep(rest);
+                    }
+                    if outcome_sender.send(outcome).is_err() {
                         break;
                     }
                 }
@@ -157,16 +196,17 @@ mod tests {
     #[test]
     fn thread_and_inline_give_the_same_outcomes_in_order() {
         for deterministic in [false, true] {
-            let mut worker = DetectionWorker::start(Box::new(Slow), deterministic);
-            let start = Instant::now();
+            let mut worker =
+                DetectionWorker::start(Box::new(Slow), deterministic, Default::default());
+            let mut outcomes = Vec::new();
             for id in 0..4 {
                 worker.submit(job(id));
+                // One at a time, so that none is skipped.
+                while outcomes.len() <= id {
+                    outcomes.extend(worker.poll());
+                    std::thread::yield_now();
+                }
             }
-            if !deterministic {
-                // Submitting does not wait for the detector.
-                assert!(start.elapsed().as_millis() < 20);
-            }
-            let mut outcomes = worker.poll();
             outcomes.extend(worker.finish());
             let ids: Vec<usize> = outcomes.iter().map(|o| o.id).collect();
             assert_eq!(ids, vec![0, 1, 2, 3]);
@@ -176,6 +216,34 @@ mod tests {
                 .as_ref()
                 .unwrap_err()
                 .contains("negative"));
+            assert!(outcomes.iter().all(|o| !o.skipped));
         }
+    }
+
+    #[test]
+    fn a_busy_thread_detects_only_the_newest_waiting_keyframe() {
+        let mut worker = DetectionWorker::start(
+            Box::new(Slow),
+            false,
+            std::time::Duration::from_millis(50),
+        );
+        let start = Instant::now();
+        worker.submit(job(0));
+        // Let the thread take job 0 before the others arrive.
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        let submitting = Instant::now();
+        for id in [1, 3, 4] {
+            worker.submit(job(id));
+        }
+        // Submitting does not wait for the detector.
+        assert!(submitting.elapsed().as_millis() < 10);
+        let outcomes = worker.finish();
+        let detected: Vec<usize> = outcomes.iter().filter(|o| !o.skipped).map(|o| o.id).collect();
+        let skipped: Vec<usize> = outcomes.iter().filter(|o| o.skipped).map(|o| o.id).collect();
+        // Job 0 starts at once; 1 and 3 wait behind it and give way to 4.
+        assert_eq!(detected, vec![0, 4]);
+        assert_eq!(skipped, vec![1, 3]);
+        // The simulated latency: two detections of at least 50 ms each.
+        assert!(start.elapsed().as_millis() >= 100);
     }
 }

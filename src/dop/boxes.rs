@@ -17,6 +17,9 @@ use super::DopConfig;
 pub struct ObjectBox {
     pub bbox: [f32; 4],
     pub dynamic: bool,
+    /// The object's depth when known (a box predicted from a followed object); else
+    /// it is estimated from the keypoints in the box's centre.
+    pub depth: Option<f32>,
 }
 
 impl ObjectBox {
@@ -68,6 +71,17 @@ pub fn dominant_depth(depths: &[f32], bin: f32) -> Option<f32> {
     Some(sum / count as f32)
 }
 
+/// The object depth of a box from its keypoints: the dominant depth of those in its
+/// central region.
+pub fn object_depth(config: &DopConfig, keypoints: &[Keypoint], b: &ObjectBox) -> Option<f32> {
+    let central: Vec<f32> = keypoints
+        .iter()
+        .filter(|k| b.central(k.x, k.y, config.central_fraction))
+        .map(|k| k.depth)
+        .collect();
+    dominant_depth(&central, config.delta_z / 2.0)
+}
+
 /// \(S_t(x)\) per keypoint: `Some(true)` on a dynamic object, `Some(false)` static or
 /// background, `None` unknown (no depth, outside a dynamic box's centre).
 pub fn verdicts(
@@ -77,14 +91,7 @@ pub fn verdicts(
 ) -> Vec<Option<bool>> {
     let object_depths: Vec<Option<f32>> = boxes
         .iter()
-        .map(|b| {
-            let central: Vec<f32> = keypoints
-                .iter()
-                .filter(|k| b.central(k.x, k.y, config.central_fraction))
-                .map(|k| k.depth)
-                .collect();
-            dominant_depth(&central, config.delta_z / 2.0)
-        })
+        .map(|b| b.depth.or_else(|| object_depth(config, keypoints, b)))
         .collect();
     keypoints
         .iter()
@@ -144,6 +151,7 @@ mod tests {
         let person = ObjectBox {
             bbox: [100.0, 100.0, 200.0, 300.0],
             dynamic: true,
+            depth: None,
         };
         let keypoints = [
             kp(150.0, 200.0, 2.0), // on the person (centre)
@@ -184,10 +192,12 @@ mod tests {
         let chair = ObjectBox {
             bbox: [0.0, 100.0, 100.0, 200.0],
             dynamic: false,
+            depth: None,
         };
         let person = ObjectBox {
             bbox: [50.0, 0.0, 150.0, 200.0],
             dynamic: true,
+            depth: None,
         };
         let keypoints = [
             kp(50.0, 150.0, 1.5), // chair centre

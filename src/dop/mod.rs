@@ -15,6 +15,7 @@
 //! - Box refinement by depth ([`boxes`], the paper's Algorithm 1, a reconstruction).
 
 pub mod boxes;
+pub mod tracks;
 
 use serde::{Deserialize, Serialize};
 
@@ -67,6 +68,25 @@ pub struct DopConfig {
     pub propagation: bool,
     pub expansion: bool,
     pub refine_boxes: bool,
+    /// Follow dynamic objects across keyframes ([`tracks`]): a late detection reaches
+    /// the keyframes made since, and a person the detector misses on one keyframe keeps
+    /// their (predicted) box for `track_seconds` (an extension of the paper).
+    pub track_boxes: bool,
+    pub track_seconds: f32,
+    /// Association distance of a predicted object and a detected one, metres.
+    pub track_gate: f32,
+    /// Fastest motion assumed for a dynamic object, m/s (velocity clamp and the growth
+    /// of a predicted box's margin).
+    pub track_max_speed: f32,
+    /// The geometric check (beyond the paper, needs no detector): a map point that is a
+    /// pose outlier in `geometric_frames` tracked frames in a row gets the update
+    /// \(P \leftarrow (1 - \alpha_g) P + \alpha_g\) with `alpha_geometric`; frames where
+    /// more than `geometric_max_outliers` of the matches are outliers are not used
+    /// (the pose itself may be wrong there).
+    pub geometric: bool,
+    pub geometric_frames: u32,
+    pub alpha_geometric: f32,
+    pub geometric_max_outliers: f32,
 }
 
 impl Default for DopConfig {
@@ -86,6 +106,14 @@ impl Default for DopConfig {
             propagation: true,
             expansion: true,
             refine_boxes: true,
+            track_boxes: true,
+            track_seconds: 1.0,
+            track_gate: 0.7,
+            track_max_speed: 1.5,
+            geometric: true,
+            geometric_frames: 2,
+            alpha_geometric: 0.3,
+            geometric_max_outliers: 0.35,
         }
     }
 }
@@ -105,6 +133,14 @@ impl DopConfig {
         unit("removal_threshold", self.removal_threshold)?;
         unit("cull_threshold", self.cull_threshold)?;
         unit("central_fraction", self.central_fraction)?;
+        unit("alpha_geometric", self.alpha_geometric)?;
+        unit("geometric_max_outliers", self.geometric_max_outliers)?;
+        if self.track_seconds < 0.0 || self.track_gate < 0.0 || self.track_max_speed < 0.0 {
+            return Err("dop.track_seconds, track_gate and track_max_speed must be >= 0".into());
+        }
+        if self.geometric_frames == 0 {
+            return Err("dop.geometric_frames must be at least 1".into());
+        }
         let t = self.thresholds;
         if !(t[0] <= t[1] && t[1] <= t[2]) {
             return Err(format!("dop.thresholds must increase, got {t:?}"));

@@ -4,10 +4,20 @@
 //!   \(P_t(X) = (1-\alpha) P_{t-1}(X) + \alpha S_t(x)\) with \(S_t\) from the refined
 //!   boxes ([`crate::dop::boxes`]); points that reach the cull threshold are removed.
 //! - Mask boxes (the naive method): every map point seen inside a dynamic box goes.
+//! - Late and missed detections ([`DynamicObjects`], DOP only): the detected people
+//!   become 3-D objects followed across keyframes ([`crate::dop::tracks`]). Followed
+//!   people the detector missed on this keyframe get their predicted box; the
+//!   keyframes made since this one (its detections came back late) get the boxes of
+//!   these objects predicted to their time and projected into them, so the points
+//!   made on people meanwhile are updated too.
+
+use std::collections::HashSet;
 
 use crate::detect::Detection;
-use crate::dop::boxes::{in_dynamic_box, verdicts, Keypoint, ObjectBox};
+use crate::dop::boxes::{in_dynamic_box, object_depth, verdicts, Keypoint, ObjectBox};
+use crate::dop::tracks::{Object, ObjectTracks};
 use crate::dop::{update, DopConfig, Mode};
+use crate::geometry::camera::PinholeCamera;
 use crate::map::{KeyFrameKey, Map};
 
 /// Map points updated and removed by one keyframe's detections.
@@ -17,6 +27,13 @@ pub struct DetectionEffect {
     pub removed: usize,
 }
 
+impl std::ops::AddAssign for DetectionEffect {
+    fn add_assign(&mut self, other: Self) {
+        self.updated += other.updated;
+        self.removed += other.removed;
+    }
+}
+
 /// The model's boxes of `detections`; `dynamic_classes` are COCO names.
 pub fn object_boxes(detections: &[Detection], dynamic_classes: &[String]) -> Vec<ObjectBox> {
     detections
@@ -24,6 +41,7 @@ pub fn object_boxes(detections: &[Detection], dynamic_classes: &[String]) -> Vec
         .map(|d| ObjectBox {
             bbox: d.bbox,
             dynamic: dynamic_classes.contains(&d.class),
+            depth: None,
         })
         .collect()
 }
@@ -37,32 +55,50 @@ pub fn apply_detections(
     config: &DopConfig,
     alpha: f32,
 ) -> DetectionEffect {
-    let mut effect = DetectionEffect::default();
-    let Some(kf) = map.keyframes.get(key) else {
-        return effect;
-    };
     let boxes = object_boxes(detections, dynamic_classes);
+    apply_boxes(map, key, &boxes, config, alpha)
+}
+
+/// The keypoints of keyframe `key` as the DOP model sees them.
+fn keypoints_of(map: &Map, key: KeyFrameKey) -> Option<Vec<Keypoint>> {
+    let frame = &map.keyframes.get(key)?.frame;
+    Some(
+        frame
+            .keypoints
+            .iter()
+            .zip(&frame.depth)
+            .map(|(k, z)| Keypoint {
+                x: k.x,
+                y: k.y,
+                depth: *z,
+            })
+            .collect(),
+    )
+}
+
+/// Applies `boxes` (detected or predicted) to the map points of keyframe `key`.
+pub fn apply_boxes(
+    map: &mut Map,
+    key: KeyFrameKey,
+    boxes: &[ObjectBox],
+    config: &DopConfig,
+    alpha: f32,
+) -> DetectionEffect {
+    let mut effect = DetectionEffect::default();
     if !boxes.iter().any(|b| b.dynamic) && config.mode == Mode::MaskBoxes {
         return effect;
     }
-    let frame = &kf.frame;
-    let keypoints: Vec<Keypoint> = frame
-        .keypoints
-        .iter()
-        .zip(&frame.depth)
-        .map(|(k, z)| Keypoint {
-            x: k.x,
-            y: k.y,
-            depth: *z,
-        })
-        .collect();
+    let Some(keypoints) = keypoints_of(map, key) else {
+        return effect;
+    };
+    let kf = &map.keyframes[key];
     let verdict: Vec<Option<bool>> = match config.mode {
         Mode::Off => return effect,
         Mode::MaskBoxes => keypoints
             .iter()
-            .map(|k| Some(in_dynamic_box(&boxes, k.x, k.y)))
+            .map(|k| Some(in_dynamic_box(boxes, k.x, k.y)))
             .collect(),
-        Mode::Dop => verdicts(config, &keypoints, &boxes),
+        Mode::Dop => verdicts(config, &keypoints, boxes),
     };
     let observed: Vec<(usize, crate::map::MapPointKey)> = kf
         .map_points
@@ -89,6 +125,113 @@ pub fn apply_detections(
         }
     }
     effect
+}
+
+/// What one keyframe's detections did with the followed objects.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObjectsEffect {
+    pub effect: DetectionEffect,
+    /// Dynamic boxes used on the keyframe: detected, then predicted for followed
+    /// objects the detector missed.
+    pub boxes: Vec<[f32; 4]>,
+    pub predicted_boxes: usize,
+    /// Later keyframes that got this keyframe's objects (a late detection).
+    pub later_keyframes: usize,
+}
+
+/// The DOP model's memory of dynamic objects across keyframes (see the module doc).
+#[derive(Debug, Clone)]
+pub struct DynamicObjects {
+    camera: PinholeCamera,
+    tracks: ObjectTracks,
+    /// Keyframes whose own detections were applied, and those that got a later one's.
+    detected: HashSet<KeyFrameKey>,
+    reached: HashSet<KeyFrameKey>,
+}
+
+impl DynamicObjects {
+    pub fn new(camera: PinholeCamera) -> Self {
+        Self {
+            camera,
+            tracks: ObjectTracks::default(),
+            detected: HashSet::new(),
+            reached: HashSet::new(),
+        }
+    }
+
+    /// Applies keyframe `key`'s detections (the DOP model's update), with followed
+    /// objects the detector missed, then reaches the keyframes made since.
+    pub fn receive(
+        &mut self,
+        map: &mut Map,
+        key: KeyFrameKey,
+        detections: &[Detection],
+        dynamic_classes: &[String],
+        config: &DopConfig,
+        alpha: f32,
+    ) -> ObjectsEffect {
+        let mut result = ObjectsEffect::default();
+        let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes.get(key)) else {
+            return result;
+        };
+        self.detected.insert(key);
+        let mut boxes = object_boxes(detections, dynamic_classes);
+        if !config.track_boxes {
+            result.effect = apply_boxes(map, key, &boxes, config, alpha);
+            result.boxes = dynamic_boxes(&boxes);
+            return result;
+        }
+        let (time, id) = (kf.frame.timestamp, kf.id);
+        let world_from_camera = kf.world_from_camera();
+        let camera_from_world = kf.camera_from_world;
+        let objects: Vec<Object> = boxes
+            .iter()
+            .filter(|b| b.dynamic)
+            .filter_map(|b| {
+                let z = object_depth(config, &keypoints, b)?;
+                Some(Object::from_box(b.bbox, z, &self.camera, &world_from_camera))
+            })
+            .collect();
+        let missed = self.tracks.update(time, &objects, config);
+        let predicted: Vec<ObjectBox> = missed
+            .iter()
+            .filter_map(|o| o.to_box(&self.camera, &camera_from_world))
+            .collect();
+        result.predicted_boxes = predicted.len();
+        boxes.extend(predicted);
+        result.boxes = dynamic_boxes(&boxes);
+        result.effect = apply_boxes(map, key, &boxes, config, alpha);
+        // Keyframes made after this one whose own detections have not come back.
+        let later: Vec<(KeyFrameKey, f64)> = map
+            .keyframes
+            .iter()
+            .filter(|(k, later)| {
+                later.id > id && !self.detected.contains(k) && !self.reached.contains(k)
+            })
+            .map(|(k, later)| (k, later.frame.timestamp))
+            .collect();
+        for (later_key, later_time) in later {
+            let pose = map.keyframes[later_key].camera_from_world;
+            let boxes: Vec<ObjectBox> = self
+                .tracks
+                .predicted(later_time, config)
+                .iter()
+                .filter_map(|o| o.to_box(&self.camera, &pose))
+                .collect();
+            if boxes.is_empty() {
+                continue;
+            }
+            self.reached.insert(later_key);
+            result.later_keyframes += 1;
+            result.effect += apply_boxes(map, later_key, &boxes, config, alpha);
+        }
+        result
+    }
+}
+
+/// The pixel boxes of the dynamic ones.
+fn dynamic_boxes(boxes: &[ObjectBox]) -> Vec<[f32; 4]> {
+    boxes.iter().filter(|b| b.dynamic).map(|b| b.bbox).collect()
 }
 
 #[cfg(test)]

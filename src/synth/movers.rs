@@ -33,6 +33,16 @@ pub struct PeopleConfig {
     /// A standing person's RGBA cut-out: people become camera-facing billboards of it
     /// instead of textured boxes.
     pub sprite: Option<PathBuf>,
+    /// Distance of each person's path (m), overriding `distance` + 0.8 m per person:
+    /// e.g. `[0.9, 2.2]` for a close pass that fills half the image.
+    pub distances: Vec<f64>,
+    /// A walker stops this long (s) in the middle of the path and at each end before
+    /// turning back; 0 walks without stopping.
+    pub pause: f64,
+    /// Cut-outs walk with a gait (legs opening and closing once per `stride` metres,
+    /// a vertical bob) and face their walking direction.
+    pub gait: bool,
+    pub stride: f64,
 }
 
 impl Default for PeopleConfig {
@@ -45,6 +55,10 @@ impl Default for PeopleConfig {
             height: 1.75,
             camera_height: 1.2,
             sprite: None,
+            distances: Vec::new(),
+            pause: 0.0,
+            gait: false,
+            stride: 1.4,
         }
     }
 }
@@ -152,8 +166,12 @@ pub enum Shape {
 /// How a mover moves.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Behaviour {
-    /// Back and forth between `start` and `end` forever.
-    Walk,
+    /// Back and forth between `start` and `end` forever, stopping `pause` seconds in
+    /// the middle and at each end; with `gait`, cut-outs step once per `stride` metres.
+    Walk {
+        pause: f64,
+        gait: Option<f64>,
+    },
     /// Seated at `start` (lower box, slight sway) until `sit_seconds`, then walks once to
     /// `end` at full height and stays there.
     Seated {
@@ -223,7 +241,59 @@ impl Mover {
             cuboid.max[axis]
         };
         let height = cuboid.max[axis] - cuboid.min[axis];
-        Shape::Billboard(Billboard::facing(base, up, height, camera, sprite.clone()))
+        let mut board = Billboard::facing(base, up, height, camera, sprite.clone());
+        if let (Behaviour::Walk { gait: Some(stride), .. }, false) =
+            (self.behaviour, self.seated_at(t))
+        {
+            let (walked, direction) = self.walked(t);
+            let phase = std::f64::consts::TAU * walked / stride;
+            board.gait.open = if direction == 0.0 {
+                0.0
+            } else {
+                0.12 * phase.sin().abs()
+            };
+            board.gait.mirrored = direction * (self.end - self.start).dot(&board.right) < 0.0;
+            // The body rises as the legs pass each other: a 2 cm bob.
+            board.base += up * 0.02 * (1.0 - phase.sin().abs()) * direction.abs();
+        }
+        Shape::Billboard(board)
+    }
+
+    /// Along a walk at time `t`: the distance walked so far (m) and the direction of
+    /// motion (+1 towards `end`, -1 back, 0 stopped), and the position along the path
+    /// in [0, 1].
+    fn walk_state(&self, t: f64) -> (f64, f64, f64) {
+        let Behaviour::Walk { pause, .. } = self.behaviour else {
+            return (0.0, 0.0, 0.0);
+        };
+        let length = (self.end - self.start).norm().max(1e-9);
+        let half = length / 2.0 / self.speed;
+        // One leg: walk half, stop, walk half, stop (then the next leg goes back).
+        let leg = 2.0 * (half + pause);
+        let period = 2.0 * leg;
+        let time = ((t + self.phase) % period + period) % period;
+        let (legs_done, in_leg) = ((time / leg).floor(), time % leg);
+        let moving = |x: f64| x.min(half) + (x - half - pause).clamp(0.0, half);
+        let along_leg = moving(in_leg) * self.speed;
+        let stopped = (in_leg > half && in_leg < half + pause) || in_leg > 2.0 * half + pause;
+        let full_period_walks = ((t + self.phase) / period).floor() * 2.0 * length;
+        let walked = full_period_walks + legs_done * length + along_leg;
+        let (along, direction) = if legs_done == 0.0 {
+            (along_leg, 1.0)
+        } else {
+            (length - along_leg, -1.0)
+        };
+        (
+            walked,
+            if stopped { 0.0 } else { direction },
+            along / length,
+        )
+    }
+
+    /// The distance walked by time `t` and the direction of motion.
+    fn walked(&self, t: f64) -> (f64, f64) {
+        let (walked, direction, _) = self.walk_state(t);
+        (walked, direction)
     }
 
     /// The box at time `t` seconds.
@@ -260,10 +330,7 @@ impl Mover {
                 texture,
             };
         }
-        let length = (self.end - self.start).norm().max(1e-9);
-        let period = 2.0 * length / self.speed;
-        let s = ((t + self.phase) % period + period) % period * self.speed;
-        let along = if s <= length { s } else { 2.0 * length - s } / length;
+        let (_, _, along) = self.walk_state(t);
         let min = self.start.lerp(&self.end, along);
         Cuboid {
             min,
@@ -307,7 +374,12 @@ pub fn place_people(
     size[up] = config.height;
     (0..config.count)
         .map(|i| {
-            let middle = centre + forward * (config.distance + 0.8 * i as f64);
+            let distance = config
+                .distances
+                .get(i)
+                .copied()
+                .unwrap_or(config.distance + 0.8 * i as f64);
+            let middle = centre + forward * distance;
             let (mut a, mut b) = (
                 middle - lateral * config.span,
                 middle + lateral * config.span,
@@ -326,7 +398,10 @@ pub fn place_people(
                 size,
                 speed: config.speed,
                 phase: 1.7 * i as f64,
-                behaviour: Behaviour::Walk,
+                behaviour: Behaviour::Walk {
+                    pause: config.pause,
+                    gait: config.gait.then_some(config.stride),
+                },
                 up: (up, sign),
                 appearance: appearance.clone(),
             }
@@ -410,7 +485,10 @@ pub fn place_objects(
                 size,
                 speed: config.speed,
                 phase: 0.9 * i as f64,
-                behaviour: Behaviour::Walk,
+                behaviour: Behaviour::Walk {
+                    pause: 0.0,
+                    gait: None,
+                },
                 up: (up, sign),
                 appearance: Appearance::Box,
             }
@@ -512,7 +590,10 @@ mod tests {
             size: Vector3::repeat(0.4),
             speed: 1.0,
             phase: 0.0,
-            behaviour: Behaviour::Walk,
+            behaviour: Behaviour::Walk {
+                pause: 0.0,
+                gait: None,
+            },
             up: (1, -1.0),
             appearance: Appearance::Box,
         };
@@ -540,5 +621,25 @@ mod tests {
             (seated.cuboid_at(60.0).min.x - 2.0).abs() < 1e-12,
             "stays where it left to"
         );
+        // With 0.5 s stops: half way (1 s), stopped until 1.5 s, at the end at 2.5 s,
+        // stopped until 3 s, then back.
+        let pausing = Mover {
+            behaviour: Behaviour::Walk {
+                pause: 0.5,
+                gait: Some(1.4),
+            },
+            ..mover.clone()
+        };
+        for (t, x, direction) in [
+            (0.5, 0.5, 1.0),
+            (1.2, 1.0, 0.0),
+            (2.0, 1.5, 1.0),
+            (2.7, 2.0, 0.0),
+            (3.5, 1.5, -1.0),
+        ] {
+            assert!((pausing.cuboid_at(t).min.x - x).abs() < 1e-9, "t = {t}");
+            assert_eq!(pausing.walked(t).1, direction, "t = {t}");
+        }
+        assert!((pausing.walked(3.5).0 - 2.5).abs() < 1e-9);
     }
 }

@@ -69,6 +69,40 @@ pub struct Billboard {
     pub height: f64,
     pub width: f64,
     pub sprite: Arc<Sprite>,
+    /// The walking pose: legs opened by this fraction of the width at the feet, and
+    /// the cut-out mirrored (walking the other way).
+    pub gait: Gait,
+}
+
+/// A walking pose of a cut-out: below the hips (`HIP` of the height) the left half
+/// moves left and the right half right by \(a (h - r) / h\) of the width at height
+/// \(r\), so the legs open and close with the stride phase.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Gait {
+    pub open: f64,
+    pub mirrored: bool,
+}
+
+/// Where the legs start, as a fraction of the height.
+const HIP: f64 = 0.47;
+
+impl Gait {
+    /// The cut-out's texture coordinate seen at `(s, r)`: `None` where the opened legs
+    /// leave a gap.
+    fn source(&self, s: f64, r: f64) -> Option<f64> {
+        let s = if self.mirrored { 1.0 - s } else { s };
+        if r >= HIP || self.open == 0.0 {
+            return Some(s);
+        }
+        let shift = self.open * (HIP - r) / HIP;
+        if s < 0.5 {
+            let source = s + shift;
+            (source < 0.5).then_some(source)
+        } else {
+            let source = s - shift;
+            (source >= 0.5).then_some(source)
+        }
+    }
 }
 
 impl Billboard {
@@ -103,6 +137,7 @@ impl Billboard {
             width: height * sprite.aspect(),
             height,
             sprite,
+            gait: Gait::default(),
         }
     }
 
@@ -123,6 +158,7 @@ impl Billboard {
         let offset = origin + direction * t - self.base;
         let s = offset.dot(&self.right) / self.width + 0.5;
         let r = offset.dot(&self.up) / self.height;
+        let s = self.gait.source(s, r)?;
         self.sprite.sample(s, r).map(|colour| (t, colour))
     }
 
@@ -179,5 +215,25 @@ mod tests {
         assert!(board
             .intersect(&Vector3::zeros(), &Vector3::new(0.0, 0.0, -1.0))
             .is_none());
+    }
+
+    #[test]
+    fn gait_mirrors_and_opens_the_legs() {
+        let mirrored = Gait {
+            open: 0.0,
+            mirrored: true,
+        };
+        assert_eq!(mirrored.source(0.2, 0.8), Some(0.8));
+        let open = Gait {
+            open: 0.2,
+            mirrored: false,
+        };
+        // Above the hips nothing moves; at the feet the left leg comes from 0.2 further
+        // right, and the middle opens into a gap.
+        assert_eq!(open.source(0.3, 0.6), Some(0.3));
+        assert!((open.source(0.1, 0.0).unwrap() - 0.3).abs() < 1e-12);
+        assert!((open.source(0.9, 0.0).unwrap() - 0.7).abs() < 1e-12);
+        assert_eq!(open.source(0.45, 0.0), None);
+        assert_eq!(open.source(0.55, 0.0), None);
     }
 }

@@ -44,6 +44,14 @@ pub struct TrackerConfig {
     pub local_keyframes: usize,
     /// Search radius factor of the motion-model projection search (pixels at level 0).
     pub motion_search_radius: f32,
+    /// Keyframes are for the camera, not for what moves in front of it: tracking that
+    /// gets weak (fewer inliers than 75 % of the reference's points, or too few close
+    /// points) makes a keyframe only once the camera has moved this far (metres) or
+    /// turned this much (degrees) from the reference keyframe, or when very weak
+    /// (below 25 %). A person walking in front of a still camera hides points without
+    /// any new view to map.
+    pub keyframe_min_translation: f64,
+    pub keyframe_min_rotation_deg: f64,
 }
 
 impl Default for TrackerConfig {
@@ -55,6 +63,8 @@ impl Default for TrackerConfig {
             min_inliers: 30,
             local_keyframes: 20,
             motion_search_radius: 15.0,
+            keyframe_min_translation: 0.05,
+            keyframe_min_rotation_deg: 3.0,
         }
     }
 }
@@ -82,6 +92,8 @@ pub struct FrameReport {
     /// dynamic.
     pub dynamic_keypoints: usize,
     pub dynamic_map_points: usize,
+    /// Map points whose probability the geometric check raised in this frame.
+    pub geometric_updates: usize,
     /// The keyframe made from this frame, for local mapping.
     #[serde(skip)]
     pub new_keyframe: Option<KeyFrameKey>,
@@ -174,6 +186,35 @@ impl Tracker {
         self.last.as_ref().map(|l| &l.frame)
     }
 
+    /// After detections updated the map: the last frame's keypoints take their map
+    /// points' probabilities (the others keep theirs), then expansion runs again, so the
+    /// next frame propagates what the detections said.
+    pub fn refresh_moving(&mut self, map: &Map) {
+        let (Some(dop), Some(last)) = (self.dop.as_ref(), self.last.as_mut()) else {
+            return;
+        };
+        let from_map: Vec<Option<f32>> = last
+            .points
+            .iter()
+            .map(|k| k.and_then(|k| map.points.get(k)).map(|p| p.moving))
+            .collect();
+        let kept: Vec<Option<f32>> = last
+            .frame
+            .moving
+            .iter()
+            .zip(&from_map)
+            .map(|(p, m)| (m.is_none() && *p != dop.p_init).then_some(*p))
+            .collect();
+        let (p, origins) = crate::dop::propagate(&from_map, &kept, dop.p_init);
+        last.frame.moving = if dop.expansion {
+            let positions: Vec<(f32, f32)> =
+                last.frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+            crate::dop::expand(dop, &positions, &p, &origins)
+        } else {
+            p
+        };
+    }
+
     /// Whether a map point is left out as dynamic.
     fn excluded(&self, point: &MapPoint) -> bool {
         self.dop.as_ref().is_some_and(|d| d.removed(point.moving))
@@ -260,6 +301,7 @@ impl Tracker {
             keyframe: false,
             dynamic_keypoints: 0,
             dynamic_map_points: 0,
+            geometric_updates: 0,
             new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
@@ -306,13 +348,14 @@ impl Tracker {
         };
         let mut visible = Vec::new();
         let mut dynamic_map_points = 0;
+        let mut candidates = Vec::new();
         let tracked = outcome.and_then(|(pose, points)| {
             let (pose, points, inliers) = self.track_local_map(
                 &map,
                 &frame,
                 pose,
                 points,
-                (&mut visible, &mut dynamic_map_points),
+                (&mut visible, &mut dynamic_map_points, &mut candidates),
                 &mut timing,
             );
             (inliers >= self.config.min_inliers).then_some((pose, points, inliers))
@@ -330,6 +373,11 @@ impl Tracker {
                 if let Some(p) = map.points.get_mut(*key) {
                     p.found += 1;
                 }
+            }
+        }
+        if let (Some((_, points, _)), Some(dop)) = (&tracked, &self.dop) {
+            if dop.geometric {
+                report.geometric_updates = geometric_check(dop, &mut map, &candidates, points);
             }
         }
         report.matching_ms = timing.matching;
@@ -364,7 +412,7 @@ impl Tracker {
         }
         report.dynamic_map_points = dynamic_map_points;
         self.frames_since_keyframe += 1;
-        let (pose, points) = if self.need_keyframe(&map, &frame, &points, inliers, mapping_idle) {
+        let (pose, points) = if self.need_keyframe(&map, &frame, &pose, &points, inliers, mapping_idle) {
             self.insert_keyframe(&mut map, &frame, pose, points, false);
             let key = self.reference.expect("just inserted");
             report.keyframe = true;
@@ -674,7 +722,11 @@ impl Tracker {
         frame: &Frame,
         pose: Se3,
         mut points: Vec<Option<MapPointKey>>,
-        (visible, dynamic): (&mut Vec<MapPointKey>, &mut usize),
+        (visible, dynamic, candidates): (
+            &mut Vec<MapPointKey>,
+            &mut usize,
+            &mut Vec<Option<MapPointKey>>,
+        ),
         timing: &mut Timing,
     ) -> (Se3, Vec<Option<MapPointKey>>, usize) {
         let start = Instant::now();
@@ -730,7 +782,9 @@ impl Tracker {
         }
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         visible.extend(keys.iter().chain(&matched).copied());
-        self.optimise(map, frame, &pose, &points, timing)
+        let result = self.optimise(map, frame, &pose, &points, timing);
+        *candidates = points;
+        result
     }
 
     /// ORB-SLAM2's keyframe decision for RGB-D, adapted: a keyframe when enough frames
@@ -745,6 +799,7 @@ impl Tracker {
         &self,
         map: &Map,
         frame: &Frame,
+        pose: &Se3,
         points: &[Option<MapPointKey>],
         inliers: usize,
         mapping_idle: bool,
@@ -776,9 +831,14 @@ impl Tracker {
         }
         let need_close = tracked_close < 100 && untracked_close > 70;
         let timeout = self.frames_since_keyframe >= self.config.max_frames_between_keyframes;
-        let very_weak = (inliers as f64) < 0.25 * reference_points as f64 || need_close;
-        let weak = (inliers as f64) < 0.75 * reference_points as f64 || need_close;
-        (timeout || (weak && (mapping_idle || very_weak))) && inliers > 15
+        let very_weak = (inliers as f64) < 0.25 * reference_points as f64;
+        let moved = {
+            let relative = *pose * reference.world_from_camera();
+            relative.translation.vector.norm() >= self.config.keyframe_min_translation
+                || relative.rotation.angle().to_degrees() >= self.config.keyframe_min_rotation_deg
+        };
+        let weak = moved && ((inliers as f64) < 0.75 * reference_points as f64 || need_close);
+        (timeout || very_weak || (weak && (mapping_idle || need_close))) && inliers > 15
     }
 
     /// Makes `frame` a keyframe: map points from depth for its unmatched close keypoints
@@ -835,4 +895,53 @@ impl Tracker {
             z,
         )
     }
+}
+
+/// The DOP model's geometric check: of the frame's final matches (`candidates`) that
+/// took part in the pose (not dynamic), those the optimisation kept as inliers
+/// (`inliers`) are consistent, the others are not. A point inconsistent in
+/// `geometric_frames` tracked frames in a row gets \(P \leftarrow (1-\alpha_g) P +
+/// \alpha_g\). Frames with more than `geometric_max_outliers` of their matches
+/// inconsistent are skipped: there the pose itself is in doubt. Returns the number of
+/// points raised.
+fn geometric_check(
+    dop: &DopConfig,
+    map: &mut Map,
+    candidates: &[Option<MapPointKey>],
+    inliers: &[Option<MapPointKey>],
+) -> usize {
+    let mut consistent = Vec::new();
+    let mut inconsistent = Vec::new();
+    for (candidate, inlier) in candidates.iter().zip(inliers) {
+        let Some(key) = candidate else { continue };
+        let Some(point) = map.points.get(*key) else {
+            continue;
+        };
+        if dop.removed(point.moving) {
+            continue;
+        }
+        if inlier.is_some() {
+            consistent.push(*key);
+        } else {
+            inconsistent.push(*key);
+        }
+    }
+    let total = consistent.len() + inconsistent.len();
+    if total == 0 || inconsistent.len() as f32 > dop.geometric_max_outliers * total as f32 {
+        return 0;
+    }
+    for key in consistent {
+        map.points[key].inconsistent = 0;
+    }
+    let mut raised = 0;
+    for key in inconsistent {
+        let point = &mut map.points[key];
+        point.inconsistent += 1;
+        if point.inconsistent >= dop.geometric_frames {
+            point.inconsistent = 0;
+            point.moving = crate::dop::update(point.moving, true, dop.alpha_geometric);
+            raised += 1;
+        }
+    }
+    raised
 }
