@@ -502,7 +502,15 @@ fn ground_truth_mask(
     timestamp: f64,
 ) -> Option<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
     let path = sequence_dir?.join(format!("masks/{timestamp:.6}.png"));
-    image::open(path).ok().map(|m| m.to_luma16())
+    // Instance ids as written: an 8-bit mask is widened without scaling.
+    match image::open(path).ok()? {
+        image::DynamicImage::ImageLuma8(m) => Some(image::ImageBuffer::from_fn(
+            m.width(),
+            m.height(),
+            |x, y| image::Luma([m.get_pixel(x, y)[0] as u16]),
+        )),
+        other => Some(other.to_luma16()),
+    }
 }
 
 /// People found on keyframes against the ground truth.

@@ -115,7 +115,7 @@ impl Default for DetectorConfig {
             model_path: None,
             ort_library: None,
             threads: 1,
-            score_threshold: 0.3,
+            score_threshold: 0.15,
             nms_threshold: 0.45,
             cache_dir: None,
             dynamic_classes: ["person", "bicycle", "car", "motorcycle", "bus", "truck"]

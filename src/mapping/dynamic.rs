@@ -263,7 +263,13 @@ mod tests {
         );
         let mut map = Map::default();
         let key = map.add_keyframe(KeyFrame::new(frame, crate::geometry::se3::Se3::identity()));
-        let points = (0..n)
+        let points = observed_points(&mut map, key, n);
+        (map, key, points)
+    }
+
+    /// A new map point for each of the first `n` keypoints of keyframe `key`.
+    fn observed_points(map: &mut Map, key: KeyFrameKey, n: usize) -> Vec<crate::map::MapPointKey> {
+        (0..n)
             .map(|i| {
                 let p = map.points.insert(MapPoint::new(
                     Vector3::z(),
@@ -275,8 +281,7 @@ mod tests {
                 map.add_observation(p, key, i);
                 p
             })
-            .collect();
-        (map, key, points)
+            .collect()
     }
 
     fn person() -> Vec<Detection> {
@@ -336,6 +341,48 @@ mod tests {
         );
         assert!(points[..4].iter().all(|p| !map.points.contains_key(*p)));
         assert!(points[4..].iter().all(|p| map.points.contains_key(*p)));
+    }
+
+    /// A second keyframe at time `t`, seeing the same scene from the same pose.
+    fn add_keyframe_like(map: &mut Map, t: f64) -> (KeyFrameKey, Vec<crate::map::MapPointKey>) {
+        let (source, first, _) = map_with(&SCENE);
+        let mut frame = source.keyframes[first].frame.clone();
+        frame.timestamp = t;
+        let key = map.add_keyframe(KeyFrame::new(frame, crate::geometry::se3::Se3::identity()));
+        (key, observed_points(map, key, SCENE.len()))
+    }
+
+    #[test]
+    fn a_late_detection_reaches_later_keyframes_and_a_missed_person_keeps_a_box() {
+        let (mut map, first, _) = map_with(&SCENE);
+        // Keyframes made at 0.1 s and 0.2 s while the first one's detection was away.
+        let (_, second_points) = add_keyframe_like(&mut map, 0.1);
+        let config = DopConfig::default();
+        let classes = vec!["person".to_string()];
+        let mut objects = DynamicObjects::new(crate::geometry::camera::PinholeCamera::tum_fr3());
+        let done = objects.receive(&mut map, first, &person(), &classes, &config, 0.3);
+        assert_eq!(done.later_keyframes, 1);
+        assert_eq!(done.predicted_boxes, 0);
+        // The second keyframe's points on the person went up, the wall behind and the
+        // point outside the (predicted, widened) box went down or stayed.
+        for &p in &second_points[..4] {
+            assert!((map.points[p].moving - 0.65).abs() < 1e-5);
+        }
+        assert!((map.points[second_points[4]].moving - 0.35).abs() < 1e-5);
+        assert!(map.points[second_points[5]].moving <= 0.5);
+        // The detector misses the person at 0.5 s: the followed object gives the box.
+        let (third, third_points) = add_keyframe_like(&mut map, 0.5);
+        let done = objects.receive(&mut map, third, &[], &classes, &config, 0.3);
+        assert_eq!(done.predicted_boxes, 1);
+        assert_eq!(done.boxes.len(), 1);
+        for &p in &third_points[..4] {
+            assert!((map.points[p].moving - 0.65).abs() < 1e-5);
+        }
+        // Past track_seconds the object is forgotten.
+        let (fourth, fourth_points) = add_keyframe_like(&mut map, 2.0);
+        let done = objects.receive(&mut map, fourth, &[], &classes, &config, 0.3);
+        assert_eq!(done.predicted_boxes, 0);
+        assert!(fourth_points[..4].iter().all(|&p| map.points[p].moving < 0.5));
     }
 
     #[test]

@@ -945,3 +945,68 @@ fn geometric_check(
     }
     raised
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
+        let mut map = Map::default();
+        let keys = (0..n)
+            .map(|_| {
+                map.points.insert(MapPoint::new(
+                    Vector3::z(),
+                    [0; 4],
+                    Vector3::z(),
+                    (0.1, 10.0),
+                    0,
+                ))
+            })
+            .collect();
+        (map, keys)
+    }
+
+    #[test]
+    fn geometric_check_raises_points_that_stay_outliers() {
+        let dop = DopConfig::default();
+        let (mut map, keys) = map_with_points(10);
+        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
+        // Points 0 and 1 are outliers, the rest inliers.
+        let mut inliers = candidates.clone();
+        inliers[0] = None;
+        inliers[1] = None;
+        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
+        assert_eq!(map.points[keys[0]].inconsistent, 1);
+        // The second frame in a row raises them: 0.5 -> 0.65.
+        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 2);
+        assert!((map.points[keys[0]].moving - 0.65).abs() < 1e-6);
+        assert!((map.points[keys[2]].moving - 0.5).abs() < 1e-6);
+        // Now dynamic, they are no longer judged.
+        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
+        // A consistent frame resets the count.
+        let (mut map, keys) = map_with_points(10);
+        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
+        let mut inliers = candidates.clone();
+        inliers[0] = None;
+        geometric_check(&dop, &mut map, &candidates, &inliers);
+        geometric_check(&dop, &mut map, &candidates, &candidates);
+        assert_eq!(map.points[keys[0]].inconsistent, 0);
+    }
+
+    #[test]
+    fn geometric_check_skips_frames_where_the_pose_is_in_doubt() {
+        let dop = DopConfig::default();
+        let (mut map, keys) = map_with_points(10);
+        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
+        // 4 of 10 outliers: above geometric_max_outliers (0.35).
+        let inliers: Vec<Option<MapPointKey>> = candidates
+            .iter()
+            .enumerate()
+            .map(|(i, k)| if i < 4 { None } else { *k })
+            .collect();
+        for _ in 0..3 {
+            assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
+        }
+        assert!(keys.iter().all(|k| map.points[*k].inconsistent == 0));
+    }
+}
