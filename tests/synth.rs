@@ -218,6 +218,11 @@ fn every_preset_loads_and_validates() {
     assert_eq!(
         names,
         [
+            "cutout_halfsphere",
+            "cutout_rpy",
+            "cutout_seated_leaves",
+            "cutout_static",
+            "cutout_xyz",
             "demo_walking",
             "fr1_xyz_room",
             "fr2_desk_room",
