@@ -529,7 +529,7 @@ impl Recall {
         self.keyframes += 1;
         for person in people {
             self.people += 1;
-            if boxes.iter().any(|b| iou(person, b) >= 0.5) {
+            if boxes.iter().any(|b| crate::detect::yolo::iou(person, b) >= 0.5) {
                 self.found += 1;
             } else if area(person) > 0.2 * image_area {
                 self.missed_large += 1;
@@ -543,10 +543,6 @@ fn area(b: &[f32; 4]) -> f32 {
     (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
 }
 
-fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let inter = area(&[a[0].max(b[0]), a[1].max(b[1]), a[2].min(b[2]), a[3].min(b[3])]);
-    inter / (area(a) + area(b) - inter).max(1e-6)
-}
 
 /// The tight boxes of the people in a synthetic frame's mask that cover at least 1 %
 /// of it (the class of each instance from the frame's oracle file).

@@ -205,14 +205,7 @@ impl Tracker {
             .zip(&from_map)
             .map(|(p, m)| (m.is_none() && *p != dop.p_init).then_some(*p))
             .collect();
-        let (p, origins) = crate::dop::propagate(&from_map, &kept, dop.p_init);
-        last.frame.moving = if dop.expansion {
-            let positions: Vec<(f32, f32)> =
-                last.frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
-            crate::dop::expand(dop, &positions, &p, &origins)
-        } else {
-            p
-        };
+        last.frame.moving = propagate_and_expand(dop, &last.frame, &from_map, &kept);
     }
 
     /// Whether a map point is left out as dynamic.
@@ -269,12 +262,7 @@ impl Tracker {
                 .collect(),
             _ => vec![None; frame.len()],
         };
-        let (p, origins) = crate::dop::propagate(&from_map, &from_last, dop.p_init);
-        if !dop.expansion {
-            return p;
-        }
-        let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
-        crate::dop::expand(dop, &positions, &p, &origins)
+        propagate_and_expand(dop, frame, &from_map, &from_last)
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).
@@ -895,6 +883,22 @@ impl Tracker {
             z,
         )
     }
+}
+
+/// Propagation (map point, else last frame, else \(P_{init}\)) and, when on,
+/// matching point expansion over `frame`'s keypoints.
+fn propagate_and_expand(
+    dop: &DopConfig,
+    frame: &Frame,
+    from_map: &[Option<f32>],
+    from_last: &[Option<f32>],
+) -> Vec<f32> {
+    let (p, origins) = crate::dop::propagate(from_map, from_last, dop.p_init);
+    if !dop.expansion {
+        return p;
+    }
+    let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+    crate::dop::expand(dop, &positions, &p, &origins)
 }
 
 /// The DOP model's geometric check: of the frame's final matches (`candidates`) that
