@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use crate::dense::DenseConfig;
 pub use crate::detect::DetectorConfig;
 pub use crate::dop::DopConfig;
 use crate::eval::associate::AssociationRule;
@@ -104,6 +105,7 @@ pub struct Config {
     pub dop: DopConfig,
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
+    pub dense: DenseConfig,
 }
 
 impl Config {
@@ -132,6 +134,7 @@ impl Config {
         self.orb.validate()?;
         self.detector.validate()?;
         self.dop.validate()?;
+        self.dense.validate()?;
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(
                 "mapping.redundancy must be in [0, 1], got {}",

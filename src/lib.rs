@@ -7,6 +7,7 @@
 
 pub mod config;
 pub mod demo;
+pub mod dense;
 pub mod detect;
 pub mod dop;
 pub mod eval;

@@ -20,6 +20,8 @@ use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
+mod cli_maps;
+
 #[derive(Parser)]
 #[command(
     name = "dopslam",
@@ -39,8 +41,12 @@ enum Command {
     Demo(DemoArgs),
     /// Generate a synthetic RGB-D sequence in the TUM layout with exact ground truth.
     Synth(SynthArgs),
-    /// Track a sequence (the tracking pass): trajectory, keyframes, sparse map and report.
+    /// Run a sequence: the tracking pass (trajectory, keyframes, sparse map, report), then the dense map (mesh, point cloud, pictures).
     Run(RunArgs),
+    /// Fuse a finished run's frames again into a dense map, with other settings, without tracking again.
+    Fuse(cli_maps::FuseArgs),
+    /// Compare dense maps (PLY) against a static reference and each other: accuracy, completion, ghosts, SA/DA.
+    CompareMaps(cli_maps::CompareArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
     Info(InfoArgs),
     /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
@@ -202,6 +208,13 @@ struct RunArgs {
     /// Write every frame with its keypoints coloured by DOP state into this folder.
     #[arg(long)]
     debug_frames: Option<PathBuf>,
+    /// Skip the dense map (the config's [dense] enabled = false does the same).
+    #[arg(long)]
+    no_dense: bool,
+    /// Also run with --no-dop into OUT/no_dop and compare the two dense maps
+    /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
+    #[arg(long, conflicts_with = "no_dense")]
+    compare_no_dop: bool,
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -499,6 +512,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         deterministic: args.deterministic,
         sequence_dir: Some(args.sequence.clone()),
         debug_frames: args.debug_frames.clone(),
+        dense: !args.no_dense && config.dense.enabled,
     };
     if args.no_dop {
         config.dop.mode = dopslam::dop::Mode::Off;
@@ -536,7 +550,50 @@ fn run_run(args: RunArgs) -> Result<()> {
             ate.ape.statistics.rmse, ate.matched_poses
         );
     }
+    if let Some(dense) = &report.dense {
+        cli_maps::print_dense(dense);
+    }
     println!("wrote {}", args.out.display());
+    if args.compare_no_dop {
+        let baseline_dir = args.out.join("no_dop");
+        let mut baseline = config.clone();
+        baseline.dop.mode = dopslam::dop::Mode::Off;
+        eprintln!(
+            "the baseline: the same run with --no-dop into {}",
+            baseline_dir.display()
+        );
+        dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
+        let pick = |dir: &Path| {
+            let mesh = dir.join("dense_mesh.ply");
+            if mesh.exists() {
+                mesh
+            } else {
+                dir.join("dense_points.ply")
+            }
+        };
+        let static_scene = args.sequence.join("static_scene.ply");
+        let movers = args.sequence.join("movers.ply");
+        let maps = [
+            ("dop".to_string(), pick(&args.out)),
+            ("no_dop".to_string(), pick(&baseline_dir)),
+        ];
+        let cameras =
+            Trajectory::read(&args.out.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
+        let comparison =
+            dopslam::dense::comparison::compare_maps(&dopslam::dense::comparison::CompareInputs {
+                maps: &maps,
+                reference: if static_scene.exists() {
+                    &static_scene
+                } else {
+                    &maps[1].1
+                },
+                movers: movers.exists().then_some(movers.as_path()),
+                cameras: Some(&cameras),
+                settings: Default::default(),
+                out: &args.out.join("compare_no_dop"),
+            })?;
+        cli_maps::print_comparison(&comparison, false)?;
+    }
     Ok(())
 }
 
@@ -548,6 +605,8 @@ fn main() -> ExitCode {
         Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
         Command::Run(args) => run_run(args),
+        Command::Fuse(args) => cli_maps::run_fuse(args),
+        Command::CompareMaps(args) => cli_maps::run_compare(args),
         Command::Detect(args) => run_detect(args),
     };
     match result {

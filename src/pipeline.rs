@@ -13,6 +13,8 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::config::Config;
+use crate::dense::masks::Masking;
+use crate::dense::{fuse_run, DenseInputs, DenseReport};
 use crate::detect::worker::{DetectionWorker, Job, Outcome};
 use crate::detect::{write_cache, FrameDetections};
 use crate::dop::boxes::in_dynamic_box;
@@ -126,11 +128,18 @@ pub struct FrameLine {
 #[derive(Debug, Serialize)]
 pub struct RunReport {
     pub sequence: String,
+    /// The sequence folder, when known (for `dopslam fuse`).
+    pub sequence_path: Option<PathBuf>,
+    /// How moving objects were treated.
+    pub mode: Mode,
     pub totals: RunTotals,
     pub ate: Option<EvalReport>,
     pub mapping: MappingStats,
     pub detection: DetectionTotals,
     pub frames: Vec<FrameLine>,
+    /// The dense pass, when it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dense: Option<DenseReport>,
 }
 
 /// Options of a run.
@@ -148,6 +157,8 @@ pub struct RunOptions {
     /// Fig. 4): green high-confidence static, yellow low-confidence static, orange
     /// low-confidence dynamic, red high-confidence dynamic (removed: orange and red).
     pub debug_frames: Option<PathBuf>,
+    /// Run the dense pass after tracking (`[dense]` settings).
+    pub dense: bool,
 }
 
 /// What the keyframe detector did over a run.
@@ -214,8 +225,59 @@ pub fn effective_mode(config: &Config) -> Mode {
     }
 }
 
-/// Tracks every frame of `sequence` and writes the outputs into `out`.
+/// Runs the passes over `sequence` and writes their outputs into `out`: tracking,
+/// then (when `options.dense`) the dense map, also after tracking stopped early.
 pub fn run_sequence(
+    sequence: &dyn Sequence,
+    config: &Config,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<RunReport, RunError> {
+    let tracked = track_sequence(sequence, config, out, options);
+    if !options.dense {
+        return tracked;
+    }
+    let done = match &tracked {
+        Ok(report) => report.totals.tracked,
+        Err(RunError::Interrupted { .. }) => 1,
+        Err(_) => 0,
+    };
+    if done == 0 {
+        return tracked;
+    }
+    let calibration = resolve_calibration(sequence, config)?;
+    let inputs = DenseInputs {
+        sequence,
+        camera: calibration.camera,
+        run_dir: out,
+        masking: dense_masking(effective_mode(config)),
+        dop: &config.dop,
+        dynamic_classes: &config.detector.dynamic_classes,
+        truth_masks: options
+            .sequence_dir
+            .as_ref()
+            .map(|d| d.join("masks"))
+            .filter(|d| d.is_dir()),
+        progress: options.progress,
+    };
+    let dense = fuse_run(&inputs, &config.dense)?;
+    tracked.map(|mut report| {
+        report.dense = Some(dense);
+        report
+    })
+}
+
+/// The dense masks that go with a tracking mode.
+pub fn dense_masking(mode: Mode) -> Masking {
+    match mode {
+        Mode::Off => Masking::None,
+        Mode::MaskBoxes => Masking::Boxes,
+        Mode::Dop => Masking::Dop,
+    }
+}
+
+/// The tracking pass: tracks every frame of `sequence` and writes its outputs into `out`.
+pub fn track_sequence(
     sequence: &dyn Sequence,
     config: &Config,
     out: &Path,
@@ -286,6 +348,7 @@ pub fn run_sequence(
         .expect("valid template"),
     );
     let mut lines = Vec::with_capacity(total);
+    let mut dynamic_keypoints = Vec::new();
     let mut failure: Option<String> = None;
     let mut frames_without_depth = 0;
     for index in 0..total {
@@ -361,6 +424,11 @@ pub fn run_sequence(
                 });
             }
         }
+        if let (Some(dop), Some(frame)) = (&tracker.dop, tracker.last_frame()) {
+            if report.state == TrackingState::Ok && frame.index == index {
+                dynamic_keypoints.push(crate::dense::masks::dynamic_keypoints(frame, dop));
+            }
+        }
         let mut truth = None;
         if let Some(frame) = tracker.last_frame() {
             if report.state == TrackingState::Ok && frame.index == index {
@@ -410,7 +478,17 @@ pub fn run_sequence(
     book.totals.median_ms = median(&mut book.milliseconds);
     let stats = mapping.finish();
     let map = tracker.map.read().expect("map lock poisoned");
-    let report = write_outputs(sequence, &map, (stats, book.totals), lines, out)?;
+    if mode == Mode::Dop {
+        let json = serde_json::to_string(&dynamic_keypoints).expect("keypoints serialise");
+        write_atomic(&out.join(crate::dense::KEYPOINTS_FILE), json.as_bytes())?;
+    }
+    let report = write_outputs(
+        sequence,
+        &map,
+        (stats, book.totals),
+        lines,
+        (out, options.sequence_dir.as_deref(), mode),
+    )?;
     match failure {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -529,7 +607,10 @@ impl Recall {
         self.keyframes += 1;
         for person in people {
             self.people += 1;
-            if boxes.iter().any(|b| crate::detect::yolo::iou(person, b) >= 0.5) {
+            if boxes
+                .iter()
+                .any(|b| crate::detect::yolo::iou(person, b) >= 0.5)
+            {
                 self.found += 1;
             } else if area(person) > 0.2 * image_area {
                 self.missed_large += 1;
@@ -543,10 +624,12 @@ fn area(b: &[f32; 4]) -> f32 {
     (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
 }
 
-
 /// The tight boxes of the people in a synthetic frame's mask that cover at least 1 %
 /// of it (the class of each instance from the frame's oracle file).
-fn ground_truth_people(sequence_dir: Option<&Path>, timestamp: f64) -> Option<(Vec<[f32; 4]>, f32)> {
+fn ground_truth_people(
+    sequence_dir: Option<&Path>,
+    timestamp: f64,
+) -> Option<(Vec<[f32; 4]>, f32)> {
     let dir = sequence_dir?;
     let mask = ground_truth_mask(Some(dir), timestamp)?;
     let text = std::fs::read_to_string(crate::detect::cache_file(
@@ -568,7 +651,12 @@ fn ground_truth_people(sequence_dir: Option<&Path>, timestamp: f64) -> Option<(V
             continue;
         }
         let entry = boxes.entry(id).or_insert(([x, y, x + 1, y + 1], 0));
-        entry.0 = [entry.0[0].min(x), entry.0[1].min(y), entry.0[2].max(x + 1), entry.0[3].max(y + 1)];
+        entry.0 = [
+            entry.0[0].min(x),
+            entry.0[1].min(y),
+            entry.0[2].max(x + 1),
+            entry.0[3].max(y + 1),
+        ];
         entry.1 += 1;
     }
     let image_area = (mask.width() * mask.height()) as f32;
@@ -722,7 +810,7 @@ fn write_outputs(
     map: &Map,
     (mapping, detection): (MappingStats, DetectionTotals),
     lines: Vec<FrameLine>,
-    out: &Path,
+    (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
 ) -> Result<RunReport, RunError> {
     let mut trajectory = Trajectory::default();
     for line in &lines {
@@ -788,11 +876,14 @@ fn write_outputs(
     };
     let report = RunReport {
         sequence: sequence.name().to_string(),
+        sequence_path: sequence_path.map(Path::to_path_buf),
+        mode,
         totals,
         ate,
         mapping,
         detection,
         frames: lines,
+        dense: None,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;
     write_atomic(&out.join("report.json"), json.as_bytes())?;

@@ -65,7 +65,11 @@ fn dop_removes_the_walkers_and_beats_orb_slam2_behaviour() {
     assert!(dop.detection.map_points_updated > 0);
     // Keyframes are for the camera: the walkers make none (the camera moves slowly).
     let share = dop.totals.keyframes as f64 / dop.totals.frames as f64;
-    assert!(share <= 0.25, "keyframes on {:.0} % of frames", 100.0 * share);
+    assert!(
+        share <= 0.25,
+        "keyframes on {:.0} % of frames",
+        100.0 * share
+    );
     assert!(off.frames.iter().all(|f| f.tracking.dynamic_keypoints == 0));
     assert!(mask.detection.map_points_removed > 0);
 }

@@ -222,11 +222,8 @@ mod tests {
 
     #[test]
     fn a_busy_thread_detects_only_the_newest_waiting_keyframe() {
-        let mut worker = DetectionWorker::start(
-            Box::new(Slow),
-            false,
-            std::time::Duration::from_millis(50),
-        );
+        let mut worker =
+            DetectionWorker::start(Box::new(Slow), false, std::time::Duration::from_millis(50));
         let start = Instant::now();
         worker.submit(job(0));
         // Let the thread take job 0 before the others arrive.
@@ -238,8 +235,16 @@ mod tests {
         // Submitting does not wait for the detector.
         assert!(submitting.elapsed().as_millis() < 10);
         let outcomes = worker.finish();
-        let detected: Vec<usize> = outcomes.iter().filter(|o| !o.skipped).map(|o| o.id).collect();
-        let skipped: Vec<usize> = outcomes.iter().filter(|o| o.skipped).map(|o| o.id).collect();
+        let detected: Vec<usize> = outcomes
+            .iter()
+            .filter(|o| !o.skipped)
+            .map(|o| o.id)
+            .collect();
+        let skipped: Vec<usize> = outcomes
+            .iter()
+            .filter(|o| o.skipped)
+            .map(|o| o.id)
+            .collect();
         // Job 0 starts at once; 1 and 3 wait behind it and give way to 4.
         assert_eq!(detected, vec![0, 4]);
         assert_eq!(skipped, vec![1, 3]);

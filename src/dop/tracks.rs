@@ -131,7 +131,8 @@ impl ObjectTracks {
             let track = &mut self.tracks[ti];
             let dt = t - track.last_seen;
             if dt > 1e-3 {
-                let velocity = (track.velocity + (detected[oi].centre - track.object.centre) / dt) / 2.0;
+                let velocity =
+                    (track.velocity + (detected[oi].centre - track.object.centre) / dt) / 2.0;
                 track.velocity = velocity.cap_magnitude(speed);
             }
             track.object = detected[oi];
@@ -141,14 +142,16 @@ impl ObjectTracks {
             .tracks
             .iter()
             .zip(&track_used)
-            .filter(|(track, used)| {
-                !**used && t - track.last_seen <= config.track_seconds as f64
-            })
+            .filter(|(track, used)| !**used && t - track.last_seen <= config.track_seconds as f64)
             .map(|(track, _)| track.at(t, speed))
             .collect();
         self.tracks
             .retain(|track| t - track.last_seen <= config.track_seconds as f64);
-        for (object, _) in detected.iter().zip(&object_used).filter(|(_, used)| !**used) {
+        for (object, _) in detected
+            .iter()
+            .zip(&object_used)
+            .filter(|(_, used)| !**used)
+        {
             self.tracks.push(Track {
                 object: *object,
                 velocity: Vector3::zeros(),
@@ -220,7 +223,9 @@ mod tests {
         let mut tracks = ObjectTracks::default();
         assert!(tracks.update(0.0, &[at(0.0)], &config).is_empty());
         // Walking at 0.8 m/s along x; a second person appears.
-        assert!(tracks.update(0.25, &[at(0.2), at(-1.5)], &config).is_empty());
+        assert!(tracks
+            .update(0.25, &[at(0.2), at(-1.5)], &config)
+            .is_empty());
         assert_eq!(tracks.len(), 2);
         // Both missed at 0.5 s: predicted where they go (the first at half its measured
         // speed, as the velocity is averaged with the initial zero).

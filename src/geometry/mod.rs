@@ -6,6 +6,7 @@
 
 pub mod alignment;
 pub mod camera;
+pub mod mesh;
 pub mod se3;
 pub mod sim3;
 pub mod so3;

@@ -6,6 +6,7 @@ pub mod file_list;
 pub mod image_files;
 pub mod kitti;
 pub mod orbslam_settings;
+pub mod ply;
 pub mod sequence;
 pub mod trajectory;
 pub mod tum;

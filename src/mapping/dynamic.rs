@@ -189,7 +189,12 @@ impl DynamicObjects {
             .filter(|b| b.dynamic)
             .filter_map(|b| {
                 let z = object_depth(config, &keypoints, b)?;
-                Some(Object::from_box(b.bbox, z, &self.camera, &world_from_camera))
+                Some(Object::from_box(
+                    b.bbox,
+                    z,
+                    &self.camera,
+                    &world_from_camera,
+                ))
             })
             .collect();
         let missed = self.tracks.update(time, &objects, config);
@@ -382,7 +387,9 @@ mod tests {
         let (fourth, fourth_points) = add_keyframe_like(&mut map, 2.0);
         let done = objects.receive(&mut map, fourth, &[], &classes, &config, 0.3);
         assert_eq!(done.predicted_boxes, 0);
-        assert!(fourth_points[..4].iter().all(|&p| map.points[p].moving < 0.5));
+        assert!(fourth_points[..4]
+            .iter()
+            .all(|&p| map.points[p].moving < 0.5));
     }
 
     #[test]

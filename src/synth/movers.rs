@@ -168,10 +168,7 @@ pub enum Shape {
 pub enum Behaviour {
     /// Back and forth between `start` and `end` forever, stopping `pause` seconds in
     /// the middle and at each end; with `gait`, cut-outs step once per `stride` metres.
-    Walk {
-        pause: f64,
-        gait: Option<f64>,
-    },
+    Walk { pause: f64, gait: Option<f64> },
     /// Seated at `start` (lower box, slight sway) until `sit_seconds`, then walks once to
     /// `end` at full height and stays there.
     Seated {
@@ -242,8 +239,12 @@ impl Mover {
         };
         let height = cuboid.max[axis] - cuboid.min[axis];
         let mut board = Billboard::facing(base, up, height, camera, sprite.clone());
-        if let (Behaviour::Walk { gait: Some(stride), .. }, false) =
-            (self.behaviour, self.seated_at(t))
+        if let (
+            Behaviour::Walk {
+                gait: Some(stride), ..
+            },
+            false,
+        ) = (self.behaviour, self.seated_at(t))
         {
             let (walked, direction) = self.walked(t);
             let phase = std::f64::consts::TAU * walked / stride;

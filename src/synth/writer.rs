@@ -21,11 +21,13 @@ use super::scene::Scene;
 use super::sprite::Sprite;
 use crate::detect::{Detection, FrameDetections};
 use crate::geometry::camera::PinholeCamera;
+use crate::geometry::mesh::Mesh;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::file_list::read_file_list;
 use crate::io::image_files::depth_to_png16;
 use crate::io::orbslam_settings::{Calibration, OrbSettings, OrbSlamSettings};
+use crate::io::ply::{write_ply, PlyEncoding};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
 use crate::random::Rng;
@@ -180,6 +182,36 @@ fn write_frame(
         json.as_bytes(),
     )?;
     Ok(())
+}
+
+/// Voxel edge of `movers.ply`, metres.
+const MOVER_VOXEL: f64 = 0.02;
+
+/// The voxels that a frame's mover pixels (exact depth, every other pixel) fall in,
+/// in the world frame: the ground truth of where movers were, for judging dense maps.
+fn mover_voxels(
+    rendered: &Rendered,
+    camera: &PinholeCamera,
+    world_from_camera: &Se3,
+) -> Vec<[i32; 3]> {
+    let w = camera.width as usize;
+    let mut voxels = Vec::new();
+    for (i, &id) in rendered.mask.iter().enumerate() {
+        let (u, v) = (i % w, i / w);
+        if id == 0 || u % 2 == 1 || v % 2 == 1 {
+            continue;
+        }
+        let z = rendered.exact_depth.metres[i] as f64;
+        if z <= 0.0 {
+            continue;
+        }
+        let p = camera.unproject(&nalgebra::Vector2::new(u as f64, v as f64), z);
+        let p = world_from_camera * nalgebra::Point3::from(p);
+        voxels.push([0, 1, 2].map(|k| (p[k] / MOVER_VOXEL).floor() as i32));
+    }
+    voxels.sort_unstable();
+    voxels.dedup();
+    voxels
 }
 
 /// Everything needed to render any frame of a config: frame times, camera poses, the
@@ -397,31 +429,35 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     );
     // Frames render and encode in parallel (each frame's noise has its own seed, so the
     // files do not depend on the order); the index files are written afterwards.
-    (0..times.len()).into_par_iter().try_for_each(|index| {
-        let rendered = world.render(index);
-        write_frame(
-            out,
-            world.stamp(index),
-            &rendered,
-            &camera,
-            &world.movers,
-            &config.oracle,
-            world.frame_seed(index) ^ 0x0AC1_E5EE,
-        )?;
-        if stereo {
-            let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
-            let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
-            for (sub, grey) in [("image_0", left), ("image_1", right)] {
-                let path = kitti.join(format!("{sub}/{index:06}.png"));
-                grey.save(&path).map_err(|e| IoError::Write {
-                    path: path.clone(),
-                    source: std::io::Error::other(e),
-                })?;
+    let mover_voxels: Vec<Vec<[i32; 3]>> = (0..times.len())
+        .into_par_iter()
+        .map(|index| {
+            let rendered = world.render(index);
+            let voxels = mover_voxels(&rendered, &camera, &world.poses[index]);
+            write_frame(
+                out,
+                world.stamp(index),
+                &rendered,
+                &camera,
+                &world.movers,
+                &config.oracle,
+                world.frame_seed(index) ^ 0x0AC1_E5EE,
+            )?;
+            if stereo {
+                let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
+                let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
+                for (sub, grey) in [("image_0", left), ("image_1", right)] {
+                    let path = kitti.join(format!("{sub}/{index:06}.png"));
+                    grey.save(&path).map_err(|e| IoError::Write {
+                        path: path.clone(),
+                        source: std::io::Error::other(e),
+                    })?;
+                }
             }
-        }
-        progress.inc(1);
-        Ok::<(), SynthError>(())
-    })?;
+            progress.inc(1);
+            Ok::<_, SynthError>(voxels)
+        })
+        .collect::<Result<_, _>>()?;
     let poses = &world.poses;
     let t0 = world.t0;
     let mut ground_truth = Trajectory::default();
@@ -458,6 +494,22 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     write_atomic(
         &out.join("static_scene.ply"),
         world.scene.to_ply().as_bytes(),
+    )?;
+    let mut movers: Vec<[i32; 3]> = mover_voxels.into_iter().flatten().collect();
+    movers.sort_unstable();
+    movers.dedup();
+    let movers = Mesh::points(
+        movers
+            .iter()
+            .map(|k| k.map(|c| ((c as f64 + 0.5) * MOVER_VOXEL) as f32))
+            .collect(),
+    );
+    write_ply(
+        &out.join("movers.ply"),
+        &movers,
+        None,
+        PlyEncoding::Binary,
+        "dopslam synth: where movers were (every frame's mover pixels at exact depth, 2 cm voxels)",
     )?;
     if stereo {
         write_kitti_files(&world, &out.join("kitti"))?;

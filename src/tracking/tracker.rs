@@ -400,16 +400,17 @@ impl Tracker {
         }
         report.dynamic_map_points = dynamic_map_points;
         self.frames_since_keyframe += 1;
-        let (pose, points) = if self.need_keyframe(&map, &frame, &pose, &points, inliers, mapping_idle) {
-            self.insert_keyframe(&mut map, &frame, pose, points, false);
-            let key = self.reference.expect("just inserted");
-            report.keyframe = true;
-            report.new_keyframe = Some(key);
-            let keyframe = &map.keyframes[key];
-            (keyframe.camera_from_world, keyframe.map_points.clone())
-        } else {
-            (pose, points)
-        };
+        let (pose, points) =
+            if self.need_keyframe(&map, &frame, &pose, &points, inliers, mapping_idle) {
+                self.insert_keyframe(&mut map, &frame, pose, points, false);
+                let key = self.reference.expect("just inserted");
+                report.keyframe = true;
+                report.new_keyframe = Some(key);
+                let keyframe = &map.keyframes[key];
+                (keyframe.camera_from_world, keyframe.map_points.clone())
+            } else {
+                (pose, points)
+            };
         report.camera_from_world = Some(pose);
         report.reference = self.reference.and_then(|k| {
             let keyframe = map.keyframes.get(k)?;

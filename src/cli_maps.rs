@@ -1,0 +1,238 @@
+//! The dense-map commands: `dopslam fuse` and `dopslam compare-maps`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+
+use dopslam::config::Config;
+use dopslam::dense::compare::CompareSettings;
+use dopslam::dense::comparison::{compare_maps, CompareInputs, Comparison};
+use dopslam::dense::masks::Masking;
+use dopslam::dense::{fuse_run, DenseInputs, DenseReport, FrameChoice};
+use dopslam::io::trajectory::TrajectoryFormat;
+use dopslam::io::Trajectory;
+
+#[derive(Args)]
+pub struct FuseArgs {
+    /// A finished run's folder (written by `dopslam run`).
+    pub run: PathBuf,
+    /// The sequence folder (default: the one the run names in report.json).
+    #[arg(long)]
+    pub sequence: Option<PathBuf>,
+    /// A TOML config whose [dense] section sets the fusion (default: built-in defaults).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Fuse everything (the baseline), whatever the run did.
+    #[arg(long, conflicts_with_all = ["mask_boxes", "dop"])]
+    pub no_dop: bool,
+    /// Mask whole dynamic boxes of the nearest keyframe.
+    #[arg(long, conflicts_with = "dop")]
+    pub mask_boxes: bool,
+    /// Mask the DOP model's objects and dynamic keypoints (default: as the run did).
+    #[arg(long)]
+    pub dop: bool,
+    /// TSDF voxel edge in metres (overrides the config).
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Fuse keyframes only into the TSDF.
+    #[arg(long)]
+    pub keyframes_only: bool,
+}
+
+/// The masking a run used, from its report.json.
+fn run_masking(report: &serde_json::Value) -> Masking {
+    match report.get("mode").and_then(|m| m.as_str()) {
+        Some("off") => Masking::None,
+        Some("mask-boxes") => Masking::Boxes,
+        _ => Masking::Dop,
+    }
+}
+
+pub fn run_fuse(args: FuseArgs) -> Result<()> {
+    let mut config = match &args.config {
+        Some(path) => Config::load(path)?,
+        None => Config::default(),
+    };
+    if let Some(voxel) = args.voxel {
+        config.dense.voxel = voxel;
+        config.dense.truncation = config.dense.truncation.max(4.0 * voxel);
+    }
+    if args.keyframes_only {
+        config.dense.frames = FrameChoice::Keyframes;
+    }
+    let report_path = args.run.join("report.json");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report_path).with_context(|| {
+            format!(
+                "{} is not a finished run: cannot read {}",
+                args.run.display(),
+                report_path.display()
+            )
+        })?)
+        .with_context(|| format!("{}: not a run report", report_path.display()))?;
+    let sequence_dir = match (
+        &args.sequence,
+        report.get("sequence_path").and_then(|p| p.as_str()),
+    ) {
+        (Some(dir), _) => dir.clone(),
+        (None, Some(dir)) => PathBuf::from(dir),
+        (None, None) => bail!(
+            "{} does not say which sequence it tracked: pass --sequence",
+            report_path.display()
+        ),
+    };
+    let masking = if args.no_dop {
+        Masking::None
+    } else if args.mask_boxes {
+        Masking::Boxes
+    } else if args.dop {
+        Masking::Dop
+    } else {
+        run_masking(&report)
+    };
+    let sequence = dopslam::pipeline::open_sequence(&sequence_dir, &config)?;
+    let calibration = dopslam::pipeline::resolve_calibration(sequence.as_ref(), &config)?;
+    let truth = sequence_dir.join("masks");
+    let inputs = DenseInputs {
+        sequence: sequence.as_ref(),
+        camera: calibration.camera,
+        run_dir: &args.run,
+        masking,
+        dop: &config.dop,
+        dynamic_classes: &config.detector.dynamic_classes,
+        truth_masks: truth.is_dir().then_some(truth),
+        progress: true,
+    };
+    let dense = fuse_run(&inputs, &config.dense)?;
+    print_dense(&dense);
+    Ok(())
+}
+
+/// Prints what the dense pass did.
+pub fn print_dense(dense: &DenseReport) {
+    println!(
+        "dense map ({:?} masks, {:.1} % of pixels masked): {} frames fused, {} TSDF blocks ({:.0} MB), mesh {} vertices / {} triangles, cloud {} points from {} keyframes",
+        dense.masking.unwrap_or(Masking::None),
+        dense.masked_percent,
+        dense.frames_fused,
+        dense.tsdf_blocks,
+        dense.tsdf_memory_mb,
+        dense.mesh_vertices,
+        dense.mesh_triangles,
+        dense.cloud_points,
+        dense.keyframes_in_cloud
+    );
+    println!(
+        "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s",
+        dense.median_integration_ms, dense.marching_cubes_ms, dense.cloud_ms, dense.total_s
+    );
+    if let Some(t) = &dense.truth {
+        println!(
+            "against the ground-truth masks: {:.2} % of mover pixels kept out, {:.2} % of static pixels fused",
+            100.0 * t.dynamic_removed,
+            100.0 * t.static_kept
+        );
+    }
+    for path in &dense.outputs {
+        println!("wrote {}", path.display());
+    }
+}
+
+#[derive(Args)]
+pub struct CompareArgs {
+    /// The map to judge (PLY: a mesh's vertices or a point cloud).
+    pub map: PathBuf,
+    /// A second map, e.g. fused with --no-dop: the baseline for SA, and the reference
+    /// when --reference is not given.
+    pub other: Option<PathBuf>,
+    /// The static reference (a mesh or point cloud), e.g. a synthetic sequence's
+    /// static_scene.ply.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+    /// The movers' ground truth (points), e.g. a synthetic sequence's movers.ply: mover
+    /// points in the maps and DA.
+    #[arg(long)]
+    pub movers: Option<PathBuf>,
+    /// A trajectory (TUM format) to orient the pictures.
+    #[arg(long)]
+    pub trajectory: Option<PathBuf>,
+    /// Precision/recall threshold, metres.
+    #[arg(long, default_value_t = CompareSettings::default().threshold)]
+    pub threshold: f64,
+    /// Ghost distance: map points farther than this from the reference, metres.
+    #[arg(long, default_value_t = CompareSettings::default().ghost_distance)]
+    pub ghost_distance: f64,
+    /// Output folder: compare.md, compare.json, coloured PLYs, pictures.
+    #[arg(long, default_value = "outputs/compare")]
+    pub out: PathBuf,
+    /// Print the figures as JSON instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run_compare(args: CompareArgs) -> Result<()> {
+    for (name, value) in [
+        ("--threshold", args.threshold),
+        ("--ghost-distance", args.ghost_distance),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            bail!("{name} must be a positive distance in metres, not {value}");
+        }
+    }
+    let reference = match (&args.reference, &args.other) {
+        (Some(r), _) => r.clone(),
+        (None, Some(other)) => other.clone(),
+        (None, None) => bail!("nothing to compare against: give a second map or --reference"),
+    };
+    let mut maps = vec![(name_of(&args.map), args.map.clone())];
+    if let Some(other) = &args.other {
+        let mut name = name_of(other);
+        if name == maps[0].0 {
+            name += "_2";
+        }
+        maps.push((name, other.clone()));
+    }
+    let cameras = match &args.trajectory {
+        Some(path) => Some(Trajectory::read(path, TrajectoryFormat::Tum)?.poses),
+        None => None,
+    };
+    let comparison = compare_maps(&CompareInputs {
+        maps: &maps,
+        reference: &reference,
+        movers: args.movers.as_deref(),
+        cameras: cameras.as_deref(),
+        settings: CompareSettings {
+            threshold: args.threshold,
+            ghost_distance: args.ghost_distance,
+            ..CompareSettings::default()
+        },
+        out: &args.out,
+    })?;
+    print_comparison(&comparison, args.json)
+}
+
+/// Prints a comparison as a table or JSON.
+pub fn print_comparison(comparison: &Comparison, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(comparison)?);
+    } else {
+        print!("{}", comparison.table);
+        for path in &comparison.outputs {
+            eprintln!("wrote {}", path.display());
+        }
+    }
+    Ok(())
+}
+
+/// A map's name from its path: the folder's name for `dense_*.ply` files of a run.
+fn name_of(path: &Path) -> String {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    match path.parent().and_then(|p| p.file_name()) {
+        Some(dir) if stem.starts_with("dense_") => dir.to_string_lossy().into_owned(),
+        _ => stem,
+    }
+}

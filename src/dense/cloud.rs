@@ -1,0 +1,241 @@
+//! A coloured point cloud from masked depth: pixels back-projected with the frame's
+//! final pose, \(p_w = T_{wc}\, d\, K^{-1}(u, v, 1)^T\), averaged per voxel (position,
+//! colour), then optionally cleaned by statistical outlier removal (a point whose mean
+//! distance \(\bar d_i\) to its k nearest neighbours exceeds
+//! \(\mu + s\,\sigma\) of all \(\bar d\) goes, as PCL's and Open3D's filters do) and
+//! given normals (the least-variance axis of its k neighbours, turned towards the
+//! cameras that saw it).
+
+use std::collections::HashMap;
+
+use nalgebra::{Matrix3, Point3, Vector2, Vector3};
+use rayon::prelude::*;
+
+use super::neighbours::PointIndex;
+use super::tsdf::FrameInput;
+use crate::geometry::camera::PinholeCamera;
+use crate::geometry::mesh::Mesh;
+
+/// Settings of the point cloud.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CloudSettings {
+    /// Voxel edge of the downsampling, metres.
+    pub voxel: f64,
+    /// Use every `stride`-th pixel in each direction.
+    pub stride: usize,
+    pub max_depth: f64,
+    /// Neighbours for outlier removal (0: off) and its threshold in standard deviations.
+    pub outlier_neighbours: usize,
+    pub outlier_std: f64,
+    /// Neighbours for normals (0: no normals).
+    pub normal_neighbours: usize,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Voxel {
+    sum: [f64; 3],
+    colour: [u32; 3],
+    /// Sum of unit directions from the point to the cameras that saw it.
+    view: [f64; 3],
+    count: u32,
+}
+
+/// Accumulates frames into voxels.
+pub struct CloudBuilder {
+    settings: CloudSettings,
+    camera: PinholeCamera,
+    voxels: HashMap<[i32; 3], Voxel>,
+}
+
+impl CloudBuilder {
+    pub fn new(settings: CloudSettings, camera: PinholeCamera) -> Self {
+        Self {
+            settings,
+            camera,
+            voxels: HashMap::new(),
+        }
+    }
+
+    /// Adds the unmasked pixels of one frame.
+    pub fn add(&mut self, frame: &FrameInput) {
+        let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
+        let world_from_camera = frame.camera_from_world.inverse();
+        let centre = world_from_camera.translation.vector;
+        let (s, camera) = (self.settings, self.camera);
+        let points: Vec<(Vector3<f64>, [u8; 3])> = (0..h)
+            .into_par_iter()
+            .step_by(s.stride)
+            .flat_map_iter(|v| {
+                let world_from_camera = &world_from_camera;
+                (0..w).step_by(s.stride).filter_map(move |u| {
+                    let i = v * w + u;
+                    let d = frame.depth.metres[i] as f64;
+                    if d <= 0.0 || d > s.max_depth || frame.dynamic.is_some_and(|m| m[i]) {
+                        return None;
+                    }
+                    let p = camera.unproject(&Vector2::new(u as f64, v as f64), d);
+                    let p = (world_from_camera * Point3::from(p)).coords;
+                    Some((p, frame.colour.get_pixel(u as u32, v as u32).0))
+                })
+            })
+            .collect();
+        for (p, c) in points {
+            let key = [0, 1, 2].map(|k| (p[k] / s.voxel).floor() as i32);
+            let voxel = self.voxels.entry(key).or_default();
+            let view = (centre - p).normalize();
+            for k in 0..3 {
+                voxel.sum[k] += p[k];
+                voxel.colour[k] += c[k] as u32;
+                voxel.view[k] += view[k];
+            }
+            voxel.count += 1;
+        }
+    }
+
+    /// Voxels holding points so far.
+    pub fn len(&self) -> usize {
+        self.voxels.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.voxels.is_empty()
+    }
+
+    /// The cloud: voxel means, outliers removed, normals estimated. Sorted by voxel
+    /// so that the output does not depend on hash order.
+    pub fn finish(self) -> Mesh {
+        let mut voxels: Vec<([i32; 3], Voxel)> = self.voxels.into_iter().collect();
+        voxels.sort_unstable_by_key(|(k, _)| *k);
+        let mut cloud = Mesh::default();
+        let mut views = Vec::with_capacity(voxels.len());
+        for (_, v) in &voxels {
+            let n = v.count as f64;
+            cloud.vertices.push(v.sum.map(|c| (c / n) as f32));
+            cloud
+                .colours
+                .push(v.colour.map(|c| (c as f64 / n).round() as u8));
+            views.push(Vector3::from(v.view));
+        }
+        let s = self.settings;
+        if s.outlier_neighbours > 0 && cloud.len() > s.outlier_neighbours {
+            let keep = inliers(&cloud.vertices, s.outlier_neighbours, s.outlier_std);
+            let mut k = keep.iter();
+            cloud
+                .vertices
+                .retain(|_| *k.next().expect("one flag a point"));
+            let mut k = keep.iter();
+            cloud
+                .colours
+                .retain(|_| *k.next().expect("one flag a point"));
+            let mut k = keep.iter();
+            views.retain(|_| *k.next().expect("one flag a point"));
+        }
+        if s.normal_neighbours >= 3 && cloud.len() > s.normal_neighbours {
+            cloud.normals = normals(&cloud.vertices, &views, s.normal_neighbours);
+        }
+        cloud
+    }
+}
+
+/// Statistical outlier removal: which points to keep.
+pub fn inliers(points: &[[f32; 3]], k: usize, std_ratio: f64) -> Vec<bool> {
+    let index = PointIndex::new(points);
+    let mean_distances: Vec<f64> = points
+        .par_iter()
+        .map(|p| {
+            let near = index.nearest(p, k + 1);
+            let d: f64 = near.iter().skip(1).map(|&(_, d)| d as f64).sum();
+            d / (near.len().saturating_sub(1)).max(1) as f64
+        })
+        .collect();
+    let n = mean_distances.len() as f64;
+    let mean = mean_distances.iter().sum::<f64>() / n;
+    let var = mean_distances
+        .iter()
+        .map(|d| (d - mean).powi(2))
+        .sum::<f64>()
+        / n;
+    let limit = mean + std_ratio * var.sqrt();
+    mean_distances.iter().map(|&d| d <= limit).collect()
+}
+
+/// Unit normals: least-variance axis of the `k` nearest points, towards `views`.
+pub fn normals(points: &[[f32; 3]], views: &[Vector3<f64>], k: usize) -> Vec<[f32; 3]> {
+    let index = PointIndex::new(points);
+    points
+        .par_iter()
+        .zip(views.par_iter())
+        .map(|(p, view)| {
+            let near = index.nearest(p, k);
+            let pts: Vec<Vector3<f64>> = near
+                .iter()
+                .map(|&(i, _)| Vector3::from(points[i as usize].map(f64::from)))
+                .collect();
+            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+            let cov: Matrix3<f64> = pts
+                .iter()
+                .map(|q| (q - mean) * (q - mean).transpose())
+                .sum();
+            let eigen = cov.symmetric_eigen();
+            let smallest = eigen.eigenvalues.imin();
+            let mut n: Vector3<f64> = eigen.eigenvectors.column(smallest).into_owned();
+            if n.dot(view) < 0.0 {
+                n = -n;
+            }
+            n.map(|c| c as f32).into()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::image_files::DepthImage;
+
+    #[test]
+    fn a_wall_becomes_a_flat_cloud_with_normals_to_the_camera_and_no_outliers() {
+        let camera = PinholeCamera::tum_fr3();
+        let mut depth = DepthImage::new(camera.width, camera.height);
+        depth.metres.iter_mut().for_each(|d| *d = 2.0);
+        // One stray pixel far in front of the wall.
+        depth.metres[(100 * camera.width + 100) as usize] = 0.7;
+        let colour =
+            image::RgbImage::from_pixel(camera.width, camera.height, image::Rgb([200, 100, 50]));
+        let pose = crate::geometry::se3::Se3::identity();
+        let mut builder = CloudBuilder::new(
+            CloudSettings {
+                voxel: 0.02,
+                stride: 2,
+                max_depth: 4.0,
+                outlier_neighbours: 8,
+                outlier_std: 2.0,
+                normal_neighbours: 10,
+            },
+            camera,
+        );
+        let mut mask = vec![false; (camera.width * camera.height) as usize];
+        mask[..(camera.width * 10) as usize]
+            .iter_mut()
+            .for_each(|m| *m = true);
+        builder.add(&FrameInput {
+            depth: &depth,
+            colour: &colour,
+            dynamic: Some(&mask),
+            camera_from_world: &pose,
+        });
+        let cloud = builder.finish();
+        assert!(cloud.len() > 1000);
+        assert!(
+            cloud.vertices.iter().all(|v| (v[2] - 2.0).abs() < 1e-4),
+            "the stray point is gone"
+        );
+        assert!(cloud.colours.iter().all(|c| *c == [200, 100, 50]));
+        assert!(
+            cloud.normals.iter().all(|n| n[2] < -0.99),
+            "normals face the camera"
+        );
+        // The masked top rows are not fused.
+        let top = camera.unproject(&Vector2::new(0.0, 9.0), 2.0).y as f32;
+        assert!(cloud.vertices.iter().all(|v| v[1] > top));
+    }
+}

@@ -1,0 +1,188 @@
+//! `dopslam compare-maps` and `run --compare-no-dop`: judge maps, write the table
+//! (`compare.md`, `compare.json`), each map coloured by its distance to the reference
+//! (`NAME_distance.ply`, blue 0 to red at twice `ghost_distance`, with the distance
+//! as a `scalar` property for CloudCompare), and the maps side by side with their
+//! ghosts in red (`compare_top.png`, `compare_perspective.png`).
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::compare::{
+    distance_colour, judge, static_accuracy, table, CompareSettings, MapFigures, StaticReference,
+};
+use super::render::{self, Viewpoint};
+use super::save_png;
+use crate::geometry::mesh::Mesh;
+use crate::io::atomic::write_atomic;
+use crate::io::ply::{read_ply, write_ply, PlyEncoding};
+use crate::io::IoError;
+
+/// A comparison's result.
+#[derive(Debug, Serialize)]
+pub struct Comparison {
+    pub names: Vec<String>,
+    pub reference: PathBuf,
+    pub movers: Option<PathBuf>,
+    pub settings: CompareSettings,
+    pub maps: Vec<MapFigures>,
+    #[serde(skip)]
+    pub table: String,
+    pub outputs: Vec<PathBuf>,
+}
+
+/// What to compare.
+pub struct CompareInputs<'a> {
+    /// Maps with their names; the last one is the baseline for SA when there are two.
+    pub maps: &'a [(String, PathBuf)],
+    pub reference: &'a Path,
+    pub movers: Option<&'a Path>,
+    /// Camera poses (`world_from_camera`) to orient the pictures.
+    pub cameras: Option<&'a [crate::geometry::se3::Se3]>,
+    pub settings: CompareSettings,
+    pub out: &'a Path,
+}
+
+/// Judges the maps and writes the outputs (see the module doc).
+pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
+    let reference_mesh = read_ply(inputs.reference)?;
+    if reference_mesh.is_empty() {
+        return Err(IoError::invalid(
+            inputs.reference,
+            "the reference has no vertices",
+        ));
+    }
+    let reference = StaticReference::new(&reference_mesh, inputs.settings.sample_spacing)
+        .map_err(|m| IoError::invalid(inputs.reference, m))?;
+    let movers = match inputs.movers {
+        Some(path) => Some(read_ply(path)?.vertices),
+        None => None,
+    };
+    let mut maps = Vec::new();
+    let mut meshes = Vec::new();
+    for (name, path) in inputs.maps {
+        let mesh = read_ply(path)?;
+        if mesh.is_empty() {
+            return Err(IoError::invalid(path, "the map has no vertices"));
+        }
+        maps.push(judge(
+            &mesh,
+            &reference,
+            movers.as_deref(),
+            &inputs.settings,
+        ));
+        meshes.push((name.clone(), mesh));
+    }
+    if maps.len() >= 2 {
+        let baseline = maps.len() - 1;
+        for i in 0..baseline {
+            let sa = static_accuracy(&maps[i], &maps[baseline]);
+            maps[i].static_accuracy = Some(sa);
+        }
+    }
+    let names: Vec<String> = meshes.iter().map(|(n, _)| n.clone()).collect();
+    let figures: Vec<&MapFigures> = maps.iter().collect();
+    let table = table(&names, &figures);
+    let mut outputs = Vec::new();
+    let full = (inputs.settings.ghost_distance * 2.0) as f32;
+    for ((name, mesh), figures) in meshes.iter().zip(&maps) {
+        let coloured = Mesh {
+            colours: figures
+                .distances
+                .iter()
+                .map(|&d| distance_colour(d, full))
+                .collect(),
+            ..mesh.clone()
+        };
+        let path = inputs.out.join(format!("{}_distance.ply", file_stem(name)));
+        write_ply(
+            &path,
+            &coloured,
+            Some(&figures.distances),
+            PlyEncoding::Binary,
+            "dopslam compare-maps: colour = distance to the reference (blue 0, red >= 2x ghost distance); scalar = distance in metres",
+        )?;
+        outputs.push(path);
+    }
+    let view = match inputs.cameras {
+        Some(cameras) => Viewpoint::from_cameras(cameras),
+        None => Viewpoint::from_points(&reference_mesh.vertices),
+    };
+    if let Some(view) = view {
+        let ghost = |(mesh, figures): (&Mesh, &MapFigures)| -> Vec<[u8; 3]> {
+            let flags: Vec<bool> = figures
+                .distances
+                .iter()
+                .map(|&d| d as f64 > inputs.settings.ghost_distance)
+                .collect();
+            render::with_ghosts(mesh, &flags)
+        };
+        let coloured: Vec<Vec<[u8; 3]>> = meshes
+            .iter()
+            .map(|(_, m)| m)
+            .zip(&maps)
+            .map(ghost)
+            .collect();
+        let camera = render::picture_camera();
+        let mut top = None::<image::RgbImage>;
+        let mut perspective = None::<image::RgbImage>;
+        for ((_, mesh), colours) in meshes.iter().zip(&coloured) {
+            let t = render::top(&mesh.vertices, colours, &view, 600);
+            let p = render::perspective(&mesh.vertices, colours, &view.camera_from_world, &camera);
+            top = Some(match top {
+                Some(left) => render::side_by_side(&left, &t),
+                None => t,
+            });
+            perspective = Some(match perspective {
+                Some(left) => render::side_by_side(&left, &p),
+                None => p,
+            });
+        }
+        for (name, picture) in [
+            ("compare_top.png", top),
+            ("compare_perspective.png", perspective),
+        ] {
+            if let Some(picture) = picture {
+                let path = inputs.out.join(name);
+                save_png(&path, &picture)?;
+                outputs.push(path);
+            }
+        }
+    }
+    let comparison = Comparison {
+        names,
+        reference: inputs.reference.to_path_buf(),
+        movers: inputs.movers.map(Path::to_path_buf),
+        settings: inputs.settings,
+        maps,
+        table,
+        outputs,
+    };
+    let json = serde_json::to_string_pretty(&comparison).expect("comparison serialises");
+    write_atomic(&inputs.out.join("compare.json"), json.as_bytes())?;
+    let md = format!(
+        "# Dense maps compared\n\nReference: `{}`{}\n\n{}\nPictures: left to right as the columns; ghosts (farther than {} m from the reference) in red.\n",
+        inputs.reference.display(),
+        inputs
+            .movers
+            .map(|m| format!("; movers' ground truth: `{}`", m.display()))
+            .unwrap_or_default(),
+        comparison.table,
+        inputs.settings.ghost_distance
+    );
+    write_atomic(&inputs.out.join("compare.md"), md.as_bytes())?;
+    Ok(comparison)
+}
+
+/// A name safe as a file stem.
+fn file_stem(name: &str) -> String {
+    name.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,392 @@
+//! Marching cubes (Lorensen and Cline 1987) over a sparse TSDF volume, to a welded,
+//! coloured triangle mesh.
+//!
+//! The case table is built at first use rather than typed in: for each of the 256
+//! sign patterns of a cube's corners, every face contributes segments between its
+//! crossed edges (on a face with four crossings the inside corners are cut off
+//! separately, a rule that neighbouring cubes share, so the mesh is closed); the
+//! segments chain into loops, each loop is fanned into triangles and oriented so
+//! that its normal points from the inside (\(F < 0\)) to the outside. On an edge
+//! from corner \(a\) to \(b\) the vertex sits where the linear interpolation of the
+//! field crosses zero, \(p = p_a + \frac{F_a}{F_a - F_b}(p_b - p_a)\).
+//! A cube is meshed only when all 8 corners were observed.
+
+use std::collections::HashMap;
+use std::sync::OnceLock;
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::tsdf::{voxel_index, TsdfVolume, BLOCK};
+use crate::geometry::mesh::Mesh;
+
+/// Corner `c` of the unit cube: bit 0 x, bit 1 y, bit 2 z.
+fn corner(c: usize) -> [usize; 3] {
+    [c & 1, (c >> 1) & 1, (c >> 2) & 1]
+}
+
+/// The 12 edges as corner pairs: 4 along x, 4 along y, 4 along z.
+const EDGES: [(usize, usize); 12] = [
+    (0, 1),
+    (2, 3),
+    (4, 5),
+    (6, 7),
+    (0, 2),
+    (1, 3),
+    (4, 6),
+    (5, 7),
+    (0, 4),
+    (1, 5),
+    (2, 6),
+    (3, 7),
+];
+
+/// The 6 faces as corner cycles (consecutive corners share an edge).
+const FACES: [[usize; 4]; 6] = [
+    [0, 2, 6, 4],
+    [1, 3, 7, 5],
+    [0, 1, 5, 4],
+    [2, 3, 7, 6],
+    [0, 1, 3, 2],
+    [4, 5, 7, 6],
+];
+
+fn edge_between(a: usize, b: usize) -> usize {
+    let (a, b) = (a.min(b), a.max(b));
+    EDGES
+        .iter()
+        .position(|&e| e == (a, b))
+        .expect("adjacent corners")
+}
+
+/// A face's corners in counter-clockwise order seen from outside the cube.
+fn face_outside_ccw(face: [usize; 4]) -> [usize; 4] {
+    let p = |c: usize| {
+        let k = corner(c);
+        Vector3::new(k[0] as f64, k[1] as f64, k[2] as f64)
+    };
+    let axis = (0..3)
+        .find(|&a| face.iter().all(|&c| corner(c)[a] == corner(face[0])[a]))
+        .expect("a face has a constant axis");
+    let mut outward = Vector3::zeros();
+    outward[axis] = if corner(face[0])[axis] == 1 {
+        1.0
+    } else {
+        -1.0
+    };
+    let turn = (p(face[1]) - p(face[0])).cross(&(p(face[2]) - p(face[1])));
+    if turn.dot(&outward) > 0.0 {
+        face
+    } else {
+        [face[3], face[2], face[1], face[0]]
+    }
+}
+
+/// The triangles (as edge triples) of sign pattern `case` (bit c set: corner c inside).
+///
+/// On each face (corners counter-clockwise seen from outside) every run of inside
+/// corners gives a directed segment from the crossed edge after the run to the one
+/// before it, so that the inside lies on its left; a face with four crossings has two
+/// runs of one corner (inside corners cut off separately). A face shared by two
+/// cubes is seen from opposite sides, so its segment runs one way in each: the
+/// surface is closed and consistently oriented. The segments chain into loops, fanned
+/// into triangles, wound so that their normals point to the outside (\(F > 0\)).
+fn triangles_of(case: usize) -> Vec<[u8; 3]> {
+    let inside = |c: usize| case >> c & 1 == 1;
+    // next[e] = the edge that the segment starting at edge e ends at.
+    let mut next = [usize::MAX; 12];
+    for face in FACES {
+        let f = face_outside_ccw(face);
+        let edge = |k: usize| edge_between(f[k % 4], f[(k + 1) % 4]);
+        for k in 0..4 {
+            // Corner k ends a run of inside corners when the next corner is outside.
+            if inside(f[k]) && !inside(f[(k + 1) % 4]) {
+                let mut start = k;
+                while inside(f[(start + 3) % 4]) && (start + 3) % 4 != k {
+                    start = (start + 3) % 4;
+                }
+                // From the edge after the run to the edge before it.
+                next[edge(k)] = edge(start + 3);
+            }
+        }
+    }
+    let mut triangles = Vec::new();
+    let mut used = [false; 12];
+    for first in 0..12 {
+        if next[first] == usize::MAX || used[first] {
+            continue;
+        }
+        let mut chain = Vec::new();
+        let mut e = first;
+        while !used[e] {
+            used[e] = true;
+            chain.push(e);
+            e = next[e];
+        }
+        // The fan's apex: one whose chords do not run along a cube face (a chord in
+        // a face would be drawn by the neighbouring cube too). One always exists.
+        let n = chain.len();
+        let on_face = |a: usize, b: usize| {
+            FACES.iter().any(|f| {
+                let has = |e: usize| (0..4).any(|k| edge_between(f[k], f[(k + 1) % 4]) == e);
+                has(a) && has(b)
+            })
+        };
+        let apex = (0..n)
+            .find(|&a| {
+                (0..n)
+                    .filter(|&j| j != a && j != (a + 1) % n && j != (a + n - 1) % n)
+                    .all(|j| !on_face(chain[a], chain[j]))
+            })
+            .unwrap_or(0);
+        chain.rotate_left(apex);
+        for k in 1..n - 1 {
+            // Reversed: the segments turn with the inside on their left, seen from
+            // outside, so the loop's own normal points inside.
+            triangles.push([chain[0] as u8, chain[k + 1] as u8, chain[k] as u8]);
+        }
+    }
+    triangles
+}
+
+/// The case table, built once.
+fn table() -> &'static Vec<Vec<[u8; 3]>> {
+    static TABLE: OnceLock<Vec<Vec<[u8; 3]>>> = OnceLock::new();
+    TABLE.get_or_init(|| (0..256).map(triangles_of).collect())
+}
+
+/// A voxel's value: field, whether it has a colour, colour.
+type Sample = (f32, bool, [u8; 3]);
+
+/// Vertices keyed by (lower corner's global voxel coordinate, edge axis).
+type EdgeKey = ([i64; 3], u8);
+
+/// One block's triangles with vertices keyed by their edge.
+struct Piece {
+    vertices: Vec<(EdgeKey, [f32; 3], [u8; 3])>,
+    triangles: Vec<[u32; 3]>,
+}
+
+/// The mesh of the zero level set of `volume`.
+pub fn extract(volume: &TsdfVolume) -> Mesh {
+    let table = table();
+    let voxel = volume.settings.voxel;
+    let pieces: Vec<Piece> = volume
+        .coords
+        .par_iter()
+        .map(|&coord| {
+            let sample = |g: [i64; 3]| -> Option<Sample> {
+                let b = BLOCK as i64;
+                let block = [g[0].div_euclid(b), g[1].div_euclid(b), g[2].div_euclid(b)];
+                let local = [g[0].rem_euclid(b), g[1].rem_euclid(b), g[2].rem_euclid(b)];
+                let blk = volume.block([block[0] as i32, block[1] as i32, block[2] as i32])?;
+                let i = voxel_index(local[0] as usize, local[1] as usize, local[2] as usize);
+                (blk.weight[i] > 0.0).then(|| (blk.sdf[i], blk.colour_weight[i] > 0, blk.colour[i]))
+            };
+            let mut piece = Piece {
+                vertices: Vec::new(),
+                triangles: Vec::new(),
+            };
+            let mut local: HashMap<EdgeKey, u32> = HashMap::new();
+            let base = coord.map(|c| c as i64 * BLOCK as i64);
+            for z in 0..BLOCK as i64 {
+                for y in 0..BLOCK as i64 {
+                    for x in 0..BLOCK as i64 {
+                        let origin = [base[0] + x, base[1] + y, base[2] + z];
+                        let mut values: [Sample; 8] = [(0.0, false, [0; 3]); 8];
+                        let mut complete = true;
+                        let mut case = 0;
+                        for (c, value) in values.iter_mut().enumerate() {
+                            let k = corner(c);
+                            let g = [
+                                origin[0] + k[0] as i64,
+                                origin[1] + k[1] as i64,
+                                origin[2] + k[2] as i64,
+                            ];
+                            match sample(g) {
+                                Some(s) => *value = s,
+                                None => {
+                                    complete = false;
+                                    break;
+                                }
+                            }
+                            if value.0 < 0.0 {
+                                case |= 1 << c;
+                            }
+                        }
+                        if !complete || table[case].is_empty() {
+                            continue;
+                        }
+                        let mut vertex_of = |e: u8| -> u32 {
+                            let (a, b) = EDGES[e as usize];
+                            let (ka, kb) = (corner(a), corner(b));
+                            let axis = (0..3).find(|&i| ka[i] != kb[i]).expect("an axis");
+                            let lower = [
+                                origin[0] + ka[0].min(kb[0]) as i64,
+                                origin[1] + ka[1].min(kb[1]) as i64,
+                                origin[2] + ka[2].min(kb[2]) as i64,
+                            ];
+                            let key = (lower, axis as u8);
+                            if let Some(&i) = local.get(&key) {
+                                return i;
+                            }
+                            let (fa, fb) = (values[a].0, values[b].0);
+                            let t = (fa / (fa - fb)).clamp(0.0, 1.0);
+                            let position = [0, 1, 2].map(|i| {
+                                let pa = (origin[i] + ka[i] as i64) as f64;
+                                let pb = (origin[i] + kb[i] as i64) as f64;
+                                ((pa + t as f64 * (pb - pa)) * voxel) as f32
+                            });
+                            // A corner seen only as free space has no colour.
+                            let colour = if values[a].1 == values[b].1 {
+                                [0, 1, 2].map(|i| {
+                                    let (ca, cb) = (values[a].2[i] as f32, values[b].2[i] as f32);
+                                    (ca + t * (cb - ca)).round() as u8
+                                })
+                            } else if values[a].1 {
+                                values[a].2
+                            } else {
+                                values[b].2
+                            };
+                            let index = piece.vertices.len() as u32;
+                            piece.vertices.push((key, position, colour));
+                            local.insert(key, index);
+                            index
+                        };
+                        for tri in &table[case] {
+                            let t = tri.map(&mut vertex_of);
+                            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                                piece.triangles.push(t);
+                            }
+                        }
+                    }
+                }
+            }
+            piece
+        })
+        .collect();
+    weld(pieces)
+}
+
+/// Joins the blocks' pieces, sharing vertices on the edges between blocks.
+fn weld(pieces: Vec<Piece>) -> Mesh {
+    let mut mesh = Mesh::default();
+    let mut global: HashMap<EdgeKey, u32> = HashMap::new();
+    for piece in pieces {
+        let map: Vec<u32> = piece
+            .vertices
+            .iter()
+            .map(|(key, position, colour)| {
+                *global.entry(*key).or_insert_with(|| {
+                    mesh.vertices.push(*position);
+                    mesh.colours.push(*colour);
+                    (mesh.vertices.len() - 1) as u32
+                })
+            })
+            .collect();
+        mesh.triangles
+            .extend(piece.triangles.iter().map(|t| t.map(|i| map[i as usize])));
+    }
+    mesh
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dense::tsdf::{TsdfSettings, TsdfVolume};
+
+    /// Every undirected edge of `mesh` is shared by exactly two triangles, once each way.
+    fn assert_closed(mesh: &Mesh) {
+        let mut directed: HashMap<(u32, u32), usize> = HashMap::new();
+        for t in &mesh.triangles {
+            for k in 0..3 {
+                *directed.entry((t[k], t[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        for (&(a, b), &n) in &directed {
+            assert_eq!(n, 1, "edge ({a}, {b}) used {n} times one way");
+            assert!(
+                directed.contains_key(&(b, a)),
+                "edge ({a}, {b}) at {:?} is a border",
+                mesh.vertices[a as usize]
+            );
+        }
+    }
+
+    #[test]
+    fn a_fully_observed_random_field_gives_a_closed_surface() {
+        // Random signs on a 3x3x3-block grid, positive on its outer layer.
+        let settings = TsdfSettings {
+            voxel: 0.1,
+            ..TsdfSettings::default()
+        };
+        let mut volume =
+            TsdfVolume::new(settings, crate::geometry::camera::PinholeCamera::tum_fr3());
+        let mut rng = crate::random::Rng::new(7);
+        let n = 3 * BLOCK as i32;
+        for bz in 0..3 {
+            for by in 0..3 {
+                for bx in 0..3 {
+                    let block = volume.block_mut([bx, by, bz]);
+                    for z in 0..BLOCK {
+                        for y in 0..BLOCK {
+                            for x in 0..BLOCK {
+                                let g = [bx * 8 + x as i32, by * 8 + y as i32, bz * 8 + z as i32];
+                                let border = g.iter().any(|&c| c == 0 || c == n - 1);
+                                let i = voxel_index(x, y, z);
+                                block.sdf[i] = if border {
+                                    0.5
+                                } else {
+                                    rng.uniform() as f32 - 0.5
+                                };
+                                block.weight[i] = 1.0;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let mesh = extract(&volume);
+        assert!(mesh.triangles.len() > 1000);
+        assert_closed(&mesh);
+    }
+
+    #[test]
+    fn every_case_is_closed_within_the_cube() {
+        let table = table();
+        assert!(table[0].is_empty() && table[255].is_empty());
+        for (case, triangles) in table.iter().enumerate().take(255).skip(1) {
+            assert!(!triangles.is_empty(), "case {case} has no triangle");
+            // Each crossed edge carries a vertex.
+            let crossed = EDGES
+                .iter()
+                .enumerate()
+                .filter(|(_, &(a, b))| (case >> a & 1) != (case >> b & 1))
+                .count();
+            let used: std::collections::HashSet<u8> =
+                triangles.iter().flatten().copied().collect();
+            assert_eq!(used.len(), crossed, "case {case}");
+        }
+    }
+}
+#[cfg(test)]
+mod cases {
+    use super::*;
+
+    /// Within a cube, no directed edge is used twice.
+    #[test]
+    fn each_case_is_a_manifold_patch() {
+        for case in 0..256usize {
+            let t = triangles_of(case);
+            let mut seen = std::collections::HashMap::new();
+            for tri in &t {
+                for k in 0..3 {
+                    *seen.entry((tri[k], tri[(k + 1) % 3])).or_insert(0) += 1;
+                }
+            }
+            for (e, n) in &seen {
+                assert_eq!(*n, 1, "case {case:08b} edge {e:?} twice: {t:?}");
+            }
+        }
+    }
+}

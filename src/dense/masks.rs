@@ -1,0 +1,382 @@
+//! Per-frame dynamic masks for fusion, from what the tracking pass learnt.
+//!
+//! With the DOP model (`Masking::Dop`) a frame's mask is the union of
+//! 1. the dynamic objects of the detected keyframes nearest before and after it
+//!    (within `track_seconds`), each a box refined by depth as in the paper's
+//!    Algorithm 1: the box's object depth \(z_{obj}\) is the dominant depth of its
+//!    central region (from the keyframe's depth map), the object is placed in the
+//!    world with the keyframe's final pose, projected into the frame with the frame's
+//!    pose, and a pixel inside the projected box belongs to it when
+//!    \(|d - z_{obj}| \le \delta_z\) (objects the detector missed on a keyframe are
+//!    predicted there by [`ObjectTracks`], as in the tracking pass);
+//! 2. discs of `keypoint_radius` pixels around the frame's keypoints in a removed
+//!    (dynamic) state, with depth within \(\delta_z / 2\) of the keypoint's;
+//!
+//! then dilated by `border` pixels. `Masking::Boxes` (`--mask-boxes`) masks whole
+//! dynamic boxes of the nearest keyframe; `Masking::None` (`--no-dop`) fuses all.
+
+use crate::detect::FrameDetections;
+use crate::dop::boxes::{object_depth, Keypoint, ObjectBox};
+use crate::dop::tracks::{Object, ObjectTracks};
+use crate::dop::DopConfig;
+use crate::geometry::camera::PinholeCamera;
+use crate::geometry::se3::Se3;
+use crate::io::image_files::DepthImage;
+use crate::mapping::dynamic::object_boxes;
+
+/// How frames are masked before fusion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Masking {
+    /// Fuse everything (`--no-dop`).
+    None,
+    /// Whole dynamic boxes (`--mask-boxes`).
+    Boxes,
+    /// The DOP model's objects and dynamic keypoints.
+    Dop,
+}
+
+/// Settings of the masks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MaskSettings {
+    pub border: u32,
+    pub keypoint_radius: u32,
+}
+
+/// One detected keyframe: its dynamic boxes (pixels) and objects (world).
+#[derive(Debug, Clone)]
+pub struct KeyframeObjects {
+    pub timestamp: f64,
+    pub boxes: Vec<ObjectBox>,
+    pub objects: Vec<Object>,
+}
+
+/// Dynamic keypoints of one frame: `(x, y, depth)`.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct FrameKeypoints {
+    pub timestamp: f64,
+    pub points: Vec<[f32; 3]>,
+}
+
+/// Everything the masks are made from.
+pub struct MaskSource {
+    pub masking: Masking,
+    pub settings: MaskSettings,
+    camera: PinholeCamera,
+    dop: DopConfig,
+    /// Sorted by time.
+    keyframes: Vec<KeyframeObjects>,
+    /// Sorted by time.
+    keypoints: Vec<FrameKeypoints>,
+}
+
+impl MaskSource {
+    /// Builds the keyframes' objects from their detections: `pose_at(t)` gives a
+    /// keyframe's final `camera_from_world`, `depth_at(t)` its depth map (frames
+    /// missing either keep their pixel boxes only).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        masking: Masking,
+        settings: MaskSettings,
+        camera: PinholeCamera,
+        dop: &DopConfig,
+        dynamic_classes: &[String],
+        mut detections: Vec<FrameDetections>,
+        mut keypoints: Vec<FrameKeypoints>,
+        pose_at: &dyn Fn(f64) -> Option<Se3>,
+        depth_at: &dyn Fn(f64) -> Option<DepthImage>,
+    ) -> Self {
+        detections.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+        keypoints.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
+        let mut tracks = ObjectTracks::default();
+        let mut keyframes = Vec::with_capacity(detections.len());
+        for frame in &detections {
+            let boxes: Vec<ObjectBox> = object_boxes(&frame.detections, dynamic_classes)
+                .into_iter()
+                .filter(|b| b.dynamic)
+                .collect();
+            let mut objects = Vec::new();
+            if masking == Masking::Dop {
+                if let (Some(pose), Some(depth)) =
+                    (pose_at(frame.timestamp), depth_at(frame.timestamp))
+                {
+                    let samples = depth_samples(&depth, 4);
+                    let world_from_camera = pose.inverse();
+                    objects = boxes
+                        .iter()
+                        .filter_map(|b| {
+                            let z = object_depth(dop, &samples, b)?;
+                            Some(Object::from_box(b.bbox, z, &camera, &world_from_camera))
+                        })
+                        .collect();
+                    if dop.track_boxes {
+                        let missed = tracks.update(frame.timestamp, &objects, dop);
+                        objects.extend(missed);
+                    }
+                }
+            }
+            keyframes.push(KeyframeObjects {
+                timestamp: frame.timestamp,
+                boxes,
+                objects,
+            });
+        }
+        Self {
+            masking,
+            settings,
+            camera,
+            dop: dop.clone(),
+            keyframes,
+            keypoints,
+        }
+    }
+
+    pub fn keyframes(&self) -> &[KeyframeObjects] {
+        &self.keyframes
+    }
+
+    /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
+    /// nothing in it is dynamic.
+    pub fn mask(
+        &self,
+        timestamp: f64,
+        depth: &DepthImage,
+        camera_from_world: &Se3,
+    ) -> Option<Vec<bool>> {
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        let mut mask = vec![false; w * h];
+        let mut any = false;
+        let after = self.keyframes.partition_point(|k| k.timestamp < timestamp);
+        let near: Vec<&KeyframeObjects> = [after.checked_sub(1), Some(after)]
+            .into_iter()
+            .flatten()
+            .filter_map(|i| self.keyframes.get(i))
+            .filter(|k| (k.timestamp - timestamp).abs() <= self.dop.track_seconds as f64)
+            .collect();
+        match self.masking {
+            Masking::None => return None,
+            Masking::Boxes => {
+                let nearest = near.iter().min_by(|a, b| {
+                    (a.timestamp - timestamp)
+                        .abs()
+                        .total_cmp(&(b.timestamp - timestamp).abs())
+                });
+                for b in nearest.iter().flat_map(|k| &k.boxes) {
+                    any |= fill_box(&mut mask, w, h, b.bbox, |_, _| true);
+                }
+            }
+            Masking::Dop => {
+                for object in near.iter().flat_map(|k| &k.objects) {
+                    let Some(b) = object.to_box(&self.camera, camera_from_world) else {
+                        continue;
+                    };
+                    let z = b.depth.unwrap_or(0.0);
+                    let dz = self.dop.delta_z;
+                    any |= fill_box(&mut mask, w, h, b.bbox, |u, v| {
+                        let d = depth.at(u as u32, v as u32);
+                        d == 0.0 || (d - z).abs() <= dz
+                    });
+                }
+                let i = self
+                    .keypoints
+                    .partition_point(|k| k.timestamp < timestamp - 1e-6);
+                if let Some(frame) = self
+                    .keypoints
+                    .get(i)
+                    .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
+                {
+                    let r = self.settings.keypoint_radius as f32;
+                    for &[x, y, z] in &frame.points {
+                        let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
+                        any |= fill_box(&mut mask, w, h, bbox, |u, v| {
+                            let (du, dv) = (u as f32 - x, v as f32 - y);
+                            let d = depth.at(u as u32, v as u32);
+                            du * du + dv * dv <= r * r
+                                && (z <= 0.0 || d == 0.0 || (d - z).abs() <= self.dop.delta_z / 2.0)
+                        });
+                    }
+                }
+            }
+        }
+        any.then(|| dilate(&mask, w, h, self.settings.border as usize))
+    }
+}
+
+/// Every `step`-th pixel with depth, as keypoints for [`object_depth`].
+fn depth_samples(depth: &DepthImage, step: usize) -> Vec<Keypoint> {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let mut samples = Vec::with_capacity(w * h / (step * step));
+    for v in (0..h).step_by(step) {
+        for u in (0..w).step_by(step) {
+            let z = depth.metres[v * w + u];
+            if z > 0.0 {
+                samples.push(Keypoint {
+                    x: u as f32,
+                    y: v as f32,
+                    depth: z,
+                });
+            }
+        }
+    }
+    samples
+}
+
+/// Sets the pixels of `bbox` (clipped) for which `keep(u, v)`; whether any was set.
+fn fill_box(
+    mask: &mut [bool],
+    w: usize,
+    h: usize,
+    bbox: [f32; 4],
+    keep: impl Fn(usize, usize) -> bool,
+) -> bool {
+    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
+    let (x1, y1) = (clip(bbox[0].floor(), w), clip(bbox[1].floor(), h));
+    let (x2, y2) = (clip(bbox[2].ceil(), w), clip(bbox[3].ceil(), h));
+    let mut any = false;
+    for v in y1..y2 {
+        for u in x1..x2 {
+            if keep(u, v) {
+                mask[v * w + u] = true;
+                any = true;
+            }
+        }
+    }
+    any
+}
+
+/// Dilation by a square of side `2r + 1` (separable: rows, then columns), with
+/// running counts so the cost does not grow with `r`.
+pub fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    if r == 0 {
+        return mask.to_vec();
+    }
+    let pass = |input: &[bool], len: usize, lines: usize, at: &dyn Fn(usize, usize) -> usize| {
+        let mut output = vec![false; input.len()];
+        for line in 0..lines {
+            let mut count = 0usize;
+            for k in 0..len.min(r) {
+                count += input[at(line, k)] as usize;
+            }
+            for k in 0..len {
+                if k + r < len {
+                    count += input[at(line, k + r)] as usize;
+                }
+                if k > r {
+                    count -= input[at(line, k - r - 1)] as usize;
+                }
+                output[at(line, k)] = count > 0;
+            }
+        }
+        output
+    };
+    let rows = pass(mask, w, h, &|line, k| line * w + k);
+    pass(&rows, h, w, &|line, k| k * w + line)
+}
+
+/// The keypoints of a tracked frame in a removed (dynamic) state, `(x, y, depth)`.
+pub fn dynamic_keypoints(frame: &crate::tracking::Frame, dop: &DopConfig) -> FrameKeypoints {
+    FrameKeypoints {
+        timestamp: frame.timestamp,
+        points: frame
+            .keypoints
+            .iter()
+            .zip(&frame.moving)
+            .zip(&frame.depth)
+            .filter(|((_, p), _)| dop.removed(**p))
+            .map(|((k, _), z)| [k.x, k.y, *z])
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detect::Detection;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn dilation_grows_a_pixel_into_a_square() {
+        let (w, h) = (9, 7);
+        let mut mask = vec![false; w * h];
+        mask[3 * w + 4] = true;
+        let grown = dilate(&mask, w, h, 2);
+        for v in 0..h {
+            for u in 0..w {
+                let inside = (2..=6).contains(&u) && (1..=5).contains(&v);
+                assert_eq!(grown[v * w + u], inside, "({u}, {v})");
+            }
+        }
+    }
+
+    /// A wall at 3 m with a person-sized slab at 1.5 m in the middle.
+    fn scene() -> (PinholeCamera, DepthImage) {
+        let camera = PinholeCamera::tum_fr3();
+        let mut depth = DepthImage::new(camera.width, camera.height);
+        for v in 0..camera.height {
+            for u in 0..camera.width {
+                let person = (250..390).contains(&u) && (100..460).contains(&v);
+                depth.metres[(v * camera.width + u) as usize] = if person { 1.5 } else { 3.0 };
+            }
+        }
+        (camera, depth)
+    }
+
+    #[test]
+    fn dop_masks_the_object_not_its_background_and_reaches_frames_between_keyframes() {
+        let (camera, depth) = scene();
+        let detection = Detection {
+            class: "person".into(),
+            class_id: 0,
+            score: 0.9,
+            bbox: [230.0, 80.0, 410.0, 470.0],
+            instance: None,
+        };
+        let frames = vec![FrameDetections {
+            timestamp: 1.0,
+            detections: vec![detection],
+        }];
+        let settings = MaskSettings {
+            border: 0,
+            keypoint_radius: 8,
+        };
+        let identity = Se3::identity();
+        let source = MaskSource::new(
+            Masking::Dop,
+            settings,
+            camera,
+            &DopConfig::default(),
+            &["person".to_string()],
+            frames.clone(),
+            vec![],
+            &|_| Some(Se3::identity()),
+            &|_| Some(depth.clone()),
+        );
+        // A frame 0.2 s later, camera moved 10 cm to the right: the person shifts left.
+        let moved = crate::geometry::se3::from_parts(
+            Vector3::new(-0.1, 0.0, 0.0),
+            nalgebra::Matrix3::identity(),
+        );
+        for (pose, shift) in [(identity, 0i32), (moved, -36)] {
+            let mask = source.mask(1.2, &depth, &pose).expect("a mask");
+            let at = |u: i32, v: i32| mask[(v as u32 * camera.width + (u + shift) as u32) as usize];
+            assert!(at(320, 300), "the person's centre");
+            assert!(!at(240, 300), "the wall inside the box stays static");
+            assert!(!at(100, 300), "outside the box");
+        }
+        // Far from any keyframe nothing is masked; --no-dop masks nothing.
+        assert!(source.mask(5.0, &depth, &identity).is_none());
+        let boxes = MaskSource::new(
+            Masking::Boxes,
+            settings,
+            camera,
+            &DopConfig::default(),
+            &["person".to_string()],
+            frames,
+            vec![],
+            &|_| None,
+            &|_| None,
+        );
+        let mask = boxes.mask(1.0, &depth, &identity).expect("a mask");
+        assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
+    }
+}

@@ -1,0 +1,506 @@
+//! The dense pass: fuse only static depth, with the final poses, into a TSDF (meshed
+//! by marching cubes) and a point cloud, and write them as PLY and OBJ.
+//!
+//! It reads a finished run's folder, so `dopslam fuse RUN_DIR` re-fuses without
+//! tracking again: `trajectory.txt` (the final poses), `keyframes.txt`, the keyframe
+//! detections in `detections/` and the dynamic keypoints per frame in
+//! `dynamic_keypoints.json`; the frames come from the sequence. Masks: [`masks`].
+//! Outputs: `dense_mesh.ply`, `dense_mesh.obj`, `dense_points.ply`, `dense.json`,
+//! and pictures `dense_perspective.png`, `dense_top.png`.
+
+pub mod cloud;
+pub mod compare;
+pub mod comparison;
+pub mod marching_cubes;
+pub mod masks;
+pub mod neighbours;
+pub mod render;
+pub mod tsdf;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::detect::FrameDetections;
+use crate::dop::DopConfig;
+use crate::geometry::camera::PinholeCamera;
+use crate::geometry::se3::Se3;
+use crate::io::atomic::write_atomic;
+use crate::io::ply::{write_obj, write_ply, PlyEncoding};
+use crate::io::sequence::{FrameImages, Sequence};
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::{IoError, Trajectory};
+use cloud::{CloudBuilder, CloudSettings};
+use masks::{FrameKeypoints, MaskSettings, MaskSource, Masking};
+use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
+
+/// Which frames go into the TSDF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameChoice {
+    All,
+    Keyframes,
+}
+
+/// `[dense]`: the dense map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DenseConfig {
+    /// Run the dense pass after tracking (`dopslam run`).
+    pub enabled: bool,
+    /// TSDF voxel edge and truncation, metres.
+    pub voxel: f64,
+    pub truncation: f64,
+    /// Depths beyond this are not fused, metres.
+    pub max_depth: f64,
+    /// Weight cap: lower forgets faster (carving of what left).
+    pub max_weight: f32,
+    /// Carve free space along rays (erases surfaces that later proved empty).
+    pub carve: bool,
+    /// Frames fused into the TSDF: all tracked frames or keyframes only.
+    pub frames: FrameChoice,
+    /// Fuse every n-th chosen frame.
+    pub frame_step: usize,
+    /// Outputs: the mesh (PLY), the mesh as OBJ too, the point cloud, pictures.
+    pub mesh: bool,
+    pub obj: bool,
+    pub cloud: bool,
+    pub pictures: bool,
+    /// Point cloud (from keyframes): voxel edge, pixel stride, outlier removal
+    /// (neighbours, 0 off; threshold in standard deviations), neighbours for normals
+    /// (0: none).
+    pub cloud_voxel: f64,
+    pub cloud_stride: usize,
+    pub outlier_neighbours: usize,
+    pub outlier_std: f64,
+    pub normal_neighbours: usize,
+    /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
+    pub mask_border: u32,
+    pub keypoint_radius: u32,
+    /// PLY encoding: binary (little endian) or ascii.
+    pub ply_encoding: PlyEncoding,
+}
+
+impl Default for DenseConfig {
+    fn default() -> Self {
+        let tsdf = TsdfSettings::default();
+        Self {
+            enabled: true,
+            voxel: tsdf.voxel,
+            truncation: tsdf.truncation,
+            max_depth: tsdf.max_depth,
+            max_weight: tsdf.max_weight,
+            carve: tsdf.carve,
+            frames: FrameChoice::All,
+            frame_step: 1,
+            mesh: true,
+            obj: true,
+            cloud: true,
+            pictures: true,
+            cloud_voxel: 0.01,
+            cloud_stride: 2,
+            outlier_neighbours: 16,
+            outlier_std: 2.0,
+            normal_neighbours: 16,
+            mask_border: 6,
+            keypoint_radius: 10,
+            ply_encoding: PlyEncoding::Binary,
+        }
+    }
+}
+
+impl DenseConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("voxel", self.voxel),
+            ("truncation", self.truncation),
+            ("max_depth", self.max_depth),
+            ("max_weight", self.max_weight as f64),
+            ("cloud_voxel", self.cloud_voxel),
+            ("outlier_std", self.outlier_std),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!(
+                    "dense.{name} must be a positive number, not {value}"
+                ));
+            }
+        }
+        if self.truncation < self.voxel {
+            return Err(format!(
+                "dense.truncation ({}) must be at least one voxel ({})",
+                self.truncation, self.voxel
+            ));
+        }
+        if self.voxel < 0.002 {
+            return Err(format!(
+                "dense.voxel {} m is below 2 mm: no depth sensor resolves that",
+                self.voxel
+            ));
+        }
+        if self.frame_step == 0 || self.cloud_stride == 0 {
+            return Err("dense.frame_step and dense.cloud_stride must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    fn tsdf(&self) -> TsdfSettings {
+        TsdfSettings {
+            voxel: self.voxel,
+            truncation: self.truncation,
+            max_depth: self.max_depth,
+            max_weight: self.max_weight,
+            carve: self.carve,
+        }
+    }
+
+    fn cloud_settings(&self) -> CloudSettings {
+        CloudSettings {
+            voxel: self.cloud_voxel,
+            stride: self.cloud_stride,
+            max_depth: self.max_depth,
+            outlier_neighbours: self.outlier_neighbours,
+            outlier_std: self.outlier_std,
+            normal_neighbours: self.normal_neighbours,
+        }
+    }
+}
+
+/// Pixels fused against a synthetic sequence's ground-truth masks.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct FusedTruth {
+    pub frames: usize,
+    /// Pixels with depth on movers, and those fused anyway.
+    pub mover_pixels: u64,
+    pub mover_pixels_fused: u64,
+    /// Pixels with depth on the static scene, and those fused.
+    pub static_pixels: u64,
+    pub static_pixels_fused: u64,
+    /// Share of mover pixels kept out, and of static pixels fused.
+    pub dynamic_removed: f64,
+    pub static_kept: f64,
+}
+
+/// What the dense pass did.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct DenseReport {
+    pub masking: Option<Masking>,
+    pub frames_fused: usize,
+    pub keyframes_in_cloud: usize,
+    /// Share of pixels masked as dynamic over the fused frames, %.
+    pub masked_percent: f64,
+    pub tsdf_blocks: usize,
+    pub tsdf_memory_mb: f64,
+    pub mesh_vertices: usize,
+    pub mesh_triangles: usize,
+    pub cloud_points: usize,
+    /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
+    pub median_integration_ms: f64,
+    pub marching_cubes_ms: f64,
+    pub cloud_ms: f64,
+    pub total_s: f64,
+    pub truth: Option<FusedTruth>,
+    pub outputs: Vec<PathBuf>,
+}
+
+/// Where the dense pass finds its inputs.
+pub struct DenseInputs<'a> {
+    pub sequence: &'a dyn Sequence,
+    pub camera: PinholeCamera,
+    /// The run folder (inputs and outputs).
+    pub run_dir: &'a Path,
+    pub masking: Masking,
+    pub dop: &'a DopConfig,
+    pub dynamic_classes: &'a [String],
+    /// A synthetic sequence's `masks/` folder, to count what was fused.
+    pub truth_masks: Option<PathBuf>,
+    pub progress: bool,
+}
+
+/// Timestamps as keys (microseconds, as the file names carry them).
+fn key(t: f64) -> i64 {
+    (t * 1e6).round() as i64
+}
+
+/// The frames' final poses (`camera_from_world`) by timestamp.
+fn poses_by_time(trajectory: &Trajectory) -> HashMap<i64, Se3> {
+    trajectory
+        .timestamps
+        .iter()
+        .zip(&trajectory.poses)
+        .map(|(&t, pose)| (key(t), pose.inverse()))
+        .collect()
+}
+
+/// Reads the keyframe detections a run cached (`detections/*.json`).
+pub fn read_detections(dir: &Path) -> Result<Vec<FrameDetections>, IoError> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(Vec::new());
+    };
+    let mut frames = Vec::new();
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "json") {
+            let text = crate::io::errors::read_text(&path)?;
+            let frame: FrameDetections = serde_json::from_str(&text)
+                .map_err(|e| IoError::invalid(&path, format!("not a detections file: {e}")))?;
+            frames.push(frame);
+        }
+    }
+    Ok(frames)
+}
+
+/// The file with the dynamic keypoints of each frame.
+pub const KEYPOINTS_FILE: &str = "dynamic_keypoints.json";
+
+/// Reads `dynamic_keypoints.json` (empty when the run had no DOP model).
+pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let text = crate::io::errors::read_text(path)?;
+    serde_json::from_str(&text).map_err(|e| IoError::invalid(path, format!("malformed: {e}")))
+}
+
+fn read_mask(dir: &Path, timestamp: f64) -> Option<Vec<u8>> {
+    let image = image::open(dir.join(format!("{timestamp:.6}.png"))).ok()?;
+    Some(image.to_luma8().into_raw())
+}
+
+/// Fuses a finished run (see the module doc).
+pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseReport, IoError> {
+    config
+        .validate()
+        .map_err(|m| IoError::invalid(inputs.run_dir, m))?;
+    let started = Instant::now();
+    let run = inputs.run_dir;
+    let trajectory = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?;
+    let keyframes =
+        Trajectory::read(&run.join("keyframes.txt"), TrajectoryFormat::Tum).unwrap_or_default();
+    let poses = poses_by_time(&trajectory);
+    let keyframe_times: std::collections::HashSet<i64> =
+        keyframes.timestamps.iter().map(|&t| key(t)).collect();
+    let sequence = inputs.sequence;
+    let index_of: HashMap<i64, usize> = (0..sequence.len())
+        .map(|i| (key(sequence.timestamp(i)), i))
+        .collect();
+    let load_depth = |t: f64| -> Option<crate::io::image_files::DepthImage> {
+        let frame = sequence.load(*index_of.get(&key(t))?).ok()?;
+        match frame.images {
+            FrameImages::Rgbd { depth, .. } => Some(depth),
+            FrameImages::Stereo { .. } => None,
+        }
+    };
+    let (detections, keypoints) = if inputs.masking == Masking::None {
+        (Vec::new(), Vec::new())
+    } else {
+        (
+            read_detections(&run.join("detections"))?,
+            read_keypoints(&run.join(KEYPOINTS_FILE))?,
+        )
+    };
+    let mask_source = MaskSource::new(
+        inputs.masking,
+        MaskSettings {
+            border: config.mask_border,
+            keypoint_radius: config.keypoint_radius,
+        },
+        inputs.camera,
+        inputs.dop,
+        inputs.dynamic_classes,
+        detections,
+        keypoints,
+        &|t| poses.get(&key(t)).copied(),
+        &load_depth,
+    );
+    // The frames to fuse, in sequence order.
+    let chosen: Vec<(usize, Se3, bool)> = (0..sequence.len())
+        .filter_map(|i| {
+            let k = key(sequence.timestamp(i));
+            let pose = *poses.get(&k)?;
+            let is_keyframe = keyframe_times.contains(&k);
+            (config.frames == FrameChoice::All || is_keyframe).then_some((i, pose, is_keyframe))
+        })
+        .step_by(config.frame_step)
+        .collect();
+    let progress = if inputs.progress {
+        ProgressBar::new(chosen.len() as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    progress.set_style(
+        ProgressStyle::with_template("fuse  {bar:40} {pos}/{len} frames ({per_sec}, {eta} left)")
+            .expect("valid template"),
+    );
+    let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
+    let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
+    let mut report = DenseReport {
+        masking: Some(inputs.masking),
+        ..DenseReport::default()
+    };
+    let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
+    let mut integration_ms = Vec::with_capacity(chosen.len());
+    let (mut masked, mut pixels) = (0u64, 0u64);
+    let chunk = rayon::current_num_threads().max(1) * 2;
+    for group in chosen.chunks(chunk) {
+        // Decode a few frames in parallel; fuse them in order.
+        let loaded: Vec<_> = group
+            .par_iter()
+            .map(|&(i, _, _)| sequence.load(i))
+            .collect();
+        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
+            let frame = frame?;
+            let FrameImages::Rgbd { rgb, depth } = frame.images else {
+                return Err(IoError::invalid(
+                    run,
+                    "the dense pass needs depth: stereo sequences are not fused yet",
+                ));
+            };
+            let mask = mask_source.mask(frame.timestamp, &depth, &pose);
+            if let Some(m) = &mask {
+                masked += m.iter().filter(|&&x| x).count() as u64;
+            }
+            pixels += depth.metres.len() as u64;
+            let input = FrameInput {
+                depth: &depth,
+                colour: &rgb,
+                dynamic: mask.as_deref(),
+                camera_from_world: &pose,
+            };
+            if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
+                if let Some(ids) = read_mask(dir, frame.timestamp) {
+                    count_truth(truth, &ids, &input, config.max_depth);
+                }
+            }
+            let start = Instant::now();
+            if config.mesh {
+                volume.integrate(&input);
+            }
+            integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            if config.cloud && is_keyframe {
+                cloud.add(&input);
+                report.keyframes_in_cloud += 1;
+            }
+            report.frames_fused += 1;
+            progress.inc(1);
+        }
+    }
+    progress.finish_and_clear();
+    report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
+    report.median_integration_ms = {
+        integration_ms.sort_by(f64::total_cmp);
+        integration_ms
+            .get(integration_ms.len() / 2)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    report.tsdf_blocks = volume.blocks.len();
+    report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;
+    let comment = format!(
+        "dopslam dense map, masking {:?}, voxel {} m",
+        inputs.masking, config.voxel
+    );
+    let mut mesh_or_cloud = None;
+    if config.mesh {
+        let start = Instant::now();
+        let mesh = marching_cubes::extract(&volume);
+        report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.mesh_vertices = mesh.len();
+        report.mesh_triangles = mesh.triangles.len();
+        let path = run.join("dense_mesh.ply");
+        write_ply(&path, &mesh, None, config.ply_encoding, &comment)?;
+        report.outputs.push(path);
+        if config.obj {
+            let path = run.join("dense_mesh.obj");
+            write_obj(&path, &mesh, &comment)?;
+            report.outputs.push(path);
+        }
+        mesh_or_cloud = Some(mesh);
+    }
+    drop(volume);
+    if config.cloud {
+        let start = Instant::now();
+        let points = cloud.finish();
+        report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.cloud_points = points.len();
+        let path = run.join("dense_points.ply");
+        write_ply(&path, &points, None, config.ply_encoding, &comment)?;
+        report.outputs.push(path);
+        if mesh_or_cloud.is_none() {
+            mesh_or_cloud = Some(points);
+        }
+    }
+    if let (true, Some(map)) = (config.pictures, &mesh_or_cloud) {
+        let cameras: Vec<Se3> = trajectory.poses.clone();
+        if let Some(view) = render::Viewpoint::from_cameras(&cameras) {
+            let colours = render::with_ghosts(map, &[]);
+            let pictures = [
+                (
+                    "dense_perspective.png",
+                    render::perspective(
+                        &map.vertices,
+                        &colours,
+                        &view.camera_from_world,
+                        &render::picture_camera(),
+                    ),
+                ),
+                (
+                    "dense_top.png",
+                    render::top(&map.vertices, &colours, &view, 800),
+                ),
+            ];
+            for (name, picture) in pictures {
+                let path = run.join(name);
+                save_png(&path, &picture)?;
+                report.outputs.push(path);
+            }
+        }
+    }
+    if let Some(mut t) = truth {
+        t.dynamic_removed = 1.0 - t.mover_pixels_fused as f64 / t.mover_pixels.max(1) as f64;
+        t.static_kept = t.static_pixels_fused as f64 / t.static_pixels.max(1) as f64;
+        report.truth = Some(t);
+    }
+    report.total_s = started.elapsed().as_secs_f64();
+    let json = serde_json::to_string_pretty(&report).expect("report serialises");
+    write_atomic(&run.join("dense.json"), json.as_bytes())?;
+    Ok(report)
+}
+
+/// Writes a PNG atomically.
+pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
+    let mut bytes = Vec::new();
+    picture
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| IoError::Write {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(e),
+        })?;
+    write_atomic(path, &bytes)
+}
+
+/// Counts fused and masked pixels against instance ids (0: static).
+fn count_truth(truth: &mut FusedTruth, ids: &[u8], input: &FrameInput, max_depth: f64) {
+    truth.frames += 1;
+    for (i, &id) in ids.iter().enumerate() {
+        let d = input.depth.metres.get(i).copied().unwrap_or(0.0) as f64;
+        if d <= 0.0 || d > max_depth {
+            continue;
+        }
+        let fused = !input.dynamic.is_some_and(|m| m[i]);
+        if id > 0 {
+            truth.mover_pixels += 1;
+            truth.mover_pixels_fused += fused as u64;
+        } else {
+            truth.static_pixels += 1;
+            truth.static_pixels_fused += fused as u64;
+        }
+    }
+}

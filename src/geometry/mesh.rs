@@ -1,0 +1,126 @@
+//! A coloured triangle mesh, or a point cloud when it has no triangles.
+
+use nalgebra::Vector3;
+
+/// Vertices (metres, world frame) with optional per-vertex colours and normals, and
+/// triangles as vertex indices, counter-clockwise seen from outside.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mesh {
+    pub vertices: Vec<[f32; 3]>,
+    /// Empty, or one per vertex.
+    pub colours: Vec<[u8; 3]>,
+    /// Empty, or one unit normal per vertex.
+    pub normals: Vec<[f32; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    /// A point cloud.
+    pub fn points(vertices: Vec<[f32; 3]>) -> Self {
+        Self {
+            vertices,
+            ..Self::default()
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.vertices.is_empty()
+    }
+
+    pub fn len(&self) -> usize {
+        self.vertices.len()
+    }
+
+    /// The vertex `i` as a vector.
+    pub fn vertex(&self, i: usize) -> Vector3<f64> {
+        let [x, y, z] = self.vertices[i];
+        Vector3::new(x as f64, y as f64, z as f64)
+    }
+
+    /// Checks that colours, normals and triangles refer to the vertices.
+    pub fn validate(&self) -> Result<(), String> {
+        let n = self.vertices.len();
+        if !self.colours.is_empty() && self.colours.len() != n {
+            return Err(format!("{} colours for {n} vertices", self.colours.len()));
+        }
+        if !self.normals.is_empty() && self.normals.len() != n {
+            return Err(format!("{} normals for {n} vertices", self.normals.len()));
+        }
+        if let Some(t) = self
+            .triangles
+            .iter()
+            .find(|t| t.iter().any(|&i| i as usize >= n))
+        {
+            return Err(format!("triangle {t:?} refers past the {n} vertices"));
+        }
+        if let Some(v) = self
+            .vertices
+            .iter()
+            .find(|v| v.iter().any(|c| !c.is_finite()))
+        {
+            return Err(format!("vertex {v:?} is not finite"));
+        }
+        Ok(())
+    }
+
+    /// Area-weighted samples on the triangles, about one per `spacing`² of surface,
+    /// at least one per triangle's area share (deterministic: a regular pattern in
+    /// barycentric coordinates).
+    pub fn sample_surface(&self, spacing: f64) -> Vec<Vector3<f64>> {
+        let mut samples = Vec::new();
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.vertex(i as usize));
+            let area = (b - a).cross(&(c - a)).norm() / 2.0;
+            // n subdivisions per side give n² sub-triangles of area/n² each.
+            let n = ((area / (spacing * spacing)).sqrt().ceil() as usize).max(1);
+            for i in 0..n {
+                for j in 0..n - i {
+                    let (u, v) = (
+                        (i as f64 + 1.0 / 3.0) / n as f64,
+                        (j as f64 + 1.0 / 3.0) / n as f64,
+                    );
+                    samples.push(a + (b - a) * u + (c - a) * v);
+                    if i + j + 1 < n {
+                        let (u, v) = (
+                            (i as f64 + 2.0 / 3.0) / n as f64,
+                            (j as f64 + 2.0 / 3.0) / n as f64,
+                        );
+                        samples.push(a + (b - a) * u + (c - a) * v);
+                    }
+                }
+            }
+        }
+        samples
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_cover_a_square_evenly_inside_it() {
+        let mesh = Mesh {
+            vertices: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            ..Mesh::default()
+        };
+        let samples = mesh.sample_surface(0.1);
+        // 1 m² at 0.1 m spacing: about 100 samples, each inside the square.
+        assert!((90..=130).contains(&samples.len()), "{}", samples.len());
+        assert!(samples
+            .iter()
+            .all(|p| (0.0..=1.0).contains(&p.x) && (0.0..=1.0).contains(&p.y) && p.z == 0.0));
+        assert!(mesh.validate().is_ok());
+        let broken = Mesh {
+            triangles: vec![[0, 1, 7]],
+            ..mesh
+        };
+        assert!(broken.validate().is_err());
+    }
+}
