@@ -7,7 +7,7 @@ use clap::Args;
 
 use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
-use dopslam::dense::comparison::{compare_maps, CompareInputs, Comparison};
+use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
 use dopslam::dense::masks::Masking;
 use dopslam::dense::{fuse_run, DenseInputs, DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
@@ -157,6 +157,11 @@ pub struct CompareArgs {
     /// A trajectory (TUM format) to orient the pictures.
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
+    /// Move each map into the reference's frame with the SE(3) alignment of its run's
+    /// trajectory to the ground truth (the `ate.alignment` of report.json beside it;
+    /// maps from runs on sequences with ground truth). Needed against static_scene.ply.
+    #[arg(long)]
+    pub align: bool,
     /// Precision/recall threshold, metres.
     #[arg(long, default_value_t = CompareSettings::default().threshold)]
     pub threshold: f64,
@@ -197,8 +202,25 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
         Some(path) => Some(Trajectory::read(path, TrajectoryFormat::Tum)?.poses),
         None => None,
     };
+    let alignments: Vec<Option<dopslam::geometry::se3::Se3>> = maps
+        .iter()
+        .map(|(_, path)| {
+            if !args.align {
+                return Ok(None);
+            }
+            let dir = path.parent().unwrap_or(Path::new("."));
+            match run_alignment(dir) {
+                Some(pose) => Ok(Some(pose)),
+                None => bail!(
+                    "--align: {} has no report.json with an SE(3) trajectory alignment (ate.alignment)",
+                    dir.display()
+                ),
+            }
+        })
+        .collect::<Result<_>>()?;
     let comparison = compare_maps(&CompareInputs {
         maps: &maps,
+        alignments: &alignments,
         reference: &reference,
         movers: args.movers.as_deref(),
         cameras: cameras.as_deref(),
@@ -235,4 +257,43 @@ fn name_of(path: &Path) -> String {
         Some(dir) if stem.starts_with("dense_") => dir.to_string_lossy().into_owned(),
         _ => stem,
     }
+}
+
+/// `run --compare-no-dop`: the run's dense map against the baseline run's, in the
+/// ground truth's frame when both runs were evaluated, against the sequence's
+/// `static_scene.ply` (else the baseline map) and `movers.ply` when it has them.
+pub fn compare_with_baseline(run: &Path, baseline: &Path, sequence: &Path) -> Result<()> {
+    let pick = |dir: &Path| {
+        let mesh = dir.join("dense_mesh.ply");
+        if mesh.exists() {
+            mesh
+        } else {
+            dir.join("dense_points.ply")
+        }
+    };
+    let static_scene = sequence.join("static_scene.ply");
+    let movers = sequence.join("movers.ply");
+    let maps = [
+        ("dop".to_string(), pick(run)),
+        ("no_dop".to_string(), pick(baseline)),
+    ];
+    let alignments = [run_alignment(run), run_alignment(baseline)];
+    let mut cameras = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
+    if let Some(align) = &alignments[0] {
+        cameras.iter_mut().for_each(|pose| *pose = align * *pose);
+    }
+    let comparison = compare_maps(&CompareInputs {
+        maps: &maps,
+        alignments: &alignments,
+        reference: if static_scene.exists() {
+            &static_scene
+        } else {
+            &maps[1].1
+        },
+        movers: movers.exists().then_some(movers.as_path()),
+        cameras: Some(&cameras),
+        settings: CompareSettings::default(),
+        out: &run.join("compare_no_dop"),
+    })?;
+    print_comparison(&comparison, false)
 }

@@ -563,36 +563,7 @@ fn run_run(args: RunArgs) -> Result<()> {
             baseline_dir.display()
         );
         dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
-        let pick = |dir: &Path| {
-            let mesh = dir.join("dense_mesh.ply");
-            if mesh.exists() {
-                mesh
-            } else {
-                dir.join("dense_points.ply")
-            }
-        };
-        let static_scene = args.sequence.join("static_scene.ply");
-        let movers = args.sequence.join("movers.ply");
-        let maps = [
-            ("dop".to_string(), pick(&args.out)),
-            ("no_dop".to_string(), pick(&baseline_dir)),
-        ];
-        let cameras =
-            Trajectory::read(&args.out.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
-        let comparison =
-            dopslam::dense::comparison::compare_maps(&dopslam::dense::comparison::CompareInputs {
-                maps: &maps,
-                reference: if static_scene.exists() {
-                    &static_scene
-                } else {
-                    &maps[1].1
-                },
-                movers: movers.exists().then_some(movers.as_path()),
-                cameras: Some(&cameras),
-                settings: Default::default(),
-                out: &args.out.join("compare_no_dop"),
-            })?;
-        cli_maps::print_comparison(&comparison, false)?;
+        cli_maps::compare_with_baseline(&args.out, &baseline_dir, &args.sequence)?;
     }
     Ok(())
 }

@@ -14,6 +14,7 @@ use super::compare::{
 use super::render::{self, Viewpoint};
 use super::save_png;
 use crate::geometry::mesh::Mesh;
+use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::ply::{read_ply, write_ply, PlyEncoding};
 use crate::io::IoError;
@@ -35,6 +36,9 @@ pub struct Comparison {
 pub struct CompareInputs<'a> {
     /// Maps with their names; the last one is the baseline for SA when there are two.
     pub maps: &'a [(String, PathBuf)],
+    /// Per map, a transform into the reference's frame (`reference_from_map`), e.g.
+    /// the SE(3) alignment of its run's trajectory to the ground truth.
+    pub alignments: &'a [Option<Se3>],
     pub reference: &'a Path,
     pub movers: Option<&'a Path>,
     /// Camera poses (`world_from_camera`) to orient the pictures.
@@ -60,8 +64,11 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
     };
     let mut maps = Vec::new();
     let mut meshes = Vec::new();
-    for (name, path) in inputs.maps {
-        let mesh = read_ply(path)?;
+    for (k, (name, path)) in inputs.maps.iter().enumerate() {
+        let mut mesh = read_ply(path)?;
+        if let Some(Some(pose)) = inputs.alignments.get(k) {
+            transform(&mut mesh, pose);
+        }
         if mesh.is_empty() {
             return Err(IoError::invalid(path, "the map has no vertices"));
         }
@@ -172,6 +179,55 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
     );
     write_atomic(&inputs.out.join("compare.md"), md.as_bytes())?;
     Ok(comparison)
+}
+
+/// Moves a mesh by `pose` (points and normals).
+pub fn transform(mesh: &mut Mesh, pose: &Se3) {
+    for v in &mut mesh.vertices {
+        let p = pose * nalgebra::Point3::from(v.map(f64::from));
+        *v = [p.x as f32, p.y as f32, p.z as f32];
+    }
+    for n in &mut mesh.normals {
+        let m = pose.rotation * nalgebra::Vector3::from(n.map(f64::from));
+        *n = [m.x as f32, m.y as f32, m.z as f32];
+    }
+}
+
+/// The SE(3) alignment of a run's trajectory to its ground truth (`reference_from_estimate`,
+/// from `report.json`), when the run was evaluated with scale 1.
+pub fn run_alignment(run_dir: &Path) -> Option<Se3> {
+    let text = std::fs::read_to_string(run_dir.join("report.json")).ok()?;
+    let report: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let alignment = report.get("ate")?.get("alignment")?;
+    let number = |v: &serde_json::Value| v.as_f64();
+    let rows: Vec<Vec<f64>> = alignment
+        .get("rotation")?
+        .as_array()?
+        .iter()
+        .map(|row| {
+            row.as_array()
+                .map(|r| r.iter().filter_map(number).collect())
+        })
+        .collect::<Option<_>>()?;
+    let t: Vec<f64> = alignment
+        .get("translation")?
+        .as_array()?
+        .iter()
+        .filter_map(number)
+        .collect();
+    let scale = alignment.get("scale").and_then(number).unwrap_or(1.0);
+    if rows.len() != 3
+        || rows.iter().any(|r| r.len() != 3)
+        || t.len() != 3
+        || (scale - 1.0).abs() > 1e-9
+    {
+        return None;
+    }
+    let rotation = nalgebra::Matrix3::from_fn(|i, j| rows[i][j]);
+    Some(crate::geometry::se3::from_parts(
+        nalgebra::Vector3::new(t[0], t[1], t[2]),
+        rotation,
+    ))
 }
 
 /// A name safe as a file stem.

@@ -11,13 +11,12 @@
 //! field crosses zero, \(p = p_a + \frac{F_a}{F_a - F_b}(p_b - p_a)\).
 //! A cube is meshed only when all 8 corners were observed.
 
-use std::collections::HashMap;
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::tsdf::{voxel_index, TsdfVolume, BLOCK};
+use super::tsdf::{voxel_index, FxMap, TsdfVolume, BLOCK};
 use crate::geometry::mesh::Mesh;
 
 /// Corner `c` of the unit cube: bit 0 x, bit 1 y, bit 2 z.
@@ -187,7 +186,7 @@ pub fn extract(volume: &TsdfVolume) -> Mesh {
                 vertices: Vec::new(),
                 triangles: Vec::new(),
             };
-            let mut local: HashMap<EdgeKey, u32> = HashMap::new();
+            let mut local: FxMap<EdgeKey, u32> = FxMap::default();
             let base = coord.map(|c| c as i64 * BLOCK as i64);
             for z in 0..BLOCK as i64 {
                 for y in 0..BLOCK as i64 {
@@ -271,7 +270,7 @@ pub fn extract(volume: &TsdfVolume) -> Mesh {
 /// Joins the blocks' pieces, sharing vertices on the edges between blocks.
 fn weld(pieces: Vec<Piece>) -> Mesh {
     let mut mesh = Mesh::default();
-    let mut global: HashMap<EdgeKey, u32> = HashMap::new();
+    let mut global: FxMap<EdgeKey, u32> = FxMap::default();
     for piece in pieces {
         let map: Vec<u32> = piece
             .vertices
@@ -294,6 +293,7 @@ fn weld(pieces: Vec<Piece>) -> Mesh {
 mod tests {
     use super::*;
     use crate::dense::tsdf::{TsdfSettings, TsdfVolume};
+    use std::collections::HashMap;
 
     /// Every undirected edge of `mesh` is shared by exactly two triangles, once each way.
     fn assert_closed(mesh: &Mesh) {
@@ -363,8 +363,7 @@ mod tests {
                 .enumerate()
                 .filter(|(_, &(a, b))| (case >> a & 1) != (case >> b & 1))
                 .count();
-            let used: std::collections::HashSet<u8> =
-                triangles.iter().flatten().copied().collect();
+            let used: std::collections::HashSet<u8> = triangles.iter().flatten().copied().collect();
             assert_eq!(used.len(), crossed, "case {case}");
         }
     }

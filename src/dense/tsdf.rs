@@ -26,6 +26,33 @@ use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 
+/// A fast hasher for integer keys (the Fx hash of rustc): block lookups dominate
+/// integration and meshing, and SipHash's resistance to flooding is not needed here.
+#[derive(Default, Clone, Copy)]
+pub struct FxHasher(u64);
+
+impl std::hash::Hasher for FxHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for chunk in bytes.chunks(4) {
+            let mut word = [0u8; 4];
+            word[..chunk.len()].copy_from_slice(chunk);
+            self.write_u32(u32::from_le_bytes(word));
+        }
+    }
+    fn write_u32(&mut self, v: u32) {
+        self.0 = (self.0.rotate_left(5) ^ v as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_usize(&mut self, v: usize) {
+        self.0 = (self.0.rotate_left(5) ^ v as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn finish(&self) -> u64 {
+        self.0
+    }
+}
+
+/// A hash map with [`FxHasher`].
+pub type FxMap<K, V> = HashMap<K, V, std::hash::BuildHasherDefault<FxHasher>>;
+
 /// Voxels along one side of a block.
 pub const BLOCK: usize = 8;
 const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
@@ -65,6 +92,9 @@ pub struct Block {
     pub colour: Vec<[u8; 3]>,
     /// Observations within the truncation band (those that set the colour).
     pub colour_weight: Vec<u16>,
+    /// Whether some observed voxel is behind a surface (\(F < 0\)): only such blocks
+    /// hold something that carving could erase.
+    surface: bool,
     /// The last integration that touched this block.
     stamp: u32,
 }
@@ -76,6 +106,7 @@ impl Block {
             weight: vec![0.0; BLOCK_VOXELS],
             colour: vec![[0; 3]; BLOCK_VOXELS],
             colour_weight: vec![0; BLOCK_VOXELS],
+            surface: false,
             stamp: 0,
         }
     }
@@ -102,7 +133,7 @@ pub struct TsdfVolume {
     camera: PinholeCamera,
     pub blocks: Vec<Block>,
     pub coords: Vec<[i32; 3]>,
-    index: HashMap<[i32; 3], u32>,
+    index: FxMap<[i32; 3], u32>,
     frames: u32,
 }
 
@@ -113,7 +144,7 @@ impl TsdfVolume {
             camera,
             blocks: Vec::new(),
             coords: Vec::new(),
-            index: HashMap::new(),
+            index: FxMap::default(),
             frames: 0,
         }
     }
@@ -186,12 +217,12 @@ impl TsdfVolume {
     }
 
     /// Block coordinates within \(\tau\) of the frame's depth, and blocks that rays
-    /// cross in front of it (every 4th pixel, only when carving).
+    /// cross in front of it (from every 4th pixel; rays from every 8th, only when carving).
     fn blocks_seen(&self, frame: &FrameInput) -> (Vec<[i32; 3]>, Vec<[i32; 3]>) {
         let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
         let world_from_camera = frame.camera_from_world.inverse();
         let tau = self.settings.truncation;
-        let step = 2;
+        let step = 4;
         type Blocks = Vec<[i32; 3]>;
         let rows: Vec<(Blocks, Blocks)> = (0..h)
             .into_par_iter()
@@ -219,18 +250,24 @@ impl TsdfVolume {
                     for bz in lo[2]..=hi[2] {
                         for by in lo[1]..=hi[1] {
                             for bx in lo[0]..=hi[0] {
-                                near.push([bx, by, bz]);
+                                // Neighbouring pixels mostly repeat the last few blocks.
+                                let b = [bx, by, bz];
+                                if !near[near.len().saturating_sub(16)..].contains(&b) {
+                                    near.push(b);
+                                }
                             }
                         }
                     }
-                    if self.settings.carve && u % 4 == 0 && v % 4 == 0 {
+                    if self.settings.carve && u % 8 == 0 && v % 8 == 0 {
                         // Steps of one block along the ray, up to the truncation band.
                         let dz = self.block_size() / ray.norm();
                         let mut z = dz;
                         while z < d - tau {
                             let coord = self.block_of(&p(z));
-                            if self.index.contains_key(&coord) {
-                                carved.push(coord);
+                            if let Some(&i) = self.index.get(&coord) {
+                                if self.blocks[i as usize].surface {
+                                    carved.push(coord);
+                                }
                             }
                             z += dz;
                         }
@@ -262,58 +299,81 @@ fn integrate_block(
     camera: &PinholeCamera,
     frame: &FrameInput,
 ) {
-    let (w, h) = (frame.depth.width as i64, frame.depth.height as i64);
-    let tau = settings.truncation;
+    let (w, h) = (frame.depth.width as i32, frame.depth.height as i32);
+    let tau = settings.truncation as f32;
+    let inv_tau = 1.0 / tau;
+    let far = (settings.max_depth + settings.truncation) as f32;
+    let max_depth = settings.max_depth as f32;
+    let (fx, fy, cx, cy) = (
+        camera.fx as f32,
+        camera.fy as f32,
+        camera.cx as f32,
+        camera.cy as f32,
+    );
+    // Voxel centres sit at integer multiples of the voxel size (a corner-aligned
+    // lattice shared by neighbouring blocks); in the camera a voxel is
+    // p = R c + t + x R e_x v + y R e_y v + z R e_z v, stepped incrementally in f32.
     let r = frame.camera_from_world.rotation.matrix();
-    let t = frame.camera_from_world.translation.vector;
     let corner = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64) * block_size;
-    let voxel = settings.voxel;
+    let origin = (r * corner + frame.camera_from_world.translation.vector).cast::<f32>();
+    let step = |k: usize| (r.column(k) * settings.voxel).into_owned().cast::<f32>();
+    let (dx, dy, dz) = (step(0), step(1), step(2));
+    let depth = &frame.depth.metres;
+    let colour = frame.colour.as_raw();
+    let mut i = 0;
     for z in 0..BLOCK {
+        let pz = origin + dz * z as f32;
         for y in 0..BLOCK {
-            for x in 0..BLOCK {
-                // Voxel centres sit at integer multiples of the voxel size (corner-aligned
-                // grid), so that neighbouring blocks share the lattice.
-                let p_world = corner + Vector3::new(x as f64, y as f64, z as f64) * voxel;
-                let p = r * p_world + t;
-                if p.z <= 0.0 || p.z > settings.max_depth + tau {
+            let mut p = pz + dy * y as f32;
+            for _ in 0..BLOCK {
+                let here = p;
+                p += dx;
+                i += 1;
+                if here.z <= 0.0 || here.z > far {
                     continue;
                 }
-                let u = (camera.fx * p.x / p.z + camera.cx).round() as i64;
-                let v = (camera.fy * p.y / p.z + camera.cy).round() as i64;
-                if u < 0 || v < 0 || u >= w || v >= h {
+                // Nearest pixel; `+ 0.5` then truncation (no libm round call).
+                let inv = 1.0 / here.z;
+                let (uf, vf) = (fx * here.x * inv + cx + 0.5, fy * here.y * inv + cy + 0.5);
+                if uf < 0.0 || vf < 0.0 {
+                    continue;
+                }
+                let (u, v) = (uf as i32, vf as i32);
+                if u >= w || v >= h {
                     continue;
                 }
                 let pixel = (v * w + u) as usize;
-                let d = frame.depth.metres[pixel] as f64;
-                if d <= 0.0 || d > settings.max_depth {
+                let d = depth[pixel];
+                if d <= 0.0 || d > max_depth || frame.dynamic.is_some_and(|m| m[pixel]) {
                     continue;
                 }
-                if frame.dynamic.is_some_and(|m| m[pixel]) {
-                    continue;
-                }
-                let eta = d - p.z;
+                let eta = d - here.z;
                 if eta < -tau {
                     continue;
                 }
-                let phi = (eta / tau).min(1.0) as f32;
-                let i = voxel_index(x, y, z);
-                let weight = block.weight[i];
-                let total = weight + 1.0;
-                block.sdf[i] = (block.sdf[i] * weight + phi) / total;
+                let k = i - 1;
+                let weight = block.weight[k];
+                let inv_total = 1.0 / (weight + 1.0);
+                block.sdf[k] = (block.sdf[k] * weight + (eta * inv_tau).min(1.0)) * inv_total;
+                block.weight[k] = (weight + 1.0).min(settings.max_weight);
                 if eta <= tau {
-                    let c = frame.colour.get_pixel(u as u32, v as u32).0;
-                    let old = block.colour[i];
-                    let seen = block.colour_weight[i].min(settings.max_weight as u16) as f32;
-                    for k in 0..3 {
-                        block.colour[i][k] =
-                            ((old[k] as f32 * seen + c[k] as f32) / (seen + 1.0)).round() as u8;
+                    let c = &colour[3 * pixel..3 * pixel + 3];
+                    let seen = block.colour_weight[k].min(settings.max_weight as u16) as f32;
+                    let inv_seen = 1.0 / (seen + 1.0);
+                    let old = &mut block.colour[k];
+                    for ch in 0..3 {
+                        old[ch] = ((old[ch] as f32 * seen + c[ch] as f32) * inv_seen + 0.5) as u8;
                     }
-                    block.colour_weight[i] = block.colour_weight[i].saturating_add(1);
+                    block.colour_weight[k] = block.colour_weight[k].saturating_add(1);
                 }
-                block.weight[i] = total.min(settings.max_weight);
             }
         }
     }
+    block.surface = block
+        .sdf
+        .iter()
+        .zip(&block.weight)
+        .any(|(&f, &w)| f < 0.0 && w > 0.0);
 }
 
 #[cfg(test)]
