@@ -9,7 +9,7 @@ use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
 use dopslam::dense::masks::Masking;
-use dopslam::dense::{fuse_run, DenseInputs, DenseReport, FrameChoice};
+use dopslam::dense::{fuse_run, DenseConfig, DenseInputs, DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
 
@@ -98,6 +98,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         sequence: sequence.as_ref(),
         camera: calibration.camera,
         run_dir: &args.run,
+        out_dir: &args.run,
         masking,
         dop: &config.dop,
         dynamic_classes: &config.detector.dynamic_classes,
@@ -259,10 +260,38 @@ fn name_of(path: &Path) -> String {
     }
 }
 
-/// `run --compare-no-dop`: the run's dense map against the baseline run's, in the
-/// ground truth's frame when both runs were evaluated, against the sequence's
-/// `static_scene.ply` (else the baseline map) and `movers.ply` when it has them.
-pub fn compare_with_baseline(run: &Path, baseline: &Path, sequence: &Path) -> Result<()> {
+/// `run --compare-no-dop`: three dense maps side by side: the run's (`dop`), the
+/// baseline run's (`no_dop`: tracked and fused without DOP, as ORB-SLAM2 users get
+/// it) and the run's frames fused with its own poses but no masks (`unmasked`, the
+/// baseline for SA, so that masks are judged apart from tracking). In the ground
+/// truth's frame when the runs were evaluated, against the sequence's
+/// `static_scene.ply` (else the unmasked map) and its `movers.ply` when it has them.
+pub fn compare_with_baseline(
+    run: &Path,
+    baseline: &Path,
+    sequence: &dyn dopslam::io::sequence::Sequence,
+    sequence_dir: &Path,
+    config: &Config,
+) -> Result<()> {
+    let unmasked = run.join("unmasked");
+    let calibration = dopslam::pipeline::resolve_calibration(sequence, config)?;
+    fuse_run(
+        &DenseInputs {
+            sequence,
+            camera: calibration.camera,
+            run_dir: run,
+            out_dir: &unmasked,
+            masking: Masking::None,
+            dop: &config.dop,
+            dynamic_classes: &config.detector.dynamic_classes,
+            truth_masks: None,
+            progress: true,
+        },
+        &DenseConfig {
+            pictures: false,
+            ..config.dense.clone()
+        },
+    )?;
     let pick = |dir: &Path| {
         let mesh = dir.join("dense_mesh.ply");
         if mesh.exists() {
@@ -271,13 +300,18 @@ pub fn compare_with_baseline(run: &Path, baseline: &Path, sequence: &Path) -> Re
             dir.join("dense_points.ply")
         }
     };
-    let static_scene = sequence.join("static_scene.ply");
-    let movers = sequence.join("movers.ply");
+    let static_scene = sequence_dir.join("static_scene.ply");
+    let movers = sequence_dir.join("movers.ply");
     let maps = [
         ("dop".to_string(), pick(run)),
         ("no_dop".to_string(), pick(baseline)),
+        ("unmasked".to_string(), pick(&unmasked)),
     ];
-    let alignments = [run_alignment(run), run_alignment(baseline)];
+    let alignments = [
+        run_alignment(run),
+        run_alignment(baseline),
+        run_alignment(run),
+    ];
     let mut cameras = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
     if let Some(align) = &alignments[0] {
         cameras.iter_mut().for_each(|pose| *pose = align * *pose);
@@ -288,7 +322,7 @@ pub fn compare_with_baseline(run: &Path, baseline: &Path, sequence: &Path) -> Re
         reference: if static_scene.exists() {
             &static_scene
         } else {
-            &maps[1].1
+            &maps[2].1
         },
         movers: movers.exists().then_some(movers.as_path()),
         cameras: Some(&cameras),

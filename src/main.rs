@@ -563,7 +563,13 @@ fn run_run(args: RunArgs) -> Result<()> {
             baseline_dir.display()
         );
         dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
-        cli_maps::compare_with_baseline(&args.out, &baseline_dir, &args.sequence)?;
+        cli_maps::compare_with_baseline(
+            &args.out,
+            &baseline_dir,
+            sequence.as_ref(),
+            &args.sequence,
+            &config,
+        )?;
     }
     Ok(())
 }

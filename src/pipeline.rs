@@ -250,6 +250,7 @@ pub fn run_sequence(
         sequence,
         camera: calibration.camera,
         run_dir: out,
+        out_dir: out,
         masking: dense_masking(effective_mode(config)),
         dop: &config.dop,
         dynamic_classes: &config.detector.dynamic_classes,

@@ -34,7 +34,7 @@ pub struct Comparison {
 
 /// What to compare.
 pub struct CompareInputs<'a> {
-    /// Maps with their names; the last one is the baseline for SA when there are two.
+    /// Maps with their names; with two or more, the last is the baseline for SA.
     pub maps: &'a [(String, PathBuf)],
     /// Per map, a transform into the reference's frame (`reference_from_map`), e.g.
     /// the SE(3) alignment of its run's trajectory to the ground truth.

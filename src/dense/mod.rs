@@ -211,8 +211,10 @@ pub struct DenseReport {
 pub struct DenseInputs<'a> {
     pub sequence: &'a dyn Sequence,
     pub camera: PinholeCamera,
-    /// The run folder (inputs and outputs).
+    /// The run folder (inputs).
     pub run_dir: &'a Path,
+    /// Where the dense outputs go (usually the run folder).
+    pub out_dir: &'a Path,
     pub masking: Masking,
     pub dop: &'a DopConfig,
     pub dynamic_classes: &'a [String],
@@ -411,11 +413,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
-        let path = run.join("dense_mesh.ply");
+        let path = inputs.out_dir.join("dense_mesh.ply");
         write_ply(&path, &mesh, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);
         if config.obj {
-            let path = run.join("dense_mesh.obj");
+            let path = inputs.out_dir.join("dense_mesh.obj");
             write_obj(&path, &mesh, &comment)?;
             report.outputs.push(path);
         }
@@ -427,7 +429,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         let points = cloud.finish();
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();
-        let path = run.join("dense_points.ply");
+        let path = inputs.out_dir.join("dense_points.ply");
         write_ply(&path, &points, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);
         if mesh_or_cloud.is_none() {
@@ -454,7 +456,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 ),
             ];
             for (name, picture) in pictures {
-                let path = run.join(name);
+                let path = inputs.out_dir.join(name);
                 save_png(&path, &picture)?;
                 report.outputs.push(path);
             }
@@ -467,7 +469,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     }
     report.total_s = started.elapsed().as_secs_f64();
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
-    write_atomic(&run.join("dense.json"), json.as_bytes())?;
+    write_atomic(&inputs.out_dir.join("dense.json"), json.as_bytes())?;
     Ok(report)
 }
 
