@@ -142,11 +142,11 @@ pub fn print_dense(dense: &DenseReport) {
 
 #[derive(Args)]
 pub struct CompareArgs {
-    /// The map to judge (PLY: a mesh's vertices or a point cloud).
-    pub map: PathBuf,
-    /// A second map, e.g. fused with --no-dop: the baseline for SA, and the reference
+    /// The maps to judge (PLY: a mesh's vertices or a point cloud). With two or more,
+    /// the last is the baseline for SA (e.g. fused without DOP), and the reference
     /// when --reference is not given.
-    pub other: Option<PathBuf>,
+    #[arg(required = true)]
+    pub maps: Vec<PathBuf>,
     /// The static reference (a mesh or point cloud), e.g. a synthetic sequence's
     /// static_scene.ply.
     #[arg(long)]
@@ -158,9 +158,9 @@ pub struct CompareArgs {
     /// A trajectory (TUM format) to orient the pictures.
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
-    /// Move each map into the reference's frame with the SE(3) alignment of its run's
-    /// trajectory to the ground truth (the `ate.alignment` of report.json beside it;
-    /// maps from runs on sequences with ground truth). Needed against static_scene.ply.
+    /// Move each map into the reference's frame: its run's poses (trajectory.txt and
+    /// report.json beside the map, or one folder up) fitted to the ground truth of the
+    /// sequence the run names. Needed against a synthetic static_scene.ply.
     #[arg(long)]
     pub align: bool,
     /// Precision/recall threshold, metres.
@@ -186,18 +186,18 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
             bail!("{name} must be a positive distance in metres, not {value}");
         }
     }
-    let reference = match (&args.reference, &args.other) {
+    let reference = match (&args.reference, args.maps.len()) {
         (Some(r), _) => r.clone(),
-        (None, Some(other)) => other.clone(),
-        (None, None) => bail!("nothing to compare against: give a second map or --reference"),
+        (None, n) if n >= 2 => args.maps[n - 1].clone(),
+        _ => bail!("nothing to compare against: give a second map or --reference"),
     };
-    let mut maps = vec![(name_of(&args.map), args.map.clone())];
-    if let Some(other) = &args.other {
-        let mut name = name_of(other);
-        if name == maps[0].0 {
-            name += "_2";
+    let mut maps: Vec<(String, PathBuf)> = Vec::new();
+    for path in &args.maps {
+        let mut name = name_of(path);
+        while maps.iter().any(|(n, _)| *n == name) {
+            name += "_";
         }
-        maps.push((name, other.clone()));
+        maps.push((name, path.clone()));
     }
     let cameras = match &args.trajectory {
         Some(path) => Some(Trajectory::read(path, TrajectoryFormat::Tum)?.poses),
@@ -210,11 +210,11 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
                 return Ok(None);
             }
             let dir = path.parent().unwrap_or(Path::new("."));
-            match run_alignment(dir) {
+            match run_alignment(dir).or_else(|| run_alignment(dir.parent()?)) {
                 Some(pose) => Ok(Some(pose)),
                 None => bail!(
-                    "--align: {} has no report.json with an SE(3) trajectory alignment (ate.alignment)",
-                    dir.display()
+                    "--align: no run beside {} (or one folder up) whose trajectory.txt and report.json lead to a sequence with groundtruth.txt",
+                    path.display()
                 ),
             }
         })

@@ -558,6 +558,8 @@ fn run_run(args: RunArgs) -> Result<()> {
         let baseline_dir = args.out.join("no_dop");
         let mut baseline = config.clone();
         baseline.dop.mode = dopslam::dop::Mode::Off;
+        // ORB-SLAM2 behaviour needs no detector.
+        baseline.detector.source = dopslam::detect::Source::None;
         eprintln!(
             "the baseline: the same run with --no-dop into {}",
             baseline_dir.display()

@@ -162,3 +162,37 @@ fn bundled_default_config_is_valid() {
     let config = dopslam::config::Config::load(&path).unwrap();
     assert_eq!(config, dopslam::config::Config::default());
 }
+
+#[test]
+fn dense_commands_report_bad_input_clearly() {
+    let dir = common::temp_dir("cli-dense");
+    // compare-maps: a file that is not a PLY, a missing file, nothing to compare with.
+    let fake = write(&dir.join("map.ply"), "solid cube\nendsolid\n");
+    let (ok, _, err) = dopslam(&["compare-maps", &fake, "--reference", &fake]);
+    assert!(
+        !ok && err.contains("map.ply") && err.contains("not a readable PLY"),
+        "{err}"
+    );
+    let missing = dir.join("absent.ply").to_string_lossy().into_owned();
+    let (ok, _, err) = dopslam(&["compare-maps", &missing, &missing]);
+    assert!(!ok && err.contains("absent.ply"), "{err}");
+    let (ok, _, err) = dopslam(&["compare-maps", &fake]);
+    assert!(!ok && err.contains("--reference"), "{err}");
+    let (ok, _, err) = dopslam(&["compare-maps"]);
+    assert!(!ok && err.contains("MAPS"), "{err}");
+    let (ok, _, err) = dopslam(&["compare-maps", &fake, &fake, "--threshold", "-1"]);
+    assert!(!ok && err.contains("--threshold"), "{err}");
+    // fuse: a folder that is not a run, a run that names no sequence.
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
+    assert!(!ok && err.contains("not a finished run"), "{err}");
+    write(&dir.join("report.json"), "{\"mode\": \"dop\"}");
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
+    assert!(!ok && err.contains("--sequence"), "{err}");
+    // A [dense] section with an impossible voxel, named by key.
+    let config = write(&dir.join("bad.toml"), "[dense]\nvoxel = 0.0\n");
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy(), "--config", &config]);
+    assert!(!ok && err.contains("dense.voxel"), "{err}");
+    let config = write(&dir.join("typo.toml"), "[dense]\nvoxels = 0.01\n");
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy(), "--config", &config]);
+    assert!(!ok && err.contains("voxels"), "{err}");
+}

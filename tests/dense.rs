@@ -45,7 +45,11 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let report = run_sequence(sequence.as_ref(), &config, &run_dir, &options).unwrap();
     let dense = report.dense.expect("the dense pass ran");
     assert_eq!(dense.frames_fused, report.totals.tracked);
-    assert!(dense.mesh_triangles > 10_000, "{} triangles", dense.mesh_triangles);
+    assert!(
+        dense.mesh_triangles > 10_000,
+        "{} triangles",
+        dense.mesh_triangles
+    );
     assert!(dense.cloud_points > 1_000);
     let truth = dense.truth.expect("ground-truth masks were counted");
     eprintln!("DOP masks: {truth:?}");
@@ -89,7 +93,10 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     assert_eq!(unmasked.truth.unwrap().dynamic_removed, 0.0);
 
     let align = run_alignment(&run_dir);
-    assert!(align.is_some(), "the run was evaluated against its ground truth");
+    assert!(
+        align.is_some(),
+        "the run was evaluated against its ground truth"
+    );
     let maps = [
         ("dop".to_string(), run_dir.join("dense_mesh.ply")),
         ("unmasked".to_string(), unmasked_dir.join("dense_mesh.ply")),
@@ -107,15 +114,31 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     eprintln!("{}", comparison.table);
     let (dop, all) = (&comparison.maps[0], &comparison.maps[1]);
     let (dop_movers, all_movers) = (dop.mover_points.unwrap(), all.mover_points.unwrap());
-    assert!(all_movers > 200, "the unmasked map holds the walkers ({all_movers})");
+    assert!(
+        all_movers > 200,
+        "the unmasked map holds the walkers ({all_movers})"
+    );
     assert!(
         dop_movers * 10 <= all_movers,
         "DOP keeps {dop_movers} mover points, unmasked {all_movers}"
     );
     assert!(dop.dynamic_accuracy.unwrap() > all.dynamic_accuracy.unwrap());
-    assert!(dop.static_accuracy.unwrap() > 0.9, "SA {:?}", dop.static_accuracy);
-    assert!(dop.accuracy_median < 0.04, "median error {}", dop.accuracy_median);
-    for name in ["compare.md", "compare.json", "dop_distance.ply", "compare_top.png"] {
+    assert!(
+        dop.static_accuracy.unwrap() > 0.9,
+        "SA {:?}",
+        dop.static_accuracy
+    );
+    assert!(
+        dop.accuracy_median < 0.04,
+        "median error {}",
+        dop.accuracy_median
+    );
+    for name in [
+        "compare.md",
+        "compare.json",
+        "dop_distance.ply",
+        "compare_top.png",
+    ] {
         assert!(base.join("compare").join(name).exists(), "{name} missing");
     }
 }

@@ -17,7 +17,10 @@ use crate::geometry::mesh::Mesh;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::ply::{read_ply, write_ply, PlyEncoding};
+use crate::io::trajectory::TrajectoryFormat;
 use crate::io::IoError;
+use crate::io::Trajectory;
+use nalgebra::{Matrix3, Vector3};
 
 /// A comparison's result.
 #[derive(Debug, Serialize)]
@@ -193,41 +196,57 @@ pub fn transform(mesh: &mut Mesh, pose: &Se3) {
     }
 }
 
-/// The SE(3) alignment of a run's trajectory to its ground truth (`reference_from_estimate`,
-/// from `report.json`), when the run was evaluated with scale 1.
+/// The rigid transform that best maps a run's poses onto the ground truth's
+/// (`reference_from_estimate`), from whole poses rather than positions alone so that a
+/// camera that barely moves still fixes the rotation: with poses matched by time
+/// (nearest within 20 ms), \(R = \mathrm{proj}_{SO(3)} \sum_i R^{gt}_i (R^{est}_i)^T\)
+/// (the chordal mean) and \(t = \overline{t^{gt}_i - R\, t^{est}_i}\).
+pub fn pose_alignment(estimate: &Trajectory, reference: &Trajectory) -> Option<Se3> {
+    let mut order: Vec<usize> = (0..reference.len()).collect();
+    order.sort_by(|&a, &b| reference.timestamps[a].total_cmp(&reference.timestamps[b]));
+    let times: Vec<f64> = order.iter().map(|&i| reference.timestamps[i]).collect();
+    let mut pairs = Vec::new();
+    for (t, est) in estimate.timestamps.iter().zip(&estimate.poses) {
+        let k = times.partition_point(|&r| r < *t);
+        let best = [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter(|&k| k < times.len())
+            .min_by(|&a, &b| (times[a] - t).abs().total_cmp(&(times[b] - t).abs()))?;
+        if (times[best] - t).abs() <= 0.02 {
+            pairs.push((est, &reference.poses[order[best]]));
+        }
+    }
+    if pairs.len() < 3 {
+        return None;
+    }
+    let sum: Matrix3<f64> = pairs
+        .iter()
+        .map(|(est, gt)| gt.rotation.matrix() * est.rotation.matrix().transpose())
+        .sum();
+    let svd = sum.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut fix = Matrix3::identity();
+    fix[(2, 2)] = (u * v_t).determinant().signum();
+    let rotation = u * fix * v_t;
+    let translation = pairs
+        .iter()
+        .map(|(est, gt)| gt.translation.vector - rotation * est.translation.vector)
+        .sum::<Vector3<f64>>()
+        / pairs.len() as f64;
+    Some(crate::geometry::se3::from_parts(translation, rotation))
+}
+
+/// The alignment of a run's trajectory to its sequence's ground truth
+/// ([`pose_alignment`]; the run's `report.json` names the sequence), if both exist.
 pub fn run_alignment(run_dir: &Path) -> Option<Se3> {
     let text = std::fs::read_to_string(run_dir.join("report.json")).ok()?;
     let report: serde_json::Value = serde_json::from_str(&text).ok()?;
-    let alignment = report.get("ate")?.get("alignment")?;
-    let number = |v: &serde_json::Value| v.as_f64();
-    let rows: Vec<Vec<f64>> = alignment
-        .get("rotation")?
-        .as_array()?
-        .iter()
-        .map(|row| {
-            row.as_array()
-                .map(|r| r.iter().filter_map(number).collect())
-        })
-        .collect::<Option<_>>()?;
-    let t: Vec<f64> = alignment
-        .get("translation")?
-        .as_array()?
-        .iter()
-        .filter_map(number)
-        .collect();
-    let scale = alignment.get("scale").and_then(number).unwrap_or(1.0);
-    if rows.len() != 3
-        || rows.iter().any(|r| r.len() != 3)
-        || t.len() != 3
-        || (scale - 1.0).abs() > 1e-9
-    {
-        return None;
-    }
-    let rotation = nalgebra::Matrix3::from_fn(|i, j| rows[i][j]);
-    Some(crate::geometry::se3::from_parts(
-        nalgebra::Vector3::new(t[0], t[1], t[2]),
-        rotation,
-    ))
+    let sequence = PathBuf::from(report.get("sequence_path")?.as_str()?);
+    let reference =
+        Trajectory::read(&sequence.join("groundtruth.txt"), TrajectoryFormat::Tum).ok()?;
+    let estimate = Trajectory::read(&run_dir.join("trajectory.txt"), TrajectoryFormat::Tum).ok()?;
+    pose_alignment(&estimate, &reference)
 }
 
 /// A name safe as a file stem.
@@ -241,4 +260,31 @@ fn file_stem(name: &str) -> String {
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::se3;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// A trajectory moved by any rigid transform, even one that stands still,
+        /// aligns back onto the original.
+        #[test]
+        fn pose_alignment_recovers_a_rigid_motion(xi in se3::tests::tangent(3.0, 3.0), still in any::<bool>()) {
+            let moved = se3::exp(&xi);
+            let (mut reference, mut estimate) = (Trajectory::default(), Trajectory::default());
+            for k in 0..20 {
+                let t = k as f64 * 0.1;
+                let step = if still { 1e-4 } else { 0.1 };
+                let pose = se3::exp(&nalgebra::Vector6::new(step * k as f64, 0.0, 0.02 * t, 0.01 * k as f64, 0.3 * t, 0.0));
+                reference.push(t, moved * pose);
+                estimate.push(t + 0.001, pose);
+            }
+            let found = pose_alignment(&estimate, &reference).unwrap();
+            let error = se3::log(&(found.inverse() * moved)).norm();
+            prop_assert!(error < 1e-9, "error {}", error);
+        }
+    }
 }
