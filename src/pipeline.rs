@@ -833,7 +833,13 @@ fn write_outputs(
         keyframes.push(kf.frame.timestamp, kf.world_from_camera());
     }
     keyframes.write(&out.join("keyframes.txt"), TrajectoryFormat::Tum)?;
-    write_atomic(&out.join("map.ply"), map.to_ply().as_bytes())?;
+    crate::io::ply::write_ply(
+        &out.join("map.ply"),
+        &map.to_mesh(),
+        None,
+        crate::io::ply::PlyEncoding::Binary,
+        "dopslam sparse map",
+    )?;
     let mut lost_spans: Vec<(usize, usize)> = Vec::new();
     for line in &lines {
         if line.tracking.state == TrackingState::Lost {

@@ -180,7 +180,7 @@ fn dense_commands_report_bad_input_clearly() {
     assert!(!ok && err.contains("--reference"), "{err}");
     let (ok, _, err) = dopslam(&["compare-maps"]);
     assert!(!ok && err.contains("MAPS"), "{err}");
-    let (ok, _, err) = dopslam(&["compare-maps", &fake, &fake, "--threshold", "-1"]);
+    let (ok, _, err) = dopslam(&["compare-maps", &fake, &fake, "--threshold=0"]);
     assert!(!ok && err.contains("--threshold"), "{err}");
     // fuse: a folder that is not a run, a run that names no sequence.
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);

@@ -85,19 +85,19 @@ cargo build --release --quiet
 
 # 6. The main job on the bundled default.
 # A generated dynamic scene (configs/synth/demo_walking.toml: two people walking, 300
-# frames, exact ground truth), tracked with the DOP model on keyframe detections,
-# evaluated; then tracked once more without it (ORB-SLAM2 behaviour) to compare. The
-# rendered walkers are too crude for YOLO, so the demo uses the sequence's own oracle
-# boxes; on recorded sequences `dopslam run` uses YOLOv4-tiny (installed above).
+# frames, exact ground truth), tracked with the DOP model on keyframe detections, its
+# dense map fused without the walkers, evaluated; with --compare-no-dop it is also run
+# without DOP (ORB-SLAM2 behaviour) and the dense maps are compared. The rendered
+# walkers are too crude for YOLO, so the demo uses the sequence's own oracle boxes; on
+# recorded sequences `dopslam run` uses YOLOv4-tiny (installed above).
 if [ "$run_demo" = 1 ]; then
-    say "running: dopslam synth (demo_walking) -> dopslam run (DOP) -> dopslam eval, into outputs/demo"
+    say "running: dopslam synth (demo_walking) -> dopslam run (DOP, dense map, compared without DOP) -> dopslam eval, into outputs/demo"
     ./target/release/dopslam synth --config configs/synth/demo_walking.toml \
         --out outputs/demo/sequence --force
-    ./target/release/dopslam run outputs/demo/sequence --out outputs/demo/run --detections oracle
+    ./target/release/dopslam run outputs/demo/sequence --out outputs/demo/run --detections oracle \
+        --compare-no-dop
     ./target/release/dopslam eval outputs/demo/sequence/groundtruth.txt \
         outputs/demo/run/trajectory.txt --plot outputs/demo/run/plots \
         --save-report outputs/demo/run/evaluation.json
-    say "for comparison, without the DOP model (--no-dop) into outputs/demo/run-no-dop"
-    ./target/release/dopslam run outputs/demo/sequence --out outputs/demo/run-no-dop --detections none
-    say "outputs/demo/run: trajectory.txt, keyframes.txt, map.ply, report.json, plots/"
+    say "outputs/demo/run: trajectory.txt, keyframes.txt, map.ply, report.json, plots/, dense_mesh.ply/.obj, dense_points.ply, dense_*.png; no_dop/, unmasked/, compare_no_dop/compare.md"
 fi

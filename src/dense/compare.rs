@@ -292,20 +292,6 @@ pub fn as_vector(p: &[f32; 3]) -> Vector3<f64> {
 mod tests {
     use super::*;
 
-    /// A unit square floor at z = 0 as a mesh.
-    fn floor() -> Mesh {
-        Mesh {
-            vertices: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [1.0, 1.0, 0.0],
-                [0.0, 1.0, 0.0],
-            ],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            ..Mesh::default()
-        }
-    }
-
     fn grid(z: f32, step: f32) -> Vec<[f32; 3]> {
         let n = (1.0 / step) as usize;
         (0..=n)
@@ -316,7 +302,7 @@ mod tests {
     #[test]
     fn a_perfect_map_scores_one_and_a_ghost_counts() {
         let settings = CompareSettings::default();
-        let reference = StaticReference::new(&floor(), 0.02).unwrap();
+        let reference = StaticReference::new(&crate::geometry::mesh::unit_square(), 0.02).unwrap();
         let mut points = grid(0.0, 0.01);
         let perfect = judge(&Mesh::points(points.clone()), &reference, None, &settings);
         assert!(perfect.accuracy_mean < 1e-6 && perfect.precision == 1.0);

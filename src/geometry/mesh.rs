@@ -94,22 +94,28 @@ impl Mesh {
     }
 }
 
+/// A unit square at z = 0, two triangles (for tests).
+#[cfg(test)]
+pub fn unit_square() -> Mesh {
+    Mesh {
+        vertices: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+        ..Mesh::default()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn samples_cover_a_square_evenly_inside_it() {
-        let mesh = Mesh {
-            vertices: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [1.0, 1.0, 0.0],
-                [0.0, 1.0, 0.0],
-            ],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-            ..Mesh::default()
-        };
+        let mesh = unit_square();
         let samples = mesh.sample_surface(0.1);
         // 1 m² at 0.1 m spacing: about 100 samples, each inside the square.
         assert!((90..=130).contains(&samples.len()), "{}", samples.len());

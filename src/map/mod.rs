@@ -407,17 +407,14 @@ impl Map {
         ranked.into_iter().take(limit).map(|(k, _)| k).collect()
     }
 
-    /// The map as an ASCII PLY point cloud.
-    pub fn to_ply(&self) -> String {
-        let mut out = format!(
-            "ply\nformat ascii 1.0\ncomment dopslam sparse map\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
-            self.points.len()
-        );
-        for point in self.points.values() {
-            let p = point.position;
-            out += &format!("{} {} {}\n", p.x, p.y, p.z);
-        }
-        out
+    /// The map points as a point cloud.
+    pub fn to_mesh(&self) -> crate::geometry::mesh::Mesh {
+        crate::geometry::mesh::Mesh::points(
+            self.points
+                .values()
+                .map(|point| point.position.map(|c| c as f32).into())
+                .collect(),
+        )
     }
 }
 

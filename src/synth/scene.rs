@@ -5,6 +5,7 @@
 //! the interval \([(b_{min} - o)/d, (b_{max} - o)/d]\); the ray is inside the box over the
 //! intersection of the three intervals.
 
+use crate::geometry::mesh::Mesh;
 use nalgebra::Vector3;
 
 use super::movers::Shape;
@@ -237,15 +238,11 @@ impl Scene {
             .fold(box_distance(&self.room, true), f64::min)
     }
 
-    /// The exact static geometry as an ASCII PLY triangle mesh (the room's six walls and
-    /// every furniture box; 8 vertices and 12 triangles a box), for judging dense maps.
-    pub fn to_ply(&self) -> String {
+    /// The exact static geometry as a triangle mesh (the room's six walls and every
+    /// furniture box; 8 vertices and 12 triangles a box), for judging dense maps.
+    pub fn to_mesh(&self) -> Mesh {
         let boxes: Vec<&Cuboid> = std::iter::once(&self.room).chain(&self.furniture).collect();
-        let mut out = format!(
-            "ply\nformat ascii 1.0\ncomment dopslam synth static scene\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-            8 * boxes.len(),
-            12 * boxes.len()
-        );
+        let mut mesh = Mesh::default();
         for c in &boxes {
             for corner in 0..8 {
                 let pick = |axis: usize| {
@@ -255,11 +252,12 @@ impl Scene {
                         c.min[axis]
                     }
                 };
-                out += &format!("{} {} {}\n", pick(0), pick(1), pick(2));
+                mesh.vertices
+                    .push([pick(0) as f32, pick(1) as f32, pick(2) as f32]);
             }
         }
         // Corner index bits: x = 1, y = 2, z = 4. Two triangles per face.
-        const FACES: [[usize; 4]; 6] = [
+        const FACES: [[u32; 4]; 6] = [
             [0, 2, 6, 4],
             [1, 5, 7, 3],
             [0, 4, 5, 1],
@@ -267,16 +265,14 @@ impl Scene {
             [0, 1, 3, 2],
             [4, 6, 7, 5],
         ];
-        for b in 0..boxes.len() {
+        for b in 0..boxes.len() as u32 {
             for f in FACES {
                 let v = f.map(|i| i + 8 * b);
-                out += &format!(
-                    "3 {} {} {}\n3 {} {} {}\n",
-                    v[0], v[1], v[2], v[0], v[2], v[3]
-                );
+                mesh.triangles.push([v[0], v[1], v[2]]);
+                mesh.triangles.push([v[0], v[2], v[3]]);
             }
         }
-        out
+        mesh
     }
 
     /// A room around the camera positions, `margin` metres beyond them on every side,
@@ -371,11 +367,11 @@ mod tests {
     }
 
     #[test]
-    fn ply_lists_every_box() {
+    fn the_mesh_holds_every_box() {
         let scene = Scene::around(&[Vector3::zeros()], 2.0, 3, 0.5, 1);
-        let ply = scene.to_ply();
-        assert!(ply.contains("element vertex 32") && ply.contains("element face 48"));
-        assert_eq!(ply.lines().count(), 10 + 32 + 48);
+        let mesh = scene.to_mesh();
+        assert_eq!((mesh.vertices.len(), mesh.triangles.len()), (32, 48));
+        assert!(mesh.validate().is_ok());
     }
 
     #[test]

@@ -491,9 +491,12 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         &out.join("calibration.yaml"),
         OrbSlamSettings::to_yaml(&calibration, &OrbSettings::default()).as_bytes(),
     )?;
-    write_atomic(
+    write_ply(
         &out.join("static_scene.ply"),
-        world.scene.to_ply().as_bytes(),
+        &world.scene.to_mesh(),
+        None,
+        PlyEncoding::Ascii,
+        "dopslam synth static scene",
     )?;
     let mut movers: Vec<[i32; 3]> = mover_voxels.into_iter().flatten().collect();
     movers.sort_unstable();
