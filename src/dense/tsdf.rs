@@ -11,7 +11,8 @@
 //! and the colour likewise. Capping \(W\) lets newer observations win: a surface
 //! that later proves to be free space (a person who sat and then left) is carved
 //! away by the \(\phi = 1\) observations of the rays that now pass through it.
-//! Pixels a mask marks dynamic update nothing.
+//! A pixel a mask marks dynamic fuses nothing at or behind its depth (\(\eta \le \tau\)),
+//! but the free space in front of the mover (\(\eta > \tau\)) still carves.
 //!
 //! Integration is rayon-parallel over the blocks a frame touches: those within
 //! \(\tau\) of its depth (allocated) and, for carving, existing blocks that rays
@@ -236,17 +237,22 @@ impl TsdfVolume {
                     if d <= 0.0 || d > self.settings.max_depth {
                         continue;
                     }
-                    if frame.dynamic.is_some_and(|m| m[i]) {
-                        continue;
-                    }
+                    let dynamic = frame.dynamic.is_some_and(|m| m[i]);
                     let ray = self
                         .camera
                         .unproject(&nalgebra::Vector2::new(u as f64, v as f64), 1.0);
                     let p = |z: f64| (world_from_camera * Point3::from(ray * z)).coords;
-                    // Every block within tau of the surface point, in any direction.
+                    // Every block within tau of the surface point, in any direction
+                    // (not for a mover's surface; the free space before it still counts).
                     let surface = p(d);
-                    let lo = self.block_of(&surface.add_scalar(-tau));
-                    let hi = self.block_of(&surface.add_scalar(tau));
+                    let (lo, hi) = if dynamic {
+                        ([0; 3], [-1; 3])
+                    } else {
+                        (
+                            self.block_of(&surface.add_scalar(-tau)),
+                            self.block_of(&surface.add_scalar(tau)),
+                        )
+                    };
                     for bz in lo[2]..=hi[2] {
                         for by in lo[1]..=hi[1] {
                             for bx in lo[0]..=hi[0] {
@@ -344,11 +350,14 @@ fn integrate_block(
                 }
                 let pixel = (v * w + u) as usize;
                 let d = depth[pixel];
-                if d <= 0.0 || d > max_depth || frame.dynamic.is_some_and(|m| m[pixel]) {
+                if d <= 0.0 || d > max_depth {
                     continue;
                 }
                 let eta = d - here.z;
-                if eta < -tau {
+                // A masked pixel's depth is a mover's: nothing at or behind it is
+                // fused, but the free space in front of it still carves.
+                let dynamic = frame.dynamic.is_some_and(|m| m[pixel]);
+                if eta < -tau || (dynamic && eta <= tau) {
                     continue;
                 }
                 let k = i - 1;
