@@ -72,6 +72,10 @@ struct DetectArgs {
     /// For a sequence: detect every Nth frame.
     #[arg(long, default_value_t = 1)]
     every: usize,
+    /// Print the detections as JSON on stdout (one array: per image or frame its name,
+    /// timestamp, milliseconds and detections) instead of the table.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -208,6 +212,14 @@ struct RunArgs {
     /// Write every frame with its keypoints coloured by DOP state into this folder.
     #[arg(long)]
     debug_frames: Option<PathBuf>,
+    /// An ORB-SLAM2 settings file with the calibration (e.g. configs/calibration/RGB-D_TUM1.yaml);
+    /// its DepthMapFactor sets the depth scale unless the config sets one.
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    /// Camera intrinsics `fx,fy,cx,cy` (image size from the first frame) or
+    /// `fx,fy,cx,cy,width,height`, no distortion; overrides the settings' intrinsics.
+    #[arg(long)]
+    camera: Option<String>,
     /// Skip the dense map (the config's [dense] enabled = false does the same).
     #[arg(long)]
     no_dense: bool,
@@ -215,6 +227,49 @@ struct RunArgs {
     /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
     #[arg(long, conflicts_with = "no_dense")]
     compare_no_dop: bool,
+}
+
+/// `--camera fx,fy,cx,cy[,width,height]`; without a size, the first frame's.
+fn parse_camera(
+    text: &str,
+    sequence: &dyn Sequence,
+) -> Result<dopslam::geometry::camera::PinholeCamera> {
+    let numbers: Vec<f64> = text
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse::<f64>()
+                .with_context(|| format!("--camera {text:?}: {v:?} is not a number"))
+        })
+        .collect::<Result<_>>()?;
+    let (width, height) = match numbers.len() {
+        6 => (numbers[4] as u32, numbers[5] as u32),
+        4 => {
+            if sequence.is_empty() {
+                bail!("--camera {text:?}: the sequence has no frame to take the image size from; give fx,fy,cx,cy,width,height");
+            }
+            match sequence.load(0)?.images {
+                dopslam::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
+                dopslam::io::sequence::FrameImages::Stereo { left, .. } => left.dimensions(),
+            }
+        }
+        n => bail!(
+            "--camera {text:?}: expected fx,fy,cx,cy or fx,fy,cx,cy,width,height, got {n} numbers"
+        ),
+    };
+    let camera = dopslam::geometry::camera::PinholeCamera {
+        fx: numbers[0],
+        fy: numbers[1],
+        cx: numbers[2],
+        cy: numbers[3],
+        width,
+        height,
+        distortion: [0.0; 5],
+    };
+    camera
+        .validate()
+        .map_err(|m| anyhow::anyhow!("--camera {text:?}: {m}"))?;
+    Ok(camera)
 }
 
 fn parse_rpe(text: &str) -> Result<RpeSpec> {
@@ -286,34 +341,50 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let mut all = Vec::new();
     for (name, timestamp, mut image) in frames {
         let start = std::time::Instant::now();
         let detections = detector.detect(timestamp, &image)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        println!("{name}: {} detections ({ms:.1} ms)", detections.len());
-        for d in &detections {
-            let [x1, y1, x2, y2] = d.bbox;
-            println!(
-                "  {} {:.2} [{x1:.0},{y1:.0},{x2:.0},{y2:.0}]",
-                d.class, d.score
-            );
+        if !args.json {
+            println!("{name}: {} detections ({ms:.1} ms)", detections.len());
+            for d in &detections {
+                let [x1, y1, x2, y2] = d.bbox;
+                println!(
+                    "  {} {:.2} [{x1:.0},{y1:.0},{x2:.0},{y2:.0}]",
+                    d.class, d.score
+                );
+            }
         }
         draw_detections(&mut image, &detections);
         let png = args.out.join(format!("{name}.png"));
         image
             .save(&png)
             .with_context(|| format!("cannot write {}", png.display()))?;
+        let frame = FrameDetections {
+            timestamp,
+            detections,
+        };
         if args.input.is_dir() {
-            dopslam::detect::write_cache(
-                &args.out.join("detections"),
-                &FrameDetections {
-                    timestamp,
-                    detections,
-                },
-            )?;
+            dopslam::detect::write_cache(&args.out.join("detections"), &frame)?;
+        } else {
+            // The same per-frame JSON as a sequence's detection cache.
+            let json = serde_json::to_string_pretty(&frame)?;
+            write_atomic(&args.out.join(format!("{name}.json")), json.as_bytes())?;
         }
+        all.push(serde_json::json!({
+            "name": name,
+            "timestamp": timestamp,
+            "milliseconds": ms,
+            "detections": frame.detections,
+        }));
     }
-    println!("wrote {}", args.out.display());
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&all)?);
+        eprintln!("wrote {}", args.out.display());
+    } else {
+        println!("wrote {}", args.out.display());
+    }
     Ok(())
 }
 
@@ -500,7 +571,18 @@ fn run_run(args: RunArgs) -> Result<()> {
     if let Some(source) = args.detections {
         config.detector.source = source;
     }
-    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    if let Some(path) = &args.settings {
+        let settings = dopslam::io::orbslam_settings::OrbSlamSettings::read(path)?;
+        if config.dataset.depth_scale.is_none() {
+            config.dataset.depth_scale = settings.calibration.depth_scale;
+        }
+        config.dataset.settings = Some(path.clone());
+    }
+    let mut sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    if let Some(text) = &args.camera {
+        config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
+        sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    }
     let (source, note) = config.detector.resolved_source();
     if let Some(note) = note {
         eprintln!("{note}");
@@ -577,6 +659,13 @@ fn run_run(args: RunArgs) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    // Die quietly on a closed pipe (`dopslam eval --json | head`), as Unix tools do,
+    // instead of panicking in println!.
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Eval(args) => run_eval(args),

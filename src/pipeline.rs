@@ -71,14 +71,22 @@ pub fn resolve_calibration(
     sequence: &dyn Sequence,
     config: &Config,
 ) -> Result<Calibration, RunError> {
-    let mut calibration = match &config.dataset.settings {
-        Some(path) => OrbSlamSettings::read(path)?.calibration,
-        None => sequence.calibration().cloned().ok_or_else(|| {
-            RunError::Input(format!(
-                "sequence {} has no calibration; give one with [dataset] settings = \"camera.yaml\" or [dataset.camera]",
+    let mut calibration = match (&config.dataset.settings, sequence.calibration(), config.dataset.camera) {
+        (Some(path), _, _) => OrbSlamSettings::read(path)?.calibration,
+        (None, Some(own), _) => own.clone(),
+        (None, None, Some(camera)) => Calibration {
+            camera,
+            bf: None,
+            depth_scale: None,
+            th_depth: None,
+            fps: None,
+        },
+        (None, None, None) => {
+            return Err(RunError::Input(format!(
+                "sequence {} has no calibration (no calibration.yaml, and its folder name says no freiburg1/2/3): pass --settings configs/calibration/RGB-D_TUM3.yaml (or another ORB-SLAM2 settings file) or --camera fx,fy,cx,cy; in a config, [dataset] settings or [dataset.camera]",
                 sequence.name()
-            ))
-        })?,
+            )))
+        }
     };
     if let Some(camera) = config.dataset.camera {
         calibration.camera = camera;

@@ -38,3 +38,37 @@ fn reads_every_shared_settings_file() {
         assert!(settings.calibration.camera.fx > 100.0, "{}", path.display());
     }
 }
+
+/// The settings shipped in `configs/calibration/` parse, and equal the real setups'
+/// files beside the checkout where those exist (read there, never copied).
+#[test]
+fn shipped_settings_match_the_published_ones() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration");
+    let names = [
+        "RGB-D_TUM1",
+        "RGB-D_TUM2",
+        "RGB-D_TUM3",
+        "RGB-D_Bonn",
+        "Stereo_KITTI00-02",
+        "Stereo_KITTI03",
+        "Stereo_KITTI04-12",
+    ];
+    for name in names {
+        let ours = OrbSlamSettings::read(&dir.join(format!("{name}.yaml"))).unwrap();
+        assert!(ours.calibration.camera.validate().is_ok(), "{name}");
+        assert_eq!(ours.orb.n_levels, Some(8), "{name}");
+    }
+    let Some(data) = common::shared_data("shipped_settings_match_the_published_ones") else {
+        return;
+    };
+    for name in names {
+        let path = data.join(format!("calibration/{name}.yaml"));
+        if !path.exists() {
+            continue;
+        }
+        let theirs = OrbSlamSettings::read(&path).unwrap();
+        let ours = OrbSlamSettings::read(&dir.join(format!("{name}.yaml"))).unwrap();
+        assert_eq!(ours.calibration, theirs.calibration, "{name}");
+        assert_eq!(ours.orb.n_features, theirs.orb.n_features, "{name}");
+    }
+}

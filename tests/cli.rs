@@ -196,3 +196,72 @@ fn dense_commands_report_bad_input_clearly() {
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy(), "--config", &config]);
     assert!(!ok && err.contains("voxels"), "{err}");
 }
+
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    let dir = common::temp_dir("cli-pipe");
+    let reference = good_tum(&dir, "ref.txt", 0.0);
+    let estimate = good_tum(&dir, "est.txt", 0.0);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args(["eval", &reference, &estimate, "--json", "--rpe", "1f"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before reading anything, as `| head -0` would.
+    drop(child.stdout.take());
+    let output = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !err.contains("panicked") && !err.contains("Broken pipe"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_sequence_without_calibration_takes_settings_or_a_camera() {
+    let base = common::temp_dir("cli-settings");
+    // A recording whose folder name says nothing about the sensor.
+    let seq = base.join("my_lab_recording");
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    let (ok, _, err) = dopslam(&[
+        "synth",
+        "--config",
+        &preset.to_string_lossy(),
+        "--out",
+        &seq.to_string_lossy(),
+        "--frames",
+        "12",
+    ]);
+    assert!(ok, "{err}");
+    std::fs::remove_file(seq.join("calibration.yaml")).unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "run",
+            seq.to_str().unwrap(),
+            "--frames",
+            "8",
+            "--detections",
+            "none",
+            "--no-dense",
+        ];
+        let out = base.join(format!("out{}", extra.len()));
+        let out = out.to_string_lossy().into_owned();
+        args.extend(["--out", &out]);
+        args.extend(extra);
+        dopslam(&args)
+    };
+    let (ok, _, err) = run(&[]);
+    assert!(
+        !ok && err.contains("--settings") && err.contains("--camera"),
+        "{err}"
+    );
+    let settings =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/RGB-D_TUM3.yaml");
+    let (ok, out, err) = run(&["--settings", &settings.to_string_lossy()]);
+    assert!(ok && out.contains("tracked 8 of 8"), "{out}{err}");
+    let (ok, out, err) = run(&["--camera", "535.4,539.2,320.1,247.6", "--deterministic"]);
+    assert!(ok && out.contains("tracked 8 of 8"), "{out}{err}");
+    let (ok, _, err) = run(&["--camera", "535.4,539.2,320.1"]);
+    assert!(!ok && err.contains("--camera"), "{err}");
+}

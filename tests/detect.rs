@@ -212,3 +212,55 @@ fn auto_falls_back_to_no_detector_and_says_why() {
     };
     assert_eq!(explicit.resolved_source(), (Source::Oracle, None));
 }
+
+/// `dopslam detect IMAGE` writes the per-image JSON (the detection cache's format) and
+/// prints the detections as JSON with `--json`.
+#[test]
+fn detect_writes_json_for_an_image() {
+    let (Some(_), Some(data)) = (
+        library(),
+        common::shared_data("detect_writes_json_for_an_image"),
+    ) else {
+        return;
+    };
+    let model = repo("data/models/yolov4-tiny.onnx");
+    if !model.is_file() {
+        eprintln!(
+            "skipping: no {} (bash tools/setup.sh converts it)",
+            model.display()
+        );
+        return;
+    }
+    let image = data.join("frames/photos/bus.jpg");
+    let out = common::temp_dir("detect-json");
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args([
+            "detect",
+            &image.to_string_lossy(),
+            "--json",
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let printed: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let first = &printed[0];
+    assert_eq!(first["name"], "bus");
+    assert!(first["detections"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|d| d["class"] == "person"));
+    let written: dopslam::detect::FrameDetections =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bus.json")).unwrap()).unwrap();
+    assert_eq!(
+        written.detections.len(),
+        first["detections"].as_array().unwrap().len()
+    );
+    assert!(out.join("bus.png").exists());
+}
