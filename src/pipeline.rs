@@ -269,11 +269,16 @@ pub fn run_sequence(
             .filter(|d| d.is_dir()),
         progress: options.progress,
     };
-    let dense = fuse_run(&inputs, &config.dense)?;
-    tracked.map(|mut report| {
-        report.dense = Some(dense);
-        report
-    })
+    // After a tracking failure the dense map of what was tracked is a bonus: the
+    // tracking error is the one to report.
+    match (tracked, fuse_run(&inputs, &config.dense)) {
+        (Ok(mut report), Ok(dense)) => {
+            report.dense = Some(dense);
+            Ok(report)
+        }
+        (Ok(_), Err(e)) => Err(e.into()),
+        (Err(e), _) => Err(e),
+    }
 }
 
 /// The dense masks that go with a tracking mode.
