@@ -13,6 +13,7 @@ pub mod dop;
 pub mod eval;
 pub mod features;
 pub mod geometry;
+pub mod interrupt;
 pub mod io;
 pub mod map;
 pub mod mapping;

@@ -667,6 +667,9 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Run(_) | Command::Fuse(_)) {
+        dopslam::interrupt::install();
+    }
     let result = match cli.command {
         Command::Eval(args) => run_eval(args),
         Command::Demo(args) => run_demo(args),

@@ -145,6 +145,10 @@ pub struct RunReport {
     pub mapping: MappingStats,
     pub detection: DetectionTotals,
     pub frames: Vec<FrameLine>,
+    /// Why the run stopped before the last frame (a frame that failed to load, tracking
+    /// that never started, an interruption), if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<String>,
     /// The dense pass, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,
@@ -250,7 +254,7 @@ pub fn run_sequence(
         Err(RunError::Interrupted { .. }) => 1,
         Err(_) => 0,
     };
-    if done == 0 {
+    if done == 0 || crate::interrupt::requested() {
         return tracked;
     }
     let calibration = resolve_calibration(sequence, config)?;
@@ -366,6 +370,10 @@ pub fn track_sequence(
     let mut failure: Option<String> = None;
     let mut frames_without_depth = 0;
     for index in 0..total {
+        if crate::interrupt::requested() {
+            failure = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
+            break;
+        }
         let loaded = match sequence.load(index) {
             Ok(frame) => frame,
             Err(e) => {
@@ -500,7 +508,7 @@ pub fn track_sequence(
         sequence,
         &map,
         (stats, book.totals),
-        lines,
+        (lines, failure.clone()),
         (out, options.sequence_dir.as_deref(), mode),
     )?;
     match failure {
@@ -823,7 +831,7 @@ fn write_outputs(
     sequence: &dyn Sequence,
     map: &Map,
     (mapping, detection): (MappingStats, DetectionTotals),
-    lines: Vec<FrameLine>,
+    (lines, stopped): (Vec<FrameLine>, Option<String>),
     (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
 ) -> Result<RunReport, RunError> {
     let mut trajectory = Trajectory::default();
@@ -903,6 +911,7 @@ fn write_outputs(
         mapping,
         detection,
         frames: lines,
+        stopped,
         dense: None,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;

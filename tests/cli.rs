@@ -265,3 +265,65 @@ fn a_sequence_without_calibration_takes_settings_or_a_camera() {
     let (ok, _, err) = run(&["--camera", "535.4,539.2,320.1"]);
     assert!(!ok && err.contains("--camera"), "{err}");
 }
+
+/// SIGINT during `run`: the trajectory so far and the report (marked stopped) are
+/// written, the exit status is non-zero.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_writes_what_it_has() {
+    let base = common::temp_dir("cli-sigint");
+    let seq = base.join("seq");
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    let (ok, _, err) = dopslam(&[
+        "synth",
+        "--config",
+        &preset.to_string_lossy(),
+        "--out",
+        &seq.to_string_lossy(),
+        "--frames",
+        "300",
+    ]);
+    assert!(ok, "{err}");
+    let out = base.join("run");
+    let frames = base.join("frames");
+    let child = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args([
+            "run",
+            &seq.to_string_lossy(),
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .args(["--detections", "none", "--deterministic"])
+        .args(["--debug-frames", &frames.to_string_lossy()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until a few frames are tracked (the debug pictures show progress).
+    let started = std::time::Instant::now();
+    while std::fs::read_dir(&frames).map_or(0, |d| d.count()) < 10 {
+        assert!(started.elapsed().as_secs() < 120, "the run never got going");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    // SAFETY: kill only sends a signal to the child we spawned.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+    }
+    let output = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
+    let tracked = trajectory.lines().filter(|l| !l.starts_with('#')).count();
+    assert!((5..300).contains(&tracked), "{tracked} poses");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert!(
+        report["stopped"].as_str().unwrap().contains("interrupted"),
+        "{report}"
+    );
+    assert!(
+        !out.join("dense_mesh.ply").exists(),
+        "no dense pass after an interruption"
+    );
+}

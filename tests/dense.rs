@@ -72,8 +72,40 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let cloud = read_ply(&run_dir.join("dense_points.ply")).unwrap();
     assert_eq!(cloud.normals.len(), cloud.len());
 
-    // The same poses without masks: the walkers come in.
+    // Re-fused on one thread: the same bytes (the dense pass does not depend on the
+    // thread count).
     let calibration = resolve_calibration(sequence.as_ref(), &config).unwrap();
+    let one_dir = base.join("one-thread");
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| {
+            fuse_run(
+                &DenseInputs {
+                    sequence: sequence.as_ref(),
+                    camera: calibration.camera,
+                    run_dir: &run_dir,
+                    out_dir: &one_dir,
+                    masking: Masking::Dop,
+                    dop: &config.dop,
+                    dynamic_classes: &config.detector.dynamic_classes,
+                    truth_masks: None,
+                    progress: false,
+                },
+                &config.dense,
+            )
+        })
+        .unwrap();
+    for name in ["dense_mesh.ply", "dense_points.ply", "dense_mesh.obj"] {
+        let (a, b) = (
+            std::fs::read(run_dir.join(name)).unwrap(),
+            std::fs::read(one_dir.join(name)).unwrap(),
+        );
+        assert!(a == b, "{name} differs between thread counts");
+    }
+
+    // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
     let unmasked = fuse_run(
         &DenseInputs {

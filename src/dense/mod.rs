@@ -349,6 +349,15 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let (mut masked, mut pixels) = (0u64, 0u64);
     let chunk = rayon::current_num_threads().max(1) * 2;
     for group in chosen.chunks(chunk) {
+        if crate::interrupt::requested() {
+            return Err(IoError::invalid(
+                inputs.out_dir,
+                format!(
+                    "{}: the dense map was not written",
+                    crate::interrupt::MESSAGE
+                ),
+            ));
+        }
         // Decode a few frames in parallel; fuse them in order.
         let loaded: Vec<_> = group
             .par_iter()
