@@ -44,7 +44,7 @@ for preset in "${presets[@]}"; do
     for mode in $modes; do
       out=outputs/bench/dop-$detections-$(basename "$seq")-$mode
       rm -rf "$out"
-      ./target/release/dopslam run "$seq" --out "$out" --detections "$detections" --$mode --deterministic >/dev/null 2>&1 \
+      ./target/release/dopslam run "$seq" --out "$out" --detections "$detections" --$mode --deterministic --no-dense >/dev/null 2>&1 \
         || echo "$preset $mode: dopslam run failed (see $out)"
     done
     runs+=("outputs/bench/dop-$detections-$(basename "$seq")")

@@ -76,7 +76,7 @@ for preset in "${presets[@]}"; do
       esac
       out=outputs/bench/people-$(basename "$seq")-$variant
       rm -rf "$out"
-      if ! ./target/release/dopslam run "$seq" --out "$out" "${args[@]}" >"$out.log" 2>&1; then
+      if ! ./target/release/dopslam run "$seq" --out "$out" --no-dense "${args[@]}" >"$out.log" 2>&1; then
         echo "| $preset | $seed | $variant | failed: see $out.log |"
         continue
       fi

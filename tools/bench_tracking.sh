@@ -34,7 +34,7 @@ for preset in "${presets[@]}"; do
   fi
   out=outputs/bench/run-$preset-$mode-$detections
   rm -rf "$out"
-  ./target/release/dopslam run "$seq" --out "$out" --$mode --detections "$detections" ${DOPSLAM_RUN_ARGS:-} >/dev/null 2>&1 || echo "$preset: dopslam run failed (see $out)"
+  ./target/release/dopslam run "$seq" --out "$out" --$mode --detections "$detections" --no-dense ${DOPSLAM_RUN_ARGS:-} >/dev/null 2>&1 || echo "$preset: dopslam run failed (see $out)"
   python3 - "$preset" "$out/report.json" <<'PY'
 import json, sys
 name, path = sys.argv[1], sys.argv[2]
