@@ -38,6 +38,20 @@ pub struct FuseArgs {
     /// Fuse keyframes only into the TSDF.
     #[arg(long)]
     pub keyframes_only: bool,
+    /// The ORB-SLAM2 settings file the run used (`run --settings`), if any.
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+}
+
+/// `--settings FILE.yaml`: the calibration, and its DepthMapFactor as the depth scale
+/// unless the config sets one.
+pub fn apply_settings(config: &mut Config, path: &Path) -> Result<()> {
+    let settings = dopslam::io::orbslam_settings::OrbSlamSettings::read(path)?;
+    if config.dataset.depth_scale.is_none() {
+        config.dataset.depth_scale = settings.calibration.depth_scale;
+    }
+    config.dataset.settings = Some(path.to_path_buf());
+    Ok(())
 }
 
 /// The masking a run used, from its report.json.
@@ -60,6 +74,9 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     }
     if args.keyframes_only {
         config.dense.frames = FrameChoice::Keyframes;
+    }
+    if let Some(path) = &args.settings {
+        apply_settings(&mut config, path)?;
     }
     let report_path = args.run.join("report.json");
     let report: serde_json::Value =

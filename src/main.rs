@@ -572,11 +572,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         config.detector.source = source;
     }
     if let Some(path) = &args.settings {
-        let settings = dopslam::io::orbslam_settings::OrbSlamSettings::read(path)?;
-        if config.dataset.depth_scale.is_none() {
-            config.dataset.depth_scale = settings.calibration.depth_scale;
-        }
-        config.dataset.settings = Some(path.clone());
+        cli_maps::apply_settings(&mut config, path)?;
     }
     let mut sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
     if let Some(text) = &args.camera {

@@ -904,7 +904,7 @@ fn write_outputs(
     };
     let report = RunReport {
         sequence: sequence.name().to_string(),
-        sequence_path: sequence_path.map(Path::to_path_buf),
+        sequence_path: sequence_path.map(|p| p.canonicalize().unwrap_or_else(|_| p.to_path_buf())),
         mode,
         totals,
         ate,

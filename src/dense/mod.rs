@@ -268,9 +268,19 @@ pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
     serde_json::from_str(&text).map_err(|e| IoError::invalid(path, format!("malformed: {e}")))
 }
 
+/// A ground-truth instance mask as flags per pixel (non-zero: a mover), 8- or 16-bit.
 fn read_mask(dir: &Path, timestamp: f64) -> Option<Vec<u8>> {
-    let image = image::open(dir.join(format!("{timestamp:.6}.png"))).ok()?;
-    Some(image.to_luma8().into_raw())
+    match image::open(dir.join(format!("{timestamp:.6}.png"))).ok()? {
+        image::DynamicImage::ImageLuma8(m) => Some(m.into_raw()),
+        other => Some(
+            other
+                .to_luma16()
+                .into_raw()
+                .into_iter()
+                .map(|id| u8::from(id > 0))
+                .collect(),
+        ),
+    }
 }
 
 /// Fuses a finished run (see the module doc).
