@@ -119,6 +119,15 @@ impl TumSequence {
             }
             None => pair_by_timestamp(root, options.max_difference)?,
         };
+        if entries.is_empty() && listed.0 > 0 && listed.1 > 0 {
+            return Err(IoError::invalid(
+                root,
+                format!(
+                    "none of the {} colour images in rgb.txt has a depth map in depth.txt within {} s: the two lists' timestamps do not match (raise [dataset] max_difference, or give an association file)",
+                    listed.0, options.max_difference
+                ),
+            ));
+        }
         let gt_path = root.join("groundtruth.txt");
         let ground_truth = if gt_path.exists() {
             Some(Trajectory::read_tum(&gt_path)?)
