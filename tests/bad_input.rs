@@ -5,20 +5,8 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-/// Runs dopslam; `(success, stdout, stderr)`.
-fn dopslam(args: &[&str]) -> (bool, String, String) {
-    let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
-}
+use common::{dopslam, sorted_files as sorted};
 
 /// A six-frame static room in a fresh folder.
 fn room(name: &str) -> PathBuf {
@@ -49,15 +37,6 @@ fn run(seq: &Path, out: &str) -> (bool, String, String) {
         "--out",
         &out.to_string_lossy(),
     ])
-}
-
-fn sorted(dir: &Path) -> Vec<PathBuf> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    files.sort();
-    files
 }
 
 #[test]

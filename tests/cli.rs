@@ -6,17 +6,7 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-fn dopslam(args: &[&str]) -> (bool, String, String) {
-    let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
-}
+use common::dopslam;
 
 fn write(path: &Path, text: &str) -> String {
     std::fs::write(path, text).unwrap();

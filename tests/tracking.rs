@@ -20,16 +20,6 @@ fn static_room(frames: usize, name: &str) -> PathBuf {
     out
 }
 
-/// The files of a folder, sorted by name.
-fn sorted_files(dir: &Path) -> Vec<PathBuf> {
-    let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    names.sort();
-    names
-}
-
 /// The default config without the detector (`auto` would use it where installed).
 fn without_detector() -> Config {
     let mut config = Config::default();
@@ -82,7 +72,7 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     let seq = static_room(12, "track-bad");
     let base = seq.parent().unwrap().to_path_buf();
     // A missing colour image in the middle: the error names it; frames before it are kept.
-    let names = sorted_files(&seq.join("rgb"));
+    let names = common::sorted_files(&seq.join("rgb"));
     std::fs::remove_file(&names[8]).unwrap();
     let output = run_without_detector(&seq)
         .arg("--out")
@@ -121,7 +111,7 @@ fn bad_input_fails_clearly_and_keeps_what_was_done() {
     assert!(base.join("run-scale/report.json").is_file());
 
     // Depth maps that hold no depth at all.
-    let depths = sorted_files(&seq.join("depth"));
+    let depths = common::sorted_files(&seq.join("depth"));
     for path in &depths {
         image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(640, 480)
             .save(path)
@@ -190,7 +180,7 @@ fn relocalises_after_a_blackout() {
     let base = seq.parent().unwrap().to_path_buf();
     // Frames 60..70 are black: no features, tracking is lost; the camera moves on
     // meanwhile, so only relocalisation (EPnP RANSAC against keyframes) can recover.
-    let names = sorted_files(&seq.join("rgb"));
+    let names = common::sorted_files(&seq.join("rgb"));
     for path in &names[60..70] {
         image::RgbImage::new(640, 480).save(path).unwrap();
     }
@@ -230,7 +220,10 @@ fn keyframes_get_their_detections_from_the_detection_worker() {
         assert_eq!(d.detected, d.submitted, "{d:?}");
         assert!(d.errors.is_empty(), "{d:?}");
         // One cache file per keyframe, named by its timestamp, readable back.
-        assert_eq!(sorted_files(&out.join("detections")).len(), d.submitted);
+        assert_eq!(
+            common::sorted_files(&out.join("detections")).len(),
+            d.submitted
+        );
         if deterministic {
             // A deterministic run makes the same keyframes, so the cache it wrote
             // serves a second run completely.
