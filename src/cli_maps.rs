@@ -9,9 +9,10 @@ use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
 use dopslam::dense::masks::Masking;
-use dopslam::dense::{fuse_run, DenseConfig, DenseInputs, DenseReport, FrameChoice};
+use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
+use dopslam::pipeline::dense_pass;
 
 #[derive(Args)]
 pub struct FuseArgs {
@@ -109,20 +110,14 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         run_masking(&report)
     };
     let sequence = dopslam::pipeline::open_sequence(&sequence_dir, &config)?;
-    let calibration = dopslam::pipeline::resolve_calibration(sequence.as_ref(), &config)?;
-    let truth = sequence_dir.join("masks");
-    let inputs = DenseInputs {
-        sequence: sequence.as_ref(),
-        camera: calibration.camera,
-        run_dir: &args.run,
-        out_dir: &args.run,
+    let dense = dense_pass(
+        sequence.as_ref(),
+        &config,
+        (&args.run, &args.run),
         masking,
-        dop: &config.dop,
-        dynamic_classes: &config.detector.dynamic_classes,
-        truth_masks: truth.is_dir().then_some(truth),
-        progress: true,
-    };
-    let dense = fuse_run(&inputs, &config.dense)?;
+        Some(&sequence_dir),
+        true,
+    )?;
     print_dense(&dense);
     Ok(())
 }
@@ -291,23 +286,15 @@ pub fn compare_with_baseline(
     config: &Config,
 ) -> Result<()> {
     let unmasked = run.join("unmasked");
-    let calibration = dopslam::pipeline::resolve_calibration(sequence, config)?;
-    fuse_run(
-        &DenseInputs {
-            sequence,
-            camera: calibration.camera,
-            run_dir: run,
-            out_dir: &unmasked,
-            masking: Masking::None,
-            dop: &config.dop,
-            dynamic_classes: &config.detector.dynamic_classes,
-            truth_masks: None,
-            progress: true,
-        },
-        &DenseConfig {
-            pictures: false,
-            ..config.dense.clone()
-        },
+    let mut without_pictures = config.clone();
+    without_pictures.dense.pictures = false;
+    dense_pass(
+        sequence,
+        &without_pictures,
+        (run, &unmasked),
+        Masking::None,
+        None,
+        true,
     )?;
     let pick = |dir: &Path| {
         let mesh = dir.join("dense_mesh.ply");

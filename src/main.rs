@@ -574,10 +574,9 @@ fn run_run(args: RunArgs) -> Result<()> {
     if let Some(path) = &args.settings {
         cli_maps::apply_settings(&mut config, path)?;
     }
-    let mut sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
     if let Some(text) = &args.camera {
         config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
-        sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
     }
     let (source, note) = config.detector.resolved_source();
     if let Some(note) = note {

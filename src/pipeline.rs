@@ -257,32 +257,50 @@ pub fn run_sequence(
     if done == 0 || crate::interrupt::requested() {
         return tracked;
     }
-    let calibration = resolve_calibration(sequence, config)?;
-    let inputs = DenseInputs {
+    let dense = dense_pass(
         sequence,
-        camera: calibration.camera,
-        run_dir: out,
-        out_dir: out,
-        masking: dense_masking(effective_mode(config)),
-        dop: &config.dop,
-        dynamic_classes: &config.detector.dynamic_classes,
-        truth_masks: options
-            .sequence_dir
-            .as_ref()
-            .map(|d| d.join("masks"))
-            .filter(|d| d.is_dir()),
-        progress: options.progress,
-    };
+        config,
+        (out, out),
+        dense_masking(effective_mode(config)),
+        options.sequence_dir.as_deref(),
+        options.progress,
+    );
     // After a tracking failure the dense map of what was tracked is a bonus: the
     // tracking error is the one to report.
-    match (tracked, fuse_run(&inputs, &config.dense)) {
+    match (tracked, dense) {
         (Ok(mut report), Ok(dense)) => {
             report.dense = Some(dense);
             Ok(report)
         }
-        (Ok(_), Err(e)) => Err(e.into()),
+        (Ok(_), Err(e)) => Err(e),
         (Err(e), _) => Err(e),
     }
+}
+
+/// The dense pass over the run in `run_dir`, outputs into `out_dir` (see
+/// [`crate::dense`]); with `sequence_dir`'s ground-truth `masks/`, when it has them,
+/// the fused pixels are counted against them.
+pub fn dense_pass(
+    sequence: &dyn Sequence,
+    config: &Config,
+    (run_dir, out_dir): (&Path, &Path),
+    masking: Masking,
+    sequence_dir: Option<&Path>,
+    progress: bool,
+) -> Result<DenseReport, RunError> {
+    let calibration = resolve_calibration(sequence, config)?;
+    let inputs = DenseInputs {
+        sequence,
+        camera: calibration.camera,
+        run_dir,
+        out_dir,
+        masking,
+        dop: &config.dop,
+        dynamic_classes: &config.detector.dynamic_classes,
+        truth_masks: sequence_dir.map(|d| d.join("masks")).filter(|d| d.is_dir()),
+        progress,
+    };
+    Ok(fuse_run(&inputs, &config.dense)?)
 }
 
 /// The dense masks that go with a tracking mode.
@@ -601,16 +619,9 @@ fn ground_truth_mask(
     sequence_dir: Option<&Path>,
     timestamp: f64,
 ) -> Option<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
-    let path = sequence_dir?.join(format!("masks/{timestamp:.6}.png"));
-    // Instance ids as written: an 8-bit mask is widened without scaling.
-    match image::open(path).ok()? {
-        image::DynamicImage::ImageLuma8(m) => Some(image::ImageBuffer::from_fn(
-            m.width(),
-            m.height(),
-            |x, y| image::Luma([m.get_pixel(x, y)[0] as u16]),
-        )),
-        other => Some(other.to_luma16()),
-    }
+    crate::io::image_files::read_instance_mask(
+        &sequence_dir?.join(format!("masks/{timestamp:.6}.png")),
+    )
 }
 
 /// People found on keyframes against the ground truth.

@@ -12,17 +12,7 @@ use common::{dopslam, sorted_files as sorted};
 fn room(name: &str) -> PathBuf {
     let base = common::temp_dir(name);
     let seq = base.join("seq");
-    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
-    let (ok, _, err) = dopslam(&[
-        "synth",
-        "--config",
-        &preset.to_string_lossy(),
-        "--out",
-        &seq.to_string_lossy(),
-        "--frames",
-        "6",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_static_room(&seq, 6);
     seq
 }
 

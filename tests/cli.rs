@@ -208,28 +208,12 @@ fn a_closed_pipe_ends_quietly() {
     );
 }
 
-/// A static room of `frames` frames written by `dopslam synth` into `seq`.
-fn synth_static_room(seq: &Path, frames: usize) {
-    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
-    let frames = frames.to_string();
-    let (ok, _, err) = dopslam(&[
-        "synth",
-        "--config",
-        &preset.to_string_lossy(),
-        "--out",
-        &seq.to_string_lossy(),
-        "--frames",
-        &frames,
-    ]);
-    assert!(ok, "{err}");
-}
-
 #[test]
 fn a_sequence_without_calibration_takes_settings_or_a_camera() {
     let base = common::temp_dir("cli-settings");
     // A recording whose folder name says nothing about the sensor.
     let seq = base.join("my_lab_recording");
-    synth_static_room(&seq, 12);
+    common::synth_static_room(&seq, 12);
     std::fs::remove_file(seq.join("calibration.yaml")).unwrap();
     let run = |extra: &[&str]| {
         let mut args = vec![
@@ -269,7 +253,7 @@ fn a_sequence_without_calibration_takes_settings_or_a_camera() {
 fn an_interrupted_run_writes_what_it_has() {
     let base = common::temp_dir("cli-sigint");
     let seq = base.join("seq");
-    synth_static_room(&seq, 300);
+    common::synth_static_room(&seq, 300);
     let out = base.join("run");
     let frames = base.join("frames");
     let child = Command::new(env!("CARGO_BIN_EXE_dopslam"))

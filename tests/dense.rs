@@ -10,11 +10,10 @@ use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs};
 use dopslam::dense::masks::Masking;
-use dopslam::dense::{fuse_run, DenseInputs};
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;
-use dopslam::pipeline::{open_sequence, resolve_calibration, run_sequence, RunOptions};
+use dopslam::pipeline::{dense_pass, open_sequence, run_sequence, RunOptions};
 use dopslam::synth::{generate, SynthConfig};
 
 #[test]
@@ -74,26 +73,19 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 
     // Re-fused on one thread: the same bytes (the dense pass does not depend on the
     // thread count).
-    let calibration = resolve_calibration(sequence.as_ref(), &config).unwrap();
     let one_dir = base.join("one-thread");
     rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .unwrap()
         .install(|| {
-            fuse_run(
-                &DenseInputs {
-                    sequence: sequence.as_ref(),
-                    camera: calibration.camera,
-                    run_dir: &run_dir,
-                    out_dir: &one_dir,
-                    masking: Masking::Dop,
-                    dop: &config.dop,
-                    dynamic_classes: &config.detector.dynamic_classes,
-                    truth_masks: None,
-                    progress: false,
-                },
-                &config.dense,
+            dense_pass(
+                sequence.as_ref(),
+                &config,
+                (&run_dir, &one_dir),
+                Masking::Dop,
+                None,
+                false,
             )
         })
         .unwrap();
@@ -107,19 +99,13 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
-    let unmasked = fuse_run(
-        &DenseInputs {
-            sequence: sequence.as_ref(),
-            camera: calibration.camera,
-            run_dir: &run_dir,
-            out_dir: &unmasked_dir,
-            masking: Masking::None,
-            dop: &config.dop,
-            dynamic_classes: &config.detector.dynamic_classes,
-            truth_masks: Some(seq.join("masks")),
-            progress: false,
-        },
-        &config.dense,
+    let unmasked = dense_pass(
+        sequence.as_ref(),
+        &config,
+        (&run_dir, &unmasked_dir),
+        Masking::None,
+        Some(&seq),
+        false,
     )
     .unwrap();
     assert_eq!(unmasked.truth.unwrap().dynamic_removed, 0.0);

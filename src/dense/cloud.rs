@@ -92,15 +92,6 @@ impl CloudBuilder {
         }
     }
 
-    /// Voxels holding points so far.
-    pub fn len(&self) -> usize {
-        self.voxels.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.voxels.is_empty()
-    }
-
     /// The cloud: voxel means, outliers removed, normals estimated. Sorted by voxel
     /// so that the output does not depend on hash order.
     pub fn finish(self) -> Mesh {
@@ -119,16 +110,10 @@ impl CloudBuilder {
         let s = self.settings;
         if s.outlier_neighbours > 0 && cloud.len() > s.outlier_neighbours {
             let keep = inliers(&cloud.vertices, s.outlier_neighbours, s.outlier_std);
-            let mut k = keep.iter();
-            cloud
-                .vertices
-                .retain(|_| *k.next().expect("one flag a point"));
-            let mut k = keep.iter();
-            cloud
-                .colours
-                .retain(|_| *k.next().expect("one flag a point"));
-            let mut k = keep.iter();
-            views.retain(|_| *k.next().expect("one flag a point"));
+            let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
+            cloud.vertices = kept.iter().map(|&i| cloud.vertices[i]).collect();
+            cloud.colours = kept.iter().map(|&i| cloud.colours[i]).collect();
+            views = kept.iter().map(|&i| views[i]).collect();
         }
         if s.normal_neighbours >= 3 && cloud.len() > s.normal_neighbours {
             cloud.normals = normals(&cloud.vertices, &views, s.normal_neighbours);

@@ -19,7 +19,6 @@
 //!   of the reference samples that \(B\) covers (within `completion_threshold`) that
 //!   \(M\) covers too (static points kept).
 
-use nalgebra::Vector3;
 use parry3d::math::Vector;
 use parry3d::query::PointQuery;
 use parry3d::shape::TriMesh;
@@ -281,11 +280,6 @@ pub fn table(names: &[String], figures: &[&MapFigures]) -> String {
     row("DA (dynamic removed)", &|f| optional(f.dynamic_accuracy));
     row("SA (static kept)", &|f| optional(f.static_accuracy));
     out
-}
-
-/// A point as a vector.
-pub fn as_vector(p: &[f32; 3]) -> Vector3<f64> {
-    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }
 
 #[cfg(test)]

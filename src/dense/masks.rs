@@ -131,10 +131,6 @@ impl MaskSource {
         }
     }
 
-    pub fn keyframes(&self) -> &[KeyframeObjects] {
-        &self.keyframes
-    }
-
     /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
     /// nothing in it is dynamic.
     pub fn mask(
@@ -143,6 +139,9 @@ impl MaskSource {
         depth: &DepthImage,
         camera_from_world: &Se3,
     ) -> Option<Vec<bool>> {
+        if self.masking == Masking::None {
+            return None;
+        }
         let (w, h) = (depth.width as usize, depth.height as usize);
         let mut mask = vec![false; w * h];
         let mut any = false;
@@ -154,7 +153,7 @@ impl MaskSource {
             .filter(|k| (k.timestamp - timestamp).abs() <= self.dop.track_seconds as f64)
             .collect();
         match self.masking {
-            Masking::None => return None,
+            Masking::None => {}
             Masking::Boxes => {
                 let nearest = near.iter().min_by(|a, b| {
                     (a.timestamp - timestamp)
@@ -250,27 +249,36 @@ pub fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     if r == 0 {
         return mask.to_vec();
     }
-    let pass = |input: &[bool], len: usize, lines: usize, at: &dyn Fn(usize, usize) -> usize| {
-        let mut output = vec![false; input.len()];
-        for line in 0..lines {
-            let mut count = 0usize;
-            for k in 0..len.min(r) {
-                count += input[at(line, k)] as usize;
-            }
-            for k in 0..len {
-                if k + r < len {
-                    count += input[at(line, k + r)] as usize;
-                }
-                if k > r {
-                    count -= input[at(line, k - r - 1)] as usize;
-                }
-                output[at(line, k)] = count > 0;
-            }
+    let rows = dilate_lines(mask, w, h, r, |line, k| line * w + k);
+    dilate_lines(&rows, h, w, r, |line, k| k * w + line)
+}
+
+/// One pass of [`dilate`] along `lines` lines of `len` pixels; `at(line, k)` is the
+/// index of pixel `k` of a line (generic, so the per-pixel call is inlined).
+fn dilate_lines(
+    input: &[bool],
+    len: usize,
+    lines: usize,
+    r: usize,
+    at: impl Fn(usize, usize) -> usize,
+) -> Vec<bool> {
+    let mut output = vec![false; input.len()];
+    for line in 0..lines {
+        let mut count = 0usize;
+        for k in 0..len.min(r) {
+            count += input[at(line, k)] as usize;
         }
-        output
-    };
-    let rows = pass(mask, w, h, &|line, k| line * w + k);
-    pass(&rows, h, w, &|line, k| k * w + line)
+        for k in 0..len {
+            if k + r < len {
+                count += input[at(line, k + r)] as usize;
+            }
+            if k > r {
+                count -= input[at(line, k - r - 1)] as usize;
+            }
+            output[at(line, k)] = count > 0;
+        }
+    }
+    output
 }
 
 /// The keypoints of a tracked frame in a removed (dynamic) state, `(x, y, depth)`.

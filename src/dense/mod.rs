@@ -247,9 +247,8 @@ pub fn read_detections(dir: &Path) -> Result<Vec<FrameDetections>, IoError> {
     for entry in entries.flatten() {
         let path = entry.path();
         if path.extension().is_some_and(|e| e == "json") {
-            let text = crate::io::errors::read_text(&path)?;
-            let frame: FrameDetections = serde_json::from_str(&text)
-                .map_err(|e| IoError::invalid(&path, format!("not a detections file: {e}")))?;
+            let frame = crate::detect::read_cache_file(&path)
+                .map_err(|e| IoError::invalid(&path, e.to_string()))?;
             frames.push(frame);
         }
     }
@@ -266,21 +265,6 @@ pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
     }
     let text = crate::io::errors::read_text(path)?;
     serde_json::from_str(&text).map_err(|e| IoError::invalid(path, format!("malformed: {e}")))
-}
-
-/// A ground-truth instance mask as flags per pixel (non-zero: a mover), 8- or 16-bit.
-fn read_mask(dir: &Path, timestamp: f64) -> Option<Vec<u8>> {
-    match image::open(dir.join(format!("{timestamp:.6}.png"))).ok()? {
-        image::DynamicImage::ImageLuma8(m) => Some(m.into_raw()),
-        other => Some(
-            other
-                .to_luma16()
-                .into_raw()
-                .into_iter()
-                .map(|id| u8::from(id > 0))
-                .collect(),
-        ),
-    }
 }
 
 /// Fuses a finished run (see the module doc).
@@ -393,8 +377,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 camera_from_world: &pose,
             };
             if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
-                if let Some(ids) = read_mask(dir, frame.timestamp) {
-                    count_truth(truth, &ids, &input, config.max_depth);
+                let path = dir.join(format!("{:.6}.png", frame.timestamp));
+                if let Some(ids) = crate::io::image_files::read_instance_mask(&path) {
+                    count_truth(truth, ids.as_raw(), &input, config.max_depth);
                 }
             }
             let start = Instant::now();
@@ -412,12 +397,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     }
     progress.finish_and_clear();
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
-    report.median_integration_ms = {
-        integration_ms.sort_by(f64::total_cmp);
-        integration_ms
-            .get(integration_ms.len() / 2)
-            .copied()
-            .unwrap_or(0.0)
+    integration_ms.sort_by(f64::total_cmp);
+    report.median_integration_ms = if integration_ms.is_empty() {
+        0.0
+    } else {
+        crate::eval::stats::median_of_sorted(&integration_ms)
     };
     report.tsdf_blocks = volume.blocks.len();
     report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;
@@ -456,8 +440,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         }
     }
     if let (true, Some(map)) = (config.pictures, &mesh_or_cloud) {
-        let cameras: Vec<Se3> = trajectory.poses.clone();
-        if let Some(view) = render::Viewpoint::from_cameras(&cameras) {
+        if let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) {
             let colours = render::with_ghosts(map, &[]);
             let pictures = [
                 (
@@ -508,7 +491,7 @@ pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
 }
 
 /// Counts fused and masked pixels against instance ids (0: static).
-fn count_truth(truth: &mut FusedTruth, ids: &[u8], input: &FrameInput, max_depth: f64) {
+fn count_truth(truth: &mut FusedTruth, ids: &[u16], input: &FrameInput, max_depth: f64) {
     truth.frames += 1;
     for (i, &id) in ids.iter().enumerate() {
         let d = input.depth.metres.get(i).copied().unwrap_or(0.0) as f64;

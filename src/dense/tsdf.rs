@@ -181,14 +181,6 @@ impl TsdfVolume {
         &mut self.blocks[i as usize]
     }
 
-    /// Voxels with at least one observation.
-    pub fn observed_voxels(&self) -> usize {
-        self.blocks
-            .iter()
-            .map(|b| b.weight.iter().filter(|&&w| w > 0.0).count())
-            .sum()
-    }
-
     /// Bytes held by the voxel data.
     pub fn memory_bytes(&self) -> usize {
         self.blocks.len() * BLOCK_VOXELS * (4 + 4 + 3 + 2)

@@ -252,18 +252,20 @@ impl CacheDetector {
 
 impl Detector for CacheDetector {
     fn detect(&mut self, timestamp: f64, _image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
-        let path = cache_file(&self.dir, timestamp);
-        let text = std::fs::read_to_string(&path).map_err(|e| DetectError::Cache {
-            path: path.clone(),
-            message: format!("cannot read: {e}"),
-        })?;
-        let frame: FrameDetections =
-            serde_json::from_str(&text).map_err(|e| DetectError::Cache {
-                path: path.clone(),
-                message: format!("not a detections file: {e}"),
-            })?;
-        Ok(frame.detections)
+        Ok(read_cache_file(&cache_file(&self.dir, timestamp))?.detections)
     }
+}
+
+/// Reads one frame's cached detections.
+pub fn read_cache_file(path: &Path) -> Result<FrameDetections, DetectError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DetectError::Cache {
+        path: path.to_path_buf(),
+        message: format!("cannot read: {e}"),
+    })?;
+    serde_json::from_str(&text).map_err(|e| DetectError::Cache {
+        path: path.to_path_buf(),
+        message: format!("not a detections file: {e}"),
+    })
 }
 
 /// Writes one frame's detections into a cache folder (atomically).

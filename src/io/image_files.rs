@@ -74,6 +74,19 @@ pub fn read_rgba(path: &Path, what: &str) -> Result<image::RgbaImage, IoError> {
     Ok(image.to_rgba8())
 }
 
+/// Reads a ground-truth instance mask (`masks/*.png` of a synthetic sequence) as ids:
+/// an 8-bit mask is widened without scaling; `None` when absent or unreadable.
+pub fn read_instance_mask(path: &Path) -> Option<image::ImageBuffer<image::Luma<u16>, Vec<u16>>> {
+    match image::open(path).ok()? {
+        image::DynamicImage::ImageLuma8(m) => Some(image::ImageBuffer::from_fn(
+            m.width(),
+            m.height(),
+            |x, y| image::Luma([m.get_pixel(x, y)[0] as u16]),
+        )),
+        other => Some(other.to_luma16()),
+    }
+}
+
 /// Reads an image as 8-bit grey.
 pub fn read_gray(path: &Path) -> Result<GrayImage, IoError> {
     Ok(open(path)?.to_luma8())

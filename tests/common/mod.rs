@@ -51,3 +51,20 @@ pub fn dopslam(args: &[&str]) -> (bool, String, String) {
         String::from_utf8_lossy(&output.stderr).into_owned(),
     )
 }
+
+/// A static room of `frames` frames written by `dopslam synth` into `seq`.
+pub fn synth_static_room(seq: &std::path::Path, frames: usize) {
+    let preset =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    let frames = frames.to_string();
+    let (ok, _, err) = dopslam(&[
+        "synth",
+        "--config",
+        &preset.to_string_lossy(),
+        "--out",
+        &seq.to_string_lossy(),
+        "--frames",
+        &frames,
+    ]);
+    assert!(ok, "{err}");
+}
