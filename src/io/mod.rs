@@ -3,6 +3,7 @@
 pub mod atomic;
 pub mod errors;
 pub mod file_list;
+pub mod g2o;
 pub mod image_files;
 pub mod kitti;
 pub mod orbslam_settings;

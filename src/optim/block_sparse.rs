@@ -72,6 +72,149 @@ impl BlockSystem {
     }
 }
 
+/// A block sparsity pattern fixed once (the edges of a pose graph, the covisibility of
+/// a bundle adjustment), with its compressed-column layout and its symbolic Cholesky
+/// (fill-reducing ordering and elimination tree) computed once: each solve then fills
+/// the values in place and runs only the numeric factorisation
+/// \(A = L L^\top\) and two triangular solves.
+#[derive(Debug, Clone)]
+pub struct BlockPattern {
+    block: usize,
+    n: usize,
+    /// Lower blocks \((i, j)\), \(i \ge j\), to their slot.
+    slots: std::collections::HashMap<(usize, usize), usize>,
+    /// Per slot, the value index of each entry \((r, c)\) (column-major in the block);
+    /// `u32::MAX` for the upper half of a diagonal block.
+    entries: Vec<u32>,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    symbolic: faer::sparse::linalg::solvers::SymbolicLlt<usize>,
+}
+
+impl BlockPattern {
+    /// The pattern of an `n`-block-row matrix with blocks of size `block` at the
+    /// diagonal and at each pair of `off_diagonal` (either order; repeats allowed).
+    pub fn new(
+        n: usize,
+        block: usize,
+        off_diagonal: impl IntoIterator<Item = (usize, usize)>,
+    ) -> Option<Self> {
+        let mut columns: Vec<Vec<usize>> = (0..n).map(|j| vec![j]).collect();
+        for (a, b) in off_diagonal {
+            let (i, j) = if a >= b { (a, b) } else { (b, a) };
+            if i != j && i < n {
+                columns[j].push(i);
+            }
+        }
+        let mut slots = std::collections::HashMap::new();
+        let mut col_ptr = vec![0usize];
+        let mut row_idx = Vec::new();
+        // Value index of the first entry of block row `i` in scalar column `j*block+c`.
+        let mut starts: Vec<(usize, usize, usize, usize)> = Vec::new();
+        for (j, rows) in columns.iter_mut().enumerate() {
+            rows.sort_unstable();
+            rows.dedup();
+            for c in 0..block {
+                for &i in rows.iter() {
+                    let first_row = if i == j { c } else { 0 };
+                    starts.push((i, j, c, row_idx.len()));
+                    for r in first_row..block {
+                        row_idx.push(i * block + r);
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let mut entries = Vec::new();
+        for (i, j, c, start) in starts {
+            let slot = *slots.entry((i, j)).or_insert_with(|| {
+                entries.extend(std::iter::repeat_n(u32::MAX, block * block));
+                entries.len() / (block * block) - 1
+            });
+            let first_row = if i == j { c } else { 0 };
+            for r in first_row..block {
+                entries[slot * block * block + c * block + r] = (start + r - first_row) as u32;
+            }
+        }
+        let size = n * block;
+        let structure = faer::sparse::SymbolicSparseColMatRef::new_checked(
+            size, size, &col_ptr, None, &row_idx,
+        );
+        let symbolic =
+            faer::sparse::linalg::solvers::SymbolicLlt::try_new(structure, Side::Lower).ok()?;
+        Some(Self {
+            block,
+            n,
+            slots,
+            entries,
+            col_ptr,
+            row_idx,
+            symbolic,
+        })
+    }
+
+    /// Zeroed values for [`BlockPattern::add`].
+    pub fn zeros(&self) -> Vec<f64> {
+        vec![0.0; self.row_idx.len()]
+    }
+
+    /// Adds the column-major `block`x`block` matrix `m` to block \((i, j)\) (and its
+    /// transpose to \((j, i)\)); `false` when the block is not in the pattern.
+    pub fn add(&self, values: &mut [f64], i: usize, j: usize, m: &[f64]) -> bool {
+        let b = self.block;
+        let (key, transposed) = if i >= j { ((i, j), false) } else { ((j, i), true) };
+        let Some(&slot) = self.slots.get(&key) else {
+            return false;
+        };
+        let entries = &self.entries[slot * b * b..(slot + 1) * b * b];
+        for c in 0..b {
+            for r in 0..b {
+                let at = entries[c * b + r];
+                if at != u32::MAX {
+                    values[at as usize] += if transposed { m[r * b + c] } else { m[c * b + r] };
+                }
+            }
+        }
+        true
+    }
+
+    /// The value index of the diagonal entry of scalar row `row` (for damping).
+    pub fn diagonal_index(&self, row: usize) -> usize {
+        let (i, r) = (row / self.block, row % self.block);
+        let slot = self.slots[&(i, i)];
+        self.entries[slot * self.block * self.block + r * self.block + r] as usize
+    }
+
+    /// Solves \(A x = b\) for the values filled in; `None` when \(A\) is not
+    /// positive definite.
+    pub fn solve(&self, values: &[f64], rhs: &DVector<f64>) -> Option<DVector<f64>> {
+        let size = self.n * self.block;
+        if size == 0 {
+            return Some(DVector::zeros(0));
+        }
+        let matrix = faer::sparse::SparseColMatRef::new(
+            faer::sparse::SymbolicSparseColMatRef::new_checked(
+                size,
+                size,
+                &self.col_ptr,
+                None,
+                &self.row_idx,
+            ),
+            values,
+        );
+        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(
+            self.symbolic.clone(),
+            matrix,
+            Side::Lower,
+        )
+        .ok()?;
+        let mut x = faer::Mat::<f64>::from_fn(size, 1, |i, _| rhs[i]);
+        llt.solve_in_place(x.as_mut());
+        let solution = DVector::from_fn(size, |i, _| x[(i, 0)]);
+        solution.iter().all(|v| v.is_finite()).then_some(solution)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -106,5 +249,29 @@ mod tests {
         system.add(0, 0, &DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]));
         system.rhs = DVector::from_vec(vec![1.0, 1.0]);
         assert!(system.solve().is_none());
+    }
+
+    #[test]
+    fn a_fixed_pattern_solves_like_the_assembled_system() {
+        let (n, b) = (6, 3);
+        let pairs = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0), (2, 0)];
+        let pattern = BlockPattern::new(n, b, pairs).expect("pattern");
+        let mut system = BlockSystem::new(n, b);
+        let mut values = pattern.zeros();
+        for i in 0..n {
+            let d = DMatrix::from_fn(b, b, |r, c| if r == c { 6.0 + i as f64 } else { 0.3 });
+            system.add(i, i, &d);
+            assert!(pattern.add(&mut values, i, i, d.as_slice()));
+        }
+        for (k, &(i, j)) in pairs.iter().enumerate() {
+            let o = DMatrix::from_fn(b, b, |r, c| 0.1 * (r + 2 * c + k) as f64 - 0.4);
+            system.add(i, j, &o);
+            assert!(pattern.add(&mut values, i, j, o.as_slice()));
+        }
+        assert!(!pattern.add(&mut values, 1, 4, DMatrix::<f64>::zeros(b, b).as_slice()));
+        system.rhs = DVector::from_fn(n * b, |i, _| (i as f64).cos());
+        let expected = system.solve().expect("positive definite");
+        let got = pattern.solve(&values, &system.rhs).expect("positive definite");
+        assert!((expected - got).norm() < 1e-10);
     }
 }

@@ -4,6 +4,7 @@
 pub mod block_sparse;
 pub mod local_ba;
 pub mod pnp;
+pub mod pose_graph;
 pub mod pose_only;
 pub mod robust;
 pub mod stereo_projection;

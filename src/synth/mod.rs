@@ -13,6 +13,7 @@ pub mod config;
 pub mod motion;
 pub mod movers;
 pub mod oracle;
+pub mod pose_graphs;
 pub mod preview;
 pub mod render;
 pub mod scene;
