@@ -20,6 +20,7 @@ use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
+mod cli_global;
 mod cli_maps;
 
 #[derive(Parser)]
@@ -51,6 +52,10 @@ enum Command {
     Info(InfoArgs),
     /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
     Detect(DetectArgs),
+    /// Train or inspect the place-recognition vocabulary (bag of binary words) of the global pass.
+    Vocab(cli_global::VocabArgs),
+    /// Make and optimise 3-D pose graphs in g2o's format (VERTEX_SE3:QUAT / EDGE_SE3:QUAT).
+    Graph(cli_global::GraphArgs),
 }
 
 #[derive(Args)]
@@ -674,6 +679,8 @@ fn main() -> ExitCode {
         Command::Fuse(args) => cli_maps::run_fuse(args),
         Command::CompareMaps(args) => cli_maps::run_compare(args),
         Command::Detect(args) => run_detect(args),
+        Command::Vocab(args) => cli_global::run_vocab(args),
+        Command::Graph(args) => cli_global::run_graph(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

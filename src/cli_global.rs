@@ -1,0 +1,207 @@
+//! The global pass's tools on the command line: `dopslam vocab` (train and inspect a
+//! place-recognition vocabulary) and `dopslam graph` (make and optimise g2o pose graphs).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use dopslam::bow::{TrainOptions, Vocabulary};
+use dopslam::io::g2o::G2oGraph;
+use dopslam::optim::pose_graph::{GraphOptions, PoseGraph};
+use dopslam::synth::pose_graphs::{sphere, SphereSpec};
+
+#[derive(Args)]
+pub struct VocabArgs {
+    #[command(subcommand)]
+    command: VocabCommand,
+}
+
+#[derive(Subcommand)]
+enum VocabCommand {
+    /// Train a vocabulary on the ORB descriptors of images (PNG/JPEG files, or folders searched recursively).
+    Train {
+        /// Images or folders of images (e.g. generated sequences' rgb/ folders).
+        inputs: Vec<PathBuf>,
+        #[arg(short, long, default_value = "data/vocabulary.dbow")]
+        out: PathBuf,
+        /// Branching factor k.
+        #[arg(long, default_value_t = 10)]
+        branching: usize,
+        /// Depth L (up to k^L words).
+        #[arg(long, default_value_t = 4)]
+        depth: usize,
+        /// Use at most this many images (evenly spaced).
+        #[arg(long, default_value_t = 2000)]
+        max_images: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Load a vocabulary and print its size and load time.
+    Info { path: PathBuf },
+}
+
+#[derive(Args)]
+pub struct GraphArgs {
+    #[command(subcommand)]
+    command: GraphCommand,
+}
+
+#[derive(Subcommand)]
+enum GraphCommand {
+    /// Write a seeded synthetic sphere graph (like sphere2500) and its ground truth as g2o files.
+    Sphere {
+        out: PathBuf,
+        #[arg(long, default_value_t = 50)]
+        rings: usize,
+        #[arg(long, default_value_t = 50)]
+        per_ring: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Optimise a g2o 3-D pose graph (VERTEX_SE3:QUAT / EDGE_SE3:QUAT) and write the result.
+    Optimise {
+        input: PathBuf,
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        #[arg(long, default_value_t = 50)]
+        iterations: usize,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let mut stack: Vec<PathBuf> = inputs.to_vec();
+    while let Some(path) = stack.pop() {
+        if path.is_dir() {
+            for entry in std::fs::read_dir(&path).with_context(|| format!("cannot list {}", path.display()))? {
+                stack.push(entry?.path());
+            }
+        } else if path.is_file() {
+            let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+            // Depth maps and masks are 16-bit PNGs in folders named so: skip them.
+            let skip = path.components().any(|c| matches!(c.as_os_str().to_str(), Some("depth" | "masks")))
+                || path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.contains("depth"));
+            if matches!(ext.as_str(), "png" | "jpg" | "jpeg") && !skip {
+                files.push(path);
+            }
+        } else {
+            bail!("{}: no such file or folder", path.display());
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usize) -> Result<()> {
+    let mut files = image_files(inputs)?;
+    if files.is_empty() {
+        bail!("no PNG or JPEG images in {:?}", inputs);
+    }
+    if files.len() > max_images {
+        let step = files.len() as f64 / max_images as f64;
+        files = (0..max_images).map(|i| files[(i as f64 * step) as usize].clone()).collect();
+    }
+    let extractor = dopslam::features::OrbExtractor::new(&dopslam::config::Config::default().orb);
+    let bar = ProgressBar::new(files.len() as u64);
+    bar.set_style(ProgressStyle::with_template("ORB {bar:40} {pos}/{len} images ({eta} left)").expect("template"));
+    let mut images = Vec::with_capacity(files.len());
+    for path in &files {
+        let grey = dopslam::io::image_files::read_gray(path)?;
+        images.push(extractor.extract(&grey).descriptors);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let descriptors: usize = images.iter().map(Vec::len).sum();
+    eprintln!("training on {descriptors} descriptors of {} images (k = {}, L = {})", images.len(), options.branching, options.depth);
+    let start = Instant::now();
+    let vocabulary = Vocabulary::train(&images, &options);
+    vocabulary.write(out)?;
+    println!(
+        "wrote {} ({} words, trained in {:.1} s)",
+        out.display(),
+        vocabulary.len(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+pub fn run_vocab(args: VocabArgs) -> Result<()> {
+    match args.command {
+        VocabCommand::Train { inputs, out, branching, depth, max_images, seed } => train(
+            &inputs,
+            &out,
+            TrainOptions { branching, depth, seed, ..TrainOptions::default() },
+            max_images,
+        ),
+        VocabCommand::Info { path } => {
+            let start = Instant::now();
+            let vocabulary = Vocabulary::read(&path)?;
+            println!(
+                "{}: k = {}, L = {}, {} words, loaded in {:.1} ms",
+                path.display(),
+                vocabulary.branching,
+                vocabulary.depth,
+                vocabulary.len(),
+                start.elapsed().as_secs_f64() * 1e3
+            );
+            Ok(())
+        }
+    }
+}
+
+pub fn run_graph(args: GraphArgs) -> Result<()> {
+    match args.command {
+        GraphCommand::Sphere { out, rings, per_ring, seed } => {
+            let spec = SphereSpec { rings, per_ring, ..SphereSpec::default() };
+            let (graph, truth) = sphere(&spec, seed);
+            let ids: Vec<u64> = (0..graph.poses.len() as u64).collect();
+            graph.to_g2o(&ids).write(&out)?;
+            let truth_path = out.with_extension("truth.g2o");
+            PoseGraph { poses: truth, ..graph.clone() }.to_g2o(&ids).write(&truth_path)?;
+            println!(
+                "wrote {} ({} poses, {} edges) and {}",
+                out.display(),
+                graph.poses.len(),
+                graph.edges.len(),
+                truth_path.display()
+            );
+            Ok(())
+        }
+        GraphCommand::Optimise { input, out, iterations, json } => {
+            let file = G2oGraph::read(&input)?;
+            let (mut graph, ids) = PoseGraph::from_g2o(&file);
+            let start = Instant::now();
+            let report = graph.optimise(&GraphOptions { max_iterations: iterations, ..GraphOptions::default() });
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            if let Some(out) = &out {
+                graph.to_g2o(&ids).write(out)?;
+            }
+            if json {
+                let mut value = serde_json::to_value(report)?;
+                value["milliseconds"] = serde_json::json!(ms);
+                value["poses"] = serde_json::json!(graph.poses.len());
+                value["edges"] = serde_json::json!(graph.edges.len());
+                println!("{value}");
+            } else {
+                println!(
+                    "{}: {} poses, {} edges; chi2 {:.6e} -> {:.6e} in {} iterations, {:.1} ms{}",
+                    input.display(),
+                    graph.poses.len(),
+                    graph.edges.len(),
+                    report.initial_cost,
+                    report.final_cost,
+                    report.iterations,
+                    ms,
+                    if report.converged { "" } else { " (not converged)" }
+                );
+            }
+            Ok(())
+        }
+    }
+}
