@@ -205,3 +205,29 @@ pub fn run_graph(args: GraphArgs) -> Result<()> {
         }
     }
 }
+
+/// Prints the global pass's summary.
+pub fn print_global(global: &dopslam::global::GlobalReport) {
+    let rejected = global.candidates.iter().filter(|c| !c.accepted).count();
+    println!(
+        "global pass: {} loop(s) closed, {} candidate(s) rejected (report.json lists why), {:.0} ms",
+        global.loops.len(),
+        rejected,
+        global.total_ms
+    );
+    for l in &global.loops {
+        println!(
+            "  loop: keyframe {} (t {:.2}) -> {} (t {:.2}), {} inliers, {} guided matches, moved {:.3} m / {:.2} deg, {} points fused",
+            l.keyframe, l.keyframe_time, l.matched, l.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
+        );
+    }
+    if let Some(ba) = &global.full_ba {
+        println!(
+            "  full BA: {} keyframes, {} points, cost {:.4e} -> {:.4e}, {} outliers removed, {:.0} ms",
+            ba.keyframes, ba.points, ba.initial_cost, ba.final_cost, ba.outliers_removed, ba.milliseconds
+        );
+    }
+    if let Some(note) = &global.note {
+        println!("  {note}");
+    }
+}

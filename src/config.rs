@@ -106,6 +106,7 @@ pub struct Config {
     pub dataset: DatasetConfig,
     pub eval: EvalConfig,
     pub dense: DenseConfig,
+    pub global: crate::global::GlobalConfig,
 }
 
 impl Config {

@@ -14,6 +14,7 @@ pub mod dop;
 pub mod eval;
 pub mod features;
 pub mod geometry;
+pub mod global;
 pub mod interrupt;
 pub mod io;
 pub mod map;

@@ -228,6 +228,9 @@ struct RunArgs {
     /// Skip the dense map (the config's [dense] enabled = false does the same).
     #[arg(long)]
     no_dense: bool,
+    /// Skip the global pass (loop closing, essential graph, full BA): trajectory.txt is then the tracking pass's.
+    #[arg(long)]
+    no_global: bool,
     /// Also run with --no-dop into OUT/no_dop and compare the two dense maps
     /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
     #[arg(long, conflicts_with = "no_dense")]
@@ -596,6 +599,9 @@ fn run_run(args: RunArgs) -> Result<()> {
         debug_frames: args.debug_frames.clone(),
         dense: !args.no_dense && config.dense.enabled,
     };
+    if args.no_global {
+        config.global.enabled = false;
+    }
     if args.no_dop {
         config.dop.mode = dopslam::dop::Mode::Off;
     } else if args.mask_boxes {
@@ -626,6 +632,15 @@ fn run_run(args: RunArgs) -> Result<()> {
         t.median_matching_ms,
         t.median_optimisation_ms
     );
+    if let Some(global) = &report.global {
+        cli_global::print_global(global);
+    }
+    if let Some(ate) = &report.ate_tracking {
+        println!(
+            "ATE RMSE {:.4} m after the tracking pass (trajectory_tracking.txt)",
+            ate.ape.statistics.rmse
+        );
+    }
     if let Some(ate) = &report.ate {
         println!(
             "ATE RMSE {:.4} m (SE(3) alignment, {} poses matched)",

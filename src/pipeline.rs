@@ -20,6 +20,7 @@ use crate::detect::{write_cache, FrameDetections};
 use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
+use crate::global::GlobalReport;
 use crate::features::OrbExtractor;
 use crate::io::atomic::write_atomic;
 use crate::io::kitti::KittiSequence;
@@ -141,9 +142,16 @@ pub struct RunReport {
     /// How moving objects were treated.
     pub mode: Mode,
     pub totals: RunTotals,
+    /// ATE of `trajectory.txt` (after the global pass, when it ran).
     pub ate: Option<EvalReport>,
+    /// ATE of `trajectory_tracking.txt` (the tracking pass alone), when the global pass ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ate_tracking: Option<EvalReport>,
     pub mapping: MappingStats,
     pub detection: DetectionTotals,
+    /// The global pass: loops, candidates, full BA.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub global: Option<GlobalReport>,
     pub frames: Vec<FrameLine>,
     /// Why the run stopped before the last frame (a frame that failed to load, tracking
     /// that never started, an interruption), if it did.
@@ -517,7 +525,24 @@ pub fn track_sequence(
     }
     book.totals.median_ms = median(&mut book.milliseconds);
     let stats = mapping.finish();
-    let map = tracker.map.read().expect("map lock poisoned");
+    let shared = tracker.map.clone();
+    let mut map = shared.write().expect("map lock poisoned");
+    let global = if config.global.enabled && failure.is_none() {
+        trajectory_of(&map, &lines).write(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)?;
+        let inputs = crate::global::GlobalInputs {
+            camera: &camera,
+            pyramid: &extractor.pyramid,
+            size: (calibration.camera.width as f32, calibration.camera.height as f32),
+            moving_threshold: if mode == Mode::Dop {
+                config.dop.removal_threshold
+            } else {
+                1.0
+            },
+        };
+        Some(crate::global::run(&mut map, &inputs, &config.global))
+    } else {
+        None
+    };
     if mode == Mode::Dop {
         let json = serde_json::to_string(&dynamic_keypoints).expect("keypoints serialise");
         write_atomic(&out.join(crate::dense::KEYPOINTS_FILE), json.as_bytes())?;
@@ -528,6 +553,7 @@ pub fn track_sequence(
         (stats, book.totals),
         (lines, failure.clone()),
         (out, options.sequence_dir.as_deref(), mode),
+        global,
     )?;
     match failure {
         Some(message) => Err(RunError::Interrupted {
@@ -837,17 +863,14 @@ fn mask_boxes_classification(
         .add(&TruthCounts::new(&mask, &positions, &called, &[]));
 }
 
-/// Writes trajectory, keyframes, map and report; evaluates against ground truth.
-fn write_outputs(
-    sequence: &dyn Sequence,
-    map: &Map,
-    (mapping, detection): (MappingStats, DetectionTotals),
-    (lines, stopped): (Vec<FrameLine>, Option<String>),
-    (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
-) -> Result<RunReport, RunError> {
+/// The trajectory of the tracking pass written before the global pass moves the map.
+pub const TRACKING_TRAJECTORY: &str = "trajectory_tracking.txt";
+
+/// Every tracked frame's pose: relative to its reference keyframe, placed on that
+/// keyframe's current pose (so frames follow the keyframes' corrections).
+fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
     let mut trajectory = Trajectory::default();
-    for line in &lines {
-        // The pose relative to the reference keyframe, placed on its corrected pose.
+    for line in lines {
         let corrected = line
             .tracking
             .reference
@@ -858,6 +881,19 @@ fn write_outputs(
             trajectory.push(line.tracking.timestamp, pose.inverse());
         }
     }
+    trajectory
+}
+
+/// Writes trajectory, keyframes, map and report; evaluates against ground truth.
+fn write_outputs(
+    sequence: &dyn Sequence,
+    map: &Map,
+    (mapping, detection): (MappingStats, DetectionTotals),
+    (lines, stopped): (Vec<FrameLine>, Option<String>),
+    (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
+    global: Option<GlobalReport>,
+) -> Result<RunReport, RunError> {
+    let trajectory = trajectory_of(map, &lines);
     trajectory.write(&out.join("trajectory.txt"), TrajectoryFormat::Tum)?;
     let mut keyframes = Trajectory::default();
     for key in &map.keyframe_order {
@@ -901,10 +937,10 @@ fn write_outputs(
         median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
         median_dop_ms: column(|l| l.tracking.dop_ms),
     };
-    let ate = match sequence.ground_truth() {
+    let ate_of = |trajectory: &Trajectory| match sequence.ground_truth() {
         Some(gt) if trajectory.len() >= 3 => evaluate(
             gt,
-            &trajectory,
+            trajectory,
             &EvalOptions {
                 min_coverage: 0.0,
                 ..EvalOptions::default()
@@ -913,14 +949,23 @@ fn write_outputs(
         .ok(),
         _ => None,
     };
+    let ate = ate_of(&trajectory);
+    let ate_tracking = match &global {
+        Some(_) => Trajectory::read(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)
+            .ok()
+            .and_then(|t| ate_of(&t)),
+        None => None,
+    };
     let report = RunReport {
         sequence: sequence.name().to_string(),
         sequence_path: sequence_path.map(|p| p.canonicalize().unwrap_or_else(|_| p.to_path_buf())),
         mode,
         totals,
         ate,
+        ate_tracking,
         mapping,
         detection,
+        global,
         frames: lines,
         stopped,
         dense: None,

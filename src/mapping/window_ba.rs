@@ -37,13 +37,42 @@ impl Window {
         moving_threshold: f32,
     ) -> Option<Self> {
         let kf = map.keyframes.get(key)?;
-        let first = *map.keyframe_order.first()?;
         let mut local = vec![key];
         local.extend(
             kf.best_covisible(size.saturating_sub(1))
                 .into_iter()
                 .filter(|k| map.keyframes.contains_key(*k)),
         );
+        Self::over(map, local, pyramid, moving_threshold)
+    }
+
+    /// Every keyframe of the map and every point they see whose moving probability is
+    /// at most `moving_threshold` (the global pass's full BA); the map's first keyframe
+    /// holds the gauge.
+    pub fn whole_map(map: &Map, pyramid: &ScalePyramid, moving_threshold: f32) -> Option<Self> {
+        let keyframes = map
+            .keyframe_order
+            .iter()
+            .copied()
+            .filter(|k| map.keyframes.contains_key(*k))
+            .collect();
+        Self::over(map, keyframes, pyramid, moving_threshold)
+    }
+
+    /// `local` free (but the map's first keyframe), the other keyframes that see their
+    /// points fixed.
+    fn over(
+        map: &Map,
+        local: Vec<KeyFrameKey>,
+        pyramid: &ScalePyramid,
+        moving_threshold: f32,
+    ) -> Option<Self> {
+        let first = *map.keyframe_order.first()?;
+        let first = if map.keyframes.contains_key(first) {
+            first
+        } else {
+            *map.keyframe_order.iter().find(|k| map.keyframes.contains_key(**k))?
+        };
         let mut point_index = HashMap::new();
         let mut points = Vec::new();
         let mut positions = Vec::new();
@@ -58,11 +87,12 @@ impl Window {
                 }
             }
         }
-        let mut cameras = local.clone();
         let mut fixed: Vec<bool> = local.iter().map(|k| *k == first).collect();
+        let mut in_window: std::collections::HashSet<KeyFrameKey> = local.iter().copied().collect();
+        let mut cameras = local;
         for p in &points {
             for (k, _) in &map.points[*p].observations {
-                if !cameras.contains(k) && map.keyframes.contains_key(*k) {
+                if map.keyframes.contains_key(*k) && in_window.insert(*k) {
                     cameras.push(*k);
                     fixed.push(true);
                 }
@@ -110,7 +140,12 @@ impl Window {
 
     /// Solves the problem (ORB-SLAM2's 5 robust then 10 inlier iterations).
     pub fn solve(&mut self, camera: &StereoCamera) -> BaReport {
-        bundle_adjust(&mut self.problem, camera, 5, 10)
+        self.solve_with(camera, 5, 10)
+    }
+
+    /// Solves with `robust` iterations under the Huber kernel, then `inlier` without it.
+    pub fn solve_with(&mut self, camera: &StereoCamera, robust: usize, inlier: usize) -> BaReport {
+        bundle_adjust(&mut self.problem, camera, robust, inlier)
     }
 
     /// Writes poses and points back and removes the outlier observations; entities

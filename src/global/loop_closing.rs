@@ -1,0 +1,452 @@
+//! Loop detection and correction (ORB-SLAM §VII, ORB-SLAM2's `LoopClosing`) over the
+//! keyframes in the order they were made:
+//! 1. **Candidates**: database hits not covisible with the keyframe, scoring at least the
+//!    lowest score of its covisible keyframes, sharing at least 80 % of the best hit's
+//!    words; grouped with their covisible keyframes, groups within 75 % of the best
+//!    accumulated score kept.
+//! 2. **Consistency**: a candidate's group must overlap the groups of
+//!    `min_consistency` consecutive keyframes.
+//! 3. **Geometry**: keypoints matched through the vocabulary, their static map points
+//!    give 3-D-3-D pairs; RANSAC on Horn's closed form finds
+//!    \(T_{kc}\) (candidate camera to keyframe camera) with at least `min_inliers`
+//!    pairs reprojecting within \(\chi^2_{0.95}(2)\,\sigma^2\) in both images; then the
+//!    candidate's covisible points projected with \(T_{kc} T_{cw}\) must match at
+//!    least `min_guided_matches` keypoints.
+//! 4. **Correction**: the keyframe and its covisible keyframes move with
+//!    \(T'_{kw} = T_{kc} T_{cw}\), their points with them; duplicated points are fused,
+//!    the loop edge joins the essential graph, which is optimised.
+//!
+//! Points whose moving probability is above the removal threshold take no part. Every
+//! candidate is reported with the stage where it stopped.
+
+use std::collections::{HashMap, HashSet};
+
+use nalgebra::{Point3, Vector3};
+use serde::Serialize;
+
+use super::essential_graph;
+use super::word_matching::{match_by_words, static_point};
+use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
+use crate::features::ScalePyramid;
+use crate::geometry::se3::{self, Se3};
+use crate::map::{KeyFrameKey, Map, MapPointKey};
+use crate::mapping::fusion;
+use crate::optim::pose_graph::GraphReport;
+use crate::optim::stereo_projection::StereoCamera;
+use crate::random::Rng;
+
+/// Loop-closing parameters (ORB-SLAM2's values by default).
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopConfig {
+    pub min_consistency: usize,
+    /// No loop is searched within this many keyframes after the last one.
+    pub gap: usize,
+    pub min_inliers: usize,
+    pub min_guided_matches: usize,
+    /// Covisibility edges of at least this weight join the essential graph.
+    pub covisibility_weight: usize,
+    pub ransac_iterations: usize,
+    /// Lowe's ratio for matching through the vocabulary.
+    pub ratio: f32,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        Self {
+            min_consistency: 3,
+            gap: 10,
+            min_inliers: 20,
+            min_guided_matches: 40,
+            covisibility_weight: 100,
+            ransac_iterations: 300,
+            ratio: 0.75,
+        }
+    }
+}
+
+/// A candidate and what became of it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Candidate {
+    /// Keyframe ids (insertion numbers) and timestamps.
+    pub keyframe: usize,
+    pub candidate: usize,
+    pub keyframe_time: f64,
+    pub candidate_time: f64,
+    pub score: f64,
+    pub accepted: bool,
+    /// Why it was accepted or where it stopped.
+    pub outcome: String,
+}
+
+/// A loop that was closed.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClosedLoop {
+    pub keyframe: usize,
+    pub matched: usize,
+    pub keyframe_time: f64,
+    pub matched_time: f64,
+    pub inliers: usize,
+    pub guided_matches: usize,
+    /// How far the keyframe moved: metres and degrees.
+    pub correction_m: f64,
+    pub correction_deg: f64,
+    pub fused_points: usize,
+    pub essential_graph: GraphReport,
+}
+
+/// What loop closing needs of the system.
+pub struct LoopInputs<'a> {
+    pub vocabulary: &'a Vocabulary,
+    pub camera: &'a StereoCamera,
+    pub pyramid: &'a ScalePyramid,
+    pub size: (f32, f32),
+    pub moving_threshold: f32,
+}
+
+/// Loop detection state across keyframes.
+pub struct LoopCloser<'a> {
+    inputs: LoopInputs<'a>,
+    config: LoopConfig,
+    database: Database<KeyFrameKey>,
+    words: HashMap<KeyFrameKey, (BowVector, FeatureVector)>,
+    /// Groups of the previous keyframe's candidates and how many keyframes in a row
+    /// each has been seen.
+    groups: Vec<(HashSet<KeyFrameKey>, usize)>,
+    last_loop: Option<usize>,
+    pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
+    pub candidates: Vec<Candidate>,
+    pub closed: Vec<ClosedLoop>,
+    rng: Rng,
+}
+
+impl<'a> LoopCloser<'a> {
+    pub fn new(inputs: LoopInputs<'a>, config: LoopConfig) -> Self {
+        Self {
+            database: Database::new(inputs.vocabulary),
+            inputs,
+            config,
+            words: HashMap::new(),
+            groups: Vec::new(),
+            last_loop: None,
+            loops: Vec::new(),
+            candidates: Vec::new(),
+            closed: Vec::new(),
+            rng: Rng::new(7),
+        }
+    }
+
+    /// Processes one keyframe (in creation order): detect, verify, correct; then the
+    /// keyframe joins the database.
+    pub fn process(&mut self, map: &mut Map, key: KeyFrameKey) {
+        let Some(kf) = map.keyframes.get(key) else {
+            return;
+        };
+        let words = self.inputs.vocabulary.transform(&kf.frame.descriptors);
+        self.words.insert(key, words.clone());
+        let id = kf.id;
+        let recent = self.last_loop.is_some_and(|last| id < last + self.config.gap)
+            || self.database.len() < self.config.gap;
+        if !recent {
+            for candidate in self.consistent_candidates(map, key) {
+                if self.verify_and_correct(map, key, candidate) {
+                    break;
+                }
+            }
+        }
+        self.database.add(key, words.0);
+    }
+
+    fn record(&mut self, map: &Map, (key, candidate): (KeyFrameKey, KeyFrameKey), score: f64, outcome: String, accepted: bool) {
+        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+        self.candidates.push(Candidate {
+            keyframe: a.id,
+            candidate: b.id,
+            keyframe_time: a.frame.timestamp,
+            candidate_time: b.frame.timestamp,
+            score,
+            accepted,
+            outcome,
+        });
+    }
+
+    /// Stages 1 and 2: the candidates consistent over enough keyframes, with scores.
+    fn consistent_candidates(&mut self, map: &Map, key: KeyFrameKey) -> Vec<(KeyFrameKey, f64)> {
+        let kf = &map.keyframes[key];
+        let bow = &self.words[&key].0;
+        let connected: HashSet<KeyFrameKey> = kf.connections.iter().map(|(k, _)| *k).collect();
+        let min_score = connected
+            .iter()
+            .filter_map(|k| self.words.get(k))
+            .map(|(b, _)| Vocabulary::score(bow, b))
+            .fold(f64::INFINITY, f64::min);
+        let min_score = if min_score.is_finite() { min_score } else { 0.0 };
+        let hits = self.database.query(bow, |k| k != key && !connected.contains(&k) && map.keyframes.contains_key(k));
+        let max_common = hits.iter().map(|h| h.common).max().unwrap_or(0);
+        let hits: Vec<_> = hits
+            .into_iter()
+            .filter(|h| h.score >= min_score && h.common as f64 >= 0.8 * max_common as f64)
+            .collect();
+        let scores: HashMap<KeyFrameKey, f64> = hits.iter().map(|h| (h.id, h.score)).collect();
+        // Accumulate each hit's score with its covisible hits; keep the best of each group.
+        let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
+        for h in &hits {
+            let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
+            for n in map.keyframes[h.id].best_covisible(10) {
+                if let Some(&s) = scores.get(&n) {
+                    total += s;
+                    if s > best_score {
+                        (best, best_score) = (n, s);
+                    }
+                }
+            }
+            grouped.push((best, best_score, total));
+        }
+        let best_total = grouped.iter().map(|g| g.2).fold(0.0, f64::max);
+        let mut candidates: Vec<(KeyFrameKey, f64)> = Vec::new();
+        for (k, s, total) in grouped {
+            if total >= 0.75 * best_total && !candidates.iter().any(|(c, _)| *c == k) {
+                candidates.push((k, s));
+            }
+        }
+        // Consistency with the previous keyframes' groups.
+        let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
+        let mut enough = Vec::new();
+        for &(c, score) in &candidates {
+            let mut group: HashSet<KeyFrameKey> = map.keyframes[c].connections.iter().map(|(k, _)| *k).collect();
+            group.insert(c);
+            let mut consistent = false;
+            let mut count = 1;
+            for (previous, n) in &self.groups {
+                if previous.iter().any(|k| group.contains(k)) {
+                    count = count.max(n + 1);
+                    consistent = true;
+                }
+            }
+            let _ = consistent;
+            if count >= self.config.min_consistency {
+                enough.push((c, score));
+            } else {
+                self.record(
+                    map,
+                    (key, c),
+                    score,
+                    format!("seen by {count} consecutive keyframes of {} needed", self.config.min_consistency),
+                    false,
+                );
+            }
+            next_groups.push((group, count));
+        }
+        self.groups = next_groups;
+        enough
+    }
+
+    /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
+    fn verify_and_correct(&mut self, map: &mut Map, key: KeyFrameKey, (candidate, score): (KeyFrameKey, f64)) -> bool {
+        let threshold = self.inputs.moving_threshold;
+        let matches = {
+            let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+            match_by_words(map, (a, &self.words[&key].1), (b, &self.words[&candidate].1), self.config.ratio, threshold)
+        };
+        if matches.len() < self.config.min_inliers {
+            self.record(map, (key, candidate), score, format!("{} vocabulary matches with static points, {} needed", matches.len(), self.config.min_inliers), false);
+            return false;
+        }
+        let Some((keyframe_from_candidate, inliers)) = self.ransac(map, key, candidate, &matches) else {
+            self.record(map, (key, candidate), score, "no rigid motion fits the 3-D matches".into(), false);
+            return false;
+        };
+        if inliers < self.config.min_inliers {
+            self.record(map, (key, candidate), score, format!("{inliers} RANSAC inliers, {} needed", self.config.min_inliers), false);
+            return false;
+        }
+        // Guided search: the candidate's covisible points projected with the corrected pose.
+        let corrected = keyframe_from_candidate * map.keyframes[candidate].camera_from_world;
+        let loop_group: Vec<KeyFrameKey> = std::iter::once(candidate)
+            .chain(map.keyframes[candidate].best_covisible(usize::MAX))
+            .filter(|k| map.keyframes.contains_key(*k))
+            .collect();
+        let loop_points = self.static_points(map, &loop_group);
+        let original = map.keyframes[key].camera_from_world;
+        map.keyframes[key].camera_from_world = corrected;
+        let guided = fusion::search(map, key, &loop_points, self.inputs.camera, self.inputs.pyramid, self.inputs.size);
+        map.keyframes[key].camera_from_world = original;
+        if guided.len() < self.config.min_guided_matches {
+            self.record(map, (key, candidate), score, format!("{inliers} inliers, but {} matches after guided search, {} needed", guided.len(), self.config.min_guided_matches), false);
+            return false;
+        }
+        self.record(map, (key, candidate), score, format!("accepted: {inliers} inliers, {} matches after guided search", guided.len()), true);
+        let moved = se3::log(&(corrected * original.inverse()));
+        let (fused, report) = self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
+        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+        self.closed.push(ClosedLoop {
+            keyframe: a.id,
+            matched: b.id,
+            keyframe_time: a.frame.timestamp,
+            matched_time: b.frame.timestamp,
+            inliers,
+            guided_matches: guided.len(),
+            correction_m: (corrected.inverse().translation.vector - original.inverse().translation.vector).norm(),
+            correction_deg: moved.fixed_rows::<3>(3).norm().to_degrees(),
+            fused_points: fused,
+            essential_graph: report,
+        });
+        self.last_loop = Some(a.id);
+        self.groups.clear();
+        true
+    }
+
+    fn static_points(&self, map: &Map, keyframes: &[KeyFrameKey]) -> Vec<MapPointKey> {
+        let mut seen = HashSet::new();
+        let mut points = Vec::new();
+        for k in keyframes {
+            let kf = &map.keyframes[*k];
+            for i in 0..kf.map_points.len() {
+                if let Some(p) = static_point(map, kf, i, self.inputs.moving_threshold) {
+                    if seen.insert(p) {
+                        points.push(p);
+                    }
+                }
+            }
+        }
+        points
+    }
+
+    /// RANSAC over Horn's closed form: \(T_{kc}\) with \(P_k = T_{kc} P_c\) for the
+    /// camera-frame points, inliers reprojecting within the gate in both images.
+    fn ransac(&mut self, map: &Map, key: KeyFrameKey, candidate: KeyFrameKey, matches: &[(usize, usize)]) -> Option<(Se3, usize)> {
+        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+        let in_camera = |kf: &crate::map::KeyFrame, i: usize| -> Vector3<f64> {
+            let p = map.points[kf.map_points[i].expect("matched keypoints observe points")].position;
+            (kf.camera_from_world * Point3::from(p)).coords
+        };
+        let pk: Vec<Vector3<f64>> = matches.iter().map(|&(i, _)| in_camera(a, i)).collect();
+        let pc: Vec<Vector3<f64>> = matches.iter().map(|&(_, j)| in_camera(b, j)).collect();
+        let camera = self.inputs.camera;
+        let sigma2 = &self.inputs.pyramid.sigma2;
+        let reprojects = |kf: &crate::map::KeyFrame, i: usize, p: &Vector3<f64>| {
+            if p.z <= 0.0 {
+                return false;
+            }
+            let uv = camera.project(p);
+            let k = &kf.frame.keypoints[i];
+            let e2 = (uv.x - k.x as f64).powi(2) + (uv.y - k.y as f64).powi(2);
+            e2 < 9.21 * sigma2[k.level as usize]
+        };
+        let inliers_of = |t: &Se3| -> Vec<usize> {
+            let inverse = t.inverse();
+            (0..matches.len())
+                .filter(|&m| {
+                    let (i, j) = matches[m];
+                    reprojects(a, i, &(t * Point3::from(pc[m])).coords) && reprojects(b, j, &(inverse * Point3::from(pk[m])).coords)
+                })
+                .collect()
+        };
+        let fit = |set: &[usize]| -> Option<Se3> {
+            let source: Vec<Vector3<f64>> = set.iter().map(|&m| pc[m]).collect();
+            let target: Vec<Vector3<f64>> = set.iter().map(|&m| pk[m]).collect();
+            let s = crate::geometry::alignment::horn(&source, &target).ok()?;
+            Some(Se3::from_parts(s.translation.into(), s.rotation))
+        };
+        let mut best: Option<(Se3, Vec<usize>)> = None;
+        for _ in 0..self.config.ransac_iterations {
+            let mut sample = [0usize; 3];
+            for s in sample.iter_mut() {
+                *s = (self.rng.next_u64() % matches.len() as u64) as usize;
+            }
+            if sample[0] == sample[1] || sample[1] == sample[2] || sample[0] == sample[2] {
+                continue;
+            }
+            let Some(t) = fit(&sample) else { continue };
+            let inliers = inliers_of(&t);
+            if best.as_ref().is_none_or(|(_, b)| inliers.len() > b.len()) {
+                best = Some((t, inliers));
+            }
+        }
+        let (mut t, mut inliers) = best?;
+        // Refit on the inliers, twice.
+        for _ in 0..2 {
+            if inliers.len() < 3 {
+                break;
+            }
+            let Some(refit) = fit(&inliers) else { break };
+            let again = inliers_of(&refit);
+            if again.len() < inliers.len() {
+                break;
+            }
+            (t, inliers) = (refit, again);
+        }
+        Some((t, inliers.len()))
+    }
+
+    /// Stage 4: moves the keyframe's covisible neighbourhood and its points onto the
+    /// loop, fuses duplicates, links the loop and optimises the essential graph.
+    fn correct(
+        &mut self,
+        map: &mut Map,
+        key: KeyFrameKey,
+        candidate: KeyFrameKey,
+        corrected: Se3,
+        loop_group: &[KeyFrameKey],
+        loop_points: &[MapPointKey],
+    ) -> (usize, GraphReport) {
+        let scale_factors = self.inputs.pyramid.factors.clone();
+        let original = map.keyframes[key].camera_from_world;
+        let neighbourhood: Vec<KeyFrameKey> = std::iter::once(key)
+            .chain(map.keyframes[key].connections.iter().map(|(k, _)| *k))
+            .filter(|k| map.keyframes.contains_key(*k) && !loop_group.contains(k))
+            .collect();
+        let before_links: HashMap<KeyFrameKey, HashSet<KeyFrameKey>> = neighbourhood
+            .iter()
+            .map(|k| (*k, map.keyframes[*k].connections.iter().map(|(c, _)| *c).collect()))
+            .collect();
+        let mut uncorrected = HashMap::new();
+        let mut placed_by = HashMap::new();
+        for &n in &neighbourhood {
+            let old = map.keyframes[n].camera_from_world;
+            // T'_nw = (T_nw T_kw^{-1}) T'_kw
+            let new = se3::normalised(&(old * original.inverse() * corrected));
+            uncorrected.insert(n, old);
+            map.keyframes[n].camera_from_world = new;
+            let move_points = new.inverse() * old;
+            let points: Vec<MapPointKey> = map.keyframes[n].map_points.iter().flatten().copied().collect();
+            for p in points {
+                if placed_by.contains_key(&p) {
+                    continue;
+                }
+                if let Some(point) = map.points.get_mut(p) {
+                    point.position = (move_points * Point3::from(point.position)).coords;
+                    placed_by.insert(p, n);
+                }
+            }
+        }
+        for p in placed_by.keys() {
+            map.update_point(*p, &scale_factors);
+        }
+        // Fuse the loop group's points into the corrected neighbourhood.
+        let mut fused = 0;
+        for &n in &neighbourhood {
+            let found = fusion::search(map, n, loop_points, self.inputs.camera, self.inputs.pyramid, self.inputs.size);
+            fused += fusion::apply(map, &found);
+        }
+        for &n in &neighbourhood {
+            map.update_connections(n);
+        }
+        // New links between the neighbourhood and the rest are loop edges.
+        for &n in &neighbourhood {
+            let Some(kf) = map.keyframes.get(n) else { continue };
+            for (c, _) in &kf.connections {
+                if !before_links[&n].contains(c) && !neighbourhood.contains(c) {
+                    self.loops.push((n, *c));
+                }
+            }
+        }
+        self.loops.push((key, candidate));
+        let report = essential_graph::optimise(map, &self.loops, &uncorrected, &placed_by, candidate, self.config.covisibility_weight);
+        let all: Vec<MapPointKey> = map.points.keys().collect();
+        for p in all {
+            map.update_point(p, &scale_factors);
+        }
+        (fused, report)
+    }
+}

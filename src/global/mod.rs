@@ -1,0 +1,154 @@
+//! The global pass (after tracking): loop closure over the keyframes in the order they
+//! were made ([`loop_closing`], with place recognition by [`crate::bow`]), essential
+//! graph optimisation ([`essential_graph`]) after each loop, then a full bundle
+//! adjustment over every keyframe and every static map point. Frames follow their
+//! reference keyframes when the trajectory is written.
+//!
+//! Entry point: [`run`], on the map the tracking pass left.
+
+pub mod essential_graph;
+pub mod loop_closing;
+pub mod word_matching;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::bow::Vocabulary;
+use crate::features::ScalePyramid;
+use crate::map::Map;
+use crate::mapping::window_ba::Window;
+use crate::optim::stereo_projection::StereoCamera;
+use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs};
+
+/// The `[global]` section of a config.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GlobalConfig {
+    /// Run the global pass after tracking (`dopslam run --no-global` skips it).
+    pub enabled: bool,
+    /// The place-recognition vocabulary (`dopslam vocab train`); relative paths are
+    /// taken from the working directory.
+    pub vocabulary: PathBuf,
+    pub loops: LoopConfig,
+    /// Full bundle adjustment at the end: iterations with the Huber kernel, then
+    /// without it on the inliers.
+    pub full_ba: bool,
+    pub full_ba_robust_iterations: usize,
+    pub full_ba_inlier_iterations: usize,
+}
+
+impl Default for GlobalConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            vocabulary: PathBuf::from("data/vocabulary.dbow"),
+            loops: LoopConfig::default(),
+            full_ba: true,
+            full_ba_robust_iterations: 10,
+            full_ba_inlier_iterations: 5,
+        }
+    }
+}
+
+/// What the full bundle adjustment did.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct FullBaReport {
+    pub keyframes: usize,
+    pub points: usize,
+    pub observations: usize,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    pub outliers_removed: usize,
+    pub milliseconds: f64,
+}
+
+/// What the global pass did (in `report.json`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct GlobalReport {
+    pub loops: Vec<ClosedLoop>,
+    /// Every loop candidate that reached consistency checking, with its outcome.
+    pub candidates: Vec<Candidate>,
+    pub full_ba: Option<FullBaReport>,
+    pub loop_detection_ms: f64,
+    pub total_ms: f64,
+    /// Why loop detection did not run, when it did not.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// What the pass needs of the system.
+pub struct GlobalInputs<'a> {
+    pub camera: &'a StereoCamera,
+    pub pyramid: &'a ScalePyramid,
+    pub size: (f32, f32),
+    /// Points above this moving probability are dynamic and take no part.
+    pub moving_threshold: f32,
+}
+
+/// Runs the global pass on `map` in place.
+pub fn run(map: &mut Map, inputs: &GlobalInputs, config: &GlobalConfig) -> GlobalReport {
+    let start = Instant::now();
+    let mut report = GlobalReport::default();
+    match Vocabulary::read(&config.vocabulary) {
+        Ok(vocabulary) => {
+            let mut closer = LoopCloser::new(
+                LoopInputs {
+                    vocabulary: &vocabulary,
+                    camera: inputs.camera,
+                    pyramid: inputs.pyramid,
+                    size: inputs.size,
+                    moving_threshold: inputs.moving_threshold,
+                },
+                config.loops.clone(),
+            );
+            let order = map.keyframe_order.clone();
+            for key in order {
+                closer.process(map, key);
+            }
+            report.loops = closer.closed;
+            report.candidates = closer.candidates;
+        }
+        Err(e) => {
+            report.note = Some(format!(
+                "no loop detection: {e} (train one with `dopslam vocab train`, or set [global] vocabulary)"
+            ))
+        }
+    }
+    report.loop_detection_ms = start.elapsed().as_secs_f64() * 1e3;
+    if config.full_ba {
+        report.full_ba = full_bundle_adjustment(map, inputs, config);
+    }
+    report.total_ms = start.elapsed().as_secs_f64() * 1e3;
+    report
+}
+
+/// Bundle adjustment over every keyframe and static point; outlier observations removed.
+pub fn full_bundle_adjustment(
+    map: &mut Map,
+    inputs: &GlobalInputs,
+    config: &GlobalConfig,
+) -> Option<FullBaReport> {
+    let start = Instant::now();
+    let mut window = Window::whole_map(map, inputs.pyramid, inputs.moving_threshold)?;
+    let ba = window.solve_with(
+        inputs.camera,
+        config.full_ba_robust_iterations,
+        config.full_ba_inlier_iterations,
+    );
+    let removed = window.apply(map, &ba, &inputs.pyramid.factors);
+    let keyframes: Vec<_> = map.keyframe_order.clone();
+    for k in keyframes {
+        map.update_connections(k);
+    }
+    Some(FullBaReport {
+        keyframes: window.problem.poses.len(),
+        points: window.problem.points.len(),
+        observations: window.problem.observations.len(),
+        initial_cost: ba.initial_cost,
+        final_cost: ba.final_cost,
+        outliers_removed: removed,
+        milliseconds: start.elapsed().as_secs_f64() * 1e3,
+    })
+}
