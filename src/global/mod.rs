@@ -56,6 +56,8 @@ impl Default for GlobalConfig {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FullBaReport {
     pub keyframes: usize,
+    /// Keyframes held (the first, and those with too few static observations).
+    pub held: usize,
     pub points: usize,
     pub observations: usize,
     pub initial_cost: f64,
@@ -124,6 +126,9 @@ pub fn run(map: &mut Map, inputs: &GlobalInputs, config: &GlobalConfig) -> Globa
     report
 }
 
+/// Keyframes with fewer static observations are held in full BA.
+pub const MIN_FULL_BA_OBSERVATIONS: usize = 50;
+
 /// Bundle adjustment over every keyframe and static point; outlier observations removed.
 pub fn full_bundle_adjustment(
     map: &mut Map,
@@ -132,6 +137,16 @@ pub fn full_bundle_adjustment(
 ) -> Option<FullBaReport> {
     let start = Instant::now();
     let mut window = Window::whole_map(map, inputs.pyramid, inputs.moving_threshold)?;
+    // A keyframe with few static observations (the DOP model called most of its points
+    // dynamic) is held: BA would fit its pose to a handful of points, where tracking
+    // had hundreds.
+    let mut seen = vec![0usize; window.problem.poses.len()];
+    for o in &window.problem.observations {
+        seen[o.camera] += 1;
+    }
+    for (fixed, &count) in window.problem.fixed.iter_mut().zip(&seen) {
+        *fixed |= count < MIN_FULL_BA_OBSERVATIONS;
+    }
     let ba = window.solve_with(
         inputs.camera,
         config.full_ba_robust_iterations,
@@ -144,6 +159,7 @@ pub fn full_bundle_adjustment(
     }
     Some(FullBaReport {
         keyframes: window.problem.poses.len(),
+        held: window.problem.fixed.iter().filter(|f| **f).count(),
         points: window.problem.points.len(),
         observations: window.problem.observations.len(),
         initial_cost: ba.initial_cost,

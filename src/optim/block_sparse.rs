@@ -83,9 +83,12 @@ pub struct BlockPattern {
     n: usize,
     /// Lower blocks \((i, j)\), \(i \ge j\), to their slot.
     slots: std::collections::HashMap<(usize, usize), usize>,
-    /// Per slot, the value index of each entry \((r, c)\) (column-major in the block);
-    /// `u32::MAX` for the upper half of a diagonal block.
+    /// Per slot and block column \(c\), the value index of its first stored entry: row
+    /// 0 of an off-diagonal block, row \(c\) of a diagonal one (only its lower half is
+    /// stored); the column's stored rows follow contiguously.
     entries: Vec<u32>,
+    /// Per slot: a diagonal block.
+    diagonal: Vec<bool>,
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
     symbolic: faer::sparse::linalg::solvers::SymbolicLlt<usize>,
@@ -126,15 +129,14 @@ impl BlockPattern {
             }
         }
         let mut entries = Vec::new();
+        let mut diagonal = Vec::new();
         for (i, j, c, start) in starts {
             let slot = *slots.entry((i, j)).or_insert_with(|| {
-                entries.extend(std::iter::repeat_n(u32::MAX, block * block));
-                entries.len() / (block * block) - 1
+                entries.extend(std::iter::repeat_n(0u32, block));
+                diagonal.push(i == j);
+                diagonal.len() - 1
             });
-            let first_row = if i == j { c } else { 0 };
-            for r in first_row..block {
-                entries[slot * block * block + c * block + r] = (start + r - first_row) as u32;
-            }
+            entries[slot * block + c] = start as u32;
         }
         let size = n * block;
         let structure = faer::sparse::SymbolicSparseColMatRef::new_checked(
@@ -147,6 +149,7 @@ impl BlockPattern {
             n,
             slots,
             entries,
+            diagonal,
             col_ptr,
             row_idx,
             symbolic,
@@ -161,28 +164,45 @@ impl BlockPattern {
     /// Adds the column-major `block`x`block` matrix `m` to block \((i, j)\) (and its
     /// transpose to \((j, i)\)); `false` when the block is not in the pattern.
     pub fn add(&self, values: &mut [f64], i: usize, j: usize, m: &[f64]) -> bool {
-        let b = self.block;
+        match self.slot(i, j) {
+            Some(slot) => {
+                self.add_at(values, slot, m);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The slot of block \((i, j)\) and whether `m` must be transposed to go there.
+    pub fn slot(&self, i: usize, j: usize) -> Option<(usize, bool)> {
         let (key, transposed) = if i >= j { ((i, j), false) } else { ((j, i), true) };
-        let Some(&slot) = self.slots.get(&key) else {
-            return false;
-        };
-        let entries = &self.entries[slot * b * b..(slot + 1) * b * b];
-        for c in 0..b {
-            for r in 0..b {
-                let at = entries[c * b + r];
-                if at != u32::MAX {
-                    values[at as usize] += if transposed { m[r * b + c] } else { m[c * b + r] };
+        self.slots.get(&key).map(|&s| (s, transposed))
+    }
+
+    /// [`BlockPattern::add`] at a slot found once by [`BlockPattern::slot`].
+    pub fn add_at(&self, values: &mut [f64], (slot, transposed): (usize, bool), m: &[f64]) {
+        let b = self.block;
+        let diagonal = self.diagonal[slot];
+        for (c, &start) in self.entries[slot * b..(slot + 1) * b].iter().enumerate() {
+            let first = if diagonal { c } else { 0 };
+            let column = &mut values[start as usize..start as usize + b - first];
+            if transposed {
+                for (k, v) in column.iter_mut().enumerate() {
+                    *v += m[(first + k) * b + c];
+                }
+            } else {
+                for (v, x) in column.iter_mut().zip(&m[c * b + first..(c + 1) * b]) {
+                    *v += x;
                 }
             }
         }
-        true
     }
 
     /// The value index of the diagonal entry of scalar row `row` (for damping).
     pub fn diagonal_index(&self, row: usize) -> usize {
         let (i, r) = (row / self.block, row % self.block);
         let slot = self.slots[&(i, i)];
-        self.entries[slot * self.block * self.block + r * self.block + r] as usize
+        self.entries[slot * self.block + r] as usize
     }
 
     /// Solves \(A x = b\) for the values filled in; `None` when \(A\) is not

@@ -8,13 +8,16 @@
 //! \(W\) the coupling, \((U - W V^{-1} W^\top)\,\delta_T = b_T - W V^{-1} b_X\), then
 //! \(\delta_X = V^{-1}(b_X - W^\top \delta_T)\). The reduced camera system of a local
 //! window is block-sparse (poses couple only through shared points) and is solved by
-//! `faer`'s sparse Cholesky ([`BlockSystem`]), which the global pass reuses. As in ORB-SLAM2, a first pass
+//! `faer`'s sparse Cholesky on a pattern fixed once per solve ([`BlockPattern`]: ordering and
+//! symbolic factorisation once, numeric factorisation per step); the Schur complement is
+//! accumulated over points in parallel. The full BA of the global pass is the same solver. As in ORB-SLAM2, a first pass
 //! with the Huber kernel is followed by a second without it after removing the
 //! observations above the chi-square gate.
 
-use nalgebra::{DMatrix, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
+use nalgebra::{DVector, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
+use rayon::prelude::*;
 
-use super::block_sparse::BlockSystem;
+use super::block_sparse::BlockPattern;
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::{point_jacobian_wrt_pose, StereoCamera};
 use crate::geometry::se3::{self, Se3};
@@ -118,6 +121,22 @@ fn levenberg_marquardt(
         }
     }
     let n_points = problem.points.len();
+    // The pattern of the reduced camera system: free poses that share an active point.
+    let mut cameras_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
+    for (o, _) in problem.observations.iter().zip(active).filter(|(_, &a)| a) {
+        let c = free_index[o.camera];
+        if c != usize::MAX {
+            cameras_of[o.point].push(c);
+        }
+    }
+    let pairs = cameras_of.iter().flat_map(|cams| {
+        cams.iter()
+            .enumerate()
+            .flat_map(move |(a, &c1)| cams[..a].iter().map(move |&c2| (c1, c2)))
+    });
+    let Some(pattern) = BlockPattern::new(free, 6, pairs) else {
+        return cost(problem, camera, active, robust);
+    };
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
@@ -168,6 +187,19 @@ fn levenberg_marquardt(
                 coupling[o.point].push((c, wcp));
             }
         }
+        // Each point's pair slots, in the order the Schur loop visits them.
+        let slots: Vec<Vec<(usize, bool)>> = coupling
+            .par_iter()
+            .map(|blocks| {
+                let mut s = Vec::with_capacity(blocks.len() * (blocks.len() + 1) / 2);
+                for (a, &(c1, _)) in blocks.iter().enumerate() {
+                    for &(c2, _) in &blocks[..=a] {
+                        s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
+                    }
+                }
+                s
+            })
+            .collect();
         let mut accepted = false;
         for _ in 0..8 {
             let damped_v: Vec<Option<Matrix3<f64>>> = v
@@ -180,39 +212,58 @@ fn levenberg_marquardt(
                     d.try_inverse()
                 })
                 .collect();
-            let mut blocks = std::collections::BTreeMap::<(usize, usize), Matrix6<f64>>::new();
-            let mut system = BlockSystem::new(free, 6);
+            // Reduced camera system S = U - W V^{-1} W^T, accumulated per point in
+            // parallel (each worker its own copy of the values), then summed.
+            // Few large chunks: each worker's copy of the values is the whole pattern.
+            let chunk = n_points.div_ceil(rayon::current_num_threads()).max(1);
+            let reduced = (0..n_points)
+                .into_par_iter()
+                .with_min_len(chunk)
+                .fold(
+                    || (pattern.zeros(), DVector::<f64>::zeros(6 * free)),
+                    |(mut values, mut rhs), j| {
+                        let Some(v_inv) = damped_v[j] else {
+                            return (values, rhs);
+                        };
+                        let blocks = &coupling[j];
+                        let mut pair = slots[j].iter();
+                        for (a, &(c1, w1)) in blocks.iter().enumerate() {
+                            let w1_vinv = w1 * v_inv;
+                            let mut rows = rhs.fixed_rows_mut::<6>(6 * c1);
+                            rows += w1_vinv * b_point[j];
+                            for &(_, w2) in &blocks[..=a] {
+                                let slot = *pair.next().expect("one slot per pair");
+                                let m: Matrix6<f64> = -(w1_vinv * w2.transpose());
+                                pattern.add_at(&mut values, slot, m.as_slice());
+                            }
+                        }
+                        (values, rhs)
+                    },
+                )
+                .reduce(
+                    || (pattern.zeros(), DVector::<f64>::zeros(6 * free)),
+                    |(mut a, mut ra), (b, rb)| {
+                        for (x, y) in a.iter_mut().zip(&b) {
+                            *x += y;
+                        }
+                        ra += rb;
+                        (a, ra)
+                    },
+                );
+            let (mut values, schur_rhs) = reduced;
+            let mut rhs = DVector::<f64>::zeros(6 * free);
             for c in 0..free {
-                blocks.insert((c, c), u[c]);
-                let mut rows = system.rhs.fixed_rows_mut::<6>(6 * c);
+                let mut rows = rhs.fixed_rows_mut::<6>(6 * c);
                 rows += b_pose[c];
-            }
-            for j in 0..n_points {
-                let Some(v_inv) = damped_v[j] else { continue };
-                for &(c1, w1) in &coupling[j] {
-                    let w1_vinv = w1 * v_inv;
-                    let mut rows = system.rhs.fixed_rows_mut::<6>(6 * c1);
-                    rows -= w1_vinv * b_point[j];
-                    for &(c2, w2) in coupling[j].iter().filter(|(c2, _)| *c2 <= c1) {
-                        *blocks.entry((c1, c2)).or_insert_with(Matrix6::zeros) -=
-                            w1_vinv * w2.transpose();
-                    }
+                // Damp the pose diagonal with the undamped U only.
+                let mut d = u[c];
+                for k in 0..6 {
+                    d[(k, k)] += lambda * u[c][(k, k)] + 1e-12;
                 }
+                pattern.add(&mut values, c, c, d.as_slice());
             }
-            for ((c1, c2), m) in &blocks {
-                let m = if c1 == c2 {
-                    // Damp the pose diagonal with the undamped U only.
-                    let mut d = *m;
-                    for k in 0..6 {
-                        d[(k, k)] += lambda * u[*c1][(k, k)] + 1e-12;
-                    }
-                    d
-                } else {
-                    *m
-                };
-                system.add(*c1, *c2, &DMatrix::from_column_slice(6, 6, m.as_slice()));
-            }
-            let Some(delta_pose) = system.solve() else {
+            rhs -= schur_rhs;
+            let Some(delta_pose) = pattern.solve(&values, &rhs) else {
                 lambda *= 10.0;
                 continue;
             };

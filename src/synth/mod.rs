@@ -9,6 +9,7 @@
 //! ([`oracle`]), the exact static geometry and, optionally, a stereo pair in the KITTI
 //! layout ([`writer`]).
 
+pub mod ba_problems;
 pub mod config;
 pub mod motion;
 pub mod movers;
