@@ -57,9 +57,18 @@ fn tracks_a_static_room_within_a_centimetre() {
         "ATE RMSE {} m",
         ate.ape.statistics.rmse
     );
-    for file in ["trajectory.txt", "keyframes.txt", "report.json", "map.ply"] {
+    for file in ["trajectory.txt", "trajectory_tracking.txt", "keyframes.txt", "report.json", "map.ply"] {
         assert!(out.join(file).is_file(), "{file}");
     }
+    // The global pass ran: no loop on a still camera, full BA over every keyframe.
+    let global = report.global.as_ref().expect("the global pass runs by default");
+    assert!(global.note.is_none(), "{:?}", global.note);
+    assert!(global.loops.is_empty());
+    let ba = global.full_ba.as_ref().expect("full BA");
+    assert_eq!(ba.keyframes, report.totals.keyframes);
+    assert!(ba.final_cost <= ba.initial_cost);
+    let tracking = report.ate_tracking.as_ref().expect("tracking ATE");
+    assert!(tracking.ape.statistics.rmse < 0.01);
     let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
     assert_eq!(
         trajectory.lines().filter(|l| !l.starts_with('#')).count(),
