@@ -30,7 +30,11 @@ fn main() {
                 start.elapsed().as_secs_f64() * 1e3
             })
             .collect();
-        println!("vocabulary load ({}): {:.2} ms (median of 5)", path.display(), median(times));
+        println!(
+            "vocabulary load ({}): {:.2} ms (median of 5)",
+            path.display(),
+            median(times)
+        );
     }
     let times: Vec<(f64, f64, f64, usize)> = (0..3)
         .map(|_| {
@@ -38,7 +42,12 @@ fn main() {
             let start = Instant::now();
             let report = graph.optimise(&GraphOptions::default());
             let ms = start.elapsed().as_secs_f64() * 1e3;
-            (ms, report.final_cost, position_rmse(&graph.poses, &truth), report.iterations)
+            (
+                ms,
+                report.final_cost,
+                position_rmse(&graph.poses, &truth),
+                report.iterations,
+            )
         })
         .collect();
     let (ms, cost, rmse, iterations) = times[0];

@@ -79,14 +79,25 @@ fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut stack: Vec<PathBuf> = inputs.to_vec();
     while let Some(path) = stack.pop() {
         if path.is_dir() {
-            for entry in std::fs::read_dir(&path).with_context(|| format!("cannot list {}", path.display()))? {
+            for entry in std::fs::read_dir(&path)
+                .with_context(|| format!("cannot list {}", path.display()))?
+            {
                 stack.push(entry?.path());
             }
         } else if path.is_file() {
-            let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+            let ext = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .unwrap_or("")
+                .to_ascii_lowercase();
             // Depth maps and masks are 16-bit PNGs in folders named so: skip them.
-            let skip = path.components().any(|c| matches!(c.as_os_str().to_str(), Some("depth" | "masks")))
-                || path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.contains("depth"));
+            let skip = path
+                .components()
+                .any(|c| matches!(c.as_os_str().to_str(), Some("depth" | "masks")))
+                || path
+                    .file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.contains("depth"));
             if matches!(ext.as_str(), "png" | "jpg" | "jpeg") && !skip {
                 files.push(path);
             }
@@ -105,11 +116,16 @@ fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usiz
     }
     if files.len() > max_images {
         let step = files.len() as f64 / max_images as f64;
-        files = (0..max_images).map(|i| files[(i as f64 * step) as usize].clone()).collect();
+        files = (0..max_images)
+            .map(|i| files[(i as f64 * step) as usize].clone())
+            .collect();
     }
     let extractor = dopslam::features::OrbExtractor::new(&dopslam::config::Config::default().orb);
     let bar = ProgressBar::new(files.len() as u64);
-    bar.set_style(ProgressStyle::with_template("ORB {bar:40} {pos}/{len} images ({eta} left)").expect("template"));
+    bar.set_style(
+        ProgressStyle::with_template("ORB {bar:40} {pos}/{len} images ({eta} left)")
+            .expect("template"),
+    );
     let mut images = Vec::with_capacity(files.len());
     for path in &files {
         let grey = dopslam::io::image_files::read_gray(path)?;
@@ -118,7 +134,12 @@ fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usiz
     }
     bar.finish_and_clear();
     let descriptors: usize = images.iter().map(Vec::len).sum();
-    eprintln!("training on {descriptors} descriptors of {} images (k = {}, L = {})", images.len(), options.branching, options.depth);
+    eprintln!(
+        "training on {descriptors} descriptors of {} images (k = {}, L = {})",
+        images.len(),
+        options.branching,
+        options.depth
+    );
     let start = Instant::now();
     let vocabulary = Vocabulary::train(&images, &options);
     vocabulary.write(out)?;
@@ -133,10 +154,22 @@ fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usiz
 
 pub fn run_vocab(args: VocabArgs) -> Result<()> {
     match args.command {
-        VocabCommand::Train { inputs, out, branching, depth, max_images, seed } => train(
+        VocabCommand::Train {
+            inputs,
+            out,
+            branching,
+            depth,
+            max_images,
+            seed,
+        } => train(
             &inputs,
             &out,
-            TrainOptions { branching, depth, seed, ..TrainOptions::default() },
+            TrainOptions {
+                branching,
+                depth,
+                seed,
+                ..TrainOptions::default()
+            },
             max_images,
         ),
         VocabCommand::Info { path } => {
@@ -157,13 +190,27 @@ pub fn run_vocab(args: VocabArgs) -> Result<()> {
 
 pub fn run_graph(args: GraphArgs) -> Result<()> {
     match args.command {
-        GraphCommand::Sphere { out, rings, per_ring, seed } => {
-            let spec = SphereSpec { rings, per_ring, ..SphereSpec::default() };
+        GraphCommand::Sphere {
+            out,
+            rings,
+            per_ring,
+            seed,
+        } => {
+            let spec = SphereSpec {
+                rings,
+                per_ring,
+                ..SphereSpec::default()
+            };
             let (graph, truth) = sphere(&spec, seed);
             let ids: Vec<u64> = (0..graph.poses.len() as u64).collect();
             graph.to_g2o(&ids).write(&out)?;
             let truth_path = out.with_extension("truth.g2o");
-            PoseGraph { poses: truth, ..graph.clone() }.to_g2o(&ids).write(&truth_path)?;
+            PoseGraph {
+                poses: truth,
+                ..graph.clone()
+            }
+            .to_g2o(&ids)
+            .write(&truth_path)?;
             println!(
                 "wrote {} ({} poses, {} edges) and {}",
                 out.display(),
@@ -173,11 +220,19 @@ pub fn run_graph(args: GraphArgs) -> Result<()> {
             );
             Ok(())
         }
-        GraphCommand::Optimise { input, out, iterations, json } => {
+        GraphCommand::Optimise {
+            input,
+            out,
+            iterations,
+            json,
+        } => {
             let file = G2oGraph::read(&input)?;
             let (mut graph, ids) = PoseGraph::from_g2o(&file);
             let start = Instant::now();
-            let report = graph.optimise(&GraphOptions { max_iterations: iterations, ..GraphOptions::default() });
+            let report = graph.optimise(&GraphOptions {
+                max_iterations: iterations,
+                ..GraphOptions::default()
+            });
             let ms = start.elapsed().as_secs_f64() * 1e3;
             if let Some(out) = &out {
                 graph.to_g2o(&ids).write(out)?;
@@ -198,7 +253,11 @@ pub fn run_graph(args: GraphArgs) -> Result<()> {
                     report.final_cost,
                     report.iterations,
                     ms,
-                    if report.converged { "" } else { " (not converged)" }
+                    if report.converged {
+                        ""
+                    } else {
+                        " (not converged)"
+                    }
                 );
             }
             Ok(())

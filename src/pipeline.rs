@@ -20,8 +20,8 @@ use crate::detect::{write_cache, FrameDetections};
 use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
-use crate::global::GlobalReport;
 use crate::features::OrbExtractor;
+use crate::global::GlobalReport;
 use crate::io::atomic::write_atomic;
 use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
@@ -532,7 +532,10 @@ pub fn track_sequence(
         let inputs = crate::global::GlobalInputs {
             camera: &camera,
             pyramid: &extractor.pyramid,
-            size: (calibration.camera.width as f32, calibration.camera.height as f32),
+            size: (
+                calibration.camera.width as f32,
+                calibration.camera.height as f32,
+            ),
             moving_threshold: if mode == Mode::Dop {
                 config.dop.removal_threshold
             } else {

@@ -14,7 +14,8 @@ use dopslam::synth::{generate, SynthConfig};
 #[test]
 fn a_revisited_place_ranks_its_true_match_first() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let vocabulary = Vocabulary::read(&root.join("data/vocabulary.dbow")).expect("the shipped vocabulary");
+    let vocabulary =
+        Vocabulary::read(&root.join("data/vocabulary.dbow")).expect("the shipped vocabulary");
     let mut config = SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
     config.sequence.frames = 31;
     config.sequence.fps = 1.0;
@@ -27,7 +28,9 @@ fn a_revisited_place_ranks_its_true_match_first() {
         .iter()
         .map(|f| {
             let grey = dopslam::io::image_files::read_gray(f).unwrap();
-            vocabulary.transform(&extractor.extract(&grey).descriptors).0
+            vocabulary
+                .transform(&extractor.extract(&grey).descriptors)
+                .0
         })
         .collect();
     let mut database = Database::new(&vocabulary);
@@ -41,8 +44,17 @@ fn a_revisited_place_ranks_its_true_match_first() {
         // Clearly above every place more than two frames (24 degrees) away.
         let other = hits
             .iter()
-            .find(|h| (h.id as i64 - expected as i64).rem_euclid(30).min((expected as i64 - h.id as i64).rem_euclid(30)) > 2)
+            .find(|h| {
+                (h.id as i64 - expected as i64)
+                    .rem_euclid(30)
+                    .min((expected as i64 - h.id as i64).rem_euclid(30))
+                    > 2
+            })
             .unwrap();
-        assert!(hits[0].score > 1.5 * other.score, "{:?} vs {other:?}", hits[0]);
+        assert!(
+            hits[0].score > 1.5 * other.score,
+            "{:?} vs {other:?}",
+            hits[0]
+        );
     }
 }

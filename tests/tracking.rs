@@ -57,11 +57,20 @@ fn tracks_a_static_room_within_a_centimetre() {
         "ATE RMSE {} m",
         ate.ape.statistics.rmse
     );
-    for file in ["trajectory.txt", "trajectory_tracking.txt", "keyframes.txt", "report.json", "map.ply"] {
+    for file in [
+        "trajectory.txt",
+        "trajectory_tracking.txt",
+        "keyframes.txt",
+        "report.json",
+        "map.ply",
+    ] {
         assert!(out.join(file).is_file(), "{file}");
     }
     // The global pass ran: no loop on a still camera, full BA over every keyframe.
-    let global = report.global.as_ref().expect("the global pass runs by default");
+    let global = report
+        .global
+        .as_ref()
+        .expect("the global pass runs by default");
     assert!(global.note.is_none(), "{:?}", global.note);
     assert!(global.loops.is_empty());
     let ba = global.full_ba.as_ref().expect("full BA");

@@ -58,7 +58,11 @@ impl<T: Copy + PartialEq> Database<T> {
         let mut score = vec![0.0f64; self.entries.len()];
         let mut common = vec![0usize; self.entries.len()];
         for &(word, v) in bow {
-            for &(entry, w) in self.inverted.get(word as usize).map_or(&[][..], |l| l.as_slice()) {
+            for &(entry, w) in self
+                .inverted
+                .get(word as usize)
+                .map_or(&[][..], |l| l.as_slice())
+            {
                 score[entry as usize] += (v - w).abs() - v.abs() - w.abs();
                 common[entry as usize] += 1;
             }
@@ -88,7 +92,13 @@ mod tests {
     #[test]
     fn inverted_index_scores_equal_full_scores() {
         let (training, queries) = images(6, 2, 7);
-        let vocabulary = Vocabulary::train(&training, &TrainOptions { depth: 3, ..TrainOptions::default() });
+        let vocabulary = Vocabulary::train(
+            &training,
+            &TrainOptions {
+                depth: 3,
+                ..TrainOptions::default()
+            },
+        );
         let mut database = Database::new(&vocabulary);
         let bows: Vec<BowVector> = training.iter().map(|i| vocabulary.transform(i).0).collect();
         for (i, b) in bows.iter().enumerate() {

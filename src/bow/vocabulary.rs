@@ -104,7 +104,8 @@ fn cluster(
             .map(|&m| (descriptors[m as usize], vec![m]))
             .collect();
     }
-    let mut centres = vec![descriptors[members[(rng.next_u64() % members.len() as u64) as usize] as usize]];
+    let mut centres =
+        vec![descriptors[members[(rng.next_u64() % members.len() as u64) as usize] as usize]];
     let mut nearest: Vec<f64> = members
         .iter()
         .map(|&m| hamming(&descriptors[m as usize], &centres[0]) as f64)
@@ -183,13 +184,22 @@ impl Vocabulary {
             depth: 0,
         }];
         // Breadth-first splits: (node, members).
-        let mut queue = std::collections::VecDeque::from([(0u32, (0..descriptors.len() as u32).collect::<Vec<_>>())]);
+        let mut queue = std::collections::VecDeque::from([(
+            0u32,
+            (0..descriptors.len() as u32).collect::<Vec<_>>(),
+        )]);
         while let Some((parent, members)) = queue.pop_front() {
             let depth = nodes[parent as usize].depth;
             if depth as usize >= options.depth || members.is_empty() {
                 continue;
             }
-            for (centre, group) in cluster(&descriptors, &members, options.branching, options.iterations, &mut rng) {
+            for (centre, group) in cluster(
+                &descriptors,
+                &members,
+                options.branching,
+                options.iterations,
+                &mut rng,
+            ) {
                 let id = nodes.len() as u32;
                 nodes.push(Node {
                     parent,
@@ -217,7 +227,11 @@ impl Vocabulary {
         let n = images.len().max(1) as f64;
         for (w, &count) in holding.iter().enumerate() {
             let node = vocabulary.words[w] as usize;
-            vocabulary.nodes[node].weight = if count == 0 { 0.0 } else { (n / count as f64).ln() as f32 };
+            vocabulary.nodes[node].weight = if count == 0 {
+                0.0
+            } else {
+                (n / count as f64).ln() as f32
+            };
         }
         vocabulary
     }
@@ -359,11 +373,18 @@ impl Vocabulary {
             let at = 20 + i * NODE_BYTES;
             let parent = read_u32(bytes, at);
             if parent as usize >= nodes.len() {
-                return Err(format!("node {} names parent {parent}, not before it", i + 1));
+                return Err(format!(
+                    "node {} names parent {parent}, not before it",
+                    i + 1
+                ));
             }
             let mut centre = [0u64; 4];
             for (k, c) in centre.iter_mut().enumerate() {
-                *c = u64::from_le_bytes(bytes[at + 4 + 8 * k..at + 12 + 8 * k].try_into().expect("8 bytes"));
+                *c = u64::from_le_bytes(
+                    bytes[at + 4 + 8 * k..at + 12 + 8 * k]
+                        .try_into()
+                        .expect("8 bytes"),
+                );
             }
             let weight = f32::from_le_bytes(bytes[at + 36..at + 40].try_into().expect("4 bytes"));
             let depth = nodes[parent as usize].depth + 1;
@@ -401,10 +422,25 @@ pub(crate) mod tests {
 
     /// `places` random prototype descriptor sets; each image is a place's set with a few
     /// bits flipped per descriptor.
-    pub fn images(places: usize, per_place: usize, seed: u64) -> (Vec<Vec<Descriptor>>, Vec<Vec<Descriptor>>) {
+    pub fn images(
+        places: usize,
+        per_place: usize,
+        seed: u64,
+    ) -> (Vec<Vec<Descriptor>>, Vec<Vec<Descriptor>>) {
         let mut rng = Rng::new(seed);
         let prototypes: Vec<Vec<Descriptor>> = (0..places)
-            .map(|_| (0..200).map(|_| [rng.next_u64(), rng.next_u64(), rng.next_u64(), rng.next_u64()]).collect())
+            .map(|_| {
+                (0..200)
+                    .map(|_| {
+                        [
+                            rng.next_u64(),
+                            rng.next_u64(),
+                            rng.next_u64(),
+                            rng.next_u64(),
+                        ]
+                    })
+                    .collect()
+            })
             .collect();
         let view = |rng: &mut Rng, place: &Vec<Descriptor>| -> Vec<Descriptor> {
             let mut seen = Vec::new();
@@ -422,7 +458,11 @@ pub(crate) mod tests {
         };
         let training = prototypes
             .iter()
-            .flat_map(|p| (0..per_place).map(|_| view(&mut rng, p)).collect::<Vec<_>>())
+            .flat_map(|p| {
+                (0..per_place)
+                    .map(|_| view(&mut rng, p))
+                    .collect::<Vec<_>>()
+            })
             .collect();
         let queries = prototypes.iter().map(|p| view(&mut rng, p)).collect();
         (training, queries)
@@ -431,13 +471,22 @@ pub(crate) mod tests {
     #[test]
     fn a_revisited_place_scores_its_own_images_first() {
         let (training, queries) = images(12, 2, 3);
-        let vocabulary = Vocabulary::train(&training, &TrainOptions { depth: 3, ..TrainOptions::default() });
+        let vocabulary = Vocabulary::train(
+            &training,
+            &TrainOptions {
+                depth: 3,
+                ..TrainOptions::default()
+            },
+        );
         assert!(vocabulary.len() > 300, "{} words", vocabulary.len());
         let database: Vec<BowVector> = training.iter().map(|i| vocabulary.transform(i).0).collect();
         for (place, query) in queries.iter().enumerate() {
             let (bow, _) = vocabulary.transform(query);
             let best = (0..database.len())
-                .max_by(|&a, &b| Vocabulary::score(&bow, &database[a]).total_cmp(&Vocabulary::score(&bow, &database[b])))
+                .max_by(|&a, &b| {
+                    Vocabulary::score(&bow, &database[a])
+                        .total_cmp(&Vocabulary::score(&bow, &database[b]))
+                })
                 .unwrap();
             assert_eq!(best / 2, place);
             let own = Vocabulary::score(&bow, &database[best]);
@@ -450,12 +499,20 @@ pub(crate) mod tests {
     #[test]
     fn the_binary_file_reads_back_the_same_vocabulary() {
         let (training, _) = images(4, 2, 5);
-        let vocabulary = Vocabulary::train(&training, &TrainOptions { depth: 3, ..TrainOptions::default() });
+        let vocabulary = Vocabulary::train(
+            &training,
+            &TrainOptions {
+                depth: 3,
+                ..TrainOptions::default()
+            },
+        );
         let back = Vocabulary::from_bytes(&vocabulary.to_bytes()).unwrap();
         assert_eq!(back, vocabulary);
         let mut bytes = vocabulary.to_bytes();
         bytes.truncate(bytes.len() - 3);
-        assert!(Vocabulary::from_bytes(&bytes).unwrap_err().contains("truncated"));
+        assert!(Vocabulary::from_bytes(&bytes)
+            .unwrap_err()
+            .contains("truncated"));
         assert!(Vocabulary::from_bytes(b"hello world, this is no vocabulary").is_err());
     }
 }

@@ -33,12 +33,14 @@ pub fn optimise(
         .copied()
         .filter(|k| map.keyframes.contains_key(*k))
         .collect();
-    let index: HashMap<KeyFrameKey, usize> = keys.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+    let index: HashMap<KeyFrameKey, usize> =
+        keys.iter().enumerate().map(|(i, k)| (*k, i)).collect();
     let world_from = |k: KeyFrameKey| map.keyframes[k].world_from_camera();
     let before = |k: KeyFrameKey| {
-        uncorrected
-            .get(&k)
-            .map_or_else(|| world_from(k), |camera_from_world| camera_from_world.inverse())
+        uncorrected.get(&k).map_or_else(
+            || world_from(k),
+            |camera_from_world| camera_from_world.inverse(),
+        )
     };
     let mut edges = Vec::new();
     let mut seen: HashSet<(usize, usize)> = HashSet::new();
@@ -76,7 +78,10 @@ pub fn optimise(
         fixed: keys.iter().map(|k| *k == fixed).collect(),
         edges,
     };
-    let old: Vec<Se3> = keys.iter().map(|k| map.keyframes[*k].camera_from_world).collect();
+    let old: Vec<Se3> = keys
+        .iter()
+        .map(|k| map.keyframes[*k].camera_from_world)
+        .collect();
     let report = graph.optimise(&GraphOptions::default());
     for (k, world_from_camera) in keys.iter().zip(&graph.poses) {
         map.keyframes[*k].camera_from_world = world_from_camera.inverse();
@@ -92,7 +97,13 @@ pub fn optimise(
             .get(&key)
             .copied()
             .filter(|k| moves.contains_key(k))
-            .or_else(|| point.observations.iter().map(|(k, _)| *k).find(|k| moves.contains_key(k)));
+            .or_else(|| {
+                point
+                    .observations
+                    .iter()
+                    .map(|(k, _)| *k)
+                    .find(|k| moves.contains_key(k))
+            });
         if let Some(m) = reference.and_then(|k| moves.get(&k)) {
             point.position = (m * nalgebra::Point3::from(point.position)).coords;
         }

@@ -145,7 +145,9 @@ impl<'a> LoopCloser<'a> {
         let words = self.inputs.vocabulary.transform(&kf.frame.descriptors);
         self.words.insert(key, words.clone());
         let id = kf.id;
-        let recent = self.last_loop.is_some_and(|last| id < last + self.config.gap)
+        let recent = self
+            .last_loop
+            .is_some_and(|last| id < last + self.config.gap)
             || self.database.len() < self.config.gap;
         if !recent {
             for candidate in self.consistent_candidates(map, key) {
@@ -157,7 +159,14 @@ impl<'a> LoopCloser<'a> {
         self.database.add(key, words.0);
     }
 
-    fn record(&mut self, map: &Map, (key, candidate): (KeyFrameKey, KeyFrameKey), score: f64, outcome: String, accepted: bool) {
+    fn record(
+        &mut self,
+        map: &Map,
+        (key, candidate): (KeyFrameKey, KeyFrameKey),
+        score: f64,
+        outcome: String,
+        accepted: bool,
+    ) {
         let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
         self.candidates.push(Candidate {
             keyframe: a.id,
@@ -180,8 +189,14 @@ impl<'a> LoopCloser<'a> {
             .filter_map(|k| self.words.get(k))
             .map(|(b, _)| Vocabulary::score(bow, b))
             .fold(f64::INFINITY, f64::min);
-        let min_score = if min_score.is_finite() { min_score } else { 0.0 };
-        let hits = self.database.query(bow, |k| k != key && !connected.contains(&k) && map.keyframes.contains_key(k));
+        let min_score = if min_score.is_finite() {
+            min_score
+        } else {
+            0.0
+        };
+        let hits = self.database.query(bow, |k| {
+            k != key && !connected.contains(&k) && map.keyframes.contains_key(k)
+        });
         let max_common = hits.iter().map(|h| h.common).max().unwrap_or(0);
         let hits: Vec<_> = hits
             .into_iter()
@@ -213,7 +228,11 @@ impl<'a> LoopCloser<'a> {
         let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
         let mut enough = Vec::new();
         for &(c, score) in &candidates {
-            let mut group: HashSet<KeyFrameKey> = map.keyframes[c].connections.iter().map(|(k, _)| *k).collect();
+            let mut group: HashSet<KeyFrameKey> = map.keyframes[c]
+                .connections
+                .iter()
+                .map(|(k, _)| *k)
+                .collect();
             group.insert(c);
             let mut consistent = false;
             let mut count = 1;
@@ -231,7 +250,10 @@ impl<'a> LoopCloser<'a> {
                     map,
                     (key, c),
                     score,
-                    format!("seen by {count} consecutive keyframes of {} needed", self.config.min_consistency),
+                    format!(
+                        "seen by {count} consecutive keyframes of {} needed",
+                        self.config.min_consistency
+                    ),
                     false,
                 );
             }
@@ -242,22 +264,59 @@ impl<'a> LoopCloser<'a> {
     }
 
     /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
-    fn verify_and_correct(&mut self, map: &mut Map, key: KeyFrameKey, (candidate, score): (KeyFrameKey, f64)) -> bool {
+    fn verify_and_correct(
+        &mut self,
+        map: &mut Map,
+        key: KeyFrameKey,
+        (candidate, score): (KeyFrameKey, f64),
+    ) -> bool {
         let threshold = self.inputs.moving_threshold;
         let matches = {
             let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
-            match_by_words(map, (a, &self.words[&key].1), (b, &self.words[&candidate].1), self.config.ratio, threshold)
+            match_by_words(
+                map,
+                (a, &self.words[&key].1),
+                (b, &self.words[&candidate].1),
+                self.config.ratio,
+                threshold,
+            )
         };
         if matches.len() < self.config.min_inliers {
-            self.record(map, (key, candidate), score, format!("{} vocabulary matches with static points, {} needed", matches.len(), self.config.min_inliers), false);
+            self.record(
+                map,
+                (key, candidate),
+                score,
+                format!(
+                    "{} vocabulary matches with static points, {} needed",
+                    matches.len(),
+                    self.config.min_inliers
+                ),
+                false,
+            );
             return false;
         }
-        let Some((keyframe_from_candidate, inliers)) = self.ransac(map, key, candidate, &matches) else {
-            self.record(map, (key, candidate), score, "no rigid motion fits the 3-D matches".into(), false);
+        let Some((keyframe_from_candidate, inliers)) = self.ransac(map, key, candidate, &matches)
+        else {
+            self.record(
+                map,
+                (key, candidate),
+                score,
+                "no rigid motion fits the 3-D matches".into(),
+                false,
+            );
             return false;
         };
         if inliers < self.config.min_inliers {
-            self.record(map, (key, candidate), score, format!("{inliers} RANSAC inliers, {} needed", self.config.min_inliers), false);
+            self.record(
+                map,
+                (key, candidate),
+                score,
+                format!(
+                    "{inliers} RANSAC inliers, {} needed",
+                    self.config.min_inliers
+                ),
+                false,
+            );
             return false;
         }
         // Guided search: the candidate's covisible points projected with the corrected pose.
@@ -269,15 +328,42 @@ impl<'a> LoopCloser<'a> {
         let loop_points = self.static_points(map, &loop_group);
         let original = map.keyframes[key].camera_from_world;
         map.keyframes[key].camera_from_world = corrected;
-        let guided = fusion::search(map, key, &loop_points, self.inputs.camera, self.inputs.pyramid, self.inputs.size);
+        let guided = fusion::search(
+            map,
+            key,
+            &loop_points,
+            self.inputs.camera,
+            self.inputs.pyramid,
+            self.inputs.size,
+        );
         map.keyframes[key].camera_from_world = original;
         if guided.len() < self.config.min_guided_matches {
-            self.record(map, (key, candidate), score, format!("{inliers} inliers, but {} matches after guided search, {} needed", guided.len(), self.config.min_guided_matches), false);
+            self.record(
+                map,
+                (key, candidate),
+                score,
+                format!(
+                    "{inliers} inliers, but {} matches after guided search, {} needed",
+                    guided.len(),
+                    self.config.min_guided_matches
+                ),
+                false,
+            );
             return false;
         }
-        self.record(map, (key, candidate), score, format!("accepted: {inliers} inliers, {} matches after guided search", guided.len()), true);
+        self.record(
+            map,
+            (key, candidate),
+            score,
+            format!(
+                "accepted: {inliers} inliers, {} matches after guided search",
+                guided.len()
+            ),
+            true,
+        );
         let moved = se3::log(&(corrected * original.inverse()));
-        let (fused, report) = self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
+        let (fused, report) =
+            self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
         let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
         self.closed.push(ClosedLoop {
             keyframe: a.id,
@@ -286,7 +372,9 @@ impl<'a> LoopCloser<'a> {
             matched_time: b.frame.timestamp,
             inliers,
             guided_matches: guided.len(),
-            correction_m: (corrected.inverse().translation.vector - original.inverse().translation.vector).norm(),
+            correction_m: (corrected.inverse().translation.vector
+                - original.inverse().translation.vector)
+                .norm(),
             correction_deg: moved.fixed_rows::<3>(3).norm().to_degrees(),
             fused_points: fused,
             essential_graph: report,
@@ -314,10 +402,17 @@ impl<'a> LoopCloser<'a> {
 
     /// RANSAC over Horn's closed form: \(T_{kc}\) with \(P_k = T_{kc} P_c\) for the
     /// camera-frame points, inliers reprojecting within the gate in both images.
-    fn ransac(&mut self, map: &Map, key: KeyFrameKey, candidate: KeyFrameKey, matches: &[(usize, usize)]) -> Option<(Se3, usize)> {
+    fn ransac(
+        &mut self,
+        map: &Map,
+        key: KeyFrameKey,
+        candidate: KeyFrameKey,
+        matches: &[(usize, usize)],
+    ) -> Option<(Se3, usize)> {
         let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
         let in_camera = |kf: &crate::map::KeyFrame, i: usize| -> Vector3<f64> {
-            let p = map.points[kf.map_points[i].expect("matched keypoints observe points")].position;
+            let p =
+                map.points[kf.map_points[i].expect("matched keypoints observe points")].position;
             (kf.camera_from_world * Point3::from(p)).coords
         };
         let pk: Vec<Vector3<f64>> = matches.iter().map(|&(i, _)| in_camera(a, i)).collect();
@@ -338,7 +433,8 @@ impl<'a> LoopCloser<'a> {
             (0..matches.len())
                 .filter(|&m| {
                     let (i, j) = matches[m];
-                    reprojects(a, i, &(t * Point3::from(pc[m])).coords) && reprojects(b, j, &(inverse * Point3::from(pk[m])).coords)
+                    reprojects(a, i, &(t * Point3::from(pc[m])).coords)
+                        && reprojects(b, j, &(inverse * Point3::from(pk[m])).coords)
                 })
                 .collect()
         };
@@ -398,7 +494,16 @@ impl<'a> LoopCloser<'a> {
             .collect();
         let before_links: HashMap<KeyFrameKey, HashSet<KeyFrameKey>> = neighbourhood
             .iter()
-            .map(|k| (*k, map.keyframes[*k].connections.iter().map(|(c, _)| *c).collect()))
+            .map(|k| {
+                (
+                    *k,
+                    map.keyframes[*k]
+                        .connections
+                        .iter()
+                        .map(|(c, _)| *c)
+                        .collect(),
+                )
+            })
             .collect();
         let mut uncorrected = HashMap::new();
         let mut placed_by = HashMap::new();
@@ -409,7 +514,12 @@ impl<'a> LoopCloser<'a> {
             uncorrected.insert(n, old);
             map.keyframes[n].camera_from_world = new;
             let move_points = new.inverse() * old;
-            let points: Vec<MapPointKey> = map.keyframes[n].map_points.iter().flatten().copied().collect();
+            let points: Vec<MapPointKey> = map.keyframes[n]
+                .map_points
+                .iter()
+                .flatten()
+                .copied()
+                .collect();
             for p in points {
                 if placed_by.contains_key(&p) {
                     continue;
@@ -426,7 +536,14 @@ impl<'a> LoopCloser<'a> {
         // Fuse the loop group's points into the corrected neighbourhood.
         let mut fused = 0;
         for &n in &neighbourhood {
-            let found = fusion::search(map, n, loop_points, self.inputs.camera, self.inputs.pyramid, self.inputs.size);
+            let found = fusion::search(
+                map,
+                n,
+                loop_points,
+                self.inputs.camera,
+                self.inputs.pyramid,
+                self.inputs.size,
+            );
             fused += fusion::apply(map, &found);
         }
         for &n in &neighbourhood {
@@ -434,7 +551,9 @@ impl<'a> LoopCloser<'a> {
         }
         // New links between the neighbourhood and the rest are loop edges.
         for &n in &neighbourhood {
-            let Some(kf) = map.keyframes.get(n) else { continue };
+            let Some(kf) = map.keyframes.get(n) else {
+                continue;
+            };
             for (c, _) in &kf.connections {
                 if !before_links[&n].contains(c) && !neighbourhood.contains(c) {
                     self.loops.push((n, *c));
@@ -442,7 +561,14 @@ impl<'a> LoopCloser<'a> {
             }
         }
         self.loops.push((key, candidate));
-        let report = essential_graph::optimise(map, &self.loops, &uncorrected, &placed_by, candidate, self.config.covisibility_weight);
+        let report = essential_graph::optimise(
+            map,
+            &self.loops,
+            &uncorrected,
+            &placed_by,
+            candidate,
+            self.config.covisibility_weight,
+        );
         let all: Vec<MapPointKey> = map.points.keys().collect();
         for p in all {
             map.update_point(p, &scale_factors);

@@ -9,8 +9,17 @@ use crate::map::{KeyFrame, Map, MapPointKey};
 use crate::tracking::matching::TH_LOW;
 
 /// The static map point a keypoint observes, if any.
-pub fn static_point(map: &Map, kf: &KeyFrame, index: usize, moving_threshold: f32) -> Option<MapPointKey> {
-    kf.map_points[index].filter(|p| map.points.get(*p).is_some_and(|x| x.moving <= moving_threshold))
+pub fn static_point(
+    map: &Map,
+    kf: &KeyFrame,
+    index: usize,
+    moving_threshold: f32,
+) -> Option<MapPointKey> {
+    kf.map_points[index].filter(|p| {
+        map.points
+            .get(*p)
+            .is_some_and(|x| x.moving <= moving_threshold)
+    })
 }
 
 /// Pairs `(index in a, index in b)` of keypoints that both observe static map points.

@@ -45,7 +45,12 @@ fn numbers(path: &Path, line: usize, fields: &[&str], count: usize) -> Result<Ve
         return Err(IoError::parse(
             path,
             line,
-            format!("{} takes {} numbers, found {}", fields.first().copied().unwrap_or(""), count - 1, fields.len() - 1),
+            format!(
+                "{} takes {} numbers, found {}",
+                fields.first().copied().unwrap_or(""),
+                count - 1,
+                fields.len() - 1
+            ),
         ));
     }
     fields[1..]
@@ -63,7 +68,11 @@ fn pose(path: &Path, line: usize, v: &[f64]) -> Result<Se3, IoError> {
     let q = [v[3], v[4], v[5], v[6]];
     let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
     if (norm - 1.0).abs() > 1e-3 {
-        return Err(IoError::parse(path, line, format!("quaternion norm {norm:.6}, not 1")));
+        return Err(IoError::parse(
+            path,
+            line,
+            format!("quaternion norm {norm:.6}, not 1"),
+        ));
     }
     Ok(se3::from_translation_quaternion(
         nalgebra::Vector3::new(v[0], v[1], v[2]),
@@ -131,7 +140,10 @@ impl G2oGraph {
         for e in &graph.edges {
             for v in [e.from, e.to] {
                 if !seen.contains(&v) {
-                    return Err(IoError::invalid(path, format!("an edge names vertex {v}, which the file does not define")));
+                    return Err(IoError::invalid(
+                        path,
+                        format!("an edge names vertex {v}, which the file does not define"),
+                    ));
                 }
             }
         }
@@ -144,7 +156,11 @@ impl G2oGraph {
         let pose = |text: &mut String, p: &Se3| {
             let t = p.translation.vector;
             let q = se3::quaternion_xyzw(p);
-            let _ = write!(text, "{} {} {} {} {} {} {}", t.x, t.y, t.z, q[0], q[1], q[2], q[3]);
+            let _ = write!(
+                text,
+                "{} {} {} {} {} {} {}",
+                t.x, t.y, t.z, q[0], q[1], q[2], q[3]
+            );
         };
         for (id, p) in &self.vertices {
             let _ = write!(text, "VERTEX_SE3:QUAT {id} ");
@@ -213,7 +229,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("dopslam-g2o-bad-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("bad.g2o");
-        std::fs::write(&path, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE2 1 0 0 0\n").unwrap();
+        std::fs::write(
+            &path,
+            "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE2 1 0 0 0\n",
+        )
+        .unwrap();
         let e = G2oGraph::read(&path).unwrap_err().to_string();
         assert!(e.contains(":2:") && e.contains("VERTEX_SE2"), "{e}");
         std::fs::write(&path, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nEDGE_SE3:QUAT 0 5 0 0 0 0 0 0 1 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n").unwrap();

@@ -71,7 +71,9 @@ impl Window {
         let first = if map.keyframes.contains_key(first) {
             first
         } else {
-            *map.keyframe_order.iter().find(|k| map.keyframes.contains_key(**k))?
+            *map.keyframe_order
+                .iter()
+                .find(|k| map.keyframes.contains_key(**k))?
         };
         let mut point_index = HashMap::new();
         let mut points = Vec::new();

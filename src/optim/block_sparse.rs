@@ -175,7 +175,11 @@ impl BlockPattern {
 
     /// The slot of block \((i, j)\) and whether `m` must be transposed to go there.
     pub fn slot(&self, i: usize, j: usize) -> Option<(usize, bool)> {
-        let (key, transposed) = if i >= j { ((i, j), false) } else { ((j, i), true) };
+        let (key, transposed) = if i >= j {
+            ((i, j), false)
+        } else {
+            ((j, i), true)
+        };
         self.slots.get(&key).map(|&s| (s, transposed))
     }
 
@@ -291,7 +295,9 @@ mod tests {
         assert!(!pattern.add(&mut values, 1, 4, DMatrix::<f64>::zeros(b, b).as_slice()));
         system.rhs = DVector::from_fn(n * b, |i, _| (i as f64).cos());
         let expected = system.solve().expect("positive definite");
-        let got = pattern.solve(&values, &system.rhs).expect("positive definite");
+        let got = pattern
+            .solve(&values, &system.rhs)
+            .expect("positive definite");
         assert!((expected - got).norm() < 1e-10);
     }
 }

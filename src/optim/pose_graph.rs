@@ -113,7 +113,11 @@ impl PoseGraph {
     /// The graph in g2o's terms, with the given vertex ids.
     pub fn to_g2o(&self, ids: &[u64]) -> G2oGraph {
         G2oGraph {
-            vertices: ids.iter().copied().zip(self.poses.iter().copied()).collect(),
+            vertices: ids
+                .iter()
+                .copied()
+                .zip(self.poses.iter().copied())
+                .collect(),
             edges: self
                 .edges
                 .iter()
@@ -136,7 +140,9 @@ impl PoseGraph {
 
     /// \(e_{ij} = \log(Z_{ij}^{-1} T_i^{-1} T_j)\).
     pub fn residual(&self, edge: &PoseEdge) -> Vector6<f64> {
-        se3::log(&(edge.measurement.inverse() * self.poses[edge.from].inverse() * self.poses[edge.to]))
+        se3::log(
+            &(edge.measurement.inverse() * self.poses[edge.from].inverse() * self.poses[edge.to]),
+        )
     }
 
     /// \(\chi^2 = \sum e^\top \Omega e\).
@@ -258,8 +264,8 @@ impl PoseGraph {
                 ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&phi_hat);
                 let jr_inv = Matrix6::identity() + 0.5 * ad;
                 let j_to = jr_inv;
-                let j_from = -jr_inv
-                    * se3::adjoint(&(self.poses[e.to].inverse() * self.poses[e.from]));
+                let j_from =
+                    -jr_inv * se3::adjoint(&(self.poses[e.to].inverse() * self.poses[e.from]));
                 let omega = e.information;
                 (
                     j_from.transpose() * omega * j_from,
@@ -315,7 +321,14 @@ mod tests {
         let truth: Vec<Se3> = (0..n)
             .map(|i| {
                 let a = std::f64::consts::TAU * i as f64 / n as f64;
-                se3::exp(&Vector6::new(3.0 * a.cos(), 3.0 * a.sin(), 0.1 * (3.0 * a).sin(), 0.0, 0.0, a))
+                se3::exp(&Vector6::new(
+                    3.0 * a.cos(),
+                    3.0 * a.sin(),
+                    0.1 * (3.0 * a).sin(),
+                    0.0,
+                    0.0,
+                    a,
+                ))
             })
             .collect();
         let mut edges = Vec::new();
@@ -351,7 +364,10 @@ mod tests {
             let (mut graph, truth) = ring(60, seed);
             let before = graph.cost();
             let report = graph.optimise(&GraphOptions::default());
-            assert!(report.converged && report.final_cost < 1e-8 * before.max(1.0), "{report:?}");
+            assert!(
+                report.converged && report.final_cost < 1e-8 * before.max(1.0),
+                "{report:?}"
+            );
             let worst = graph
                 .poses
                 .iter()
@@ -369,9 +385,12 @@ mod tests {
         let (i, j) = (e.from, e.to);
         let r = graph.residual(e);
         let mut ad = Matrix6::zeros();
-        ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
-        ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&hat(&r.fixed_rows::<3>(0).into_owned()));
-        ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
+        ad.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
+        ad.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&hat(&r.fixed_rows::<3>(0).into_owned()));
+        ad.fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
         let jr_inv = Matrix6::identity() + 0.5 * ad;
         let j_from = -jr_inv * se3::adjoint(&(graph.poses[j].inverse() * graph.poses[i]));
         for k in 0..6 {
@@ -383,7 +402,10 @@ mod tests {
             minus.poses[i] = graph.poses[i] * se3::exp(&-d);
             let numeric = (plus.residual(e) - minus.residual(e)) / 2e-6;
             // First-order J_r^{-1}: exact up to O(|e|^2).
-            assert!((numeric - j_from.column(k)).norm() < 5e-2 * (1.0 + r.norm()), "{k}");
+            assert!(
+                (numeric - j_from.column(k)).norm() < 5e-2 * (1.0 + r.norm()),
+                "{k}"
+            );
         }
     }
 

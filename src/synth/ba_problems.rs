@@ -42,7 +42,11 @@ impl BaSpec {
 }
 
 /// The problem (first pose fixed), the true poses (camera-from-world) and points.
-pub fn room_problem(spec: &BaSpec, camera: &StereoCamera, seed: u64) -> (BaProblem, Vec<Se3>, Vec<Vector3<f64>>) {
+pub fn room_problem(
+    spec: &BaSpec,
+    camera: &StereoCamera,
+    seed: u64,
+) -> (BaProblem, Vec<Se3>, Vec<Vector3<f64>>) {
     let mut rng = Rng::new(seed);
     // Points on the walls of a 8 x 3 x 8 m room and on boxes inside it.
     let points: Vec<Vector3<f64>> = (0..spec.points)
@@ -53,7 +57,11 @@ pub fn room_problem(spec: &BaSpec, camera: &StereoCamera, seed: u64) -> (BaProbl
                 1 => Vector3::new(a, b, -4.0),
                 2 => Vector3::new(4.0, b, a),
                 3 => Vector3::new(-4.0, b, a),
-                _ => Vector3::new(rng.range(-2.5, 2.5), rng.range(0.0, 1.5), rng.range(-2.5, 2.5)),
+                _ => Vector3::new(
+                    rng.range(-2.5, 2.5),
+                    rng.range(0.0, 1.5),
+                    rng.range(-2.5, 2.5),
+                ),
             }
         })
         .collect();
@@ -62,7 +70,11 @@ pub fn room_problem(spec: &BaSpec, camera: &StereoCamera, seed: u64) -> (BaProbl
         .map(|i| {
             let t = i as f64 / spec.keyframes as f64;
             let angle = std::f64::consts::TAU * 1.5 * t;
-            let centre = Vector3::new(1.2 * (2.0 * angle).cos(), 0.1 * (5.0 * angle).sin(), 1.2 * angle.sin());
+            let centre = Vector3::new(
+                1.2 * (2.0 * angle).cos(),
+                0.1 * (5.0 * angle).sin(),
+                1.2 * angle.sin(),
+            );
             let world_from_camera = Se3::from_parts(
                 centre.into(),
                 crate::geometry::so3::exp(&Vector3::new(0.05 * (3.0 * angle).sin(), angle, 0.0)),
@@ -134,7 +146,9 @@ pub fn centre_rmse(poses: &[Se3], truth: &[Se3]) -> f64 {
     let sum: f64 = poses
         .iter()
         .zip(truth)
-        .map(|(a, b)| (a.inverse().translation.vector - b.inverse().translation.vector).norm_squared())
+        .map(|(a, b)| {
+            (a.inverse().translation.vector - b.inverse().translation.vector).norm_squared()
+        })
         .sum();
     (sum / truth.len().max(1) as f64).sqrt()
 }
@@ -149,7 +163,10 @@ mod tests {
         let camera = StereoCamera::new(&crate::geometry::camera::PinholeCamera::tum_fr3(), 40.0);
         let (mut problem, poses, _) = room_problem(&BaSpec::new(40, 2000), &camera, 3);
         let per_keyframe = problem.observations.len() / 40;
-        assert!(per_keyframe > 100, "{per_keyframe} observations per keyframe");
+        assert!(
+            per_keyframe > 100,
+            "{per_keyframe} observations per keyframe"
+        );
         let before = centre_rmse(&problem.poses, &poses);
         let report = bundle_adjust(&mut problem, &camera, 10, 5);
         let after = centre_rmse(&problem.poses, &poses);

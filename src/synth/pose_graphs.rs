@@ -150,10 +150,17 @@ mod tests {
             // parameters.
             let n = graph.poses.len() as f64;
             let expected = 6.0 * graph.edges.len() as f64 - 6.0 * (n - 1.0);
-            assert!((report.final_cost / expected - 1.0).abs() < 0.15, "{} vs {expected}", report.final_cost);
+            assert!(
+                (report.final_cost / expected - 1.0).abs() < 0.15,
+                "{} vs {expected}",
+                report.final_cost
+            );
             // Chained odometry drifts metres; the optimum keeps within the measurement
             // noise (2.5 % of the radius here).
-            assert!(before > 3.0 && after < 0.5 * before.min(1.0) + 0.25, "seed {seed}: {before} -> {after}");
+            assert!(
+                before > 3.0 && after < 0.5 * before.min(1.0) + 0.25,
+                "seed {seed}: {before} -> {after}"
+            );
         }
     }
 }
