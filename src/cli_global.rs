@@ -277,7 +277,7 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
     for l in &global.loops {
         println!(
             "  loop: keyframe {} (t {:.2}) -> {} (t {:.2}), {} inliers, {} guided matches, moved {:.3} m / {:.2} deg, {} points fused",
-            l.keyframe, l.keyframe_time, l.matched, l.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
+            l.pair.keyframe, l.pair.keyframe_time, l.pair.matched, l.pair.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
         );
     }
     if let Some(ba) = &global.full_ba {

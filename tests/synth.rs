@@ -227,6 +227,7 @@ fn every_preset_loads_and_validates() {
             "fr1_xyz_room",
             "fr2_desk_room",
             "loop_room",
+            "loop_walking",
             "moving_chair",
             "people_from_photos",
             "seated_leaves",

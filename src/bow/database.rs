@@ -86,19 +86,12 @@ impl<T: Copy + PartialEq> Database<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bow::vocabulary::tests::images;
-    use crate::bow::vocabulary::TrainOptions;
+    use crate::bow::vocabulary::tests::{images, small_vocabulary};
 
     #[test]
     fn inverted_index_scores_equal_full_scores() {
         let (training, queries) = images(6, 2, 7);
-        let vocabulary = Vocabulary::train(
-            &training,
-            &TrainOptions {
-                depth: 3,
-                ..TrainOptions::default()
-            },
-        );
+        let vocabulary = small_vocabulary(&training);
         let mut database = Database::new(&vocabulary);
         let bows: Vec<BowVector> = training.iter().map(|i| vocabulary.transform(i).0).collect();
         for (i, b) in bows.iter().enumerate() {

@@ -468,16 +468,21 @@ pub(crate) mod tests {
         (training, queries)
     }
 
-    #[test]
-    fn a_revisited_place_scores_its_own_images_first() {
-        let (training, queries) = images(12, 2, 3);
-        let vocabulary = Vocabulary::train(
-            &training,
+    /// A three-level vocabulary of `training`.
+    pub fn small_vocabulary(training: &[Vec<Descriptor>]) -> Vocabulary {
+        Vocabulary::train(
+            training,
             &TrainOptions {
                 depth: 3,
                 ..TrainOptions::default()
             },
-        );
+        )
+    }
+
+    #[test]
+    fn a_revisited_place_scores_its_own_images_first() {
+        let (training, queries) = images(12, 2, 3);
+        let vocabulary = small_vocabulary(&training);
         assert!(vocabulary.len() > 300, "{} words", vocabulary.len());
         let database: Vec<BowVector> = training.iter().map(|i| vocabulary.transform(i).0).collect();
         for (place, query) in queries.iter().enumerate() {
@@ -499,13 +504,7 @@ pub(crate) mod tests {
     #[test]
     fn the_binary_file_reads_back_the_same_vocabulary() {
         let (training, _) = images(4, 2, 5);
-        let vocabulary = Vocabulary::train(
-            &training,
-            &TrainOptions {
-                depth: 3,
-                ..TrainOptions::default()
-            },
-        );
+        let vocabulary = small_vocabulary(&training);
         let back = Vocabulary::from_bytes(&vocabulary.to_bytes()).unwrap();
         assert_eq!(back, vocabulary);
         let mut bytes = vocabulary.to_bytes();

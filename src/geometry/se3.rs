@@ -94,6 +94,20 @@ pub fn adjoint(pose: &Se3) -> Matrix6<f64> {
     ad
 }
 
+/// \(\exp(\xi)\) with \(\rho \sim N(0, \sigma_t^2 I)\), \(\phi \sim N(0, \sigma_r^2 I)\): a
+/// random perturbation for seeded test problems.
+pub fn gaussian(rng: &mut crate::random::Rng, sigma_translation: f64, sigma_rotation: f64) -> Se3 {
+    let (t, r) = (sigma_translation, sigma_rotation);
+    exp(&Vector6::new(
+        t * rng.normal(),
+        t * rng.normal(),
+        t * rng.normal(),
+        r * rng.normal(),
+        r * rng.normal(),
+        r * rng.normal(),
+    ))
+}
+
 /// \(T_a^{-1} T_b\): the pose of b seen from a (evo's `relative_se3`).
 pub fn relative(a: &Se3, b: &Se3) -> Se3 {
     a.inverse() * b

@@ -65,14 +65,33 @@ impl Default for LoopConfig {
     }
 }
 
+/// The keyframe that looks for a loop and the one it matched: ids (insertion numbers)
+/// and timestamps.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LoopPair {
+    pub keyframe: usize,
+    pub matched: usize,
+    pub keyframe_time: f64,
+    pub matched_time: f64,
+}
+
+impl LoopPair {
+    fn of(map: &Map, (key, matched): (KeyFrameKey, KeyFrameKey)) -> Self {
+        let (a, b) = (&map.keyframes[key], &map.keyframes[matched]);
+        Self {
+            keyframe: a.id,
+            matched: b.id,
+            keyframe_time: a.frame.timestamp,
+            matched_time: b.frame.timestamp,
+        }
+    }
+}
+
 /// A candidate and what became of it.
 #[derive(Debug, Clone, Serialize)]
 pub struct Candidate {
-    /// Keyframe ids (insertion numbers) and timestamps.
-    pub keyframe: usize,
-    pub candidate: usize,
-    pub keyframe_time: f64,
-    pub candidate_time: f64,
+    #[serde(flatten)]
+    pub pair: LoopPair,
     pub score: f64,
     pub accepted: bool,
     /// Why it was accepted or where it stopped.
@@ -82,10 +101,8 @@ pub struct Candidate {
 /// A loop that was closed.
 #[derive(Debug, Clone, Serialize)]
 pub struct ClosedLoop {
-    pub keyframe: usize,
-    pub matched: usize,
-    pub keyframe_time: f64,
-    pub matched_time: f64,
+    #[serde(flatten)]
+    pub pair: LoopPair,
     pub inliers: usize,
     pub guided_matches: usize,
     /// How far the keyframe moved: metres and degrees.
@@ -167,12 +184,8 @@ impl<'a> LoopCloser<'a> {
         outcome: String,
         accepted: bool,
     ) {
-        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
         self.candidates.push(Candidate {
-            keyframe: a.id,
-            candidate: b.id,
-            keyframe_time: a.frame.timestamp,
-            candidate_time: b.frame.timestamp,
+            pair: LoopPair::of(map, (key, candidate)),
             score,
             accepted,
             outcome,
@@ -364,12 +377,9 @@ impl<'a> LoopCloser<'a> {
         let moved = se3::log(&(corrected * original.inverse()));
         let (fused, report) =
             self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
-        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+        let pair = LoopPair::of(map, (key, candidate));
         self.closed.push(ClosedLoop {
-            keyframe: a.id,
-            matched: b.id,
-            keyframe_time: a.frame.timestamp,
-            matched_time: b.frame.timestamp,
+            pair,
             inliers,
             guided_matches: guided.len(),
             correction_m: (corrected.inverse().translation.vector
@@ -379,7 +389,7 @@ impl<'a> LoopCloser<'a> {
             fused_points: fused,
             essential_graph: report,
         });
-        self.last_loop = Some(a.id);
+        self.last_loop = Some(pair.keyframe);
         self.groups.clear();
         true
     }
@@ -514,13 +524,7 @@ impl<'a> LoopCloser<'a> {
             uncorrected.insert(n, old);
             map.keyframes[n].camera_from_world = new;
             let move_points = new.inverse() * old;
-            let points: Vec<MapPointKey> = map.keyframes[n]
-                .map_points
-                .iter()
-                .flatten()
-                .copied()
-                .collect();
-            for p in points {
+            for p in map.keyframes[n].observed_points() {
                 if placed_by.contains_key(&p) {
                     continue;
                 }

@@ -114,6 +114,11 @@ impl KeyFrame {
         self.camera_from_world.inverse()
     }
 
+    /// The map points the keyframe observes (a copy, so the map can change meanwhile).
+    pub fn observed_points(&self) -> Vec<MapPointKey> {
+        self.map_points.iter().flatten().copied().collect()
+    }
+
     /// The camera centre in the world frame.
     pub fn centre(&self) -> Vector3<f64> {
         self.camera_from_world.inverse().translation.vector

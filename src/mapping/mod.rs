@@ -292,13 +292,7 @@ impl LocalMapper {
         };
         let mut m = map.write().expect("map lock poisoned");
         self.stats.fusions += fusion::apply(&mut m, &fusions);
-        let points: Vec<MapPointKey> = m.keyframes[key]
-            .map_points
-            .iter()
-            .flatten()
-            .copied()
-            .collect();
-        for p in points {
+        for p in m.keyframes[key].observed_points() {
             m.update_point(p, &self.pyramid.factors);
         }
         m.update_connections(key);

@@ -303,17 +303,6 @@ mod tests {
     use super::*;
     use crate::random::Rng;
 
-    fn noise(rng: &mut Rng, t: f64, r: f64) -> Se3 {
-        se3::exp(&Vector6::new(
-            t * rng.normal(),
-            t * rng.normal(),
-            t * rng.normal(),
-            r * rng.normal(),
-            r * rng.normal(),
-            r * rng.normal(),
-        ))
-    }
-
     /// A ring of `n` poses with odometry and a loop edge; noisy odometry chained as the
     /// initial guess (drift), exact edges: the optimum is the truth.
     fn ring(n: usize, seed: u64) -> (PoseGraph, Vec<Se3>) {
@@ -345,7 +334,7 @@ mod tests {
         }
         let mut poses = vec![truth[0]];
         for i in 1..n {
-            let z = truth[i - 1].inverse() * truth[i] * noise(&mut rng, 0.05, 0.03);
+            let z = truth[i - 1].inverse() * truth[i] * se3::gaussian(&mut rng, 0.05, 0.03);
             poses.push(poses[i - 1] * z);
         }
         (

@@ -4,7 +4,7 @@
 //! by several keyframes), stereo-like measurements (ORB-SLAM2's virtual right
 //! coordinate) with pixel noise, and poses and points perturbed from the truth.
 
-use nalgebra::{Point3, Vector3, Vector6};
+use nalgebra::{Point3, Vector3};
 
 use crate::geometry::se3::{self, Se3};
 use crate::optim::local_ba::{BaObservation, BaProblem};
@@ -117,14 +117,7 @@ pub fn room_problem(
             if i == 0 {
                 *t
             } else {
-                se3::exp(&Vector6::new(
-                    ts * rng.normal(),
-                    ts * rng.normal(),
-                    ts * rng.normal(),
-                    rs * rng.normal(),
-                    rs * rng.normal(),
-                    rs * rng.normal(),
-                )) * t
+                se3::gaussian(&mut rng, ts, rs) * t
             }
         })
         .collect();

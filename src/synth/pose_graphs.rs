@@ -3,7 +3,7 @@
 //! edges between neighbouring rings, all measured with Gaussian noise; the initial
 //! guess chains the noisy odometry, so it drifts as real odometry does.
 
-use nalgebra::{Matrix6, Vector3, Vector6};
+use nalgebra::{Matrix6, Vector3};
 
 use crate::geometry::se3::{self, Se3};
 use crate::optim::pose_graph::{PoseEdge, PoseGraph};
@@ -34,15 +34,7 @@ impl Default for SphereSpec {
 }
 
 fn noise(rng: &mut Rng, spec: &SphereSpec) -> Se3 {
-    let (t, r) = (spec.sigma_translation, spec.sigma_rotation);
-    se3::exp(&Vector6::new(
-        t * rng.normal(),
-        t * rng.normal(),
-        t * rng.normal(),
-        r * rng.normal(),
-        r * rng.normal(),
-        r * rng.normal(),
-    ))
+    se3::gaussian(rng, spec.sigma_translation, spec.sigma_rotation)
 }
 
 /// The noisy graph (initial guess: chained odometry, first pose fixed) and the true
