@@ -40,6 +40,19 @@ struct Node {
     depth: u8,
 }
 
+impl Node {
+    fn root() -> Self {
+        Self {
+            parent: u32::MAX,
+            centre: [0; 4],
+            weight: 0.0,
+            children: Vec::new(),
+            word: u32::MAX,
+            depth: 0,
+        }
+    }
+}
+
 /// A trained vocabulary.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Vocabulary {
@@ -175,14 +188,7 @@ impl Vocabulary {
     pub fn train(images: &[Vec<Descriptor>], options: &TrainOptions) -> Self {
         let descriptors: Vec<Descriptor> = images.iter().flatten().copied().collect();
         let mut rng = Rng::new(options.seed);
-        let mut nodes = vec![Node {
-            parent: u32::MAX,
-            centre: [0; 4],
-            weight: 0.0,
-            children: Vec::new(),
-            word: u32::MAX,
-            depth: 0,
-        }];
+        let mut nodes = vec![Node::root()];
         // Breadth-first splits: (node, members).
         let mut queue = std::collections::VecDeque::from([(
             0u32,
@@ -361,14 +367,7 @@ impl Vocabulary {
             ));
         }
         let mut nodes = Vec::with_capacity(count + 1);
-        nodes.push(Node {
-            parent: u32::MAX,
-            centre: [0; 4],
-            weight: 0.0,
-            children: Vec::new(),
-            word: u32::MAX,
-            depth: 0,
-        });
+        nodes.push(Node::root());
         for i in 0..count {
             let at = 20 + i * NODE_BYTES;
             let parent = read_u32(bytes, at);
