@@ -362,6 +362,7 @@ pub fn track_sequence(
         tracker.dop = Some(config.dop.clone());
         mapper.moving_threshold = config.dop.removal_threshold;
     }
+    let moving_threshold = mapper.moving_threshold;
     let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
     let effect = DetectionUse {
         config: &config.dop,
@@ -527,8 +528,10 @@ pub fn track_sequence(
     let stats = mapping.finish();
     let shared = tracker.map.clone();
     let mut map = shared.write().expect("map lock poisoned");
+    // The global pass, on a complete run: the tracking trajectory is kept first.
     let global = if config.global.enabled && failure.is_none() {
-        trajectory_of(&map, &lines).write(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)?;
+        let tracking = trajectory_of(&map, &lines);
+        tracking.write(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)?;
         let inputs = crate::global::GlobalInputs {
             camera: &camera,
             pyramid: &extractor.pyramid,
@@ -536,13 +539,12 @@ pub fn track_sequence(
                 calibration.camera.width as f32,
                 calibration.camera.height as f32,
             ),
-            moving_threshold: if mode == Mode::Dop {
-                config.dop.removal_threshold
-            } else {
-                1.0
-            },
+            moving_threshold,
         };
-        Some(crate::global::run(&mut map, &inputs, &config.global))
+        Some((
+            crate::global::run(&mut map, &inputs, &config.global),
+            tracking,
+        ))
     } else {
         None
     };
@@ -887,14 +889,15 @@ fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
     trajectory
 }
 
-/// Writes trajectory, keyframes, map and report; evaluates against ground truth.
+/// Writes trajectory, keyframes, map and report; evaluates against ground truth (also
+/// the tracking pass's trajectory, when the global pass ran after it).
 fn write_outputs(
     sequence: &dyn Sequence,
     map: &Map,
     (mapping, detection): (MappingStats, DetectionTotals),
     (lines, stopped): (Vec<FrameLine>, Option<String>),
     (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
-    global: Option<GlobalReport>,
+    global: Option<(GlobalReport, Trajectory)>,
 ) -> Result<RunReport, RunError> {
     let trajectory = trajectory_of(map, &lines);
     trajectory.write(&out.join("trajectory.txt"), TrajectoryFormat::Tum)?;
@@ -953,11 +956,9 @@ fn write_outputs(
         _ => None,
     };
     let ate = ate_of(&trajectory);
-    let ate_tracking = match &global {
-        Some(_) => Trajectory::read(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)
-            .ok()
-            .and_then(|t| ate_of(&t)),
-        None => None,
+    let (global, ate_tracking) = match global {
+        Some((report, tracking)) => (Some(report), ate_of(&tracking)),
+        None => (None, None),
     };
     let report = RunReport {
         sequence: sequence.name().to_string(),

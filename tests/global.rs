@@ -35,7 +35,7 @@ fn a_revisited_place_ranks_its_true_match_first() {
         .collect();
     let mut database = Database::new(&vocabulary);
     for (i, bow) in bows.iter().enumerate() {
-        database.add(i, bow.clone());
+        database.add(i, bow);
     }
     // The last frame (t = 30 s) against frames 0..=26, and the first against 4..=30.
     for (query, expected, allowed) in [(30usize, 0usize, 0..=26usize), (0, 30, 4..=30)] {

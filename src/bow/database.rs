@@ -5,9 +5,10 @@ use super::vocabulary::{BowVector, Vocabulary};
 
 /// Entries are identified by the caller's `T` (a keyframe key).
 #[derive(Debug, Clone)]
-pub struct Database<T: Copy + PartialEq> {
+pub struct Database<T: Copy> {
+    /// Per word: (entry, weight).
     inverted: Vec<Vec<(u32, f64)>>,
-    entries: Vec<(T, BowVector)>,
+    entries: Vec<T>,
 }
 
 /// One query result.
@@ -19,7 +20,7 @@ pub struct Hit<T> {
     pub common: usize,
 }
 
-impl<T: Copy + PartialEq> Database<T> {
+impl<T: Copy> Database<T> {
     pub fn new(vocabulary: &Vocabulary) -> Self {
         Self {
             inverted: vec![Vec::new(); vocabulary.len()],
@@ -35,20 +36,15 @@ impl<T: Copy + PartialEq> Database<T> {
         self.entries.is_empty()
     }
 
-    /// Adds an entry.
-    pub fn add(&mut self, id: T, bow: BowVector) {
+    /// Adds an entry (only its words' inverted lists keep its weights).
+    pub fn add(&mut self, id: T, bow: &BowVector) {
         let index = self.entries.len() as u32;
-        for &(word, weight) in &bow {
+        for &(word, weight) in bow {
             if let Some(list) = self.inverted.get_mut(word as usize) {
                 list.push((index, weight));
             }
         }
-        self.entries.push((id, bow));
-    }
-
-    /// The entry's bag of words.
-    pub fn bow(&self, id: T) -> Option<&BowVector> {
-        self.entries.iter().find(|(e, _)| *e == id).map(|(_, b)| b)
+        self.entries.push(id);
     }
 
     /// Every entry sharing a word with `bow` and accepted by `keep`, with its L1 score
@@ -71,8 +67,8 @@ impl<T: Copy + PartialEq> Database<T> {
             .entries
             .iter()
             .enumerate()
-            .filter(|(i, (id, _))| common[*i] > 0 && keep(*id))
-            .map(|(i, (id, _))| Hit {
+            .filter(|(i, id)| common[*i] > 0 && keep(**id))
+            .map(|(i, id)| Hit {
                 id: *id,
                 score: -0.5 * score[i],
                 common: common[i],
@@ -95,7 +91,7 @@ mod tests {
         let mut database = Database::new(&vocabulary);
         let bows: Vec<BowVector> = training.iter().map(|i| vocabulary.transform(i).0).collect();
         for (i, b) in bows.iter().enumerate() {
-            database.add(i, b.clone());
+            database.add(i, b);
         }
         let (query, _) = vocabulary.transform(&queries[2]);
         let hits = database.query(&query, |id| id != 5);

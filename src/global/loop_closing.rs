@@ -159,9 +159,9 @@ impl<'a> LoopCloser<'a> {
         let Some(kf) = map.keyframes.get(key) else {
             return;
         };
-        let words = self.inputs.vocabulary.transform(&kf.frame.descriptors);
-        self.words.insert(key, words.clone());
         let id = kf.id;
+        let words = self.inputs.vocabulary.transform(&kf.frame.descriptors);
+        self.words.insert(key, words);
         let recent = self
             .last_loop
             .is_some_and(|last| id < last + self.config.gap)
@@ -173,7 +173,7 @@ impl<'a> LoopCloser<'a> {
                 }
             }
         }
-        self.database.add(key, words.0);
+        self.database.add(key, &self.words[&key].0);
     }
 
     fn record(
@@ -247,15 +247,12 @@ impl<'a> LoopCloser<'a> {
                 .map(|(k, _)| *k)
                 .collect();
             group.insert(c);
-            let mut consistent = false;
             let mut count = 1;
             for (previous, n) in &self.groups {
                 if previous.iter().any(|k| group.contains(k)) {
                     count = count.max(n + 1);
-                    consistent = true;
                 }
             }
-            let _ = consistent;
             if count >= self.config.min_consistency {
                 enough.push((c, score));
             } else {
@@ -340,16 +337,14 @@ impl<'a> LoopCloser<'a> {
             .collect();
         let loop_points = self.static_points(map, &loop_group);
         let original = map.keyframes[key].camera_from_world;
-        map.keyframes[key].camera_from_world = corrected;
-        let guided = fusion::search(
+        let guided = fusion::search_from(
             map,
-            key,
+            (key, &corrected),
             &loop_points,
             self.inputs.camera,
             self.inputs.pyramid,
             self.inputs.size,
         );
-        map.keyframes[key].camera_from_world = original;
         if guided.len() < self.config.min_guided_matches {
             self.record(
                 map,

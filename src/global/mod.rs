@@ -153,9 +153,12 @@ pub fn full_bundle_adjustment(
         config.full_ba_inlier_iterations,
     );
     let removed = window.apply(map, &ba, &inputs.pyramid.factors);
-    let keyframes: Vec<_> = map.keyframe_order.clone();
-    for k in keyframes {
-        map.update_connections(k);
+    if removed > 0 {
+        // Removed observations change what keyframes share.
+        let keyframes = map.keyframe_order.clone();
+        for k in keyframes {
+            map.update_connections(k);
+        }
     }
     Some(FullBaReport {
         keyframes: window.problem.poses.len(),

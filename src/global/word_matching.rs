@@ -30,7 +30,10 @@ pub fn match_by_words(
     ratio: f32,
     moving_threshold: f32,
 ) -> Vec<(usize, usize)> {
-    let mut taken = vec![false; b.frame.len()];
+    // Keypoints of b already used, or without a static point: never candidates.
+    let mut taken: Vec<bool> = (0..b.frame.len())
+        .map(|i| static_point(map, b, i, moving_threshold).is_none())
+        .collect();
     let mut matches = Vec::new();
     let (mut i, mut j) = (0, 0);
     while i < words_a.len() && j < words_b.len() {
@@ -47,7 +50,7 @@ pub fn match_by_words(
                     let (mut best, mut second, mut best_index) = (u32::MAX, u32::MAX, usize::MAX);
                     for &ib in &words_b[j].1 {
                         let ib = ib as usize;
-                        if taken[ib] || static_point(map, b, ib, moving_threshold).is_none() {
+                        if taken[ib] {
                             continue;
                         }
                         let dist = hamming(d, &b.frame.descriptors[ib]);

@@ -28,6 +28,43 @@ pub fn split_fields(line: &str) -> impl Iterator<Item = &str> {
     line.split([' ', ',', '\t']).filter(|s| !s.is_empty())
 }
 
+/// Parses exactly `expected` finite numbers from a line, naming file, line and format on failure.
+pub fn parse_numbers(
+    path: &Path,
+    line_number: usize,
+    line: &str,
+    expected: usize,
+    format: &str,
+) -> Result<Vec<f64>, IoError> {
+    let fields: Vec<&str> = split_fields(line).collect();
+    if fields.len() != expected {
+        return Err(IoError::parse(
+            path,
+            line_number,
+            format!(
+                "expected {expected} numbers ({format}), found {}",
+                fields.len()
+            ),
+        ));
+    }
+    fields
+        .iter()
+        .map(|field| {
+            field
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| {
+                    IoError::parse(
+                        path,
+                        line_number,
+                        format!("{field:?} is not a finite number ({format})"),
+                    )
+                })
+        })
+        .collect()
+}
+
 /// Reads a file list such as `rgb.txt`: lines starting with `#` and blank lines are
 /// skipped; every other line is a timestamp followed by at least `min_fields` fields.
 /// The entries come back sorted by timestamp; a repeated timestamp keeps its last line

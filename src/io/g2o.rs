@@ -17,6 +17,7 @@ use std::path::Path;
 use nalgebra::Matrix6;
 
 use super::errors::read_text;
+use super::file_list::{content_lines, parse_numbers, split_fields};
 use super::IoError;
 use crate::geometry::se3::{self, Se3};
 
@@ -40,28 +41,13 @@ pub struct G2oGraph {
     pub fixed: Vec<u64>,
 }
 
+/// The numbers after a record's tag, exactly `count` of them.
 fn numbers(path: &Path, line: usize, fields: &[&str], count: usize) -> Result<Vec<f64>, IoError> {
-    if fields.len() != count {
-        return Err(IoError::parse(
-            path,
-            line,
-            format!(
-                "{} takes {} numbers, found {}",
-                fields.first().copied().unwrap_or(""),
-                count - 1,
-                fields.len() - 1
-            ),
-        ));
-    }
-    fields[1..]
-        .iter()
-        .map(|f| {
-            f.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| IoError::parse(path, line, format!("{f:?} is not a number")))
-        })
-        .collect()
+    let format = match fields[0] {
+        "VERTEX_SE3:QUAT" => "VERTEX_SE3:QUAT id x y z qx qy qz qw",
+        _ => "EDGE_SE3:QUAT a b x y z qx qy qz qw and 21 information entries",
+    };
+    parse_numbers(path, line, &fields[1..].join(" "), count - 1, format)
 }
 
 fn pose(path: &Path, line: usize, v: &[f64]) -> Result<Se3, IoError> {
@@ -86,16 +72,14 @@ impl G2oGraph {
         let text = read_text(path)?;
         let mut graph = Self::default();
         let mut seen = std::collections::HashSet::new();
-        for (n, raw) in text.lines().enumerate() {
-            let line = n + 1;
-            let fields: Vec<&str> = raw.split_whitespace().collect();
+        for (line, content) in content_lines(&text) {
+            let fields: Vec<&str> = split_fields(content).collect();
             let id = |s: &str| {
                 s.parse::<u64>()
                     .map_err(|_| IoError::parse(path, line, format!("{s:?} is not a vertex id")))
             };
             match fields.first().copied() {
                 None => {}
-                Some(tag) if tag.starts_with('#') => {}
                 Some("VERTEX_SE3:QUAT") => {
                     let v = numbers(path, line, &fields, 9)?;
                     let vertex = id(fields[1])?;

@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::atomic::write_atomic;
 use super::errors::{read_text, IoError};
-use super::file_list::{content_lines, split_fields};
+use super::file_list::{content_lines, parse_numbers};
 use crate::geometry::se3::{self, Se3};
 
 /// Timestamped poses `world_from_camera`. KITTI files carry no timestamps; they get
@@ -196,43 +196,6 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, IoError> {
         times.push(parse_numbers(path, line_number, line, 1, "one time in seconds")?[0]);
     }
     Ok(times)
-}
-
-/// Parses exactly `expected` finite numbers from a line, naming file, line and format on failure.
-fn parse_numbers(
-    path: &Path,
-    line_number: usize,
-    line: &str,
-    expected: usize,
-    format: &str,
-) -> Result<Vec<f64>, IoError> {
-    let fields: Vec<&str> = split_fields(line).collect();
-    if fields.len() != expected {
-        return Err(IoError::parse(
-            path,
-            line_number,
-            format!(
-                "expected {expected} numbers ({format}), found {}",
-                fields.len()
-            ),
-        ));
-    }
-    fields
-        .iter()
-        .map(|field| {
-            field
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| {
-                    IoError::parse(
-                        path,
-                        line_number,
-                        format!("{field:?} is not a finite number ({format})"),
-                    )
-                })
-        })
-        .collect()
 }
 
 #[cfg(test)]

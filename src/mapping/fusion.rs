@@ -37,6 +37,29 @@ pub fn search(
     let Some(kf) = map.keyframes.get(keyframe) else {
         return Vec::new();
     };
+    search_from(
+        map,
+        (keyframe, &kf.camera_from_world),
+        points,
+        camera,
+        pyramid,
+        size,
+    )
+}
+
+/// [`search`] with the keyframe placed at `camera_from_world` instead of its own pose
+/// (loop closing's guided search, before the correction is applied).
+pub fn search_from(
+    map: &Map,
+    (keyframe, camera_from_world): (KeyFrameKey, &crate::geometry::se3::Se3),
+    points: &[MapPointKey],
+    camera: &StereoCamera,
+    pyramid: &ScalePyramid,
+    size: (f32, f32),
+) -> Vec<Fusion> {
+    let Some(kf) = map.keyframes.get(keyframe) else {
+        return Vec::new();
+    };
     let frame = &kf.frame;
     let mut found = Vec::new();
     for &key in points {
@@ -46,7 +69,7 @@ pub fn search(
         if point.observations.iter().any(|(k, _)| *k == keyframe) {
             continue;
         }
-        let Some(view) = predict_view(point, &kf.camera_from_world, camera, size, pyramid) else {
+        let Some(view) = predict_view(point, camera_from_world, camera, size, pyramid) else {
             continue;
         };
         let radius = 3.0 * pyramid.factors[view.level as usize] as f32;

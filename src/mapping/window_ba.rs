@@ -67,14 +67,11 @@ impl Window {
         pyramid: &ScalePyramid,
         moving_threshold: f32,
     ) -> Option<Self> {
-        let first = *map.keyframe_order.first()?;
-        let first = if map.keyframes.contains_key(first) {
-            first
-        } else {
-            *map.keyframe_order
-                .iter()
-                .find(|k| map.keyframes.contains_key(**k))?
-        };
+        // The oldest keyframe still in the map holds the gauge.
+        let first = *map
+            .keyframe_order
+            .iter()
+            .find(|k| map.keyframes.contains_key(**k))?;
         let mut point_index = HashMap::new();
         let mut points = Vec::new();
         let mut positions = Vec::new();

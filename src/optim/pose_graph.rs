@@ -145,6 +145,24 @@ impl PoseGraph {
         )
     }
 
+    /// The residual and its Jacobians with respect to the `from` and `to` poses' right
+    /// perturbations (first-order \(J_r^{-1}\), see the module's doc).
+    pub fn linearised(&self, edge: &PoseEdge) -> (Vector6<f64>, Matrix6<f64>, Matrix6<f64>) {
+        let r = self.residual(edge);
+        let (phi_hat, rho_hat) = (
+            hat(&r.fixed_rows::<3>(3).into_owned()),
+            hat(&r.fixed_rows::<3>(0).into_owned()),
+        );
+        let mut ad = Matrix6::zeros();
+        ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&phi_hat);
+        ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&rho_hat);
+        ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&phi_hat);
+        let jr_inv = Matrix6::identity() + 0.5 * ad;
+        let j_from =
+            -jr_inv * se3::adjoint(&(self.poses[edge.to].inverse() * self.poses[edge.from]));
+        (r, j_from, jr_inv)
+    }
+
     /// \(\chi^2 = \sum e^\top \Omega e\).
     pub fn cost(&self) -> f64 {
         self.edges
@@ -255,17 +273,7 @@ impl PoseGraph {
             .edges
             .par_iter()
             .map(|e| {
-                let r = self.residual(e);
-                let mut ad = Matrix6::zeros();
-                let (rho, phi) = (r.fixed_rows::<3>(0), r.fixed_rows::<3>(3));
-                let (phi_hat, rho_hat) = (hat(&phi.into_owned()), hat(&rho.into_owned()));
-                ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&phi_hat);
-                ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&rho_hat);
-                ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&phi_hat);
-                let jr_inv = Matrix6::identity() + 0.5 * ad;
-                let j_to = jr_inv;
-                let j_from =
-                    -jr_inv * se3::adjoint(&(self.poses[e.to].inverse() * self.poses[e.from]));
+                let (r, j_from, j_to) = self.linearised(e);
                 let omega = e.information;
                 (
                     j_from.transpose() * omega * j_from,
@@ -371,17 +379,8 @@ mod tests {
     fn jacobians_equal_finite_differences() {
         let (graph, _) = ring(5, 4);
         let e = &graph.edges[3];
-        let (i, j) = (e.from, e.to);
-        let r = graph.residual(e);
-        let mut ad = Matrix6::zeros();
-        ad.fixed_view_mut::<3, 3>(0, 0)
-            .copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
-        ad.fixed_view_mut::<3, 3>(0, 3)
-            .copy_from(&hat(&r.fixed_rows::<3>(0).into_owned()));
-        ad.fixed_view_mut::<3, 3>(3, 3)
-            .copy_from(&hat(&r.fixed_rows::<3>(3).into_owned()));
-        let jr_inv = Matrix6::identity() + 0.5 * ad;
-        let j_from = -jr_inv * se3::adjoint(&(graph.poses[j].inverse() * graph.poses[i]));
+        let i = e.from;
+        let (r, j_from, _) = graph.linearised(e);
         for k in 0..6 {
             let mut d = Vector6::zeros();
             d[k] = 1e-6;

@@ -33,10 +33,6 @@ impl Default for SphereSpec {
     }
 }
 
-fn noise(rng: &mut Rng, spec: &SphereSpec) -> Se3 {
-    se3::gaussian(rng, spec.sigma_translation, spec.sigma_rotation)
-}
-
 /// The noisy graph (initial guess: chained odometry, first pose fixed) and the true
 /// poses.
 pub fn sphere(spec: &SphereSpec, seed: u64) -> (PoseGraph, Vec<Se3>) {
@@ -71,7 +67,9 @@ pub fn sphere(spec: &SphereSpec, seed: u64) -> (PoseGraph, Vec<Se3>) {
     let measure = |rng: &mut Rng, from: usize, to: usize| PoseEdge {
         from,
         to,
-        measurement: truth[from].inverse() * truth[to] * noise(rng, spec),
+        measurement: truth[from].inverse()
+            * truth[to]
+            * se3::gaussian(rng, spec.sigma_translation, spec.sigma_rotation),
         information,
     };
     let n = truth.len();
