@@ -99,5 +99,5 @@ if [ "$run_demo" = 1 ]; then
     ./target/release/dopslam eval outputs/demo/sequence/groundtruth.txt \
         outputs/demo/run/trajectory.txt --plot outputs/demo/run/plots \
         --save-report outputs/demo/run/evaluation.json
-    say "outputs/demo/run: trajectory.txt, keyframes.txt, map.ply, report.json, plots/, dense_mesh.ply/.obj, dense_points.ply, dense_*.png; no_dop/, unmasked/, compare_no_dop/compare.md"
+    say "outputs/demo/run: trajectory.txt (after the global pass), trajectory_tracking.txt, keyframes.txt, map.ply, report.json, plots/, dense_mesh.ply/.obj, dense_points.ply, dense_*.png; no_dop/, unmasked/, compare_no_dop/compare.md"
 fi
