@@ -18,6 +18,7 @@ use nalgebra::Matrix6;
 
 use super::errors::read_text;
 use super::file_list::{content_lines, parse_numbers, split_fields};
+use super::trajectory::write_translation_quaternion;
 use super::IoError;
 use crate::geometry::se3::{self, Se3};
 
@@ -137,15 +138,7 @@ impl G2oGraph {
     /// The file's text (full precision).
     pub fn to_text(&self) -> String {
         let mut text = String::new();
-        let pose = |text: &mut String, p: &Se3| {
-            let t = p.translation.vector;
-            let q = se3::quaternion_xyzw(p);
-            let _ = write!(
-                text,
-                "{} {} {} {} {} {} {}",
-                t.x, t.y, t.z, q[0], q[1], q[2], q[3]
-            );
-        };
+        let pose = write_translation_quaternion;
         for (id, p) in &self.vertices {
             let _ = write!(text, "VERTEX_SE3:QUAT {id} ");
             pose(&mut text, p);

@@ -155,13 +155,9 @@ impl Trajectory {
     pub fn to_tum_string(&self) -> String {
         let mut out = String::from("# timestamp tx ty tz qx qy qz qw\n");
         for (t, pose) in self.timestamps.iter().zip(&self.poses) {
-            let p = pose.translation.vector;
-            let q = se3::quaternion_xyzw(pose);
-            let _ = writeln!(
-                out,
-                "{t:.6} {} {} {} {} {} {} {}",
-                p.x, p.y, p.z, q[0], q[1], q[2], q[3]
-            );
+            let _ = write!(out, "{t:.6} ");
+            write_translation_quaternion(&mut out, pose);
+            out.push('\n');
         }
         out
     }
@@ -196,6 +192,18 @@ pub fn read_times(path: &Path) -> Result<Vec<f64>, IoError> {
         times.push(parse_numbers(path, line_number, line, 1, "one time in seconds")?[0]);
     }
     Ok(times)
+}
+
+/// Appends `tx ty tz qx qy qz qw` in Rust's shortest round-trip form (TUM and g2o
+/// write poses so).
+pub fn write_translation_quaternion(out: &mut String, pose: &Se3) {
+    let p = pose.translation.vector;
+    let q = se3::quaternion_xyzw(pose);
+    let _ = write!(
+        out,
+        "{} {} {} {} {} {} {}",
+        p.x, p.y, p.z, q[0], q[1], q[2], q[3]
+    );
 }
 
 #[cfg(test)]
