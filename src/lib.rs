@@ -5,6 +5,7 @@
 //! and evaluation against ground truth (`eval`). Lower layers never import higher
 //! ones: `geometry` knows nothing of datasets, `io` nothing of evaluation.
 
+pub mod batch;
 pub mod bow;
 pub mod config;
 pub mod demo;

@@ -20,6 +20,7 @@ use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
+mod cli_batch;
 mod cli_global;
 mod cli_maps;
 
@@ -56,6 +57,8 @@ enum Command {
     Vocab(cli_global::VocabArgs),
     /// Make and optimise 3-D pose graphs in g2o's format (VERTEX_SE3:QUAT / EDGE_SE3:QUAT).
     Graph(cli_global::GraphArgs),
+    /// Run many sequences in several modes, repeated, and write the tables, plots and HTML report (resumable).
+    Batch(cli_batch::BatchArgs),
 }
 
 #[derive(Args)]
@@ -682,7 +685,7 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Run(_) | Command::Fuse(_)) {
+    if matches!(cli.command, Command::Run(_) | Command::Fuse(_) | Command::Batch(_)) {
         dopslam::interrupt::install();
     }
     let result = match cli.command {
@@ -696,6 +699,7 @@ fn main() -> ExitCode {
         Command::Detect(args) => run_detect(args),
         Command::Vocab(args) => cli_global::run_vocab(args),
         Command::Graph(args) => cli_global::run_graph(args),
+        Command::Batch(args) => cli_batch::run_batch(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -159,7 +159,7 @@ fn legend(entries: &[(&str, &str)]) -> String {
 }
 
 /// The two world axes along which the reference moves most (the "top view").
-fn view_axes(points: &[Vector3<f64>]) -> (usize, usize) {
+pub fn view_axes(points: &[Vector3<f64>]) -> (usize, usize) {
     let mean = points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64;
     let spread = points
         .iter()

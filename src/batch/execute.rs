@@ -1,0 +1,379 @@
+//! Running the batch: each run is a `dopslam run` child process (its own threads and
+//! memory, its log in `log.txt`; a crash fails that run alone), several at a time
+//! within the core and memory budgets, under one progress bar. A run that finished
+//! (its `run.json` exists) is skipped, so a batch killed midway resumes where it was.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::manifest::{PlannedSequence, RunMode};
+use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
+use crate::config::Config;
+use crate::dense::compare::CompareSettings;
+use crate::dense::comparison::{compare_maps, run_alignment, CompareInputs};
+use crate::eval::ate::PoseRelation;
+use crate::eval::report::{evaluate, EvalOptions, EvalReport, RpeSpec};
+use crate::eval::rpe::DeltaUnit;
+use crate::io::atomic::write_atomic;
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::Trajectory;
+
+/// One run to do.
+#[derive(Debug, Clone)]
+pub struct RunJob {
+    /// Index into the planned sequences.
+    pub sequence: usize,
+    pub mode: RunMode,
+    /// 1-based.
+    pub repetition: usize,
+    pub dir: PathBuf,
+}
+
+/// How the runs are executed.
+pub struct Executor<'a> {
+    /// The `dopslam` program the runs are started with.
+    pub program: &'a Path,
+    pub sequences: &'a [PlannedSequence],
+    /// The folder each sequence is read from (generated ones under the batch's output).
+    pub sequence_dirs: &'a [PathBuf],
+    pub jobs: usize,
+    pub cores_per_run: usize,
+    pub deterministic: bool,
+    pub rpe_seconds: f64,
+    pub progress: bool,
+}
+
+/// What a pass over the runs did.
+#[derive(Debug, Default)]
+pub struct Executed {
+    pub done: usize,
+    pub failed: usize,
+    /// Runs left undone because the batch was interrupted.
+    pub interrupted: usize,
+}
+
+impl Executor<'_> {
+    /// Runs `jobs` (those without `run.json`), `self.jobs` at a time.
+    pub fn run_all(&self, jobs: Vec<RunJob>) -> Executed {
+        let queue = Mutex::new(VecDeque::from(jobs));
+        let total = queue.lock().map_or(0, |q| q.len());
+        let bar = if self.progress {
+            ProgressBar::new(total as u64)
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} runs (eta {eta}) {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.enable_steady_tick(Duration::from_millis(500));
+        let running = Mutex::new(Vec::<String>::new());
+        let executed = Mutex::new(Executed::default());
+        std::thread::scope(|scope| {
+            for _ in 0..self.jobs.max(1) {
+                scope.spawn(|| loop {
+                    if crate::interrupt::requested() {
+                        return;
+                    }
+                    let Some(job) = queue.lock().ok().and_then(|mut q| q.pop_front()) else {
+                        return;
+                    };
+                    let label = self.label(&job);
+                    if let Ok(mut r) = running.lock() {
+                        r.push(label.clone());
+                        bar.set_message(r.join(", "));
+                    }
+                    let outcome = self.run_one(&job);
+                    if let Ok(mut r) = running.lock() {
+                        r.retain(|l| l != &label);
+                        bar.set_message(r.join(", "));
+                    }
+                    let Ok(mut e) = executed.lock() else { return };
+                    match outcome {
+                        Some(record) if record.status == RunStatus::Failed => {
+                            e.failed += 1;
+                            bar.println(format!(
+                                "failed: {label}: {}",
+                                record.error.as_deref().unwrap_or("?")
+                            ));
+                        }
+                        Some(_) => e.done += 1,
+                        None => e.interrupted += 1,
+                    }
+                    bar.inc(1);
+                });
+            }
+        });
+        bar.finish_and_clear();
+        let mut executed = executed.into_inner().unwrap_or_default();
+        executed.interrupted += queue.into_inner().map_or(0, |q| q.len());
+        executed
+    }
+
+    fn label(&self, job: &RunJob) -> String {
+        format!(
+            "{}/{}/r{}",
+            self.sequences[job.sequence].name,
+            job.mode.name(),
+            job.repetition
+        )
+    }
+
+    /// One run: the child process, then its evaluation; `None` when interrupted.
+    fn run_one(&self, job: &RunJob) -> Option<RunRecord> {
+        let sequence = &self.sequences[job.sequence];
+        let start = Instant::now();
+        let mut record = RunRecord {
+            sequence: sequence.name.clone(),
+            mode: job.mode,
+            repetition: job.repetition,
+            status: RunStatus::Failed,
+            error: None,
+            seconds: 0.0,
+            figures: None,
+        };
+        let result = self
+            .start(job)
+            .and_then(|child| wait(child, &job.dir))
+            .and_then(|finished| {
+                if !finished {
+                    return Ok(None);
+                }
+                self.figures(job).map(Some)
+            });
+        match result {
+            Ok(None) => return None,
+            Ok(Some(figures)) => {
+                record.status = RunStatus::Ok;
+                record.figures = Some(figures);
+            }
+            Err(message) => record.error = Some(message),
+        }
+        record.seconds = start.elapsed().as_secs_f64();
+        let json = serde_json::to_string_pretty(&record).unwrap_or_default();
+        if let Err(e) = write_atomic(&job.dir.join("run.json"), json.as_bytes()) {
+            record.status = RunStatus::Failed;
+            record.error = Some(e.to_string());
+        }
+        Some(record)
+    }
+
+    /// Starts `dopslam run` for `job` in a clean folder, with the sequence's config.
+    fn start(&self, job: &RunJob) -> Result<Child, String> {
+        let sequence = &self.sequences[job.sequence];
+        if job.dir.exists() {
+            std::fs::remove_dir_all(&job.dir)
+                .map_err(|e| format!("cannot clear {}: {e}", job.dir.display()))?;
+        }
+        std::fs::create_dir_all(&job.dir)
+            .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
+        let config_path = job.dir.join("config.toml");
+        let mut config = sequence.config.clone();
+        if job.mode == RunMode::NoDop {
+            // ORB-SLAM2 runs no detector.
+            config.detector.source = crate::detect::Source::None;
+        }
+        let text = toml::to_string(&config).map_err(|e| format!("config: {e}"))?;
+        write_atomic(&config_path, text.as_bytes()).map_err(|e| e.to_string())?;
+        let log = std::fs::File::create(job.dir.join("log.txt"))
+            .map_err(|e| format!("cannot create {}/log.txt: {e}", job.dir.display()))?;
+        let log_err = log
+            .try_clone()
+            .map_err(|e| format!("log.txt: {e}"))?;
+        let mut command = Command::new(self.program);
+        command
+            .arg("run")
+            .arg(&self.sequence_dirs[job.sequence])
+            .arg("--out")
+            .arg(&job.dir)
+            .arg("--config")
+            .arg(&config_path)
+            .arg(job.mode.flag());
+        if let Some(frames) = sequence.frames {
+            command.arg("--frames").arg(frames.to_string());
+        }
+        if self.deterministic {
+            command.arg("--deterministic");
+        }
+        command
+            .env("RAYON_NUM_THREADS", self.cores_per_run.to_string())
+            .stdin(Stdio::null())
+            .stdout(log)
+            .stderr(log_err);
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::process::CommandExt;
+            // SAFETY: prctl is async-signal-safe; the child asks to be ended when the
+            // thread that started it (a batch worker, which waits for it) goes away.
+            unsafe {
+                command.pre_exec(|| {
+                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                    Ok(())
+                });
+            }
+        }
+        command
+            .spawn()
+            .map_err(|e| format!("cannot start {}: {e}", self.program.display()))
+    }
+
+    /// The figures of a finished run: its report, its evaluation against the
+    /// sequence's ground truth (`eval.json`, `eval_rotation.json`) and, on a synthetic
+    /// sequence with a static scene, its dense map against it (`map_compare/`).
+    fn figures(&self, job: &RunJob) -> Result<RunFigures, String> {
+        let sequence = &self.sequences[job.sequence];
+        let mut figures =
+            RunFigures::from_report(&job.dir.join("report.json")).map_err(|e| e.to_string())?;
+        let sequence_dir = &self.sequence_dirs[job.sequence];
+        if let Some(reference) = ground_truth(sequence_dir, &sequence.config)? {
+            let rpe = RpeSpec {
+                delta: self.rpe_seconds,
+                unit: DeltaUnit::Seconds,
+            };
+            let estimate = Trajectory::read(&job.dir.join("trajectory.txt"), TrajectoryFormat::Tum)
+                .map_err(|e| e.to_string())?;
+            let translation = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart)?;
+            let rotation = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::AngleDeg)?;
+            for (name, report) in [("eval.json", &translation), ("eval_rotation.json", &rotation)] {
+                let json = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
+                write_atomic(&job.dir.join(name), json.as_bytes()).map_err(|e| e.to_string())?;
+            }
+            figures.ate_rmse = Some(translation.ape.statistics.rmse);
+            figures.rpe_translation = translation.rpe.first().map(|m| m.statistics.rmse);
+            figures.rpe_rotation_deg = rotation.rpe.first().map(|m| m.statistics.rmse);
+            let tracking = job.dir.join("trajectory_tracking.txt");
+            if tracking.exists() {
+                let estimate = Trajectory::read(&tracking, TrajectoryFormat::Tum).map_err(|e| e.to_string())?;
+                let report = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart)?;
+                figures.ate_tracking_rmse = Some(report.ape.statistics.rmse);
+            }
+        }
+        if let Some(map) = compare_with_static_scene(&job.dir, sequence_dir)? {
+            let dense = figures.map.take().unwrap_or_default();
+            figures.map = Some(MapFigures {
+                dynamic_removed_percent: dense.dynamic_removed_percent,
+                ..map
+            });
+        }
+        Ok(figures)
+    }
+}
+
+/// Waits for the child; on a stop request, passes it on and reports `false` (the run's
+/// outputs are partial and it will be run again).
+fn wait(mut child: Child, dir: &Path) -> Result<bool, String> {
+    let mut asked = false;
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) if status.success() && !asked => return Ok(true),
+            // A stop reaches the run from the terminal or from here: its outputs are
+            // partial, it is not recorded and runs again next time.
+            Ok(Some(_)) if asked || crate::interrupt::requested() || was_interrupted(dir) => {
+                return Ok(false)
+            }
+            Ok(Some(status)) => return Err(failure_message(status, dir)),
+            Ok(None) => {}
+            Err(e) => return Err(format!("waiting for the run: {e}")),
+        }
+        if crate::interrupt::requested() && !asked {
+            asked = true;
+            #[cfg(unix)]
+            // SAFETY: kill takes a pid and a signal number, no pointers.
+            unsafe {
+                libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Whether the run's log says it stopped on a signal.
+fn was_interrupted(dir: &Path) -> bool {
+    std::fs::read_to_string(dir.join("log.txt")).is_ok_and(|log| log.contains(crate::interrupt::MESSAGE))
+}
+
+/// The run's own error line from its log, else its exit status.
+fn failure_message(status: std::process::ExitStatus, dir: &Path) -> String {
+    let log = std::fs::read_to_string(dir.join("log.txt")).unwrap_or_default();
+    let error = log
+        .lines()
+        .rev()
+        .find_map(|l| l.trim().strip_prefix("error: "))
+        .map(str::to_string);
+    match error {
+        Some(e) => e,
+        None => format!("dopslam run exited with {status} (see {}/log.txt)", dir.display()),
+    }
+}
+
+/// The sequence's ground truth, if it has one.
+fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, String> {
+    let sequence = crate::pipeline::open_sequence(dir, config).map_err(|e| e.to_string())?;
+    Ok(sequence.ground_truth().cloned())
+}
+
+/// ATE and one RPE, as `dopslam eval` computes them with the config's `[eval]`
+/// association and alignment (every matched pose counts, whatever the coverage). A
+/// trajectory too short for the RPE's delta gets the ATE alone.
+pub fn evaluate_run(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    config: &Config,
+    rpe: RpeSpec,
+    rpe_relation: PoseRelation,
+) -> Result<EvalReport, String> {
+    let mut options = EvalOptions {
+        association: config.eval.association,
+        max_diff: config.eval.max_diff,
+        offset: 0.0,
+        align: config.eval.align,
+        n_align: None,
+        ape_relation: PoseRelation::TransPart,
+        rpe: vec![rpe],
+        rpe_relation,
+        min_coverage: 0.0,
+    };
+    evaluate(reference, estimate, &options)
+        .or_else(|_| {
+            options.rpe.clear();
+            evaluate(reference, estimate, &options)
+        })
+        .map_err(|e| format!("evaluation: {e}"))
+}
+
+/// The run's dense map against a synthetic sequence's static scene and movers.
+fn compare_with_static_scene(run: &Path, sequence_dir: &Path) -> Result<Option<MapFigures>, String> {
+    let static_scene = sequence_dir.join("static_scene.ply");
+    let mesh = ["dense_mesh.ply", "dense_points.ply"]
+        .into_iter()
+        .map(|n| run.join(n))
+        .find(|p| p.exists());
+    let (true, Some(mesh)) = (static_scene.exists(), mesh) else {
+        return Ok(None);
+    };
+    let movers = sequence_dir.join("movers.ply");
+    let maps = [("map".to_string(), mesh)];
+    let comparison = compare_maps(&CompareInputs {
+        maps: &maps,
+        alignments: &[run_alignment(run)],
+        reference: &static_scene,
+        movers: movers.exists().then_some(movers.as_path()),
+        cameras: None,
+        settings: CompareSettings::default(),
+        out: &run.join("map_compare"),
+    })
+    .map_err(|e| format!("map comparison: {e}"))?;
+    Ok(comparison.maps.first().map(|m| MapFigures {
+        accuracy_median: Some(m.accuracy_median),
+        ghost_points: Some(m.ghost_points),
+        ghost_fraction: Some(m.ghost_fraction),
+        dynamic_removed_percent: None,
+    }))
+}

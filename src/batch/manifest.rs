@@ -1,0 +1,478 @@
+//! The batch manifest (`dopslam batch MANIFEST.toml`): which sequences, in which modes,
+//! how many times, with which overrides, and within which budget. Unknown keys are
+//! refused by name; relative paths are taken from the manifest's folder.
+//!
+//! ```toml
+//! [batch]
+//! modes = ["dop", "no-dop", "mask-boxes"]
+//! repetitions = 3
+//!
+//! [[sequence]]                      # a synthetic preset, generated once per seed
+//! preset = "walking_xyz"            # a shipped preset (configs/synth/) or a path
+//! seeds = [1, 2]
+//!
+//! [[sequence]]                      # recorded folders in the TUM/Bonn or KITTI layout
+//! glob = "/data/tum/rgbd_dataset_freiburg3_walking_*"
+//! settings = "/data/tum/TUM3.yaml"   # calibration (ORB-SLAM2 settings file)
+//! depth_scale = 5000.0
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::Config;
+use crate::detect::Source;
+
+/// How a run treats moving objects (the `dopslam run` flags).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunMode {
+    /// The DOP model (`--dop`).
+    Dop,
+    /// ORB-SLAM2 (`--no-dop`): no detector runs.
+    NoDop,
+    /// The naive method (`--mask-boxes`).
+    MaskBoxes,
+}
+
+impl RunMode {
+    pub const ALL: [RunMode; 3] = [RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes];
+
+    /// The name in manifests, folders and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunMode::Dop => "dop",
+            RunMode::NoDop => "no-dop",
+            RunMode::MaskBoxes => "mask-boxes",
+        }
+    }
+
+    /// The `dopslam run` flag.
+    pub fn flag(self) -> &'static str {
+        match self {
+            RunMode::Dop => "--dop",
+            RunMode::NoDop => "--no-dop",
+            RunMode::MaskBoxes => "--mask-boxes",
+        }
+    }
+}
+
+/// The `[batch]` table: what every sequence gets unless it says otherwise.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BatchSettings {
+    /// Output folder (the command line's `--out` wins; default `outputs/batch/<manifest name>`).
+    pub out: Option<PathBuf>,
+    pub modes: Vec<RunMode>,
+    /// Runs per sequence and mode (real-time runs differ: papers report the median of 5-10).
+    pub repetitions: usize,
+    /// A `dopslam` config (TOML) for every run; default: the built-in defaults.
+    pub config: Option<PathBuf>,
+    /// Where keyframe detections come from (`dopslam run --detections`); `no-dop` runs
+    /// never use a detector.
+    pub detections: Option<Source>,
+    /// `dopslam run --deterministic` (local mapping inline: repeatable, slower).
+    pub deterministic: bool,
+    /// Run the dense map (and, on synthetic sequences, compare it with the static scene).
+    pub dense: bool,
+    /// Run the global pass.
+    pub global: bool,
+    /// Track only the first N frames of each sequence.
+    pub frames: Option<usize>,
+    /// Runs at a time; default: as many as the core and memory budgets allow.
+    pub jobs: Option<usize>,
+    /// Cores one run may use (tracking, local mapping, detection): the core budget is
+    /// the machine's cores divided by this.
+    pub cores_per_run: usize,
+    /// Memory one run is allowed, GiB: the memory budget is the available memory
+    /// divided by this.
+    pub memory_per_run_gib: f64,
+    /// The RPE delta in seconds (reported per second, as TUM's tables give it).
+    pub rpe_seconds: f64,
+}
+
+impl Default for BatchSettings {
+    fn default() -> Self {
+        Self {
+            out: None,
+            modes: RunMode::ALL.to_vec(),
+            repetitions: 1,
+            config: None,
+            detections: None,
+            deterministic: false,
+            dense: true,
+            global: true,
+            frames: None,
+            jobs: None,
+            cores_per_run: 2,
+            memory_per_run_gib: 3.0,
+            rpe_seconds: 1.0,
+        }
+    }
+}
+
+/// One `[[sequence]]` entry: exactly one of `path`, `glob` or `preset`, and overrides.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SequenceEntry {
+    /// The name in tables (default: the folder's or the preset's name, with `-s<seed>`).
+    pub name: Option<String>,
+    /// A sequence folder (TUM/Bonn RGB-D or KITTI stereo layout).
+    pub path: Option<PathBuf>,
+    /// A glob of sequence folders (`*`, `?`, `[...]`), each its own sequence.
+    pub glob: Option<String>,
+    /// A `dopslam synth` preset: a name under `configs/synth/` or a path to a TOML.
+    pub preset: Option<String>,
+    /// Seeds of the preset, one sequence each (default: the preset's own seed).
+    pub seeds: Vec<u64>,
+    /// Frames to generate (default: the preset's).
+    pub synth_frames: Option<usize>,
+    /// Calibration: an ORB-SLAM2 settings file (`dopslam run --settings`).
+    pub settings: Option<PathBuf>,
+    /// The depth images' scale (TUM: 5000 per metre).
+    pub depth_scale: Option<f64>,
+    /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
+    pub config: Option<PathBuf>,
+    pub modes: Option<Vec<RunMode>>,
+    pub repetitions: Option<usize>,
+    pub frames: Option<usize>,
+    pub detections: Option<Source>,
+    /// The dense map for this sequence's runs (instead of `[batch] dense`).
+    pub dense: Option<bool>,
+}
+
+/// The whole manifest.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    #[serde(default)]
+    pub batch: BatchSettings,
+    #[serde(default, rename = "sequence")]
+    pub sequences: Vec<SequenceEntry>,
+    /// The folder relative paths are taken from (the manifest's).
+    #[serde(skip)]
+    pub base: PathBuf,
+}
+
+/// Where a sequence comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SequenceSource {
+    Folder(PathBuf),
+    /// A preset file and the seed to generate it with.
+    Synthetic { preset: PathBuf, seed: Option<u64>, frames: Option<usize> },
+}
+
+/// One sequence of the batch with everything its runs need.
+#[derive(Debug, Clone)]
+pub struct PlannedSequence {
+    pub name: String,
+    pub source: SequenceSource,
+    /// The config its runs use (overrides applied).
+    pub config: Config,
+    pub modes: Vec<RunMode>,
+    pub repetitions: usize,
+    pub frames: Option<usize>,
+}
+
+impl Manifest {
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read manifest {}: {e}", path.display()))?;
+        let mut manifest: Manifest = toml::from_str(&text)
+            .map_err(|e| format!("manifest {}: {}", path.display(), e.to_string().trim()))?;
+        manifest.base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        manifest
+            .validate()
+            .map_err(|m| format!("manifest {}: {m}", path.display()))?;
+        Ok(manifest)
+    }
+
+    /// A path from the manifest, relative to its folder unless absolute.
+    pub fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.base.join(path)
+        }
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        let b = &self.batch;
+        if b.modes.is_empty() {
+            return Err("[batch] modes is empty".into());
+        }
+        if b.repetitions == 0 {
+            return Err("[batch] repetitions must be at least 1".into());
+        }
+        if b.cores_per_run == 0 {
+            return Err("[batch] cores_per_run must be at least 1".into());
+        }
+        if !(b.memory_per_run_gib.is_finite() && b.memory_per_run_gib > 0.0) {
+            return Err("[batch] memory_per_run_gib must be positive".into());
+        }
+        if b.jobs == Some(0) {
+            return Err("[batch] jobs must be at least 1".into());
+        }
+        if !(b.rpe_seconds.is_finite() && b.rpe_seconds > 0.0) {
+            return Err("[batch] rpe_seconds must be positive".into());
+        }
+        if self.sequences.is_empty() {
+            return Err("no [[sequence]] entry".into());
+        }
+        for (i, s) in self.sequences.iter().enumerate() {
+            let sources = [s.path.is_some(), s.glob.is_some(), s.preset.is_some()];
+            if sources.iter().filter(|&&x| x).count() != 1 {
+                return Err(format!(
+                    "[[sequence]] #{}: give exactly one of path, glob or preset",
+                    i + 1
+                ));
+            }
+            if s.preset.is_none() && (!s.seeds.is_empty() || s.synth_frames.is_some()) {
+                return Err(format!(
+                    "[[sequence]] #{}: seeds and synth_frames are for presets",
+                    i + 1
+                ));
+            }
+            if s.repetitions == Some(0) || s.modes.as_ref().is_some_and(Vec::is_empty) {
+                return Err(format!(
+                    "[[sequence]] #{}: repetitions and modes must not be empty",
+                    i + 1
+                ));
+            }
+            if let Some(scale) = s.depth_scale {
+                if !(scale.is_finite() && scale > 0.0) {
+                    return Err(format!(
+                        "[[sequence]] #{}: depth_scale must be positive, got {scale}",
+                        i + 1
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The sequences with their configs: globs expanded, presets found, one entry
+    /// per seed, names unique. Errors name the entry and what is wrong.
+    pub fn plan(&self) -> Result<Vec<PlannedSequence>, String> {
+        let base_config = self.load_config(self.batch.config.as_deref())?;
+        let mut planned = Vec::new();
+        for (i, entry) in self.sequences.iter().enumerate() {
+            let context = |m: String| format!("[[sequence]] #{}: {m}", i + 1);
+            let mut config = match &entry.config {
+                Some(path) => self.load_config(Some(path)).map_err(context)?,
+                None => base_config.clone(),
+            };
+            if let Some(settings) = &entry.settings {
+                let path = self.resolve(settings);
+                crate::io::orbslam_settings::OrbSlamSettings::read(&path)
+                    .map_err(|e| context(e.to_string()))?;
+                config.dataset.settings = Some(absolute(&path));
+            }
+            if entry.depth_scale.is_some() {
+                config.dataset.depth_scale = entry.depth_scale;
+            }
+            if let Some(source) = entry.detections.or(self.batch.detections) {
+                config.detector.source = source;
+            }
+            config.dense.enabled = entry.dense.unwrap_or(self.batch.dense);
+            config.global.enabled = self.batch.global;
+            let sources: Vec<(String, SequenceSource)> = if let Some(path) = &entry.path {
+                let path = absolute(&self.resolve(path));
+                vec![(folder_name(&path), SequenceSource::Folder(path))]
+            } else if let Some(pattern) = &entry.glob {
+                let pattern = self.resolve(Path::new(pattern));
+                let folders = glob_folders(&pattern).map_err(context)?;
+                if folders.is_empty() {
+                    return Err(context(format!(
+                        "glob {} matches no folder",
+                        pattern.display()
+                    )));
+                }
+                folders
+                    .into_iter()
+                    .map(|p| (folder_name(&p), SequenceSource::Folder(p)))
+                    .collect()
+            } else {
+                let preset = self.find_preset(entry.preset.as_deref().unwrap_or_default());
+                let preset = preset.map_err(context)?;
+                let stem = folder_name(&preset);
+                let seeds: Vec<Option<u64>> = if entry.seeds.is_empty() {
+                    vec![None]
+                } else {
+                    entry.seeds.iter().map(|&s| Some(s)).collect()
+                };
+                seeds
+                    .into_iter()
+                    .map(|seed| {
+                        let name = match seed {
+                            Some(s) => format!("{stem}-s{s}"),
+                            None => stem.clone(),
+                        };
+                        let source = SequenceSource::Synthetic {
+                            preset: preset.clone(),
+                            seed,
+                            frames: entry.synth_frames,
+                        };
+                        (name, source)
+                    })
+                    .collect()
+            };
+            let several = sources.len() > 1;
+            for (k, (default_name, source)) in sources.into_iter().enumerate() {
+                let name = match (&entry.name, several) {
+                    (Some(n), false) => n.clone(),
+                    (Some(n), true) => format!("{n}-{}", k + 1),
+                    (None, _) => default_name,
+                };
+                planned.push(PlannedSequence {
+                    name,
+                    source,
+                    config: config.clone(),
+                    modes: entry.modes.clone().unwrap_or_else(|| self.batch.modes.clone()),
+                    repetitions: entry.repetitions.unwrap_or(self.batch.repetitions),
+                    frames: entry.frames.or(self.batch.frames),
+                });
+            }
+        }
+        let mut names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
+        names.sort_unstable();
+        if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+            return Err(format!(
+                "two sequences are named {:?}: give them distinct `name`s",
+                w[0]
+            ));
+        }
+        if let Some(bad) = planned.iter().find(|p| !safe_name(&p.name)) {
+            return Err(format!(
+                "sequence name {:?}: use letters, digits, '-', '_' and '.' only",
+                bad.name
+            ));
+        }
+        Ok(planned)
+    }
+
+    fn load_config(&self, path: Option<&Path>) -> Result<Config, String> {
+        match path {
+            Some(path) => {
+                let mut config = Config::load(&self.resolve(path)).map_err(|e| e.to_string())?;
+                // The runs read it from their own folders: keep its paths reachable.
+                if let Some(settings) = &config.dataset.settings {
+                    config.dataset.settings = Some(absolute(settings));
+                }
+                Ok(config)
+            }
+            None => Ok(Config::default()),
+        }
+    }
+
+    /// A preset by path (relative to the manifest) or by name (`configs/synth/NAME.toml`
+    /// under the current folder, else under the source tree dopslam was built from).
+    fn find_preset(&self, preset: &str) -> Result<PathBuf, String> {
+        let as_path = self.resolve(Path::new(preset));
+        if preset.ends_with(".toml") || preset.contains('/') {
+            return if as_path.is_file() {
+                Ok(absolute(&as_path))
+            } else {
+                Err(format!("preset {} does not exist", as_path.display()))
+            };
+        }
+        let file = format!("configs/synth/{preset}.toml");
+        [
+            PathBuf::from(&file),
+            Path::new(env!("CARGO_MANIFEST_DIR")).join(&file),
+        ]
+        .into_iter()
+        .find(|p| p.is_file())
+        .map(|p| absolute(&p))
+        .ok_or_else(|| format!("no preset named {preset:?} (looked for {file})"))
+    }
+}
+
+/// A path made absolute against the current folder (runs happen in other folders).
+pub fn absolute(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+fn folder_name(path: &Path) -> String {
+    path.file_stem()
+        .map_or_else(|| "sequence".into(), |s| s.to_string_lossy().into_owned())
+}
+
+fn safe_name(name: &str) -> bool {
+    !name.is_empty()
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
+/// The folders a glob pattern matches, sorted.
+fn glob_folders(pattern: &Path) -> Result<Vec<PathBuf>, String> {
+    let text = pattern.to_string_lossy();
+    let paths = glob::glob(&text).map_err(|e| format!("glob {text:?}: {e}"))?;
+    let mut folders: Vec<PathBuf> = paths
+        .filter_map(Result::ok)
+        .filter(|p| p.is_dir())
+        .map(|p| absolute(&p))
+        .collect();
+    folders.sort();
+    Ok(folders)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Manifest, String> {
+        let manifest: Manifest = toml::from_str(text).map_err(|e| e.to_string())?;
+        manifest.validate()?;
+        Ok(manifest)
+    }
+
+    #[test]
+    fn defaults_and_overrides() {
+        let m = parse(
+            "[batch]\nrepetitions = 3\n[[sequence]]\npreset = \"static_room\"\nseeds = [1, 2]\n\
+             [[sequence]]\npath = \"/tmp\"\nmodes = [\"no-dop\"]\ndepth_scale = 1000.0\n",
+        )
+        .unwrap();
+        assert_eq!(m.batch.modes, RunMode::ALL.to_vec());
+        let plan = m.plan().unwrap();
+        let names: Vec<&str> = plan.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(names, ["static_room-s1", "static_room-s2", "tmp"]);
+        assert_eq!(plan[0].repetitions, 3);
+        assert_eq!(plan[2].modes, [RunMode::NoDop]);
+        assert_eq!(plan[2].config.dataset.depth_scale, Some(1000.0));
+    }
+
+    #[test]
+    fn refuses_what_is_wrong_by_name() {
+        let unknown = parse("[batch]\nrepetition = 3\n").unwrap_err();
+        assert!(unknown.contains("repetition"), "{unknown}");
+        let two = parse("[[sequence]]\npath = \"a\"\npreset = \"b\"\n").unwrap_err();
+        assert!(two.contains("exactly one"), "{two}");
+        let none = parse("[batch]\nrepetitions = 2\n").unwrap_err();
+        assert!(none.contains("no [[sequence]]"), "{none}");
+        let mode = parse("[batch]\nmodes = [\"dynaslam\"]\n").unwrap_err();
+        assert!(mode.contains("dynaslam"), "{mode}");
+        let missing = parse("[[sequence]]\npreset = \"no_such_preset\"\n")
+            .unwrap()
+            .plan()
+            .unwrap_err();
+        assert!(missing.contains("no_such_preset"), "{missing}");
+        let twice = parse("[[sequence]]\npath = \"/tmp\"\n[[sequence]]\npath = \"/tmp\"\n")
+            .unwrap()
+            .plan()
+            .unwrap_err();
+        assert!(twice.contains("\"tmp\""), "{twice}");
+    }
+
+    #[test]
+    fn a_planned_config_survives_the_file_the_runs_read() {
+        let m = parse("[[sequence]]\npath = \"/tmp\"\ndepth_scale = 1000.0\ndetections = \"oracle\"\n").unwrap();
+        let config = m.plan().unwrap().remove(0).config;
+        let text = toml::to_string(&config).unwrap();
+        assert_eq!(Config::from_toml(&text).unwrap(), config);
+    }
+}

@@ -1,0 +1,402 @@
+//! Batch runs (`dopslam batch MANIFEST.toml`): many sequences, several modes, repeated
+//! runs, scheduled within a core and memory budget, resumable, then the tables
+//! (`results.csv/json/md`, `runs.csv`), figures (`plots/<sequence>/*.png`) and
+//! `report.html` a lab report needs.
+//!
+//! Layout of the output folder:
+//!
+//! ```text
+//! OUT/manifest.toml                       the manifest the batch ran with
+//! OUT/sequences/<name>/                   generated synthetic sequences
+//! OUT/runs/<sequence>/<mode>/r<k>/        dopslam run's files, log.txt, config.toml,
+//!                                         eval.json, eval_rotation.json, run.json
+//! OUT/plots/<sequence>/{trajectories,ape_time,ape_box}.png
+//! OUT/results.csv results.json results.md runs.csv report.html
+//! ```
+//!
+//! This layer sits above the pipeline: it starts `dopslam run` processes and reads
+//! what they wrote; nothing below imports it.
+
+pub mod execute;
+pub mod html;
+pub mod manifest;
+pub mod plots;
+pub mod record;
+pub mod results;
+
+use std::path::{Path, PathBuf};
+
+use execute::{evaluate_run, Executed, Executor, RunJob};
+use manifest::{absolute, Manifest, PlannedSequence, RunMode, SequenceSource};
+use record::{RunRecord, RunStatus};
+use results::GroupSummary;
+
+use crate::eval::ate::PoseRelation;
+use crate::eval::report::{EvalReport, RpeSpec};
+use crate::eval::rpe::DeltaUnit;
+use crate::io::atomic::write_atomic;
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::Trajectory;
+
+/// How `dopslam batch` runs.
+#[derive(Debug, Clone)]
+pub struct BatchOptions {
+    /// The `dopslam` program each run is started with.
+    pub program: PathBuf,
+    /// Output folder (else the manifest's `out`, else `outputs/batch/<manifest name>`).
+    pub out: Option<PathBuf>,
+    /// Runs at a time (else the manifest's, else the budgets').
+    pub jobs: Option<usize>,
+    /// Run again the runs that failed before (finished runs are otherwise skipped).
+    pub retry_failed: bool,
+    pub progress: bool,
+}
+
+/// What a batch did.
+#[derive(Debug)]
+pub struct BatchSummary {
+    pub out: PathBuf,
+    pub runs_planned: usize,
+    /// Runs found finished from an earlier invocation.
+    pub runs_skipped: usize,
+    pub executed: Executed,
+    pub jobs: usize,
+    pub groups: Vec<GroupSummary>,
+    /// Figures or sequences that could not be made, and why.
+    pub notes: Vec<String>,
+}
+
+/// Runs the batch described by the manifest at `path`.
+pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, String> {
+    let manifest = Manifest::load(path)?;
+    let planned = manifest.plan()?;
+    let out = match (&options.out, &manifest.batch.out) {
+        (Some(out), _) => out.clone(),
+        (None, Some(out)) => manifest.resolve(out),
+        (None, None) => Path::new("outputs/batch").join(
+            path.file_stem()
+                .map_or("batch".into(), |s| s.to_string_lossy().into_owned()),
+        ),
+    };
+    let out = absolute(&out);
+    std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    write_atomic(&out.join("manifest.toml"), &text).map_err(|e| e.to_string())?;
+
+    let mut notes = Vec::new();
+    let mut sequence_dirs = Vec::new();
+    let mut unavailable: Vec<Option<String>> = Vec::new();
+    for sequence in &planned {
+        let (dir, problem) = prepare_sequence(sequence, &out, options.progress);
+        sequence_dirs.push(dir);
+        unavailable.push(problem);
+    }
+
+    let jobs = options
+        .jobs
+        .or(manifest.batch.jobs)
+        .unwrap_or_else(|| budget_jobs(manifest.batch.cores_per_run, manifest.batch.memory_per_run_gib));
+    let all_runs = run_list(&planned, &out);
+    let mut todo = Vec::new();
+    let mut skipped = 0;
+    for job in &all_runs {
+        match RunRecord::read(&job.dir) {
+            Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
+            _ => match &unavailable[job.sequence] {
+                Some(problem) => record_unavailable(job, &planned[job.sequence], problem)?,
+                None => todo.push(job.clone()),
+            },
+        }
+    }
+    if options.progress {
+        eprintln!(
+            "batch {}: {} runs ({} finished before), {} to do, {jobs} at a time",
+            out.display(),
+            all_runs.len(),
+            skipped,
+            todo.len()
+        );
+    }
+    let executor = Executor {
+        program: &options.program,
+        sequences: &planned,
+        sequence_dirs: &sequence_dirs,
+        jobs,
+        cores_per_run: manifest.batch.cores_per_run,
+        deterministic: manifest.batch.deterministic,
+        rpe_seconds: manifest.batch.rpe_seconds,
+        progress: options.progress,
+    };
+    let executed = executor.run_all(todo);
+
+    let records: Vec<RunRecord> = all_runs.iter().filter_map(|j| RunRecord::read(&j.dir)).collect();
+    let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
+    let mut modes: Vec<RunMode> = manifest.batch.modes.clone();
+    for p in &planned {
+        for m in &p.modes {
+            if !modes.contains(m) {
+                modes.push(*m);
+            }
+        }
+    }
+    let groups = results::summarise(&records, &names, &modes);
+    let header = header_lines(&manifest, path, records.len(), all_runs.len());
+    results::write_results(&out, &records, &groups, &format!("# Batch results\n\n{}", header.join("  \n")))
+        .map_err(|e| e.to_string())?;
+    let rpe = RpeSpec {
+        delta: manifest.batch.rpe_seconds,
+        unit: DeltaUnit::Seconds,
+    };
+    let mut sections = Vec::new();
+    for (k, sequence) in planned.iter().enumerate() {
+        let runs: Vec<&RunRecord> = records.iter().filter(|r| r.sequence == sequence.name).collect();
+        match figures(sequence, &sequence_dirs[k], &runs, &out, &modes, rpe) {
+            Ok(section) => sections.push(section),
+            Err(e) => notes.push(format!("{}: figures not made: {e}", sequence.name)),
+        }
+    }
+    let html = html::report_html("dopslam batch report", &header, &groups, &sections);
+    write_atomic(&out.join("report.html"), html.as_bytes()).map_err(|e| e.to_string())?;
+    for (sequence, problem) in planned.iter().zip(&unavailable) {
+        if let Some(problem) = problem {
+            notes.push(format!("{}: {problem}", sequence.name));
+        }
+    }
+    Ok(BatchSummary {
+        out,
+        runs_planned: all_runs.len(),
+        runs_skipped: skipped,
+        executed,
+        jobs,
+        groups,
+        notes,
+    })
+}
+
+/// Every run of the batch, repetition by repetition (an interrupted batch has whole
+/// rounds), in the manifest's order of sequences and modes.
+fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
+    let rounds = planned.iter().map(|p| p.repetitions).max().unwrap_or(0);
+    let mut jobs = Vec::new();
+    for repetition in 1..=rounds {
+        for (k, sequence) in planned.iter().enumerate() {
+            if repetition > sequence.repetitions {
+                continue;
+            }
+            for &mode in &sequence.modes {
+                jobs.push(RunJob {
+                    sequence: k,
+                    mode,
+                    repetition,
+                    dir: out
+                        .join("runs")
+                        .join(&sequence.name)
+                        .join(mode.name())
+                        .join(format!("r{repetition}")),
+                });
+            }
+        }
+    }
+    jobs
+}
+
+/// The sequence's folder, generating a synthetic one (into `<out>/sequences/<name>`,
+/// via a `.part` folder renamed when complete) if it is not there yet; and why it
+/// cannot be used, if it cannot.
+fn prepare_sequence(sequence: &PlannedSequence, out: &Path, progress: bool) -> (PathBuf, Option<String>) {
+    match &sequence.source {
+        SequenceSource::Folder(path) => {
+            let problem = (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
+            (path.clone(), problem)
+        }
+        SequenceSource::Synthetic { preset, seed, frames } => {
+            let dir = out.join("sequences").join(&sequence.name);
+            if dir.is_dir() {
+                return (dir, None);
+            }
+            let part = out.join("sequences").join(format!("{}.part", sequence.name));
+            let generated = (|| -> Result<(), String> {
+                let mut config = crate::synth::SynthConfig::load(preset)?;
+                if let Some(seed) = seed {
+                    config.sequence.seed = *seed;
+                }
+                if let Some(frames) = frames {
+                    config.sequence.frames = *frames;
+                }
+                if progress {
+                    eprintln!("generating {} from {}", sequence.name, preset.display());
+                }
+                crate::synth::generate(&config, &part, true).map_err(|e| e.to_string())?;
+                std::fs::rename(&part, &dir).map_err(|e| format!("cannot rename {}: {e}", part.display()))
+            })();
+            (dir, generated.err())
+        }
+    }
+}
+
+/// Records a run of a sequence that cannot be read or generated as failed.
+fn record_unavailable(job: &RunJob, sequence: &PlannedSequence, problem: &str) -> Result<(), String> {
+    std::fs::create_dir_all(&job.dir).map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
+    let record = RunRecord {
+        sequence: sequence.name.clone(),
+        mode: job.mode,
+        repetition: job.repetition,
+        status: RunStatus::Failed,
+        error: Some(problem.to_string()),
+        seconds: 0.0,
+        figures: None,
+    };
+    let json = serde_json::to_string_pretty(&record).unwrap_or_default();
+    write_atomic(&job.dir.join("run.json"), json.as_bytes()).map_err(|e| e.to_string())
+}
+
+/// Runs at a time that the machine's cores and available memory allow (at least 1).
+pub fn budget_jobs(cores_per_run: usize, memory_per_run_gib: f64) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let by_cores = cores / cores_per_run.max(1);
+    let by_memory = available_memory_gib().map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
+    by_cores.min(by_memory).max(1)
+}
+
+/// `MemAvailable` of /proc/meminfo, GiB.
+fn available_memory_gib() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / (1024.0 * 1024.0))
+}
+
+/// The machine in one line: processor, cores, memory.
+pub fn machine_description() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let memory = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|t| {
+            let line = t.lines().find(|l| l.starts_with("MemTotal:"))?.to_string();
+            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(format!(", {:.0} GiB", kib / (1024.0 * 1024.0)))
+        })
+        .unwrap_or_default();
+    format!("{cpu}, {cores} cores{memory}")
+}
+
+fn header_lines(manifest: &Manifest, path: &Path, finished: usize, planned: usize) -> Vec<String> {
+    let b = &manifest.batch;
+    vec![
+        format!("Manifest: {} ({finished} of {planned} runs finished)", path.display()),
+        format!(
+            "Machine: {}; dopslam {}; {} mode{}, dense map {}, global pass {}",
+            machine_description(),
+            env!("CARGO_PKG_VERSION"),
+            if b.deterministic { "deterministic" } else { "real-time" },
+            b.detections
+                .map(|d| format!(", detections {d:?}").to_lowercase())
+                .unwrap_or_default(),
+            if b.dense { "on" } else { "off" },
+            if b.global { "on" } else { "off" },
+        ),
+        format!(
+            "Figures: median over repetitions [min, max]; ATE with SE(3) alignment, RPE over {} s reported per second (TUM), as `dopslam eval` and evo compute them; no-dop runs use no detector (ORB-SLAM2).",
+            b.rpe_seconds
+        ),
+    ]
+}
+
+/// The run whose ATE is the median of the mode's runs (the lower one of an even count).
+fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {
+    let mut with_ate: Vec<(&RunRecord, f64)> = runs
+        .iter()
+        .filter_map(|r| r.figures.as_ref().and_then(|f| f.ate_rmse).map(|a| (*r, a)))
+        .collect();
+    with_ate.sort_by(|a, b| a.1.total_cmp(&b.1));
+    with_ate.get(with_ate.len().saturating_sub(1) / 2).map(|(r, _)| *r)
+}
+
+fn run_dir(out: &Path, record: &RunRecord) -> PathBuf {
+    out.join("runs")
+        .join(&record.sequence)
+        .join(record.mode.name())
+        .join(format!("r{}", record.repetition))
+}
+
+/// A sequence's figures and its report section.
+fn figures(
+    sequence: &PlannedSequence,
+    sequence_dir: &Path,
+    runs: &[&RunRecord],
+    out: &Path,
+    modes: &[RunMode],
+    rpe: RpeSpec,
+) -> Result<html::SequenceSection, String> {
+    let mut section = html::SequenceSection {
+        name: sequence.name.clone(),
+        figures: Vec::new(),
+        previews: Vec::new(),
+        runs: runs
+            .iter()
+            .map(|r| {
+                let dir = run_dir(out, r);
+                let href = dir.strip_prefix(out).unwrap_or(&dir).display().to_string();
+                (format!("{} r{}", r.mode.name(), r.repetition), href)
+            })
+            .collect(),
+    };
+    let ground_truth = crate::pipeline::open_sequence(sequence_dir, &sequence.config)
+        .ok()
+        .and_then(|s| s.ground_truth().cloned());
+    let Some(reference) = ground_truth else {
+        return Ok(section);
+    };
+    let evaluate = |record: &RunRecord| -> Option<EvalReport> {
+        let estimate = Trajectory::read(&run_dir(out, record).join("trajectory.txt"), TrajectoryFormat::Tum).ok()?;
+        evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart).ok()
+    };
+    let mut medians = Vec::new();
+    let mut pooled = Vec::new();
+    for &mode in modes {
+        let of_mode: Vec<&RunRecord> = runs
+            .iter()
+            .copied()
+            .filter(|r| r.mode == mode && r.status == RunStatus::Ok)
+            .collect();
+        if let Some(report) = median_run(&of_mode).and_then(evaluate) {
+            medians.push((mode, report));
+        }
+        let errors: Vec<f64> = of_mode
+            .iter()
+            .filter_map(|r| evaluate(r))
+            .flat_map(|r| r.ape.errors)
+            .collect();
+        pooled.push((mode, errors));
+        if let Some(median) = median_run(&of_mode) {
+            let preview = run_dir(out, median).join("map_compare/compare_perspective.png");
+            if preview.exists() {
+                section
+                    .previews
+                    .push((format!("{} r{} (median ATE)", mode.name(), median.repetition), preview));
+            }
+        }
+    }
+    if medians.is_empty() {
+        return Ok(section);
+    }
+    let dir = out.join("plots").join(&sequence.name);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    let by_mode: Vec<(RunMode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
+    let name = &sequence.name;
+    let paths = [dir.join("trajectories.png"), dir.join("ape_time.png"), dir.join("ape_box.png")];
+    plots::trajectories(&paths[0], &format!("{name}: trajectories (median run per mode)"), &by_mode)?;
+    plots::ape_over_time(&paths[1], &format!("{name}: APE over time (median run per mode)"), &by_mode)?;
+    plots::ape_boxes(&paths[2], &format!("{name}: APE per mode, all repetitions"), &pooled)?;
+    section.figures = paths.to_vec();
+    Ok(section)
+}

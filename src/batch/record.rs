@@ -1,0 +1,161 @@
+//! What one finished batch run leaves behind (`run.json`), read from the run's own
+//! `report.json` and its evaluation.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::manifest::RunMode;
+use crate::io::IoError;
+
+/// Whether a run finished.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunStatus {
+    Ok,
+    Failed,
+}
+
+/// `run.json`: written last and atomically, so its presence marks a finished run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub sequence: String,
+    pub mode: RunMode,
+    /// 1-based.
+    pub repetition: usize,
+    pub status: RunStatus,
+    /// Why it failed (the run's own error message, or what was wrong with its outputs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Wall-clock seconds of the whole run (tracking, global pass, dense map).
+    pub seconds: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub figures: Option<RunFigures>,
+}
+
+/// The figures of a successful run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunFigures {
+    pub frames: usize,
+    pub tracked: usize,
+    pub coverage_percent: f64,
+    pub keyframes: usize,
+    pub map_points: usize,
+    /// Tracking time per frame (ORB extraction + tracking), ms.
+    pub median_tracking_ms: f64,
+    pub mean_tracking_ms: f64,
+    /// Keypoints removed as dynamic before pose estimation, per tracked frame.
+    pub keypoints_removed_per_frame: f64,
+    /// Map points removed as dynamic over the run.
+    pub map_points_removed: usize,
+    pub loops: usize,
+    /// ATE RMSE of `trajectory.txt` (m), when the sequence has ground truth.
+    pub ate_rmse: Option<f64>,
+    /// ATE RMSE of the tracking pass alone (`trajectory_tracking.txt`), when the global pass ran.
+    pub ate_tracking_rmse: Option<f64>,
+    /// RPE RMSE over the batch's delta, translation (m/s) and rotation (deg/s).
+    pub rpe_translation: Option<f64>,
+    pub rpe_rotation_deg: Option<f64>,
+    /// The dense map against the static scene, where the sequence has one.
+    pub map: Option<MapFigures>,
+}
+
+/// The dense map's figures.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MapFigures {
+    /// Median distance of the map's points to the static scene, m.
+    pub accuracy_median: Option<f64>,
+    /// Points left by moving objects (ghosts), and their share of the map.
+    pub ghost_points: Option<usize>,
+    pub ghost_fraction: Option<f64>,
+    /// Depth pixels on movers kept out of the map (%), against the ground-truth masks.
+    pub dynamic_removed_percent: Option<f64>,
+}
+
+/// The parts of `report.json` the batch reads.
+#[derive(Deserialize)]
+struct ReportFile {
+    totals: Totals,
+    detection: Detection,
+    frames: Vec<FrameFile>,
+    #[serde(default)]
+    global: Option<GlobalFile>,
+    #[serde(default)]
+    dense: Option<DenseFile>,
+}
+
+#[derive(Deserialize)]
+struct Totals {
+    frames: usize,
+    tracked: usize,
+    coverage_percent: f64,
+    keyframes: usize,
+    map_points: usize,
+    median_tracking_ms: f64,
+    mean_tracking_ms: f64,
+}
+
+#[derive(Deserialize)]
+struct Detection {
+    map_points_removed: usize,
+}
+
+#[derive(Deserialize)]
+struct FrameFile {
+    dynamic_keypoints: usize,
+}
+
+#[derive(Deserialize)]
+struct GlobalFile {
+    loops: Vec<serde_json::Value>,
+}
+
+#[derive(Deserialize)]
+struct DenseFile {
+    truth: Option<TruthFile>,
+}
+
+#[derive(Deserialize)]
+struct TruthFile {
+    dynamic_removed: f64,
+}
+
+impl RunFigures {
+    /// The figures `report.json` holds (the evaluation and the map comparison are added
+    /// by the caller).
+    pub fn from_report(path: &Path) -> Result<Self, IoError> {
+        let text = crate::io::errors::read_text(path)?;
+        let report: ReportFile = serde_json::from_str(&text)
+            .map_err(|e| IoError::invalid(path, format!("not a dopslam run report: {e}")))?;
+        let t = &report.totals;
+        let removed: usize = report.frames.iter().map(|f| f.dynamic_keypoints).sum();
+        Ok(Self {
+            frames: t.frames,
+            tracked: t.tracked,
+            coverage_percent: t.coverage_percent,
+            keyframes: t.keyframes,
+            map_points: t.map_points,
+            median_tracking_ms: t.median_tracking_ms,
+            mean_tracking_ms: t.mean_tracking_ms,
+            keypoints_removed_per_frame: removed as f64 / t.tracked.max(1) as f64,
+            map_points_removed: report.detection.map_points_removed,
+            loops: report.global.map_or(0, |g| g.loops.len()),
+            map: report
+                .dense
+                .and_then(|d| d.truth)
+                .map(|truth| MapFigures {
+                    dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),
+                    ..MapFigures::default()
+                }),
+            ..Self::default()
+        })
+    }
+}
+
+impl RunRecord {
+    /// Reads `run.json` in `dir`, if the run finished.
+    pub fn read(dir: &Path) -> Option<Self> {
+        let text = std::fs::read_to_string(dir.join("run.json")).ok()?;
+        serde_json::from_str(&text).ok()
+    }
+}

@@ -1,0 +1,337 @@
+//! The batch's tables: per sequence and mode, the median and spread over repetitions
+//! (`results.csv`, `results.json`, `results.md`), and every run (`runs.csv`).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::manifest::RunMode;
+use super::record::{RunFigures, RunRecord, RunStatus};
+use crate::eval::stats::median_of_sorted;
+use crate::io::atomic::write_atomic;
+use crate::io::IoError;
+
+/// Median, minimum and maximum of a figure over a group's runs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Spread {
+    pub median: f64,
+    pub min: f64,
+    pub max: f64,
+    /// How many runs had the figure.
+    pub n: usize,
+}
+
+impl Spread {
+    /// `None` for no values.
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        Some(Self {
+            median: median_of_sorted(&v),
+            min: v[0],
+            max: v[v.len() - 1],
+            n: v.len(),
+        })
+    }
+}
+
+/// One sequence in one mode, over its repetitions.
+#[derive(Debug, Clone, Serialize)]
+pub struct GroupSummary {
+    pub sequence: String,
+    pub mode: RunMode,
+    pub runs: usize,
+    pub failed: usize,
+    pub ate_rmse: Option<Spread>,
+    pub ate_tracking_rmse: Option<Spread>,
+    pub rpe_translation: Option<Spread>,
+    pub rpe_rotation_deg: Option<Spread>,
+    pub coverage_percent: Option<Spread>,
+    /// Median of the runs' median tracking times, and mean of their means (ms).
+    pub median_tracking_ms: Option<f64>,
+    pub mean_tracking_ms: Option<f64>,
+    pub keyframes: Option<Spread>,
+    pub keypoints_removed_per_frame: Option<Spread>,
+    pub map_points_removed: Option<Spread>,
+    pub loops: Option<Spread>,
+    pub map_accuracy_median: Option<Spread>,
+    pub ghost_points: Option<Spread>,
+    pub dynamic_removed_percent: Option<Spread>,
+    /// The improvement of this mode's median ATE over no-DOP's, in % (the paper's
+    /// `(ORB-SLAM2 - ours) / ORB-SLAM2`).
+    pub improvement_percent: Option<f64>,
+    /// The failed runs' errors.
+    pub errors: Vec<String>,
+}
+
+/// Summaries of `records` per sequence and mode, in the order given.
+pub fn summarise(records: &[RunRecord], sequences: &[String], modes: &[RunMode]) -> Vec<GroupSummary> {
+    let mut groups = Vec::new();
+    for sequence in sequences {
+        for &mode in modes {
+            let runs: Vec<&RunRecord> = records
+                .iter()
+                .filter(|r| &r.sequence == sequence && r.mode == mode)
+                .collect();
+            if runs.is_empty() {
+                continue;
+            }
+            groups.push(summarise_group(sequence, mode, &runs));
+        }
+    }
+    for i in 0..groups.len() {
+        let baseline = groups
+            .iter()
+            .find(|g| g.sequence == groups[i].sequence && g.mode == RunMode::NoDop)
+            .and_then(|g| g.ate_rmse);
+        if groups[i].mode == RunMode::NoDop {
+            continue;
+        }
+        if let (Some(base), Some(this)) = (baseline, groups[i].ate_rmse) {
+            if base.median > 0.0 {
+                groups[i].improvement_percent = Some(100.0 * (base.median - this.median) / base.median);
+            }
+        }
+    }
+    groups
+}
+
+fn summarise_group(sequence: &str, mode: RunMode, runs: &[&RunRecord]) -> GroupSummary {
+    let ok: Vec<&RunFigures> = runs
+        .iter()
+        .filter(|r| r.status == RunStatus::Ok)
+        .filter_map(|r| r.figures.as_ref())
+        .collect();
+    let spread = |f: &dyn Fn(&RunFigures) -> Option<f64>| Spread::of(ok.iter().filter_map(|r| f(r)));
+    let map = |f: &dyn Fn(&super::record::MapFigures) -> Option<f64>| {
+        Spread::of(ok.iter().filter_map(|r| r.map.as_ref().and_then(f)))
+    };
+    GroupSummary {
+        sequence: sequence.to_string(),
+        mode,
+        runs: runs.len(),
+        failed: runs.len() - ok.len(),
+        ate_rmse: spread(&|r| r.ate_rmse),
+        ate_tracking_rmse: spread(&|r| r.ate_tracking_rmse),
+        rpe_translation: spread(&|r| r.rpe_translation),
+        rpe_rotation_deg: spread(&|r| r.rpe_rotation_deg),
+        coverage_percent: spread(&|r| Some(r.coverage_percent)),
+        median_tracking_ms: spread(&|r| Some(r.median_tracking_ms)).map(|s| s.median),
+        mean_tracking_ms: (!ok.is_empty())
+            .then(|| ok.iter().map(|r| r.mean_tracking_ms).sum::<f64>() / ok.len() as f64),
+        keyframes: spread(&|r| Some(r.keyframes as f64)),
+        keypoints_removed_per_frame: spread(&|r| Some(r.keypoints_removed_per_frame)),
+        map_points_removed: spread(&|r| Some(r.map_points_removed as f64)),
+        loops: spread(&|r| Some(r.loops as f64)),
+        map_accuracy_median: map(&|m| m.accuracy_median),
+        ghost_points: map(&|m| m.ghost_points.map(|g| g as f64)),
+        dynamic_removed_percent: map(&|m| m.dynamic_removed_percent),
+        improvement_percent: None,
+        errors: runs.iter().filter_map(|r| r.error.clone()).collect(),
+    }
+}
+
+/// A number with `digits` decimals, or empty.
+fn number(value: Option<f64>, digits: usize) -> String {
+    value.map_or(String::new(), |v| format!("{v:.digits$}"))
+}
+
+const CSV_HEADER: &str = "sequence,mode,runs,failed,ate_rmse_median,ate_rmse_min,ate_rmse_max,ate_tracking_rmse_median,rpe_translation_median,rpe_rotation_deg_median,coverage_percent_median,median_tracking_ms,mean_tracking_ms,keyframes_median,keypoints_removed_per_frame_median,map_points_removed_median,loops_median,map_accuracy_median,ghost_points_median,dynamic_removed_percent_median,improvement_percent";
+
+/// `results.csv`: one row per sequence and mode.
+pub fn results_csv(groups: &[GroupSummary]) -> String {
+    let mut out = format!("{CSV_HEADER}\n");
+    for g in groups {
+        let m = |s: Option<Spread>, d| number(s.map(|s| s.median), d);
+        let _ = writeln!(
+            out,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            g.sequence,
+            g.mode.name(),
+            g.runs,
+            g.failed,
+            m(g.ate_rmse, 6),
+            number(g.ate_rmse.map(|s| s.min), 6),
+            number(g.ate_rmse.map(|s| s.max), 6),
+            m(g.ate_tracking_rmse, 6),
+            m(g.rpe_translation, 6),
+            m(g.rpe_rotation_deg, 4),
+            m(g.coverage_percent, 2),
+            number(g.median_tracking_ms, 2),
+            number(g.mean_tracking_ms, 2),
+            m(g.keyframes, 1),
+            m(g.keypoints_removed_per_frame, 2),
+            m(g.map_points_removed, 1),
+            m(g.loops, 1),
+            m(g.map_accuracy_median, 4),
+            m(g.ghost_points, 1),
+            m(g.dynamic_removed_percent, 2),
+            number(g.improvement_percent, 1),
+        );
+    }
+    out
+}
+
+/// `runs.csv`: one row per run.
+pub fn runs_csv(records: &[RunRecord]) -> String {
+    let mut out = String::from("sequence,mode,repetition,status,seconds,frames,coverage_percent,keyframes,median_tracking_ms,mean_tracking_ms,ate_rmse,ate_tracking_rmse,rpe_translation,rpe_rotation_deg,keypoints_removed_per_frame,map_points_removed,loops,map_accuracy_median,ghost_points,dynamic_removed_percent,error\n");
+    for r in records {
+        let f = r.figures.clone().unwrap_or_default();
+        let map = f.map.clone().unwrap_or_default();
+        let error = r.error.as_deref().unwrap_or("").replace(['"', '\n'], "'");
+        let _ = writeln!(
+            out,
+            "{},{},{},{},{:.1},{},{:.2},{},{:.2},{:.2},{},{},{},{},{:.2},{},{},{},{},{},\"{error}\"",
+            r.sequence,
+            r.mode.name(),
+            r.repetition,
+            if r.status == RunStatus::Ok { "ok" } else { "failed" },
+            r.seconds,
+            f.frames,
+            f.coverage_percent,
+            f.keyframes,
+            f.median_tracking_ms,
+            f.mean_tracking_ms,
+            number(f.ate_rmse, 6),
+            number(f.ate_tracking_rmse, 6),
+            number(f.rpe_translation, 6),
+            number(f.rpe_rotation_deg, 4),
+            f.keypoints_removed_per_frame,
+            f.map_points_removed,
+            f.loops,
+            number(map.accuracy_median, 4),
+            number(map.ghost_points.map(|g| g as f64), 0),
+            number(map.dynamic_removed_percent, 2),
+        );
+    }
+    out
+}
+
+/// A spread as `median [min, max]`, or `-`.
+fn spread_cell(s: Option<Spread>, digits: usize) -> String {
+    match s {
+        Some(s) if s.n > 1 => format!("{:.digits$} [{:.digits$}, {:.digits$}]", s.median, s.min, s.max),
+        Some(s) => format!("{:.digits$}", s.median),
+        None => "-".into(),
+    }
+}
+
+fn median_cell(s: Option<Spread>, digits: usize) -> String {
+    s.map_or("-".into(), |s| format!("{:.digits$}", s.median))
+}
+
+/// `results.md`: the tables a report needs.
+pub fn results_md(groups: &[GroupSummary], header: &str) -> String {
+    let mut out = format!("{header}\n\n");
+    out += "| sequence | mode | runs (failed) | ATE RMSE (m), median [min, max] | tracking-pass ATE (m) | RPE 1 s (m/s) | RPE 1 s (deg/s) | coverage (%) | tracking ms median / mean | keyframes | keypoints removed / frame | DOP vs no-DOP |\n";
+    out += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for g in groups {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} ({}) | {} | {} | {} | {} | {} | {} / {} | {} | {} | {} |",
+            g.sequence,
+            g.mode.name(),
+            g.runs,
+            g.failed,
+            spread_cell(g.ate_rmse, 4),
+            median_cell(g.ate_tracking_rmse, 4),
+            median_cell(g.rpe_translation, 4),
+            median_cell(g.rpe_rotation_deg, 3),
+            median_cell(g.coverage_percent, 1),
+            number(g.median_tracking_ms, 1),
+            number(g.mean_tracking_ms, 1),
+            median_cell(g.keyframes, 0),
+            median_cell(g.keypoints_removed_per_frame, 1),
+            g.improvement_percent.map_or("-".into(), |p| format!("{p:+.1} %")),
+        );
+    }
+    if groups.iter().any(|g| g.ghost_points.is_some() || g.dynamic_removed_percent.is_some()) {
+        out += "\n## Dense maps (against the static scene)\n\n| sequence | mode | accuracy, median distance (m) | ghost points | mover depth kept out (%) |\n|---|---|---|---|---|\n";
+        for g in groups.iter().filter(|g| g.ghost_points.is_some() || g.dynamic_removed_percent.is_some()) {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} |",
+                g.sequence,
+                g.mode.name(),
+                median_cell(g.map_accuracy_median, 4),
+                spread_cell(g.ghost_points, 0),
+                median_cell(g.dynamic_removed_percent, 2),
+            );
+        }
+    }
+    let failures: Vec<&GroupSummary> = groups.iter().filter(|g| !g.errors.is_empty()).collect();
+    if !failures.is_empty() {
+        out += "\n## Failed runs\n\n";
+        for g in failures {
+            for e in &g.errors {
+                let _ = writeln!(out, "- {} / {}: {e}", g.sequence, g.mode.name());
+            }
+        }
+    }
+    out
+}
+
+/// Writes `results.csv`, `results.json`, `results.md` and `runs.csv` into `out`.
+pub fn write_results(
+    out: &Path,
+    records: &[RunRecord],
+    groups: &[GroupSummary],
+    header: &str,
+) -> Result<(), IoError> {
+    write_atomic(&out.join("results.csv"), results_csv(groups).as_bytes())?;
+    write_atomic(&out.join("runs.csv"), runs_csv(records).as_bytes())?;
+    write_atomic(&out.join("results.md"), results_md(groups, header).as_bytes())?;
+    let json = serde_json::json!({ "groups": groups, "runs": records });
+    let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+    write_atomic(&out.join("results.json"), text.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(mode: RunMode, repetition: usize, ate: Option<f64>) -> RunRecord {
+        RunRecord {
+            sequence: "s".into(),
+            mode,
+            repetition,
+            status: if ate.is_some() { RunStatus::Ok } else { RunStatus::Failed },
+            error: ate.is_none().then(|| "boom".into()),
+            seconds: 1.0,
+            figures: ate.map(|a| RunFigures {
+                ate_rmse: Some(a),
+                coverage_percent: 100.0,
+                ..RunFigures::default()
+            }),
+        }
+    }
+
+    #[test]
+    fn medians_spreads_and_improvement() {
+        let records = [
+            record(RunMode::NoDop, 1, Some(0.4)),
+            record(RunMode::NoDop, 2, Some(0.2)),
+            record(RunMode::NoDop, 3, Some(0.3)),
+            record(RunMode::Dop, 1, Some(0.03)),
+            record(RunMode::Dop, 2, None),
+            record(RunMode::Dop, 3, Some(0.01)),
+        ];
+        let groups = summarise(&records, &["s".into()], &[RunMode::Dop, RunMode::NoDop]);
+        assert_eq!(groups.len(), 2);
+        let dop = &groups[0];
+        assert_eq!((dop.runs, dop.failed), (3, 1));
+        let ate = dop.ate_rmse.unwrap();
+        assert!((ate.median - 0.02).abs() < 1e-12 && ate.min == 0.01 && ate.max == 0.03);
+        assert!((dop.improvement_percent.unwrap() - 100.0 * (0.3 - 0.02) / 0.3).abs() < 1e-9);
+        assert_eq!(groups[1].ate_rmse.unwrap().median, 0.3);
+        assert!(groups[1].improvement_percent.is_none());
+        let md = results_md(&groups, "# t");
+        assert!(md.contains("0.0200 [0.0100, 0.0300]") && md.contains("boom"), "{md}");
+        assert_eq!(results_csv(&groups).lines().count(), 3);
+        assert_eq!(runs_csv(&records).lines().count(), 7);
+    }
+}

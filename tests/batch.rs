@@ -1,0 +1,183 @@
+//! `dopslam batch` end to end on small synthetic sequences: the tables, the figures,
+//! the ATE equal to `dopslam eval` on the same files, a corrupt sequence recorded as
+//! failed while the rest complete, and resuming after an interruption.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use common::{dopslam, synth_static_room, temp_dir};
+
+/// A manifest of two generated presets and `extra` entries.
+fn manifest(dir: &Path, repetitions: usize, extra: &str) -> PathBuf {
+    let path = dir.join("manifest.toml");
+    let text = format!(
+        "[batch]\nmodes = [\"dop\", \"no-dop\"]\nrepetitions = {repetitions}\ndeterministic = true\n\
+         detections = \"oracle\"\njobs = 2\n\n\
+         [[sequence]]\npreset = \"walking_xyz\"\nsynth_frames = 40\nseeds = [3]\ndense = false\n\n\
+         [[sequence]]\npreset = \"static_room\"\nsynth_frames = 20\n{extra}"
+    );
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A sequence whose second colour image is not a PNG.
+fn corrupt_sequence(dir: &Path) -> PathBuf {
+    let seq = dir.join("corrupt");
+    synth_static_room(&seq, 6);
+    let mut images = common::sorted_files(&seq.join("rgb"));
+    images.retain(|p| p.extension().is_some_and(|e| e == "png"));
+    std::fs::write(&images[0], b"this is not a png").unwrap();
+    seq
+}
+
+fn csv_rows(path: &Path) -> Vec<Vec<String>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+fn finished_runs(out: &Path) -> usize {
+    walk(&out.join("runs"))
+        .into_iter()
+        .filter(|p| p.file_name().is_some_and(|n| n == "run.json"))
+        .count()
+}
+
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut files = Vec::new();
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            files.extend(walk(&path));
+        } else {
+            files.push(path);
+        }
+    }
+    files
+}
+
+#[test]
+fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
+    let dir = temp_dir("batch-main");
+    let corrupt = corrupt_sequence(&dir);
+    let extra = format!("\n[[sequence]]\npath = \"{}\"\nmodes = [\"no-dop\"]\n", corrupt.display());
+    let manifest = manifest(&dir, 2, &extra);
+    let out = dir.join("out");
+    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stdout.contains("10 runs: 0 finished before, 8 done now, 2 failed now"), "{stdout}");
+
+    // results.csv: one row per sequence and mode; the corrupt one failed with its file named.
+    let rows = csv_rows(&out.join("results.csv"));
+    let keys: Vec<(String, String, String, String)> = rows
+        .iter()
+        .map(|r| (r[0].clone(), r[1].clone(), r[2].clone(), r[3].clone()))
+        .collect();
+    let key = |s: &str, m: &str, n: &str, f: &str| (s.to_string(), m.to_string(), n.to_string(), f.to_string());
+    assert_eq!(
+        keys,
+        [
+            key("walking_xyz-s3", "dop", "2", "0"),
+            key("walking_xyz-s3", "no-dop", "2", "0"),
+            key("static_room", "dop", "2", "0"),
+            key("static_room", "no-dop", "2", "0"),
+            key("corrupt", "no-dop", "2", "2"),
+        ]
+    );
+    let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(md.contains("corrupt / no-dop") && md.contains(".png"), "{md}");
+    // The dense maps of the sequence that has them, against its static scene.
+    let dense_row = md.lines().find(|l| l.starts_with("| static_room | dop | 0.0")).unwrap_or_default();
+    assert!(md.contains("## Dense maps") && !dense_row.is_empty(), "{md}");
+
+    // Every successful run's ATE equals `dopslam eval` on its files; the median in the
+    // table is the median of the runs.
+    let truth = out.join("sequences/walking_xyz-s3/groundtruth.txt");
+    let mut ates = Vec::new();
+    for r in 1..=2 {
+        let run = out.join(format!("runs/walking_xyz-s3/dop/r{r}"));
+        let record: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
+        let ate = record["figures"]["ate_rmse"].as_f64().unwrap();
+        let (ok, json, err) = dopslam(&[
+            "eval",
+            &truth.to_string_lossy(),
+            &run.join("trajectory.txt").to_string_lossy(),
+            "--rpe",
+            "1s",
+            "--json",
+            "--min-coverage",
+            "0",
+        ]);
+        assert!(ok, "{err}");
+        let eval: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(eval["ape"]["statistics"]["rmse"].as_f64().unwrap(), ate);
+        let rpe = record["figures"]["rpe_translation"].as_f64().unwrap();
+        assert_eq!(eval["rpe"][0]["statistics"]["rmse"].as_f64().unwrap(), rpe);
+        ates.push(ate);
+    }
+    let median: f64 = rows[0][4].parse().unwrap();
+    assert!((median - 0.5 * (ates[0] + ates[1])).abs() < 1e-6, "{median} vs {ates:?}");
+
+    // Figures and the report.
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("walking_xyz-s3") && html.contains("corrupt"));
+    if out.join("plots/walking_xyz-s3/trajectories.png").exists() {
+        for name in ["trajectories", "ape_time", "ape_box"] {
+            let png = out.join(format!("plots/walking_xyz-s3/{name}.png"));
+            let image = image::open(&png).unwrap();
+            assert_eq!((image.width(), image.height()), (900, 640), "{}", png.display());
+        }
+        assert!(html.contains("data:image/png;base64,"));
+    } else {
+        assert!(stderr.contains("font"), "no plots and no word why: {stderr}");
+    }
+
+    // Again: nothing left to do. Without one run's record: that run alone.
+    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    assert!(ok);
+    assert!(stdout.contains("10 runs: 10 finished before, 0 done now, 0 failed now"), "{stdout}");
+    std::fs::remove_file(out.join("runs/static_room/dop/r2/run.json")).unwrap();
+    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    assert!(ok);
+    assert!(stdout.contains("10 runs: 9 finished before, 1 done now, 0 failed now"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
+    let dir = temp_dir("batch-resume");
+    let manifest = manifest(&dir, 3, "");
+    let out = dir.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args(["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--jobs", "1"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while finished_runs(&out) < 2 && start.elapsed() < Duration::from_secs(300) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: kill takes a pid and a signal number.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+    }
+    let status = child.wait().unwrap();
+    let before = finished_runs(&out);
+    assert!(!status.success(), "an interrupted batch exits with an error");
+    assert!((2..12).contains(&before), "{before} runs finished before the stop");
+    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    assert!(ok, "{stderr}");
+    let expected = format!("12 runs: {before} finished before, {} done now, 0 failed now, 0 not run", 12 - before);
+    assert!(stdout.contains(&expected), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
