@@ -18,6 +18,10 @@ pub struct BatchArgs {
     /// Run again the runs that failed in an earlier invocation (finished ones are skipped).
     #[arg(long)]
     retry_failed: bool,
+    /// Evaluate the finished runs again from their files (ATE, RPE, map figures), e.g.
+    /// after changing [eval] settings; no run is repeated.
+    #[arg(long)]
+    reevaluate: bool,
     /// Exit with status 1 when a run failed (the batch still runs them all).
     #[arg(long)]
     strict: bool,
@@ -36,6 +40,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         out: args.out.clone(),
         jobs: args.jobs,
         retry_failed: args.retry_failed,
+        reevaluate: args.reevaluate,
         progress: !args.quiet,
     };
     let summary = dopslam::batch::run_batch(&args.manifest, &options).map_err(anyhow::Error::msg)?;

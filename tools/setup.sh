@@ -14,9 +14,10 @@ run_demo=1
 [ "${1:-}" = "--no-demo" ] && run_demo=0
 
 # 1. System packages (Debian). A C toolchain and pkg-config for -sys crates; python3 and
-#    pip fetch the ONNX Runtime wheel. apt runs only when something is missing.
+#    pip fetch the ONNX Runtime wheel; DejaVu Sans labels the batch plots (PNG). apt
+#    runs only when something is missing.
 need_apt=()
-for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates; do
+for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates fonts-dejavu-core; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if [ ${#need_apt[@]} -gt 0 ]; then

@@ -165,6 +165,24 @@ impl Executor<'_> {
         Some(record)
     }
 
+    /// Evaluates a finished run's folder again (after a change of evaluation settings or
+    /// of dopslam's figures) and rewrites its `run.json`; the run itself is not repeated.
+    pub fn reevaluate(&self, job: &RunJob, mut record: RunRecord) -> RunRecord {
+        match self.figures(job) {
+            Ok(figures) => record.figures = Some(figures),
+            Err(e) => {
+                record.status = RunStatus::Failed;
+                record.error = Some(e);
+            }
+        }
+        let json = serde_json::to_string_pretty(&record).unwrap_or_default();
+        if let Err(e) = write_atomic(&job.dir.join("run.json"), json.as_bytes()) {
+            record.status = RunStatus::Failed;
+            record.error = Some(e.to_string());
+        }
+        record
+    }
+
     /// Starts `dopslam run` for `job` in a clean folder, with the sequence's config.
     fn start(&self, job: &RunJob) -> Result<Child, String> {
         let sequence = &self.sequences[job.sequence];
@@ -229,8 +247,7 @@ impl Executor<'_> {
     /// sequence with a static scene, its dense map against it (`map_compare/`).
     fn figures(&self, job: &RunJob) -> Result<RunFigures, String> {
         let sequence = &self.sequences[job.sequence];
-        let mut figures =
-            RunFigures::from_report(&job.dir.join("report.json")).map_err(|e| e.to_string())?;
+        let mut figures = RunFigures::from_run(&job.dir).map_err(|e| e.to_string())?;
         let sequence_dir = &self.sequence_dirs[job.sequence];
         if let Some(reference) = ground_truth(sequence_dir, &sequence.config)? {
             let rpe = RpeSpec {

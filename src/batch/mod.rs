@@ -49,6 +49,8 @@ pub struct BatchOptions {
     pub jobs: Option<usize>,
     /// Run again the runs that failed before (finished runs are otherwise skipped).
     pub retry_failed: bool,
+    /// Evaluate the finished runs again from their files (no run is repeated).
+    pub reevaluate: bool,
     pub progress: bool,
 }
 
@@ -127,6 +129,13 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         rpe_seconds: manifest.batch.rpe_seconds,
         progress: options.progress,
     };
+    if options.reevaluate {
+        for job in &all_runs {
+            if let Some(record) = RunRecord::read(&job.dir).filter(|r| r.status == RunStatus::Ok) {
+                executor.reevaluate(job, record);
+            }
+        }
+    }
     let executed = executor.run_all(todo);
 
     let records: Vec<RunRecord> = all_runs.iter().filter_map(|j| RunRecord::read(&j.dir)).collect();

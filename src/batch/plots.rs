@@ -65,6 +65,27 @@ fn canvas(path: &Path) -> Result<DrawingArea<BitMapBackend<'_>, Shift>, String> 
     Ok(root)
 }
 
+/// The index ranges of `timestamps` between gaps (lost tracking): a gap is longer than
+/// ten times the median interval and than 0.5 s. Lines are not drawn across gaps.
+pub fn unbroken(timestamps: &[f64]) -> Vec<std::ops::Range<usize>> {
+    if timestamps.len() < 2 {
+        return vec![0..timestamps.len()];
+    }
+    let mut intervals: Vec<f64> = timestamps.windows(2).map(|w| w[1] - w[0]).collect();
+    intervals.sort_by(f64::total_cmp);
+    let gap = (10.0 * intervals[intervals.len() / 2]).max(0.5);
+    let mut ranges = Vec::new();
+    let mut start = 0;
+    for i in 1..timestamps.len() {
+        if timestamps[i] - timestamps[i - 1] > gap {
+            ranges.push(start..i);
+            start = i;
+        }
+    }
+    ranges.push(start..timestamps.len());
+    ranges
+}
+
 /// A range padded by 5 % (and widened when empty).
 fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
@@ -79,10 +100,11 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
 /// The trajectories of each mode's median run (aligned) over the ground truth, seen
 /// along the axis of least motion, with equal metres per pixel on both axes.
 pub fn trajectories(path: &Path, title: &str, runs: &[(RunMode, &EvalReport)]) -> Result<(), String> {
-    let Some((_, first)) = runs.first() else {
+    // The ground truth as far as the most complete run matched it.
+    let Some(fullest) = runs.iter().map(|(_, r)| &r.reference).max_by_key(|r| r.len()) else {
         return Ok(());
     };
-    let reference = first.reference.positions();
+    let reference = fullest.positions();
     let (a, b) = view_axes(&reference);
     let all = runs
         .iter()
@@ -111,19 +133,23 @@ pub fn trajectories(path: &Path, title: &str, runs: &[(RunMode, &EvalReport)]) -
         .draw()
         .map_err(&err)?;
     let grey = RGBColor(90, 90, 90);
+    let pieces = |timestamps: &[f64], points: &[nalgebra::Vector3<f64>], style: ShapeStyle| {
+        unbroken(timestamps)
+            .into_iter()
+            .map(|r| PathElement::new(points[r].iter().map(|p| (p[a], p[b])).collect::<Vec<_>>(), style))
+            .collect::<Vec<_>>()
+    };
     chart
-        .draw_series(LineSeries::new(reference.iter().map(|p| (p[a], p[b])), grey.stroke_width(2)))
+        .draw_series(pieces(&fullest.timestamps, &reference, grey.stroke_width(2)))
         .map_err(&err)?
         .label("ground truth")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey.stroke_width(2)));
     for (mode, report) in runs {
         let colour = mode_colour(*mode);
         let label = format!("{} (ATE {:.4} m)", mode.name(), report.ape.statistics.rmse);
+        let estimate = &report.aligned_estimate;
         chart
-            .draw_series(LineSeries::new(
-                report.aligned_estimate.positions().into_iter().map(|p| (p[a], p[b])),
-                colour.stroke_width(1),
-            ))
+            .draw_series(pieces(&estimate.timestamps, &estimate.positions(), colour.stroke_width(1)))
             .map_err(&err)?
             .label(label)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
@@ -176,9 +202,13 @@ pub fn ape_over_time(path: &Path, title: &str, runs: &[(RunMode, &EvalReport)]) 
         .map_err(&err)?;
     for (mode, report) in runs {
         let colour = mode_colour(*mode);
-        let points = report.ape.timestamps.iter().map(|t| t - t0).zip(report.ape.errors.iter().copied());
+        let (times, errors) = (&report.ape.timestamps, &report.ape.errors);
+        let pieces = unbroken(times).into_iter().map(|r| {
+            let points: Vec<(f64, f64)> = r.map(|i| (times[i] - t0, errors[i])).collect();
+            PathElement::new(points, colour.stroke_width(1))
+        });
         chart
-            .draw_series(LineSeries::new(points, colour.stroke_width(1)))
+            .draw_series(pieces)
             .map_err(&err)?
             .label(format!("{} (RMSE {:.4} m)", mode.name(), report.ape.statistics.rmse))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
@@ -290,6 +320,15 @@ pub fn ape_boxes(path: &Path, title: &str, modes: &[(RunMode, Vec<f64>)]) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lines_break_at_gaps_in_time() {
+        let mut t: Vec<f64> = (0..10).map(|i| f64::from(i) / 30.0).collect();
+        t.extend((0..5).map(|i| 2.0 + f64::from(i) / 30.0));
+        assert_eq!(unbroken(&t), [0..10, 10..15]);
+        assert_eq!(unbroken(&t[..10]), [0..10]);
+        assert_eq!(unbroken(&[]), [0..0]);
+    }
 
     #[test]
     fn box_statistics_follow_tukey_and_numpy() {

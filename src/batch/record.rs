@@ -80,8 +80,6 @@ struct ReportFile {
     frames: Vec<FrameFile>,
     #[serde(default)]
     global: Option<GlobalFile>,
-    #[serde(default)]
-    dense: Option<DenseFile>,
 }
 
 #[derive(Deserialize)]
@@ -110,6 +108,7 @@ struct GlobalFile {
     loops: Vec<serde_json::Value>,
 }
 
+/// The parts of `dense.json` the batch reads.
 #[derive(Deserialize)]
 struct DenseFile {
     truth: Option<TruthFile>,
@@ -121,12 +120,21 @@ struct TruthFile {
 }
 
 impl RunFigures {
-    /// The figures `report.json` holds (the evaluation and the map comparison are added
-    /// by the caller).
-    pub fn from_report(path: &Path) -> Result<Self, IoError> {
-        let text = crate::io::errors::read_text(path)?;
+    /// The figures a run folder's `report.json` and `dense.json` (when the dense pass
+    /// ran) hold; the evaluation and the map comparison are added by the caller.
+    pub fn from_run(dir: &Path) -> Result<Self, IoError> {
+        let path = dir.join("report.json");
+        let text = crate::io::errors::read_text(&path)?;
         let report: ReportFile = serde_json::from_str(&text)
-            .map_err(|e| IoError::invalid(path, format!("not a dopslam run report: {e}")))?;
+            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))?;
+        let dense_path = dir.join("dense.json");
+        let dense: Option<DenseFile> = match dense_path.exists() {
+            true => Some(
+                serde_json::from_str(&crate::io::errors::read_text(&dense_path)?)
+                    .map_err(|e| IoError::invalid(&dense_path, format!("not a dense report: {e}")))?,
+            ),
+            false => None,
+        };
         let t = &report.totals;
         let removed: usize = report.frames.iter().map(|f| f.dynamic_keypoints).sum();
         Ok(Self {
@@ -140,8 +148,7 @@ impl RunFigures {
             keypoints_removed_per_frame: removed as f64 / t.tracked.max(1) as f64,
             map_points_removed: report.detection.map_points_removed,
             loops: report.global.map_or(0, |g| g.loops.len()),
-            map: report
-                .dense
+            map: dense
                 .and_then(|d| d.truth)
                 .map(|truth| MapFigures {
                     dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),

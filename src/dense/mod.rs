@@ -148,7 +148,8 @@ impl DenseConfig {
         Ok(())
     }
 
-    fn tsdf(&self) -> TsdfSettings {
+    /// The TSDF volume's settings.
+    pub fn tsdf(&self) -> TsdfSettings {
         TsdfSettings {
             voxel: self.voxel,
             truncation: self.truncation,

@@ -1,0 +1,95 @@
+//! `cargo bench --bench micro`: the per-frame building blocks, timed on seeded
+//! synthetic frames (not a test; `tools/bench.sh` puts the figures in its report):
+//! ORB extraction at 640x480 (TUM) and 1241x376 (KITTI), TSDF integration of a
+//! 640x480 depth frame, and trajectory evaluation (ATE + RPE) of a 30 s trajectory.
+//! Prints one `name: median ms (...)` line each. `RAYON_NUM_THREADS` sets the threads.
+
+use std::time::Instant;
+
+use dopslam::config::Config;
+use dopslam::dense::tsdf::{FrameInput, TsdfVolume};
+use dopslam::eval::report::{evaluate, EvalOptions, RpeSpec};
+use dopslam::eval::rpe::DeltaUnit;
+use dopslam::features::OrbExtractor;
+use dopslam::synth::writer::World;
+use dopslam::synth::SynthConfig;
+
+const FRAMES: usize = 12;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Runs `work` on each input `rounds` times; the median milliseconds.
+fn time<T>(inputs: &[T], rounds: usize, mut work: impl FnMut(&T)) -> f64 {
+    let mut times = Vec::new();
+    for _ in 0..rounds {
+        for input in inputs {
+            let start = Instant::now();
+            work(input);
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    median(times)
+}
+
+fn main() {
+    println!("threads: {}", rayon::current_num_threads());
+    let preset = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
+    let synth = SynthConfig::load(&preset).expect("the walking_xyz preset");
+    let world = World::new(&synth).expect("the walking_xyz world");
+    let rendered: Vec<_> = (0..FRAMES).map(|i| world.render(i * 20)).collect();
+    let config = Config::default();
+    let extractor = OrbExtractor::new(&config.orb);
+
+    let grey: Vec<image::GrayImage> = rendered.iter().map(|r| image::imageops::grayscale(&r.rgb)).collect();
+    let mut keypoints = 0;
+    let ms = time(&grey, 3, |g| keypoints = extractor.extract(g).len());
+    println!(
+        "ORB extraction 640x480 ({} features, {} levels): {ms:.2} ms median ({keypoints} keypoints)",
+        config.orb.n_features, config.orb.n_levels
+    );
+    let wide: Vec<image::GrayImage> = grey
+        .iter()
+        .map(|g| image::imageops::resize(g, 1241, 376, image::imageops::FilterType::Triangle))
+        .collect();
+    let kitti = OrbExtractor::new(&dopslam::features::orb::OrbConfig {
+        n_features: 2000,
+        ..config.orb.clone()
+    });
+    let ms = time(&wide, 3, |g| keypoints = kitti.extract(g).len());
+    println!("ORB extraction 1241x376 (2000 features, as ORB-SLAM2 on KITTI): {ms:.2} ms median ({keypoints} keypoints)");
+
+    let mut volume = TsdfVolume::new(config.dense.tsdf(), world.camera);
+    let frames: Vec<usize> = (0..FRAMES).collect();
+    let ms = time(&frames, 1, |&i| {
+        let camera_from_world = world.poses[i * 20].inverse();
+        volume.integrate(&FrameInput {
+            depth: &rendered[i].depth,
+            colour: &rendered[i].rgb,
+            dynamic: None,
+            camera_from_world: &camera_from_world,
+        });
+    });
+    println!(
+        "TSDF integration 640x480 (voxel {} m): {ms:.2} ms median per frame ({} blocks)",
+        config.dense.voxel,
+        volume.blocks.len()
+    );
+
+    let (reference, estimate) = dopslam::demo::demo_trajectories(1, 30.0, 0.004);
+    let options = EvalOptions {
+        rpe: vec![RpeSpec { delta: 1.0, unit: DeltaUnit::Seconds }],
+        ..EvalOptions::default()
+    };
+    let mut rmse = 0.0;
+    let ms = time(&[()], 20, |_| {
+        rmse = evaluate(&reference, &estimate, &options).expect("evaluation").ape.statistics.rmse;
+    });
+    println!(
+        "evaluation (ATE + RPE 1 s) of {} poses against {}: {ms:.2} ms median (APE RMSE {rmse:.4} m)",
+        estimate.len(),
+        reference.len()
+    );
+}
