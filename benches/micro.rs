@@ -36,14 +36,18 @@ fn time<T>(inputs: &[T], rounds: usize, mut work: impl FnMut(&T)) -> f64 {
 
 fn main() {
     println!("threads: {}", rayon::current_num_threads());
-    let preset = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
+    let preset =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
     let synth = SynthConfig::load(&preset).expect("the walking_xyz preset");
     let world = World::new(&synth).expect("the walking_xyz world");
     let rendered: Vec<_> = (0..FRAMES).map(|i| world.render(i * 20)).collect();
     let config = Config::default();
     let extractor = OrbExtractor::new(&config.orb);
 
-    let grey: Vec<image::GrayImage> = rendered.iter().map(|r| image::imageops::grayscale(&r.rgb)).collect();
+    let grey: Vec<image::GrayImage> = rendered
+        .iter()
+        .map(|r| image::imageops::grayscale(&r.rgb))
+        .collect();
     let mut keypoints = 0;
     let ms = time(&grey, 3, |g| keypoints = extractor.extract(g).len());
     println!(
@@ -80,12 +84,19 @@ fn main() {
 
     let (reference, estimate) = dopslam::demo::demo_trajectories(1, 30.0, 0.004);
     let options = EvalOptions {
-        rpe: vec![RpeSpec { delta: 1.0, unit: DeltaUnit::Seconds }],
+        rpe: vec![RpeSpec {
+            delta: 1.0,
+            unit: DeltaUnit::Seconds,
+        }],
         ..EvalOptions::default()
     };
     let mut rmse = 0.0;
     let ms = time(&[()], 20, |_| {
-        rmse = evaluate(&reference, &estimate, &options).expect("evaluation").ape.statistics.rmse;
+        rmse = evaluate(&reference, &estimate, &options)
+            .expect("evaluation")
+            .ape
+            .statistics
+            .rmse;
     });
     println!(
         "evaluation (ATE + RPE 1 s) of {} poses against {}: {ms:.2} ms median (APE RMSE {rmse:.4} m)",

@@ -34,7 +34,8 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
     if args.jobs == Some(0) {
         bail!("--jobs must be at least 1");
     }
-    let program = std::env::current_exe().context("cannot find the dopslam program to start runs with")?;
+    let program =
+        std::env::current_exe().context("cannot find the dopslam program to start runs with")?;
     let options = dopslam::batch::BatchOptions {
         program,
         out: args.out.clone(),
@@ -43,7 +44,8 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         reevaluate: args.reevaluate,
         progress: !args.quiet,
     };
-    let summary = dopslam::batch::run_batch(&args.manifest, &options).map_err(anyhow::Error::msg)?;
+    let summary =
+        dopslam::batch::run_batch(&args.manifest, &options).map_err(anyhow::Error::msg)?;
     let e = &summary.executed;
     let table = std::fs::read_to_string(summary.out.join("results.md")).unwrap_or_default();
     println!("{table}");

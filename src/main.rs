@@ -685,7 +685,10 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Run(_) | Command::Fuse(_) | Command::Batch(_)) {
+    if matches!(
+        cli.command,
+        Command::Run(_) | Command::Fuse(_) | Command::Batch(_)
+    ) {
         dopslam::interrupt::install();
     }
     let result = match cli.command {

@@ -33,6 +33,19 @@ fn corrupt_sequence(dir: &Path) -> PathBuf {
     seq
 }
 
+/// `dopslam batch MANIFEST --out OUT --quiet`: its standard output (it must succeed).
+fn batch(manifest: &Path, out: &Path) -> String {
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &manifest.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--quiet",
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    stdout
+}
+
 fn csv_rows(path: &Path) -> Vec<Vec<String>> {
     std::fs::read_to_string(path)
         .unwrap()
@@ -69,12 +82,24 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
 fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
     let dir = temp_dir("batch-main");
     let corrupt = corrupt_sequence(&dir);
-    let extra = format!("\n[[sequence]]\npath = \"{}\"\nmodes = [\"no-dop\"]\n", corrupt.display());
+    let extra = format!(
+        "\n[[sequence]]\npath = \"{}\"\nmodes = [\"no-dop\"]\n",
+        corrupt.display()
+    );
     let manifest = manifest(&dir, 2, &extra);
     let out = dir.join("out");
-    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &manifest.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--quiet",
+    ]);
     assert!(ok, "{stdout}\n{stderr}");
-    assert!(stdout.contains("10 runs: 0 finished before, 8 done now, 2 failed now"), "{stdout}");
+    assert!(
+        stdout.contains("10 runs: 0 finished before, 8 done now, 2 failed now"),
+        "{stdout}"
+    );
 
     // results.csv: one row per sequence and mode; the corrupt one failed with its file named.
     let rows = csv_rows(&out.join("results.csv"));
@@ -82,7 +107,9 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
         .iter()
         .map(|r| (r[0].clone(), r[1].clone(), r[2].clone(), r[3].clone()))
         .collect();
-    let key = |s: &str, m: &str, n: &str, f: &str| (s.to_string(), m.to_string(), n.to_string(), f.to_string());
+    let key = |s: &str, m: &str, n: &str, f: &str| {
+        (s.to_string(), m.to_string(), n.to_string(), f.to_string())
+    };
     assert_eq!(
         keys,
         [
@@ -94,10 +121,19 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
         ]
     );
     let md = std::fs::read_to_string(out.join("results.md")).unwrap();
-    assert!(md.contains("corrupt / no-dop") && md.contains(".png"), "{md}");
+    assert!(
+        md.contains("corrupt / no-dop") && md.contains(".png"),
+        "{md}"
+    );
     // The dense maps of the sequence that has them, against its static scene.
-    let dense_row = md.lines().find(|l| l.starts_with("| static_room | dop | 0.0")).unwrap_or_default();
-    assert!(md.contains("## Dense maps") && !dense_row.is_empty(), "{md}");
+    let dense_row = md
+        .lines()
+        .find(|l| l.starts_with("| static_room | dop | 0.0"))
+        .unwrap_or_default();
+    assert!(
+        md.contains("## Dense maps") && !dense_row.is_empty(),
+        "{md}"
+    );
 
     // Every successful run's ATE equals `dopslam eval` on its files; the median in the
     // table is the median of the runs.
@@ -105,7 +141,8 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
     let mut ates = Vec::new();
     for r in 1..=2 {
         let run = out.join(format!("runs/walking_xyz-s3/dop/r{r}"));
-        let record: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
+        let record: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
         let ate = record["figures"]["ate_rmse"].as_f64().unwrap();
         let (ok, json, err) = dopslam(&[
             "eval",
@@ -125,7 +162,10 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
         ates.push(ate);
     }
     let median: f64 = rows[0][4].parse().unwrap();
-    assert!((median - 0.5 * (ates[0] + ates[1])).abs() < 1e-6, "{median} vs {ates:?}");
+    assert!(
+        (median - 0.5 * (ates[0] + ates[1])).abs() < 1e-6,
+        "{median} vs {ates:?}"
+    );
 
     // Figures and the report.
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
@@ -134,21 +174,33 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
         for name in ["trajectories", "ape_time", "ape_box"] {
             let png = out.join(format!("plots/walking_xyz-s3/{name}.png"));
             let image = image::open(&png).unwrap();
-            assert_eq!((image.width(), image.height()), (900, 640), "{}", png.display());
+            assert_eq!(
+                (image.width(), image.height()),
+                (900, 640),
+                "{}",
+                png.display()
+            );
         }
         assert!(html.contains("data:image/png;base64,"));
     } else {
-        assert!(stderr.contains("font"), "no plots and no word why: {stderr}");
+        assert!(
+            stderr.contains("font"),
+            "no plots and no word why: {stderr}"
+        );
     }
 
     // Again: nothing left to do. Without one run's record: that run alone.
-    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
-    assert!(ok);
-    assert!(stdout.contains("10 runs: 10 finished before, 0 done now, 0 failed now"), "{stdout}");
+    let stdout = batch(&manifest, &out);
+    assert!(
+        stdout.contains("10 runs: 10 finished before, 0 done now, 0 failed now"),
+        "{stdout}"
+    );
     std::fs::remove_file(out.join("runs/static_room/dop/r2/run.json")).unwrap();
-    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
-    assert!(ok);
-    assert!(stdout.contains("10 runs: 9 finished before, 1 done now, 0 failed now"), "{stdout}");
+    let stdout = batch(&manifest, &out);
+    assert!(
+        stdout.contains("10 runs: 9 finished before, 1 done now, 0 failed now"),
+        "{stdout}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -158,7 +210,15 @@ fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
     let manifest = manifest(&dir, 3, "");
     let out = dir.join("out");
     let mut child = Command::new(env!("CARGO_BIN_EXE_dopslam"))
-        .args(["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--jobs", "1"])
+        .args([
+            "batch",
+            &manifest.to_string_lossy(),
+            "--out",
+            &out.to_string_lossy(),
+            "--quiet",
+            "--jobs",
+            "1",
+        ])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -173,11 +233,19 @@ fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
     }
     let status = child.wait().unwrap();
     let before = finished_runs(&out);
-    assert!(!status.success(), "an interrupted batch exits with an error");
-    assert!((2..12).contains(&before), "{before} runs finished before the stop");
-    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
-    assert!(ok, "{stderr}");
-    let expected = format!("12 runs: {before} finished before, {} done now, 0 failed now, 0 not run", 12 - before);
+    assert!(
+        !status.success(),
+        "an interrupted batch exits with an error"
+    );
+    assert!(
+        (2..12).contains(&before),
+        "{before} runs finished before the stop"
+    );
+    let stdout = batch(&manifest, &out);
+    let expected = format!(
+        "12 runs: {before} finished before, {} done now, 0 failed now, 0 not run",
+        12 - before
+    );
     assert!(stdout.contains(&expected), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }

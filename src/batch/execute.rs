@@ -202,9 +202,7 @@ impl Executor<'_> {
         write_atomic(&config_path, text.as_bytes()).map_err(|e| e.to_string())?;
         let log = std::fs::File::create(job.dir.join("log.txt"))
             .map_err(|e| format!("cannot create {}/log.txt: {e}", job.dir.display()))?;
-        let log_err = log
-            .try_clone()
-            .map_err(|e| format!("log.txt: {e}"))?;
+        let log_err = log.try_clone().map_err(|e| format!("log.txt: {e}"))?;
         let mut command = Command::new(self.program);
         command
             .arg("run")
@@ -254,21 +252,25 @@ impl Executor<'_> {
                 delta: self.rpe_seconds,
                 unit: DeltaUnit::Seconds,
             };
-            let estimate = Trajectory::read(&job.dir.join("trajectory.txt"), TrajectoryFormat::Tum)
-                .map_err(|e| e.to_string())?;
-            let translation = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart)?;
-            let rotation = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::AngleDeg)?;
-            for (name, report) in [("eval.json", &translation), ("eval_rotation.json", &rotation)] {
+            let evaluate_file = |name: &str, relation| {
+                let estimate = Trajectory::read(&job.dir.join(name), TrajectoryFormat::Tum)
+                    .map_err(|e| e.to_string())?;
+                evaluate_run(&reference, &estimate, &sequence.config, rpe, relation)
+            };
+            let translation = evaluate_file("trajectory.txt", PoseRelation::TransPart)?;
+            let rotation = evaluate_file("trajectory.txt", PoseRelation::AngleDeg)?;
+            for (name, report) in [
+                ("eval.json", &translation),
+                ("eval_rotation.json", &rotation),
+            ] {
                 let json = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
                 write_atomic(&job.dir.join(name), json.as_bytes()).map_err(|e| e.to_string())?;
             }
             figures.ate_rmse = Some(translation.ape.statistics.rmse);
             figures.rpe_translation = translation.rpe.first().map(|m| m.statistics.rmse);
             figures.rpe_rotation_deg = rotation.rpe.first().map(|m| m.statistics.rmse);
-            let tracking = job.dir.join("trajectory_tracking.txt");
-            if tracking.exists() {
-                let estimate = Trajectory::read(&tracking, TrajectoryFormat::Tum).map_err(|e| e.to_string())?;
-                let report = evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart)?;
+            if job.dir.join("trajectory_tracking.txt").exists() {
+                let report = evaluate_file("trajectory_tracking.txt", PoseRelation::TransPart)?;
                 figures.ate_tracking_rmse = Some(report.ape.statistics.rmse);
             }
         }
@@ -313,7 +315,8 @@ fn wait(mut child: Child, dir: &Path) -> Result<bool, String> {
 
 /// Whether the run's log says it stopped on a signal.
 fn was_interrupted(dir: &Path) -> bool {
-    std::fs::read_to_string(dir.join("log.txt")).is_ok_and(|log| log.contains(crate::interrupt::MESSAGE))
+    std::fs::read_to_string(dir.join("log.txt"))
+        .is_ok_and(|log| log.contains(crate::interrupt::MESSAGE))
 }
 
 /// The run's own error line from its log, else its exit status.
@@ -326,7 +329,10 @@ fn failure_message(status: std::process::ExitStatus, dir: &Path) -> String {
         .map(str::to_string);
     match error {
         Some(e) => e,
-        None => format!("dopslam run exited with {status} (see {}/log.txt)", dir.display()),
+        None => format!(
+            "dopslam run exited with {status} (see {}/log.txt)",
+            dir.display()
+        ),
     }
 }
 
@@ -366,7 +372,10 @@ pub fn evaluate_run(
 }
 
 /// The run's dense map against a synthetic sequence's static scene and movers.
-fn compare_with_static_scene(run: &Path, sequence_dir: &Path) -> Result<Option<MapFigures>, String> {
+fn compare_with_static_scene(
+    run: &Path,
+    sequence_dir: &Path,
+) -> Result<Option<MapFigures>, String> {
     let static_scene = sequence_dir.join("static_scene.ply");
     let mesh = ["dense_mesh.ply", "dense_points.ply"]
         .into_iter()

@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use base64::Engine as _;
 
-use super::results::{GroupSummary, Spread};
+use super::results::{
+    has_map, map_cells, spread_text, table_cells, GroupSummary, Spread, MAP_COLUMNS, TABLE_COLUMNS,
+};
 
 /// One sequence's section.
 pub struct SequenceSection {
@@ -40,15 +42,16 @@ fn image(path: &Path, alt: &str) -> String {
 }
 
 fn cell(s: Option<Spread>, digits: usize) -> String {
-    match s {
-        Some(s) if s.n > 1 => format!("{:.digits$} <small>[{:.digits$}, {:.digits$}]</small>", s.median, s.min, s.max),
-        Some(s) => format!("{:.digits$}", s.median),
-        None => "-".into(),
-    }
+    spread_text(s, digits, "<small>[", "]</small>")
 }
 
 /// The page.
-pub fn report_html(title: &str, header_lines: &[String], groups: &[GroupSummary], sections: &[SequenceSection]) -> String {
+pub fn report_html(
+    title: &str,
+    header_lines: &[String],
+    groups: &[GroupSummary],
+    sections: &[SequenceSection],
+) -> String {
     let mut out = String::new();
     let _ = write!(
         out,
@@ -63,29 +66,33 @@ th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}small{
     for line in header_lines {
         let _ = writeln!(out, "<p>{}</p>", escape(line));
     }
-    out += "<h2>Results</h2>\n<table><tr><th>sequence</th><th>mode</th><th>runs (failed)</th><th>ATE RMSE (m) median [min, max]</th><th>tracking-pass ATE (m)</th><th>RPE 1 s (m/s)</th><th>RPE 1 s (deg/s)</th><th>coverage (%)</th><th>tracking ms median / mean</th><th>keyframes</th><th>keypoints removed / frame</th><th>ghost points</th><th>DOP vs no-DOP</th></tr>\n";
+    let _ = writeln!(
+        out,
+        "<h2>Results</h2>\n<table><tr><th>{}</th></tr>",
+        TABLE_COLUMNS.join("</th><th>")
+    );
     for g in groups {
-        let _ = writeln!(
-            out,
-            "<tr><td><a href=\"#{s}\">{s}</a></td><td class=\"{m}\">{m}</td><td>{} ({})</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} / {}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-            g.runs,
-            g.failed,
-            cell(g.ate_rmse, 4),
-            cell(g.ate_tracking_rmse, 4),
-            cell(g.rpe_translation, 4),
-            cell(g.rpe_rotation_deg, 3),
-            cell(g.coverage_percent, 1),
-            g.median_tracking_ms.map_or("-".into(), |v| format!("{v:.1}")),
-            g.mean_tracking_ms.map_or("-".into(), |v| format!("{v:.1}")),
-            cell(g.keyframes, 0),
-            cell(g.keypoints_removed_per_frame, 1),
-            cell(g.ghost_points, 0),
-            g.improvement_percent.map_or("-".into(), |p| format!("{p:+.1} %")),
-            s = escape(&g.sequence),
-            m = g.mode.name(),
-        );
+        let mut cells: Vec<String> = table_cells(g, cell).iter().map(|c| escape(c)).collect();
+        // The spread's <small> is markup, not text.
+        cells[3] = cell(g.ate_rmse, 4);
+        cells[0] = format!("<a href=\"#{0}\">{0}</a>", cells[0]);
+        cells[1] = format!("<span class=\"{0}\">{0}</span>", cells[1]);
+        let _ = writeln!(out, "<tr><td>{}</td></tr>", cells.join("</td><td>"));
     }
     out += "</table>\n";
+    let dense: Vec<&GroupSummary> = groups.iter().filter(|g| has_map(g)).collect();
+    if !dense.is_empty() {
+        let _ = writeln!(
+            out,
+            "<h2>Dense maps (against the static scene)</h2>\n<table><tr><th>{}</th></tr>",
+            MAP_COLUMNS.join("</th><th>")
+        );
+        for g in dense {
+            let cells: Vec<String> = map_cells(g).iter().map(|c| escape(c)).collect();
+            let _ = writeln!(out, "<tr><td>{}</td></tr>", cells.join("</td><td>"));
+        }
+        out += "</table>\n";
+    }
     for section in sections {
         let _ = writeln!(out, "<h2 id=\"{n}\">{n}</h2>", n = escape(&section.name));
         for figure in &section.figures {
@@ -108,7 +115,11 @@ th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}small{
     }
     let errors: Vec<String> = groups
         .iter()
-        .flat_map(|g| g.errors.iter().map(move |e| format!("{} / {}: {e}", g.sequence, g.mode.name())))
+        .flat_map(|g| {
+            g.errors
+                .iter()
+                .map(move |e| format!("{} / {}: {e}", g.sequence, g.mode.name()))
+        })
         .collect();
     if !errors.is_empty() {
         out += "<h2>Failed runs</h2>\n<ul>\n";

@@ -160,7 +160,11 @@ pub struct Manifest {
 pub enum SequenceSource {
     Folder(PathBuf),
     /// A preset file and the seed to generate it with.
-    Synthetic { preset: PathBuf, seed: Option<u64>, frames: Option<usize> },
+    Synthetic {
+        preset: PathBuf,
+        seed: Option<u64>,
+        frames: Option<usize>,
+    },
 }
 
 /// One sequence of the batch with everything its runs need.
@@ -329,7 +333,10 @@ impl Manifest {
                     name,
                     source,
                     config: config.clone(),
-                    modes: entry.modes.clone().unwrap_or_else(|| self.batch.modes.clone()),
+                    modes: entry
+                        .modes
+                        .clone()
+                        .unwrap_or_else(|| self.batch.modes.clone()),
                     repetitions: entry.repetitions.unwrap_or(self.batch.repetitions),
                     frames: entry.frames.or(self.batch.frames),
                 });
@@ -470,7 +477,9 @@ mod tests {
 
     #[test]
     fn a_planned_config_survives_the_file_the_runs_read() {
-        let m = parse("[[sequence]]\npath = \"/tmp\"\ndepth_scale = 1000.0\ndetections = \"oracle\"\n").unwrap();
+        let m =
+            parse("[[sequence]]\npath = \"/tmp\"\ndepth_scale = 1000.0\ndetections = \"oracle\"\n")
+                .unwrap();
         let config = m.plan().unwrap().remove(0).config;
         let text = toml::to_string(&config).unwrap();
         assert_eq!(Config::from_toml(&text).unwrap(), config);

@@ -94,10 +94,12 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         unavailable.push(problem);
     }
 
-    let jobs = options
-        .jobs
-        .or(manifest.batch.jobs)
-        .unwrap_or_else(|| budget_jobs(manifest.batch.cores_per_run, manifest.batch.memory_per_run_gib));
+    let jobs = options.jobs.or(manifest.batch.jobs).unwrap_or_else(|| {
+        budget_jobs(
+            manifest.batch.cores_per_run,
+            manifest.batch.memory_per_run_gib,
+        )
+    });
     let all_runs = run_list(&planned, &out);
     let mut todo = Vec::new();
     let mut skipped = 0;
@@ -138,7 +140,10 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     }
     let executed = executor.run_all(todo);
 
-    let records: Vec<RunRecord> = all_runs.iter().filter_map(|j| RunRecord::read(&j.dir)).collect();
+    let records: Vec<RunRecord> = all_runs
+        .iter()
+        .filter_map(|j| RunRecord::read(&j.dir))
+        .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
     let mut modes: Vec<RunMode> = manifest.batch.modes.clone();
     for p in &planned {
@@ -150,15 +155,23 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     }
     let groups = results::summarise(&records, &names, &modes);
     let header = header_lines(&manifest, path, records.len(), all_runs.len());
-    results::write_results(&out, &records, &groups, &format!("# Batch results\n\n{}", header.join("  \n")))
-        .map_err(|e| e.to_string())?;
+    results::write_results(
+        &out,
+        &records,
+        &groups,
+        &format!("# Batch results\n\n{}", header.join("  \n")),
+    )
+    .map_err(|e| e.to_string())?;
     let rpe = RpeSpec {
         delta: manifest.batch.rpe_seconds,
         unit: DeltaUnit::Seconds,
     };
     let mut sections = Vec::new();
     for (k, sequence) in planned.iter().enumerate() {
-        let runs: Vec<&RunRecord> = records.iter().filter(|r| r.sequence == sequence.name).collect();
+        let runs: Vec<&RunRecord> = records
+            .iter()
+            .filter(|r| r.sequence == sequence.name)
+            .collect();
         match figures(sequence, &sequence_dirs[k], &runs, &out, &modes, rpe) {
             Ok(section) => sections.push(section),
             Err(e) => notes.push(format!("{}: figures not made: {e}", sequence.name)),
@@ -212,18 +225,29 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
 /// The sequence's folder, generating a synthetic one (into `<out>/sequences/<name>`,
 /// via a `.part` folder renamed when complete) if it is not there yet; and why it
 /// cannot be used, if it cannot.
-fn prepare_sequence(sequence: &PlannedSequence, out: &Path, progress: bool) -> (PathBuf, Option<String>) {
+fn prepare_sequence(
+    sequence: &PlannedSequence,
+    out: &Path,
+    progress: bool,
+) -> (PathBuf, Option<String>) {
     match &sequence.source {
         SequenceSource::Folder(path) => {
-            let problem = (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
+            let problem =
+                (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
             (path.clone(), problem)
         }
-        SequenceSource::Synthetic { preset, seed, frames } => {
+        SequenceSource::Synthetic {
+            preset,
+            seed,
+            frames,
+        } => {
             let dir = out.join("sequences").join(&sequence.name);
             if dir.is_dir() {
                 return (dir, None);
             }
-            let part = out.join("sequences").join(format!("{}.part", sequence.name));
+            let part = out
+                .join("sequences")
+                .join(format!("{}.part", sequence.name));
             let generated = (|| -> Result<(), String> {
                 let mut config = crate::synth::SynthConfig::load(preset)?;
                 if let Some(seed) = seed {
@@ -236,7 +260,8 @@ fn prepare_sequence(sequence: &PlannedSequence, out: &Path, progress: bool) -> (
                     eprintln!("generating {} from {}", sequence.name, preset.display());
                 }
                 crate::synth::generate(&config, &part, true).map_err(|e| e.to_string())?;
-                std::fs::rename(&part, &dir).map_err(|e| format!("cannot rename {}: {e}", part.display()))
+                std::fs::rename(&part, &dir)
+                    .map_err(|e| format!("cannot rename {}: {e}", part.display()))
             })();
             (dir, generated.err())
         }
@@ -244,8 +269,13 @@ fn prepare_sequence(sequence: &PlannedSequence, out: &Path, progress: bool) -> (
 }
 
 /// Records a run of a sequence that cannot be read or generated as failed.
-fn record_unavailable(job: &RunJob, sequence: &PlannedSequence, problem: &str) -> Result<(), String> {
-    std::fs::create_dir_all(&job.dir).map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
+fn record_unavailable(
+    job: &RunJob,
+    sequence: &PlannedSequence,
+    problem: &str,
+) -> Result<(), String> {
+    std::fs::create_dir_all(&job.dir)
+        .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
     let record = RunRecord {
         sequence: sequence.name.clone(),
         mode: job.mode,
@@ -263,7 +293,8 @@ fn record_unavailable(job: &RunJob, sequence: &PlannedSequence, problem: &str) -
 pub fn budget_jobs(cores_per_run: usize, memory_per_run_gib: f64) -> usize {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let by_cores = cores / cores_per_run.max(1);
-    let by_memory = available_memory_gib().map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
+    let by_memory =
+        available_memory_gib().map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
     by_cores.min(by_memory).max(1)
 }
 
@@ -327,7 +358,9 @@ fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {
         .filter_map(|r| r.figures.as_ref().and_then(|f| f.ate_rmse).map(|a| (*r, a)))
         .collect();
     with_ate.sort_by(|a, b| a.1.total_cmp(&b.1));
-    with_ate.get(with_ate.len().saturating_sub(1) / 2).map(|(r, _)| *r)
+    with_ate
+        .get(with_ate.len().saturating_sub(1) / 2)
+        .map(|(r, _)| *r)
 }
 
 fn run_dir(out: &Path, record: &RunRecord) -> PathBuf {
@@ -366,8 +399,19 @@ fn figures(
         return Ok(section);
     };
     let evaluate = |record: &RunRecord| -> Option<EvalReport> {
-        let estimate = Trajectory::read(&run_dir(out, record).join("trajectory.txt"), TrajectoryFormat::Tum).ok()?;
-        evaluate_run(&reference, &estimate, &sequence.config, rpe, PoseRelation::TransPart).ok()
+        let estimate = Trajectory::read(
+            &run_dir(out, record).join("trajectory.txt"),
+            TrajectoryFormat::Tum,
+        )
+        .ok()?;
+        evaluate_run(
+            &reference,
+            &estimate,
+            &sequence.config,
+            rpe,
+            PoseRelation::TransPart,
+        )
+        .ok()
     };
     let mut medians = Vec::new();
     let mut pooled = Vec::new();
@@ -389,9 +433,10 @@ fn figures(
         if let Some(median) = median_run(&of_mode) {
             let preview = run_dir(out, median).join("map_compare/compare_perspective.png");
             if preview.exists() {
-                section
-                    .previews
-                    .push((format!("{} r{} (median ATE)", mode.name(), median.repetition), preview));
+                section.previews.push((
+                    format!("{} r{} (median ATE)", mode.name(), median.repetition),
+                    preview,
+                ));
             }
         }
     }
@@ -402,10 +447,26 @@ fn figures(
     std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
     let by_mode: Vec<(RunMode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
     let name = &sequence.name;
-    let paths = [dir.join("trajectories.png"), dir.join("ape_time.png"), dir.join("ape_box.png")];
-    plots::trajectories(&paths[0], &format!("{name}: trajectories (median run per mode)"), &by_mode)?;
-    plots::ape_over_time(&paths[1], &format!("{name}: APE over time (median run per mode)"), &by_mode)?;
-    plots::ape_boxes(&paths[2], &format!("{name}: APE per mode, all repetitions"), &pooled)?;
+    let paths = [
+        dir.join("trajectories.png"),
+        dir.join("ape_time.png"),
+        dir.join("ape_box.png"),
+    ];
+    plots::trajectories(
+        &paths[0],
+        &format!("{name}: trajectories (median run per mode)"),
+        &by_mode,
+    )?;
+    plots::ape_over_time(
+        &paths[1],
+        &format!("{name}: APE over time (median run per mode)"),
+        &by_mode,
+    )?;
+    plots::ape_boxes(
+        &paths[2],
+        &format!("{name}: APE per mode, all repetitions"),
+        &pooled,
+    )?;
     section.figures = paths.to_vec();
     Ok(section)
 }

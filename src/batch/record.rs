@@ -130,8 +130,9 @@ impl RunFigures {
         let dense_path = dir.join("dense.json");
         let dense: Option<DenseFile> = match dense_path.exists() {
             true => Some(
-                serde_json::from_str(&crate::io::errors::read_text(&dense_path)?)
-                    .map_err(|e| IoError::invalid(&dense_path, format!("not a dense report: {e}")))?,
+                serde_json::from_str(&crate::io::errors::read_text(&dense_path)?).map_err(|e| {
+                    IoError::invalid(&dense_path, format!("not a dense report: {e}"))
+                })?,
             ),
             false => None,
         };
@@ -148,12 +149,10 @@ impl RunFigures {
             keypoints_removed_per_frame: removed as f64 / t.tracked.max(1) as f64,
             map_points_removed: report.detection.map_points_removed,
             loops: report.global.map_or(0, |g| g.loops.len()),
-            map: dense
-                .and_then(|d| d.truth)
-                .map(|truth| MapFigures {
-                    dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),
-                    ..MapFigures::default()
-                }),
+            map: dense.and_then(|d| d.truth).map(|truth| MapFigures {
+                dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),
+                ..MapFigures::default()
+            }),
             ..Self::default()
         })
     }

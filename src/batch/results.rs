@@ -69,7 +69,11 @@ pub struct GroupSummary {
 }
 
 /// Summaries of `records` per sequence and mode, in the order given.
-pub fn summarise(records: &[RunRecord], sequences: &[String], modes: &[RunMode]) -> Vec<GroupSummary> {
+pub fn summarise(
+    records: &[RunRecord],
+    sequences: &[String],
+    modes: &[RunMode],
+) -> Vec<GroupSummary> {
     let mut groups = Vec::new();
     for sequence in sequences {
         for &mode in modes {
@@ -93,7 +97,8 @@ pub fn summarise(records: &[RunRecord], sequences: &[String], modes: &[RunMode])
         }
         if let (Some(base), Some(this)) = (baseline, groups[i].ate_rmse) {
             if base.median > 0.0 {
-                groups[i].improvement_percent = Some(100.0 * (base.median - this.median) / base.median);
+                groups[i].improvement_percent =
+                    Some(100.0 * (base.median - this.median) / base.median);
             }
         }
     }
@@ -106,7 +111,8 @@ fn summarise_group(sequence: &str, mode: RunMode, runs: &[&RunRecord]) -> GroupS
         .filter(|r| r.status == RunStatus::Ok)
         .filter_map(|r| r.figures.as_ref())
         .collect();
-    let spread = |f: &dyn Fn(&RunFigures) -> Option<f64>| Spread::of(ok.iter().filter_map(|r| f(r)));
+    let spread =
+        |f: &dyn Fn(&RunFigures) -> Option<f64>| Spread::of(ok.iter().filter_map(|r| f(r)));
     let map = |f: &dyn Fn(&super::record::MapFigures) -> Option<f64>| {
         Spread::of(ok.iter().filter_map(|r| r.map.as_ref().and_then(f)))
     };
@@ -211,56 +217,108 @@ pub fn runs_csv(records: &[RunRecord]) -> String {
     out
 }
 
-/// A spread as `median [min, max]`, or `-`.
-fn spread_cell(s: Option<Spread>, digits: usize) -> String {
+/// A spread as `median [min, max]` (one run: the median alone), or `-`; `open` and
+/// `close` go around the range.
+pub fn spread_text(s: Option<Spread>, digits: usize, open: &str, close: &str) -> String {
     match s {
-        Some(s) if s.n > 1 => format!("{:.digits$} [{:.digits$}, {:.digits$}]", s.median, s.min, s.max),
+        Some(s) if s.n > 1 => format!(
+            "{:.digits$} {open}{:.digits$}, {:.digits$}{close}",
+            s.median, s.min, s.max
+        ),
         Some(s) => format!("{:.digits$}", s.median),
         None => "-".into(),
     }
+}
+
+fn spread_cell(s: Option<Spread>, digits: usize) -> String {
+    spread_text(s, digits, "[", "]")
 }
 
 fn median_cell(s: Option<Spread>, digits: usize) -> String {
     s.map_or("-".into(), |s| format!("{:.digits$}", s.median))
 }
 
+/// The columns of the results table (`results.md`, `report.html`).
+pub const TABLE_COLUMNS: [&str; 12] = [
+    "sequence",
+    "mode",
+    "runs (failed)",
+    "ATE RMSE (m), median [min, max]",
+    "tracking-pass ATE (m)",
+    "RPE 1 s (m/s)",
+    "RPE 1 s (deg/s)",
+    "coverage (%)",
+    "tracking ms median / mean",
+    "keyframes",
+    "keypoints removed / frame",
+    "DOP vs no-DOP",
+];
+
+/// A group's cells under [`TABLE_COLUMNS`]; `range` writes the ATE's spread.
+pub fn table_cells(g: &GroupSummary, range: fn(Option<Spread>, usize) -> String) -> Vec<String> {
+    vec![
+        g.sequence.clone(),
+        g.mode.name().to_string(),
+        format!("{} ({})", g.runs, g.failed),
+        range(g.ate_rmse, 4),
+        median_cell(g.ate_tracking_rmse, 4),
+        median_cell(g.rpe_translation, 4),
+        median_cell(g.rpe_rotation_deg, 3),
+        median_cell(g.coverage_percent, 1),
+        format!(
+            "{} / {}",
+            number(g.median_tracking_ms, 1),
+            number(g.mean_tracking_ms, 1)
+        ),
+        median_cell(g.keyframes, 0),
+        median_cell(g.keypoints_removed_per_frame, 1),
+        g.improvement_percent
+            .map_or("-".into(), |p| format!("{p:+.1} %")),
+    ]
+}
+
+/// The columns of the dense-map table.
+pub const MAP_COLUMNS: [&str; 5] = [
+    "sequence",
+    "mode",
+    "accuracy, median distance (m)",
+    "ghost points",
+    "mover depth kept out (%)",
+];
+
+/// Whether a group has dense-map figures.
+pub fn has_map(g: &GroupSummary) -> bool {
+    g.ghost_points.is_some() || g.dynamic_removed_percent.is_some()
+}
+
+/// A group's cells under [`MAP_COLUMNS`].
+pub fn map_cells(g: &GroupSummary) -> Vec<String> {
+    vec![
+        g.sequence.clone(),
+        g.mode.name().to_string(),
+        median_cell(g.map_accuracy_median, 4),
+        spread_cell(g.ghost_points, 0),
+        median_cell(g.dynamic_removed_percent, 2),
+    ]
+}
+
 /// `results.md`: the tables a report needs.
 pub fn results_md(groups: &[GroupSummary], header: &str) -> String {
-    let mut out = format!("{header}\n\n");
-    out += "| sequence | mode | runs (failed) | ATE RMSE (m), median [min, max] | tracking-pass ATE (m) | RPE 1 s (m/s) | RPE 1 s (deg/s) | coverage (%) | tracking ms median / mean | keyframes | keypoints removed / frame | DOP vs no-DOP |\n";
-    out += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    let mut out = format!("{header}\n\n| {} |\n", TABLE_COLUMNS.join(" | "));
+    out += &format!("|{}\n", "---|".repeat(TABLE_COLUMNS.len()));
     for g in groups {
-        let _ = writeln!(
-            out,
-            "| {} | {} | {} ({}) | {} | {} | {} | {} | {} | {} / {} | {} | {} | {} |",
-            g.sequence,
-            g.mode.name(),
-            g.runs,
-            g.failed,
-            spread_cell(g.ate_rmse, 4),
-            median_cell(g.ate_tracking_rmse, 4),
-            median_cell(g.rpe_translation, 4),
-            median_cell(g.rpe_rotation_deg, 3),
-            median_cell(g.coverage_percent, 1),
-            number(g.median_tracking_ms, 1),
-            number(g.mean_tracking_ms, 1),
-            median_cell(g.keyframes, 0),
-            median_cell(g.keypoints_removed_per_frame, 1),
-            g.improvement_percent.map_or("-".into(), |p| format!("{p:+.1} %")),
-        );
+        let _ = writeln!(out, "| {} |", table_cells(g, spread_cell).join(" | "));
     }
-    if groups.iter().any(|g| g.ghost_points.is_some() || g.dynamic_removed_percent.is_some()) {
-        out += "\n## Dense maps (against the static scene)\n\n| sequence | mode | accuracy, median distance (m) | ghost points | mover depth kept out (%) |\n|---|---|---|---|---|\n";
-        for g in groups.iter().filter(|g| g.ghost_points.is_some() || g.dynamic_removed_percent.is_some()) {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} | {} |",
-                g.sequence,
-                g.mode.name(),
-                median_cell(g.map_accuracy_median, 4),
-                spread_cell(g.ghost_points, 0),
-                median_cell(g.dynamic_removed_percent, 2),
-            );
+    let dense: Vec<&GroupSummary> = groups.iter().filter(|g| has_map(g)).collect();
+    if !dense.is_empty() {
+        let _ = write!(
+            out,
+            "\n## Dense maps (against the static scene)\n\n| {} |\n|{}\n",
+            MAP_COLUMNS.join(" | "),
+            "---|".repeat(MAP_COLUMNS.len())
+        );
+        for g in dense {
+            let _ = writeln!(out, "| {} |", map_cells(g).join(" | "));
         }
     }
     let failures: Vec<&GroupSummary> = groups.iter().filter(|g| !g.errors.is_empty()).collect();
@@ -284,7 +342,10 @@ pub fn write_results(
 ) -> Result<(), IoError> {
     write_atomic(&out.join("results.csv"), results_csv(groups).as_bytes())?;
     write_atomic(&out.join("runs.csv"), runs_csv(records).as_bytes())?;
-    write_atomic(&out.join("results.md"), results_md(groups, header).as_bytes())?;
+    write_atomic(
+        &out.join("results.md"),
+        results_md(groups, header).as_bytes(),
+    )?;
     let json = serde_json::json!({ "groups": groups, "runs": records });
     let text = serde_json::to_string_pretty(&json).unwrap_or_default();
     write_atomic(&out.join("results.json"), text.as_bytes())
@@ -299,7 +360,11 @@ mod tests {
             sequence: "s".into(),
             mode,
             repetition,
-            status: if ate.is_some() { RunStatus::Ok } else { RunStatus::Failed },
+            status: if ate.is_some() {
+                RunStatus::Ok
+            } else {
+                RunStatus::Failed
+            },
             error: ate.is_none().then(|| "boom".into()),
             seconds: 1.0,
             figures: ate.map(|a| RunFigures {
@@ -330,7 +395,10 @@ mod tests {
         assert_eq!(groups[1].ate_rmse.unwrap().median, 0.3);
         assert!(groups[1].improvement_percent.is_none());
         let md = results_md(&groups, "# t");
-        assert!(md.contains("0.0200 [0.0100, 0.0300]") && md.contains("boom"), "{md}");
+        assert!(
+            md.contains("0.0200 [0.0100, 0.0300]") && md.contains("boom"),
+            "{md}"
+        );
         assert_eq!(results_csv(&groups).lines().count(), 3);
         assert_eq!(runs_csv(&records).lines().count(), 7);
     }
