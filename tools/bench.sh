@@ -32,7 +32,7 @@ say "building"
 cargo build --release --quiet
 say "micro-benchmarks (cargo bench --bench micro, --bench global)"
 cargo bench --quiet --bench micro 2>/dev/null | grep ':' | tee "$out/micro.txt"
-cargo bench --quiet --bench global 2>/dev/null | grep ':' | tee "$out/global.txt"
+cargo bench --quiet --bench global 2>/dev/null | grep ':' | grep -v '^threads:' | tee "$out/global.txt"
 say "synthetic suite: dopslam batch $manifest"
 ./target/release/dopslam batch "$manifest" --out "$out/batch" | tail -3
 python=python3

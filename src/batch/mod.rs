@@ -154,7 +154,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         }
     }
     let groups = results::summarise(&records, &names, &modes);
-    let header = header_lines(&manifest, path, records.len(), all_runs.len());
+    let header = header_lines(&manifest, &planned, path, (records.len(), all_runs.len()));
     results::write_results(
         &out,
         &records,
@@ -329,10 +329,29 @@ pub fn machine_description() -> String {
     format!("{cpu}, {cores} cores{memory}")
 }
 
-fn header_lines(manifest: &Manifest, path: &Path, finished: usize, planned: usize) -> Vec<String> {
+/// Where the dense map ran: `on`, `off` or `on for <sequences>`.
+fn dense_description(planned: &[PlannedSequence]) -> String {
+    let dense: Vec<&str> = planned
+        .iter()
+        .filter(|p| p.config.dense.enabled)
+        .map(|p| p.name.as_str())
+        .collect();
+    match dense.len() {
+        0 => "off".into(),
+        n if n == planned.len() => "on".into(),
+        _ => format!("on for {}", dense.join(", ")),
+    }
+}
+
+fn header_lines(
+    manifest: &Manifest,
+    planned: &[PlannedSequence],
+    path: &Path,
+    (finished, runs): (usize, usize),
+) -> Vec<String> {
     let b = &manifest.batch;
     vec![
-        format!("Manifest: {} ({finished} of {planned} runs finished)", path.display()),
+        format!("Manifest: {} ({finished} of {runs} runs finished)", path.display()),
         format!(
             "Machine: {}; dopslam {}; {} mode{}, dense map {}, global pass {}",
             machine_description(),
@@ -341,7 +360,7 @@ fn header_lines(manifest: &Manifest, path: &Path, finished: usize, planned: usiz
             b.detections
                 .map(|d| format!(", detections {d:?}").to_lowercase())
                 .unwrap_or_default(),
-            if b.dense { "on" } else { "off" },
+            dense_description(planned),
             if b.global { "on" } else { "off" },
         ),
         format!(
