@@ -103,11 +103,15 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     let all_runs = run_list(&planned, &out);
     let mut todo = Vec::new();
     let mut skipped = 0;
+    let mut unavailable_runs = 0;
     for job in &all_runs {
         match RunRecord::read(&job.dir) {
             Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
             _ => match &unavailable[job.sequence] {
-                Some(problem) => record_unavailable(job, &planned[job.sequence], problem)?,
+                Some(problem) => {
+                    record_unavailable(job, &planned[job.sequence], problem)?;
+                    unavailable_runs += 1;
+                }
                 None => todo.push(job.clone()),
             },
         }
@@ -138,7 +142,8 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
             }
         }
     }
-    let executed = executor.run_all(todo);
+    let mut executed = executor.run_all(todo);
+    executed.failed += unavailable_runs;
 
     let records: Vec<RunRecord> = all_runs
         .iter()
