@@ -33,8 +33,8 @@ fn corrupt_sequence(dir: &Path) -> PathBuf {
     seq
 }
 
-/// `dopslam batch MANIFEST --out OUT --quiet`: its standard output (it must succeed).
-fn batch(manifest: &Path, out: &Path) -> String {
+/// `dopslam batch MANIFEST --out OUT --quiet`: its standard output and error (it must succeed).
+fn batch(manifest: &Path, out: &Path) -> (String, String) {
     let (ok, stdout, stderr) = dopslam(&[
         "batch",
         &manifest.to_string_lossy(),
@@ -43,7 +43,7 @@ fn batch(manifest: &Path, out: &Path) -> String {
         "--quiet",
     ]);
     assert!(ok, "{stdout}\n{stderr}");
-    stdout
+    (stdout, stderr)
 }
 
 fn csv_rows(path: &Path) -> Vec<Vec<String>> {
@@ -88,14 +88,7 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
     );
     let manifest = manifest(&dir, 2, &extra);
     let out = dir.join("out");
-    let (ok, stdout, stderr) = dopslam(&[
-        "batch",
-        &manifest.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--quiet",
-    ]);
-    assert!(ok, "{stdout}\n{stderr}");
+    let (stdout, stderr) = batch(&manifest, &out);
     assert!(
         stdout.contains("10 runs: 0 finished before, 8 done now, 2 failed now"),
         "{stdout}"
@@ -190,13 +183,13 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
     }
 
     // Again: nothing left to do. Without one run's record: that run alone.
-    let stdout = batch(&manifest, &out);
+    let (stdout, _) = batch(&manifest, &out);
     assert!(
         stdout.contains("10 runs: 10 finished before, 0 done now, 0 failed now"),
         "{stdout}"
     );
     std::fs::remove_file(out.join("runs/static_room/dop/r2/run.json")).unwrap();
-    let stdout = batch(&manifest, &out);
+    let (stdout, _) = batch(&manifest, &out);
     assert!(
         stdout.contains("10 runs: 9 finished before, 1 done now, 0 failed now"),
         "{stdout}"
@@ -241,7 +234,7 @@ fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
         (2..12).contains(&before),
         "{before} runs finished before the stop"
     );
-    let stdout = batch(&manifest, &out);
+    let (stdout, _) = batch(&manifest, &out);
     let expected = format!(
         "12 runs: {before} finished before, {} done now, 0 failed now, 0 not run",
         12 - before
