@@ -18,7 +18,9 @@
 //! what they wrote; nothing below imports it.
 
 pub mod execute;
+pub mod figures;
 pub mod html;
+pub mod machine;
 pub mod manifest;
 pub mod plots;
 pub mod record;
@@ -26,17 +28,15 @@ pub mod results;
 
 use std::path::{Path, PathBuf};
 
-use execute::{evaluate_run, Executed, Executor, RunJob};
+use execute::{Executed, Executor, RunJob};
+use machine::{budget_jobs, machine_description};
 use manifest::{absolute, Manifest, PlannedSequence, RunMode, SequenceSource};
 use record::{RunRecord, RunStatus};
 use results::GroupSummary;
 
-use crate::eval::ate::PoseRelation;
-use crate::eval::report::{EvalReport, RpeSpec};
+use crate::eval::report::RpeSpec;
 use crate::eval::rpe::DeltaUnit;
 use crate::io::atomic::write_atomic;
-use crate::io::trajectory::TrajectoryFormat;
-use crate::io::Trajectory;
 
 /// How `dopslam batch` runs.
 #[derive(Debug, Clone)]
@@ -177,7 +177,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
             .iter()
             .filter(|r| r.sequence == sequence.name)
             .collect();
-        match figures(sequence, &sequence_dirs[k], &runs, &out, &modes, rpe) {
+        match figures::sequence_section(sequence, &sequence_dirs[k], &runs, &out, &modes, rpe) {
             Ok(section) => sections.push(section),
             Err(e) => notes.push(format!("{}: figures not made: {e}", sequence.name)),
         }
@@ -294,46 +294,6 @@ fn record_unavailable(
     write_atomic(&job.dir.join("run.json"), json.as_bytes()).map_err(|e| e.to_string())
 }
 
-/// Runs at a time that the machine's cores and available memory allow (at least 1).
-pub fn budget_jobs(cores_per_run: usize, memory_per_run_gib: f64) -> usize {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let by_cores = cores / cores_per_run.max(1);
-    let by_memory =
-        available_memory_gib().map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
-    by_cores.min(by_memory).max(1)
-}
-
-/// `MemAvailable` of /proc/meminfo, GiB.
-fn available_memory_gib() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / (1024.0 * 1024.0))
-}
-
-/// The machine in one line: processor, cores, memory.
-pub fn machine_description() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split(':').nth(1))
-                .map(|s| s.trim().to_string())
-        })
-        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let memory = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|t| {
-            let line = t.lines().find(|l| l.starts_with("MemTotal:"))?.to_string();
-            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(format!(", {:.0} GiB", kib / (1024.0 * 1024.0)))
-        })
-        .unwrap_or_default();
-    format!("{cpu}, {cores} cores{memory}")
-}
-
 /// Where the dense map ran: `on`, `off` or `on for <sequences>`.
 fn dense_description(planned: &[PlannedSequence]) -> String {
     let dense: Vec<&str> = planned
@@ -373,124 +333,4 @@ fn header_lines(
             b.rpe_seconds
         ),
     ]
-}
-
-/// The run whose ATE is the median of the mode's runs (the lower one of an even count).
-fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {
-    let mut with_ate: Vec<(&RunRecord, f64)> = runs
-        .iter()
-        .filter_map(|r| r.figures.as_ref().and_then(|f| f.ate_rmse).map(|a| (*r, a)))
-        .collect();
-    with_ate.sort_by(|a, b| a.1.total_cmp(&b.1));
-    with_ate
-        .get(with_ate.len().saturating_sub(1) / 2)
-        .map(|(r, _)| *r)
-}
-
-fn run_dir(out: &Path, record: &RunRecord) -> PathBuf {
-    out.join("runs")
-        .join(&record.sequence)
-        .join(record.mode.name())
-        .join(format!("r{}", record.repetition))
-}
-
-/// A sequence's figures and its report section.
-fn figures(
-    sequence: &PlannedSequence,
-    sequence_dir: &Path,
-    runs: &[&RunRecord],
-    out: &Path,
-    modes: &[RunMode],
-    rpe: RpeSpec,
-) -> Result<html::SequenceSection, String> {
-    let mut section = html::SequenceSection {
-        name: sequence.name.clone(),
-        figures: Vec::new(),
-        previews: Vec::new(),
-        runs: runs
-            .iter()
-            .map(|r| {
-                let dir = run_dir(out, r);
-                let href = dir.strip_prefix(out).unwrap_or(&dir).display().to_string();
-                (format!("{} r{}", r.mode.name(), r.repetition), href)
-            })
-            .collect(),
-    };
-    let ground_truth = crate::pipeline::open_sequence(sequence_dir, &sequence.config)
-        .ok()
-        .and_then(|s| s.ground_truth().cloned());
-    let Some(reference) = ground_truth else {
-        return Ok(section);
-    };
-    let evaluate = |record: &RunRecord| -> Option<EvalReport> {
-        let estimate = Trajectory::read(
-            &run_dir(out, record).join("trajectory.txt"),
-            TrajectoryFormat::Tum,
-        )
-        .ok()?;
-        evaluate_run(
-            &reference,
-            &estimate,
-            &sequence.config,
-            rpe,
-            PoseRelation::TransPart,
-        )
-        .ok()
-    };
-    let mut medians = Vec::new();
-    let mut pooled = Vec::new();
-    for &mode in modes {
-        let of_mode: Vec<&RunRecord> = runs
-            .iter()
-            .copied()
-            .filter(|r| r.mode == mode && r.status == RunStatus::Ok)
-            .collect();
-        if let Some(report) = median_run(&of_mode).and_then(evaluate) {
-            medians.push((mode, report));
-        }
-        let errors: Vec<f64> = of_mode
-            .iter()
-            .filter_map(|r| evaluate(r))
-            .flat_map(|r| r.ape.errors)
-            .collect();
-        pooled.push((mode, errors));
-        if let Some(median) = median_run(&of_mode) {
-            let preview = run_dir(out, median).join("map_compare/compare_perspective.png");
-            if preview.exists() {
-                section.previews.push((
-                    format!("{} r{} (median ATE)", mode.name(), median.repetition),
-                    preview,
-                ));
-            }
-        }
-    }
-    if medians.is_empty() {
-        return Ok(section);
-    }
-    let dir = out.join("plots").join(&sequence.name);
-    std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-    let by_mode: Vec<(RunMode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
-    let name = &sequence.name;
-    let paths = [
-        dir.join("trajectories.png"),
-        dir.join("ape_time.png"),
-        dir.join("ape_box.png"),
-    ];
-    plots::trajectories(
-        &paths[0],
-        &format!("{name}: trajectories (median run per mode)"),
-        &by_mode,
-    )?;
-    plots::ape_over_time(
-        &paths[1],
-        &format!("{name}: APE over time (median run per mode)"),
-        &by_mode,
-    )?;
-    plots::ape_boxes(
-        &paths[2],
-        &format!("{name}: APE per mode, all repetitions"),
-        &pooled,
-    )?;
-    section.figures = paths.to_vec();
-    Ok(section)
 }
