@@ -130,15 +130,7 @@ impl Executor<'_> {
     fn run_one(&self, job: &RunJob) -> Option<RunRecord> {
         let sequence = &self.sequences[job.sequence];
         let start = Instant::now();
-        let mut record = RunRecord {
-            sequence: sequence.name.clone(),
-            mode: job.mode,
-            repetition: job.repetition,
-            status: RunStatus::Failed,
-            error: None,
-            seconds: 0.0,
-            figures: None,
-        };
+        let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
         let result = self
             .start(job)
             .and_then(|child| wait(child, &job.dir))
@@ -157,8 +149,7 @@ impl Executor<'_> {
             Err(message) => record.error = Some(message),
         }
         record.seconds = start.elapsed().as_secs_f64();
-        let json = serde_json::to_string_pretty(&record).unwrap_or_default();
-        if let Err(e) = write_atomic(&job.dir.join("run.json"), json.as_bytes()) {
+        if let Err(e) = record.write(&job.dir) {
             record.status = RunStatus::Failed;
             record.error = Some(e.to_string());
         }
@@ -167,7 +158,7 @@ impl Executor<'_> {
 
     /// Evaluates a finished run's folder again (after a change of evaluation settings or
     /// of dopslam's figures) and rewrites its `run.json`; the run itself is not repeated.
-    pub fn reevaluate(&self, job: &RunJob, mut record: RunRecord) -> RunRecord {
+    pub fn reevaluate(&self, job: &RunJob, mut record: RunRecord) -> Result<(), String> {
         match self.figures(job) {
             Ok(figures) => record.figures = Some(figures),
             Err(e) => {
@@ -175,12 +166,7 @@ impl Executor<'_> {
                 record.error = Some(e);
             }
         }
-        let json = serde_json::to_string_pretty(&record).unwrap_or_default();
-        if let Err(e) = write_atomic(&job.dir.join("run.json"), json.as_bytes()) {
-            record.status = RunStatus::Failed;
-            record.error = Some(e.to_string());
-        }
-        record
+        record.write(&job.dir).map_err(|e| e.to_string())
     }
 
     /// Starts `dopslam run` for `job` in a clean folder, with the sequence's config.
@@ -253,9 +239,13 @@ impl Executor<'_> {
                 unit: DeltaUnit::Seconds,
             };
             let evaluate_file = |name: &str, relation| {
-                let estimate = Trajectory::read(&job.dir.join(name), TrajectoryFormat::Tum)
-                    .map_err(|e| e.to_string())?;
-                evaluate_run(&reference, &estimate, &sequence.config, rpe, relation)
+                evaluate_trajectory(
+                    &reference,
+                    &job.dir.join(name),
+                    &sequence.config,
+                    rpe,
+                    relation,
+                )
             };
             let translation = evaluate_file("trajectory.txt", PoseRelation::TransPart)?;
             let rotation = evaluate_file("trajectory.txt", PoseRelation::AngleDeg)?;
@@ -337,7 +327,7 @@ fn failure_message(status: std::process::ExitStatus, dir: &Path) -> String {
 }
 
 /// The sequence's ground truth, if it has one.
-fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, String> {
+pub fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, String> {
     let sequence = crate::pipeline::open_sequence(dir, config).map_err(|e| e.to_string())?;
     Ok(sequence.ground_truth().cloned())
 }
@@ -369,6 +359,18 @@ pub fn evaluate_run(
             evaluate(reference, estimate, &options)
         })
         .map_err(|e| format!("evaluation: {e}"))
+}
+
+/// [`evaluate_run`] of a trajectory file (TUM format).
+pub fn evaluate_trajectory(
+    reference: &Trajectory,
+    path: &Path,
+    config: &Config,
+    rpe: RpeSpec,
+    rpe_relation: PoseRelation,
+) -> Result<EvalReport, String> {
+    let estimate = Trajectory::read(path, TrajectoryFormat::Tum).map_err(|e| e.to_string())?;
+    evaluate_run(reference, &estimate, config, rpe, rpe_relation)
 }
 
 /// The run's dense map against a synthetic sequence's static scene and movers.

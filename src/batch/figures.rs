@@ -2,17 +2,15 @@
 //! each mode's median-ATE run evaluated again from its files, the APE of all its runs
 //! pooled, the dense-map previews.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use super::execute::evaluate_run;
+use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
 use super::manifest::{PlannedSequence, RunMode};
 use super::plots;
 use super::record::{RunRecord, RunStatus};
 use crate::eval::ate::PoseRelation;
 use crate::eval::report::{EvalReport, RpeSpec};
-use crate::io::trajectory::TrajectoryFormat;
-use crate::io::Trajectory;
 
 /// The run whose ATE is the median of the mode's runs (the lower one of an even count).
 fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {
@@ -24,13 +22,6 @@ fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {
     with_ate
         .get(with_ate.len().saturating_sub(1) / 2)
         .map(|(r, _)| *r)
-}
-
-fn run_dir(out: &Path, record: &RunRecord) -> PathBuf {
-    out.join("runs")
-        .join(&record.sequence)
-        .join(record.mode.name())
-        .join(format!("r{}", record.repetition))
 }
 
 /// A sequence's figures and its report section.
@@ -49,32 +40,14 @@ pub fn sequence_section(
         runs: runs
             .iter()
             .map(|r| {
-                let dir = run_dir(out, r);
+                let dir = r.dir(out);
                 let href = dir.strip_prefix(out).unwrap_or(&dir).display().to_string();
                 (format!("{} r{}", r.mode.name(), r.repetition), href)
             })
             .collect(),
     };
-    let ground_truth = crate::pipeline::open_sequence(sequence_dir, &sequence.config)
-        .ok()
-        .and_then(|s| s.ground_truth().cloned());
-    let Some(reference) = ground_truth else {
+    let Ok(Some(reference)) = ground_truth(sequence_dir, &sequence.config) else {
         return Ok(section);
-    };
-    let evaluate = |record: &RunRecord| -> Option<EvalReport> {
-        let estimate = Trajectory::read(
-            &run_dir(out, record).join("trajectory.txt"),
-            TrajectoryFormat::Tum,
-        )
-        .ok()?;
-        evaluate_run(
-            &reference,
-            &estimate,
-            &sequence.config,
-            rpe,
-            PoseRelation::TransPart,
-        )
-        .ok()
     };
     let mut medians = Vec::new();
     let mut pooled = Vec::new();
@@ -84,17 +57,24 @@ pub fn sequence_section(
             .copied()
             .filter(|r| r.mode == mode && r.status == RunStatus::Ok)
             .collect();
-        if let Some(report) = median_run(&of_mode).and_then(evaluate) {
-            medians.push((mode, report));
+        let median = median_run(&of_mode);
+        let mut errors = Vec::new();
+        for &run in &of_mode {
+            let path = run.dir(out).join("trajectory.txt");
+            let relation = PoseRelation::TransPart;
+            let Ok(report) =
+                evaluate_trajectory(&reference, &path, &sequence.config, rpe, relation)
+            else {
+                continue;
+            };
+            errors.extend_from_slice(&report.ape.errors);
+            if median.is_some_and(|m| std::ptr::eq(m, run)) {
+                medians.push((mode, report));
+            }
         }
-        let errors: Vec<f64> = of_mode
-            .iter()
-            .filter_map(|r| evaluate(r))
-            .flat_map(|r| r.ape.errors)
-            .collect();
         pooled.push((mode, errors));
-        if let Some(median) = median_run(&of_mode) {
-            let preview = run_dir(out, median).join("map_compare/compare_perspective.png");
+        if let Some(median) = median {
+            let preview = median.dir(out).join("map_compare/compare_perspective.png");
             if preview.exists() {
                 section.previews.push((
                     format!("{} r{} (median ATE)", mode.name(), median.repetition),

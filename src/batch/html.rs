@@ -58,7 +58,7 @@ pub fn report_html(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title>\n<style>\
 body{{font-family:sans-serif;margin:2em;color:#222}}table{{border-collapse:collapse;font-size:14px}}\
 td,th{{border:1px solid #bbb;padding:3px 8px;text-align:right}}td:first-child,td:nth-child(2){{text-align:left}}\
-th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}small{{color:#777}}\
+th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}figure img{{max-width:100%}}small{{color:#777}}\
 .dop{{color:#1f5fbf}}.no-dop{{color:#c0392b}}.mask-boxes{{color:#e67e22}}\
 </style></head><body>\n<h1>{t}</h1>\n",
         t = escape(title)
@@ -101,7 +101,7 @@ th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}small{
         if !section.previews.is_empty() {
             out += "<h3>Dense maps (ghosts in red)</h3>\n";
             for (caption, path) in &section.previews {
-                let _ = write!(out, "<figure style=\"display:inline-block;max-width:48%\">{}<figcaption>{}</figcaption></figure>", image(path, caption).replace("max-width:48%", ""), escape(caption));
+                let _ = write!(out, "<figure style=\"display:inline-block;max-width:48%\">{}<figcaption>{}</figcaption></figure>", image(path, caption), escape(caption));
             }
         }
         out += "<p>Runs: ";

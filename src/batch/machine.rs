@@ -2,19 +2,22 @@
 
 /// Runs at a time that the machine's cores and available memory allow (at least 1).
 pub fn budget_jobs(cores_per_run: usize, memory_per_run_gib: f64) -> usize {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let by_cores = cores / cores_per_run.max(1);
+    let by_cores = cores() / cores_per_run.max(1);
     let by_memory =
-        available_memory_gib().map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
+        meminfo_gib("MemAvailable").map_or(usize::MAX, |m| (m / memory_per_run_gib) as usize);
     by_cores.min(by_memory).max(1)
 }
 
-/// `MemAvailable` of /proc/meminfo, GiB.
-fn available_memory_gib() -> Option<f64> {
+/// A line of /proc/meminfo (`MemAvailable`, `MemTotal`), GiB.
+fn meminfo_gib(key: &str) -> Option<f64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let line = text.lines().find(|l| l.split(':').next() == Some(key))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / (1024.0 * 1024.0))
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// The machine in one line: processor, cores, memory.
@@ -28,14 +31,8 @@ pub fn machine_description() -> String {
                 .map(|s| s.trim().to_string())
         })
         .unwrap_or_else(|| std::env::consts::ARCH.to_string());
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let memory = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|t| {
-            let line = t.lines().find(|l| l.starts_with("MemTotal:"))?.to_string();
-            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(format!(", {:.0} GiB", kib / (1024.0 * 1024.0)))
-        })
+    let memory = meminfo_gib("MemTotal")
+        .map(|g| format!(", {g:.0} GiB"))
         .unwrap_or_default();
-    format!("{cpu}, {cores} cores{memory}")
+    format!("{cpu}, {} cores{memory}", cores())
 }

@@ -138,7 +138,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     if options.reevaluate {
         for job in &all_runs {
             if let Some(record) = RunRecord::read(&job.dir).filter(|r| r.status == RunStatus::Ok) {
-                executor.reevaluate(job, record);
+                executor.reevaluate(job, record)?;
             }
         }
     }
@@ -215,11 +215,7 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
                     sequence: k,
                     mode,
                     repetition,
-                    dir: out
-                        .join("runs")
-                        .join(&sequence.name)
-                        .join(mode.name())
-                        .join(format!("r{repetition}")),
+                    dir: record::run_dir(out, &sequence.name, mode, repetition),
                 });
             }
         }
@@ -281,17 +277,9 @@ fn record_unavailable(
 ) -> Result<(), String> {
     std::fs::create_dir_all(&job.dir)
         .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
-    let record = RunRecord {
-        sequence: sequence.name.clone(),
-        mode: job.mode,
-        repetition: job.repetition,
-        status: RunStatus::Failed,
-        error: Some(problem.to_string()),
-        seconds: 0.0,
-        figures: None,
-    };
-    let json = serde_json::to_string_pretty(&record).unwrap_or_default();
-    write_atomic(&job.dir.join("run.json"), json.as_bytes()).map_err(|e| e.to_string())
+    let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
+    record.error = Some(problem.to_string());
+    record.write(&job.dir).map_err(|e| e.to_string())
 }
 
 /// Where the dense map ran: `on`, `off` or `on for <sequences>`.

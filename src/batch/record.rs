@@ -1,7 +1,7 @@
 //! What one finished batch run leaves behind (`run.json`), read from the run's own
 //! `report.json` and its evaluation.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -158,7 +158,39 @@ impl RunFigures {
     }
 }
 
+/// A run's folder: `<out>/runs/<sequence>/<mode>/r<repetition>`.
+pub fn run_dir(out: &Path, sequence: &str, mode: RunMode, repetition: usize) -> PathBuf {
+    out.join("runs")
+        .join(sequence)
+        .join(mode.name())
+        .join(format!("r{repetition}"))
+}
+
 impl RunRecord {
+    /// A failed record with no figures (the caller fills in what happened).
+    pub fn new(sequence: &str, mode: RunMode, repetition: usize) -> Self {
+        Self {
+            sequence: sequence.to_string(),
+            mode,
+            repetition,
+            status: RunStatus::Failed,
+            error: None,
+            seconds: 0.0,
+            figures: None,
+        }
+    }
+
+    /// This run's folder under the batch's output folder.
+    pub fn dir(&self, out: &Path) -> PathBuf {
+        run_dir(out, &self.sequence, self.mode, self.repetition)
+    }
+
+    /// Writes `run.json` into `dir` atomically.
+    pub fn write(&self, dir: &Path) -> Result<(), IoError> {
+        let json = serde_json::to_string_pretty(self).unwrap_or_default();
+        crate::io::atomic::write_atomic(&dir.join("run.json"), json.as_bytes())
+    }
+
     /// Reads `run.json` in `dir`, if the run finished.
     pub fn read(dir: &Path) -> Option<Self> {
         let text = std::fs::read_to_string(dir.join("run.json")).ok()?;
