@@ -16,7 +16,7 @@ fn manifest(dir: &Path, repetitions: usize, extra: &str) -> PathBuf {
     let text = format!(
         "[batch]\nmodes = [\"dop\", \"no-dop\"]\nrepetitions = {repetitions}\ndeterministic = true\n\
          detections = \"oracle\"\njobs = 2\n\n\
-         [[sequence]]\npreset = \"walking_xyz\"\nsynth_frames = 40\nseeds = [3]\ndense = false\n\n\
+         [[sequence]]\npreset = \"demo_walking\"\nsynth_frames = 40\nseeds = [3]\ndense = false\n\n\
          [[sequence]]\npreset = \"static_room\"\nsynth_frames = 20\n{extra}"
     );
     std::fs::write(&path, text).unwrap();
@@ -106,8 +106,8 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
     assert_eq!(
         keys,
         [
-            key("walking_xyz-s3", "dop", "2", "0"),
-            key("walking_xyz-s3", "no-dop", "2", "0"),
+            key("demo_walking-s3", "dop", "2", "0"),
+            key("demo_walking-s3", "no-dop", "2", "0"),
             key("static_room", "dop", "2", "0"),
             key("static_room", "no-dop", "2", "0"),
             key("corrupt", "no-dop", "2", "2"),
@@ -130,10 +130,10 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
 
     // Every successful run's ATE equals `dopslam eval` on its files; the median in the
     // table is the median of the runs.
-    let truth = out.join("sequences/walking_xyz-s3/groundtruth.txt");
+    let truth = out.join("sequences/demo_walking-s3/groundtruth.txt");
     let mut ates = Vec::new();
     for r in 1..=2 {
-        let run = out.join(format!("runs/walking_xyz-s3/dop/r{r}"));
+        let run = out.join(format!("runs/demo_walking-s3/dop/r{r}"));
         let record: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
         let ate = record["figures"]["ate_rmse"].as_f64().unwrap();
@@ -162,10 +162,10 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
 
     // Figures and the report.
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
-    assert!(html.contains("walking_xyz-s3") && html.contains("corrupt"));
-    if out.join("plots/walking_xyz-s3/trajectories.png").exists() {
+    assert!(html.contains("demo_walking-s3") && html.contains("corrupt"));
+    if out.join("plots/demo_walking-s3/trajectories.png").exists() {
         for name in ["trajectories", "ape_time", "ape_box"] {
-            let png = out.join(format!("plots/walking_xyz-s3/{name}.png"));
+            let png = out.join(format!("plots/demo_walking-s3/{name}.png"));
             let image = image::open(&png).unwrap();
             assert_eq!(
                 (image.width(), image.height()),
