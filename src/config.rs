@@ -107,6 +107,77 @@ pub struct Config {
     pub eval: EvalConfig,
     pub dense: DenseConfig,
     pub global: crate::global::GlobalConfig,
+    pub stereo: StereoConfig,
+}
+
+/// What a stereo sequence (a street at 10 Hz, 1241x376) runs with instead of the
+/// RGB-D values above: ORB-SLAM2's KITTI settings and a street-scale TSDF.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StereoConfig {
+    /// Keypoints per image (`orb.n_features`; ORB-SLAM2 KITTI: 2000).
+    pub n_features: usize,
+    /// Close/far threshold in baselines (`tracking.th_depth`; ORB-SLAM2 KITTI: 35).
+    pub th_depth: f64,
+    /// A keyframe at least this often (`tracking.max_frames_between_keyframes`: the fps).
+    pub max_frames_between_keyframes: usize,
+    /// TSDF voxel edge, truncation and farthest fused depth, metres.
+    pub voxel: f64,
+    pub truncation: f64,
+    pub max_depth: f64,
+    /// Point-cloud voxel edge, metres.
+    pub cloud_voxel: f64,
+    /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
+    pub sgbm_disparities: i32,
+    pub sgbm_block: i32,
+}
+
+impl Default for StereoConfig {
+    fn default() -> Self {
+        Self {
+            n_features: 2000,
+            th_depth: 35.0,
+            max_frames_between_keyframes: 10,
+            voxel: 0.1,
+            truncation: 0.4,
+            max_depth: 25.0,
+            cloud_voxel: 0.1,
+            sgbm_disparities: 128,
+            sgbm_block: 5,
+        }
+    }
+}
+
+impl StereoConfig {
+    fn validate(&self) -> Result<(), String> {
+        if self.n_features == 0 {
+            return Err("stereo.n_features must be positive".into());
+        }
+        for (key, value) in [
+            ("th_depth", self.th_depth),
+            ("voxel", self.voxel),
+            ("truncation", self.truncation),
+            ("max_depth", self.max_depth),
+            ("cloud_voxel", self.cloud_voxel),
+        ] {
+            if value.is_nan() || value <= 0.0 {
+                return Err(format!("stereo.{key} must be positive, got {value}"));
+            }
+        }
+        if self.sgbm_disparities <= 0 || self.sgbm_disparities % 16 != 0 {
+            return Err(format!(
+                "stereo.sgbm_disparities must be a positive multiple of 16, got {}",
+                self.sgbm_disparities
+            ));
+        }
+        if self.sgbm_block < 1 || self.sgbm_block % 2 == 0 || self.sgbm_block > 21 {
+            return Err(format!(
+                "stereo.sgbm_block must be odd, 1 to 21, got {}",
+                self.sgbm_block
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Config {
@@ -130,9 +201,27 @@ impl Config {
         Ok(config)
     }
 
+    /// The config a sequence of `sensor` runs with: for stereo, `[stereo]`'s values
+    /// take the place of the RGB-D ones they name.
+    pub fn for_sensor(&self, sensor: crate::io::sequence::SensorKind) -> Self {
+        let mut config = self.clone();
+        if sensor == crate::io::sequence::SensorKind::Stereo {
+            let stereo = &self.stereo;
+            config.orb.n_features = stereo.n_features;
+            config.tracking.th_depth = stereo.th_depth;
+            config.tracking.max_frames_between_keyframes = stereo.max_frames_between_keyframes;
+            config.dense.voxel = stereo.voxel;
+            config.dense.truncation = stereo.truncation;
+            config.dense.max_depth = stereo.max_depth;
+            config.dense.cloud_voxel = stereo.cloud_voxel;
+        }
+        config
+    }
+
     /// Checks every value's range; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         self.orb.validate()?;
+        self.stereo.validate()?;
         self.detector.validate()?;
         self.dop.validate()?;
         self.dense.validate()?;

@@ -25,7 +25,7 @@ use crate::global::GlobalReport;
 use crate::io::atomic::write_atomic;
 use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
-use crate::io::sequence::{FrameImages, Sequence};
+use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::tum::TumSequence;
 use crate::io::{IoError, Trajectory};
@@ -33,6 +33,7 @@ use crate::map::Map;
 use crate::mapping::dynamic::{apply_detections, object_boxes, DynamicObjects};
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::optim::stereo_projection::StereoCamera;
+use crate::tracking::input::{DepthCheck, Picture};
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
 
 #[derive(Debug, Error)]
@@ -220,17 +221,6 @@ fn median(values: &mut [f64]) -> f64 {
     crate::eval::stats::median_of_sorted(values)
 }
 
-/// The median of the valid depths, if any.
-fn median_depth(depth: &crate::io::image_files::DepthImage) -> Option<f64> {
-    let mut valid: Vec<f64> = depth
-        .metres
-        .iter()
-        .filter(|&&z| z > 0.0)
-        .map(|&z| z as f64)
-        .collect();
-    (!valid.is_empty()).then(|| median(&mut valid))
-}
-
 /// How moving objects are treated in a run of `config`: without detections the DOP
 /// model runs on its geometric check alone (when on), else every mode is ORB-SLAM2's.
 pub fn effective_mode(config: &Config) -> Mode {
@@ -296,6 +286,7 @@ pub fn dense_pass(
     sequence_dir: Option<&Path>,
     progress: bool,
 ) -> Result<DenseReport, RunError> {
+    let config = &config.for_sensor(sequence.sensor());
     let calibration = resolve_calibration(sequence, config)?;
     let inputs = DenseInputs {
         sequence,
@@ -333,6 +324,7 @@ pub fn track_sequence(
             sequence.name()
         )));
     }
+    let config = &config.for_sensor(sequence.sensor());
     let calibration = resolve_calibration(sequence, config)?;
     let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
     let extractor = OrbExtractor::new(&config.orb);
@@ -366,6 +358,10 @@ pub fn track_sequence(
     let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
     let effect = DetectionUse {
         config: &config.dop,
+        alpha: match sequence.sensor() {
+            SensorKind::Rgbd => config.dop.alpha_rgbd,
+            SensorKind::Stereo => config.dop.alpha_stereo,
+        },
         mode,
         dynamic_classes: &config.detector.dynamic_classes,
         sequence_dir: options.sequence_dir.as_deref(),
@@ -395,7 +391,7 @@ pub fn track_sequence(
     let mut lines = Vec::with_capacity(total);
     let mut dynamic_keypoints = Vec::new();
     let mut failure: Option<String> = None;
-    let mut frames_without_depth = 0;
+    let mut depth_check = DepthCheck::default();
     for index in 0..total {
         if crate::interrupt::requested() {
             failure = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
@@ -408,48 +404,68 @@ pub fn track_sequence(
                 break;
             }
         };
-        let FrameImages::Rgbd { rgb, depth } = loaded.images else {
-            failure = Some("stereo tracking is not implemented yet; use an RGB-D sequence".into());
-            break;
+        let size = match &loaded.images {
+            FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
+            FrameImages::Stereo { left, .. } => left.dimensions(),
         };
-        if index == 0 {
-            if let Some(median) = median_depth(&depth) {
-                if !(0.05..=100.0).contains(&median) {
+        let expected = (calibration.camera.width, calibration.camera.height);
+        if size != expected {
+            failure = Some(format!(
+                "frame {index}: the image is {}x{} but the calibration (and the first frame) say {}x{}: every frame of a sequence must have one size",
+                size.0, size.1, expected.0, expected.1
+            ));
+            break;
+        }
+        let start;
+        let (frame, picture) = match loaded.images {
+            FrameImages::Rgbd { rgb, depth } => {
+                if let Err(message) =
+                    depth_check.check(index, &depth, tracker.state, &calibration)
+                {
+                    failure = Some(message);
+                    break;
+                }
+                start = Instant::now();
+                let grey = image::DynamicImage::ImageRgb8(rgb.clone()).to_luma8();
+                let frame = Frame::from_rgbd(
+                    index,
+                    loaded.timestamp,
+                    &grey,
+                    &depth,
+                    &extractor,
+                    &camera,
+                    &calibration.camera,
+                );
+                (frame, Picture::Colour(rgb))
+            }
+            FrameImages::Stereo { left, right } => {
+                if left.dimensions() != right.dimensions() {
                     failure = Some(format!(
-                        "frame {index}: the median depth is {median:.3} m, which no RGB-D sensor gives: is depth_scale right ({} raw units per metre)?",
-                        calibration.depth_scale.unwrap_or(5000.0)
+                        "frame {index}: the left image is {}x{} but the right one is {}x{}: a rectified pair has one size",
+                        left.width(),
+                        left.height(),
+                        right.width(),
+                        right.height()
                     ));
                     break;
                 }
+                start = Instant::now();
+                let frame = Frame::from_stereo(
+                    index,
+                    loaded.timestamp,
+                    (&left, &right),
+                    &extractor,
+                    &camera,
+                );
+                (frame, Picture::Grey(left))
             }
-        }
-        if depth.valid_fraction() == 0.0 {
-            frames_without_depth += 1;
-            if tracker.state == TrackingState::NotInitialised && frames_without_depth >= 10 {
-                failure = Some(format!(
-                    "the first {frames_without_depth} depth images hold no depth at all: is depth_scale right ({}), and does depth.txt list depth maps?",
-                    calibration.depth_scale.unwrap_or(5000.0)
-                ));
-                break;
-            }
-        }
-        let start = Instant::now();
-        let grey = image::DynamicImage::ImageRgb8(rgb.clone()).to_luma8();
-        let frame = Frame::from_rgbd(
-            index,
-            loaded.timestamp,
-            &grey,
-            &depth,
-            &extractor,
-            &camera,
-            &calibration.camera,
-        );
+        };
         let extraction_ms = start.elapsed().as_secs_f64() * 1e3;
         let report = tracker.track(frame, mapping.is_idle());
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         if let (Some(dir), Some(frame)) = (&options.debug_frames, tracker.last_frame()) {
             if frame.index == index {
-                let mut picture = rgb.clone();
+                let mut picture = picture.colour();
                 let dop = tracker.dop.clone().unwrap_or_default();
                 crate::detect::draw::draw_keypoints(&mut picture, frame, &dop);
                 let path = dir.join(format!("{index:06}.png"));
@@ -469,7 +485,7 @@ pub fn track_sequence(
                 worker.submit(Job {
                     id: index,
                     timestamp: loaded.timestamp,
-                    image: rgb,
+                    image: picture.colour(),
                 });
             }
         }
@@ -735,6 +751,8 @@ fn ground_truth_people(
 /// How detections act on the map.
 struct DetectionUse<'a> {
     config: &'a DopConfig,
+    /// The sensor's weight of a detection (the paper: 0.3 RGB-D, 0.5 stereo).
+    alpha: f32,
     mode: Mode,
     dynamic_classes: &'a [String],
     sequence_dir: Option<&'a Path>,
@@ -800,7 +818,7 @@ impl DetectionBook {
                             &frame.detections,
                             effect.dynamic_classes,
                             effect.config,
-                            effect.config.alpha_rgbd,
+                            effect.alpha,
                         );
                         totals.map_points_updated += done.effect.updated;
                         totals.map_points_removed += done.effect.removed;
@@ -824,7 +842,7 @@ impl DetectionBook {
                                 mode: effect.mode,
                                 ..effect.config.clone()
                             },
-                            effect.config.alpha_rgbd,
+                            effect.alpha,
                         );
                         totals.map_points_updated += done.updated;
                         totals.map_points_removed += done.removed;

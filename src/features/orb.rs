@@ -123,6 +123,12 @@ impl OrbExtractor {
 
     /// The ORB features of a grey image.
     pub fn extract(&self, image: &GrayImage) -> OrbFeatures {
+        self.extract_with_levels(image).0
+    }
+
+    /// The ORB features of a grey image and its pyramid levels (level 0 first), which
+    /// stereo matching reads patches from.
+    pub fn extract_with_levels(&self, image: &GrayImage) -> (OrbFeatures, Vec<GrayImage>) {
         let levels = self.pyramid.build(image);
         let per_level: Vec<(Vec<KeyPoint>, Vec<Descriptor>)> = levels
             .par_iter()
@@ -134,7 +140,7 @@ impl OrbExtractor {
             features.keypoints.extend(keypoints);
             features.descriptors.extend(descriptors);
         }
-        features
+        (features, levels)
     }
 
     fn extract_level(&self, level: usize, image: &GrayImage) -> (Vec<KeyPoint>, Vec<Descriptor>) {

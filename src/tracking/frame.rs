@@ -1,5 +1,6 @@
 //! A frame ready for tracking (ORB-SLAM2 §III-A): ORB keypoints (undistorted), their
-//! descriptors, for RGB-D a depth per keypoint and the virtual right coordinate
+//! descriptors, a depth per keypoint (RGB-D: read from the depth map; stereo: from row
+//! matches in the right image) and the virtual right coordinate
 //! \(u_R = u - bf / z\) so that one stereo reprojection model serves RGB-D and stereo,
 //! and a grid over the image for fast radius searches.
 
@@ -11,6 +12,8 @@ use crate::features::{Descriptor, KeyPoint, OrbExtractor};
 use crate::geometry::camera::PinholeCamera;
 use crate::io::image_files::DepthImage;
 use crate::optim::stereo_projection::StereoCamera;
+
+use super::stereo_matching::{match_stereo, StereoFeatures};
 
 /// Grid cells over the image, for keypoint lookups by position.
 const GRID_COLUMNS: usize = 64;
@@ -86,6 +89,38 @@ impl Frame {
             depths,
             right_u,
             (grey.width(), grey.height()),
+        )
+    }
+
+    /// Extracts features from both images of a rectified stereo pair (in parallel) and
+    /// gives each left keypoint the depth of its row match in the right image
+    /// ([`match_stereo`]).
+    pub fn from_stereo(
+        index: usize,
+        timestamp: f64,
+        (left, right): (&GrayImage, &GrayImage),
+        extractor: &OrbExtractor,
+        camera: &StereoCamera,
+    ) -> Self {
+        let ((left_features, left_levels), (right_features, right_levels)) = rayon::join(
+            || extractor.extract_with_levels(left),
+            || extractor.extract_with_levels(right),
+        );
+        let stereo = StereoFeatures {
+            left: &left_features,
+            right: &right_features,
+            left_levels: &left_levels,
+            right_levels: &right_levels,
+        };
+        let matches = match_stereo(&stereo, &extractor.pyramid, camera.bf, camera.fx);
+        Self::from_parts(
+            index,
+            timestamp,
+            left_features.keypoints,
+            left_features.descriptors,
+            matches.depth,
+            matches.right_u,
+            (left.width(), left.height()),
         )
     }
 
