@@ -163,3 +163,22 @@ fn matches_the_readme_reference_figures() {
     let report = evaluate(&reference, &estimate, &EvalOptions::default()).unwrap();
     assert!((report.rpe[0].statistics.rmse - 0.005764).abs() < 5e-7);
 }
+
+/// KITTI's relative errors of ORB-SLAM2's stereo estimate on KITTI 00 are the figures
+/// its paper reports (Mur-Artal and Tardós 2017, Table II: 0.70 %, 0.25 deg/100 m),
+/// which the devkit computed.
+#[test]
+fn kitti_relative_errors_equal_the_published_orb_slam2_figures() {
+    let Some(data) = common::shared_data("kitti_relative_errors_equal_the_published_orb_slam2_figures")
+    else {
+        return;
+    };
+    let read = |name: &str| {
+        Trajectory::read(&data.join("trajectories").join(name), TrajectoryFormat::Kitti).unwrap()
+    };
+    let (truth, orb) = (read("KITTI_00_gt.txt"), read("KITTI_00_ORB.txt"));
+    let errors = dopslam::eval::kitti_odometry::kitti_errors(&truth.poses, &orb.poses).unwrap();
+    assert_eq!(errors.segments, 3283);
+    assert!((errors.translation_percent - 0.70).abs() < 0.005, "{errors:?}");
+    assert!((errors.rotation_deg_per_100m - 0.25).abs() < 0.005, "{errors:?}");
+}

@@ -1,8 +1,10 @@
 //! Trajectory evaluation: ATE and RPE exactly as evo (1.38) and TUM's
-//! `evaluate_ate.py` / `evaluate_rpe.py` define them, with statistics, reports and plots.
+//! `evaluate_ate.py` / `evaluate_rpe.py` define them, KITTI's relative errors as its
+//! devkit does, with statistics, reports and plots.
 
 pub mod associate;
 pub mod ate;
+pub mod kitti_odometry;
 pub mod plot;
 pub mod report;
 pub mod rpe;

@@ -8,6 +8,7 @@ use thiserror::Error;
 
 use super::associate::{associate, AssociationRule};
 use super::ate::{absolute_errors, PoseRelation};
+use super::kitti_odometry::{kitti_errors, KittiErrors};
 use super::rpe::{
     pairs_by_angle, pairs_by_index, pairs_by_path, relative_errors, relative_errors_seconds,
     DeltaUnit,
@@ -149,6 +150,10 @@ pub struct EvalReport {
     pub alignment: AlignmentUsed,
     pub ape: MetricResult,
     pub rpe: Vec<MetricResult>,
+    /// KITTI's relative errors over 100-800 m segments of the associated poses
+    /// (unaligned), when the reference path is at least 100 m long.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub kitti: Option<KittiErrors>,
     /// The associated reference and the associated, aligned estimate (for plots).
     #[serde(skip)]
     pub reference: Trajectory,
@@ -239,6 +244,7 @@ pub fn evaluate(
     let reference_sync = reference.select(&reference_ids);
     let estimate_sync = estimate.select(&estimate_ids);
 
+    let kitti = kitti_errors(&reference_sync.poses, &estimate_sync.poses).filter(|k| k.segments > 0);
     let (transform, poses_used) = alignment_transform(&reference_sync, &estimate_sync, options)?;
     let align = |trajectory: &Trajectory| Trajectory {
         timestamps: trajectory.timestamps.clone(),
@@ -334,6 +340,7 @@ pub fn evaluate(
         },
         ape,
         rpe,
+        kitti,
         reference: reference_sync,
         aligned_estimate: aligned,
     })
@@ -383,6 +390,23 @@ impl EvalReport {
             let _ = writeln!(out, "\n{title}, {} pairs", metric.statistics.count);
             for (name, value) in metric.statistics.rows() {
                 let _ = writeln!(out, "  {name:>7}  {value:.6}");
+            }
+        }
+        if let Some(kitti) = &self.kitti {
+            let _ = writeln!(
+                out,
+                "\nKITTI relative errors (devkit: 100-800 m segments every {} frames), {} segments\n  translation  {:.4} %\n  rotation     {:.4} deg/100 m",
+                super::kitti_odometry::STEP,
+                kitti.segments,
+                kitti.translation_percent,
+                kitti.rotation_deg_per_100m
+            );
+            for l in &kitti.per_length {
+                let _ = writeln!(
+                    out,
+                    "  {:>4} m: {:>5} segments, {:.4} %, {:.4} deg/100 m",
+                    l.length_m, l.segments, l.translation_percent, l.rotation_deg_per_100m
+                );
             }
         }
         out
