@@ -8,6 +8,7 @@ use super::motion::MotionConfig;
 use super::movers::{ObjectsConfig, PeopleConfig, SeatedConfig};
 use super::oracle::OracleConfig;
 use super::render::SensorConfig;
+use super::street::StreetConfig;
 use crate::geometry::camera::PinholeCamera;
 
 /// How many frames, how fast, from which seed.
@@ -78,6 +79,7 @@ pub struct SynthConfig {
     pub oracle: OracleConfig,
     pub sensor: SensorConfig,
     pub stereo: StereoConfig,
+    pub street: StreetConfig,
 }
 
 impl SynthConfig {
@@ -114,6 +116,7 @@ impl SynthConfig {
         self.oracle.validate()?;
         self.sensor.validate()?;
         self.objects.validate()?;
+        self.street.validate()?;
         if !(0.0..=2.0).contains(&self.stereo.baseline) {
             return Err(format!(
                 "stereo.baseline must be 0 (off) to 2 m, got {}",

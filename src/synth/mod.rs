@@ -1,7 +1,8 @@
 //! `dopslam synth`: synthetic RGB-D sequences with exact ground truth, written in the
 //! real TUM layout so every reader and outside tool takes them unchanged.
 //!
-//! A textured room with furniture ([`scene`]), seen along procedural or recorded camera
+//! A textured room with furniture ([`scene`]) or a street canyon with parked and
+//! moving cars ([`street`]), seen along procedural or recorded camera
 //! motions ([`motion`]), with movers ([`movers`]: people as boxes or real cut-outs on
 //! billboards ([`sprite`]), seated people who leave, pushed objects of static classes),
 //! rendered by ray casting with Kinect-like depth, colour noise, optional motion blur
@@ -19,6 +20,7 @@ pub mod preview;
 pub mod render;
 pub mod scene;
 pub mod sprite;
+pub mod street;
 pub mod texture;
 pub mod writer;
 

@@ -29,6 +29,9 @@ pub enum MotionKind {
     /// A full turn on a circle of 0.6 m radius looking outwards, every 30 s: the camera
     /// returns to where it started (for loop closure).
     Loop,
+    /// A car driving at 8 m/s along world +z, weaving gently sideways (±2 m over
+    /// 320 m), with a little pitch and roll from the road.
+    Drive,
     /// A recorded trajectory file (`file`, `format`).
     File,
 }
@@ -90,6 +93,14 @@ pub fn procedural_pose(kind: MotionKind, t: f64) -> Se3 {
                 position.into(),
                 so3::exp(&Vector3::new(0.05 * s(0.1, 0.3), angle, 0.0)),
             )
+        }
+        MotionKind::Drive => {
+            let (speed, period, amplitude) = (8.0, 40.0, 2.0);
+            let w = std::f64::consts::TAU / period;
+            let position = Vector3::new(amplitude * (w * t).sin(), 0.0, speed * t);
+            let yaw = (amplitude * w * (w * t).cos() / speed).atan();
+            let r = Vector3::new(0.004 * s(0.7, 0.2), yaw, 0.003 * s(0.9, 1.1));
+            Se3::from_parts(position.into(), so3::exp(&r))
         }
         MotionKind::Halfsphere => {
             // Azimuth sweeps ±70°, elevation ±35°, radius 0.5 m around a centre 1.5 m ahead.

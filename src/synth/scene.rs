@@ -210,6 +210,20 @@ impl Scene {
         }
     }
 
+    /// The scene with only the furniture within `range` metres of `centre` (what a
+    /// camera there can see in a street of many buildings; the room stays).
+    pub fn near(&self, centre: &Vector3<f64>, range: f64) -> Scene {
+        Scene {
+            room: self.room,
+            furniture: self
+                .furniture
+                .iter()
+                .filter(|c| (centre.sup(&c.min).inf(&c.max) - centre).norm() <= range)
+                .copied()
+                .collect(),
+        }
+    }
+
     /// The distance from a point to the nearest surface of the scene (walls and furniture).
     pub fn distance_to_surface(&self, p: &Vector3<f64>) -> f64 {
         let box_distance = |c: &Cuboid, inside_room: bool| {

@@ -157,6 +157,24 @@ fn write_frame(
     depth_to_png16(&rendered.depth, DEPTH_SCALE)
         .save(out.join(&depth_name))
         .map_err(|e| save_err(&depth_name, e))?;
+    write_truth(out, stamp, rendered, camera, movers, oracle, seed)
+}
+
+/// Writes a frame's instance mask (`masks/`) and oracle detections
+/// (`detections_oracle/`) into `out`, named by `stamp`.
+fn write_truth(
+    out: &Path,
+    stamp: f64,
+    rendered: &Rendered,
+    camera: &PinholeCamera,
+    movers: &[Mover],
+    oracle: &OracleConfig,
+    seed: u64,
+) -> Result<(), SynthError> {
+    let save_err = |path: &str, e: image::ImageError| IoError::Write {
+        path: out.join(path),
+        source: std::io::Error::other(e),
+    };
     let mask_name = format!("masks/{stamp:.6}.png");
     let mask = image::GrayImage::from_raw(
         camera.width,
@@ -280,14 +298,34 @@ impl World {
     /// The view at time `t` from a camera at `world_from_camera`.
     pub fn view(&self, t: f64, world_from_camera: Se3) -> View {
         let centre = world_from_camera.translation.vector;
+        let range = self.render_range();
         View {
             world_from_camera,
             movers: self
                 .movers
                 .iter()
+                .filter(|m| {
+                    let c = m.cuboid_at(t);
+                    (centre.sup(&c.min).inf(&c.max) - centre).norm() <= range
+                })
                 .map(|m| (m.shape_at(t, &centre), m.instance))
                 .collect(),
         }
+    }
+
+    /// How far the renderer looks: the street's render range, else everywhere.
+    fn render_range(&self) -> f64 {
+        if self.config.street.enabled {
+            self.config.street.render_range
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// The scene that a camera at `world_from_camera` can see.
+    fn visible_scene(&self, world_from_camera: &Se3) -> Scene {
+        self.scene
+            .near(&world_from_camera.translation.vector, self.render_range())
     }
 
     fn frame_seed(&self, index: usize) -> u64 {
@@ -316,7 +354,7 @@ impl World {
             noise_seed: self.frame_seed(index),
         };
         render(
-            &self.scene,
+            &self.visible_scene(&self.poses[index]),
             &self.view(t, self.poses[index]),
             &self.camera,
             &self.config.sensor,
@@ -339,7 +377,7 @@ impl World {
             noise_seed: self.frame_seed(index) ^ 0x5EC0_4D00,
         };
         render_colour(
-            &self.scene,
+            &self.visible_scene(&self.poses[index]),
             &self.view(t, self.poses[index] * offset),
             &self.camera,
             &self.config.sensor,
@@ -358,6 +396,21 @@ fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>,
 
 /// The static scene and the movers of a config along the given camera poses.
 pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> Result<(Scene, Vec<Mover>), SynthError> {
+    if config.street.enabled {
+        let appearance = match load_sprite(&config.people.sprite)? {
+            Some(sprite) => Appearance::Sprite {
+                standing: Some(sprite),
+                seated: None,
+            },
+            None => Appearance::Box,
+        };
+        return Ok(super::street::build_street(
+            &config.street,
+            poses,
+            &appearance,
+            config.sequence.seed,
+        ));
+    }
     let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
     let mut scene = Scene::around(
         &positions,
@@ -408,7 +461,7 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     let stereo = config.stereo.baseline > 0.0;
     let kitti = out.join("kitti/sequences/00");
     if stereo {
-        for sub in ["image_0", "image_1"] {
+        for sub in ["image_0", "image_1", "masks", "detections_oracle"] {
             std::fs::create_dir_all(kitti.join(sub)).map_err(|source| IoError::Write {
                 path: kitti.join(sub),
                 source,
@@ -444,6 +497,15 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
                 world.frame_seed(index) ^ 0x0AC1_E5EE,
             )?;
             if stereo {
+                write_truth(
+                    &kitti,
+                    world.times[index],
+                    &rendered,
+                    &camera,
+                    &world.movers,
+                    &config.oracle,
+                    world.frame_seed(index) ^ 0x0AC1_E5EE,
+                )?;
                 let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
                 let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
                 for (sub, grey) in [("image_0", left), ("image_1", right)] {

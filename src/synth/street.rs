@@ -1,0 +1,318 @@
+//! A street canyon along the camera path, for stereo sequences in the KITTI layout:
+//! a road `camera_height` below the cameras, buildings on both sides set back from the
+//! path, cars parked at the kerbs (class "car", yet static: where masking every car
+//! hurts), cars driving along the road in the other lane, and pedestrians crossing
+//! ahead or walking on the pavements.
+//!
+//! Everything is an axis-aligned box (the scene's ray caster); the path's horizontal
+//! heading picks which axis a building's or car's length runs along.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::movers::{up_axis, Appearance, Behaviour, Mover};
+use super::scene::{Cuboid, Scene};
+use crate::geometry::se3::Se3;
+use crate::random::Rng;
+
+/// The street section of a synth config; `enabled = false` keeps the room.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StreetConfig {
+    pub enabled: bool,
+    /// Height of the cameras above the road (KITTI: 1.65 m).
+    pub camera_height: f64,
+    /// Buildings keep at least this far from every camera position (m).
+    pub half_width: f64,
+    /// Path length between building plots on each side (m).
+    pub building_spacing: f64,
+    /// Building height range (m).
+    pub building_height: [f64; 2],
+    /// Path length between parking spots on each side (m), and the share taken.
+    pub parking_spacing: f64,
+    pub parked_share: f64,
+    /// Lateral distance of parked cars' centres from the path (m).
+    pub parking_offset: f64,
+    /// Cars driving back and forth along the other lane, and their speed (m/s).
+    pub moving_cars: usize,
+    pub car_speed: f64,
+    /// Pedestrians crossing ahead of the path or walking along the pavements.
+    pub pedestrians: usize,
+    pub pedestrian_speed: f64,
+    /// Only what lies within this distance of the camera is rendered (m).
+    pub render_range: f64,
+}
+
+impl Default for StreetConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            camera_height: 1.65,
+            half_width: 7.0,
+            building_spacing: 14.0,
+            building_height: [6.0, 18.0],
+            parking_spacing: 6.5,
+            parked_share: 0.6,
+            parking_offset: 3.6,
+            moving_cars: 3,
+            car_speed: 8.0,
+            pedestrians: 4,
+            pedestrian_speed: 1.4,
+            render_range: 70.0,
+        }
+    }
+}
+
+impl StreetConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("camera_height", self.camera_height),
+            ("half_width", self.half_width),
+            ("building_spacing", self.building_spacing),
+            ("parking_spacing", self.parking_spacing),
+            ("car_speed", self.car_speed),
+            ("pedestrian_speed", self.pedestrian_speed),
+            ("render_range", self.render_range),
+        ];
+        for (key, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("street.{key} must be positive, got {value}"));
+            }
+        }
+        if !(0.0..=1.0).contains(&self.parked_share) {
+            return Err(format!(
+                "street.parked_share must be in [0, 1], got {}",
+                self.parked_share
+            ));
+        }
+        if self.parking_offset >= self.half_width {
+            return Err(format!(
+                "street.parking_offset ({}) must be less than street.half_width ({}): cars park in front of the buildings",
+                self.parking_offset, self.half_width
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A point along the path: position, horizontal heading and the horizontal left.
+struct PathPoint {
+    position: Vector3<f64>,
+    heading: Vector3<f64>,
+    left: Vector3<f64>,
+}
+
+/// Points every `spacing` metres of path length (horizontal headings from the poses'
+/// viewing directions).
+fn along_path(poses: &[Se3], up: (usize, f64), spacing: f64) -> Vec<PathPoint> {
+    let mut up_vector = Vector3::zeros();
+    up_vector[up.0] = up.1;
+    let mut points = Vec::new();
+    let mut next = 0.0;
+    let mut travelled = 0.0;
+    for (i, pose) in poses.iter().enumerate() {
+        if i > 0 {
+            travelled += (pose.translation.vector - poses[i - 1].translation.vector).norm();
+        }
+        if travelled + 1e-9 < next {
+            continue;
+        }
+        next = travelled + spacing;
+        let mut heading = pose.rotation.matrix().column(2).into_owned();
+        heading[up.0] = 0.0;
+        let Some(heading) = heading.try_normalize(1e-9) else {
+            continue;
+        };
+        points.push(PathPoint {
+            position: pose.translation.vector,
+            left: up_vector.cross(&heading),
+            heading,
+        });
+    }
+    points
+}
+
+/// An axis-aligned box centred on `centre` horizontally, standing on `floor`, with its
+/// `length` along the horizontal axis closest to `heading`.
+fn standing_box(
+    centre: Vector3<f64>,
+    heading: &Vector3<f64>,
+    (length, width, height): (f64, f64, f64),
+    up: (usize, f64),
+    floor: f64,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let horizontal: Vec<usize> = (0..3).filter(|&a| a != up.0).collect();
+    let along = if heading[horizontal[0]].abs() >= heading[horizontal[1]].abs() {
+        horizontal[0]
+    } else {
+        horizontal[1]
+    };
+    let across = horizontal[0] + horizontal[1] - along;
+    let mut size = Vector3::zeros();
+    size[along] = length;
+    size[across] = width;
+    size[up.0] = height;
+    let mut min = centre - size * 0.5;
+    min[up.0] = if up.1 > 0.0 { floor } else { floor - height };
+    (min, size)
+}
+
+/// Whether a box keeps `clearance` metres from every camera position.
+fn clear_of(cameras: &[Vector3<f64>], min: &Vector3<f64>, max: &Vector3<f64>, clearance: f64) -> bool {
+    cameras.iter().all(|c| {
+        let nearest = c.sup(min).inf(max);
+        (nearest - c).norm() > clearance
+    })
+}
+
+/// The street scene and its movers along `poses`; movers' instance ids start at 1 and
+/// `appearance` dresses the pedestrians.
+pub fn build_street(
+    config: &StreetConfig,
+    poses: &[Se3],
+    appearance: &Appearance,
+    seed: u64,
+) -> (Scene, Vec<Mover>) {
+    let up = up_axis(poses);
+    let cameras: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
+    let mean_height =
+        cameras.iter().map(|c| c[up.0]).sum::<f64>() / cameras.len().max(1) as f64;
+    let floor = mean_height - up.1 * config.camera_height;
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for c in &cameras {
+        lo = lo.inf(c);
+        hi = hi.sup(c);
+    }
+    // The "room": the road below, a far sky above, distant facades all round.
+    let margin = config.half_width + 25.0;
+    let (mut min, mut max) = (lo.add_scalar(-margin), hi.add_scalar(margin));
+    let sky = mean_height + up.1 * 30.0;
+    (min[up.0], max[up.0]) = (floor.min(sky), floor.max(sky));
+    let mut scene = Scene {
+        room: Cuboid {
+            min,
+            max,
+            texture: 1,
+        },
+        furniture: Vec::new(),
+    };
+    let mut rng = Rng::new(seed ^ 0x57EE7);
+    for point in along_path(poses, up, config.building_spacing) {
+        for side in [-1.0, 1.0] {
+            let depth = rng.range(6.0, 10.0);
+            let setback = config.half_width + depth / 2.0 + rng.range(0.0, 3.0);
+            let centre = point.position + point.left * side * setback;
+            let dims = (
+                rng.range(0.8, 1.1) * config.building_spacing,
+                depth,
+                rng.range(config.building_height[0], config.building_height[1]),
+            );
+            let (min, size) = standing_box(centre, &point.heading, dims, up, floor);
+            let max = min + size;
+            if clear_of(&cameras, &min, &max, config.half_width) {
+                let texture = 2 + scene.furniture.len() as u32;
+                scene.furniture.push(Cuboid { min, max, texture });
+            }
+        }
+    }
+    let mut movers = Vec::new();
+    let car = |min: Vector3<f64>, end: Vector3<f64>, size: Vector3<f64>, speed: f64, phase: f64, instance: u16| Mover {
+        instance,
+        class: "car".into(),
+        class_id: 2,
+        start: min,
+        end,
+        size,
+        speed,
+        phase,
+        behaviour: Behaviour::Walk {
+            pause: 0.0,
+            gait: None,
+        },
+        up,
+        appearance: Appearance::Box,
+    };
+    // Parked cars: a mover that never moves, so masks and oracle boxes call it a car.
+    for point in along_path(poses, up, config.parking_spacing) {
+        for side in [-1.0, 1.0] {
+            if rng.uniform() >= config.parked_share {
+                continue;
+            }
+            let centre = point.position + point.left * side * config.parking_offset;
+            let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
+            if !clear_of(&cameras, &min, &(min + size), config.parking_offset - 1.2) {
+                continue;
+            }
+            let instance = movers.len() as u16 + 1;
+            movers.push(car(min, min, size, 1.0, 0.0, instance));
+        }
+    }
+    let points = along_path(poses, up, 1.0);
+    if points.is_empty() {
+        return (scene, movers);
+    }
+    let pick = |rng: &mut Rng| &points[(rng.next_u64() % points.len() as u64) as usize];
+    for i in 0..config.moving_cars {
+        // The other lane: 1.8 m to the left, 30 m each way along the heading, where
+        // that straight line keeps clear of the (possibly curving) camera path.
+        for _attempt in 0..20 {
+            let point = pick(&mut rng);
+            let centre = point.position + point.left * 1.8;
+            let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
+            let (start, end) = (min - point.heading * 30.0, min + point.heading * 30.0);
+            let clear = (0..=30).all(|k| {
+                let at = start.lerp(&end, k as f64 / 30.0);
+                clear_of(&cameras, &at, &(at + size), 1.2)
+            });
+            if clear {
+                let instance = movers.len() as u16 + 1;
+                movers.push(car(start, end, size, config.car_speed, 2.9 * i as f64, instance));
+                break;
+            }
+        }
+    }
+    for i in 0..config.pedestrians {
+        let point = pick(&mut rng);
+        let (start, end) = if i % 2 == 0 {
+            // Crossing the road 12 m ahead of where the camera passes.
+            let ahead = point.position + point.heading * 12.0;
+            (ahead + point.left * 5.0, ahead - point.left * 5.0)
+        } else {
+            let kerb = point.position - point.left * (config.parking_offset + 1.6);
+            (kerb - point.heading * 6.0, kerb + point.heading * 6.0)
+        };
+        let mut size = Vector3::repeat(0.45);
+        size[up.0] = 1.75;
+        let corner = |p: Vector3<f64>| {
+            let mut c = p - size * 0.5;
+            c[up.0] = if up.1 > 0.0 { floor } else { floor - size[up.0] };
+            c
+        };
+        movers.push(Mover {
+            instance: movers.len() as u16 + 1,
+            class: "person".into(),
+            class_id: 0,
+            start: corner(start),
+            end: corner(end),
+            size,
+            speed: config.pedestrian_speed,
+            phase: 1.3 * i as f64,
+            behaviour: Behaviour::Walk {
+                pause: 0.0,
+                gait: Some(1.4),
+            },
+            up,
+            appearance: appearance.clone(),
+        });
+    }
+    let driving: Vec<Cuboid> = movers
+        .iter()
+        .filter(|m| m.start != m.end)
+        .map(Mover::swept_box)
+        .collect();
+    scene.make_room_for(&driving, up.0, 0.3);
+    (scene, movers)
+}
