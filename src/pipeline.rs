@@ -13,6 +13,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::config::Config;
+use crate::dense::disparity::{SgbmSettings, StereoDepth};
 use crate::dense::masks::Masking;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
 use crate::detect::worker::{DetectionWorker, Job, Outcome};
@@ -298,6 +299,13 @@ pub fn dense_pass(
         dynamic_classes: &config.detector.dynamic_classes,
         truth_masks: sequence_dir.map(|d| d.join("masks")).filter(|d| d.is_dir()),
         progress,
+        stereo: (sequence.sensor() == SensorKind::Stereo).then(|| StereoDepth {
+            bf: calibration.bf.unwrap_or(40.0),
+            sgbm: SgbmSettings {
+                disparities: config.stereo.sgbm_disparities,
+                block: config.stereo.sgbm_block,
+            },
+        }),
     };
     Ok(fuse_run(&inputs, &config.dense)?)
 }

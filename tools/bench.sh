@@ -29,7 +29,8 @@ mkdir -p "$out"
 say() { printf '\033[1m[bench]\033[0m %s\n' "$*" >&2; }
 
 say "building"
-cargo build --release --quiet
+source tools/system_packages.sh
+cargo build --release --quiet "${CARGO_FEATURES[@]}"
 say "micro-benchmarks (cargo bench --bench micro, --bench global)"
 cargo bench --quiet --bench micro 2>/dev/null | grep ':' | tee "$out/micro.txt"
 cargo bench --quiet --bench global 2>/dev/null | grep ':' | grep -v '^threads:' | tee "$out/global.txt"

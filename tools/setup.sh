@@ -13,21 +13,8 @@ say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 run_demo=1
 [ "${1:-}" = "--no-demo" ] && run_demo=0
 
-# 1. System packages (Debian). A C toolchain and pkg-config for -sys crates; python3 and
-#    pip fetch the ONNX Runtime wheel; DejaVu Sans labels the batch plots (PNG). apt
-#    runs only when something is missing.
-need_apt=()
-for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates fonts-dejavu-core; do
-    dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
-done
-if [ ${#need_apt[@]} -gt 0 ]; then
-    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-        say "installing ${need_apt[*]}"
-        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" >/dev/null
-    else
-        say "warning: missing Debian packages ${need_apt[*]} (run as root on Debian to install them)"
-    fi
-fi
+# 1. System packages (Debian) and the cargo features they allow: tools/system_packages.sh.
+source tools/system_packages.sh
 
 # 2. Rust: the toolchain through rustup when cargo is absent.
 if ! command -v cargo >/dev/null 2>&1; then
@@ -82,7 +69,7 @@ fi
 
 # 5. Build.
 say "building dopslam (release)"
-cargo build --release --quiet
+cargo build --release --quiet "${CARGO_FEATURES[@]}"
 
 # 6. The main job on the bundled default.
 # A generated dynamic scene (configs/synth/demo_walking.toml: two people walking, 300

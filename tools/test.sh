@@ -7,4 +7,5 @@ command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 if ! command -v cargo >/dev/null 2>&1; then
     bash tools/setup.sh --no-demo
 fi
-cargo test --release
+source tools/system_packages.sh
+cargo test --release "${CARGO_FEATURES[@]}"

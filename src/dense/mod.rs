@@ -9,6 +9,7 @@
 //! and pictures `dense_perspective.png`, `dense_top.png`.
 
 pub mod cloud;
+pub mod disparity;
 pub mod compare;
 pub mod comparison;
 pub mod marching_cubes;
@@ -34,7 +35,9 @@ use crate::io::ply::{write_obj, write_ply, PlyEncoding};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
+use crate::io::image_files::DepthImage;
 use cloud::{CloudBuilder, CloudSettings};
+use disparity::{stereo_depth, StereoDepth};
 use masks::{FrameKeypoints, MaskSettings, MaskSource, Masking};
 use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
 
@@ -222,6 +225,27 @@ pub struct DenseInputs<'a> {
     /// A synthetic sequence's `masks/` folder, to count what was fused.
     pub truth_masks: Option<PathBuf>,
     pub progress: bool,
+    /// How stereo pairs become depth (stereo sequences only).
+    pub stereo: Option<StereoDepth>,
+}
+
+/// A frame's depth and colour: an RGB-D frame's own, or a stereo pair's SGBM depth
+/// and its left image in grey.
+fn depth_and_colour(
+    images: FrameImages,
+    stereo: Option<&StereoDepth>,
+    what: &Path,
+) -> Result<(DepthImage, image::RgbImage), IoError> {
+    match images {
+        FrameImages::Rgbd { rgb, depth } => Ok((depth, rgb)),
+        FrameImages::Stereo { left, right } => {
+            let stereo = stereo.ok_or_else(|| {
+                IoError::invalid(what, "a stereo frame, but no stereo calibration was given")
+            })?;
+            let depth = stereo_depth(&left, &right, stereo).map_err(|m| IoError::invalid(what, m))?;
+            Ok((depth, image::DynamicImage::ImageLuma8(left).to_rgb8()))
+        }
+    }
 }
 
 /// Timestamps as keys (microseconds, as the file names carry them).
@@ -285,12 +309,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let index_of: HashMap<i64, usize> = (0..sequence.len())
         .map(|i| (key(sequence.timestamp(i)), i))
         .collect();
-    let load_depth = |t: f64| -> Option<crate::io::image_files::DepthImage> {
+    let load_depth = |t: f64| -> Option<DepthImage> {
         let frame = sequence.load(*index_of.get(&key(t))?).ok()?;
-        match frame.images {
-            FrameImages::Rgbd { depth, .. } => Some(depth),
-            FrameImages::Stereo { .. } => None,
-        }
+        depth_and_colour(frame.images, inputs.stereo.as_ref(), run)
+            .ok()
+            .map(|(depth, _)| depth)
     };
     let (detections, keypoints) = if inputs.masking == Masking::None {
         (Vec::new(), Vec::new())
@@ -353,20 +376,19 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 ),
             ));
         }
-        // Decode a few frames in parallel; fuse them in order.
+        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
         let loaded: Vec<_> = group
             .par_iter()
-            .map(|&(i, _, _)| sequence.load(i))
+            .map(|&(i, _, _)| {
+                let frame = sequence.load(i)?;
+                let timestamp = frame.timestamp;
+                depth_and_colour(frame.images, inputs.stereo.as_ref(), run)
+                    .map(|(depth, rgb)| (timestamp, depth, rgb))
+            })
             .collect();
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
-            let frame = frame?;
-            let FrameImages::Rgbd { rgb, depth } = frame.images else {
-                return Err(IoError::invalid(
-                    run,
-                    "the dense pass needs depth: stereo sequences are not fused yet",
-                ));
-            };
-            let mask = mask_source.mask(frame.timestamp, &depth, &pose);
+            let (timestamp, depth, rgb) = frame?;
+            let mask = mask_source.mask(timestamp, &depth, &pose);
             if let Some(m) = &mask {
                 masked += m.iter().filter(|&&x| x).count() as u64;
             }
@@ -378,7 +400,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 camera_from_world: &pose,
             };
             if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
-                let path = dir.join(format!("{:.6}.png", frame.timestamp));
+                let path = dir.join(format!("{:.6}.png", timestamp));
                 if let Some(ids) = crate::io::image_files::read_instance_mask(&path) {
                     count_truth(truth, ids.as_raw(), &input, config.max_depth);
                 }
