@@ -84,6 +84,18 @@ pub fn read_kitti_calibration(
     })
 }
 
+/// How many `.png` files a folder holds.
+fn count_pngs(dir: &Path) -> Result<usize, IoError> {
+    let entries = std::fs::read_dir(dir).map_err(|_| IoError::Missing {
+        path: dir.to_path_buf(),
+        what: "image folder (KITTI layout: image_0/ left, image_1/ right, NNNNNN.png)".into(),
+    })?;
+    Ok(entries
+        .filter_map(Result::ok)
+        .filter(|e| e.path().extension().is_some_and(|x| x == "png"))
+        .count())
+}
+
 impl KittiSequence {
     /// Opens a KITTI odometry sequence folder. Ground truth comes from `ground_truth`
     /// when given, else from `../../poses/<name>.txt` when that file exists.
@@ -101,6 +113,22 @@ impl KittiSequence {
             .unwrap_or_else(|| "sequence".into());
         let times_path = root.join("times.txt");
         let times = read_times(&times_path)?;
+        if times.is_empty() {
+            return Err(IoError::invalid(&times_path, "lists no frame times"));
+        }
+        let (left, right) = (count_pngs(&root.join("image_0"))?, count_pngs(&root.join("image_1"))?);
+        if right < left {
+            return Err(IoError::invalid(
+                &root.join("image_1"),
+                format!("holds {right} right images but image_0 holds {left} left ones: every left image needs its right image (NNNNNN.png in both)"),
+            ));
+        }
+        if left < times.len() {
+            return Err(IoError::invalid(
+                &times_path,
+                format!("lists {} frames but image_0 holds {left} images", times.len()),
+            ));
+        }
         let first = root.join("image_0").join(format!("{:06}.png", 0));
         let (width, height) = image::image_dimensions(&first).map_err(|e| IoError::Image {
             path: first.clone(),
