@@ -23,6 +23,7 @@ use dopslam::io::Trajectory;
 mod cli_batch;
 mod cli_global;
 mod cli_maps;
+mod cli_stereo;
 
 #[derive(Parser)]
 #[command(
@@ -59,6 +60,8 @@ enum Command {
     Graph(cli_global::GraphArgs),
     /// Run many sequences in several modes, repeated, and write the tables, plots and HTML report (resumable).
     Batch(cli_batch::BatchArgs),
+    /// Match one rectified stereo pair as tracking does and compare with OpenCV's SGBM disparities.
+    Stereo(cli_stereo::StereoArgs),
 }
 
 #[derive(Args)]
@@ -703,6 +706,7 @@ fn main() -> ExitCode {
         Command::Vocab(args) => cli_global::run_vocab(args),
         Command::Graph(args) => cli_global::run_graph(args),
         Command::Batch(args) => cli_batch::run_batch(args),
+        Command::Stereo(args) => cli_stereo::run_stereo(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -126,3 +126,34 @@ fn a_right_image_of_another_size_is_refused() {
     // What was tracked before the bad frame is kept.
     assert!(sequence.parent().unwrap().join("run/trajectory.txt").exists());
 }
+
+/// The real KITTI pair in `../shared/data`: most keypoints find a depth, and their
+/// disparities agree with OpenCV's SGBM to within a pixel.
+#[test]
+fn the_real_kitti_pair_matches_like_sgbm() {
+    let Some(data) = common::shared_data("the_real_kitti_pair_matches_like_sgbm") else {
+        return;
+    };
+    if !cfg!(feature = "opencv") {
+        eprintln!("skipping the_real_kitti_pair_matches_like_sgbm: built without the opencv feature");
+        return;
+    }
+    let dir = temp_dir("stereo-real-pair");
+    let json_path = dir.join("stereo.json");
+    let settings =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI00-02.yaml");
+    let frames = data.join("frames/kitti");
+    let (ok, stdout, err) = dopslam(&[
+        "stereo",
+        &frames.join("stereo_left.png").to_string_lossy(),
+        &frames.join("stereo_right.png").to_string_lossy(),
+        "--settings",
+        &settings.to_string_lossy(),
+        "--json",
+        &json_path.to_string_lossy(),
+    ]);
+    assert!(ok, "{stdout}\n{err}");
+    let figures = json(&json_path);
+    assert!(figures["matched_percent"].as_f64().unwrap() > 40.0, "{figures}");
+    assert!(figures["median_difference_px"].as_f64().unwrap() < 1.0, "{figures}");
+}

@@ -259,6 +259,10 @@ impl Executor<'_> {
             figures.ate_rmse = Some(translation.ape.statistics.rmse);
             figures.rpe_translation = translation.rpe.first().map(|m| m.statistics.rmse);
             figures.rpe_rotation_deg = rotation.rpe.first().map(|m| m.statistics.rmse);
+            figures.kitti_translation_percent =
+                translation.kitti.as_ref().map(|k| k.translation_percent);
+            figures.kitti_rotation_deg_per_100m =
+                translation.kitti.as_ref().map(|k| k.rotation_deg_per_100m);
             if job.dir.join("trajectory_tracking.txt").exists() {
                 let report = evaluate_file("trajectory_tracking.txt", PoseRelation::TransPart)?;
                 figures.ate_tracking_rmse = Some(report.ape.statistics.rmse);

@@ -243,28 +243,41 @@ fn prepare_sequence(
             frames,
         } => {
             let dir = out.join("sequences").join(&sequence.name);
-            if dir.is_dir() {
-                return (dir, None);
-            }
-            let part = out
-                .join("sequences")
-                .join(format!("{}.part", sequence.name));
-            let generated = (|| -> Result<(), String> {
-                let mut config = crate::synth::SynthConfig::load(preset)?;
+            let config = crate::synth::SynthConfig::load(preset).map(|mut config| {
                 if let Some(seed) = seed {
                     config.sequence.seed = *seed;
                 }
                 if let Some(frames) = frames {
                     config.sequence.frames = *frames;
                 }
-                if progress {
-                    eprintln!("generating {} from {}", sequence.name, preset.display());
-                }
-                crate::synth::generate(&config, &part, true).map_err(|e| e.to_string())?;
-                std::fs::rename(&part, &dir)
-                    .map_err(|e| format!("cannot rename {}: {e}", part.display()))
-            })();
-            (dir, generated.err())
+                config
+            });
+            let config = match config {
+                Ok(config) => config,
+                Err(problem) => return (dir, Some(problem)),
+            };
+            // A street is run from its stereo pairs (the KITTI layout it also writes).
+            let run_dir = if config.street.enabled && config.stereo.baseline > 0.0 {
+                dir.join("kitti/sequences/00")
+            } else {
+                dir.clone()
+            };
+            if dir.is_dir() {
+                return (run_dir, None);
+            }
+            let part = out
+                .join("sequences")
+                .join(format!("{}.part", sequence.name));
+            if progress {
+                eprintln!("generating {} from {}", sequence.name, preset.display());
+            }
+            let generated = crate::synth::generate(&config, &part, true)
+                .map_err(|e| e.to_string())
+                .and_then(|_| {
+                    std::fs::rename(&part, &dir)
+                        .map_err(|e| format!("cannot rename {}: {e}", part.display()))
+                });
+            (run_dir, generated.err())
         }
     }
 }

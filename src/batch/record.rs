@@ -58,6 +58,11 @@ pub struct RunFigures {
     pub rpe_rotation_deg: Option<f64>,
     /// The dense map against the static scene, where the sequence has one.
     pub map: Option<MapFigures>,
+    /// KITTI's relative errors (%, deg/100 m), where the path reaches 100 m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kitti_translation_percent: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kitti_rotation_deg_per_100m: Option<f64>,
 }
 
 /// The dense map's figures.

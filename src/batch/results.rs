@@ -50,6 +50,9 @@ pub struct GroupSummary {
     pub ate_tracking_rmse: Option<Spread>,
     pub rpe_translation: Option<Spread>,
     pub rpe_rotation_deg: Option<Spread>,
+    /// KITTI's relative errors, where the path reaches 100 m.
+    pub kitti_translation_percent: Option<Spread>,
+    pub kitti_rotation_deg_per_100m: Option<Spread>,
     pub coverage_percent: Option<Spread>,
     /// Median of the runs' median tracking times, and mean of their means (ms).
     pub median_tracking_ms: Option<f64>,
@@ -125,6 +128,8 @@ fn summarise_group(sequence: &str, mode: RunMode, runs: &[&RunRecord]) -> GroupS
         ate_tracking_rmse: spread(&|r| r.ate_tracking_rmse),
         rpe_translation: spread(&|r| r.rpe_translation),
         rpe_rotation_deg: spread(&|r| r.rpe_rotation_deg),
+        kitti_translation_percent: spread(&|r| r.kitti_translation_percent),
+        kitti_rotation_deg_per_100m: spread(&|r| r.kitti_rotation_deg_per_100m),
         coverage_percent: spread(&|r| Some(r.coverage_percent)),
         median_tracking_ms: spread(&|r| Some(r.median_tracking_ms)).map(|s| s.median),
         mean_tracking_ms: (!ok.is_empty())
@@ -146,7 +151,7 @@ fn number(value: Option<f64>, digits: usize) -> String {
     value.map_or(String::new(), |v| format!("{v:.digits$}"))
 }
 
-const CSV_HEADER: &str = "sequence,mode,runs,failed,ate_rmse_median,ate_rmse_min,ate_rmse_max,ate_tracking_rmse_median,rpe_translation_median,rpe_rotation_deg_median,coverage_percent_median,median_tracking_ms,mean_tracking_ms,keyframes_median,keypoints_removed_per_frame_median,map_points_removed_median,loops_median,map_accuracy_median,ghost_points_median,dynamic_removed_percent_median,improvement_percent";
+const CSV_HEADER: &str = "sequence,mode,runs,failed,ate_rmse_median,ate_rmse_min,ate_rmse_max,ate_tracking_rmse_median,rpe_translation_median,rpe_rotation_deg_median,coverage_percent_median,median_tracking_ms,mean_tracking_ms,keyframes_median,keypoints_removed_per_frame_median,map_points_removed_median,loops_median,map_accuracy_median,ghost_points_median,dynamic_removed_percent_median,improvement_percent,kitti_translation_percent_median,kitti_rotation_deg_per_100m_median";
 
 /// `results.csv`: one row per sequence and mode.
 pub fn results_csv(groups: &[GroupSummary]) -> String {
@@ -155,7 +160,7 @@ pub fn results_csv(groups: &[GroupSummary]) -> String {
         let m = |s: Option<Spread>, d| number(s.map(|s| s.median), d);
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             g.sequence,
             g.mode.name(),
             g.runs,
@@ -177,6 +182,8 @@ pub fn results_csv(groups: &[GroupSummary]) -> String {
             m(g.ghost_points, 1),
             m(g.dynamic_removed_percent, 2),
             number(g.improvement_percent, 1),
+            m(g.kitti_translation_percent, 4),
+            m(g.kitti_rotation_deg_per_100m, 4),
         );
     }
     out
@@ -239,7 +246,7 @@ fn median_cell(s: Option<Spread>, digits: usize) -> String {
 }
 
 /// The columns of the results table (`results.md`, `report.html`).
-pub const TABLE_COLUMNS: [&str; 12] = [
+pub const TABLE_COLUMNS: [&str; 13] = [
     "sequence",
     "mode",
     "runs (failed)",
@@ -247,6 +254,7 @@ pub const TABLE_COLUMNS: [&str; 12] = [
     "tracking-pass ATE (m)",
     "RPE 1 s (m/s)",
     "RPE 1 s (deg/s)",
+    "KITTI t_rel (%) / r_rel (deg/100 m)",
     "coverage (%)",
     "tracking ms median / mean",
     "keyframes",
@@ -264,6 +272,10 @@ pub fn table_cells(g: &GroupSummary, range: fn(Option<Spread>, usize) -> String)
         median_cell(g.ate_tracking_rmse, 4),
         median_cell(g.rpe_translation, 4),
         median_cell(g.rpe_rotation_deg, 3),
+        match (g.kitti_translation_percent, g.kitti_rotation_deg_per_100m) {
+            (Some(t), Some(r)) => format!("{:.3} / {:.3}", t.median, r.median),
+            _ => "-".into(),
+        },
         median_cell(g.coverage_percent, 1),
         format!(
             "{} / {}",
