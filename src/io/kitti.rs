@@ -119,7 +119,7 @@ impl KittiSequence {
         let (left, right) = (count_pngs(&root.join("image_0"))?, count_pngs(&root.join("image_1"))?);
         if right < left {
             return Err(IoError::invalid(
-                &root.join("image_1"),
+                root.join("image_1"),
                 format!("holds {right} right images but image_0 holds {left} left ones: every left image needs its right image (NNNNNN.png in both)"),
             ));
         }

@@ -134,30 +134,42 @@ pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Dete
         .collect()
 }
 
+/// What a frame's ground truth is made from besides its rendering: the camera, the
+/// movers (instance ids and classes) and the oracle's imperfections.
+#[derive(Clone, Copy)]
+struct TruthSources<'a> {
+    camera: &'a PinholeCamera,
+    movers: &'a [Mover],
+    oracle: &'a OracleConfig,
+}
+
+/// The error of saving the image `name` under `out`.
+fn save_error(out: &Path, name: &str) -> impl Fn(image::ImageError) -> IoError {
+    let path = out.join(name);
+    move |e| IoError::Write {
+        path: path.clone(),
+        source: std::io::Error::other(e),
+    }
+}
+
 /// Writes one frame's colour, depth and mask PNGs and its oracle detections.
 fn write_frame(
     out: &Path,
     stamp: f64,
     rendered: &Rendered,
-    camera: &PinholeCamera,
-    movers: &[Mover],
-    oracle: &OracleConfig,
+    truth: TruthSources,
     seed: u64,
 ) -> Result<(), SynthError> {
-    let save_err = |path: &str, e: image::ImageError| IoError::Write {
-        path: out.join(path),
-        source: std::io::Error::other(e),
-    };
     let rgb_name = format!("rgb/{stamp:.6}.png");
     rendered
         .rgb
         .save(out.join(&rgb_name))
-        .map_err(|e| save_err(&rgb_name, e))?;
+        .map_err(save_error(out, &rgb_name))?;
     let depth_name = format!("depth/{stamp:.6}.png");
     depth_to_png16(&rendered.depth, DEPTH_SCALE)
         .save(out.join(&depth_name))
-        .map_err(|e| save_err(&depth_name, e))?;
-    write_truth(out, stamp, rendered, camera, movers, oracle, seed)
+        .map_err(save_error(out, &depth_name))?;
+    write_truth(out, stamp, rendered, truth, seed)
 }
 
 /// Writes a frame's instance mask (`masks/`) and oracle detections
@@ -166,15 +178,13 @@ fn write_truth(
     out: &Path,
     stamp: f64,
     rendered: &Rendered,
-    camera: &PinholeCamera,
-    movers: &[Mover],
-    oracle: &OracleConfig,
+    TruthSources {
+        camera,
+        movers,
+        oracle,
+    }: TruthSources,
     seed: u64,
 ) -> Result<(), SynthError> {
-    let save_err = |path: &str, e: image::ImageError| IoError::Write {
-        path: out.join(path),
-        source: std::io::Error::other(e),
-    };
     let mask_name = format!("masks/{stamp:.6}.png");
     let mask = image::GrayImage::from_raw(
         camera.width,
@@ -183,7 +193,7 @@ fn write_truth(
     )
     .expect("mask size matches");
     mask.save(out.join(&mask_name))
-        .map_err(|e| save_err(&mask_name, e))?;
+        .map_err(save_error(out, &mask_name))?;
     let detections = FrameDetections {
         timestamp: stamp,
         detections: oracle.apply(
@@ -487,33 +497,21 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         .map(|index| {
             let rendered = world.render(index);
             let voxels = mover_voxels(&rendered, &camera, &world.poses[index]);
-            write_frame(
-                out,
-                world.stamp(index),
-                &rendered,
-                &camera,
-                &world.movers,
-                &config.oracle,
-                world.frame_seed(index) ^ 0x0AC1_E5EE,
-            )?;
+            let truth = TruthSources {
+                camera: &camera,
+                movers: &world.movers,
+                oracle: &config.oracle,
+            };
+            let truth_seed = world.frame_seed(index) ^ 0x0AC1_E5EE;
+            write_frame(out, world.stamp(index), &rendered, truth, truth_seed)?;
             if stereo {
-                write_truth(
-                    &kitti,
-                    world.times[index],
-                    &rendered,
-                    &camera,
-                    &world.movers,
-                    &config.oracle,
-                    world.frame_seed(index) ^ 0x0AC1_E5EE,
-                )?;
+                write_truth(&kitti, world.times[index], &rendered, truth, truth_seed)?;
                 let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
                 let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
                 for (sub, grey) in [("image_0", left), ("image_1", right)] {
-                    let path = kitti.join(format!("{sub}/{index:06}.png"));
-                    grey.save(&path).map_err(|e| IoError::Write {
-                        path: path.clone(),
-                        source: std::io::Error::other(e),
-                    })?;
+                    let name = format!("{sub}/{index:06}.png");
+                    grey.save(kitti.join(&name))
+                        .map_err(save_error(&kitti, &name))?;
                 }
             }
             progress.inc(1);

@@ -13,7 +13,7 @@ use crate::geometry::camera::PinholeCamera;
 use crate::io::image_files::DepthImage;
 use crate::optim::stereo_projection::StereoCamera;
 
-use super::stereo_matching::{match_stereo, StereoFeatures};
+use super::stereo_matching::extract_and_match;
 
 /// Grid cells over the image, for keypoint lookups by position.
 const GRID_COLUMNS: usize = 64;
@@ -94,7 +94,7 @@ impl Frame {
 
     /// Extracts features from both images of a rectified stereo pair (in parallel) and
     /// gives each left keypoint the depth of its row match in the right image
-    /// ([`match_stereo`]).
+    /// ([`extract_and_match`]).
     pub fn from_stereo(
         index: usize,
         timestamp: f64,
@@ -102,17 +102,8 @@ impl Frame {
         extractor: &OrbExtractor,
         camera: &StereoCamera,
     ) -> Self {
-        let ((left_features, left_levels), (right_features, right_levels)) = rayon::join(
-            || extractor.extract_with_levels(left),
-            || extractor.extract_with_levels(right),
-        );
-        let stereo = StereoFeatures {
-            left: &left_features,
-            right: &right_features,
-            left_levels: &left_levels,
-            right_levels: &right_levels,
-        };
-        let matches = match_stereo(&stereo, &extractor.pyramid, camera.bf, camera.fx);
+        let (left_features, matches) =
+            extract_and_match((left, right), extractor, camera.bf, camera.fx);
         Self::from_parts(
             index,
             timestamp,

@@ -15,7 +15,7 @@
 
 use image::GrayImage;
 
-use crate::features::{hamming, OrbFeatures, ScalePyramid};
+use crate::features::{hamming, OrbExtractor, OrbFeatures, ScalePyramid};
 
 /// ORB-SLAM2's upper and lower descriptor thresholds; stereo takes their mean.
 const TH_HIGH: u32 = 100;
@@ -112,6 +112,28 @@ pub fn match_stereo(
     }
     drop_outliers(&mut matches, &mut sads);
     matches
+}
+
+/// Extracts ORB from both images of a rectified pair (in parallel) and matches the
+/// left keypoints into the right image: the left features and their stereo depths.
+pub fn extract_and_match(
+    (left, right): (&GrayImage, &GrayImage),
+    extractor: &OrbExtractor,
+    bf: f64,
+    fx: f64,
+) -> (OrbFeatures, StereoMatches) {
+    let ((left_features, left_levels), (right_features, right_levels)) = rayon::join(
+        || extractor.extract_with_levels(left),
+        || extractor.extract_with_levels(right),
+    );
+    let stereo = StereoFeatures {
+        left: &left_features,
+        right: &right_features,
+        left_levels: &left_levels,
+        right_levels: &right_levels,
+    };
+    let matches = match_stereo(&stereo, &extractor.pyramid, bf, fx);
+    (left_features, matches)
 }
 
 /// For each level-0 row, the right keypoints whose row band \(y \pm 2 s^l\) covers it.
