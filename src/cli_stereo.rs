@@ -52,7 +52,10 @@ struct StereoFigures {
 pub fn run_stereo(args: StereoArgs) -> Result<()> {
     let settings = OrbSlamSettings::read(&args.settings)?;
     let bf = settings.calibration.bf.with_context(|| {
-        format!("{}: no Camera.bf (baseline times fx): not stereo settings", args.settings.display())
+        format!(
+            "{}: no Camera.bf (baseline times fx): not stereo settings",
+            args.settings.display()
+        )
     })?;
     let fx = settings.calibration.camera.fx;
     let (left, right) = (read_gray(&args.left)?, read_gray(&args.right)?);
@@ -67,22 +70,20 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         right.height()
     );
     let extractor = OrbExtractor::new(&OrbConfig {
-        n_features: args
-            .features
-            .or(settings.orb.n_features)
-            .unwrap_or(2000),
+        n_features: args.features.or(settings.orb.n_features).unwrap_or(2000),
         ..OrbConfig::default()
     });
     let start = Instant::now();
     let (lf, matches) = extract_and_match((&left, &right), &extractor, bf, fx);
     let orb_and_matching_ms = start.elapsed().as_secs_f64() * 1e3;
     let start = Instant::now();
+    let defaults = dopslam::config::StereoConfig::default();
     let sgbm = sgbm_disparity(
         &left,
         &right,
         &SgbmSettings {
-            disparities: 128,
-            block: 5,
+            disparities: defaults.sgbm_disparities,
+            block: defaults.sgbm_block,
         },
     )
     .map_err(anyhow::Error::msg)?;

@@ -427,8 +427,7 @@ pub fn track_sequence(
         let start;
         let (frame, picture) = match loaded.images {
             FrameImages::Rgbd { rgb, depth } => {
-                if let Err(message) =
-                    depth_check.check(index, &depth, tracker.state, &calibration)
+                if let Err(message) = depth_check.check(index, &depth, tracker.state, &calibration)
                 {
                     failure = Some(message);
                     break;
@@ -447,16 +446,6 @@ pub fn track_sequence(
                 (frame, Picture::Colour(rgb))
             }
             FrameImages::Stereo { left, right } => {
-                if left.dimensions() != right.dimensions() {
-                    failure = Some(format!(
-                        "frame {index}: the left image is {}x{} but the right one is {}x{}: a rectified pair has one size",
-                        left.width(),
-                        left.height(),
-                        right.width(),
-                        right.height()
-                    ));
-                    break;
-                }
                 start = Instant::now();
                 let frame = Frame::from_stereo(
                     index,
@@ -473,7 +462,7 @@ pub fn track_sequence(
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         if let (Some(dir), Some(frame)) = (&options.debug_frames, tracker.last_frame()) {
             if frame.index == index {
-                let mut picture = picture.colour();
+                let mut picture = picture.clone().into_colour();
                 let dop = tracker.dop.clone().unwrap_or_default();
                 crate::detect::draw::draw_keypoints(&mut picture, frame, &dop);
                 let path = dir.join(format!("{index:06}.png"));
@@ -493,7 +482,7 @@ pub fn track_sequence(
                 worker.submit(Job {
                     id: index,
                     timestamp: loaded.timestamp,
-                    image: picture.colour(),
+                    image: picture.into_colour(),
                 });
             }
         }

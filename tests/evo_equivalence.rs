@@ -169,16 +169,27 @@ fn matches_the_readme_reference_figures() {
 /// which the devkit computed.
 #[test]
 fn kitti_relative_errors_equal_the_published_orb_slam2_figures() {
-    let Some(data) = common::shared_data("kitti_relative_errors_equal_the_published_orb_slam2_figures")
+    let Some(data) =
+        common::shared_data("kitti_relative_errors_equal_the_published_orb_slam2_figures")
     else {
         return;
     };
     let read = |name: &str| {
-        Trajectory::read(&data.join("trajectories").join(name), TrajectoryFormat::Kitti).unwrap()
+        Trajectory::read(
+            &data.join("trajectories").join(name),
+            TrajectoryFormat::Kitti,
+        )
+        .unwrap()
     };
     let (truth, orb) = (read("KITTI_00_gt.txt"), read("KITTI_00_ORB.txt"));
     let errors = dopslam::eval::kitti_odometry::kitti_errors(&truth.poses, &orb.poses).unwrap();
     assert_eq!(errors.segments, 3283);
-    assert!((errors.translation_percent - 0.70).abs() < 0.005, "{errors:?}");
-    assert!((errors.rotation_deg_per_100m - 0.25).abs() < 0.005, "{errors:?}");
+    assert!(
+        (errors.translation_percent - 0.70).abs() < 0.005,
+        "{errors:?}"
+    );
+    assert!(
+        (errors.rotation_deg_per_100m - 0.25).abs() < 0.005,
+        "{errors:?}"
+    );
 }

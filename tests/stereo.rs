@@ -104,7 +104,10 @@ fn fewer_right_images_than_left_is_refused() {
     let sequence = small_copy("stereo-fewer-right");
     std::fs::remove_file(sequence.join("image_1/000002.png")).unwrap();
     let err = run_fails(&sequence);
-    assert!(err.contains("image_1") && err.contains("2 right images"), "{err}");
+    assert!(
+        err.contains("image_1") && err.contains("2 right images"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -124,7 +127,11 @@ fn a_right_image_of_another_size_is_refused() {
     let err = run_fails(&sequence);
     assert!(err.contains("frame 1") && err.contains("620x188"), "{err}");
     // What was tracked before the bad frame is kept.
-    assert!(sequence.parent().unwrap().join("run/trajectory.txt").exists());
+    assert!(sequence
+        .parent()
+        .unwrap()
+        .join("run/trajectory.txt")
+        .exists());
 }
 
 /// The real KITTI pair in `../shared/data`: most keypoints find a depth, and their
@@ -135,7 +142,9 @@ fn the_real_kitti_pair_matches_like_sgbm() {
         return;
     };
     if !cfg!(feature = "opencv") {
-        eprintln!("skipping the_real_kitti_pair_matches_like_sgbm: built without the opencv feature");
+        eprintln!(
+            "skipping the_real_kitti_pair_matches_like_sgbm: built without the opencv feature"
+        );
         return;
     }
     let dir = temp_dir("stereo-real-pair");
@@ -154,6 +163,12 @@ fn the_real_kitti_pair_matches_like_sgbm() {
     ]);
     assert!(ok, "{stdout}\n{err}");
     let figures = json(&json_path);
-    assert!(figures["matched_percent"].as_f64().unwrap() > 40.0, "{figures}");
-    assert!(figures["median_difference_px"].as_f64().unwrap() < 1.0, "{figures}");
+    assert!(
+        figures["matched_percent"].as_f64().unwrap() > 40.0,
+        "{figures}"
+    );
+    assert!(
+        figures["median_difference_px"].as_f64().unwrap() < 1.0,
+        "{figures}"
+    );
 }

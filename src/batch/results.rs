@@ -151,75 +151,137 @@ fn number(value: Option<f64>, digits: usize) -> String {
     value.map_or(String::new(), |v| format!("{v:.digits$}"))
 }
 
-const CSV_HEADER: &str = "sequence,mode,runs,failed,ate_rmse_median,ate_rmse_min,ate_rmse_max,ate_tracking_rmse_median,rpe_translation_median,rpe_rotation_deg_median,coverage_percent_median,median_tracking_ms,mean_tracking_ms,keyframes_median,keypoints_removed_per_frame_median,map_points_removed_median,loops_median,map_accuracy_median,ghost_points_median,dynamic_removed_percent_median,improvement_percent,kitti_translation_percent_median,kitti_rotation_deg_per_100m_median";
+/// The columns of `results.csv`.
+const RESULTS_CSV_COLUMNS: [&str; 23] = [
+    "sequence",
+    "mode",
+    "runs",
+    "failed",
+    "ate_rmse_median",
+    "ate_rmse_min",
+    "ate_rmse_max",
+    "ate_tracking_rmse_median",
+    "rpe_translation_median",
+    "rpe_rotation_deg_median",
+    "coverage_percent_median",
+    "median_tracking_ms",
+    "mean_tracking_ms",
+    "keyframes_median",
+    "keypoints_removed_per_frame_median",
+    "map_points_removed_median",
+    "loops_median",
+    "map_accuracy_median",
+    "ghost_points_median",
+    "dynamic_removed_percent_median",
+    "improvement_percent",
+    "kitti_translation_percent_median",
+    "kitti_rotation_deg_per_100m_median",
+];
+
+/// A group's cells under [`RESULTS_CSV_COLUMNS`].
+fn results_csv_row(g: &GroupSummary) -> [String; 23] {
+    let m = |s: Option<Spread>, d| number(s.map(|s| s.median), d);
+    [
+        g.sequence.clone(),
+        g.mode.name().to_string(),
+        g.runs.to_string(),
+        g.failed.to_string(),
+        m(g.ate_rmse, 6),
+        number(g.ate_rmse.map(|s| s.min), 6),
+        number(g.ate_rmse.map(|s| s.max), 6),
+        m(g.ate_tracking_rmse, 6),
+        m(g.rpe_translation, 6),
+        m(g.rpe_rotation_deg, 4),
+        m(g.coverage_percent, 2),
+        number(g.median_tracking_ms, 2),
+        number(g.mean_tracking_ms, 2),
+        m(g.keyframes, 1),
+        m(g.keypoints_removed_per_frame, 2),
+        m(g.map_points_removed, 1),
+        m(g.loops, 1),
+        m(g.map_accuracy_median, 4),
+        m(g.ghost_points, 1),
+        m(g.dynamic_removed_percent, 2),
+        number(g.improvement_percent, 1),
+        m(g.kitti_translation_percent, 4),
+        m(g.kitti_rotation_deg_per_100m, 4),
+    ]
+}
 
 /// `results.csv`: one row per sequence and mode.
 pub fn results_csv(groups: &[GroupSummary]) -> String {
-    let mut out = format!("{CSV_HEADER}\n");
+    let mut out = format!("{}\n", RESULTS_CSV_COLUMNS.join(","));
     for g in groups {
-        let m = |s: Option<Spread>, d| number(s.map(|s| s.median), d);
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            g.sequence,
-            g.mode.name(),
-            g.runs,
-            g.failed,
-            m(g.ate_rmse, 6),
-            number(g.ate_rmse.map(|s| s.min), 6),
-            number(g.ate_rmse.map(|s| s.max), 6),
-            m(g.ate_tracking_rmse, 6),
-            m(g.rpe_translation, 6),
-            m(g.rpe_rotation_deg, 4),
-            m(g.coverage_percent, 2),
-            number(g.median_tracking_ms, 2),
-            number(g.mean_tracking_ms, 2),
-            m(g.keyframes, 1),
-            m(g.keypoints_removed_per_frame, 2),
-            m(g.map_points_removed, 1),
-            m(g.loops, 1),
-            m(g.map_accuracy_median, 4),
-            m(g.ghost_points, 1),
-            m(g.dynamic_removed_percent, 2),
-            number(g.improvement_percent, 1),
-            m(g.kitti_translation_percent, 4),
-            m(g.kitti_rotation_deg_per_100m, 4),
-        );
+        let _ = writeln!(out, "{}", results_csv_row(g).join(","));
     }
     out
 }
 
+/// The columns of `runs.csv`.
+const RUNS_CSV_COLUMNS: [&str; 21] = [
+    "sequence",
+    "mode",
+    "repetition",
+    "status",
+    "seconds",
+    "frames",
+    "coverage_percent",
+    "keyframes",
+    "median_tracking_ms",
+    "mean_tracking_ms",
+    "ate_rmse",
+    "ate_tracking_rmse",
+    "rpe_translation",
+    "rpe_rotation_deg",
+    "keypoints_removed_per_frame",
+    "map_points_removed",
+    "loops",
+    "map_accuracy_median",
+    "ghost_points",
+    "dynamic_removed_percent",
+    "error",
+];
+
+/// A run's cells under [`RUNS_CSV_COLUMNS`] (the error quoted).
+fn runs_csv_row(r: &RunRecord) -> [String; 21] {
+    let f = r.figures.clone().unwrap_or_default();
+    let map = f.map.clone().unwrap_or_default();
+    let error = r.error.as_deref().unwrap_or("").replace(['"', '\n'], "'");
+    [
+        r.sequence.clone(),
+        r.mode.name().to_string(),
+        r.repetition.to_string(),
+        if r.status == RunStatus::Ok {
+            "ok"
+        } else {
+            "failed"
+        }
+        .to_string(),
+        format!("{:.1}", r.seconds),
+        f.frames.to_string(),
+        format!("{:.2}", f.coverage_percent),
+        f.keyframes.to_string(),
+        format!("{:.2}", f.median_tracking_ms),
+        format!("{:.2}", f.mean_tracking_ms),
+        number(f.ate_rmse, 6),
+        number(f.ate_tracking_rmse, 6),
+        number(f.rpe_translation, 6),
+        number(f.rpe_rotation_deg, 4),
+        format!("{:.2}", f.keypoints_removed_per_frame),
+        f.map_points_removed.to_string(),
+        f.loops.to_string(),
+        number(map.accuracy_median, 4),
+        number(map.ghost_points.map(|g| g as f64), 0),
+        number(map.dynamic_removed_percent, 2),
+        format!("\"{error}\""),
+    ]
+}
+
 /// `runs.csv`: one row per run.
 pub fn runs_csv(records: &[RunRecord]) -> String {
-    let mut out = String::from("sequence,mode,repetition,status,seconds,frames,coverage_percent,keyframes,median_tracking_ms,mean_tracking_ms,ate_rmse,ate_tracking_rmse,rpe_translation,rpe_rotation_deg,keypoints_removed_per_frame,map_points_removed,loops,map_accuracy_median,ghost_points,dynamic_removed_percent,error\n");
+    let mut out = format!("{}\n", RUNS_CSV_COLUMNS.join(","));
     for r in records {
-        let f = r.figures.clone().unwrap_or_default();
-        let map = f.map.clone().unwrap_or_default();
-        let error = r.error.as_deref().unwrap_or("").replace(['"', '\n'], "'");
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{:.1},{},{:.2},{},{:.2},{:.2},{},{},{},{},{:.2},{},{},{},{},{},\"{error}\"",
-            r.sequence,
-            r.mode.name(),
-            r.repetition,
-            if r.status == RunStatus::Ok { "ok" } else { "failed" },
-            r.seconds,
-            f.frames,
-            f.coverage_percent,
-            f.keyframes,
-            f.median_tracking_ms,
-            f.mean_tracking_ms,
-            number(f.ate_rmse, 6),
-            number(f.ate_tracking_rmse, 6),
-            number(f.rpe_translation, 6),
-            number(f.rpe_rotation_deg, 4),
-            f.keypoints_removed_per_frame,
-            f.map_points_removed,
-            f.loops,
-            number(map.accuracy_median, 4),
-            number(map.ghost_points.map(|g| g as f64), 0),
-            number(map.dynamic_removed_percent, 2),
-        );
+        let _ = writeln!(out, "{}", runs_csv_row(r).join(","));
     }
     out
 }

@@ -27,7 +27,8 @@ pub struct StereoDepth {
     pub sgbm: SgbmSettings,
 }
 
-/// The disparity map in pixels (row-major; negative where invalid).
+/// The disparity map in pixels (row-major; negative where invalid) of a pair of one
+/// size (the readers check it).
 #[cfg(feature = "opencv")]
 pub fn sgbm_disparity(
     left: &GrayImage,
@@ -38,15 +39,6 @@ pub fn sgbm_disparity(
     use opencv::core::Mat;
     use opencv::prelude::*;
     let error = |e: opencv::Error| format!("OpenCV StereoSGBM: {e}");
-    if left.dimensions() != right.dimensions() {
-        return Err(format!(
-            "the left image is {}x{} but the right one {}x{}",
-            left.width(),
-            left.height(),
-            right.width(),
-            right.height()
-        ));
-    }
     let (rows, cols) = (left.height() as i32, left.width() as i32);
     let left_mat = Mat::new_rows_cols_with_data(rows, cols, left.as_raw()).map_err(error)?;
     let right_mat = Mat::new_rows_cols_with_data(rows, cols, right.as_raw()).map_err(error)?;
@@ -95,7 +87,13 @@ pub fn stereo_depth(
         height: left.height(),
         metres: disparity
             .iter()
-            .map(|&d| if d > 0.0 { (stereo.bf / d as f64) as f32 } else { 0.0 })
+            .map(|&d| {
+                if d > 0.0 {
+                    (stereo.bf / d as f64) as f32
+                } else {
+                    0.0
+                }
+            })
             .collect(),
     })
 }
@@ -118,7 +116,11 @@ mod tests {
         let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
         assert!(valid.len() > disparity.len() / 2, "{} valid", valid.len());
         let close = valid.iter().filter(|&&d| (d - 12.0).abs() <= 0.5).count();
-        assert!(close * 10 >= valid.len() * 9, "{close} of {} within 0.5 px", valid.len());
+        assert!(
+            close * 10 >= valid.len() * 9,
+            "{close} of {} within 0.5 px",
+            valid.len()
+        );
         let depth = stereo_depth(
             &left,
             &right,

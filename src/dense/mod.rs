@@ -9,9 +9,9 @@
 //! and pictures `dense_perspective.png`, `dense_top.png`.
 
 pub mod cloud;
-pub mod disparity;
 pub mod compare;
 pub mod comparison;
+pub mod disparity;
 pub mod marching_cubes;
 pub mod masks;
 pub mod neighbours;
@@ -31,11 +31,11 @@ use crate::dop::DopConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
+use crate::io::image_files::DepthImage;
 use crate::io::ply::{write_obj, write_ply, PlyEncoding};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
-use crate::io::image_files::DepthImage;
 use cloud::{CloudBuilder, CloudSettings};
 use disparity::{stereo_depth, StereoDepth};
 use masks::{FrameKeypoints, MaskSettings, MaskSource, Masking};
@@ -242,7 +242,8 @@ fn depth_and_colour(
             let stereo = stereo.ok_or_else(|| {
                 IoError::invalid(what, "a stereo frame, but no stereo calibration was given")
             })?;
-            let depth = stereo_depth(&left, &right, stereo).map_err(|m| IoError::invalid(what, m))?;
+            let depth =
+                stereo_depth(&left, &right, stereo).map_err(|m| IoError::invalid(what, m))?;
             Ok((depth, image::DynamicImage::ImageLuma8(left).to_rgb8()))
         }
     }

@@ -150,7 +150,10 @@ mod tests {
         // error is 1 % of (L + 1) over L.
         for length in &errors.per_length {
             let expected = (length.length_m + 1.0) / length.length_m;
-            assert!((length.translation_percent - expected).abs() < 1e-9, "{length:?}");
+            assert!(
+                (length.translation_percent - expected).abs() < 1e-9,
+                "{length:?}"
+            );
         }
         assert!(errors.rotation_deg_per_100m.abs() < 1e-6);
     }

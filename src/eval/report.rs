@@ -244,7 +244,8 @@ pub fn evaluate(
     let reference_sync = reference.select(&reference_ids);
     let estimate_sync = estimate.select(&estimate_ids);
 
-    let kitti = kitti_errors(&reference_sync.poses, &estimate_sync.poses).filter(|k| k.segments > 0);
+    let kitti =
+        kitti_errors(&reference_sync.poses, &estimate_sync.poses).filter(|k| k.segments > 0);
     let (transform, poses_used) = alignment_transform(&reference_sync, &estimate_sync, options)?;
     let align = |trajectory: &Trajectory| Trajectory {
         timestamps: trajectory.timestamps.clone(),

@@ -116,7 +116,10 @@ impl KittiSequence {
         if times.is_empty() {
             return Err(IoError::invalid(&times_path, "lists no frame times"));
         }
-        let (left, right) = (count_pngs(&root.join("image_0"))?, count_pngs(&root.join("image_1"))?);
+        let (left, right) = (
+            count_pngs(&root.join("image_0"))?,
+            count_pngs(&root.join("image_1"))?,
+        );
         if right < left {
             return Err(IoError::invalid(
                 root.join("image_1"),
@@ -126,7 +129,10 @@ impl KittiSequence {
         if left < times.len() {
             return Err(IoError::invalid(
                 &times_path,
-                format!("lists {} frames but image_0 holds {left} images", times.len()),
+                format!(
+                    "lists {} frames but image_0 holds {left} images",
+                    times.len()
+                ),
             ));
         }
         let first = root.join("image_0").join(format!("{:06}.png", 0));
@@ -191,7 +197,20 @@ impl Sequence for KittiSequence {
     fn load(&self, index: usize) -> Result<Frame, IoError> {
         let file = format!("{index:06}.png");
         let left = read_gray(&self.root.join("image_0").join(&file))?;
-        let right = read_gray(&self.root.join("image_1").join(&file))?;
+        let right_path = self.root.join("image_1").join(&file);
+        let right = read_gray(&right_path)?;
+        if left.dimensions() != right.dimensions() {
+            return Err(IoError::invalid(
+                &right_path,
+                format!(
+                    "is {}x{} but its left image is {}x{}: a rectified pair has one size",
+                    right.width(),
+                    right.height(),
+                    left.width(),
+                    left.height()
+                ),
+            ));
+        }
         Ok(Frame {
             index,
             timestamp: self.times[index],

@@ -537,7 +537,7 @@ fn floor_level(scene: &Scene, up: usize, sign: f64) -> f64 {
 
 /// The minimum corner of a box of `size` centred on `p` across the floor and standing
 /// on the floor.
-fn standing_corner(
+pub(super) fn standing_corner(
     p: Vector3<f64>,
     size: &Vector3<f64>,
     up: usize,

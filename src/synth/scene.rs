@@ -114,6 +114,17 @@ fn nearest_entry<'a>(
 }
 
 impl Cuboid {
+    /// The distance from `p` to the box (0 inside): to its nearest point
+    /// \(\min(\max(p, b_{min}), b_{max})\).
+    pub fn distance_to(&self, p: &Vector3<f64>) -> f64 {
+        (p.sup(&self.min).inf(&self.max) - p).norm()
+    }
+
+    /// Whether every camera position keeps more than `clearance` metres from the box.
+    pub fn clear_of(&self, cameras: &[Vector3<f64>], clearance: f64) -> bool {
+        cameras.iter().all(|c| self.distance_to(c) > clearance)
+    }
+
     /// The eight corners.
     pub fn corners(&self) -> [Vector3<f64>; 8] {
         std::array::from_fn(|i| {
@@ -218,7 +229,7 @@ impl Scene {
             furniture: self
                 .furniture
                 .iter()
-                .filter(|c| (centre.sup(&c.min).inf(&c.max) - centre).norm() <= range)
+                .filter(|c| c.distance_to(centre) <= range)
                 .copied()
                 .collect(),
         }
@@ -337,11 +348,7 @@ impl Scene {
                 max: min + size,
                 texture: 2 + furniture.len() as u32,
             };
-            let clear = cameras.iter().all(|c| {
-                let nearest = c.sup(&candidate.min).inf(&candidate.max);
-                (nearest - c).norm() > clearance
-            });
-            if clear {
+            if candidate.clear_of(cameras, clearance) {
                 furniture.push(candidate);
             }
         }

@@ -10,7 +10,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::movers::{up_axis, Appearance, Behaviour, Mover};
+use super::movers::{standing_corner, up_axis, Appearance, Behaviour, Mover};
 use super::scene::{Cuboid, Scene};
 use crate::geometry::se3::Se3;
 use crate::random::Rng;
@@ -152,17 +152,22 @@ fn standing_box(
     size[along] = length;
     size[across] = width;
     size[up.0] = height;
-    let mut min = centre - size * 0.5;
-    min[up.0] = if up.1 > 0.0 { floor } else { floor - height };
-    (min, size)
+    (standing_corner(centre, &size, up.0, up.1, floor), size)
 }
 
-/// Whether a box keeps `clearance` metres from every camera position.
-fn clear_of(cameras: &[Vector3<f64>], min: &Vector3<f64>, max: &Vector3<f64>, clearance: f64) -> bool {
-    cameras.iter().all(|c| {
-        let nearest = c.sup(min).inf(max);
-        (nearest - c).norm() > clearance
-    })
+/// Whether the box at `min` of `size` keeps `clearance` metres from every camera.
+fn clear_of(
+    cameras: &[Vector3<f64>],
+    min: Vector3<f64>,
+    size: Vector3<f64>,
+    clearance: f64,
+) -> bool {
+    let cuboid = Cuboid {
+        min,
+        max: min + size,
+        texture: 0,
+    };
+    cuboid.clear_of(cameras, clearance)
 }
 
 /// The street scene and its movers along `poses`; movers' instance ids start at 1 and
@@ -175,8 +180,7 @@ pub fn build_street(
 ) -> (Scene, Vec<Mover>) {
     let up = up_axis(poses);
     let cameras: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
-    let mean_height =
-        cameras.iter().map(|c| c[up.0]).sum::<f64>() / cameras.len().max(1) as f64;
+    let mean_height = cameras.iter().map(|c| c[up.0]).sum::<f64>() / cameras.len().max(1) as f64;
     let floor = mean_height - up.1 * config.camera_height;
     let (mut lo, mut hi) = (
         Vector3::repeat(f64::INFINITY),
@@ -211,15 +215,23 @@ pub fn build_street(
                 rng.range(config.building_height[0], config.building_height[1]),
             );
             let (min, size) = standing_box(centre, &point.heading, dims, up, floor);
-            let max = min + size;
-            if clear_of(&cameras, &min, &max, config.half_width) {
+            if clear_of(&cameras, min, size, config.half_width) {
                 let texture = 2 + scene.furniture.len() as u32;
-                scene.furniture.push(Cuboid { min, max, texture });
+                scene.furniture.push(Cuboid {
+                    min,
+                    max: min + size,
+                    texture,
+                });
             }
         }
     }
     let mut movers = Vec::new();
-    let car = |min: Vector3<f64>, end: Vector3<f64>, size: Vector3<f64>, speed: f64, phase: f64, instance: u16| Mover {
+    let car = |min: Vector3<f64>,
+               end: Vector3<f64>,
+               size: Vector3<f64>,
+               speed: f64,
+               phase: f64,
+               instance: u16| Mover {
         instance,
         class: "car".into(),
         class_id: 2,
@@ -243,7 +255,7 @@ pub fn build_street(
             }
             let centre = point.position + point.left * side * config.parking_offset;
             let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
-            if !clear_of(&cameras, &min, &(min + size), config.parking_offset - 1.2) {
+            if !clear_of(&cameras, min, size, config.parking_offset - 1.2) {
                 continue;
             }
             let instance = movers.len() as u16 + 1;
@@ -265,11 +277,18 @@ pub fn build_street(
             let (start, end) = (min - point.heading * 30.0, min + point.heading * 30.0);
             let clear = (0..=30).all(|k| {
                 let at = start.lerp(&end, k as f64 / 30.0);
-                clear_of(&cameras, &at, &(at + size), 1.2)
+                clear_of(&cameras, at, size, 1.2)
             });
             if clear {
                 let instance = movers.len() as u16 + 1;
-                movers.push(car(start, end, size, config.car_speed, 2.9 * i as f64, instance));
+                movers.push(car(
+                    start,
+                    end,
+                    size,
+                    config.car_speed,
+                    2.9 * i as f64,
+                    instance,
+                ));
                 break;
             }
         }
@@ -286,11 +305,7 @@ pub fn build_street(
         };
         let mut size = Vector3::repeat(0.45);
         size[up.0] = 1.75;
-        let corner = |p: Vector3<f64>| {
-            let mut c = p - size * 0.5;
-            c[up.0] = if up.1 > 0.0 { floor } else { floor - size[up.0] };
-            c
-        };
+        let corner = |p: Vector3<f64>| standing_corner(p, &size, up.0, up.1, floor);
         movers.push(Mover {
             instance: movers.len() as u16 + 1,
             class: "person".into(),

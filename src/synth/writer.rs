@@ -152,14 +152,8 @@ fn save_error(out: &Path, name: &str) -> impl Fn(image::ImageError) -> IoError {
     }
 }
 
-/// Writes one frame's colour, depth and mask PNGs and its oracle detections.
-fn write_frame(
-    out: &Path,
-    stamp: f64,
-    rendered: &Rendered,
-    truth: TruthSources,
-    seed: u64,
-) -> Result<(), SynthError> {
+/// Writes one frame's colour and depth PNGs.
+fn write_images(out: &Path, stamp: f64, rendered: &Rendered) -> Result<(), SynthError> {
     let rgb_name = format!("rgb/{stamp:.6}.png");
     rendered
         .rgb
@@ -169,14 +163,14 @@ fn write_frame(
     depth_to_png16(&rendered.depth, DEPTH_SCALE)
         .save(out.join(&depth_name))
         .map_err(save_error(out, &depth_name))?;
-    write_truth(out, stamp, rendered, truth, seed)
+    Ok(())
 }
 
 /// Writes a frame's instance mask (`masks/`) and oracle detections
-/// (`detections_oracle/`) into `out`, named by `stamp`.
+/// (`detections_oracle/`) into each target folder, named by that folder's timestamp
+/// (the TUM layout's and the KITTI layout's); both are made once.
 fn write_truth(
-    out: &Path,
-    stamp: f64,
+    targets: &[(&Path, f64)],
     rendered: &Rendered,
     TruthSources {
         camera,
@@ -185,17 +179,14 @@ fn write_truth(
     }: TruthSources,
     seed: u64,
 ) -> Result<(), SynthError> {
-    let mask_name = format!("masks/{stamp:.6}.png");
     let mask = image::GrayImage::from_raw(
         camera.width,
         camera.height,
         rendered.mask.iter().map(|&i| i.min(255) as u8).collect(),
     )
     .expect("mask size matches");
-    mask.save(out.join(&mask_name))
-        .map_err(save_error(out, &mask_name))?;
-    let detections = FrameDetections {
-        timestamp: stamp,
+    let mut detections = FrameDetections {
+        timestamp: 0.0,
         detections: oracle.apply(
             &oracle_detections(&rendered.mask, camera.width, movers),
             camera.width,
@@ -203,12 +194,18 @@ fn write_truth(
             &mut Rng::new(seed),
         ),
     };
-    let json =
-        serde_json::to_string_pretty(&detections).map_err(|e| SynthError::Config(e.to_string()))?;
-    write_atomic(
-        &out.join(format!("detections_oracle/{stamp:.6}.json")),
-        json.as_bytes(),
-    )?;
+    for &(out, stamp) in targets {
+        let mask_name = format!("masks/{stamp:.6}.png");
+        mask.save(out.join(&mask_name))
+            .map_err(save_error(out, &mask_name))?;
+        detections.timestamp = stamp;
+        let json = serde_json::to_string_pretty(&detections)
+            .map_err(|e| SynthError::Config(e.to_string()))?;
+        write_atomic(
+            &out.join(format!("detections_oracle/{stamp:.6}.json")),
+            json.as_bytes(),
+        )?;
+    }
     Ok(())
 }
 
@@ -314,10 +311,7 @@ impl World {
             movers: self
                 .movers
                 .iter()
-                .filter(|m| {
-                    let c = m.cuboid_at(t);
-                    (centre.sup(&c.min).inf(&c.max) - centre).norm() <= range
-                })
+                .filter(|m| m.cuboid_at(t).distance_to(&centre) <= range)
                 .map(|m| (m.shape_at(t, &centre), m.instance))
                 .collect(),
         }
@@ -332,10 +326,14 @@ impl World {
         }
     }
 
-    /// The scene that a camera at `world_from_camera` can see.
-    fn visible_scene(&self, world_from_camera: &Se3) -> Scene {
-        self.scene
-            .near(&world_from_camera.translation.vector, self.render_range())
+    /// The scene that a camera at `world_from_camera` can see (all of a room).
+    fn visible_scene(&self, world_from_camera: &Se3) -> std::borrow::Cow<'_, Scene> {
+        if self.config.street.enabled {
+            let centre = world_from_camera.translation.vector;
+            std::borrow::Cow::Owned(self.scene.near(&centre, self.render_range()))
+        } else {
+            std::borrow::Cow::Borrowed(&self.scene)
+        }
     }
 
     fn frame_seed(&self, index: usize) -> u64 {
@@ -503,9 +501,15 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
                 oracle: &config.oracle,
             };
             let truth_seed = world.frame_seed(index) ^ 0x0AC1_E5EE;
-            write_frame(out, world.stamp(index), &rendered, truth, truth_seed)?;
+            write_images(out, world.stamp(index), &rendered)?;
+            let tum = (out, world.stamp(index));
+            let targets: &[(&Path, f64)] = if stereo {
+                &[tum, (&kitti, world.times[index])]
+            } else {
+                &[tum]
+            };
+            write_truth(targets, &rendered, truth, truth_seed)?;
             if stereo {
-                write_truth(&kitti, world.times[index], &rendered, truth, truth_seed)?;
                 let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
                 let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
                 for (sub, grey) in [("image_0", left), ("image_1", right)] {

@@ -70,10 +70,10 @@ pub enum Picture {
 
 impl Picture {
     /// The picture in colour (a grey one with its value in all three channels).
-    pub fn colour(&self) -> RgbImage {
+    pub fn into_colour(self) -> RgbImage {
         match self {
-            Picture::Colour(rgb) => rgb.clone(),
-            Picture::Grey(grey) => image::DynamicImage::ImageLuma8(grey.clone()).to_rgb8(),
+            Picture::Colour(rgb) => rgb,
+            Picture::Grey(grey) => image::DynamicImage::ImageLuma8(grey).to_rgb8(),
         }
     }
 }

@@ -84,7 +84,10 @@ pub fn match_stereo(
             if (right.level as i32 - level).abs() > 1 || right.x < min_u || right.x > max_u {
                 continue;
             }
-            let distance = hamming(&features.left.descriptors[i], &features.right.descriptors[j as usize]);
+            let distance = hamming(
+                &features.left.descriptors[i],
+                &features.right.descriptors[j as usize],
+            );
             if distance < best.0 {
                 best = (distance, j as usize);
             }
@@ -93,8 +96,13 @@ pub fn match_stereo(
             continue;
         }
         let right_u0 = features.right.keypoints[best.1].x;
-        let Some((right_u, sad)) = refine(features, pyramid, left.level as usize, (left.x, left.y), right_u0)
-        else {
+        let Some((right_u, sad)) = refine(
+            features,
+            pyramid,
+            left.level as usize,
+            (left.x, left.y),
+            right_u0,
+        ) else {
             continue;
         };
         let mut disparity = left.x - right_u;
@@ -217,7 +225,11 @@ fn refine(
         distances[at + 1] as f32,
     );
     let curvature = 2.0 * (d1 + d3 - 2.0 * d2);
-    let delta = if curvature > 0.0 { (d1 - d3) / curvature } else { 0.0 };
+    let delta = if curvature > 0.0 {
+        (d1 - d3) / curvature
+    } else {
+        0.0
+    };
     if !(-1.0..=1.0).contains(&delta) {
         return None;
     }
@@ -251,12 +263,17 @@ mod tests {
     /// row (a slanted plane): the right image of a pair whose depth is known.
     fn pair(width: u32, height: u32) -> (GrayImage, GrayImage, impl Fn(f32) -> f32) {
         let texture = |x: f32, y: f32| -> u8 {
-            let seed = ((x * 0.37).sin() * 43758.5 + (y * 0.71).cos() * 12345.6).fract().abs();
-            let blocks = (((x / 7.0).floor() as i32 * 31 + (y / 5.0).floor() as i32 * 17) % 97) as f32;
+            let seed = ((x * 0.37).sin() * 43758.5 + (y * 0.71).cos() * 12345.6)
+                .fract()
+                .abs();
+            let blocks =
+                (((x / 7.0).floor() as i32 * 31 + (y / 5.0).floor() as i32 * 17) % 97) as f32;
             (blocks * 2.0 + seed * 60.0).clamp(0.0, 255.0) as u8
         };
         let disparity = move |y: f32| 20.0 + 10.0 * y / height as f32;
-        let left = GrayImage::from_fn(width, height, |x, y| image::Luma([texture(x as f32, y as f32)]));
+        let left = GrayImage::from_fn(width, height, |x, y| {
+            image::Luma([texture(x as f32, y as f32)])
+        });
         let right = GrayImage::from_fn(width, height, |x, y| {
             // Right pixel x sees the left pixel x + d; linear interpolation between texels.
             let xs = x as f32 + disparity(y as f32);
@@ -286,7 +303,11 @@ mod tests {
         let bf = 40.0;
         let matches = match_stereo(&features, &extractor.pyramid, bf, 500.0);
         let matched = matches.matched();
-        assert!(matched * 5 > lf.len() * 2, "{matched} of {} matched", lf.len());
+        assert!(
+            matched * 5 > lf.len() * 2,
+            "{matched} of {} matched",
+            lf.len()
+        );
         let mut errors: Vec<f32> = lf
             .keypoints
             .iter()
