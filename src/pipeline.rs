@@ -207,6 +207,9 @@ pub struct DetectionTotals {
     /// removed as dynamic (by the DOP model or, with --mask-boxes, inside a box).
     pub map_points_updated: usize,
     pub map_points_removed: usize,
+    /// Updates where a point on a detected dynamic object counted as static because
+    /// the geometric check had verified it (`[dop] static_check`).
+    pub map_points_verified_static: usize,
     /// Keypoints called dynamic against the synthetic ground-truth masks (`masks/` of
     /// a `dopslam synth` sequence): every tracked frame with --dop, the detected
     /// keyframes with --mask-boxes.
@@ -819,6 +822,7 @@ impl DetectionBook {
                         );
                         totals.map_points_updated += done.effect.updated;
                         totals.map_points_removed += done.effect.removed;
+                        totals.map_points_verified_static += done.effect.verified_static;
                         totals.predicted_boxes += done.predicted_boxes;
                         totals.later_keyframes_reached += done.later_keyframes;
                         if let Some((people, image_area)) =
@@ -843,6 +847,7 @@ impl DetectionBook {
                         );
                         totals.map_points_updated += done.updated;
                         totals.map_points_removed += done.removed;
+                        totals.map_points_verified_static += done.verified_static;
                     }
                     if let Some(kf) = map.keyframes.get_mut(key) {
                         kf.detections = Some(frame.detections);

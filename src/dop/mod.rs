@@ -15,6 +15,7 @@
 //! - Box refinement by depth ([`boxes`], the paper's Algorithm 1, a reconstruction).
 
 pub mod boxes;
+pub mod consistency;
 pub mod tracks;
 
 use serde::{Deserialize, Serialize};
@@ -87,6 +88,12 @@ pub struct DopConfig {
     pub geometric_frames: u32,
     pub alpha_geometric: f32,
     pub geometric_max_outliers: f32,
+    /// The other half of the geometric check ([`consistency`]): a point that stays
+    /// consistent with the static points' pose for `static_seconds` is verified static;
+    /// its \(P\) then falls as outliers make it rise, and a detection counts as
+    /// \(S_t = 0\) on it (parked cars, seated people).
+    pub static_check: bool,
+    pub static_seconds: f32,
 }
 
 impl Default for DopConfig {
@@ -114,6 +121,8 @@ impl Default for DopConfig {
             geometric_frames: 2,
             alpha_geometric: 0.3,
             geometric_max_outliers: 0.35,
+            static_check: true,
+            static_seconds: 1.0,
         }
     }
 }
@@ -137,6 +146,9 @@ impl DopConfig {
         unit("geometric_max_outliers", self.geometric_max_outliers)?;
         if self.track_seconds < 0.0 || self.track_gate < 0.0 || self.track_max_speed < 0.0 {
             return Err("dop.track_seconds, track_gate and track_max_speed must be >= 0".into());
+        }
+        if self.static_seconds < 0.0 {
+            return Err("dop.static_seconds must be >= 0".into());
         }
         if self.geometric_frames == 0 {
             return Err("dop.geometric_frames must be at least 1".into());

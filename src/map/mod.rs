@@ -38,9 +38,9 @@ pub struct MapPoint {
     pub first_keyframe_id: usize,
     /// Moving probability \(P(X)\) of the DOP model (0.5 until a detection speaks).
     pub moving: f32,
-    /// Tracked frames in a row where the point was a pose outlier (the DOP model's
-    /// geometric check).
-    pub inconsistent: u32,
+    /// The DOP model's geometric check: runs of frames where the point was consistent
+    /// with the pose, or not.
+    pub consistency: crate::dop::consistency::Consistency,
 }
 
 impl MapPoint {
@@ -63,7 +63,7 @@ impl MapPoint {
             found: 1,
             first_keyframe_id,
             moving: 0.5,
-            inconsistent: 0,
+            consistency: Default::default(),
         }
     }
 

@@ -3,6 +3,8 @@
 //! - DOP: each map point the keyframe observes gets the update
 //!   \(P_t(X) = (1-\alpha) P_{t-1}(X) + \alpha S_t(x)\) with \(S_t\) from the refined
 //!   boxes ([`crate::dop::boxes`]); points that reach the cull threshold are removed.
+//!   A point the geometric check has verified static ([`crate::dop::consistency`])
+//!   counts as \(S_t = 0\) even inside a dynamic object (a parked car).
 //! - Mask boxes (the naive method): every map point seen inside a dynamic box goes.
 //! - Late and missed detections ([`DynamicObjects`], DOP only): the detected people
 //!   become 3-D objects followed across keyframes ([`crate::dop::tracks`]). Followed
@@ -25,12 +27,16 @@ use crate::map::{KeyFrameKey, Map};
 pub struct DetectionEffect {
     pub updated: usize,
     pub removed: usize,
+    /// Points on a detected dynamic object that the geometric check had verified
+    /// static: their update counts as \(S_t = 0\).
+    pub verified_static: usize,
 }
 
 impl std::ops::AddAssign for DetectionEffect {
     fn add_assign(&mut self, other: Self) {
         self.updated += other.updated;
         self.removed += other.removed;
+        self.verified_static += other.verified_static;
     }
 }
 
@@ -114,9 +120,16 @@ pub fn apply_boxes(
                 let Some(p) = map.points.get_mut(point) else {
                     continue;
                 };
-                p.moving = update(p.moving, s, alpha);
+                // On a dynamic object, but the geometry says it has not moved.
+                let verified = p.consistency.verified_static(config);
+                effect.verified_static += usize::from(s && verified);
+                p.moving = update(p.moving, s && !verified, alpha);
                 effect.updated += 1;
-                p.moving >= config.cull_threshold
+                // A point that is consistent right now is not "staying dynamic": it
+                // keeps its chance to be verified.
+                let holding =
+                    config.static_check && p.consistency.inlier_run >= config.geometric_frames;
+                p.moving >= config.cull_threshold && !holding
             }
         };
         if remove && map.points.contains_key(point) {
@@ -323,7 +336,8 @@ mod tests {
                 effect,
                 DetectionEffect {
                     updated: 6,
-                    removed: 0
+                    removed: 0,
+                    ..Default::default()
                 },
                 "update {n}"
             );
@@ -341,7 +355,8 @@ mod tests {
             effect,
             DetectionEffect {
                 updated: 6,
-                removed: 4
+                removed: 4,
+                ..Default::default()
             }
         );
         assert!(points[..4].iter().all(|p| !map.points.contains_key(*p)));
@@ -405,7 +420,8 @@ mod tests {
             effect,
             DetectionEffect {
                 updated: 0,
-                removed: 5
+                removed: 5,
+                ..Default::default()
             }
         );
         assert!(map.points.contains_key(points[5]));

@@ -61,6 +61,19 @@ fn squared(e: &Vector3<f64>, stereo: bool, information: f64) -> f64 {
     s * information
 }
 
+/// Whether `observation` reprojects within the \(\chi^2_{0.95}\) gate from `pose`
+/// (the test that makes an inlier).
+pub fn within_gate(camera: &StereoCamera, pose: &Se3, observation: &PoseObservation) -> bool {
+    error(camera, pose, observation).is_some_and(|(e, _)| {
+        let gate = if observation.stereo {
+            CHI2_STEREO
+        } else {
+            CHI2_MONO
+        };
+        squared(&e, observation.stereo, observation.information) <= gate
+    })
+}
+
 /// Optimises `initial` (`camera_from_world`) against the observations.
 pub fn optimise_pose(
     camera: &StereoCamera,

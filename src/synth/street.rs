@@ -1,5 +1,6 @@
 //! A street canyon along the camera path, for stereo sequences in the KITTI layout:
-//! a road `camera_height` below the cameras, buildings on both sides set back from the
+//! a road `camera_height` below the cameras (slabs that follow the path's height),
+//! buildings on both sides set back from the
 //! path, cars parked at the kerbs (class "car", yet static: where masking every car
 //! hurts), cars driving along the road in the other lane, and pedestrians crossing
 //! ahead or walking on the pavements.
@@ -41,6 +42,9 @@ pub struct StreetConfig {
     pub pedestrian_speed: f64,
     /// Only what lies within this distance of the camera is rendered (m).
     pub render_range: f64,
+    /// Path length covered by each slab of road (m); the road follows the path's
+    /// height slab by slab.
+    pub road_spacing: f64,
 }
 
 impl Default for StreetConfig {
@@ -59,6 +63,7 @@ impl Default for StreetConfig {
             pedestrians: 4,
             pedestrian_speed: 1.4,
             render_range: 70.0,
+            road_spacing: 4.0,
         }
     }
 }
@@ -73,6 +78,7 @@ impl StreetConfig {
             ("car_speed", self.car_speed),
             ("pedestrian_speed", self.pedestrian_speed),
             ("render_range", self.render_range),
+            ("road_spacing", self.road_spacing),
         ];
         for (key, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -94,6 +100,9 @@ impl StreetConfig {
         Ok(())
     }
 }
+
+/// How deep the road slabs (and the buildings' footings) reach below the road (m).
+const ROAD_THICKNESS: f64 = 3.0;
 
 /// A point along the path: position, horizontal heading and the horizontal left.
 struct PathPoint {
@@ -180,8 +189,9 @@ pub fn build_street(
 ) -> (Scene, Vec<Mover>) {
     let up = up_axis(poses);
     let cameras: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
-    let mean_height = cameras.iter().map(|c| c[up.0]).sum::<f64>() / cameras.len().max(1) as f64;
-    let floor = mean_height - up.1 * config.camera_height;
+    // The road follows the path's height (KITTI 00 climbs 11 m in its first 1000
+    // frames): everything stands on the road under its own path point.
+    let floor_under = |p: &Vector3<f64>| p[up.0] - up.1 * config.camera_height;
     let (mut lo, mut hi) = (
         Vector3::repeat(f64::INFINITY),
         Vector3::repeat(f64::NEG_INFINITY),
@@ -190,11 +200,14 @@ pub fn build_street(
         lo = lo.inf(c);
         hi = hi.sup(c);
     }
-    // The "room": the road below, a far sky above, distant facades all round.
+    // The "room": ground well below the lowest road, a far sky above, distant facades
+    // all round; the road itself is slabs along the path (below).
     let margin = config.half_width + 25.0;
     let (mut min, mut max) = (lo.add_scalar(-margin), hi.add_scalar(margin));
-    let sky = mean_height + up.1 * 30.0;
-    (min[up.0], max[up.0]) = (floor.min(sky), floor.max(sky));
+    let (low, high) = if up.1 > 0.0 { (lo, hi) } else { (hi, lo) };
+    let ground = low[up.0] - up.1 * (config.camera_height + ROAD_THICKNESS);
+    let sky = high[up.0] + up.1 * 30.0;
+    (min[up.0], max[up.0]) = (ground.min(sky), ground.max(sky));
     let mut scene = Scene {
         room: Cuboid {
             min,
@@ -214,7 +227,14 @@ pub fn build_street(
                 depth,
                 rng.range(config.building_height[0], config.building_height[1]),
             );
-            let (min, size) = standing_box(centre, &point.heading, dims, up, floor);
+            // Sunk below the road so that no slope shows a gap under it.
+            let (min, size) = standing_box(
+                centre,
+                &point.heading,
+                (dims.0, dims.1, dims.2 + ROAD_THICKNESS),
+                up,
+                floor_under(&point.position) - up.1 * ROAD_THICKNESS,
+            );
             if clear_of(&cameras, min, size, config.half_width) {
                 let texture = 2 + scene.furniture.len() as u32;
                 scene.furniture.push(Cuboid {
@@ -254,6 +274,7 @@ pub fn build_street(
                 continue;
             }
             let centre = point.position + point.left * side * config.parking_offset;
+            let floor = floor_under(&point.position);
             let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
             if !clear_of(&cameras, min, size, config.parking_offset - 1.2) {
                 continue;
@@ -273,6 +294,7 @@ pub fn build_street(
         for _attempt in 0..20 {
             let point = pick(&mut rng);
             let centre = point.position + point.left * 1.8;
+            let floor = floor_under(&point.position);
             let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
             let (start, end) = (min - point.heading * 30.0, min + point.heading * 30.0);
             let clear = (0..=30).all(|k| {
@@ -305,6 +327,7 @@ pub fn build_street(
         };
         let mut size = Vector3::repeat(0.45);
         size[up.0] = 1.75;
+        let floor = floor_under(&point.position);
         let corner = |p: Vector3<f64>| standing_corner(p, &size, up.0, up.1, floor);
         movers.push(Mover {
             instance: movers.len() as u16 + 1,
@@ -329,5 +352,23 @@ pub fn build_street(
         .map(Mover::swept_box)
         .collect();
     scene.make_room_for(&driving, up.0, 0.3);
+    // The road: a slab under every few metres of path, its top `camera_height` below
+    // the cameras there, wide enough to reach the buildings.
+    let reach = config.half_width + 12.0;
+    for point in along_path(poses, up, config.road_spacing) {
+        let top = floor_under(&point.position);
+        let (min, size) = standing_box(
+            point.position,
+            &point.heading,
+            (config.road_spacing * 1.5, 2.0 * reach, ROAD_THICKNESS),
+            up,
+            top - up.1 * ROAD_THICKNESS,
+        );
+        scene.furniture.push(Cuboid {
+            min,
+            max: min + size,
+            texture: 1,
+        });
+    }
     (scene, movers)
 }

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
 use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
+use crate::dop::consistency::Verdict;
 use crate::dop::DopConfig;
 use crate::features::ScalePyramid;
 use crate::features::{hamming, Descriptor};
@@ -24,7 +25,7 @@ use crate::geometry::se3::{self, Se3};
 use crate::map::visibility::predict_view;
 use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey, SharedMap};
 use crate::optim::pnp::{epnp_ransac, Correspondence, Ransac};
-use crate::optim::pose_only::{optimise_pose, PoseObservation};
+use crate::optim::pose_only::{optimise_pose, within_gate, PoseObservation};
 use crate::optim::robust::CHI2_MONO;
 use crate::optim::stereo_projection::StereoCamera;
 
@@ -92,8 +93,10 @@ pub struct FrameReport {
     /// dynamic.
     pub dynamic_keypoints: usize,
     pub dynamic_map_points: usize,
-    /// Map points whose probability the geometric check raised in this frame.
-    pub geometric_updates: usize,
+    /// Map points whose probability the geometric check raised and lowered in this
+    /// frame.
+    pub geometric_raised: usize,
+    pub geometric_lowered: usize,
     /// The keyframe made from this frame, for local mapping.
     #[serde(skip)]
     pub new_keyframe: Option<KeyFrameKey>,
@@ -289,7 +292,8 @@ impl Tracker {
             keyframe: false,
             dynamic_keypoints: 0,
             dynamic_map_points: 0,
-            geometric_updates: 0,
+            geometric_raised: 0,
+            geometric_lowered: 0,
             new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
@@ -363,9 +367,11 @@ impl Tracker {
                 }
             }
         }
-        if let (Some((_, points, _)), Some(dop)) = (&tracked, &self.dop) {
+        if let (Some((pose, points, _)), Some(dop)) = (&tracked, &self.dop) {
             if dop.geometric {
-                report.geometric_updates = geometric_check(dop, &mut map, &candidates, points);
+                let checks = self.consistency(&map, &frame, pose, &candidates, points);
+                (report.geometric_raised, report.geometric_lowered) =
+                    geometric_check(dop, &mut map, &checks, frame.timestamp);
             }
         }
         report.matching_ms = timing.matching;
@@ -448,14 +454,7 @@ impl Tracker {
                 kept[i] = points[i];
                 continue;
             }
-            let k = &frame.keypoints[i];
-            let stereo = frame.right_u[i] > 0.0;
-            observations.push(PoseObservation {
-                point_world: point.position,
-                measurement: Vector3::new(k.x as f64, k.y as f64, frame.right_u[i] as f64),
-                stereo,
-                information: self.pyramid.inverse_sigma2[k.level as usize],
-            });
+            observations.push(self.observation(frame, i, point));
             indices.push(i);
         }
         if observations.len() < 10 {
@@ -472,6 +471,45 @@ impl Tracker {
         }
         timing.optimisation += start.elapsed().as_secs_f64() * 1e3;
         (estimate.camera_from_world, kept, inliers)
+    }
+
+    /// Keypoint `i` of `frame` seeing `point`, for the pose optimisation.
+    fn observation(&self, frame: &Frame, i: usize, point: &MapPoint) -> PoseObservation {
+        let k = &frame.keypoints[i];
+        PoseObservation {
+            point_world: point.position,
+            measurement: Vector3::new(k.x as f64, k.y as f64, frame.right_u[i] as f64),
+            stereo: frame.right_u[i] > 0.0,
+            information: self.pyramid.inverse_sigma2[k.level as usize],
+        }
+    }
+
+    /// The geometric check's verdicts on the frame's final matches: the optimisation's
+    /// inliers are consistent; points that took no part (dynamic) are tested against
+    /// the final pose with the same gate.
+    fn consistency(
+        &self,
+        map: &Map,
+        frame: &Frame,
+        pose: &Se3,
+        candidates: &[Option<MapPointKey>],
+        inliers: &[Option<MapPointKey>],
+    ) -> Vec<(MapPointKey, bool)> {
+        candidates
+            .iter()
+            .zip(inliers)
+            .enumerate()
+            .filter_map(|(i, (candidate, inlier))| {
+                let key = (*candidate)?;
+                let point = map.points.get(key)?;
+                let consistent = if self.excluded(point) {
+                    within_gate(&self.camera, pose, &self.observation(frame, i, point))
+                } else {
+                    inlier.is_some()
+                };
+                Some((key, consistent))
+            })
+            .collect()
     }
 
     /// Projects the last frame's map points with the constant-velocity prediction.
@@ -902,53 +940,46 @@ fn propagate_and_expand(
     crate::dop::expand(dop, &positions, &p, &origins)
 }
 
-/// The DOP model's geometric check: of the frame's final matches (`candidates`) that
-/// took part in the pose (not dynamic), those the optimisation kept as inliers
-/// (`inliers`) are consistent, the others are not. A point inconsistent in
-/// `geometric_frames` tracked frames in a row gets \(P \leftarrow (1-\alpha_g) P +
-/// \alpha_g\). Frames with more than `geometric_max_outliers` of their matches
-/// inconsistent are skipped: there the pose itself is in doubt. Returns the number of
-/// points raised.
+/// The DOP model's geometric check ([`crate::dop::consistency`]) on one frame's
+/// verdicts `checks` (map point, consistent), made at `time`. Frames where more than
+/// `geometric_max_outliers` of the matches that took part in the pose are inconsistent
+/// are skipped: there the pose itself is in doubt. Returns the number of points raised
+/// and lowered.
 fn geometric_check(
     dop: &DopConfig,
     map: &mut Map,
-    candidates: &[Option<MapPointKey>],
-    inliers: &[Option<MapPointKey>],
-) -> usize {
-    let mut consistent = Vec::new();
-    let mut inconsistent = Vec::new();
-    for (candidate, inlier) in candidates.iter().zip(inliers) {
-        let Some(key) = candidate else { continue };
-        let Some(point) = map.points.get(*key) else {
+    checks: &[(MapPointKey, bool)],
+    time: f64,
+) -> (usize, usize) {
+    let mut judged = Vec::with_capacity(checks.len());
+    let (mut total, mut outliers) = (0, 0);
+    for &(key, consistent) in checks {
+        let Some(point) = map.points.get(key) else {
             continue;
         };
-        if dop.removed(point.moving) {
-            continue;
+        let dynamic = dop.removed(point.moving);
+        if !dynamic {
+            total += 1;
+            outliers += usize::from(!consistent);
         }
-        if inlier.is_some() {
-            consistent.push(*key);
-        } else {
-            inconsistent.push(*key);
-        }
+        judged.push((key, consistent, dynamic));
     }
-    let total = consistent.len() + inconsistent.len();
-    if total == 0 || inconsistent.len() as f32 > dop.geometric_max_outliers * total as f32 {
-        return 0;
+    if total == 0 || outliers as f32 > dop.geometric_max_outliers * total as f32 {
+        return (0, 0);
     }
-    for key in consistent {
-        map.points[key].inconsistent = 0;
-    }
-    let mut raised = 0;
-    for key in inconsistent {
+    let (mut raised, mut lowered) = (0, 0);
+    for (key, consistent, dynamic) in judged {
         let point = &mut map.points[key];
-        point.inconsistent += 1;
-        if point.inconsistent >= dop.geometric_frames {
-            point.inconsistent = 0;
-            point.moving = crate::dop::update(point.moving, true, dop.alpha_geometric);
-            raised += 1;
+        match point
+            .consistency
+            .observe(consistent, time, dynamic, &mut point.moving, dop)
+        {
+            Verdict::Raised => raised += 1,
+            Verdict::Lowered => lowered += 1,
+            Verdict::Unchanged => {}
         }
     }
-    raised
+    (raised, lowered)
 }
 
 #[cfg(test)]
@@ -971,47 +1002,88 @@ mod tests {
         (map, keys)
     }
 
+    /// Verdicts: the first `outliers` points inconsistent, the others consistent.
+    fn checks(keys: &[MapPointKey], outliers: usize) -> Vec<(MapPointKey, bool)> {
+        keys.iter()
+            .enumerate()
+            .map(|(i, k)| (*k, i >= outliers))
+            .collect()
+    }
+
     #[test]
     fn geometric_check_raises_points_that_stay_outliers() {
         let dop = DopConfig::default();
         let (mut map, keys) = map_with_points(10);
-        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
         // Points 0 and 1 are outliers, the rest inliers.
-        let mut inliers = candidates.clone();
-        inliers[0] = None;
-        inliers[1] = None;
-        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
-        assert_eq!(map.points[keys[0]].inconsistent, 1);
+        assert_eq!(
+            geometric_check(&dop, &mut map, &checks(&keys, 2), 0.0),
+            (0, 0)
+        );
+        assert_eq!(map.points[keys[0]].consistency.outlier_run, 1);
         // The second frame in a row raises them: 0.5 -> 0.65.
-        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 2);
+        assert_eq!(
+            geometric_check(&dop, &mut map, &checks(&keys, 2), 0.1),
+            (2, 0)
+        );
         assert!((map.points[keys[0]].moving - 0.65).abs() < 1e-6);
         assert!((map.points[keys[2]].moving - 0.5).abs() < 1e-6);
-        // Now dynamic, they are no longer judged.
-        assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
+        // Now dynamic, they are not raised again.
+        assert_eq!(
+            geometric_check(&dop, &mut map, &checks(&keys, 2), 0.2),
+            (0, 0)
+        );
+        assert_eq!(
+            geometric_check(&dop, &mut map, &checks(&keys, 2), 0.3),
+            (0, 0)
+        );
         // A consistent frame resets the count.
         let (mut map, keys) = map_with_points(10);
-        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
-        let mut inliers = candidates.clone();
-        inliers[0] = None;
-        geometric_check(&dop, &mut map, &candidates, &inliers);
-        geometric_check(&dop, &mut map, &candidates, &candidates);
-        assert_eq!(map.points[keys[0]].inconsistent, 0);
+        geometric_check(&dop, &mut map, &checks(&keys, 1), 0.0);
+        geometric_check(&dop, &mut map, &checks(&keys, 0), 0.1);
+        assert_eq!(map.points[keys[0]].consistency.outlier_run, 0);
     }
 
     #[test]
     fn geometric_check_skips_frames_where_the_pose_is_in_doubt() {
         let dop = DopConfig::default();
         let (mut map, keys) = map_with_points(10);
-        let candidates: Vec<Option<MapPointKey>> = keys.iter().copied().map(Some).collect();
         // 4 of 10 outliers: above geometric_max_outliers (0.35).
-        let inliers: Vec<Option<MapPointKey>> = candidates
-            .iter()
-            .enumerate()
-            .map(|(i, k)| if i < 4 { None } else { *k })
-            .collect();
-        for _ in 0..3 {
-            assert_eq!(geometric_check(&dop, &mut map, &candidates, &inliers), 0);
+        for n in 0..3 {
+            assert_eq!(
+                geometric_check(&dop, &mut map, &checks(&keys, 4), f64::from(n)),
+                (0, 0)
+            );
         }
-        assert!(keys.iter().all(|k| map.points[*k].inconsistent == 0));
+        assert!(keys
+            .iter()
+            .all(|k| map.points[*k].consistency == Default::default()));
+        // Dynamic points do not count towards the share: 4 dynamic outliers of 10 do
+        // not put the pose in doubt.
+        for k in &keys[..4] {
+            map.points[*k].moving = 0.9;
+        }
+        geometric_check(&dop, &mut map, &checks(&keys, 4), 4.0);
+        assert_eq!(map.points[keys[9]].consistency.inlier_run, 1);
+    }
+
+    #[test]
+    fn dynamic_points_that_stay_consistent_are_lowered_back_into_the_pose() {
+        let dop = DopConfig::default();
+        let (mut map, keys) = map_with_points(10);
+        // Two points on a parked car: detected, dynamic, but they never move.
+        for k in &keys[..2] {
+            map.points[*k].moving = 0.75;
+        }
+        let mut lowered = 0;
+        for n in 0..30 {
+            lowered += geometric_check(&dop, &mut map, &checks(&keys, 0), f64::from(n) * 0.1).1;
+        }
+        assert!(lowered > 0);
+        assert!(keys[..2]
+            .iter()
+            .all(|k| !dop.removed(map.points[*k].moving)));
+        assert!(keys[..2]
+            .iter()
+            .all(|k| map.points[*k].consistency.verified_static(&dop)));
     }
 }

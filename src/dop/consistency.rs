@@ -1,0 +1,161 @@
+//! The geometric check's memory of one map point (beyond the paper; see the
+//! `[dop] geometric` and `static_check` parameters of [`DopConfig`]).
+//!
+//! After each tracked frame whose pose is trusted, every map point matched in it is
+//! either *consistent* (it reprojects within the \(\chi^2_{0.95}\) gate of the pose
+//! estimated from the static points: 2 degrees of freedom, 3 with depth) or not. Points
+//! in a dynamic state took no part in that pose, so for them the test is independent
+//! evidence.
+//!
+//! - **Outliers raise** \(P\): `geometric_frames` inconsistent frames in a row give
+//!   \(P \leftarrow (1 - \alpha_g) P + \alpha_g\) (points in a static state only: the
+//!   others are already out of the pose).
+//! - **Verified static lowers** \(P\): a run of consistent frames spanning at least
+//!   `static_seconds` makes the point *verified static*; from then on every
+//!   `geometric_frames` consistent frames give \(P \leftarrow (1 - \alpha_g) P\), and a
+//!   keyframe's detection that puts it on a dynamic object counts as \(S_t = 0\) (a
+//!   parked car, a seated person: a dynamic class that does not move). One
+//!   inconsistent frame ends the run.
+
+use super::DopConfig;
+
+/// Consistency runs of one map point.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Consistency {
+    /// Tracked frames in a row where the point was inconsistent.
+    pub outlier_run: u32,
+    /// Consistent frames in the current run, and the times of its first and last.
+    pub inlier_run: u32,
+    pub since: f64,
+    pub until: f64,
+}
+
+/// What one observation did to \(P\).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    Raised,
+    Lowered,
+    Unchanged,
+}
+
+impl Consistency {
+    /// Whether the current consistent run spans `static_seconds`.
+    pub fn verified_static(&self, config: &DopConfig) -> bool {
+        config.static_check
+            && self.inlier_run > 0
+            && self.until - self.since >= f64::from(config.static_seconds)
+    }
+
+    /// Records one trusted frame at `time` and updates `moving` (\(P\)); `dynamic` says
+    /// whether the point was left out of the pose.
+    pub fn observe(
+        &mut self,
+        consistent: bool,
+        time: f64,
+        dynamic: bool,
+        moving: &mut f32,
+        config: &DopConfig,
+    ) -> Verdict {
+        if !consistent {
+            self.inlier_run = 0;
+            if dynamic {
+                return Verdict::Unchanged;
+            }
+            self.outlier_run += 1;
+            if self.outlier_run < config.geometric_frames {
+                return Verdict::Unchanged;
+            }
+            self.outlier_run = 0;
+            *moving = super::update(*moving, true, config.alpha_geometric);
+            return Verdict::Raised;
+        }
+        self.outlier_run = 0;
+        if self.inlier_run == 0 {
+            self.since = time;
+        }
+        self.inlier_run += 1;
+        self.until = time;
+        if self.verified_static(config) && self.inlier_run % config.geometric_frames == 0 {
+            *moving = super::update(*moving, false, config.alpha_geometric);
+            return Verdict::Lowered;
+        }
+        Verdict::Unchanged
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outliers_in_a_row_raise_a_static_point_and_an_inlier_breaks_the_row() {
+        let config = DopConfig::default();
+        let (mut c, mut p) = (Consistency::default(), 0.5);
+        assert_eq!(
+            c.observe(false, 0.0, false, &mut p, &config),
+            Verdict::Unchanged
+        );
+        assert_eq!(
+            c.observe(false, 0.1, false, &mut p, &config),
+            Verdict::Raised
+        );
+        assert!((p - 0.65).abs() < 1e-6);
+        assert_eq!(
+            c.observe(false, 0.2, false, &mut p, &config),
+            Verdict::Unchanged
+        );
+        assert_eq!(
+            c.observe(true, 0.3, false, &mut p, &config),
+            Verdict::Unchanged
+        );
+        assert_eq!(
+            c.observe(false, 0.4, false, &mut p, &config),
+            Verdict::Unchanged
+        );
+        assert!((p - 0.65).abs() < 1e-6);
+        // A dynamic point is not raised further.
+        let (mut c, mut p) = (Consistency::default(), 0.8);
+        for t in 0..4 {
+            c.observe(false, f64::from(t), true, &mut p, &config);
+        }
+        assert_eq!(p, 0.8);
+    }
+
+    #[test]
+    fn a_point_consistent_for_static_seconds_is_verified_and_lowered() {
+        let config = DopConfig::default();
+        let (mut c, mut p) = (Consistency::default(), 0.9);
+        let frames = (config.static_seconds * 10.0).round() as u32;
+        // 10 Hz: consistent from 0 s; verified once the run spans static_seconds.
+        for n in 0..frames {
+            let v = c.observe(true, f64::from(n) * 0.1, true, &mut p, &config);
+            assert_eq!(v, Verdict::Unchanged, "frame {n}");
+            assert!(!c.verified_static(&config));
+        }
+        let mut lowered = 0;
+        for n in frames..frames + 4 {
+            if c.observe(true, f64::from(n) * 0.1, true, &mut p, &config) == Verdict::Lowered {
+                lowered += 1;
+            }
+            assert!(c.verified_static(&config));
+        }
+        assert_eq!(lowered, 4 / config.geometric_frames as usize);
+        assert!((p - 0.9 * 0.7f32.powi(lowered as i32)).abs() < 1e-5);
+        // One inconsistent frame ends the run.
+        c.observe(false, 2.0, true, &mut p, &config);
+        assert!(!c.verified_static(&config));
+        // Off: never verified.
+        let off = DopConfig {
+            static_check: false,
+            ..config
+        };
+        let (mut c, mut p) = (Consistency::default(), 0.9);
+        for n in 0..40 {
+            assert_eq!(
+                c.observe(true, f64::from(n) * 0.1, true, &mut p, &off),
+                Verdict::Unchanged
+            );
+        }
+        assert_eq!(p, 0.9);
+    }
+}
