@@ -4,6 +4,12 @@
 //! sequences in (`io`), geometry helpers (`geometry`), configuration (`config`),
 //! and evaluation against ground truth (`eval`). Lower layers never import higher
 //! ones: `geometry` knows nothing of datasets, `io` nothing of evaluation.
+//!
+//! No `unwrap` in library code (clippy's `unwrap_used` is denied outside tests): what
+//! comes from input returns an error; the remaining `expect`s state invariants (a
+//! poisoned lock, a buffer sized just above).
+
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod batch;
 pub mod bow;

@@ -174,10 +174,26 @@ fn deterministic_runs_repeat_exactly_with_local_mapping() {
     };
     let first = run_sequence(sequence.as_ref(), &config, &base.join("a"), &options).unwrap();
     run_sequence(sequence.as_ref(), &config, &base.join("b"), &options).unwrap();
+    // And on one thread and on three: the thread count changes nothing.
+    for threads in [1, 3] {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let out = base.join(format!("threads-{threads}"));
+                run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+            });
+    }
     for file in ["trajectory.txt", "keyframes.txt", "map.ply"] {
         let a = std::fs::read(base.join("a").join(file)).unwrap();
-        let b = std::fs::read(base.join("b").join(file)).unwrap();
-        assert!(a == b, "{file} differs between two deterministic runs");
+        for other in ["b", "threads-1", "threads-3"] {
+            let b = std::fs::read(base.join(other).join(file)).unwrap();
+            assert!(
+                a == b,
+                "{file} differs between deterministic runs (a, {other})"
+            );
+        }
     }
     // Local mapping ran on every keyframe and connected them: duplicates were fused,
     // bundle adjustment ran, and the map is still accurate.

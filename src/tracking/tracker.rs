@@ -315,7 +315,10 @@ impl Tracker {
                 report.reference = self.reference.map(|k| (k, Se3::identity()));
                 report.inliers = with_depth;
                 self.state = TrackingState::Ok;
-                let points = map.keyframes[self.reference.unwrap()].map_points.clone();
+                let points = self
+                    .reference
+                    .and_then(|k| map.keyframes.get(k))
+                    .map_or_else(Vec::new, |kf| kf.map_points.clone());
                 self.last = Some(LastFrame {
                     frame,
                     camera_from_world: pose,

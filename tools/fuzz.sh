@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Runs every fuzz target of tools/fuzz for SECONDS each (default 600), one after the
+# other, on a nightly toolchain with cargo-fuzz (installed here when missing). The
+# seeds in tools/fuzz/corpus/TARGET are read; new inputs go to outputs/fuzz/TARGET
+# (git-ignored). A crash stops the script with libFuzzer's report and the input under
+# tools/fuzz/artifacts/TARGET/: add it to tests/bad_input.rs as a regression test.
+#
+#   bash tools/fuzz.sh [SECONDS] [TARGET...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${1:-600}
+shift || true
+command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
+rustup toolchain list | grep -q nightly || rustup toolchain install nightly --profile minimal
+command -v cargo-fuzz >/dev/null 2>&1 || cargo install cargo-fuzz
+targets=("$@")
+if [ ${#targets[@]} -eq 0 ]; then
+    mapfile -t targets < <(cargo +nightly fuzz list --fuzz-dir tools/fuzz)
+fi
+for target in "${targets[@]}"; do
+    echo "== $target: ${seconds} s"
+    mkdir -p "outputs/fuzz/$target"
+    cargo +nightly fuzz run --fuzz-dir tools/fuzz "$target" \
+        "outputs/fuzz/$target" "tools/fuzz/corpus/$target" -- \
+        -max_total_time="$seconds" -rss_limit_mb=2048 -max_len=65536 2>&1 | tail -n 3
+done
