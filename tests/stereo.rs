@@ -56,7 +56,9 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     assert!(report["detection"]["per_class"]["car"].as_u64().unwrap() > 0);
     // Parked cars are detected at every keyframe, yet they do not move: the static
     // check gives some of their points back as static.
-    let verified = report["detection"]["map_points_verified_static"].as_u64().unwrap();
+    let verified = report["detection"]["map_points_verified_static"]
+        .as_u64()
+        .unwrap();
     assert!(verified > 0, "no detected point verified static");
     if dense {
         let fused = json(&out.join("dense.json"));

@@ -61,6 +61,10 @@ fn gate(stereo: bool) -> f64 {
 }
 
 /// The residual and the camera-frame point, or `None` behind the camera.
+/// Chunks of points whose Schur complements are summed separately (a fixed count, not
+/// one per thread: see the reduced camera system).
+const SCHUR_CHUNKS: usize = 8;
+
 fn residual(
     camera: &StereoCamera,
     pose: &Se3,
@@ -212,18 +216,19 @@ fn levenberg_marquardt(
                     d.try_inverse()
                 })
                 .collect();
-            // Reduced camera system S = U - W V^{-1} W^T, accumulated per point in
-            // parallel (each worker its own copy of the values), then summed.
-            // Few large chunks: each worker's copy of the values is the whole pattern.
-            let chunk = n_points.div_ceil(rayon::current_num_threads()).max(1);
-            let reduced = (0..n_points)
+            // Reduced camera system S = U - W V^{-1} W^T, accumulated per point over a
+            // fixed number of chunks in parallel (each its own copy of the values), then
+            // summed in chunk order: the sum does not depend on the thread count, so
+            // deterministic runs repeat exactly on any machine.
+            let chunk = n_points.div_ceil(SCHUR_CHUNKS).max(1);
+            let partials: Vec<(Vec<f64>, DVector<f64>)> = (0..n_points.div_ceil(chunk))
                 .into_par_iter()
-                .with_min_len(chunk)
-                .fold(
-                    || (pattern.zeros(), DVector::<f64>::zeros(6 * free)),
-                    |(mut values, mut rhs), j| {
+                .map(|c| {
+                    let mut values = pattern.zeros();
+                    let mut rhs = DVector::<f64>::zeros(6 * free);
+                    for j in c * chunk..((c + 1) * chunk).min(n_points) {
                         let Some(v_inv) = damped_v[j] else {
-                            return (values, rhs);
+                            continue;
                         };
                         let blocks = &coupling[j];
                         let mut pair = slots[j].iter();
@@ -237,19 +242,17 @@ fn levenberg_marquardt(
                                 pattern.add_at(&mut values, slot, m.as_slice());
                             }
                         }
-                        (values, rhs)
-                    },
-                )
-                .reduce(
-                    || (pattern.zeros(), DVector::<f64>::zeros(6 * free)),
-                    |(mut a, mut ra), (b, rb)| {
-                        for (x, y) in a.iter_mut().zip(&b) {
-                            *x += y;
-                        }
-                        ra += rb;
-                        (a, ra)
-                    },
-                );
+                    }
+                    (values, rhs)
+                })
+                .collect();
+            let mut reduced = (pattern.zeros(), DVector::<f64>::zeros(6 * free));
+            for (values, rhs) in partials {
+                for (x, y) in reduced.0.iter_mut().zip(&values) {
+                    *x += y;
+                }
+                reduced.1 += rhs;
+            }
             let (mut values, schur_rhs) = reduced;
             let mut rhs = DVector::<f64>::zeros(6 * free);
             for c in 0..free {

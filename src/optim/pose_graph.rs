@@ -165,13 +165,17 @@ impl PoseGraph {
 
     /// \(\chi^2 = \sum e^\top \Omega e\).
     pub fn cost(&self) -> f64 {
-        self.edges
+        // Terms in parallel, summed in edge order (a parallel sum's order would follow
+        // the thread count).
+        let terms: Vec<f64> = self
+            .edges
             .par_iter()
             .map(|e| {
                 let r = self.residual(e);
                 (r.transpose() * e.information * r)[0]
             })
-            .sum()
+            .collect();
+        terms.iter().sum()
     }
 
     /// Optimises the free poses in place.
