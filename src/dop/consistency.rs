@@ -91,27 +91,23 @@ mod tests {
     fn outliers_in_a_row_raise_a_static_point_and_an_inlier_breaks_the_row() {
         let config = DopConfig::default();
         let (mut c, mut p) = (Consistency::default(), 0.5);
-        assert_eq!(
-            c.observe(false, 0.0, false, &mut p, &config),
-            Verdict::Unchanged
-        );
-        assert_eq!(
-            c.observe(false, 0.1, false, &mut p, &config),
-            Verdict::Raised
-        );
-        assert!((p - 0.65).abs() < 1e-6);
-        assert_eq!(
-            c.observe(false, 0.2, false, &mut p, &config),
-            Verdict::Unchanged
-        );
-        assert_eq!(
-            c.observe(true, 0.3, false, &mut p, &config),
-            Verdict::Unchanged
-        );
-        assert_eq!(
-            c.observe(false, 0.4, false, &mut p, &config),
-            Verdict::Unchanged
-        );
+        // (consistent, verdict): two outliers raise; a third starts a new row, which an
+        // inlier breaks.
+        let frames = [
+            (false, Verdict::Unchanged),
+            (false, Verdict::Raised),
+            (false, Verdict::Unchanged),
+            (true, Verdict::Unchanged),
+            (false, Verdict::Unchanged),
+        ];
+        for (n, (consistent, verdict)) in frames.into_iter().enumerate() {
+            let t = n as f64 * 0.1;
+            assert_eq!(
+                c.observe(consistent, t, false, &mut p, &config),
+                verdict,
+                "frame {n}"
+            );
+        }
         assert!((p - 0.65).abs() < 1e-6);
         // A dynamic point is not raised further.
         let (mut c, mut p) = (Consistency::default(), 0.8);

@@ -60,11 +60,11 @@ fn gate(stereo: bool) -> f64 {
     }
 }
 
-/// The residual and the camera-frame point, or `None` behind the camera.
 /// Chunks of points whose Schur complements are summed separately (a fixed count, not
 /// one per thread: see the reduced camera system).
 const SCHUR_CHUNKS: usize = 8;
 
+/// The residual and the camera-frame point, or `None` behind the camera.
 fn residual(
     camera: &StereoCamera,
     pose: &Se3,

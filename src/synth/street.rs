@@ -1,7 +1,6 @@
 //! A street canyon along the camera path, for stereo sequences in the KITTI layout:
 //! a road `camera_height` below the cameras (slabs that follow the path's height),
-//! buildings on both sides set back from the
-//! path, cars parked at the kerbs (class "car", yet static: where masking every car
+//! buildings on both sides set back from the path, cars parked at the kerbs (class "car", yet static: where masking every car
 //! hurts), cars driving along the road in the other lane, and pedestrians crossing
 //! ahead or walking on the pavements.
 //!
