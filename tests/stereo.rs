@@ -116,6 +116,30 @@ fn fewer_right_images_than_left_is_refused() {
     );
 }
 
+/// Found by fuzzing (`tools/fuzz`, target `kitti_calibration`): a key padded with
+/// blanks skipped the count check and a short line then panicked.
+#[test]
+fn a_short_projection_line_with_a_padded_key_is_refused_by_line() {
+    let sequence = small_copy("stereo-short-p0");
+    let calib = std::fs::read_to_string(sequence.join("calib.txt")).unwrap();
+    let broken: String = calib
+        .lines()
+        .map(|l| {
+            if l.starts_with("P0:") {
+                "  P0 : 718.856\n".to_string()
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    std::fs::write(sequence.join("calib.txt"), broken).unwrap();
+    let err = run_fails(&sequence);
+    assert!(
+        err.contains("calib.txt") && err.contains("P0: expected 12 numbers, found 1"),
+        "{err}"
+    );
+}
+
 #[test]
 fn a_missing_calib_txt_is_named() {
     let sequence = small_copy("stereo-no-calib");

@@ -36,6 +36,7 @@ pub fn read_kitti_calibration(
         let Some((key, rest)) = line.split_once(':') else {
             continue;
         };
+        let key = key.trim();
         let values: Result<Vec<f64>, _> = split_fields(rest).map(str::parse::<f64>).collect();
         let values = values
             .map_err(|_| IoError::parse(path, index + 1, format!("{key}: expected 12 numbers")))?;
@@ -46,7 +47,7 @@ pub fn read_kitti_calibration(
                 format!("{key}: expected 12 numbers, found {}", values.len()),
             ));
         }
-        match key.trim() {
+        match key {
             "P0" => p0 = Some(values),
             "P1" => p1 = Some(values),
             _ => {}
