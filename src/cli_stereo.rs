@@ -9,10 +9,10 @@ use anyhow::{Context, Result};
 use clap::Args;
 use serde::Serialize;
 
-use dopslam::dense::disparity::{sgbm_disparity, SgbmSettings};
+use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
 use dopslam::io::atomic::write_atomic;
-use dopslam::io::image_files::read_gray;
+use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
 use dopslam::tracking::stereo_matching::extract_and_match;
 
@@ -58,17 +58,7 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         )
     })?;
     let fx = settings.calibration.camera.fx;
-    let (left, right) = (read_gray(&args.left)?, read_gray(&args.right)?);
-    anyhow::ensure!(
-        left.dimensions() == right.dimensions(),
-        "{} is {}x{} but {} is {}x{}: a rectified pair has one size",
-        args.left.display(),
-        left.width(),
-        left.height(),
-        args.right.display(),
-        right.width(),
-        right.height()
-    );
+    let (left, right) = read_pair(&args.left, &args.right)?;
     let extractor = OrbExtractor::new(&OrbConfig {
         n_features: args.features.or(settings.orb.n_features).unwrap_or(2000),
         ..OrbConfig::default()
@@ -77,14 +67,10 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
     let (lf, matches) = extract_and_match((&left, &right), &extractor, bf, fx);
     let orb_and_matching_ms = start.elapsed().as_secs_f64() * 1e3;
     let start = Instant::now();
-    let defaults = dopslam::config::StereoConfig::default();
     let sgbm = sgbm_disparity(
         &left,
         &right,
-        &SgbmSettings {
-            disparities: defaults.sgbm_disparities,
-            block: defaults.sgbm_block,
-        },
+        &dopslam::config::StereoConfig::default().sgbm(),
     )
     .map_err(anyhow::Error::msg)?;
     let sgbm_ms = start.elapsed().as_secs_f64() * 1e3;

@@ -149,6 +149,14 @@ impl Default for StereoConfig {
 }
 
 impl StereoConfig {
+    /// The semi-global matcher's settings for the dense depth of stereo pairs.
+    pub fn sgbm(&self) -> crate::dense::disparity::SgbmSettings {
+        crate::dense::disparity::SgbmSettings {
+            disparities: self.sgbm_disparities,
+            block: self.sgbm_block,
+        }
+    }
+
     fn validate(&self) -> Result<(), String> {
         if self.n_features == 0 {
             return Err("stereo.n_features must be positive".into());

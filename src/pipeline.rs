@@ -13,7 +13,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::config::Config;
-use crate::dense::disparity::{SgbmSettings, StereoDepth};
+use crate::dense::disparity::StereoDepth;
 use crate::dense::masks::Masking;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
 use crate::detect::worker::{DetectionWorker, Job, Outcome};
@@ -304,10 +304,7 @@ pub fn dense_pass(
         progress,
         stereo: (sequence.sensor() == SensorKind::Stereo).then(|| StereoDepth {
             bf: calibration.bf.unwrap_or(40.0),
-            sgbm: SgbmSettings {
-                disparities: config.stereo.sgbm_disparities,
-                block: config.stereo.sgbm_block,
-            },
+            sgbm: config.stereo.sgbm(),
         }),
     };
     Ok(fuse_run(&inputs, &config.dense)?)

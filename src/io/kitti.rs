@@ -4,6 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use image::GrayImage;
+
 use super::errors::read_text;
 use super::file_list::split_fields;
 use super::image_files::read_gray;
@@ -83,6 +85,26 @@ pub fn read_kitti_calibration(
         th_depth: Some(35.0),
         fps: Some(10.0),
     })
+}
+
+/// A rectified stereo pair in grey; `Err` naming the right image when the two differ
+/// in size.
+pub fn read_pair(left: &Path, right: &Path) -> Result<(GrayImage, GrayImage), IoError> {
+    let (left_image, right_image) = (read_gray(left)?, read_gray(right)?);
+    if left_image.dimensions() != right_image.dimensions() {
+        return Err(IoError::invalid(
+            right,
+            format!(
+                "is {}x{} but its left image {} is {}x{}: a rectified pair has one size",
+                right_image.width(),
+                right_image.height(),
+                left.display(),
+                left_image.width(),
+                left_image.height()
+            ),
+        ));
+    }
+    Ok((left_image, right_image))
 }
 
 /// How many `.png` files a folder holds.
@@ -197,21 +219,10 @@ impl Sequence for KittiSequence {
 
     fn load(&self, index: usize) -> Result<Frame, IoError> {
         let file = format!("{index:06}.png");
-        let left = read_gray(&self.root.join("image_0").join(&file))?;
-        let right_path = self.root.join("image_1").join(&file);
-        let right = read_gray(&right_path)?;
-        if left.dimensions() != right.dimensions() {
-            return Err(IoError::invalid(
-                &right_path,
-                format!(
-                    "is {}x{} but its left image is {}x{}: a rectified pair has one size",
-                    right.width(),
-                    right.height(),
-                    left.width(),
-                    left.height()
-                ),
-            ));
-        }
+        let (left, right) = read_pair(
+            &self.root.join("image_0").join(&file),
+            &self.root.join("image_1").join(&file),
+        )?;
         Ok(Frame {
             index,
             timestamp: self.times[index],

@@ -15,11 +15,9 @@
 
 use image::GrayImage;
 
+use super::matching::{TH_HIGH, TH_LOW};
 use crate::features::{hamming, OrbExtractor, OrbFeatures, ScalePyramid};
 
-/// ORB-SLAM2's upper and lower descriptor thresholds; stereo takes their mean.
-const TH_HIGH: u32 = 100;
-const TH_LOW: u32 = 50;
 /// Half side of the SAD patch, and the half range of the SAD search.
 const PATCH: i32 = 5;
 const SEARCH: i32 = 5;
@@ -65,6 +63,7 @@ pub fn match_stereo(
         return matches;
     };
     let rows = row_table(features.right, pyramid, level0.height());
+    // ORB-SLAM2's mid threshold: the mean of the upper and lower ones.
     let threshold = (TH_HIGH + TH_LOW) / 2;
     let (min_d, max_d) = (0.0f32, fx as f32);
     let mut sads: Vec<(u32, usize)> = Vec::with_capacity(n);
