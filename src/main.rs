@@ -630,6 +630,26 @@ fn run_run(args: RunArgs) -> Result<()> {
         "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
         report.sequence, t.tracked, t.frames, t.coverage_percent, t.lost, t.keyframes, t.map_points
     );
+    if t.segments.len() > 1 {
+        let spans: Vec<String> = t
+            .segments
+            .iter()
+            .map(|s| {
+                let merged = s
+                    .merged_into
+                    .map_or(String::new(), |m| format!(", merged into {m}"));
+                format!(
+                    "{} (frames {}-{}, {} tracked{merged})",
+                    s.segment, s.first_frame, s.last_frame, s.tracked_frames
+                )
+            })
+            .collect();
+        println!(
+            "map segments (tracking stayed lost in between): {}; the largest holds {:.1} % of the frames",
+            spans.join("; "),
+            t.largest_segment_percent
+        );
+    }
     println!(
         "tracking time per frame: median {:.1} ms, mean {:.1} ms (ORB {:.1} ms, matching {:.1} ms, optimisation {:.1} ms, medians)",
         t.median_tracking_ms,

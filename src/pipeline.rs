@@ -111,6 +111,12 @@ pub struct RunTotals {
     pub coverage_percent: f64,
     /// Inclusive frame index ranges where tracking was lost.
     pub lost_spans: Vec<(usize, usize)>,
+    /// The map segments: tracking that stays lost starts a new one
+    /// (`[tracking] new_map_after_seconds`); a loop merges segments in the global pass.
+    pub segments: Vec<SegmentSpan>,
+    /// Tracked frames in the largest segment after the merges, over all frames, in %:
+    /// the part of the run in one frame of reference.
+    pub largest_segment_percent: f64,
     pub keyframes: usize,
     pub map_points: usize,
     /// Tracking time per frame (ORB extraction + tracking), as ORB-SLAM2 prints it.
@@ -121,6 +127,61 @@ pub struct RunTotals {
     pub median_optimisation_ms: f64,
     /// The DOP model per frame (propagation and expansion; 0 without it).
     pub median_dop_ms: f64,
+}
+
+/// A map segment of a run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SegmentSpan {
+    pub segment: usize,
+    /// First and last frame tracked in it, and how many were.
+    pub first_frame: usize,
+    pub last_frame: usize,
+    pub tracked_frames: usize,
+    /// The segment a loop merged it into (in the global pass), following later merges.
+    pub merged_into: Option<usize>,
+}
+
+/// The segments the tracked frames of `lines` were in, and the share of all frames in
+/// the largest after `merges` (segment, into).
+pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<SegmentSpan>, f64) {
+    let mut spans: Vec<SegmentSpan> = Vec::new();
+    for line in lines {
+        let t = &line.tracking;
+        if t.state != TrackingState::Ok {
+            continue;
+        }
+        match spans.iter_mut().find(|s| s.segment == t.segment) {
+            Some(span) => {
+                span.last_frame = t.index;
+                span.tracked_frames += 1;
+            }
+            None => spans.push(SegmentSpan {
+                segment: t.segment,
+                first_frame: t.index,
+                last_frame: t.index,
+                tracked_frames: 1,
+                merged_into: None,
+            }),
+        }
+    }
+    let root = |mut s: usize| {
+        // Merges only go into older segments' survivors; the chain is short.
+        for _ in 0..=merges.len() {
+            match merges.iter().find(|(from, _)| *from == s) {
+                Some((_, into)) => s = *into,
+                None => break,
+            }
+        }
+        s
+    };
+    let mut merged: std::collections::BTreeMap<usize, usize> = Default::default();
+    for span in &mut spans {
+        let r = root(span.segment);
+        span.merged_into = (r != span.segment).then_some(r);
+        *merged.entry(r).or_default() += span.tracked_frames;
+    }
+    let largest = merged.values().max().copied().unwrap_or(0);
+    (spans, 100.0 * largest as f64 / lines.len().max(1) as f64)
 }
 
 /// One frame's line in the report.
@@ -940,6 +1001,12 @@ fn write_outputs(
             }
         }
     }
+    let merges: Vec<(usize, usize)> = global
+        .iter()
+        .flat_map(|(g, _)| g.loops.iter().filter_map(|l| l.merged))
+        .map(|m| (m.segment, m.into))
+        .collect();
+    let (segments, largest_segment_percent) = segment_spans(&lines, &merges);
     let count = |state| lines.iter().filter(|l| l.tracking.state == state).count();
     let tracked = trajectory.len();
     let column = |f: fn(&FrameLine) -> f64| median(&mut lines.iter().map(f).collect::<Vec<_>>());
@@ -950,6 +1017,8 @@ fn write_outputs(
         not_initialised: count(TrackingState::NotInitialised),
         coverage_percent: 100.0 * tracked as f64 / lines.len().max(1) as f64,
         lost_spans,
+        segments,
+        largest_segment_percent,
         keyframes: map.keyframes.len(),
         map_points: map.points.len(),
         median_tracking_ms: column(|l| l.tracking_ms),

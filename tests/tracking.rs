@@ -235,6 +235,58 @@ fn relocalises_after_a_blackout() {
 }
 
 #[test]
+fn a_covered_lens_starts_a_map_segment_that_the_loop_merges() {
+    // loop_room at 10 fps: the camera turns once around in 30 s. From 8 s to 14 s the
+    // lens is covered (black colour, no depth) while it turns 72 degrees on: past
+    // `new_map_after_seconds` (3 s) with relocalisation failing on a view no keyframe
+    // has, a new segment starts at the last tracked pose; when the camera comes back
+    // to its start, the loop moves that segment onto the first and merges them.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/loop_room.toml");
+    let mut synth = SynthConfig::load(&path).unwrap();
+    synth.sequence.frames = 300;
+    synth.sequence.fps = 10.0;
+    let seq = common::temp_dir("track-segments").join("seq");
+    generate(&synth, &seq, false).unwrap();
+    let colour = common::sorted_files(&seq.join("rgb"));
+    let depth = common::sorted_files(&seq.join("depth"));
+    for (c, d) in colour[80..140].iter().zip(&depth[80..140]) {
+        image::RgbImage::new(640, 480).save(c).unwrap();
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(640, 480)
+            .save(d)
+            .unwrap();
+    }
+    let config = without_detector();
+    let sequence = open_sequence(&seq, &config).unwrap();
+    let options = RunOptions {
+        deterministic: true,
+        ..RunOptions::default()
+    };
+    let out = seq.parent().unwrap().join("run");
+    let report = run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+    let totals = &report.totals;
+    assert_eq!(totals.lost_spans, vec![(80, 139)]);
+    assert_eq!(totals.segments.len(), 2, "{:?}", totals.segments);
+    let (first, second) = (&totals.segments[0], &totals.segments[1]);
+    assert_eq!((first.first_frame, first.last_frame), (0, 79));
+    assert_eq!(first.merged_into, None);
+    assert_eq!((second.segment, second.first_frame), (1, 140));
+    assert_eq!(second.merged_into, Some(0));
+    assert_eq!(totals.largest_segment_percent, 80.0);
+    let global = report.global.as_ref().unwrap();
+    assert!(
+        global.loops.iter().any(|l| l.merged.is_some()),
+        "{:?}",
+        global.candidates
+    );
+    // Before the merge the second segment sits where the first was lost, 72 degrees
+    // off; after it, both are in one frame.
+    let tracking = report.ate_tracking.as_ref().unwrap().ape.statistics.rmse;
+    let merged = report.ate.as_ref().unwrap().ape.statistics.rmse;
+    assert!(tracking > 0.1, "ATE {tracking} m before the merge");
+    assert!(merged < 0.02, "ATE {merged} m after the merge");
+}
+
+#[test]
 fn keyframes_get_their_detections_from_the_detection_worker() {
     let seq = static_room(40, "track-detections");
     let base = seq.parent().unwrap().to_path_buf();

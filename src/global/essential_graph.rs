@@ -1,7 +1,8 @@
-//! The essential graph (ORB-SLAM §III-C, §VII-B): every keyframe, with edges of the
-//! spanning tree, of the loops closed so far and of covisibility at least `min_weight`
-//! shared points, optimised on SE(3) ([`PoseGraph`]); each map point then follows the
-//! keyframe that placed it: \(X \leftarrow T'_{wr} T_{rw} X\).
+//! The essential graph (ORB-SLAM §III-C, §VII-B): every keyframe of the fixed
+//! keyframe's map segment, with edges of the spanning tree, of the loops closed so far
+//! and of covisibility at least `min_weight` shared points, optimised on SE(3)
+//! ([`PoseGraph`]); each map point then follows the keyframe that placed it:
+//! \(X \leftarrow T'_{wr} T_{rw} X\).
 //!
 //! Edge measurements are the relative poses before the current correction
 //! (`uncorrected`, for the keyframes the loop correction moved), except loop edges,
@@ -27,11 +28,13 @@ pub fn optimise(
     fixed: KeyFrameKey,
     min_weight: usize,
 ) -> GraphReport {
+    // The fixed keyframe's segment: the others share no edge with it.
+    let segment = map.keyframes.get(fixed).map(|kf| kf.segment);
     let keys: Vec<KeyFrameKey> = map
         .keyframe_order
         .iter()
         .copied()
-        .filter(|k| map.keyframes.contains_key(*k))
+        .filter(|k| map.keyframes.get(*k).map(|kf| kf.segment) == segment)
         .collect();
     let index: HashMap<KeyFrameKey, usize> =
         keys.iter().enumerate().map(|(i, k)| (*k, i)).collect();

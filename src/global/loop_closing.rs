@@ -15,6 +15,9 @@
 //! 4. **Correction**: the keyframe and its covisible keyframes move with
 //!    \(T'_{kw} = T_{kc} T_{cw}\), their points with them; duplicated points are fused,
 //!    the loop edge joins the essential graph, which is optimised.
+//!    A loop between two map segments (tracking stayed lost in between) first moves
+//!    the keyframe's whole segment rigidly onto the loop and merges it into the
+//!    matched keyframe's.
 //!
 //! Points whose moving probability is above the removal threshold take no part. Every
 //! candidate is reported with the stage where it stopped.
@@ -110,6 +113,17 @@ pub struct ClosedLoop {
     pub correction_deg: f64,
     pub fused_points: usize,
     pub essential_graph: GraphReport,
+    /// When the two keyframes were in different map segments: the keyframe's segment,
+    /// moved rigidly onto the loop and merged into the matched keyframe's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged: Option<SegmentMerge>,
+}
+
+/// A map segment merged into another by a loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct SegmentMerge {
+    pub segment: usize,
+    pub into: usize,
 }
 
 /// What loop closing needs of the system.
@@ -370,6 +384,12 @@ impl<'a> LoopCloser<'a> {
             true,
         );
         let moved = se3::log(&(corrected * original.inverse()));
+        let merged = merge_segments(
+            map,
+            (key, candidate),
+            &corrected,
+            &self.inputs.pyramid.factors,
+        );
         let (fused, report) =
             self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
         let pair = LoopPair::of(map, (key, candidate));
@@ -383,6 +403,7 @@ impl<'a> LoopCloser<'a> {
             correction_deg: moved.fixed_rows::<3>(3).norm().to_degrees(),
             fused_points: fused,
             essential_graph: report,
+            merged,
         });
         self.last_loop = Some(pair.keyframe);
         self.groups.clear();
@@ -573,5 +594,131 @@ impl<'a> LoopCloser<'a> {
             map.update_point(p, &scale_factors);
         }
         (fused, report)
+    }
+}
+
+/// A loop between map segments: moves the keyframe's whole segment rigidly so that the
+/// keyframe lands on `corrected` (\(T'_{nw} = T_{nw} M\) with
+/// \(M = T_{kw}^{-1} T'_{kw}\), points \(X' = M^{-1} X\)) and gives its keyframes the
+/// matched keyframe's segment. `None` (nothing moved) within one segment.
+fn merge_segments(
+    map: &mut Map,
+    (key, candidate): (KeyFrameKey, KeyFrameKey),
+    corrected: &Se3,
+    scale_factors: &[f64],
+) -> Option<SegmentMerge> {
+    let (segment, into) = (map.keyframes[key].segment, map.keyframes[candidate].segment);
+    if segment == into {
+        return None;
+    }
+    let m = map.keyframes[key].world_from_camera() * corrected;
+    let m_inverse = m.inverse();
+    let members: HashSet<KeyFrameKey> = map
+        .keyframes
+        .iter()
+        .filter(|(_, kf)| kf.segment == segment)
+        .map(|(k, _)| k)
+        .collect();
+    for &k in &members {
+        let kf = &mut map.keyframes[k];
+        kf.camera_from_world = se3::normalised(&(kf.camera_from_world * m));
+        kf.segment = into;
+    }
+    let mut moved = Vec::new();
+    for (p, point) in map.points.iter_mut() {
+        if point.observations.iter().any(|(k, _)| members.contains(k)) {
+            point.position = (m_inverse * Point3::from(point.position)).coords;
+            moved.push(p);
+        }
+    }
+    // Normals turn with the segment.
+    for p in moved {
+        map.update_point(p, scale_factors);
+    }
+    Some(SegmentMerge { segment, into })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{KeyFrame, MapPoint};
+    use crate::tracking::Frame;
+    use nalgebra::{Rotation3, Translation3};
+
+    fn keyframe(segment: usize, camera_from_world: Se3) -> KeyFrame {
+        let frame = Frame::from_parts(
+            0,
+            0.0,
+            vec![crate::features::KeyPoint::default(); 4],
+            vec![[0; 4]; 4],
+            vec![0.0; 4],
+            vec![-1.0; 4],
+            (640, 480),
+        );
+        let mut kf = KeyFrame::new(frame, camera_from_world);
+        kf.segment = segment;
+        kf
+    }
+
+    fn pose(t: [f64; 3], axis_angle: [f64; 3]) -> Se3 {
+        Se3::from_parts(
+            Translation3::new(t[0], t[1], t[2]),
+            Rotation3::from_scaled_axis(Vector3::from(axis_angle)),
+        )
+    }
+
+    fn observed_point(map: &mut Map, keyframe: KeyFrameKey, position: [f64; 3]) -> MapPointKey {
+        let p = map.points.insert(MapPoint::new(
+            Vector3::from(position),
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            0,
+        ));
+        map.add_observation(p, keyframe, 0);
+        p
+    }
+
+    #[test]
+    fn a_loop_between_segments_moves_the_later_one_rigidly_and_merges_it() {
+        let mut map = Map::default();
+        let a = map.add_keyframe(keyframe(0, Se3::identity()));
+        let b = map.add_keyframe(keyframe(1, pose([0.3, 0.0, 0.1], [0.0, 0.4, 0.0])));
+        let c = map.add_keyframe(keyframe(1, pose([0.5, -0.2, 0.0], [0.1, 0.5, 0.0])));
+        let p = observed_point(&mut map, c, [0.2, 0.1, 2.0]);
+        let q = observed_point(&mut map, a, [-0.4, 0.0, 3.0]);
+        let in_c =
+            |map: &Map| map.keyframes[c].camera_from_world * Point3::from(map.points[p].position);
+        let (before_c, before_q) = (in_c(&map), map.points[q].position);
+        let b_from_c = map.keyframes[b].camera_from_world * map.keyframes[c].world_from_camera();
+        let corrected = pose([-1.0, 0.2, 0.3], [0.0, -1.2, 0.1]);
+
+        let merge = merge_segments(&mut map, (b, a), &corrected, &[1.0; 8]);
+
+        assert_eq!(
+            merge,
+            Some(SegmentMerge {
+                segment: 1,
+                into: 0
+            })
+        );
+        let landed = map.keyframes[b].camera_from_world * corrected.inverse();
+        assert!(se3::log(&landed).norm() < 1e-9);
+        // The segment's own geometry is unchanged: relative poses, points in its cameras.
+        let after = map.keyframes[b].camera_from_world * map.keyframes[c].world_from_camera();
+        assert!(se3::log(&(after * b_from_c.inverse())).norm() < 1e-9);
+        assert!((in_c(&map) - before_c).norm() < 1e-9);
+        // The other segment stays where it was.
+        assert_eq!(map.points[q].position, before_q);
+        assert!(map.keyframes.values().all(|kf| kf.segment == 0));
+        assert_eq!(
+            map.segment_anchors().into_iter().collect::<Vec<_>>(),
+            vec![a]
+        );
+        // Within one segment there is nothing to merge.
+        assert_eq!(
+            merge_segments(&mut map, (c, a), &corrected, &[1.0; 8]),
+            None
+        );
     }
 }

@@ -56,7 +56,8 @@ impl Default for GlobalConfig {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FullBaReport {
     pub keyframes: usize,
-    /// Keyframes held (the first, and those with too few static observations).
+    /// Keyframes held (the oldest of each map segment, and those with too few static
+    /// observations).
     pub held: usize,
     pub points: usize,
     pub observations: usize,

@@ -91,6 +91,9 @@ pub struct KeyFrame {
     pub children: Vec<KeyFrameKey>,
     /// The detector's boxes, once they come back from the detection thread.
     pub detections: Option<Vec<crate::detect::Detection>>,
+    /// The map segment: tracking that stays lost starts a new one (0 for the first),
+    /// unrelated to the others until a loop merges them.
+    pub segment: usize,
 }
 
 impl KeyFrame {
@@ -107,6 +110,7 @@ impl KeyFrame {
             parent: None,
             children: Vec::new(),
             detections: None,
+            segment: 0,
         }
     }
 
@@ -180,6 +184,30 @@ impl Map {
             camera_from_key *= camera_from_parent;
             key = *parent;
         }
+    }
+
+    /// The oldest keyframe of each segment still in the map: each holds its segment's
+    /// gauge in optimisations, as segments that no loop has merged share no frame.
+    pub fn segment_anchors(&self) -> std::collections::HashSet<KeyFrameKey> {
+        let mut seen = std::collections::HashSet::new();
+        self.keyframe_order
+            .iter()
+            .copied()
+            .filter(|k| {
+                self.keyframes
+                    .get(*k)
+                    .is_some_and(|kf| seen.insert(kf.segment))
+            })
+            .collect()
+    }
+
+    /// The newest keyframe of `segment`.
+    pub fn newest_of_segment(&self, segment: usize) -> Option<KeyFrameKey> {
+        self.keyframe_order.iter().rev().copied().find(|k| {
+            self.keyframes
+                .get(*k)
+                .is_some_and(|kf| kf.segment == segment)
+        })
     }
 
     /// Records that keypoint `index` of `keyframe` observes `point`.

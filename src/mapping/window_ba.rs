@@ -47,8 +47,8 @@ impl Window {
     }
 
     /// Every keyframe of the map and every point they see whose moving probability is
-    /// at most `moving_threshold` (the global pass's full BA); the map's first keyframe
-    /// holds the gauge.
+    /// at most `moving_threshold` (the global pass's full BA); the oldest keyframe of
+    /// each map segment holds its gauge.
     pub fn whole_map(map: &Map, pyramid: &ScalePyramid, moving_threshold: f32) -> Option<Self> {
         let keyframes = map
             .keyframe_order
@@ -59,19 +59,16 @@ impl Window {
         Self::over(map, keyframes, pyramid, moving_threshold)
     }
 
-    /// `local` free (but the map's first keyframe), the other keyframes that see their
-    /// points fixed.
+    /// `local` free (but the oldest keyframe of each map segment), the other keyframes
+    /// that see their points fixed.
     fn over(
         map: &Map,
         local: Vec<KeyFrameKey>,
         pyramid: &ScalePyramid,
         moving_threshold: f32,
     ) -> Option<Self> {
-        // The oldest keyframe still in the map holds the gauge.
-        let first = *map
-            .keyframe_order
-            .iter()
-            .find(|k| map.keyframes.contains_key(**k))?;
+        // The oldest keyframe of each map segment holds the gauge.
+        let anchors = map.segment_anchors();
         let mut point_index = HashMap::new();
         let mut points = Vec::new();
         let mut positions = Vec::new();
@@ -86,7 +83,7 @@ impl Window {
                 }
             }
         }
-        let mut fixed: Vec<bool> = local.iter().map(|k| *k == first).collect();
+        let mut fixed: Vec<bool> = local.iter().map(|k| anchors.contains(k)).collect();
         let mut in_window: std::collections::HashSet<KeyFrameKey> = local.iter().copied().collect();
         let mut cameras = local;
         for p in &points {

@@ -4,7 +4,9 @@
 //! tracking (map points of the covisible keyframes projected with scale prediction);
 //! pose-only optimisation after each search; the keyframe decision; new map points from
 //! depth at keyframes; states OK / LOST with relocalisation by EPnP RANSAC against the
-//! keyframes that share the most descriptors with the frame.
+//! keyframes that share the most descriptors with the frame; when relocalisation keeps
+//! failing, a new map segment (ORB-SLAM3's Atlas: a new map, merged when a loop
+//! connects it).
 //!
 //! The map is shared with local mapping ([`crate::mapping`]), which may run in its own
 //! thread: tracking holds the map's write lock while it tracks one frame (feature
@@ -53,6 +55,11 @@ pub struct TrackerConfig {
     /// any new view to map.
     pub keyframe_min_translation: f64,
     pub keyframe_min_rotation_deg: f64,
+    /// Seconds of failed relocalisation after which a new map segment starts at the
+    /// next frame with enough depth (ORB-SLAM3's Atlas without IMU: 3 s). The new
+    /// segment starts at the last tracked pose; a loop that connects it to an older
+    /// one merges them in the global pass.
+    pub new_map_after_seconds: f64,
 }
 
 impl Default for TrackerConfig {
@@ -66,6 +73,7 @@ impl Default for TrackerConfig {
             motion_search_radius: 15.0,
             keyframe_min_translation: 0.05,
             keyframe_min_rotation_deg: 3.0,
+            new_map_after_seconds: 3.0,
         }
     }
 }
@@ -85,6 +93,8 @@ pub struct FrameReport {
     pub index: usize,
     pub timestamp: f64,
     pub state: TrackingState,
+    /// The map segment the frame was tracked in (see [`TrackerConfig::new_map_after_seconds`]).
+    pub segment: usize,
     pub keypoints: usize,
     pub matches: usize,
     pub inliers: usize,
@@ -146,6 +156,11 @@ pub struct Tracker {
     velocity: Option<Se3>,
     reference: Option<KeyFrameKey>,
     frames_since_keyframe: usize,
+    /// The active map segment, the number of segments started, and since when
+    /// (timestamp) tracking is lost.
+    segment: usize,
+    segments: usize,
+    lost_since: Option<f64>,
     width: f32,
     height: f32,
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
@@ -178,6 +193,9 @@ impl Tracker {
             velocity: None,
             reference: None,
             frames_since_keyframe: 0,
+            segment: 0,
+            segments: 0,
+            lost_since: None,
             width: width as f32,
             height: height as f32,
             dop: None,
@@ -286,6 +304,7 @@ impl Tracker {
             index: frame.index,
             timestamp: frame.timestamp,
             state: self.state,
+            segment: self.segment,
             keypoints: frame.len(),
             matches: 0,
             inliers: 0,
@@ -304,36 +323,16 @@ impl Tracker {
         };
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
-            let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
-            if with_depth >= self.config.min_initial_points {
-                let pose = Se3::identity();
-                self.insert_keyframe(&mut map, &frame, pose, vec![None; frame.len()], true);
-                report.keyframe = true;
-                report.new_keyframe = self.reference;
-                report.state = TrackingState::Ok;
-                report.camera_from_world = Some(pose);
-                report.reference = self.reference.map(|k| (k, Se3::identity()));
-                report.inliers = with_depth;
-                self.state = TrackingState::Ok;
-                let points = self
-                    .reference
-                    .and_then(|k| map.keyframes.get(k))
-                    .map_or_else(Vec::new, |kf| kf.map_points.clone());
-                self.last = Some(LastFrame {
-                    frame,
-                    camera_from_world: pose,
-                    points,
-                });
-            }
+            self.start_segment(&mut map, frame, Se3::identity(), &mut report);
             return report;
         }
         let map = shared.read().expect("map lock poisoned");
-        // Local mapping may have culled the reference keyframe: take the newest.
+        // Local mapping may have culled the reference keyframe: take the segment's newest.
         if self
             .reference
             .is_some_and(|k| !map.keyframes.contains_key(k))
         {
-            self.reference = map.keyframe_order.last().copied();
+            self.reference = map.newest_of_segment(self.segment);
         }
         let outcome = if self.state == TrackingState::Ok {
             self.track_motion_model(&map, &frame, &mut timing)
@@ -383,10 +382,18 @@ impl Tracker {
             self.state = TrackingState::Lost;
             self.velocity = None;
             report.state = TrackingState::Lost;
+            let since = *self.lost_since.get_or_insert(frame.timestamp);
+            if frame.timestamp - since >= self.config.new_map_after_seconds {
+                if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
+                    self.start_segment(&mut map, frame, last, &mut report);
+                }
+            }
             return report;
         };
+        self.lost_since = None;
         self.state = TrackingState::Ok;
         report.state = TrackingState::Ok;
+        report.segment = self.segment;
         report.inliers = inliers;
         report.matches = points.iter().filter(|p| p.is_some()).count();
         report.pose_keypoints = points
@@ -431,6 +438,50 @@ impl Tracker {
             points,
         });
         report
+    }
+
+    /// Starts a map segment (the first, or a new one after tracking stayed lost) with
+    /// `frame` as its first keyframe at `camera_from_world`, when the frame has enough
+    /// keypoints with depth.
+    fn start_segment(
+        &mut self,
+        map: &mut Map,
+        frame: Frame,
+        camera_from_world: Se3,
+        report: &mut FrameReport,
+    ) {
+        let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
+        if with_depth < self.config.min_initial_points {
+            return;
+        }
+        self.segment = self.segments;
+        self.segments += 1;
+        self.insert_keyframe(
+            map,
+            &frame,
+            camera_from_world,
+            vec![None; frame.len()],
+            true,
+        );
+        report.keyframe = true;
+        report.new_keyframe = self.reference;
+        report.state = TrackingState::Ok;
+        report.segment = self.segment;
+        report.camera_from_world = Some(camera_from_world);
+        report.reference = self.reference.map(|k| (k, Se3::identity()));
+        report.inliers = with_depth;
+        self.state = TrackingState::Ok;
+        self.velocity = None;
+        self.lost_since = None;
+        let points = self
+            .reference
+            .and_then(|k| map.keyframes.get(k))
+            .map_or_else(Vec::new, |kf| kf.map_points.clone());
+        self.last = Some(LastFrame {
+            frame,
+            camera_from_world,
+            points,
+        });
     }
 
     /// Optimises a pose from matched points; returns the pose, the inlier matches (and
@@ -646,6 +697,10 @@ impl Tracker {
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         for (_, _, key) in ranked.into_iter().take(5) {
             if let Some(found) = self.relocalise_against(map, frame, key, timing) {
+                // Any segment's keyframes are searched: the camera may come back to an
+                // older segment, which becomes the active one again.
+                self.segment = map.keyframes[key].segment;
+                self.reference = Some(key);
                 return Some(found);
             }
         }
@@ -881,7 +936,9 @@ impl Tracker {
         points: Vec<Option<MapPointKey>>,
         first: bool,
     ) {
-        let key = map.add_keyframe(KeyFrame::new(frame.clone(), camera_from_world));
+        let mut keyframe = KeyFrame::new(frame.clone(), camera_from_world);
+        keyframe.segment = self.segment;
+        let key = map.add_keyframe(keyframe);
         let id = map.keyframes[key].id;
         let world_from_camera = camera_from_world.inverse();
         let close = self.close_depth();
