@@ -26,6 +26,7 @@ pub mod interrupt;
 pub mod io;
 pub mod map;
 pub mod mapping;
+pub mod memory;
 pub mod optim;
 pub mod pipeline;
 pub mod random;

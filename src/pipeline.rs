@@ -127,6 +127,9 @@ pub struct RunTotals {
     pub median_optimisation_ms: f64,
     /// The DOP model per frame (propagation and expansion; 0 without it).
     pub median_dop_ms: f64,
+    /// The process's peak resident memory so far (MiB, Linux): after tracking and the
+    /// global pass; the dense pass reports its own.
+    pub peak_memory_mib: Option<f64>,
 }
 
 /// A map segment of a run.
@@ -1028,6 +1031,7 @@ fn write_outputs(
         median_matching_ms: column(|l| l.tracking.matching_ms),
         median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
         median_dop_ms: column(|l| l.tracking.dop_ms),
+        peak_memory_mib: crate::memory::peak_resident_mib(),
     };
     let ate_of = |trajectory: &Trajectory| match sequence.ground_truth() {
         Some(gt) if trajectory.len() >= 3 => evaluate(

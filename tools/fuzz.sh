@@ -17,10 +17,14 @@ targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
     mapfile -t targets < <(cargo +nightly fuzz list --fuzz-dir tools/fuzz)
 fi
+# Build every target once, then run the binaries: editing the sources meanwhile does
+# not trigger a sanitizer rebuild before each target.
+cargo +nightly fuzz build --fuzz-dir tools/fuzz 2>&1 | tail -n 2
+bin=tools/fuzz/target/$(rustc -vV | sed -n 's/^host: //p')/release
 for target in "${targets[@]}"; do
     echo "== $target: ${seconds} s"
-    mkdir -p "outputs/fuzz/$target"
-    cargo +nightly fuzz run --fuzz-dir tools/fuzz "$target" \
-        "outputs/fuzz/$target" "tools/fuzz/corpus/$target" -- \
-        -max_total_time="$seconds" -rss_limit_mb=2048 -max_len=65536 2>&1 | tail -n 3
+    mkdir -p "outputs/fuzz/$target" "tools/fuzz/artifacts/$target"
+    "$bin/$target" "outputs/fuzz/$target" "tools/fuzz/corpus/$target" \
+        -max_total_time="$seconds" -rss_limit_mb=2048 -max_len=65536 \
+        -artifact_prefix="tools/fuzz/artifacts/$target/" 2>&1 | tail -n 3
 done

@@ -207,6 +207,8 @@ pub struct DenseReport {
     pub marching_cubes_ms: f64,
     pub cloud_ms: f64,
     pub total_s: f64,
+    /// The process's peak resident memory at the end of the pass (MiB, Linux).
+    pub peak_memory_mib: Option<f64>,
     pub truth: Option<FusedTruth>,
     pub outputs: Vec<PathBuf>,
 }
@@ -494,6 +496,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         report.truth = Some(t);
     }
     report.total_s = started.elapsed().as_secs_f64();
+    report.peak_memory_mib = crate::memory::peak_resident_mib();
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
     write_atomic(&inputs.out_dir.join("dense.json"), json.as_bytes())?;
     Ok(report)
