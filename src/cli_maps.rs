@@ -136,6 +136,12 @@ pub fn print_dense(dense: &DenseReport) {
         dense.cloud_points,
         dense.keyframes_in_cloud
     );
+    if dense.other_segment_frames > 0 {
+        println!(
+            "dense map: {} tracked frames left out, in map segments that no loop merged with the largest",
+            dense.other_segment_frames
+        );
+    }
     println!(
         "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s",
         dense.median_integration_ms, dense.marching_cubes_ms, dense.cloud_ms, dense.total_s

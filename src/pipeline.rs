@@ -167,16 +167,7 @@ pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<Seg
             }),
         }
     }
-    let root = |mut s: usize| {
-        // Merges only go into older segments' survivors; the chain is short.
-        for _ in 0..=merges.len() {
-            match merges.iter().find(|(from, _)| *from == s) {
-                Some((_, into)) => s = *into,
-                None => break,
-            }
-        }
-        s
-    };
+    let root = |s| final_segment(merges, s);
     let mut merged: std::collections::BTreeMap<usize, usize> = Default::default();
     for span in &mut spans {
         let r = root(span.segment);
@@ -185,6 +176,19 @@ pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<Seg
     }
     let largest = merged.values().max().copied().unwrap_or(0);
     (spans, 100.0 * largest as f64 / lines.len().max(1) as f64)
+}
+
+/// The segment that `segment` ended in after `merges` (segment, into), in order.
+fn final_segment(merges: &[(usize, usize)], mut segment: usize) -> usize {
+    // Each merge moves a segment into another; following them takes at most one step
+    // per merge.
+    for _ in 0..=merges.len() {
+        match merges.iter().find(|(from, _)| *from == segment) {
+            Some((_, into)) => segment = *into,
+            None => break,
+        }
+    }
+    segment
 }
 
 /// One frame's line in the report.
@@ -1010,6 +1014,17 @@ fn write_outputs(
         .map(|m| (m.segment, m.into))
         .collect();
     let (segments, largest_segment_percent) = segment_spans(&lines, &merges);
+    let mut by_frame = String::from(
+        "# timestamp segment: each tracked frame's map segment after the loops' merges\n",
+    );
+    for line in lines
+        .iter()
+        .filter(|l| l.tracking.state == TrackingState::Ok)
+    {
+        let segment = final_segment(&merges, line.tracking.segment);
+        by_frame.push_str(&format!("{:.6} {segment}\n", line.tracking.timestamp));
+    }
+    write_atomic(&out.join(crate::dense::SEGMENTS_FILE), by_frame.as_bytes())?;
     let count = |state| lines.iter().filter(|l| l.tracking.state == state).count();
     let tracked = trajectory.len();
     let column = |f: fn(&FrameLine) -> f64| median(&mut lines.iter().map(f).collect::<Vec<_>>());

@@ -284,6 +284,11 @@ fn a_covered_lens_starts_a_map_segment_that_the_loop_merges() {
     let merged = report.ate.as_ref().unwrap().ape.statistics.rmse;
     assert!(tracking > 0.1, "ATE {tracking} m before the merge");
     assert!(merged < 0.02, "ATE {merged} m after the merge");
+    // segments.txt gives the dense pass every tracked frame in the one merged segment.
+    let segments = std::fs::read_to_string(out.join("segments.txt")).unwrap();
+    let rows: Vec<&str> = segments.lines().filter(|l| !l.starts_with('#')).collect();
+    assert_eq!(rows.len(), 240);
+    assert!(rows.iter().all(|r| r.ends_with(" 0")), "{rows:?}");
 }
 
 #[test]

@@ -194,6 +194,9 @@ pub struct FusedTruth {
 pub struct DenseReport {
     pub masking: Option<Masking>,
     pub frames_fused: usize,
+    /// Tracked frames left out because they are in a map segment that no loop merged
+    /// with the largest one.
+    pub other_segment_frames: usize,
     pub keyframes_in_cloud: usize,
     /// Share of pixels masked as dynamic over the fused frames, %.
     pub masked_percent: f64,
@@ -256,6 +259,49 @@ fn key(t: f64) -> i64 {
     (t * 1e6).round() as i64
 }
 
+/// Written by the tracking pass: each tracked frame's timestamp and map segment after
+/// the loops' merges. Segments that no loop merged have unrelated frames of
+/// reference, so only the largest is fused.
+pub const SEGMENTS_FILE: &str = "segments.txt";
+
+/// The timestamps of the frames in the largest segment of the run's
+/// [`SEGMENTS_FILE`], when it lists more than one (`None`: fuse every frame; also for
+/// runs written before the file existed).
+fn largest_segment(run: &Path) -> Result<Option<std::collections::HashSet<i64>>, IoError> {
+    let path = run.join(SEGMENTS_FILE);
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(None);
+    };
+    let mut frames: HashMap<usize, Vec<i64>> = HashMap::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut fields = line.split_whitespace();
+        let parsed = match (fields.next(), fields.next(), fields.next()) {
+            (Some(t), Some(s), None) => t.parse::<f64>().ok().zip(s.parse::<usize>().ok()),
+            _ => None,
+        };
+        let Some((t, segment)) = parsed else {
+            return Err(IoError::invalid(
+                &path,
+                format!("line {}: expected `timestamp segment`, got {line:?}", n + 1),
+            ));
+        };
+        frames.entry(segment).or_default().push(key(t));
+    }
+    if frames.len() < 2 {
+        return Ok(None);
+    }
+    // The most frames; ties go to the older segment.
+    let largest = frames
+        .into_iter()
+        .max_by(|a, b| a.1.len().cmp(&b.1.len()).then(b.0.cmp(&a.0)))
+        .map(|(_, times)| times.into_iter().collect());
+    Ok(largest)
+}
+
 /// The frames' final poses (`camera_from_world`) by timestamp.
 fn poses_by_time(trajectory: &Trajectory) -> HashMap<i64, Se3> {
     trajectory
@@ -305,7 +351,13 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let trajectory = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?;
     let keyframes =
         Trajectory::read(&run.join("keyframes.txt"), TrajectoryFormat::Tum).unwrap_or_default();
-    let poses = poses_by_time(&trajectory);
+    let mut poses = poses_by_time(&trajectory);
+    let mut other_segment_frames = 0;
+    if let Some(keep) = largest_segment(run)? {
+        let before = poses.len();
+        poses.retain(|t, _| keep.contains(t));
+        other_segment_frames = before - poses.len();
+    }
     let keyframe_times: std::collections::HashSet<i64> =
         keyframes.timestamps.iter().map(|&t| key(t)).collect();
     let sequence = inputs.sequence;
@@ -363,6 +415,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut report = DenseReport {
         masking: Some(inputs.masking),
+        other_segment_frames,
         ..DenseReport::default()
     };
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
@@ -533,5 +586,36 @@ fn count_truth(truth: &mut FusedTruth, ids: &[u16], input: &FrameInput, max_dept
             truth.static_pixels += 1;
             truth.static_pixels_fused += fused as u64;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_with_segments(name: &str, text: &str) -> std::path::PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("dopslam-segments-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join(SEGMENTS_FILE), text).unwrap();
+        dir
+    }
+
+    #[test]
+    fn only_the_largest_unmerged_segment_is_fused() {
+        let dir = run_with_segments("two", "# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n");
+        let keep = largest_segment(&dir).unwrap().expect("two segments");
+        let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
+        assert_eq!(keep, expected);
+        // One segment (or no file): every frame.
+        let dir = run_with_segments("one", "1.0 0\n1.1 0\n");
+        assert_eq!(largest_segment(&dir).unwrap(), None);
+        assert_eq!(largest_segment(&dir.join("absent")).unwrap(), None);
+        let dir = run_with_segments("bad", "1.0 0\n1.1 zero\n");
+        let error = largest_segment(&dir).unwrap_err().to_string();
+        assert!(
+            error.contains("line 2") && error.contains(SEGMENTS_FILE),
+            "{error}"
+        );
     }
 }
