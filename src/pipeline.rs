@@ -22,6 +22,7 @@ use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
 use crate::features::OrbExtractor;
+use crate::global::loop_detection::LoopDetection;
 use crate::global::GlobalReport;
 use crate::io::atomic::write_atomic;
 use crate::io::kitti::KittiSequence;
@@ -431,6 +432,20 @@ pub fn track_sequence(
         mapper.moving_threshold = config.dop.removal_threshold;
     }
     let moving_threshold = mapper.moving_threshold;
+    // Place recognition beside tracking, fed by local mapping.
+    let loop_detection = config.global.enabled.then(|| {
+        crate::global::load_vocabulary(&config.global).map(|vocabulary| {
+            LoopDetection::start(
+                vocabulary,
+                config.global.loops.clone(),
+                tracker.map.clone(),
+                options.deterministic,
+            )
+        })
+    });
+    if let Some(Ok(detection)) = &loop_detection {
+        mapper.then = Some(detection.hand_over());
+    }
     let mut mapping = LocalMapping::start(mapper, tracker.map.clone(), options.deterministic);
     let effect = DetectionUse {
         config: &config.dop,
@@ -607,10 +622,12 @@ pub fn track_sequence(
     }
     book.totals.median_ms = median(&mut book.milliseconds);
     let stats = mapping.finish();
+    // Local mapping has dropped its hand-over: place recognition finishes its queue.
+    let recognised = loop_detection.map(|d| d.map(LoopDetection::finish));
     let shared = tracker.map.clone();
     let mut map = shared.write().expect("map lock poisoned");
     // The global pass, on a complete run: the tracking trajectory is kept first.
-    let global = if config.global.enabled && failure.is_none() {
+    let global = if let (Some(recognised), None) = (recognised, &failure) {
         let tracking = trajectory_of(&map, &lines);
         tracking.write(&out.join(TRACKING_TRAJECTORY), TrajectoryFormat::Tum)?;
         let inputs = crate::global::GlobalInputs {
@@ -623,7 +640,7 @@ pub fn track_sequence(
             moving_threshold,
         };
         Some((
-            crate::global::run(&mut map, &inputs, &config.global),
+            crate::global::run(&mut map, &inputs, &config.global, recognised),
             tracking,
         ))
     } else {

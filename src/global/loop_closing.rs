@@ -1,5 +1,7 @@
 //! Loop detection and correction (ORB-SLAM §VII, ORB-SLAM2's `LoopClosing`) over the
-//! keyframes in the order they were made:
+//! keyframes in the order they were made. Stages 1 and 2 ([`PlaceRecognition`]) run
+//! beside the tracking pass ([`super::loop_detection`]); stages 3 and 4
+//! ([`LoopCloser`]) in the global pass, no loop within `gap` keyframes after the last:
 //! 1. **Candidates**: database hits not covisible with the keyframe, scoring at least the
 //!    lowest score of its covisible keyframes, sharing at least 80 % of the best hit's
 //!    words; grouped with their covisible keyframes, groups within 75 % of the best
@@ -135,75 +137,71 @@ pub struct LoopInputs<'a> {
     pub moving_threshold: f32,
 }
 
-/// Loop detection state across keyframes.
-pub struct LoopCloser<'a> {
-    inputs: LoopInputs<'a>,
+/// Stages 1 and 2 (place recognition and consistency), apart from the correction:
+/// run on each keyframe as local mapping finishes it during the tracking pass (in its
+/// own thread, [`super::loop_detection`]), or by the global pass itself.
+pub struct PlaceRecognition {
     config: LoopConfig,
     database: Database<KeyFrameKey>,
     words: HashMap<KeyFrameKey, (BowVector, FeatureVector)>,
     /// Groups of the previous keyframe's candidates and how many keyframes in a row
     /// each has been seen.
     groups: Vec<(HashSet<KeyFrameKey>, usize)>,
-    last_loop: Option<usize>,
-    pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
-    pub candidates: Vec<Candidate>,
-    pub closed: Vec<ClosedLoop>,
-    rng: Rng,
+    /// Each keyframe searched that has consistent candidates, in order, with them and
+    /// their scores.
+    pub found: Vec<(KeyFrameKey, Vec<(KeyFrameKey, f64)>)>,
+    /// Candidates that failed the consistency check.
+    pub rejected: Vec<Candidate>,
+    /// Time spent, milliseconds.
+    pub milliseconds: f64,
 }
 
-impl<'a> LoopCloser<'a> {
-    pub fn new(inputs: LoopInputs<'a>, config: LoopConfig) -> Self {
+impl PlaceRecognition {
+    pub fn new(vocabulary: &Vocabulary, config: LoopConfig) -> Self {
         Self {
-            database: Database::new(inputs.vocabulary),
-            inputs,
             config,
+            database: Database::new(vocabulary),
             words: HashMap::new(),
             groups: Vec::new(),
-            last_loop: None,
-            loops: Vec::new(),
-            candidates: Vec::new(),
-            closed: Vec::new(),
-            rng: Rng::new(7),
+            found: Vec::new(),
+            rejected: Vec::new(),
+            milliseconds: 0.0,
         }
     }
 
-    /// Processes one keyframe (in creation order): detect, verify, correct; then the
-    /// keyframe joins the database.
-    pub fn process(&mut self, map: &mut Map, key: KeyFrameKey) {
-        let Some(kf) = map.keyframes.get(key) else {
-            return;
-        };
-        let id = kf.id;
-        let words = self.inputs.vocabulary.transform(&kf.frame.descriptors);
-        self.words.insert(key, words);
-        let recent = self
-            .last_loop
-            .is_some_and(|last| id < last + self.config.gap)
-            || self.database.len() < self.config.gap;
-        if !recent {
-            for candidate in self.consistent_candidates(map, key) {
-                if self.verify_and_correct(map, key, candidate) {
-                    break;
-                }
-            }
+    /// The keyframe's words, its consistent candidates (searched once the database
+    /// holds `gap` keyframes), then it joins the database.
+    pub fn process(&mut self, vocabulary: &Vocabulary, map: &Map, key: KeyFrameKey) {
+        if let Some(kf) = map.keyframes.get(key) {
+            let start = std::time::Instant::now();
+            let words = vocabulary.transform(&kf.frame.descriptors);
+            self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
+            self.process_with_words(map, key, words);
         }
-        self.database.add(key, &self.words[&key].0);
     }
 
-    fn record(
+    /// [`Self::process`] with the words already computed (outside the map's lock).
+    pub fn process_with_words(
         &mut self,
         map: &Map,
-        (key, candidate): (KeyFrameKey, KeyFrameKey),
-        score: f64,
-        outcome: String,
-        accepted: bool,
+        key: KeyFrameKey,
+        words: (BowVector, FeatureVector),
     ) {
-        self.candidates.push(Candidate {
-            pair: LoopPair::of(map, (key, candidate)),
-            score,
-            accepted,
-            outcome,
-        });
+        let start = std::time::Instant::now();
+        if !map.keyframes.contains_key(key) {
+            return;
+        }
+        self.words.insert(key, words);
+        let candidates = if self.database.len() >= self.config.gap {
+            self.consistent_candidates(map, key)
+        } else {
+            Vec::new()
+        };
+        self.database.add(key, &self.words[&key].0);
+        if !candidates.is_empty() {
+            self.found.push((key, candidates));
+        }
+        self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
     }
 
     /// Stages 1 and 2: the candidates consistent over enough keyframes, with scores.
@@ -270,21 +268,122 @@ impl<'a> LoopCloser<'a> {
             if count >= self.config.min_consistency {
                 enough.push((c, score));
             } else {
-                self.record(
-                    map,
-                    (key, c),
+                self.rejected.push(Candidate {
+                    pair: LoopPair::of(map, (key, c)),
                     score,
-                    format!(
+                    accepted: false,
+                    outcome: format!(
                         "seen by {count} consecutive keyframes of {} needed",
                         self.config.min_consistency
                     ),
-                    false,
-                );
+                });
             }
             next_groups.push((group, count));
         }
         self.groups = next_groups;
         enough
+    }
+}
+
+/// Loop closing across keyframes: place recognition (here, or handed over from the
+/// tracking pass), then verification and correction.
+pub struct LoopCloser<'a> {
+    inputs: LoopInputs<'a>,
+    config: LoopConfig,
+    recognition: PlaceRecognition,
+    last_loop: Option<usize>,
+    pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
+    pub candidates: Vec<Candidate>,
+    pub closed: Vec<ClosedLoop>,
+    rng: Rng,
+}
+
+impl<'a> LoopCloser<'a> {
+    /// Continues from place recognition that ran beside tracking.
+    pub fn with_recognition(
+        inputs: LoopInputs<'a>,
+        config: LoopConfig,
+        recognition: PlaceRecognition,
+    ) -> Self {
+        Self {
+            inputs,
+            config,
+            recognition,
+            last_loop: None,
+            loops: Vec::new(),
+            candidates: Vec::new(),
+            closed: Vec::new(),
+            rng: Rng::new(7),
+        }
+    }
+
+    /// Whether `key` comes within `gap` keyframes after the last loop closed.
+    fn recent(&self, map: &Map, key: KeyFrameKey) -> bool {
+        let id = map.keyframes.get(key).map_or(0, |kf| kf.id);
+        self.last_loop
+            .is_some_and(|last| id < last + self.config.gap)
+    }
+
+    /// Verifies and corrects, in order, the candidates that place recognition found
+    /// beside tracking (keyframes within `gap` after a loop closed here are passed).
+    pub fn close_found(&mut self, map: &mut Map) {
+        let found = std::mem::take(&mut self.recognition.found);
+        for (key, candidates) in found {
+            if !map.keyframes.contains_key(key) {
+                continue;
+            }
+            if self.recent(map, key) {
+                for (c, score) in candidates {
+                    if map.keyframes.contains_key(c) {
+                        self.record(
+                            map,
+                            (key, c),
+                            score,
+                            format!("within {} keyframes of the last loop", self.config.gap),
+                            false,
+                        );
+                    }
+                }
+                continue;
+            }
+            self.verify(map, key, candidates);
+        }
+    }
+
+    /// Stages 3 and 4 for the candidates until one closes a loop.
+    fn verify(&mut self, map: &mut Map, key: KeyFrameKey, candidates: Vec<(KeyFrameKey, f64)>) {
+        for candidate in candidates {
+            if !map.keyframes.contains_key(candidate.0) {
+                continue;
+            }
+            if self.verify_and_correct(map, key, candidate) {
+                break;
+            }
+        }
+    }
+
+    /// Every candidate with its outcome, by keyframe; the time place recognition took.
+    pub fn finish(mut self) -> (Vec<ClosedLoop>, Vec<Candidate>, f64) {
+        let mut candidates = std::mem::take(&mut self.recognition.rejected);
+        candidates.append(&mut self.candidates);
+        candidates.sort_by_key(|c| c.pair.keyframe);
+        (self.closed, candidates, self.recognition.milliseconds)
+    }
+
+    fn record(
+        &mut self,
+        map: &Map,
+        (key, candidate): (KeyFrameKey, KeyFrameKey),
+        score: f64,
+        outcome: String,
+        accepted: bool,
+    ) {
+        self.candidates.push(Candidate {
+            pair: LoopPair::of(map, (key, candidate)),
+            score,
+            accepted,
+            outcome,
+        });
     }
 
     /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
@@ -299,8 +398,8 @@ impl<'a> LoopCloser<'a> {
             let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
             match_by_words(
                 map,
-                (a, &self.words[&key].1),
-                (b, &self.words[&candidate].1),
+                (a, &self.recognition.words[&key].1),
+                (b, &self.recognition.words[&candidate].1),
                 self.config.ratio,
                 threshold,
             )
@@ -406,7 +505,6 @@ impl<'a> LoopCloser<'a> {
             merged,
         });
         self.last_loop = Some(pair.keyframe);
-        self.groups.clear();
         true
     }
 

@@ -1,16 +1,20 @@
 //! The global pass (after tracking): loop closure over the keyframes in the order they
-//! were made ([`loop_closing`], with place recognition by [`crate::bow`]), essential
-//! graph optimisation ([`essential_graph`]) after each loop, then a full bundle
-//! adjustment over every keyframe and every static map point. Frames follow their
-//! reference keyframes when the trajectory is written.
+//! were made ([`loop_closing`]) on the candidates that place recognition
+//! ([`crate::bow`]) found beside the tracking pass ([`loop_detection`], in its own
+//! thread), essential graph optimisation ([`essential_graph`]) after each loop, then a
+//! full bundle adjustment over every keyframe and every static map point. Frames follow
+//! their reference keyframes when the trajectory is written.
 //!
-//! Entry point: [`run`], on the map the tracking pass left.
+//! Entry points: [`loop_detection::LoopDetection::start`] during tracking, then
+//! [`run`] on the map the tracking pass left.
 
 pub mod essential_graph;
 pub mod loop_closing;
+pub mod loop_detection;
 pub mod word_matching;
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -21,6 +25,7 @@ use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::optim::stereo_projection::StereoCamera;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs};
+use loop_detection::Recognised;
 
 /// The `[global]` section of a config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,7 +79,11 @@ pub struct GlobalReport {
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
     pub full_ba: Option<FullBaReport>,
+    /// Place recognition beside the tracking pass (its thread's time), and loop
+    /// verification and correction in the global pass, milliseconds.
     pub loop_detection_ms: f64,
+    pub loop_closing_ms: f64,
+    /// The global pass itself (loop closing and full BA).
     pub total_ms: f64,
     /// Why loop detection did not run, when it did not.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -90,13 +99,31 @@ pub struct GlobalInputs<'a> {
     pub moving_threshold: f32,
 }
 
-/// Runs the global pass on `map` in place.
-pub fn run(map: &mut Map, inputs: &GlobalInputs, config: &GlobalConfig) -> GlobalReport {
+/// The place-recognition vocabulary of `config`, or why loop detection cannot run.
+pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String> {
+    Vocabulary::read(&config.vocabulary).map(Arc::new).map_err(|e| {
+        format!(
+            "no loop detection: {e} (train one with `dopslam vocab train`, or set [global] vocabulary)"
+        )
+    })
+}
+
+/// Runs the global pass on `map` in place: loops verified and corrected from what
+/// place recognition found beside tracking (`Err`: why it could not run), then full BA.
+pub fn run(
+    map: &mut Map,
+    inputs: &GlobalInputs,
+    config: &GlobalConfig,
+    recognised: Result<Recognised, String>,
+) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
-    match Vocabulary::read(&config.vocabulary) {
-        Ok(vocabulary) => {
-            let mut closer = LoopCloser::new(
+    match recognised {
+        Ok(Recognised {
+            vocabulary,
+            recognition,
+        }) => {
+            let mut closer = LoopCloser::with_recognition(
                 LoopInputs {
                     vocabulary: &vocabulary,
                     camera: inputs.camera,
@@ -105,21 +132,14 @@ pub fn run(map: &mut Map, inputs: &GlobalInputs, config: &GlobalConfig) -> Globa
                     moving_threshold: inputs.moving_threshold,
                 },
                 config.loops.clone(),
+                recognition,
             );
-            let order = map.keyframe_order.clone();
-            for key in order {
-                closer.process(map, key);
-            }
-            report.loops = closer.closed;
-            report.candidates = closer.candidates;
+            closer.close_found(map);
+            (report.loops, report.candidates, report.loop_detection_ms) = closer.finish();
         }
-        Err(e) => {
-            report.note = Some(format!(
-                "no loop detection: {e} (train one with `dopslam vocab train`, or set [global] vocabulary)"
-            ))
-        }
+        Err(note) => report.note = Some(note),
     }
-    report.loop_detection_ms = start.elapsed().as_secs_f64() * 1e3;
+    report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
     }

@@ -94,6 +94,9 @@ pub struct LocalMapper {
     /// excluded; the DOP model sets its removal threshold).
     pub moving_threshold: f32,
     pub stats: MappingStats,
+    /// Called with each keyframe once it is processed (loop detection takes it from
+    /// here, as ORB-SLAM2's local mapping hands keyframes to loop closing).
+    pub then: Option<Box<dyn FnMut(KeyFrameKey) + Send>>,
 }
 
 impl LocalMapper {
@@ -114,6 +117,7 @@ impl LocalMapper {
             pending: None,
             moving_threshold: 1.0,
             stats: MappingStats::default(),
+            then: None,
         }
     }
 
@@ -194,6 +198,9 @@ impl LocalMapper {
         }
         self.stats.keyframes_processed += 1;
         self.stats.total_ms += start.elapsed().as_secs_f64() * 1e3;
+        if let Some(then) = self.then.as_mut() {
+            then(key);
+        }
     }
 
     /// Step 3: new points with the best covisible keyframes.
