@@ -58,3 +58,36 @@ fn a_revisited_place_ranks_its_true_match_first() {
         );
     }
 }
+
+/// In the default real-time mode place recognition runs in its own thread beside
+/// tracking; the global pass then closes the loop of `loop_room` (rendered at 10 fps)
+/// from the candidates it found.
+#[test]
+fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut synth = SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
+    synth.sequence.frames = 300;
+    synth.sequence.fps = 10.0;
+    let seq = common::temp_dir("global-thread").join("seq");
+    generate(&synth, &seq, false).unwrap();
+    let mut config = dopslam::config::Config::default();
+    config.detector.source = dopslam::detect::Source::None;
+    let sequence = dopslam::pipeline::open_sequence(&seq, &config).unwrap();
+    let out = seq.parent().unwrap().join("run");
+    let options = dopslam::pipeline::RunOptions::default();
+    let report =
+        dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+    let global = report.global.expect("the global pass ran");
+    assert!(global.loop_detection_ms > 0.0);
+    let closed = &global.loops;
+    assert!(
+        closed.iter().any(|l| l.pair.keyframe_time - l.pair.matched_time > 25.0),
+        "no loop from the end to the start: {:?}",
+        global.candidates
+    );
+    // Place recognition's consistency rejections and the verdicts come in keyframe order.
+    assert!(global
+        .candidates
+        .windows(2)
+        .all(|w| w[0].pair.keyframe <= w[1].pair.keyframe));
+}
