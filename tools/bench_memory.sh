@@ -28,7 +28,7 @@ for name in "${which[@]}"; do
     ./target/release/dopslam synth --config "configs/synth/$preset.toml" --frames "$frames" --out "$seq" --force >/dev/null
   fi
   input=$seq
-  if [ -d "$seq/kitti" ]; then input=$seq/kitti; fi
+  for kitti in "$seq"/kitti/sequences/*/; do [ -d "$kitti" ] && input=${kitti%/}; done
   for n in 1000 "$frames"; do
     out=outputs/bench/memory-$name-$n
     rm -rf "$out"

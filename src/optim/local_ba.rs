@@ -81,9 +81,31 @@ fn whitened(e: &Vector3<f64>, o: &BaObservation) -> f64 {
     (e.x * e.x + e.y * e.y + if o.stereo { e.z * e.z } else { 0.0 }) * o.information
 }
 
+/// Observations per chunk of the cost: chunks of a fixed size are summed in parallel,
+/// then in order, so the cost does not depend on the thread count.
+const COST_CHUNK: usize = 8192;
+
+/// Points per chunk of the linearisation (see [`COST_CHUNK`]).
+const LINEARISE_CHUNK: usize = 1024;
+
 fn cost(problem: &BaProblem, camera: &StereoCamera, active: &[bool], robust: bool) -> f64 {
-    problem
+    let partial: Vec<f64> = problem
         .observations
+        .par_chunks(COST_CHUNK)
+        .zip(active.par_chunks(COST_CHUNK))
+        .map(|(observations, active)| observation_cost(problem, camera, observations, active, robust))
+        .collect();
+    partial.iter().sum()
+}
+
+fn observation_cost(
+    problem: &BaProblem,
+    camera: &StereoCamera,
+    observations: &[BaObservation],
+    active: &[bool],
+    robust: bool,
+) -> f64 {
+    observations
         .iter()
         .zip(active)
         .filter(|(_, &a)| a)
@@ -107,6 +129,105 @@ fn cost(problem: &BaProblem, camera: &StereoCamera, active: &[bool], robust: boo
             }
         })
         .sum()
+}
+
+/// The normal equations' blocks, from the active observations (`observations_of`, per
+/// point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
+/// point its coupling blocks \(W\) with the free poses (index in the reduced system).
+/// Points are linearised in parallel in chunks of a fixed size; the pose blocks are
+/// summed over the chunks in order, so the result does not depend on the thread count.
+#[allow(clippy::type_complexity)]
+fn linearise(
+    problem: &BaProblem,
+    camera: &StereoCamera,
+    (observations_of, free_index, free): (&[Vec<usize>], &[usize], usize),
+    robust: bool,
+) -> (
+    Vec<Matrix6<f64>>,
+    Vec<Vector6<f64>>,
+    Vec<Matrix3<f64>>,
+    Vec<Vector3<f64>>,
+    Vec<Vec<(usize, Matrix6x3<f64>)>>,
+) {
+    type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
+    let chunks: Vec<(Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>)> = observations_of
+        .par_chunks(LINEARISE_CHUNK)
+        .map(|points| {
+            let mut u = vec![Matrix6::<f64>::zeros(); free];
+            let mut b_pose = vec![Vector6::<f64>::zeros(); free];
+            let blocks = points
+                .iter()
+                .map(|indices| {
+                    let mut v = Matrix3::<f64>::zeros();
+                    let mut b_point = Vector3::<f64>::zeros();
+                    let mut coupling = Vec::with_capacity(indices.len());
+                    for &i in indices {
+                        let o = &problem.observations[i];
+                        let pose = &problem.poses[o.camera];
+                        let Some((e, p)) = residual(camera, pose, &problem.points[o.point], o)
+                        else {
+                            continue;
+                        };
+                        let s = whitened(&e, o);
+                        let w = o.information
+                            * if robust {
+                                huber_weight(s, gate(o.stereo).sqrt())
+                            } else {
+                                1.0
+                            };
+                        let projection = camera.jacobian(&p);
+                        let a_pose: Matrix3x6<f64> = projection * point_jacobian_wrt_pose(&p);
+                        let a_point: Matrix3<f64> = projection * pose.rotation.matrix();
+                        let rows = if o.stereo { 3 } else { 2 };
+                        let c = free_index[o.camera];
+                        let (mut upose, mut bp, mut wcp) = (
+                            Matrix6::<f64>::zeros(),
+                            Vector6::<f64>::zeros(),
+                            Matrix6x3::<f64>::zeros(),
+                        );
+                        for r in 0..rows {
+                            let jp = a_pose.row(r).transpose();
+                            let jx = a_point.row(r).transpose();
+                            v += w * jx * jx.transpose();
+                            b_point += w * jx * e[r];
+                            if c != usize::MAX {
+                                upose += w * jp * jp.transpose();
+                                bp += w * jp * e[r];
+                                wcp += w * jp * jx.transpose();
+                            }
+                        }
+                        if c != usize::MAX {
+                            u[c] += upose;
+                            b_pose[c] += bp;
+                            coupling.push((c, wcp));
+                        }
+                    }
+                    (v, b_point, coupling)
+                })
+                .collect();
+            (u, b_pose, blocks)
+        })
+        .collect();
+    let mut u = vec![Matrix6::<f64>::zeros(); free];
+    let mut b_pose = vec![Vector6::<f64>::zeros(); free];
+    let n_points = observations_of.len();
+    let (mut v, mut b_point, mut coupling) = (
+        Vec::with_capacity(n_points),
+        Vec::with_capacity(n_points),
+        Vec::with_capacity(n_points),
+    );
+    for (chunk_u, chunk_b, blocks) in chunks {
+        for c in 0..free {
+            u[c] += chunk_u[c];
+            b_pose[c] += chunk_b[c];
+        }
+        for (vj, bj, wj) in blocks {
+            v.push(vj);
+            b_point.push(bj);
+            coupling.push(wj);
+        }
+    }
+    (u, b_pose, v, b_point, coupling)
 }
 
 /// Runs LM iterations with the given active observations; returns the final cost.
@@ -143,56 +264,20 @@ fn levenberg_marquardt(
     let Some(pattern) = BlockPattern::new(free, 6, pairs) else {
         return cost(problem, camera, active, robust);
     };
+    // The active observations of each point, in observation order.
+    let mut observations_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
+    for (i, _) in active.iter().enumerate().filter(|(_, &a)| a) {
+        observations_of[problem.observations[i].point].push(i);
+    }
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
-        let mut u = vec![Matrix6::<f64>::zeros(); free];
-        let mut b_pose = vec![Vector6::<f64>::zeros(); free];
-        let mut v = vec![Matrix3::<f64>::zeros(); n_points];
-        let mut b_point = vec![Vector3::<f64>::zeros(); n_points];
-        // Coupling blocks per point: (free pose index, W block).
-        let mut coupling: Vec<Vec<(usize, Matrix6x3<f64>)>> = vec![Vec::new(); n_points];
-        for (o, _) in problem.observations.iter().zip(active).filter(|(_, &a)| a) {
-            let pose = &problem.poses[o.camera];
-            let Some((e, p)) = residual(camera, pose, &problem.points[o.point], o) else {
-                continue;
-            };
-            let s = whitened(&e, o);
-            let w = o.information
-                * if robust {
-                    huber_weight(s, gate(o.stereo).sqrt())
-                } else {
-                    1.0
-                };
-            let projection = camera.jacobian(&p);
-            let a_pose: Matrix3x6<f64> = projection * point_jacobian_wrt_pose(&p);
-            let a_point: Matrix3<f64> = projection * pose.rotation.matrix();
-            let rows = if o.stereo { 3 } else { 2 };
-            let (mut upose, mut bp, mut vpt, mut bx, mut wcp) = (
-                Matrix6::<f64>::zeros(),
-                Vector6::<f64>::zeros(),
-                Matrix3::<f64>::zeros(),
-                Vector3::<f64>::zeros(),
-                Matrix6x3::<f64>::zeros(),
-            );
-            for r in 0..rows {
-                let jp = a_pose.row(r).transpose();
-                let jx = a_point.row(r).transpose();
-                upose += w * jp * jp.transpose();
-                bp += w * jp * e[r];
-                vpt += w * jx * jx.transpose();
-                bx += w * jx * e[r];
-                wcp += w * jp * jx.transpose();
-            }
-            v[o.point] += vpt;
-            b_point[o.point] += bx;
-            let c = free_index[o.camera];
-            if c != usize::MAX {
-                u[c] += upose;
-                b_pose[c] += bp;
-                coupling[o.point].push((c, wcp));
-            }
-        }
+        let (u, b_pose, v, b_point, coupling) = linearise(
+            problem,
+            camera,
+            (&observations_of, &free_index, free),
+            robust,
+        );
         // Each point's pair slots, in the order the Schur loop visits them.
         let slots: Vec<Vec<(usize, bool)>> = coupling
             .par_iter()
