@@ -269,16 +269,20 @@ pub fn run_graph(args: GraphArgs) -> Result<()> {
 pub fn print_global(global: &dopslam::global::GlobalReport) {
     let rejected = global.candidates.iter().filter(|c| !c.accepted).count();
     println!(
-        "global pass: {} loop(s) closed, {} candidate(s) rejected (report.json lists why), {:.0} ms",
+        "global pass: {} loop(s) closed, {} candidate(s) rejected (report.json lists why), {:.0} ms (place recognition beside tracking: {:.0} ms)",
         global.loops.len(),
         rejected,
-        global.total_ms
+        global.total_ms,
+        global.loop_detection_ms
     );
     for l in &global.loops {
         println!(
             "  loop: keyframe {} (t {:.2}) -> {} (t {:.2}), {} inliers, {} guided matches, moved {:.3} m / {:.2} deg, {} points fused",
             l.pair.keyframe, l.pair.keyframe_time, l.pair.matched, l.pair.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
         );
+        if let Some(m) = l.merged {
+            println!("    merged map segment {} into segment {}", m.segment, m.into);
+        }
     }
     if let Some(ba) = &global.full_ba {
         println!(
