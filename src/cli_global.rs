@@ -281,7 +281,10 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
             l.pair.keyframe, l.pair.keyframe_time, l.pair.matched, l.pair.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
         );
         if let Some(m) = l.merged {
-            println!("    merged map segment {} into segment {}", m.segment, m.into);
+            println!(
+                "    merged map segment {} into segment {}",
+                m.segment, m.into
+            );
         }
     }
     if let Some(ba) = &global.full_ba {

@@ -81,7 +81,9 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
     assert!(global.loop_detection_ms > 0.0);
     let closed = &global.loops;
     assert!(
-        closed.iter().any(|l| l.pair.keyframe_time - l.pair.matched_time > 25.0),
+        closed
+            .iter()
+            .any(|l| l.pair.keyframe_time - l.pair.matched_time > 25.0),
         "no loop from the end to the start: {:?}",
         global.candidates
     );

@@ -93,7 +93,9 @@ fn cost(problem: &BaProblem, camera: &StereoCamera, active: &[bool], robust: boo
         .observations
         .par_chunks(COST_CHUNK)
         .zip(active.par_chunks(COST_CHUNK))
-        .map(|(observations, active)| observation_cost(problem, camera, observations, active, robust))
+        .map(|(observations, active)| {
+            observation_cost(problem, camera, observations, active, robust)
+        })
         .collect();
     partial.iter().sum()
 }
