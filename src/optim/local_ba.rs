@@ -85,8 +85,9 @@ fn whitened(e: &Vector3<f64>, o: &BaObservation) -> f64 {
 /// then in order, so the cost does not depend on the thread count.
 const COST_CHUNK: usize = 8192;
 
-/// Points per chunk of the linearisation (see [`COST_CHUNK`]).
-const LINEARISE_CHUNK: usize = 1024;
+/// Chunks of points of the linearisation: a fixed count (see [`COST_CHUNK`]), as each
+/// holds its own copy of the pose blocks (1592 keyframes: 0.5 MB a chunk).
+const LINEARISE_CHUNKS: usize = 16;
 
 fn cost(problem: &BaProblem, camera: &StereoCamera, active: &[bool], robust: bool) -> f64 {
     let partial: Vec<f64> = problem
@@ -136,7 +137,7 @@ fn observation_cost(
 /// The normal equations' blocks, from the active observations (`observations_of`, per
 /// point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
 /// point its coupling blocks \(W\) with the free poses (index in the reduced system).
-/// Points are linearised in parallel in chunks of a fixed size; the pose blocks are
+/// Points are linearised in parallel in a fixed number of chunks; the pose blocks are
 /// summed over the chunks in order, so the result does not depend on the thread count.
 #[allow(clippy::type_complexity)]
 fn linearise(
@@ -153,7 +154,7 @@ fn linearise(
 ) {
     type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
     let chunks: Vec<(Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>)> = observations_of
-        .par_chunks(LINEARISE_CHUNK)
+        .par_chunks(observations_of.len().div_ceil(LINEARISE_CHUNKS).max(1))
         .map(|points| {
             let mut u = vec![Matrix6::<f64>::zeros(); free];
             let mut b_pose = vec![Vector6::<f64>::zeros(); free];
@@ -166,8 +167,13 @@ fn linearise(
                     for &i in indices {
                         let o = &problem.observations[i];
                         let pose = &problem.poses[o.camera];
+                        let c = free_index[o.camera];
                         let Some((e, p)) = residual(camera, pose, &problem.points[o.point], o)
                         else {
+                            // Behind the camera: no terms, but the block keeps its place.
+                            if c != usize::MAX {
+                                coupling.push((c, Matrix6x3::zeros()));
+                            }
                             continue;
                         };
                         let s = whitened(&e, o);
@@ -181,7 +187,6 @@ fn linearise(
                         let a_pose: Matrix3x6<f64> = projection * point_jacobian_wrt_pose(&p);
                         let a_point: Matrix3<f64> = projection * pose.rotation.matrix();
                         let rows = if o.stereo { 3 } else { 2 };
-                        let c = free_index[o.camera];
                         let (mut upose, mut bp, mut wcp) = (
                             Matrix6::<f64>::zeros(),
                             Vector6::<f64>::zeros(),
@@ -271,6 +276,25 @@ fn levenberg_marquardt(
     for (i, _) in active.iter().enumerate().filter(|(_, &a)| a) {
         observations_of[problem.observations[i].point].push(i);
     }
+    // Each point's pair slots, in the order the Schur loop visits them (the coupling
+    // blocks of a point follow its observations of free poses, one each).
+    let slots: Vec<Vec<(usize, bool)>> = observations_of
+        .par_iter()
+        .map(|indices| {
+            let cameras: Vec<usize> = indices
+                .iter()
+                .map(|&i| free_index[problem.observations[i].camera])
+                .filter(|&c| c != usize::MAX)
+                .collect();
+            let mut s = Vec::with_capacity(cameras.len() * (cameras.len() + 1) / 2);
+            for (a, &c1) in cameras.iter().enumerate() {
+                for &c2 in &cameras[..=a] {
+                    s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
+                }
+            }
+            s
+        })
+        .collect();
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
@@ -280,19 +304,6 @@ fn levenberg_marquardt(
             (&observations_of, &free_index, free),
             robust,
         );
-        // Each point's pair slots, in the order the Schur loop visits them.
-        let slots: Vec<Vec<(usize, bool)>> = coupling
-            .par_iter()
-            .map(|blocks| {
-                let mut s = Vec::with_capacity(blocks.len() * (blocks.len() + 1) / 2);
-                for (a, &(c1, _)) in blocks.iter().enumerate() {
-                    for &(c2, _) in &blocks[..=a] {
-                        s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
-                    }
-                }
-                s
-            })
-            .collect();
         let mut accepted = false;
         for _ in 0..8 {
             let damped_v: Vec<Option<Matrix3<f64>>> = v
