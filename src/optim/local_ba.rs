@@ -134,26 +134,30 @@ fn observation_cost(
         .sum()
 }
 
+/// The blocks of the normal equations (see the module notes).
+struct NormalBlocks {
+    u: Vec<Matrix6<f64>>,
+    b_pose: Vec<Vector6<f64>>,
+    v: Vec<Matrix3<f64>>,
+    b_point: Vec<Vector3<f64>>,
+    /// Per point: (free pose index, \(W\) block), one per observation of a free pose.
+    coupling: Vec<Vec<(usize, Matrix6x3<f64>)>>,
+}
+
 /// The normal equations' blocks, from the active observations (`observations_of`, per
 /// point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
 /// point its coupling blocks \(W\) with the free poses (index in the reduced system).
 /// Points are linearised in parallel in a fixed number of chunks; the pose blocks are
 /// summed over the chunks in order, so the result does not depend on the thread count.
-#[allow(clippy::type_complexity)]
 fn linearise(
     problem: &BaProblem,
     camera: &StereoCamera,
     (observations_of, free_index, free): (&[Vec<usize>], &[usize], usize),
     robust: bool,
-) -> (
-    Vec<Matrix6<f64>>,
-    Vec<Vector6<f64>>,
-    Vec<Matrix3<f64>>,
-    Vec<Vector3<f64>>,
-    Vec<Vec<(usize, Matrix6x3<f64>)>>,
-) {
+) -> NormalBlocks {
     type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
-    let chunks: Vec<(Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>)> = observations_of
+    type ChunkBlocks = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>);
+    let chunks: Vec<ChunkBlocks> = observations_of
         .par_chunks(observations_of.len().div_ceil(LINEARISE_CHUNKS).max(1))
         .map(|points| {
             let mut u = vec![Matrix6::<f64>::zeros(); free];
@@ -234,7 +238,13 @@ fn linearise(
             coupling.push(wj);
         }
     }
-    (u, b_pose, v, b_point, coupling)
+    NormalBlocks {
+        u,
+        b_pose,
+        v,
+        b_point,
+        coupling,
+    }
 }
 
 /// Runs LM iterations with the given active observations; returns the final cost.
@@ -298,7 +308,13 @@ fn levenberg_marquardt(
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
-        let (u, b_pose, v, b_point, coupling) = linearise(
+        let NormalBlocks {
+            u,
+            b_pose,
+            v,
+            b_point,
+            coupling,
+        } = linearise(
             problem,
             camera,
             (&observations_of, &free_index, free),
