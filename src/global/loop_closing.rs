@@ -139,7 +139,7 @@ pub struct LoopInputs<'a> {
 
 /// Stages 1 and 2 (place recognition and consistency), apart from the correction:
 /// run on each keyframe as local mapping finishes it during the tracking pass (in its
-/// own thread, [`super::loop_detection`]), or by the global pass itself.
+/// own thread or inline, [`super::loop_detection`]).
 pub struct PlaceRecognition {
     config: LoopConfig,
     database: Database<KeyFrameKey>,
@@ -285,11 +285,10 @@ impl PlaceRecognition {
     }
 }
 
-/// Loop closing across keyframes: place recognition (here, or handed over from the
-/// tracking pass), then verification and correction.
+/// Loop closing across keyframes: verification and correction of what place
+/// recognition found beside the tracking pass (its config is theirs).
 pub struct LoopCloser<'a> {
     inputs: LoopInputs<'a>,
-    config: LoopConfig,
     recognition: PlaceRecognition,
     last_loop: Option<usize>,
     pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
@@ -300,14 +299,9 @@ pub struct LoopCloser<'a> {
 
 impl<'a> LoopCloser<'a> {
     /// Continues from place recognition that ran beside tracking.
-    pub fn with_recognition(
-        inputs: LoopInputs<'a>,
-        config: LoopConfig,
-        recognition: PlaceRecognition,
-    ) -> Self {
+    pub fn with_recognition(inputs: LoopInputs<'a>, recognition: PlaceRecognition) -> Self {
         Self {
             inputs,
-            config,
             recognition,
             last_loop: None,
             loops: Vec::new(),
@@ -321,7 +315,7 @@ impl<'a> LoopCloser<'a> {
     fn recent(&self, map: &Map, key: KeyFrameKey) -> bool {
         let id = map.keyframes.get(key).map_or(0, |kf| kf.id);
         self.last_loop
-            .is_some_and(|last| id < last + self.config.gap)
+            .is_some_and(|last| id < last + self.recognition.config.gap)
     }
 
     /// Verifies and corrects, in order, the candidates that place recognition found
@@ -339,7 +333,10 @@ impl<'a> LoopCloser<'a> {
                             map,
                             (key, c),
                             score,
-                            format!("within {} keyframes of the last loop", self.config.gap),
+                            format!(
+                                "within {} keyframes of the last loop",
+                                self.recognition.config.gap
+                            ),
                             false,
                         );
                     }
@@ -400,11 +397,11 @@ impl<'a> LoopCloser<'a> {
                 map,
                 (a, &self.recognition.words[&key].1),
                 (b, &self.recognition.words[&candidate].1),
-                self.config.ratio,
+                self.recognition.config.ratio,
                 threshold,
             )
         };
-        if matches.len() < self.config.min_inliers {
+        if matches.len() < self.recognition.config.min_inliers {
             self.record(
                 map,
                 (key, candidate),
@@ -412,7 +409,7 @@ impl<'a> LoopCloser<'a> {
                 format!(
                     "{} vocabulary matches with static points, {} needed",
                     matches.len(),
-                    self.config.min_inliers
+                    self.recognition.config.min_inliers
                 ),
                 false,
             );
@@ -429,14 +426,14 @@ impl<'a> LoopCloser<'a> {
             );
             return false;
         };
-        if inliers < self.config.min_inliers {
+        if inliers < self.recognition.config.min_inliers {
             self.record(
                 map,
                 (key, candidate),
                 score,
                 format!(
                     "{inliers} RANSAC inliers, {} needed",
-                    self.config.min_inliers
+                    self.recognition.config.min_inliers
                 ),
                 false,
             );
@@ -458,7 +455,7 @@ impl<'a> LoopCloser<'a> {
             self.inputs.pyramid,
             self.inputs.size,
         );
-        if guided.len() < self.config.min_guided_matches {
+        if guided.len() < self.recognition.config.min_guided_matches {
             self.record(
                 map,
                 (key, candidate),
@@ -466,7 +463,7 @@ impl<'a> LoopCloser<'a> {
                 format!(
                     "{inliers} inliers, but {} matches after guided search, {} needed",
                     guided.len(),
-                    self.config.min_guided_matches
+                    self.recognition.config.min_guided_matches
                 ),
                 false,
             );
@@ -569,7 +566,7 @@ impl<'a> LoopCloser<'a> {
             Some(Se3::from_parts(s.translation.into(), s.rotation))
         };
         let mut best: Option<(Se3, Vec<usize>)> = None;
-        for _ in 0..self.config.ransac_iterations {
+        for _ in 0..self.recognition.config.ransac_iterations {
             let mut sample = [0usize; 3];
             for s in sample.iter_mut() {
                 *s = (self.rng.next_u64() % matches.len() as u64) as usize;
@@ -685,7 +682,7 @@ impl<'a> LoopCloser<'a> {
             &uncorrected,
             &placed_by,
             candidate,
-            self.config.covisibility_weight,
+            self.recognition.config.covisibility_weight,
         );
         let all: Vec<MapPointKey> = map.points.keys().collect();
         for p in all {

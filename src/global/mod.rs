@@ -131,7 +131,6 @@ pub fn run(
                     size: inputs.size,
                     moving_threshold: inputs.moving_threshold,
                 },
-                config.loops.clone(),
                 recognition,
             );
             closer.close_found(map);
