@@ -15,8 +15,8 @@
 //! but the free space in front of the mover (\(\eta > \tau\)) still carves.
 //!
 //! Integration is rayon-parallel over the blocks a frame touches: those within
-//! \(\tau\) of its depth (allocated) and, for carving, existing blocks that rays
-//! pass through in front of the surface.
+//! \(\tau\) of its depth (allocated) and, for carving, existing surface blocks that
+//! lie in front of the depth they project onto.
 
 use std::collections::HashMap;
 
@@ -85,6 +85,27 @@ impl Default for TsdfSettings {
     }
 }
 
+/// Block coordinates are packed into sortable keys of 21 bits each (offset by
+/// \(2^{20}\): \(\pm 84\) km at 1 cm voxels).
+const KEY_OFFSET: i32 = 1 << 20;
+const KEY_MASK: u64 = (1 << 21) - 1;
+
+/// A block coordinate as one `u64` (ordered as the coordinates are); `None` outside
+/// the packed range.
+fn block_key(coord: [i32; 3]) -> Option<u64> {
+    let field = |c: i32| {
+        let shifted = c.checked_add(KEY_OFFSET)?;
+        (0..1 << 21).contains(&shifted).then_some(shifted as u64)
+    };
+    Some((field(coord[0])? << 42) | (field(coord[1])? << 21) | field(coord[2])?)
+}
+
+/// The block coordinate of a [`block_key`].
+fn key_block(key: u64) -> [i32; 3] {
+    let field = |shift: u32| ((key >> shift) & KEY_MASK) as i32 - KEY_OFFSET;
+    [field(42), field(21), field(0)]
+}
+
 /// One block of voxels, x fastest.
 #[derive(Debug, Clone)]
 pub struct Block {
@@ -136,6 +157,8 @@ pub struct TsdfVolume {
     pub coords: Vec<[i32; 3]>,
     index: FxMap<[i32; 3], u32>,
     frames: u32,
+    /// \(2^{16} / (n + 1)\) for colour counts \(n\) up to the weight cap.
+    colour_reciprocals: Vec<u32>,
 }
 
 impl TsdfVolume {
@@ -147,6 +170,9 @@ impl TsdfVolume {
             coords: Vec::new(),
             index: FxMap::default(),
             frames: 0,
+            colour_reciprocals: (0..=settings.max_weight.clamp(0.0, u16::MAX as f32) as u32)
+                .map(|n| (65536.0 / f64::from(n + 1)).round() as u32)
+                .collect(),
         }
     }
 
@@ -157,12 +183,8 @@ impl TsdfVolume {
 
     /// The block holding world point `p`.
     fn block_of(&self, p: &Vector3<f64>) -> [i32; 3] {
-        let s = self.block_size();
-        [
-            (p.x / s).floor() as i32,
-            (p.y / s).floor() as i32,
-            (p.z / s).floor() as i32,
-        ]
+        let inv = 1.0 / self.block_size();
+        [floor(p.x * inv), floor(p.y * inv), floor(p.z * inv)]
     }
 
     /// The block at `coord`, if allocated.
@@ -190,114 +212,157 @@ impl TsdfVolume {
     pub fn integrate(&mut self, frame: &FrameInput) {
         self.frames += 1;
         let stamp = self.frames;
-        let (near, carved) = self.blocks_seen(frame);
-        for coord in near {
+        let carved = if self.settings.carve {
+            self.blocks_in_front(frame)
+        } else {
+            Vec::new()
+        };
+        for i in carved {
+            self.blocks[i as usize].stamp = stamp;
+        }
+        for coord in self.blocks_near_surface(frame) {
             self.block_mut(coord).stamp = stamp;
         }
-        for coord in carved {
-            if let Some(&i) = self.index.get(&coord) {
-                self.blocks[i as usize].stamp = stamp;
-            }
-        }
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
-        self.blocks
-            .par_iter_mut()
-            .zip(self.coords.par_iter())
+        let reciprocals = &self.colour_reciprocals;
+        let mut chosen: Vec<(&mut Block, &[i32; 3])> = self
+            .blocks
+            .iter_mut()
+            .zip(&self.coords)
             .filter(|(b, _)| b.stamp == stamp)
-            .for_each(|(block, coord)| {
-                integrate_block(block, coord, block_size, &settings, &camera, frame)
-            });
+            .collect();
+        chosen.par_iter_mut().for_each(|(block, coord)| {
+            integrate_block(
+                block,
+                coord,
+                block_size,
+                &settings,
+                &camera,
+                reciprocals,
+                frame,
+            )
+        });
     }
 
-    /// Block coordinates within \(\tau\) of the frame's depth, and blocks that rays
-    /// cross in front of it (from every 4th pixel; rays from every 8th, only when carving).
-    fn blocks_seen(&self, frame: &FrameInput) -> (Vec<[i32; 3]>, Vec<[i32; 3]>) {
+    /// Block coordinates within \(\tau\) of the frame's depth (every 4th pixel of every
+    /// 4th row; not at masked pixels): a surface point \(p\) needs the blocks that meet
+    /// the cube \(p \pm \tau\). With \(R, t\) = `world_from_camera`, pixel \((u, v)\) at
+    /// depth \(d\) lies at \(p = t + d\,(a u + b v + c)\), \(a = R e_x / f_x\),
+    /// \(b = R e_y / f_y\), \(c = R\,(-c_x/f_x, -c_y/f_y, 1)^\top\).
+    fn blocks_near_surface(&self, frame: &FrameInput) -> Vec<[i32; 3]> {
         let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
         let world_from_camera = frame.camera_from_world.inverse();
-        let tau = self.settings.truncation;
+        let r = world_from_camera.rotation.matrix();
+        let t = world_from_camera.translation.vector;
+        let cam = &self.camera;
+        let a = r.column(0) / cam.fx;
+        let b = r.column(1) / cam.fy;
+        let c = r * Vector3::new(-cam.cx / cam.fx, -cam.cy / cam.fy, 1.0);
+        let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
         let step = 4;
-        type Blocks = Vec<[i32; 3]>;
-        let rows: Vec<(Blocks, Blocks)> = (0..h)
+        // Each sample's cube as its (lowest, highest) block; neighbouring samples mostly
+        // repeat the last cube. Rows expand their cubes into packed block keys.
+        let mut keys: Vec<u64> = (0..h)
             .into_par_iter()
             .step_by(step)
-            .map(|v| {
-                let mut near = Vec::new();
-                let mut carved = Vec::new();
+            .flat_map_iter(|v| {
+                let row = b * v as f64 + c;
+                let mut keys = Vec::new();
+                let mut last = None;
                 for u in (0..w).step_by(step) {
                     let i = v * w + u;
                     let d = frame.depth.metres[i] as f64;
-                    if d <= 0.0 || d > self.settings.max_depth {
+                    if d <= 0.0 || d > max_depth || frame.dynamic.is_some_and(|m| m[i]) {
                         continue;
                     }
-                    let dynamic = frame.dynamic.is_some_and(|m| m[i]);
-                    let ray = self
-                        .camera
-                        .unproject(&nalgebra::Vector2::new(u as f64, v as f64), 1.0);
-                    let p = |z: f64| (world_from_camera * Point3::from(ray * z)).coords;
-                    // Every block within tau of the surface point, in any direction
-                    // (not for a mover's surface; the free space before it still counts).
-                    let surface = p(d);
-                    let (lo, hi) = if dynamic {
-                        ([0; 3], [-1; 3])
-                    } else {
-                        (
-                            self.block_of(&surface.add_scalar(-tau)),
-                            self.block_of(&surface.add_scalar(tau)),
-                        )
-                    };
+                    let p = t + (a * u as f64 + row) * d;
+                    let cube = (
+                        self.block_of(&p.add_scalar(-tau)),
+                        self.block_of(&p.add_scalar(tau)),
+                    );
+                    if last == Some(cube) {
+                        continue;
+                    }
+                    last = Some(cube);
+                    let (lo, hi) = cube;
                     for bz in lo[2]..=hi[2] {
                         for by in lo[1]..=hi[1] {
-                            for bx in lo[0]..=hi[0] {
-                                // Neighbouring pixels mostly repeat the last few blocks.
-                                let b = [bx, by, bz];
-                                if !near[near.len().saturating_sub(16)..].contains(&b) {
-                                    near.push(b);
-                                }
-                            }
-                        }
-                    }
-                    if self.settings.carve && u % 8 == 0 && v % 8 == 0 {
-                        // Steps of one block along the ray, up to the truncation band.
-                        let dz = self.block_size() / ray.norm();
-                        let mut z = dz;
-                        while z < d - tau {
-                            let coord = self.block_of(&p(z));
-                            if let Some(&i) = self.index.get(&coord) {
-                                if self.blocks[i as usize].surface {
-                                    carved.push(coord);
-                                }
-                            }
-                            z += dz;
+                            keys.extend((lo[0]..=hi[0]).filter_map(|bx| block_key([bx, by, bz])));
                         }
                     }
                 }
-                near.sort_unstable();
-                near.dedup();
-                carved.sort_unstable();
-                carved.dedup();
-                (near, carved)
+                keys.sort_unstable();
+                keys.dedup();
+                keys
             })
             .collect();
-        let mut near: Vec<[i32; 3]> = rows.iter().flat_map(|r| r.0.iter().copied()).collect();
-        let mut carved: Vec<[i32; 3]> = rows.iter().flat_map(|r| r.1.iter().copied()).collect();
-        near.sort_unstable();
-        near.dedup();
-        carved.sort_unstable();
-        carved.dedup();
-        (near, carved)
+        keys.par_sort_unstable();
+        keys.dedup();
+        keys.into_iter().map(key_block).collect()
+    }
+
+    /// Indices of existing blocks holding a surface that this frame's depth sees
+    /// through: blocks whose centre \(c\) projects to a pixel of depth \(d\) with
+    /// \(z_c - r < d - \tau\) (\(r\): half the block's diagonal), so that some of the
+    /// block lies in the free space in front of the measured surface (see the module
+    /// doc: such observations carve).
+    fn blocks_in_front(&self, frame: &FrameInput) -> Vec<u32> {
+        let (w, h) = (frame.depth.width as f64, frame.depth.height as f64);
+        let cam = &self.camera;
+        let half = 0.5 * self.block_size();
+        let radius = half * 3f64.sqrt();
+        let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
+        let pose = frame.camera_from_world;
+        self.coords
+            .par_iter()
+            .zip(self.blocks.par_iter())
+            .enumerate()
+            .filter(|(_, (_, block))| block.surface)
+            .filter_map(|(i, (coord, _))| {
+                let centre = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64)
+                    * self.block_size()
+                    + Vector3::repeat(half);
+                let p = pose * Point3::from(centre);
+                if p.z <= 0.0 {
+                    return None;
+                }
+                let (u, v) = (cam.fx * p.x / p.z + cam.cx, cam.fy * p.y / p.z + cam.cy);
+                if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
+                    return None;
+                }
+                let d = frame.depth.metres[v as usize * w as usize + u as usize] as f64;
+                (d > 0.0 && d <= max_depth && p.z - radius < d - tau).then_some(i as u32)
+            })
+            .collect()
     }
 }
 
-/// Fuses one frame into one block.
+/// \(\lfloor x \rfloor\) without libm's `floor`, which x86-64 without SSE4.1 calls.
+fn floor(x: f64) -> i32 {
+    let i = x as i32;
+    i - i32::from((i as f64) > x)
+}
+
+/// The pixel nearest to image coordinate `x` in `[0, size)`, clamped: the float
+/// "magic number" rounding (adding \(2^{23}\) leaves the rounded integer in the low
+/// mantissa bits), which unlike `as` has no branches and so vectorises.
+fn nearest(x: f32, size: f32) -> i32 {
+    const MAGIC: f32 = 8_388_608.0;
+    ((x.max(0.0).min(size - 1.0) + MAGIC).to_bits() - MAGIC.to_bits()) as i32
+}
+
+/// Fuses one frame into one block. First every voxel's pixel and depth, in a loop
+/// without branches that the compiler vectorises; then the updates, voxel by voxel.
 fn integrate_block(
     block: &mut Block,
     coord: &[i32; 3],
     block_size: f64,
     settings: &TsdfSettings,
     camera: &PinholeCamera,
+    reciprocals: &[u32],
     frame: &FrameInput,
 ) {
-    let (w, h) = (frame.depth.width as i32, frame.depth.height as i32);
+    let (w, h) = (frame.depth.width, frame.depth.height);
     let tau = settings.truncation as f32;
     let inv_tau = 1.0 / tau;
     let far = (settings.max_depth + settings.truncation) as f32;
@@ -309,66 +374,103 @@ fn integrate_block(
         camera.cy as f32,
     );
     // Voxel centres sit at integer multiples of the voxel size (a corner-aligned
-    // lattice shared by neighbouring blocks); in the camera a voxel is
-    // p = R c + t + x R e_x v + y R e_y v + z R e_z v, stepped incrementally in f32.
+    // lattice shared by neighbouring blocks); in the camera voxel (x, y, z) is
+    // p = R c + t + x R e_x v + y R e_y v + z R e_z v.
     let r = frame.camera_from_world.rotation.matrix();
     let corner = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64) * block_size;
-    let origin = (r * corner + frame.camera_from_world.translation.vector).cast::<f32>();
+    let o = (r * corner + frame.camera_from_world.translation.vector).cast::<f32>();
     let step = |k: usize| (r.column(k) * settings.voxel).into_owned().cast::<f32>();
     let (dx, dy, dz) = (step(0), step(1), step(2));
-    let depth = &frame.depth.metres;
-    let colour = frame.colour.as_raw();
-    let mut i = 0;
-    for z in 0..BLOCK {
-        let pz = origin + dz * z as f32;
-        for y in 0..BLOCK {
-            let mut p = pz + dy * y as f32;
-            for _ in 0..BLOCK {
-                let here = p;
-                p += dx;
-                i += 1;
-                if here.z <= 0.0 || here.z > far {
-                    continue;
-                }
-                // Nearest pixel; `+ 0.5` then truncation (no libm round call).
-                let inv = 1.0 / here.z;
-                let (uf, vf) = (fx * here.x * inv + cx + 0.5, fy * here.y * inv + cy + 0.5);
-                if uf < 0.0 || vf < 0.0 {
-                    continue;
-                }
-                let (u, v) = (uf as i32, vf as i32);
-                if u >= w || v >= h {
-                    continue;
-                }
-                let pixel = (v * w + u) as usize;
-                let d = depth[pixel];
-                if d <= 0.0 || d > max_depth {
-                    continue;
-                }
-                let eta = d - here.z;
-                // A masked pixel's depth is a mover's: nothing at or behind it is
-                // fused, but the free space in front of it still carves.
-                let dynamic = frame.dynamic.is_some_and(|m| m[pixel]);
-                if eta < -tau || (dynamic && eta <= tau) {
-                    continue;
-                }
-                let k = i - 1;
-                let weight = block.weight[k];
-                let inv_total = 1.0 / (weight + 1.0);
-                block.sdf[k] = (block.sdf[k] * weight + (eta * inv_tau).min(1.0)) * inv_total;
-                block.weight[k] = (weight + 1.0).min(settings.max_weight);
-                if eta <= tau {
-                    let c = &colour[3 * pixel..3 * pixel + 3];
-                    let seen = block.colour_weight[k].min(settings.max_weight as u16) as f32;
-                    let inv_seen = 1.0 / (seen + 1.0);
-                    let old = &mut block.colour[k];
-                    for ch in 0..3 {
-                        old[ch] = ((old[ch] as f32 * seen + c[ch] as f32) * inv_seen + 0.5) as u8;
-                    }
-                    block.colour_weight[k] = block.colour_weight[k].saturating_add(1);
-                }
-            }
+    let (wf, hf) = (w as f32, h as f32);
+    let w = w as i32;
+    // Voxel (x, y, z) sits at index k = (z B + y) B + x: rows of B voxels along x, in
+    // lanes the compiler vectorises (no branches, signed conversions).
+    const NONE: i32 = -1;
+    let xs: [f32; BLOCK] = std::array::from_fn(|x| x as f32);
+    let mut pixels = [NONE; BLOCK_VOXELS];
+    let mut zs = [0f32; BLOCK_VOXELS];
+    for (row, (pixels, zs)) in pixels
+        .chunks_exact_mut(BLOCK)
+        .zip(zs.chunks_exact_mut(BLOCK))
+        .enumerate()
+    {
+        let (y, z) = ((row % BLOCK) as f32, (row / BLOCK) as f32);
+        let base = o + dy * y + dz * z;
+        for ((pixel, z_out), &x) in pixels.iter_mut().zip(zs.iter_mut()).zip(&xs) {
+            let (px, py, pz) = (base.x + dx.x * x, base.y + dx.y * x, base.z + dx.z * x);
+            let inv = 1.0 / pz;
+            let uf = fx * px * inv + cx;
+            let vf = fy * py * inv + cy;
+            let seen = (pz > 0.0)
+                & (pz <= far)
+                & (uf >= -0.5)
+                & (vf >= -0.5)
+                & (uf < wf - 0.5)
+                & (vf < hf - 0.5);
+            let (u, v) = (nearest(uf, wf), nearest(vf, hf));
+            *pixel = if seen { v * w + u } else { NONE };
+            *z_out = pz;
         }
+    }
+    // The measured depth at each voxel's pixel (0: none), and whether a mask marks
+    // that pixel dynamic.
+    let depth = &frame.depth.metres;
+    let last = depth.len() - 1;
+    let mut measured = [0f32; BLOCK_VOXELS];
+    let mut moving = [false; BLOCK_VOXELS];
+    for ((&pixel, d), moving) in pixels.iter().zip(&mut measured).zip(&mut moving) {
+        let i = (pixel as usize).min(last);
+        let value = depth[i];
+        *d = if pixel == NONE || value > max_depth {
+            0.0
+        } else {
+            value
+        };
+        *moving = frame.dynamic.is_some_and(|m| m[i]);
+    }
+    // \(\eta = d - z\) updates a voxel where \(d > 0\) and \(\eta \ge -\tau\); at a
+    // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
+    // behind it, but the free space in front of it still carves).
+    let max_weight = settings.max_weight;
+    let sdf = &mut block.sdf[..BLOCK_VOXELS];
+    let weight = &mut block.weight[..BLOCK_VOXELS];
+    for ((((f, w), d), &z), &moving) in sdf
+        .iter_mut()
+        .zip(weight.iter_mut())
+        .zip(measured.iter_mut())
+        .zip(&zs)
+        .zip(&moving)
+    {
+        let eta = *d - z;
+        let update = (*d > 0.0) & (eta >= -tau) & (!moving | (eta > tau));
+        // Blends with 0/1 factors, not branches, so that this loop vectorises.
+        let m = f32::from(u8::from(update));
+        let fused = (*f * *w + (eta * inv_tau).min(1.0)) / (*w + 1.0);
+        *f += m * (fused - *f);
+        *w += m * ((*w + 1.0).min(max_weight) - *w);
+        // Colour only within the band; `measured` becomes that flag.
+        *d = m * f32::from(u8::from(eta <= tau));
+    }
+    // Colour: the running mean c <- c + (c_pixel - c) / (n + 1), with n the capped
+    // count, in 16-bit fixed point (`reciprocals[n]` = 2^16 / (n + 1), rounded).
+    let colour = frame.colour.as_raw();
+    let cap = reciprocals.len() - 1;
+    for ((&pixel, &flag), (old, seen)) in pixels
+        .iter()
+        .zip(&measured)
+        .zip(block.colour.iter_mut().zip(block.colour_weight.iter_mut()))
+    {
+        if flag == 0.0 {
+            continue;
+        }
+        let pixel = pixel as usize;
+        let c = &colour[3 * pixel..3 * pixel + 3];
+        let step = reciprocals[(*seen as usize).min(cap)] as i32;
+        for (old, &new) in old.iter_mut().zip(c) {
+            let change = (new as i32 - *old as i32) * step;
+            *old = (*old as i32 + ((change + (1 << 15)) >> 16)) as u8;
+        }
+        *seen = seen.saturating_add(1);
     }
     block.surface = block
         .sdf
@@ -383,7 +485,34 @@ pub(crate) mod tests {
     use crate::dense::marching_cubes::extract;
     use crate::geometry::se3;
     use nalgebra::Matrix3;
+    use proptest::prelude::*;
     use std::collections::HashMap;
+
+    proptest! {
+        #[test]
+        fn block_keys_round_trip_and_keep_the_order(
+            a in prop::array::uniform3(-(1i32 << 20)..(1 << 20)),
+            b in prop::array::uniform3(-(1i32 << 20)..(1 << 20)),
+        ) {
+            let (ka, kb) = (block_key(a).unwrap(), block_key(b).unwrap());
+            prop_assert_eq!(key_block(ka), a);
+            prop_assert_eq!(ka.cmp(&kb), a.cmp(&b));
+        }
+
+        #[test]
+        fn floor_and_nearest_agree_with_libm(x in -1e6f64..1e6, p in -50f32..700.0) {
+            prop_assert_eq!(floor(x), x.floor() as i32);
+            let expected = p.round_ties_even().clamp(0.0, 639.0) as i32;
+            prop_assert_eq!(nearest(p, 640.0), expected);
+        }
+    }
+
+    #[test]
+    fn block_keys_refuse_coordinates_out_of_range() {
+        assert!(block_key([1 << 20, 0, 0]).is_none());
+        assert!(block_key([0, -(1 << 20) - 1, 0]).is_none());
+        assert!(block_key([0, 0, i32::MIN]).is_none());
+    }
 
     pub fn small_camera() -> PinholeCamera {
         PinholeCamera {
