@@ -92,10 +92,17 @@ impl CloudBuilder {
         }
     }
 
-    /// The cloud: voxel means, outliers removed, normals estimated. Sorted by voxel
-    /// so that the output does not depend on hash order.
-    pub fn finish(self) -> Mesh {
-        let mut voxels: Vec<([i32; 3], Voxel)> = self.voxels.into_iter().collect();
+    /// The cloud: voxel means, those `drop` names removed, outliers removed, normals
+    /// estimated. Sorted by voxel so that the output does not depend on hash order.
+    /// Also returns how many `drop` removed.
+    pub fn finish(self, drop: impl Fn(&Vector3<f64>) -> bool + Sync) -> (Mesh, usize) {
+        let all = self.voxels.len();
+        let mut voxels: Vec<([i32; 3], Voxel)> = self
+            .voxels
+            .into_par_iter()
+            .filter(|(_, v)| !drop(&(Vector3::from(v.sum) / v.count as f64)))
+            .collect();
+        let dropped = all - voxels.len();
         voxels.sort_unstable_by_key(|(k, _)| *k);
         let mut cloud = Mesh::default();
         let mut views = Vec::with_capacity(voxels.len());
@@ -118,7 +125,7 @@ impl CloudBuilder {
         if s.normal_neighbours >= 3 && cloud.len() > s.normal_neighbours {
             cloud.normals = normals(&cloud.vertices, &views, s.normal_neighbours);
         }
-        cloud
+        (cloud, dropped)
     }
 }
 
@@ -208,7 +215,7 @@ mod tests {
             dynamic: Some(&mask),
             camera_from_world: &pose,
         });
-        let cloud = builder.finish();
+        let (cloud, _) = builder.finish(|_| false);
         assert!(cloud.len() > 1000);
         assert!(
             cloud.vertices.iter().all(|v| (v[2] - 2.0).abs() < 1e-4),

@@ -81,6 +81,10 @@ pub struct DenseConfig {
     pub outlier_neighbours: usize,
     pub outlier_std: f64,
     pub normal_neighbours: usize,
+    /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
+    /// missed by the masks that later left): \(F\) above this, in truncation units
+    /// (1 or more: off; needs the mesh).
+    pub cloud_free_space: f32,
     /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
     pub mask_border: u32,
     pub keypoint_radius: u32,
@@ -109,6 +113,7 @@ impl Default for DenseConfig {
             outlier_neighbours: 16,
             outlier_std: 2.0,
             normal_neighbours: 16,
+            cloud_free_space: 0.5,
             mask_border: 6,
             keypoint_radius: 10,
             ply_encoding: PlyEncoding::Binary,
@@ -132,6 +137,12 @@ impl DenseConfig {
                     "dense.{name} must be a positive number, not {value}"
                 ));
             }
+        }
+        if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
+            return Err(format!(
+                "dense.cloud_free_space must be a number above -1, not {}",
+                self.cloud_free_space
+            ));
         }
         if self.truncation < self.voxel {
             return Err(format!(
@@ -205,6 +216,8 @@ pub struct DenseReport {
     pub mesh_vertices: usize,
     pub mesh_triangles: usize,
     pub cloud_points: usize,
+    /// Cloud voxels dropped as seen through (see `DenseConfig::cloud_free_space`).
+    pub cloud_seen_through: usize,
     /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
     pub median_integration_ms: f64,
     pub marching_cubes_ms: f64,
@@ -505,12 +518,15 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         }
         mesh_or_cloud = Some(mesh);
     }
-    drop(volume);
     if config.cloud {
         let start = Instant::now();
-        let points = cloud.finish();
+        let limit = config.cloud_free_space;
+        let (points, dropped) =
+            cloud.finish(|p| config.mesh && limit < 1.0 && volume.seen_through(p, limit));
+        drop(volume);
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();
+        report.cloud_seen_through = dropped;
         let path = inputs.out_dir.join("dense_points.ply");
         write_ply(&path, &points, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);

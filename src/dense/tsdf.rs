@@ -203,6 +203,26 @@ impl TsdfVolume {
         &mut self.blocks[i as usize]
     }
 
+    /// Whether the voxel nearest to world point `p` is observed free space: weight above
+    /// zero and \(F > \) `limit` (in truncation units: \(F = 1\) lies \(\tau\) or more in
+    /// front of every surface seen there). A point the depth once put there belonged to
+    /// something that has since been seen through, a mover that left.
+    pub fn seen_through(&self, p: &Vector3<f64>, limit: f32) -> bool {
+        // Voxel centres lie at integer multiples of the voxel edge.
+        let v = |x: f64| floor(x / self.settings.voxel + 0.5);
+        let (x, y, z) = (v(p.x), v(p.y), v(p.z));
+        let b = BLOCK as i32;
+        let Some(block) = self.block([x.div_euclid(b), y.div_euclid(b), z.div_euclid(b)]) else {
+            return false;
+        };
+        let k = voxel_index(
+            x.rem_euclid(b) as usize,
+            y.rem_euclid(b) as usize,
+            z.rem_euclid(b) as usize,
+        );
+        block.weight[k] > 0.0 && block.sdf[k] > limit
+    }
+
     /// Bytes held by the voxel data.
     pub fn memory_bytes(&self) -> usize {
         self.blocks.len() * BLOCK_VOXELS * (4 + 4 + 3 + 2)
@@ -505,6 +525,42 @@ pub(crate) mod tests {
             let expected = p.round_ties_even().clamp(0.0, 639.0) as i32;
             prop_assert_eq!(nearest(p, 640.0), expected);
         }
+    }
+
+    #[test]
+    fn a_place_seen_through_after_it_was_a_surface_reads_as_free_space() {
+        let settings = TsdfSettings {
+            voxel: 0.02,
+            truncation: 0.06,
+            max_weight: 20.0,
+            ..TsdfSettings::default()
+        };
+        let ball = (Vector3::new(0.0, 0.0, 1.2), 0.2);
+        let views: Vec<Se3> = (0..10)
+            .map(|k| {
+                looking_at(
+                    Vector3::new(-0.1 + 0.02 * k as f64, 0.0, 0.0),
+                    Vector3::new(0.0, 0.0, 2.0),
+                )
+            })
+            .collect();
+        let front = Vector3::new(0.0, 0.0, 1.0);
+        let wall = Vector3::new(0.0, 0.0, 2.0);
+        let mut volume = TsdfVolume::new(settings, small_camera());
+        fuse_views(&mut volume, &views, &[ball], Some(2.0));
+        assert!(
+            !volume.seen_through(&front, 0.5),
+            "the ball's surface is there"
+        );
+        for _ in 0..3 {
+            fuse_views(&mut volume, &views, &[], Some(2.0));
+        }
+        assert!(volume.seen_through(&front, 0.5), "the ball left");
+        assert!(!volume.seen_through(&wall, 0.5), "the wall stays");
+        assert!(
+            !volume.seen_through(&Vector3::new(5.0, 5.0, 5.0), 0.5),
+            "never seen"
+        );
     }
 
     #[test]
