@@ -10,9 +10,9 @@ every frame at 1 cm voxels, 4 cm truncation, 4 m depth, no masks; the script pri
 per-frame integration time (median, mean), meshing time, peak memory of each process,
 the surface agreement (mean and 95th percentile distance from each mesh's vertices to
 the other mesh's vertices, in voxels), and checks that Open3D reads every PLY/OBJ that
-dopslam writes (vertex and face counts equal). Needs `pip install open3d==0.20.0`
-(Debian: libusb-1.0-0 libgomp1 libgl1); tools/bench_dense.sh installs it into
-data/venv.
+dopslam writes (vertex and face counts equal). Needs Open3D 0.20 (Debian:
+libusb-1.0-0 libgomp1 libgl1): `data/venv/bin/pip install open3d==0.20.0`, then run
+this script with data/venv/bin/python.
 """
 import argparse
 import json
