@@ -521,8 +521,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     if config.cloud {
         let start = Instant::now();
         let limit = config.cloud_free_space;
-        let (points, dropped) =
-            cloud.finish(|p| config.mesh && limit < 1.0 && volume.seen_through(p, limit));
+        let (points, dropped) = cloud.finish(|p| limit < 1.0 && volume.seen_through(p, limit));
         drop(volume);
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();

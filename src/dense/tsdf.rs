@@ -181,12 +181,6 @@ impl TsdfVolume {
         self.settings.voxel * BLOCK as f64
     }
 
-    /// The block holding world point `p`.
-    fn block_of(&self, p: &Vector3<f64>) -> [i32; 3] {
-        let inv = 1.0 / self.block_size();
-        [floor(p.x * inv), floor(p.y * inv), floor(p.z * inv)]
-    }
-
     /// The block at `coord`, if allocated.
     pub fn block(&self, coord: [i32; 3]) -> Option<&Block> {
         self.index.get(&coord).map(|&i| &self.blocks[i as usize])
@@ -279,6 +273,9 @@ impl TsdfVolume {
         let b = r.column(1) / cam.fy;
         let c = r * Vector3::new(-cam.cx / cam.fx, -cam.cy / cam.fy, 1.0);
         let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
+        // The block holding a world point.
+        let inv_block = 1.0 / self.block_size();
+        let block_of = |p: Vector3<f64>| [p.x, p.y, p.z].map(|x| floor(x * inv_block));
         let step = 4;
         // Each sample's cube as its (lowest, highest) block; neighbouring samples mostly
         // repeat the last cube. Rows expand their cubes into packed block keys.
@@ -296,10 +293,7 @@ impl TsdfVolume {
                         continue;
                     }
                     let p = t + (a * u as f64 + row) * d;
-                    let cube = (
-                        self.block_of(&p.add_scalar(-tau)),
-                        self.block_of(&p.add_scalar(tau)),
-                    );
+                    let cube = (block_of(p.add_scalar(-tau)), block_of(p.add_scalar(tau)));
                     if last == Some(cube) {
                         continue;
                     }
@@ -332,7 +326,8 @@ impl TsdfVolume {
         let cam = &self.camera;
         // Voxel centres lie at multiples of the voxel: a block's centre is 3.5 voxels in.
         let inset = 0.5 * (BLOCK - 1) as f64 * self.settings.voxel;
-        let radius = 0.5 * self.block_size() * 3f64.sqrt();
+        let block_size = self.block_size();
+        let radius = 0.5 * block_size * 3f64.sqrt();
         let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
         let pose = frame.camera_from_world;
         let depth_at = |u: f64, v: f64| {
@@ -351,7 +346,7 @@ impl TsdfVolume {
             .filter(|(_, (_, block))| block.surface)
             .filter_map(|(i, (coord, _))| {
                 let centre = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64)
-                    * self.block_size()
+                    * block_size
                     + Vector3::repeat(inset);
                 let p = pose * Point3::from(centre);
                 if p.z <= radius {

@@ -130,7 +130,6 @@ pub struct SegmentMerge {
 
 /// What loop closing needs of the system.
 pub struct LoopInputs<'a> {
-    pub vocabulary: &'a Vocabulary,
     pub camera: &'a StereoCamera,
     pub pyramid: &'a ScalePyramid,
     pub size: (f32, f32),
@@ -676,13 +675,12 @@ impl<'a> LoopCloser<'a> {
 
 /// Moves the keyframes a loop correction carries with `key` (its pose \(T_{kw}\) becomes
 /// `corrected` \(T'_{kw}\)): first its covisible `neighbourhood`, then every later
-/// keyframe of its segment outside the loop group, each as \(T'_{nw} = T_{nw}
-/// T_{kw}^{-1} T'_{kw}\), and each point with the first of them that observes it
-/// (\(X' = T'^{-1}_{nw} T_{nw} X\)). Online, keyframes after a loop are tracked on the
-/// corrected map; offline they already exist, and left in place they would start the
-/// essential graph with the whole correction on one edge (a kink that on a 4.5 km
-/// street left the optimisation unconverged and the map bent). Returns the poses
-/// before the move and the keyframe that placed each point.
+/// keyframe of its segment outside the loop group, all by the same
+/// \(M = T_{kw}^{-1} T'_{kw}\) ([`move_rigidly`]). Online, keyframes after a loop are
+/// tracked on the corrected map; offline they already exist, and left in place they
+/// would start the essential graph with the whole correction on one edge (a kink that
+/// on a 4.5 km street left the optimisation unconverged and the map bent). Returns the
+/// poses before the move and the keyframe that placed each point.
 fn carry_correction(
     map: &mut Map,
     key: KeyFrameKey,
@@ -690,7 +688,7 @@ fn carry_correction(
     neighbourhood: &[KeyFrameKey],
     loop_group: &[KeyFrameKey],
 ) -> (HashMap<KeyFrameKey, Se3>, HashMap<MapPointKey, KeyFrameKey>) {
-    let original = map.keyframes[key].camera_from_world;
+    let m = map.keyframes[key].world_from_camera() * corrected;
     let (id, segment) = (map.keyframes[key].id, map.keyframes[key].segment);
     let later = map.keyframe_order.iter().copied().filter(|k| {
         map.keyframes
@@ -700,32 +698,41 @@ fn carry_correction(
             && !loop_group.contains(k)
     });
     let carried: Vec<KeyFrameKey> = neighbourhood.iter().copied().chain(later).collect();
-    let mut uncorrected = HashMap::new();
+    move_rigidly(map, &carried, &m)
+}
+
+/// Moves `keyframes` and the points they observe rigidly: \(T'_{nw} = T_{nw} M\),
+/// \(X' = M^{-1} X\), each point once. Returns the poses before the move and, per
+/// point, the first of the keyframes that observes it.
+fn move_rigidly(
+    map: &mut Map,
+    keyframes: &[KeyFrameKey],
+    m: &Se3,
+) -> (HashMap<KeyFrameKey, Se3>, HashMap<MapPointKey, KeyFrameKey>) {
+    let m_inverse = m.inverse();
+    let mut before = HashMap::new();
     let mut placed_by = HashMap::new();
-    for n in carried {
+    for &n in keyframes {
         let old = map.keyframes[n].camera_from_world;
-        // T'_nw = (T_nw T_kw^{-1}) T'_kw
-        let new = se3::normalised(&(old * original.inverse() * corrected));
-        uncorrected.insert(n, old);
-        map.keyframes[n].camera_from_world = new;
-        let move_points = new.inverse() * old;
+        before.insert(n, old);
+        map.keyframes[n].camera_from_world = se3::normalised(&(old * m));
         for p in map.keyframes[n].observed_points() {
             if placed_by.contains_key(&p) {
                 continue;
             }
             if let Some(point) = map.points.get_mut(p) {
-                point.position = (move_points * Point3::from(point.position)).coords;
+                point.position = (m_inverse * Point3::from(point.position)).coords;
                 placed_by.insert(p, n);
             }
         }
     }
-    (uncorrected, placed_by)
+    (before, placed_by)
 }
 
 /// A loop between map segments: moves the keyframe's whole segment rigidly so that the
-/// keyframe lands on `corrected` (\(T'_{nw} = T_{nw} M\) with
-/// \(M = T_{kw}^{-1} T'_{kw}\), points \(X' = M^{-1} X\)) and gives its keyframes the
-/// matched keyframe's segment. `None` (nothing moved) within one segment.
+/// keyframe lands on `corrected` ([`move_rigidly`] with \(M = T_{kw}^{-1} T'_{kw}\))
+/// and gives its keyframes the matched keyframe's segment. `None` (nothing moved)
+/// within one segment.
 fn merge_segments(
     map: &mut Map,
     (key, candidate): (KeyFrameKey, KeyFrameKey),
@@ -737,27 +744,22 @@ fn merge_segments(
         return None;
     }
     let m = map.keyframes[key].world_from_camera() * corrected;
-    let m_inverse = m.inverse();
-    let members: HashSet<KeyFrameKey> = map
-        .keyframes
+    let members: Vec<KeyFrameKey> = map
+        .keyframe_order
         .iter()
-        .filter(|(_, kf)| kf.segment == segment)
-        .map(|(k, _)| k)
+        .copied()
+        .filter(|k| {
+            map.keyframes
+                .get(*k)
+                .is_some_and(|kf| kf.segment == segment)
+        })
         .collect();
+    let (_, moved) = move_rigidly(map, &members, &m);
     for &k in &members {
-        let kf = &mut map.keyframes[k];
-        kf.camera_from_world = se3::normalised(&(kf.camera_from_world * m));
-        kf.segment = into;
-    }
-    let mut moved = Vec::new();
-    for (p, point) in map.points.iter_mut() {
-        if point.observations.iter().any(|(k, _)| members.contains(k)) {
-            point.position = (m_inverse * Point3::from(point.position)).coords;
-            moved.push(p);
-        }
+        map.keyframes[k].segment = into;
     }
     // Normals turn with the segment.
-    for p in moved {
+    for p in moved.into_keys() {
         map.update_point(p, scale_factors);
     }
     Some(SegmentMerge { segment, into })

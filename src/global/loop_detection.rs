@@ -21,24 +21,16 @@ use crate::map::{KeyFrameKey, SharedMap};
 /// Place recognition beside tracking.
 pub enum LoopDetection {
     Inline {
-        /// Taken out by [`LoopDetection::finish`].
+        /// Taken out by [`LoopDetection::finish`] (the hand-over may still hold the
+        /// `Arc`).
         recognition: Arc<Mutex<Option<PlaceRecognition>>>,
         vocabulary: Arc<Vocabulary>,
         map: SharedMap,
-        config: LoopConfig,
     },
     Thread {
         sender: Sender<KeyFrameKey>,
         handle: JoinHandle<PlaceRecognition>,
-        vocabulary: Arc<Vocabulary>,
     },
-}
-
-/// What the tracking pass hands the global pass: the vocabulary and what place
-/// recognition found.
-pub struct Recognised {
-    pub vocabulary: Arc<Vocabulary>,
-    pub recognition: PlaceRecognition,
 }
 
 impl LoopDetection {
@@ -55,11 +47,9 @@ impl LoopDetection {
                 recognition: Arc::new(Mutex::new(Some(recognition))),
                 vocabulary,
                 map,
-                config,
             };
         }
         let (sender, receiver) = channel::<KeyFrameKey>();
-        let words_from = vocabulary.clone();
         let handle = std::thread::Builder::new()
             .name("loop-detection".into())
             .spawn(move || {
@@ -74,7 +64,7 @@ impl LoopDetection {
                         }
                     };
                     let start = std::time::Instant::now();
-                    let words = words_from.transform(&descriptors);
+                    let words = vocabulary.transform(&descriptors);
                     recognition.milliseconds += start.elapsed().as_secs_f64() * 1e3;
                     let m = map.read().expect("map lock poisoned");
                     recognition.process_with_words(&m, key, words);
@@ -82,11 +72,7 @@ impl LoopDetection {
                 recognition
             })
             .expect("spawn the loop detection thread");
-        Self::Thread {
-            sender,
-            handle,
-            vocabulary,
-        }
+        Self::Thread { sender, handle }
     }
 
     /// The hand-over for local mapping ([`crate::mapping::LocalMapper::then`]): each
@@ -122,35 +108,16 @@ impl LoopDetection {
 
     /// Waits for the keyframes handed over (after local mapping has finished, which
     /// drops its hand-over) and returns what place recognition found.
-    pub fn finish(self) -> Recognised {
+    pub fn finish(self) -> PlaceRecognition {
         match self {
-            Self::Inline {
-                recognition,
-                vocabulary,
-                config,
-                ..
-            } => {
-                let taken = recognition
-                    .lock()
-                    .expect("place recognition lock poisoned")
-                    .take();
-                let recognition =
-                    taken.unwrap_or_else(|| PlaceRecognition::new(&vocabulary, config));
-                Recognised {
-                    vocabulary,
-                    recognition,
-                }
-            }
-            Self::Thread {
-                sender,
-                handle,
-                vocabulary,
-            } => {
+            Self::Inline { recognition, .. } => recognition
+                .lock()
+                .expect("place recognition lock poisoned")
+                .take()
+                .expect("place recognition is taken once, by finish"),
+            Self::Thread { sender, handle } => {
                 drop(sender);
-                Recognised {
-                    vocabulary,
-                    recognition: handle.join().expect("loop detection thread panicked"),
-                }
+                handle.join().expect("loop detection thread panicked")
             }
         }
     }

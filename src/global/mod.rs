@@ -24,8 +24,7 @@ use crate::features::ScalePyramid;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::optim::stereo_projection::StereoCamera;
-use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs};
-use loop_detection::Recognised;
+use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 
 /// The `[global]` section of a config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -114,18 +113,14 @@ pub fn run(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
-    recognised: Result<Recognised, String>,
+    recognised: Result<PlaceRecognition, String>,
 ) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
     match recognised {
-        Ok(Recognised {
-            vocabulary,
-            recognition,
-        }) => {
+        Ok(recognition) => {
             let mut closer = LoopCloser::with_recognition(
                 LoopInputs {
-                    vocabulary: &vocabulary,
                     camera: inputs.camera,
                     pyramid: inputs.pyramid,
                     size: inputs.size,
