@@ -74,9 +74,10 @@ struct DetectArgs {
     /// The model: yolov4-tiny or yolox-nano (overrides the config).
     #[arg(long, value_enum)]
     model: Option<DetectModelArg>,
-    /// The model file (overrides the config).
+    /// The model file (overrides the config); repeat it to run several files of the
+    /// model (the same weights at several input sizes) and merge their boxes.
     #[arg(long)]
-    model_path: Option<PathBuf>,
+    model_path: Vec<PathBuf>,
     /// Output folder: annotated PNGs and per-frame JSON (a detection cache).
     #[arg(long, default_value = "outputs/detect")]
     out: PathBuf,
@@ -323,8 +324,9 @@ fn run_detect(args: DetectArgs) -> Result<()> {
             DetectModelArg::YoloxNano => Model::YoloxNano,
         };
     }
-    if args.model_path.is_some() {
-        detector_config.model_path = args.model_path.clone();
+    if !args.model_path.is_empty() {
+        detector_config.model_path = None;
+        detector_config.model_paths = args.model_path.clone();
     }
     let mut detector = detector_config
         .open(args.input.is_dir().then_some(args.input.as_path()))?

@@ -91,13 +91,19 @@ fn both_models_reproduce_the_reference_boxes_on_bus_jpg() {
 }
 
 #[test]
-fn both_models_find_both_people_in_the_real_walking_frame() {
+fn every_model_finds_both_people_in_the_real_walking_frame() {
     let Some(shared) = common::shared_data("TUM walking frame") else {
         return;
     };
     let Some(library) = library() else { return };
     let frame = shared.join("frames/tum/fr3_walking_xyz_1341846313.553992.png");
-    for (path, layout) in models(&shared) {
+    // Also YOLOv4-tiny at 320x256, the default network size.
+    let mut all = models(&shared);
+    let small = repo("data/models/yolov4-tiny-320x256.onnx");
+    if small.is_file() {
+        all.push((small, Layout::Yolov4));
+    }
+    for (path, layout) in all {
         let found = detect(&mut load(&path, layout, &library), &frame);
         let people: Vec<&Detection> = found.iter().filter(|d| d.class == "person").collect();
         assert_eq!(people.len(), 2, "{layout:?}: {people:#?}");
@@ -223,13 +229,15 @@ fn detect_writes_json_for_an_image() {
     ) else {
         return;
     };
-    let model = repo("data/models/yolov4-tiny.onnx");
-    if !model.is_file() {
-        eprintln!(
-            "skipping: no {} (bash tools/setup.sh converts it)",
-            model.display()
-        );
-        return;
+    // The default model files (what `dopslam detect` loads without --model-path).
+    for model in DetectorConfig::default().model_files() {
+        if !repo(&model.to_string_lossy()).is_file() {
+            eprintln!(
+                "skipping: no {} (bash tools/setup.sh converts it)",
+                model.display()
+            );
+            return;
+        }
     }
     let image = data.join("frames/photos/bus.jpg");
     let out = common::temp_dir("detect-json");
@@ -263,4 +271,78 @@ fn detect_writes_json_for_an_image() {
         first["detections"].as_array().unwrap().len()
     );
     assert!(out.join("bus.png").exists());
+}
+
+/// Several networks (YOLOv4-tiny's weights at 416x416 and 320x256) pool their boxes
+/// before one NMS: every box either network finds alone is in the merged result, or
+/// suppressed there by a same-class box that overlaps it beyond the NMS threshold.
+#[test]
+fn several_networks_pool_their_boxes_before_one_nms() {
+    let Some(shared) = common::shared_data("multi-scale detection") else {
+        return;
+    };
+    let Some(library) = library() else { return };
+    let files = [
+        repo("data/models/yolov4-tiny.onnx"),
+        repo("data/models/yolov4-tiny-320x256.onnx"),
+    ];
+    if let Some(absent) = files.iter().find(|f| !f.is_file()) {
+        eprintln!(
+            "skipping: no {} (bash tools/setup.sh converts it)",
+            absent.display()
+        );
+        return;
+    }
+    let image = image::open(shared.join("frames/photos/bus.jpg"))
+        .unwrap()
+        .to_rgb8();
+    let threshold = 0.15;
+    let run = |models: &[PathBuf]| {
+        let mut detector = OnnxDetector::load_all(models, Layout::Yolov4, &library, 1).unwrap();
+        detector.score_threshold = threshold;
+        detector.detect(0.0, &image).unwrap()
+    };
+    let merged = run(&files);
+    let alone: Vec<Vec<Detection>> = files.iter().map(|f| run(&[f.clone()])).collect();
+    assert_ne!(alone[0], alone[1], "the two sizes should see the image differently");
+    assert!(merged.len() <= alone[0].len() + alone[1].len());
+    for d in alone.iter().flatten() {
+        let kept = merged.iter().any(|m| {
+            m.class_id == d.class_id
+                && m.score >= d.score - 1e-6
+                && (m == d || dopslam::detect::yolo::iou(&m.bbox, &d.bbox) > 0.4)
+        });
+        assert!(kept, "{d:?} neither kept nor suppressed in {merged:#?}");
+    }
+    // The merged boxes are a subset of what the two found.
+    for m in &merged {
+        assert!(alone.iter().flatten().any(|d| d == m), "{m:?} came from nowhere");
+    }
+}
+
+#[test]
+fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
+    let dir = common::temp_dir("detect-paths");
+    let both = DetectorConfig {
+        model_path: Some(dir.join("a.onnx")),
+        model_paths: vec![dir.join("b.onnx")],
+        ..DetectorConfig::default()
+    };
+    let error = both.validate().unwrap_err();
+    assert!(error.contains("model_path") && error.contains("model_paths"), "{error}");
+    let present = dir.join("present.onnx");
+    std::fs::write(&present, b"x").unwrap();
+    let several = DetectorConfig {
+        model_paths: vec![present.clone(), dir.join("second-absent.onnx")],
+        ort_library: Some(present.clone()),
+        ..DetectorConfig::default()
+    };
+    assert!(several.validate().is_ok());
+    assert_eq!(several.model_files().len(), 2);
+    let (source, note) = several.resolved_source();
+    assert_eq!(source, Source::None);
+    assert!(note.unwrap().contains("second-absent.onnx"));
+    // The default is YOLOv4-tiny at 320x256.
+    let default = DetectorConfig::default().model_files();
+    assert_eq!(default, vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")]);
 }

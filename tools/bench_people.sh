@@ -18,6 +18,10 @@
 #   geo-only                   no detector: the geometric check alone
 #   dop-onnx-notrack           DOP with the detector, no object tracks
 #   dop-onnx-t03               DOP with the detector at the old score threshold 0.3
+#   dop-onnx-416, dop-onnx-416-rt   DOP with YOLOv4-tiny at its cfg's 416x416 (the
+#                              default before 320x256)
+#   dop-onnx-multi, dop-onnx-multi-rt   DOP with YOLOv4-tiny at 320x256 and 416x416,
+#                              boxes merged (multi-scale)
 # Sequences are generated once into outputs/bench/ (seeds 1001, 1002, ... for N > 1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -42,6 +46,10 @@ printf '[dop]\ngeometric = false\n' > "$nogeo"
 printf '[dop]\ntrack_boxes = false\n' > "$notrack"
 t03=outputs/bench/config-t03.toml
 printf '[detector]\nscore_threshold = 0.3\n' > "$t03"
+m416=outputs/bench/config-416.toml
+printf '[detector]\nmodel_path = "data/models/yolov4-tiny.onnx"\n' > "$m416"
+multi=outputs/bench/config-multi.toml
+printf '[detector]\nmodel_paths = ["data/models/yolov4-tiny-320x256.onnx", "data/models/yolov4-tiny.onnx"]\n' > "$multi"
 echo "| preset | seed | variant | ATE RMSE (m) | RPE 1 frame p95 (m) | path / true | keyframes / frames | person recall | state recall / precision | median ms |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
 for preset in "${presets[@]}"; do
@@ -71,6 +79,8 @@ for preset in "${presets[@]}"; do
         dop-onnx-nogeo) args+=(--dop --detections onnx --config "$nogeo") ;;
         dop-onnx-notrack) args+=(--dop --detections onnx --config "$notrack") ;;
         dop-onnx-t03) args+=(--dop --detections onnx --config "$t03") ;;
+        dop-onnx-416) args+=(--dop --detections onnx --config "$m416") ;;
+        dop-onnx-multi) args+=(--dop --detections onnx --config "$multi") ;;
         geo-only) args+=(--dop --detections none) ;;
         *) echo "unknown variant $variant" >&2; exit 2 ;;
       esac

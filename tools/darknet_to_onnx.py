@@ -1,7 +1,11 @@
 #!/usr/bin/env python3
 """Convert a Darknet model (cfg + weights) to ONNX, with numpy and onnx only.
 
-    python3 tools/darknet_to_onnx.py yolov4-tiny.cfg yolov4-tiny.weights out.onnx
+    python3 tools/darknet_to_onnx.py yolov4-tiny.cfg yolov4-tiny.weights out.onnx [WxH]
+
+WxH (multiples of 32, say 320x256) replaces the cfg's network size: a Darknet model runs
+at any such size with the same weights, and a smaller one sees close, large objects
+whole (tools/setup.sh converts YOLOv4-tiny at 416x416 and 320x256).
 
 Supported: [convolutional] (batch norm folded into the weights; leaky, linear,
 logistic, mish activations; groups), [route] (several layers, or `groups`/`group_id`
@@ -90,8 +94,16 @@ def activation(g, x, kind):
     raise SystemExit(f"activation {kind} is not supported")
 
 
-def convert(cfg_path, weights_path, out_path):
+def convert(cfg_path, weights_path, out_path, size=None):
     net, layers = parse_cfg(cfg_path)
+    if size:
+        try:
+            w, h = (int(v) for v in size.lower().split("x"))
+        except ValueError:
+            raise SystemExit(f"size {size!r} is not WxH")
+        if w <= 0 or h <= 0 or w % 32 or h % 32:
+            raise SystemExit(f"size {size}: width and height must be positive multiples of 32")
+        net["width"], net["height"] = str(w), str(h)
     width, height, channels = int(net["width"]), int(net["height"]), int(net.get("channels", 3))
     weights = Weights(weights_path)
     g = Graph()
@@ -207,7 +219,7 @@ def decode_yolo(g, layer, x, c, h, w, net_w, net_h):
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 4:
+    if len(sys.argv) not in (4, 5):
         raise SystemExit(__doc__)
-    convert(sys.argv[1], sys.argv[2], sys.argv[3])
+    convert(*sys.argv[1:])
     print(f"wrote {sys.argv[3]}")

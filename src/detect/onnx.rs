@@ -40,13 +40,20 @@ fn environment(library: &Path) -> Result<&'static ort::environment::Environment,
     result.as_ref().map_err(|m| DetectError::Runtime(m.clone()))
 }
 
-/// A YOLO model in an ONNX Runtime session.
-pub struct OnnxDetector {
+/// One network: a model file in an ONNX Runtime session, with its fixed input size.
+struct Network {
     session: Session,
-    layout: Layout,
     width: u32,
     height: u32,
     model: PathBuf,
+}
+
+/// A YOLO model in ONNX Runtime sessions: one network, or several (the same weights
+/// at several input sizes, say) whose candidate boxes are pooled before one NMS, as
+/// multi-scale test-time augmentation does.
+pub struct OnnxDetector {
+    networks: Vec<Network>,
+    layout: Layout,
     pub score_threshold: f32,
     pub nms_threshold: f32,
 }
@@ -60,7 +67,96 @@ impl OnnxDetector {
         library: &Path,
         threads: usize,
     ) -> Result<Self, DetectError> {
+        Self::load_all(&[model.to_path_buf()], layout, library, threads)
+    }
+
+    /// Loads every file of `models` (one layout), each checked as [`Self::load`] does;
+    /// each keyframe runs them all.
+    pub fn load_all(
+        models: &[PathBuf],
+        layout: Layout,
+        library: &Path,
+        threads: usize,
+    ) -> Result<Self, DetectError> {
         let environment = environment(library)?;
+        let mut detector = Self {
+            networks: Vec::with_capacity(models.len()),
+            layout,
+            score_threshold: 0.3,
+            nms_threshold: 0.45,
+        };
+        for model in models {
+            detector
+                .networks
+                .push(Network::load(environment, model, threads)?);
+        }
+        if detector.networks.is_empty() {
+            return Err(DetectError::Config("no model file given".into()));
+        }
+        // One blank image checks the output layouts now rather than on the first keyframe.
+        for i in 0..detector.networks.len() {
+            let network = &detector.networks[i];
+            let blank = RgbImage::new(network.width, network.height);
+            detector.candidates(i, &blank)?;
+        }
+        Ok(detector)
+    }
+
+    /// The decoded boxes of network `index` above the score threshold, before NMS.
+    fn candidates(&mut self, index: usize, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+        let (layout, threshold) = (self.layout, self.score_threshold);
+        let network = &mut self.networks[index];
+        let mut input = layout.prepare(image, network.width, network.height);
+        let shape = [1usize, 3, network.height as usize, network.width as usize];
+        // The tensor takes the pixels; decoding needs only the scales.
+        let tensor = Tensor::from_array((shape, std::mem::take(&mut input.data)))
+            .map_err(|e| DetectError::Runtime(e.to_string()))?;
+        let model = network.model.clone();
+        let size = (network.width as usize, network.height as usize);
+        let outputs = network
+            .session
+            .run(ort::inputs![tensor])
+            .map_err(|e| DetectError::Runtime(format!("{}: {e}", model.display())))?;
+        let (shape, data) = outputs[0]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| DetectError::Runtime(e.to_string()))?;
+        let dims: Vec<i64> = shape.iter().copied().collect();
+        let expected = layout.predictions(size.0, size.1);
+        let fits = dims.len() == 3
+            && dims[0] == 1
+            && dims[2] == 85
+            && expected.is_none_or(|n| dims[1] as usize == n);
+        if !fits {
+            return Err(DetectError::Model {
+                path: model,
+                message: format!(
+                    "output shape {dims:?} matches neither layout: {layout:?} expects [1, {}, 85]",
+                    expected.map_or("N".to_string(), |n| n.to_string())
+                ),
+            });
+        }
+        Ok(layout.decode(data, dims[1] as usize, size, &input, threshold))
+    }
+
+    fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+        let mut found = Vec::new();
+        for i in 0..self.networks.len() {
+            found.extend(self.candidates(i, image)?);
+        }
+        Ok(non_maximum_suppression(
+            found,
+            self.nms_threshold,
+            (image.width(), image.height()),
+        ))
+    }
+}
+
+impl Network {
+    fn load(
+        environment: &ort::environment::Environment,
+        model: &Path,
+        threads: usize,
+    ) -> Result<Self, DetectError> {
         if !model.is_file() {
             return Err(DetectError::Model {
                 path: model.to_path_buf(),
@@ -89,60 +185,12 @@ impl OnnxDetector {
                 "input shape {shape:?} is not [1, 3, H, W] with a fixed size"
             )));
         }
-        let mut detector = Self {
+        Ok(Self {
             session,
-            layout,
             width: shape[3] as u32,
             height: shape[2] as u32,
             model: model.to_path_buf(),
-            score_threshold: 0.3,
-            nms_threshold: 0.45,
-        };
-        // One blank image checks the output layout now rather than on the first keyframe.
-        let blank = RgbImage::new(detector.width, detector.height);
-        detector.infer(&blank)?;
-        Ok(detector)
-    }
-
-    fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
-        let mut input = self.layout.prepare(image, self.width, self.height);
-        let shape = [1usize, 3, self.height as usize, self.width as usize];
-        // The tensor takes the pixels; decoding needs only the scales.
-        let tensor = Tensor::from_array((shape, std::mem::take(&mut input.data)))
-            .map_err(|e| DetectError::Runtime(e.to_string()))?;
-        let model = self.model.clone();
-        let outputs = self
-            .session
-            .run(ort::inputs![tensor])
-            .map_err(|e| DetectError::Runtime(format!("{}: {e}", model.display())))?;
-        let (shape, data) = outputs[0]
-            .try_extract_tensor::<f32>()
-            .map_err(|e| DetectError::Runtime(e.to_string()))?;
-        let dims: Vec<i64> = shape.iter().copied().collect();
-        let size = (self.width as usize, self.height as usize);
-        let expected = self.layout.predictions(size.0, size.1);
-        let fits = dims.len() == 3
-            && dims[0] == 1
-            && dims[2] == 85
-            && expected.is_none_or(|n| dims[1] as usize == n);
-        if !fits {
-            return Err(DetectError::Model {
-                path: model,
-                message: format!(
-                    "output shape {dims:?} matches neither layout: {:?} expects [1, {}, 85]",
-                    self.layout,
-                    expected.map_or("N".to_string(), |n| n.to_string())
-                ),
-            });
-        }
-        let found = self
-            .layout
-            .decode(data, dims[1] as usize, size, &input, self.score_threshold);
-        Ok(non_maximum_suppression(
-            found,
-            self.nms_threshold,
-            (image.width(), image.height()),
-        ))
+        })
     }
 }
 
