@@ -304,7 +304,10 @@ fn several_networks_pool_their_boxes_before_one_nms() {
     };
     let merged = run(&files);
     let alone: Vec<Vec<Detection>> = files.iter().map(|f| run(&[f.clone()])).collect();
-    assert_ne!(alone[0], alone[1], "the two sizes should see the image differently");
+    assert_ne!(
+        alone[0], alone[1],
+        "the two sizes should see the image differently"
+    );
     assert!(merged.len() <= alone[0].len() + alone[1].len());
     for d in alone.iter().flatten() {
         let kept = merged.iter().any(|m| {
@@ -316,7 +319,10 @@ fn several_networks_pool_their_boxes_before_one_nms() {
     }
     // The merged boxes are a subset of what the two found.
     for m in &merged {
-        assert!(alone.iter().flatten().any(|d| d == m), "{m:?} came from nowhere");
+        assert!(
+            alone.iter().flatten().any(|d| d == m),
+            "{m:?} came from nowhere"
+        );
     }
 }
 
@@ -329,7 +335,10 @@ fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
         ..DetectorConfig::default()
     };
     let error = both.validate().unwrap_err();
-    assert!(error.contains("model_path") && error.contains("model_paths"), "{error}");
+    assert!(
+        error.contains("model_path") && error.contains("model_paths"),
+        "{error}"
+    );
     let present = dir.join("present.onnx");
     std::fs::write(&present, b"x").unwrap();
     let several = DetectorConfig {
@@ -344,5 +353,8 @@ fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
     assert!(note.unwrap().contains("second-absent.onnx"));
     // The default is YOLOv4-tiny at 320x256.
     let default = DetectorConfig::default().model_files();
-    assert_eq!(default, vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")]);
+    assert_eq!(
+        default,
+        vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")]
+    );
 }

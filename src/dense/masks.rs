@@ -110,7 +110,7 @@ impl MaskSource {
                         })
                         .collect();
                     if dop.track_boxes {
-                        let missed = tracks.update(frame.timestamp, &objects, dop);
+                        let missed = tracks.update(frame.timestamp, &mut objects, dop);
                         objects.extend(missed);
                     }
                 }

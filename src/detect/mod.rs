@@ -154,7 +154,9 @@ impl DetectorConfig {
             ));
         }
         if self.model_path.is_some() && !self.model_paths.is_empty() {
-            return Err("detector: set model_path (one file) or model_paths (several), not both".into());
+            return Err(
+                "detector: set model_path (one file) or model_paths (several), not both".into(),
+            );
         }
         for class in self.dynamic_classes.iter().chain(&self.static_classes) {
             if coco::class_id(class).is_none() {

@@ -103,7 +103,11 @@ impl OnnxDetector {
     }
 
     /// The decoded boxes of network `index` above the score threshold, before NMS.
-    fn candidates(&mut self, index: usize, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
+    fn candidates(
+        &mut self,
+        index: usize,
+        image: &RgbImage,
+    ) -> Result<Vec<Detection>, DetectError> {
         let (layout, threshold) = (self.layout, self.score_threshold);
         let network = &mut self.networks[index];
         let mut input = layout.prepare(image, network.width, network.height);

@@ -20,6 +20,9 @@ pub struct ObjectBox {
     /// The object's depth when known (a box predicted from a followed object); else
     /// it is estimated from the keypoints in the box's centre.
     pub depth: Option<f32>,
+    /// Its object has been followed moving ([`super::tracks`]): points on it are not
+    /// verified static.
+    pub moved: bool,
 }
 
 impl ObjectBox {
@@ -39,6 +42,13 @@ impl ObjectBox {
 /// The naive verdict (`--mask-boxes`): whether `(x, y)` lies inside any dynamic box.
 pub fn in_dynamic_box(boxes: &[ObjectBox], x: f32, y: f32) -> bool {
     boxes.iter().any(|b| b.dynamic && b.contains(x, y))
+}
+
+/// Whether `(x, y)` lies inside the box of an object followed moving.
+pub fn in_moved_box(boxes: &[ObjectBox], x: f32, y: f32) -> bool {
+    boxes
+        .iter()
+        .any(|b| b.dynamic && b.moved && b.contains(x, y))
 }
 
 /// A keypoint: pixel position and depth in metres (0 when unknown).
@@ -152,6 +162,7 @@ mod tests {
             bbox: [100.0, 100.0, 200.0, 300.0],
             dynamic: true,
             depth: None,
+            moved: false,
         };
         let keypoints = [
             kp(150.0, 200.0, 2.0), // on the person (centre)
@@ -193,11 +204,13 @@ mod tests {
             bbox: [0.0, 100.0, 100.0, 200.0],
             dynamic: false,
             depth: None,
+            moved: false,
         };
         let person = ObjectBox {
             bbox: [50.0, 0.0, 150.0, 200.0],
             dynamic: true,
             depth: None,
+            moved: false,
         };
         let keypoints = [
             kp(50.0, 150.0, 1.5), // chair centre

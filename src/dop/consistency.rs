@@ -16,6 +16,11 @@
 //!   keyframe's detection that puts it on a dynamic object counts as \(S_t = 0\) (a
 //!   parked car, a seated person: a dynamic class that does not move). One
 //!   inconsistent frame ends the run.
+//! - **Never on a moving object**: while the latest keyframe that saw the point put it
+//!   on an object followed moving (`track_moved_metres`, [`super::tracks`]), it is not
+//!   verified static, however long its run: a walker who stops for a second is
+//!   consistent all that time, and verifying them took them into the pose when they
+//!   walked on.
 
 use super::DopConfig;
 
@@ -28,6 +33,8 @@ pub struct Consistency {
     pub inlier_run: u32,
     pub since: f64,
     pub until: f64,
+    /// The latest keyframe that saw the point put it on an object followed moving.
+    pub on_moving_object: bool,
 }
 
 /// What one observation did to \(P\).
@@ -42,6 +49,7 @@ impl Consistency {
     /// Whether the current consistent run spans `static_seconds`.
     pub fn verified_static(&self, config: &DopConfig) -> bool {
         config.static_check
+            && !self.on_moving_object
             && self.inlier_run > 0
             && self.until - self.since >= f64::from(config.static_seconds)
     }

@@ -79,6 +79,13 @@ pub struct DopConfig {
     /// Fastest motion assumed for a dynamic object, m/s (velocity clamp and the growth
     /// of a predicted box's margin).
     pub track_max_speed: f32,
+    /// A followed object whose centre has been this far (metres) from where it was
+    /// first seen has *moved*: its points are never verified static while it is
+    /// followed, so a person who stops for a moment stays dynamic (without this, their
+    /// consistent points were verified static after `static_seconds` and took the pose
+    /// with them when they walked on). Objects that never move this far (a parked car,
+    /// a seated person, a detector's false box on a wall) keep the static check.
+    pub track_moved_metres: f32,
     /// The geometric check (beyond the paper, needs no detector): a map point that is a
     /// pose outlier in `geometric_frames` tracked frames in a row gets the update
     /// \(P \leftarrow (1 - \alpha_g) P + \alpha_g\) with `alpha_geometric`; frames where
@@ -117,6 +124,7 @@ impl Default for DopConfig {
             track_seconds: 1.0,
             track_gate: 0.7,
             track_max_speed: 1.5,
+            track_moved_metres: 0.5,
             geometric: true,
             geometric_frames: 2,
             alpha_geometric: 0.3,
@@ -144,8 +152,15 @@ impl DopConfig {
         unit("central_fraction", self.central_fraction)?;
         unit("alpha_geometric", self.alpha_geometric)?;
         unit("geometric_max_outliers", self.geometric_max_outliers)?;
-        if self.track_seconds < 0.0 || self.track_gate < 0.0 || self.track_max_speed < 0.0 {
-            return Err("dop.track_seconds, track_gate and track_max_speed must be >= 0".into());
+        if self.track_seconds < 0.0
+            || self.track_gate < 0.0
+            || self.track_max_speed < 0.0
+            || self.track_moved_metres < 0.0
+        {
+            return Err(
+                "dop.track_seconds, track_gate, track_max_speed and track_moved_metres must be >= 0"
+                    .into(),
+            );
         }
         if self.static_seconds < 0.0 {
             return Err("dop.static_seconds must be >= 0".into());

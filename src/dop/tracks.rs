@@ -14,6 +14,11 @@
 //! detections is predicted there and projected back into a box whose object depth is
 //! the predicted centre's depth; the margin grows with the time since it was seen
 //! (\(\Delta t \cdot\) `track_max_speed`).
+//!
+//! A track whose centre has been at least `track_moved_metres` from its first centre
+//! \(c_0\) (\(\max_t \lVert c_t - c_0 \rVert\)) has *moved*; its objects and boxes say so,
+//! and the map points they hold are never verified static while it is followed
+//! ([`super::consistency`]).
 
 use nalgebra::{Point3, Vector2, Vector3};
 
@@ -30,6 +35,8 @@ pub struct Object {
     pub size: (f64, f64),
     /// Extra margin on every side of its box, metres (uncertainty of a prediction).
     pub margin: f64,
+    /// Whether its track has moved `track_moved_metres` (false for a new object).
+    pub moved: bool,
 }
 
 impl Object {
@@ -48,6 +55,7 @@ impl Object {
             centre: (world_from_camera * Point3::from(centre_camera)).coords,
             size: ((x2 - x1) * z / camera.fx, (y2 - y1) * z / camera.fy),
             margin: 0.0,
+            moved: false,
         }
     }
 
@@ -72,6 +80,7 @@ impl Object {
             bbox: bbox.map(|v| v as f32),
             dynamic: true,
             depth: Some(c.z as f32),
+            moved: self.moved,
         })
     }
 }
@@ -82,6 +91,8 @@ struct Track {
     object: Object,
     velocity: Vector3<f64>,
     last_seen: f64,
+    /// Where it was first seen.
+    origin: Vector3<f64>,
 }
 
 impl Track {
@@ -103,10 +114,10 @@ pub struct ObjectTracks {
 }
 
 impl ObjectTracks {
-    /// Takes the objects detected at time `t`; returns the tracks that were not among
-    /// them but were seen within `track_seconds`, predicted to `t` (the boxes the
-    /// detector missed).
-    pub fn update(&mut self, t: f64, detected: &[Object], config: &DopConfig) -> Vec<Object> {
+    /// Takes the objects detected at time `t` and marks those whose track has moved;
+    /// returns the tracks that were not among them but were seen within
+    /// `track_seconds`, predicted to `t` (the boxes the detector missed).
+    pub fn update(&mut self, t: f64, detected: &mut [Object], config: &DopConfig) -> Vec<Object> {
         let speed = config.track_max_speed as f64;
         let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
         for (ti, track) in self.tracks.iter().enumerate() {
@@ -135,6 +146,9 @@ impl ObjectTracks {
                     (track.velocity + (detected[oi].centre - track.object.centre) / dt) / 2.0;
                 track.velocity = velocity.cap_magnitude(speed);
             }
+            let moved = track.object.moved
+                || (detected[oi].centre - track.origin).norm() >= config.track_moved_metres as f64;
+            detected[oi].moved = moved;
             track.object = detected[oi];
             track.last_seen = t;
         }
@@ -156,6 +170,7 @@ impl ObjectTracks {
                 object: *object,
                 velocity: Vector3::zeros(),
                 last_seen: t,
+                origin: object.centre,
             });
         }
         missed
@@ -214,6 +229,7 @@ mod tests {
             centre: Vector3::new(x, 0.0, 2.0),
             size: (0.5, 1.7),
             margin: 0.0,
+            moved: false,
         }
     }
 
@@ -221,22 +237,22 @@ mod tests {
     fn a_missed_person_is_predicted_with_their_velocity_until_the_track_expires() {
         let config = DopConfig::default();
         let mut tracks = ObjectTracks::default();
-        assert!(tracks.update(0.0, &[at(0.0)], &config).is_empty());
+        assert!(tracks.update(0.0, &mut [at(0.0)], &config).is_empty());
         // Walking at 0.8 m/s along x; a second person appears.
         assert!(tracks
-            .update(0.25, &[at(0.2), at(-1.5)], &config)
+            .update(0.25, &mut [at(0.2), at(-1.5)], &config)
             .is_empty());
         assert_eq!(tracks.len(), 2);
         // Both missed at 0.5 s: predicted where they go (the first at half its measured
         // speed, as the velocity is averaged with the initial zero).
-        let missed = tracks.update(0.5, &[], &config);
+        let missed = tracks.update(0.5, &mut [], &config);
         assert_eq!(missed.len(), 2);
         assert!((missed[0].centre.x - 0.3).abs() < 1e-9, "{:?}", missed[0]);
         assert!((missed[0].margin - 0.25 * config.track_max_speed as f64).abs() < 1e-6);
         assert!((missed[1].centre.x + 1.5).abs() < 1e-9);
         // Past track_seconds without a detection the tracks are gone.
         let late = 0.25 + config.track_seconds as f64 + 0.01;
-        assert!(tracks.update(late, &[], &config).is_empty());
+        assert!(tracks.update(late, &mut [], &config).is_empty());
         assert!(tracks.is_empty());
     }
 
@@ -244,9 +260,43 @@ mod tests {
     fn far_objects_start_new_tracks() {
         let config = DopConfig::default();
         let mut tracks = ObjectTracks::default();
-        tracks.update(0.0, &[at(0.0)], &config);
-        let missed = tracks.update(0.1, &[at(3.0)], &config);
+        tracks.update(0.0, &mut [at(0.0)], &config);
+        let missed = tracks.update(0.1, &mut [at(3.0)], &config);
         assert_eq!(missed.len(), 1, "the first person was missed");
         assert_eq!(tracks.len(), 2);
+    }
+
+    /// A person who walks `track_moved_metres` and then stops stays "moved" (their
+    /// points must not be verified static during the stop); one who only sways in
+    /// place does not, and neither does a new object.
+    #[test]
+    fn a_track_that_travelled_stays_moved_and_a_swaying_one_does_not() {
+        let config = DopConfig::default();
+        let mut tracks = ObjectTracks::default();
+        let mut walker = [at(0.0)];
+        tracks.update(0.0, &mut walker, &config);
+        assert!(!walker[0].moved);
+        for (i, x) in [0.2, 0.4, 0.6, 0.6, 0.6].into_iter().enumerate() {
+            let mut seen = [at(x)];
+            tracks.update(0.25 * (i + 1) as f64, &mut seen, &config);
+            assert_eq!(
+                seen[0].moved,
+                x >= config.track_moved_metres as f64,
+                "at x = {x}"
+            );
+        }
+        // Missed after stopping: its predicted box still says moved.
+        let missed = tracks.update(1.5, &mut [], &config);
+        assert!(missed[0].moved);
+        let camera = camera();
+        let pose = Se3::identity();
+        assert!(missed[0].to_box(&camera, &pose).unwrap().moved);
+        // Swaying by 0.2 m about one place for a second: never moved.
+        let mut tracks = ObjectTracks::default();
+        for (i, x) in [0.0, 0.2, -0.1, 0.15, 0.0].into_iter().enumerate() {
+            let mut seen = [at(x)];
+            tracks.update(0.25 * i as f64, &mut seen, &config);
+            assert!(!seen[0].moved);
+        }
     }
 }

@@ -16,7 +16,9 @@
 use std::collections::HashSet;
 
 use crate::detect::Detection;
-use crate::dop::boxes::{in_dynamic_box, object_depth, verdicts, Keypoint, ObjectBox};
+use crate::dop::boxes::{
+    in_dynamic_box, in_moved_box, object_depth, verdicts, Keypoint, ObjectBox,
+};
 use crate::dop::tracks::{Object, ObjectTracks};
 use crate::dop::{update, DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
@@ -48,6 +50,7 @@ pub fn object_boxes(detections: &[Detection], dynamic_classes: &[String]) -> Vec
             bbox: d.bbox,
             dynamic: dynamic_classes.contains(&d.class),
             depth: None,
+            moved: false,
         })
         .collect()
 }
@@ -120,6 +123,8 @@ pub fn apply_boxes(
                 let Some(p) = map.points.get_mut(point) else {
                     continue;
                 };
+                p.consistency.on_moving_object =
+                    s && in_moved_box(boxes, keypoints[i].x, keypoints[i].y);
                 // On a dynamic object, but the geometry says it has not moved.
                 let verified = p.consistency.verified_static(config);
                 effect.verified_static += usize::from(s && verified);
@@ -197,20 +202,23 @@ impl DynamicObjects {
         let (time, id) = (kf.frame.timestamp, kf.id);
         let world_from_camera = kf.world_from_camera();
         let camera_from_world = kf.camera_from_world;
-        let objects: Vec<Object> = boxes
+        // The detected dynamic objects, each with the index of its box.
+        let (owners, mut objects): (Vec<usize>, Vec<Object>) = boxes
             .iter()
-            .filter(|b| b.dynamic)
-            .filter_map(|b| {
+            .enumerate()
+            .filter(|(_, b)| b.dynamic)
+            .filter_map(|(i, b)| {
                 let z = object_depth(config, &keypoints, b)?;
-                Some(Object::from_box(
-                    b.bbox,
-                    z,
-                    &self.camera,
-                    &world_from_camera,
+                Some((
+                    i,
+                    Object::from_box(b.bbox, z, &self.camera, &world_from_camera),
                 ))
             })
-            .collect();
-        let missed = self.tracks.update(time, &objects, config);
+            .unzip();
+        let missed = self.tracks.update(time, &mut objects, config);
+        for (i, object) in owners.into_iter().zip(&objects) {
+            boxes[i].moved = object.moved;
+        }
         let predicted: Vec<ObjectBox> = missed
             .iter()
             .filter_map(|o| o.to_box(&self.camera, &camera_from_world))
@@ -405,6 +413,49 @@ mod tests {
         assert!(fourth_points[..4]
             .iter()
             .all(|&p| map.points[p].moving < 0.5));
+    }
+
+    /// A point the geometric check verified static counts as S = 0 inside the box of a
+    /// person who never moved (a seated person), but not inside the box of one followed
+    /// moving: there it takes S = 1 and is no longer verified static.
+    #[test]
+    fn verified_static_points_yield_to_objects_followed_moving() {
+        let config = DopConfig::default();
+        let verify = |map: &mut Map, points: &[crate::map::MapPointKey]| {
+            for &p in points {
+                let c = &mut map.points[p].consistency;
+                c.inlier_run = 40;
+                c.since = 0.0;
+                c.until = 2.0;
+                assert!(c.verified_static(&config));
+            }
+        };
+        let person = |moved| ObjectBox {
+            bbox: [100.0, 100.0, 200.0, 300.0],
+            dynamic: true,
+            depth: None,
+            moved,
+        };
+        for moved in [false, true] {
+            let (mut map, key, points) = map_with(&SCENE);
+            verify(&mut map, &points);
+            let effect = apply_boxes(&mut map, key, &[person(moved)], &config, 0.3);
+            for &p in &points[..4] {
+                let point = &map.points[p];
+                let expected = if moved { 0.65 } else { 0.35 };
+                assert!((point.moving - expected).abs() < 1e-5, "moved {moved}");
+                assert_eq!(point.consistency.on_moving_object, moved);
+                assert_eq!(point.consistency.verified_static(&config), !moved);
+            }
+            assert_eq!(effect.verified_static, if moved { 0 } else { 4 });
+            // The wall behind stays verified either way.
+            assert!(map.points[points[4]].consistency.verified_static(&config));
+            // A later keyframe that puts the points elsewhere ends the flag.
+            apply_boxes(&mut map, key, &[], &config, 0.3);
+            assert!(points[..4]
+                .iter()
+                .all(|&p| !map.points[p].consistency.on_moving_object));
+        }
     }
 
     #[test]
