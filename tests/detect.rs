@@ -303,7 +303,7 @@ fn several_networks_pool_their_boxes_before_one_nms() {
         detector.detect(0.0, &image).unwrap()
     };
     let merged = run(&files);
-    let alone: Vec<Vec<Detection>> = files.iter().map(|f| run(&[f.clone()])).collect();
+    let alone: Vec<Vec<Detection>> = files.iter().map(|f| run(std::slice::from_ref(f))).collect();
     assert_ne!(
         alone[0], alone[1],
         "the two sizes should see the image differently"
