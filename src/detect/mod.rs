@@ -76,7 +76,7 @@ impl Model {
     /// YOLOv4-tiny runs at 320x256, not its cfg's 416x416: squeezed to that size the
     /// person who passes close to the camera (half the image, cut by its border) looks
     /// like the people COCO has, and is found (cut-out presets: person recall on
-    /// keyframes 0.79-0.86 -> 0.87-0.91 in half the time; README "Detector").
+    /// keyframes 0.79-0.88 -> 0.87-0.91 in half the time; README "Detector").
     pub fn default_paths(self) -> Vec<PathBuf> {
         match self {
             Model::Yolov4Tiny => vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")],
