@@ -110,8 +110,8 @@ pub struct DetectorConfig {
     /// Classes known to be static (their boxes can refine dynamic ones).
     pub static_classes: Vec<String>,
     /// In real-time mode the `oracle` and `cache` sources answer this late (ms), as a
-    /// real detector would (YOLOv4-tiny: 40 ms a keyframe alone on 2 cores, 55-66 ms
-    /// beside tracking); 0 answers at once.
+    /// real detector would (YOLOv4-tiny at 320x256: 26 ms a keyframe alone on 2 cores,
+    /// 44-62 ms beside tracking); 0 answers at once.
     pub simulated_latency_ms: f64,
 }
 

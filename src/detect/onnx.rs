@@ -109,16 +109,20 @@ impl OnnxDetector {
         image: &RgbImage,
     ) -> Result<Vec<Detection>, DetectError> {
         let (layout, threshold) = (self.layout, self.score_threshold);
-        let network = &mut self.networks[index];
-        let mut input = layout.prepare(image, network.width, network.height);
-        let shape = [1usize, 3, network.height as usize, network.width as usize];
+        let Network {
+            session,
+            width,
+            height,
+            model,
+        } = &mut self.networks[index];
+        let size = (*width as usize, *height as usize);
+        let mut input = layout.prepare(image, *width, *height);
+        let shape = [1usize, 3, size.1, size.0];
         // The tensor takes the pixels; decoding needs only the scales.
         let tensor = Tensor::from_array((shape, std::mem::take(&mut input.data)))
             .map_err(|e| DetectError::Runtime(e.to_string()))?;
-        let model = network.model.clone();
-        let size = (network.width as usize, network.height as usize);
-        let outputs = network
-            .session
+        // The path is cloned only for an error (this runs on every keyframe).
+        let outputs = session
             .run(ort::inputs![tensor])
             .map_err(|e| DetectError::Runtime(format!("{}: {e}", model.display())))?;
         let (shape, data) = outputs[0]
@@ -132,7 +136,7 @@ impl OnnxDetector {
             && expected.is_none_or(|n| dims[1] as usize == n);
         if !fits {
             return Err(DetectError::Model {
-                path: model,
+                path: model.clone(),
                 message: format!(
                     "output shape {dims:?} matches neither layout: {layout:?} expects [1, {}, 85]",
                     expected.map_or("N".to_string(), |n| n.to_string())
