@@ -232,6 +232,16 @@ impl Config {
         self.stereo.validate()?;
         self.detector.validate()?;
         self.dop.validate()?;
+        if let Some(class) = self
+            .dop
+            .never_static_classes
+            .iter()
+            .find(|c| crate::detect::coco::class_id(c).is_none())
+        {
+            return Err(format!(
+                "dop.never_static_classes: {class:?} is not a COCO class name"
+            ));
+        }
         self.dense.validate()?;
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(

@@ -86,6 +86,12 @@ pub struct DopConfig {
     /// with them when they walked on). Objects that never move this far (a parked car,
     /// a seated person, a detector's false box on a wall) keep the static check.
     pub track_moved_metres: f32,
+    /// Dynamic classes (COCO names) that move on their own: their objects count as
+    /// moved from the first detection, so their points are never verified static. A
+    /// person sitting still for a minute may stand up at any moment, and a person
+    /// verified static while still takes the pose with them when they go (measured in
+    /// the README); a parked car stays parked.
+    pub never_static_classes: Vec<String>,
     /// The geometric check (beyond the paper, needs no detector): a map point that is a
     /// pose outlier in `geometric_frames` tracked frames in a row gets the update
     /// \(P \leftarrow (1 - \alpha_g) P + \alpha_g\) with `alpha_geometric`; frames where
@@ -125,6 +131,7 @@ impl Default for DopConfig {
             track_gate: 0.7,
             track_max_speed: 1.5,
             track_moved_metres: 0.5,
+            never_static_classes: vec!["person".into()],
             geometric: true,
             geometric_frames: 2,
             alpha_geometric: 0.3,

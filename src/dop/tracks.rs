@@ -35,7 +35,8 @@ pub struct Object {
     pub size: (f64, f64),
     /// Extra margin on every side of its box, metres (uncertainty of a prediction).
     pub margin: f64,
-    /// Whether its track has moved `track_moved_metres` (false for a new object).
+    /// Whether its track has moved `track_moved_metres` (false for a new object), or
+    /// its class moves on its own (`never_static_classes`).
     pub moved: bool,
 }
 
@@ -146,7 +147,8 @@ impl ObjectTracks {
                     (track.velocity + (detected[oi].centre - track.object.centre) / dt) / 2.0;
                 track.velocity = velocity.cap_magnitude(speed);
             }
-            let moved = track.object.moved
+            let moved = detected[oi].moved
+                || track.object.moved
                 || (detected[oi].centre - track.origin).norm() >= config.track_moved_metres as f64;
             detected[oi].moved = moved;
             track.object = detected[oi];
@@ -297,6 +299,17 @@ mod tests {
             let mut seen = [at(x)];
             tracks.update(0.25 * i as f64, &mut seen, &config);
             assert!(!seen[0].moved);
+        }
+        // An object of a class that moves on its own comes in moved and its track
+        // keeps it, swaying or not.
+        let mut tracks = ObjectTracks::default();
+        for (i, x) in [0.0, 0.2, -0.1].into_iter().enumerate() {
+            let mut seen = [Object {
+                moved: i == 0,
+                ..at(x)
+            }];
+            tracks.update(0.25 * i as f64, &mut seen, &config);
+            assert!(seen[0].moved, "detection {i}");
         }
     }
 }

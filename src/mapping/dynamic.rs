@@ -55,6 +55,19 @@ pub fn object_boxes(detections: &[Detection], dynamic_classes: &[String]) -> Vec
         .collect()
 }
 
+/// [`object_boxes`] with the boxes of `config.never_static_classes` marked moved.
+fn model_boxes(
+    detections: &[Detection],
+    dynamic_classes: &[String],
+    config: &DopConfig,
+) -> Vec<ObjectBox> {
+    let mut boxes = object_boxes(detections, dynamic_classes);
+    for (b, d) in boxes.iter_mut().zip(detections) {
+        b.moved = config.never_static_classes.contains(&d.class);
+    }
+    boxes
+}
+
 /// Applies `detections` of keyframe `key`; `dynamic_classes` are COCO names.
 pub fn apply_detections(
     map: &mut Map,
@@ -64,7 +77,7 @@ pub fn apply_detections(
     config: &DopConfig,
     alpha: f32,
 ) -> DetectionEffect {
-    let boxes = object_boxes(detections, dynamic_classes);
+    let boxes = model_boxes(detections, dynamic_classes, config);
     apply_boxes(map, key, &boxes, config, alpha)
 }
 
@@ -193,7 +206,7 @@ impl DynamicObjects {
             return result;
         };
         self.detected.insert(key);
-        let mut boxes = object_boxes(detections, dynamic_classes);
+        let mut boxes = model_boxes(detections, dynamic_classes, config);
         if !config.track_boxes {
             result.effect = apply_boxes(map, key, &boxes, config, alpha);
             result.boxes = dynamic_boxes(&boxes);
@@ -209,10 +222,11 @@ impl DynamicObjects {
             .filter(|(_, b)| b.dynamic)
             .filter_map(|(i, b)| {
                 let z = object_depth(config, &keypoints, b)?;
-                Some((
-                    i,
-                    Object::from_box(b.bbox, z, &self.camera, &world_from_camera),
-                ))
+                let object = Object {
+                    moved: b.moved,
+                    ..Object::from_box(b.bbox, z, &self.camera, &world_from_camera)
+                };
+                Some((i, object))
             })
             .unzip();
         let missed = self.tracks.update(time, &mut objects, config);
@@ -455,6 +469,44 @@ mod tests {
             assert!(points[..4]
                 .iter()
                 .all(|&p| !map.points[p].consistency.on_moving_object));
+        }
+    }
+
+    /// A person is never verified static, even before their track has moved (a seated
+    /// person); a parked car is, and the rule follows `never_static_classes`.
+    #[test]
+    fn people_are_never_verified_static_but_parked_cars_are() {
+        let classes = vec!["person".to_string(), "car".to_string()];
+        let car = vec![Detection {
+            class: "car".into(),
+            ..person()[0].clone()
+        }];
+        let nobody = DopConfig {
+            never_static_classes: Vec::new(),
+            ..DopConfig::default()
+        };
+        for (detections, config, verified) in [
+            (person(), DopConfig::default(), false),
+            (car, DopConfig::default(), true),
+            (person(), nobody, true),
+        ] {
+            let (mut map, key, points) = map_with(&SCENE);
+            for &p in &points {
+                let c = &mut map.points[p].consistency;
+                (c.inlier_run, c.since, c.until) = (40, 0.0, 2.0);
+            }
+            let effect = apply_detections(&mut map, key, &detections, &classes, &config, 0.3);
+            let class = &detections[0].class;
+            assert_eq!(
+                effect.verified_static,
+                if verified { 4 } else { 0 },
+                "{class}"
+            );
+            for &p in &points[..4] {
+                let point = &map.points[p];
+                assert_eq!(point.consistency.verified_static(&config), verified);
+                assert_eq!(point.moving > 0.5, !verified, "{class}");
+            }
         }
     }
 
