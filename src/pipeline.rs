@@ -567,6 +567,19 @@ pub fn track_sequence(
                     timestamp: loaded.timestamp,
                     image: picture.into_colour(),
                 });
+                if !options.deterministic && tracker.dop.is_some() {
+                    book.await_detection(&mut tracker, index, key);
+                    if book.totals.submitted == 1 {
+                        // The first map waits for its detection: nothing older can
+                        // carry the pose while its points wait.
+                        book.receive(
+                            &mut tracker,
+                            worker.wait(FIRST_DETECTION_WAIT),
+                            out,
+                            &effect,
+                        );
+                    }
+                }
             }
         }
         if let (Some(dop), Some(frame)) = (&tracker.dop, tracker.last_frame()) {
@@ -849,9 +862,35 @@ struct DetectionBook {
     milliseconds: Vec<f64>,
     /// The DOP model's followed objects (DOP mode only).
     objects: Option<DynamicObjects>,
+    /// Keyframe ids of submitted frames whose detection has not come back.
+    awaited: std::collections::HashMap<usize, usize>,
 }
 
+/// How long real-time mode waits for the first keyframe's detection.
+const FIRST_DETECTION_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
 impl DetectionBook {
+    /// Real-time mode: keyframe `key`, made from frame `index`, waits for its detection
+    /// (its new points stay out of the pose meanwhile, see [`Tracker`]).
+    fn await_detection(
+        &mut self,
+        tracker: &mut Tracker,
+        index: usize,
+        key: crate::map::KeyFrameKey,
+    ) {
+        let id = tracker
+            .map
+            .read()
+            .expect("map lock poisoned")
+            .keyframes
+            .get(key)
+            .map(|kf| kf.id);
+        if let Some(id) = id {
+            self.awaited.insert(index, id);
+            tracker.awaiting_detection.insert(id);
+        }
+    }
+
     /// Attaches detections that came back to their keyframes (which local mapping may
     /// have culled meanwhile) and writes them to the run's detection cache
     /// (`OUT/detections/`, readable back with `source = "cache"`).
@@ -869,6 +908,9 @@ impl DetectionBook {
         let shared = tracker.map.clone();
         let mut map = shared.write().expect("map lock poisoned");
         for outcome in outcomes {
+            if let Some(id) = self.awaited.remove(&outcome.id) {
+                tracker.awaiting_detection.remove(&id);
+            }
             if outcome.skipped {
                 totals.skipped += 1;
                 continue;

@@ -140,6 +140,18 @@ impl DetectionWorker {
         }
     }
 
+    /// Waits up to `timeout` for the next outcome, then returns it with any others
+    /// finished (at once when inline).
+    pub fn wait(&mut self, timeout: std::time::Duration) -> Vec<Outcome> {
+        match self {
+            Self::Inline { done, .. } => std::mem::take(done),
+            Self::Thread { outcomes, .. } => match outcomes.recv_timeout(timeout) {
+                Ok(first) => std::iter::once(first).chain(outcomes.try_iter()).collect(),
+                Err(_) => Vec::new(),
+            },
+        }
+    }
+
     /// Waits for every submitted job and returns the outcomes not yet polled.
     pub fn finish(self) -> Vec<Outcome> {
         match self {

@@ -12,6 +12,7 @@
 //! thread: tracking holds the map's write lock while it tracks one frame (feature
 //! extraction happens before, without it) and hands each new keyframe on.
 
+use std::collections::HashSet;
 use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
@@ -60,6 +61,9 @@ pub struct TrackerConfig {
     /// segment starts at the last tracked pose; a loop that connects it to an older
     /// one merges them in the global pass.
     pub new_map_after_seconds: f64,
+    /// Real-time mode: points created by a keyframe whose detection has not come back
+    /// stay out of the pose when at least this many other matches remain.
+    pub held_out_min_points: usize,
 }
 
 impl Default for TrackerConfig {
@@ -74,6 +78,7 @@ impl Default for TrackerConfig {
             keyframe_min_translation: 0.05,
             keyframe_min_rotation_deg: 3.0,
             new_map_after_seconds: 3.0,
+            held_out_min_points: 60,
         }
     }
 }
@@ -166,6 +171,11 @@ pub struct Tracker {
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
     /// estimation and new points.
     pub dop: Option<DopConfig>,
+    /// Keyframes (ids) whose detection has not come back (real-time mode): the points
+    /// they created stay out of the pose while enough others remain, as a keyframe's
+    /// detection would have removed those on people before the next frame in
+    /// deterministic mode (`optimise`).
+    pub awaiting_detection: HashSet<usize>,
 }
 
 /// Timers of one frame.
@@ -199,6 +209,7 @@ impl Tracker {
             width: width as f32,
             height: height as f32,
             dop: None,
+            awaiting_detection: HashSet::new(),
         }
     }
 
@@ -232,6 +243,11 @@ impl Tracker {
     /// Whether a map point is left out as dynamic.
     fn excluded(&self, point: &MapPoint) -> bool {
         self.dop.as_ref().is_some_and(|d| d.removed(point.moving))
+    }
+
+    /// Whether a map point waits for the detection of the keyframe that created it.
+    fn awaiting(&self, point: &MapPoint) -> bool {
+        self.awaiting_detection.contains(&point.first_keyframe_id)
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
@@ -498,6 +514,7 @@ impl Tracker {
         let mut indices = Vec::new();
         let mut observations = Vec::new();
         let mut kept = vec![None; points.len()];
+        let mut awaiting = Vec::new();
         for (i, key) in points.iter().enumerate() {
             let Some(point) = key.and_then(|k| map.points.get(k)) else {
                 continue;
@@ -508,8 +525,23 @@ impl Tracker {
                 kept[i] = points[i];
                 continue;
             }
+            if self.awaiting(point) {
+                awaiting.push((i, point));
+                continue;
+            }
             observations.push(self.observation(frame, i, point));
             indices.push(i);
+        }
+        if observations.len() >= self.config.held_out_min_points {
+            // Kept like dynamic matches until the detection says what they are.
+            for (i, _) in awaiting {
+                kept[i] = points[i];
+            }
+        } else {
+            for (i, point) in awaiting {
+                observations.push(self.observation(frame, i, point));
+                indices.push(i);
+            }
         }
         if observations.len() < 10 {
             timing.optimisation += start.elapsed().as_secs_f64() * 1e3;
@@ -556,7 +588,7 @@ impl Tracker {
             .filter_map(|(i, (candidate, inlier))| {
                 let key = (*candidate)?;
                 let point = map.points.get(key)?;
-                let consistent = if self.excluded(point) {
+                let consistent = if self.excluded(point) || self.awaiting(point) {
                     within_gate(&self.camera, pose, &self.observation(frame, i, point))
                 } else {
                     inlier.is_some()
