@@ -1077,6 +1077,7 @@ fn geometric_check(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::camera::PinholeCamera;
 
     fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
         let mut map = Map::default();
@@ -1156,6 +1157,76 @@ mod tests {
         }
         geometric_check(&dop, &mut map, &checks(&keys, 4), 4.0);
         assert_eq!(map.points[keys[9]].consistency.inlier_run, 1);
+    }
+
+    /// Real time: the points of a keyframe whose detection has not come back take no
+    /// part in the pose while enough others remain. Here they sit on a person who
+    /// moved 10 cm and outnumber the room's points; held out, the pose is the room's.
+    #[test]
+    fn points_awaiting_their_detection_stay_out_of_the_pose() {
+        let pinhole = PinholeCamera::tum_fr3();
+        let camera = StereoCamera::new(&pinhole, 40.0);
+        let mut tracker = Tracker::new(
+            TrackerConfig::default(),
+            camera,
+            ScalePyramid::new(8, 1.2),
+            pinhole.width,
+            pinhole.height,
+        );
+        tracker.dop = Some(DopConfig::default());
+        let (room, person) = (80, 120);
+        let mut map = Map::default();
+        let (mut keypoints, mut keys) = (Vec::new(), Vec::new());
+        for i in 0..room + person {
+            let (x, y) = (20.0 + (i % 20) as f64 * 30.0, 20.0 + (i / 20) as f64 * 40.0);
+            let z = 2.0 + (i % 7) as f64 * 0.3;
+            let seen = pinhole.unproject(&nalgebra::Vector2::new(x, y), z);
+            // The person's points were made where the person stood a frame ago.
+            let (position, first) = if i < room {
+                (seen, 0)
+            } else {
+                (seen + Vector3::new(0.1, 0.0, 0.0), 7)
+            };
+            keys.push(Some(map.points.insert(MapPoint::new(
+                position,
+                [0; 4],
+                Vector3::z(),
+                (0.1, 10.0),
+                first,
+            ))));
+            keypoints.push(crate::features::KeyPoint {
+                x: x as f32,
+                y: y as f32,
+                ..Default::default()
+            });
+        }
+        let n = keypoints.len();
+        let frame = Frame::from_parts(
+            1,
+            0.1,
+            keypoints,
+            vec![[0; 4]; n],
+            vec![0.0; n],
+            vec![-1.0; n],
+            (pinhole.width, pinhole.height),
+        );
+        let error = |tracker: &Tracker| {
+            let (pose, _, _) = tracker.optimise(
+                &map,
+                &frame,
+                &Se3::identity(),
+                &keys,
+                &mut Timing::default(),
+            );
+            pose.translation.vector.norm()
+        };
+        let mixed = error(&tracker);
+        assert!(mixed > 0.02, "the person pulls the pose: {mixed}");
+        tracker.awaiting_detection.insert(7);
+        assert!(error(&tracker) < 1e-3);
+        // With too few other points the awaiting ones are used.
+        tracker.config.held_out_min_points = room + 1;
+        assert!((error(&tracker) - mixed).abs() < 1e-9);
     }
 
     #[test]
