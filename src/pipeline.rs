@@ -21,6 +21,7 @@ use crate::detect::{write_cache, FrameDetections};
 use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
+use crate::eval::stats::median;
 use crate::features::OrbExtractor;
 use crate::global::loop_detection::LoopDetection;
 use crate::global::GlobalReport;
@@ -286,14 +287,6 @@ pub struct DetectionTotals {
     pub errors: Vec<String>,
 }
 
-fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    values.sort_by(f64::total_cmp);
-    crate::eval::stats::median_of_sorted(values)
-}
-
 /// How moving objects are treated in a run of `config`: without detections the DOP
 /// model runs on its geometric check alone (when on), else every mode is ORB-SLAM2's.
 pub fn effective_mode(config: &Config) -> Mode {
@@ -361,6 +354,13 @@ pub fn dense_pass(
 ) -> Result<DenseReport, RunError> {
     let config = &config.for_sensor(sequence.sensor());
     let calibration = resolve_calibration(sequence, config)?;
+    let detector = match masking {
+        Masking::Dop if config.dense.detect_every > 0 => config
+            .detector
+            .open(sequence_dir)
+            .map_err(|e| RunError::Input(e.to_string()))?,
+        _ => None,
+    };
     let inputs = DenseInputs {
         sequence,
         camera: calibration.camera,
@@ -375,6 +375,7 @@ pub fn dense_pass(
             bf: calibration.bf.unwrap_or(40.0),
             sgbm: config.stereo.sgbm(),
         }),
+        detector: detector.map(std::sync::Mutex::new),
     };
     Ok(fuse_run(&inputs, &config.dense)?)
 }

@@ -44,6 +44,13 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let report = run_sequence(sequence.as_ref(), &config, &run_dir, &options).unwrap();
     let dense = report.dense.expect("the dense pass ran");
     assert_eq!(dense.frames_fused, report.totals.tracked);
+    // Every 5th frame detected for the masks, beside the keyframes.
+    let extra = dense.extra_detections.clone().expect("detect_every is on");
+    assert!(
+        extra.detected >= 150 / 5 - report.totals.keyframes,
+        "{extra:?}"
+    );
+    assert_eq!(extra.cached, 0);
     assert!(
         dense.mesh_triangles > 10_000,
         "{} triangles",
@@ -84,11 +91,24 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
                 &config,
                 (&run_dir, &one_dir),
                 Masking::Dop,
-                None,
+                Some(&seq),
                 false,
             )
         })
         .unwrap();
+    // Fused again into the run's folder: the detections come from its cache.
+    let again = dense_pass(
+        sequence.as_ref(),
+        &config,
+        (&run_dir, &run_dir),
+        Masking::Dop,
+        Some(&seq),
+        false,
+    )
+    .unwrap()
+    .extra_detections
+    .unwrap();
+    assert_eq!((again.detected, again.cached), (0, extra.detected));
     for name in ["dense_mesh.ply", "dense_points.ply", "dense_mesh.obj"] {
         let (a, b) = (
             std::fs::read(run_dir.join(name)).unwrap(),

@@ -14,6 +14,7 @@ pub mod comparison;
 pub mod disparity;
 pub mod marching_cubes;
 pub mod masks;
+pub mod more_detections;
 pub mod neighbours;
 pub mod render;
 pub mod tsdf;
@@ -85,6 +86,9 @@ pub struct DenseConfig {
     /// missed by the masks that later left): \(F\) above this, in truncation units
     /// (1 or more: off; needs the mesh).
     pub cloud_free_space: f32,
+    /// With the DOP model, also detect on every n-th fused frame for the masks (0: the
+    /// keyframes' detections only; see [`more_detections`]).
+    pub detect_every: usize,
     /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
     pub mask_border: u32,
     pub keypoint_radius: u32,
@@ -114,6 +118,7 @@ impl Default for DenseConfig {
             outlier_std: 2.0,
             normal_neighbours: 16,
             cloud_free_space: 0.5,
+            detect_every: 5,
             mask_border: 6,
             keypoint_radius: 10,
             ply_encoding: PlyEncoding::Binary,
@@ -218,6 +223,8 @@ pub struct DenseReport {
     pub cloud_points: usize,
     /// Cloud voxels dropped as seen through (see `DenseConfig::cloud_free_space`).
     pub cloud_seen_through: usize,
+    /// The dense pass's own detections (`detect_every`).
+    pub extra_detections: Option<more_detections::ExtraDetections>,
     /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
     pub median_integration_ms: f64,
     pub marching_cubes_ms: f64,
@@ -245,6 +252,8 @@ pub struct DenseInputs<'a> {
     pub progress: bool,
     /// How stereo pairs become depth (stereo sequences only).
     pub stereo: Option<StereoDepth>,
+    /// The detector for `detect_every` (DOP masks only).
+    pub detector: Option<std::sync::Mutex<Box<dyn crate::detect::Detector>>>,
 }
 
 /// A frame's depth and colour: an RGB-D frame's own, or a stereo pair's SGBM depth
@@ -383,13 +392,58 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             .ok()
             .map(|(depth, _)| depth)
     };
-    let (detections, keypoints) = if inputs.masking == Masking::None {
+    let (mut detections, keypoints) = if inputs.masking == Masking::None {
         (Vec::new(), Vec::new())
     } else {
         (
             read_detections(&run.join("detections"))?,
             read_keypoints(&run.join(KEYPOINTS_FILE))?,
         )
+    };
+    // The frames to fuse, in sequence order.
+    let chosen: Vec<(usize, Se3, bool)> = (0..sequence.len())
+        .filter_map(|i| {
+            let k = key(sequence.timestamp(i));
+            let pose = *poses.get(&k)?;
+            let is_keyframe = keyframe_times.contains(&k);
+            (config.frames == FrameChoice::All || is_keyframe).then_some((i, pose, is_keyframe))
+        })
+        .step_by(config.frame_step)
+        .collect();
+    let extra_detections = match (&inputs.detector, inputs.masking) {
+        (Some(detector), Masking::Dop) if config.detect_every > 0 => {
+            let cache = inputs.out_dir.join(more_detections::DENSE_DETECTIONS_DIR);
+            let cached = read_detections(&cache)?;
+            let known: std::collections::HashSet<i64> = detections
+                .iter()
+                .chain(&cached)
+                .map(|f| key(f.timestamp))
+                .collect();
+            let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
+            let todo = more_detections::frames_to_detect(
+                &fused,
+                config.detect_every,
+                |i| sequence.timestamp(i),
+                &known,
+            );
+            let mut detector = detector.lock().expect("detector lock poisoned");
+            let (found, mut milliseconds) = more_detections::detect_frames(
+                sequence,
+                detector.as_mut(),
+                &todo,
+                &cache,
+                inputs.progress,
+            )?;
+            let extra = more_detections::ExtraDetections {
+                detected: found.len(),
+                cached: cached.len(),
+                median_ms: crate::eval::stats::median(&mut milliseconds),
+            };
+            detections.extend(cached);
+            detections.extend(found);
+            Some(extra)
+        }
+        _ => None,
     };
     let mask_source = MaskSource::new(
         inputs.masking,
@@ -405,16 +459,6 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &|t| poses.get(&key(t)).copied(),
         &load_depth,
     );
-    // The frames to fuse, in sequence order.
-    let chosen: Vec<(usize, Se3, bool)> = (0..sequence.len())
-        .filter_map(|i| {
-            let k = key(sequence.timestamp(i));
-            let pose = *poses.get(&k)?;
-            let is_keyframe = keyframe_times.contains(&k);
-            (config.frames == FrameChoice::All || is_keyframe).then_some((i, pose, is_keyframe))
-        })
-        .step_by(config.frame_step)
-        .collect();
     let progress = if inputs.progress {
         ProgressBar::new(chosen.len() as u64)
     } else {
@@ -429,6 +473,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let mut report = DenseReport {
         masking: Some(inputs.masking),
         other_segment_frames,
+        extra_detections,
         ..DenseReport::default()
     };
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());

@@ -1,0 +1,117 @@
+//! Detections between keyframes, for the dense masks only (`[dense] detect_every`).
+//!
+//! The tracking pass detects on keyframes (6-12 % of the frames of the people
+//! presets). A person the detector misses on the keyframes around a stretch of frames
+//! is fused into the map there, and stays where the camera never sees through them
+//! later. The dense pass is offline, so it can afford the detector on every
+//! `detect_every`-th fused frame as well: more chances to find each person, and shorter
+//! gaps for the followed objects to be predicted across. These detections only make
+//! masks; the trajectory is already final. They are cached in [`DENSE_DETECTIONS_DIR`]
+//! of the output folder in the detection cache's format, so `dopslam fuse` runs the
+//! detector once per frame.
+
+use std::collections::HashSet;
+use std::path::Path;
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::detect::{write_cache, Detector, FrameDetections};
+use crate::io::sequence::{FrameImages, Sequence};
+use crate::io::IoError;
+
+/// The folder (in the dense output folder) of the dense pass's own detections.
+pub const DENSE_DETECTIONS_DIR: &str = "detections_dense";
+
+/// What the extra detections cost.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct ExtraDetections {
+    /// Frames detected now, and frames whose detections came from the cache.
+    pub detected: usize,
+    pub cached: usize,
+    pub median_ms: f64,
+}
+
+/// The frames among `fused` (sequence indices, in order) to detect on: every
+/// `every`-th index, skipping those whose timestamp (`timestamp(i)`, in microseconds
+/// by [`micros`]) is in `known`.
+pub fn frames_to_detect(
+    fused: &[usize],
+    every: usize,
+    timestamp: impl Fn(usize) -> f64,
+    known: &HashSet<i64>,
+) -> Vec<usize> {
+    if every == 0 {
+        return Vec::new();
+    }
+    fused
+        .iter()
+        .copied()
+        .filter(|&i| i % every == 0 && !known.contains(&micros(timestamp(i))))
+        .collect()
+}
+
+/// Detects on `frames` of `sequence` and writes each result to `cache`.
+pub fn detect_frames(
+    sequence: &dyn Sequence,
+    detector: &mut dyn Detector,
+    frames: &[usize],
+    cache: &Path,
+    progress: bool,
+) -> Result<(Vec<FrameDetections>, Vec<f64>), IoError> {
+    let bar = if progress {
+        ProgressBar::new(frames.len() as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template("detect {bar:40} {pos}/{len} frames ({per_sec}, {eta} left)")
+            .expect("valid template"),
+    );
+    let mut found = Vec::with_capacity(frames.len());
+    let mut milliseconds = Vec::with_capacity(frames.len());
+    for &i in frames {
+        if crate::interrupt::requested() {
+            break;
+        }
+        let frame = sequence.load(i)?;
+        let image = match frame.images {
+            FrameImages::Rgbd { rgb, .. } => rgb,
+            FrameImages::Stereo { left, .. } => image::DynamicImage::ImageLuma8(left).to_rgb8(),
+        };
+        let start = Instant::now();
+        let detections = detector
+            .detect(frame.timestamp, &image)
+            .map_err(|e| IoError::invalid(cache, format!("frame {i}: {e}")))?;
+        milliseconds.push(start.elapsed().as_secs_f64() * 1e3);
+        let frame = FrameDetections {
+            timestamp: frame.timestamp,
+            detections,
+        };
+        write_cache(cache, &frame).map_err(|e| IoError::invalid(cache, e.to_string()))?;
+        found.push(frame);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok((found, milliseconds))
+}
+
+/// A timestamp in whole microseconds (the key frames are matched by).
+pub fn micros(t: f64) -> i64 {
+    (t * 1e6).round() as i64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_nth_fused_frame_is_detected_unless_known() {
+        let time = |i: usize| 100.0 + i as f64 / 30.0;
+        let fused: Vec<usize> = (0..20).filter(|i| i % 3 != 2).collect();
+        let known: HashSet<i64> = [micros(time(5))].into();
+        assert_eq!(frames_to_detect(&fused, 5, time, &known), vec![0, 10, 15]);
+        assert!(frames_to_detect(&fused, 0, time, &known).is_empty());
+        assert_eq!(frames_to_detect(&fused, 1, time, &HashSet::new()), fused);
+    }
+}
