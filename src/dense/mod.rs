@@ -351,6 +351,22 @@ pub fn read_detections(dir: &Path) -> Result<Vec<FrameDetections>, IoError> {
     Ok(frames)
 }
 
+/// A progress bar over `len` frames labelled `label` (hidden unless `shown`).
+pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
+    let bar = if shown {
+        ProgressBar::new(len as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{label}{{bar:40}} {{pos}}/{{len}} frames ({{per_sec}}, {{eta}} left)"
+        ))
+        .expect("valid template"),
+    );
+    bar
+}
+
 /// The file with the dynamic keypoints of each frame.
 pub const KEYPOINTS_FILE: &str = "dynamic_keypoints.json";
 
@@ -459,15 +475,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &|t| poses.get(&key(t)).copied(),
         &load_depth,
     );
-    let progress = if inputs.progress {
-        ProgressBar::new(chosen.len() as u64)
-    } else {
-        ProgressBar::hidden()
-    };
-    progress.set_style(
-        ProgressStyle::with_template("fuse  {bar:40} {pos}/{len} frames ({per_sec}, {eta} left)")
-            .expect("valid template"),
-    );
+    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut report = DenseReport {

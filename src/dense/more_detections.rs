@@ -14,8 +14,6 @@ use std::collections::HashSet;
 use std::path::Path;
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressStyle};
-
 use crate::detect::{write_cache, Detector, FrameDetections};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::IoError;
@@ -59,15 +57,7 @@ pub fn detect_frames(
     cache: &Path,
     progress: bool,
 ) -> Result<(Vec<FrameDetections>, Vec<f64>), IoError> {
-    let bar = if progress {
-        ProgressBar::new(frames.len() as u64)
-    } else {
-        ProgressBar::hidden()
-    };
-    bar.set_style(
-        ProgressStyle::with_template("detect {bar:40} {pos}/{len} frames ({per_sec}, {eta} left)")
-            .expect("valid template"),
-    );
+    let bar = super::frames_bar("detect ", frames.len(), progress);
     let mut found = Vec::with_capacity(frames.len());
     let mut milliseconds = Vec::with_capacity(frames.len());
     for &i in frames {
