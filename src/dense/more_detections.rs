@@ -31,8 +31,8 @@ pub struct ExtraDetections {
 }
 
 /// The frames among `fused` (sequence indices, in order) to detect on: every
-/// `every`-th index, skipping those whose timestamp (`timestamp(i)`, in microseconds
-/// by [`micros`]) is in `known`.
+/// `every`-th index, skipping those whose timestamp (`timestamp(i)`, in whole
+/// microseconds) is in `known`.
 pub fn frames_to_detect(
     fused: &[usize],
     every: usize,
@@ -45,7 +45,7 @@ pub fn frames_to_detect(
     fused
         .iter()
         .copied()
-        .filter(|&i| i % every == 0 && !known.contains(&micros(timestamp(i))))
+        .filter(|&i| i % every == 0 && !known.contains(&super::key(timestamp(i))))
         .collect()
 }
 
@@ -86,11 +86,6 @@ pub fn detect_frames(
     Ok((found, milliseconds))
 }
 
-/// A timestamp in whole microseconds (the key frames are matched by).
-pub fn micros(t: f64) -> i64 {
-    (t * 1e6).round() as i64
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -99,7 +94,7 @@ mod tests {
     fn every_nth_fused_frame_is_detected_unless_known() {
         let time = |i: usize| 100.0 + i as f64 / 30.0;
         let fused: Vec<usize> = (0..20).filter(|i| i % 3 != 2).collect();
-        let known: HashSet<i64> = [micros(time(5))].into();
+        let known: HashSet<i64> = [crate::dense::key(time(5))].into();
         assert_eq!(frames_to_detect(&fused, 5, time, &known), vec![0, 10, 15]);
         assert!(frames_to_detect(&fused, 0, time, &known).is_empty());
         assert_eq!(frames_to_detect(&fused, 1, time, &HashSet::new()), fused);

@@ -84,7 +84,8 @@ pub struct DopConfig {
     /// followed, so a person who stops for a moment stays dynamic (without this, their
     /// consistent points were verified static after `static_seconds` and took the pose
     /// with them when they walked on). Objects that never move this far (a parked car,
-    /// a seated person, a detector's false box on a wall) keep the static check.
+    /// a detector's false box on a wall) keep the static check; people never do
+    /// (`never_static_classes`).
     pub track_moved_metres: f32,
     /// Dynamic classes (COCO names) that move on their own: their objects count as
     /// moved from the first detection, so their points are never verified static. A

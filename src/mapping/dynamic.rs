@@ -429,9 +429,9 @@ mod tests {
             .all(|&p| map.points[p].moving < 0.5));
     }
 
-    /// A point the geometric check verified static counts as S = 0 inside the box of a
-    /// person who never moved (a seated person), but not inside the box of one followed
-    /// moving: there it takes S = 1 and is no longer verified static.
+    /// A point the geometric check verified static counts as S = 0 inside the box of
+    /// an object that never moved, but not inside the box of one followed moving: there
+    /// it takes S = 1 and is no longer verified static.
     #[test]
     fn verified_static_points_yield_to_objects_followed_moving() {
         let config = DopConfig::default();
