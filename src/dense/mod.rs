@@ -443,18 +443,25 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 &known,
             );
             let mut detector = detector.lock().expect("detector lock poisoned");
-            let (found, mut milliseconds) = more_detections::detect_frames(
+            let mut extra = more_detections::ExtraDetections {
+                cached: cached.len(),
+                ..Default::default()
+            };
+            let found = more_detections::detect_frames(
                 sequence,
                 detector.as_mut(),
                 &todo,
                 &cache,
                 inputs.progress,
+                &mut extra,
             )?;
-            let extra = more_detections::ExtraDetections {
-                detected: found.len(),
-                cached: cached.len(),
-                median_ms: crate::eval::stats::median(&mut milliseconds),
-            };
+            if let Some(first) = &extra.first_error {
+                eprintln!(
+                    "warning: the detector failed on {} of {} frames of the dense masks (first: {first}); their masks come from the keyframes",
+                    extra.failed,
+                    todo.len()
+                );
+            }
             detections.extend(cached);
             detections.extend(found);
             Some(extra)

@@ -28,6 +28,10 @@ pub struct ExtraDetections {
     pub detected: usize,
     pub cached: usize,
     pub median_ms: f64,
+    /// Frames the detector failed on (a `cache` source has keyframes only): their
+    /// masks come from the keyframes, as without `detect_every`; the first message.
+    pub failed: usize,
+    pub first_error: Option<String>,
 }
 
 /// The frames among `fused` (sequence indices, in order) to detect on: every
@@ -49,14 +53,16 @@ pub fn frames_to_detect(
         .collect()
 }
 
-/// Detects on `frames` of `sequence` and writes each result to `cache`.
+/// Detects on `frames` of `sequence` and writes each result to `cache`; frames the
+/// detector fails on are counted in `report` and left out.
 pub fn detect_frames(
     sequence: &dyn Sequence,
     detector: &mut dyn Detector,
     frames: &[usize],
     cache: &Path,
     progress: bool,
-) -> Result<(Vec<FrameDetections>, Vec<f64>), IoError> {
+    report: &mut ExtraDetections,
+) -> Result<Vec<FrameDetections>, IoError> {
     let bar = super::frames_bar("detect ", frames.len(), progress);
     let mut found = Vec::with_capacity(frames.len());
     let mut milliseconds = Vec::with_capacity(frames.len());
@@ -70,9 +76,17 @@ pub fn detect_frames(
             FrameImages::Stereo { left, .. } => image::DynamicImage::ImageLuma8(left).to_rgb8(),
         };
         let start = Instant::now();
-        let detections = detector
-            .detect(frame.timestamp, &image)
-            .map_err(|e| IoError::invalid(cache, format!("frame {i}: {e}")))?;
+        let detections = match detector.detect(frame.timestamp, &image) {
+            Ok(detections) => detections,
+            Err(e) => {
+                report.failed += 1;
+                report
+                    .first_error
+                    .get_or_insert_with(|| format!("frame {i}: {e}"));
+                bar.inc(1);
+                continue;
+            }
+        };
         milliseconds.push(start.elapsed().as_secs_f64() * 1e3);
         let frame = FrameDetections {
             timestamp: frame.timestamp,
@@ -83,7 +97,9 @@ pub fn detect_frames(
         bar.inc(1);
     }
     bar.finish_and_clear();
-    Ok((found, milliseconds))
+    report.detected = found.len();
+    report.median_ms = crate::eval::stats::median(&mut milliseconds);
+    Ok(found)
 }
 
 #[cfg(test)]
