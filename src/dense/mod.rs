@@ -549,12 +549,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     }
     progress.finish_and_clear();
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
-    integration_ms.sort_by(f64::total_cmp);
-    report.median_integration_ms = if integration_ms.is_empty() {
-        0.0
-    } else {
-        crate::eval::stats::median_of_sorted(&integration_ms)
-    };
+    report.median_integration_ms = crate::eval::stats::median(&mut integration_ms);
     report.tsdf_blocks = volume.blocks.len();
     report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;
     let comment = format!(

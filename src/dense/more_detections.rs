@@ -76,24 +76,23 @@ pub fn detect_frames(
             FrameImages::Stereo { left, .. } => image::DynamicImage::ImageLuma8(left).to_rgb8(),
         };
         let start = Instant::now();
-        let detections = match detector.detect(frame.timestamp, &image) {
-            Ok(detections) => detections,
+        match detector.detect(frame.timestamp, &image) {
+            Ok(detections) => {
+                milliseconds.push(start.elapsed().as_secs_f64() * 1e3);
+                let frame = FrameDetections {
+                    timestamp: frame.timestamp,
+                    detections,
+                };
+                write_cache(cache, &frame).map_err(|e| IoError::invalid(cache, e.to_string()))?;
+                found.push(frame);
+            }
             Err(e) => {
                 report.failed += 1;
                 report
                     .first_error
                     .get_or_insert_with(|| format!("frame {i}: {e}"));
-                bar.inc(1);
-                continue;
             }
-        };
-        milliseconds.push(start.elapsed().as_secs_f64() * 1e3);
-        let frame = FrameDetections {
-            timestamp: frame.timestamp,
-            detections,
-        };
-        write_cache(cache, &frame).map_err(|e| IoError::invalid(cache, e.to_string()))?;
-        found.push(frame);
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
