@@ -517,7 +517,7 @@ pub fn track_sequence(
                     break;
                 }
                 start = Instant::now();
-                let grey = image::DynamicImage::ImageRgb8(rgb.clone()).to_luma8();
+                let grey = crate::io::image_files::grey_from_rgb(&rgb);
                 let frame = Frame::from_rgbd(
                     index,
                     loaded.timestamp,

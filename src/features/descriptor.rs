@@ -76,36 +76,75 @@ pub fn orientation(image: &GrayImage, x: i32, y: i32) -> f32 {
     let w = image.width() as i32;
     let src = image.as_raw();
     let widths = disc_half_widths();
-    let (mut m01, mut m10) = (0i64, 0i64);
+    // Column weights u = -15..=15; each row's slice is summed plainly and weighted by u.
+    const U: [i32; (2 * HALF_PATCH + 1) as usize] = {
+        let mut u = [0; (2 * HALF_PATCH + 1) as usize];
+        let mut i = 0;
+        while i < u.len() {
+            u[i] = i as i32 - HALF_PATCH;
+            i += 1;
+        }
+        u
+    };
+    let (mut m01, mut m10) = (0i32, 0i32);
     for v in -HALF_PATCH..=HALF_PATCH {
         let half = widths[(v + HALF_PATCH) as usize];
-        let row = ((y + v) * w + x) as isize;
-        for u in -half..=half {
-            let value = src[(row + u as isize) as usize] as i64;
-            m10 += u as i64 * value;
-            m01 += v as i64 * value;
+        let start = ((y + v) * w + x - half) as usize;
+        let row = &src[start..start + (2 * half + 1) as usize];
+        let weights = &U[(HALF_PATCH - half) as usize..(HALF_PATCH + half + 1) as usize];
+        let (mut sum, mut moment) = (0i32, 0i32);
+        for (&value, &u) in row.iter().zip(weights) {
+            sum += value as i32;
+            moment += u * value as i32;
         }
+        m10 += moment;
+        m01 += v * sum;
     }
     (m01 as f32).atan2(m10 as f32)
 }
 
-/// The rotated BRIEF descriptor at integer pixel `(x, y)` of the smoothed image.
+/// The pattern's coordinates as four columns (first point x, y; second point x, y), so
+/// that rotating all 512 points is a loop over plain arrays.
+fn pattern_columns() -> &'static [[f32; 256]; 4] {
+    static COLUMNS: OnceLock<[[f32; 256]; 4]> = OnceLock::new();
+    COLUMNS.get_or_init(|| {
+        let mut columns = [[0f32; 256]; 4];
+        for (k, pair) in pattern().iter().enumerate() {
+            for (column, &value) in columns.iter_mut().zip(pair) {
+                column[k] = value;
+            }
+        }
+        columns
+    })
+}
+
+/// The rotated BRIEF descriptor at integer pixel `(x, y)` of the smoothed image: the
+/// pattern rotated by `angle`, each point rounded to the nearest pixel.
 pub fn describe(smoothed: &GrayImage, x: i32, y: i32, angle: f32) -> Descriptor {
     let w = smoothed.width() as i32;
     let src = smoothed.as_raw();
     let (sin, cos) = angle.sin_cos();
+    let [ax, ay, bx, by] = pattern_columns();
     // Round to nearest without a libm call: shift into positive range and truncate
     // (pattern offsets stay within ±16).
     let round = |x: f32| (x + 64.5) as i32 - 64;
-    let sample = |px: f32, py: f32| {
-        let u = round(px * cos - py * sin);
-        let v = round(px * sin + py * cos);
-        src[((y + v) * w + x + u) as usize]
+    let offsets = |xs: &[f32; 256], ys: &[f32; 256]| {
+        let mut offsets = [0i32; 256];
+        for ((o, &px), &py) in offsets.iter_mut().zip(xs).zip(ys) {
+            *o = round(px * sin + py * cos) * w + round(px * cos - py * sin);
+        }
+        offsets
     };
+    let (first, second) = (offsets(ax, ay), offsets(bx, by));
+    let centre = y * w + x;
     let mut descriptor = [0u64; 4];
-    for (k, p) in pattern().iter().enumerate() {
-        if sample(p[0], p[1]) < sample(p[2], p[3]) {
-            descriptor[k / 64] |= 1 << (k % 64);
+    for (word, (first, second)) in descriptor
+        .iter_mut()
+        .zip(first.chunks_exact(64).zip(second.chunks_exact(64)))
+    {
+        for (bit, (&a, &b)) in first.iter().zip(second).enumerate() {
+            let less = src[(centre + a) as usize] < src[(centre + b) as usize];
+            *word |= (less as u64) << bit;
         }
     }
     descriptor

@@ -76,70 +76,106 @@ pub fn resize_bilinear(image: &GrayImage, width: u32, height: u32) -> GrayImage 
             (x0, x1, fx - x0 as f32)
         })
         .collect();
-    let mut out = Vec::with_capacity(width as usize * height as usize);
-    for y in 0..height as usize {
+    // Each source row is resampled across once, into one of two row buffers (the
+    // output rows step by less than two source rows); the vertical blend then runs over
+    // whole rows.
+    let across = |y: usize, buffer: &mut Vec<f32>| {
+        let row = &src[y * w..(y + 1) * w];
+        buffer.clear();
+        buffer.extend(
+            taps.iter()
+                .map(|&(x0, x1, wx)| row[x0] as f32 * (1.0 - wx) + row[x1] as f32 * wx),
+        );
+    };
+    let (mut rows, mut held) = ([Vec::new(), Vec::new()], [usize::MAX; 2]);
+    let mut out = vec![0u8; width as usize * height as usize];
+    for (y, out_row) in out.chunks_exact_mut(width as usize).enumerate() {
         let fy = ((y as f32 + 0.5) * sy - 0.5).max(0.0);
         let y0 = (fy as usize).min(h - 1);
         let y1 = (y0 + 1).min(h - 1);
         let wy = fy - y0 as f32;
-        let (row0, row1) = (&src[y0 * w..(y0 + 1) * w], &src[y1 * w..(y1 + 1) * w]);
-        for &(x0, x1, wx) in &taps {
-            let top = row0[x0] as f32 * (1.0 - wx) + row0[x1] as f32 * wx;
-            let bottom = row1[x0] as f32 * (1.0 - wx) + row1[x1] as f32 * wx;
-            out.push((top * (1.0 - wy) + bottom * wy + 0.5) as u8);
+        // The row below often becomes the row above.
+        if held[0] != y0 {
+            if held[1] == y0 {
+                rows.swap(0, 1);
+                held.swap(0, 1);
+            } else {
+                across(y0, &mut rows[0]);
+                held[0] = y0;
+            }
+        }
+        if held[1] != y1 {
+            across(y1, &mut rows[1]);
+            held[1] = y1;
+        }
+        for ((o, &top), &bottom) in out_row.iter_mut().zip(&rows[0]).zip(&rows[1]) {
+            *o = (top * (1.0 - wy) + bottom * wy + 0.5) as u8;
         }
     }
     GrayImage::from_raw(width, height, out).expect("size matches")
 }
 
-/// A separable Gaussian blur (kernel of `2 * radius + 1` taps, borders replicated).
-/// The interior runs without bounds clamping, and the vertical pass works a whole row
-/// at a time, so both vectorise.
+/// A separable Gaussian blur (kernel of `2 * radius + 1` taps, borders replicated), in
+/// fixed point: the taps are rounded to integers summing to \(2^8\), so the horizontal
+/// pass fits `u16` and the vertical one `u32`, and the result is
+/// \(\lfloor (\sum_j k_j \sum_i k_i I + 2^{15}) / 2^{16} \rfloor\). Both passes run a tap
+/// at a time over whole rows, which vectorises.
 pub fn gaussian_blur(image: &GrayImage, sigma: f32, radius: usize) -> GrayImage {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let kernel: Vec<f32> = {
-        let k: Vec<f32> = (0..=2 * radius)
-            .map(|i| {
-                let d = i as f32 - radius as f32;
-                (-d * d / (2.0 * sigma * sigma)).exp()
-            })
-            .collect();
-        let sum: f32 = k.iter().sum();
-        k.into_iter().map(|v| v / sum).collect()
-    };
+    let kernel = fixed_point_kernel(sigma, radius);
     let src = image.as_raw();
     let r = radius;
-    // Horizontal pass into a padded float row buffer per image row.
-    let mut horizontal = vec![0f32; w * h];
-    let mut padded = vec![0f32; w + 2 * r];
+    // Horizontal pass from a border-replicated copy of each row.
+    let mut horizontal = vec![0u16; w * h];
+    let mut padded = vec![0u16; w + 2 * r];
     for y in 0..h {
         let row = &src[y * w..(y + 1) * w];
         for (i, p) in padded.iter_mut().enumerate() {
-            *p = row[i.saturating_sub(r).min(w - 1)] as f32;
+            *p = row[i.saturating_sub(r).min(w - 1)] as u16;
         }
         let out = &mut horizontal[y * w..(y + 1) * w];
-        for (x, o) in out.iter_mut().enumerate() {
-            let window = &padded[x..x + 2 * r + 1];
-            *o = window.iter().zip(&kernel).map(|(a, k)| a * k).sum();
+        for (i, &k) in kernel.iter().enumerate() {
+            for (o, &p) in out.iter_mut().zip(&padded[i..i + w]) {
+                *o += k * p;
+            }
         }
     }
     // Vertical pass: each output row is a weighted sum of whole input rows.
     let mut out = vec![0u8; w * h];
-    let mut accumulator = vec![0f32; w];
+    let mut accumulator = vec![0u32; w];
     for y in 0..h {
-        accumulator.iter_mut().for_each(|a| *a = 0.0);
-        for (i, k) in kernel.iter().enumerate() {
+        accumulator.iter_mut().for_each(|a| *a = 1 << 15);
+        for (i, &k) in kernel.iter().enumerate() {
             let yy = (y + i).saturating_sub(r).min(h - 1);
             let row = &horizontal[yy * w..(yy + 1) * w];
-            for (a, v) in accumulator.iter_mut().zip(row) {
-                *a += k * v;
+            for (a, &v) in accumulator.iter_mut().zip(row) {
+                *a += k as u32 * v as u32;
             }
         }
-        for (o, a) in out[y * w..(y + 1) * w].iter_mut().zip(&accumulator) {
-            *o = (a + 0.5) as u8;
+        for (o, &a) in out[y * w..(y + 1) * w].iter_mut().zip(&accumulator) {
+            *o = (a >> 16) as u8;
         }
     }
     GrayImage::from_raw(w as u32, h as u32, out).expect("size matches")
+}
+
+/// The Gaussian's `2 * radius + 1` taps as integers summing to 256: rounded, then the
+/// rounding's remainder put on the centre tap.
+fn fixed_point_kernel(sigma: f32, radius: usize) -> Vec<u16> {
+    let weights: Vec<f32> = (0..=2 * radius)
+        .map(|i| {
+            let d = i as f32 - radius as f32;
+            (-d * d / (2.0 * sigma * sigma)).exp()
+        })
+        .collect();
+    let sum: f32 = weights.iter().sum();
+    let mut kernel: Vec<u16> = weights
+        .iter()
+        .map(|v| (v / sum * 256.0).round() as u16)
+        .collect();
+    let total: i32 = kernel.iter().map(|&k| k as i32).sum();
+    kernel[radius] = (kernel[radius] as i32 + 256 - total) as u16;
+    kernel
 }
 
 #[cfg(test)]
@@ -158,12 +194,44 @@ mod tests {
     }
 
     #[test]
+    fn shrinking_samples_each_pixel_bilinearly() {
+        let mut rng = crate::random::Rng::new(5);
+        let image = GrayImage::from_fn(50, 37, |_, _| image::Luma([(rng.uniform() * 255.0) as u8]));
+        for (width, height) in [(42, 31), (25, 18), (50, 37), (7, 5)] {
+            let small = resize_bilinear(&image, width, height);
+            let (sx, sy) = (50.0 / width as f32, 37.0 / height as f32);
+            for (x, y, value) in small.enumerate_pixels() {
+                let fx = ((x as f32 + 0.5) * sx - 0.5).max(0.0);
+                let fy = ((y as f32 + 0.5) * sy - 0.5).max(0.0);
+                let (x0, y0) = ((fx as u32).min(49), (fy as u32).min(36));
+                let (x1, y1) = ((x0 + 1).min(49), (y0 + 1).min(36));
+                let (wx, wy) = (fx - x0 as f32, fy - y0 as f32);
+                let at = |x: u32, y: u32| image.get_pixel(x, y).0[0] as f32;
+                let top = at(x0, y0) * (1.0 - wx) + at(x1, y0) * wx;
+                let bottom = at(x0, y1) * (1.0 - wx) + at(x1, y1) * wx;
+                let expected = (top * (1.0 - wy) + bottom * wy + 0.5) as u8;
+                assert_eq!(value.0[0], expected, "({x}, {y}) at {width}x{height}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_fixed_point_kernel_sums_to_256_and_is_symmetric() {
+        let kernel = fixed_point_kernel(2.0, 3);
+        assert_eq!(kernel.iter().map(|&k| k as u32).sum::<u32>(), 256);
+        assert!((0..7).all(|i| kernel[i] == kernel[6 - i]));
+        assert!(kernel.windows(2).take(3).all(|w| w[0] < w[1]));
+    }
+
+    #[test]
     fn shrinking_keeps_a_constant_image_constant() {
         let image = GrayImage::from_pixel(64, 48, image::Luma([77]));
         let small = resize_bilinear(&image, 53, 40);
         assert!(small.as_raw().iter().all(|&v| v == 77));
         let blurred = gaussian_blur(&image, 2.0, 3);
         assert!(blurred.as_raw().iter().all(|&v| v == 77));
+        let white = gaussian_blur(&GrayImage::from_pixel(9, 5, image::Luma([255])), 2.0, 3);
+        assert!(white.as_raw().iter().all(|&v| v == 255));
         let levels = ScalePyramid::new(4, 1.2).build(&image);
         assert_eq!((levels[3].width(), levels[3].height()), (37, 28));
     }

@@ -92,6 +92,21 @@ pub fn read_gray(path: &Path) -> Result<GrayImage, IoError> {
     Ok(open(path)?.to_luma8())
 }
 
+/// The grey image of a colour image with the sRGB luma weights, rounded,
+/// \(Y = \operatorname{round}(0.2126 R + 0.7152 G + 0.0722 B)\), in integers and one pass
+/// over the pixels. The `image` crate's `to_luma8` (which needs an owned copy and goes
+/// through floats) agrees within one grey level.
+pub fn grey_from_rgb(rgb: &RgbImage) -> GrayImage {
+    let grey = rgb
+        .as_raw()
+        .chunks_exact(3)
+        .map(|p| {
+            ((2126 * p[0] as u32 + 7152 * p[1] as u32 + 722 * p[2] as u32 + 5000) / 10000) as u8
+        })
+        .collect();
+    GrayImage::from_raw(rgb.width(), rgb.height(), grey).expect("one grey value a pixel")
+}
+
 /// Reads a 16-bit depth PNG and divides by `depth_scale` (5000 for TUM: a value of
 /// 5000 is one metre). An 8-bit image is refused: it cannot be a depth map.
 pub fn read_depth(path: &Path, depth_scale: f64) -> Result<DepthImage, IoError> {
@@ -139,6 +154,21 @@ pub fn depth_to_png16(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn grey_from_rgb_is_within_a_level_of_the_image_crates_conversion() {
+        let mut rng = crate::random::Rng::new(3);
+        let mut value = || (rng.uniform() * 256.0).min(255.0) as u8;
+        let mut rgb = RgbImage::from_fn(31, 17, |_, _| image::Rgb([value(), value(), value()]));
+        rgb.put_pixel(0, 0, image::Rgb([255, 255, 255]));
+        let expected = image::DynamicImage::ImageRgb8(rgb.clone()).to_luma8();
+        let ours = grey_from_rgb(&rgb);
+        for ((a, b), p) in ours.pixels().zip(expected.pixels()).zip(rgb.pixels()) {
+            assert!(a.0[0].abs_diff(b.0[0]) <= 1, "{p:?}: {a:?} against {b:?}");
+        }
+        let extremes = RgbImage::from_fn(2, 1, |x, _| image::Rgb([255 * x as u8; 3]));
+        assert_eq!(grey_from_rgb(&extremes).as_raw(), &vec![0, 255]);
+    }
 
     #[test]
     fn depth_roundtrip_and_errors() {
