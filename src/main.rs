@@ -176,6 +176,10 @@ struct SynthArgs {
     /// Overwrite a non-empty output folder.
     #[arg(long)]
     force: bool,
+    /// The same room and camera path without the movers (a control: what the movers
+    /// cost the tracker).
+    #[arg(long)]
+    without_movers: bool,
     /// Also write preview.png: a contact sheet of 4 frames (colour, depth, mask).
     #[arg(long)]
     preview: bool,
@@ -513,6 +517,7 @@ fn run_synth(args: SynthArgs) -> Result<()> {
     if let Some(frames) = args.frames {
         config.sequence.frames = frames;
     }
+    config.sequence.without_movers |= args.without_movers;
     let summary = dopslam::synth::generate(&config, &args.out, args.force)?;
     println!(
         "wrote {} frames to {} in {:.1} s ({:.1} frames/s)",

@@ -509,6 +509,7 @@ pub fn track_sequence(
             break;
         }
         let start;
+        let budgeted = extractor.with_budget(tracker.feature_budget(config.orb.n_features));
         let (frame, picture) = match loaded.images {
             FrameImages::Rgbd { rgb, depth } => {
                 if let Err(message) = depth_check.check(index, &depth, tracker.state, &calibration)
@@ -523,7 +524,7 @@ pub fn track_sequence(
                     loaded.timestamp,
                     &grey,
                     &depth,
-                    &extractor,
+                    &budgeted,
                     &camera,
                     &calibration.camera,
                 );
@@ -535,7 +536,7 @@ pub fn track_sequence(
                     index,
                     loaded.timestamp,
                     (&left, &right),
-                    &extractor,
+                    &budgeted,
                     &camera,
                 );
                 (frame, Picture::Grey(left))
@@ -600,8 +601,12 @@ pub fn track_sequence(
                         Some(dop) => frame.moving.iter().map(|p| dop.removed(*p)).collect(),
                         None => vec![false; positions.len()],
                     };
-                    let counts =
-                        TruthCounts::new(&mask, &positions, &called, &report.pose_keypoints);
+                    let in_pose: Vec<u32> = report
+                        .pose_observations
+                        .iter()
+                        .map(|o| o.keypoint)
+                        .collect();
+                    let counts = TruthCounts::new(&mask, &positions, &called, &in_pose);
                     if tracker.dop.is_some() {
                         book.totals
                             .classification
@@ -654,7 +659,13 @@ pub fn track_sequence(
             moving_threshold,
         };
         Some((
-            crate::global::run(&mut map, &inputs, &config.global, recognised),
+            crate::global::run(
+                &mut map,
+                &inputs,
+                &config.global,
+                recognised,
+                lines.iter_mut().map(|l| &mut l.tracking),
+            ),
             tracking,
         ))
     } else {
@@ -718,7 +729,14 @@ pub struct TruthCounts {
     pub mover_removed: usize,
     pub static_in_pose: usize,
     pub mover_in_pose: usize,
+    /// Static keypoints in the pose within [`NEAR_MOVER_PIXELS`] of a mover's pixel:
+    /// corners on a mover's outline against the background move with the mover though
+    /// their own pixel is static.
+    pub near_mover_in_pose: usize,
 }
+
+/// How close (pixels, in x and y) to a mover a static keypoint counts as on its outline.
+const NEAR_MOVER_PIXELS: i64 = 4;
 
 impl TruthCounts {
     fn new(
@@ -746,10 +764,27 @@ impl TruthCounts {
                 None => {}
             }
         }
+        let near_mover = |(x, y): (f32, f32)| {
+            let (u, v) = (x.round() as i64, y.round() as i64);
+            let r = NEAR_MOVER_PIXELS;
+            (v - r..=v + r).any(|y| {
+                (u - r..=u + r).any(|x| {
+                    x >= 0
+                        && y >= 0
+                        && x < mask.width() as i64
+                        && y < mask.height() as i64
+                        && mask.get_pixel(x as u32, y as u32)[0] != 0
+                })
+            })
+        };
         for &i in in_pose {
-            match on_mover(positions[i as usize]) {
+            let position = positions[i as usize];
+            match on_mover(position) {
                 Some(true) => counts.mover_in_pose += 1,
-                Some(false) => counts.static_in_pose += 1,
+                Some(false) => {
+                    counts.static_in_pose += 1;
+                    counts.near_mover_in_pose += near_mover(position) as usize;
+                }
                 None => {}
             }
         }

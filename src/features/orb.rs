@@ -31,6 +31,11 @@ pub struct OrbConfig {
     pub ini_th_fast: u8,
     /// FAST threshold used where the first finds nothing.
     pub min_th_fast: u8,
+    /// Ceiling of the per-frame budget, as a multiple of `n_features`, when movers take
+    /// keypoints: the tracking pass raises the budget to \(N / \phi\), \(\phi\) the
+    /// static share of the last frame's keypoints, so that about `n_features` stay on the
+    /// static scene (beyond ORB-SLAM2; 1 turns it off).
+    pub max_features_factor: f64,
 }
 
 impl Default for OrbConfig {
@@ -41,6 +46,7 @@ impl Default for OrbConfig {
             n_levels: 8,
             ini_th_fast: 20,
             min_th_fast: 7,
+            max_features_factor: 2.0,
         }
     }
 }
@@ -61,6 +67,12 @@ impl OrbConfig {
             return Err(format!(
                 "orb.n_levels must be in 1..=16, got {}",
                 orb.n_levels
+            ));
+        }
+        if !(1.0..=4.0).contains(&orb.max_features_factor) {
+            return Err(format!(
+                "orb.max_features_factor must be in [1, 4], got {}",
+                orb.max_features_factor
             ));
         }
         if orb.min_th_fast > orb.ini_th_fast {
@@ -119,6 +131,30 @@ impl OrbExtractor {
             config: config.clone(),
             pyramid,
         }
+    }
+
+    /// The most keypoints [`Self::with_budget`] allows.
+    pub fn max_budget(&self) -> usize {
+        (self.config.n_features as f64 * self.config.max_features_factor).round() as usize
+    }
+
+    /// The same extractor with a budget of `n_features` keypoints (clamped to
+    /// `n_features..=`[`Self::max_budget`] of the config).
+    pub fn with_budget(&self, n_features: usize) -> Self {
+        let n = n_features.clamp(self.config.n_features, self.max_budget());
+        if n == self.per_level.iter().sum::<usize>() {
+            return self.clone();
+        }
+        Self {
+            per_level: self.pyramid.keypoints_per_level(n),
+            config: self.config.clone(),
+            pyramid: self.pyramid.clone(),
+        }
+    }
+
+    /// The keypoint budget over all levels.
+    pub fn budget(&self) -> usize {
+        self.per_level.iter().sum()
     }
 
     /// The ORB features of a grey image.
@@ -289,11 +325,28 @@ mod tests {
     }
 
     #[test]
+    fn a_raised_budget_gives_more_keypoints_within_the_ceiling() {
+        let extractor = OrbExtractor::new(&OrbConfig::default());
+        let image = texture(640, 480, 3);
+        let more = extractor.with_budget(1500);
+        assert_eq!(more.budget(), 1500);
+        assert_eq!(extractor.with_budget(10).budget(), 1000);
+        assert_eq!(extractor.with_budget(9000).budget(), 2000);
+        let (a, b) = (extractor.extract(&image).len(), more.extract(&image).len());
+        assert!(a <= 1000 && b > 1400 && b <= 1500, "{a} {b}");
+    }
+
+    #[test]
     fn bad_settings_are_named() {
         let bad = OrbConfig {
             min_th_fast: 30,
             ..OrbConfig::default()
         };
         assert!(bad.validate().unwrap_err().contains("min_th_fast"));
+        let bad = OrbConfig {
+            max_features_factor: 0.5,
+            ..OrbConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("max_features_factor"));
     }
 }

@@ -2,13 +2,15 @@
 //! were made ([`loop_closing`]) on the candidates that place recognition
 //! ([`crate::bow`]) found beside the tracking pass ([`loop_detection`], in its own
 //! thread), essential graph optimisation ([`essential_graph`]) after each loop, then a
-//! full bundle adjustment over every keyframe and every static map point. Frames follow
+//! full bundle adjustment over every keyframe and every static map point, then every
+//! tracked frame estimated again on the final map ([`frame_refinement`]). Frames follow
 //! their reference keyframes when the trajectory is written.
 //!
 //! Entry points: [`loop_detection::LoopDetection::start`] during tracking, then
 //! [`run`] on the map the tracking pass left.
 
 pub mod essential_graph;
+pub mod frame_refinement;
 pub mod loop_closing;
 pub mod loop_detection;
 pub mod word_matching;
@@ -24,6 +26,7 @@ use crate::features::ScalePyramid;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::optim::stereo_projection::StereoCamera;
+use crate::tracking::tracker::FrameReport;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 
 /// The `[global]` section of a config.
@@ -41,6 +44,9 @@ pub struct GlobalConfig {
     pub full_ba: bool,
     pub full_ba_robust_iterations: usize,
     pub full_ba_inlier_iterations: usize,
+    /// After full BA, estimate every tracked frame's pose again against the final
+    /// static map points it saw ([`frame_refinement`]).
+    pub refine_frames: bool,
 }
 
 impl Default for GlobalConfig {
@@ -52,6 +58,7 @@ impl Default for GlobalConfig {
             full_ba: true,
             full_ba_robust_iterations: 10,
             full_ba_inlier_iterations: 5,
+            refine_frames: true,
         }
     }
 }
@@ -78,6 +85,8 @@ pub struct GlobalReport {
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
     pub full_ba: Option<FullBaReport>,
+    /// The frames estimated again on the final map.
+    pub frames: Option<frame_refinement::RefinementReport>,
     /// Place recognition beside the tracking pass (its thread's time), and loop
     /// verification and correction in the global pass, milliseconds.
     pub loop_detection_ms: f64,
@@ -108,12 +117,14 @@ pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String>
 }
 
 /// Runs the global pass on `map` in place: loops verified and corrected from what
-/// place recognition found beside tracking (`Err`: why it could not run), then full BA.
-pub fn run(
+/// place recognition found beside tracking (`Err`: why it could not run), then full BA,
+/// then the tracked `frames` estimated again on the final map.
+pub fn run<'a>(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
     recognised: Result<PlaceRecognition, String>,
+    frames: impl Iterator<Item = &'a mut FrameReport>,
 ) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
@@ -136,6 +147,9 @@ pub fn run(
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
+    }
+    if config.refine_frames {
+        report.frames = Some(frame_refinement::refine_frames(map, inputs, frames));
     }
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
     report

@@ -21,6 +21,10 @@ pub struct SequenceConfig {
     pub seed: u64,
     /// Real frame timing: a TUM association file or rgb.txt (the first column is used).
     pub timing: Option<PathBuf>,
+    /// Render the same room and camera path with the movers left out: the control that
+    /// shows what the movers cost the tracker (the room is laid out around the movers'
+    /// paths either way, so only the movers differ).
+    pub without_movers: bool,
 }
 
 impl Default for SequenceConfig {
@@ -30,6 +34,7 @@ impl Default for SequenceConfig {
             fps: 30.0,
             seed: 1,
             timing: None,
+            without_movers: false,
         }
     }
 }

@@ -402,8 +402,20 @@ fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>,
         .map_err(SynthError::from)
 }
 
-/// The static scene and the movers of a config along the given camera poses.
+/// The static scene and the movers of a config along the given camera poses (no movers
+/// with `without_movers`, in the same scene).
 pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> Result<(Scene, Vec<Mover>), SynthError> {
+    let (scene, mut movers) = scene_and_movers(config, poses)?;
+    if config.sequence.without_movers {
+        movers.clear();
+    }
+    Ok((scene, movers))
+}
+
+fn scene_and_movers(
+    config: &SynthConfig,
+    poses: &[Se3],
+) -> Result<(Scene, Vec<Mover>), SynthError> {
     if config.street.enabled {
         let appearance = match load_sprite(&config.people.sprite)? {
             Some(sprite) => Appearance::Sprite {

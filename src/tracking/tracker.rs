@@ -127,10 +127,23 @@ pub struct FrameReport {
     /// trajectory is \(T_{cr} T_{rw}\) with the reference's corrected pose.
     #[serde(skip)]
     pub reference: Option<(KeyFrameKey, Se3)>,
-    /// Indices of the keypoints whose map points took part in the final pose as
-    /// inliers (for scoring against ground-truth masks).
+    /// The keypoints whose map points took part in the final pose as inliers, with
+    /// what the global pass needs to estimate the pose again on the final map (and the
+    /// keypoint indices, for scoring against ground-truth masks).
     #[serde(skip)]
-    pub pose_keypoints: Vec<u32>,
+    pub pose_observations: Vec<FrameObservation>,
+}
+
+/// One keypoint of a tracked frame and the map point it saw (undistorted level-0
+/// pixel, virtual right coordinate, negative without depth).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameObservation {
+    pub point: MapPointKey,
+    pub keypoint: u32,
+    pub x: f32,
+    pub y: f32,
+    pub right_u: f32,
+    pub level: u8,
 }
 
 /// A keyframe's map points that still exist, with the descriptors of the keypoints
@@ -216,6 +229,25 @@ impl Tracker {
     /// The last tracked frame (with its moving probabilities).
     pub fn last_frame(&self) -> Option<&Frame> {
         self.last.as_ref().map(|l| &l.frame)
+    }
+
+    /// The keypoint budget for the next frame: `n_features` over the static share
+    /// \(\phi\) of the last frame's keypoints (those the DOP model did not remove), so
+    /// that movers taking keypoints do not leave the pose fewer static ones
+    /// ([`crate::features::orb::OrbExtractor::with_budget`] clamps it).
+    pub fn feature_budget(&self, n_features: usize) -> usize {
+        let (Some(last), Some(dop)) = (&self.last, &self.dop) else {
+            return n_features;
+        };
+        let total = last.frame.moving.len();
+        let dynamic = last
+            .frame
+            .moving
+            .iter()
+            .filter(|p| dop.removed(**p))
+            .count();
+        let share = (total - dynamic) as f64 / total.max(1) as f64;
+        (n_features as f64 / share.max(0.01)).round() as usize
     }
 
     /// After detections updated the map: the last frame's keypoints take their map
@@ -335,7 +367,7 @@ impl Tracker {
             dop_ms: 0.0,
             camera_from_world: None,
             reference: None,
-            pose_keypoints: Vec::new(),
+            pose_observations: Vec::new(),
         };
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
@@ -412,14 +444,21 @@ impl Tracker {
         report.segment = self.segment;
         report.inliers = inliers;
         report.matches = points.iter().filter(|p| p.is_some()).count();
-        report.pose_keypoints = points
+        report.pose_observations = points
             .iter()
             .enumerate()
-            .filter(|(_, k)| {
-                k.and_then(|k| map.points.get(k))
-                    .is_some_and(|p| !self.excluded(p))
+            .filter_map(|(i, k)| {
+                let key = k.filter(|&k| map.points.get(k).is_some_and(|p| !self.excluded(p)))?;
+                let keypoint = &frame.keypoints[i];
+                Some(FrameObservation {
+                    point: key,
+                    keypoint: i as u32,
+                    x: keypoint.x,
+                    y: keypoint.y,
+                    right_u: frame.right_u[i],
+                    level: keypoint.level,
+                })
             })
-            .map(|(i, _)| i as u32)
             .collect();
         if let Some(last) = &self.last {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
