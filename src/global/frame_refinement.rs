@@ -162,12 +162,12 @@ mod tests {
         };
         let truth = Se3::from_parts(
             Translation3::new(0.1, -0.05, 0.2),
-            Rotation3::from_scaled_axis(Vector3::new(0.05, -0.1, 0.02)).into(),
+            Rotation3::from_scaled_axis(Vector3::new(0.05, -0.1, 0.02)),
         );
         let (map, observations) = scene(&truth, &camera);
         let off = Se3::from_parts(
             Translation3::new(0.02, 0.01, -0.03),
-            Rotation3::from_scaled_axis(Vector3::new(0.01, 0.0, -0.01)).into(),
+            Rotation3::from_scaled_axis(Vector3::new(0.01, 0.0, -0.01)),
         ) * truth;
         let pose = refined_pose(&map, &inputs, &off, &observations).expect("refined");
         let error = pose * truth.inverse();
