@@ -64,6 +64,12 @@ pub struct TrackerConfig {
     /// Real-time mode: points created by a keyframe whose detection has not come back
     /// stay out of the pose when at least this many other matches remain.
     pub held_out_min_points: usize,
+    /// A keyframe's new points stay out of the pose for this many frames after it (as
+    /// above, while `held_out_min_points` others remain; both modes). Their matches
+    /// are kept and the geometric check tests them against the pose meanwhile, so
+    /// points on a person the detector missed are raised before they can pull the
+    /// pose. 0 turns it off.
+    pub probation_frames: usize,
 }
 
 impl Default for TrackerConfig {
@@ -79,6 +85,7 @@ impl Default for TrackerConfig {
             keyframe_min_rotation_deg: 3.0,
             new_map_after_seconds: 3.0,
             held_out_min_points: 60,
+            probation_frames: 2,
         }
     }
 }
@@ -174,6 +181,8 @@ pub struct Tracker {
     velocity: Option<Se3>,
     reference: Option<KeyFrameKey>,
     frames_since_keyframe: usize,
+    /// The id of the keyframe this tracker made last (its points are on probation).
+    newest_keyframe_id: usize,
     /// The active map segment, the number of segments started, and since when
     /// (timestamp) tracking is lost.
     segment: usize,
@@ -216,6 +225,7 @@ impl Tracker {
             velocity: None,
             reference: None,
             frames_since_keyframe: 0,
+            newest_keyframe_id: usize::MAX,
             segment: 0,
             segments: 0,
             lost_since: None,
@@ -277,9 +287,12 @@ impl Tracker {
         self.dop.as_ref().is_some_and(|d| d.removed(point.moving))
     }
 
-    /// Whether a map point waits for the detection of the keyframe that created it.
+    /// Whether a map point waits: for the detection of the keyframe that created it, or
+    /// out its probation (made by the newest keyframe, `probation_frames` not yet past).
     fn awaiting(&self, point: &MapPoint) -> bool {
         self.awaiting_detection.contains(&point.first_keyframe_id)
+            || (point.first_keyframe_id == self.newest_keyframe_id
+                && self.frames_since_keyframe < self.config.probation_frames)
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
@@ -1041,6 +1054,7 @@ impl Tracker {
         }
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
+        self.newest_keyframe_id = id;
     }
 
     /// Camera-frame position of keypoint `i` from its depth.
