@@ -428,43 +428,16 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .collect();
     let extra_detections = match (&inputs.detector, inputs.masking) {
         (Some(detector), Masking::Dop) if config.detect_every > 0 => {
-            let cache = inputs.out_dir.join(more_detections::DENSE_DETECTIONS_DIR);
-            let cached = read_detections(&cache)?;
-            let known: std::collections::HashSet<i64> = detections
-                .iter()
-                .chain(&cached)
-                .map(|f| key(f.timestamp))
-                .collect();
             let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
-            let todo = more_detections::frames_to_detect(
-                &fused,
-                config.detect_every,
-                |i| sequence.timestamp(i),
-                &known,
-            );
             let mut detector = detector.lock().expect("detector lock poisoned");
-            let mut extra = more_detections::ExtraDetections {
-                cached: cached.len(),
-                ..Default::default()
-            };
-            let found = more_detections::detect_frames(
+            Some(more_detections::add(
                 sequence,
                 detector.as_mut(),
-                &todo,
-                &cache,
+                (&fused, config.detect_every),
+                &inputs.out_dir.join(more_detections::DENSE_DETECTIONS_DIR),
+                &mut detections,
                 inputs.progress,
-                &mut extra,
-            )?;
-            if let Some(first) = &extra.first_error {
-                eprintln!(
-                    "warning: the detector failed on {} of {} frames of the dense masks (first: {first}); their masks come from the keyframes",
-                    extra.failed,
-                    todo.len()
-                );
-            }
-            detections.extend(cached);
-            detections.extend(found);
-            Some(extra)
+            )?)
         }
         _ => None,
     };

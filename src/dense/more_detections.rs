@@ -34,6 +34,42 @@ pub struct ExtraDetections {
     pub first_error: Option<String>,
 }
 
+/// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
+/// in `cache` from an earlier fusion, then every `every`-th of the `fused` frames that
+/// has none yet, detected now and cached. Frames the detector fails on keep the
+/// keyframes' masks, with a warning.
+pub fn add(
+    sequence: &dyn Sequence,
+    detector: &mut dyn Detector,
+    (fused, every): (&[usize], usize),
+    cache: &Path,
+    detections: &mut Vec<FrameDetections>,
+    progress: bool,
+) -> Result<ExtraDetections, IoError> {
+    let cached = crate::dense::read_detections(cache)?;
+    let known: HashSet<i64> = detections
+        .iter()
+        .chain(&cached)
+        .map(|f| super::key(f.timestamp))
+        .collect();
+    let todo = frames_to_detect(fused, every, |i| sequence.timestamp(i), &known);
+    let mut extra = ExtraDetections {
+        cached: cached.len(),
+        ..Default::default()
+    };
+    let found = detect_frames(sequence, detector, &todo, cache, progress, &mut extra)?;
+    if let Some(first) = &extra.first_error {
+        eprintln!(
+            "warning: the detector failed on {} of {} frames of the dense masks (first: {first}); their masks come from the keyframes",
+            extra.failed,
+            todo.len()
+        );
+    }
+    detections.extend(cached);
+    detections.extend(found);
+    Ok(extra)
+}
+
 /// The frames among `fused` (sequence indices, in order) to detect on: every
 /// `every`-th index, skipping those whose timestamp (`timestamp(i)`, in whole
 /// microseconds) is in `known`.

@@ -3,6 +3,8 @@
 //! budget, oriented by the intensity centroid and described by rotated BRIEF on the
 //! level smoothed with a 7×7 Gaussian (\(\sigma = 2\)). Levels run in parallel.
 
+use std::borrow::Cow;
+
 use image::GrayImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -139,17 +141,18 @@ impl OrbExtractor {
     }
 
     /// The same extractor with a budget of `n_features` keypoints (clamped to
-    /// `n_features..=`[`Self::max_budget`] of the config).
-    pub fn with_budget(&self, n_features: usize) -> Self {
+    /// `n_features..=`[`Self::max_budget`] of the config); borrowed when the budget is
+    /// already that, as on every frame without movers.
+    pub fn with_budget(&self, n_features: usize) -> Cow<'_, Self> {
         let n = n_features.clamp(self.config.n_features, self.max_budget());
-        if n == self.per_level.iter().sum::<usize>() {
-            return self.clone();
+        if n == self.budget() {
+            return Cow::Borrowed(self);
         }
-        Self {
+        Cow::Owned(Self {
             per_level: self.pyramid.keypoints_per_level(n),
             config: self.config.clone(),
             pyramid: self.pyramid.clone(),
-        }
+        })
     }
 
     /// The keypoint budget over all levels.

@@ -25,7 +25,6 @@ use crate::geometry::se3::Se3;
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose, PoseObservation};
 use crate::tracking::tracker::{FrameObservation, FrameReport};
-use nalgebra::Vector3;
 
 /// Fewest static points a frame needs to be estimated again.
 pub const MIN_POINTS: usize = 30;
@@ -95,11 +94,12 @@ fn refined_pose(
         .iter()
         .filter_map(|o| {
             let point = map.points.get(o.point)?;
-            (point.moving <= inputs.moving_threshold).then(|| PoseObservation {
-                point_world: point.position,
-                measurement: Vector3::new(o.x as f64, o.y as f64, o.right_u as f64),
-                stereo: o.right_u > 0.0,
-                information: inputs.pyramid.inverse_sigma2[o.level as usize],
+            (point.moving <= inputs.moving_threshold).then(|| {
+                PoseObservation::of_keypoint(
+                    point.position,
+                    (o.x, o.y, o.right_u),
+                    inputs.pyramid.inverse_sigma2[o.level as usize],
+                )
             })
         })
         .collect();
@@ -118,7 +118,7 @@ mod tests {
     use crate::map::MapPoint;
     use crate::optim::stereo_projection::StereoCamera;
     use crate::random::Rng;
-    use nalgebra::{Rotation3, Translation3};
+    use nalgebra::{Rotation3, Translation3, Vector3};
 
     /// A map of 100 points 1.5-4 m ahead, the last 20 of them dynamic; a frame that
     /// saw every point from `truth`, pixel-exact; the same frame's observations.

@@ -24,6 +24,24 @@ pub struct PoseObservation {
     pub information: f64,
 }
 
+impl PoseObservation {
+    /// A keypoint at level-0 pixel `(u, v)` with virtual right coordinate `u_R`
+    /// (negative without depth, then monocular) seeing `point_world`, weighted by its
+    /// level's \(\sigma^{-2}\).
+    pub fn of_keypoint(
+        point_world: Vector3<f64>,
+        (u, v, u_r): (f32, f32, f32),
+        information: f64,
+    ) -> Self {
+        Self {
+            point_world,
+            measurement: Vector3::new(u as f64, v as f64, u_r as f64),
+            stereo: u_r > 0.0,
+            information,
+        }
+    }
+}
+
 /// The optimised pose and which observations are inliers.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseEstimate {

@@ -617,12 +617,11 @@ impl Tracker {
     /// Keypoint `i` of `frame` seeing `point`, for the pose optimisation.
     fn observation(&self, frame: &Frame, i: usize, point: &MapPoint) -> PoseObservation {
         let k = &frame.keypoints[i];
-        PoseObservation {
-            point_world: point.position,
-            measurement: Vector3::new(k.x as f64, k.y as f64, frame.right_u[i] as f64),
-            stereo: frame.right_u[i] > 0.0,
-            information: self.pyramid.inverse_sigma2[k.level as usize],
-        }
+        PoseObservation::of_keypoint(
+            point.position,
+            (k.x, k.y, frame.right_u[i]),
+            self.pyramid.inverse_sigma2[k.level as usize],
+        )
     }
 
     /// The geometric check's verdicts on the frame's final matches: the optimisation's
