@@ -127,6 +127,9 @@ pub struct StereoConfig {
     pub max_depth: f64,
     /// Point-cloud voxel edge, metres.
     pub cloud_voxel: f64,
+    /// `dense.allocate_first`: off by default, since its first pass would match every
+    /// stereo pair twice.
+    pub allocate_first: bool,
     /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
     pub sgbm_disparities: i32,
     pub sgbm_block: i32,
@@ -142,6 +145,7 @@ impl Default for StereoConfig {
             truncation: 0.4,
             max_depth: 25.0,
             cloud_voxel: 0.1,
+            allocate_first: false,
             sgbm_disparities: 128,
             sgbm_block: 5,
         }
@@ -222,6 +226,7 @@ impl Config {
             config.dense.truncation = stereo.truncation;
             config.dense.max_depth = stereo.max_depth;
             config.dense.cloud_voxel = stereo.cloud_voxel;
+            config.dense.allocate_first = stereo.allocate_first;
         }
         config
     }

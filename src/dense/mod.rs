@@ -65,6 +65,11 @@ pub struct DenseConfig {
     pub max_weight: f32,
     /// Carve free space along rays (erases surfaces that later proved empty).
     pub carve: bool,
+    /// Allocate every fused frame's blocks before fusing any (a first pass that reads
+    /// the depth of every frame once more: for stereo, SGBM twice), so that carving
+    /// also counts the free space seen before a mover came (see
+    /// [`TsdfVolume::allocate`]).
+    pub allocate_first: bool,
     /// Frames fused into the TSDF: all tracked frames or keyframes only.
     pub frames: FrameChoice,
     /// Fuse every n-th chosen frame.
@@ -106,6 +111,7 @@ impl Default for DenseConfig {
             max_depth: tsdf.max_depth,
             max_weight: tsdf.max_weight,
             carve: tsdf.carve,
+            allocate_first: true,
             frames: FrameChoice::All,
             frame_step: 1,
             mesh: true,
@@ -455,8 +461,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &|t| poses.get(&key(t)).copied(),
         &load_depth,
     );
-    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
+    if config.mesh && config.carve && config.allocate_first {
+        allocate_blocks(&mut volume, inputs, &chosen)?;
+    }
+    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut report = DenseReport {
         masking: Some(inputs.masking),
@@ -481,12 +490,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
         let loaded: Vec<_> = group
             .par_iter()
-            .map(|&(i, _, _)| {
-                let frame = sequence.load(i)?;
-                let timestamp = frame.timestamp;
-                depth_and_colour(frame.images, inputs.stereo.as_ref(), run)
-                    .map(|(depth, rgb)| (timestamp, depth, rgb))
-            })
+            .map(|&(i, _, _)| sequence_frame(inputs, i))
             .collect();
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
@@ -596,6 +600,55 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
     write_atomic(&inputs.out_dir.join("dense.json"), json.as_bytes())?;
     Ok(report)
+}
+
+/// The first pass of `allocate_first`: every chosen frame's blocks, without masks
+/// (blocks where masked movers stood only take free-space observations).
+fn allocate_blocks(
+    volume: &mut TsdfVolume,
+    inputs: &DenseInputs,
+    chosen: &[(usize, Se3, bool)],
+) -> Result<(), IoError> {
+    let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
+    let chunk = rayon::current_num_threads().max(1) * 2;
+    for group in chosen.chunks(chunk) {
+        if crate::interrupt::requested() {
+            return Err(IoError::invalid(
+                inputs.out_dir,
+                format!(
+                    "{}: the dense map was not written",
+                    crate::interrupt::MESSAGE
+                ),
+            ));
+        }
+        let loaded: Vec<_> = group
+            .par_iter()
+            .map(|&(i, _, _)| sequence_frame(inputs, i))
+            .collect();
+        for (&(_, pose, _), frame) in group.iter().zip(loaded) {
+            let (_, depth, rgb) = frame?;
+            volume.allocate(&FrameInput {
+                depth: &depth,
+                colour: &rgb,
+                dynamic: None,
+                camera_from_world: &pose,
+            });
+            progress.inc(1);
+        }
+    }
+    progress.finish_and_clear();
+    Ok(())
+}
+
+/// Frame `i` of the sequence: timestamp, depth and colour.
+fn sequence_frame(
+    inputs: &DenseInputs,
+    i: usize,
+) -> Result<(f64, DepthImage, image::RgbImage), IoError> {
+    let frame = inputs.sequence.load(i)?;
+    let timestamp = frame.timestamp;
+    depth_and_colour(frame.images, inputs.stereo.as_ref(), inputs.run_dir)
+        .map(|(depth, rgb)| (timestamp, depth, rgb))
 }
 
 /// Writes a PNG atomically.

@@ -117,6 +117,9 @@ pub struct Block {
     /// Whether some observed voxel is behind a surface (\(F < 0\)): only such blocks
     /// hold something that carving could erase.
     surface: bool,
+    /// Allocated ahead of integration by [`TsdfVolume::allocate`]: carving reaches it
+    /// before it holds a surface, so that free space seen before a mover came counts.
+    ahead: bool,
     /// The last integration that touched this block.
     stamp: u32,
 }
@@ -129,6 +132,7 @@ impl Block {
             colour: vec![[0; 3]; BLOCK_VOXELS],
             colour_weight: vec![0; BLOCK_VOXELS],
             surface: false,
+            ahead: false,
             stamp: 0,
         }
     }
@@ -220,6 +224,18 @@ impl TsdfVolume {
     /// Bytes held by the voxel data.
     pub fn memory_bytes(&self) -> usize {
         self.blocks.len() * BLOCK_VOXELS * (4 + 4 + 3 + 2)
+    }
+
+    /// Allocates the blocks within \(\tau\) of a frame's depth without fusing it. An
+    /// offline pass allocates every frame's blocks first: carving then also reaches
+    /// the places a mover will stand (or a surface will be seen) from the frames before,
+    /// whose free-space observations otherwise find no block to update. A mover the
+    /// masks miss, seen through before it came but never after it left, is then carved
+    /// by the earlier frames.
+    pub fn allocate(&mut self, frame: &FrameInput) {
+        for coord in self.blocks_near_surface(frame) {
+            self.block_mut(coord).ahead = true;
+        }
     }
 
     /// Fuses one frame (see the module doc).
@@ -315,7 +331,7 @@ impl TsdfVolume {
         keys.into_iter().map(key_block).collect()
     }
 
-    /// Indices of existing blocks holding a surface that this frame's depth sees
+    /// Indices of existing blocks holding a surface (or allocated ahead) that this frame's depth sees
     /// through: blocks whose centre \(c\) at depth \(z_c\) has, among the pixels of its
     /// centre and of the corners of its projected extent (clamped to the image), one of
     /// depth \(d\) with \(z_c - r < d - \tau\) (\(r\): half the block's diagonal), so that
@@ -343,7 +359,7 @@ impl TsdfVolume {
             .par_iter()
             .zip(self.blocks.par_iter())
             .enumerate()
-            .filter(|(_, (_, block))| block.surface)
+            .filter(|(_, (_, block))| block.surface || block.ahead)
             .filter_map(|(i, (coord, _))| {
                 let centre = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64)
                     * block_size
@@ -754,6 +770,56 @@ pub(crate) mod tests {
                 mesh.vertex(a as usize) - centre
             );
         }
+    }
+
+    #[test]
+    fn free_space_seen_before_a_mover_came_carves_it_once_blocks_are_allocated_first() {
+        // The wall is seen alone three times, then the ball arrives for one pass of the
+        // views and is never seen through again.
+        let (settings, ball, views) = ball_before_a_wall();
+        let camera = small_camera();
+        let colour = image::RgbImage::new(camera.width, camera.height);
+        let passes: Vec<(&Se3, DepthImage)> = (0..4)
+            .flat_map(|pass| {
+                let spheres = if pass == 3 { vec![ball] } else { vec![] };
+                views
+                    .iter()
+                    .map(move |pose| (pose, render_depth(&camera, pose, &spheres, Some(2.0))))
+            })
+            .collect();
+        // Each frame into `volume`, allocated only or fused.
+        let each = |volume: &mut TsdfVolume, fuse: bool| {
+            for (pose, depth) in &passes {
+                let input = FrameInput {
+                    depth,
+                    colour: &colour,
+                    dynamic: None,
+                    camera_from_world: pose,
+                };
+                if fuse {
+                    volume.integrate(&input);
+                } else {
+                    volume.allocate(&input);
+                }
+            }
+        };
+        let ball_vertices = |volume: &TsdfVolume| {
+            let mesh = extract(volume);
+            let near = (0..mesh.len())
+                .filter(|&i| (mesh.vertex(i) - ball.0).norm() < ball.1 + 0.05)
+                .count();
+            (near, mesh.len())
+        };
+        let mut online = TsdfVolume::new(settings, camera);
+        each(&mut online, true);
+        let (stays, _) = ball_vertices(&online);
+        assert!(stays > 50, "fused in one pass, the late ball stays ({stays})");
+        let mut offline = TsdfVolume::new(settings, camera);
+        each(&mut offline, false);
+        each(&mut offline, true);
+        let (near, all) = ball_vertices(&offline);
+        assert_eq!(near, 0, "the earlier views carve the ball");
+        assert!(all > 100, "the wall is there ({all} vertices)");
     }
 
     #[test]
