@@ -813,7 +813,10 @@ pub(crate) mod tests {
         let mut online = TsdfVolume::new(settings, camera);
         each(&mut online, true);
         let (stays, _) = ball_vertices(&online);
-        assert!(stays > 50, "fused in one pass, the late ball stays ({stays})");
+        assert!(
+            stays > 50,
+            "fused in one pass, the late ball stays ({stays})"
+        );
         let mut offline = TsdfVolume::new(settings, camera);
         each(&mut offline, false);
         each(&mut offline, true);
