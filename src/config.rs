@@ -248,6 +248,7 @@ impl Config {
             ));
         }
         self.dense.validate()?;
+        self.global.smoothing.validate()?;
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(
                 "mapping.redundancy must be in [0, 1], got {}",

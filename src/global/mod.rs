@@ -3,7 +3,8 @@
 //! ([`crate::bow`]) found beside the tracking pass ([`loop_detection`], in its own
 //! thread), essential graph optimisation ([`essential_graph`]) after each loop, then a
 //! full bundle adjustment over every keyframe and every static map point, then every
-//! tracked frame estimated again on the final map ([`frame_refinement`]). Frames follow
+//! tracked frame estimated again on the final map ([`frame_refinement`]) and smoothed
+//! with a motion prior ([`trajectory_smoothing`]). Frames follow
 //! their reference keyframes when the trajectory is written.
 //!
 //! Entry points: [`loop_detection::LoopDetection::start`] during tracking, then
@@ -13,6 +14,7 @@ pub mod essential_graph;
 pub mod frame_refinement;
 pub mod loop_closing;
 pub mod loop_detection;
+pub mod trajectory_smoothing;
 pub mod word_matching;
 
 use std::path::PathBuf;
@@ -47,6 +49,8 @@ pub struct GlobalConfig {
     /// After full BA, estimate every tracked frame's pose again against the final
     /// static map points it saw ([`frame_refinement`]).
     pub refine_frames: bool,
+    /// Then smooth every frame's pose with a motion prior ([`trajectory_smoothing`]).
+    pub smoothing: trajectory_smoothing::SmoothingConfig,
 }
 
 impl Default for GlobalConfig {
@@ -59,6 +63,7 @@ impl Default for GlobalConfig {
             full_ba_robust_iterations: 10,
             full_ba_inlier_iterations: 5,
             refine_frames: true,
+            smoothing: trajectory_smoothing::SmoothingConfig::default(),
         }
     }
 }
@@ -87,6 +92,8 @@ pub struct GlobalReport {
     pub full_ba: Option<FullBaReport>,
     /// The frames estimated again on the final map.
     pub frames: Option<frame_refinement::RefinementReport>,
+    /// The frames' poses smoothed with a motion prior.
+    pub smoothing: Option<trajectory_smoothing::SmoothingReport>,
     /// Place recognition beside the tracking pass (its thread's time), and loop
     /// verification and correction in the global pass, milliseconds.
     pub loop_detection_ms: f64,
@@ -118,7 +125,7 @@ pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String>
 
 /// Runs the global pass on `map` in place: loops verified and corrected from what
 /// place recognition found beside tracking (`Err`: why it could not run), then full BA,
-/// then the tracked `frames` estimated again on the final map.
+/// then the tracked `frames` estimated again on the final map and smoothed.
 pub fn run<'a>(
     map: &mut Map,
     inputs: &GlobalInputs,
@@ -148,8 +155,20 @@ pub fn run<'a>(
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
     }
+    let mut frames: Vec<&mut FrameReport> = frames.collect();
     if config.refine_frames {
-        report.frames = Some(frame_refinement::refine_frames(map, inputs, frames));
+        report.frames = Some(frame_refinement::refine_frames(
+            map,
+            inputs,
+            frames.iter_mut().map(|f| &mut **f),
+        ));
+    }
+    if config.smoothing.enabled {
+        report.smoothing = Some(trajectory_smoothing::smooth_frames(
+            map,
+            &config.smoothing,
+            frames.into_iter(),
+        ));
     }
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
     report
