@@ -182,7 +182,7 @@ pub fn smooth_frames<'a>(
                 continue;
             }
             let rotation = so3::exp(delta) * rotations[run.start + i];
-            let world_from_camera = Se3::from_parts(Translation3::from(*centre), rotation.into());
+            let world_from_camera = Se3::from_parts(Translation3::from(*centre), rotation);
             let camera_from_world = world_from_camera.inverse();
             if let Some((key, _)) = frame.reference {
                 let Some(reference_from_world) = map.keyframe_pose(key) else {
@@ -262,8 +262,8 @@ fn smooth_axes(
         }
         let mut band = Band::new(n);
         let mut rhs: Vec<Vector3<f64>> = (0..n).map(|i| m[i] * w[i]).collect();
-        for i in 0..n {
-            band.add(i, i, w[i]);
+        for (i, &weight) in w.iter().enumerate() {
+            band.add(i, i, weight);
         }
         for (r, ((c, b), weight)) in rows.iter().zip(&robust).enumerate() {
             let scale = weight / (sigma * sigma);
@@ -411,7 +411,7 @@ mod tests {
     #[test]
     fn smoothing_a_noisy_smooth_path_brings_it_closer_to_the_truth_and_keeps_anchors() {
         let (times, truth, measured) = noisy_path(5);
-        let runs = [0..times.len()];
+        let runs = vec![0..times.len()];
         let sigma = noise(&runs, |k| {
             measured[k - 1] - 2.0 * measured[k] + measured[k + 1]
         });
