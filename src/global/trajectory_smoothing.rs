@@ -411,7 +411,10 @@ mod tests {
     #[test]
     fn smoothing_a_noisy_smooth_path_brings_it_closer_to_the_truth_and_keeps_anchors() {
         let (times, truth, measured) = noisy_path(5);
-        let runs = vec![0..times.len()];
+        let runs = [std::ops::Range {
+            start: 0,
+            end: times.len(),
+        }];
         let sigma = noise(&runs, |k| {
             measured[k - 1] - 2.0 * measured[k] + measured[k + 1]
         });
