@@ -478,20 +478,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let (mut masked, mut pixels) = (0u64, 0u64);
     let chunk = rayon::current_num_threads().max(1) * 2;
     for group in chosen.chunks(chunk) {
-        if crate::interrupt::requested() {
-            return Err(IoError::invalid(
-                inputs.out_dir,
-                format!(
-                    "{}: the dense map was not written",
-                    crate::interrupt::MESSAGE
-                ),
-            ));
-        }
         // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
-        let loaded: Vec<_> = group
-            .par_iter()
-            .map(|&(i, _, _)| sequence_frame(inputs, i))
-            .collect();
+        let loaded = load_group(inputs, group)?;
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
             let mask = mask_source.mask(timestamp, &depth, &pose);
@@ -612,19 +600,7 @@ fn allocate_blocks(
     let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
     let chunk = rayon::current_num_threads().max(1) * 2;
     for group in chosen.chunks(chunk) {
-        if crate::interrupt::requested() {
-            return Err(IoError::invalid(
-                inputs.out_dir,
-                format!(
-                    "{}: the dense map was not written",
-                    crate::interrupt::MESSAGE
-                ),
-            ));
-        }
-        let loaded: Vec<_> = group
-            .par_iter()
-            .map(|&(i, _, _)| sequence_frame(inputs, i))
-            .collect();
+        let loaded = load_group(inputs, group)?;
         for (&(_, pose, _), frame) in group.iter().zip(loaded) {
             let (_, depth, rgb) = frame?;
             volume.allocate(&FrameInput {
@@ -640,11 +616,32 @@ fn allocate_blocks(
     Ok(())
 }
 
-/// Frame `i` of the sequence: timestamp, depth and colour.
-fn sequence_frame(
+/// A group of chosen frames decoded in parallel (`Err` once an interrupt was asked
+/// for: the dense map is then not written).
+fn load_group(
     inputs: &DenseInputs,
-    i: usize,
-) -> Result<(f64, DepthImage, image::RgbImage), IoError> {
+    group: &[(usize, Se3, bool)],
+) -> Result<Vec<Result<LoadedFrame, IoError>>, IoError> {
+    if crate::interrupt::requested() {
+        return Err(IoError::invalid(
+            inputs.out_dir,
+            format!(
+                "{}: the dense map was not written",
+                crate::interrupt::MESSAGE
+            ),
+        ));
+    }
+    Ok(group
+        .par_iter()
+        .map(|&(i, _, _)| sequence_frame(inputs, i))
+        .collect())
+}
+
+/// A decoded frame: timestamp, depth and colour.
+type LoadedFrame = (f64, DepthImage, image::RgbImage);
+
+/// Frame `i` of the sequence.
+fn sequence_frame(inputs: &DenseInputs, i: usize) -> Result<LoadedFrame, IoError> {
     let frame = inputs.sequence.load(i)?;
     let timestamp = frame.timestamp;
     depth_and_colour(frame.images, inputs.stereo.as_ref(), inputs.run_dir)
