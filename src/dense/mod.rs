@@ -408,12 +408,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let index_of: HashMap<i64, usize> = (0..sequence.len())
         .map(|i| (key(sequence.timestamp(i)), i))
         .collect();
-    let load_depth = |t: f64| -> Option<DepthImage> {
-        let frame = sequence.load(*index_of.get(&key(t))?).ok()?;
-        depth_and_colour(frame.images, inputs.stereo.as_ref(), run)
-            .ok()
-            .map(|(depth, _)| depth)
-    };
+    let load_depth =
+        |t: f64| -> Option<DepthImage> { frame_depth(inputs, *index_of.get(&key(t))?).ok() };
     let (mut detections, keypoints) = if inputs.masking == Masking::None {
         (Vec::new(), Vec::new())
     } else {
@@ -600,15 +596,13 @@ fn allocate_blocks(
     let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
     let chunk = rayon::current_num_threads().max(1) * 2;
     for group in chosen.chunks(chunk) {
-        let loaded = load_group(inputs, group)?;
-        for (&(_, pose, _), frame) in group.iter().zip(loaded) {
-            let (_, depth, rgb) = frame?;
-            volume.allocate(&FrameInput {
-                depth: &depth,
-                colour: &rgb,
-                dynamic: None,
-                camera_from_world: &pose,
-            });
+        check_interrupt(inputs)?;
+        let depths: Vec<_> = group
+            .par_iter()
+            .map(|&(i, _, _)| frame_depth(inputs, i))
+            .collect();
+        for (&(_, pose, _), depth) in group.iter().zip(depths) {
+            volume.allocate(&depth?, &pose);
             progress.inc(1);
         }
     }
@@ -616,12 +610,20 @@ fn allocate_blocks(
     Ok(())
 }
 
-/// A group of chosen frames decoded in parallel (`Err` once an interrupt was asked
-/// for: the dense map is then not written).
+/// A group of chosen frames decoded in parallel (see [`check_interrupt`]).
 fn load_group(
     inputs: &DenseInputs,
     group: &[(usize, Se3, bool)],
 ) -> Result<Vec<Result<LoadedFrame, IoError>>, IoError> {
+    check_interrupt(inputs)?;
+    Ok(group
+        .par_iter()
+        .map(|&(i, _, _)| sequence_frame(inputs, i))
+        .collect())
+}
+
+/// `Err` once an interrupt was asked for: the dense map is then not written.
+fn check_interrupt(inputs: &DenseInputs) -> Result<(), IoError> {
     if crate::interrupt::requested() {
         return Err(IoError::invalid(
             inputs.out_dir,
@@ -631,10 +633,16 @@ fn load_group(
             ),
         ));
     }
-    Ok(group
-        .par_iter()
-        .map(|&(i, _, _)| sequence_frame(inputs, i))
-        .collect())
+    Ok(())
+}
+
+/// Frame `i`'s depth alone: an RGB-D reader skips the colour image; a stereo pair is
+/// matched.
+fn frame_depth(inputs: &DenseInputs, i: usize) -> Result<DepthImage, IoError> {
+    match inputs.sequence.load_depth(i)? {
+        Some(depth) => Ok(depth),
+        None => sequence_frame(inputs, i).map(|(_, depth, _)| depth),
+    }
 }
 
 /// A decoded frame: timestamp, depth and colour.

@@ -232,8 +232,8 @@ impl TsdfVolume {
     /// whose free-space observations otherwise find no block to update. A mover the
     /// masks miss, seen through before it came but never after it left, is then carved
     /// by the earlier frames.
-    pub fn allocate(&mut self, frame: &FrameInput) {
-        for coord in self.blocks_near_surface(frame) {
+    pub fn allocate(&mut self, depth: &DepthImage, camera_from_world: &Se3) {
+        for coord in self.blocks_near_surface(depth, None, camera_from_world) {
             self.block_mut(coord).ahead = true;
         }
     }
@@ -250,7 +250,7 @@ impl TsdfVolume {
         for i in carved {
             self.blocks[i as usize].stamp = stamp;
         }
-        for coord in self.blocks_near_surface(frame) {
+        for coord in self.blocks_near_surface(frame.depth, frame.dynamic, frame.camera_from_world) {
             self.block_mut(coord).stamp = stamp;
         }
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
@@ -279,9 +279,14 @@ impl TsdfVolume {
     /// the cube \(p \pm \tau\). With \(R, t\) = `world_from_camera`, pixel \((u, v)\) at
     /// depth \(d\) lies at \(p = t + d\,(a u + b v + c)\), \(a = R e_x / f_x\),
     /// \(b = R e_y / f_y\), \(c = R\,(-c_x/f_x, -c_y/f_y, 1)^\top\).
-    fn blocks_near_surface(&self, frame: &FrameInput) -> Vec<[i32; 3]> {
-        let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
-        let world_from_camera = frame.camera_from_world.inverse();
+    fn blocks_near_surface(
+        &self,
+        depth: &DepthImage,
+        dynamic: Option<&[bool]>,
+        camera_from_world: &Se3,
+    ) -> Vec<[i32; 3]> {
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        let world_from_camera = camera_from_world.inverse();
         let r = world_from_camera.rotation.matrix();
         let t = world_from_camera.translation.vector;
         let cam = &self.camera;
@@ -304,8 +309,8 @@ impl TsdfVolume {
                 let mut last = None;
                 for u in (0..w).step_by(step) {
                     let i = v * w + u;
-                    let d = frame.depth.metres[i] as f64;
-                    if d <= 0.0 || d > max_depth || frame.dynamic.is_some_and(|m| m[i]) {
+                    let d = depth.metres[i] as f64;
+                    if d <= 0.0 || d > max_depth || dynamic.is_some_and(|m| m[i]) {
                         continue;
                     }
                     let p = t + (a * u as f64 + row) * d;
@@ -799,7 +804,7 @@ pub(crate) mod tests {
                 if fuse {
                     volume.integrate(&input);
                 } else {
-                    volume.allocate(&input);
+                    volume.allocate(depth, pose);
                 }
             }
         };

@@ -108,12 +108,14 @@ pub fn smooth_frames<'a>(
     frames: impl Iterator<Item = &'a mut FrameReport>,
 ) -> SmoothingReport {
     let start = Instant::now();
-    // Frames with a pose, and their world_from_camera.
-    let mut frames: Vec<(&mut FrameReport, Se3)> = frames
+    // Frames with a pose, their world_from_camera and their reference's
+    // reference_from_world.
+    let mut frames: Vec<(&mut FrameReport, Se3, Se3)> = frames
         .filter_map(|f| {
             let (key, camera_from_reference) = f.reference?;
-            let pose = camera_from_reference * map.keyframe_pose(key)?;
-            Some((f, pose.inverse()))
+            let reference_from_world = map.keyframe_pose(key)?;
+            let pose = camera_from_reference * reference_from_world;
+            Some((f, pose.inverse(), reference_from_world))
         })
         .collect();
     let mut intervals: Vec<f64> = frames
@@ -138,12 +140,10 @@ pub fn smooth_frames<'a>(
             first = i;
         }
     }
-    let poses: Vec<Se3> = frames.iter().map(|f| f.1).collect();
     let times: Vec<f64> = frames.iter().map(|f| f.0.timestamp).collect();
     let anchors: Vec<bool> = frames.iter().map(|f| f.0.keyframe).collect();
-    let centres: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
-    let rotations: Vec<Rotation3<f64>> =
-        poses.iter().map(|p| Rotation3::from(p.rotation)).collect();
+    let centres: Vec<Vector3<f64>> = frames.iter().map(|f| f.1.translation.vector).collect();
+    let rotations: Vec<Rotation3<f64>> = frames.iter().map(|f| f.1.rotation).collect();
     // Measured rotation increments, world frame.
     let increments: Vec<Vector3<f64>> = rotations
         .windows(2)
@@ -180,22 +180,17 @@ pub fn smooth_frames<'a>(
             |k| increments[run.start + k],
         );
         for (i, (centre, delta)) in new_centres.iter().zip(&corrections).enumerate() {
-            let (frame, before) = &mut frames[run.start + i];
-            if frame.keyframe {
+            let (frame, before, reference_from_world) = &mut frames[run.start + i];
+            let Some((key, _)) = frame.reference.filter(|_| !frame.keyframe) else {
                 continue;
-            }
+            };
             let rotation = so3::exp(delta) * rotations[run.start + i];
             let world_from_camera = Se3::from_parts(Translation3::from(*centre), rotation);
             let camera_from_world = world_from_camera.inverse();
-            if let Some((key, _)) = frame.reference {
-                let Some(reference_from_world) = map.keyframe_pose(key) else {
-                    continue;
-                };
-                frame.reference = Some((key, camera_from_world * reference_from_world.inverse()));
-                frame.camera_from_world = Some(camera_from_world);
-                shifts.push((centre - before.translation.vector).norm() * 1e3);
-                report.frames += 1;
-            }
+            frame.reference = Some((key, camera_from_world * reference_from_world.inverse()));
+            frame.camera_from_world = Some(camera_from_world);
+            shifts.push((centre - before.translation.vector).norm() * 1e3);
+            report.frames += 1;
         }
     }
     report.max_shift_mm = shifts.iter().copied().fold(0.0, f64::max);
@@ -210,9 +205,8 @@ pub fn smooth_frames<'a>(
 fn noise(runs: &[std::ops::Range<usize>], second: impl Fn(usize) -> Vector3<f64>) -> f64 {
     let mut deviations: Vec<f64> = runs
         .iter()
-        .flat_map(|r| {
-            (r.start + 1..r.end - 1).flat_map(|k| second(k).iter().copied().collect::<Vec<_>>())
-        })
+        .flat_map(|r| r.start + 1..r.end - 1)
+        .flat_map(|k| <[f64; 3]>::from(second(k)))
         .map(f64::abs)
         .collect();
     1.4826 * median(&mut deviations) / 6f64.sqrt()

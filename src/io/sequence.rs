@@ -46,6 +46,15 @@ pub trait Sequence: Send + Sync {
     fn timestamp(&self, index: usize) -> f64;
     /// Loads frame `index` from disk.
     fn load(&self, index: usize) -> Result<Frame, IoError>;
+    /// Loads only the depth of frame `index`: `None` for a stereo pair, whose depth
+    /// is matched from the pair. The default loads the whole frame; readers that can
+    /// skip the colour image do.
+    fn load_depth(&self, index: usize) -> Result<Option<DepthImage>, IoError> {
+        Ok(match self.load(index)?.images {
+            FrameImages::Rgbd { depth, .. } => Some(depth),
+            FrameImages::Stereo { .. } => None,
+        })
+    }
     /// The ground-truth trajectory, when the sequence has one.
     fn ground_truth(&self) -> Option<&Trajectory>;
     /// The calibration the sequence carries, when it has one.

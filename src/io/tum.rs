@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use super::file_list::{associate_greedy, read_file_list};
-use super::image_files::{read_depth, read_rgb};
+use super::image_files::{read_depth, read_rgb, DepthImage};
 use super::orbslam_settings::{Calibration, OrbSlamSettings};
 use super::sequence::{Frame, FrameImages, SensorKind, Sequence};
 use super::{IoError, Trajectory};
@@ -262,6 +262,11 @@ impl Sequence for TumSequence {
             timestamp: entry.rgb_timestamp,
             images: FrameImages::Rgbd { rgb, depth },
         })
+    }
+
+    fn load_depth(&self, index: usize) -> Result<Option<DepthImage>, IoError> {
+        let entry = &self.entries[index];
+        read_depth(&entry.depth_path, self.depth_scale).map(Some)
     }
 
     fn ground_truth(&self) -> Option<&Trajectory> {
