@@ -16,7 +16,7 @@ use crate::config::Config;
 use crate::dense::disparity::StereoDepth;
 use crate::dense::masks::Masking;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
-use crate::detect::worker::{DetectionWorker, Job, Outcome};
+use crate::detect::worker::{DetectionWorker, Job, Outcome, Waiting};
 use crate::detect::{write_cache, FrameDetections};
 use crate::dop::boxes::in_dynamic_box;
 use crate::dop::{DopConfig, Mode};
@@ -899,7 +899,7 @@ struct DetectionBook {
     /// The DOP model's followed objects (DOP mode only).
     objects: Option<DynamicObjects>,
     /// Keyframe ids of submitted frames whose detection has not come back.
-    awaited: std::collections::HashMap<usize, usize>,
+    awaited: Waiting,
 }
 
 /// How long real-time mode waits for the first keyframe's detection.
@@ -944,7 +944,7 @@ impl DetectionBook {
         let shared = tracker.map.clone();
         let mut map = shared.write().expect("map lock poisoned");
         for outcome in outcomes {
-            if let Some(id) = self.awaited.remove(&outcome.id) {
+            for id in self.awaited.release(&outcome) {
                 tracker.awaiting_detection.remove(&id);
             }
             if outcome.skipped {

@@ -61,6 +61,33 @@ fn skipped(job: &Job) -> Outcome {
     }
 }
 
+/// What waits for which job's detection (a keyframe's new points, by keyframe id).
+/// A skipped job's waiters go on waiting for the next job that is detected: the worker
+/// skipped it for that newer one, whose boxes reach it.
+#[derive(Debug, Default)]
+pub struct Waiting {
+    by_job: std::collections::HashMap<usize, usize>,
+    skipped: Vec<usize>,
+}
+
+impl Waiting {
+    /// `waiter` waits for job `job`.
+    pub fn insert(&mut self, job: usize, waiter: usize) {
+        self.by_job.insert(job, waiter);
+    }
+
+    /// The waiters an outcome releases: none for a skipped job (its waiter joins the
+    /// next detected job's), else the job's own and those of the jobs skipped for it.
+    pub fn release(&mut self, outcome: &Outcome) -> Vec<usize> {
+        let waiter = self.by_job.remove(&outcome.id);
+        if outcome.skipped {
+            self.skipped.extend(waiter);
+            return Vec::new();
+        }
+        waiter.into_iter().chain(self.skipped.drain(..)).collect()
+    }
+}
+
 /// The detection worker.
 pub enum DetectionWorker {
     Inline {
@@ -230,6 +257,26 @@ mod tests {
                 .contains("negative"));
             assert!(outcomes.iter().all(|o| !o.skipped));
         }
+    }
+
+    #[test]
+    fn waiters_of_a_skipped_job_wait_for_the_next_detection() {
+        let mut waiting = Waiting::default();
+        for (job, waiter) in [(10, 3), (11, 4), (12, 5)] {
+            waiting.insert(job, waiter);
+        }
+        let outcome = |id, skipped| Outcome {
+            id,
+            timestamp: 0.0,
+            detections: Ok(Vec::new()),
+            milliseconds: 0.0,
+            skipped,
+        };
+        assert!(waiting.release(&outcome(10, true)).is_empty());
+        assert!(waiting.release(&outcome(11, true)).is_empty());
+        assert_eq!(waiting.release(&outcome(12, false)), vec![5, 3, 4]);
+        // An unknown job releases nothing; a detected one with no waiter nothing more.
+        assert!(waiting.release(&outcome(13, false)).is_empty());
     }
 
     #[test]

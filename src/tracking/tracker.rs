@@ -978,12 +978,20 @@ impl Tracker {
         let Some(reference) = self.reference.and_then(|k| map.keyframes.get(k)) else {
             return true;
         };
-        // Points the DOP model leaves out cannot be tracked: they do not count.
+        // Points the DOP model leaves out cannot be tracked, and points that wait (for
+        // their keyframe's detection, or out their probation) take no part in the pose
+        // yet: neither counts. Counted, the points a keyframe makes on a person the
+        // detector has not reported yet make the next frames look weak, and each of them
+        // a keyframe that makes more such points.
         let reference_points = reference
             .map_points
             .iter()
             .flatten()
-            .filter(|k| map.points.get(**k).is_some_and(|p| !self.excluded(p)))
+            .filter(|k| {
+                map.points
+                    .get(**k)
+                    .is_some_and(|p| !self.excluded(p) && !self.awaiting(p))
+            })
             .count();
         // Close points: tracked ones that take part in the pose, and untracked ones that
         // could make new points (dynamic keypoints cannot, so they do not ask for a
@@ -1282,6 +1290,57 @@ mod tests {
         // With too few other points the awaiting ones are used.
         tracker.config.held_out_min_points = room + 1;
         assert!((error(&tracker) - mixed).abs() < 1e-9);
+    }
+
+    /// A still camera whose reference keyframe made 400 points on a person the
+    /// detector has not reported yet: the frame tracks the room's 100. Counted, those
+    /// 400 make the frame look very weak (a keyframe, which makes more such points);
+    /// while they wait for their detection they do not count.
+    #[test]
+    fn points_that_wait_do_not_make_keyframes() {
+        let pinhole = PinholeCamera::tum_fr3();
+        let mut tracker = Tracker::new(
+            TrackerConfig::default(),
+            StereoCamera::new(&pinhole, 40.0),
+            ScalePyramid::new(8, 1.2),
+            pinhole.width,
+            pinhole.height,
+        );
+        tracker.dop = Some(DopConfig::default());
+        let (room, person) = (100, 400);
+        let n = room + person;
+        let frame = Frame::from_parts(
+            1,
+            0.1,
+            vec![crate::features::KeyPoint::default(); n],
+            vec![[0; 4]; n],
+            vec![0.0; n],
+            vec![-1.0; n],
+            (pinhole.width, pinhole.height),
+        );
+        let mut map = Map::default();
+        let mut keyframe = KeyFrame::new(frame.clone(), Se3::identity());
+        for (i, slot) in keyframe.map_points.iter_mut().enumerate() {
+            let first = if i < room { 0 } else { 7 };
+            *slot = Some(map.points.insert(MapPoint::new(
+                Vector3::z(),
+                [0; 4],
+                Vector3::z(),
+                (0.1, 10.0),
+                first,
+            )));
+        }
+        let tracked: Vec<Option<MapPointKey>> = (0..n)
+            .map(|i| keyframe.map_points[i].filter(|_| i < room))
+            .collect();
+        tracker.reference = Some(map.add_keyframe(keyframe));
+        tracker.frames_since_keyframe = 5;
+        let need = |tracker: &Tracker| {
+            tracker.need_keyframe(&map, &frame, &Se3::identity(), &tracked, room, true)
+        };
+        assert!(need(&tracker), "100 of 500 points: very weak");
+        tracker.awaiting_detection.insert(7);
+        assert!(!need(&tracker));
     }
 
     #[test]
