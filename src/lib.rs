@@ -28,6 +28,7 @@ pub mod map;
 pub mod mapping;
 pub mod memory;
 pub mod optim;
+pub mod pacing;
 pub mod pipeline;
 pub mod random;
 pub mod synth;

@@ -220,6 +220,13 @@ struct RunArgs {
     /// instead of beside it, so that a run repeats exactly (tests use this; slower).
     #[arg(long)]
     deterministic: bool,
+    /// Real-time mode: hand frames to the tracker as fast as tracking goes (free, the
+    /// default), or at the recording's rate as the camera delivered them (recording: a
+    /// live run, as ORB-SLAM2's examples play sequences; the detector and local mapping
+    /// get the time per frame they would have live, and the run takes the recording's
+    /// duration).
+    #[arg(long, value_enum, default_value = "free")]
+    pace: dopslam::pacing::Pace,
     /// Keyframe detections: auto (onnx when setup installed the model, else none), none,
     /// onnx (the [detector] model), cache ([detector] cache_dir) or oracle (a synthetic
     /// sequence's ground-truth boxes). Default: the config's [detector] source (auto).
@@ -611,6 +618,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         sequence_dir: Some(args.sequence.clone()),
         debug_frames: args.debug_frames.clone(),
         dense: !args.no_dense && config.dense.enabled,
+        pace: args.pace,
     };
     if args.no_global {
         config.global.enabled = false;

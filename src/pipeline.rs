@@ -36,6 +36,7 @@ use crate::map::Map;
 use crate::mapping::dynamic::{apply_detections, object_boxes, DynamicObjects};
 use crate::mapping::{LocalMapper, LocalMapping, MappingStats};
 use crate::optim::stereo_projection::StereoCamera;
+use crate::pacing::{Pace, Pacer};
 use crate::tracking::input::{DepthCheck, Picture};
 use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
 
@@ -251,6 +252,8 @@ pub struct RunOptions {
     pub debug_frames: Option<PathBuf>,
     /// Run the dense pass after tracking (`[dense]` settings).
     pub dense: bool,
+    /// Real-time mode: frames at the recording's rate, or as fast as tracking goes.
+    pub pace: Pace,
 }
 
 /// What the keyframe detector did over a run.
@@ -484,6 +487,11 @@ pub fn track_sequence(
     let mut dynamic_keypoints = Vec::new();
     let mut failure: Option<String> = None;
     let mut depth_check = DepthCheck::default();
+    let mut pacer = Pacer::new(if options.deterministic {
+        Pace::Free
+    } else {
+        options.pace
+    });
     for index in 0..total {
         if crate::interrupt::requested() {
             failure = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
@@ -496,6 +504,7 @@ pub fn track_sequence(
                 break;
             }
         };
+        pacer.wait_for(loaded.timestamp);
         let size = match &loaded.images {
             FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
             FrameImages::Stereo { left, .. } => left.dimensions(),

@@ -44,6 +44,7 @@ pub struct Executor<'a> {
     pub jobs: usize,
     pub cores_per_run: usize,
     pub deterministic: bool,
+    pub pace: crate::pacing::Pace,
     pub rpe_seconds: f64,
     pub progress: bool,
 }
@@ -203,6 +204,8 @@ impl Executor<'_> {
         }
         if self.deterministic {
             command.arg("--deterministic");
+        } else if self.pace == crate::pacing::Pace::Recording {
+            command.arg("--pace").arg("recording");
         }
         command
             .env("RAYON_NUM_THREADS", self.cores_per_run.to_string())

@@ -74,6 +74,9 @@ pub struct BatchSettings {
     pub detections: Option<Source>,
     /// `dopslam run --deterministic` (local mapping inline: repeatable, slower).
     pub deterministic: bool,
+    /// `dopslam run --pace`: real-time runs take frames as fast as tracking goes
+    /// (`free`, the default) or at the recording's rate (`recording`, a live run).
+    pub pace: crate::pacing::Pace,
     /// Run the dense map (and, on synthetic sequences, compare it with the static scene).
     pub dense: bool,
     /// Run the global pass.
@@ -101,6 +104,7 @@ impl Default for BatchSettings {
             config: None,
             detections: None,
             deterministic: false,
+            pace: crate::pacing::Pace::Free,
             dense: true,
             global: true,
             frames: None,

@@ -132,6 +132,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         jobs,
         cores_per_run: manifest.batch.cores_per_run,
         deterministic: manifest.batch.deterministic,
+        pace: manifest.batch.pace,
         rpe_seconds: manifest.batch.rpe_seconds,
         progress: options.progress,
     };
