@@ -8,12 +8,13 @@
 //! acceleration as the process noise. For each run of consecutive frames (same map
 //! segment, no gap over [`MAX_GAP`] frame intervals), with camera centres \(c_i\) and
 //! measured centres \(m_i\),
-//! \[ \min_c \sum_i w_i \lVert c_i - m_i \rVert^2 +
+//! \[ \min_c \sum_i w_i \rho_m\big(\lVert c_i - m_i \rVert^2\big) +
 //!    \sum_k \rho\Big(\frac{\lVert a_k(c) \rVert^2}{\sigma_a^2}\Big), \qquad
 //!    a_k = \frac{2}{\Delta_1 + \Delta_2}\Big(\frac{c_{k+1} - c_k}{\Delta_2} -
 //!    \frac{c_k - c_{k-1}}{\Delta_1}\Big) \]
 //! (\(a_k\): the acceleration at frame \(k\), \(\Delta\) the frame intervals,
-//! \(\rho\) Huber, solved by reweighted least squares). Rotations likewise: with
+//! \(\rho\) and \(\rho_m\) Huber, solved by reweighted least squares: a frame whose
+//! pose jumped weighs little against its neighbours). Rotations likewise: with
 //! \(R_i \leftarrow \exp(\delta_i) R_i\) and measured increments
 //! \(\phi_k = \log(R_{k+1} R_k^\top)\), the angular increment is
 //! \(\phi_k + \delta_{k+1} - \delta_k\) to first order, and its second difference
@@ -42,8 +43,11 @@ use crate::tracking::tracker::FrameReport;
 pub const MAX_GAP: f64 = 2.5;
 /// Huber threshold on the acceleration residual, in \(\sigma\).
 const HUBER: f64 = 2.5;
+/// Huber threshold on a frame's distance from its measurement, in \(\sigma_m\): a
+/// frame whose pose jumped (a few bad matches) weighs little against its neighbours.
+const HUBER_MEASUREMENT: f64 = 3.0;
 /// Reweighting rounds.
-const ROUNDS: usize = 4;
+const ROUNDS: usize = 6;
 /// Keyframes' weight relative to frames'.
 const KEYFRAME_WEIGHT: f64 = 1e6;
 
@@ -213,7 +217,7 @@ fn noise(runs: &[std::ops::Range<usize>], second: impl Fn(usize) -> Vector3<f64>
 }
 
 /// The three axes of one run smoothed: minimises
-/// \(\sum_i w_i \lVert x_i - m_i \rVert^2 + \sum_k \rho(\lVert D_k x + b_k \rVert^2/\sigma^2)\)
+/// \(\sum_i w_i \rho_m(\lVert x_i - m_i \rVert^2) + \sum_k \rho(\lVert D_k x + b_k \rVert^2/\sigma^2)\)
 /// with \(D_k x\) the acceleration of \(x\) at inner frame \(k\) and \(b_k\) that of
 /// the `offset` increments (`offset(k)`: between frames k and k+1, a second
 /// difference of increments).
@@ -248,19 +252,25 @@ fn smooth_axes(
         .collect();
     let mut x = m.clone();
     let mut robust = vec![1.0; rows.len()];
+    let mut trusted = vec![1.0; n];
     for round in 0..ROUNDS {
         if round > 0 {
-            // Huber weights from the current accelerations.
+            // Huber weights from the current accelerations and distances from the
+            // measurements (keyframes stay anchored).
             for (r, ((c, b), weight)) in rows.iter().zip(robust.iter_mut()).enumerate() {
                 let a = x[r] * c[0] + x[r + 1] * c[1] + x[r + 2] * c[2] + b;
-                let e = a.norm() / sigma;
-                *weight = if e <= HUBER { 1.0 } else { HUBER / e };
+                *weight = huber(a.norm() / sigma, HUBER);
+            }
+            for (i, weight) in trusted.iter_mut().enumerate() {
+                if !anchors[i] {
+                    *weight = huber((x[i] - m[i]).norm() / noise, HUBER_MEASUREMENT);
+                }
             }
         }
         let mut band = Band::new(n);
-        let mut rhs: Vec<Vector3<f64>> = (0..n).map(|i| m[i] * w[i]).collect();
-        for (i, &weight) in w.iter().enumerate() {
-            band.add(i, i, weight);
+        let mut rhs: Vec<Vector3<f64>> = (0..n).map(|i| m[i] * (w[i] * trusted[i])).collect();
+        for (i, (&weight, &trust)) in w.iter().zip(&trusted).enumerate() {
+            band.add(i, i, weight * trust);
         }
         for (r, ((c, b), weight)) in rows.iter().zip(&robust).enumerate() {
             let scale = weight / (sigma * sigma);
@@ -274,6 +284,15 @@ fn smooth_axes(
         x = band.solve(rhs);
     }
     x
+}
+
+/// The Huber weight of a residual of `e` (in its \(\sigma\)) at threshold `k`.
+fn huber(e: f64, k: f64) -> f64 {
+    if e <= k {
+        1.0
+    } else {
+        k / e
+    }
 }
 
 /// A symmetric positive definite matrix of half-bandwidth 2 (pentadiagonal): entry
@@ -432,6 +451,29 @@ mod tests {
                 (smoothed[i] - measured[i]).norm() < 1e-6,
                 "anchor {i} moved"
             );
+        }
+    }
+
+    /// One frame whose pose jumped 10 cm (a few bad matches) is pulled back to its
+    /// neighbours' path, and does not drag them along.
+    #[test]
+    fn a_single_frame_jump_is_pulled_back_to_the_path() {
+        let (times, truth, mut measured) = noisy_path(7);
+        measured[150] += Vector3::new(0.1, 0.0, 0.0);
+        let anchors = vec![false; times.len()];
+        let smoothed = smooth_axes(
+            &times,
+            &anchors,
+            0.003,
+            1.0,
+            |i| measured[i],
+            |_| Vector3::zeros(),
+        );
+        let jumped = (smoothed[150] - truth[150]).norm();
+        assert!(jumped < 0.01, "the jumped frame is {jumped} m off");
+        for i in [148, 149, 151, 152] {
+            let error = (smoothed[i] - truth[i]).norm();
+            assert!(error < 0.005, "frame {i} is {error} m off");
         }
     }
 
