@@ -569,6 +569,12 @@ pub fn track_sequence(
             }
         }
         if let Some(key) = report.new_keyframe {
+            // Marked before local mapping sees the keyframe, whose BA leaves its points
+            // out while they wait.
+            let awaits = detection.is_some() && !options.deterministic && tracker.dop.is_some();
+            if awaits {
+                book.await_detection(&mut tracker, index, key);
+            }
             mapping.insert(key);
             if let Some(worker) = detection.as_mut() {
                 book.keyframe_of_frame.insert(index, key);
@@ -578,18 +584,15 @@ pub fn track_sequence(
                     timestamp: loaded.timestamp,
                     image: picture.into_colour(),
                 });
-                if !options.deterministic && tracker.dop.is_some() {
-                    book.await_detection(&mut tracker, index, key);
-                    if book.totals.submitted == 1 {
-                        // The first map waits for its detection: nothing older can
-                        // carry the pose while its points wait.
-                        book.receive(
-                            &mut tracker,
-                            worker.wait(FIRST_DETECTION_WAIT),
-                            out,
-                            &effect,
-                        );
-                    }
+                if awaits && book.totals.submitted == 1 {
+                    // The first map waits for its detection: nothing older can carry
+                    // the pose while its points wait.
+                    book.receive(
+                        &mut tracker,
+                        worker.wait(FIRST_DETECTION_WAIT),
+                        out,
+                        &effect,
+                    );
                 }
             }
         }
@@ -916,23 +919,18 @@ const FIRST_DETECTION_WAIT: std::time::Duration = std::time::Duration::from_secs
 
 impl DetectionBook {
     /// Real-time mode: keyframe `key`, made from frame `index`, waits for its detection
-    /// (its new points stay out of the pose meanwhile, see [`Tracker`]).
+    /// (its new points stay out of the pose and of local BA meanwhile, see
+    /// [`crate::map::Map::awaiting_detection`]).
     fn await_detection(
         &mut self,
         tracker: &mut Tracker,
         index: usize,
         key: crate::map::KeyFrameKey,
     ) {
-        let id = tracker
-            .map
-            .read()
-            .expect("map lock poisoned")
-            .keyframes
-            .get(key)
-            .map(|kf| kf.id);
-        if let Some(id) = id {
+        let mut map = tracker.map.write().expect("map lock poisoned");
+        if let Some(id) = map.keyframes.get(key).map(|kf| kf.id) {
             self.awaited.insert(index, id);
-            tracker.awaiting_detection.insert(id);
+            map.awaiting_detection.insert(id);
         }
     }
 
@@ -954,7 +952,7 @@ impl DetectionBook {
         let mut map = shared.write().expect("map lock poisoned");
         for outcome in outcomes {
             for id in self.awaited.release(&outcome) {
-                tracker.awaiting_detection.remove(&id);
+                map.awaiting_detection.remove(&id);
             }
             if outcome.skipped {
                 totals.skipped += 1;

@@ -160,9 +160,18 @@ pub struct Map {
     /// Culled keyframes: their parent at removal and \(T_{cp}\) (camera from parent),
     /// so frames tracked against them keep a pose that follows later corrections.
     pub culled: std::collections::HashMap<KeyFrameKey, (KeyFrameKey, Se3)>,
+    /// Keyframes (ids) whose detection has not come back (real-time mode). The points
+    /// they made may sit on a person the detector is about to report: tracking keeps
+    /// them out of the pose while enough others remain, and local BA leaves them out.
+    pub awaiting_detection: std::collections::HashSet<usize>,
 }
 
 impl Map {
+    /// Whether `point` was made by a keyframe whose detection has not come back.
+    pub fn awaits_detection(&self, point: &MapPoint) -> bool {
+        self.awaiting_detection.contains(&point.first_keyframe_id)
+    }
+
     /// Inserts a keyframe, giving it the next id.
     pub fn add_keyframe(&mut self, mut keyframe: KeyFrame) -> KeyFrameKey {
         keyframe.id = self.keyframes_created;

@@ -27,7 +27,8 @@ pub struct Window {
 
 impl Window {
     /// The window around `key` with at most `size` free keyframes; points whose moving
-    /// probability is above `moving_threshold` stay out. `None` when there is nothing
+    /// probability is above `moving_threshold` stay out, and so do points whose
+    /// keyframe's detection has not come back (real time: they may be on a person). `None` when there is nothing
     /// to hold the gauge.
     pub fn build(
         map: &Map,
@@ -74,7 +75,10 @@ impl Window {
         let mut positions = Vec::new();
         for k in &local {
             for p in map.keyframes[*k].map_points.iter().flatten() {
-                if let Some(point) = map.points.get(*p).filter(|x| x.moving <= moving_threshold) {
+                let usable = |x: &&crate::map::MapPoint| {
+                    x.moving <= moving_threshold && !map.awaits_detection(x)
+                };
+                if let Some(point) = map.points.get(*p).filter(usable) {
                     point_index.entry(*p).or_insert_with(|| {
                         points.push(*p);
                         positions.push(point.position);
@@ -179,5 +183,57 @@ impl Window {
             map.update_point(*p, scale_factors);
         }
         removed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::se3::Se3;
+    use crate::map::{KeyFrame, MapPoint};
+    use crate::tracking::frame::Frame;
+
+    /// Real time: the points a keyframe made before its detection came back may be on
+    /// a person, and stay out of local BA until it does.
+    #[test]
+    fn points_waiting_for_their_detection_stay_out_of_the_window() {
+        let n = 5;
+        let frame = Frame::from_parts(
+            0,
+            0.0,
+            vec![crate::features::KeyPoint::default(); n],
+            vec![[0; 4]; n],
+            vec![0.0; n],
+            vec![-1.0; n],
+            (640, 480),
+        );
+        let mut map = Map::default();
+        let first = map.add_keyframe(KeyFrame::new(frame.clone(), Se3::identity()));
+        let second = map.add_keyframe(KeyFrame::new(frame, Se3::identity()));
+        for i in 0..n {
+            // Three points from the first keyframe, two made by the second.
+            let made_by = if i < 3 { 0 } else { 1 };
+            let point = map.points.insert(MapPoint::new(
+                Vector3::new(i as f64 * 0.1, 0.0, 2.0),
+                [0; 4],
+                Vector3::z(),
+                (0.1, 10.0),
+                made_by,
+            ));
+            if i < 3 {
+                map.add_observation(point, first, i);
+            }
+            map.add_observation(point, second, i);
+        }
+        let pyramid = ScalePyramid::new(8, 1.2);
+        let points = |map: &Map| {
+            Window::build(map, second, 10, &pyramid, 1.0)
+                .unwrap()
+                .points
+                .len()
+        };
+        assert_eq!(points(&map), 5);
+        map.awaiting_detection.insert(1);
+        assert_eq!(points(&map), 3);
     }
 }

@@ -12,7 +12,6 @@
 //! thread: tracking holds the map's write lock while it tracks one frame (feature
 //! extraction happens before, without it) and hands each new keyframe on.
 
-use std::collections::HashSet;
 use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
@@ -31,6 +30,10 @@ use crate::optim::pnp::{epnp_ransac, Correspondence, Ransac};
 use crate::optim::pose_only::{optimise_pose, within_gate, PoseObservation};
 use crate::optim::robust::CHI2_MONO;
 use crate::optim::stereo_projection::StereoCamera;
+
+/// Points that take part in the pose that are enough for a pose of their own, against
+/// which waiting points are tested before they join (see [`Tracker::optimise`]).
+const MIN_TRUSTED_POINTS: usize = 20;
 
 /// Tracking parameters (ORB-SLAM2's values by default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -194,11 +197,6 @@ pub struct Tracker {
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
     /// estimation and new points.
     pub dop: Option<DopConfig>,
-    /// Keyframes (ids) whose detection has not come back (real-time mode): the points
-    /// they created stay out of the pose while enough others remain, as a keyframe's
-    /// detection would have removed those on people before the next frame in
-    /// deterministic mode (`optimise`).
-    pub awaiting_detection: HashSet<usize>,
 }
 
 /// Timers of one frame.
@@ -233,7 +231,6 @@ impl Tracker {
             width: width as f32,
             height: height as f32,
             dop: None,
-            awaiting_detection: HashSet::new(),
         }
     }
 
@@ -291,8 +288,8 @@ impl Tracker {
     /// Whether a map point waits: for the detection of the keyframe that created it, or
     /// out its probation (made by the newest keyframe, `probation_frames` not yet past;
     /// only with the DOP model, so that `--no-dop` stays ORB-SLAM2's behaviour).
-    fn awaiting(&self, point: &MapPoint) -> bool {
-        self.awaiting_detection.contains(&point.first_keyframe_id)
+    fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
+        map.awaits_detection(point)
             || (self.dop.is_some()
                 && point.first_keyframe_id == self.newest_keyframe_id
                 && self.frames_since_keyframe < self.config.probation_frames)
@@ -580,7 +577,7 @@ impl Tracker {
                 kept[i] = points[i];
                 continue;
             }
-            if self.awaiting(point) {
+            if self.awaiting(map, point) {
                 awaiting.push((i, point));
                 continue;
             }
@@ -593,9 +590,26 @@ impl Tracker {
                 kept[i] = points[i];
             }
         } else {
+            // Too few others to go without them: the waiting points join the pose,
+            // but when the others can give a pose of their own, only those that agree
+            // with it (a person the detector has not reported yet moved away from it,
+            // and would outnumber the room's few points).
+            let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
+                .then(|| optimise_pose(&self.camera, initial, &observations))
+                .filter(|estimate| {
+                    estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
+                });
             for (i, point) in awaiting {
-                observations.push(self.observation(frame, i, point));
-                indices.push(i);
+                let observation = self.observation(frame, i, point);
+                let agrees = trusted.as_ref().is_none_or(|estimate| {
+                    within_gate(&self.camera, &estimate.camera_from_world, &observation)
+                });
+                if agrees {
+                    observations.push(observation);
+                    indices.push(i);
+                } else {
+                    kept[i] = points[i];
+                }
             }
         }
         if observations.len() < 10 {
@@ -642,7 +656,7 @@ impl Tracker {
             .filter_map(|(i, (candidate, inlier))| {
                 let key = (*candidate)?;
                 let point = map.points.get(key)?;
-                let consistent = if self.excluded(point) || self.awaiting(point) {
+                let consistent = if self.excluded(point) || self.awaiting(map, point) {
                     within_gate(&self.camera, pose, &self.observation(frame, i, point))
                 } else {
                     inlier.is_some()
@@ -990,7 +1004,7 @@ impl Tracker {
             .filter(|k| {
                 map.points
                     .get(**k)
-                    .is_some_and(|p| !self.excluded(p) && !self.awaiting(p))
+                    .is_some_and(|p| !self.excluded(p) && !self.awaiting(map, p))
             })
             .count();
         // Close points: tracked ones that take part in the pose, and untracked ones that
@@ -1273,23 +1287,30 @@ mod tests {
             vec![-1.0; n],
             (pinhole.width, pinhole.height),
         );
-        let error = |tracker: &Tracker| {
-            let (pose, _, _) = tracker.optimise(
-                &map,
-                &frame,
-                &Se3::identity(),
-                &keys,
-                &mut Timing::default(),
-            );
+        let error_with = |tracker: &Tracker, map: &Map, keys: &[Option<MapPointKey>]| {
+            let (pose, _, _) =
+                tracker.optimise(map, &frame, &Se3::identity(), keys, &mut Timing::default());
             pose.translation.vector.norm()
         };
-        let mixed = error(&tracker);
+        let mixed = error_with(&tracker, &map, &keys);
         assert!(mixed > 0.02, "the person pulls the pose: {mixed}");
-        tracker.awaiting_detection.insert(7);
-        assert!(error(&tracker) < 1e-3);
-        // With too few other points the awaiting ones are used.
+        map.awaiting_detection.insert(7);
+        assert!(error_with(&tracker, &map, &keys) < 1e-3);
+        // With too few other points the awaiting ones join, but only those that agree
+        // with the pose the others give on their own: not the person's.
         tracker.config.held_out_min_points = room + 1;
-        assert!((error(&tracker) - mixed).abs() < 1e-9);
+        assert!(error_with(&tracker, &map, &keys) < 1e-3);
+        // With too few for a pose of their own, all join.
+        let few: Vec<Option<MapPointKey>> = keys
+            .iter()
+            .enumerate()
+            .map(|(i, k)| k.filter(|_| i < 10 || i >= room))
+            .collect();
+        map.awaiting_detection.clear();
+        let few_mixed = error_with(&tracker, &map, &few);
+        map.awaiting_detection.insert(7);
+        assert!((error_with(&tracker, &map, &few) - few_mixed).abs() < 1e-9);
+        assert!(few_mixed > 0.02, "{few_mixed}");
     }
 
     /// A still camera whose reference keyframe made 400 points on a person the
@@ -1335,12 +1356,11 @@ mod tests {
             .collect();
         tracker.reference = Some(map.add_keyframe(keyframe));
         tracker.frames_since_keyframe = 5;
-        let need = |tracker: &Tracker| {
-            tracker.need_keyframe(&map, &frame, &Se3::identity(), &tracked, room, true)
-        };
-        assert!(need(&tracker), "100 of 500 points: very weak");
-        tracker.awaiting_detection.insert(7);
-        assert!(!need(&tracker));
+        let need =
+            |map: &Map| tracker.need_keyframe(map, &frame, &Se3::identity(), &tracked, room, true);
+        assert!(need(&map), "100 of 500 points: very weak");
+        map.awaiting_detection.insert(7);
+        assert!(!need(&map));
     }
 
     #[test]
