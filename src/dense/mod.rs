@@ -65,6 +65,9 @@ pub struct DenseConfig {
     pub max_weight: f32,
     /// Carve free space along rays (erases surfaces that later proved empty).
     pub carve: bool,
+    /// Pixels this close to the image border fuse no surface into the TSDF (they still
+    /// carve): a person cut by the border to a sliver is found by no detector.
+    pub image_margin: u32,
     /// Allocate every fused frame's blocks before fusing any (a first pass that reads
     /// the depth of every frame once more: for stereo, SGBM twice), so that carving
     /// also counts the free space seen before a mover came (see
@@ -111,6 +114,7 @@ impl Default for DenseConfig {
             max_depth: tsdf.max_depth,
             max_weight: tsdf.max_weight,
             carve: tsdf.carve,
+            image_margin: tsdf.margin,
             allocate_first: true,
             frames: FrameChoice::All,
             frame_step: 1,
@@ -181,6 +185,7 @@ impl DenseConfig {
             max_depth: self.max_depth,
             max_weight: self.max_weight,
             carve: self.carve,
+            margin: self.image_margin,
         }
     }
 

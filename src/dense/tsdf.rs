@@ -71,6 +71,17 @@ pub struct TsdfSettings {
     pub max_weight: f32,
     /// Walk rays through free space to carve existing blocks in front of the surface.
     pub carve: bool,
+    /// Pixels this close to the image border (pixels) fuse no surface, as masked
+    /// pixels do; their free space still carves. A person cut by the border to a sliver
+    /// a few pixels wide is found by no detector, and what no later frame sees through
+    /// would stay in the map (measured: cutout_xyz's last ghost, a sliver seen at
+    /// columns 636-638 of 7 frames).
+    pub margin: u32,
+}
+
+/// Whether pixel `(u, v)` of a `w` x `h` image lies within `margin` of its border.
+fn in_margin(u: usize, v: usize, (w, h): (usize, usize), margin: usize) -> bool {
+    u < margin || v < margin || u + margin >= w || v + margin >= h
 }
 
 impl Default for TsdfSettings {
@@ -81,6 +92,7 @@ impl Default for TsdfSettings {
             max_depth: 4.0,
             max_weight: 64.0,
             carve: true,
+            margin: 8,
         }
     }
 }
@@ -294,6 +306,7 @@ impl TsdfVolume {
         let b = r.column(1) / cam.fy;
         let c = r * Vector3::new(-cam.cx / cam.fx, -cam.cy / cam.fy, 1.0);
         let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
+        let margin = self.settings.margin as usize;
         // The block holding a world point.
         let inv_block = 1.0 / self.block_size();
         let block_of = |p: Vector3<f64>| [p.x, p.y, p.z].map(|x| floor(x * inv_block));
@@ -310,7 +323,11 @@ impl TsdfVolume {
                 for u in (0..w).step_by(step) {
                     let i = v * w + u;
                     let d = depth.metres[i] as f64;
-                    if d <= 0.0 || d > max_depth || dynamic.is_some_and(|m| m[i]) {
+                    if d <= 0.0
+                        || d > max_depth
+                        || dynamic.is_some_and(|m| m[i])
+                        || in_margin(u, v, (w, h), margin)
+                    {
                         continue;
                     }
                     let p = t + (a * u as f64 + row) * d;
@@ -440,14 +457,24 @@ fn integrate_block(
     let xs: [f32; BLOCK] = std::array::from_fn(|x| x as f32);
     let mut pixels = [NONE; BLOCK_VOXELS];
     let mut zs = [0f32; BLOCK_VOXELS];
-    for (row, (pixels, zs)) in pixels
+    // Whether the pixel lies within the border margin (its index rounds below
+    // `margin` or to `size - margin` or beyond).
+    let mut rims = [false; BLOCK_VOXELS];
+    let m = settings.margin as f32 - 0.5;
+    for (row, ((pixels, zs), rims)) in pixels
         .chunks_exact_mut(BLOCK)
         .zip(zs.chunks_exact_mut(BLOCK))
+        .zip(rims.chunks_exact_mut(BLOCK))
         .enumerate()
     {
         let (y, z) = ((row % BLOCK) as f32, (row / BLOCK) as f32);
         let base = o + dy * y + dz * z;
-        for ((pixel, z_out), &x) in pixels.iter_mut().zip(zs.iter_mut()).zip(&xs) {
+        for (((pixel, z_out), rim), &x) in pixels
+            .iter_mut()
+            .zip(zs.iter_mut())
+            .zip(rims.iter_mut())
+            .zip(&xs)
+        {
             let (px, py, pz) = (base.x + dx.x * x, base.y + dx.y * x, base.z + dx.z * x);
             let inv = 1.0 / pz;
             let uf = fx * px * inv + cx;
@@ -461,15 +488,18 @@ fn integrate_block(
             let (u, v) = (nearest(uf, wf), nearest(vf, hf));
             *pixel = if seen { v * w + u } else { NONE };
             *z_out = pz;
+            *rim = (uf < m) | (vf < m) | (uf >= wf - 1.0 - m) | (vf >= hf - 1.0 - m);
         }
     }
     // The measured depth at each voxel's pixel (0: none), and whether a mask marks
-    // that pixel dynamic.
+    // that pixel dynamic (or it lies in the border margin, which fuses no surface).
     let depth = &frame.depth.metres;
     let last = depth.len() - 1;
     let mut measured = [0f32; BLOCK_VOXELS];
     let mut moving = [false; BLOCK_VOXELS];
-    for ((&pixel, d), moving) in pixels.iter().zip(&mut measured).zip(&mut moving) {
+    for (((&pixel, d), moving), &rim) in
+        pixels.iter().zip(&mut measured).zip(&mut moving).zip(&rims)
+    {
         let i = (pixel as usize).min(last);
         let value = depth[i];
         *d = if pixel == NONE || value > max_depth {
@@ -477,7 +507,7 @@ fn integrate_block(
         } else {
             value
         };
-        *moving = frame.dynamic.is_some_and(|m| m[i]);
+        *moving = rim || frame.dynamic.is_some_and(|m| m[i]);
     }
     // \(\eta = d - z\) updates a voxel where \(d > 0\) and \(\eta \ge -\tau\); at a
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
@@ -828,6 +858,36 @@ pub(crate) mod tests {
         let (near, all) = ball_vertices(&offline);
         assert_eq!(near, 0, "the earlier views carve the ball");
         assert!(all > 100, "the wall is there ({all} vertices)");
+    }
+
+    /// A ball seen only at the right border of the image (a person cut to a sliver)
+    /// fuses no surface inside the margin; the wall beyond it still does.
+    #[test]
+    fn the_border_margin_fuses_no_surface() {
+        let camera = small_camera();
+        let pose = looking_at(Vector3::zeros(), Vector3::new(0.0, 0.0, 2.0));
+        // Centre at u = 80 + 140 x / z = 155, radius about 3.5 pixels.
+        let ball = (Vector3::new(0.643, 0.0, 1.2), 0.03);
+        let near_ball = |margin: u32| {
+            let settings = TsdfSettings {
+                voxel: 0.01,
+                truncation: 0.03,
+                margin,
+                ..TsdfSettings::default()
+            };
+            let mut volume = TsdfVolume::new(settings, camera);
+            fuse_views(&mut volume, &[pose; 3], &[ball], Some(2.0));
+            let mesh = extract(&volume);
+            let near = (0..mesh.len())
+                .filter(|&i| (mesh.vertex(i) - ball.0).norm() < ball.1 + 0.02)
+                .count();
+            (near, mesh.len())
+        };
+        let (without, _) = near_ball(0);
+        assert!(without > 10, "no margin: the ball is fused ({without})");
+        let (with, all) = near_ball(12);
+        assert_eq!(with, 0, "the ball lies in the margin");
+        assert!(all > 1000, "the wall is fused ({all} vertices)");
     }
 
     #[test]
