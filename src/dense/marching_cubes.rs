@@ -24,6 +24,9 @@ fn corner(c: usize) -> [usize; 3] {
     [c & 1, (c >> 1) & 1, (c >> 2) & 1]
 }
 
+/// The least distance, in voxels, of a vertex from the corners of its edge.
+const CORNER_GAP: f32 = 1e-3;
+
 /// The 12 edges as corner pairs: 4 along x, 4 along y, 4 along z.
 const EDGES: [(usize, usize); 12] = [
     (0, 1),
@@ -230,7 +233,11 @@ pub fn extract(volume: &TsdfVolume) -> Mesh {
                                 return i;
                             }
                             let (fa, fb) = (values[a].0, values[b].0);
-                            let t = (fa / (fa - fb)).clamp(0.0, 1.0);
+                            // Kept off the corners: a corner whose value is exactly 0
+                            // would give each of its crossed edges a vertex at the same
+                            // place (duplicates that some readers merge, degenerate
+                            // triangles).
+                            let t = (fa / (fa - fb)).clamp(CORNER_GAP, 1.0 - CORNER_GAP);
                             let position = [0, 1, 2].map(|i| {
                                 let pa = (origin[i] + ka[i] as i64) as f64;
                                 let pb = (origin[i] + kb[i] as i64) as f64;
@@ -349,6 +356,40 @@ mod tests {
         let mesh = extract(&volume);
         assert!(mesh.triangles.len() > 1000);
         assert_closed(&mesh);
+    }
+
+    /// A field that is exactly 0 at some voxels (depth that falls on the lattice) gives
+    /// no two vertices at one place.
+    #[test]
+    fn zeros_on_the_lattice_give_no_duplicate_vertices() {
+        let settings = TsdfSettings {
+            voxel: 0.1,
+            ..TsdfSettings::default()
+        };
+        let mut volume =
+            TsdfVolume::new(settings, crate::geometry::camera::PinholeCamera::tum_fr3());
+        for (bx, by) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let block = volume.block_mut([bx, by, 0]);
+            for z in 0..BLOCK {
+                for y in 0..BLOCK {
+                    for x in 0..BLOCK {
+                        let i = voxel_index(x, y, z);
+                        // A plane z = 4 with a bump: zero on and around the bump's rim.
+                        let bump = i32::from((x + y) % 3 == 0);
+                        block.sdf[i] = (z as i32 - 4 - bump).clamp(-1, 1) as f32 * 0.5;
+                        block.weight[i] = 1.0;
+                    }
+                }
+            }
+        }
+        let mesh = extract(&volume);
+        assert!(mesh.triangles.len() > 100);
+        let mut positions: Vec<[u32; 3]> =
+            mesh.vertices.iter().map(|v| v.map(f32::to_bits)).collect();
+        let n = positions.len();
+        positions.sort_unstable();
+        positions.dedup();
+        assert_eq!(positions.len(), n, "duplicate vertices");
     }
 
     #[test]
