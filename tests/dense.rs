@@ -152,8 +152,10 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     eprintln!("{}", comparison.table);
     let (dop, all) = (&comparison.maps[0], &comparison.maps[1]);
     let (dop_movers, all_movers) = (dop.mover_points.unwrap(), all.mover_points.unwrap());
+    // Carving, blocks allocated first and the image margin keep most of them out even
+    // unmasked (169 on this sequence when the margin came).
     assert!(
-        all_movers > 200,
+        all_movers > 100,
         "the unmasked map holds the walkers ({all_movers})"
     );
     assert!(

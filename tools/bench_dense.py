@@ -2,7 +2,12 @@
 """Dense-map benchmark: dopslam's TSDF against Open3D 0.20's VoxelBlockGrid (CPU) on
 the same frames and poses, side by side.
 
-    python3 tools/bench_dense.py SEQUENCE [--poses TRAJ] [--frames N] [--threads 2]
+    python3 tools/bench_dense.py SEQUENCE [--poses TRAJ] [--frames N] [--threads 2] [--plain]
+
+By default dopslam fuses with its default settings, which do more than Open3D's
+integration: space carving, a first pass that allocates every frame's blocks (so the
+earlier frames carve too), an image margin. `--plain` turns those off, to compare the
+integration itself like for like.
 
 SEQUENCE is a TUM-layout folder (e.g. written by `dopslam synth`); the poses are its
 groundtruth.txt unless --poses names a trajectory (TUM format). Both systems fuse
@@ -112,6 +117,9 @@ def main():
     parser.add_argument("--max-depth", type=float, default=4.0)
     parser.add_argument("--dopslam", default="target/release/dopslam")
     parser.add_argument("--out", default="outputs/bench_dense")
+    parser.add_argument("--plain", action="store_true",
+                        help="dopslam as Open3D integrates: no carving, no allocation pass, no image margin "
+                             "(like for like; the default measures dopslam's default fusion)")
     parser.add_argument("--open3d-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
@@ -158,6 +166,8 @@ def main():
     with open(config, "w") as f:
         f.write(f"[dense]\nvoxel = {args.voxel}\ntruncation = {args.truncation}\nmax_depth = {args.max_depth}\n"
                 "pictures = false\n")
+        if args.plain:
+            f.write("carve = false\nallocate_first = false\nimage_margin = 0\n")
     start = time.perf_counter()
     subprocess.run(
         ["/usr/bin/time", "-v", args.dopslam, "fuse", run, "--no-dop", "--config", config],
