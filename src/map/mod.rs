@@ -465,18 +465,7 @@ mod tests {
     use super::*;
 
     fn keyframe(n: usize) -> KeyFrame {
-        KeyFrame::new(
-            Frame::from_parts(
-                0,
-                0.0,
-                vec![crate::features::KeyPoint::default(); n],
-                vec![[0; 4]; n],
-                vec![0.0; n],
-                vec![-1.0; n],
-                (640, 480),
-            ),
-            Se3::identity(),
-        )
+        KeyFrame::new(Frame::blank(n, (640, 480)), Se3::identity())
     }
 
     fn point() -> MapPoint {

@@ -198,15 +198,7 @@ mod tests {
     #[test]
     fn points_waiting_for_their_detection_stay_out_of_the_window() {
         let n = 5;
-        let frame = Frame::from_parts(
-            0,
-            0.0,
-            vec![crate::features::KeyPoint::default(); n],
-            vec![[0; 4]; n],
-            vec![0.0; n],
-            vec![-1.0; n],
-            (640, 480),
-        );
+        let frame = Frame::blank(n, (640, 480));
         let mut map = Map::default();
         let first = map.add_keyframe(KeyFrame::new(frame.clone(), Se3::identity()));
         let second = map.add_keyframe(KeyFrame::new(frame, Se3::identity()));

@@ -201,3 +201,20 @@ impl Frame {
         found
     }
 }
+
+#[cfg(test)]
+impl Frame {
+    /// A frame of `n` keypoints at the origin, without depth or descriptors, for tests
+    /// of the map's and the tracker's bookkeeping.
+    pub fn blank(n: usize, size: (u32, u32)) -> Self {
+        Self::from_parts(
+            0,
+            0.0,
+            vec![KeyPoint::default(); n],
+            vec![[0; 4]; n],
+            vec![0.0; n],
+            vec![-1.0; n],
+            size,
+        )
+    }
+}

@@ -1330,15 +1330,7 @@ mod tests {
         tracker.dop = Some(DopConfig::default());
         let (room, person) = (100, 400);
         let n = room + person;
-        let frame = Frame::from_parts(
-            1,
-            0.1,
-            vec![crate::features::KeyPoint::default(); n],
-            vec![[0; 4]; n],
-            vec![0.0; n],
-            vec![-1.0; n],
-            (pinhole.width, pinhole.height),
-        );
+        let frame = Frame::blank(n, (pinhole.width, pinhole.height));
         let mut map = Map::default();
         let mut keyframe = KeyFrame::new(frame.clone(), Se3::identity());
         for (i, slot) in keyframe.map_points.iter_mut().enumerate() {
