@@ -477,10 +477,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
     let mut integration_ms = Vec::with_capacity(chosen.len());
     let (mut masked, mut pixels) = (0u64, 0u64);
-    let chunk = rayon::current_num_threads().max(1) * 2;
-    for group in chosen.chunks(chunk) {
+    for group in groups(&chosen) {
         // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
-        let loaded = load_group(inputs, group)?;
+        let loaded = load_group(inputs, group, sequence_frame)?;
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
             let mask = mask_source.mask(timestamp, &depth, &pose);
@@ -599,13 +598,8 @@ fn allocate_blocks(
     chosen: &[(usize, Se3, bool)],
 ) -> Result<(), IoError> {
     let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
-    let chunk = rayon::current_num_threads().max(1) * 2;
-    for group in chosen.chunks(chunk) {
-        check_interrupt(inputs)?;
-        let depths: Vec<_> = group
-            .par_iter()
-            .map(|&(i, _, _)| frame_depth(inputs, i))
-            .collect();
+    for group in groups(chosen) {
+        let depths = load_group(inputs, group, frame_depth)?;
         for (&(_, pose, _), depth) in group.iter().zip(depths) {
             volume.allocate(&depth?, &pose);
             progress.inc(1);
@@ -615,16 +609,21 @@ fn allocate_blocks(
     Ok(())
 }
 
-/// A group of chosen frames decoded in parallel (see [`check_interrupt`]).
-fn load_group(
+/// The chosen frames in groups of two per thread: each group is decoded in parallel,
+/// then used in order.
+fn groups(chosen: &[(usize, Se3, bool)]) -> std::slice::Chunks<'_, (usize, Se3, bool)> {
+    chosen.chunks(rayon::current_num_threads().max(1) * 2)
+}
+
+/// A group of chosen frames, each loaded by `load` in parallel (after an interrupt
+/// check, see [`check_interrupt`]).
+fn load_group<T: Send>(
     inputs: &DenseInputs,
     group: &[(usize, Se3, bool)],
-) -> Result<Vec<Result<LoadedFrame, IoError>>, IoError> {
+    load: impl Fn(&DenseInputs, usize) -> Result<T, IoError> + Sync,
+) -> Result<Vec<Result<T, IoError>>, IoError> {
     check_interrupt(inputs)?;
-    Ok(group
-        .par_iter()
-        .map(|&(i, _, _)| sequence_frame(inputs, i))
-        .collect())
+    Ok(group.par_iter().map(|&(i, _, _)| load(inputs, i)).collect())
 }
 
 /// `Err` once an interrupt was asked for: the dense map is then not written.

@@ -222,24 +222,12 @@ pub fn resize_rgb(image: &RgbImage, width: u32, height: u32) -> RgbImage {
     RgbImage::from_raw(width, height, out).expect("sized buffer")
 }
 
-/// Intersection over union of two `[x1, y1, x2, y2]` boxes.
-pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let w = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
-    let h = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
-    let inter = w * h;
-    let union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter;
-    if union > 0.0 {
-        inter / union
-    } else {
-        0.0
-    }
-}
-
-/// The area of a box, and of the intersection of two.
+/// The area of a `[x1, y1, x2, y2]` box (0 when empty).
 fn area(b: &[f32; 4]) -> f32 {
     (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
 }
 
+/// The intersection of two boxes (empty: `area` 0).
 fn intersection(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
     [
         a[0].max(b[0]),
@@ -247,6 +235,17 @@ fn intersection(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
         a[2].min(b[2]),
         a[3].min(b[3]),
     ]
+}
+
+/// Intersection over union of two `[x1, y1, x2, y2]` boxes.
+pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let inter = area(&intersection(a, b));
+    let union = area(a) + area(b) - inter;
+    if union > 0.0 {
+        inter / union
+    } else {
+        0.0
+    }
 }
 
 /// Whether `outer` is a group box: it holds (each at least [`GROUP_INSIDE`] inside it)
@@ -259,9 +258,10 @@ fn is_group_box(outer: &Detection, kept: &[Detection]) -> bool {
     let inside: Vec<[f32; 4]> = kept
         .iter()
         .filter(|k| k.class_id == outer.class_id)
-        .map(|k| k.bbox)
-        .filter(|b| area(&intersection(b, &outer.bbox)) >= GROUP_INSIDE * area(b))
-        .map(|b| intersection(&b, &outer.bbox))
+        .filter_map(|k| {
+            let part = intersection(&k.bbox, &outer.bbox);
+            (area(&part) >= GROUP_INSIDE * area(&k.bbox)).then_some(part)
+        })
         .collect();
     if inside.len() < 2 {
         return false;

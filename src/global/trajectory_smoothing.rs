@@ -37,6 +37,7 @@ use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
 use crate::map::Map;
+use crate::optim::robust::huber_weight;
 use crate::tracking::tracker::FrameReport;
 
 /// A longer gap between frames (in median frame intervals) starts a new run.
@@ -259,11 +260,14 @@ fn smooth_axes(
             // measurements (keyframes stay anchored).
             for (r, ((c, b), weight)) in rows.iter().zip(robust.iter_mut()).enumerate() {
                 let a = x[r] * c[0] + x[r + 1] * c[1] + x[r + 2] * c[2] + b;
-                *weight = huber(a.norm() / sigma, HUBER);
+                *weight = huber_weight(a.norm_squared() / (sigma * sigma), HUBER);
             }
             for (i, weight) in trusted.iter_mut().enumerate() {
                 if !anchors[i] {
-                    *weight = huber((x[i] - m[i]).norm() / noise, HUBER_MEASUREMENT);
+                    *weight = huber_weight(
+                        (x[i] - m[i]).norm_squared() / (noise * noise),
+                        HUBER_MEASUREMENT,
+                    );
                 }
             }
         }
@@ -284,15 +288,6 @@ fn smooth_axes(
         x = band.solve(rhs);
     }
     x
-}
-
-/// The Huber weight of a residual of `e` (in its \(\sigma\)) at threshold `k`.
-fn huber(e: f64, k: f64) -> f64 {
-    if e <= k {
-        1.0
-    } else {
-        k / e
-    }
 }
 
 /// A symmetric positive definite matrix of half-bandwidth 2 (pentadiagonal): entry

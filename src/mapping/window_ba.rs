@@ -28,8 +28,8 @@ pub struct Window {
 impl Window {
     /// The window around `key` with at most `size` free keyframes; points whose moving
     /// probability is above `moving_threshold` stay out, and so do points whose
-    /// keyframe's detection has not come back (real time: they may be on a person). `None` when there is nothing
-    /// to hold the gauge.
+    /// keyframe's detection has not come back (real time: they may be on a person).
+    /// `None` when there is nothing to hold the gauge.
     pub fn build(
         map: &Map,
         key: KeyFrameKey,
@@ -73,11 +73,10 @@ impl Window {
         let mut point_index = HashMap::new();
         let mut points = Vec::new();
         let mut positions = Vec::new();
+        let usable =
+            |x: &&crate::map::MapPoint| x.moving <= moving_threshold && !map.awaits_detection(x);
         for k in &local {
             for p in map.keyframes[*k].map_points.iter().flatten() {
-                let usable = |x: &&crate::map::MapPoint| {
-                    x.moving <= moving_threshold && !map.awaits_detection(x)
-                };
                 if let Some(point) = map.points.get(*p).filter(usable) {
                     point_index.entry(*p).or_insert_with(|| {
                         points.push(*p);
