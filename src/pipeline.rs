@@ -815,7 +815,7 @@ fn ground_truth_mask(
 }
 
 /// People found on keyframes against the ground truth.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct Recall {
     pub keyframes: usize,
     pub people: usize,
@@ -823,21 +823,47 @@ pub struct Recall {
     pub recall: f64,
     /// People covering over 20 % of the image that were missed.
     pub missed_large: usize,
+    /// Every person missed, in keyframe order (what to look at when recall is low).
+    pub misses: Vec<Miss>,
+}
+
+/// A person on a keyframe that no dynamic box found with IoU >= 0.5.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Miss {
+    pub timestamp: f64,
+    /// The person's tight box from the ground-truth mask.
+    pub person: [f32; 4],
+    /// Share of the image the box covers.
+    pub share: f32,
+    /// The best IoU of any dynamic box with it, and that box.
+    pub best_iou: f32,
+    pub best_box: Option<[f32; 4]>,
 }
 
 impl Recall {
-    fn add(&mut self, people: &[[f32; 4]], boxes: &[[f32; 4]], image_area: f32) {
+    fn add(&mut self, timestamp: f64, people: &[[f32; 4]], boxes: &[[f32; 4]], image_area: f32) {
         self.keyframes += 1;
         for person in people {
             self.people += 1;
-            if boxes
+            let best = boxes
                 .iter()
-                .any(|b| crate::detect::yolo::iou(person, b) >= 0.5)
-            {
+                .map(|b| (crate::detect::yolo::iou(person, b), *b))
+                .max_by(|a, b| a.0.total_cmp(&b.0));
+            let best_iou = best.map_or(0.0, |(iou, _)| iou);
+            if best_iou >= 0.5 {
                 self.found += 1;
-            } else if area(person) > 0.2 * image_area {
+                continue;
+            }
+            if area(person) > 0.2 * image_area {
                 self.missed_large += 1;
             }
+            self.misses.push(Miss {
+                timestamp,
+                person: *person,
+                share: area(person) / image_area,
+                best_iou,
+                best_box: best.map(|(_, b)| b),
+            });
         }
         self.recall = self.found as f64 / self.people.max(1) as f64;
     }
@@ -998,7 +1024,7 @@ impl DetectionBook {
                             totals
                                 .person_recall
                                 .get_or_insert_with(Recall::default)
-                                .add(&people, &done.boxes, image_area);
+                                .add(frame.timestamp, &people, &done.boxes, image_area);
                         }
                     } else if effect.mode != Mode::Off {
                         let done = apply_detections(
@@ -1023,8 +1049,12 @@ impl DetectionBook {
                 Err(e) => totals.errors.push(format!("frame {}: {e}", outcome.id)),
             }
         }
-        // The last frame's keypoints take their points' new probabilities, so that the
-        // next frame propagates what the detections said.
+        // Every frame from now on sees the followed objects; the last frame's keypoints
+        // take their points' new probabilities, so that the next frame propagates what
+        // the detections said.
+        if let Some(objects) = &self.objects {
+            tracker.followed = Some(objects.followed(effect.alpha));
+        }
         tracker.refresh_moving(&map);
     }
 }

@@ -73,6 +73,13 @@ pub struct DopConfig {
     /// the keyframes made since, and a person the detector misses on one keyframe keeps
     /// their (predicted) box for `track_seconds` (an extension of the paper).
     pub track_boxes: bool,
+    /// With `track_boxes`: every tracked frame sees the followed objects' boxes,
+    /// predicted to its time and projected with its pose; keypoints nothing else knows
+    /// about (no map point, no last-frame match) that fall on an object take one
+    /// detection's update ([`raise_unknown_in_boxes`]). So a late detection reaches
+    /// the frames tracked since, and a person's new keypoints between keyframes are
+    /// dynamic before any keyframe sees them.
+    pub track_frames: bool,
     pub track_seconds: f32,
     /// Association distance of a predicted object and a detected one, metres.
     pub track_gate: f32,
@@ -128,6 +135,7 @@ impl Default for DopConfig {
             expansion: true,
             refine_boxes: true,
             track_boxes: true,
+            track_frames: true,
             track_seconds: 1.0,
             track_gate: 0.7,
             track_max_speed: 1.5,
@@ -286,9 +294,78 @@ pub fn expand(
     out
 }
 
+/// Keypoints that nothing knows about (origin [`Origin::Initial`]) and that `boxes` call
+/// dynamic ([`boxes::verdicts`], each box with its object depth) take one detection's
+/// update from \(P_{init}\), \(P = (1 - \alpha) P_{init} + \alpha\), unless they already
+/// have more (expansion). Returns how many were raised.
+pub fn raise_unknown_in_boxes(
+    config: &DopConfig,
+    keypoints: &[boxes::Keypoint],
+    origins: &[Origin],
+    probabilities: &mut [f32],
+    boxes: &[boxes::ObjectBox],
+    alpha: f32,
+) -> usize {
+    if !boxes.iter().any(|b| b.dynamic) {
+        return 0;
+    }
+    let raised = update(config.p_init, true, alpha);
+    let verdict = boxes::verdicts(config, keypoints, boxes);
+    let mut count = 0;
+    for ((p, origin), s) in probabilities.iter_mut().zip(origins).zip(verdict) {
+        if *origin == Origin::Initial && s == Some(true) && *p < raised {
+            *p = raised;
+            count += 1;
+        }
+    }
+    count
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unknown_keypoints_on_a_followed_object_are_raised() {
+        let config = DopConfig::default();
+        let person = boxes::ObjectBox {
+            bbox: [100.0, 100.0, 200.0, 300.0],
+            dynamic: true,
+            depth: Some(2.0),
+            moved: true,
+        };
+        let kp = |x, y, depth| boxes::Keypoint { x, y, depth };
+        // On the person and unknown; on the person but matched to a static map point;
+        // the wall behind, inside the box; outside the box.
+        let keypoints = [
+            kp(150.0, 200.0, 2.1),
+            kp(160.0, 210.0, 2.0),
+            kp(120.0, 150.0, 4.0),
+            kp(300.0, 200.0, 2.0),
+        ];
+        let origins = [
+            Origin::Initial,
+            Origin::MapPoint,
+            Origin::Initial,
+            Origin::Initial,
+        ];
+        let mut p = vec![0.5, 0.1, 0.5, 0.5];
+        let raised = raise_unknown_in_boxes(&config, &keypoints, &origins, &mut p, &[person], 0.3);
+        assert_eq!(raised, 1);
+        assert!((p[0] - 0.65).abs() < 1e-6);
+        assert_eq!(&p[1..], &[0.1, 0.5, 0.5]);
+        assert!(config.removed(p[0]) && !config.removed(p[2]));
+        // A static box raises nothing.
+        let chair = boxes::ObjectBox {
+            dynamic: false,
+            ..person
+        };
+        let mut q = vec![0.5; 4];
+        assert_eq!(
+            raise_unknown_in_boxes(&config, &keypoints, &origins, &mut q, &[chair], 0.3),
+            0
+        );
+    }
 
     #[test]
     fn update_rule_by_hand() {

@@ -196,6 +196,29 @@ impl ObjectTracks {
     }
 }
 
+/// A copy of the followed objects handed to the tracker after each detection, so that
+/// every frame tracked since sees them: their boxes predicted to the frame's time and
+/// projected with its pose raise the keypoints that nothing else knows about
+/// ([`super::raise_unknown_in_boxes`]).
+#[derive(Debug, Clone)]
+pub struct FollowedObjects {
+    pub tracks: ObjectTracks,
+    pub camera: PinholeCamera,
+    /// The sensor's weight of a detection (`alpha_rgbd` or `alpha_stereo`).
+    pub alpha: f32,
+}
+
+impl FollowedObjects {
+    /// The boxes of the objects followed at time `t` in a camera at `camera_from_world`.
+    pub fn boxes_at(&self, t: f64, camera_from_world: &Se3, config: &DopConfig) -> Vec<ObjectBox> {
+        self.tracks
+            .predicted(t, config)
+            .iter()
+            .filter_map(|o| o.to_box(&self.camera, camera_from_world))
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,7 +19,7 @@ use crate::detect::Detection;
 use crate::dop::boxes::{
     in_dynamic_box, in_moved_box, object_depth, verdicts, Keypoint, ObjectBox,
 };
-use crate::dop::tracks::{Object, ObjectTracks};
+use crate::dop::tracks::{FollowedObjects, Object, ObjectTracks};
 use crate::dop::{update, DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::map::{KeyFrameKey, Map};
@@ -187,6 +187,15 @@ impl DynamicObjects {
             tracks: ObjectTracks::default(),
             detected: HashSet::new(),
             reached: HashSet::new(),
+        }
+    }
+
+    /// The objects followed so far, for the tracker's frames.
+    pub fn followed(&self, alpha: f32) -> FollowedObjects {
+        FollowedObjects {
+            tracks: self.tracks.clone(),
+            camera: self.camera.clone(),
+            alpha,
         }
     }
 

@@ -19,7 +19,9 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
 use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
+use crate::dop::boxes::Keypoint;
 use crate::dop::consistency::Verdict;
+use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
 use crate::features::ScalePyramid;
 use crate::features::{hamming, Descriptor};
@@ -197,6 +199,9 @@ pub struct Tracker {
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
     /// estimation and new points.
     pub dop: Option<DopConfig>,
+    /// The objects the DOP model follows, as of the latest detection (set by the
+    /// caller with `dop.track_frames`): every frame sees their predicted boxes.
+    pub followed: Option<FollowedObjects>,
 }
 
 /// Timers of one frame.
@@ -231,6 +236,7 @@ impl Tracker {
             width: width as f32,
             height: height as f32,
             dop: None,
+            followed: None,
         }
     }
 
@@ -277,7 +283,8 @@ impl Tracker {
             .zip(&from_map)
             .map(|(p, m)| (m.is_none() && *p != dop.p_init).then_some(*p))
             .collect();
-        last.frame.moving = propagate_and_expand(dop, &last.frame, &from_map, &kept);
+        let followed = self.followed.as_ref().map(|f| (f, &last.camera_from_world));
+        last.frame.moving = propagate_and_expand(dop, &last.frame, &from_map, &kept, followed);
     }
 
     /// Whether a map point is left out as dynamic.
@@ -302,13 +309,15 @@ impl Tracker {
             .is_some_and(|d| d.removed(frame.moving[i]))
     }
 
-    /// The DOP model's probabilities for a tracked frame (propagation from its map
-    /// points, else from the last frame's keypoints, else P_init; then expansion).
+    /// The DOP model's probabilities for a tracked frame at `camera_from_world`
+    /// (propagation from its map points, else from the last frame's keypoints, else
+    /// P_init; then expansion and the followed objects' boxes).
     fn moving_probabilities(
         &self,
         dop: &DopConfig,
         map: &Map,
         frame: &Frame,
+        camera_from_world: &Se3,
         points: &[Option<MapPointKey>],
     ) -> Vec<f32> {
         let from_map: Vec<Option<f32>> = points
@@ -344,7 +353,8 @@ impl Tracker {
                 .collect(),
             _ => vec![None; frame.len()],
         };
-        propagate_and_expand(dop, frame, &from_map, &from_last)
+        let followed = self.followed.as_ref().map(|f| (f, camera_from_world));
+        propagate_and_expand(dop, frame, &from_map, &from_last, followed)
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).
@@ -478,7 +488,7 @@ impl Tracker {
         }
         if let Some(dop) = &self.dop {
             let start = Instant::now();
-            frame.moving = self.moving_probabilities(dop, &map, &frame, &points);
+            frame.moving = self.moving_probabilities(dop, &map, &frame, &pose, &points);
             report.dynamic_keypoints = frame.moving.iter().filter(|p| dop.removed(**p)).count();
             report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
         }
@@ -1094,19 +1104,45 @@ impl Tracker {
 }
 
 /// Propagation (map point, else last frame, else \(P_{init}\)) and, when on,
-/// matching point expansion over `frame`'s keypoints.
+/// matching point expansion over `frame`'s keypoints; then, given the followed objects
+/// and the frame's pose, the unknown keypoints on them are raised
+/// ([`crate::dop::raise_unknown_in_boxes`]).
 fn propagate_and_expand(
     dop: &DopConfig,
     frame: &Frame,
     from_map: &[Option<f32>],
     from_last: &[Option<f32>],
+    followed: Option<(&FollowedObjects, &Se3)>,
 ) -> Vec<f32> {
     let (p, origins) = crate::dop::propagate(from_map, from_last, dop.p_init);
-    if !dop.expansion {
-        return p;
+    let mut p = if dop.expansion {
+        let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+        crate::dop::expand(dop, &positions, &p, &origins)
+    } else {
+        p
+    };
+    if let Some((objects, camera_from_world)) = followed.filter(|_| dop.track_frames) {
+        let boxes = objects.boxes_at(frame.timestamp, camera_from_world, dop);
+        let keypoints: Vec<Keypoint> = frame
+            .keypoints
+            .iter()
+            .zip(&frame.depth)
+            .map(|(k, z)| Keypoint {
+                x: k.x,
+                y: k.y,
+                depth: *z,
+            })
+            .collect();
+        crate::dop::raise_unknown_in_boxes(
+            dop,
+            &keypoints,
+            &origins,
+            &mut p,
+            &boxes,
+            objects.alpha,
+        );
     }
-    let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
-    crate::dop::expand(dop, &positions, &p, &origins)
+    p
 }
 
 /// The DOP model's geometric check ([`crate::dop::consistency`]) on one frame's
