@@ -294,10 +294,12 @@ pub fn expand(
     out
 }
 
-/// Keypoints that nothing knows about (origin [`Origin::Initial`]) and that `boxes` call
-/// dynamic ([`boxes::verdicts`], each box with its object depth) take one detection's
-/// update from \(P_{init}\), \(P = (1 - \alpha) P_{init} + \alpha\), unless they already
-/// have more (expansion). Returns how many were raised.
+/// Keypoints that nothing knows about and that `boxes` call dynamic
+/// ([`boxes::verdicts`], each box with its object depth) take one detection's update
+/// from \(P_{init}\), \(P = (1 - \alpha) P_{init} + \alpha\), unless they already have
+/// more (expansion). Unknown: matched to nothing ([`Origin::Initial`]), or still at
+/// exactly \(P_{init}\) (a new map point whose keyframe's detection has not come back).
+/// Returns how many were raised.
 pub fn raise_unknown_in_boxes(
     config: &DopConfig,
     keypoints: &[boxes::Keypoint],
@@ -313,7 +315,8 @@ pub fn raise_unknown_in_boxes(
     let verdict = boxes::verdicts(config, keypoints, boxes);
     let mut count = 0;
     for ((p, origin), s) in probabilities.iter_mut().zip(origins).zip(verdict) {
-        if *origin == Origin::Initial && s == Some(true) && *p < raised {
+        let unknown = *origin == Origin::Initial || *p == config.p_init;
+        if unknown && s == Some(true) && *p < raised {
             *p = raised;
             count += 1;
         }
@@ -336,31 +339,34 @@ mod tests {
         };
         let kp = |x, y, depth| boxes::Keypoint { x, y, depth };
         // On the person and unknown; on the person but matched to a static map point;
-        // the wall behind, inside the box; outside the box.
+        // the wall behind, inside the box; outside the box; on the person, matched to
+        // a map point no detection has touched yet.
         let keypoints = [
             kp(150.0, 200.0, 2.1),
             kp(160.0, 210.0, 2.0),
             kp(120.0, 150.0, 4.0),
             kp(300.0, 200.0, 2.0),
+            kp(170.0, 220.0, 1.9),
         ];
         let origins = [
             Origin::Initial,
             Origin::MapPoint,
             Origin::Initial,
             Origin::Initial,
+            Origin::MapPoint,
         ];
-        let mut p = vec![0.5, 0.1, 0.5, 0.5];
+        let mut p = vec![0.5, 0.1, 0.5, 0.5, 0.5];
         let raised = raise_unknown_in_boxes(&config, &keypoints, &origins, &mut p, &[person], 0.3);
-        assert_eq!(raised, 1);
-        assert!((p[0] - 0.65).abs() < 1e-6);
-        assert_eq!(&p[1..], &[0.1, 0.5, 0.5]);
+        assert_eq!(raised, 2);
+        assert!((p[0] - 0.65).abs() < 1e-6 && (p[4] - 0.65).abs() < 1e-6);
+        assert_eq!(&p[1..4], &[0.1, 0.5, 0.5]);
         assert!(config.removed(p[0]) && !config.removed(p[2]));
         // A static box raises nothing.
         let chair = boxes::ObjectBox {
             dynamic: false,
             ..person
         };
-        let mut q = vec![0.5; 4];
+        let mut q = vec![0.5; 5];
         assert_eq!(
             raise_unknown_in_boxes(&config, &keypoints, &origins, &mut q, &[chair], 0.3),
             0
