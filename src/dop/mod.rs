@@ -73,8 +73,9 @@ pub struct DopConfig {
     /// the keyframes made since, and a person the detector misses on one keyframe keeps
     /// their (predicted) box for `track_seconds` (an extension of the paper).
     pub track_boxes: bool,
-    /// With `track_boxes`: every tracked frame sees the followed objects' boxes,
-    /// predicted to its time and projected with its pose; keypoints nothing else knows
+    /// With `track_boxes`: every tracked frame sees the boxes of the followed objects
+    /// whose class moves on its own (`never_static_classes`: people), predicted to its
+    /// time and projected with its pose; keypoints nothing else knows
     /// about (no map point, no last-frame match) that fall on an object take one
     /// detection's update ([`raise_unknown_in_boxes`]). So a late detection reaches
     /// the frames tracked since, and a person's new keypoints between keyframes are

@@ -38,6 +38,8 @@ pub struct Object {
     /// Whether its track has moved `track_moved_metres` (false for a new object), or
     /// its class moves on its own (`never_static_classes`).
     pub moved: bool,
+    /// Its class moves on its own (`never_static_classes`: people).
+    pub self_moving: bool,
 }
 
 impl Object {
@@ -57,6 +59,7 @@ impl Object {
             size: ((x2 - x1) * z / camera.fx, (y2 - y1) * z / camera.fy),
             margin: 0.0,
             moved: false,
+            self_moving: false,
         }
     }
 
@@ -180,9 +183,14 @@ impl ObjectTracks {
 
     /// Every track seen within `track_seconds` of `t`, predicted to `t`.
     pub fn predicted(&self, t: f64, config: &DopConfig) -> Vec<Object> {
+        self.predicted_within(t, config.track_seconds as f64, config)
+    }
+
+    /// Every track seen within `seconds` of `t`, predicted to `t`.
+    fn predicted_within(&self, t: f64, seconds: f64, config: &DopConfig) -> Vec<Object> {
         self.tracks
             .iter()
-            .filter(|track| (t - track.last_seen).abs() <= config.track_seconds as f64)
+            .filter(|track| (t - track.last_seen).abs() <= seconds)
             .map(|track| track.at(t, config.track_max_speed as f64))
             .collect()
     }
@@ -209,12 +217,28 @@ pub struct FollowedObjects {
 }
 
 impl FollowedObjects {
-    /// The boxes of the objects followed at time `t` in a camera at `camera_from_world`.
+    /// The boxes of the objects followed at time `t` in a camera at `camera_from_world`,
+    /// dynamic for those of a class that moves on its own (`never_static_classes`:
+    /// people). The others (a car, parked or driving) are left to the detections and
+    /// the static check: their boxes are static, so that a keypoint on them, at their
+    /// depth, is not taken by a person's wider predicted box. (Whether a car's track has
+    /// moved is judged from its depth, which stereo gives poorly at range: a parked car
+    /// judged moving would lose every new point to its own box.) Objects seen within
+    /// twice `track_seconds` count. A copy is replaced at the next
+    /// detection, which comes a keyframe interval plus the detector's latency after the
+    /// last (about `track_seconds` with a still camera): with `track_seconds` alone the
+    /// boxes would vanish for the frames in between.
     pub fn boxes_at(&self, t: f64, camera_from_world: &Se3, config: &DopConfig) -> Vec<ObjectBox> {
         self.tracks
-            .predicted(t, config)
+            .predicted_within(t, 2.0 * config.track_seconds as f64, config)
             .iter()
-            .filter_map(|o| o.to_box(&self.camera, camera_from_world))
+            .filter_map(|o| {
+                let b = o.to_box(&self.camera, camera_from_world)?;
+                Some(ObjectBox {
+                    dynamic: o.self_moving,
+                    ..b
+                })
+            })
             .collect()
     }
 }
@@ -255,6 +279,7 @@ mod tests {
             size: (0.5, 1.7),
             margin: 0.0,
             moved: false,
+            self_moving: false,
         }
     }
 

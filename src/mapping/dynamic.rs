@@ -194,7 +194,7 @@ impl DynamicObjects {
     pub fn followed(&self, alpha: f32) -> FollowedObjects {
         FollowedObjects {
             tracks: self.tracks.clone(),
-            camera: self.camera.clone(),
+            camera: self.camera,
             alpha,
         }
     }
@@ -233,6 +233,7 @@ impl DynamicObjects {
                 let z = object_depth(config, &keypoints, b)?;
                 let object = Object {
                     moved: b.moved,
+                    self_moving: b.moved,
                     ..Object::from_box(b.bbox, z, &self.camera, &world_from_camera)
                 };
                 Some((i, object))
