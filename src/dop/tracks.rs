@@ -273,6 +273,42 @@ mod tests {
         }
     }
 
+    /// The tracker's copy: people's boxes are dynamic and a car's static; both stay
+    /// for twice `track_seconds` after they were seen, then go.
+    #[test]
+    fn followed_boxes_are_dynamic_for_people_only_and_outlive_track_seconds() {
+        let config = DopConfig::default();
+        let mut tracks = ObjectTracks::default();
+        let person = Object {
+            moved: true,
+            self_moving: true,
+            ..at(0.0)
+        };
+        let car = Object {
+            moved: true,
+            ..at(1.0)
+        };
+        tracks.update(0.0, &mut [person, car], &config);
+        let followed = FollowedObjects {
+            tracks,
+            camera: camera(),
+            alpha: 0.3,
+        };
+        let pose = Se3::identity();
+        let later = 1.5 * config.track_seconds as f64;
+        let boxes = followed.boxes_at(later, &pose, &config);
+        assert_eq!(boxes.len(), 2);
+        assert_eq!(boxes.iter().filter(|b| b.dynamic).count(), 1);
+        let person_box = boxes.iter().find(|b| b.dynamic).unwrap();
+        // The person's box is centred on the image centre column (x = 0 at 2 m).
+        let centre = (person_box.bbox[0] + person_box.bbox[2]) / 2.0;
+        assert!((centre - camera().cx as f32).abs() < 1.0, "{person_box:?}");
+        let gone = 2.0 * config.track_seconds as f64 + 0.01;
+        assert!(followed.boxes_at(gone, &pose, &config).is_empty());
+        // Keyframes see a track only within track_seconds.
+        assert!(followed.tracks.predicted(later, &config).is_empty());
+    }
+
     fn at(x: f64) -> Object {
         Object {
             centre: Vector3::new(x, 0.0, 2.0),
