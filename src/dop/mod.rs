@@ -75,9 +75,9 @@ pub struct DopConfig {
     pub track_boxes: bool,
     /// With `track_boxes`: every tracked frame sees the boxes of the followed objects
     /// whose class moves on its own (`never_static_classes`: people), predicted to its
-    /// time and projected with its pose; keypoints nothing else knows
-    /// about (no map point, no last-frame match) that fall on an object take one
-    /// detection's update ([`raise_unknown_in_boxes`]). So a late detection reaches
+    /// time and projected with its pose; keypoints nothing else knows about (no map
+    /// point and no last-frame match, or a new map point no detection has touched) that
+    /// fall on a person take one detection's update ([`raise_unknown_in_boxes`]). So a late detection reaches
     /// the frames tracked since, and a person's new keypoints between keyframes are
     /// dynamic before any keyframe sees them.
     pub track_frames: bool,

@@ -83,19 +83,7 @@ pub fn apply_detections(
 
 /// The keypoints of keyframe `key` as the DOP model sees them.
 fn keypoints_of(map: &Map, key: KeyFrameKey) -> Option<Vec<Keypoint>> {
-    let frame = &map.keyframes.get(key)?.frame;
-    Some(
-        frame
-            .keypoints
-            .iter()
-            .zip(&frame.depth)
-            .map(|(k, z)| Keypoint {
-                x: k.x,
-                y: k.y,
-                depth: *z,
-            })
-            .collect(),
-    )
+    Some(map.keyframes.get(key)?.frame.dop_keypoints())
 }
 
 /// Applies `boxes` (detected or predicted) to the map points of keyframe `key`.

@@ -38,6 +38,19 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// Its keypoints as the DOP model sees them: undistorted position and depth.
+    pub fn dop_keypoints(&self) -> Vec<crate::dop::boxes::Keypoint> {
+        self.keypoints
+            .iter()
+            .zip(&self.depth)
+            .map(|(k, z)| crate::dop::boxes::Keypoint {
+                x: k.x,
+                y: k.y,
+                depth: *z,
+            })
+            .collect()
+    }
+
     /// Extracts features from a grey image, reads each keypoint's depth at its
     /// (rounded, distorted) pixel, then undistorts the keypoints with `lens`.
     pub fn from_rgbd(

@@ -19,7 +19,6 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::Frame;
 use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
-use crate::dop::boxes::Keypoint;
 use crate::dop::consistency::Verdict;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
@@ -199,8 +198,9 @@ pub struct Tracker {
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
     /// estimation and new points.
     pub dop: Option<DopConfig>,
-    /// The objects the DOP model follows, as of the latest detection (set by the
-    /// caller with `dop.track_frames`): every frame sees their predicted boxes.
+    /// The objects the DOP model follows, as of the latest detection (handed over by
+    /// the caller after each one): with `dop.track_frames`, every frame sees their
+    /// predicted boxes.
     pub followed: Option<FollowedObjects>,
 }
 
@@ -1123,19 +1123,9 @@ fn propagate_and_expand(
     };
     if let Some((objects, camera_from_world)) = followed.filter(|_| dop.track_frames) {
         let boxes = objects.boxes_at(frame.timestamp, camera_from_world, dop);
-        let keypoints: Vec<Keypoint> = frame
-            .keypoints
-            .iter()
-            .zip(&frame.depth)
-            .map(|(k, z)| Keypoint {
-                x: k.x,
-                y: k.y,
-                depth: *z,
-            })
-            .collect();
         crate::dop::raise_unknown_in_boxes(
             dop,
-            &keypoints,
+            &frame.dop_keypoints(),
             &origins,
             &mut p,
             &boxes,
