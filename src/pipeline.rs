@@ -573,7 +573,7 @@ pub fn track_sequence(
             // out while they wait.
             let awaits = detection.is_some() && !options.deterministic && tracker.dop.is_some();
             if awaits {
-                book.await_detection(&mut tracker, index, key);
+                book.await_detection(&tracker, index, key);
             }
             mapping.insert(key);
             if let Some(worker) = detection.as_mut() {
@@ -854,23 +854,20 @@ impl Recall {
                 self.found += 1;
                 continue;
             }
-            if area(person) > 0.2 * image_area {
+            let area = crate::detect::yolo::area(person);
+            if area > 0.2 * image_area {
                 self.missed_large += 1;
             }
             self.misses.push(Miss {
                 timestamp,
                 person: *person,
-                share: area(person) / image_area,
+                share: area / image_area,
                 best_iou,
                 best_box: best.map(|(_, b)| b),
             });
         }
         self.recall = self.found as f64 / self.people.max(1) as f64;
     }
-}
-
-fn area(b: &[f32; 4]) -> f32 {
-    (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
 }
 
 /// The tight boxes of the people in a synthetic frame's mask that cover at least 1 %
@@ -947,12 +944,7 @@ impl DetectionBook {
     /// Real-time mode: keyframe `key`, made from frame `index`, waits for its detection
     /// (its new points stay out of the pose and of local BA meanwhile, see
     /// [`crate::map::Map::awaiting_detection`]).
-    fn await_detection(
-        &mut self,
-        tracker: &mut Tracker,
-        index: usize,
-        key: crate::map::KeyFrameKey,
-    ) {
+    fn await_detection(&mut self, tracker: &Tracker, index: usize, key: crate::map::KeyFrameKey) {
         let mut map = tracker.map.write().expect("map lock poisoned");
         if let Some(id) = map.keyframes.get(key).map(|kf| kf.id) {
             self.awaited.insert(index, id);

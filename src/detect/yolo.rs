@@ -223,7 +223,7 @@ pub fn resize_rgb(image: &RgbImage, width: u32, height: u32) -> RgbImage {
 }
 
 /// The area of a `[x1, y1, x2, y2]` box (0 when empty).
-fn area(b: &[f32; 4]) -> f32 {
+pub fn area(b: &[f32; 4]) -> f32 {
     (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
 }
 

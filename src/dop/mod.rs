@@ -309,9 +309,6 @@ pub fn raise_unknown_in_boxes(
     boxes: &[boxes::ObjectBox],
     alpha: f32,
 ) -> usize {
-    if !boxes.iter().any(|b| b.dynamic) {
-        return 0;
-    }
     let raised = update(config.p_init, true, alpha);
     let verdict = boxes::verdicts(config, keypoints, boxes);
     let mut count = 0;

@@ -1123,6 +1123,10 @@ fn propagate_and_expand(
     };
     if let Some((objects, camera_from_world)) = followed.filter(|_| dop.track_frames) {
         let boxes = objects.boxes_at(frame.timestamp, camera_from_world, dop);
+        // Most frames have no person: no keypoint list to build.
+        if !boxes.iter().any(|b| b.dynamic) {
+            return p;
+        }
         crate::dop::raise_unknown_in_boxes(
             dop,
             &frame.dop_keypoints(),
