@@ -44,15 +44,21 @@ pub struct FuseArgs {
     pub settings: Option<PathBuf>,
 }
 
-/// `--settings FILE.yaml`: the calibration, and its DepthMapFactor as the depth scale
-/// unless the config sets one.
+/// Applies an ORB-SLAM2 settings file (the one path: [`Config::apply_orbslam_settings`])
+/// and prints once what it ignored.
 pub fn apply_settings(config: &mut Config, path: &Path) -> Result<()> {
-    let settings = dopslam::io::orbslam_settings::OrbSlamSettings::read(path)?;
-    if config.dataset.depth_scale.is_none() {
-        config.dataset.depth_scale = settings.calibration.depth_scale;
-    }
-    config.dataset.settings = Some(path.to_path_buf());
+    config.apply_orbslam_settings(path)?;
+    print_settings_notes(config);
     Ok(())
+}
+
+/// Prints the keys of the config's settings file that were not applied.
+pub fn print_settings_notes(config: &Config) {
+    if let Some(applied) = &config.dataset.settings_applied {
+        for note in applied.notes() {
+            eprintln!("{note}");
+        }
+    }
 }
 
 /// The masking a run used, from its report.json.

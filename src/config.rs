@@ -46,6 +46,9 @@ pub struct DatasetConfig {
     pub settings: Option<PathBuf>,
     /// Camera intrinsics (override both the settings file and the sequence's).
     pub camera: Option<PinholeCamera>,
+    /// What applying `settings` did (set by [`Config::apply_orbslam_settings`]).
+    #[serde(skip)]
+    pub settings_applied: Option<SettingsApplied>,
 }
 
 impl DatasetConfig {
@@ -67,6 +70,7 @@ impl Default for DatasetConfig {
             association_file: None,
             settings: None,
             camera: None,
+            settings_applied: None,
         }
     }
 }
@@ -199,10 +203,13 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        let config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid {
+        let mut config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid {
             path: path.to_path_buf(),
             message,
         })?;
+        if let Some(settings) = config.dataset.settings.clone() {
+            config.apply_orbslam_settings(&settings)?;
+        }
         Ok(config)
     }
 
@@ -290,13 +297,19 @@ impl Config {
         Ok(())
     }
 
-    /// Takes the ORB parameters of an ORB-SLAM2 settings file (those it sets) and
-    /// remembers the file for the calibration.
+    /// Applies an ORB-SLAM2 settings file: every key with a meaning here
+    /// ([`crate::io::orbslam_settings::APPLIED_KEYS`]). The camera (`Camera.*`) is read
+    /// from the file by the run ([`Self::dataset`]`.settings`); `ThDepth`, `Camera.fps`
+    /// (ORB-SLAM2's most frames between keyframes) and the `ORBextractor.*` values go
+    /// into the tracking, stereo and ORB sections; `DepthMapFactor` sets the depth scale
+    /// unless the config sets one. This is the one path for `--settings` and
+    /// `[dataset] settings`; what it did is kept in `dataset.settings_applied`.
     pub fn apply_orbslam_settings(&mut self, path: &Path) -> Result<OrbSlamSettings, ConfigError> {
         let settings = OrbSlamSettings::read(path)?;
         let orb = &settings.orb;
         if let Some(v) = orb.n_features {
             self.orb.n_features = v;
+            self.stereo.n_features = v;
         }
         if let Some(v) = orb.scale_factor {
             self.orb.scale_factor = v;
@@ -310,12 +323,66 @@ impl Config {
         if let Some(v) = orb.min_th_fast {
             self.orb.min_th_fast = v;
         }
+        let calibration = &settings.calibration;
+        if let Some(v) = calibration.th_depth {
+            self.tracking.th_depth = v;
+            self.stereo.th_depth = v;
+        }
+        if let Some(fps) = calibration.fps {
+            let frames = fps.round().max(1.0) as usize;
+            self.tracking.max_frames_between_keyframes = frames;
+            self.stereo.max_frames_between_keyframes = frames;
+        }
+        if self.dataset.depth_scale.is_none() {
+            self.dataset.depth_scale = calibration.depth_scale;
+        }
         self.dataset.settings = Some(path.to_path_buf());
+        let (applied, no_meaning, unknown) = settings.sort_keys();
+        self.dataset.settings_applied = Some(SettingsApplied {
+            file: path.to_path_buf(),
+            applied,
+            no_meaning,
+            unknown,
+        });
         self.validate().map_err(|message| ConfigError::Invalid {
             path: path.to_path_buf(),
             message,
         })?;
         Ok(settings)
+    }
+}
+
+/// What applying an ORB-SLAM2 settings file did (in `report.json`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SettingsApplied {
+    pub file: PathBuf,
+    /// Keys that set something here.
+    pub applied: Vec<String>,
+    /// ORB-SLAM2 keys known to have no meaning here (`Viewer.*`, `Camera.RGB`).
+    pub no_meaning: Vec<String>,
+    /// Keys this tool does not know (a typo, or another system's).
+    pub unknown: Vec<String>,
+}
+
+impl SettingsApplied {
+    /// The lines to print once about the keys not applied.
+    pub fn notes(&self) -> Vec<String> {
+        let mut notes = Vec::new();
+        if !self.no_meaning.is_empty() {
+            notes.push(format!(
+                "settings {}: no meaning here, ignored: {}",
+                self.file.display(),
+                self.no_meaning.join(", ")
+            ));
+        }
+        if !self.unknown.is_empty() {
+            notes.push(format!(
+                "warning: settings {}: unknown keys, ignored: {}",
+                self.file.display(),
+                self.unknown.join(", ")
+            ));
+        }
+        notes
     }
 }
 

@@ -21,6 +21,7 @@ use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
 mod cli_batch;
+mod cli_doctor;
 mod cli_global;
 mod cli_maps;
 mod cli_stereo;
@@ -56,6 +57,8 @@ enum Command {
     Detect(DetectArgs),
     /// Train or inspect the place-recognition vocabulary (bag of binary words) of the global pass.
     Vocab(cli_global::VocabArgs),
+    /// Show where the runtime data (ONNX Runtime, detector models, vocabulary) was found and what is missing.
+    Doctor(cli_doctor::DoctorArgs),
     /// Make and optimise 3-D pose graphs in g2o's format (VERTEX_SE3:QUAT / EDGE_SE3:QUAT).
     Graph(cli_global::GraphArgs),
     /// Run many sequences in several modes, repeated, and write the tables, plots and HTML report (resumable).
@@ -227,9 +230,11 @@ struct RunArgs {
     /// duration).
     #[arg(long, value_enum, default_value = "free")]
     pace: dopslam::pacing::Pace,
-    /// Keyframe detections: auto (onnx when setup installed the model, else none), none,
-    /// onnx (the [detector] model), cache ([detector] cache_dir) or oracle (a synthetic
-    /// sequence's ground-truth boxes). Default: the config's [detector] source (auto).
+    /// Keyframe detections: auto (the ONNX model, none with --no-dop), none (no
+    /// detector: the DOP model on its geometric check alone), onnx (the [detector]
+    /// model), cache ([detector] cache_dir) or oracle (a synthetic sequence's
+    /// ground-truth boxes). Default: the config's [detector] source (auto). A missing
+    /// model or ONNX Runtime is an error (`dopslam doctor`).
     #[arg(long, value_enum)]
     detections: Option<dopslam::detect::Source>,
     /// Write every frame with its keypoints coloured by DOP state into this folder.
@@ -249,6 +254,10 @@ struct RunArgs {
     /// Skip the global pass (loop closing, essential graph, full BA): trajectory.txt is then the tracking pass's.
     #[arg(long)]
     no_global: bool,
+    /// Run the global pass without loop closing (no vocabulary needed): full BA and the
+    /// frames' refinement only.
+    #[arg(long)]
+    no_loops: bool,
     /// Also run with --no-dop into OUT/no_dop and compare the two dense maps
     /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
     #[arg(long, conflicts_with = "no_dense")]
@@ -599,18 +608,13 @@ fn run_run(args: RunArgs) -> Result<()> {
     if let Some(source) = args.detections {
         config.detector.source = source;
     }
-    if let Some(path) = &args.settings {
-        cli_maps::apply_settings(&mut config, path)?;
+    match &args.settings {
+        Some(path) => cli_maps::apply_settings(&mut config, path)?,
+        None => cli_maps::print_settings_notes(&config),
     }
-    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
-    if let Some(text) = &args.camera {
-        config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
+    if args.no_loops {
+        config.global.loops.enabled = false;
     }
-    let (source, note) = config.detector.resolved_source();
-    if let Some(note) = note {
-        eprintln!("{note}");
-    }
-    config.detector.source = source;
     let options = dopslam::pipeline::RunOptions {
         max_frames: args.frames,
         progress: true,
@@ -629,6 +633,14 @@ fn run_run(args: RunArgs) -> Result<()> {
         config.dop.mode = dopslam::dop::Mode::MaskBoxes;
     } else if args.dop {
         config.dop.mode = dopslam::dop::Mode::Dop;
+    }
+    // A missing detector fails here, a missing vocabulary when the run starts: both
+    // before any work.
+    let source = dopslam::pipeline::detection_source(&config)?;
+    config.detector.source = source;
+    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    if let Some(text) = &args.camera {
+        config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
     }
     let mode = dopslam::pipeline::effective_mode(&config);
     eprintln!(
@@ -740,6 +752,7 @@ fn main() -> ExitCode {
         Command::Detect(args) => run_detect(args),
         Command::Vocab(args) => cli_global::run_vocab(args),
         Command::Graph(args) => cli_global::run_graph(args),
+        Command::Doctor(args) => cli_doctor::run_doctor(args),
         Command::Batch(args) => cli_batch::run_batch(args),
         Command::Stereo(args) => cli_stereo::run_stereo(args),
     };

@@ -206,10 +206,61 @@ pub struct FrameLine {
     pub truth: Option<TruthCounts>,
 }
 
+/// What a run was set up with: the effective camera and ORB parameters after the
+/// config, the settings file and `--camera`, and the runtime files it loaded.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSetup {
+    pub calibration: Calibration,
+    pub orb: crate::features::orb::OrbConfig,
+    /// `ThDepth` and ORB-SLAM2's most frames between keyframes (`Camera.fps`).
+    pub th_depth: f64,
+    pub max_frames_between_keyframes: usize,
+    /// The ORB-SLAM2 settings file and which of its keys were applied.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings: Option<crate::config::SettingsApplied>,
+    /// The runtime data directory and why it was chosen (`dopslam doctor`).
+    pub data_dir: String,
+    pub detections: crate::detect::Source,
+    /// The detector's files (models, then the ONNX Runtime library) when it is ONNX.
+    pub detector_files: Vec<PathBuf>,
+    /// The vocabulary file, when loop closing ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vocabulary: Option<PathBuf>,
+}
+
+impl RunSetup {
+    fn new(config: &Config, calibration: &Calibration) -> Self {
+        let data = crate::io::data_dir::DataDir::locate();
+        let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
+        Self {
+            calibration: calibration.clone(),
+            orb: config.orb.clone(),
+            th_depth: config.tracking.th_depth,
+            max_frames_between_keyframes: config.tracking.max_frames_between_keyframes,
+            settings: config.dataset.settings_applied.clone(),
+            data_dir: format!("{} ({})", absolute(data.path).display(), data.origin),
+            detections: config.detector.source,
+            detector_files: match config.detector.source {
+                crate::detect::Source::Onnx => config
+                    .detector
+                    .onnx_files()
+                    .into_iter()
+                    .map(|(p, _)| absolute(p))
+                    .collect(),
+                _ => Vec::new(),
+            },
+            vocabulary: (config.global.enabled && config.global.loops.enabled)
+                .then(|| absolute(config.global.vocabulary_file())),
+        }
+    }
+}
+
 /// What `report.json` holds.
 #[derive(Debug, Serialize)]
 pub struct RunReport {
     pub sequence: String,
+    /// What the run was set up with.
+    pub setup: RunSetup,
     /// The sequence folder, when known (for `dopslam fuse`).
     pub sequence_path: Option<PathBuf>,
     /// How moving objects were treated.
@@ -293,15 +344,45 @@ pub struct DetectionTotals {
 /// How moving objects are treated in a run of `config`: without detections the DOP
 /// model runs on its geometric check alone (when on), else every mode is ORB-SLAM2's.
 pub fn effective_mode(config: &Config) -> Mode {
-    match config.detector.resolved_source().0 {
-        crate::detect::Source::None | crate::detect::Source::Auto
-            if config.dop.mode == Mode::Dop && config.dop.geometric =>
-        {
+    match config.detector.source {
+        crate::detect::Source::None if config.dop.mode == Mode::Dop && config.dop.geometric => {
             Mode::Dop
         }
-        crate::detect::Source::None | crate::detect::Source::Auto => Mode::Off,
+        crate::detect::Source::None => Mode::Off,
         _ => config.dop.mode,
     }
+}
+
+/// The detection source a run of `config` uses: `auto` needs no detector in ORB-SLAM2
+/// mode (`--no-dop`) and the ONNX model otherwise; a missing model or runtime library
+/// is an error here, before any work, never a silent run without detections.
+pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunError> {
+    use crate::detect::Source;
+    if config.detector.source == Source::Auto && config.dop.mode == Mode::Off {
+        return Ok(Source::None);
+    }
+    config.detector.resolved_source().map_err(|e| {
+        RunError::Input(format!(
+            "{e}; or run without a detector: --detections none (config: [detector] source = \"none\")"
+        ))
+    })
+}
+
+/// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
+/// loop closing is off (the global pass runs without loops). A vocabulary that cannot
+/// be read while loop closing is on is an error before any work.
+fn loop_vocabulary(
+    config: &crate::global::GlobalConfig,
+) -> Result<Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>, RunError> {
+    if !config.enabled {
+        return Ok(None);
+    }
+    if !config.loops.enabled {
+        return Ok(Some(Err("loop closing is off ([global.loops] enabled = false, --no-loops)".into())));
+    }
+    crate::global::load_vocabulary(config)
+        .map(|v| Some(Ok(v)))
+        .map_err(RunError::Input)
 }
 
 /// Runs the passes over `sequence` and writes their outputs into `out`: tracking,
@@ -405,8 +486,11 @@ pub fn track_sequence(
             sequence.name()
         )));
     }
-    let config = &config.for_sensor(sequence.sensor());
+    let mut config = config.for_sensor(sequence.sensor());
+    config.detector.source = detection_source(&config)?;
+    let config = &config;
     let calibration = resolve_calibration(sequence, config)?;
+    let vocabulary = loop_vocabulary(&config.global)?;
     let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
     let extractor = OrbExtractor::new(&config.orb);
     let mut tracker = Tracker::new(
@@ -437,8 +521,8 @@ pub fn track_sequence(
     }
     let moving_threshold = mapper.moving_threshold;
     // Place recognition beside tracking, fed by local mapping.
-    let loop_detection = config.global.enabled.then(|| {
-        crate::global::load_vocabulary(&config.global).map(|vocabulary| {
+    let loop_detection = vocabulary.map(|vocabulary| {
+        vocabulary.map(|vocabulary| {
             LoopDetection::start(
                 vocabulary,
                 config.global.loops.clone(),
@@ -689,6 +773,7 @@ pub fn track_sequence(
     }
     let report = write_outputs(
         sequence,
+        RunSetup::new(config, &calibration),
         &map,
         (stats, book.totals),
         (lines, failure.clone()),
@@ -1102,6 +1187,7 @@ fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
 /// the tracking pass's trajectory, when the global pass ran after it).
 fn write_outputs(
     sequence: &dyn Sequence,
+    setup: RunSetup,
     map: &Map,
     (mapping, detection): (MappingStats, DetectionTotals),
     (lines, stopped): (Vec<FrameLine>, Option<String>),
@@ -1191,6 +1277,7 @@ fn write_outputs(
     };
     let report = RunReport {
         sequence: sequence.name().to_string(),
+        setup,
         sequence_path: sequence_path.map(|p| p.canonicalize().unwrap_or_else(|_| p.to_path_buf())),
         mode,
         totals,

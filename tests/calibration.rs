@@ -72,3 +72,73 @@ fn shipped_settings_match_the_published_ones() {
         assert_eq!(ours.orb.n_features, theirs.orb.n_features, "{name}");
     }
 }
+
+/// A user's ORB-SLAM2 settings file: every key with a meaning here reaches the run
+/// (`--settings` and `[dataset] settings` take one path), `report.json` records the
+/// effective ORB parameters and the keys ignored, and a key given twice is refused.
+#[test]
+fn settings_files_set_the_orb_parameters_and_the_report_shows_them() {
+    let base = common::temp_dir("settings-orb");
+    let settings = base.join("my_camera.yaml");
+    std::fs::write(
+        &settings,
+        "%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\n\
+         Camera.width: 640\nCamera.height: 480\nCamera.fps: 20.0\nCamera.bf: 40.0\nCamera.RGB: 1\n\
+         ThDepth: 45.0\nDepthMapFactor: 5000.0\nORBextractor.nFeatures: 1500\n\
+         ORBextractor.scaleFactor: 1.1\nORBextractor.nLevels: 8\nORBextractor.iniThFAST: 18\n\
+         ORBextractor.minThFAST: 6\nViewer.KeyFrameSize: 0.05\nMyLab.exposure: 3\n",
+    )
+    .unwrap();
+    // The library path: a config naming the file.
+    let config_file = base.join("config.toml");
+    std::fs::write(
+        &config_file,
+        format!("[dataset]\nsettings = {:?}\n", settings.to_string_lossy()),
+    )
+    .unwrap();
+    let config = Config::load(&config_file).unwrap();
+    assert_eq!(config.orb.n_features, 1500);
+    assert_eq!(config.orb.scale_factor, 1.1);
+    assert_eq!((config.orb.ini_th_fast, config.orb.min_th_fast), (18, 6));
+    assert_eq!(config.tracking.th_depth, 45.0);
+    assert_eq!(config.tracking.max_frames_between_keyframes, 20);
+    let applied = config.dataset.settings_applied.clone().unwrap();
+    assert_eq!(applied.unknown, vec!["MyLab.exposure".to_string()]);
+    assert!(applied.no_meaning.contains(&"Viewer.KeyFrameSize".to_string()));
+    // The command line: `run --settings`.
+    let seq = base.join("seq");
+    common::synth_static_room(&seq, 10);
+    let out = base.join("run");
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &seq.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--settings",
+        &settings.to_string_lossy(),
+        "--detections",
+        "none",
+        "--no-dense",
+        "--no-global",
+        "--deterministic",
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("MyLab.exposure") && err.contains("Viewer.KeyFrameSize"), "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let setup = &report["setup"];
+    assert_eq!(setup["orb"]["n_features"], 1500, "{setup}");
+    assert_eq!(setup["orb"]["scale_factor"], 1.1, "{setup}");
+    assert_eq!(setup["th_depth"], 45.0, "{setup}");
+    assert_eq!(setup["calibration"]["camera"]["fx"], 535.4, "{setup}");
+    assert_eq!(setup["settings"]["unknown"][0], "MyLab.exposure", "{setup}");
+    // A key given twice names both lines.
+    let twice = base.join("twice.yaml");
+    std::fs::write(
+        &twice,
+        "%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\nCamera.fx: 500\n",
+    )
+    .unwrap();
+    let error = OrbSlamSettings::read(&twice).unwrap_err().to_string();
+    assert!(error.contains("Camera.fx") && error.contains("line 2"), "{error}");
+}

@@ -142,7 +142,7 @@ fn bad_models_and_a_missing_runtime_say_what_to_do() {
     assert!(
         stderr.contains("tools/setup.sh")
             && stderr.contains("libonnxruntime.so")
-            && stderr.contains("does not exist"),
+            && stderr.contains("is missing"),
         "{stderr}"
     );
     let Some(library) = library() else { return };
@@ -196,27 +196,30 @@ fn missing_model_and_cache_errors_name_the_path() {
 }
 
 #[test]
-fn auto_falls_back_to_no_detector_and_says_why() {
+fn auto_with_a_missing_model_is_an_error_that_names_it_and_the_fix() {
     let dir = common::temp_dir("detect-auto");
     let config = DetectorConfig {
         model_path: Some(dir.join("absent.onnx")),
         ..DetectorConfig::default()
     };
     assert_eq!(config.source, Source::Auto);
-    let (source, note) = config.resolved_source();
-    assert_eq!(source, Source::None);
-    let note = note.unwrap();
+    let error = config.resolved_source().unwrap_err().to_string();
     assert!(
-        note.contains("absent.onnx") && note.contains("tools/setup.sh"),
-        "{note}"
+        error.contains("absent.onnx") && error.contains("tools/setup.sh") && error.contains("doctor"),
+        "{error}"
     );
-    assert!(config.open(None).unwrap().is_none());
+    assert!(config.open(None).is_err(), "never a silent run without detections");
     // An explicit source is taken as it is.
     let explicit = DetectorConfig {
         source: Source::Oracle,
+        ..config.clone()
+    };
+    assert_eq!(explicit.resolved_source().unwrap(), Source::Oracle);
+    let none = DetectorConfig {
+        source: Source::None,
         ..config
     };
-    assert_eq!(explicit.resolved_source(), (Source::Oracle, None));
+    assert!(none.open(None).unwrap().is_none());
 }
 
 /// `dopslam detect IMAGE` writes the per-image JSON (the detection cache's format) and
@@ -348,13 +351,14 @@ fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
     };
     assert!(several.validate().is_ok());
     assert_eq!(several.model_files().len(), 2);
-    let (source, note) = several.resolved_source();
-    assert_eq!(source, Source::None);
-    assert!(note.unwrap().contains("second-absent.onnx"));
-    // The default is YOLOv4-tiny at 320x256.
+    let error = several.resolved_source().unwrap_err().to_string();
+    assert!(error.contains("second-absent.onnx"), "{error}");
+    // The default is YOLOv4-tiny at 320x256, in the runtime data directory.
     let default = DetectorConfig::default().model_files();
-    assert_eq!(
-        default,
-        vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")]
+    assert_eq!(default.len(), 1);
+    assert!(
+        default[0].ends_with("models/yolov4-tiny-320x256.onnx"),
+        "{}",
+        default[0].display()
     );
 }

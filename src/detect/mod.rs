@@ -17,6 +17,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::io::data_dir::{DataDir, INSTALL_HINT};
 use yolo::Layout;
 
 /// What can go wrong when detecting.
@@ -26,6 +27,8 @@ pub enum DetectError {
     Model { path: PathBuf, message: String },
     #[error("{0}")]
     Runtime(String),
+    #[error("the {what} {path} is missing: {hint}", path = .path.display(), hint = INSTALL_HINT)]
+    Missing { what: &'static str, path: PathBuf },
     #[error("detection cache {path}: {message}")]
     Cache { path: PathBuf, message: String },
     #[error("detector config: {0}")]
@@ -41,8 +44,8 @@ pub trait Detector: Send {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Source {
-    /// The ONNX model when it and the ONNX Runtime library are installed (by
-    /// `tools/setup.sh`), else none (the default).
+    /// The ONNX model when the run uses detections (`--dop`, `--mask-boxes`); none
+    /// with `--no-dop` (the default). A missing model or runtime is an error.
     Auto,
     /// No detection (ORB-SLAM2 behaviour).
     None,
@@ -60,7 +63,8 @@ pub enum Source {
 pub enum Model {
     /// The paper's family: YOLOv4-tiny converted from Darknet by tools/setup.sh.
     Yolov4Tiny,
-    /// YOLOX-nano (Apache-2.0), an ONNX file brought by the user.
+    /// YOLOX-nano (Apache-2.0): `tools/setup.sh` installs it from `../shared/models`
+    /// where that folder exists, else the user brings the file.
     YoloxNano,
 }
 
@@ -77,10 +81,12 @@ impl Model {
     /// person who passes close to the camera (half the image, cut by its border) looks
     /// like the people COCO has, and is found (cut-out presets: person recall on
     /// keyframes 0.79-0.88 -> 0.87-0.91 in half the time; README "Detector").
+    /// They live in the runtime data directory ([`crate::io::data_dir`]).
     pub fn default_paths(self) -> Vec<PathBuf> {
+        let data = DataDir::locate();
         match self {
-            Model::Yolov4Tiny => vec![PathBuf::from("data/models/yolov4-tiny-320x256.onnx")],
-            Model::YoloxNano => vec![PathBuf::from("../shared/models/yolox_nano.onnx")],
+            Model::Yolov4Tiny => vec![data.file("models/yolov4-tiny-320x256.onnx")],
+            Model::YoloxNano => vec![data.file("models/yolox_nano.onnx")],
         }
     }
 }
@@ -97,7 +103,8 @@ pub struct DetectorConfig {
     /// keyframe runs them all and their boxes are merged by one NMS. Not with
     /// `model_path`.
     pub model_paths: Vec<PathBuf>,
-    /// The ONNX Runtime library (default: `ORT_DYLIB_PATH`, else data/ort/libonnxruntime.so).
+    /// The ONNX Runtime library (default: `ORT_DYLIB_PATH`, else `ort/libonnxruntime.so`
+    /// in the data directory).
     pub ort_library: Option<PathBuf>,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
@@ -175,34 +182,35 @@ impl DetectorConfig {
         }
     }
 
-    /// The source `auto` stands for: the ONNX model when its file and the ONNX Runtime
-    /// library exist, else none, with the reason.
-    pub fn resolved_source(&self) -> (Source, Option<String>) {
-        if self.source != Source::Auto {
-            return (self.source, None);
+    /// The files an ONNX source needs (the models, then the runtime library), each
+    /// with what it is.
+    pub fn onnx_files(&self) -> Vec<(PathBuf, &'static str)> {
+        self.model_files()
+            .into_iter()
+            .map(|path| (path, "detector model"))
+            .chain([(onnx::runtime_library(self.ort_library.as_deref()), "ONNX Runtime library")])
+            .collect()
+    }
+
+    /// The source `auto` stands for: the ONNX model. A missing model or runtime library
+    /// of an ONNX source is an error that names the file and the fix (never a silent
+    /// run without detections: `source = "none"` / `--detections none` is the way).
+    pub fn resolved_source(&self) -> Result<Source, DetectError> {
+        let source = match self.source {
+            Source::Auto => Source::Onnx,
+            other => other,
+        };
+        if source == Source::Onnx {
+            if let Some((path, what)) = self.onnx_files().into_iter().find(|(p, _)| !p.is_file()) {
+                return Err(DetectError::Missing { what, path });
+            }
         }
-        let models = self.model_files();
-        let library = onnx::runtime_library(self.ort_library.as_deref());
-        let missing = models
-            .iter()
-            .map(|path| (path, "model"))
-            .chain([(&library, "ONNX Runtime library")])
-            .find(|(path, _)| !path.is_file());
-        match missing {
-            None => (Source::Onnx, None),
-            Some((path, what)) => (
-                Source::None,
-                Some(format!(
-                    "no detector: the {what} {} is missing (run `bash tools/setup.sh`); tracking without detections (ORB-SLAM2 behaviour)",
-                    path.display()
-                )),
-            ),
-        }
+        Ok(source)
     }
 
     /// The latency added to the source's answers in real-time mode.
     pub fn latency(&self) -> std::time::Duration {
-        match self.resolved_source().0 {
+        match self.source {
             Source::Oracle | Source::Cache => {
                 std::time::Duration::from_secs_f64(self.simulated_latency_ms / 1e3)
             }
@@ -213,7 +221,7 @@ impl DetectorConfig {
     /// Opens the configured source; `sequence` is the sequence folder (for the oracle).
     /// `None` when detection is off.
     pub fn open(&self, sequence: Option<&Path>) -> Result<Option<Box<dyn Detector>>, DetectError> {
-        Ok(Some(match self.resolved_source().0 {
+        Ok(Some(match self.resolved_source()? {
             Source::None | Source::Auto => return Ok(None),
             Source::Onnx => {
                 let mut detector = onnx::OnnxDetector::load_all(

@@ -1,6 +1,7 @@
 //! The ONNX detector: a YOLO model run by ONNX Runtime through `ort`, with the runtime
 //! library loaded at run time (`load-dynamic`) from the path in the config, else
-//! `ORT_DYLIB_PATH`, else `data/ort/libonnxruntime.so` (what `tools/setup.sh` installs).
+//! `ORT_DYLIB_PATH`, else `ort/libonnxruntime.so` in the runtime data directory (what
+//! `tools/setup.sh` installs; [`crate::io::data_dir`]).
 
 use std::path::{Path, PathBuf};
 
@@ -12,12 +13,12 @@ use super::yolo::{non_maximum_suppression, Layout};
 use super::{DetectError, Detection, Detector};
 
 /// Where the ONNX Runtime library is: `configured`, else `ORT_DYLIB_PATH`, else
-/// `data/ort/libonnxruntime.so` under the current folder.
+/// `ort/libonnxruntime.so` in the runtime data directory.
 pub fn runtime_library(configured: Option<&Path>) -> PathBuf {
-    configured
+    let explicit = configured
         .map(Path::to_path_buf)
-        .or_else(|| std::env::var_os("ORT_DYLIB_PATH").map(PathBuf::from))
-        .unwrap_or_else(|| PathBuf::from("data/ort/libonnxruntime.so"))
+        .or_else(|| std::env::var_os("ORT_DYLIB_PATH").map(PathBuf::from));
+    crate::io::data_dir::resolve(explicit.as_deref(), crate::io::data_dir::ORT_LIBRARY)
 }
 
 static RUNTIME: std::sync::OnceLock<Result<ort::environment::Environment, String>> =
@@ -27,8 +28,9 @@ fn environment(library: &Path) -> Result<&'static ort::environment::Environment,
     let result = RUNTIME.get_or_init(|| {
         if !library.is_file() {
             return Err(format!(
-                "the ONNX Runtime library {} does not exist: run `bash tools/setup.sh` (it installs onnxruntime 1.31.1 into data/ort/), or set ORT_DYLIB_PATH or [detector] ort_library",
-                library.display()
+                "the ONNX Runtime library {} is missing: {}",
+                library.display(),
+                crate::io::data_dir::INSTALL_HINT
             ));
         }
         ort::init_from(library)
@@ -168,8 +170,7 @@ impl Network {
         if !model.is_file() {
             return Err(DetectError::Model {
                 path: model.to_path_buf(),
-                message: "no such file (tools/setup.sh converts YOLOv4-tiny into data/models/)"
-                    .into(),
+                message: format!("no such file: {}", crate::io::data_dir::INSTALL_HINT),
             });
         }
         let bad = |message: String| DetectError::Model {

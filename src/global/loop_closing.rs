@@ -44,6 +44,9 @@ use crate::random::Rng;
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LoopConfig {
+    /// Look for loops (needs the vocabulary); `dopslam run --no-loops` turns it off and
+    /// the global pass keeps full BA and the frames' refinement.
+    pub enabled: bool,
     pub min_consistency: usize,
     /// No loop is searched within this many keyframes after the last one.
     pub gap: usize,
@@ -59,6 +62,7 @@ pub struct LoopConfig {
 impl Default for LoopConfig {
     fn default() -> Self {
         Self {
+            enabled: true,
             min_consistency: 3,
             gap: 10,
             min_inliers: 20,

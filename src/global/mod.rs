@@ -38,8 +38,9 @@ pub struct GlobalConfig {
     /// Run the global pass after tracking (`dopslam run --no-global` skips it).
     pub enabled: bool,
     /// The place-recognition vocabulary (`dopslam vocab train`); relative paths are
-    /// taken from the working directory.
-    pub vocabulary: PathBuf,
+    /// taken from the working directory. Unset: `vocabulary.dbow` in the runtime data
+    /// directory ([`crate::io::data_dir`]).
+    pub vocabulary: Option<PathBuf>,
     pub loops: LoopConfig,
     /// Full bundle adjustment at the end: iterations with the Huber kernel, then
     /// without it on the inliers.
@@ -57,7 +58,7 @@ impl Default for GlobalConfig {
     fn default() -> Self {
         Self {
             enabled: true,
-            vocabulary: PathBuf::from("data/vocabulary.dbow"),
+            vocabulary: None,
             loops: LoopConfig::default(),
             full_ba: true,
             full_ba_robust_iterations: 10,
@@ -114,12 +115,24 @@ pub struct GlobalInputs<'a> {
     pub moving_threshold: f32,
 }
 
-/// The place-recognition vocabulary of `config`, or why loop detection cannot run.
+impl GlobalConfig {
+    /// The vocabulary file this config uses.
+    pub fn vocabulary_file(&self) -> PathBuf {
+        crate::io::data_dir::resolve(self.vocabulary.as_deref(), crate::io::data_dir::VOCABULARY)
+    }
+}
+
+/// The place-recognition vocabulary of `config`, or why loop detection cannot run:
+/// the message names the file and the ways out.
 pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String> {
-    Vocabulary::read(&config.vocabulary).map(Arc::new).map_err(|e| {
-        format!(
-            "no loop detection: {e} (train one with `dopslam vocab train`, or set [global] vocabulary)"
-        )
+    let path = config.vocabulary_file();
+    Vocabulary::read(&path).map(Arc::new).map_err(|e| {
+        let fix = if path.exists() {
+            "train one with `dopslam vocab train` or set [global] vocabulary".to_string()
+        } else {
+            crate::io::data_dir::INSTALL_HINT.to_string()
+        };
+        format!("loop closing needs the vocabulary {}: {e}; {fix}; or run with --no-loops", path.display())
     })
 }
 

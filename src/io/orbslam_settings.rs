@@ -38,13 +38,71 @@ pub struct OrbSettings {
 pub struct OrbSlamSettings {
     pub calibration: Calibration,
     pub orb: OrbSettings,
+    /// Every scalar key of the file, in file order.
+    pub keys: Vec<String>,
 }
 
+/// The keys of an ORB-SLAM2 (RGB-D or stereo) settings file that set something here.
+pub const APPLIED_KEYS: [&str; 20] = [
+    "Camera.fx",
+    "Camera.fy",
+    "Camera.cx",
+    "Camera.cy",
+    "Camera.k1",
+    "Camera.k2",
+    "Camera.p1",
+    "Camera.p2",
+    "Camera.k3",
+    "Camera.width",
+    "Camera.height",
+    "Camera.fps",
+    "Camera.bf",
+    "ThDepth",
+    "DepthMapFactor",
+    "ORBextractor.nFeatures",
+    "ORBextractor.scaleFactor",
+    "ORBextractor.nLevels",
+    "ORBextractor.iniThFAST",
+    "ORBextractor.minThFAST",
+];
+
+/// Whether an ORB-SLAM2 key is known to have no meaning here: the viewer's, and
+/// `Camera.RGB` (ORB-SLAM2's channel order of images in memory after `cv::imread`;
+/// dopslam reads image files in the order they store).
+pub fn has_no_meaning_here(key: &str) -> bool {
+    key.starts_with("Viewer.") || key == "Camera.RGB"
+}
+
+impl OrbSlamSettings {
+    /// The file's keys sorted into those applied, those known to have no meaning here,
+    /// and unknown ones.
+    pub fn sort_keys(&self) -> (Vec<String>, Vec<String>, Vec<String>) {
+        let (mut applied, mut no_meaning, mut unknown) = (Vec::new(), Vec::new(), Vec::new());
+        for key in &self.keys {
+            if APPLIED_KEYS.contains(&key.as_str()) {
+                applied.push(key.clone());
+            } else if has_no_meaning_here(key) {
+                no_meaning.push(key.clone());
+            } else {
+                unknown.push(key.clone());
+            }
+        }
+        (applied, no_meaning, unknown)
+    }
+}
+
+/// The scalar `key: value` lines of an OpenCV YAML file (value and line number), and
+/// every top-level key in file order.
+type Scalars = (BTreeMap<String, (String, usize)>, Vec<String>);
+
 /// Reads the scalar `key: value` lines of an OpenCV YAML file. Matrices
-/// (`!!opencv-matrix` blocks) and nested maps are skipped.
-fn read_scalars(path: &Path) -> Result<BTreeMap<String, (String, usize)>, IoError> {
+/// (`!!opencv-matrix` blocks) and nested maps are skipped; a key given twice is an
+/// error naming both lines.
+fn read_scalars(path: &Path) -> Result<Scalars, IoError> {
     let text = read_text(path)?;
-    let mut scalars = BTreeMap::new();
+    let mut scalars: BTreeMap<String, (String, usize)> = BTreeMap::new();
+    let mut keys = Vec::new();
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
     for (index, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or_default();
         if line.trim().is_empty()
@@ -61,23 +119,29 @@ fn read_scalars(path: &Path) -> Result<BTreeMap<String, (String, usize)>, IoErro
                 format!("expected `key: value`, found {:?}", line.trim()),
             ));
         };
+        let key = key.trim().to_owned();
+        if let Some(first) = seen.insert(key.clone(), index + 1) {
+            return Err(IoError::parse(
+                path,
+                index + 1,
+                format!("{key} is given twice (first on line {first}); keep one"),
+            ));
+        }
+        keys.push(key.clone());
         let value = value.trim();
         if value.is_empty() || value.starts_with("!!") {
             continue;
         }
-        scalars.insert(
-            key.trim().to_owned(),
-            (value.trim_matches('"').to_owned(), index + 1),
-        );
+        scalars.insert(key, (value.trim_matches('"').to_owned(), index + 1));
     }
-    Ok(scalars)
+    Ok((scalars, keys))
 }
 
 impl OrbSlamSettings {
     /// Reads an ORB-SLAM2 settings file. `Camera.fx`, `fy`, `cx`, `cy` are required;
     /// the image size defaults to 640x480 when absent.
     pub fn read(path: &Path) -> Result<Self, IoError> {
-        let scalars = read_scalars(path)?;
+        let (scalars, keys) = read_scalars(path)?;
         let number = |key: &str| -> Result<Option<f64>, IoError> {
             match scalars.get(key) {
                 None => Ok(None),
@@ -138,14 +202,39 @@ impl OrbSlamSettings {
                 ));
             }
         }
-        let orb = OrbSettings {
-            n_features: number("ORBextractor.nFeatures")?.map(|v| v as usize),
-            scale_factor: number("ORBextractor.scaleFactor")?,
-            n_levels: number("ORBextractor.nLevels")?.map(|v| v as usize),
-            ini_th_fast: number("ORBextractor.iniThFAST")?.map(|v| v as u8),
-            min_th_fast: number("ORBextractor.minThFAST")?.map(|v| v as u8),
+        for (key, value, valid) in [
+            ("Camera.bf", calibration.bf, "positive"),
+            ("ThDepth", calibration.th_depth, "positive"),
+            ("Camera.fps", calibration.fps, "positive"),
+        ] {
+            if value.is_some_and(|v| v <= 0.0) {
+                return Err(IoError::invalid(
+                    path,
+                    format!("{key} must be {valid}, got {}", value.unwrap_or_default()),
+                ));
+            }
+        }
+        let count = |key: &str, max: f64| -> Result<Option<f64>, IoError> {
+            match number(key)? {
+                Some(v) if v.fract() != 0.0 || v < 0.0 || v > max => Err(IoError::invalid(
+                    path,
+                    format!("{key} must be a whole number from 0 to {max}, got {v}"),
+                )),
+                other => Ok(other),
+            }
         };
-        Ok(Self { calibration, orb })
+        let orb = OrbSettings {
+            n_features: count("ORBextractor.nFeatures", 1e6)?.map(|v| v as usize),
+            scale_factor: number("ORBextractor.scaleFactor")?,
+            n_levels: count("ORBextractor.nLevels", 32.0)?.map(|v| v as usize),
+            ini_th_fast: count("ORBextractor.iniThFAST", 255.0)?.map(|v| v as u8),
+            min_th_fast: count("ORBextractor.minThFAST", 255.0)?.map(|v| v as u8),
+        };
+        Ok(Self {
+            calibration,
+            orb,
+            keys,
+        })
     }
 
     /// Writes an ORB-SLAM2-style settings file for a calibration (used by `synth`, so

@@ -1,0 +1,114 @@
+//! `dopslam doctor`: where the runtime data directory is, what it holds and what is
+//! missing, with the command that installs it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::Args;
+
+use dopslam::config::Config;
+use dopslam::detect::Model;
+use dopslam::io::data_dir::{self, DataDir, DataOrigin};
+
+#[derive(Args)]
+pub struct DoctorArgs {
+    /// A TOML config whose explicit paths (`[detector] model_path`, `ort_library`,
+    /// `[global] vocabulary`) are checked instead of the data directory's files.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+/// One file the tool loads at run time.
+struct Needed {
+    what: &'static str,
+    path: PathBuf,
+    /// Whether a default run needs it (else it is an option).
+    required: bool,
+}
+
+fn status(path: &Path) -> &'static str {
+    if path.is_file() {
+        "ok"
+    } else {
+        "MISSING"
+    }
+}
+
+/// Prints the search order and each runtime file; fails when a file a default run
+/// needs is missing.
+pub fn run_doctor(args: DoctorArgs) -> Result<()> {
+    let config = match &args.config {
+        Some(path) => Config::load(path)?,
+        None => Config::default(),
+    };
+    let data = DataDir::locate();
+    let cwd = std::env::current_dir().unwrap_or_default();
+    let shown = |p: &Path| {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            cwd.join(p)
+        }
+    };
+    println!("data directory: {} ({})", shown(&data.path).display(), data.origin);
+    println!("looked for, in this order:");
+    println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");
+    match std::env::var_os(data_dir::ENV) {
+        Some(v) => println!("  2. {}={} (when set, the only place looked at)", data_dir::ENV, v.to_string_lossy()),
+        None => println!("  2. {} (unset)", data_dir::ENV),
+    }
+    match data_dir::install_record() {
+        Some(record) if record.is_file() => println!(
+            "  3. the install record {} -> {}",
+            record.display(),
+            std::fs::read_to_string(&record).unwrap_or_default().trim()
+        ),
+        Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
+        None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
+    }
+    println!("  4. ./data under the working directory ({})", cwd.join("data").display());
+    let mut needed = vec![Needed {
+        what: "ONNX Runtime library (keyframe detector)",
+        path: dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref()),
+        required: true,
+    }];
+    needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
+        what: "detector model (the config's)",
+        path,
+        required: true,
+    }));
+    if config.detector.model != Model::YoloxNano {
+        needed.extend(Model::YoloxNano.default_paths().into_iter().map(|path| Needed {
+            what: "detector model yolox-nano (optional)",
+            path,
+            required: false,
+        }));
+    }
+    needed.push(Needed {
+        what: "place-recognition vocabulary (loop closing)",
+        path: config.global.vocabulary_file(),
+        required: true,
+    });
+    println!("files:");
+    for n in &needed {
+        println!("  {:<8} {:<44} {}", status(&n.path), n.what, shown(&n.path).display());
+    }
+    println!(
+        "stereo dense map (OpenCV SGBM): {}",
+        if cfg!(feature = "opencv") { "built in" } else { "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)" }
+    );
+    let missing: Vec<&Needed> = needed.iter().filter(|n| n.required && !n.path.is_file()).collect();
+    if missing.is_empty() {
+        println!("everything a default run needs is in place");
+        return Ok(());
+    }
+    if data.origin == DataOrigin::WorkingDirectory && !data.path.is_dir() {
+        println!("no data directory was found: dopslam looked at ./data of {}", cwd.display());
+    }
+    anyhow::bail!(
+        "{} missing ({}): {}",
+        if missing.len() == 1 { "one file is" } else { "files are" },
+        missing.iter().map(|n| shown(&n.path).display().to_string()).collect::<Vec<_>>().join(", "),
+        data_dir::INSTALL_HINT
+    )
+}
