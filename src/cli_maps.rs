@@ -284,66 +284,98 @@ fn name_of(path: &Path) -> String {
     }
 }
 
-/// `run --compare-no-dop`: three dense maps side by side: the run's (`dop`), the
-/// baseline run's (`no_dop`: tracked and fused without DOP, as ORB-SLAM2 users get
-/// it) and the run's frames fused with its own poses but no masks (`unmasked`, the
-/// baseline for SA, so that masks are judged apart from tracking). In the ground
-/// truth's frame when the runs were evaluated, against the sequence's
-/// `static_scene.ply` (else the unmasked map) and its `movers.ply` when it has them.
+/// `run --compare-no-dop`: the dense maps of the run (`dop_mesh`, `dop_cloud`), the
+/// run's keyframes fused with its own poses but no masks (`no_masks_cloud`: what the
+/// masks keep out, apart from tracking), and the baseline run's cloud (`no_dop_cloud`:
+/// tracked and fused without DOP, as ORB-SLAM2 users get it; the baseline for SA),
+/// each that exists. In the ground truth's frame when the runs were evaluated,
+/// against the sequence's `static_scene.ply` (else the baseline map) and its
+/// `movers.ply` when it has them. Pictures: side by side, ghosts in red.
 pub fn compare_with_baseline(
-    run: &Path,
-    baseline: &Path,
+    (run, baseline): (&Path, &Path),
     sequence: &dyn dopslam::io::sequence::Sequence,
     sequence_dir: &Path,
     config: &Config,
-) -> Result<()> {
-    let unmasked = run.join("unmasked");
-    let mut without_pictures = config.clone();
-    without_pictures.dense.pictures = false;
-    dense_pass(
-        sequence,
-        &without_pictures,
-        (run, &unmasked),
-        Masking::None,
-        None,
-        true,
-    )?;
-    let pick = |dir: &Path| {
-        let mesh = dir.join("dense_mesh.ply");
-        if mesh.exists() {
-            mesh
-        } else {
-            dir.join("dense_points.ply")
-        }
+) -> Result<Comparison> {
+    let (mesh, cloud) = ("dense_mesh.ply", "dense_points.ply");
+    let no_masks = run.join("no_masks");
+    let mut points_only = config.clone();
+    points_only.dense.fusion = dopslam::dense::Fusion::Points;
+    points_only.dense.frames = FrameChoice::Keyframes;
+    points_only.dense.pictures = false;
+    dense_pass(sequence, &points_only, (run, &no_masks), Masking::None, None, true)?;
+    let baseline_map = if baseline.join(cloud).exists() {
+        ("no_dop_cloud", baseline.join(cloud))
+    } else {
+        ("no_dop_mesh", baseline.join(mesh))
     };
+    let mut maps = Vec::new();
+    let mut alignments = Vec::new();
+    for (name, path) in [
+        ("dop_mesh", run.join(mesh)),
+        ("dop_cloud", run.join(cloud)),
+        ("no_masks_cloud", no_masks.join(cloud)),
+    ] {
+        if path.exists() {
+            maps.push((name.to_string(), path));
+            alignments.push(run_alignment(run));
+        }
+    }
+    maps.push((baseline_map.0.to_string(), baseline_map.1));
+    alignments.push(run_alignment(baseline));
     let static_scene = sequence_dir.join("static_scene.ply");
     let movers = sequence_dir.join("movers.ply");
-    let maps = [
-        ("dop".to_string(), pick(run)),
-        ("no_dop".to_string(), pick(baseline)),
-        ("unmasked".to_string(), pick(&unmasked)),
-    ];
-    let alignments = [
-        run_alignment(run),
-        run_alignment(baseline),
-        run_alignment(run),
-    ];
     let mut cameras = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
     if let Some(align) = &alignments[0] {
         cameras.iter_mut().for_each(|pose| *pose = align * *pose);
     }
+    let reference = if static_scene.exists() {
+        static_scene
+    } else {
+        maps[maps.len() - 1].1.clone()
+    };
     let comparison = compare_maps(&CompareInputs {
         maps: &maps,
         alignments: &alignments,
-        reference: if static_scene.exists() {
-            &static_scene
-        } else {
-            &maps[2].1
-        },
+        reference: &reference,
         movers: movers.exists().then_some(movers.as_path()),
         cameras: Some(&cameras),
         settings: CompareSettings::default(),
         out: &run.join("compare_no_dop"),
     })?;
-    print_comparison(&comparison, false)
+    print_comparison(&comparison, false)?;
+    Ok(comparison)
+}
+
+/// The few lines that say what DOP did in a `--compare-no-dop` run: ATE with and
+/// without it, the movers left in each map, where the pictures are.
+pub fn print_summary(
+    dop: &dopslam::pipeline::RunReport,
+    no_dop: &dopslam::pipeline::RunReport,
+    comparison: &Comparison,
+) {
+    let ate = |r: &dopslam::pipeline::RunReport| {
+        r.ate
+            .as_ref()
+            .map_or("- (no ground truth)".to_string(), |a| format!("{:.4} m", a.ape.statistics.rmse))
+    };
+    let movers: Vec<String> = comparison
+        .names
+        .iter()
+        .zip(&comparison.maps)
+        .map(|(name, m)| {
+            let count = m.mover_points.unwrap_or(m.ghost_points);
+            format!("{name} {count} of {}", m.points)
+        })
+        .collect();
+    let what = if comparison.movers.is_some() { "mover points" } else { "ghost points" };
+    println!("summary:");
+    println!("  ATE RMSE with DOP {}, without DOP (ORB-SLAM2 behaviour) {}", ate(dop), ate(no_dop));
+    println!("  {what} in each map: {}", movers.join(", "));
+    if let Some(picture) = comparison.outputs.iter().find(|p| p.ends_with("compare_perspective.png")) {
+        println!("  picture (left to right as listed, ghosts in red): {}", picture.display());
+    }
+    if let Some(table) = comparison.outputs.first().and_then(|p| p.parent()) {
+        println!("  table: {}", table.join("compare.md").display());
+    }
 }

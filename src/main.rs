@@ -714,14 +714,15 @@ fn run_run(args: RunArgs) -> Result<()> {
             "the baseline: the same run with --no-dop into {}",
             baseline_dir.display()
         );
-        dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
-        cli_maps::compare_with_baseline(
-            &args.out,
-            &baseline_dir,
+        let baseline_report =
+            dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
+        let comparison = cli_maps::compare_with_baseline(
+            (&args.out, &baseline_dir),
             sequence.as_ref(),
             &args.sequence,
             &config,
         )?;
+        cli_maps::print_summary(&report, &baseline_report, &comparison);
     }
     Ok(())
 }

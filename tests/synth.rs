@@ -223,6 +223,7 @@ fn every_preset_loads_and_validates() {
             "cutout_seated_leaves",
             "cutout_static",
             "cutout_xyz",
+            "demo",
             "demo_walking",
             "fr1_xyz_room",
             "fr2_desk_room",

@@ -29,6 +29,9 @@ pub struct CloudSettings {
     pub outlier_std: f64,
     /// Neighbours for normals (0: no normals).
     pub normal_neighbours: usize,
+    /// Pixels this close to the image border are left out (`[dense] image_margin`: a
+    /// person cut by the border to a sliver is found by no detector).
+    pub margin: u32,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -62,6 +65,8 @@ impl CloudBuilder {
         let world_from_camera = frame.camera_from_world.inverse();
         let centre = world_from_camera.translation.vector;
         let (s, camera) = (self.settings, self.camera);
+        let m = s.margin as usize;
+        let inside = move |u: usize, v: usize| u >= m && v >= m && u + m < w && v + m < h;
         let points: Vec<(Vector3<f64>, [u8; 3])> = (0..h)
             .into_par_iter()
             .step_by(s.stride)
@@ -70,7 +75,8 @@ impl CloudBuilder {
                 (0..w).step_by(s.stride).filter_map(move |u| {
                     let i = v * w + u;
                     let d = frame.depth.metres[i] as f64;
-                    if d <= 0.0 || d > s.max_depth || frame.dynamic.is_some_and(|m| m[i]) {
+                    let masked = frame.dynamic.is_some_and(|mask| mask[i]);
+                    if d <= 0.0 || d > s.max_depth || masked || !inside(u, v) {
                         return None;
                     }
                     let p = camera.unproject(&Vector2::new(u as f64, v as f64), d);
@@ -202,6 +208,7 @@ mod tests {
                 outlier_neighbours: 8,
                 outlier_std: 2.0,
                 normal_neighbours: 10,
+                margin: 0,
             },
             camera,
         );

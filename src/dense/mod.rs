@@ -50,12 +50,30 @@ pub enum FrameChoice {
     Keyframes,
 }
 
+/// How the dense map is fused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Fusion {
+    /// A TSDF with space carving, meshed by marching cubes; the keyframes' point cloud
+    /// loses what the TSDF has since seen through (`cloud_free_space`).
+    Tsdf,
+    /// ORB-SLAM2's dense point cloud (the paper's Fig. 9): the keyframes' clouds
+    /// joined and voxel-downsampled, no TSDF and no carving, so a mover the masks miss
+    /// stays in the map wherever it stood.
+    Points,
+    /// Both: the TSDF mesh, and the keyframes' cloud without carving (the demo shows
+    /// each).
+    Both,
+}
+
 /// `[dense]`: the dense map.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DenseConfig {
     /// Run the dense pass after tracking (`dopslam run`).
     pub enabled: bool,
+    /// TSDF mesh (default), ORB-SLAM2-style point cloud without carving, or both.
+    pub fusion: Fusion,
     /// TSDF voxel edge and truncation, metres.
     pub voxel: f64,
     pub truncation: f64,
@@ -109,6 +127,7 @@ impl Default for DenseConfig {
         let tsdf = TsdfSettings::default();
         Self {
             enabled: true,
+            fusion: Fusion::Tsdf,
             voxel: tsdf.voxel,
             truncation: tsdf.truncation,
             max_depth: tsdf.max_depth,
@@ -189,6 +208,16 @@ impl DenseConfig {
         }
     }
 
+    /// Whether the TSDF (and its mesh) is fused.
+    pub fn fuses_tsdf(&self) -> bool {
+        self.mesh && self.fusion != Fusion::Points
+    }
+
+    /// Whether the cloud is written, and whether it loses what the TSDF saw through.
+    fn cloud_carved(&self) -> bool {
+        self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
+    }
+
     fn cloud_settings(&self) -> CloudSettings {
         CloudSettings {
             voxel: self.cloud_voxel,
@@ -197,6 +226,7 @@ impl DenseConfig {
             outlier_neighbours: self.outlier_neighbours,
             outlier_std: self.outlier_std,
             normal_neighbours: self.normal_neighbours,
+            margin: self.image_margin,
         }
     }
 }
@@ -429,7 +459,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             let k = key(sequence.timestamp(i));
             let pose = *poses.get(&k)?;
             let is_keyframe = keyframe_times.contains(&k);
-            (config.frames == FrameChoice::All || is_keyframe).then_some((i, pose, is_keyframe))
+            let wanted = config.frames == FrameChoice::All && config.fusion != Fusion::Points;
+            (wanted || is_keyframe).then_some((i, pose, is_keyframe))
         })
         .step_by(config.frame_step)
         .collect();
@@ -462,8 +493,10 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &|t| poses.get(&key(t)).copied(),
         &load_depth,
     );
+    let fuse_tsdf = config.fuses_tsdf();
+    let cloud_on = config.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
-    if config.mesh && config.carve && config.allocate_first {
+    if fuse_tsdf && config.carve && config.allocate_first {
         allocate_blocks(&mut volume, inputs, &chosen)?;
     }
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
@@ -500,11 +533,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                 }
             }
             let start = Instant::now();
-            if config.mesh {
+            if fuse_tsdf {
                 volume.integrate(&input);
             }
             integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
-            if config.cloud && is_keyframe {
+            if cloud_on && is_keyframe {
                 cloud.add(&input);
                 report.keyframes_in_cloud += 1;
             }
@@ -522,7 +555,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         inputs.masking, config.voxel
     );
     let mut mesh_or_cloud = None;
-    if config.mesh {
+    if fuse_tsdf {
         let start = Instant::now();
         let mesh = marching_cubes::extract(&volume);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -538,10 +571,10 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         }
         mesh_or_cloud = Some(mesh);
     }
-    if config.cloud {
+    if cloud_on {
         let start = Instant::now();
-        let limit = config.cloud_free_space;
-        let (points, dropped) = cloud.finish(|p| limit < 1.0 && volume.seen_through(p, limit));
+        let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
+        let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
         drop(volume);
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();

@@ -48,6 +48,18 @@ pub struct SceneConfig {
     pub furniture: usize,
     /// Furniture keeps at least this far from every camera position, in metres.
     pub clearance: f64,
+    /// How the surfaces look: `blocks` (every face its own noise and coloured blocks)
+    /// or `room` (a wooden floor, plaster walls with framed pictures, a tiled ceiling).
+    pub look: SceneLook,
+}
+
+/// `[scene] look`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SceneLook {
+    #[default]
+    Blocks,
+    Room,
 }
 
 impl Default for SceneConfig {
@@ -56,6 +68,7 @@ impl Default for SceneConfig {
             room_margin: 2.5,
             furniture: 14,
             clearance: 0.9,
+            look: SceneLook::Blocks,
         }
     }
 }
@@ -92,12 +105,31 @@ impl SynthConfig {
     pub fn load(path: &Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| format!("cannot read synth config {}: {e}", path.display()))?;
-        let config: SynthConfig = toml::from_str(&text)
+        let mut config: SynthConfig = toml::from_str(&text)
             .map_err(|e| format!("synth config {}: {}", path.display(), e.to_string().trim()))?;
+        config.resolve_paths(path.parent().unwrap_or(Path::new("")));
         config
             .validate()
             .map_err(|m| format!("synth config {}: {m}", path.display()))?;
         Ok(config)
+    }
+
+    /// Relative file names in the config (timing, sprites, a trajectory to follow) are
+    /// taken from the config file's folder, so a preset works from any folder.
+    fn resolve_paths(&mut self, base: &Path) {
+        for path in [
+            &mut self.sequence.timing,
+            &mut self.people.sprite,
+            &mut self.seated.sprite,
+            &mut self.motion.file,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            if path.is_relative() {
+                *path = base.join(&*path);
+            }
+        }
     }
 
     /// The camera intrinsics (TUM fr3 unless the config gives others).

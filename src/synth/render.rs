@@ -13,7 +13,6 @@ use serde::{Deserialize, Serialize};
 
 use super::movers::Shape;
 use super::scene::{Cuboid, Scene};
-use super::texture::texel;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
@@ -258,7 +257,7 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
                             let length = direction.norm();
                             let incidence = (hit.normal.dot(&direction).abs() / length).max(0.2);
                             let footprint = hit.t * length / camera.fx / incidence;
-                            texel(hit.texture, hit.uv.0, hit.uv.1, footprint).map(|c| c * shade)
+                            scene.colour(&hit, footprint).map(|c| c * shade)
                         });
                         (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
                     }
@@ -459,6 +458,7 @@ mod tests {
                 texture: 1,
             },
             furniture: vec![],
+            look: Default::default(),
         };
         let mut camera = PinholeCamera::tum_fr3();
         camera.width = 64;

@@ -33,11 +33,23 @@ pub struct Hit {
     pub colour: Option<[f64; 3]>,
 }
 
+/// How the scene's surfaces look.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Look {
+    /// Every face its own multi-scale texture (noise and coloured blocks).
+    #[default]
+    Blocks,
+    /// A furnished room: a wooden floor, plaster walls with framed pictures, a tiled
+    /// ceiling ([`super::texture::room_texel`]); `up` is the world's up axis and sign.
+    Room { up: (usize, f64) },
+}
+
 /// A room with furniture.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
     pub room: Cuboid,
     pub furniture: Vec<Cuboid>,
+    pub look: Look,
 }
 
 /// The slab interval \([t_{enter}, t_{exit}]\) of a ray through a box, with the entry and
@@ -138,6 +150,26 @@ impl Cuboid {
 }
 
 impl Scene {
+    /// The colour of a hit surface (see [`Look`]); `footprint` is the pixel's size on
+    /// it in metres.
+    pub fn colour(&self, hit: &Hit, footprint: f64) -> [f64; 3] {
+        use super::texture::{room_texel, texel, Surface};
+        let Look::Room { up } = self.look else {
+            return texel(hit.texture, hit.uv.0, hit.uv.1, footprint);
+        };
+        let (cuboid, axis) = (hit.texture / 8, (hit.texture % 8 / 2) as usize);
+        let surface = if cuboid != self.room.texture {
+            Surface::Furniture(hit.texture)
+        } else if axis != up.0 {
+            Surface::Wall
+        } else if hit.normal[axis] * up.1 > 0.0 {
+            Surface::Floor
+        } else {
+            Surface::Ceiling
+        };
+        room_texel(surface, hit.uv.0, hit.uv.1, footprint)
+    }
+
     /// The nearest static surface along the ray `origin + t * direction`, `t > 0`.
     pub fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<Hit> {
         self.cast_among(self.furniture.iter(), origin, direction)
@@ -232,6 +264,7 @@ impl Scene {
                 .filter(|c| c.distance_to(centre) <= range)
                 .copied()
                 .collect(),
+            look: self.look,
         }
     }
 
@@ -352,7 +385,11 @@ impl Scene {
                 furniture.push(candidate);
             }
         }
-        Scene { room, furniture }
+        Scene {
+            room,
+            furniture,
+            look: Look::Blocks,
+        }
     }
 }
 

@@ -214,6 +214,7 @@ pub fn build_street(
             texture: 1,
         },
         furniture: Vec::new(),
+        look: super::scene::Look::Blocks,
     };
     let mut rng = Rng::new(seed ^ 0x57EE7);
     for point in along_path(poses, up, config.building_spacing) {

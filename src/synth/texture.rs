@@ -100,6 +100,91 @@ fn noise_colour(id: u32, u: f64, v: f64) -> [f64; 3] {
     base.map(|b| ((0.25 + 0.5 * b) * (0.55 + 0.9 * noise)).clamp(0.0, 1.0))
 }
 
+/// A surface of the `room` look ([`crate::synth::scene::Look::Room`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Surface {
+    Floor,
+    Wall,
+    Ceiling,
+    /// Furniture keeps the multi-scale texture of its id (boxes, books, shelves).
+    Furniture(u32),
+}
+
+/// Coverage in [0, 1] of a pixel footprint `f` (in units of the pattern) by
+/// \([0, w)\) around coordinate `x`: a linear ramp at each edge, as in [`texel`].
+fn coverage(x: f64, w: f64, f: f64) -> f64 {
+    let ramp = |x: f64| (x / f + 0.5).clamp(0.0, 1.0);
+    ramp(x).min(ramp(w - x))
+}
+
+fn mix(a: [f64; 3], b: [f64; 3], t: f64) -> [f64; 3] {
+    std::array::from_fn(|k| a[k] * (1.0 - t) + b[k] * t)
+}
+
+/// The colour of a surface of a furnished room at (u, v) metres: a wooden floor of
+/// staggered planks with grain and dark seams, plaster walls with framed pictures
+/// (the pictures carry [`texel`]'s multi-scale texture, so that FAST still finds
+/// corners on the walls), a ceiling of tiles, and furniture as [`texel`] gives it.
+pub fn room_texel(surface: Surface, u: f64, v: f64, footprint: f64) -> [f64; 3] {
+    match surface {
+        Surface::Furniture(id) => texel(id, u, v, footprint),
+        Surface::Floor => floor_texel(u, v, footprint),
+        Surface::Wall => wall_texel(u, v, footprint),
+        Surface::Ceiling => {
+            let tile = 0.6;
+            let (fu, fv) = (u / tile - floor(u / tile), v / tile - floor(v / tile));
+            let f = (footprint / tile).max(1e-6);
+            let seam = 0.012 / tile;
+            let inside = coverage(fu - seam, 1.0 - seam, f) * coverage(fv - seam, 1.0 - seam, f);
+            let grain = 0.04 * value_noise(901, u * 12.0, v * 12.0);
+            mix([0.55, 0.55, 0.56], [0.86 + grain, 0.86 + grain, 0.84 + grain], inside)
+        }
+    }
+}
+
+/// Planks 0.14 m wide along v, 1.2 m long along u, each row's joints staggered.
+fn floor_texel(u: f64, v: f64, footprint: f64) -> [f64; 3] {
+    let (width, length) = (0.14, 1.2);
+    let row = floor(v / width);
+    let shift = lattice(77, row as i64, 0) * length;
+    let column = floor((u + shift) / length);
+    let h = hash(78, column as i64, row as i64);
+    let tone = 0.8 + 0.3 * (h & 0xFF) as f64 / 255.0;
+    let grain = value_noise(79 + (h >> 8) % 7, u * 3.0, v * 60.0);
+    let knots = value_noise(80, u * 9.0, v * 9.0).powi(6);
+    let wood = [0.56, 0.38, 0.22].map(|c| (c * tone * (0.85 + 0.3 * grain) * (1.0 - 0.5 * knots)).clamp(0.0, 1.0));
+    let (fu, fv) = ((u + shift) / length - column, v / width - row);
+    let inside = coverage(fu - 0.004, 1.0 - 0.008, footprint / length)
+        .min(coverage(fv - 0.02, 1.0 - 0.04, footprint / width));
+    mix([0.16, 0.10, 0.06], wood, inside)
+}
+
+/// Plaster with framed pictures, posters and notes on a 0.8 m x 0.7 m grid (most
+/// cells): a lab's wall, with enough corners for tracking.
+fn wall_texel(u: f64, v: f64, footprint: f64) -> [f64; 3] {
+    let tone = 0.88 + 0.12 * value_noise(501, u * 1.5, v * 1.5) + 0.06 * value_noise(502, u * 25.0, v * 25.0);
+    let plaster = [0.80, 0.76, 0.68].map(|c| (c * tone).clamp(0.0, 1.0));
+    let (cell_u, cell_v) = (0.8, 0.7);
+    let (cu, cv) = (floor(u / cell_u), floor(v / cell_v));
+    let h = hash(503, cu as i64, cv as i64);
+    if h % 100 >= 80 {
+        return plaster;
+    }
+    // The picture: size and place in its cell, a frame 3-5 cm wide.
+    let (w, hgt) = (0.3 + 0.4 * (h >> 8 & 0xFF) as f64 / 255.0, 0.25 + 0.35 * (h >> 16 & 0xFF) as f64 / 255.0);
+    let (x, y) = (u - cu * cell_u - 0.5 * (cell_u - w), v - cv * cell_v - 0.5 * (cell_v - hgt));
+    let frame = 0.03 + 0.02 * (h >> 24 & 0x3) as f64 / 3.0;
+    let outer = coverage(x, w, footprint) * coverage(y, hgt, footprint);
+    if outer <= 0.0 {
+        return plaster;
+    }
+    let inner = coverage(x - frame, w - 2.0 * frame, footprint) * coverage(y - frame, hgt - 2.0 * frame, footprint);
+    let wood = [0.22, 0.15, 0.09].map(|c| c * (0.8 + 0.4 * value_noise(504, u * 30.0, v * 30.0)));
+    let painting = texel(600 + h % 50, u * 2.0, v * 2.0, footprint * 2.0);
+    let framed = mix(wood, painting, inner);
+    mix(plaster, framed, outer)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -113,5 +198,20 @@ mod tests {
             assert!(a.iter().all(|c| (0.0..=1.0).contains(c)));
         }
         assert_ne!(texel(1, 0.3, 0.3, 0.001), texel(2, 0.3, 0.3, 0.001));
+    }
+
+    #[test]
+    fn room_surfaces_are_in_range_and_floors_differ_from_walls() {
+        let mut differ = 0;
+        for i in 0..400 {
+            let (u, v) = (i as f64 * 0.093, i as f64 * -0.071);
+            let colours = [Surface::Floor, Surface::Wall, Surface::Ceiling, Surface::Furniture(17)]
+                .map(|s| room_texel(s, u, v, 0.002));
+            for c in colours {
+                assert!(c.iter().all(|x| (0.0..=1.0).contains(x)), "{c:?}");
+            }
+            differ += (colours[0] != colours[1]) as usize;
+        }
+        assert!(differ > 390, "{differ}");
     }
 }

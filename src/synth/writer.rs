@@ -439,6 +439,11 @@ fn scene_and_movers(
         config.scene.clearance,
         config.sequence.seed,
     );
+    if config.scene.look == super::config::SceneLook::Room {
+        scene.look = super::scene::Look::Room {
+            up: super::movers::up_axis(poses),
+        };
+    }
     let standing = load_sprite(&config.people.sprite)?;
     let seated = load_sprite(&config.seated.sprite)?;
     let appearance = |seated: Option<_>| {
