@@ -4,8 +4,7 @@
 //! system (Debian `fonts-dejavu-core`, which `tools/setup.sh` installs) or the file
 //! named by `DOPSLAM_FONT`.
 
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::path::Path;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -16,34 +15,7 @@ use crate::eval::report::EvalReport;
 
 const SIZE: (u32, u32) = (900, 640);
 
-/// Where a font is looked for, after `DOPSLAM_FONT`.
-const FONT_FILES: [&str; 4] = [
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-];
-
-/// Registers a TrueType font as plotters' "sans-serif" once; the error says what to install.
-pub fn ensure_font() -> Result<(), String> {
-    static FONT: OnceLock<Result<(), String>> = OnceLock::new();
-    FONT.get_or_init(|| {
-        let candidates: Vec<PathBuf> = std::env::var_os("DOPSLAM_FONT")
-            .map(PathBuf::from)
-            .into_iter()
-            .chain(FONT_FILES.iter().map(PathBuf::from))
-            .collect();
-        let path = candidates.iter().find(|p| p.is_file()).ok_or_else(|| {
-            "no TrueType font for the plots: install Debian's fonts-dejavu-core or set DOPSLAM_FONT=/path/to/font.ttf".to_string()
-        })?;
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
-        // plotters keeps the font for the program's life.
-        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
-            .map_err(|_| format!("{}: not a usable TrueType font", path.display()))
-    })
-    .clone()
-}
+pub use crate::eval::plot::ensure_font;
 
 /// The colour of a mode in every figure.
 pub fn mode_colour(mode: RunMode) -> RGBColor {

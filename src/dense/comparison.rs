@@ -136,9 +136,16 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         let camera = render::picture_camera();
         let mut top = None::<image::RgbImage>;
         let mut perspective = None::<image::RgbImage>;
-        for ((_, mesh), colours) in meshes.iter().zip(&coloured) {
-            let t = render::top(&mesh.vertices, colours, &view, 600);
-            let p = render::perspective(&mesh.vertices, colours, &view.camera_from_world, &camera);
+        for (((name, mesh), colours), figures) in meshes.iter().zip(&coloured).zip(&maps) {
+            let caption = match figures.mover_points {
+                Some(movers) => format!("{name}: {movers} mover points"),
+                None => format!("{name}: {} ghost points", figures.ghost_points),
+            };
+            let mut t = render::top(&mesh.vertices, colours, &view, 600);
+            let mut p =
+                render::perspective(&mesh.vertices, colours, &view.camera_from_world, &camera);
+            render::label(&mut t, &caption);
+            render::label(&mut p, &caption);
             top = Some(match top {
                 Some(left) => render::side_by_side(&left, &t),
                 None => t,

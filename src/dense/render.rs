@@ -77,7 +77,7 @@ fn bounds(points: &[[f32; 3]]) -> Option<(Vector3<f64>, Vector3<f64>)> {
 /// `camera_from_world` of a camera at `eye` looking at `target` (image up along `up`).
 fn look_at(eye: &Vector3<f64>, target: &Vector3<f64>, up: &Vector3<f64>) -> Option<Se3> {
     let z = (target - eye).try_normalize(1e-9)?;
-    let x = z.cross(&-up).try_normalize(1e-9)?;
+    let x = (-up).cross(&z).try_normalize(1e-9)?;
     let y = z.cross(&x);
     let world_from_camera = se3::from_parts(*eye, Matrix3::from_columns(&[x, y, z]));
     Some(world_from_camera.inverse())
@@ -180,6 +180,23 @@ pub fn side_by_side(left: &RgbImage, right: &RgbImage) -> RgbImage {
     image::imageops::replace(&mut canvas, left, 0, 0);
     image::imageops::replace(&mut canvas, right, (left.width() + 8) as i64, 0);
     canvas
+}
+
+/// Writes `text` on a dark band along the top of `picture`; without a font (see
+/// [`crate::eval::plot::ensure_font`]) the picture stays unlabelled.
+pub fn label(picture: &mut RgbImage, text: &str) {
+    use plotters::prelude::*;
+    if crate::eval::plot::ensure_font().is_err() {
+        return;
+    }
+    let (w, h) = picture.dimensions();
+    let root = BitMapBackend::with_buffer(picture.as_mut(), (w, h)).into_drawing_area();
+    let band = Rectangle::new([(0, 0), (w as i32, 30)], RGBColor(40, 40, 40).filled());
+    let font = ("sans-serif", 19).into_font().color(&WHITE);
+    // Drawing on an in-memory buffer fails only on a size mismatch, which cannot happen.
+    let _ = root.draw(&band);
+    let _ = root.draw(&Text::new(text.to_string(), (10, 6), font));
+    let _ = root.present();
 }
 
 /// A map's colours with the flagged points (ghosts) in red.

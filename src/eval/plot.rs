@@ -249,3 +249,35 @@ pub fn write_plots(report: &EvalReport, dir: &Path) -> Result<Vec<std::path::Pat
     }
     Ok(written)
 }
+
+/// Where a font is looked for, after `DOPSLAM_FONT`.
+const FONT_FILES: [&str; 4] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+];
+
+/// Registers a TrueType font as plotters' "sans-serif" once (for the PNG figures and
+/// the labels of the map pictures); the error says what to install.
+pub fn ensure_font() -> Result<(), String> {
+    use std::path::PathBuf;
+    static FONT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    FONT.get_or_init(|| {
+        let candidates: Vec<PathBuf> = std::env::var_os("DOPSLAM_FONT")
+            .map(PathBuf::from)
+            .into_iter()
+            .chain(FONT_FILES.iter().map(PathBuf::from))
+            .collect();
+        let path = candidates.iter().find(|p| p.is_file()).ok_or_else(|| {
+            "no TrueType font for the plots: install Debian's fonts-dejavu-core or set DOPSLAM_FONT=/path/to/font.ttf".to_string()
+        })?;
+        let bytes = std::fs::read(path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
+        // plotters keeps the font for the program's life.
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, bytes)
+            .map_err(|_| format!("{}: not a usable TrueType font", path.display()))
+    })
+    .clone()
+}
+
