@@ -410,6 +410,7 @@ mod tests {
                 max: Vector3::new(0.5, 0.5, 2.0),
                 texture: 2,
             }],
+            look: Look::Blocks,
         };
         let hit = scene
             .cast(&Vector3::zeros(), &Vector3::new(0.0, 0.0, 1.0))
@@ -443,5 +444,31 @@ mod tests {
                 assert!((nearest - c).norm() > 0.8);
             }
         }
+    }
+
+    #[test]
+    fn the_room_look_tells_floor_walls_and_ceiling_apart() {
+        use crate::synth::texture::{room_texel, Surface};
+        let room = Cuboid {
+            min: Vector3::repeat(-3.0),
+            max: Vector3::repeat(3.0),
+            texture: 1,
+        };
+        // Camera convention: y points down, so up is -y.
+        let scene = Scene {
+            room,
+            furniture: vec![],
+            look: Look::Room { up: (1, -1.0) },
+        };
+        let colour_of = |direction: Vector3<f64>| {
+            let hit = scene.cast(&Vector3::zeros(), &direction).unwrap();
+            (scene.colour(&hit, 0.001), hit.uv)
+        };
+        let (floor, uv) = colour_of(Vector3::new(0.1, 1.0, 0.2));
+        assert_eq!(floor, room_texel(Surface::Floor, uv.0, uv.1, 0.001));
+        let (ceiling, uv) = colour_of(Vector3::new(0.1, -1.0, 0.2));
+        assert_eq!(ceiling, room_texel(Surface::Ceiling, uv.0, uv.1, 0.001));
+        let (wall, uv) = colour_of(Vector3::new(0.1, 0.2, 1.0));
+        assert_eq!(wall, room_texel(Surface::Wall, uv.0, uv.1, 0.001));
     }
 }
