@@ -297,3 +297,75 @@ fn an_interrupted_run_writes_what_it_has() {
         "no dense pass after an interruption"
     );
 }
+
+/// From another working folder: with `DOPSLAM_DATA` naming a folder without the
+/// runtime data, a run that needs the detector (or the vocabulary) fails before any
+/// work, names the missing file and the fix, and writes nothing; `--detections none
+/// --no-loops` runs; `dopslam doctor` says what is missing. With the data directory
+/// that setup installed (when present), the same run uses the detector and the
+/// vocabulary and the report names the files.
+#[test]
+fn runs_from_any_folder_and_never_downgrades_silently() {
+    let base = common::temp_dir("cli-anywhere");
+    let seq = base.join("seq");
+    common::synth_static_room(&seq, 12);
+    let empty = base.join("no-data");
+    std::fs::create_dir_all(&empty).unwrap();
+    let run = |data: &Path, out: &Path, extra: &[&str]| {
+        let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+            .current_dir(&base)
+            .env("DOPSLAM_DATA", data)
+            .args(["run", "seq", "--frames", "10", "--no-dense", "--deterministic", "--out"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (
+            output.status.success(),
+            String::from_utf8_lossy(&output.stderr).into_owned(),
+        )
+    };
+    let out = base.join("out-missing");
+    let (ok, err) = run(&empty, &out, &[]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("yolov4-tiny-320x256.onnx")
+            && err.contains("tools/setup.sh")
+            && err.contains("--detections none"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing is written before the check");
+    let (ok, err) = run(&empty, &out, &["--detections", "none"]);
+    assert!(!ok && err.contains("vocabulary.dbow") && err.contains("--no-loops"), "{err}");
+    assert!(!out.exists(), "nothing is written before the check");
+    let (ok, err) = run(&empty, &out, &["--detections", "none", "--no-loops"]);
+    assert!(ok, "{err}");
+    assert!(out.join("trajectory.txt").exists());
+    let doctor = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .current_dir(&base)
+        .env("DOPSLAM_DATA", &empty)
+        .arg("doctor")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&doctor.stdout);
+    assert!(!doctor.status.success());
+    assert!(text.contains("MISSING") && text.contains("DOPSLAM_DATA"), "{text}");
+    // The checkout's data directory, when setup installed the detector into it.
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    if !data.join("ort/libonnxruntime.so").exists()
+        || !data.join("models/yolov4-tiny-320x256.onnx").exists()
+    {
+        eprintln!("skipping the detector half: bash tools/setup.sh has not installed it into {}", data.display());
+        return;
+    }
+    let out = base.join("out-installed");
+    let (ok, err) = run(&data, &out, &[]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let setup = &report["setup"];
+    assert_eq!(setup["detections"], "onnx", "{setup}");
+    assert!(setup["detector_files"][0].as_str().unwrap().ends_with("models/yolov4-tiny-320x256.onnx"), "{setup}");
+    assert!(setup["vocabulary"].as_str().unwrap().ends_with("vocabulary.dbow"), "{setup}");
+    assert!(setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"), "{setup}");
+}

@@ -183,6 +183,7 @@ fn masks_match_the_movers_and_detections_box_them() {
                     let single = dopslam::synth::scene::Scene {
                         room: cuboid,
                         furniture: vec![],
+                        look: Default::default(),
                     };
                     single.distance_to_surface(&p.coords)
                 };
