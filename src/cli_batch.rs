@@ -28,6 +28,39 @@ pub struct BatchArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Run only shard K of N of the runs (a stable partition: the same manifest gives
+    /// the same shards) into the shared output folder, and write no tables.
+    #[arg(long, value_name = "K/N", conflicts_with_all = ["collect", "slurm"])]
+    shard: Option<dopslam::batch::shard::Shard>,
+    /// Run nothing: build results.*, runs.csv, the plots and report.html from the
+    /// finished runs and say which runs are missing or failed (--strict: exit 1 then).
+    #[arg(long, conflicts_with = "slurm")]
+    collect: bool,
+    /// Write OUT/slurm/array.sbatch (one array task per shard) and
+    /// OUT/slurm/collect.sbatch (the collection, after the array); --submit submits them.
+    #[arg(long)]
+    slurm: bool,
+    /// With --slurm: submit both scripts through sbatch and print the job ids.
+    #[arg(long, requires = "slurm")]
+    submit: bool,
+    /// With --slurm: the partition.
+    #[arg(long, requires = "slurm")]
+    partition: Option<String>,
+    /// With --slurm: each task's time limit (Slurm's format, e.g. 2:00:00).
+    #[arg(long, requires = "slurm")]
+    time: Option<String>,
+    /// With --slurm: CPUs per task (default: the manifest's cores_per_run).
+    #[arg(long, requires = "slurm")]
+    cpus_per_task: Option<usize>,
+    /// With --slurm: memory per task (Slurm's format, e.g. 4G; default: the manifest's memory_per_run_gib).
+    #[arg(long, requires = "slurm")]
+    mem: Option<String>,
+    /// With --slurm: array tasks at a time (--array=1-N%K).
+    #[arg(long, requires = "slurm")]
+    max_parallel: Option<usize>,
+    /// With --slurm: the number of array tasks (default: one per run, at most 1000).
+    #[arg(long, requires = "slurm")]
+    shards: Option<usize>,
 }
 
 pub fn run_batch(args: BatchArgs) -> Result<()> {
@@ -36,6 +69,9 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
     }
     let program =
         std::env::current_exe().context("cannot find the dopslam program to start runs with")?;
+    if args.slurm {
+        return slurm(&args, &program);
+    }
     let options = dopslam::batch::BatchOptions {
         program,
         out: args.out.clone(),
@@ -43,9 +79,17 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         retry_failed: args.retry_failed,
         reevaluate: args.reevaluate,
         progress: !args.quiet,
+        shard: args.shard,
+        collect: args.collect,
     };
     let summary =
         dopslam::batch::run_batch(&args.manifest, &options).map_err(anyhow::Error::msg)?;
+    if let Some(shard) = args.shard {
+        return shard_done(&summary, shard);
+    }
+    if args.collect {
+        return collected(&summary, args.strict);
+    }
     let e = &summary.executed;
     let table = std::fs::read_to_string(summary.out.join("results.md")).unwrap_or_default();
     println!("{table}");
@@ -69,6 +113,98 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
     let failed = summary.groups.iter().map(|g| g.failed).sum::<usize>();
     if args.strict && failed > 0 {
         bail!("{failed} runs failed (see results.md)");
+    }
+    Ok(())
+}
+
+/// `--slurm`: the scripts, submitted with `--submit`.
+fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
+    let plan = dopslam::batch::BatchPlan::new(&args.manifest, args.out.as_deref())
+        .map_err(anyhow::Error::msg)?;
+    let options = dopslam::batch::slurm::SlurmOptions {
+        partition: args.partition.clone(),
+        time: args.time.clone(),
+        cpus_per_task: args.cpus_per_task,
+        mem: args.mem.clone(),
+        max_parallel: args.max_parallel,
+        shards: args.shards,
+    };
+    let scripts = dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)
+        .map_err(anyhow::Error::msg)?;
+    println!(
+        "wrote {} ({} array tasks for {} runs) and {}",
+        scripts.array.display(),
+        scripts.shards,
+        plan.runs.len(),
+        scripts.collect.display()
+    );
+    if !args.submit {
+        println!(
+            "submit: jid=$(sbatch --parsable {}) && sbatch --dependency=afterany:$jid {}",
+            scripts.array.display(),
+            scripts.collect.display()
+        );
+        return Ok(());
+    }
+    let (array, collect) = dopslam::batch::slurm::submit(&scripts).map_err(anyhow::Error::msg)?;
+    println!("submitted: array job {array}, collection job {collect} (after the array)");
+    println!(
+        "results: {}/results.md once job {collect} ends (squeue -j {array},{collect})",
+        plan.out.display()
+    );
+    Ok(())
+}
+
+/// What a shard did.
+fn shard_done(summary: &dopslam::batch::BatchSummary, shard: dopslam::batch::shard::Shard) -> Result<()> {
+    let e = &summary.executed;
+    for note in &summary.notes {
+        eprintln!("note: {note}");
+    }
+    println!(
+        "shard {shard} of {}: {} finished before, {} done now, {} failed now, {} not run; tables: dopslam batch MANIFEST --collect",
+        summary.out.display(),
+        summary.runs_skipped,
+        e.done,
+        e.failed,
+        e.interrupted
+    );
+    if dopslam::interrupt::requested() || e.interrupted > 0 {
+        bail!("interrupted: {} runs not done; run the same shard again to finish them", e.interrupted);
+    }
+    Ok(())
+}
+
+/// What `--collect` found.
+fn collected(summary: &dopslam::batch::BatchSummary, strict: bool) -> Result<()> {
+    let table = std::fs::read_to_string(summary.out.join("results.md")).unwrap_or_default();
+    println!("{table}");
+    for note in &summary.notes {
+        eprintln!("note: {note}");
+    }
+    let finished = summary.runs_planned - summary.missing.len();
+    println!(
+        "{finished} of {} runs finished ({} failed), {} missing",
+        summary.runs_planned,
+        summary.failed.len(),
+        summary.missing.len()
+    );
+    for run in &summary.missing {
+        println!("missing: {run}");
+    }
+    for run in &summary.failed {
+        println!("failed: {run}");
+    }
+    println!(
+        "wrote {}/{{results.md,results.csv,results.json,runs.csv,report.html}}",
+        summary.out.display()
+    );
+    if strict && !(summary.missing.is_empty() && summary.failed.is_empty()) {
+        bail!(
+            "{} runs missing, {} failed (--strict)",
+            summary.missing.len(),
+            summary.failed.len()
+        );
     }
     Ok(())
 }

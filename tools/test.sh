@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Quick start, step 2: runs the whole test suite. Installs what the tests need first
+# Quick start, step 2: runs the whole test suite (cargo's tests, then the batch on a
+# real Slurm: tools/test_slurm.sh). Installs what the tests need first
 # (the same idempotent steps as tools/setup.sh, without the demo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -9,3 +10,5 @@ if ! command -v cargo >/dev/null 2>&1; then
 fi
 source tools/system_packages.sh
 cargo test --release "${CARGO_FEATURES[@]}"
+# The batch on a real one-node Slurm cluster (DOPSLAM_SKIP_SLURM=1 skips it, saying so).
+bash tools/test_slurm.sh ./target/release/dopslam

@@ -272,10 +272,10 @@ impl Manifest {
                 None => base_config.clone(),
             };
             if let Some(settings) = &entry.settings {
-                let path = self.resolve(settings);
-                crate::io::orbslam_settings::OrbSlamSettings::read(&path)
+                let path = absolute(&self.resolve(settings));
+                config
+                    .apply_orbslam_settings(&path)
                     .map_err(|e| context(e.to_string()))?;
-                config.dataset.settings = Some(absolute(&path));
             }
             if entry.depth_scale.is_some() {
                 config.dataset.depth_scale = entry.depth_scale;

@@ -25,6 +25,8 @@ pub mod manifest;
 pub mod plots;
 pub mod record;
 pub mod results;
+pub mod shard;
+pub mod slurm;
 
 use std::path::{Path, PathBuf};
 
@@ -52,6 +54,10 @@ pub struct BatchOptions {
     /// Evaluate the finished runs again from their files (no run is repeated).
     pub reevaluate: bool,
     pub progress: bool,
+    /// Run only this part of the runs, and write no tables ([`shard`]).
+    pub shard: Option<shard::Shard>,
+    /// Run nothing: make the tables, plots and report from the finished runs.
+    pub collect: bool,
 }
 
 /// What a batch did.
@@ -66,50 +72,162 @@ pub struct BatchSummary {
     pub groups: Vec<GroupSummary>,
     /// Figures or sequences that could not be made, and why.
     pub notes: Vec<String>,
+    /// Runs of the whole batch with no `run.json` (not run, or not finished), and
+    /// those whose record says they failed, as `sequence/mode/r<k>`.
+    pub missing: Vec<String>,
+    pub failed: Vec<String>,
+    /// Whether tables were written (not for a shard).
+    pub tables: bool,
 }
 
-/// Runs the batch described by the manifest at `path`.
-pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, String> {
-    let manifest = Manifest::load(path)?;
-    let planned = manifest.plan()?;
-    let out = match (&options.out, &manifest.batch.out) {
-        (Some(out), _) => out.clone(),
-        (None, Some(out)) => manifest.resolve(out),
-        (None, None) => Path::new("outputs/batch").join(
-            path.file_stem()
-                .map_or("batch".into(), |s| s.to_string_lossy().into_owned()),
-        ),
-    };
-    let out = absolute(&out);
-    std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
-    let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    write_atomic(&out.join("manifest.toml"), &text).map_err(|e| e.to_string())?;
+/// A batch's plan: the manifest, its sequences, the output folder and every run.
+pub struct BatchPlan {
+    pub manifest: Manifest,
+    pub planned: Vec<PlannedSequence>,
+    pub out: PathBuf,
+    pub runs: Vec<RunJob>,
+}
 
-    let mut notes = Vec::new();
-    let mut sequence_dirs = Vec::new();
-    let mut unavailable: Vec<Option<String>> = Vec::new();
-    for sequence in &planned {
-        let (dir, problem) = prepare_sequence(sequence, &out, options.progress);
-        sequence_dirs.push(dir);
-        unavailable.push(problem);
+impl BatchPlan {
+    /// Reads the manifest at `path` and plans its runs into `out` (else the manifest's
+    /// `out`, else `outputs/batch/<manifest name>`).
+    pub fn new(path: &Path, out: Option<&Path>) -> Result<Self, String> {
+        let manifest = Manifest::load(path)?;
+        let planned = manifest.plan()?;
+        let out = match (out, &manifest.batch.out) {
+            (Some(out), _) => out.to_path_buf(),
+            (None, Some(out)) => manifest.resolve(out),
+            (None, None) => Path::new("outputs/batch").join(
+                path.file_stem()
+                    .map_or("batch".into(), |s| s.to_string_lossy().into_owned()),
+            ),
+        };
+        let out = absolute(&out);
+        let runs = run_list(&planned, &out);
+        Ok(Self {
+            manifest,
+            planned,
+            out,
+            runs,
+        })
     }
 
-    let jobs = options.jobs.or(manifest.batch.jobs).unwrap_or_else(|| {
+    /// A run's label, `sequence/mode/r<k>`.
+    pub fn label(&self, job: &RunJob) -> String {
+        format!(
+            "{}/{}/r{}",
+            self.planned[job.sequence].name,
+            job.mode.name(),
+            job.repetition
+        )
+    }
+}
+
+/// Runs the batch described by the manifest at `path`: every run (or a shard's), then
+/// the tables; with `options.collect`, the tables alone.
+pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, String> {
+    let plan = BatchPlan::new(path, options.out.as_deref())?;
+    let out = &plan.out;
+    std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    write_atomic(&out.join("manifest.toml"), &text).map_err(|e| e.to_string())?;
+    let mut notes = Vec::new();
+    let (sequence_dirs, unavailable) = if options.collect {
+        let dirs = plan.planned.iter().map(|p| sequence_dir(p, out)).collect();
+        (dirs, vec![None; plan.planned.len()])
+    } else {
+        prepare_sequences(&plan, options)
+    };
+    let jobs = options.jobs.or(plan.manifest.batch.jobs).unwrap_or_else(|| {
         budget_jobs(
-            manifest.batch.cores_per_run,
-            manifest.batch.memory_per_run_gib,
+            plan.manifest.batch.cores_per_run,
+            plan.manifest.batch.memory_per_run_gib,
         )
     });
-    let all_runs = run_list(&planned, &out);
+    let (executed, skipped) = if options.collect {
+        (Executed::default(), 0)
+    } else {
+        execute(&plan, options, (&sequence_dirs, &unavailable), jobs)?
+    };
+    let mut summary = BatchSummary {
+        out: out.clone(),
+        runs_planned: plan.runs.len(),
+        runs_skipped: skipped,
+        executed,
+        jobs,
+        groups: Vec::new(),
+        notes: Vec::new(),
+        missing: Vec::new(),
+        failed: Vec::new(),
+        tables: options.shard.is_none(),
+    };
+    for job in &plan.runs {
+        match RunRecord::read(&job.dir) {
+            None => summary.missing.push(plan.label(job)),
+            Some(r) if r.status == RunStatus::Failed => summary.failed.push(plan.label(job)),
+            Some(_) => {}
+        }
+    }
+    for (sequence, problem) in plan.planned.iter().zip(&unavailable) {
+        if let Some(problem) = problem {
+            notes.push(format!("{}: {problem}", sequence.name));
+        }
+    }
+    if summary.tables {
+        summary.groups = write_tables(&plan, path, &sequence_dirs, &mut notes)?;
+    }
+    summary.notes = notes;
+    Ok(summary)
+}
+
+/// The sequences the runs to do need: each folder, generating synthetic ones once
+/// (also when shards start together), and why a sequence cannot be used.
+fn prepare_sequences(
+    plan: &BatchPlan,
+    options: &BatchOptions,
+) -> (Vec<PathBuf>, Vec<Option<String>>) {
+    let needed: Vec<bool> = match options.shard {
+        None => vec![true; plan.planned.len()],
+        Some(shard) => {
+            let mine = shard::select(&plan.runs, &plan.planned, shard);
+            (0..plan.planned.len())
+                .map(|k| mine.iter().any(|j| j.sequence == k))
+                .collect()
+        }
+    };
+    plan.planned
+        .iter()
+        .zip(needed)
+        .map(|(sequence, needed)| {
+            if needed {
+                prepare_sequence(sequence, &plan.out, options.progress)
+            } else {
+                (sequence_dir(sequence, &plan.out), None)
+            }
+        })
+        .unzip()
+}
+
+/// Runs what is left of the batch (or of its shard): `(executed, runs finished before)`.
+fn execute(
+    plan: &BatchPlan,
+    options: &BatchOptions,
+    (sequence_dirs, unavailable): (&[PathBuf], &[Option<String>]),
+    jobs: usize,
+) -> Result<(Executed, usize), String> {
+    let mine = match options.shard {
+        Some(shard) => shard::select(&plan.runs, &plan.planned, shard),
+        None => plan.runs.clone(),
+    };
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
-    for job in &all_runs {
+    for job in &mine {
         match RunRecord::read(&job.dir) {
             Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
             _ => match &unavailable[job.sequence] {
                 Some(problem) => {
-                    record_unavailable(job, &planned[job.sequence], problem)?;
+                    record_unavailable(job, &plan.planned[job.sequence], problem)?;
                     unavailable_runs += 1;
                 }
                 None => todo.push(job.clone()),
@@ -118,26 +236,28 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     }
     if options.progress {
         eprintln!(
-            "batch {}: {} runs ({} finished before), {} to do, {jobs} at a time",
-            out.display(),
-            all_runs.len(),
+            "batch {}{}: {} runs ({} finished before), {} to do, {jobs} at a time",
+            plan.out.display(),
+            options.shard.map(|s| format!(", shard {s}")).unwrap_or_default(),
+            mine.len(),
             skipped,
             todo.len()
         );
     }
+    let batch = &plan.manifest.batch;
     let executor = Executor {
         program: &options.program,
-        sequences: &planned,
-        sequence_dirs: &sequence_dirs,
+        sequences: &plan.planned,
+        sequence_dirs,
         jobs,
-        cores_per_run: manifest.batch.cores_per_run,
-        deterministic: manifest.batch.deterministic,
-        pace: manifest.batch.pace,
-        rpe_seconds: manifest.batch.rpe_seconds,
+        cores_per_run: batch.cores_per_run,
+        deterministic: batch.deterministic,
+        pace: batch.pace,
+        rpe_seconds: batch.rpe_seconds,
         progress: options.progress,
     };
     if options.reevaluate {
-        for job in &all_runs {
+        for job in &mine {
             if let Some(record) = RunRecord::read(&job.dir).filter(|r| r.status == RunStatus::Ok) {
                 executor.reevaluate(job, record)?;
             }
@@ -145,14 +265,25 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     }
     let mut executed = executor.run_all(todo);
     executed.failed += unavailable_runs;
+    Ok((executed, skipped))
+}
 
-    let records: Vec<RunRecord> = all_runs
+/// The tables, plots and report from the finished runs; the groups' summaries.
+fn write_tables(
+    plan: &BatchPlan,
+    path: &Path,
+    sequence_dirs: &[PathBuf],
+    notes: &mut Vec<String>,
+) -> Result<Vec<GroupSummary>, String> {
+    let (manifest, planned, out) = (&plan.manifest, &plan.planned, &plan.out);
+    let records: Vec<RunRecord> = plan
+        .runs
         .iter()
         .filter_map(|j| RunRecord::read(&j.dir))
         .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
     let mut modes: Vec<RunMode> = manifest.batch.modes.clone();
-    for p in &planned {
+    for p in planned {
         for m in &p.modes {
             if !modes.contains(m) {
                 modes.push(*m);
@@ -160,9 +291,9 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         }
     }
     let groups = results::summarise(&records, &names, &modes);
-    let header = header_lines(&manifest, &planned, path, (records.len(), all_runs.len()));
+    let header = header_lines(manifest, planned, path, (records.len(), plan.runs.len()));
     results::write_results(
-        &out,
+        out,
         &records,
         &groups,
         &format!("# Batch results\n\n{}", header.join("  \n")),
@@ -178,27 +309,14 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
             .iter()
             .filter(|r| r.sequence == sequence.name)
             .collect();
-        match figures::sequence_section(sequence, &sequence_dirs[k], &runs, &out, &modes, rpe) {
+        match figures::sequence_section(sequence, &sequence_dirs[k], &runs, out, &modes, rpe) {
             Ok(section) => sections.push(section),
             Err(e) => notes.push(format!("{}: figures not made: {e}", sequence.name)),
         }
     }
     let html = html::report_html("dopslam batch report", &header, &groups, &sections);
     write_atomic(&out.join("report.html"), html.as_bytes()).map_err(|e| e.to_string())?;
-    for (sequence, problem) in planned.iter().zip(&unavailable) {
-        if let Some(problem) = problem {
-            notes.push(format!("{}: {problem}", sequence.name));
-        }
-    }
-    Ok(BatchSummary {
-        out,
-        runs_planned: all_runs.len(),
-        runs_skipped: skipped,
-        executed,
-        jobs,
-        groups,
-        notes,
-    })
+    Ok(groups)
 }
 
 /// Every run of the batch, repetition by repetition (an interrupted batch has whole
@@ -224,19 +342,39 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
     jobs
 }
 
+/// The folder a sequence's runs read (a generated street is run from the KITTI layout
+/// it also writes), without generating anything.
+fn sequence_dir(sequence: &PlannedSequence, out: &Path) -> PathBuf {
+    match &sequence.source {
+        SequenceSource::Folder(path) => path.clone(),
+        SequenceSource::Synthetic { preset, .. } => {
+            let dir = out.join("sequences").join(&sequence.name);
+            let street = crate::synth::SynthConfig::load(preset)
+                .is_ok_and(|c| c.street.enabled && c.stereo.baseline > 0.0);
+            if street {
+                dir.join("kitti/sequences/00")
+            } else {
+                dir
+            }
+        }
+    }
+}
+
 /// The sequence's folder, generating a synthetic one (into `<out>/sequences/<name>`,
-/// via a `.part` folder renamed when complete) if it is not there yet; and why it
-/// cannot be used, if it cannot.
+/// via a folder of this process renamed when complete, once across processes: see
+/// [`shard::once_per_folder`]) if it is not there yet; and why it cannot be used, if
+/// it cannot.
 fn prepare_sequence(
     sequence: &PlannedSequence,
     out: &Path,
     progress: bool,
 ) -> (PathBuf, Option<String>) {
+    let run_dir = sequence_dir(sequence, out);
     match &sequence.source {
         SequenceSource::Folder(path) => {
             let problem =
                 (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
-            (path.clone(), problem)
+            (run_dir, problem)
         }
         SequenceSource::Synthetic {
             preset,
@@ -257,27 +395,20 @@ fn prepare_sequence(
                 Ok(config) => config,
                 Err(problem) => return (dir, Some(problem)),
             };
-            // A street is run from its stereo pairs (the KITTI layout it also writes).
-            let run_dir = if config.street.enabled && config.stereo.baseline > 0.0 {
-                dir.join("kitti/sequences/00")
-            } else {
-                dir.clone()
-            };
-            if dir.is_dir() {
-                return (run_dir, None);
-            }
             let part = out
                 .join("sequences")
-                .join(format!("{}.part", sequence.name));
-            if progress {
-                eprintln!("generating {} from {}", sequence.name, preset.display());
-            }
-            let generated = crate::synth::generate(&config, &part, true)
-                .map_err(|e| e.to_string())
-                .and_then(|_| {
-                    std::fs::rename(&part, &dir)
-                        .map_err(|e| format!("cannot rename {}: {e}", part.display()))
-                });
+                .join(format!("{}.part{}", sequence.name, std::process::id()));
+            let generated = shard::once_per_folder(&dir, || {
+                if progress {
+                    eprintln!("generating {} from {}", sequence.name, preset.display());
+                }
+                crate::synth::generate(&config, &part, true)
+                    .map_err(|e| e.to_string())
+                    .and_then(|_| {
+                        std::fs::rename(&part, &dir)
+                            .map_err(|e| format!("cannot rename {}: {e}", part.display()))
+                    })
+            });
             (run_dir, generated.err())
         }
     }

@@ -1,0 +1,234 @@
+//! Batches over several machines: `--shard K/N` runs one part of a batch into the
+//! shared output folder, `--collect` makes the tables from what all parts finished.
+//!
+//! The partition is stable: the runs are ordered by their key (sequence name, mode,
+//! repetition), which does not depend on the order the manifest lists its sequences in,
+//! and run \(i\) of that order goes to shard \((i \bmod N) + 1\). Every run is in exactly
+//! one shard, and the shards' sizes differ by at most one.
+//!
+//! Synthetic sequences are generated once, whatever the number of shards that start
+//! together: a shard takes an exclusive `flock` on `sequences/<name>.lock`, generates
+//! into a folder of its own and renames it into place; the others wait on the lock and
+//! then find the folder there. A lock dies with its process, so a killed shard leaves
+//! no stale lock, and never a half-written sequence.
+
+use std::path::Path;
+
+use super::execute::RunJob;
+use super::manifest::PlannedSequence;
+
+/// Part `index` (1-based) of `count`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+
+    /// `K/N` with 1 <= K <= N.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let parsed = text
+            .split_once('/')
+            .and_then(|(k, n)| Some((k.trim().parse::<usize>().ok()?, n.trim().parse::<usize>().ok()?)));
+        match parsed {
+            Some((index, count)) if count >= 1 && (1..=count).contains(&index) => {
+                Ok(Self { index, count })
+            }
+            _ => Err(format!(
+                "--shard {text:?}: expected K/N with 1 <= K <= N (as Slurm's $SLURM_ARRAY_TASK_ID/N with --array=1-N)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// The key that orders runs for the partition.
+fn key(job: &RunJob, planned: &[PlannedSequence]) -> (String, &'static str, usize) {
+    (planned[job.sequence].name.clone(), job.mode.name(), job.repetition)
+}
+
+/// The runs of `shard` among `runs` (see the module doc), in the batch's own order.
+pub fn select(runs: &[RunJob], planned: &[PlannedSequence], shard: Shard) -> Vec<RunJob> {
+    let mut order: Vec<usize> = (0..runs.len()).collect();
+    order.sort_by_key(|&i| key(&runs[i], planned));
+    let mut chosen = vec![false; runs.len()];
+    for (rank, &i) in order.iter().enumerate() {
+        chosen[i] = rank % shard.count + 1 == shard.index;
+    }
+    runs.iter()
+        .zip(chosen)
+        .filter(|(_, c)| *c)
+        .map(|(job, _)| job.clone())
+        .collect()
+}
+
+/// Runs `make` once for the folder `dir` across processes: under an exclusive lock on
+/// `dir` + `.lock`, and only when `dir` does not exist yet. `Ok(true)` when this call
+/// made it.
+pub fn once_per_folder(
+    dir: &Path,
+    make: impl FnOnce() -> Result<(), String>,
+) -> Result<bool, String> {
+    if dir.is_dir() {
+        return Ok(false);
+    }
+    let lock_path = dir.with_extension("lock");
+    if let Some(parent) = lock_path.parent() {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| format!("cannot create {}: {e}", parent.display()))?;
+    }
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_path)
+        .map_err(|e| format!("cannot open the lock {}: {e}", lock_path.display()))?;
+    lock_exclusive(&lock).map_err(|e| format!("cannot lock {}: {e}", lock_path.display()))?;
+    // Made by another process while this one waited?
+    if dir.is_dir() {
+        return Ok(false);
+    }
+    make()?;
+    Ok(true)
+    // The lock goes with the file handle.
+}
+
+#[cfg(unix)]
+fn lock_exclusive(file: &std::fs::File) -> std::io::Result<()> {
+    use std::os::unix::io::AsRawFd;
+    loop {
+        // SAFETY: flock on a descriptor this function borrows; it changes no memory.
+        let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) };
+        if rc == 0 {
+            return Ok(());
+        }
+        let error = std::io::Error::last_os_error();
+        if error.kind() != std::io::ErrorKind::Interrupted {
+            return Err(error);
+        }
+    }
+}
+
+#[cfg(not(unix))]
+fn lock_exclusive(_file: &std::fs::File) -> std::io::Result<()> {
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::batch::manifest::RunMode;
+    use proptest::prelude::*;
+
+    fn planned(names: &[&str]) -> Vec<PlannedSequence> {
+        names
+            .iter()
+            .map(|n| PlannedSequence {
+                name: n.to_string(),
+                source: crate::batch::manifest::SequenceSource::Folder(n.into()),
+                config: crate::config::Config::default(),
+                modes: vec![RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes],
+                repetitions: 1,
+                frames: None,
+            })
+            .collect()
+    }
+
+    fn runs(planned: &[PlannedSequence], repetitions: usize) -> Vec<RunJob> {
+        let mut jobs = Vec::new();
+        for r in 1..=repetitions {
+            for (k, p) in planned.iter().enumerate() {
+                for mode in [RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes] {
+                    jobs.push(RunJob {
+                        sequence: k,
+                        mode,
+                        repetition: r,
+                        dir: std::path::PathBuf::from(format!("{}/{}/{r}", p.name, mode.name())),
+                    });
+                }
+            }
+        }
+        jobs
+    }
+
+    #[test]
+    fn shards_parse_and_refuse_nonsense() {
+        assert_eq!("2/5".parse::<Shard>().unwrap(), Shard { index: 2, count: 5 });
+        for bad in ["0/3", "4/3", "1/0", "x/2", "2", "1/2/3", "-1/2"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+    }
+
+    proptest! {
+        /// Every run in exactly one shard, sizes within one, for N = 1..7; the same
+        /// shards when the manifest lists its sequences in another order.
+        #[test]
+        fn the_partition_covers_every_run_once_and_is_stable(
+            count in 1usize..=7,
+            sequences in 1usize..=6,
+            repetitions in 1usize..=3,
+            rotate in 0usize..6,
+        ) {
+            let names: Vec<String> = (0..sequences).map(|i| format!("seq{i}")).collect();
+            let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+            let first = planned(&name_refs);
+            let all = runs(&first, repetitions);
+            let mut seen = std::collections::HashMap::new();
+            let mut sizes = Vec::new();
+            for index in 1..=count {
+                let part = select(&all, &first, Shard { index, count });
+                sizes.push(part.len());
+                for job in part {
+                    *seen.entry(job.dir).or_insert(0) += 1;
+                }
+            }
+            prop_assert_eq!(seen.len(), all.len());
+            prop_assert!(seen.values().all(|&n| n == 1));
+            prop_assert!(sizes.iter().max().unwrap() - sizes.iter().min().unwrap() <= 1);
+            // The same manifest with its sequences in another order.
+            let mut reordered = name_refs.clone();
+            reordered.rotate_left(rotate % sequences);
+            reordered.reverse();
+            let second = planned(&reordered);
+            let other = runs(&second, repetitions);
+            for index in 1..=count {
+                let shard = Shard { index, count };
+                let mut a: Vec<_> = select(&all, &first, shard).into_iter().map(|j| j.dir).collect();
+                let mut b: Vec<_> = select(&other, &second, shard).into_iter().map(|j| j.dir).collect();
+                a.sort();
+                b.sort();
+                prop_assert_eq!(a, b);
+            }
+        }
+    }
+
+    #[test]
+    fn a_folder_is_made_once_by_concurrent_callers() {
+        let base = std::env::temp_dir().join(format!("dopslam-once-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        std::fs::create_dir_all(&base).unwrap();
+        let dir = base.join("sequence");
+        let made = std::sync::atomic::AtomicUsize::new(0);
+        std::thread::scope(|scope| {
+            for _ in 0..4 {
+                scope.spawn(|| {
+                    once_per_folder(&dir, || {
+                        made.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                        std::thread::sleep(std::time::Duration::from_millis(50));
+                        std::fs::create_dir(&dir).map_err(|e| e.to_string())
+                    })
+                    .unwrap();
+                });
+            }
+        });
+        assert_eq!(made.into_inner(), 1);
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+}
