@@ -27,11 +27,11 @@ enum VocabCommand {
         inputs: Vec<PathBuf>,
         #[arg(short, long, default_value = "data/vocabulary.dbow")]
         out: PathBuf,
-        /// Branching factor k.
-        #[arg(long, default_value_t = 10)]
+        /// Branching factor k (at least 2).
+        #[arg(long, default_value_t = 10, value_parser = crate::cli_values::at_least_two)]
         branching: usize,
-        /// Depth L (up to k^L words).
-        #[arg(long, default_value_t = 4)]
+        /// Depth L (up to k^L words; at least 1).
+        #[arg(long, default_value_t = 4, value_parser = crate::cli_values::at_least_one)]
         depth: usize,
         /// Use at most this many images (evenly spaced).
         #[arg(long, default_value_t = 2000)]
@@ -54,9 +54,9 @@ enum GraphCommand {
     /// Write a seeded synthetic sphere graph (like sphere2500) and its ground truth as g2o files.
     Sphere {
         out: PathBuf,
-        #[arg(long, default_value_t = 50)]
+        #[arg(long, default_value_t = 50, value_parser = crate::cli_values::at_least_two)]
         rings: usize,
-        #[arg(long, default_value_t = 50)]
+        #[arg(long, default_value_t = 50, value_parser = crate::cli_values::at_least_one)]
         per_ring: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,

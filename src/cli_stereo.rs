@@ -26,7 +26,7 @@ pub struct StereoArgs {
     #[arg(long)]
     pub settings: PathBuf,
     /// Keypoints per image (default: the settings' ORBextractor.nFeatures, else 2000).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cli_values::at_least_one)]
     pub features: Option<usize>,
     /// Also write the figures as JSON here.
     #[arg(long)]

@@ -180,9 +180,9 @@ impl StereoConfig {
                 return Err(format!("stereo.{key} must be positive, got {value}"));
             }
         }
-        if self.sgbm_disparities <= 0 || self.sgbm_disparities % 16 != 0 {
+        if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(format!(
-                "stereo.sgbm_disparities must be a positive multiple of 16, got {}",
+                "stereo.sgbm_disparities must be a multiple of 16 from 16 to 1024, got {}",
                 self.sgbm_disparities
             ));
         }
@@ -240,6 +240,7 @@ impl Config {
 
     /// Checks every value's range; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
+        self.check_numbers()?;
         self.orb.validate()?;
         self.stereo.validate()?;
         self.detector.validate()?;
@@ -352,6 +353,50 @@ impl Config {
     }
 }
 
+/// Whether a key's number may be negative: `dense.cloud_free_space` and the lens
+/// distortion; every other number of a config is a size, a time, a weight, a
+/// threshold or a probability, and is never below 0.
+fn may_be_negative(key: &str) -> bool {
+    key == "dense.cloud_free_space" || key.starts_with("dataset.camera.distortion")
+}
+
+impl Config {
+    /// Every number of the config, wherever it is: finite (no NaN, no infinity, which
+    /// TOML accepts) and, but for [`may_be_negative`] keys, not below 0. The sections' own
+    /// checks then narrow the ranges.
+    fn check_numbers(&self) -> Result<(), String> {
+        let value = toml::Value::try_from(self).map_err(|e| format!("config: {e}"))?;
+        check_value(&value, "")
+    }
+}
+
+fn check_value(value: &toml::Value, key: &str) -> Result<(), String> {
+    let child = |name: &str| {
+        if key.is_empty() {
+            name.to_string()
+        } else {
+            format!("{key}.{name}")
+        }
+    };
+    match value {
+        toml::Value::Float(x) if !x.is_finite() => {
+            Err(format!("{key} must be a finite number, got {x}"))
+        }
+        toml::Value::Float(x) if *x < 0.0 && !may_be_negative(key) => {
+            Err(format!("{key} must not be negative, got {x}"))
+        }
+        toml::Value::Integer(x) if *x < 0 && !may_be_negative(key) => {
+            Err(format!("{key} must not be negative, got {x}"))
+        }
+        toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| check_value(v, &child(k))),
+        toml::Value::Array(items) => items
+            .iter()
+            .enumerate()
+            .try_for_each(|(i, v)| check_value(v, &format!("{key}[{i}]"))),
+        _ => Ok(()),
+    }
+}
+
 /// What applying an ORB-SLAM2 settings file did (in `report.json`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct SettingsApplied {
@@ -404,6 +449,24 @@ mod tests {
         assert!(message.contains("n_featurez"), "{message}");
         let message = Config::from_toml("[nonsense]\n").unwrap_err();
         assert!(message.contains("nonsense"), "{message}");
+    }
+
+    #[test]
+    fn every_number_is_finite_and_sizes_are_not_negative() {
+        for (text, key) in [
+            ("[tracking]\nth_depth = nan\n", "tracking.th_depth"),
+            ("[tracking]\nmotion_search_radius = -1.0\n", "tracking.motion_search_radius"),
+            ("[dop]\ngamma = inf\n", "dop.gamma"),
+            ("[dense]\nvoxel = nan\n", "dense.voxel"),
+            ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),
+            ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
+        ] {
+            let message = Config::from_toml(text).unwrap_err();
+            assert!(message.contains(key), "{text}: {message}");
+        }
+        assert!(Config::from_toml("[dense]\ncloud_free_space = -0.5\n").is_ok());
+        let distorted = "[dataset.camera]\nfx = 517.3\nfy = 516.5\ncx = 318.6\ncy = 255.3\nwidth = 640\nheight = 480\ndistortion = [0.26, -0.95, -0.005, 0.003, 1.16]\n";
+        assert!(Config::from_toml(distorted).is_ok(), "{:?}", Config::from_toml(distorted));
     }
 
     #[test]

@@ -21,6 +21,7 @@ use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
 mod cli_batch;
+mod cli_values;
 mod cli_doctor;
 mod cli_global;
 mod cli_maps;
@@ -85,8 +86,8 @@ struct DetectArgs {
     #[arg(long, default_value = "outputs/detect")]
     out: PathBuf,
     /// For a sequence: detect every Nth frame.
-    #[arg(long, default_value_t = 1)]
-    every: usize,
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    every: u64,
     /// Print the detections as JSON on stdout (one array: per image or frame its name,
     /// timestamp, milliseconds and detections) instead of the table.
     #[arg(long)]
@@ -118,10 +119,10 @@ struct EvalArgs {
     #[arg(long, value_enum)]
     association: Option<AssociationRule>,
     /// Association tolerance in seconds (default: evo 0.01, tum-greedy 0.02).
-    #[arg(long)]
+    #[arg(long, value_parser = cli_values::non_negative)]
     max_diff: Option<f64>,
     /// Time offset added to the estimate's timestamps, in seconds.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = cli_values::finite)]
     offset: f64,
     /// Alignment of the estimate to the reference.
     #[arg(long, value_enum)]
@@ -139,7 +140,7 @@ struct EvalArgs {
     #[arg(long, value_enum, default_value = "trans_part")]
     rpe_relation: PoseRelation,
     /// Fail when fewer than this fraction of the shorter trajectory's poses are matched.
-    #[arg(long)]
+    #[arg(long, value_parser = cli_values::fraction)]
     min_coverage: Option<f64>,
     /// Print the report as JSON instead of a table.
     #[arg(long)]
@@ -174,7 +175,7 @@ struct SynthArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Overrides the preset's number of frames.
-    #[arg(long)]
+    #[arg(long, value_parser = cli_values::at_least_one)]
     frames: Option<usize>,
     /// Overwrite a non-empty output folder.
     #[arg(long)]
@@ -208,7 +209,7 @@ struct RunArgs {
     #[arg(long, default_value = "outputs/run")]
     out: PathBuf,
     /// Track only the first N frames.
-    #[arg(long)]
+    #[arg(long, value_parser = cli_values::at_least_one)]
     frames: Option<usize>,
     /// ORB-SLAM2 behaviour: detections are not used against moving objects.
     #[arg(long, conflicts_with_all = ["mask_boxes", "dop"])]
@@ -354,7 +355,7 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir() {
         let sequence = dopslam::pipeline::open_sequence(&args.input, &config)?;
         let mut frames = Vec::new();
-        for index in (0..sequence.len()).step_by(args.every.max(1)) {
+        for index in (0..sequence.len()).step_by(args.every as usize) {
             let frame = sequence.load(index)?;
             let dopslam::io::sequence::FrameImages::Rgbd { rgb, .. } = frame.images else {
                 anyhow::bail!(

@@ -39,6 +39,7 @@ pub fn sgbm_disparity(
     use opencv::core::Mat;
     use opencv::prelude::*;
     let error = |e: opencv::Error| format!("OpenCV StereoSGBM: {e}");
+    check_size(left, right, settings)?;
     let (rows, cols) = (left.height() as i32, left.width() as i32);
     let left_mat = Mat::new_rows_cols_with_data(rows, cols, left.as_raw()).map_err(error)?;
     let right_mat = Mat::new_rows_cols_with_data(rows, cols, right.as_raw()).map_err(error)?;
@@ -63,6 +64,30 @@ pub fn sgbm_disparity(
         .map_err(error)?;
     let fixed: &[i16] = disparity.data_typed().map_err(error)?;
     Ok(fixed.iter().map(|&d| d as f32 / 16.0).collect())
+}
+
+/// What OpenCV's matcher needs of a pair, checked here: OpenCV reports a violation by
+/// a C++ exception inside its worker threads, which aborts the process.
+pub fn check_size(left: &GrayImage, right: &GrayImage, settings: &SgbmSettings) -> Result<(), String> {
+    if left.dimensions() != right.dimensions() {
+        return Err(format!(
+            "the stereo pair's images differ in size: {}x{} and {}x{}",
+            left.width(),
+            left.height(),
+            right.width(),
+            right.height()
+        ));
+    }
+    let (width, height) = (left.width() as i64, left.height() as i64);
+    let block = settings.block as i64;
+    if width <= settings.disparities as i64 + block || height < block {
+        return Err(format!(
+            "a {width}x{height} stereo pair is too small for the matcher's {} disparities and {block}-pixel blocks: it needs more than {} columns and at least {block} rows ([stereo] sgbm_disparities, sgbm_block)",
+            settings.disparities,
+            settings.disparities as i64 + block
+        ));
+    }
+    Ok(())
 }
 
 /// Without OpenCV there is no dense stereo depth.
