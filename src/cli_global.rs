@@ -110,7 +110,10 @@ fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
 }
 
 fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usize) -> Result<()> {
+    // The output can be written (and replaces no input) before any training.
     let mut files = image_files(inputs)?;
+    let input_refs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
+    dopslam::io::output::check_file(out, "vocabulary", &input_refs)?;
     if files.is_empty() {
         bail!("no PNG or JPEG images in {:?}", inputs);
     }
@@ -134,6 +137,12 @@ fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usiz
     }
     bar.finish_and_clear();
     let descriptors: usize = images.iter().map(Vec::len).sum();
+    if descriptors == 0 {
+        bail!(
+            "the {} images have no ORB keypoints (blank or black?): no vocabulary was written",
+            images.len()
+        );
+    }
     eprintln!(
         "training on {descriptors} descriptors of {} images (k = {}, L = {})",
         images.len(),
@@ -142,6 +151,12 @@ fn train(inputs: &[PathBuf], out: &Path, options: TrainOptions, max_images: usiz
     );
     let start = Instant::now();
     let vocabulary = Vocabulary::train(&images, &options);
+    if vocabulary.len() < 2 {
+        bail!(
+            "training gave {} word(s) from {descriptors} descriptors: too little texture to tell places apart; no vocabulary was written",
+            vocabulary.len()
+        );
+    }
     vocabulary.write(out)?;
     println!(
         "wrote {} ({} words, trained in {:.1} s)",

@@ -61,6 +61,29 @@ pub fn print_settings_notes(config: &Config) {
     }
 }
 
+/// Refuses to fuse a run with a sequence it did not track: at least 90 % of the run's
+/// poses must have a frame of the sequence at their timestamp (1 µs).
+fn same_frames(run: &Path, sequence: &dyn dopslam::io::sequence::Sequence, dir: &Path) -> Result<()> {
+    let trajectory = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?;
+    let frames: std::collections::HashSet<i64> = (0..sequence.len())
+        .map(|i| (sequence.timestamp(i) * 1e6).round() as i64)
+        .collect();
+    let found = trajectory
+        .timestamps
+        .iter()
+        .filter(|t| frames.contains(&((**t * 1e6).round() as i64)))
+        .count();
+    if trajectory.is_empty() || (found as f64) < 0.9 * trajectory.len() as f64 {
+        bail!(
+            "{} is not the sequence {} tracked: {found} of its {} poses have a frame there; the dense map was left as it was (pass the sequence the run tracked, or none: report.json names it)",
+            dir.display(),
+            run.display(),
+            trajectory.len()
+        );
+    }
+    Ok(())
+}
+
 /// The masking a run used, from its report.json.
 fn run_masking(report: &serde_json::Value) -> Masking {
     match report.get("mode").and_then(|m| m.as_str()) {
@@ -116,6 +139,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         run_masking(&report)
     };
     let sequence = dopslam::pipeline::open_sequence(&sequence_dir, &config)?;
+    same_frames(&args.run, sequence.as_ref(), &sequence_dir)?;
     let dense = dense_pass(
         sequence.as_ref(),
         &config,

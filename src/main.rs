@@ -376,8 +376,17 @@ fn run_detect(args: DetectArgs) -> Result<()> {
             .map_or("image".into(), |s| s.to_string_lossy().into_owned());
         vec![(name, 0.0, image)]
     };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    if args.input.is_dir() {
+        dopslam::io::output::prepare_dir(&args.out, "output", &[&args.input])?;
+    } else {
+        for (name, _, _) in &frames {
+            for ext in ["png", "json"] {
+                let file = args.out.join(format!("{name}.{ext}"));
+                dopslam::io::output::check_file(&file, "detection output", &[&args.input])?;
+            }
+        }
+        dopslam::io::output::prepare_dir(&args.out, "output", &[])?;
+    }
     let mut all = Vec::new();
     for (name, timestamp, mut image) in frames {
         let start = std::time::Instant::now();

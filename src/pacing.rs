@@ -27,27 +27,48 @@ pub enum Pace {
     Free,
 }
 
+/// The longest wait between two frames: a gap in the timestamps longer than this (a
+/// recording paused, a clock that jumped) is played as this long.
+pub const MAX_GAP: Duration = Duration::from_secs(1);
+
 /// Waits for each frame's time.
 #[derive(Debug)]
 pub struct Pacer {
     pace: Pace,
-    /// The first frame's wall-clock time and timestamp.
+    /// The first frame's wall-clock time and timestamp (moved on over long gaps).
     origin: Option<(Instant, f64)>,
+    last: Option<f64>,
 }
 
 impl Pacer {
     pub fn new(pace: Pace) -> Self {
-        Self { pace, origin: None }
+        Self {
+            pace,
+            origin: None,
+            last: None,
+        }
     }
 
-    /// Sleeps until the frame with `timestamp` (seconds) is due.
+    /// Sleeps until the frame with `timestamp` (seconds) is due, at most [`MAX_GAP`]
+    /// after the last frame's time, and in slices that a Ctrl-C or SIGTERM ends.
     pub fn wait_for(&mut self, timestamp: f64) {
         if self.pace == Pace::Free {
             return;
         }
-        let (start, first) = *self.origin.get_or_insert((Instant::now(), timestamp));
-        if let Some(rest) = due_in(start.elapsed(), timestamp - first) {
-            std::thread::sleep(rest);
+        let (start, first) = self.origin.get_or_insert((Instant::now(), timestamp));
+        if let Some(last) = self.last {
+            let gap = timestamp - last;
+            if gap.is_finite() && gap > MAX_GAP.as_secs_f64() {
+                *first += gap - MAX_GAP.as_secs_f64();
+            }
+        }
+        self.last = Some(timestamp);
+        let (start, first) = (*start, *first);
+        while let Some(rest) = due_in(start.elapsed(), timestamp - first) {
+            if crate::interrupt::requested() {
+                return;
+            }
+            std::thread::sleep(rest.min(Duration::from_millis(50)));
         }
     }
 }
@@ -66,6 +87,21 @@ fn due_in(elapsed: Duration, offset: f64) -> Option<Duration> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_gap_in_the_timestamps_waits_at_most_max_gap() {
+        let mut pacer = Pacer::new(Pace::Recording);
+        pacer.wait_for(100.0);
+        let start = Instant::now();
+        pacer.wait_for(100_000.0);
+        let waited = start.elapsed();
+        assert!(waited <= MAX_GAP + Duration::from_millis(300), "{waited:?}");
+        assert!(waited >= MAX_GAP - Duration::from_millis(100), "{waited:?}");
+        // The frames after the gap keep their own spacing.
+        let start = Instant::now();
+        pacer.wait_for(100_000.05);
+        assert!(start.elapsed() < Duration::from_millis(200));
+    }
 
     #[test]
     fn a_frame_waits_for_its_time_and_a_late_one_does_not() {

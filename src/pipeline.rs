@@ -368,6 +368,44 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
     })
 }
 
+/// Before any work: what the run loads at run time is there (the vocabulary), the
+/// paths are UTF-8 (the report names them), the output and debug folders can be
+/// written and are not inside the input sequence, no other run writes into the output
+/// folder (the lock returned is held for the run), and an earlier run's outputs there
+/// move into `previous/`.
+fn prepare_outputs(
+    config: &Config,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<crate::io::output::DirLock, RunError> {
+    use crate::io::output;
+    if config.global.enabled && config.global.loops.enabled {
+        crate::global::load_vocabulary(&config.global).map_err(RunError::Input)?;
+    }
+    let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
+    if let Some(dir) = inputs.first().filter(|d| d.to_str().is_none()) {
+        return Err(RunError::Input(format!(
+            "the sequence path {} is not valid UTF-8, which report.json cannot name: link it under a UTF-8 name (ln -s) and run that",
+            dir.display()
+        )));
+    }
+    output::prepare_dir(out, "output", &inputs)?;
+    if let Some(debug) = &options.debug_frames {
+        output::prepare_dir(debug, "debug frames", &inputs)?;
+    }
+    let lock = output::DirLock::take(out)?;
+    let moved = output::move_previous_outputs(out, &[])?;
+    if !moved.is_empty() && options.progress {
+        eprintln!(
+            "{} held an earlier run's outputs: moved into {}/previous/ ({})",
+            out.display(),
+            out.display(),
+            moved.join(", ")
+        );
+    }
+    Ok(lock)
+}
+
 /// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
 /// loop closing is off (the global pass runs without loops). A vocabulary that cannot
 /// be read while loop closing is on is an error before any work.
@@ -393,6 +431,7 @@ pub fn run_sequence(
     out: &Path,
     options: &RunOptions,
 ) -> Result<RunReport, RunError> {
+    let _lock = prepare_outputs(config, out, options)?;
     let tracked = track_sequence(sequence, config, out, options);
     if !options.dense {
         return tracked;
@@ -1194,6 +1233,8 @@ fn write_outputs(
     (out, sequence_path, mode): (&Path, Option<&Path>, Mode),
     global: Option<(GlobalReport, Trajectory)>,
 ) -> Result<RunReport, RunError> {
+    // A second Ctrl-C waits until the set is written.
+    let _writing = crate::interrupt::Writing::start();
     let trajectory = trajectory_of(map, &lines);
     trajectory.write(&out.join("trajectory.txt"), TrajectoryFormat::Tum)?;
     let mut keyframes = Trajectory::default();

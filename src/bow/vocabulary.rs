@@ -359,6 +359,11 @@ impl Vocabulary {
         let branching = read_u32(bytes, 8) as usize;
         let depth = read_u32(bytes, 12) as usize;
         let count = read_u32(bytes, 16) as usize;
+        if branching < 2 || depth < 1 {
+            return Err(format!(
+                "a vocabulary needs branching k >= 2 and depth L >= 1; the header says k = {branching}, L = {depth}"
+            ));
+        }
         if bytes.len() != 20 + count * NODE_BYTES {
             return Err(format!(
                 "{} bytes, but {count} nodes need {}: the file is truncated or corrupt",
@@ -397,7 +402,14 @@ impl Vocabulary {
                 depth,
             });
         }
-        Ok(Self::from_nodes(branching, depth, nodes))
+        let vocabulary = Self::from_nodes(branching, depth, nodes);
+        if vocabulary.len() < 2 {
+            return Err(format!(
+                "{} word(s): a vocabulary that can tell places apart needs more (train it on images with texture)",
+                vocabulary.len()
+            ));
+        }
+        Ok(vocabulary)
     }
 
     /// Reads a vocabulary file.

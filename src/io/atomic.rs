@@ -20,6 +20,7 @@ pub fn write_atomic(path: &Path, contents: &[u8]) -> Result<(), IoError> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let tmp = path.with_file_name(format!(".{file_name}.tmp{}", std::process::id()));
+    let _writing = crate::interrupt::Writing::start();
     let result = (|| {
         let mut file = std::fs::File::create(&tmp)?;
         file.write_all(contents)?;

@@ -67,8 +67,8 @@ pub fn parse_numbers(
 
 /// Reads a file list such as `rgb.txt`: lines starting with `#` and blank lines are
 /// skipped; every other line is a timestamp followed by at least `min_fields` fields.
-/// The entries come back sorted by timestamp; a repeated timestamp keeps its last line
-/// (as `associate.py`'s dictionary does).
+/// The entries come back sorted by timestamp; a line repeated word for word is kept
+/// once, and one timestamp with different files is an error naming both lines.
 pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, IoError> {
     let text = read_text(path)?;
     let mut entries = Vec::new();
@@ -108,8 +108,16 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
     for entry in entries {
         match deduplicated.last_mut() {
             Some(last) if last.timestamp == entry.timestamp => {
-                if entry.line > last.line {
-                    *last = entry;
+                if last.fields != entry.fields {
+                    let (first, second) = (last.line.min(entry.line), last.line.max(entry.line));
+                    return Err(IoError::parse(
+                        path,
+                        second,
+                        format!(
+                            "timestamp {} is on line {first} too, with other files: which frame is it?",
+                            entry.timestamp
+                        ),
+                    ));
                 }
             }
             _ => deduplicated.push(entry),
@@ -219,13 +227,16 @@ mod tests {
         let path = dir.join("rgb.txt");
         std::fs::write(
             &path,
-            "# color images\n2.0 rgb/2.png\n1.0,rgb/1.png\n\n2.0\trgb/2b.png\n",
+            "# color images\n2.0 rgb/2.png\n1.0,rgb/1.png\n\n2.0\trgb/2.png\n",
         )
         .unwrap();
         let entries = read_file_list(&path, 1).unwrap();
         assert_eq!(entries.len(), 2);
         assert_eq!(entries[0].fields, vec!["rgb/1.png"]);
-        assert_eq!(entries[1].fields, vec!["rgb/2b.png"]);
+        assert_eq!(entries[1].fields, vec!["rgb/2.png"]);
+        std::fs::write(&path, "2.0 rgb/2.png\n1.0 rgb/1.png\n2.0 rgb/2b.png\n").unwrap();
+        let message = read_file_list(&path, 1).unwrap_err().to_string();
+        assert!(message.contains("rgb.txt:3") && message.contains("line 1"), "{message}");
         std::fs::write(&path, "1.0 a.png\nabc b.png\n").unwrap();
         let message = read_file_list(&path, 1).unwrap_err().to_string();
         assert!(message.contains("rgb.txt:2"), "{message}");

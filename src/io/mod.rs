@@ -1,6 +1,7 @@
 //! Reading datasets and trajectories, writing outputs atomically.
 
 pub mod atomic;
+pub mod output;
 pub mod data_dir;
 pub mod errors;
 pub mod file_list;

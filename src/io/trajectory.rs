@@ -73,7 +73,7 @@ impl Trajectory {
     }
 
     /// Reads a TUM trajectory. Comment lines (`#`) and blank lines are skipped; every
-    /// other line must hold exactly eight numbers; timestamps must not decrease.
+    /// other line must hold exactly eight numbers; timestamps must increase.
     pub fn read_tum(path: &Path) -> Result<Self, IoError> {
         let text = read_text(path)?;
         let mut trajectory = Trajectory::default();
@@ -103,6 +103,13 @@ impl Trajectory {
                         format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
                     ));
                 }
+                if timestamp == before {
+                    return Err(IoError::parse(
+                        path,
+                        line_number,
+                        format!("timestamp {timestamp} is given twice (line {before_line} too): one pose per time"),
+                    ));
+                }
             }
             previous = Some((timestamp, line_number));
             trajectory.push(
@@ -126,6 +133,17 @@ impl Trajectory {
                 "KITTI: a 3x4 matrix, row-major",
             )?;
             let rotation = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+            let off = (rotation.transpose() * rotation - Matrix3::identity()).abs().max();
+            if off > 1e-3 || rotation.determinant() < 0.0 {
+                return Err(IoError::parse(
+                    path,
+                    line_number,
+                    format!(
+                        "the 3x3 part is not a rotation (|R^T R - I| = {off:.3}, det {:.3}): KITTI lines hold a 3x4 [R | t] with R orthonormal",
+                        rotation.determinant()
+                    ),
+                ));
+            }
             let translation = Vector3::new(v[3], v[7], v[11]);
             let timestamp = trajectory.len() as f64;
             trajectory.push(timestamp, se3::from_parts(translation, rotation));

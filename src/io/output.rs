@@ -1,0 +1,219 @@
+//! Checks of where outputs go, made before any work: the folder can be written, it is
+//! not an input (nor inside the input sequence), no other run writes into it (a lock
+//! held for the run's life), and an earlier run's outputs there are moved aside
+//! (`previous/`) so that nothing stale sits beside the new ones and nothing computed
+//! is lost.
+
+use std::path::{Component, Path, PathBuf};
+
+use super::IoError;
+
+/// The path as the file system will resolve it, also where its tail does not exist
+/// yet: the nearest existing ancestor canonicalised, the rest appended.
+pub fn resolved(path: &Path) -> PathBuf {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut existing = absolute.as_path();
+    let mut rest = Vec::new();
+    loop {
+        if let Ok(real) = existing.canonicalize() {
+            let mut out = real;
+            for part in rest.iter().rev() {
+                out.push(part);
+            }
+            return out;
+        }
+        match (existing.parent(), existing.components().next_back()) {
+            (Some(parent), Some(Component::Normal(name))) => {
+                rest.push(name.to_os_string());
+                existing = parent;
+            }
+            _ => return absolute,
+        }
+    }
+}
+
+/// Whether `path` is `input` or inside it.
+pub fn is_within(path: &Path, input: &Path) -> bool {
+    resolved(path).starts_with(resolved(input))
+}
+
+fn invalid(path: &Path, message: impl Into<String>) -> IoError {
+    IoError::invalid(path, message)
+}
+
+/// Makes `dir` ready for outputs before any work: refuses a file, a symlink loop, a
+/// path that is not UTF-8, or a folder that is one of `inputs` or inside one; creates
+/// it; writes and removes a probe file to prove it can be written.
+pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
+    if dir.to_str().is_none() {
+        return Err(invalid(dir, format!("the {what} path is not valid UTF-8; choose a folder whose name is")));
+    }
+    for input in inputs {
+        if is_within(dir, input) {
+            return Err(invalid(
+                dir,
+                format!("the {what} folder is inside the input {}: dopslam never writes into its inputs; choose a folder elsewhere", input.display()),
+            ));
+        }
+    }
+    match std::fs::metadata(dir) {
+        Ok(meta) if !meta.is_dir() => {
+            return Err(invalid(dir, format!("the {what} path is a file, not a folder")))
+        }
+        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+            return Err(invalid(dir, format!("the {what} path is a loop of symbolic links")))
+        }
+        _ => {}
+    }
+    std::fs::create_dir_all(dir).map_err(|e| {
+        let why = if e.raw_os_error() == Some(libc::ELOOP) {
+            "a loop of symbolic links".to_string()
+        } else {
+            e.to_string()
+        };
+        invalid(dir, format!("cannot create the {what} folder: {why}"))
+    })?;
+    let probe = dir.join(format!(".dopslam-write-test-{}", std::process::id()));
+    std::fs::write(&probe, b"")
+        .and_then(|_| std::fs::remove_file(&probe))
+        .map_err(|e| invalid(dir, format!("the {what} folder cannot be written: {e}")))
+}
+
+/// Checks before any work that a file can be written at `path`: its folder can be
+/// made and written, and it is none of `inputs`.
+pub fn check_file(path: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
+    if inputs.iter().any(|input| resolved(path) == resolved(input)) {
+        return Err(invalid(path, format!("the {what} would replace an input file")));
+    }
+    if path.is_dir() {
+        return Err(invalid(path, format!("the {what} path is a folder")));
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    prepare_dir(parent, &format!("{what}'s"), &[])
+}
+
+/// An exclusive lock on `OUT/.dopslam.lock`, held while alive (released when the
+/// process ends, however it ends).
+#[derive(Debug)]
+pub struct DirLock {
+    _file: std::fs::File,
+}
+
+impl DirLock {
+    /// Takes the lock or says that another process holds it.
+    pub fn take(dir: &Path) -> Result<Self, IoError> {
+        let path = dir.join(".dopslam.lock");
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .map_err(|e| invalid(&path, format!("cannot open the lock: {e}")))?;
+        if !try_lock(&file) {
+            return Err(invalid(
+                dir,
+                "another dopslam run is writing into this folder; wait for it or choose another --out",
+            ));
+        }
+        Ok(Self { _file: file })
+    }
+}
+
+#[cfg(unix)]
+fn try_lock(file: &std::fs::File) -> bool {
+    use std::os::unix::io::AsRawFd;
+    // SAFETY: flock on a descriptor borrowed for the call; no memory is touched.
+    unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) == 0 }
+}
+
+#[cfg(not(unix))]
+fn try_lock(_file: &std::fs::File) -> bool {
+    true
+}
+
+/// The files and folders a run writes into its output folder (a batch's `config.toml`,
+/// `log.txt` and `run.json` beside them are the batch's own).
+pub const RUN_OUTPUTS: [&str; 21] = [
+    "trajectory.txt",
+    "trajectory_tracking.txt",
+    "keyframes.txt",
+    "map.ply",
+    "report.json",
+    "segments.txt",
+    "dynamic_keypoints.json",
+    "detections",
+    "dense_mesh.ply",
+    "dense_mesh.obj",
+    "dense_points.ply",
+    "dense.json",
+    "dense_perspective.png",
+    "dense_top.png",
+    "dense_detections",
+    "evaluation.json",
+    "plots",
+    "no_dop",
+    "no_masks",
+    "unmasked",
+    "compare_no_dop",
+];
+
+/// Moves an earlier run's outputs in `dir` into `dir/previous/` (replacing an older
+/// `previous/`): the names moved.
+pub fn move_previous_outputs(dir: &Path, keep: &[&str]) -> Result<Vec<String>, IoError> {
+    let present: Vec<&str> = RUN_OUTPUTS
+        .iter()
+        .copied()
+        .filter(|name| !keep.contains(name) && dir.join(name).symlink_metadata().is_ok())
+        .collect();
+    if present.is_empty() {
+        return Ok(Vec::new());
+    }
+    let previous = dir.join("previous");
+    if previous.exists() {
+        std::fs::remove_dir_all(&previous)
+            .map_err(|e| invalid(&previous, format!("cannot replace: {e}")))?;
+    }
+    std::fs::create_dir_all(&previous).map_err(|e| invalid(&previous, e.to_string()))?;
+    for name in &present {
+        std::fs::rename(dir.join(name), previous.join(name))
+            .map_err(|e| invalid(&dir.join(name), format!("cannot move into previous/: {e}")))?;
+    }
+    Ok(present.iter().map(|s| s.to_string()).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_never_go_into_inputs_or_files() {
+        let base = std::env::temp_dir().join(format!("dopslam-output-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let input = base.join("seq");
+        std::fs::create_dir_all(input.join("rgb")).unwrap();
+        let error = prepare_dir(&input.join("rgb"), "debug frames", &[&input]).unwrap_err();
+        assert!(error.to_string().contains("inside the input"), "{error}");
+        assert!(!input.join("rgb/x").exists());
+        std::fs::write(base.join("file"), b"x").unwrap();
+        let error = prepare_dir(&base.join("file"), "output", &[]).unwrap_err();
+        assert!(error.to_string().contains("is a file"), "{error}");
+        prepare_dir(&base.join("out/sub"), "output", &[&input]).unwrap();
+        assert!(base.join("out/sub").is_dir());
+        let error = check_file(&input.join("rgb"), "picture", &[]).unwrap_err();
+        assert!(error.to_string().contains("folder"), "{error}");
+        std::fs::write(input.join("a.png"), b"x").unwrap();
+        let error = check_file(&input.join("./a.png"), "picture", &[&input.join("a.png")]).unwrap_err();
+        assert!(error.to_string().contains("replace an input"), "{error}");
+        let lock = DirLock::take(&base.join("out")).unwrap();
+        assert!(DirLock::take(&base.join("out")).is_err(), "a second lock is refused");
+        drop(lock);
+        assert!(DirLock::take(&base.join("out")).is_ok());
+        std::fs::write(base.join("out/trajectory.txt"), b"old").unwrap();
+        std::fs::create_dir_all(base.join("out/plots")).unwrap();
+        let moved = move_previous_outputs(&base.join("out"), &[]).unwrap();
+        assert_eq!(moved, vec!["trajectory.txt".to_string(), "plots".to_string()]);
+        assert_eq!(std::fs::read(base.join("out/previous/trajectory.txt")).unwrap(), b"old");
+        assert!(!base.join("out/trajectory.txt").exists());
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+}
