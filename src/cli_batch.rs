@@ -110,6 +110,12 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
             e.interrupted
         );
     }
+    if summary.unavailable > 0 {
+        bail!(
+            "{} sequence(s) could not be read or generated (see the notes above); their runs are recorded as failed",
+            summary.unavailable
+        );
+    }
     let failed = summary.groups.iter().map(|g| g.failed).sum::<usize>();
     if args.strict && failed > 0 {
         bail!("{failed} runs failed (see results.md)");

@@ -565,6 +565,7 @@ fn run_synth(args: SynthArgs) -> Result<()> {
 fn run_info(args: InfoArgs) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let root = &args.sequence;
+    dopslam::pipeline::check_sequence_folder(root)?;
     let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
         Box::new(KittiSequence::open(root, None)?)
     } else {
@@ -714,6 +715,14 @@ fn run_run(args: RunArgs) -> Result<()> {
         cli_maps::print_dense(dense);
     }
     println!("wrote {}", args.out.display());
+    let errors = &report.detection.errors;
+    if !errors.is_empty() {
+        bail!(
+            "the run finished and its outputs are written, but {} keyframe detection(s) failed (report.json lists them), the first: {}",
+            errors.len(),
+            errors[0]
+        );
+    }
     if args.compare_no_dop {
         let baseline_dir = args.out.join("no_dop");
         let mut baseline = config.clone();

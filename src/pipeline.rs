@@ -54,14 +54,59 @@ pub enum RunError {
     },
 }
 
-/// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
-pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, IoError> {
-    if !root.is_dir() {
-        return Err(IoError::Missing {
+/// Why tracking never started, from what the frames showed: no keypoints (blank
+/// images), else too few with depth (the depth scale, the depth images, or for stereo
+/// a pair whose left and right are swapped).
+fn never_started(lines: &[FrameLine], config: &Config, sensor: SensorKind) -> String {
+    let mut keypoints: Vec<f64> = lines.iter().map(|l| l.tracking.keypoints as f64).collect();
+    let median_keypoints = median(&mut keypoints);
+    let needed = config.tracking.min_initial_points;
+    if median_keypoints < needed as f64 {
+        return format!(
+            "tracking never started: the frames have almost no ORB keypoints (median {median_keypoints:.0}, {needed} needed): are the colour images blank or black?"
+        );
+    }
+    match sensor {
+        SensorKind::Rgbd => format!(
+            "tracking never started: no frame had {needed} keypoints with depth (check depth_scale and the depth images)"
+        ),
+        SensorKind::Stereo => format!(
+            "tracking never started: no frame had {needed} keypoints matched between the stereo images: check Camera.bf, and that image_0 is the left camera (a swapped pair has no positive disparity)"
+        ),
+    }
+}
+
+/// Says what is wrong when `root` is no sequence folder: missing, a file, a loop of
+/// symbolic links, or a KITTI dataset's root instead of one of its sequences.
+pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
+    match std::fs::metadata(root) {
+        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+            Err(IoError::invalid(root, "a loop of symbolic links, not a sequence folder"))
+        }
+        Err(_) => Err(IoError::Missing {
             path: root.to_path_buf(),
             what: "sequence folder".into(),
-        });
+        }),
+        Ok(meta) if !meta.is_dir() => Err(IoError::invalid(
+            root,
+            "a file, not a sequence folder (TUM/Bonn: the folder holding rgb.txt and depth.txt; KITTI: sequences/NN)",
+        )),
+        Ok(_) if root.join("sequences").is_dir() && !root.join("image_0").is_dir() && !root.join("rgb.txt").exists() => {
+            Err(IoError::invalid(
+                root,
+                format!(
+                    "a KITTI dataset's root: run one of its sequences, e.g. {}",
+                    root.join("sequences/00").display()
+                ),
+            ))
+        }
+        Ok(_) => Ok(()),
     }
+}
+
+/// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
+pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, IoError> {
+    check_sequence_folder(root)?;
     if root.join("image_0").is_dir() {
         return Ok(Box::new(KittiSequence::open(root, None)?));
     }
@@ -766,10 +811,7 @@ pub fn track_sequence(
     }
     progress.finish_and_clear();
     if failure.is_none() && tracker.state == TrackingState::NotInitialised {
-        failure = Some(format!(
-            "tracking never started: no frame had {} keypoints with depth (check depth_scale and the depth images)",
-            config.tracking.min_initial_points
-        ));
+        failure = Some(never_started(&lines, config, sequence.sensor()));
     }
     if let Some(worker) = detection {
         book.receive(&mut tracker, worker.finish(), out, &effect);

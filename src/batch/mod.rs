@@ -78,6 +78,8 @@ pub struct BatchSummary {
     pub failed: Vec<String>,
     /// Whether tables were written (not for a shard).
     pub tables: bool,
+    /// Sequences that could not be read or generated (their runs are recorded failed).
+    pub unavailable: usize,
 }
 
 /// A batch's plan: the manifest, its sequences, the output folder and every run.
@@ -160,6 +162,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         missing: Vec::new(),
         failed: Vec::new(),
         tables: options.shard.is_none(),
+        unavailable: unavailable.iter().filter(|u| u.is_some()).count(),
     };
     for job in &plan.runs {
         match RunRecord::read(&job.dir) {
@@ -291,7 +294,9 @@ fn write_tables(
         }
     }
     let groups = results::summarise(&records, &names, &modes);
-    let header = header_lines(manifest, planned, path, (records.len(), plan.runs.len()));
+    let finished = records.iter().filter(|r| r.status == RunStatus::Ok).count();
+    let failed = records.len() - finished;
+    let header = header_lines(manifest, planned, path, (finished, failed, plan.runs.len()));
     results::write_results(
         out,
         &records,
@@ -445,11 +450,15 @@ fn header_lines(
     manifest: &Manifest,
     planned: &[PlannedSequence],
     path: &Path,
-    (finished, runs): (usize, usize),
+    (finished, failed, runs): (usize, usize, usize),
 ) -> Vec<String> {
     let b = &manifest.batch;
     vec![
-        format!("Manifest: {} ({finished} of {runs} runs finished)", path.display()),
+        format!(
+            "Manifest: {} ({finished} of {runs} runs finished, {failed} failed, {} not run)",
+            path.display(),
+            runs - finished - failed
+        ),
         format!(
             "Machine: {}; dopslam {}; {} mode{}, dense map {}, global pass {}",
             machine_description(),

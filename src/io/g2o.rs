@@ -101,6 +101,15 @@ impl G2oGraph {
                             k += 1;
                         }
                     }
+                    // Positive definite: Cholesky succeeds (a zero, negated or
+                    // indefinite information makes the optimisation meaningless).
+                    if information.cholesky().is_none() {
+                        return Err(IoError::parse(
+                            path,
+                            line,
+                            format!("the information matrix of edge {from}-{to} is not positive definite"),
+                        ));
+                    }
                     graph.edges.push(G2oEdge {
                         from,
                         to,
@@ -121,6 +130,9 @@ impl G2oGraph {
                     ))
                 }
             }
+        }
+        if graph.vertices.is_empty() {
+            return Err(IoError::invalid(path, "no VERTEX_SE3:QUAT line: not a 3-D pose graph"));
         }
         for e in &graph.edges {
             for v in [e.from, e.to] {
