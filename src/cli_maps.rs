@@ -140,6 +140,16 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     };
     let sequence = dopslam::pipeline::open_sequence(&sequence_dir, &config)?;
     same_frames(&args.run, sequence.as_ref(), &sequence_dir)?;
+    let recorded = report.pointer("/setup/first_frame_hash").and_then(|h| h.as_str());
+    if let Some(recorded) = recorded {
+        if dopslam::pipeline::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
+            bail!(
+                "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
+                sequence_dir.display(),
+                args.run.display()
+            );
+        }
+    }
     let dense = dense_pass(
         sequence.as_ref(),
         &config,

@@ -332,9 +332,29 @@ fn parse_rpe(text: &str) -> Result<RpeSpec> {
     Ok(RpeSpec { delta, unit })
 }
 
+/// Before any work: `detect` writes neither into an input sequence nor over an input
+/// image (`NAME.png` and `NAME.json` in `--out`), and `--out` can be written.
+fn check_detect_outputs(args: &DetectArgs) -> Result<()> {
+    use dopslam::io::output::{check_file, prepare_dir};
+    if args.input.is_dir() {
+        prepare_dir(&args.out, "output", &[&args.input])?;
+        return Ok(());
+    }
+    let name = args
+        .input
+        .file_stem()
+        .map_or("image".into(), |s| s.to_string_lossy().into_owned());
+    for ext in ["png", "json"] {
+        check_file(&args.out.join(format!("{name}.{ext}")), "detection output", &[&args.input])?;
+    }
+    prepare_dir(&args.out, "output", &[])?;
+    Ok(())
+}
+
 fn run_detect(args: DetectArgs) -> Result<()> {
     use dopslam::detect::{draw::draw_detections, FrameDetections, Model, Source};
     let config = load_config(args.config.as_deref())?;
+    check_detect_outputs(&args)?;
     let mut detector_config = config.detector.clone();
     if matches!(detector_config.source, Source::None | Source::Auto) {
         detector_config.source = Source::Onnx;
@@ -376,17 +396,6 @@ fn run_detect(args: DetectArgs) -> Result<()> {
             .map_or("image".into(), |s| s.to_string_lossy().into_owned());
         vec![(name, 0.0, image)]
     };
-    if args.input.is_dir() {
-        dopslam::io::output::prepare_dir(&args.out, "output", &[&args.input])?;
-    } else {
-        for (name, _, _) in &frames {
-            for ext in ["png", "json"] {
-                let file = args.out.join(format!("{name}.{ext}"));
-                dopslam::io::output::check_file(&file, "detection output", &[&args.input])?;
-            }
-        }
-        dopslam::io::output::prepare_dir(&args.out, "output", &[])?;
-    }
     let mut all = Vec::new();
     for (name, timestamp, mut image) in frames {
         let start = std::time::Instant::now();

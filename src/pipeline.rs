@@ -271,10 +271,28 @@ pub struct RunSetup {
     /// The vocabulary file, when loop closing ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vocabulary: Option<PathBuf>,
+    /// [`first_frame_hash`] of the sequence: `dopslam fuse` checks that it fuses the
+    /// sequence the run tracked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_frame_hash: Option<String>,
+}
+
+/// A fingerprint of a sequence: FNV-1a (64 bits, hex) of its first frame's colour (or
+/// left) pixels; `None` when the frame cannot be read.
+pub fn first_frame_hash(sequence: &dyn Sequence) -> Option<String> {
+    let frame = sequence.load(0).ok()?;
+    let bytes: &[u8] = match &frame.images {
+        crate::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.as_raw(),
+        crate::io::sequence::FrameImages::Stereo { left, .. } => left.as_raw(),
+    };
+    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    });
+    Some(format!("{hash:016x}"))
 }
 
 impl RunSetup {
-    fn new(config: &Config, calibration: &Calibration) -> Self {
+    fn new(sequence: &dyn Sequence, config: &Config, calibration: &Calibration) -> Self {
         let data = crate::io::data_dir::DataDir::locate();
         let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
         Self {
@@ -296,6 +314,7 @@ impl RunSetup {
             },
             vocabulary: (config.global.enabled && config.global.loops.enabled)
                 .then(|| absolute(config.global.vocabulary_file())),
+            first_frame_hash: first_frame_hash(sequence),
         }
     }
 }
@@ -854,7 +873,7 @@ pub fn track_sequence(
     }
     let report = write_outputs(
         sequence,
-        RunSetup::new(config, &calibration),
+        RunSetup::new(sequence, config, &calibration),
         &map,
         (stats, book.totals),
         (lines, failure.clone()),

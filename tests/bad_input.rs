@@ -164,7 +164,7 @@ fn an_unwritable_output_folder_is_named() {
     std::fs::write(&blocker, "not a folder").unwrap();
     let (ok, _, err) = run(&seq, "a-file/run");
     assert!(
-        !ok && err.contains("a-file") && err.contains("cannot write"),
+        !ok && err.contains("a-file") && err.contains("cannot create the output folder"),
         "{err}"
     );
 }
