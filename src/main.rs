@@ -466,6 +466,12 @@ fn run_eval(args: EvalArgs) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let reference = read_trajectory(&args.reference, args.format, args.times.as_deref())?;
     let estimate = read_trajectory(&args.estimate, args.format, args.times.as_deref())?;
+    if let Some((t, first, second)) = estimate.repeated_timestamp() {
+        bail!(
+            "{}: timestamp {t} is given twice (poses {first} and {second}): an estimate gives one pose per time",
+            args.estimate.display()
+        );
+    }
     let default_rule = if args.format == TrajectoryFormat::Kitti && args.times.is_none() {
         AssociationRule::ByIndex
     } else {

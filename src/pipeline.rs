@@ -76,6 +76,27 @@ fn never_started(lines: &[FrameLine], config: &Config, sensor: SensorKind) -> St
     }
 }
 
+/// For a stereo sequence, a warning when its first pair looks swapped (see
+/// [`crate::tracking::stereo_matching::looks_swapped`]): such a pair still tracks, badly.
+fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &StereoCamera) {
+    if sequence.sensor() != SensorKind::Stereo || sequence.is_empty() {
+        return;
+    }
+    let Ok(frame) = sequence.load(0) else { return };
+    let crate::io::sequence::FrameImages::Stereo { left, right } = &frame.images else {
+        return;
+    };
+    let pair = (left, right);
+    if let Some((given, exchanged)) =
+        crate::tracking::stereo_matching::looks_swapped(pair, extractor, camera.bf, camera.fx)
+    {
+        eprintln!(
+            "warning: the stereo pair of {} looks swapped: {exchanged} keypoints match with image_1 as the left camera, {given} as given (image_0 must be the left camera)",
+            sequence.name()
+        );
+    }
+}
+
 /// Says what is wrong when `root` is no sequence folder: missing, a file, a loop of
 /// symbolic links, or a KITTI dataset's root instead of one of its sequences.
 pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
@@ -596,6 +617,7 @@ pub fn track_sequence(
     let vocabulary = loop_vocabulary(&config.global)?;
     let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
     let extractor = OrbExtractor::new(&config.orb);
+    warn_if_swapped(sequence, &extractor, &camera);
     let mut tracker = Tracker::new(
         config.tracking.clone(),
         camera,

@@ -126,7 +126,7 @@ fn evaluation_and_graph_files() {
     std::fs::write(&gt, tum_lines(&(0..20).map(|i| i as f64 * 0.1).collect::<Vec<_>>())).unwrap();
     let est = base.join("est.txt");
     std::fs::write(&est, tum_lines(&[0.0, 0.1, 0.1, 0.2])).unwrap();
-    case("eval: duplicate timestamps in the estimate", &["eval", &s(&gt), &s(&est)], false, &["est.txt:3", "twice"]);
+    case("eval: duplicate timestamps in the estimate", &["eval", &s(&gt), &s(&est)], false, &["est.txt", "0.1 is given twice"]);
     std::fs::write(&est, tum_lines(&(0..20).map(|i| i as f64 * 0.1).collect::<Vec<_>>())).unwrap();
     case("eval --max-diff=-1", &["eval", &s(&gt), &s(&est), "--max-diff=-1"], false, &["--max-diff", "negative"]);
     case("eval --offset nan", &["eval", &s(&gt), &s(&est), "--offset", "nan"], false, &["--offset", "finite"]);
@@ -365,4 +365,22 @@ fn batches_with_a_missing_sequence() {
     let out = base.join("out");
     let text = case("batch with a missing sequence", &["batch", &s(&manifest), "--out", &s(&out), "--quiet"], false, &["nowhere", "could not be read"]);
     assert!(text.contains("0 of 1 runs finished, 1 failed"), "{text}");
+}
+
+/// A stereo pair whose left and right images are swapped still tracks (badly): the run
+/// says so.
+#[test]
+fn a_swapped_stereo_pair_is_named() {
+    let base = temp_dir("hostile-swapped");
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    let text = std::fs::read_to_string(&preset).unwrap();
+    let config = base.join("stereo_room.toml");
+    std::fs::write(&config, format!("{}\n[stereo]\nbaseline = 0.12\n", text.replace("name = \"static_room\"", "name = \"stereo_room\""))).unwrap();
+    case("synth a stereo room", &["synth", "--config", &s(&config), "--out", &s(&base.join("seq")), "--frames", "8"], true, &[]);
+    let kitti = base.join("seq/kitti/sequences/00");
+    std::fs::rename(kitti.join("image_0"), kitti.join("swap")).unwrap();
+    std::fs::rename(kitti.join("image_1"), kitti.join("image_0")).unwrap();
+    std::fs::rename(kitti.join("swap"), kitti.join("image_1")).unwrap();
+    let out = s(&base.join("out"));
+    case("a swapped stereo pair", &run_args(&s(&kitti), &out), true, &["looks swapped", "image_0 must be the left camera"]);
 }

@@ -64,6 +64,15 @@ impl Trajectory {
             .sum()
     }
 
+    /// The first timestamp given to two poses, with their indices (an estimate must
+    /// give one pose per time; recorded ground truth sometimes repeats one).
+    pub fn repeated_timestamp(&self) -> Option<(f64, usize, usize)> {
+        self.timestamps
+            .windows(2)
+            .position(|w| w[0] == w[1])
+            .map(|i| (self.timestamps[i], i + 1, i + 2))
+    }
+
     /// Reads a trajectory in the given format.
     pub fn read(path: &Path, format: TrajectoryFormat) -> Result<Self, IoError> {
         match format {
@@ -73,7 +82,8 @@ impl Trajectory {
     }
 
     /// Reads a TUM trajectory. Comment lines (`#`) and blank lines are skipped; every
-    /// other line must hold exactly eight numbers; timestamps must increase.
+    /// other line must hold exactly eight numbers; timestamps must not decrease (real
+    /// ground truth repeats some: see [`Trajectory::repeated_timestamp`]).
     pub fn read_tum(path: &Path) -> Result<Self, IoError> {
         let text = read_text(path)?;
         let mut trajectory = Trajectory::default();
@@ -103,13 +113,7 @@ impl Trajectory {
                         format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
                     ));
                 }
-                if timestamp == before {
-                    return Err(IoError::parse(
-                        path,
-                        line_number,
-                        format!("timestamp {timestamp} is given twice (line {before_line} too): one pose per time"),
-                    ));
-                }
+
             }
             previous = Some((timestamp, line_number));
             trajectory.push(

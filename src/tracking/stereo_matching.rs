@@ -143,6 +143,21 @@ pub fn extract_and_match(
     (left_features, matches)
 }
 
+/// Whether a pair looks swapped (its right image is the left camera's): with the
+/// images' roles exchanged, at least 100 and twice as many keypoints find a
+/// match at a positive disparity as with the roles given. The counts, as given and
+/// exchanged, when it looks swapped.
+pub fn looks_swapped(
+    (left, right): (&GrayImage, &GrayImage),
+    extractor: &OrbExtractor,
+    bf: f64,
+    fx: f64,
+) -> Option<(usize, usize)> {
+    let given = extract_and_match((left, right), extractor, bf, fx).1.matched();
+    let exchanged = extract_and_match((right, left), extractor, bf, fx).1.matched();
+    (exchanged >= 100 && exchanged >= 2 * given).then_some((given, exchanged))
+}
+
 /// For each level-0 row, the right keypoints whose row band \(y \pm 2 s^l\) covers it.
 fn row_table(right: &OrbFeatures, pyramid: &ScalePyramid, height: u32) -> Vec<Vec<u32>> {
     let mut rows = vec![Vec::new(); height as usize];
