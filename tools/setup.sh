@@ -116,8 +116,8 @@ if [ "$run_demo" = 1 ]; then
     bin=./target/release/dopslam
     $bin synth --config configs/synth/demo.toml --out outputs/demo/sequence --force
     $bin run outputs/demo/sequence --config configs/run/demo.toml --out outputs/demo/run --compare-no-dop \
-        | tee outputs/demo/run.log | sed -n '/^summary:/,$p'
+        2>&1 | tee outputs/demo/run.log | sed -n '/^summary:/,$p; /^error/p'
     $bin eval outputs/demo/sequence/groundtruth.txt outputs/demo/run/trajectory.txt \
-        --plot outputs/demo/run/plots --save-report outputs/demo/run/evaluation.json > outputs/demo/eval.log
+        --plot outputs/demo/run/plots --save-report outputs/demo/run/evaluation.json > outputs/demo/eval.log 2>&1
     say "outputs/demo/run: trajectory.txt, dense_mesh.ply/.obj, dense_points.ply, report.json, plots/; no_dop/ (ORB-SLAM2 behaviour); compare_no_dop/ (table, pictures); the whole log: outputs/demo/run.log"
 fi
