@@ -43,13 +43,7 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     };
     let data = DataDir::locate();
     let cwd = std::env::current_dir().unwrap_or_default();
-    let shown = |p: &Path| {
-        if p.is_absolute() {
-            p.to_path_buf()
-        } else {
-            cwd.join(p)
-        }
-    };
+    let shown = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     println!("data directory: {} ({})", shown(&data.path).display(), data.origin);
     println!("looked for, in this order:");
     println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");

@@ -343,6 +343,7 @@ pub fn compare_with_baseline(
     } else {
         ("no_dop_mesh", baseline.join(mesh))
     };
+    let run_aligned = run_alignment(run);
     let mut maps = Vec::new();
     let mut alignments = Vec::new();
     for (name, path) in [
@@ -352,7 +353,7 @@ pub fn compare_with_baseline(
     ] {
         if path.exists() {
             maps.push((name.to_string(), path));
-            alignments.push(run_alignment(run));
+            alignments.push(run_aligned);
         }
     }
     maps.push((baseline_map.0.to_string(), baseline_map.1));

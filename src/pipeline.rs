@@ -453,20 +453,16 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
     })
 }
 
-/// Before any work: what the run loads at run time is there (the vocabulary), the
-/// paths are UTF-8 (the report names them), the output and debug folders can be
-/// written and are not inside the input sequence, no other run writes into the output
+/// Before any work (after [`loop_vocabulary`]): the paths are UTF-8 (the report names
+/// them), the output and debug folders can be written and are not inside the input
+/// sequence, no other run writes into the output
 /// folder (the lock returned is held for the run), and an earlier run's outputs there
 /// move into `previous/`.
 fn prepare_outputs(
-    config: &Config,
     out: &Path,
     options: &RunOptions,
 ) -> Result<crate::io::output::DirLock, RunError> {
     use crate::io::output;
-    if config.global.enabled && config.global.loops.enabled {
-        crate::global::load_vocabulary(&config.global).map_err(RunError::Input)?;
-    }
     let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
     if let Some(dir) = inputs.first().filter(|d| d.to_str().is_none()) {
         return Err(RunError::Input(format!(
@@ -491,12 +487,13 @@ fn prepare_outputs(
     Ok(lock)
 }
 
+/// What loop closing runs with: see [`loop_vocabulary`].
+type LoopVocabulary = Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>;
+
 /// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
 /// loop closing is off (the global pass runs without loops). A vocabulary that cannot
 /// be read while loop closing is on is an error before any work.
-fn loop_vocabulary(
-    config: &crate::global::GlobalConfig,
-) -> Result<Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>, RunError> {
+fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocabulary, RunError> {
     if !config.enabled {
         return Ok(None);
     }
@@ -516,8 +513,9 @@ pub fn run_sequence(
     out: &Path,
     options: &RunOptions,
 ) -> Result<RunReport, RunError> {
-    let _lock = prepare_outputs(config, out, options)?;
-    let tracked = track_sequence(sequence, config, out, options);
+    let vocabulary = loop_vocabulary(&config.global)?;
+    let _lock = prepare_outputs(out, options)?;
+    let tracked = track_sequence(sequence, config, out, options, vocabulary);
     if !options.dense {
         return tracked;
     }
@@ -597,12 +595,14 @@ pub fn dense_masking(mode: Mode) -> Masking {
     }
 }
 
-/// The tracking pass: tracks every frame of `sequence` and writes its outputs into `out`.
-pub fn track_sequence(
+/// The tracking pass: tracks every frame of `sequence` and writes its outputs into `out`;
+/// loop detection runs beside it with `vocabulary` ([`loop_vocabulary`]).
+fn track_sequence(
     sequence: &dyn Sequence,
     config: &Config,
     out: &Path,
     options: &RunOptions,
+    vocabulary: LoopVocabulary,
 ) -> Result<RunReport, RunError> {
     if sequence.is_empty() {
         return Err(RunError::Input(format!(
@@ -614,7 +614,6 @@ pub fn track_sequence(
     config.detector.source = detection_source(&config)?;
     let config = &config;
     let calibration = resolve_calibration(sequence, config)?;
-    let vocabulary = loop_vocabulary(&config.global)?;
     let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
     let extractor = OrbExtractor::new(&config.orb);
     warn_if_swapped(sequence, &extractor, &camera);

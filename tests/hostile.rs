@@ -59,6 +59,15 @@ fn run_args<'a>(seq: &'a str, out: &'a str) -> Vec<&'a str> {
     vec!["run", seq, "--out", out, "--detections", "none", "--no-dense", "--no-loops", "--deterministic"]
 }
 
+/// [`case`] for `dopslam run SEQ` ([`run_args`]) with one more option and its file.
+#[track_caller]
+fn run_case(name: &str, (seq, out): (&str, &str), (option, file): (&str, &Path), succeeds: bool, words: &[&str]) {
+    let file = s(file);
+    let mut args = run_args(seq, out);
+    args.extend([option, file.as_str()]);
+    case(name, &args, succeeds, words);
+}
+
 fn png(path: &Path, width: u32, height: u32, value: u8) {
     image::GrayImage::from_pixel(width, height, image::Luma([value])).save(path).unwrap();
 }
@@ -76,17 +85,12 @@ fn config_values_and_arguments() {
     ] {
         let config = base.join(format!("{key}.toml"));
         std::fs::write(&config, format!("[{section}]\n{key} = {value}\n")).unwrap();
-        let mut args = run_args(&seq_s, &out_s);
-        let config_s = s(&config);
-        args.extend(["--config", &config_s]);
-        case(&format!("config {section}.{key} = {value}"), &args, false, &[&format!("{section}.{key}")]);
+        let name = format!("config {section}.{key} = {value}");
+        run_case(&name, (&seq_s, &out_s), ("--config", &config), false, &[&format!("{section}.{key}")]);
     }
     let config = base.join("sgbm.toml");
     std::fs::write(&config, "[stereo]\nsgbm_disparities = 2048\n").unwrap();
-    let mut args = run_args(&seq_s, &out_s);
-    let config_s = s(&config);
-    args.extend(["--config", &config_s]);
-    case("sgbm_disparities = 2048", &args, false, &["stereo.sgbm_disparities", "1024"]);
+    run_case("sgbm_disparities = 2048", (&seq_s, &out_s), ("--config", &config), false, &["stereo.sgbm_disparities", "1024"]);
     assert!(!base.join("out").exists(), "a refused run writes nothing");
     let mut args = run_args(&seq_s, &out_s);
     args.extend(["--frames", "0"]);
@@ -103,16 +107,10 @@ fn config_values_and_arguments() {
     case("stereo on 1x1 images", &["stereo", &s(&img), &s(&img), "--settings", &s(&kitti)], false, &["too small", "sgbm_disparities"]);
     let bad_bf = base.join("bf.yaml");
     std::fs::write(&bad_bf, "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.bf: -40\n").unwrap();
-    let mut args = run_args(&seq_s, &out_s);
-    let bf_s = s(&bad_bf);
-    args.extend(["--settings", &bf_s]);
-    case("Camera.bf: -40", &args, false, &["Camera.bf", "positive"]);
+    run_case("Camera.bf: -40", (&seq_s, &out_s), ("--settings", &bad_bf), false, &["Camera.bf", "positive"]);
     let twice = base.join("twice.yaml");
     std::fs::write(&twice, "%YAML:1.0\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.fx: 510\n").unwrap();
-    let mut args = run_args(&seq_s, &out_s);
-    let twice_s = s(&twice);
-    args.extend(["--settings", &twice_s]);
-    case("Camera.fx twice", &args, false, &["Camera.fx", "twice"]);
+    run_case("Camera.fx twice", (&seq_s, &out_s), ("--settings", &twice), false, &["Camera.fx", "twice"]);
 }
 
 fn tum_lines(times: &[f64]) -> String {
@@ -240,10 +238,7 @@ fn outputs_never_overwrite_inputs_or_lose_results() {
     let seq_s = s(&seq);
     let before: Vec<Vec<u8>> = common::sorted_files(&seq.join("rgb")).iter().map(|p| std::fs::read(p).unwrap()).collect();
     let out_s = s(&base.join("out"));
-    let mut args = run_args(&seq_s, &out_s);
-    let debug = s(&seq.join("rgb"));
-    args.extend(["--debug-frames", &debug]);
-    case("run --debug-frames into the input", &args, false, &["inside the input"]);
+    run_case("run --debug-frames into the input", (&seq_s, &out_s), ("--debug-frames", &seq.join("rgb")), false, &["inside the input"]);
     let after: Vec<Vec<u8>> = common::sorted_files(&seq.join("rgb")).iter().map(|p| std::fs::read(p).unwrap()).collect();
     assert_eq!(before, after, "the input images are untouched");
     case("run --out inside the input", &run_args(&seq_s, &s(&seq.join("results"))), false, &["inside the input"]);

@@ -134,11 +134,16 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     write_atomic(&out.join("manifest.toml"), &text).map_err(|e| e.to_string())?;
     let mut notes = Vec::new();
+    // The runs this invocation is for: a shard's, or all.
+    let mine = match options.shard {
+        Some(shard) => shard::select(&plan.runs, &plan.planned, shard),
+        None => plan.runs.clone(),
+    };
     let (sequence_dirs, unavailable) = if options.collect {
         let dirs = plan.planned.iter().map(|p| sequence_dir(p, out)).collect();
         (dirs, vec![None; plan.planned.len()])
     } else {
-        prepare_sequences(&plan, options)
+        prepare_sequences(&plan, &mine, options.progress)
     };
     let jobs = options.jobs.or(plan.manifest.batch.jobs).unwrap_or_else(|| {
         budget_jobs(
@@ -149,7 +154,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     let (executed, skipped) = if options.collect {
         (Executed::default(), 0)
     } else {
-        execute(&plan, options, (&sequence_dirs, &unavailable), jobs)?
+        execute(&plan, (&mine, options), (&sequence_dirs, &unavailable), jobs)?
     };
     let mut summary = BatchSummary {
         out: out.clone(),
@@ -183,27 +188,19 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     Ok(summary)
 }
 
-/// The sequences the runs to do need: each folder, generating synthetic ones once
+/// The sequences the runs `mine` need: each folder, generating synthetic ones once
 /// (also when shards start together), and why a sequence cannot be used.
 fn prepare_sequences(
     plan: &BatchPlan,
-    options: &BatchOptions,
+    mine: &[RunJob],
+    progress: bool,
 ) -> (Vec<PathBuf>, Vec<Option<String>>) {
-    let needed: Vec<bool> = match options.shard {
-        None => vec![true; plan.planned.len()],
-        Some(shard) => {
-            let mine = shard::select(&plan.runs, &plan.planned, shard);
-            (0..plan.planned.len())
-                .map(|k| mine.iter().any(|j| j.sequence == k))
-                .collect()
-        }
-    };
     plan.planned
         .iter()
-        .zip(needed)
-        .map(|(sequence, needed)| {
-            if needed {
-                prepare_sequence(sequence, &plan.out, options.progress)
+        .enumerate()
+        .map(|(k, sequence)| {
+            if mine.iter().any(|j| j.sequence == k) {
+                prepare_sequence(sequence, &plan.out, progress)
             } else {
                 (sequence_dir(sequence, &plan.out), None)
             }
@@ -211,21 +208,18 @@ fn prepare_sequences(
         .unzip()
 }
 
-/// Runs what is left of the batch (or of its shard): `(executed, runs finished before)`.
+/// Runs what is left of `mine` (the batch's runs, or a shard's): `(executed, runs
+/// finished before)`.
 fn execute(
     plan: &BatchPlan,
-    options: &BatchOptions,
+    (mine, options): (&[RunJob], &BatchOptions),
     (sequence_dirs, unavailable): (&[PathBuf], &[Option<String>]),
     jobs: usize,
 ) -> Result<(Executed, usize), String> {
-    let mine = match options.shard {
-        Some(shard) => shard::select(&plan.runs, &plan.planned, shard),
-        None => plan.runs.clone(),
-    };
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
-    for job in &mine {
+    for job in mine {
         match RunRecord::read(&job.dir) {
             Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
             _ => match &unavailable[job.sequence] {
@@ -260,7 +254,7 @@ fn execute(
         progress: options.progress,
     };
     if options.reevaluate {
-        for job in &mine {
+        for job in mine {
             if let Some(record) = RunRecord::read(&job.dir).filter(|r| r.status == RunStatus::Ok) {
                 executor.reevaluate(job, record)?;
             }
@@ -353,15 +347,24 @@ fn sequence_dir(sequence: &PlannedSequence, out: &Path) -> PathBuf {
     match &sequence.source {
         SequenceSource::Folder(path) => path.clone(),
         SequenceSource::Synthetic { preset, .. } => {
-            let dir = out.join("sequences").join(&sequence.name);
-            let street = crate::synth::SynthConfig::load(preset)
-                .is_ok_and(|c| c.street.enabled && c.stereo.baseline > 0.0);
-            if street {
-                dir.join("kitti/sequences/00")
-            } else {
-                dir
-            }
+            let config = crate::synth::SynthConfig::load(preset);
+            synthetic_run_dir(sequence, out, config.as_ref().ok())
         }
+    }
+}
+
+/// Where the runs read a generated sequence: its folder, or for a street the KITTI
+/// layout it also writes (a street is run from its stereo pairs).
+fn synthetic_run_dir(
+    sequence: &PlannedSequence,
+    out: &Path,
+    config: Option<&crate::synth::SynthConfig>,
+) -> PathBuf {
+    let dir = out.join("sequences").join(&sequence.name);
+    if config.is_some_and(|c| c.street.enabled && c.stereo.baseline > 0.0) {
+        dir.join("kitti/sequences/00")
+    } else {
+        dir
     }
 }
 
@@ -374,12 +377,11 @@ fn prepare_sequence(
     out: &Path,
     progress: bool,
 ) -> (PathBuf, Option<String>) {
-    let run_dir = sequence_dir(sequence, out);
     match &sequence.source {
         SequenceSource::Folder(path) => {
             let problem =
                 (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
-            (run_dir, problem)
+            (path.clone(), problem)
         }
         SequenceSource::Synthetic {
             preset,
@@ -414,7 +416,7 @@ fn prepare_sequence(
                             .map_err(|e| format!("cannot rename {}: {e}", part.display()))
                     })
             });
-            (run_dir, generated.err())
+            (synthetic_run_dir(sequence, out, Some(&config)), generated.err())
         }
     }
 }

@@ -453,14 +453,14 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             read_keypoints(&run.join(KEYPOINTS_FILE))?,
         )
     };
-    // The frames to fuse, in sequence order.
+    // The frames to fuse, in sequence order (keyframes only for a point cloud alone).
+    let every_frame = config.frames == FrameChoice::All && config.fusion != Fusion::Points;
     let chosen: Vec<(usize, Se3, bool)> = (0..sequence.len())
         .filter_map(|i| {
             let k = key(sequence.timestamp(i));
             let pose = *poses.get(&k)?;
             let is_keyframe = keyframe_times.contains(&k);
-            let wanted = config.frames == FrameChoice::All && config.fusion != Fusion::Points;
-            (wanted || is_keyframe).then_some((i, pose, is_keyframe))
+            (every_frame || is_keyframe).then_some((i, pose, is_keyframe))
         })
         .step_by(config.frame_step)
         .collect();

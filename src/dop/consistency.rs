@@ -84,7 +84,7 @@ impl Consistency {
         }
         self.inlier_run += 1;
         self.until = time;
-        if self.verified_static(config) && self.inlier_run % config.geometric_frames == 0 {
+        if self.verified_static(config) && self.inlier_run.is_multiple_of(config.geometric_frames) {
             *moving = super::update(*moving, false, config.alpha_geometric);
             return Verdict::Lowered;
         }

@@ -32,7 +32,7 @@ impl Statistics {
         let mut sorted = errors.to_vec();
         sorted.sort_by(f64::total_cmp);
         let middle = sorted.len() / 2;
-        let median = if sorted.len() % 2 == 0 {
+        let median = if sorted.len().is_multiple_of(2) {
             0.5 * (sorted[middle - 1] + sorted[middle])
         } else {
             sorted[middle]
@@ -81,7 +81,7 @@ impl Statistics {
 /// for an even count).
 pub fn median_of_sorted(sorted: &[f64]) -> f64 {
     let middle = sorted.len() / 2;
-    if sorted.len() % 2 == 0 {
+    if sorted.len().is_multiple_of(2) {
         0.5 * (sorted[middle - 1] + sorted[middle])
     } else {
         sorted[middle]

@@ -103,32 +103,35 @@ impl DirLock {
     /// Takes the lock or says that another process holds it.
     pub fn take(dir: &Path) -> Result<Self, IoError> {
         let path = dir.join(".dopslam.lock");
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .map_err(|e| invalid(&path, format!("cannot open the lock: {e}")))?;
-        if !try_lock(&file) {
-            return Err(invalid(
+        match lock_file(&path, false) {
+            Ok(Some(file)) => Ok(Self { _file: file }),
+            Ok(None) => Err(invalid(
                 dir,
                 "another dopslam run is writing into this folder; wait for it or choose another --out",
-            ));
+            )),
+            Err(e) => Err(invalid(&path, format!("cannot lock: {e}"))),
         }
-        Ok(Self { _file: file })
     }
 }
 
-#[cfg(unix)]
-fn try_lock(file: &std::fs::File) -> bool {
-    use std::os::unix::io::AsRawFd;
-    // SAFETY: flock on a descriptor borrowed for the call; no memory is touched.
-    unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) == 0 }
-}
-
-#[cfg(not(unix))]
-fn try_lock(_file: &std::fs::File) -> bool {
-    true
+/// Opens (creating) the file at `path` and locks it exclusively (`flock` on Unix: the
+/// lock goes with the returned handle, and with the process however it ends): waiting
+/// for another holder when `wait`, else `Ok(None)` while another holds it.
+pub fn lock_file(path: &Path, wait: bool) -> std::io::Result<Option<std::fs::File>> {
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(path)?;
+    if wait {
+        file.lock()?;
+        return Ok(Some(file));
+    }
+    match file.try_lock() {
+        Ok(()) => Ok(Some(file)),
+        Err(std::fs::TryLockError::WouldBlock) => Ok(None),
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
+    }
 }
 
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,

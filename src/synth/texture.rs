@@ -59,7 +59,7 @@ pub fn texel(id: u32, u: f64, v: f64, footprint: f64) -> [f64; 3] {
     let (cx, cy) = (floor(u / cell) as i64, floor(v / cell) as i64);
     let h = hash(id ^ 0xABCD, cx, cy);
     let mut rectangle = None;
-    if h % 2 == 0 {
+    if h.is_multiple_of(2) {
         let (fu, fv) = (u / cell - cx as f64, v / cell - cy as f64);
         let (w, hgt) = (
             0.3 + 0.6 * ((h >> 8) & 0xFF) as f64 / 255.0,
