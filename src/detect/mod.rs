@@ -27,12 +27,22 @@ pub enum DetectError {
     Model { path: PathBuf, message: String },
     #[error("{0}")]
     Runtime(String),
-    #[error("the {what} {path} is missing: {hint}", path = .path.display(), hint = INSTALL_HINT)]
-    Missing { what: &'static str, path: PathBuf },
+    /// Files an ONNX source needs that are not there, each with what it is.
+    #[error("{}: {hint}", missing_list(.0), hint = INSTALL_HINT)]
+    Missing(Vec<(&'static str, PathBuf)>),
     #[error("detection cache {path}: {message}")]
     Cache { path: PathBuf, message: String },
     #[error("detector config: {0}")]
     Config(String),
+}
+
+/// `the X /a is missing; the Y /b is missing`.
+fn missing_list(missing: &[(&'static str, PathBuf)]) -> String {
+    missing
+        .iter()
+        .map(|(what, path)| format!("the {what} {} is missing", path.display()))
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// A source of detections for a frame: a model, a cache, or the synthetic oracle.
@@ -201,8 +211,14 @@ impl DetectorConfig {
             other => other,
         };
         if source == Source::Onnx {
-            if let Some((path, what)) = self.onnx_files().into_iter().find(|(p, _)| !p.is_file()) {
-                return Err(DetectError::Missing { what, path });
+            let missing: Vec<(&'static str, PathBuf)> = self
+                .onnx_files()
+                .into_iter()
+                .filter(|(path, _)| !path.is_file())
+                .map(|(path, what)| (what, path))
+                .collect();
+            if !missing.is_empty() {
+                return Err(DetectError::Missing(missing));
             }
         }
         Ok(source)
