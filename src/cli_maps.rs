@@ -12,7 +12,7 @@ use dopslam::dense::masks::Masking;
 use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
-use dopslam::pipeline::dense_pass;
+use dopslam::run::dense_pass;
 
 #[derive(Args)]
 pub struct FuseArgs {
@@ -138,11 +138,11 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     } else {
         run_masking(&report)
     };
-    let sequence = dopslam::pipeline::open_sequence(&sequence_dir, &config)?;
+    let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
     same_frames(&args.run, sequence.as_ref(), &sequence_dir)?;
     let recorded = report.pointer("/setup/first_frame_hash").and_then(|h| h.as_str());
     if let Some(recorded) = recorded {
-        if dopslam::pipeline::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
+        if dopslam::run::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
             bail!(
                 "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
                 sequence_dir.display(),
@@ -385,11 +385,11 @@ pub fn compare_with_baseline(
 /// The few lines that say what DOP did in a `--compare-no-dop` run: ATE with and
 /// without it, the movers left in each map, where the pictures are.
 pub fn print_summary(
-    dop: &dopslam::pipeline::RunReport,
-    no_dop: &dopslam::pipeline::RunReport,
+    dop: &dopslam::run::RunReport,
+    no_dop: &dopslam::run::RunReport,
     comparison: &Comparison,
 ) {
-    let ate = |r: &dopslam::pipeline::RunReport| {
+    let ate = |r: &dopslam::run::RunReport| {
         r.ate
             .as_ref()
             .map_or("- (no ground truth)".to_string(), |a| format!("{:.4} m", a.ape.statistics.rmse))

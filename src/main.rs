@@ -373,7 +373,7 @@ fn run_detect(args: DetectArgs) -> Result<()> {
         .open(args.input.is_dir().then_some(args.input.as_path()))?
         .expect("a source other than none");
     let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir() {
-        let sequence = dopslam::pipeline::open_sequence(&args.input, &config)?;
+        let sequence = dopslam::run::open_sequence(&args.input, &config)?;
         let mut frames = Vec::new();
         for index in (0..sequence.len()).step_by(args.every as usize) {
             let frame = sequence.load(index)?;
@@ -580,7 +580,7 @@ fn run_synth(args: SynthArgs) -> Result<()> {
 fn run_info(args: InfoArgs) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let root = &args.sequence;
-    dopslam::pipeline::check_sequence_folder(root)?;
+    dopslam::run::check_sequence_folder(root)?;
     let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
         Box::new(KittiSequence::open(root, None)?)
     } else {
@@ -641,7 +641,7 @@ fn run_run(args: RunArgs) -> Result<()> {
     if args.no_loops {
         config.global.loops.enabled = false;
     }
-    let options = dopslam::pipeline::RunOptions {
+    let options = dopslam::run::RunOptions {
         max_frames: args.frames,
         progress: true,
         deterministic: args.deterministic,
@@ -662,13 +662,13 @@ fn run_run(args: RunArgs) -> Result<()> {
     }
     // A missing detector fails here, a missing vocabulary when the run starts: both
     // before any work.
-    let source = dopslam::pipeline::detection_source(&config)?;
+    let source = dopslam::run::detection_source(&config)?;
     config.detector.source = source;
-    let sequence = dopslam::pipeline::open_sequence(&args.sequence, &config)?;
+    let sequence = dopslam::run::open_sequence(&args.sequence, &config)?;
     if let Some(text) = &args.camera {
         config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
     }
-    let mode = dopslam::pipeline::effective_mode(&config);
+    let mode = dopslam::run::effective_mode(&config);
     eprintln!(
         "detections: {}; moving objects: {}",
         source
@@ -677,7 +677,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         mode.to_possible_value()
             .map_or("?".into(), |v| v.get_name().to_string())
     );
-    let report = dopslam::pipeline::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
+    let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
     let t = &report.totals;
     println!(
         "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
@@ -749,7 +749,7 @@ fn run_run(args: RunArgs) -> Result<()> {
             baseline_dir.display()
         );
         let baseline_report =
-            dopslam::pipeline::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
+            dopslam::run::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
         let comparison = cli_maps::compare_with_baseline(
             (&args.out, &baseline_dir),
             sequence.as_ref(),

@@ -13,7 +13,7 @@ use dopslam::dense::masks::Masking;
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;
-use dopslam::pipeline::{dense_pass, open_sequence, run_sequence, RunOptions};
+use dopslam::run::{dense_pass, open_sequence, run_sequence, RunOptions};
 use dopslam::synth::{generate, SynthConfig};
 
 #[test]

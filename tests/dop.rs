@@ -9,7 +9,7 @@ use std::path::Path;
 use dopslam::config::Config;
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
-use dopslam::pipeline::{open_sequence, run_sequence, RunOptions, RunReport};
+use dopslam::run::{open_sequence, run_sequence, RunOptions, RunReport};
 use dopslam::synth::{generate, SynthConfig};
 
 fn run(seq: &Path, mode: Mode, out: &Path) -> RunReport {

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use dopslam::config::Config;
-use dopslam::pipeline::{open_sequence, run_sequence, RunOptions};
+use dopslam::run::{open_sequence, run_sequence, RunOptions};
 use dopslam::synth::{generate, SynthConfig};
 
 fn static_room(frames: usize, name: &str) -> PathBuf {

@@ -24,6 +24,9 @@
 #                              boxes merged (multi-scale)
 # Sequences are generated once into outputs/bench/ (seeds 1001, 1002, ... for N > 1).
 set -euo pipefail
+# DOPSLAM_BIN: the binary measured (default ./target/release/dopslam), e.g. a copy of an
+# older build for a before/after comparison.
+bin=${DOPSLAM_BIN:-./target/release/dopslam}
 cd "$(dirname "$0")/.."
 seeds=1
 variants="dop-onnx dop-onnx-rt no-dop mask-boxes-onnx dop-oracle"
@@ -63,7 +66,7 @@ for preset in "${presets[@]}"; do
       seed_args=(--seed "$seed")
     fi
     if [ ! -f "$seq/rgb.txt" ]; then
-      ./target/release/dopslam synth --config "configs/synth/$preset.toml" "${seed_args[@]}" --out "$seq" --force >/dev/null
+      "$bin" synth --config "configs/synth/$preset.toml" "${seed_args[@]}" --out "$seq" --force >/dev/null
     fi
     for variant in $variants; do
       args=()
@@ -86,7 +89,7 @@ for preset in "${presets[@]}"; do
       esac
       out=outputs/bench/people-$(basename "$seq")-$variant
       rm -rf "$out"
-      if ! ./target/release/dopslam run "$seq" --out "$out" --no-dense "${args[@]}" >"$out.log" 2>&1; then
+      if ! "$bin" run "$seq" --out "$out" --no-dense "${args[@]}" >"$out.log" 2>&1; then
         echo "| $preset | $seed | $variant | failed: see $out.log |"
         continue
       fi

@@ -335,7 +335,7 @@ fn failure_message(status: std::process::ExitStatus, dir: &Path) -> String {
 
 /// The sequence's ground truth, if it has one.
 pub fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, String> {
-    let sequence = crate::pipeline::open_sequence(dir, config).map_err(|e| e.to_string())?;
+    let sequence = crate::run::open_sequence(dir, config).map_err(|e| e.to_string())?;
     Ok(sequence.ground_truth().cloned())
 }
 

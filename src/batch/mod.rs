@@ -14,7 +14,7 @@
 //! OUT/results.csv results.json results.md runs.csv report.html
 //! ```
 //!
-//! This layer sits above the pipeline: it starts `dopslam run` processes and reads
+//! This layer sits above the run (`crate::run`): it starts `dopslam run` processes and reads
 //! what they wrote; nothing below imports it.
 
 pub mod execute;

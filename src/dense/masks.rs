@@ -22,7 +22,7 @@ use crate::dop::DopConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
-use crate::mapping::dynamic::object_boxes;
+use crate::dynamics::keyframes::object_boxes;
 
 /// How frames are masked before fusion.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]

@@ -8,7 +8,7 @@
 pub mod coco;
 pub mod draw;
 pub mod onnx;
-pub mod worker;
+pub mod job;
 pub mod yolo;
 
 use std::path::{Path, PathBuf};

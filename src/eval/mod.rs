@@ -9,5 +9,6 @@ pub mod plot;
 pub mod report;
 pub mod rpe;
 pub mod stats;
+pub mod truth;
 
 pub use report::{evaluate, EvalError, EvalOptions, EvalReport};

@@ -1,6 +1,6 @@
 //! Loop detection and correction (ORB-SLAM §VII, ORB-SLAM2's `LoopClosing`) over the
 //! keyframes in the order they were made. Stages 1 and 2 ([`PlaceRecognition`]) run
-//! beside the tracking pass ([`super::loop_detection`]); stages 3 and 4
+//! beside the tracking pass (`system::stages::Recognition`); stages 3 and 4
 //! ([`LoopCloser`]) in the global pass, no loop within `gap` keyframes after the last:
 //! 1. **Candidates**: database hits not covisible with the keyframe, scoring at least the
 //!    lowest score of its covisible keyframes, sharing at least 80 % of the best hit's
@@ -142,7 +142,7 @@ pub struct LoopInputs<'a> {
 
 /// Stages 1 and 2 (place recognition and consistency), apart from the correction:
 /// run on each keyframe as local mapping finishes it during the tracking pass (in its
-/// own thread or inline, [`super::loop_detection`]).
+/// own thread or inline, `system::stages::Recognition`).
 pub struct PlaceRecognition {
     config: LoopConfig,
     database: Database<KeyFrameKey>,

@@ -1,19 +1,17 @@
 //! The global pass (after tracking): loop closure over the keyframes in the order they
 //! were made ([`loop_closing`]) on the candidates that place recognition
-//! ([`crate::bow`]) found beside the tracking pass ([`loop_detection`], in its own
-//! thread), essential graph optimisation ([`essential_graph`]) after each loop, then a
+//! ([`crate::bow`]) found beside the tracking pass (`system::stages::Recognition`, in
+//! its own thread), essential graph optimisation ([`essential_graph`]) after each loop, then a
 //! full bundle adjustment over every keyframe and every static map point, then every
 //! tracked frame estimated again on the final map ([`frame_refinement`]) and smoothed
 //! with a motion prior ([`trajectory_smoothing`]). Frames follow
 //! their reference keyframes when the trajectory is written.
 //!
-//! Entry points: [`loop_detection::LoopDetection::start`] during tracking, then
-//! [`run`] on the map the tracking pass left.
+//! Entry point: [`run`] on the map the tracking pass left.
 
 pub mod essential_graph;
 pub mod frame_refinement;
 pub mod loop_closing;
-pub mod loop_detection;
 pub mod trajectory_smoothing;
 pub mod word_matching;
 

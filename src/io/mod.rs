@@ -2,6 +2,7 @@
 
 pub mod atomic;
 pub mod output;
+pub mod run_dir;
 pub mod data_dir;
 pub mod errors;
 pub mod file_list;

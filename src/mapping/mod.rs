@@ -12,15 +12,12 @@
 //! map; heavy searches take the read lock and the solver runs with no lock at all.
 
 pub mod culling;
-pub mod dynamic;
 pub mod fusion;
 pub mod triangulation;
 pub mod window_ba;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc::{channel, Sender};
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -119,6 +116,11 @@ impl LocalMapper {
             stats: MappingStats::default(),
             then: None,
         }
+    }
+
+    /// Beside tracking: the count of keyframes handed over and not yet processed.
+    pub fn set_pending(&mut self, pending: Arc<AtomicUsize>) {
+        self.pending = Some(pending);
     }
 
     fn more_waiting(&self) -> bool {
@@ -303,86 +305,6 @@ impl LocalMapper {
             m.update_point(p, &self.pyramid.factors);
         }
         m.update_connections(key);
-    }
-}
-
-/// Local mapping beside tracking (a thread fed by a channel) or inline.
-pub enum LocalMapping {
-    Inline {
-        mapper: Box<LocalMapper>,
-        map: SharedMap,
-    },
-    Thread {
-        sender: Sender<KeyFrameKey>,
-        handle: JoinHandle<MappingStats>,
-        pending: Arc<AtomicUsize>,
-    },
-}
-
-impl LocalMapping {
-    /// Starts local mapping on `map`; `deterministic` runs each keyframe inline.
-    pub fn start(mapper: LocalMapper, map: SharedMap, deterministic: bool) -> Self {
-        if deterministic {
-            return Self::Inline {
-                mapper: Box::new(mapper),
-                map,
-            };
-        }
-        let (sender, receiver) = channel::<KeyFrameKey>();
-        let pending = Arc::new(AtomicUsize::new(0));
-        let mut mapper = mapper;
-        mapper.pending = Some(pending.clone());
-        let handle = std::thread::Builder::new()
-            .name("local-mapping".into())
-            .spawn(move || {
-                crate::threads::lower_priority(5);
-                let pending = mapper.pending.clone().expect("set above");
-                for key in receiver {
-                    mapper.process(&map, key);
-                    pending.fetch_sub(1, Ordering::SeqCst);
-                }
-                mapper.stats
-            })
-            .expect("spawn the local mapping thread");
-        Self::Thread {
-            sender,
-            handle,
-            pending,
-        }
-    }
-
-    /// Whether every keyframe handed over has been processed.
-    pub fn is_idle(&self) -> bool {
-        match self {
-            Self::Inline { .. } => true,
-            Self::Thread { pending, .. } => pending.load(Ordering::SeqCst) == 0,
-        }
-    }
-
-    /// Hands a new keyframe over (processed at once when inline).
-    pub fn insert(&mut self, key: KeyFrameKey) {
-        match self {
-            Self::Inline { mapper, map } => mapper.process(map, key),
-            Self::Thread {
-                sender, pending, ..
-            } => {
-                pending.fetch_add(1, Ordering::SeqCst);
-                // The thread only ends when the sender is dropped, so this cannot fail
-                // unless it panicked, which `finish` reports.
-                let _ = sender.send(key);
-            }
-        }
-    }
-
-    /// Waits for the queued keyframes and returns the totals.
-    pub fn finish(self) -> MappingStats {
-        match self {
-            Self::Inline { mapper, .. } => mapper.stats,
-            Self::Thread { sender, handle, .. } => {
-                drop(sender);
-                handle.join().expect("local mapping thread panicked")
-            }
-        }
     }
 }
 

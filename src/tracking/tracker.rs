@@ -177,11 +177,10 @@ struct LastFrame {
 
 /// RGB-D tracking against a growing map.
 pub struct Tracker {
-    pub config: TrackerConfig,
-    pub camera: StereoCamera,
-    pub pyramid: ScalePyramid,
-    pub map: SharedMap,
-    pub state: TrackingState,
+    config: TrackerConfig,
+    camera: StereoCamera,
+    pyramid: ScalePyramid,
+    state: TrackingState,
     last: Option<LastFrame>,
     velocity: Option<Se3>,
     reference: Option<KeyFrameKey>,
@@ -197,11 +196,11 @@ pub struct Tracker {
     height: f32,
     /// The DOP model, when on: dynamic keypoints and map points stay out of pose
     /// estimation and new points.
-    pub dop: Option<DopConfig>,
+    dop: Option<DopConfig>,
     /// The objects the DOP model follows, as of the latest detection (handed over by
     /// the caller after each one): with `dop.track_frames`, every frame sees their
     /// predicted boxes.
-    pub followed: Option<FollowedObjects>,
+    followed: Option<FollowedObjects>,
 }
 
 /// Timers of one frame.
@@ -223,7 +222,6 @@ impl Tracker {
             config,
             camera,
             pyramid,
-            map: SharedMap::default(),
             state: TrackingState::NotInitialised,
             last: None,
             velocity: None,
@@ -238,6 +236,27 @@ impl Tracker {
             dop: None,
             followed: None,
         }
+    }
+
+    /// Turns the DOP model on: dynamic keypoints and map points stay out of pose
+    /// estimation and new points.
+    pub fn with_dop(mut self, dop: DopConfig) -> Self {
+        self.dop = Some(dop);
+        self
+    }
+
+    /// The DOP model, when on.
+    pub fn dop(&self) -> Option<&DopConfig> {
+        self.dop.as_ref()
+    }
+
+    /// The objects the DOP model follows, as of the latest detection.
+    pub fn set_followed(&mut self, followed: FollowedObjects) {
+        self.followed = Some(followed);
+    }
+
+    pub fn state(&self) -> TrackingState {
+        self.state
     }
 
     /// The last tracked frame (with its moving probabilities).
@@ -368,8 +387,7 @@ impl Tracker {
     /// mode); while it has not, a keyframe is only made when tracking gets weak.
     /// Searches and pose optimisation hold the map's read lock, so they run while local
     /// mapping searches too; only the counters and a new keyframe take the write lock.
-    pub fn track(&mut self, mut frame: Frame, mapping_idle: bool) -> FrameReport {
-        let shared = self.map.clone();
+    pub fn track(&mut self, shared: &SharedMap, mut frame: Frame, mapping_idle: bool) -> FrameReport {
         let mut timing = Timing::default();
         let mut report = FrameReport {
             index: frame.index,

@@ -1,0 +1,231 @@
+//! A run folder: the name of every file a run writes, once. The writer (`run::outputs`,
+//! the dense pass) and the readers (`dopslam fuse`, `compare-maps`, the batch) all go
+//! through [`RunDir`], so a file cannot be renamed in one place and read under its old
+//! name in another. `report.json` reads back typed as a [`RunSummary`] (the parts the
+//! readers need; the whole report is `run::RunReport`).
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use super::IoError;
+
+/// A run's output folder.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+/// Every file's and folder's name in a run folder.
+pub mod names {
+    /// The camera trajectory after the global pass (TUM format, every tracked frame).
+    pub const TRAJECTORY: &str = "trajectory.txt";
+    /// The trajectory of the tracking pass, written before the global pass moves the map.
+    pub const TRACKING_TRAJECTORY: &str = "trajectory_tracking.txt";
+    pub const KEYFRAMES: &str = "keyframes.txt";
+    /// The sparse map (binary PLY).
+    pub const SPARSE_MAP: &str = "map.ply";
+    pub const REPORT: &str = "report.json";
+    /// Each tracked frame's timestamp and map segment after the loops' merges.
+    pub const SEGMENTS: &str = "segments.txt";
+    /// The dynamic keypoints of each frame (DOP mode).
+    pub const DYNAMIC_KEYPOINTS: &str = "dynamic_keypoints.json";
+    /// The keyframe detector's boxes, one file per keyframe (a detection cache).
+    pub const DETECTIONS: &str = "detections";
+    /// Detections the dense pass added on frames between keyframes.
+    pub const DENSE_DETECTIONS: &str = "detections_dense";
+    pub const DENSE_MESH_PLY: &str = "dense_mesh.ply";
+    pub const DENSE_MESH_OBJ: &str = "dense_mesh.obj";
+    pub const DENSE_POINTS: &str = "dense_points.ply";
+    pub const DENSE_REPORT: &str = "dense.json";
+    pub const DENSE_PERSPECTIVE: &str = "dense_perspective.png";
+    pub const DENSE_TOP: &str = "dense_top.png";
+    /// What `dopslam eval --save-report` writes beside a run.
+    pub const EVALUATION: &str = "evaluation.json";
+    pub const PLOTS: &str = "plots";
+    /// `--compare-no-dop`'s runs and comparison.
+    pub const NO_DOP: &str = "no_dop";
+    pub const NO_MASKS: &str = "no_masks";
+    pub const UNMASKED: &str = "unmasked";
+    pub const COMPARE_NO_DOP: &str = "compare_no_dop";
+    /// An earlier run's outputs, moved aside.
+    pub const PREVIOUS: &str = "previous";
+}
+
+/// The files and folders a run writes into its output folder (a batch's `config.toml`,
+/// `log.txt` and `run.json` beside them are the batch's own): what
+/// [`super::output::move_previous_outputs`] moves aside.
+pub const RUN_OUTPUTS: [&str; 21] = [
+    names::TRAJECTORY,
+    names::TRACKING_TRAJECTORY,
+    names::KEYFRAMES,
+    names::SPARSE_MAP,
+    names::REPORT,
+    names::SEGMENTS,
+    names::DYNAMIC_KEYPOINTS,
+    names::DETECTIONS,
+    names::DENSE_MESH_PLY,
+    names::DENSE_MESH_OBJ,
+    names::DENSE_POINTS,
+    names::DENSE_REPORT,
+    names::DENSE_PERSPECTIVE,
+    names::DENSE_TOP,
+    names::DENSE_DETECTIONS,
+    names::EVALUATION,
+    names::PLOTS,
+    names::NO_DOP,
+    names::NO_MASKS,
+    names::UNMASKED,
+    names::COMPARE_NO_DOP,
+];
+
+impl RunDir {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// `root/name`, for a name of [`names`].
+    pub fn file(&self, name: &str) -> PathBuf {
+        self.root.join(name)
+    }
+
+    pub fn trajectory(&self) -> PathBuf {
+        self.file(names::TRAJECTORY)
+    }
+
+    pub fn tracking_trajectory(&self) -> PathBuf {
+        self.file(names::TRACKING_TRAJECTORY)
+    }
+
+    pub fn keyframes(&self) -> PathBuf {
+        self.file(names::KEYFRAMES)
+    }
+
+    pub fn sparse_map(&self) -> PathBuf {
+        self.file(names::SPARSE_MAP)
+    }
+
+    pub fn report(&self) -> PathBuf {
+        self.file(names::REPORT)
+    }
+
+    pub fn segments(&self) -> PathBuf {
+        self.file(names::SEGMENTS)
+    }
+
+    pub fn dynamic_keypoints(&self) -> PathBuf {
+        self.file(names::DYNAMIC_KEYPOINTS)
+    }
+
+    pub fn detections(&self) -> PathBuf {
+        self.file(names::DETECTIONS)
+    }
+
+    pub fn dense_detections(&self) -> PathBuf {
+        self.file(names::DENSE_DETECTIONS)
+    }
+
+    pub fn dense_report(&self) -> PathBuf {
+        self.file(names::DENSE_REPORT)
+    }
+
+    /// A sub-run of `--compare-no-dop` ([`names::NO_DOP`], [`names::NO_MASKS`]).
+    pub fn sub_run(&self, name: &str) -> RunDir {
+        RunDir::new(self.file(name))
+    }
+
+    /// `report.json`, read back typed: an error names the file and what is wrong
+    /// (missing: not a finished run).
+    pub fn read_summary(&self) -> Result<RunSummary, IoError> {
+        let path = self.report();
+        let text = super::errors::read_text(&path)?;
+        serde_json::from_str(&text)
+            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))
+    }
+}
+
+/// The parts of a run's `report.json` that other commands read.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RunSummary {
+    pub sequence: String,
+    /// The sequence folder the run tracked, when known.
+    #[serde(default)]
+    pub sequence_path: Option<PathBuf>,
+    /// How moving objects were treated: `Off`, `MaskBoxes` or `Dop`.
+    pub mode: String,
+    #[serde(default)]
+    pub setup: Option<SetupSummary>,
+    pub totals: TotalsSummary,
+    pub detection: DetectionSummary,
+    pub frames: Vec<FrameSummary>,
+    #[serde(default)]
+    pub global: Option<GlobalSummary>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct SetupSummary {
+    #[serde(default)]
+    pub first_frame_hash: Option<String>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct TotalsSummary {
+    pub frames: usize,
+    pub tracked: usize,
+    pub coverage_percent: f64,
+    pub keyframes: usize,
+    pub map_points: usize,
+    pub median_tracking_ms: f64,
+    pub mean_tracking_ms: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct DetectionSummary {
+    pub map_points_removed: usize,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct FrameSummary {
+    pub dynamic_keypoints: usize,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct GlobalSummary {
+    pub loops: Vec<serde_json::Value>,
+}
+
+impl RunSummary {
+    /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).
+    pub fn first_frame_hash(&self) -> Option<&str> {
+        self.setup.as_ref()?.first_frame_hash.as_deref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_outputs_are_distinct_names() {
+        let mut sorted = RUN_OUTPUTS.to_vec();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), RUN_OUTPUTS.len());
+        assert!(!RUN_OUTPUTS.contains(&names::PREVIOUS));
+    }
+
+    #[test]
+    fn a_missing_or_foreign_report_is_an_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("report.json"), "{e}");
+        std::fs::write(run.report(), "{\"hello\": 1}").unwrap();
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("not a dopslam run report"), "{e}");
+    }
+}

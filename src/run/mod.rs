@@ -1,0 +1,177 @@
+//! The offline tool's spine: a run is set-up, tracking pass, global pass, outputs,
+//! dense pass, each a call with typed data in and out ([`run_sequence`]).
+//!
+//! - [`setup`]: everything resolved once, before any output is touched;
+//! - [`tracking_pass`]: the frame loop over the online [`crate::system::System`];
+//! - [`global_pass`]: loops, essential graph, full BA on the map handed over;
+//! - [`outputs`]: trajectory, keyframes, sparse map, segments, `report.json`, named by
+//!   [`crate::io::run_dir::RunDir`];
+//! - [`dense_pass`]: the dense map of the static scene from the run folder.
+//!
+//! What watches the frames without taking part (progress, debug pictures, the dynamic
+//! keypoints for the dense masks, the ground-truth scorer) is an observer
+//! ([`observers`], [`truth`]).
+
+pub mod dense_pass;
+pub mod error;
+pub mod global_pass;
+pub mod observers;
+pub mod outputs;
+pub mod report;
+pub mod setup;
+pub mod tracking_pass;
+pub mod truth;
+
+use std::path::{Path, PathBuf};
+
+pub use dense_pass::{dense_masking, dense_pass};
+pub use error::RunError;
+pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
+pub use setup::{
+    check_sequence_folder, detection_source, effective_mode, first_frame_hash, open_sequence,
+    resolve_calibration, RunSetup, Setup,
+};
+
+use crate::dop::Mode;
+use crate::io::run_dir::RunDir;
+use crate::io::sequence::Sequence;
+use crate::pacing::Pace;
+use global_pass::global_pass;
+use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
+use outputs::Computed;
+use tracking_pass::{tracking_pass, TrackingPass};
+use truth::TruthScorer;
+
+/// Options of a run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Stop after this many frames.
+    pub max_frames: Option<usize>,
+    pub progress: bool,
+    /// Run local mapping and detection inline after each keyframe instead of in their
+    /// own threads, so that results repeat exactly.
+    pub deterministic: bool,
+    /// The sequence folder, where the oracle detections are (`detections_oracle/`).
+    pub sequence_dir: Option<PathBuf>,
+    /// Write each frame with its keypoints coloured by DOP state here (the paper's
+    /// Fig. 4): green high-confidence static, yellow low-confidence static, orange
+    /// low-confidence dynamic, red high-confidence dynamic (removed: orange and red).
+    pub debug_frames: Option<PathBuf>,
+    /// Run the dense pass after tracking (`[dense]` settings).
+    pub dense: bool,
+    /// Real-time mode: frames at the recording's rate, or as fast as tracking goes.
+    pub pace: Pace,
+}
+
+/// Runs the passes over `sequence` and writes their outputs into `out`: tracking, the
+/// global pass (on a complete run), the outputs, then (when `options.dense`) the dense
+/// map, also after tracking stopped early. A run that stopped early is an error after
+/// everything was written.
+pub fn run_sequence(
+    sequence: &dyn Sequence,
+    config: &crate::config::Config,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<RunReport, RunError> {
+    let setup = Setup::resolve(sequence, config)?;
+    let _lock = outputs::prepare(out, options)?;
+    let run = RunDir::new(out);
+    let mut watch = Watchers::new(sequence, options);
+    let mut pass = tracking_pass(sequence, &setup, options, &run, &mut watch.observers())?;
+    let global = global_pass(&mut pass, &setup, &run)?;
+    let stop = pass.stop.clone();
+    let mut report = outputs::write(&run, watch.computed(sequence, &setup, options, pass, global, &run)?)?;
+    let dense_due = stop.is_some() || report.totals.tracked > 0;
+    if options.dense && dense_due && !crate::interrupt::requested() {
+        let masking = dense_masking(setup.mode);
+        let dense = dense_pass(sequence, config, (out, out), masking, options.sequence_dir.as_deref(), options.progress);
+        // After a tracking failure the dense map of what was tracked is a bonus: the
+        // tracking error is the one to report.
+        match (&stop, dense) {
+            (None, Ok(dense)) => report.dense = Some(dense),
+            (None, Err(e)) => return Err(e),
+            (Some(_), _) => {}
+        }
+    }
+    match stop {
+        Some(message) => Err(RunError::Interrupted {
+            message,
+            done: report.frames.len(),
+            out: out.to_path_buf(),
+        }),
+        None => Ok(report),
+    }
+}
+
+/// The observers of a run's tracking pass.
+struct Watchers {
+    progress: Progress,
+    debug: Option<DebugFrames>,
+    keypoints: DynamicKeypoints,
+    truth: TruthScorer,
+}
+
+impl Watchers {
+    fn new(sequence: &dyn Sequence, options: &RunOptions) -> Self {
+        let total = options
+            .max_frames
+            .map_or(sequence.len(), |m| m.min(sequence.len()));
+        Self {
+            progress: Progress::new(total, options.progress),
+            debug: options.debug_frames.clone().map(|dir| DebugFrames { dir }),
+            keypoints: DynamicKeypoints::default(),
+            truth: TruthScorer::new(options.sequence_dir.clone()),
+        }
+    }
+
+    fn observers(&mut self) -> Vec<&mut dyn FrameObserver> {
+        let mut list: Vec<&mut dyn FrameObserver> = Vec::new();
+        if let Some(debug) = self.debug.as_mut() {
+            list.push(debug);
+        }
+        list.push(&mut self.keypoints);
+        list.push(&mut self.truth);
+        list.push(&mut self.progress);
+        list
+    }
+
+    /// What the passes computed, with what the observers saw; the dynamic keypoints
+    /// (DOP) are written here.
+    fn computed<'a>(
+        self,
+        sequence: &'a dyn Sequence,
+        setup: &Setup,
+        options: &'a RunOptions,
+        pass: TrackingPass,
+        global: Option<(crate::global::GlobalReport, crate::io::Trajectory)>,
+        run: &RunDir,
+    ) -> Result<Computed<'a>, RunError> {
+        let TrackingPass {
+            tracked,
+            mut lines,
+            stop,
+        } = pass;
+        for (line, truth) in lines.iter_mut().zip(self.truth.per_frame) {
+            line.truth = truth;
+        }
+        let mut detection = tracked.detection;
+        detection.classification = self.truth.classification;
+        detection.person_recall = self.truth.person_recall;
+        if setup.mode == Mode::Dop {
+            outputs::write_dynamic_keypoints(run, &self.keypoints.frames)?;
+        }
+        let computed = Computed {
+            sequence,
+            sequence_path: options.sequence_dir.as_deref(),
+            setup: RunSetup::new(sequence, &setup.config, &setup.calibration),
+            mode: setup.mode,
+            map: tracked.map,
+            mapping: tracked.mapping,
+            detection,
+            lines,
+            stopped: stop,
+            global,
+        };
+        Ok(computed)
+    }
+}

@@ -1,0 +1,113 @@
+//! What watches the tracking pass frame by frame without taking part in it: the
+//! progress bar, the debug pictures (the paper's Fig. 4), the dynamic keypoints the
+//! dense pass masks with, and the ground-truth scorer ([`super::truth`]).
+
+use std::path::PathBuf;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
+use crate::dop::DopConfig;
+use crate::dynamics::Applied;
+use crate::tracking::input::Picture;
+use crate::tracking::{Frame, FrameReport, TrackingState};
+
+/// One frame as the system left it.
+pub struct FrameView<'a> {
+    pub index: usize,
+    pub timestamp: f64,
+    pub report: &'a FrameReport,
+    /// The frame with its moving probabilities, when tracking kept it.
+    pub frame: Option<&'a Frame>,
+    /// The DOP model, when on.
+    pub dop: Option<&'a DopConfig>,
+    pub picture: &'a Picture,
+}
+
+impl FrameView<'_> {
+    /// The frame, when it was tracked (state Ok).
+    pub fn tracked(&self) -> Option<&Frame> {
+        self.frame.filter(|_| self.report.state == TrackingState::Ok)
+    }
+}
+
+/// Watches the tracking pass.
+pub trait FrameObserver {
+    /// After each frame; an error stops the pass (its message says why).
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), String>;
+
+    /// After detections were applied to their keyframes.
+    fn on_applied(&mut self, _applied: &[Applied]) {}
+
+    /// After the last frame.
+    fn finish(&mut self) {}
+}
+
+/// The progress bar (hidden without `--progress`).
+pub struct Progress {
+    bar: ProgressBar,
+}
+
+impl Progress {
+    pub fn new(total: usize, shown: bool) -> Self {
+        let bar = if shown {
+            ProgressBar::new(total as u64)
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "track {bar:40} {pos}/{len} frames {msg} ({per_sec}, {eta} left)",
+            )
+            .expect("valid template"),
+        );
+        Self { bar }
+    }
+}
+
+impl FrameObserver for Progress {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+        self.bar.set_message(format!("{:?}", view.report.state));
+        self.bar.inc(1);
+        Ok(())
+    }
+
+    fn finish(&mut self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+/// Each frame with its keypoints coloured by DOP state, as PNGs in a folder.
+pub struct DebugFrames {
+    pub dir: PathBuf,
+}
+
+impl FrameObserver for DebugFrames {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+        let Some(frame) = view.frame else {
+            return Ok(());
+        };
+        let mut picture = view.picture.clone().into_colour();
+        let dop = view.dop.cloned().unwrap_or_default();
+        crate::detect::draw::draw_keypoints(&mut picture, frame, &dop);
+        let path = self.dir.join(format!("{:06}.png", view.index));
+        std::fs::create_dir_all(&self.dir)
+            .and_then(|_| picture.save(&path).map_err(std::io::Error::other))
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))
+    }
+}
+
+/// The dynamic keypoints of every tracked frame (DOP mode), for the dense pass.
+#[derive(Default)]
+pub struct DynamicKeypoints {
+    pub frames: Vec<FrameKeypoints>,
+}
+
+impl FrameObserver for DynamicKeypoints {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+        if let (Some(dop), Some(frame)) = (view.dop, view.tracked()) {
+            self.frames.push(dynamic_keypoints(frame, dop));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,253 @@
+//! The outputs of the tracking and global passes, written atomically into the run
+//! folder ([`RunDir`] names every file): `trajectory.txt` (TUM format, every tracked
+//! frame), `trajectory_tracking.txt` (before the global pass), `keyframes.txt`,
+//! `map.ply` (the sparse map), `segments.txt`, `dynamic_keypoints.json` (DOP) and
+//! `report.json` (per-frame state, matches, inliers and times; totals, lost spans,
+//! coverage, ATE when the sequence has ground truth).
+
+use std::path::Path;
+
+use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
+use super::setup::RunSetup;
+use super::{RunError, RunOptions};
+use crate::dense::masks::FrameKeypoints;
+use crate::dop::Mode;
+use crate::dynamics::DetectionTotals;
+use crate::eval::report::{evaluate, EvalOptions, EvalReport};
+use crate::eval::stats::median;
+use crate::global::GlobalReport;
+use crate::io::atomic::write_atomic;
+use crate::io::run_dir::RunDir;
+use crate::io::sequence::Sequence;
+use crate::io::trajectory::TrajectoryFormat;
+use crate::io::Trajectory;
+use crate::map::Map;
+use crate::mapping::MappingStats;
+use crate::tracking::TrackingState;
+
+/// Before any work (after the set-up): the paths are UTF-8 (the report names them),
+/// the output and debug folders can be written and are not inside the input sequence,
+/// no other run writes into the output folder (the lock returned is held for the run),
+/// and an earlier run's outputs there move into `previous/`.
+pub fn prepare(
+    out: &Path,
+    options: &RunOptions,
+) -> Result<crate::io::output::DirLock, RunError> {
+    use crate::io::output;
+    let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
+    if let Some(dir) = inputs.first().filter(|d| d.to_str().is_none()) {
+        return Err(RunError::Input(format!(
+            "the sequence path {} is not valid UTF-8, which report.json cannot name: link it under a UTF-8 name (ln -s) and run that",
+            dir.display()
+        )));
+    }
+    output::prepare_dir(out, "output", &inputs)?;
+    if let Some(debug) = &options.debug_frames {
+        output::prepare_dir(debug, "debug frames", &inputs)?;
+    }
+    let lock = output::DirLock::take(out)?;
+    let moved = output::move_previous_outputs(out, &[])?;
+    if !moved.is_empty() && options.progress {
+        eprintln!(
+            "{} held an earlier run's outputs: moved into {}/previous/ ({})",
+            out.display(),
+            out.display(),
+            moved.join(", ")
+        );
+    }
+    Ok(lock)
+}
+
+/// Every tracked frame's pose: relative to its reference keyframe, placed on that
+/// keyframe's current pose (so frames follow the keyframes' corrections).
+pub fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
+    let mut trajectory = Trajectory::default();
+    for line in lines {
+        let corrected = line
+            .tracking
+            .reference
+            .and_then(|(key, camera_from_reference)| {
+                Some(camera_from_reference * map.keyframe_pose(key)?)
+            });
+        if let Some(pose) = corrected.or(line.tracking.camera_from_world) {
+            trajectory.push(line.tracking.timestamp, pose.inverse());
+        }
+    }
+    trajectory
+}
+
+/// The trajectory of the tracking pass, written before the global pass moves the map.
+pub fn write_tracking_trajectory(
+    run: &RunDir,
+    map: &Map,
+    lines: &[FrameLine],
+) -> Result<Trajectory, RunError> {
+    let tracking = trajectory_of(map, lines);
+    tracking.write(&run.tracking_trajectory(), TrajectoryFormat::Tum)?;
+    Ok(tracking)
+}
+
+/// Each DOP frame's dynamic keypoints, for the dense pass's masks.
+pub fn write_dynamic_keypoints(run: &RunDir, keypoints: &[FrameKeypoints]) -> Result<(), RunError> {
+    let json = serde_json::to_string(keypoints).expect("keypoints serialise");
+    Ok(write_atomic(&run.dynamic_keypoints(), json.as_bytes())?)
+}
+
+/// What the passes computed, for [`write`].
+pub struct Computed<'a> {
+    pub sequence: &'a dyn Sequence,
+    pub sequence_path: Option<&'a Path>,
+    pub setup: RunSetup,
+    pub mode: Mode,
+    pub map: Map,
+    pub mapping: MappingStats,
+    pub detection: DetectionTotals,
+    pub lines: Vec<FrameLine>,
+    /// Why the run stopped early, if it did.
+    pub stopped: Option<String>,
+    /// The global pass's report and the tracking pass's trajectory, when it ran.
+    pub global: Option<(GlobalReport, Trajectory)>,
+}
+
+/// Writes trajectory, keyframes, map, segments and report; evaluates against ground
+/// truth (also the tracking pass's trajectory, when the global pass ran after it).
+pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
+    // A second Ctrl-C waits until the set is written.
+    let _writing = crate::interrupt::Writing::start();
+    let Computed {
+        sequence,
+        sequence_path,
+        setup,
+        mode,
+        map,
+        mapping,
+        detection,
+        lines,
+        stopped,
+        global,
+    } = computed;
+    let map = &map;
+    let trajectory = trajectory_of(map, &lines);
+    trajectory.write(&run.trajectory(), TrajectoryFormat::Tum)?;
+    write_keyframes_and_map(run, map)?;
+    let merges: Vec<(usize, usize)> = global
+        .iter()
+        .flat_map(|(g, _)| g.loops.iter().filter_map(|l| l.merged))
+        .map(|m| (m.segment, m.into))
+        .collect();
+    write_segments(run, &lines, &merges)?;
+    let totals = totals(map, &lines, &merges, trajectory.len());
+    let ate_of = |trajectory: &Trajectory| ate(sequence, trajectory);
+    let ate = ate_of(&trajectory);
+    let (global, ate_tracking) = match global {
+        Some((report, tracking)) => (Some(report), ate_of(&tracking)),
+        None => (None, None),
+    };
+    let report = RunReport {
+        sequence: sequence.name().to_string(),
+        setup,
+        sequence_path: sequence_path.map(|p| p.canonicalize().unwrap_or_else(|_| p.to_path_buf())),
+        mode,
+        totals,
+        ate,
+        ate_tracking,
+        mapping,
+        detection,
+        global,
+        frames: lines,
+        stopped,
+        dense: None,
+    };
+    let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;
+    write_atomic(&run.report(), json.as_bytes())?;
+    Ok(report)
+}
+
+/// `keyframes.txt` and `map.ply`.
+fn write_keyframes_and_map(run: &RunDir, map: &Map) -> Result<(), RunError> {
+    let mut keyframes = Trajectory::default();
+    for key in &map.keyframe_order {
+        let kf = &map.keyframes[*key];
+        keyframes.push(kf.frame.timestamp, kf.world_from_camera());
+    }
+    keyframes.write(&run.keyframes(), TrajectoryFormat::Tum)?;
+    crate::io::ply::write_ply(
+        &run.sparse_map(),
+        &map.to_mesh(),
+        None,
+        crate::io::ply::PlyEncoding::Binary,
+        "dopslam sparse map",
+    )?;
+    Ok(())
+}
+
+/// `segments.txt`: each tracked frame's map segment after the loops' `merges`.
+fn write_segments(
+    run: &RunDir,
+    lines: &[FrameLine],
+    merges: &[(usize, usize)],
+) -> Result<(), RunError> {
+    let mut by_frame = String::from(
+        "# timestamp segment: each tracked frame's map segment after the loops' merges\n",
+    );
+    for line in lines
+        .iter()
+        .filter(|l| l.tracking.state == TrackingState::Ok)
+    {
+        let segment = final_segment(merges, line.tracking.segment);
+        by_frame.push_str(&format!("{:.6} {segment}\n", line.tracking.timestamp));
+    }
+    Ok(write_atomic(&run.segments(), by_frame.as_bytes())?)
+}
+
+/// The run's totals.
+fn totals(map: &Map, lines: &[FrameLine], merges: &[(usize, usize)], tracked: usize) -> RunTotals {
+    let mut lost_spans: Vec<(usize, usize)> = Vec::new();
+    for line in lines {
+        if line.tracking.state == TrackingState::Lost {
+            match lost_spans.last_mut() {
+                Some(span) if span.1 + 1 == line.tracking.index => span.1 = line.tracking.index,
+                _ => lost_spans.push((line.tracking.index, line.tracking.index)),
+            }
+        }
+    }
+    let (segments, largest_segment_percent) = segment_spans(lines, merges);
+    let count = |state| lines.iter().filter(|l| l.tracking.state == state).count();
+    let column = |f: fn(&FrameLine) -> f64| median(&mut lines.iter().map(f).collect::<Vec<_>>());
+    RunTotals {
+        frames: lines.len(),
+        tracked,
+        lost: count(TrackingState::Lost),
+        not_initialised: count(TrackingState::NotInitialised),
+        coverage_percent: 100.0 * tracked as f64 / lines.len().max(1) as f64,
+        lost_spans,
+        segments,
+        largest_segment_percent,
+        keyframes: map.keyframes.len(),
+        map_points: map.points.len(),
+        median_tracking_ms: column(|l| l.tracking_ms),
+        mean_tracking_ms: lines.iter().map(|l| l.tracking_ms).sum::<f64>()
+            / lines.len().max(1) as f64,
+        median_extraction_ms: column(|l| l.extraction_ms),
+        median_matching_ms: column(|l| l.tracking.matching_ms),
+        median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
+        median_dop_ms: column(|l| l.tracking.dop_ms),
+        peak_memory_mib: crate::memory::peak_resident_mib(),
+    }
+}
+
+/// ATE of `trajectory` against the sequence's ground truth, when it has some.
+fn ate(sequence: &dyn Sequence, trajectory: &Trajectory) -> Option<EvalReport> {
+    match sequence.ground_truth() {
+        Some(gt) if trajectory.len() >= 3 => evaluate(
+            gt,
+            trajectory,
+            &EvalOptions {
+                min_coverage: 0.0,
+                ..EvalOptions::default()
+            },
+        )
+        .ok(),
+        _ => None,
+    }
+}

@@ -1,0 +1,152 @@
+//! What `report.json` holds: the run's totals, segments, per-frame lines.
+
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use super::setup::RunSetup;
+use crate::dense::DenseReport;
+use crate::dop::Mode;
+use crate::dynamics::DetectionTotals;
+use crate::eval::report::EvalReport;
+use crate::eval::truth::TruthCounts;
+use crate::global::GlobalReport;
+use crate::mapping::MappingStats;
+use crate::tracking::{FrameReport, TrackingState};
+
+/// Totals of a run.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunTotals {
+    pub frames: usize,
+    pub tracked: usize,
+    pub lost: usize,
+    pub not_initialised: usize,
+    /// Tracked frames over all frames, in %.
+    pub coverage_percent: f64,
+    /// Inclusive frame index ranges where tracking was lost.
+    pub lost_spans: Vec<(usize, usize)>,
+    /// The map segments: tracking that stays lost starts a new one
+    /// (`[tracking] new_map_after_seconds`); a loop merges segments in the global pass.
+    pub segments: Vec<SegmentSpan>,
+    /// Tracked frames in the largest segment after the merges, over all frames, in %:
+    /// the part of the run in one frame of reference.
+    pub largest_segment_percent: f64,
+    pub keyframes: usize,
+    pub map_points: usize,
+    /// Tracking time per frame (ORB extraction + tracking), as ORB-SLAM2 prints it.
+    pub median_tracking_ms: f64,
+    pub mean_tracking_ms: f64,
+    pub median_extraction_ms: f64,
+    pub median_matching_ms: f64,
+    pub median_optimisation_ms: f64,
+    /// The DOP model per frame (propagation and expansion; 0 without it).
+    pub median_dop_ms: f64,
+    /// The process's peak resident memory so far (MiB, Linux): after tracking and the
+    /// global pass; the dense pass reports its own.
+    pub peak_memory_mib: Option<f64>,
+}
+
+/// A map segment of a run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SegmentSpan {
+    pub segment: usize,
+    /// First and last frame tracked in it, and how many were.
+    pub first_frame: usize,
+    pub last_frame: usize,
+    pub tracked_frames: usize,
+    /// The segment a loop merged it into (in the global pass), following later merges.
+    pub merged_into: Option<usize>,
+}
+
+/// The segments the tracked frames of `lines` were in, and the share of all frames in
+/// the largest after `merges` (segment, into).
+pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<SegmentSpan>, f64) {
+    let mut spans: Vec<SegmentSpan> = Vec::new();
+    for line in lines {
+        let t = &line.tracking;
+        if t.state != TrackingState::Ok {
+            continue;
+        }
+        match spans.iter_mut().find(|s| s.segment == t.segment) {
+            Some(span) => {
+                span.last_frame = t.index;
+                span.tracked_frames += 1;
+            }
+            None => spans.push(SegmentSpan {
+                segment: t.segment,
+                first_frame: t.index,
+                last_frame: t.index,
+                tracked_frames: 1,
+                merged_into: None,
+            }),
+        }
+    }
+    let root = |s| final_segment(merges, s);
+    let mut merged: std::collections::BTreeMap<usize, usize> = Default::default();
+    for span in &mut spans {
+        let r = root(span.segment);
+        span.merged_into = (r != span.segment).then_some(r);
+        *merged.entry(r).or_default() += span.tracked_frames;
+    }
+    let largest = merged.values().max().copied().unwrap_or(0);
+    (spans, 100.0 * largest as f64 / lines.len().max(1) as f64)
+}
+
+/// The segment that `segment` ended in after `merges` (segment, into), in order.
+pub fn final_segment(merges: &[(usize, usize)], mut segment: usize) -> usize {
+    // Each merge moves a segment into another; following them takes at most one step
+    // per merge.
+    for _ in 0..=merges.len() {
+        match merges.iter().find(|(from, _)| *from == segment) {
+            Some((_, into)) => segment = *into,
+            None => break,
+        }
+    }
+    segment
+}
+
+/// One frame's line in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameLine {
+    #[serde(flatten)]
+    pub tracking: FrameReport,
+    pub extraction_ms: f64,
+    pub tracking_ms: f64,
+    /// Against the ground-truth masks of a synthetic sequence (absent elsewhere).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub truth: Option<TruthCounts>,
+}
+
+/// What a run was set up with: the effective camera and ORB parameters after the
+/// What `report.json` holds.
+#[derive(Debug, Serialize)]
+pub struct RunReport {
+    pub sequence: String,
+    /// What the run was set up with.
+    pub setup: RunSetup,
+    /// The sequence folder, when known (for `dopslam fuse`).
+    pub sequence_path: Option<PathBuf>,
+    /// How moving objects were treated.
+    pub mode: Mode,
+    pub totals: RunTotals,
+    /// ATE of `trajectory.txt` (after the global pass, when it ran).
+    pub ate: Option<EvalReport>,
+    /// ATE of `trajectory_tracking.txt` (the tracking pass alone), when the global pass ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ate_tracking: Option<EvalReport>,
+    pub mapping: MappingStats,
+    pub detection: DetectionTotals,
+    /// The global pass: loops, candidates, full BA.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub global: Option<GlobalReport>,
+    pub frames: Vec<FrameLine>,
+    /// Why the run stopped before the last frame (a frame that failed to load, tracking
+    /// that never started, an interruption), if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<String>,
+    /// The dense pass, when it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dense: Option<DenseReport>,
+}
+
+

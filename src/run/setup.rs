@@ -1,0 +1,278 @@
+//! The run's set-up, resolved once before any work: the sequence opened and checked,
+//! the config for its sensor, the calibration (config, settings file or the
+//! sequence's own), the detection source (a missing model is an error here), the
+//! vocabulary, the stereo camera, the ORB extractor, how moving objects are treated,
+//! the detection weight \(\alpha\) of the sensor and the close-depth limit.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::RunError;
+use crate::config::Config;
+use crate::dop::Mode;
+use crate::features::OrbExtractor;
+use crate::io::kitti::KittiSequence;
+use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
+use crate::io::sequence::{SensorKind, Sequence};
+use crate::io::tum::TumSequence;
+use crate::io::IoError;
+use crate::optim::stereo_projection::StereoCamera;
+
+/// Everything a run is set up with (see the module doc).
+pub struct Setup {
+    /// The config for the sequence's sensor, with the detection source resolved.
+    pub config: Config,
+    pub sensor: SensorKind,
+    pub calibration: Calibration,
+    pub camera: StereoCamera,
+    pub extractor: OrbExtractor,
+    pub mode: Mode,
+    /// The sensor's weight of a detection (the paper: 0.3 RGB-D, 0.5 stereo).
+    pub alpha: f32,
+    /// RGB-D close/far limit in metres: `ThDepth` baselines, \(z_{close} = t_d\,b\).
+    pub close_depth: f32,
+    /// Loop closing's vocabulary ([`loop_vocabulary`]).
+    pub vocabulary: LoopVocabulary,
+}
+
+impl Setup {
+    /// Resolves the set-up of a run of `config` over `sequence`; every error here comes
+    /// before any output is touched.
+    pub fn resolve(sequence: &dyn Sequence, config: &Config) -> Result<Self, RunError> {
+        if sequence.is_empty() {
+            return Err(RunError::Input(format!(
+                "sequence {} has no frames",
+                sequence.name()
+            )));
+        }
+        let vocabulary = loop_vocabulary(&config.global)?;
+        let mut config = config.for_sensor(sequence.sensor());
+        config.detector.source = detection_source(&config)?;
+        let calibration = resolve_calibration(sequence, &config)?;
+        let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
+        let extractor = OrbExtractor::new(&config.orb);
+        warn_if_swapped(sequence, &extractor, &camera);
+        let sensor = sequence.sensor();
+        Ok(Self {
+            mode: effective_mode(&config),
+            alpha: match sensor {
+                SensorKind::Rgbd => config.dop.alpha_rgbd,
+                SensorKind::Stereo => config.dop.alpha_stereo,
+            },
+            close_depth: (config.tracking.th_depth * camera.bf / camera.fx) as f32,
+            config,
+            sensor,
+            calibration,
+            camera,
+            extractor,
+            vocabulary,
+        })
+    }
+}
+
+
+/// For a stereo sequence, a warning when its first pair looks swapped (see
+/// [`crate::tracking::stereo_matching::looks_swapped`]): such a pair still tracks, badly.
+fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &StereoCamera) {
+    if sequence.sensor() != SensorKind::Stereo || sequence.is_empty() {
+        return;
+    }
+    let Ok(frame) = sequence.load(0) else { return };
+    let crate::io::sequence::FrameImages::Stereo { left, right } = &frame.images else {
+        return;
+    };
+    let pair = (left, right);
+    if let Some((given, exchanged)) =
+        crate::tracking::stereo_matching::looks_swapped(pair, extractor, camera.bf, camera.fx)
+    {
+        eprintln!(
+            "warning: the stereo pair of {} looks swapped: {exchanged} keypoints match with image_1 as the left camera, {given} as given (image_0 must be the left camera)",
+            sequence.name()
+        );
+    }
+}
+
+/// Says what is wrong when `root` is no sequence folder: missing, a file, a loop of
+/// symbolic links, or a KITTI dataset's root instead of one of its sequences.
+pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
+    match std::fs::metadata(root) {
+        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+            Err(IoError::invalid(root, "a loop of symbolic links, not a sequence folder"))
+        }
+        Err(_) => Err(IoError::Missing {
+            path: root.to_path_buf(),
+            what: "sequence folder".into(),
+        }),
+        Ok(meta) if !meta.is_dir() => Err(IoError::invalid(
+            root,
+            "a file, not a sequence folder (TUM/Bonn: the folder holding rgb.txt and depth.txt; KITTI: sequences/NN)",
+        )),
+        Ok(_) if root.join("sequences").is_dir() && !root.join("image_0").is_dir() && !root.join("rgb.txt").exists() => {
+            Err(IoError::invalid(
+                root,
+                format!(
+                    "a KITTI dataset's root: run one of its sequences, e.g. {}",
+                    root.join("sequences/00").display()
+                ),
+            ))
+        }
+        Ok(_) => Ok(()),
+    }
+}
+
+/// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
+pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, IoError> {
+    check_sequence_folder(root)?;
+    if root.join("image_0").is_dir() {
+        return Ok(Box::new(KittiSequence::open(root, None)?));
+    }
+    Ok(Box::new(TumSequence::open(
+        root,
+        &config.dataset.tum_options(),
+    )?))
+}
+
+/// The calibration to use: the config's camera, else its settings file, else the
+/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m.
+pub fn resolve_calibration(
+    sequence: &dyn Sequence,
+    config: &Config,
+) -> Result<Calibration, RunError> {
+    let mut calibration = match (&config.dataset.settings, sequence.calibration(), config.dataset.camera) {
+        (Some(path), _, _) => OrbSlamSettings::read(path)?.calibration,
+        (None, Some(own), _) => own.clone(),
+        (None, None, Some(camera)) => Calibration {
+            camera,
+            bf: None,
+            depth_scale: None,
+            th_depth: None,
+            fps: None,
+        },
+        (None, None, None) => {
+            return Err(RunError::Input(format!(
+                "sequence {} has no calibration (no calibration.yaml, and its folder name says no freiburg1/2/3): pass --settings configs/calibration/RGB-D_TUM3.yaml (or another ORB-SLAM2 settings file) or --camera fx,fy,cx,cy; in a config, [dataset] settings or [dataset.camera]",
+                sequence.name()
+            )))
+        }
+    };
+    if let Some(camera) = config.dataset.camera {
+        calibration.camera = camera;
+    }
+    if calibration.bf.is_none() {
+        calibration.bf = Some(40.0);
+    }
+    Ok(calibration)
+}
+
+/// config, the settings file and `--camera`, and the runtime files it loaded.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSetup {
+    pub calibration: Calibration,
+    pub orb: crate::features::orb::OrbConfig,
+    /// `ThDepth` and ORB-SLAM2's most frames between keyframes (`Camera.fps`).
+    pub th_depth: f64,
+    pub max_frames_between_keyframes: usize,
+    /// The ORB-SLAM2 settings file and which of its keys were applied.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings: Option<crate::config::SettingsApplied>,
+    /// The runtime data directory and why it was chosen (`dopslam doctor`).
+    pub data_dir: String,
+    pub detections: crate::detect::Source,
+    /// The detector's files (models, then the ONNX Runtime library) when it is ONNX.
+    pub detector_files: Vec<PathBuf>,
+    /// The vocabulary file, when loop closing ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vocabulary: Option<PathBuf>,
+    /// [`first_frame_hash`] of the sequence: `dopslam fuse` checks that it fuses the
+    /// sequence the run tracked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_frame_hash: Option<String>,
+}
+
+/// A fingerprint of a sequence: FNV-1a (64 bits, hex) of its first frame's colour (or
+/// left) pixels; `None` when the frame cannot be read.
+pub fn first_frame_hash(sequence: &dyn Sequence) -> Option<String> {
+    let frame = sequence.load(0).ok()?;
+    let bytes: &[u8] = match &frame.images {
+        crate::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.as_raw(),
+        crate::io::sequence::FrameImages::Stereo { left, .. } => left.as_raw(),
+    };
+    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    });
+    Some(format!("{hash:016x}"))
+}
+
+impl RunSetup {
+    pub fn new(sequence: &dyn Sequence, config: &Config, calibration: &Calibration) -> Self {
+        let data = crate::io::data_dir::DataDir::locate();
+        let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
+        Self {
+            calibration: calibration.clone(),
+            orb: config.orb.clone(),
+            th_depth: config.tracking.th_depth,
+            max_frames_between_keyframes: config.tracking.max_frames_between_keyframes,
+            settings: config.dataset.settings_applied.clone(),
+            data_dir: format!("{} ({})", absolute(data.path).display(), data.origin),
+            detections: config.detector.source,
+            detector_files: match config.detector.source {
+                crate::detect::Source::Onnx => config
+                    .detector
+                    .onnx_files()
+                    .into_iter()
+                    .map(|(p, _)| absolute(p))
+                    .collect(),
+                _ => Vec::new(),
+            },
+            vocabulary: (config.global.enabled && config.global.loops.enabled)
+                .then(|| absolute(config.global.vocabulary_file())),
+            first_frame_hash: first_frame_hash(sequence),
+        }
+    }
+}
+
+/// How moving objects are treated in a run of `config`: without detections the DOP
+/// model runs on its geometric check alone (when on), else every mode is ORB-SLAM2's.
+pub fn effective_mode(config: &Config) -> Mode {
+    match config.detector.source {
+        crate::detect::Source::None if config.dop.mode == Mode::Dop && config.dop.geometric => {
+            Mode::Dop
+        }
+        crate::detect::Source::None => Mode::Off,
+        _ => config.dop.mode,
+    }
+}
+
+/// The detection source a run of `config` uses: `auto` needs no detector in ORB-SLAM2
+/// mode (`--no-dop`) and the ONNX model otherwise; a missing model or runtime library
+/// is an error here, before any work, never a silent run without detections.
+pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunError> {
+    use crate::detect::Source;
+    if config.detector.source == Source::Auto && config.dop.mode == Mode::Off {
+        return Ok(Source::None);
+    }
+    config.detector.resolved_source().map_err(|e| {
+        RunError::Input(format!(
+            "{e}; or run without a detector: --detections none (config: [detector] source = \"none\")"
+        ))
+    })
+}
+
+/// What loop closing runs with: see [`loop_vocabulary`].
+pub type LoopVocabulary = Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>;
+
+/// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
+/// loop closing is off (the global pass runs without loops). A vocabulary that cannot
+/// be read while loop closing is on is an error before any work.
+pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocabulary, RunError> {
+    if !config.enabled {
+        return Ok(None);
+    }
+    if !config.loops.enabled {
+        return Ok(Some(Err("loop closing is off ([global.loops] enabled = false, --no-loops)".into())));
+    }
+    crate::global::load_vocabulary(config)
+        .map(|v| Some(Ok(v)))
+        .map_err(RunError::Input)
+}

@@ -1,0 +1,205 @@
+//! The tracking pass: the frame loop alone. Each frame is loaded lazily, paced (real
+//! time), checked (size, depth), made ready for tracking (ORB extraction, depth or
+//! stereo matching), tracked by the [`System`], shown to the observers, and the
+//! detections that came back are applied. A frame that fails to load, an
+//! interruption, or tracking that never started stops the pass; what was tracked is
+//! kept ([`TrackingPass::stop`]).
+
+use std::time::Instant;
+
+use super::observers::{FrameObserver, FrameView};
+use super::report::FrameLine;
+use super::setup::Setup;
+use super::{RunError, RunOptions};
+use crate::config::Config;
+use crate::eval::stats::median;
+use crate::io::run_dir::RunDir;
+use crate::io::sequence::{FrameImages, SensorKind, Sequence};
+use crate::pacing::{Pace, Pacer};
+use crate::system::worker::Execution;
+use crate::system::{Helpers, System, SystemSetup, Tracked};
+use crate::tracking::input::{DepthCheck, Picture};
+use crate::tracking::{Frame, TrackingState};
+
+/// What the tracking pass hands on.
+pub struct TrackingPass {
+    pub tracked: Tracked,
+    pub lines: Vec<FrameLine>,
+    /// Why the pass stopped before the last frame, if it did.
+    pub stop: Option<String>,
+}
+
+/// Tracks the frames of `sequence` (up to `options.max_frames`).
+pub fn tracking_pass(
+    sequence: &dyn Sequence,
+    setup: &Setup,
+    options: &RunOptions,
+    run: &RunDir,
+    observers: &mut [&mut dyn FrameObserver],
+) -> Result<TrackingPass, RunError> {
+    let config = &setup.config;
+    let detector = config
+        .detector
+        .open(options.sequence_dir.as_deref())
+        .map_err(|e| RunError::Input(e.to_string()))?
+        .map(|d| (d, config.detector.latency()));
+    let execution = Execution::of(options.deterministic);
+    let system_setup = SystemSetup {
+        config,
+        camera: setup.camera,
+        pinhole: setup.calibration.camera,
+        pyramid: setup.extractor.pyramid.clone(),
+        mode: setup.mode,
+        alpha: setup.alpha,
+        close_depth: setup.close_depth,
+        execution,
+        detection_cache: run.detections(),
+    };
+    let helpers = Helpers {
+        vocabulary: setup.vocabulary.clone(),
+        detector,
+    };
+    let mut system = System::start(&system_setup, helpers);
+    let total = options
+        .max_frames
+        .map_or(sequence.len(), |m| m.min(sequence.len()));
+    let mut lines = Vec::with_capacity(total);
+    let mut depth_check = DepthCheck::default();
+    let mut pacer = Pacer::new(match execution {
+        Execution::Inline => Pace::Free,
+        Execution::Threads => options.pace,
+    });
+    let mut stop = None;
+    for index in 0..total {
+        if crate::interrupt::requested() {
+            stop = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
+            break;
+        }
+        let ready = next_frame(sequence, index, setup, &system, &mut pacer, &mut depth_check);
+        let (frame, picture, started) = match ready {
+            Ok(ready) => ready,
+            Err(message) => {
+                stop = Some(message);
+                break;
+            }
+        };
+        let extraction_ms = started.elapsed().as_secs_f64() * 1e3;
+        let timestamp = frame.timestamp;
+        let (report, tracking_ms) = system.track(frame, &picture, started);
+        let view = FrameView {
+            index,
+            timestamp,
+            report: &report,
+            frame: system.tracked_frame(index),
+            dop: system.dop(),
+            picture: &picture,
+        };
+        if let Err(message) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
+            stop = Some(message);
+            break;
+        }
+        system.receive_detections();
+        let applied = system.take_applied();
+        observers.iter_mut().for_each(|o| o.on_applied(&applied));
+        lines.push(FrameLine {
+            tracking: report,
+            extraction_ms,
+            tracking_ms,
+            truth: None,
+        });
+    }
+    observers.iter_mut().for_each(|o| o.finish());
+    if stop.is_none() && system.state() == TrackingState::NotInitialised {
+        stop = Some(never_started(&lines, config, setup.sensor));
+    }
+    let tracked = system.finish();
+    observers
+        .iter_mut()
+        .for_each(|o| o.on_applied(&tracked.applied));
+    Ok(TrackingPass {
+        tracked,
+        lines,
+        stop,
+    })
+}
+
+/// Frame `index` loaded, paced, checked and made ready for tracking, with the time
+/// its extraction started; an error says why the pass must stop.
+fn next_frame(
+    sequence: &dyn Sequence,
+    index: usize,
+    setup: &Setup,
+    system: &System,
+    pacer: &mut Pacer,
+    depth_check: &mut DepthCheck,
+) -> Result<(Frame, Picture, Instant), String> {
+    let loaded = sequence
+        .load(index)
+        .map_err(|e| format!("frame {index}: {e}"))?;
+    pacer.wait_for(loaded.timestamp);
+    let size = match &loaded.images {
+        FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
+        FrameImages::Stereo { left, .. } => left.dimensions(),
+    };
+    let calibration = &setup.calibration;
+    let expected = (calibration.camera.width, calibration.camera.height);
+    if size != expected {
+        return Err(format!(
+            "frame {index}: the image is {}x{} but the calibration (and the first frame) say {}x{}: every frame of a sequence must have one size",
+            size.0, size.1, expected.0, expected.1
+        ));
+    }
+    let budgeted = setup
+        .extractor
+        .with_budget(system.feature_budget(setup.config.orb.n_features));
+    Ok(match loaded.images {
+        FrameImages::Rgbd { rgb, depth } => {
+            depth_check.check(index, &depth, system.state(), calibration)?;
+            let started = Instant::now();
+            let grey = crate::io::image_files::grey_from_rgb(&rgb);
+            let frame = Frame::from_rgbd(
+                index,
+                loaded.timestamp,
+                &grey,
+                &depth,
+                &budgeted,
+                &setup.camera,
+                &calibration.camera,
+            );
+            (frame, Picture::Colour(rgb), started)
+        }
+        FrameImages::Stereo { left, right } => {
+            let started = Instant::now();
+            let frame = Frame::from_stereo(
+                index,
+                loaded.timestamp,
+                (&left, &right),
+                &budgeted,
+                &setup.camera,
+            );
+            (frame, Picture::Grey(left), started)
+        }
+    })
+}
+
+/// Why tracking never started, from what the frames showed: no keypoints (blank
+/// images), else too few with depth (the depth scale, the depth images, or for stereo
+/// a pair whose left and right are swapped).
+fn never_started(lines: &[FrameLine], config: &Config, sensor: SensorKind) -> String {
+    let mut keypoints: Vec<f64> = lines.iter().map(|l| l.tracking.keypoints as f64).collect();
+    let median_keypoints = median(&mut keypoints);
+    let needed = config.tracking.min_initial_points;
+    if median_keypoints < needed as f64 {
+        return format!(
+            "tracking never started: the frames have almost no ORB keypoints (median {median_keypoints:.0}, {needed} needed): are the colour images blank or black?"
+        );
+    }
+    match sensor {
+        SensorKind::Rgbd => format!(
+            "tracking never started: no frame had {needed} keypoints with depth (check depth_scale and the depth images)"
+        ),
+        SensorKind::Stereo => format!(
+            "tracking never started: no frame had {needed} keypoints matched between the stereo images: check Camera.bf, and that image_0 is the left camera (a swapped pair has no positive disparity)"
+        ),
+    }
+}

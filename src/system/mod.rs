@@ -1,0 +1,284 @@
+//! The online SLAM system (ORB-SLAM2's `System`): it creates and owns the map, the
+//! tracker, the helpers beside it (local mapping, place recognition fed by local
+//! mapping, the keyframe detector: each a [`worker::Worker`], inline or on its thread)
+//! and the DOP state of the run ([`crate::dynamics::Dynamics`]). Per frame
+//! ([`System::track`], then [`System::receive_detections`]):
+//! 1. the tracker tracks the frame against the map;
+//! 2. a new keyframe goes to the dynamics (it may wait for its detection), to local
+//!    mapping and to the detector;
+//! 3. detections that came back are applied to their keyframes, and the tracker's last
+//!    frame takes the new probabilities.
+//!
+//! [`System::finish`] joins the helpers and hands the map over owned and unlocked
+//! ([`Tracked`]), for the global pass.
+
+pub mod stages;
+pub mod worker;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::bow::Vocabulary;
+use crate::config::Config;
+use crate::detect::job::{Job, Outcome};
+use crate::detect::Detector;
+use crate::dop::{DopConfig, Mode};
+use crate::dynamics::{Applied, DetectionTotals, Dynamics, DynamicsConfig};
+use crate::features::ScalePyramid;
+use crate::geometry::camera::PinholeCamera;
+use crate::global::loop_closing::PlaceRecognition;
+use crate::map::{Map, SharedMap};
+use crate::mapping::{LocalMapper, MappingStats};
+use crate::optim::stereo_projection::StereoCamera;
+use crate::tracking::input::Picture;
+use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
+use stages::{Detection, LocalMapping, Recognition};
+use worker::{Execution, Worker};
+
+/// How long real-time mode waits for the first keyframe's detection.
+const FIRST_DETECTION_WAIT: Duration = Duration::from_secs(5);
+
+/// What the system is built from (the run's set-up, resolved once).
+pub struct SystemSetup<'a> {
+    /// The config for the sequence's sensor.
+    pub config: &'a Config,
+    pub camera: StereoCamera,
+    pub pinhole: PinholeCamera,
+    pub pyramid: ScalePyramid,
+    pub mode: Mode,
+    /// The sensor's weight of a detection.
+    pub alpha: f32,
+    /// RGB-D close/far limit in metres (`ThDepth` baselines).
+    pub close_depth: f32,
+    pub execution: Execution,
+    /// Where each keyframe's detections are written.
+    pub detection_cache: PathBuf,
+}
+
+/// The helpers' inputs that may be missing: the vocabulary of place recognition
+/// (`None`: no global pass; `Some(Err(why))`: the global pass runs without loops) and
+/// the keyframe detector with its simulated latency.
+pub struct Helpers {
+    pub vocabulary: Option<Result<Arc<Vocabulary>, String>>,
+    pub detector: Option<(Box<dyn Detector>, Duration)>,
+}
+
+/// What the tracking pass leaves for the global pass: the map owned and unlocked.
+pub struct Tracked {
+    pub map: Map,
+    /// Place recognition's findings (`None` without a global pass).
+    pub recognised: Option<Result<PlaceRecognition, String>>,
+    pub mapping: MappingStats,
+    pub detection: DetectionTotals,
+    /// What the detections did that the last [`System::take_applied`] left.
+    pub applied: Vec<Applied>,
+    /// The points above this moving probability are dynamic (1: none).
+    pub moving_threshold: f32,
+}
+
+/// The online system (see the module doc).
+pub struct System {
+    map: SharedMap,
+    tracker: Tracker,
+    mapping: Worker<LocalMapping>,
+    recognition: Option<Result<Worker<Recognition>, String>>,
+    detection: Option<Worker<Detection>>,
+    dynamics: Dynamics,
+    execution: Execution,
+    moving_threshold: f32,
+}
+
+impl System {
+    /// Creates the map and starts the helpers.
+    pub fn start(setup: &SystemSetup, helpers: Helpers) -> Self {
+        let config = setup.config;
+        let map = SharedMap::default();
+        let size = (setup.pinhole.width, setup.pinhole.height);
+        let dop = (setup.mode == Mode::Dop).then(|| config.dop.clone());
+        let mut tracker = Tracker::new(
+            config.tracking.clone(),
+            setup.camera,
+            setup.pyramid.clone(),
+            size.0,
+            size.1,
+        );
+        let mut mapper = LocalMapper::new(
+            config.mapping.clone(),
+            setup.camera,
+            setup.pyramid.clone(),
+            size,
+            setup.close_depth,
+        );
+        if let Some(dop) = dop {
+            mapper.moving_threshold = dop.removal_threshold;
+            tracker = tracker.with_dop(dop);
+        }
+        let moving_threshold = mapper.moving_threshold;
+        let recognition = helpers.vocabulary.map(|vocabulary| {
+            vocabulary.map(|vocabulary| {
+                let stage = Recognition {
+                    recognition: PlaceRecognition::new(&vocabulary, config.global.loops.clone()),
+                    vocabulary,
+                    map: map.clone(),
+                };
+                Worker::start(stage, setup.execution)
+            })
+        });
+        if let Some(Ok(recognition)) = &recognition {
+            let mut submitter = recognition.submitter();
+            mapper.then = Some(Box::new(move |key| submitter.submit(key)));
+        }
+        let mapping = Worker::start(
+            LocalMapping {
+                mapper,
+                map: map.clone(),
+            },
+            setup.execution,
+        );
+        let detection = helpers.detector.map(|(detector, latency)| {
+            let latency = match setup.execution {
+                Execution::Inline => Duration::ZERO,
+                Execution::Threads => latency,
+            };
+            Worker::start(Detection { detector, latency }, setup.execution)
+        });
+        let dynamics = Dynamics::new(
+            DynamicsConfig {
+                mode: setup.mode,
+                dop: config.dop.clone(),
+                alpha: setup.alpha,
+                dynamic_classes: config.detector.dynamic_classes.clone(),
+                cache: setup.detection_cache.clone(),
+            },
+            setup.pinhole,
+        );
+        Self {
+            map,
+            tracker,
+            mapping,
+            recognition,
+            detection,
+            dynamics,
+            execution: setup.execution,
+            moving_threshold,
+        }
+    }
+
+    /// The tracking state after the last frame.
+    pub fn state(&self) -> TrackingState {
+        self.tracker.state()
+    }
+
+    /// The keypoint budget for the next frame ([`Tracker::feature_budget`]).
+    pub fn feature_budget(&self, n_features: usize) -> usize {
+        self.tracker.feature_budget(n_features)
+    }
+
+    /// The DOP model, when on.
+    pub fn dop(&self) -> Option<&DopConfig> {
+        self.tracker.dop()
+    }
+
+    /// Frame `index` as tracked (with its moving probabilities), if tracking kept it.
+    pub fn tracked_frame(&self, index: usize) -> Option<&Frame> {
+        self.tracker.last_frame().filter(|f| f.index == index)
+    }
+
+    /// Tracks one frame (`picture` is what the detector sees of it) and hands a new
+    /// keyframe to the dynamics, local mapping and the detector. Returns the report
+    /// and the time from `started` (before feature extraction) to the tracked pose,
+    /// in milliseconds.
+    pub fn track(&mut self, frame: Frame, picture: &Picture, started: Instant) -> (FrameReport, f64) {
+        let (index, timestamp) = (frame.index, frame.timestamp);
+        let report = self.tracker.track(&self.map, frame, self.mapping.is_idle());
+        let tracking_ms = started.elapsed().as_secs_f64() * 1e3;
+        if let Some(key) = report.new_keyframe {
+            // Marked before local mapping sees the keyframe, whose BA leaves its points
+            // out while they wait.
+            let awaits = self.detection.is_some()
+                && self.execution == Execution::Threads
+                && self.tracker.dop().is_some();
+            if self.detection.is_some() {
+                let mut map = self.map.write().expect("map lock poisoned");
+                self.dynamics.on_keyframe(&mut map, index, key, awaits);
+            }
+            self.mapping.submit(key);
+            if let Some(worker) = self.detection.as_mut() {
+                worker.submit(Job {
+                    id: index,
+                    timestamp,
+                    image: picture.clone().into_colour(),
+                });
+                if awaits && self.dynamics.submitted() == 1 {
+                    // The first map waits for its detection: nothing older can carry
+                    // the pose while its points wait.
+                    let outcomes = worker.wait(FIRST_DETECTION_WAIT);
+                    self.receive(outcomes);
+                }
+            }
+        }
+        (report, tracking_ms)
+    }
+
+    /// Applies the detections that came back since the last call.
+    pub fn receive_detections(&mut self) {
+        if let Some(worker) = self.detection.as_mut() {
+            let outcomes = worker.poll();
+            self.receive(outcomes);
+        }
+    }
+
+    /// What the detections applied since the last call did (for scoring).
+    pub fn take_applied(&mut self) -> Vec<Applied> {
+        self.dynamics.take_applied()
+    }
+
+    /// Detections applied to the map; the tracker's last frame takes the new
+    /// probabilities and the followed objects, so that the next frame propagates what
+    /// the detections said.
+    fn receive(&mut self, outcomes: Vec<Outcome>) {
+        if outcomes.is_empty() {
+            return;
+        }
+        let mut map = self.map.write().expect("map lock poisoned");
+        self.dynamics.receive(&mut map, outcomes);
+        if let Some(followed) = self.dynamics.followed() {
+            self.tracker.set_followed(followed);
+        }
+        self.tracker.refresh_moving(&map);
+    }
+
+    /// Waits for the helpers (the detector's last outcomes are applied), then hands the
+    /// map over.
+    pub fn finish(mut self) -> Tracked {
+        if let Some(worker) = self.detection.take() {
+            let (_, outcomes) = worker.finish();
+            self.receive(outcomes);
+        }
+        // Local mapping drops its hand-over to place recognition here, which then
+        // finishes its queue.
+        let mapping = {
+            let (stage, _) = self.mapping.finish();
+            stage.mapper.stats
+        };
+        let recognised = self
+            .recognition
+            .map(|r| r.map(|worker| worker.finish().0.recognition));
+        let applied = self.dynamics.take_applied();
+        drop(self.tracker);
+        let map = Arc::try_unwrap(self.map)
+            .ok()
+            .expect("the helpers that shared the map have finished")
+            .into_inner()
+            .expect("map lock poisoned");
+        Tracked {
+            map,
+            recognised,
+            mapping,
+            detection: self.dynamics.finish(),
+            applied,
+            moving_threshold: self.moving_threshold,
+        }
+    }
+}
