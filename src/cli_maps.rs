@@ -8,10 +8,11 @@ use clap::Args;
 use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
-use dopslam::dense::masks::Masking;
+use dopslam::dop::Mode;
 use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
+use dopslam::io::run_dir::{names, RunDir, RunSummary};
 use dopslam::run::dense_pass;
 
 #[derive(Args)]
@@ -63,8 +64,8 @@ pub fn print_settings_notes(config: &Config) {
 
 /// Refuses to fuse a run with a sequence it did not track: at least 90 % of the run's
 /// poses must have a frame of the sequence at their timestamp (1 µs).
-fn same_frames(run: &Path, sequence: &dyn dopslam::io::sequence::Sequence, dir: &Path) -> Result<()> {
-    let trajectory = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?;
+fn same_frames(run: &RunDir, sequence: &dyn dopslam::io::sequence::Sequence, dir: &Path) -> Result<()> {
+    let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
     let frames: std::collections::HashSet<i64> = (0..sequence.len())
         .map(|i| (sequence.timestamp(i) * 1e6).round() as i64)
         .collect();
@@ -77,7 +78,7 @@ fn same_frames(run: &Path, sequence: &dyn dopslam::io::sequence::Sequence, dir: 
         bail!(
             "{} is not the sequence {} tracked: {found} of its {} poses have a frame there; the dense map was left as it was (pass the sequence the run tracked, or none: report.json names it)",
             dir.display(),
-            run.display(),
+            run.root().display(),
             trajectory.len()
         );
     }
@@ -85,11 +86,11 @@ fn same_frames(run: &Path, sequence: &dyn dopslam::io::sequence::Sequence, dir: 
 }
 
 /// The masking a run used, from its report.json.
-fn run_masking(report: &serde_json::Value) -> Masking {
-    match report.get("mode").and_then(|m| m.as_str()) {
-        Some("off") => Masking::None,
-        Some("mask-boxes") => Masking::Boxes,
-        _ => Masking::Dop,
+fn run_masking(report: &RunSummary) -> Mode {
+    match report.mode.as_str() {
+        "off" => Mode::Off,
+        "mask-boxes" => Mode::MaskBoxes,
+        _ => Mode::Dop,
     }
 }
 
@@ -108,40 +109,29 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     if let Some(path) = &args.settings {
         apply_settings(&mut config, path)?;
     }
-    let report_path = args.run.join("report.json");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&report_path).with_context(|| {
-            format!(
-                "{} is not a finished run: cannot read {}",
-                args.run.display(),
-                report_path.display()
-            )
-        })?)
-        .with_context(|| format!("{}: not a run report", report_path.display()))?;
-    let sequence_dir = match (
-        &args.sequence,
-        report.get("sequence_path").and_then(|p| p.as_str()),
-    ) {
-        (Some(dir), _) => dir.clone(),
-        (None, Some(dir)) => PathBuf::from(dir),
+    let run = RunDir::new(&args.run);
+    let report = run
+        .read_summary()
+        .with_context(|| format!("{} is not a finished run", args.run.display()))?;
+    let sequence_dir = match (&args.sequence, &report.sequence_path) {
+        (Some(dir), _) | (None, Some(dir)) => dir.clone(),
         (None, None) => bail!(
             "{} does not say which sequence it tracked: pass --sequence",
-            report_path.display()
+            run.report().display()
         ),
     };
     let masking = if args.no_dop {
-        Masking::None
+        Mode::Off
     } else if args.mask_boxes {
-        Masking::Boxes
+        Mode::MaskBoxes
     } else if args.dop {
-        Masking::Dop
+        Mode::Dop
     } else {
         run_masking(&report)
     };
     let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
-    same_frames(&args.run, sequence.as_ref(), &sequence_dir)?;
-    let recorded = report.pointer("/setup/first_frame_hash").and_then(|h| h.as_str());
-    if let Some(recorded) = recorded {
+    same_frames(&run, sequence.as_ref(), &sequence_dir)?;
+    if let Some(recorded) = report.first_frame_hash() {
         if dopslam::run::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
             bail!(
                 "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
@@ -166,7 +156,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
 pub fn print_dense(dense: &DenseReport) {
     println!(
         "dense map ({:?} masks, {:.1} % of pixels masked): {} frames fused, {} TSDF blocks ({:.0} MB), mesh {} vertices / {} triangles, cloud {} points from {} keyframes",
-        dense.masking.unwrap_or(Masking::None),
+        dense.masking.unwrap_or(Mode::Off),
         dense.masked_percent,
         dense.frames_fused,
         dense.tsdf_blocks,
@@ -331,13 +321,13 @@ pub fn compare_with_baseline(
     sequence_dir: &Path,
     config: &Config,
 ) -> Result<Comparison> {
-    let (mesh, cloud) = ("dense_mesh.ply", "dense_points.ply");
-    let no_masks = run.join("no_masks");
+    let (mesh, cloud) = (names::DENSE_MESH_PLY, names::DENSE_POINTS);
+    let no_masks = run.join(names::NO_MASKS);
     let mut points_only = config.clone();
     points_only.dense.fusion = dopslam::dense::Fusion::Points;
     points_only.dense.frames = FrameChoice::Keyframes;
     points_only.dense.pictures = false;
-    dense_pass(sequence, &points_only, (run, &no_masks), Masking::None, None, true)?;
+    dense_pass(sequence, &points_only, (run, &no_masks), Mode::Off, None, true)?;
     let baseline_map = if baseline.join(cloud).exists() {
         ("no_dop_cloud", baseline.join(cloud))
     } else {
@@ -360,7 +350,7 @@ pub fn compare_with_baseline(
     alignments.push(run_alignment(baseline));
     let static_scene = sequence_dir.join("static_scene.ply");
     let movers = sequence_dir.join("movers.ply");
-    let mut cameras = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?.poses;
+    let mut cameras = Trajectory::read(&RunDir::new(run).trajectory(), TrajectoryFormat::Tum)?.poses;
     if let Some(align) = &alignments[0] {
         cameras.iter_mut().for_each(|pose| *pose = align * *pose);
     }
@@ -376,7 +366,7 @@ pub fn compare_with_baseline(
         movers: movers.exists().then_some(movers.as_path()),
         cameras: Some(&cameras),
         settings: CompareSettings::default(),
-        out: &run.join("compare_no_dop"),
+        out: &run.join(names::COMPARE_NO_DOP),
     })?;
     print_comparison(&comparison, false)?;
     Ok(comparison)

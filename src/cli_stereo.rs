@@ -14,7 +14,7 @@ use dopslam::features::{OrbConfig, OrbExtractor};
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
-use dopslam::tracking::stereo_matching::extract_and_match;
+use dopslam::frame::stereo::extract_and_match;
 
 #[derive(Args)]
 pub struct StereoArgs {

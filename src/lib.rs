@@ -21,6 +21,7 @@ pub mod dop;
 pub mod dynamics;
 pub mod eval;
 pub mod features;
+pub mod frame;
 pub mod geometry;
 pub mod global;
 pub mod interrupt;

@@ -739,7 +739,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         );
     }
     if args.compare_no_dop {
-        let baseline_dir = args.out.join("no_dop");
+        let baseline_dir = args.out.join(dopslam::io::run_dir::names::NO_DOP);
         let mut baseline = config.clone();
         baseline.dop.mode = dopslam::dop::Mode::Off;
         // ORB-SLAM2 behaviour needs no detector.

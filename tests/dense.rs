@@ -9,7 +9,6 @@ use std::path::Path;
 use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs};
-use dopslam::dense::masks::Masking;
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;
@@ -90,7 +89,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
                 sequence.as_ref(),
                 &config,
                 (&run_dir, &one_dir),
-                Masking::Dop,
+                Mode::Dop,
                 Some(&seq),
                 false,
             )
@@ -101,7 +100,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         sequence.as_ref(),
         &config,
         (&run_dir, &run_dir),
-        Masking::Dop,
+        Mode::Dop,
         Some(&seq),
         false,
     )
@@ -123,7 +122,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         sequence.as_ref(),
         &config,
         (&run_dir, &unmasked_dir),
-        Masking::None,
+        Mode::Off,
         Some(&seq),
         false,
     )

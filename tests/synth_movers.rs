@@ -9,7 +9,7 @@ use std::path::Path;
 use dopslam::detect::FrameDetections;
 use dopslam::io::kitti::KittiSequence;
 use dopslam::io::sequence::{FrameImages, Sequence};
-use dopslam::synth::movers::Shape;
+use dopslam::synth::scene::Shape;
 use dopslam::synth::writer::World;
 use dopslam::synth::{generate, SynthConfig};
 use nalgebra::{Point3, Vector2};

@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::manifest::{PlannedSequence, RunMode};
+use super::manifest::PlannedSequence;
+use crate::dop::Mode;
 use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
 use crate::config::Config;
 use crate::dense::compare::CompareSettings;
@@ -20,6 +21,7 @@ use crate::eval::ate::PoseRelation;
 use crate::eval::report::{evaluate, EvalOptions, EvalReport, RpeSpec};
 use crate::eval::rpe::DeltaUnit;
 use crate::io::atomic::write_atomic;
+use crate::io::run_dir::{names, RunDir};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::Trajectory;
 
@@ -28,7 +30,7 @@ use crate::io::Trajectory;
 pub struct RunJob {
     /// Index into the planned sequences.
     pub sequence: usize,
-    pub mode: RunMode,
+    pub mode: Mode,
     /// 1-based.
     pub repetition: usize,
     pub dir: PathBuf,
@@ -181,7 +183,7 @@ impl Executor<'_> {
             .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
         let config_path = job.dir.join("config.toml");
         let mut config = sequence.config.clone();
-        if job.mode == RunMode::NoDop {
+        if job.mode == Mode::Off {
             // ORB-SLAM2 runs no detector.
             config.detector.source = crate::detect::Source::None;
         }
@@ -250,8 +252,8 @@ impl Executor<'_> {
                     relation,
                 )
             };
-            let translation = evaluate_file("trajectory.txt", PoseRelation::TransPart)?;
-            let rotation = evaluate_file("trajectory.txt", PoseRelation::AngleDeg)?;
+            let translation = evaluate_file(names::TRAJECTORY, PoseRelation::TransPart)?;
+            let rotation = evaluate_file(names::TRAJECTORY, PoseRelation::AngleDeg)?;
             for (name, report) in [
                 ("eval.json", &translation),
                 ("eval_rotation.json", &rotation),
@@ -266,8 +268,8 @@ impl Executor<'_> {
                 translation.kitti.as_ref().map(|k| k.translation_percent);
             figures.kitti_rotation_deg_per_100m =
                 translation.kitti.as_ref().map(|k| k.rotation_deg_per_100m);
-            if job.dir.join("trajectory_tracking.txt").exists() {
-                let report = evaluate_file("trajectory_tracking.txt", PoseRelation::TransPart)?;
+            if RunDir::new(&job.dir).tracking_trajectory().exists() {
+                let report = evaluate_file(names::TRACKING_TRAJECTORY, PoseRelation::TransPart)?;
                 figures.ate_tracking_rmse = Some(report.ape.statistics.rmse);
             }
         }
@@ -386,7 +388,7 @@ fn compare_with_static_scene(
     sequence_dir: &Path,
 ) -> Result<Option<MapFigures>, String> {
     let static_scene = sequence_dir.join("static_scene.ply");
-    let mesh = ["dense_mesh.ply", "dense_points.ply"]
+    let mesh = [names::DENSE_MESH_PLY, names::DENSE_POINTS]
         .into_iter()
         .map(|n| run.join(n))
         .find(|p| p.exists());

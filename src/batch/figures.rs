@@ -6,10 +6,12 @@ use std::path::Path;
 
 use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
-use super::manifest::{PlannedSequence, RunMode};
+use super::manifest::PlannedSequence;
+use crate::dop::Mode;
 use super::plots;
 use super::record::{RunRecord, RunStatus};
 use crate::eval::ate::PoseRelation;
+use crate::io::run_dir::RunDir;
 use crate::eval::report::{EvalReport, RpeSpec};
 
 /// The run whose ATE is the median of the mode's runs (the lower one of an even count).
@@ -30,7 +32,7 @@ pub fn sequence_section(
     sequence_dir: &Path,
     runs: &[&RunRecord],
     out: &Path,
-    modes: &[RunMode],
+    modes: &[Mode],
     rpe: RpeSpec,
 ) -> Result<html::SequenceSection, String> {
     let mut section = html::SequenceSection {
@@ -60,7 +62,7 @@ pub fn sequence_section(
         let median = median_run(&of_mode);
         let mut errors = Vec::new();
         for &run in &of_mode {
-            let path = run.dir(out).join("trajectory.txt");
+            let path = RunDir::new(run.dir(out)).trajectory();
             let relation = PoseRelation::TransPart;
             let Ok(report) =
                 evaluate_trajectory(&reference, &path, &sequence.config, rpe, relation)
@@ -88,7 +90,7 @@ pub fn sequence_section(
     }
     let dir = out.join("plots").join(&sequence.name);
     std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-    let by_mode: Vec<(RunMode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
+    let by_mode: Vec<(Mode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
     let name = &sequence.name;
     let paths = [
         dir.join("trajectories.png"),

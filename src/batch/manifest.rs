@@ -19,44 +19,12 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 
 use crate::config::Config;
 use crate::detect::Source;
+use crate::dop::Mode;
 
-/// How a run treats moving objects (the `dopslam run` flags).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum RunMode {
-    /// The DOP model (`--dop`).
-    Dop,
-    /// ORB-SLAM2 (`--no-dop`): no detector runs.
-    NoDop,
-    /// The naive method (`--mask-boxes`).
-    MaskBoxes,
-}
-
-impl RunMode {
-    pub const ALL: [RunMode; 3] = [RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes];
-
-    /// The name in manifests, folders and tables.
-    pub fn name(self) -> &'static str {
-        match self {
-            RunMode::Dop => "dop",
-            RunMode::NoDop => "no-dop",
-            RunMode::MaskBoxes => "mask-boxes",
-        }
-    }
-
-    /// The `dopslam run` flag.
-    pub fn flag(self) -> &'static str {
-        match self {
-            RunMode::Dop => "--dop",
-            RunMode::NoDop => "--no-dop",
-            RunMode::MaskBoxes => "--mask-boxes",
-        }
-    }
-}
 
 /// The `[batch]` table: what every sequence gets unless it says otherwise.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -64,7 +32,7 @@ impl RunMode {
 pub struct BatchSettings {
     /// Output folder (the command line's `--out` wins; default `outputs/batch/<manifest name>`).
     pub out: Option<PathBuf>,
-    pub modes: Vec<RunMode>,
+    pub modes: Vec<Mode>,
     /// Runs per sequence and mode (real-time runs differ: papers report the median of 5-10).
     pub repetitions: usize,
     /// A `dopslam` config (TOML) for every run; default: the built-in defaults.
@@ -99,7 +67,7 @@ impl Default for BatchSettings {
     fn default() -> Self {
         Self {
             out: None,
-            modes: RunMode::ALL.to_vec(),
+            modes: Mode::ALL.to_vec(),
             repetitions: 1,
             config: None,
             detections: None,
@@ -138,7 +106,7 @@ pub struct SequenceEntry {
     pub depth_scale: Option<f64>,
     /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
     pub config: Option<PathBuf>,
-    pub modes: Option<Vec<RunMode>>,
+    pub modes: Option<Vec<Mode>>,
     pub repetitions: Option<usize>,
     pub frames: Option<usize>,
     pub detections: Option<Source>,
@@ -178,7 +146,7 @@ pub struct PlannedSequence {
     pub source: SequenceSource,
     /// The config its runs use (overrides applied).
     pub config: Config,
-    pub modes: Vec<RunMode>,
+    pub modes: Vec<Mode>,
     pub repetitions: usize,
     pub frames: Option<usize>,
 }
@@ -448,12 +416,12 @@ mod tests {
              [[sequence]]\npath = \"/tmp\"\nmodes = [\"no-dop\"]\ndepth_scale = 1000.0\n",
         )
         .unwrap();
-        assert_eq!(m.batch.modes, RunMode::ALL.to_vec());
+        assert_eq!(m.batch.modes, Mode::ALL.to_vec());
         let plan = m.plan().unwrap();
         let names: Vec<&str> = plan.iter().map(|p| p.name.as_str()).collect();
         assert_eq!(names, ["static_room-s1", "static_room-s2", "tmp"]);
         assert_eq!(plan[0].repetitions, 3);
-        assert_eq!(plan[2].modes, [RunMode::NoDop]);
+        assert_eq!(plan[2].modes, [Mode::Off]);
         assert_eq!(plan[2].config.dataset.depth_scale, Some(1000.0));
     }
 

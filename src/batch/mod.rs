@@ -32,7 +32,8 @@ use std::path::{Path, PathBuf};
 
 use execute::{Executed, Executor, RunJob};
 use machine::{budget_jobs, machine_description};
-use manifest::{absolute, Manifest, PlannedSequence, RunMode, SequenceSource};
+use crate::dop::Mode;
+use manifest::{absolute, Manifest, PlannedSequence, SequenceSource};
 use record::{RunRecord, RunStatus};
 use results::GroupSummary;
 
@@ -279,7 +280,7 @@ fn write_tables(
         .filter_map(|j| RunRecord::read(&j.dir))
         .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
-    let mut modes: Vec<RunMode> = manifest.batch.modes.clone();
+    let mut modes: Vec<Mode> = manifest.batch.modes.clone();
     for p in planned {
         for m in &p.modes {
             if !modes.contains(m) {

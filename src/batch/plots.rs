@@ -9,7 +9,7 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::manifest::RunMode;
+use crate::dop::Mode;
 use crate::eval::plot::view_axes;
 use crate::eval::report::EvalReport;
 
@@ -18,11 +18,11 @@ const SIZE: (u32, u32) = (900, 640);
 pub use crate::eval::plot::ensure_font;
 
 /// The colour of a mode in every figure.
-pub fn mode_colour(mode: RunMode) -> RGBColor {
+pub fn mode_colour(mode: Mode) -> RGBColor {
     match mode {
-        RunMode::Dop => RGBColor(31, 95, 191),
-        RunMode::NoDop => RGBColor(192, 57, 43),
-        RunMode::MaskBoxes => RGBColor(230, 126, 34),
+        Mode::Dop => RGBColor(31, 95, 191),
+        Mode::Off => RGBColor(192, 57, 43),
+        Mode::MaskBoxes => RGBColor(230, 126, 34),
     }
 }
 
@@ -76,7 +76,7 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
 pub fn trajectories(
     path: &Path,
     title: &str,
-    runs: &[(RunMode, &EvalReport)],
+    runs: &[(Mode, &EvalReport)],
 ) -> Result<(), String> {
     // The ground truth as far as the most complete run matched it.
     let Some(fullest) = runs
@@ -175,7 +175,7 @@ fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
 pub fn ape_over_time(
     path: &Path,
     title: &str,
-    runs: &[(RunMode, &EvalReport)],
+    runs: &[(Mode, &EvalReport)],
 ) -> Result<(), String> {
     let Some(t0) = runs
         .iter()
@@ -279,8 +279,8 @@ impl BoxStats {
 
 /// Box plots of the APE per mode, every pose of every repetition pooled ([`BoxStats`],
 /// as matplotlib draws them).
-pub fn ape_boxes(path: &Path, title: &str, modes: &[(RunMode, Vec<f64>)]) -> Result<(), String> {
-    let boxes: Vec<(RunMode, BoxStats)> = modes
+pub fn ape_boxes(path: &Path, title: &str, modes: &[(Mode, Vec<f64>)]) -> Result<(), String> {
+    let boxes: Vec<(Mode, BoxStats)> = modes
         .iter()
         .filter_map(|(m, v)| BoxStats::of(v).map(|b| (*m, b)))
         .collect();

@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::manifest::RunMode;
+use crate::dop::Mode;
+use crate::io::run_dir::RunDir;
 use crate::io::IoError;
 
 /// Whether a run finished.
@@ -20,7 +21,7 @@ pub enum RunStatus {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunRecord {
     pub sequence: String,
-    pub mode: RunMode,
+    pub mode: Mode,
     /// 1-based.
     pub repetition: usize,
     pub status: RunStatus,
@@ -77,42 +78,6 @@ pub struct MapFigures {
     pub dynamic_removed_percent: Option<f64>,
 }
 
-/// The parts of `report.json` the batch reads.
-#[derive(Deserialize)]
-struct ReportFile {
-    totals: Totals,
-    detection: Detection,
-    frames: Vec<FrameFile>,
-    #[serde(default)]
-    global: Option<GlobalFile>,
-}
-
-#[derive(Deserialize)]
-struct Totals {
-    frames: usize,
-    tracked: usize,
-    coverage_percent: f64,
-    keyframes: usize,
-    map_points: usize,
-    median_tracking_ms: f64,
-    mean_tracking_ms: f64,
-}
-
-#[derive(Deserialize)]
-struct Detection {
-    map_points_removed: usize,
-}
-
-#[derive(Deserialize)]
-struct FrameFile {
-    dynamic_keypoints: usize,
-}
-
-#[derive(Deserialize)]
-struct GlobalFile {
-    loops: Vec<serde_json::Value>,
-}
-
 /// The parts of `dense.json` the batch reads.
 #[derive(Deserialize)]
 struct DenseFile {
@@ -128,11 +93,9 @@ impl RunFigures {
     /// The figures a run folder's `report.json` and `dense.json` (when the dense pass
     /// ran) hold; the evaluation and the map comparison are added by the caller.
     pub fn from_run(dir: &Path) -> Result<Self, IoError> {
-        let path = dir.join("report.json");
-        let text = crate::io::errors::read_text(&path)?;
-        let report: ReportFile = serde_json::from_str(&text)
-            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))?;
-        let dense_path = dir.join("dense.json");
+        let run = RunDir::new(dir);
+        let report = run.read_summary()?;
+        let dense_path = run.dense_report();
         let dense: Option<DenseFile> = match dense_path.exists() {
             true => Some(
                 serde_json::from_str(&crate::io::errors::read_text(&dense_path)?).map_err(|e| {
@@ -164,7 +127,7 @@ impl RunFigures {
 }
 
 /// A run's folder: `<out>/runs/<sequence>/<mode>/r<repetition>`.
-pub fn run_dir(out: &Path, sequence: &str, mode: RunMode, repetition: usize) -> PathBuf {
+pub fn run_dir(out: &Path, sequence: &str, mode: Mode, repetition: usize) -> PathBuf {
     out.join("runs")
         .join(sequence)
         .join(mode.name())
@@ -173,7 +136,7 @@ pub fn run_dir(out: &Path, sequence: &str, mode: RunMode, repetition: usize) -> 
 
 impl RunRecord {
     /// A failed record with no figures (the caller fills in what happened).
-    pub fn new(sequence: &str, mode: RunMode, repetition: usize) -> Self {
+    pub fn new(sequence: &str, mode: Mode, repetition: usize) -> Self {
         Self {
             sequence: sequence.to_string(),
             mode,

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::manifest::RunMode;
+use crate::dop::Mode;
 use super::record::{RunFigures, RunRecord, RunStatus};
 use crate::eval::stats::median_of_sorted;
 use crate::io::atomic::write_atomic;
@@ -43,7 +43,7 @@ impl Spread {
 #[derive(Debug, Clone, Serialize)]
 pub struct GroupSummary {
     pub sequence: String,
-    pub mode: RunMode,
+    pub mode: Mode,
     pub runs: usize,
     pub failed: usize,
     pub ate_rmse: Option<Spread>,
@@ -75,7 +75,7 @@ pub struct GroupSummary {
 pub fn summarise(
     records: &[RunRecord],
     sequences: &[String],
-    modes: &[RunMode],
+    modes: &[Mode],
 ) -> Vec<GroupSummary> {
     let mut groups = Vec::new();
     for sequence in sequences {
@@ -93,9 +93,9 @@ pub fn summarise(
     for i in 0..groups.len() {
         let baseline = groups
             .iter()
-            .find(|g| g.sequence == groups[i].sequence && g.mode == RunMode::NoDop)
+            .find(|g| g.sequence == groups[i].sequence && g.mode == Mode::Off)
             .and_then(|g| g.ate_rmse);
-        if groups[i].mode == RunMode::NoDop {
+        if groups[i].mode == Mode::Off {
             continue;
         }
         if let (Some(base), Some(this)) = (baseline, groups[i].ate_rmse) {
@@ -108,7 +108,7 @@ pub fn summarise(
     groups
 }
 
-fn summarise_group(sequence: &str, mode: RunMode, runs: &[&RunRecord]) -> GroupSummary {
+fn summarise_group(sequence: &str, mode: Mode, runs: &[&RunRecord]) -> GroupSummary {
     let ok: Vec<&RunFigures> = runs
         .iter()
         .filter(|r| r.status == RunStatus::Ok)
@@ -429,7 +429,7 @@ pub fn write_results(
 mod tests {
     use super::*;
 
-    fn record(mode: RunMode, repetition: usize, ate: Option<f64>) -> RunRecord {
+    fn record(mode: Mode, repetition: usize, ate: Option<f64>) -> RunRecord {
         RunRecord {
             sequence: "s".into(),
             mode,
@@ -452,14 +452,14 @@ mod tests {
     #[test]
     fn medians_spreads_and_improvement() {
         let records = [
-            record(RunMode::NoDop, 1, Some(0.4)),
-            record(RunMode::NoDop, 2, Some(0.2)),
-            record(RunMode::NoDop, 3, Some(0.3)),
-            record(RunMode::Dop, 1, Some(0.03)),
-            record(RunMode::Dop, 2, None),
-            record(RunMode::Dop, 3, Some(0.01)),
+            record(Mode::Off, 1, Some(0.4)),
+            record(Mode::Off, 2, Some(0.2)),
+            record(Mode::Off, 3, Some(0.3)),
+            record(Mode::Dop, 1, Some(0.03)),
+            record(Mode::Dop, 2, None),
+            record(Mode::Dop, 3, Some(0.01)),
         ];
-        let groups = summarise(&records, &["s".into()], &[RunMode::Dop, RunMode::NoDop]);
+        let groups = summarise(&records, &["s".into()], &[Mode::Dop, Mode::Off]);
         assert_eq!(groups.len(), 2);
         let dop = &groups[0];
         assert_eq!((dop.runs, dop.failed), (3, 1));

@@ -98,7 +98,7 @@ pub fn once_per_folder(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::batch::manifest::RunMode;
+    use crate::dop::Mode;
     use proptest::prelude::*;
 
     fn planned(names: &[&str]) -> Vec<PlannedSequence> {
@@ -108,7 +108,7 @@ mod tests {
                 name: n.to_string(),
                 source: crate::batch::manifest::SequenceSource::Folder(n.into()),
                 config: crate::config::Config::default(),
-                modes: vec![RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes],
+                modes: vec![Mode::Dop, Mode::Off, Mode::MaskBoxes],
                 repetitions: 1,
                 frames: None,
             })
@@ -119,7 +119,7 @@ mod tests {
         let mut jobs = Vec::new();
         for r in 1..=repetitions {
             for (k, p) in planned.iter().enumerate() {
-                for mode in [RunMode::Dop, RunMode::NoDop, RunMode::MaskBoxes] {
+                for mode in [Mode::Dop, Mode::Off, Mode::MaskBoxes] {
                     jobs.push(RunJob {
                         sequence: k,
                         mode,

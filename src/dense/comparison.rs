@@ -247,12 +247,11 @@ pub fn pose_alignment(estimate: &Trajectory, reference: &Trajectory) -> Option<S
 /// The alignment of a run's trajectory to its sequence's ground truth
 /// ([`pose_alignment`]; the run's `report.json` names the sequence), if both exist.
 pub fn run_alignment(run_dir: &Path) -> Option<Se3> {
-    let text = std::fs::read_to_string(run_dir.join("report.json")).ok()?;
-    let report: serde_json::Value = serde_json::from_str(&text).ok()?;
-    let sequence = PathBuf::from(report.get("sequence_path")?.as_str()?);
+    let run = crate::io::run_dir::RunDir::new(run_dir);
+    let sequence = run.read_summary().ok()?.sequence_path?;
     let reference =
         Trajectory::read(&sequence.join("groundtruth.txt"), TrajectoryFormat::Tum).ok()?;
-    let estimate = Trajectory::read(&run_dir.join("trajectory.txt"), TrajectoryFormat::Tum).ok()?;
+    let estimate = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum).ok()?;
     pose_alignment(&estimate, &reference)
 }
 

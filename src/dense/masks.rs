@@ -1,6 +1,6 @@
 //! Per-frame dynamic masks for fusion, from what the tracking pass learnt.
 //!
-//! With the DOP model (`Masking::Dop`) a frame's mask is the union of
+//! With the DOP model (`Mode::Dop`) a frame's mask is the union of
 //! 1. the dynamic objects of the detected keyframes nearest before and after it
 //!    (within `track_seconds`), each a box refined by depth as in the paper's
 //!    Algorithm 1: the box's object depth \(z_{obj}\) is the dominant depth of its
@@ -12,29 +12,17 @@
 //! 2. discs of `keypoint_radius` pixels around the frame's keypoints in a removed
 //!    (dynamic) state, with depth within \(\delta_z / 2\) of the keypoint's;
 //!
-//! then dilated by `border` pixels. `Masking::Boxes` (`--mask-boxes`) masks whole
-//! dynamic boxes of the nearest keyframe; `Masking::None` (`--no-dop`) fuses all.
+//! then dilated by `border` pixels. `Mode::MaskBoxes` (`--mask-boxes`) masks whole
+//! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{object_depth, Keypoint, ObjectBox};
 use crate::dop::tracks::{Object, ObjectTracks};
-use crate::dop::DopConfig;
+use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::dynamics::keyframes::object_boxes;
-
-/// How frames are masked before fusion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Masking {
-    /// Fuse everything (`--no-dop`).
-    None,
-    /// Whole dynamic boxes (`--mask-boxes`).
-    Boxes,
-    /// The DOP model's objects and dynamic keypoints.
-    Dop,
-}
 
 /// Settings of the masks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,7 +48,7 @@ pub struct FrameKeypoints {
 
 /// Everything the masks are made from.
 pub struct MaskSource {
-    pub masking: Masking,
+    pub masking: Mode,
     pub settings: MaskSettings,
     camera: PinholeCamera,
     dop: DopConfig,
@@ -76,7 +64,7 @@ impl MaskSource {
     /// missing either keep their pixel boxes only).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        masking: Masking,
+        masking: Mode,
         settings: MaskSettings,
         camera: PinholeCamera,
         dop: &DopConfig,
@@ -96,7 +84,7 @@ impl MaskSource {
                 .filter(|b| b.dynamic)
                 .collect();
             let mut objects = Vec::new();
-            if masking == Masking::Dop {
+            if masking == Mode::Dop {
                 if let (Some(pose), Some(depth)) =
                     (pose_at(frame.timestamp), depth_at(frame.timestamp))
                 {
@@ -139,7 +127,7 @@ impl MaskSource {
         depth: &DepthImage,
         camera_from_world: &Se3,
     ) -> Option<Vec<bool>> {
-        if self.masking == Masking::None {
+        if self.masking == Mode::Off {
             return None;
         }
         let (w, h) = (depth.width as usize, depth.height as usize);
@@ -153,8 +141,8 @@ impl MaskSource {
             .filter(|k| (k.timestamp - timestamp).abs() <= self.dop.track_seconds as f64)
             .collect();
         match self.masking {
-            Masking::None => {}
-            Masking::Boxes => {
+            Mode::Off => {}
+            Mode::MaskBoxes => {
                 let nearest = near.iter().min_by(|a, b| {
                     (a.timestamp - timestamp)
                         .abs()
@@ -164,7 +152,7 @@ impl MaskSource {
                     any |= fill_box(&mut mask, w, h, b.bbox, |_, _| true);
                 }
             }
-            Masking::Dop => {
+            Mode::Dop => {
                 for object in near.iter().flat_map(|k| &k.objects) {
                     let Some(b) = object.to_box(&self.camera, camera_from_world) else {
                         continue;
@@ -282,7 +270,7 @@ fn dilate_lines(
 }
 
 /// The keypoints of a tracked frame in a removed (dynamic) state, `(x, y, depth)`.
-pub fn dynamic_keypoints(frame: &crate::tracking::Frame, dop: &DopConfig) -> FrameKeypoints {
+pub fn dynamic_keypoints(frame: &crate::frame::Frame, dop: &DopConfig) -> FrameKeypoints {
     FrameKeypoints {
         timestamp: frame.timestamp,
         points: frame
@@ -349,7 +337,7 @@ mod tests {
         };
         let identity = Se3::identity();
         let source = MaskSource::new(
-            Masking::Dop,
+            Mode::Dop,
             settings,
             camera,
             &DopConfig::default(),
@@ -374,7 +362,7 @@ mod tests {
         // Far from any keyframe nothing is masked; --no-dop masks nothing.
         assert!(source.mask(5.0, &depth, &identity).is_none());
         let boxes = MaskSource::new(
-            Masking::Boxes,
+            Mode::MaskBoxes,
             settings,
             camera,
             &DopConfig::default(),

@@ -28,10 +28,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::detect::FrameDetections;
-use crate::dop::DopConfig;
+use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
+use crate::io::run_dir::{names, RunDir};
 use crate::io::image_files::DepthImage;
 use crate::io::ply::{write_obj, write_ply, PlyEncoding};
 use crate::io::sequence::{FrameImages, Sequence};
@@ -39,7 +40,7 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
 use cloud::{CloudBuilder, CloudSettings};
 use disparity::{stereo_depth, StereoDepth};
-use masks::{FrameKeypoints, MaskSettings, MaskSource, Masking};
+use masks::{FrameKeypoints, MaskSettings, MaskSource};
 use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
 
 /// Which frames go into the TSDF.
@@ -249,7 +250,7 @@ pub struct FusedTruth {
 /// What the dense pass did.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct DenseReport {
-    pub masking: Option<Masking>,
+    pub masking: Option<Mode>,
     pub frames_fused: usize,
     /// Tracked frames left out because they are in a map segment that no loop merged
     /// with the largest one.
@@ -285,7 +286,7 @@ pub struct DenseInputs<'a> {
     pub run_dir: &'a Path,
     /// Where the dense outputs go (usually the run folder).
     pub out_dir: &'a Path,
-    pub masking: Masking,
+    pub masking: Mode,
     pub dop: &'a DopConfig,
     pub dynamic_classes: &'a [String],
     /// A synthetic sequence's `masks/` folder, to count what was fused.
@@ -322,16 +323,13 @@ fn key(t: f64) -> i64 {
     (t * 1e6).round() as i64
 }
 
-/// Written by the tracking pass: each tracked frame's timestamp and map segment after
-/// the loops' merges. Segments that no loop merged have unrelated frames of
-/// reference, so only the largest is fused.
-pub const SEGMENTS_FILE: &str = "segments.txt";
-
-/// The timestamps of the frames in the largest segment of the run's
-/// [`SEGMENTS_FILE`], when it lists more than one (`None`: fuse every frame; also for
-/// runs written before the file existed).
-fn largest_segment(run: &Path) -> Result<Option<std::collections::HashSet<i64>>, IoError> {
-    let path = run.join(SEGMENTS_FILE);
+/// The timestamps of the frames in the largest segment of the run's `segments.txt`
+/// ([`RunDir::segments`]: each tracked frame's timestamp and map segment after the
+/// loops' merges), when it lists more than one (`None`: fuse every frame; also for runs
+/// written before the file existed). Segments that no loop merged have unrelated
+/// frames of reference, so only the largest is fused.
+fn largest_segment(run: &RunDir) -> Result<Option<std::collections::HashSet<i64>>, IoError> {
+    let path = run.segments();
     let Ok(text) = std::fs::read_to_string(&path) else {
         return Ok(None);
     };
@@ -408,8 +406,6 @@ pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
     bar
 }
 
-/// The file with the dynamic keypoints of each frame.
-pub const KEYPOINTS_FILE: &str = "dynamic_keypoints.json";
 
 /// Reads `dynamic_keypoints.json` (empty when the run had no DOP model).
 pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
@@ -426,13 +422,13 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .validate()
         .map_err(|m| IoError::invalid(inputs.run_dir, m))?;
     let started = Instant::now();
-    let run = inputs.run_dir;
-    let trajectory = Trajectory::read(&run.join("trajectory.txt"), TrajectoryFormat::Tum)?;
+    let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
+    let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
     let keyframes =
-        Trajectory::read(&run.join("keyframes.txt"), TrajectoryFormat::Tum).unwrap_or_default();
+        Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
     let mut poses = poses_by_time(&trajectory);
     let mut other_segment_frames = 0;
-    if let Some(keep) = largest_segment(run)? {
+    if let Some(keep) = largest_segment(&run)? {
         let before = poses.len();
         poses.retain(|t, _| keep.contains(t));
         other_segment_frames = before - poses.len();
@@ -445,12 +441,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .collect();
     let load_depth =
         |t: f64| -> Option<DepthImage> { frame_depth(inputs, *index_of.get(&key(t))?).ok() };
-    let (mut detections, keypoints) = if inputs.masking == Masking::None {
+    let (mut detections, keypoints) = if inputs.masking == Mode::Off {
         (Vec::new(), Vec::new())
     } else {
         (
-            read_detections(&run.join("detections"))?,
-            read_keypoints(&run.join(KEYPOINTS_FILE))?,
+            read_detections(&run.detections())?,
+            read_keypoints(&run.dynamic_keypoints())?,
         )
     };
     // The frames to fuse, in sequence order (keyframes only for a point cloud alone).
@@ -465,14 +461,14 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .step_by(config.frame_step)
         .collect();
     let extra_detections = match (&inputs.detector, inputs.masking) {
-        (Some(detector), Masking::Dop) if config.detect_every > 0 => {
+        (Some(detector), Mode::Dop) if config.detect_every > 0 => {
             let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
             let mut detector = detector.lock().expect("detector lock poisoned");
             Some(more_detections::add(
                 sequence,
                 detector.as_mut(),
                 (&fused, config.detect_every),
-                &inputs.out_dir.join(more_detections::DENSE_DETECTIONS_DIR),
+                &out.dense_detections(),
                 &mut detections,
                 inputs.progress,
             )?)
@@ -561,11 +557,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
-        let path = inputs.out_dir.join("dense_mesh.ply");
+        let path = out.file(names::DENSE_MESH_PLY);
         write_ply(&path, &mesh, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);
         if config.obj {
-            let path = inputs.out_dir.join("dense_mesh.obj");
+            let path = out.file(names::DENSE_MESH_OBJ);
             write_obj(&path, &mesh, &comment)?;
             report.outputs.push(path);
         }
@@ -579,7 +575,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();
         report.cloud_seen_through = dropped;
-        let path = inputs.out_dir.join("dense_points.ply");
+        let path = out.file(names::DENSE_POINTS);
         write_ply(&path, &points, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);
         if mesh_or_cloud.is_none() {
@@ -591,7 +587,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             let colours = render::with_ghosts(map, &[]);
             let pictures = [
                 (
-                    "dense_perspective.png",
+                    names::DENSE_PERSPECTIVE,
                     render::perspective(
                         &map.vertices,
                         &colours,
@@ -600,12 +596,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
                     ),
                 ),
                 (
-                    "dense_top.png",
+                    names::DENSE_TOP,
                     render::top(&map.vertices, &colours, &view, 800),
                 ),
             ];
             for (name, picture) in pictures {
-                let path = inputs.out_dir.join(name);
+                let path = out.file(name);
                 save_png(&path, &picture)?;
                 report.outputs.push(path);
             }
@@ -619,7 +615,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     report.total_s = started.elapsed().as_secs_f64();
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
-    write_atomic(&inputs.out_dir.join("dense.json"), json.as_bytes())?;
+    write_atomic(&out.dense_report(), json.as_bytes())?;
     Ok(report)
 }
 
@@ -735,24 +731,24 @@ mod tests {
         let dir =
             std::env::temp_dir().join(format!("dopslam-segments-{name}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(dir.join(SEGMENTS_FILE), text).unwrap();
+        std::fs::write(RunDir::new(&dir).segments(), text).unwrap();
         dir
     }
 
     #[test]
     fn only_the_largest_unmerged_segment_is_fused() {
         let dir = run_with_segments("two", "# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n");
-        let keep = largest_segment(&dir).unwrap().expect("two segments");
+        let keep = largest_segment(&RunDir::new(&dir)).unwrap().expect("two segments");
         let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
         assert_eq!(keep, expected);
         // One segment (or no file): every frame.
         let dir = run_with_segments("one", "1.0 0\n1.1 0\n");
-        assert_eq!(largest_segment(&dir).unwrap(), None);
-        assert_eq!(largest_segment(&dir.join("absent")).unwrap(), None);
+        assert_eq!(largest_segment(&RunDir::new(&dir)).unwrap(), None);
+        assert_eq!(largest_segment(&RunDir::new(dir.join("absent"))).unwrap(), None);
         let dir = run_with_segments("bad", "1.0 0\n1.1 zero\n");
-        let error = largest_segment(&dir).unwrap_err().to_string();
+        let error = largest_segment(&RunDir::new(&dir)).unwrap_err().to_string();
         assert!(
-            error.contains("line 2") && error.contains(SEGMENTS_FILE),
+            error.contains("line 2") && error.contains(names::SEGMENTS),
             "{error}"
         );
     }

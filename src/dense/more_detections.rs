@@ -6,8 +6,8 @@
 //! later. The dense pass is offline, so it can afford the detector on every
 //! `detect_every`-th fused frame as well: more chances to find each person, and shorter
 //! gaps for the followed objects to be predicted across. These detections only make
-//! masks; the trajectory is already final. They are cached in [`DENSE_DETECTIONS_DIR`]
-//! of the output folder in the detection cache's format, so `dopslam fuse` runs the
+//! masks; the trajectory is already final. They are cached in `detections_dense/`
+//! ([`crate::io::run_dir::RunDir::dense_detections`]) of the output folder in the detection cache's format, so `dopslam fuse` runs the
 //! detector once per frame.
 
 use std::collections::HashSet;
@@ -17,9 +17,6 @@ use std::time::Instant;
 use crate::detect::{write_cache, Detector, FrameDetections};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::IoError;
-
-/// The folder (in the dense output folder) of the dense pass's own detections.
-pub const DENSE_DETECTIONS_DIR: &str = "detections_dense";
 
 /// What the extra detections cost.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]

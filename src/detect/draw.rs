@@ -109,7 +109,7 @@ pub fn draw_detections(image: &mut RgbImage, detections: &[Detection]) {
 /// Draws each keypoint of `frame` as a 5x5 square coloured by its DOP state.
 pub fn draw_keypoints(
     image: &mut RgbImage,
-    frame: &crate::tracking::Frame,
+    frame: &crate::frame::Frame,
     dop: &crate::dop::DopConfig,
 ) {
     use crate::dop::State;

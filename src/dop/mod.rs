@@ -22,16 +22,45 @@ use serde::{Deserialize, Serialize};
 
 /// How detections are used against moving objects (`dopslam run --no-dop |
 /// --mask-boxes | --dop`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+///
+/// The one mode enum of the project: the tracking pass, the dense masks
+/// (`Off`: fuse everything; `MaskBoxes`: whole dynamic boxes; `Dop`: the model's
+/// objects and dynamic keypoints) and the batch's modes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Mode {
-    /// ORB-SLAM2 behaviour: detections are not used.
+    /// ORB-SLAM2 behaviour: detections are not used (`--no-dop`; batch manifests may
+    /// say `no-dop`).
+    #[serde(alias = "no-dop")]
     Off,
     /// The naive method: every map point seen inside a dynamic box of a detected
     /// keyframe is removed.
     MaskBoxes,
     /// The DOP model.
     Dop,
+}
+
+impl Mode {
+    /// Every mode, in the batch's order.
+    pub const ALL: [Mode; 3] = [Mode::Dop, Mode::Off, Mode::MaskBoxes];
+
+    /// The name in batch manifests, folders and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Dop => "dop",
+            Mode::Off => "no-dop",
+            Mode::MaskBoxes => "mask-boxes",
+        }
+    }
+
+    /// The `dopslam run` flag.
+    pub fn flag(self) -> &'static str {
+        match self {
+            Mode::Dop => "--dop",
+            Mode::Off => "--no-dop",
+            Mode::MaskBoxes => "--mask-boxes",
+        }
+    }
 }
 
 /// The model's parameters; every step can be switched off for ablations.

@@ -277,7 +277,7 @@ mod tests {
     use super::*;
     use crate::features::KeyPoint;
     use crate::map::{KeyFrame, MapPoint};
-    use crate::tracking::Frame;
+    use crate::frame::Frame;
     use nalgebra::Vector3;
 
     /// A keyframe whose keypoints lie at `(x, y, depth)`, each observing a map point.

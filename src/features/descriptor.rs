@@ -22,6 +22,11 @@ pub const HALF_PATCH: i32 = 15;
 /// Pattern points keep within this radius.
 const PATTERN_RADIUS: f64 = 13.0;
 
+/// The largest Hamming distance accepted by a projection search (ORB-SLAM's 100).
+pub const TH_HIGH: u32 = 100;
+/// The largest Hamming distance accepted by brute-force matching (ORB-SLAM's 50).
+pub const TH_LOW: u32 = 50;
+
 /// The number of differing bits.
 #[inline]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {

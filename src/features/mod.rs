@@ -9,6 +9,6 @@ pub mod fast;
 pub mod orb;
 pub mod pyramid;
 
-pub use descriptor::{hamming, Descriptor};
+pub use descriptor::{hamming, Descriptor, TH_HIGH, TH_LOW};
 pub use orb::{KeyPoint, OrbConfig, OrbExtractor, OrbFeatures};
 pub use pyramid::ScalePyramid;

@@ -10,6 +10,7 @@ pub mod mesh;
 pub mod se3;
 pub mod sim3;
 pub mod so3;
+pub mod stereo_camera;
 
 pub use se3::Se3;
 pub use sim3::Sim3;

@@ -116,7 +116,7 @@ mod tests {
     use crate::features::ScalePyramid;
     use crate::geometry::camera::PinholeCamera;
     use crate::map::MapPoint;
-    use crate::optim::stereo_projection::StereoCamera;
+    use crate::geometry::stereo_camera::StereoCamera;
     use crate::random::Rng;
     use nalgebra::{Rotation3, Translation3, Vector3};
 

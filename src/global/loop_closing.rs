@@ -37,7 +37,7 @@ use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::mapping::fusion;
 use crate::optim::pose_graph::GraphReport;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::random::Rng;
 
 /// Loop-closing parameters (ORB-SLAM2's values by default).
@@ -773,7 +773,7 @@ fn merge_segments(
 mod tests {
     use super::*;
     use crate::map::{KeyFrame, MapPoint};
-    use crate::tracking::Frame;
+    use crate::frame::Frame;
     use nalgebra::{Rotation3, Translation3};
 
     fn keyframe(segment: usize, camera_from_world: Se3) -> KeyFrame {

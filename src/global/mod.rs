@@ -25,7 +25,7 @@ use crate::bow::Vocabulary;
 use crate::features::ScalePyramid;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::tracking::tracker::FrameReport;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 

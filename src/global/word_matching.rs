@@ -6,7 +6,7 @@
 use crate::bow::FeatureVector;
 use crate::features::hamming;
 use crate::map::{KeyFrame, Map, MapPointKey};
-use crate::tracking::matching::TH_LOW;
+use crate::features::TH_LOW;
 
 /// The static map point a keypoint observes, if any.
 pub fn static_point(

@@ -134,31 +134,7 @@ pub fn lock_file(path: &Path, wait: bool) -> std::io::Result<Option<std::fs::Fil
     }
 }
 
-/// The files and folders a run writes into its output folder (a batch's `config.toml`,
-/// `log.txt` and `run.json` beside them are the batch's own).
-pub const RUN_OUTPUTS: [&str; 21] = [
-    "trajectory.txt",
-    "trajectory_tracking.txt",
-    "keyframes.txt",
-    "map.ply",
-    "report.json",
-    "segments.txt",
-    "dynamic_keypoints.json",
-    "detections",
-    "dense_mesh.ply",
-    "dense_mesh.obj",
-    "dense_points.ply",
-    "dense.json",
-    "dense_perspective.png",
-    "dense_top.png",
-    "dense_detections",
-    "evaluation.json",
-    "plots",
-    "no_dop",
-    "no_masks",
-    "unmasked",
-    "compare_no_dop",
-];
+pub use super::run_dir::RUN_OUTPUTS;
 
 /// Moves an earlier run's outputs in `dir` into `dir/previous/` (replacing an older
 /// `previous/`): the names moved.
@@ -171,7 +147,7 @@ pub fn move_previous_outputs(dir: &Path, keep: &[&str]) -> Result<Vec<String>, I
     if present.is_empty() {
         return Ok(Vec::new());
     }
-    let previous = dir.join("previous");
+    let previous = dir.join(super::run_dir::names::PREVIOUS);
     if previous.exists() {
         std::fs::remove_dir_all(&previous)
             .map_err(|e| invalid(&previous, format!("cannot replace: {e}")))?;

@@ -220,12 +220,14 @@ mod tests {
 
     #[test]
     fn a_missing_or_foreign_report_is_an_error_naming_the_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let run = RunDir::new(dir.path());
+        let dir = std::env::temp_dir().join(format!("dopslam-run-dir-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let run = RunDir::new(&dir);
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("report.json"), "{e}");
         std::fs::write(run.report(), "{\"hello\": 1}").unwrap();
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("not a dopslam run report"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

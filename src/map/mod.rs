@@ -8,7 +8,7 @@ use slotmap::{new_key_type, SlotMap};
 
 use crate::features::Descriptor;
 use crate::geometry::se3::Se3;
-use crate::tracking::Frame;
+use crate::frame::Frame;
 
 new_key_type! {
     /// A keyframe in the map.

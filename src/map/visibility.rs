@@ -9,7 +9,7 @@ use nalgebra::Point3;
 use super::MapPoint;
 use crate::features::ScalePyramid;
 use crate::geometry::se3::Se3;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// A predicted view of a map point.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -72,7 +72,7 @@ pub fn is_redundant(map: &Map, keyframe: KeyFrameKey, close_depth: f32, redundan
 mod tests {
     use super::*;
     use crate::map::{KeyFrame, MapPoint};
-    use crate::tracking::Frame;
+    use crate::frame::Frame;
     use nalgebra::Vector3;
 
     fn keyframe(n: usize, depth: f32) -> KeyFrame {

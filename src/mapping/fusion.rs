@@ -9,8 +9,8 @@ use crate::features::{hamming, ScalePyramid};
 use crate::map::visibility::predict_view;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::optim::robust::{CHI2_MONO, CHI2_STEREO};
-use crate::optim::stereo_projection::StereoCamera;
-use crate::tracking::matching::TH_LOW;
+use crate::geometry::stereo_camera::StereoCamera;
+use crate::features::TH_LOW;
 
 /// One change found by a fusion search, applied later under the write lock.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::features::ScalePyramid;
 use crate::map::{KeyFrameKey, MapPoint, MapPointKey, SharedMap};
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// Local mapping parameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 use crate::features::ScalePyramid;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem, BaReport};
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// A copied-out window: the problem and where each of its parts came from.
 pub struct Window {
@@ -190,7 +190,7 @@ mod tests {
     use super::*;
     use crate::geometry::se3::Se3;
     use crate::map::{KeyFrame, MapPoint};
-    use crate::tracking::frame::Frame;
+    use crate::frame::Frame;
 
     /// Real time: the points a keyframe made before its detection came back may be on
     /// a person, and stay out of local BA until it does.

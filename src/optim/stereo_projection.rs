@@ -6,61 +6,9 @@
 //! Pose perturbations act on the left, \(T_{cw} \leftarrow \exp(\delta) T_{cw}\) with
 //! \(\delta = (\rho, \phi)\), so \(\partial p / \partial \delta = [I \;\; -[p]_\times]\).
 
-use nalgebra::{Matrix2x3, Matrix3, Matrix3x6, Vector3};
+use nalgebra::{Matrix3, Matrix3x6, Vector3};
 
-use crate::geometry::camera::PinholeCamera;
 use crate::geometry::so3::hat;
-
-/// Pinhole intrinsics plus the (virtual) stereo baseline times fx.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StereoCamera {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub bf: f64,
-}
-
-impl StereoCamera {
-    pub fn new(camera: &PinholeCamera, bf: f64) -> Self {
-        Self {
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-            bf,
-        }
-    }
-
-    /// \((u, v, u_R)\) of a camera-frame point.
-    pub fn project(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        let inv_z = 1.0 / p.z;
-        let u = self.fx * p.x * inv_z + self.cx;
-        Vector3::new(u, self.fy * p.y * inv_z + self.cy, u - self.bf * inv_z)
-    }
-
-    /// \(\partial (u, v, u_R) / \partial p\).
-    pub fn jacobian(&self, p: &Vector3<f64>) -> Matrix3<f64> {
-        let inv_z = 1.0 / p.z;
-        let inv_z2 = inv_z * inv_z;
-        Matrix3::new(
-            self.fx * inv_z,
-            0.0,
-            -self.fx * p.x * inv_z2,
-            0.0,
-            self.fy * inv_z,
-            -self.fy * p.y * inv_z2,
-            self.fx * inv_z,
-            0.0,
-            -self.fx * p.x * inv_z2 + self.bf * inv_z2,
-        )
-    }
-
-    /// \(\partial (u, v) / \partial p\).
-    pub fn jacobian_mono(&self, p: &Vector3<f64>) -> Matrix2x3<f64> {
-        self.jacobian(p).fixed_rows::<2>(0).into_owned()
-    }
-}
 
 /// \(\partial p / \partial \delta = [I \;\; -[p]_\times]\) for a left perturbation.
 pub fn point_jacobian_wrt_pose(p: &Vector3<f64>) -> Matrix3x6<f64> {
@@ -75,6 +23,7 @@ pub fn point_jacobian_wrt_pose(p: &Vector3<f64>) -> Matrix3x6<f64> {
 mod tests {
     use super::*;
     use crate::geometry::se3;
+    use crate::geometry::stereo_camera::StereoCamera;
     use nalgebra::Vector6;
     use proptest::prelude::*;
 

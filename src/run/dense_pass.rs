@@ -7,7 +7,6 @@ use super::setup::resolve_calibration;
 use super::RunError;
 use crate::config::Config;
 use crate::dense::disparity::StereoDepth;
-use crate::dense::masks::Masking;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
 use crate::dop::Mode;
 use crate::io::sequence::{SensorKind, Sequence};
@@ -19,14 +18,14 @@ pub fn dense_pass(
     sequence: &dyn Sequence,
     config: &Config,
     (run_dir, out_dir): (&Path, &Path),
-    masking: Masking,
+    masking: Mode,
     sequence_dir: Option<&Path>,
     progress: bool,
 ) -> Result<DenseReport, RunError> {
     let config = &config.for_sensor(sequence.sensor());
     let calibration = resolve_calibration(sequence, config)?;
     let detector = match masking {
-        Masking::Dop if config.dense.detect_every > 0 => config
+        Mode::Dop if config.dense.detect_every > 0 => config
             .detector
             .open(sequence_dir)
             .map_err(|e| RunError::Input(e.to_string()))?,
@@ -49,13 +48,4 @@ pub fn dense_pass(
         detector: detector.map(std::sync::Mutex::new),
     };
     Ok(fuse_run(&inputs, &config.dense)?)
-}
-
-/// The dense masks that go with a tracking mode.
-pub fn dense_masking(mode: Mode) -> Masking {
-    match mode {
-        Mode::Off => Masking::None,
-        Mode::MaskBoxes => Masking::Boxes,
-        Mode::Dop => Masking::Dop,
-    }
 }

@@ -24,7 +24,7 @@ pub mod truth;
 
 use std::path::{Path, PathBuf};
 
-pub use dense_pass::{dense_masking, dense_pass};
+pub use dense_pass::dense_pass;
 pub use error::RunError;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
@@ -83,8 +83,7 @@ pub fn run_sequence(
     let mut report = outputs::write(&run, watch.computed(sequence, &setup, options, pass, global, &run)?)?;
     let dense_due = stop.is_some() || report.totals.tracked > 0;
     if options.dense && dense_due && !crate::interrupt::requested() {
-        let masking = dense_masking(setup.mode);
-        let dense = dense_pass(sequence, config, (out, out), masking, options.sequence_dir.as_deref(), options.progress);
+        let dense = dense_pass(sequence, config, (out, out), setup.mode, options.sequence_dir.as_deref(), options.progress);
         // After a tracking failure the dense map of what was tracked is a bonus: the
         // tracking error is the one to report.
         match (&stop, dense) {

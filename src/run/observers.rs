@@ -10,7 +10,8 @@ use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
 use crate::tracking::input::Picture;
-use crate::tracking::{Frame, FrameReport, TrackingState};
+use crate::frame::Frame;
+use crate::tracking::{FrameReport, TrackingState};
 
 /// One frame as the system left it.
 pub struct FrameView<'a> {

@@ -17,7 +17,7 @@ use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// Everything a run is set up with (see the module doc).
 pub struct Setup {
@@ -73,7 +73,7 @@ impl Setup {
 
 
 /// For a stereo sequence, a warning when its first pair looks swapped (see
-/// [`crate::tracking::stereo_matching::looks_swapped`]): such a pair still tracks, badly.
+/// [`crate::frame::stereo::looks_swapped`]): such a pair still tracks, badly.
 fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &StereoCamera) {
     if sequence.sensor() != SensorKind::Stereo || sequence.is_empty() {
         return;
@@ -84,7 +84,7 @@ fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &S
     };
     let pair = (left, right);
     if let Some((given, exchanged)) =
-        crate::tracking::stereo_matching::looks_swapped(pair, extractor, camera.bf, camera.fx)
+        crate::frame::stereo::looks_swapped(pair, extractor, camera.bf, camera.fx)
     {
         eprintln!(
             "warning: the stereo pair of {} looks swapped: {exchanged} keypoints match with image_1 as the left camera, {given} as given (image_0 must be the left camera)",

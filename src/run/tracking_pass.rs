@@ -19,7 +19,8 @@ use crate::pacing::{Pace, Pacer};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, SystemSetup, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
-use crate::tracking::{Frame, TrackingState};
+use crate::frame::Frame;
+use crate::tracking::TrackingState;
 
 /// What the tracking pass hands on.
 pub struct TrackingPass {

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::scene::{Cuboid, Scene};
+use super::scene::{Cuboid, Scene, Shape};
 use super::sprite::{Billboard, Sprite};
 use crate::detect::coco;
 use crate::geometry::se3::Se3;
@@ -154,13 +154,6 @@ pub enum Appearance {
         standing: Option<Arc<Sprite>>,
         seated: Option<Arc<Sprite>>,
     },
-}
-
-/// A mover's geometry in one frame.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Shape {
-    Box(Cuboid),
-    Billboard(Billboard),
 }
 
 /// How a mover moves.

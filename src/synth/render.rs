@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::movers::Shape;
+use super::scene::Shape;
 use super::scene::{Cuboid, Scene};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;

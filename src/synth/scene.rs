@@ -8,8 +8,15 @@
 use crate::geometry::mesh::Mesh;
 use nalgebra::Vector3;
 
-use super::movers::Shape;
+use super::sprite::Billboard;
 use crate::random::Rng;
+
+/// A mover's geometry in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape {
+    Box(Cuboid),
+    Billboard(Billboard),
+}
 
 /// An axis-aligned box.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -30,9 +30,10 @@ use crate::geometry::camera::PinholeCamera;
 use crate::global::loop_closing::PlaceRecognition;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::tracking::input::Picture;
-use crate::tracking::{Frame, FrameReport, Tracker, TrackingState};
+use crate::frame::Frame;
+use crate::tracking::{FrameReport, Tracker, TrackingState};
 use stages::{Detection, LocalMapping, Recognition};
 use worker::{Execution, Worker};
 
@@ -267,11 +268,10 @@ impl System {
             .map(|r| r.map(|worker| worker.finish().0.recognition));
         let applied = self.dynamics.take_applied();
         drop(self.tracker);
-        let map = Arc::try_unwrap(self.map)
-            .ok()
-            .expect("the helpers that shared the map have finished")
-            .into_inner()
-            .expect("map lock poisoned");
+        let Ok(lock) = Arc::try_unwrap(self.map) else {
+            unreachable!("the helpers that shared the map have finished")
+        };
+        let map = lock.into_inner().expect("map lock poisoned");
         Tracked {
             map,
             recognised,

@@ -1,10 +1,7 @@
-//! The tracking pass: frames, matching, and the tracker (ORB-SLAM2 §III).
+//! Tracking (ORB-SLAM2 §III): the tracker against the map, and the checks of its
+//! input frames. Frames themselves are [`crate::frame`].
 
-pub mod frame;
 pub mod input;
-pub mod matching;
-pub mod stereo_matching;
 pub mod tracker;
 
-pub use frame::Frame;
 pub use tracker::{FrameReport, Tracker, TrackerConfig, TrackingState};

@@ -17,8 +17,9 @@ use std::time::Instant;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::frame::Frame;
-use super::matching::{brute_force, search_by_projection, Query, TH_LOW};
+use crate::frame::Frame;
+use crate::features::TH_LOW;
+use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::dop::consistency::Verdict;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
@@ -30,7 +31,7 @@ use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey, SharedMap};
 use crate::optim::pnp::{epnp_ransac, Correspondence, Ransac};
 use crate::optim::pose_only::{optimise_pose, within_gate, PoseObservation};
 use crate::optim::robust::CHI2_MONO;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// Points that take part in the pose that are enough for a pose of their own, against
 /// which waiting points are tested before they join (see [`Tracker::optimise`]).

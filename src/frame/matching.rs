@@ -4,14 +4,9 @@
 //! histogram (30 bins of the keypoint angle difference; only the three fullest bins are
 //! kept) for frame-to-frame matches.
 
-use crate::features::{hamming, Descriptor, KeyPoint};
+use super::Frame;
+use crate::features::{hamming, Descriptor, KeyPoint, TH_HIGH, TH_LOW};
 
-use super::frame::Frame;
-
-/// The largest Hamming distance accepted by a projection search.
-pub const TH_HIGH: u32 = 100;
-/// The largest Hamming distance accepted by brute-force matching.
-pub const TH_LOW: u32 = 50;
 const HISTOGRAM_BINS: usize = 30;
 
 /// A point to look for in a frame: where it should appear, on which levels, how far

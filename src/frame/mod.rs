@@ -11,9 +11,12 @@ use nalgebra::Vector2;
 use crate::features::{Descriptor, KeyPoint, OrbExtractor};
 use crate::geometry::camera::PinholeCamera;
 use crate::io::image_files::DepthImage;
-use crate::optim::stereo_projection::StereoCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 
-use super::stereo_matching::extract_and_match;
+use stereo::extract_and_match;
+
+pub mod matching;
+pub mod stereo;
 
 /// Grid cells over the image, for keypoint lookups by position.
 const GRID_COLUMNS: usize = 64;

@@ -15,8 +15,7 @@
 
 use image::GrayImage;
 
-use super::matching::{TH_HIGH, TH_LOW};
-use crate::features::{hamming, OrbExtractor, OrbFeatures, ScalePyramid};
+use crate::features::{hamming, OrbExtractor, OrbFeatures, ScalePyramid, TH_HIGH, TH_LOW};
 
 /// Half side of the SAD patch, and the half range of the SAD search.
 const PATCH: i32 = 5;
