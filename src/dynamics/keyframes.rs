@@ -276,8 +276,8 @@ fn dynamic_boxes(boxes: &[ObjectBox]) -> Vec<[f32; 4]> {
 mod tests {
     use super::*;
     use crate::features::KeyPoint;
-    use crate::map::{KeyFrame, MapPoint};
     use crate::frame::Frame;
+    use crate::map::{KeyFrame, MapPoint};
     use nalgebra::Vector3;
 
     /// A keyframe whose keypoints lie at `(x, y, depth)`, each observing a map point.

@@ -65,7 +65,10 @@ pub struct DetectionTotals {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Applied {
     /// DOP: the dynamic boxes used on the keyframe (detected, then predicted).
-    Boxes { timestamp: f64, boxes: Vec<[f32; 4]> },
+    Boxes {
+        timestamp: f64,
+        boxes: Vec<[f32; 4]>,
+    },
     /// Mask boxes: the keyframe's keypoints and which of them lie in a dynamic box.
     Keypoints {
         timestamp: f64,
@@ -170,7 +173,10 @@ impl Dynamics {
                     };
                     self.apply(map, outcome.id, outcome.milliseconds, frame);
                 }
-                Err(e) => self.totals.errors.push(format!("frame {}: {e}", outcome.id)),
+                Err(e) => self
+                    .totals
+                    .errors
+                    .push(format!("frame {}: {e}", outcome.id)),
             }
         }
     }
@@ -272,7 +278,6 @@ impl Waiting {
         waiter.into_iter().chain(self.skipped.drain(..)).collect()
     }
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -146,7 +146,13 @@ pub struct Miss {
 }
 
 impl Recall {
-    pub fn add(&mut self, timestamp: f64, people: &[[f32; 4]], boxes: &[[f32; 4]], image_area: f32) {
+    pub fn add(
+        &mut self,
+        timestamp: f64,
+        people: &[[f32; 4]],
+        boxes: &[[f32; 4]],
+        image_area: f32,
+    ) {
         self.keyframes += 1;
         for person in people {
             self.people += 1;
@@ -218,4 +224,3 @@ pub fn ground_truth_people(
         .collect();
     Some((people, image_area))
 }
-

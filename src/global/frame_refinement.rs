@@ -24,7 +24,7 @@ use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose, PoseObservation};
-use crate::tracking::tracker::{FrameObservation, FrameReport};
+use crate::tracking::{FrameObservation, FrameReport};
 
 /// Fewest static points a frame needs to be estimated again.
 pub const MIN_POINTS: usize = 30;

@@ -26,7 +26,7 @@ use crate::features::ScalePyramid;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::geometry::stereo_camera::StereoCamera;
-use crate::tracking::tracker::FrameReport;
+use crate::tracking::FrameReport;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 
 /// The `[global]` section of a config.

@@ -38,7 +38,7 @@ use crate::geometry::se3::Se3;
 use crate::geometry::so3;
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
-use crate::tracking::tracker::FrameReport;
+use crate::tracking::FrameReport;
 
 /// A longer gap between frames (in median frame intervals) starts a new run.
 pub const MAX_GAP: f64 = 2.5;

@@ -80,10 +80,20 @@ pub fn run_sequence(
     let mut pass = tracking_pass(sequence, &setup, options, &run, &mut watch.observers())?;
     let global = global_pass(&mut pass, &setup, &run)?;
     let stop = pass.stop.clone();
-    let mut report = outputs::write(&run, watch.computed(sequence, &setup, options, pass, global, &run)?)?;
+    let mut report = outputs::write(
+        &run,
+        watch.computed(sequence, &setup, options, pass, global, &run)?,
+    )?;
     let dense_due = stop.is_some() || report.totals.tracked > 0;
     if options.dense && dense_due && !crate::interrupt::requested() {
-        let dense = dense_pass(sequence, config, (out, out), setup.mode, options.sequence_dir.as_deref(), options.progress);
+        let dense = dense_pass(
+            sequence,
+            config,
+            (out, out),
+            setup.mode,
+            options.sequence_dir.as_deref(),
+            options.progress,
+        );
         // After a tracking failure the dense map of what was tracked is a bonus: the
         // tracking error is the one to report.
         match (&stop, dense) {

@@ -9,8 +9,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
-use crate::tracking::input::Picture;
 use crate::frame::Frame;
+use crate::tracking::input::Picture;
 use crate::tracking::{FrameReport, TrackingState};
 
 /// One frame as the system left it.
@@ -28,7 +28,8 @@ pub struct FrameView<'a> {
 impl FrameView<'_> {
     /// The frame, when it was tracked (state Ok).
     pub fn tracked(&self) -> Option<&Frame> {
-        self.frame.filter(|_| self.report.state == TrackingState::Ok)
+        self.frame
+            .filter(|_| self.report.state == TrackingState::Ok)
     }
 }
 

@@ -29,10 +29,7 @@ use crate::tracking::TrackingState;
 /// the output and debug folders can be written and are not inside the input sequence,
 /// no other run writes into the output folder (the lock returned is held for the run),
 /// and an earlier run's outputs there move into `previous/`.
-pub fn prepare(
-    out: &Path,
-    options: &RunOptions,
-) -> Result<crate::io::output::DirLock, RunError> {
+pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::DirLock, RunError> {
     use crate::io::output;
     let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
     if let Some(dir) = inputs.first().filter(|d| d.to_str().is_none()) {

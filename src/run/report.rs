@@ -148,5 +148,3 @@ pub struct RunReport {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,
 }
-
-

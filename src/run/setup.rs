@@ -12,12 +12,12 @@ use super::RunError;
 use crate::config::Config;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
-use crate::geometry::stereo_camera::StereoCamera;
 
 /// Everything a run is set up with (see the module doc).
 pub struct Setup {
@@ -70,7 +70,6 @@ impl Setup {
         })
     }
 }
-
 
 /// For a stereo sequence, a warning when its first pair looks swapped (see
 /// [`crate::frame::stereo::looks_swapped`]): such a pair still tracks, badly.
@@ -260,7 +259,8 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
 }
 
 /// What loop closing runs with: see [`loop_vocabulary`].
-pub type LoopVocabulary = Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>;
+pub type LoopVocabulary =
+    Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>;
 
 /// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
 /// loop closing is off (the global pass runs without loops). A vocabulary that cannot
@@ -270,7 +270,9 @@ pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocab
         return Ok(None);
     }
     if !config.loops.enabled {
-        return Ok(Some(Err("loop closing is off ([global.loops] enabled = false, --no-loops)".into())));
+        return Ok(Some(Err(
+            "loop closing is off ([global.loops] enabled = false, --no-loops)".into(),
+        )));
     }
     crate::global::load_vocabulary(config)
         .map(|v| Some(Ok(v)))

@@ -13,13 +13,13 @@ use super::setup::Setup;
 use super::{RunError, RunOptions};
 use crate::config::Config;
 use crate::eval::stats::median;
+use crate::frame::Frame;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::pacing::{Pace, Pacer};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, SystemSetup, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
-use crate::frame::Frame;
 use crate::tracking::TrackingState;
 
 /// What the tracking pass hands on.
@@ -76,7 +76,14 @@ pub fn tracking_pass(
             stop = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
             break;
         }
-        let ready = next_frame(sequence, index, setup, &system, &mut pacer, &mut depth_check);
+        let ready = next_frame(
+            sequence,
+            index,
+            setup,
+            &system,
+            &mut pacer,
+            &mut depth_check,
+        );
         let (frame, picture, started) = match ready {
             Ok(ready) => ready,
             Err(message) => {

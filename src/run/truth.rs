@@ -8,7 +8,9 @@ use std::path::PathBuf;
 
 use super::observers::{FrameObserver, FrameView};
 use crate::dynamics::Applied;
-use crate::eval::truth::{ground_truth_mask, ground_truth_people, Classification, Recall, TruthCounts};
+use crate::eval::truth::{
+    ground_truth_mask, ground_truth_people, Classification, Recall, TruthCounts,
+};
 
 /// Scores a run against the ground truth of its sequence folder.
 #[derive(Default)]

@@ -26,13 +26,13 @@ use crate::detect::Detector;
 use crate::dop::{DopConfig, Mode};
 use crate::dynamics::{Applied, DetectionTotals, Dynamics, DynamicsConfig};
 use crate::features::ScalePyramid;
+use crate::frame::Frame;
 use crate::geometry::camera::PinholeCamera;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::global::loop_closing::PlaceRecognition;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::tracking::input::Picture;
-use crate::frame::Frame;
 use crate::tracking::{FrameReport, Tracker, TrackingState};
 use stages::{Detection, LocalMapping, Recognition};
 use worker::{Execution, Worker};
@@ -190,7 +190,12 @@ impl System {
     /// keyframe to the dynamics, local mapping and the detector. Returns the report
     /// and the time from `started` (before feature extraction) to the tracked pose,
     /// in milliseconds.
-    pub fn track(&mut self, frame: Frame, picture: &Picture, started: Instant) -> (FrameReport, f64) {
+    pub fn track(
+        &mut self,
+        frame: Frame,
+        picture: &Picture,
+        started: Instant,
+    ) -> (FrameReport, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
         let report = self.tracker.track(&self.map, frame, self.mapping.is_idle());
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;

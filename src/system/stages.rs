@@ -109,11 +109,7 @@ mod tests {
     struct Slow;
 
     impl Detector for Slow {
-        fn detect(
-            &mut self,
-            timestamp: f64,
-            image: &RgbImage,
-        ) -> Result<Vec<Found>, DetectError> {
+        fn detect(&mut self, timestamp: f64, image: &RgbImage) -> Result<Vec<Found>, DetectError> {
             std::thread::sleep(std::time::Duration::from_millis(20));
             if timestamp < 0.0 {
                 return Err(DetectError::Runtime("negative time".into()));

@@ -95,11 +95,7 @@ impl<S: Stage> Submitter<S> {
     }
 }
 
-fn process_inline<S: Stage>(
-    stage: &Mutex<Option<S>>,
-    done: &Mutex<Vec<S::Output>>,
-    job: S::Job,
-) {
+fn process_inline<S: Stage>(stage: &Mutex<Option<S>>, done: &Mutex<Vec<S::Output>>, job: S::Job) {
     let mut guard = stage.lock().expect("worker stage lock poisoned");
     if let Some(stage) = guard.as_mut() {
         let mut done = done.lock().expect("worker outputs lock poisoned");
@@ -311,7 +307,11 @@ mod tests {
             outputs.extend(rest);
             assert_eq!(outputs, vec![0, 2, 4, 6, 8], "{execution:?}");
             // On a thread the stage saw itself counted among the pending jobs.
-            let expected = if execution == Execution::Threads { 5 } else { 0 };
+            let expected = if execution == Execution::Threads {
+                5
+            } else {
+                0
+            };
             assert_eq!(stage.seen_pending.len(), expected);
             assert!(stage.seen_pending.iter().all(|&p| p >= 1));
         }

@@ -1,0 +1,352 @@
+//! The tracker (ORB-SLAM2 §III-B/C, for RGB-D and stereo): the state machine
+//! NOT_INITIALISED / OK / LOST over a map it is handed. Initialisation from the first
+//! frame with enough depth; a constant-velocity motion model with a projection search
+//! against the last frame, else brute-force matching against the reference keyframe;
+//! local-map tracking; pose-only optimisation after each search ([`search`], [`pose`]);
+//! the keyframe decision and new map points from depth ([`keyframes`]); relocalisation
+//! by EPnP RANSAC after a loss ([`relocalise`]); when relocalisation keeps failing, a
+//! new map segment (ORB-SLAM3's Atlas: a new map, merged when a loop connects it). The
+//! DOP model's per-frame part is [`moving`].
+//!
+//! The map is shared with local mapping, which may run in its own thread: searches and
+//! pose optimisation hold the map's read lock; only the counters and a new keyframe
+//! take the write lock. Feature extraction happens before, without it.
+
+pub mod keyframes;
+mod moving;
+mod pose;
+mod relocalise;
+mod search;
+#[cfg(test)]
+mod tests;
+
+use std::time::Instant;
+
+use crate::dop::tracks::FollowedObjects;
+use crate::dop::DopConfig;
+use crate::features::ScalePyramid;
+use crate::frame::Frame;
+use crate::geometry::se3::{self, Se3};
+use crate::geometry::stereo_camera::StereoCamera;
+use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};
+use crate::tracking::params::TrackerConfig;
+use crate::tracking::report::{FrameObservation, FrameReport, PoseEstimate, Reject, TrackingState};
+use moving::geometric_check;
+use search::LocalSearch;
+
+/// The last tracked frame, kept for the motion model.
+struct LastFrame {
+    frame: Frame,
+    camera_from_world: Se3,
+    points: Vec<Option<MapPointKey>>,
+}
+
+/// Tracking against a growing map (see the module doc).
+pub struct Tracker {
+    config: TrackerConfig,
+    camera: StereoCamera,
+    pyramid: ScalePyramid,
+    state: TrackingState,
+    last: Option<LastFrame>,
+    velocity: Option<Se3>,
+    reference: Option<KeyFrameKey>,
+    frames_since_keyframe: usize,
+    /// The id of the keyframe this tracker made last (its points are on probation).
+    newest_keyframe_id: usize,
+    /// The active map segment, the number of segments started, and since when
+    /// (timestamp) tracking is lost.
+    segment: usize,
+    segments: usize,
+    lost_since: Option<f64>,
+    width: f32,
+    height: f32,
+    /// The DOP model, when on: dynamic keypoints and map points stay out of pose
+    /// estimation and new points.
+    dop: Option<DopConfig>,
+    /// The objects the DOP model follows, as of the latest detection (handed over by
+    /// the caller after each one): with `dop.track_frames`, every frame sees their
+    /// predicted boxes.
+    followed: Option<FollowedObjects>,
+}
+
+/// Timers of one frame.
+#[derive(Default)]
+struct Timing {
+    matching: f64,
+    optimisation: f64,
+}
+
+impl Tracker {
+    pub fn new(
+        config: TrackerConfig,
+        camera: StereoCamera,
+        pyramid: ScalePyramid,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        Self {
+            config,
+            camera,
+            pyramid,
+            state: TrackingState::NotInitialised,
+            last: None,
+            velocity: None,
+            reference: None,
+            frames_since_keyframe: 0,
+            newest_keyframe_id: usize::MAX,
+            segment: 0,
+            segments: 0,
+            lost_since: None,
+            width: width as f32,
+            height: height as f32,
+            dop: None,
+            followed: None,
+        }
+    }
+
+    /// Turns the DOP model on: dynamic keypoints and map points stay out of pose
+    /// estimation and new points.
+    pub fn with_dop(mut self, dop: DopConfig) -> Self {
+        self.dop = Some(dop);
+        self
+    }
+
+    /// The DOP model, when on.
+    pub fn dop(&self) -> Option<&DopConfig> {
+        self.dop.as_ref()
+    }
+
+    /// The objects the DOP model follows, as of the latest detection.
+    pub fn set_followed(&mut self, followed: FollowedObjects) {
+        self.followed = Some(followed);
+    }
+
+    pub fn state(&self) -> TrackingState {
+        self.state
+    }
+
+    /// The last tracked frame (with its moving probabilities).
+    pub fn last_frame(&self) -> Option<&Frame> {
+        self.last.as_ref().map(|l| &l.frame)
+    }
+
+    /// Tracks one frame against `shared`; a new keyframe is returned in the report for
+    /// local mapping. `mapping_idle` says whether local mapping has caught up (always
+    /// in deterministic mode); while it has not, a keyframe is only made when tracking
+    /// gets weak.
+    pub fn track(
+        &mut self,
+        shared: &SharedMap,
+        mut frame: Frame,
+        mapping_idle: bool,
+    ) -> FrameReport {
+        let mut timing = Timing::default();
+        let mut report = FrameReport::start(&frame, self.state, self.segment);
+        if self.state == TrackingState::NotInitialised {
+            let mut map = shared.write().expect("map lock poisoned");
+            self.start_segment(&mut map, frame, Se3::identity(), &mut report);
+            return report;
+        }
+        let map = shared.read().expect("map lock poisoned");
+        // Local mapping may have culled the reference keyframe: take the segment's newest.
+        if self
+            .reference
+            .is_some_and(|k| !map.keyframes.contains_key(k))
+        {
+            self.reference = map.newest_of_segment(self.segment);
+        }
+        let found = if self.state == TrackingState::Ok {
+            self.track_motion_model(&map, &frame, &mut timing)
+                .or_else(|_| self.track_reference_keyframe(&map, &frame, &mut timing))
+        } else {
+            self.relocalise(&map, &frame, &mut timing)
+        };
+        let mut seen = LocalSearch::default();
+        let tracked = found
+            .and_then(|found| self.track_local_map(&map, &frame, found, &mut seen, &mut timing));
+        drop(map);
+        let mut map = shared.write().expect("map lock poisoned");
+        self.count_visibility(&mut map, &seen.visible, tracked.as_ref().ok());
+        if let (Ok(estimate), Some(dop)) = (&tracked, &self.dop) {
+            if dop.geometric {
+                let checks = self.consistency(
+                    &map,
+                    &frame,
+                    &estimate.camera_from_world,
+                    &seen.candidates,
+                    &estimate.matches,
+                );
+                (report.geometric_raised, report.geometric_lowered) =
+                    geometric_check(dop, &mut map, &checks, frame.timestamp);
+            }
+        }
+        report.matching_ms = timing.matching;
+        report.optimisation_ms = timing.optimisation;
+        match tracked {
+            Err(reject) => self.lose(&mut map, frame, reject, &mut report),
+            Ok(estimate) => {
+                report.dynamic_map_points = seen.dynamic;
+                if let Some(dop) = &self.dop {
+                    let start = Instant::now();
+                    frame.moving = self.moving_probabilities(
+                        dop,
+                        &map,
+                        &frame,
+                        &estimate.camera_from_world,
+                        &estimate.matches,
+                    );
+                    report.dynamic_keypoints =
+                        frame.moving.iter().filter(|p| dop.removed(**p)).count();
+                    report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
+                }
+                self.accept(&mut map, frame, estimate, mapping_idle, &mut report);
+            }
+        }
+        report
+    }
+
+    /// Counters for map point culling: predicted visible here, found as an inlier.
+    fn count_visibility(
+        &self,
+        map: &mut Map,
+        visible: &[MapPointKey],
+        tracked: Option<&PoseEstimate>,
+    ) {
+        for key in visible {
+            if let Some(p) = map.points.get_mut(*key) {
+                p.visible += 1;
+            }
+        }
+        if let Some(estimate) = tracked {
+            for key in estimate.matches.iter().flatten() {
+                if let Some(p) = map.points.get_mut(*key) {
+                    p.found += 1;
+                }
+            }
+        }
+    }
+
+    /// The frame was not tracked: LOST; after `new_map_after_seconds` of it, a new map
+    /// segment starts at the last tracked pose.
+    fn lose(&mut self, map: &mut Map, frame: Frame, reject: Reject, report: &mut FrameReport) {
+        self.state = TrackingState::Lost;
+        self.velocity = None;
+        report.state = TrackingState::Lost;
+        report.lost = Some(reject);
+        let since = *self.lost_since.get_or_insert(frame.timestamp);
+        if frame.timestamp - since >= self.config.new_map_after_seconds {
+            if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
+                self.start_segment(map, frame, last, report);
+            }
+        }
+    }
+
+    /// The frame was tracked at `estimate`: OK, the report's pose observations, the
+    /// motion model, the keyframe decision; the frame becomes the last frame.
+    fn accept(
+        &mut self,
+        map: &mut Map,
+        frame: Frame,
+        estimate: PoseEstimate,
+        mapping_idle: bool,
+        report: &mut FrameReport,
+    ) {
+        let PoseEstimate {
+            camera_from_world: pose,
+            matches: points,
+            inliers,
+        } = estimate;
+        self.lost_since = None;
+        self.state = TrackingState::Ok;
+        report.state = TrackingState::Ok;
+        report.segment = self.segment;
+        report.inliers = inliers;
+        report.matches = points.iter().filter(|p| p.is_some()).count();
+        report.pose_observations = points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, k)| {
+                let key = k.filter(|&k| map.points.get(k).is_some_and(|p| !self.excluded(p)))?;
+                let keypoint = &frame.keypoints[i];
+                Some(FrameObservation {
+                    point: key,
+                    keypoint: i as u32,
+                    x: keypoint.x,
+                    y: keypoint.y,
+                    right_u: frame.right_u[i],
+                    level: keypoint.level,
+                })
+            })
+            .collect();
+        if let Some(last) = &self.last {
+            self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
+        }
+        self.frames_since_keyframe += 1;
+        let (pose, points) =
+            if self.need_keyframe(map, &frame, &pose, &points, inliers, mapping_idle) {
+                self.insert_keyframe(map, &frame, pose, points, false);
+                let key = self.reference.expect("just inserted");
+                report.keyframe = true;
+                report.new_keyframe = Some(key);
+                let keyframe = &map.keyframes[key];
+                (keyframe.camera_from_world, keyframe.map_points.clone())
+            } else {
+                (pose, points)
+            };
+        report.camera_from_world = Some(pose);
+        report.reference = self.reference.and_then(|k| {
+            let keyframe = map.keyframes.get(k)?;
+            Some((k, pose * keyframe.world_from_camera()))
+        });
+        self.last = Some(LastFrame {
+            frame,
+            camera_from_world: pose,
+            points,
+        });
+    }
+
+    /// Starts a map segment (the first, or a new one after tracking stayed lost) with
+    /// `frame` as its first keyframe at `camera_from_world`, when the frame has enough
+    /// keypoints with depth.
+    fn start_segment(
+        &mut self,
+        map: &mut Map,
+        frame: Frame,
+        camera_from_world: Se3,
+        report: &mut FrameReport,
+    ) {
+        let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
+        if with_depth < self.config.min_initial_points {
+            return;
+        }
+        self.segment = self.segments;
+        self.segments += 1;
+        self.insert_keyframe(
+            map,
+            &frame,
+            camera_from_world,
+            vec![None; frame.len()],
+            true,
+        );
+        report.keyframe = true;
+        report.new_keyframe = self.reference;
+        report.state = TrackingState::Ok;
+        report.lost = None;
+        report.segment = self.segment;
+        report.camera_from_world = Some(camera_from_world);
+        report.reference = self.reference.map(|k| (k, Se3::identity()));
+        report.inliers = with_depth;
+        self.state = TrackingState::Ok;
+        self.velocity = None;
+        self.lost_since = None;
+        let points = self
+            .reference
+            .and_then(|k| map.keyframes.get(k))
+            .map_or_else(Vec::new, |kf| kf.map_points.clone());
+        self.last = Some(LastFrame {
+            frame,
+            camera_from_world,
+            points,
+        });
+    }
+}

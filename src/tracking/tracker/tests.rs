@@ -1,0 +1,230 @@
+//! The tracker's own tests (private state: the DOP gate in the pose, the keyframe
+//! decision with waiting points, the geometric check).
+
+use super::moving::geometric_check;
+use super::*;
+use crate::dop::DopConfig;
+use crate::geometry::camera::PinholeCamera;
+use crate::geometry::se3::Se3;
+use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
+use nalgebra::Vector3;
+
+fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
+    let mut map = Map::default();
+    let keys = (0..n)
+        .map(|_| {
+            map.points.insert(MapPoint::new(
+                Vector3::z(),
+                [0; 4],
+                Vector3::z(),
+                (0.1, 10.0),
+                0,
+            ))
+        })
+        .collect();
+    (map, keys)
+}
+
+/// Verdicts: the first `outliers` points inconsistent, the others consistent.
+fn checks(keys: &[MapPointKey], outliers: usize) -> Vec<(MapPointKey, bool)> {
+    keys.iter()
+        .enumerate()
+        .map(|(i, k)| (*k, i >= outliers))
+        .collect()
+}
+
+#[test]
+fn geometric_check_raises_points_that_stay_outliers() {
+    let dop = DopConfig::default();
+    let (mut map, keys) = map_with_points(10);
+    // Points 0 and 1 are outliers, the rest inliers.
+    assert_eq!(
+        geometric_check(&dop, &mut map, &checks(&keys, 2), 0.0),
+        (0, 0)
+    );
+    assert_eq!(map.points[keys[0]].consistency.outlier_run, 1);
+    // The second frame in a row raises them: 0.5 -> 0.65.
+    assert_eq!(
+        geometric_check(&dop, &mut map, &checks(&keys, 2), 0.1),
+        (2, 0)
+    );
+    assert!((map.points[keys[0]].moving - 0.65).abs() < 1e-6);
+    assert!((map.points[keys[2]].moving - 0.5).abs() < 1e-6);
+    // Now dynamic, they are not raised again.
+    assert_eq!(
+        geometric_check(&dop, &mut map, &checks(&keys, 2), 0.2),
+        (0, 0)
+    );
+    assert_eq!(
+        geometric_check(&dop, &mut map, &checks(&keys, 2), 0.3),
+        (0, 0)
+    );
+    // A consistent frame resets the count.
+    let (mut map, keys) = map_with_points(10);
+    geometric_check(&dop, &mut map, &checks(&keys, 1), 0.0);
+    geometric_check(&dop, &mut map, &checks(&keys, 0), 0.1);
+    assert_eq!(map.points[keys[0]].consistency.outlier_run, 0);
+}
+
+#[test]
+fn geometric_check_skips_frames_where_the_pose_is_in_doubt() {
+    let dop = DopConfig::default();
+    let (mut map, keys) = map_with_points(10);
+    // 4 of 10 outliers: above geometric_max_outliers (0.35).
+    for n in 0..3 {
+        assert_eq!(
+            geometric_check(&dop, &mut map, &checks(&keys, 4), f64::from(n)),
+            (0, 0)
+        );
+    }
+    assert!(keys
+        .iter()
+        .all(|k| map.points[*k].consistency == Default::default()));
+    // Dynamic points do not count towards the share: 4 dynamic outliers of 10 do
+    // not put the pose in doubt.
+    for k in &keys[..4] {
+        map.points[*k].moving = 0.9;
+    }
+    geometric_check(&dop, &mut map, &checks(&keys, 4), 4.0);
+    assert_eq!(map.points[keys[9]].consistency.inlier_run, 1);
+}
+
+/// Real time: the points of a keyframe whose detection has not come back take no
+/// part in the pose while enough others remain. Here they sit on a person who
+/// moved 10 cm and outnumber the room's points; held out, the pose is the room's.
+#[test]
+fn points_awaiting_their_detection_stay_out_of_the_pose() {
+    let pinhole = PinholeCamera::tum_fr3();
+    let camera = StereoCamera::new(&pinhole, 40.0);
+    let mut tracker = Tracker::new(
+        TrackerConfig::default(),
+        camera,
+        ScalePyramid::new(8, 1.2),
+        pinhole.width,
+        pinhole.height,
+    );
+    tracker.dop = Some(DopConfig::default());
+    let (room, person) = (80, 120);
+    let mut map = Map::default();
+    let (mut keypoints, mut keys) = (Vec::new(), Vec::new());
+    for i in 0..room + person {
+        let (x, y) = (20.0 + (i % 20) as f64 * 30.0, 20.0 + (i / 20) as f64 * 40.0);
+        let z = 2.0 + (i % 7) as f64 * 0.3;
+        let seen = pinhole.unproject(&nalgebra::Vector2::new(x, y), z);
+        // The person's points were made where the person stood a frame ago.
+        let (position, first) = if i < room {
+            (seen, 0)
+        } else {
+            (seen + Vector3::new(0.1, 0.0, 0.0), 7)
+        };
+        keys.push(Some(map.points.insert(MapPoint::new(
+            position,
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            first,
+        ))));
+        keypoints.push(crate::features::KeyPoint {
+            x: x as f32,
+            y: y as f32,
+            ..Default::default()
+        });
+    }
+    let n = keypoints.len();
+    let frame = Frame::from_parts(
+        1,
+        0.1,
+        keypoints,
+        vec![[0; 4]; n],
+        vec![0.0; n],
+        vec![-1.0; n],
+        (pinhole.width, pinhole.height),
+    );
+    let error_with = |tracker: &Tracker, map: &Map, keys: &[Option<MapPointKey>]| {
+        let estimate =
+            tracker.optimise(map, &frame, &Se3::identity(), keys, &mut Timing::default());
+        estimate.camera_from_world.translation.vector.norm()
+    };
+    let mixed = error_with(&tracker, &map, &keys);
+    assert!(mixed > 0.02, "the person pulls the pose: {mixed}");
+    map.awaiting_detection.insert(7);
+    assert!(error_with(&tracker, &map, &keys) < 1e-3);
+    // With too few other points the awaiting ones join, but only those that agree
+    // with the pose the others give on their own: not the person's.
+    tracker.config.held_out_min_points = room + 1;
+    assert!(error_with(&tracker, &map, &keys) < 1e-3);
+    // With too few for a pose of their own, all join.
+    let few: Vec<Option<MapPointKey>> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, k)| k.filter(|_| i < 10 || i >= room))
+        .collect();
+    map.awaiting_detection.clear();
+    let few_mixed = error_with(&tracker, &map, &few);
+    map.awaiting_detection.insert(7);
+    assert!((error_with(&tracker, &map, &few) - few_mixed).abs() < 1e-9);
+    assert!(few_mixed > 0.02, "{few_mixed}");
+}
+
+/// A still camera whose reference keyframe made 400 points on a person the
+/// detector has not reported yet: the frame tracks the room's 100. Counted, those
+/// 400 make the frame look very weak (a keyframe, which makes more such points);
+/// while they wait for their detection they do not count.
+#[test]
+fn points_that_wait_do_not_make_keyframes() {
+    let pinhole = PinholeCamera::tum_fr3();
+    let mut tracker = Tracker::new(
+        TrackerConfig::default(),
+        StereoCamera::new(&pinhole, 40.0),
+        ScalePyramid::new(8, 1.2),
+        pinhole.width,
+        pinhole.height,
+    );
+    tracker.dop = Some(DopConfig::default());
+    let (room, person) = (100, 400);
+    let n = room + person;
+    let frame = Frame::blank(n, (pinhole.width, pinhole.height));
+    let mut map = Map::default();
+    let mut keyframe = KeyFrame::new(frame.clone(), Se3::identity());
+    for (i, slot) in keyframe.map_points.iter_mut().enumerate() {
+        let first = if i < room { 0 } else { 7 };
+        *slot = Some(map.points.insert(MapPoint::new(
+            Vector3::z(),
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            first,
+        )));
+    }
+    let tracked: Vec<Option<MapPointKey>> = (0..n)
+        .map(|i| keyframe.map_points[i].filter(|_| i < room))
+        .collect();
+    tracker.reference = Some(map.add_keyframe(keyframe));
+    tracker.frames_since_keyframe = 5;
+    let need =
+        |map: &Map| tracker.need_keyframe(map, &frame, &Se3::identity(), &tracked, room, true);
+    assert!(need(&map), "100 of 500 points: very weak");
+    map.awaiting_detection.insert(7);
+    assert!(!need(&map));
+}
+
+#[test]
+fn dynamic_points_that_stay_consistent_are_lowered_back_into_the_pose() {
+    let dop = DopConfig::default();
+    let (mut map, keys) = map_with_points(10);
+    // Two points on a parked car: detected, dynamic, but they never move.
+    for k in &keys[..2] {
+        map.points[*k].moving = 0.75;
+    }
+    let mut lowered = 0;
+    for n in 0..30 {
+        lowered += geometric_check(&dop, &mut map, &checks(&keys, 0), f64::from(n) * 0.1).1;
+    }
+    assert!(lowered > 0);
+    assert!(keys[..2]
+        .iter()
+        .all(|k| !dop.removed(map.points[*k].moving)));
+    assert!(keys[..2]
+        .iter()
+        .all(|k| map.points[*k].consistency.verified_static(&dop)));
+}
