@@ -104,7 +104,7 @@ impl RunFigures {
             ),
             false => None,
         };
-        let t = &report.totals;
+        let (t, detection) = report.totals(&run.report())?;
         let removed: usize = report.frames.iter().map(|f| f.dynamic_keypoints).sum();
         Ok(Self {
             frames: t.frames,
@@ -115,8 +115,8 @@ impl RunFigures {
             median_tracking_ms: t.median_tracking_ms,
             mean_tracking_ms: t.mean_tracking_ms,
             keypoints_removed_per_frame: removed as f64 / t.tracked.max(1) as f64,
-            map_points_removed: report.detection.map_points_removed,
-            loops: report.global.map_or(0, |g| g.loops.len()),
+            map_points_removed: detection.map_points_removed,
+            loops: report.global.as_ref().map_or(0, |g| g.loops.len()),
             map: dense.and_then(|d| d.truth).map(|truth| MapFigures {
                 dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),
                 ..MapFigures::default()

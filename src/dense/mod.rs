@@ -495,7 +495,6 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     if fuse_tsdf && config.carve && config.allocate_first {
         allocate_blocks(&mut volume, inputs, &chosen)?;
     }
-    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut report = DenseReport {
         masking: Some(inputs.masking),
@@ -504,54 +503,60 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         ..DenseReport::default()
     };
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
-    let mut integration_ms = Vec::with_capacity(chosen.len());
-    let (mut masked, mut pixels) = (0u64, 0u64);
-    for group in groups(&chosen) {
-        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
-        let loaded = load_group(inputs, group, sequence_frame)?;
-        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
-            let (timestamp, depth, rgb) = frame?;
-            let mask = mask_source.mask(timestamp, &depth, &pose);
-            if let Some(m) = &mask {
-                masked += m.iter().filter(|&&x| x).count() as u64;
-            }
-            pixels += depth.metres.len() as u64;
-            let input = FrameInput {
-                depth: &depth,
-                colour: &rgb,
-                dynamic: mask.as_deref(),
-                camera_from_world: &pose,
-            };
-            if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
-                let path = dir.join(format!("{:.6}.png", timestamp));
-                if let Some(ids) = crate::io::image_files::read_instance_mask(&path) {
-                    count_truth(truth, ids.as_raw(), &input, config.max_depth);
-                }
-            }
-            let start = Instant::now();
-            if fuse_tsdf {
-                volume.integrate(&input);
-            }
-            integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
-            if cloud_on && is_keyframe {
-                cloud.add(&input);
-                report.keyframes_in_cloud += 1;
-            }
-            report.frames_fused += 1;
-            progress.inc(1);
-        }
-    }
-    progress.finish_and_clear();
+    let fused = fuse_frames(
+        inputs,
+        config,
+        &chosen,
+        &mask_source,
+        (fuse_tsdf.then_some(&mut volume), cloud_on.then_some(&mut cloud)),
+        &mut truth,
+    )?;
+    (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
+    let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
     report.median_integration_ms = crate::eval::stats::median(&mut integration_ms);
     report.tsdf_blocks = volume.blocks.len();
     report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;
+    let maps = Maps {
+        volume,
+        cloud: cloud_on.then_some(cloud),
+    };
+    write_maps(&out, inputs.masking, config, maps, &trajectory, &mut report)?;
+    if let Some(mut t) = truth {
+        t.dynamic_removed = 1.0 - t.mover_pixels_fused as f64 / t.mover_pixels.max(1) as f64;
+        t.static_kept = t.static_pixels_fused as f64 / t.static_pixels.max(1) as f64;
+        report.truth = Some(t);
+    }
+    report.total_s = started.elapsed().as_secs_f64();
+    report.peak_memory_mib = crate::memory::peak_resident_mib();
+    let json = serde_json::to_string_pretty(&report).expect("report serialises");
+    write_atomic(&out.dense_report(), json.as_bytes())?;
+    Ok(report)
+}
+
+/// The fused volume and the keyframe cloud (when one is made).
+struct Maps {
+    volume: TsdfVolume,
+    cloud: Option<CloudBuilder>,
+}
+
+/// Writes the mesh (marching cubes over the volume, when it was fused), the point
+/// cloud (carved by the volume when asked) and the pictures into `out`.
+fn write_maps(
+    out: &RunDir,
+    masking: Mode,
+    config: &DenseConfig,
+    maps: Maps,
+    trajectory: &Trajectory,
+    report: &mut DenseReport,
+) -> Result<(), IoError> {
     let comment = format!(
         "dopslam dense map, masking {:?}, voxel {} m",
-        inputs.masking, config.voxel
+        masking, config.voxel
     );
     let mut mesh_or_cloud = None;
-    if fuse_tsdf {
+    let Maps { volume, cloud } = maps;
+    if config.fuses_tsdf() {
         let start = Instant::now();
         let mesh = marching_cubes::extract(&volume);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -567,7 +572,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         }
         mesh_or_cloud = Some(mesh);
     }
-    if cloud_on {
+    if let Some(cloud) = cloud {
         let start = Instant::now();
         let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
         let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
@@ -607,16 +612,74 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             }
         }
     }
-    if let Some(mut t) = truth {
-        t.dynamic_removed = 1.0 - t.mover_pixels_fused as f64 / t.mover_pixels.max(1) as f64;
-        t.static_kept = t.static_pixels_fused as f64 / t.static_pixels.max(1) as f64;
-        report.truth = Some(t);
+    Ok(())
+}
+
+/// What [`fuse_frames`] did.
+struct Fused {
+    frames: usize,
+    keyframes_in_cloud: usize,
+    masked: u64,
+    pixels: u64,
+    integration_ms: Vec<f64>,
+}
+
+/// Fuses the `chosen` frames in order, masked: into the volume (when given) and, the
+/// keyframes, into the cloud (when given); counts the fused pixels against the truth
+/// masks.
+fn fuse_frames(
+    inputs: &DenseInputs,
+    config: &DenseConfig,
+    chosen: &[(usize, Se3, bool)],
+    mask_source: &MaskSource,
+    (mut volume, mut cloud): (Option<&mut TsdfVolume>, Option<&mut CloudBuilder>),
+    truth: &mut Option<FusedTruth>,
+) -> Result<Fused, IoError> {
+    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
+    let mut fused = Fused {
+        frames: 0,
+        keyframes_in_cloud: 0,
+        masked: 0,
+        pixels: 0,
+        integration_ms: Vec::with_capacity(chosen.len()),
+    };
+    for group in groups(chosen) {
+        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
+        let loaded = load_group(inputs, group, sequence_frame)?;
+        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
+            let (timestamp, depth, rgb) = frame?;
+            let mask = mask_source.mask(timestamp, &depth, &pose);
+            if let Some(m) = &mask {
+                fused.masked += m.iter().filter(|&&x| x).count() as u64;
+            }
+            fused.pixels += depth.metres.len() as u64;
+            let input = FrameInput {
+                depth: &depth,
+                colour: &rgb,
+                dynamic: mask.as_deref(),
+                camera_from_world: &pose,
+            };
+            if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
+                let path = dir.join(format!("{:.6}.png", timestamp));
+                if let Some(ids) = crate::io::image_files::read_instance_mask(&path) {
+                    count_truth(truth, ids.as_raw(), &input, config.max_depth);
+                }
+            }
+            let start = Instant::now();
+            if let Some(volume) = volume.as_deref_mut() {
+                volume.integrate(&input);
+            }
+            fused.integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            if let (Some(cloud), true) = (cloud.as_deref_mut(), is_keyframe) {
+                cloud.add(&input);
+                fused.keyframes_in_cloud += 1;
+            }
+            fused.frames += 1;
+            progress.inc(1);
+        }
     }
-    report.total_s = started.elapsed().as_secs_f64();
-    report.peak_memory_mib = crate::memory::peak_resident_mib();
-    let json = serde_json::to_string_pretty(&report).expect("report serialises");
-    write_atomic(&out.dense_report(), json.as_bytes())?;
-    Ok(report)
+    progress.finish_and_clear();
+    Ok(fused)
 }
 
 /// The first pass of `allocate_first`: every chosen frame's blocks, without masks

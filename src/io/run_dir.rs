@@ -148,19 +148,27 @@ impl RunDir {
     }
 }
 
-/// The parts of a run's `report.json` that other commands read.
+/// The parts of a run's `report.json` that other commands read: what `dopslam fuse`
+/// needs may be all a report has (an older run's); the totals the batch reads are
+/// there in every finished run ([`RunSummary::totals`]).
 #[derive(Debug, Clone, Deserialize)]
 pub struct RunSummary {
-    pub sequence: String,
+    #[serde(default)]
+    pub sequence: Option<String>,
     /// The sequence folder the run tracked, when known.
     #[serde(default)]
     pub sequence_path: Option<PathBuf>,
-    /// How moving objects were treated: `Off`, `MaskBoxes` or `Dop`.
+    /// How moving objects were treated: `off`, `mask-boxes` or `dop` (empty when the
+    /// report does not say).
+    #[serde(default)]
     pub mode: String,
     #[serde(default)]
     pub setup: Option<SetupSummary>,
-    pub totals: TotalsSummary,
-    pub detection: DetectionSummary,
+    #[serde(default)]
+    totals: Option<TotalsSummary>,
+    #[serde(default)]
+    detection: Option<DetectionSummary>,
+    #[serde(default)]
     pub frames: Vec<FrameSummary>,
     #[serde(default)]
     pub global: Option<GlobalSummary>,
@@ -203,6 +211,18 @@ impl RunSummary {
     pub fn first_frame_hash(&self) -> Option<&str> {
         self.setup.as_ref()?.first_frame_hash.as_deref()
     }
+
+    /// The run's totals and detection totals; an error naming `report` when the report
+    /// has none (not a finished dopslam run).
+    pub fn totals(&self, report: &Path) -> Result<(&TotalsSummary, &DetectionSummary), IoError> {
+        match (&self.totals, &self.detection) {
+            (Some(totals), Some(detection)) => Ok((totals, detection)),
+            _ => Err(IoError::invalid(
+                report,
+                "not a dopslam run report: no totals (an unfinished or foreign run)",
+            )),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -225,9 +245,15 @@ mod tests {
         let run = RunDir::new(&dir);
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("report.json"), "{e}");
-        std::fs::write(run.report(), "{\"hello\": 1}").unwrap();
+        std::fs::write(run.report(), "[1, 2]").unwrap();
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("not a dopslam run report"), "{e}");
+        // What fuse needs may be all there is; the totals are asked for by name.
+        std::fs::write(run.report(), "{\"mode\": \"dop\"}").unwrap();
+        let summary = run.read_summary().unwrap();
+        assert_eq!(summary.mode, "dop");
+        let e = summary.totals(&run.report()).unwrap_err().to_string();
+        assert!(e.contains("report.json") && e.contains("no totals"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

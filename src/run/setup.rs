@@ -18,6 +18,8 @@ use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
+use crate::system::worker::Execution;
+use crate::system::SystemSetup;
 
 /// Everything a run is set up with (see the module doc).
 pub struct Setup {
@@ -68,6 +70,22 @@ impl Setup {
             extractor,
             vocabulary,
         })
+    }
+
+    /// What the online system is built from, its helpers run as `execution` says and
+    /// its detections cached in `detection_cache`.
+    pub fn system(&self, execution: Execution, detection_cache: PathBuf) -> SystemSetup<'_> {
+        SystemSetup {
+            config: &self.config,
+            camera: self.camera,
+            pinhole: self.calibration.camera,
+            pyramid: self.extractor.pyramid.clone(),
+            mode: self.mode,
+            alpha: self.alpha,
+            close_depth: self.close_depth,
+            execution,
+            detection_cache,
+        }
     }
 }
 

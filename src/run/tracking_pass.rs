@@ -18,7 +18,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::pacing::{Pace, Pacer};
 use crate::system::worker::Execution;
-use crate::system::{Helpers, System, SystemSetup, Tracked};
+use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
 use crate::tracking::TrackingState;
 
@@ -45,22 +45,11 @@ pub fn tracking_pass(
         .map_err(|e| RunError::Input(e.to_string()))?
         .map(|d| (d, config.detector.latency()));
     let execution = Execution::of(options.deterministic);
-    let system_setup = SystemSetup {
-        config,
-        camera: setup.camera,
-        pinhole: setup.calibration.camera,
-        pyramid: setup.extractor.pyramid.clone(),
-        mode: setup.mode,
-        alpha: setup.alpha,
-        close_depth: setup.close_depth,
-        execution,
-        detection_cache: run.detections(),
-    };
     let helpers = Helpers {
         vocabulary: setup.vocabulary.clone(),
         detector,
     };
-    let mut system = System::start(&system_setup, helpers);
+    let mut system = System::start(&setup.system(execution, run.detections()), helpers);
     let total = options
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));
