@@ -51,19 +51,23 @@ fn module_of(src: &Path, file: &Path) -> Module {
     parts
 }
 
-/// The code of a file without its test module and comments.
+/// The code of a file without its test module (`#[cfg(test)]` over `mod tests {`, of
+/// any visibility) and comments.
 fn code(text: &str) -> String {
-    let text = match text.find("#[cfg(test)]\nmod tests {") {
-        Some(i) => &text[..i],
-        None => text,
-    };
-    text.lines()
-        .map(|line| match line.find("//") {
+    let mut kept = Vec::new();
+    let mut lines = text.lines().peekable();
+    while let Some(line) = lines.next() {
+        let test_module = line.trim() == "#[cfg(test)]"
+            && lines.peek().is_some_and(|next| next.trim_end().ends_with("mod tests {"));
+        if test_module {
+            break;
+        }
+        kept.push(match line.find("//") {
             Some(i) => &line[..i],
             None => line,
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
+        });
+    }
+    kept.join("\n")
 }
 
 /// The paths after each occurrence of `prefix` (`a::b::c` for `crate::a::b::c`).
@@ -225,8 +229,8 @@ fn lower_floors_never_import_higher_ones() {
 fn there_are_no_import_circles() {
     let edges = references(&src());
     // A sanity check that references are found at all.
-    let run: Module = vec!["run".into()];
-    assert!(edges[&run].contains(&vec!["system".to_string()]));
+    let pass: Module = vec!["run".into(), "tracking_pass".into()];
+    assert!(edges[&pass].contains(&vec!["system".to_string()]), "{:?}", edges[&pass]);
     let mut found = Vec::new();
     for (folder, graph) in sibling_graphs(&edges) {
         for circle in circles(&graph) {
