@@ -5,10 +5,12 @@
 //! and the totals of the report; it applies each detection that comes back to its
 //! keyframe's map points ([`keyframes`]).
 //!
-//! What the tracker does with the probabilities frame by frame (propagation,
-//! expansion, the geometric check) stays in [`crate::tracking`], which receives the
-//! followed objects from here after each detection.
+//! Each frame the tracker receives from here which points take part in its pose
+//! ([`frames::Participation`]: the model, the followed objects, the newest keyframe's
+//! probation); what it does with the probabilities frame by frame is in
+//! `tracking::tracker::moving`.
 
+pub mod frames;
 pub mod keyframes;
 
 use std::collections::{BTreeMap, HashMap};
@@ -24,6 +26,7 @@ use crate::dop::{DopConfig, Mode};
 use crate::eval::truth::{Classification, Recall};
 use crate::geometry::camera::PinholeCamera;
 use crate::map::{KeyFrameKey, Map};
+use frames::{Participation, Probation};
 use keyframes::{apply_detections, object_boxes, DynamicObjects};
 
 /// What the keyframe detector did over a run.
@@ -88,6 +91,9 @@ pub struct DynamicsConfig {
     /// Where each keyframe's detections are written (the run's detection cache,
     /// readable back with `source = "cache"`).
     pub cache: PathBuf,
+    /// Frames a keyframe's new points stay out of the pose (`[tracking]
+    /// probation_frames`; DOP mode only).
+    pub probation_frames: usize,
 }
 
 /// The DOP state of a run (see the module doc).
@@ -101,6 +107,10 @@ pub struct Dynamics {
     /// Keyframe ids of submitted jobs whose detection has not come back.
     awaited: Waiting,
     applied: Vec<Applied>,
+    /// The followed objects as of the latest detection (DOP mode).
+    followed: Option<FollowedObjects>,
+    /// The newest keyframe's id and the frames tracked since it.
+    newest_keyframe: Option<(usize, usize)>,
 }
 
 impl Dynamics {
@@ -113,6 +123,39 @@ impl Dynamics {
             milliseconds: Vec::new(),
             awaited: Waiting::default(),
             applied: Vec::new(),
+            followed: None,
+            newest_keyframe: None,
+        }
+    }
+
+    /// The DOP model, when on.
+    pub fn dop(&self) -> Option<&DopConfig> {
+        (self.config.mode == Mode::Dop).then_some(&self.config.dop)
+    }
+
+    /// Which points take part in the next frame's pose.
+    pub fn participation(&self) -> Participation<'_> {
+        let dop = self.dop();
+        Participation {
+            dop,
+            followed: self.followed.as_ref(),
+            probation: self.newest_keyframe.filter(|_| dop.is_some()).map(
+                |(keyframe_id, frames_since)| Probation {
+                    keyframe_id,
+                    frames_since,
+                    frames: self.config.probation_frames,
+                },
+            ),
+        }
+    }
+
+    /// After each frame: the probation clock restarts at a new keyframe (`id`) and
+    /// counts each other tracked frame.
+    pub fn after_frame(&mut self, new_keyframe_id: Option<usize>, tracked: bool) {
+        match (new_keyframe_id, self.newest_keyframe.as_mut()) {
+            (Some(id), _) => self.newest_keyframe = Some((id, 0)),
+            (None, Some((_, frames_since))) if tracked => *frames_since += 1,
+            _ => {}
         }
     }
 
@@ -134,12 +177,6 @@ impl Dynamics {
     /// How many keyframes went to the detector.
     pub fn submitted(&self) -> usize {
         self.totals.submitted
-    }
-
-    /// The objects the tracker's frames should see (DOP mode), as of the latest
-    /// detection.
-    pub fn followed(&self) -> Option<FollowedObjects> {
-        self.objects.as_ref().map(|o| o.followed(self.config.alpha))
     }
 
     /// What the detections applied since the last call did, for scoring.
@@ -178,6 +215,10 @@ impl Dynamics {
                     .errors
                     .push(format!("frame {}: {e}", outcome.id)),
             }
+        }
+        // Every frame from now on sees the followed objects.
+        if let Some(objects) = &self.objects {
+            self.followed = Some(objects.followed(self.config.alpha));
         }
     }
 
@@ -301,5 +342,39 @@ mod tests {
         assert_eq!(waiting.release(&outcome(12, false)), vec![5, 3, 4]);
         // An unknown job releases nothing; a detected one with no waiter nothing more.
         assert!(waiting.release(&outcome(13, false)).is_empty());
+    }
+
+    fn dynamics(mode: Mode) -> Dynamics {
+        let config = DynamicsConfig {
+            mode,
+            dop: DopConfig::default(),
+            alpha: 0.3,
+            dynamic_classes: vec!["person".into()],
+            cache: PathBuf::from("unused"),
+            probation_frames: 2,
+        };
+        Dynamics::new(config, PinholeCamera::tum_fr3())
+    }
+
+    #[test]
+    fn the_probation_clock_restarts_at_each_keyframe_and_counts_tracked_frames() {
+        let mut d = dynamics(Mode::Dop);
+        assert_eq!(d.participation().probation, None);
+        d.after_frame(Some(4), true);
+        let probation = |d: &Dynamics| {
+            d.participation()
+                .probation
+                .map(|p| (p.keyframe_id, p.frames_since))
+        };
+        assert_eq!(probation(&d), Some((4, 0)));
+        d.after_frame(None, true);
+        d.after_frame(None, false);
+        assert_eq!(probation(&d), Some((4, 1)), "a lost frame does not count");
+        d.after_frame(Some(5), true);
+        assert_eq!(probation(&d), Some((5, 0)));
+        // Without the model there is no probation and no gate.
+        let mut off = dynamics(Mode::Off);
+        off.after_frame(Some(4), true);
+        assert!(off.participation().probation.is_none() && off.participation().dop.is_none());
     }
 }

@@ -96,8 +96,7 @@ impl System {
         let config = setup.config;
         let map = SharedMap::default();
         let size = (setup.pinhole.width, setup.pinhole.height);
-        let dop = (setup.mode == Mode::Dop).then(|| config.dop.clone());
-        let mut tracker = Tracker::new(
+        let tracker = Tracker::new(
             config.tracking.clone(),
             setup.camera,
             setup.pyramid.clone(),
@@ -111,9 +110,8 @@ impl System {
             size,
             setup.close_depth,
         );
-        if let Some(dop) = dop {
-            mapper.moving_threshold = dop.removal_threshold;
-            tracker = tracker.with_dop(dop);
+        if setup.mode == Mode::Dop {
+            mapper.moving_threshold = config.dop.removal_threshold;
         }
         let moving_threshold = mapper.moving_threshold;
         let recognition = helpers.vocabulary.map(|vocabulary| {
@@ -151,6 +149,7 @@ impl System {
                 alpha: setup.alpha,
                 dynamic_classes: config.detector.dynamic_classes.clone(),
                 cache: setup.detection_cache.clone(),
+                probation_frames: config.tracking.probation_frames,
             },
             setup.pinhole,
         );
@@ -173,12 +172,12 @@ impl System {
 
     /// The keypoint budget for the next frame ([`Tracker::feature_budget`]).
     pub fn feature_budget(&self, n_features: usize) -> usize {
-        self.tracker.feature_budget(n_features)
+        self.tracker.feature_budget(n_features, self.dynamics.dop())
     }
 
     /// The DOP model, when on.
     pub fn dop(&self) -> Option<&DopConfig> {
-        self.tracker.dop()
+        self.dynamics.dop()
     }
 
     /// Frame `index` as tracked (with its moving probabilities), if tracking kept it.
@@ -197,14 +196,19 @@ impl System {
         started: Instant,
     ) -> (FrameReport, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
-        let report = self.tracker.track(&self.map, frame, self.mapping.is_idle());
+        let gate = self.dynamics.participation();
+        let report = self
+            .tracker
+            .track(&self.map, frame, &gate, self.mapping.is_idle());
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;
+        let tracked = report.state == TrackingState::Ok;
+        self.dynamics.after_frame(report.new_keyframe_id, tracked);
         if let Some(key) = report.new_keyframe {
             // Marked before local mapping sees the keyframe, whose BA leaves its points
             // out while they wait.
             let awaits = self.detection.is_some()
                 && self.execution == Execution::Threads
-                && self.tracker.dop().is_some();
+                && self.dynamics.dop().is_some();
             if self.detection.is_some() {
                 let mut map = self.map.write().expect("map lock poisoned");
                 self.dynamics.on_keyframe(&mut map, index, key, awaits);
@@ -249,10 +253,8 @@ impl System {
         }
         let mut map = self.map.write().expect("map lock poisoned");
         self.dynamics.receive(&mut map, outcomes);
-        if let Some(followed) = self.dynamics.followed() {
-            self.tracker.set_followed(followed);
-        }
-        self.tracker.refresh_moving(&map);
+        self.tracker
+            .refresh_moving(&map, &self.dynamics.participation());
     }
 
     /// Waits for the helpers (the detector's last outcomes are applied), then hands the

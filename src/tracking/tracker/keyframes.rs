@@ -5,6 +5,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::Tracker;
+use crate::dynamics::frames::Participation;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
 use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
@@ -62,8 +63,7 @@ impl Tracker {
     /// ([`KeyframePolicy`]); always when the reference keyframe is gone.
     pub(super) fn need_keyframe(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         pose: &Se3,
         points: &[Option<MapPointKey>],
         inliers: usize,
@@ -84,7 +84,7 @@ impl Tracker {
             .filter(|k| {
                 map.points
                     .get(**k)
-                    .is_some_and(|p| !self.excluded(p) && !self.awaiting(map, p))
+                    .is_some_and(|p| !gate.excluded(p) && !gate.awaiting(map, p))
             })
             .count();
         // Close points: tracked ones that take part in the pose, and untracked ones that
@@ -95,9 +95,9 @@ impl Tracker {
         for (i, z) in frame.depth.iter().enumerate() {
             if *z > 0.0 && *z < close {
                 match points[i].and_then(|k| map.points.get(k)) {
-                    Some(p) if !self.excluded(p) => tracked_close += 1,
+                    Some(p) if !gate.excluded(p) => tracked_close += 1,
                     Some(_) => {}
-                    None if !self.dynamic_keypoint(frame, i) => untracked_close += 1,
+                    None if !gate.dynamic_keypoint(frame, i) => untracked_close += 1,
                     None => {}
                 }
             }
@@ -129,8 +129,7 @@ impl Tracker {
     /// [`NEW_POINTS_AT_LEAST`] are made; all of them for a segment's first keyframe).
     pub(super) fn insert_keyframe(
         &mut self,
-        map: &mut Map,
-        frame: &Frame,
+        (map, frame, gate): (&mut Map, &Frame, &Participation),
         camera_from_world: Se3,
         points: Vec<Option<MapPointKey>>,
         first: bool,
@@ -148,7 +147,7 @@ impl Tracker {
         }
         let mut candidates: Vec<usize> = (0..frame.len())
             .filter(|&i| {
-                frame.depth[i] > 0.0 && points[i].is_none() && !self.dynamic_keypoint(frame, i)
+                frame.depth[i] > 0.0 && points[i].is_none() && !gate.dynamic_keypoint(frame, i)
             })
             .collect();
         candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
@@ -169,7 +168,6 @@ impl Tracker {
         }
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
-        self.newest_keyframe_id = id;
     }
 
     /// Camera-frame position of keypoint `i` from its depth.

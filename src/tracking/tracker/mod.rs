@@ -22,8 +22,7 @@ mod tests;
 
 use std::time::Instant;
 
-use crate::dop::tracks::FollowedObjects;
-use crate::dop::DopConfig;
+use crate::dynamics::frames::{geometric_check, Participation};
 use crate::features::ScalePyramid;
 use crate::frame::Frame;
 use crate::geometry::se3::{self, Se3};
@@ -31,7 +30,6 @@ use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};
 use crate::tracking::params::TrackerConfig;
 use crate::tracking::report::{FrameObservation, FrameReport, PoseEstimate, Reject, TrackingState};
-use moving::geometric_check;
 use search::LocalSearch;
 
 /// The last tracked frame, kept for the motion model.
@@ -51,8 +49,6 @@ pub struct Tracker {
     velocity: Option<Se3>,
     reference: Option<KeyFrameKey>,
     frames_since_keyframe: usize,
-    /// The id of the keyframe this tracker made last (its points are on probation).
-    newest_keyframe_id: usize,
     /// The active map segment, the number of segments started, and since when
     /// (timestamp) tracking is lost.
     segment: usize,
@@ -60,13 +56,6 @@ pub struct Tracker {
     lost_since: Option<f64>,
     width: f32,
     height: f32,
-    /// The DOP model, when on: dynamic keypoints and map points stay out of pose
-    /// estimation and new points.
-    dop: Option<DopConfig>,
-    /// The objects the DOP model follows, as of the latest detection (handed over by
-    /// the caller after each one): with `dop.track_frames`, every frame sees their
-    /// predicted boxes.
-    followed: Option<FollowedObjects>,
 }
 
 /// Timers of one frame.
@@ -93,32 +82,12 @@ impl Tracker {
             velocity: None,
             reference: None,
             frames_since_keyframe: 0,
-            newest_keyframe_id: usize::MAX,
             segment: 0,
             segments: 0,
             lost_since: None,
             width: width as f32,
             height: height as f32,
-            dop: None,
-            followed: None,
         }
-    }
-
-    /// Turns the DOP model on: dynamic keypoints and map points stay out of pose
-    /// estimation and new points.
-    pub fn with_dop(mut self, dop: DopConfig) -> Self {
-        self.dop = Some(dop);
-        self
-    }
-
-    /// The DOP model, when on.
-    pub fn dop(&self) -> Option<&DopConfig> {
-        self.dop.as_ref()
-    }
-
-    /// The objects the DOP model follows, as of the latest detection.
-    pub fn set_followed(&mut self, followed: FollowedObjects) {
-        self.followed = Some(followed);
     }
 
     pub fn state(&self) -> TrackingState {
@@ -131,20 +100,22 @@ impl Tracker {
     }
 
     /// Tracks one frame against `shared`; a new keyframe is returned in the report for
-    /// local mapping. `mapping_idle` says whether local mapping has caught up (always
-    /// in deterministic mode); while it has not, a keyframe is only made when tracking
-    /// gets weak.
+    /// local mapping. `gate` says which points take part (the DOP model's state, from
+    /// [`crate::dynamics`]). `mapping_idle` says whether local mapping has caught up
+    /// (always in deterministic mode); while it has not, a keyframe is only made when
+    /// tracking gets weak.
     pub fn track(
         &mut self,
         shared: &SharedMap,
         mut frame: Frame,
+        gate: &Participation,
         mapping_idle: bool,
     ) -> FrameReport {
         let mut timing = Timing::default();
         let mut report = FrameReport::start(&frame, self.state, self.segment);
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
-            self.start_segment(&mut map, frame, Se3::identity(), &mut report);
+            self.start_segment((&mut map, gate), frame, Se3::identity(), &mut report);
             return report;
         }
         let map = shared.read().expect("map lock poisoned");
@@ -156,22 +127,22 @@ impl Tracker {
             self.reference = map.newest_of_segment(self.segment);
         }
         let found = if self.state == TrackingState::Ok {
-            self.track_motion_model(&map, &frame, &mut timing)
-                .or_else(|_| self.track_reference_keyframe(&map, &frame, &mut timing))
+            self.track_motion_model((&map, &frame, gate), &mut timing)
+                .or_else(|_| self.track_reference_keyframe((&map, &frame, gate), &mut timing))
         } else {
-            self.relocalise(&map, &frame, &mut timing)
+            self.relocalise((&map, &frame, gate), &mut timing)
         };
         let mut seen = LocalSearch::default();
-        let tracked = found
-            .and_then(|found| self.track_local_map(&map, &frame, found, &mut seen, &mut timing));
+        let tracked = found.and_then(|found| {
+            self.track_local_map((&map, &frame, gate), found, &mut seen, &mut timing)
+        });
         drop(map);
         let mut map = shared.write().expect("map lock poisoned");
         self.count_visibility(&mut map, &seen.visible, tracked.as_ref().ok());
-        if let (Ok(estimate), Some(dop)) = (&tracked, &self.dop) {
+        if let (Ok(estimate), Some(dop)) = (&tracked, gate.dop) {
             if dop.geometric {
                 let checks = self.consistency(
-                    &map,
-                    &frame,
+                    (&map, &frame, gate),
                     &estimate.camera_from_world,
                     &seen.candidates,
                     &estimate.matches,
@@ -183,13 +154,14 @@ impl Tracker {
         report.matching_ms = timing.matching;
         report.optimisation_ms = timing.optimisation;
         match tracked {
-            Err(reject) => self.lose(&mut map, frame, reject, &mut report),
+            Err(reject) => self.lose((&mut map, gate), frame, reject, &mut report),
             Ok(estimate) => {
                 report.dynamic_map_points = seen.dynamic;
-                if let Some(dop) = &self.dop {
+                if let Some(dop) = gate.dop {
                     let start = Instant::now();
                     frame.moving = self.moving_probabilities(
                         dop,
+                        gate.followed,
                         &map,
                         &frame,
                         &estimate.camera_from_world,
@@ -199,7 +171,7 @@ impl Tracker {
                         frame.moving.iter().filter(|p| dop.removed(**p)).count();
                     report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
                 }
-                self.accept(&mut map, frame, estimate, mapping_idle, &mut report);
+                self.accept((&mut map, gate), frame, estimate, mapping_idle, &mut report);
             }
         }
         report
@@ -228,7 +200,13 @@ impl Tracker {
 
     /// The frame was not tracked: LOST; after `new_map_after_seconds` of it, a new map
     /// segment starts at the last tracked pose.
-    fn lose(&mut self, map: &mut Map, frame: Frame, reject: Reject, report: &mut FrameReport) {
+    fn lose(
+        &mut self,
+        (map, gate): (&mut Map, &Participation),
+        frame: Frame,
+        reject: Reject,
+        report: &mut FrameReport,
+    ) {
         self.state = TrackingState::Lost;
         self.velocity = None;
         report.state = TrackingState::Lost;
@@ -236,7 +214,7 @@ impl Tracker {
         let since = *self.lost_since.get_or_insert(frame.timestamp);
         if frame.timestamp - since >= self.config.new_map_after_seconds {
             if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
-                self.start_segment(map, frame, last, report);
+                self.start_segment((map, gate), frame, last, report);
             }
         }
     }
@@ -245,7 +223,7 @@ impl Tracker {
     /// motion model, the keyframe decision; the frame becomes the last frame.
     fn accept(
         &mut self,
-        map: &mut Map,
+        (map, gate): (&mut Map, &Participation),
         frame: Frame,
         estimate: PoseEstimate,
         mapping_idle: bool,
@@ -266,7 +244,7 @@ impl Tracker {
             .iter()
             .enumerate()
             .filter_map(|(i, k)| {
-                let key = k.filter(|&k| map.points.get(k).is_some_and(|p| !self.excluded(p)))?;
+                let key = k.filter(|&k| map.points.get(k).is_some_and(|p| !gate.excluded(p)))?;
                 let keypoint = &frame.keypoints[i];
                 Some(FrameObservation {
                     point: key,
@@ -282,17 +260,26 @@ impl Tracker {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
         }
         self.frames_since_keyframe += 1;
-        let (pose, points) =
-            if self.need_keyframe(map, &frame, &pose, &points, inliers, mapping_idle) {
-                self.insert_keyframe(map, &frame, pose, points, false);
-                let key = self.reference.expect("just inserted");
-                report.keyframe = true;
-                report.new_keyframe = Some(key);
-                let keyframe = &map.keyframes[key];
-                (keyframe.camera_from_world, keyframe.map_points.clone())
-            } else {
-                (pose, points)
-            };
+        // The keyframe decision looks at the frame as counted.
+        let counted = gate.counting_this_frame();
+        let need = self.need_keyframe(
+            (map, &frame, &counted),
+            &pose,
+            &points,
+            inliers,
+            mapping_idle,
+        );
+        let (pose, points) = if need {
+            self.insert_keyframe((map, &frame, gate), pose, points, false);
+            let key = self.reference.expect("just inserted");
+            report.keyframe = true;
+            report.new_keyframe = Some(key);
+            report.new_keyframe_id = Some(map.keyframes[key].id);
+            let keyframe = &map.keyframes[key];
+            (keyframe.camera_from_world, keyframe.map_points.clone())
+        } else {
+            (pose, points)
+        };
         report.camera_from_world = Some(pose);
         report.reference = self.reference.and_then(|k| {
             let keyframe = map.keyframes.get(k)?;
@@ -310,7 +297,7 @@ impl Tracker {
     /// keypoints with depth.
     fn start_segment(
         &mut self,
-        map: &mut Map,
+        (map, gate): (&mut Map, &Participation),
         frame: Frame,
         camera_from_world: Se3,
         report: &mut FrameReport,
@@ -322,14 +309,14 @@ impl Tracker {
         self.segment = self.segments;
         self.segments += 1;
         self.insert_keyframe(
-            map,
-            &frame,
+            (map, &frame, gate),
             camera_from_world,
             vec![None; frame.len()],
             true,
         );
         report.keyframe = true;
         report.new_keyframe = self.reference;
+        report.new_keyframe_id = self.reference.map(|k| map.keyframes[k].id);
         report.state = TrackingState::Ok;
         report.lost = None;
         report.segment = self.segment;

@@ -7,6 +7,7 @@
 use std::time::Instant;
 
 use super::{Timing, Tracker};
+use crate::dynamics::frames::Participation;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
 use crate::map::{Map, MapPoint, MapPointKey};
@@ -22,8 +23,7 @@ impl Tracker {
     /// with no inliers.
     pub(super) fn optimise(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         initial: &Se3,
         points: &[Option<MapPointKey>],
         timing: &mut Timing,
@@ -37,11 +37,11 @@ impl Tracker {
             let Some(point) = key.and_then(|k| map.points.get(k)) else {
                 continue;
             };
-            if self.excluded(point) {
+            if gate.excluded(point) {
                 kept[i] = points[i];
                 continue;
             }
-            if self.awaiting(map, point) {
+            if gate.awaiting(map, point) {
                 awaiting.push((i, point));
                 continue;
             }
@@ -132,8 +132,7 @@ impl Tracker {
     /// against the final pose with the same gate.
     pub(super) fn consistency(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         pose: &Se3,
         candidates: &[Option<MapPointKey>],
         inliers: &[Option<MapPointKey>],
@@ -145,7 +144,7 @@ impl Tracker {
             .filter_map(|(i, (candidate, inlier))| {
                 let key = (*candidate)?;
                 let point = map.points.get(key)?;
-                let consistent = if self.excluded(point) || self.awaiting(map, point) {
+                let consistent = if gate.excluded(point) || gate.awaiting(map, point) {
                     within_gate(&self.camera, pose, &self.observation(frame, i, point))
                 } else {
                     inlier.is_some()

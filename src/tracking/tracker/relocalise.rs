@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use super::search::live_points;
 use super::{Timing, Tracker};
+use crate::dynamics::frames::Participation;
 use crate::features::{hamming, TH_LOW};
 use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::frame::Frame;
@@ -23,15 +24,14 @@ impl Tracker {
     /// becomes the reference (and its segment the active one).
     pub(super) fn relocalise(
         &mut self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
         let start = Instant::now();
         let ranked = rank_keyframes(map, frame);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         for key in ranked.into_iter().take(RELOCALISATION_CANDIDATES) {
-            if let Some(found) = self.relocalise_against(map, frame, key, timing) {
+            if let Some(found) = self.relocalise_against((map, frame, gate), key, timing) {
                 self.segment = map.keyframes[key].segment;
                 self.reference = Some(key);
                 return Ok(found);
@@ -44,8 +44,7 @@ impl Tracker {
     /// matches when the inliers fall short.
     fn relocalise_against(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         key: KeyFrameKey,
         timing: &mut Timing,
     ) -> Option<PoseEstimate> {
@@ -84,7 +83,7 @@ impl Tracker {
                 points[i] = Some(keys[q]);
             }
         }
-        let mut estimate = self.optimise(map, frame, &pose, &points, timing);
+        let mut estimate = self.optimise((map, frame, gate), &pose, &points, timing);
         if estimate.inliers < MIN_SEARCH_INLIERS {
             return None;
         }
@@ -104,7 +103,12 @@ impl Tracker {
                 points[i] = Some(query_keys[q]);
             }
             timing.matching += start.elapsed().as_secs_f64() * 1e3;
-            estimate = self.optimise(map, frame, &estimate.camera_from_world, &points, timing);
+            estimate = self.optimise(
+                (map, frame, gate),
+                &estimate.camera_from_world,
+                &points,
+                timing,
+            );
         }
         (estimate.inliers >= RELOCALISATION_ACCEPT).then_some(estimate)
     }

@@ -10,6 +10,7 @@ use std::time::Instant;
 use nalgebra::{Point3, Vector3};
 
 use super::{Timing, Tracker};
+use crate::dynamics::frames::Participation;
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::frame::Frame;
@@ -57,8 +58,7 @@ impl Tracker {
     /// Projects the last frame's map points with the constant-velocity prediction.
     pub(super) fn track_motion_model(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
         let (Some(velocity), Some(last)) = (self.velocity, self.last.as_ref()) else {
@@ -113,7 +113,7 @@ impl Tracker {
             points[i] = Some(keys[q]);
         }
         enough(
-            self.optimise(map, frame, &predicted, &points, timing),
+            self.optimise((map, frame, gate), &predicted, &points, timing),
             MIN_SEARCH_INLIERS,
         )
     }
@@ -121,8 +121,7 @@ impl Tracker {
     /// Brute-force matches against a keyframe's map points, starting from `initial`.
     pub(super) fn track_against_keyframe(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         keyframe: KeyFrameKey,
         initial: Se3,
         timing: &mut Timing,
@@ -143,7 +142,7 @@ impl Tracker {
             points[i] = Some(keys[q]);
         }
         enough(
-            self.optimise(map, frame, &initial, &points, timing),
+            self.optimise((map, frame, gate), &initial, &points, timing),
             MIN_SEARCH_INLIERS,
         )
     }
@@ -151,8 +150,7 @@ impl Tracker {
     /// Brute force against the reference keyframe, from the last frame's pose.
     pub(super) fn track_reference_keyframe(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
         let initial = self
@@ -161,7 +159,7 @@ impl Tracker {
             .ok_or(Reject::NoMotionModel)?
             .camera_from_world;
         let reference = self.reference.ok_or(Reject::NoReference)?;
-        self.track_against_keyframe(map, frame, reference, initial, timing)
+        self.track_against_keyframe((map, frame, gate), reference, initial, timing)
     }
 
     /// Pixel and right coordinate of a world point, if in front and inside the image.
@@ -183,8 +181,7 @@ impl Tracker {
     /// and matches, and optimises again; with at least `min_inliers` inliers.
     pub(super) fn track_local_map(
         &self,
-        map: &Map,
-        frame: &Frame,
+        (map, frame, gate): (&Map, &Frame, &Participation),
         found: PoseEstimate,
         seen: &mut LocalSearch,
         timing: &mut Timing,
@@ -196,7 +193,8 @@ impl Tracker {
             self.config.local_keyframes,
         );
         let matched: HashSet<MapPointKey> = points.iter().flatten().copied().collect();
-        let (keys, queries) = self.local_queries(map, &local, &matched, &pose, &mut seen.dynamic);
+        let (keys, queries) =
+            self.local_queries((map, gate), &local, &matched, &pose, &mut seen.dynamic);
         let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
         let matches =
             search_by_projection(frame, &queries, &mut taken, LOCAL_MAP_MATCH_RATIO, false);
@@ -205,7 +203,7 @@ impl Tracker {
         }
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         seen.visible.extend(keys.iter().chain(&matched).copied());
-        let estimate = self.optimise(map, frame, &pose, &points, timing);
+        let estimate = self.optimise((map, frame, gate), &pose, &points, timing);
         seen.candidates = points;
         enough(estimate, self.config.min_inliers)
     }
@@ -214,7 +212,7 @@ impl Tracker {
     /// counts the points left out as dynamic.
     fn local_queries(
         &self,
-        map: &Map,
+        (map, gate): (&Map, &Participation),
         local: &[KeyFrameKey],
         matched: &HashSet<MapPointKey>,
         pose: &Se3,
@@ -231,7 +229,7 @@ impl Tracker {
                 let Some(point) = map.points.get(*key) else {
                     continue;
                 };
-                if self.excluded(point) {
+                if gate.excluded(point) {
                     *dynamic += 1;
                 }
                 let Some(view) = predict_view(

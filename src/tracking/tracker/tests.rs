@@ -1,9 +1,9 @@
 //! The tracker's own tests (private state: the DOP gate in the pose, the keyframe
 //! decision with waiting points, the geometric check).
 
-use super::moving::geometric_check;
 use super::*;
 use crate::dop::DopConfig;
+use crate::dynamics::frames::{geometric_check, Participation};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
@@ -103,7 +103,11 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
         pinhole.width,
         pinhole.height,
     );
-    tracker.dop = Some(DopConfig::default());
+    let dop = DopConfig::default();
+    let gate = Participation {
+        dop: Some(&dop),
+        ..Participation::default()
+    };
     let (room, person) = (80, 120);
     let mut map = Map::default();
     let (mut keypoints, mut keys) = (Vec::new(), Vec::new());
@@ -141,8 +145,12 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
         (pinhole.width, pinhole.height),
     );
     let error_with = |tracker: &Tracker, map: &Map, keys: &[Option<MapPointKey>]| {
-        let estimate =
-            tracker.optimise(map, &frame, &Se3::identity(), keys, &mut Timing::default());
+        let estimate = tracker.optimise(
+            (map, &frame, &gate),
+            &Se3::identity(),
+            keys,
+            &mut Timing::default(),
+        );
         estimate.camera_from_world.translation.vector.norm()
     };
     let mixed = error_with(&tracker, &map, &keys);
@@ -180,7 +188,11 @@ fn points_that_wait_do_not_make_keyframes() {
         pinhole.width,
         pinhole.height,
     );
-    tracker.dop = Some(DopConfig::default());
+    let dop = DopConfig::default();
+    let gate = Participation {
+        dop: Some(&dop),
+        ..Participation::default()
+    };
     let (room, person) = (100, 400);
     let n = room + person;
     let frame = Frame::blank(n, (pinhole.width, pinhole.height));
@@ -201,8 +213,9 @@ fn points_that_wait_do_not_make_keyframes() {
         .collect();
     tracker.reference = Some(map.add_keyframe(keyframe));
     tracker.frames_since_keyframe = 5;
-    let need =
-        |map: &Map| tracker.need_keyframe(map, &frame, &Se3::identity(), &tracked, room, true);
+    let need = |map: &Map| {
+        tracker.need_keyframe((map, &frame, &gate), &Se3::identity(), &tracked, room, true)
+    };
     assert!(need(&map), "100 of 500 points: very weak");
     map.awaiting_detection.insert(7);
     assert!(!need(&map));

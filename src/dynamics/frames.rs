@@ -1,0 +1,196 @@
+//! The DOP model's gate for one frame and its per-frame functions: [`Participation`]
+//! says which map points and keypoints take part in the tracker's pose (the dynamic
+//! ones never, those waiting for their keyframe's detection or out their probation
+//! only when too few others remain) and carries the followed objects the frame's
+//! probabilities see; [`propagate_and_expand`] and [`geometric_check`] are the model's
+//! steps on one frame. The tracker receives a `Participation` with each frame from
+//! [`super::Dynamics`].
+
+use crate::dop::consistency::Verdict;
+use crate::dop::tracks::FollowedObjects;
+use crate::dop::DopConfig;
+use crate::frame::Frame;
+use crate::geometry::se3::Se3;
+use crate::map::{Map, MapPoint, MapPointKey};
+
+/// Which map points and keypoints take part in one frame's pose.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Participation<'a> {
+    /// The DOP model (`None`: every point takes part, ORB-SLAM2's behaviour).
+    pub dop: Option<&'a DopConfig>,
+    /// The objects the model follows, as of the latest detection.
+    pub followed: Option<&'a FollowedObjects>,
+    /// The newest keyframe's points on probation (DOP only).
+    pub probation: Option<Probation>,
+}
+
+/// The points of keyframe `keyframe_id` (the newest) stay out of the pose for
+/// `frames` frames after it (`[tracking] probation_frames`); `frames_since` have passed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Probation {
+    pub keyframe_id: usize,
+    pub frames_since: usize,
+    pub frames: usize,
+}
+
+impl Participation<'_> {
+    /// Whether a map point is left out as dynamic.
+    pub fn excluded(&self, point: &MapPoint) -> bool {
+        self.dop.is_some_and(|d| d.removed(point.moving))
+    }
+
+    /// Whether a map point waits: for the detection of the keyframe that created it, or
+    /// out its probation.
+    pub fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
+        map.awaits_detection(point)
+            || self.probation.is_some_and(|p| {
+                point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames
+            })
+    }
+
+    /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
+    pub fn dynamic_keypoint(&self, frame: &Frame, i: usize) -> bool {
+        self.dop.is_some_and(|d| d.removed(frame.moving[i]))
+    }
+
+    /// The gate once the frame being tracked is counted (the keyframe decision looks at
+    /// the frame after it was counted).
+    pub fn counting_this_frame(&self) -> Self {
+        Self {
+            probation: self.probation.map(|p| Probation {
+                frames_since: p.frames_since + 1,
+                ..p
+            }),
+            ..*self
+        }
+    }
+}
+
+/// Propagation (map point, else last frame, else \(P_{init}\)) and, when on,
+/// matching point expansion over `frame`'s keypoints; then, given the followed objects
+/// and the frame's pose, the unknown keypoints on them are raised
+/// ([`crate::dop::raise_unknown_in_boxes`]).
+pub fn propagate_and_expand(
+    dop: &DopConfig,
+    frame: &Frame,
+    from_map: &[Option<f32>],
+    from_last: &[Option<f32>],
+    followed: Option<(&FollowedObjects, &Se3)>,
+) -> Vec<f32> {
+    let (p, origins) = crate::dop::propagate(from_map, from_last, dop.p_init);
+    let mut p = if dop.expansion {
+        let positions: Vec<(f32, f32)> = frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
+        crate::dop::expand(dop, &positions, &p, &origins)
+    } else {
+        p
+    };
+    if let Some((objects, camera_from_world)) = followed.filter(|_| dop.track_frames) {
+        let boxes = objects.boxes_at(frame.timestamp, camera_from_world, dop);
+        // Most frames have no person: no keypoint list to build.
+        if !boxes.iter().any(|b| b.dynamic) {
+            return p;
+        }
+        crate::dop::raise_unknown_in_boxes(
+            dop,
+            &frame.dop_keypoints(),
+            &origins,
+            &mut p,
+            &boxes,
+            objects.alpha,
+        );
+    }
+    p
+}
+
+/// The DOP model's geometric check ([`crate::dop::consistency`]) on one frame's
+/// verdicts `checks` (map point, consistent), made at `time`. Frames where more than
+/// `geometric_max_outliers` of the matches that took part in the pose are inconsistent
+/// are skipped: there the pose itself is in doubt. Returns the number of points raised
+/// and lowered.
+pub fn geometric_check(
+    dop: &DopConfig,
+    map: &mut Map,
+    checks: &[(MapPointKey, bool)],
+    time: f64,
+) -> (usize, usize) {
+    let mut judged = Vec::with_capacity(checks.len());
+    let (mut total, mut outliers) = (0, 0);
+    for &(key, consistent) in checks {
+        let Some(point) = map.points.get(key) else {
+            continue;
+        };
+        let dynamic = dop.removed(point.moving);
+        if !dynamic {
+            total += 1;
+            outliers += usize::from(!consistent);
+        }
+        judged.push((key, consistent, dynamic));
+    }
+    if total == 0 || outliers as f32 > dop.geometric_max_outliers * total as f32 {
+        return (0, 0);
+    }
+    let (mut raised, mut lowered) = (0, 0);
+    for (key, consistent, dynamic) in judged {
+        let point = &mut map.points[key];
+        match point
+            .consistency
+            .observe(consistent, time, dynamic, &mut point.moving, dop)
+        {
+            Verdict::Raised => raised += 1,
+            Verdict::Lowered => lowered += 1,
+            Verdict::Unchanged => {}
+        }
+    }
+    (raised, lowered)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn point(keyframe_id: usize, moving: f32) -> MapPoint {
+        let mut p = MapPoint::new(
+            Vector3::zeros(),
+            [0; 4],
+            Vector3::z(),
+            (0.0, 0.0),
+            keyframe_id,
+        );
+        p.moving = moving;
+        p
+    }
+
+    #[test]
+    fn without_the_model_every_point_takes_part() {
+        let map = Map::default();
+        let gate = Participation::default();
+        assert!(!gate.excluded(&point(3, 1.0)));
+        assert!(!gate.awaiting(&map, &point(3, 0.0)));
+    }
+
+    #[test]
+    fn dynamic_points_are_left_out_and_new_ones_wait_out_their_probation() {
+        let dop = DopConfig::default();
+        let mut map = Map::default();
+        let probation = Probation {
+            keyframe_id: 7,
+            frames_since: 1,
+            frames: 2,
+        };
+        let gate = Participation {
+            dop: Some(&dop),
+            followed: None,
+            probation: Some(probation),
+        };
+        assert!(gate.excluded(&point(1, dop.removal_threshold + 0.01)));
+        assert!(!gate.excluded(&point(1, dop.removal_threshold)));
+        // The newest keyframe's points wait until `frames` frames have passed.
+        assert!(gate.awaiting(&map, &point(7, 0.0)));
+        assert!(!gate.counting_this_frame().awaiting(&map, &point(7, 0.0)));
+        assert!(!gate.awaiting(&map, &point(6, 0.0)));
+        // A keyframe waiting for its detection holds its points back.
+        map.awaiting_detection.insert(6);
+        assert!(gate.awaiting(&map, &point(6, 0.0)));
+    }
+}
