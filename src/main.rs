@@ -98,6 +98,7 @@ struct DetectArgs {
 enum DetectModelArg {
     Yolov4Tiny,
     YoloxNano,
+    Deimv2Femto,
 }
 
 #[derive(Args)]
@@ -363,6 +364,7 @@ fn run_detect(args: DetectArgs) -> Result<()> {
         detector_config.model = match model {
             DetectModelArg::Yolov4Tiny => Model::Yolov4Tiny,
             DetectModelArg::YoloxNano => Model::YoloxNano,
+            DetectModelArg::Deimv2Femto => Model::Deimv2Femto,
         };
     }
     if !args.model_path.is_empty() {

@@ -7,7 +7,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use dopslam::detect::onnx::{runtime_library, OnnxDetector};
+use dopslam::detect::onnx::{runtime_library, OnnxDetector, PoolModel};
 use dopslam::detect::yolo::Layout;
 use dopslam::detect::{DetectError, Detection, Detector, DetectorConfig, Model, Source};
 
@@ -34,6 +34,10 @@ fn models(shared: &Path) -> Vec<(PathBuf, Layout)> {
     for (path, layout) in [
         (repo("data/models/yolov4-tiny.onnx"), Layout::Yolov4),
         (shared.join("../models/yolox_nano.onnx"), Layout::Yolox),
+        (
+            shared.join("../models/deimv2_hgnetv2_femto_coco.onnx"),
+            Layout::Deimv2,
+        ),
     ] {
         if path.is_file() {
             found.push((path, layout));
@@ -85,8 +89,22 @@ fn both_models_reproduce_the_reference_boxes_on_bus_jpg() {
                 assert_found(&found, "person", 0.82, Some([218.0, 404.0, 350.0, 855.0]));
                 assert_found(&found, "person", 0.68, Some([682.0, 447.0, 810.0, 876.0]));
             }
+            Layout::Deimv2 => {
+                // Python's ONNX Runtime 1.23 with Pillow's bilinear resize: the same
+                // boxes within 1 px.
+                assert_found(&found, "bus", 0.88, Some([24.0, 231.0, 804.0, 730.0]));
+                assert_found(&found, "person", 0.86, Some([46.0, 390.0, 236.0, 906.0]));
+                assert_found(&found, "person", 0.85, Some([668.0, 396.0, 810.0, 879.0]));
+                assert_found(&found, "person", 0.82, Some([221.0, 405.0, 350.0, 858.0]));
+            }
         }
-        assert_eq!(found.len(), 4, "{found:#?}");
+        if layout == Layout::Deimv2 {
+            // Also the man cut by the left border (and, at 0.30 exactly, a dog there).
+            let people = found.iter().filter(|d| d.class == "person").count();
+            assert_eq!(people, 4, "{found:#?}");
+        } else {
+            assert_eq!(found.len(), 4, "{found:#?}");
+        }
     }
 }
 
@@ -361,4 +379,82 @@ fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
         "{}",
         default[0].display()
     );
+}
+
+/// DEIMv2-femto (end to end: two inputs, labels / boxes / scores out) finds the bus and
+/// the four people of bus.jpg, boxes in image pixels; pooled with YOLOv4-tiny at its
+/// own threshold, every person either finds is in the pool's result after one NMS,
+/// and the report names each model's time.
+#[test]
+fn deimv2_finds_the_people_of_bus_jpg_and_pools_with_yolo() {
+    let Some(shared) = common::shared_data("DEIMv2 on bus.jpg") else {
+        return;
+    };
+    let Some(library) = library() else { return };
+    let deim = shared.join("../models/deimv2_hgnetv2_femto_coco.onnx");
+    let yolo = repo("data/models/yolov4-tiny-320x256.onnx");
+    if let Some(absent) = [&deim, &yolo].into_iter().find(|f| !f.is_file()) {
+        eprintln!("skipping: no {}", absent.display());
+        return;
+    }
+    let image = image::open(shared.join("frames/photos/bus.jpg"))
+        .unwrap()
+        .to_rgb8();
+    let pooled = |models: &[(PathBuf, Layout, f32)]| {
+        let pool: Vec<PoolModel> = models
+            .iter()
+            .map(|(path, layout, t)| PoolModel {
+                path: path.clone(),
+                layout: *layout,
+                score_threshold: Some(*t),
+            })
+            .collect();
+        let mut detector = OnnxDetector::load_pool(&pool, &library, 1).unwrap();
+        let found = detector.detect(0.0, &image).unwrap();
+        (found, detector.model_times())
+    };
+    let (alone, _) = pooled(&[(deim.clone(), Layout::Deimv2, 0.3)]);
+    let people: Vec<&Detection> = alone.iter().filter(|d| d.class == "person").collect();
+    assert!(people.len() >= 4, "{alone:#?}");
+    assert_found(&alone, "bus", 0.88, Some([24.0, 231.0, 804.0, 730.0]));
+    assert_found(&alone, "person", 0.86, Some([46.0, 390.0, 236.0, 906.0]));
+    let (yolo_alone, _) = pooled(&[(yolo.clone(), Layout::Yolov4, 0.1)]);
+    let (both, times) = pooled(&[(yolo, Layout::Yolov4, 0.1), (deim, Layout::Deimv2, 0.3)]);
+    assert_eq!(times.len(), 2);
+    assert!(times.iter().all(|(name, ms)| name.ends_with(".onnx") && *ms > 0.0));
+    for person in alone.iter().chain(&yolo_alone).filter(|d| d.class == "person") {
+        let kept = both.iter().any(|b| {
+            b.class == "person" && dopslam::detect::yolo::iou(&b.bbox, &person.bbox) > 0.45
+        });
+        assert!(kept, "{person:?} lost in the pool: {both:#?}");
+    }
+}
+
+/// A pool in the config: its files are what the source needs, thresholds are checked,
+/// and it does not go with model_path.
+#[test]
+fn a_pool_config_names_its_files_and_is_checked() {
+    let config: DetectorConfig = toml::from_str(
+        "[[pool]]\nmodel = \"yolov4-tiny\"\nscore_threshold = 0.1\n[[pool]]\nmodel = \"deimv2-femto\"\npath = \"/nowhere/d.onnx\"\n",
+    )
+    .unwrap();
+    config.validate().unwrap();
+    let files = config.model_files();
+    assert_eq!(files.len(), 2);
+    assert_eq!(files[1], PathBuf::from("/nowhere/d.onnx"));
+    let models = config.pool_models();
+    assert_eq!(models[0].score_threshold, Some(0.1));
+    // DEIMv2's own threshold when the entry gives none.
+    assert_eq!(models[1].score_threshold, Some(0.3));
+    assert_eq!(models[1].layout, Layout::Deimv2);
+    let mut bad = config.clone();
+    bad.pool[0].score_threshold = Some(1.5);
+    assert!(bad.validate().unwrap_err().contains("detector.pool[0].score_threshold"));
+    let mut both = config.clone();
+    both.model_path = Some("/x.onnx".into());
+    assert!(both.validate().unwrap_err().contains("pool"));
+    let mut onnx = config;
+    onnx.source = Source::Onnx;
+    let error = onnx.resolved_source().unwrap_err().to_string();
+    assert!(error.contains("/nowhere/d.onnx"), "{error}");
 }

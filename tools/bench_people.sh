@@ -22,6 +22,9 @@
 #                              default before 320x256)
 #   dop-onnx-multi, dop-onnx-multi-rt   DOP with YOLOv4-tiny at 320x256 and 416x416,
 #                              boxes merged (multi-scale)
+#   dop-deim, dop-deim-rt      DOP with DEIMv2-femto (its threshold 0.3)
+#   dop-pool, dop-pool-rt      DOP with YOLOv4-tiny (0.10) and DEIMv2-femto (0.30) pooled,
+#                              one class-wise NMS
 # Sequences are generated once into outputs/bench/ (seeds 1001, 1002, ... for N > 1).
 set -euo pipefail
 # DOPSLAM_BIN: the binary measured (default ./target/release/dopslam), e.g. a copy of an
@@ -41,7 +44,7 @@ presets=("$@")
 if [ ${#presets[@]} -eq 0 ]; then
   presets=(cutout_xyz cutout_static cutout_rpy cutout_halfsphere cutout_seated_leaves)
 fi
-cargo build --release --quiet
+[ -n "${DOPSLAM_BIN:-}" ] || cargo build --release --quiet
 mkdir -p outputs/bench
 nogeo=outputs/bench/config-nogeo.toml
 notrack=outputs/bench/config-notrack.toml
@@ -53,6 +56,10 @@ m416=outputs/bench/config-416.toml
 printf '[detector]\nmodel_path = "data/models/yolov4-tiny.onnx"\n' > "$m416"
 multi=outputs/bench/config-multi.toml
 printf '[detector]\nmodel_paths = ["data/models/yolov4-tiny-320x256.onnx", "data/models/yolov4-tiny.onnx"]\n' > "$multi"
+deim=outputs/bench/config-deim.toml
+printf '[detector]\nmodel = "deimv2-femto"\n' > "$deim"
+pool=outputs/bench/config-pool.toml
+printf '[[detector.pool]]\nmodel = "yolov4-tiny"\nscore_threshold = 0.1\n[[detector.pool]]\nmodel = "deimv2-femto"\nscore_threshold = 0.3\n' > "$pool"
 echo "| preset | seed | variant | ATE RMSE (m) | RPE 1 frame p95 (m) | path / true | keyframes / frames | person recall | state recall / precision | median ms |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
 for preset in "${presets[@]}"; do
@@ -84,6 +91,8 @@ for preset in "${presets[@]}"; do
         dop-onnx-t03) args+=(--dop --detections onnx --config "$t03") ;;
         dop-onnx-416) args+=(--dop --detections onnx --config "$m416") ;;
         dop-onnx-multi) args+=(--dop --detections onnx --config "$multi") ;;
+        dop-deim) args+=(--dop --detections onnx --config "$deim") ;;
+        dop-pool) args+=(--dop --detections onnx --config "$pool") ;;
         geo-only) args+=(--dop --detections none) ;;
         *) echo "unknown variant $variant" >&2; exit 2 ;;
       esac

@@ -24,6 +24,8 @@ pub struct Outcome {
     pub timestamp: f64,
     pub detections: Result<Vec<Detection>, String>,
     pub milliseconds: f64,
+    /// Each model's share of it (a pool of models), name and milliseconds.
+    pub model_milliseconds: Vec<(String, f64)>,
     /// Not detected: a newer keyframe was waiting (real-time mode only).
     pub skipped: bool,
 }
@@ -39,6 +41,7 @@ pub fn run(detector: &mut dyn Detector, job: Job) -> Outcome {
         timestamp: job.timestamp,
         detections,
         milliseconds: start.elapsed().as_secs_f64() * 1e3,
+        model_milliseconds: detector.model_times(),
         skipped: false,
     }
 }
@@ -50,6 +53,7 @@ pub fn skipped(job: &Job) -> Outcome {
         timestamp: job.timestamp,
         detections: Ok(Vec::new()),
         milliseconds: 0.0,
+        model_milliseconds: Vec::new(),
         skipped: true,
     }
 }

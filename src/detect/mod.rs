@@ -48,6 +48,12 @@ fn missing_list(missing: &[(&'static str, PathBuf)]) -> String {
 /// A source of detections for a frame: a model, a cache, or the synthetic oracle.
 pub trait Detector: Send {
     fn detect(&mut self, timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError>;
+
+    /// Each model's time on the last image (name, milliseconds), for a detector that
+    /// runs several.
+    fn model_times(&self) -> Vec<(String, f64)> {
+        Vec::new()
+    }
 }
 
 /// Where detections come from.
@@ -76,6 +82,9 @@ pub enum Model {
     /// YOLOX-nano (Apache-2.0): `tools/setup.sh` installs it from `../shared/models`
     /// where that folder exists, else the user brings the file.
     YoloxNano,
+    /// DEIMv2-femto (Apache-2.0, end to end, 416x416): `tools/setup.sh` installs it
+    /// (sha256 checked) from `../shared/models` or its public source.
+    Deimv2Femto,
 }
 
 impl Model {
@@ -83,6 +92,17 @@ impl Model {
         match self {
             Model::Yolov4Tiny => Layout::Yolov4,
             Model::YoloxNano => Layout::Yolox,
+            Model::Deimv2Femto => Layout::Deimv2,
+        }
+    }
+
+    /// The model's own score threshold, where the detector's (tuned for YOLOv4-tiny)
+    /// does not fit it: DEIMv2's scores put person boxes on people-free frames below
+    /// 0.3.
+    pub fn own_threshold(self) -> Option<f32> {
+        match self {
+            Model::Deimv2Femto => Some(0.3),
+            Model::Yolov4Tiny | Model::YoloxNano => None,
         }
     }
 
@@ -97,7 +117,30 @@ impl Model {
         match self {
             Model::Yolov4Tiny => vec![data.file("models/yolov4-tiny-320x256.onnx")],
             Model::YoloxNano => vec![data.file("models/yolox_nano.onnx")],
+            Model::Deimv2Femto => vec![data.file("models/deimv2_hgnetv2_femto_coco.onnx")],
         }
+    }
+}
+
+/// One model of a pool (`[[detector.pool]]`): the model, its file (default: the
+/// model's own), and its score threshold (default: the model's own, else the
+/// detector's).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoolEntry {
+    pub model: Model,
+    #[serde(default)]
+    pub path: Option<PathBuf>,
+    #[serde(default)]
+    pub score_threshold: Option<f32>,
+}
+
+impl PoolEntry {
+    /// The file of this entry.
+    pub fn file(&self) -> PathBuf {
+        self.path
+            .clone()
+            .unwrap_or_else(|| self.model.default_paths().remove(0))
     }
 }
 
@@ -113,6 +156,10 @@ pub struct DetectorConfig {
     /// keyframe runs them all and their boxes are merged by one NMS. Not with
     /// `model_path`.
     pub model_paths: Vec<PathBuf>,
+    /// Several models, of any families, each with its threshold: each keyframe runs
+    /// them all (one after the other) and their boxes go through one class-wise NMS.
+    /// When set, `model`, `model_path` and `model_paths` are not used.
+    pub pool: Vec<PoolEntry>,
     /// The ONNX Runtime library (default: `ORT_DYLIB_PATH`, else `ort/libonnxruntime.so`
     /// in the data directory).
     pub ort_library: Option<PathBuf>,
@@ -139,6 +186,7 @@ impl Default for DetectorConfig {
             model: Model::Yolov4Tiny,
             model_path: None,
             model_paths: Vec::new(),
+            pool: Vec::new(),
             ort_library: None,
             threads: 1,
             score_threshold: 0.15,
@@ -175,6 +223,14 @@ impl DetectorConfig {
                 "detector: set model_path (one file) or model_paths (several), not both".into(),
             );
         }
+        if !self.pool.is_empty() && (self.model_path.is_some() || !self.model_paths.is_empty()) {
+            return Err("detector: set pool (several models) or model_path / model_paths, not both".into());
+        }
+        for (i, entry) in self.pool.iter().enumerate() {
+            if let Some(t) = entry.score_threshold.filter(|t| !(0.0..=1.0).contains(t)) {
+                return Err(format!("detector.pool[{i}].score_threshold must be in [0, 1], got {t}"));
+            }
+        }
         for class in self.dynamic_classes.iter().chain(&self.static_classes) {
             if coco::class_id(class).is_none() {
                 return Err(format!("detector: {class:?} is not a COCO class name"));
@@ -185,6 +241,9 @@ impl DetectorConfig {
 
     /// The model files this config uses.
     pub fn model_files(&self) -> Vec<PathBuf> {
+        if !self.pool.is_empty() {
+            return self.pool.iter().map(PoolEntry::file).collect();
+        }
         match (&self.model_path, self.model_paths.is_empty()) {
             (Some(path), _) => vec![path.clone()],
             (None, false) => self.model_paths.clone(),
@@ -224,6 +283,29 @@ impl DetectorConfig {
         Ok(source)
     }
 
+    /// The models an ONNX source runs: the pool, else the model's files.
+    pub fn pool_models(&self) -> Vec<onnx::PoolModel> {
+        if self.pool.is_empty() {
+            return self
+                .model_files()
+                .into_iter()
+                .map(|path| onnx::PoolModel {
+                    path,
+                    layout: self.model.layout(),
+                    score_threshold: self.model.own_threshold(),
+                })
+                .collect();
+        }
+        self.pool
+            .iter()
+            .map(|entry| onnx::PoolModel {
+                path: entry.file(),
+                layout: entry.model.layout(),
+                score_threshold: entry.score_threshold.or(entry.model.own_threshold()),
+            })
+            .collect()
+    }
+
     /// The latency added to the source's answers in real-time mode.
     pub fn latency(&self) -> std::time::Duration {
         match self.source {
@@ -240,9 +322,8 @@ impl DetectorConfig {
         Ok(Some(match self.resolved_source()? {
             Source::None | Source::Auto => return Ok(None),
             Source::Onnx => {
-                let mut detector = onnx::OnnxDetector::load_all(
-                    &self.model_files(),
-                    self.model.layout(),
+                let mut detector = onnx::OnnxDetector::load_pool(
+                    &self.pool_models(),
                     &onnx::runtime_library(self.ort_library.as_deref()),
                     self.threads,
                 )?;

@@ -1,4 +1,5 @@
-//! The ONNX detector: a YOLO model run by ONNX Runtime through `ort`, with the runtime
+//! The ONNX detector: one or several models (YOLOv4, YOLOX, DEIMv2 layouts) run by ONNX
+//! Runtime through `ort`, their boxes pooled into one class-wise NMS, with the runtime
 //! library loaded at run time (`load-dynamic`) from the path in the config, else
 //! `ORT_DYLIB_PATH`, else `ort/libonnxruntime.so` in the runtime data directory (what
 //! `tools/setup.sh` installs; [`crate::io::data_dir`]).
@@ -9,7 +10,7 @@ use image::RgbImage;
 use ort::session::Session;
 use ort::value::Tensor;
 
-use super::yolo::{non_maximum_suppression, Layout};
+use super::yolo::{decode_end_to_end, non_maximum_suppression, Layout};
 use super::{DetectError, Detection, Detector};
 
 /// Where the ONNX Runtime library is: `configured`, else `ORT_DYLIB_PATH`, else
@@ -34,7 +35,12 @@ fn environment(library: &Path) -> Result<&'static ort::environment::Environment,
             ));
         }
         ort::init_from(library)
-            .map_err(|e| format!("cannot load the ONNX Runtime library {}: {e}", library.display()))?
+            .map_err(|e| {
+                format!(
+                    "cannot load the ONNX Runtime library {}: {e}",
+                    library.display()
+                )
+            })?
             .with_name("dopslam")
             .build()
             .map_err(|e| format!("cannot start ONNX Runtime from {}: {e}", library.display()))
@@ -42,22 +48,34 @@ fn environment(library: &Path) -> Result<&'static ort::environment::Environment,
     result.as_ref().map_err(|m| DetectError::Runtime(m.clone()))
 }
 
-/// One network: a model file in an ONNX Runtime session, with its fixed input size.
+/// One network: a model file in an ONNX Runtime session, with its fixed input size,
+/// its layout and its own score threshold (else the detector's).
 struct Network {
     session: Session,
     width: u32,
     height: u32,
     model: PathBuf,
+    layout: Layout,
+    score_threshold: Option<f32>,
 }
 
-/// A YOLO model in ONNX Runtime sessions: one network, or several (the same weights
-/// at several input sizes, say) whose candidate boxes are pooled before one NMS, as
-/// multi-scale test-time augmentation does.
+/// A model of a pool: its file, layout, and score threshold (`None`: the detector's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoolModel {
+    pub path: PathBuf,
+    pub layout: Layout,
+    pub score_threshold: Option<f32>,
+}
+
+/// Models in ONNX Runtime sessions: one network, or several (the same weights at
+/// several input sizes, or models of different families, each with its threshold)
+/// whose candidate boxes are pooled before one class-wise NMS.
 pub struct OnnxDetector {
     networks: Vec<Network>,
-    layout: Layout,
     pub score_threshold: f32,
     pub nms_threshold: f32,
+    /// Each network's time on the last image, milliseconds.
+    last_ms: Vec<f64>,
 }
 
 impl OnnxDetector {
@@ -80,12 +98,30 @@ impl OnnxDetector {
         library: &Path,
         threads: usize,
     ) -> Result<Self, DetectError> {
+        let pool: Vec<PoolModel> = models
+            .iter()
+            .map(|path| PoolModel {
+                path: path.clone(),
+                layout,
+                score_threshold: None,
+            })
+            .collect();
+        Self::load_pool(&pool, library, threads)
+    }
+
+    /// Loads a pool of models of any layouts, each checked as [`Self::load`] does;
+    /// each keyframe runs them all, one after the other, on the detector's thread.
+    pub fn load_pool(
+        models: &[PoolModel],
+        library: &Path,
+        threads: usize,
+    ) -> Result<Self, DetectError> {
         let environment = environment(library)?;
         let mut detector = Self {
             networks: Vec::with_capacity(models.len()),
-            layout,
             score_threshold: 0.3,
             nms_threshold: 0.45,
+            last_ms: Vec::new(),
         };
         for model in models {
             detector
@@ -104,19 +140,30 @@ impl OnnxDetector {
         Ok(detector)
     }
 
-    /// The decoded boxes of network `index` above the score threshold, before NMS.
+    /// The models' files, for the report.
+    pub fn models(&self) -> Vec<&Path> {
+        self.networks.iter().map(|n| n.model.as_path()).collect()
+    }
+
+    /// The decoded boxes of network `index` above its score threshold, before NMS.
     fn candidates(
         &mut self,
         index: usize,
         image: &RgbImage,
     ) -> Result<Vec<Detection>, DetectError> {
-        let (layout, threshold) = (self.layout, self.score_threshold);
+        let default_threshold = self.score_threshold;
         let Network {
             session,
             width,
             height,
             model,
+            layout,
+            score_threshold,
         } = &mut self.networks[index];
+        let (layout, threshold) = (*layout, score_threshold.unwrap_or(default_threshold));
+        if layout == Layout::Deimv2 {
+            return end_to_end(session, (*width, *height), model, image, threshold);
+        }
         let size = (*width as usize, *height as usize);
         let mut input = layout.prepare(image, *width, *height);
         let shape = [1usize, 3, size.1, size.0];
@@ -150,8 +197,11 @@ impl OnnxDetector {
 
     fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
         let mut found = Vec::new();
+        self.last_ms.clear();
         for i in 0..self.networks.len() {
+            let start = std::time::Instant::now();
             found.extend(self.candidates(i, image)?);
+            self.last_ms.push(start.elapsed().as_secs_f64() * 1e3);
         }
         Ok(non_maximum_suppression(
             found,
@@ -161,12 +211,63 @@ impl OnnxDetector {
     }
 }
 
+/// Runs an end-to-end model (DEIMv2 layout) on `image`: its detections above
+/// `threshold`, boxes in image pixels.
+fn end_to_end(
+    session: &mut Session,
+    (width, height): (u32, u32),
+    model: &Path,
+    image: &RgbImage,
+    threshold: f32,
+) -> Result<Vec<Detection>, DetectError> {
+    let runtime = |e: ort::Error| DetectError::Runtime(format!("{}: {e}", model.display()));
+    let input = Layout::Deimv2.prepare(image, width, height);
+    let pixels = Tensor::from_array(([1usize, 3, height as usize, width as usize], input.data))
+        .map_err(runtime)?;
+    let size = Tensor::from_array((
+        [1usize, 2],
+        vec![image.width() as i64, image.height() as i64],
+    ))
+    .map_err(runtime)?;
+    let outputs = session
+        .run(ort::inputs!["images" => pixels, "orig_target_sizes" => size])
+        .map_err(runtime)?;
+    let output = |name: &str| {
+        outputs.get(name).ok_or_else(|| DetectError::Model {
+            path: model.to_path_buf(),
+            message: format!("no output {name:?}: not the DEIMv2 layout (labels, boxes, scores)"),
+        })
+    };
+    let (_, labels) = output("labels")?
+        .try_extract_tensor::<i64>()
+        .map_err(runtime)?;
+    let (_, boxes) = output("boxes")?
+        .try_extract_tensor::<f32>()
+        .map_err(runtime)?;
+    let (_, scores) = output("scores")?
+        .try_extract_tensor::<f32>()
+        .map_err(runtime)?;
+    if boxes.len() != 4 * labels.len() || scores.len() != labels.len() {
+        return Err(DetectError::Model {
+            path: model.to_path_buf(),
+            message: format!(
+                "outputs of {} labels, {} box values and {} scores do not match the DEIMv2 layout",
+                labels.len(),
+                boxes.len(),
+                scores.len()
+            ),
+        });
+    }
+    Ok(decode_end_to_end(labels, boxes, scores, threshold))
+}
+
 impl Network {
     fn load(
         environment: &ort::environment::Environment,
-        model: &Path,
+        pooled: &PoolModel,
         threads: usize,
     ) -> Result<Self, DetectError> {
+        let model = pooled.path.as_path();
         if !model.is_file() {
             return Err(DetectError::Model {
                 path: model.to_path_buf(),
@@ -199,6 +300,8 @@ impl Network {
             width: shape[3] as u32,
             height: shape[2] as u32,
             model: model.to_path_buf(),
+            layout: pooled.layout,
+            score_threshold: pooled.score_threshold,
         })
     }
 }
@@ -207,4 +310,20 @@ impl Detector for OnnxDetector {
     fn detect(&mut self, _timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
         self.infer(image)
     }
+
+    fn model_times(&self) -> Vec<(String, f64)> {
+        self.networks
+            .iter()
+            .zip(&self.last_ms)
+            .map(|(n, &ms)| (model_name(&n.model), ms))
+            .collect()
+    }
+}
+
+/// A model's name in the report: its file name.
+fn model_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
 }

@@ -25,6 +25,10 @@ pub enum Layout {
     Yolov4,
     /// Megvii YOLOX (raw grid output).
     Yolox,
+    /// DEIMv2 (end to end, no NMS): inputs `images` (RGB / 255, plain resize) and
+    /// `orig_target_sizes` (int64 `[W, H]` of the image); outputs `labels` (COCO index),
+    /// `boxes` (x1, y1, x2, y2 in image pixels) and `scores`, 300 each.
+    Deimv2,
 }
 
 /// An input tensor (NCHW, f32) and how to map boxes back to the image.
@@ -39,7 +43,7 @@ impl Layout {
     /// `None` when any count is possible (YOLOv4 heads depend on the cfg).
     pub fn predictions(self, width: usize, height: usize) -> Option<usize> {
         match self {
-            Layout::Yolov4 => None,
+            Layout::Yolov4 | Layout::Deimv2 => None,
             Layout::Yolox => Some([8, 16, 32].iter().map(|s| (width / s) * (height / s)).sum()),
         }
     }
@@ -49,7 +53,7 @@ impl Layout {
         let plane = (width * height) as usize;
         let mut data = vec![0f32; 3 * plane];
         match self {
-            Layout::Yolov4 => {
+            Layout::Yolov4 | Layout::Deimv2 => {
                 let resized = resize_rgb(image, width, height);
                 for (i, p) in resized.pixels().enumerate() {
                     for c in 0..3 {
@@ -123,7 +127,7 @@ impl Layout {
                 continue;
             }
             let (cx, cy, w, h) = match self {
-                Layout::Yolov4 => (row[0], row[1], row[2], row[3]),
+                Layout::Yolov4 | Layout::Deimv2 => (row[0], row[1], row[2], row[3]),
                 Layout::Yolox => {
                     let (gx, gy, s) = grid[n];
                     (
@@ -150,6 +154,33 @@ impl Layout {
         }
         found
     }
+}
+
+/// The detections of an end-to-end model's outputs (DEIMv2: `labels`, `boxes` in image
+/// pixels, `scores`, one entry per query) scoring at least `threshold`; labels outside
+/// COCO's 80 classes are dropped.
+pub fn decode_end_to_end(
+    labels: &[i64],
+    boxes: &[f32],
+    scores: &[f32],
+    threshold: f32,
+) -> Vec<Detection> {
+    labels
+        .iter()
+        .zip(boxes.chunks_exact(4))
+        .zip(scores)
+        .filter(|(_, &score)| score >= threshold)
+        .filter_map(|((&label, b), &score)| {
+            let class_id = u32::try_from(label).ok()?;
+            Some(Detection {
+                class: coco::class_name(class_id)?.to_string(),
+                class_id,
+                score,
+                bbox: [b[0], b[1], b[2], b[3]],
+                instance: None,
+            })
+        })
+        .collect()
 }
 
 /// Fixed-point bits of the resampling weights (as Pillow).
@@ -416,6 +447,21 @@ mod tests {
                 assert!((p.0[0] as i32 - 128).abs() <= 1, "({x}, {y}): {p:?}");
             }
         }
+    }
+
+    #[test]
+    fn end_to_end_outputs_keep_the_queries_above_the_threshold() {
+        let labels = [0i64, 2, 0, 95];
+        let boxes = [
+            10.0, 20.0, 30.0, 60.0, 1.0, 1.0, 5.0, 5.0, 0.0, 0.0, 9.0, 9.0, 3.0, 3.0, 4.0, 4.0,
+        ];
+        let scores = [0.9f32, 0.31, 0.2, 0.99];
+        let found = decode_end_to_end(&labels, &boxes, &scores, 0.3);
+        // The low-scoring person and the label outside COCO are dropped.
+        assert_eq!(found.len(), 2);
+        assert_eq!(found[0].class, "person");
+        assert_eq!(found[0].bbox, [10.0, 20.0, 30.0, 60.0]);
+        assert_eq!((found[1].class.as_str(), found[1].class_id), ("car", 2));
     }
 
     #[test]

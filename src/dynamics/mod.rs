@@ -50,6 +50,9 @@ pub struct DetectionTotals {
     pub per_class: BTreeMap<String, usize>,
     /// Detector time per keyframe (in its own thread), milliseconds.
     pub median_ms: f64,
+    /// Each model's median time per keyframe, when several run (a pool).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub per_model_median_ms: BTreeMap<String, f64>,
     /// Map points whose moving probability a keyframe's detections updated, and those
     /// removed as dynamic (by the DOP model or, with --mask-boxes, inside a box).
     pub map_points_updated: usize,
@@ -102,6 +105,7 @@ pub struct Dynamics {
     keyframe_of_job: HashMap<usize, KeyFrameKey>,
     totals: DetectionTotals,
     milliseconds: Vec<f64>,
+    model_milliseconds: BTreeMap<String, Vec<f64>>,
     /// The followed objects (DOP mode only).
     objects: Option<DynamicObjects>,
     /// Keyframe ids of submitted jobs whose detection has not come back.
@@ -121,6 +125,7 @@ impl Dynamics {
             keyframe_of_job: HashMap::new(),
             totals: DetectionTotals::default(),
             milliseconds: Vec::new(),
+            model_milliseconds: BTreeMap::new(),
             awaited: Waiting::default(),
             applied: Vec::new(),
             followed: None,
@@ -187,6 +192,12 @@ impl Dynamics {
     /// The totals, with the detector's median time.
     pub fn finish(mut self) -> DetectionTotals {
         self.totals.median_ms = crate::eval::stats::median(&mut self.milliseconds);
+        if self.model_milliseconds.len() > 1 {
+            for (model, times) in &mut self.model_milliseconds {
+                let median = crate::eval::stats::median(times);
+                self.totals.per_model_median_ms.insert(model.clone(), median);
+            }
+        }
         self.totals
     }
 
@@ -208,6 +219,9 @@ impl Dynamics {
                         timestamp: outcome.timestamp,
                         detections,
                     };
+                    for (model, ms) in outcome.model_milliseconds {
+                        self.model_milliseconds.entry(model).or_default().push(ms);
+                    }
                     self.apply(map, outcome.id, outcome.milliseconds, frame);
                 }
                 Err(e) => self
@@ -335,6 +349,7 @@ mod tests {
             timestamp: 0.0,
             detections: Ok(Vec::new()),
             milliseconds: 0.0,
+            model_milliseconds: Vec::new(),
             skipped,
         };
         assert!(waiting.release(&outcome(10, true)).is_empty());
