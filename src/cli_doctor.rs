@@ -71,12 +71,17 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         path,
         required: true,
     }));
-    if config.detector.model != Model::YoloxNano {
-        needed.extend(Model::YoloxNano.default_paths().into_iter().map(|path| Needed {
-            what: "detector model yolox-nano (optional)",
-            path,
-            required: false,
-        }));
+    for (model, what) in [
+        (Model::YoloxNano, "detector model yolox-nano (optional)"),
+        (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
+    ] {
+        if config.detector.model != model && config.detector.pool.is_empty() {
+            needed.extend(model.default_paths().into_iter().map(|path| Needed {
+                what,
+                path,
+                required: false,
+            }));
+        }
     }
     needed.push(Needed {
         what: "place-recognition vocabulary (loop closing)",

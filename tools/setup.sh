@@ -73,22 +73,34 @@ if [ ${#missing[@]} -gt 0 ]; then
     rm -rf "$tmp"
 fi
 
-# 4b. The other detectors, from ../shared/models where that folder exists beside the
-#     checkout, each checked by its sha256 (never committed): YOLOX-nano
-#     (`--model yolox-nano`) and DEIMv2-femto.
+# 4b. The other detectors (never committed), each checked by its sha256: YOLOX-nano
+#     (`--model yolox-nano`) and DEIMv2-femto (`--model deimv2-femto`), from
+#     ../shared/models where that folder exists beside the checkout; DEIMv2-femto else
+#     from its public source at a pinned commit (Apache-2.0: Kazuhito00/DEIMv2-ONNX-Sample).
+DEIMV2_URL="https://raw.githubusercontent.com/Kazuhito00/DEIMv2-ONNX-Sample/f88d4382abca74edb26ed4c7f46190ac40da0ea5/model/deimv2_hgnetv2_femto_coco.onnx"
 EXTRA_MODELS=(
-    "yolox_nano.onnx:695e750a5d5754bb5a8d5325643b59282191a7e7a564e435a415fd3c578eab14"
-    "deimv2_hgnetv2_femto_coco.onnx:c6ad358f750132b891165e034c2ba507abefc5ebe1c1d2732a0acbcacc47e52c"
+    "yolox_nano.onnx:695e750a5d5754bb5a8d5325643b59282191a7e7a564e435a415fd3c578eab14:"
+    "deimv2_hgnetv2_femto_coco.onnx:c6ad358f750132b891165e034c2ba507abefc5ebe1c1d2732a0acbcacc47e52c:$DEIMV2_URL"
 )
 for entry in "${EXTRA_MODELS[@]}"; do
-    name=${entry%%:*}; sha=${entry#*:}; from="../shared/models/$name"
-    if [ ! -f "data/models/$name" ] && [ -f "$from" ]; then
-        if [ "$(sha256sum "$from" | cut -d' ' -f1)" = "$sha" ]; then
-            mkdir -p data/models && cp "$from" "data/models/$name.part" && mv "data/models/$name.part" "data/models/$name"
+    name=${entry%%:*}; rest=${entry#*:}; sha=${rest%%:*}; url=${rest#*:}; from="../shared/models/$name"
+    [ -f "data/models/$name" ] && continue
+    mkdir -p data/models
+    if [ -f "$from" ]; then
+        cp "$from" "data/models/$name.part"
+    elif [ -n "$url" ] && command -v curl >/dev/null 2>&1; then
+        curl -fsSL --retry 2 -o "data/models/$name.part" "$url" 2>/dev/null || rm -f "data/models/$name.part"
+    fi
+    if [ -f "data/models/$name.part" ]; then
+        if [ "$(sha256sum "data/models/$name.part" | cut -d' ' -f1)" = "$sha" ]; then
+            mv "data/models/$name.part" "data/models/$name"
             say "installed data/models/$name (sha256 checked)"
         else
-            say "warning: $from has the wrong sha256; not installed"
+            rm -f "data/models/$name.part"
+            say "warning: $name has the wrong sha256; not installed"
         fi
+    else
+        say "note: $name (optional) not installed: no ../shared/models and no download"
     fi
 done
 

@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Benchmark helper (not a test): the safety net of a refactor. Runs dopslam
+# --deterministic on the demo and three presets (150 frames, real detector, dense
+# pass) and prints one hash per output file; JSON reports are hashed without their
+# timing and memory fields and with the output folder's path replaced, so two builds
+# that compute the same thing print the same lines.
+#
+#   bash tools/determinism_hashes.sh [BIN] > hashes.txt   # BIN default ./target/release/dopslam
+#   diff before.txt after.txt                              # empty: byte-identical outputs
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bin=$(realpath "${1:-./target/release/dopslam}")
+work=outputs/determinism
+mkdir -p "$work"
+for preset in demo demo_walking cutout_xyz cutout_halfsphere; do
+  seq=$work/seq-$preset
+  [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" --out "$seq" --frames 150 --force >/dev/null 2>&1
+  out=$work/run-$preset
+  rm -rf "$out"
+  extra=()
+  [ "$preset" = demo ] && extra=(--config configs/run/demo.toml)
+  "$bin" run "$seq" "${extra[@]}" --deterministic --out "$out" >"$work/$preset.log" 2>&1 || echo "run $preset failed (see $work/$preset.log)" >&2
+done
+python3 - "$work" <<'PY'
+import hashlib, json, os, re, sys
+root = sys.argv[1]
+timing = re.compile(r"(_ms$|^ms$|_s$|milliseconds|memory|seconds|^time|_time|elapsed|mib)")
+def strip(v):
+    if isinstance(v, dict):
+        return {k: strip(x) for k, x in v.items() if not timing.search(k)}
+    if isinstance(v, list):
+        return [strip(x) for x in v]
+    if isinstance(v, str):
+        return v.replace(os.path.abspath(root), "ROOT").replace(root, "ROOT")
+    return v
+for folder in sorted(d for d in os.listdir(root) if d.startswith("run-")):
+    for dirpath, dirs, files in sorted(os.walk(os.path.join(root, folder))):
+        dirs.sort()
+        for name in sorted(files):
+            path = os.path.join(dirpath, name)
+            data = open(path, "rb").read()
+            if name.endswith(".json"):
+                data = json.dumps(strip(json.loads(data)), sort_keys=True).encode()
+            print(hashlib.sha256(data).hexdigest()[:16], os.path.relpath(path, root))
+PY
