@@ -4,7 +4,10 @@
 //! 1. the dynamic objects of the detected keyframes nearest before and after it
 //!    (within `track_seconds`), each a box refined by depth as in the paper's
 //!    Algorithm 1: the box's object depth \(z_{obj}\) is the dominant depth of its
-//!    central region (from the keyframe's depth map), the object is placed in the
+//!    central region (from the keyframe's depth map; with `mask_foreground_share`, the
+//!    default, the nearest depth mode holding that share of the whole box: the mover
+//!    in front of what it hides, also when it fills little of its box), the object is
+//!    placed in the
 //!    world with the keyframe's final pose, projected into the frame with the frame's
 //!    pose, and a pixel inside the projected box belongs to it when
 //!    \(|d - z_{obj}| \le \delta_z\) (objects the detector missed on a keyframe are
@@ -16,19 +19,22 @@
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use crate::detect::FrameDetections;
-use crate::dop::boxes::{object_depth, Keypoint, ObjectBox};
+use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
 use crate::dop::tracks::{Object, ObjectTracks};
 use crate::dop::{DopConfig, Mode};
+use crate::dynamics::keyframes::object_boxes;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
-use crate::dynamics::keyframes::object_boxes;
 
 /// Settings of the masks.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MaskSettings {
     pub border: u32,
     pub keypoint_radius: u32,
+    /// The objects' depth: [`foreground_depth`] of the box's pixels with this share;
+    /// 0: [`object_depth`] (the dominant depth of its centre).
+    pub foreground_share: f32,
 }
 
 /// One detected keyframe: its dynamic boxes (pixels) and objects (world).
@@ -93,7 +99,17 @@ impl MaskSource {
                     objects = boxes
                         .iter()
                         .filter_map(|b| {
-                            let z = object_depth(dop, &samples, b)?;
+                            let z = match settings.foreground_share {
+                                share if share > 0.0 => {
+                                    let inside: Vec<f32> = samples
+                                        .iter()
+                                        .filter(|k| b.contains(k.x, k.y))
+                                        .map(|k| k.depth)
+                                        .collect();
+                                    foreground_depth(&inside, dop.delta_z / 2.0, share)?
+                                }
+                                _ => object_depth(dop, &samples, b)?,
+                            };
                             Some(Object::from_box(b.bbox, z, &camera, &world_from_camera))
                         })
                         .collect();
@@ -317,6 +333,57 @@ mod tests {
         (camera, depth)
     }
 
+    /// A person cut by the image border fills little of its box: the box's dominant
+    /// depth is the wall's, which masks the wall and not the person; its foreground
+    /// depth is the person's.
+    #[test]
+    fn a_box_the_wall_fills_is_cut_at_its_foreground_depth() {
+        let (camera, depth) = scene();
+        // The person (250..390) fills about a sixth of this box.
+        let detection = Detection {
+            class: "person".into(),
+            class_id: 0,
+            score: 0.9,
+            bbox: [250.0, 80.0, 640.0, 480.0],
+            instance: None,
+        };
+        let frames = vec![FrameDetections {
+            timestamp: 1.0,
+            detections: vec![detection],
+        }];
+        let mask_with = |foreground_share| {
+            let settings = MaskSettings {
+                border: 0,
+                keypoint_radius: 0,
+                foreground_share,
+            };
+            let source = MaskSource::new(
+                Mode::Dop,
+                settings,
+                camera,
+                &DopConfig::default(),
+                &["person".to_string()],
+                frames.clone(),
+                vec![],
+                &|_| Some(Se3::identity()),
+                &|_| Some(depth.clone()),
+            );
+            source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+        };
+        let at = |mask: &[bool], u: u32, v: u32| mask[(v * camera.width + u) as usize];
+        let dominant = mask_with(0.0);
+        assert!(
+            at(&dominant, 500, 300) && !at(&dominant, 320, 300),
+            "the wall's depth"
+        );
+        let foreground = mask_with(0.1);
+        assert!(at(&foreground, 320, 300), "the person");
+        assert!(
+            !at(&foreground, 500, 300),
+            "the wall inside the box stays static"
+        );
+    }
+
     #[test]
     fn dop_masks_the_object_not_its_background_and_reaches_frames_between_keyframes() {
         let (camera, depth) = scene();
@@ -334,6 +401,7 @@ mod tests {
         let settings = MaskSettings {
             border: 0,
             keypoint_radius: 8,
+            foreground_share: 0.0,
         };
         let identity = Se3::identity();
         let source = MaskSource::new(

@@ -119,6 +119,10 @@ pub struct DenseConfig {
     /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
     pub mask_border: u32,
     pub keypoint_radius: u32,
+    /// The depth an object's mask is cut at: the nearest depth mode holding at least
+    /// this share of its box's pixels (the mover stands in front of what it hides);
+    /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
+    pub mask_foreground_share: f32,
     /// PLY encoding: binary (little endian) or ascii.
     pub ply_encoding: PlyEncoding,
 }
@@ -151,6 +155,7 @@ impl Default for DenseConfig {
             detect_every: 5,
             mask_border: 6,
             keypoint_radius: 10,
+            mask_foreground_share: 0.10,
             ply_encoding: PlyEncoding::Binary,
         }
     }
@@ -177,6 +182,12 @@ impl DenseConfig {
             return Err(format!(
                 "dense.cloud_free_space must be a number above -1, not {}",
                 self.cloud_free_space
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.mask_foreground_share) {
+            return Err(format!(
+                "dense.mask_foreground_share must be in [0, 1], not {}",
+                self.mask_foreground_share
             ));
         }
         if self.truncation < self.voxel {
@@ -480,6 +491,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         MaskSettings {
             border: config.mask_border,
             keypoint_radius: config.keypoint_radius,
+            foreground_share: config.mask_foreground_share,
         },
         inputs.camera,
         inputs.dop,
