@@ -35,6 +35,8 @@ pub struct MaskSettings {
     /// The objects' depth: [`foreground_depth`] of the box's pixels with this share;
     /// 0: [`object_depth`] (the dominant depth of its centre).
     pub foreground_share: f32,
+    /// No disc around a dynamic keypoint inside an object's box but behind it.
+    pub skip_behind_objects: bool,
 }
 
 /// One detected keyframe: its dynamic boxes (pixels) and objects (world).
@@ -169,39 +171,75 @@ impl MaskSource {
                 }
             }
             Mode::Dop => {
-                for object in near.iter().flat_map(|k| &k.objects) {
-                    let Some(b) = object.to_box(&self.camera, camera_from_world) else {
-                        continue;
-                    };
-                    let z = b.depth.unwrap_or(0.0);
-                    let dz = self.dop.delta_z;
-                    any |= fill_box(&mut mask, w, h, b.bbox, |u, v| {
-                        let d = depth.at(u as u32, v as u32);
-                        d == 0.0 || (d - z).abs() <= dz
-                    });
-                }
-                let i = self
-                    .keypoints
-                    .partition_point(|k| k.timestamp < timestamp - 1e-6);
-                if let Some(frame) = self
-                    .keypoints
-                    .get(i)
-                    .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
-                {
-                    let r = self.settings.keypoint_radius as f32;
-                    for &[x, y, z] in &frame.points {
-                        let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
-                        any |= fill_box(&mut mask, w, h, bbox, |u, v| {
-                            let (du, dv) = (u as f32 - x, v as f32 - y);
-                            let d = depth.at(u as u32, v as u32);
-                            du * du + dv * dv <= r * r
-                                && (z <= 0.0 || d == 0.0 || (d - z).abs() <= self.dop.delta_z / 2.0)
-                        });
-                    }
-                }
+                let objects: Vec<ObjectBox> = near
+                    .iter()
+                    .flat_map(|k| &k.objects)
+                    .filter_map(|object| object.to_box(&self.camera, camera_from_world))
+                    .collect();
+                any |= self.object_masks(&mut mask, depth, &objects);
+                any |= self.keypoint_discs(&mut mask, depth, timestamp, &objects);
             }
         }
         any.then(|| dilate(&mask, w, h, self.settings.border as usize))
+    }
+
+    /// Each object's box, cut at its depth: the pixels within `delta_z` of it, and
+    /// those without depth.
+    fn object_masks(&self, mask: &mut [bool], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        let mut any = false;
+        for b in objects {
+            let z = b.depth.unwrap_or(0.0);
+            let dz = self.dop.delta_z;
+            any |= fill_box(mask, w, h, b.bbox, |u, v| {
+                let d = depth.at(u as u32, v as u32);
+                d == 0.0 || (d - z).abs() <= dz
+            });
+        }
+        any
+    }
+
+    /// Discs around the frame's dynamic keypoints (depth within `delta_z / 2` of the
+    /// keypoint's), except keypoints inside a detected mover's box but more than
+    /// `delta_z` behind it: the background the mover stands in front of, which the
+    /// object's mask already judged (with `skip_behind_objects`).
+    fn keypoint_discs(
+        &self,
+        mask: &mut [bool],
+        depth: &DepthImage,
+        timestamp: f64,
+        objects: &[ObjectBox],
+    ) -> bool {
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        let i = self
+            .keypoints
+            .partition_point(|k| k.timestamp < timestamp - 1e-6);
+        let Some(frame) = self
+            .keypoints
+            .get(i)
+            .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
+        else {
+            return false;
+        };
+        let behind = |x: f32, y: f32, z: f32| {
+            self.settings.skip_behind_objects
+                && z > 0.0
+                && objects.iter().any(|b| {
+                    b.contains(x, y) && b.depth.is_some_and(|bz| z - bz > self.dop.delta_z)
+                })
+        };
+        let r = self.settings.keypoint_radius as f32;
+        let mut any = false;
+        for &[x, y, z] in frame.points.iter().filter(|p| !behind(p[0], p[1], p[2])) {
+            let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
+            any |= fill_box(mask, w, h, bbox, |u, v| {
+                let (du, dv) = (u as f32 - x, v as f32 - y);
+                let d = depth.at(u as u32, v as u32);
+                du * du + dv * dv <= r * r
+                    && (z <= 0.0 || d == 0.0 || (d - z).abs() <= self.dop.delta_z / 2.0)
+            });
+        }
+        any
     }
 }
 
@@ -356,6 +394,7 @@ mod tests {
                 border: 0,
                 keypoint_radius: 0,
                 foreground_share,
+                skip_behind_objects: false,
             };
             let source = MaskSource::new(
                 Mode::Dop,
@@ -384,6 +423,55 @@ mod tests {
         );
     }
 
+    /// A dynamic keypoint on the wall inside a detected person's box, behind the
+    /// person: its disc is drawn unless discs behind objects are off; one outside any
+    /// box keeps its disc either way.
+    #[test]
+    fn discs_behind_a_detected_mover_can_be_left_out() {
+        let (camera, depth) = scene();
+        let frames = vec![FrameDetections {
+            timestamp: 1.0,
+            detections: vec![Detection {
+                class: "person".into(),
+                class_id: 0,
+                score: 0.9,
+                bbox: [230.0, 80.0, 410.0, 470.0],
+                instance: None,
+            }],
+        }];
+        let keypoints = vec![FrameKeypoints {
+            timestamp: 1.0,
+            points: vec![[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]],
+        }];
+        let mask_with = |skip_behind_objects| {
+            let settings = MaskSettings {
+                border: 0,
+                keypoint_radius: 5,
+                foreground_share: 0.1,
+                skip_behind_objects,
+            };
+            let source = MaskSource::new(
+                Mode::Dop,
+                settings,
+                camera,
+                &DopConfig::default(),
+                &["person".to_string()],
+                frames.clone(),
+                keypoints.clone(),
+                &|_| Some(Se3::identity()),
+                &|_| Some(depth.clone()),
+            );
+            source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+        };
+        let at = |mask: &[bool], u: u32, v: u32| mask[(v * camera.width + u) as usize];
+        let drawn = mask_with(false);
+        assert!(at(&drawn, 240, 300) && at(&drawn, 100, 300));
+        let skipped = mask_with(true);
+        assert!(!at(&skipped, 240, 300), "behind the person");
+        assert!(at(&skipped, 100, 300), "outside any box");
+        assert!(at(&skipped, 320, 300), "the person");
+    }
+
     #[test]
     fn dop_masks_the_object_not_its_background_and_reaches_frames_between_keyframes() {
         let (camera, depth) = scene();
@@ -402,6 +490,7 @@ mod tests {
             border: 0,
             keypoint_radius: 8,
             foreground_share: 0.0,
+            skip_behind_objects: false,
         };
         let identity = Se3::identity();
         let source = MaskSource::new(

@@ -123,6 +123,10 @@ pub struct DenseConfig {
     /// this share of its box's pixels (the mover stands in front of what it hides);
     /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
     pub mask_foreground_share: f32,
+    /// Discs also around dynamic keypoints inside a detected mover's box but behind
+    /// it (false: none there; more static pixels fused, but a second mover behind the
+    /// first loses its discs).
+    pub mask_discs_behind_objects: bool,
     /// PLY encoding: binary (little endian) or ascii.
     pub ply_encoding: PlyEncoding,
 }
@@ -156,6 +160,7 @@ impl Default for DenseConfig {
             mask_border: 6,
             keypoint_radius: 10,
             mask_foreground_share: 0.10,
+            mask_discs_behind_objects: true,
             ply_encoding: PlyEncoding::Binary,
         }
     }
@@ -492,6 +497,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             border: config.mask_border,
             keypoint_radius: config.keypoint_radius,
             foreground_share: config.mask_foreground_share,
+            skip_behind_objects: !config.mask_discs_behind_objects,
         },
         inputs.camera,
         inputs.dop,
