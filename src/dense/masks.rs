@@ -371,24 +371,48 @@ mod tests {
         (camera, depth)
     }
 
+    /// The DOP mask at t = 1 of [`scene`] with one person detected in `bbox` at t = 1,
+    /// the frame's dynamic `keypoints`, and `settings`.
+    fn person_mask(bbox: [f32; 4], keypoints: &[[f32; 3]], settings: MaskSettings) -> Vec<bool> {
+        let (camera, depth) = scene();
+        let frames = vec![FrameDetections {
+            timestamp: 1.0,
+            detections: vec![Detection {
+                class: "person".into(),
+                class_id: 0,
+                score: 0.9,
+                bbox,
+                instance: None,
+            }],
+        }];
+        let keypoints = vec![FrameKeypoints {
+            timestamp: 1.0,
+            points: keypoints.to_vec(),
+        }];
+        let source = MaskSource::new(
+            Mode::Dop,
+            settings,
+            camera,
+            &DopConfig::default(),
+            &["person".to_string()],
+            frames,
+            keypoints,
+            &|_| Some(Se3::identity()),
+            &|_| Some(depth.clone()),
+        );
+        source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+    }
+
+    fn at(mask: &[bool], u: u32, v: u32) -> bool {
+        mask[(v * PinholeCamera::tum_fr3().width + u) as usize]
+    }
+
     /// A person cut by the image border fills little of its box: the box's dominant
     /// depth is the wall's, which masks the wall and not the person; its foreground
     /// depth is the person's.
     #[test]
     fn a_box_the_wall_fills_is_cut_at_its_foreground_depth() {
-        let (camera, depth) = scene();
         // The person (250..390) fills about a sixth of this box.
-        let detection = Detection {
-            class: "person".into(),
-            class_id: 0,
-            score: 0.9,
-            bbox: [250.0, 80.0, 640.0, 480.0],
-            instance: None,
-        };
-        let frames = vec![FrameDetections {
-            timestamp: 1.0,
-            detections: vec![detection],
-        }];
         let mask_with = |foreground_share| {
             let settings = MaskSettings {
                 border: 0,
@@ -396,20 +420,8 @@ mod tests {
                 foreground_share,
                 skip_behind_objects: false,
             };
-            let source = MaskSource::new(
-                Mode::Dop,
-                settings,
-                camera,
-                &DopConfig::default(),
-                &["person".to_string()],
-                frames.clone(),
-                vec![],
-                &|_| Some(Se3::identity()),
-                &|_| Some(depth.clone()),
-            );
-            source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+            person_mask([250.0, 80.0, 640.0, 480.0], &[], settings)
         };
-        let at = |mask: &[bool], u: u32, v: u32| mask[(v * camera.width + u) as usize];
         let dominant = mask_with(0.0);
         assert!(
             at(&dominant, 500, 300) && !at(&dominant, 320, 300),
@@ -428,21 +440,6 @@ mod tests {
     /// box keeps its disc either way.
     #[test]
     fn discs_behind_a_detected_mover_can_be_left_out() {
-        let (camera, depth) = scene();
-        let frames = vec![FrameDetections {
-            timestamp: 1.0,
-            detections: vec![Detection {
-                class: "person".into(),
-                class_id: 0,
-                score: 0.9,
-                bbox: [230.0, 80.0, 410.0, 470.0],
-                instance: None,
-            }],
-        }];
-        let keypoints = vec![FrameKeypoints {
-            timestamp: 1.0,
-            points: vec![[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]],
-        }];
         let mask_with = |skip_behind_objects| {
             let settings = MaskSettings {
                 border: 0,
@@ -450,20 +447,9 @@ mod tests {
                 foreground_share: 0.1,
                 skip_behind_objects,
             };
-            let source = MaskSource::new(
-                Mode::Dop,
-                settings,
-                camera,
-                &DopConfig::default(),
-                &["person".to_string()],
-                frames.clone(),
-                keypoints.clone(),
-                &|_| Some(Se3::identity()),
-                &|_| Some(depth.clone()),
-            );
-            source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+            let keypoints = [[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]];
+            person_mask([230.0, 80.0, 410.0, 470.0], &keypoints, settings)
         };
-        let at = |mask: &[bool], u: u32, v: u32| mask[(v * camera.width + u) as usize];
         let drawn = mask_with(false);
         assert!(at(&drawn, 240, 300) && at(&drawn, 100, 300));
         let skipped = mask_with(true);

@@ -61,19 +61,27 @@ pub struct Keypoint {
     pub depth: f32,
 }
 
-/// The dominant depth of `depths` (the mean of the fullest `bin`-wide histogram bin;
-/// ties go to the nearer bin).
-pub fn dominant_depth(depths: &[f32], bin: f32) -> Option<f32> {
-    let valid: Vec<f32> = depths.iter().copied().filter(|z| *z > 0.0).collect();
-    if valid.is_empty() {
-        return None;
-    }
+/// The histogram of the valid (positive) `depths` in `bin`-wide bins, each bin's count
+/// and sum, and how many were valid; `None` without any.
+fn depth_histogram(
+    depths: &[f32],
+    bin: f32,
+) -> Option<(std::collections::BTreeMap<i64, (usize, f32)>, usize)> {
     let mut bins: std::collections::BTreeMap<i64, (usize, f32)> = Default::default();
-    for z in &valid {
+    let mut valid = 0;
+    for &z in depths.iter().filter(|z| **z > 0.0) {
         let entry = bins.entry((z / bin).floor() as i64).or_default();
         entry.0 += 1;
         entry.1 += z;
+        valid += 1;
     }
+    (valid > 0).then_some((bins, valid))
+}
+
+/// The dominant depth of `depths` (the mean of the fullest `bin`-wide histogram bin;
+/// ties go to the nearer bin).
+pub fn dominant_depth(depths: &[f32], bin: f32) -> Option<f32> {
+    let (bins, _) = depth_histogram(depths, bin)?;
     let (_, (count, sum)) =
         bins.iter()
             .fold(None::<(i64, (usize, f32))>, |best, (k, v)| match best {
@@ -90,17 +98,8 @@ pub fn dominant_depth(depths: &[f32], bin: f32) -> Option<f32> {
 /// border, partly hidden, or seen through the gaps of its own outline), where the
 /// dominant depth is the wall's.
 pub fn foreground_depth(depths: &[f32], bin: f32, min_share: f32) -> Option<f32> {
-    let valid: Vec<f32> = depths.iter().copied().filter(|z| *z > 0.0).collect();
-    if valid.is_empty() {
-        return None;
-    }
-    let mut bins: std::collections::BTreeMap<i64, (usize, f32)> = Default::default();
-    for z in &valid {
-        let entry = bins.entry((z / bin).floor() as i64).or_default();
-        entry.0 += 1;
-        entry.1 += z;
-    }
-    let needed = ((min_share * valid.len() as f32).ceil() as usize).max(1);
+    let (bins, valid) = depth_histogram(depths, bin)?;
+    let needed = ((min_share * valid as f32).ceil() as usize).max(1);
     bins.iter().find_map(|(k, &(count, sum))| {
         let (next_count, next_sum) = bins.get(&(k + 1)).copied().unwrap_or_default();
         let total = count + next_count;
