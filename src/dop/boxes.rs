@@ -61,13 +61,13 @@ pub struct Keypoint {
     pub depth: f32,
 }
 
-/// The histogram of the valid (positive) `depths` in `bin`-wide bins, each bin's count
-/// and sum, and how many were valid; `None` without any.
-fn depth_histogram(
-    depths: &[f32],
-    bin: f32,
-) -> Option<(std::collections::BTreeMap<i64, (usize, f32)>, usize)> {
-    let mut bins: std::collections::BTreeMap<i64, (usize, f32)> = Default::default();
+/// Depth bins: each bin's count and sum of depths, by bin index.
+type DepthBins = std::collections::BTreeMap<i64, (usize, f32)>;
+
+/// The histogram of the valid (positive) `depths` in `bin`-wide bins, and how many were
+/// valid; `None` without any.
+fn depth_histogram(depths: &[f32], bin: f32) -> Option<(DepthBins, usize)> {
+    let mut bins = DepthBins::new();
     let mut valid = 0;
     for &z in depths.iter().filter(|z| **z > 0.0) {
         let entry = bins.entry((z / bin).floor() as i64).or_default();
