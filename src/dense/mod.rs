@@ -127,6 +127,10 @@ pub struct DenseConfig {
     /// it (false: none there; more static pixels fused, but a second mover behind the
     /// first loses its discs).
     pub mask_discs_behind_objects: bool,
+    /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
+    /// colour frame beside its mask, against the ground truth of a synthetic sequence
+    /// (green: mover masked, red: static masked, yellow: mover fused).
+    pub mask_pictures_every: usize,
     /// PLY encoding: binary (little endian) or ascii.
     pub ply_encoding: PlyEncoding,
 }
@@ -161,6 +165,7 @@ impl Default for DenseConfig {
             keypoint_radius: 10,
             mask_foreground_share: 0.10,
             mask_discs_behind_objects: true,
+            mask_pictures_every: 0,
             ply_encoding: PlyEncoding::Binary,
         }
     }
@@ -677,11 +682,21 @@ fn fuse_frames(
                 dynamic: mask.as_deref(),
                 camera_from_world: &pose,
             };
-            if let (Some(truth), Some(dir)) = (truth.as_mut(), &inputs.truth_masks) {
-                let path = dir.join(format!("{:.6}.png", timestamp));
-                if let Some(ids) = crate::io::image_files::read_instance_mask(&path) {
-                    count_truth(truth, ids.as_raw(), &input, config.max_depth);
-                }
+            let ids = inputs.truth_masks.as_ref().and_then(|dir| {
+                crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
+            });
+            if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
+                count_truth(truth, ids.as_raw(), &input, config.max_depth);
+            }
+            let every = config.mask_pictures_every;
+            if every > 0 && fused.frames.is_multiple_of(every) {
+                let picture = render::mask_picture(&rgb, mask.as_deref(), ids.as_ref().map(|i| i.as_raw().as_slice()));
+                let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
+                std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                    path: dir.clone(),
+                    source,
+                })?;
+                save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
             }
             let start = Instant::now();
             if let Some(volume) = volume.as_deref_mut() {

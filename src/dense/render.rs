@@ -199,6 +199,26 @@ pub fn label(picture: &mut RgbImage, text: &str) {
     let _ = root.present();
 }
 
+/// A fused frame's mask beside the frame: against the ground-truth instance ids of a
+/// synthetic frame (0: static), green where a mover is masked, red where the static
+/// scene is masked, yellow where a mover is fused, black elsewhere; without the truth,
+/// white where masked.
+pub fn mask_picture(colour: &RgbImage, mask: Option<&[bool]>, truth: Option<&[u16]>) -> RgbImage {
+    let (w, h) = colour.dimensions();
+    let masked = |i: usize| mask.is_some_and(|m| m[i]);
+    let picture = RgbImage::from_fn(w, h, |u, v| {
+        let i = (v * w + u) as usize;
+        match (masked(i), truth.map(|t| t[i] != 0)) {
+            (true, Some(true)) => Rgb([0, 200, 0]),
+            (true, Some(false)) => Rgb([220, 0, 0]),
+            (false, Some(true)) => Rgb([255, 230, 0]),
+            (true, None) => Rgb([255, 255, 255]),
+            (false, _) => Rgb([0, 0, 0]),
+        }
+    });
+    side_by_side(colour, &picture)
+}
+
 /// A map's colours with the flagged points (ghosts) in red.
 pub fn with_ghosts(mesh: &Mesh, ghost: &[bool]) -> Vec<[u8; 3]> {
     (0..mesh.len())
@@ -228,6 +248,23 @@ pub fn picture_camera() -> PinholeCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_mask_picture_colours_each_pixel_against_the_truth() {
+        let colour = RgbImage::from_pixel(2, 2, Rgb([9, 9, 9]));
+        let mask = [true, true, false, false];
+        let truth = [3u16, 0, 3, 0];
+        let picture = mask_picture(&colour, Some(&mask), Some(&truth));
+        assert_eq!(picture.dimensions(), (2 + 8 + 2, 2));
+        let at = |u: u32, v: u32| picture.get_pixel(10 + u, v).0;
+        assert_eq!(at(0, 0), [0, 200, 0], "mover masked");
+        assert_eq!(at(1, 0), [220, 0, 0], "static masked");
+        assert_eq!(at(0, 1), [255, 230, 0], "mover fused");
+        assert_eq!(at(1, 1), [0, 0, 0], "static fused");
+        assert_eq!(picture.get_pixel(0, 0).0, [9, 9, 9], "the frame on the left");
+        let plain = mask_picture(&colour, Some(&mask), None);
+        assert_eq!(plain.get_pixel(10, 0).0, [255, 255, 255]);
+    }
 
     #[test]
     fn a_point_in_front_of_the_view_is_drawn_and_one_behind_is_not() {

@@ -40,6 +40,8 @@ pub mod names {
     pub const DENSE_REPORT: &str = "dense.json";
     pub const DENSE_PERSPECTIVE: &str = "dense_perspective.png";
     pub const DENSE_TOP: &str = "dense_top.png";
+    /// The dense pass's mask pictures (`[dense] mask_pictures_every`).
+    pub const MASK_PICTURES: &str = "mask_pictures";
     /// What `dopslam eval --save-report` writes beside a run.
     pub const EVALUATION: &str = "evaluation.json";
     pub const PLOTS: &str = "plots";
@@ -55,7 +57,7 @@ pub mod names {
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,
 /// `log.txt` and `run.json` beside them are the batch's own): what
 /// [`super::output::move_previous_outputs`] moves aside.
-pub const RUN_OUTPUTS: [&str; 21] = [
+pub const RUN_OUTPUTS: [&str; 22] = [
     names::TRAJECTORY,
     names::TRACKING_TRAJECTORY,
     names::KEYFRAMES,
@@ -71,6 +73,7 @@ pub const RUN_OUTPUTS: [&str; 21] = [
     names::DENSE_PERSPECTIVE,
     names::DENSE_TOP,
     names::DENSE_DETECTIONS,
+    names::MASK_PICTURES,
     names::EVALUATION,
     names::PLOTS,
     names::NO_DOP,
