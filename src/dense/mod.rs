@@ -659,6 +659,18 @@ fn fuse_frames(
     truth: &mut Option<FusedTruth>,
 ) -> Result<Fused, IoError> {
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
+    // The mask pictures' folder, when they are asked for.
+    let pictures = match config.mask_pictures_every {
+        0 => None,
+        _ => {
+            let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
+            std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                path: dir.clone(),
+                source,
+            })?;
+            Some(dir)
+        }
+    };
     let mut fused = Fused {
         frames: 0,
         keyframes_in_cloud: 0,
@@ -688,14 +700,12 @@ fn fuse_frames(
             if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
                 count_truth(truth, ids.as_raw(), &input, config.max_depth);
             }
-            let every = config.mask_pictures_every;
-            if every > 0 && fused.frames.is_multiple_of(every) {
-                let picture = render::mask_picture(&rgb, mask.as_deref(), ids.as_ref().map(|i| i.as_raw().as_slice()));
-                let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
-                std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
-                    path: dir.clone(),
-                    source,
-                })?;
+            if let Some(dir) = pictures
+                .as_ref()
+                .filter(|_| fused.frames.is_multiple_of(config.mask_pictures_every))
+            {
+                let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
+                let picture = render::mask_picture(&rgb, mask.as_deref(), truth);
                 save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
             }
             let start = Instant::now();

@@ -113,8 +113,6 @@ pub struct Dynamics {
     applied: Vec<Applied>,
     /// The followed objects as of the latest detection (DOP mode).
     followed: Option<FollowedObjects>,
-    /// The newest keyframe's id and the frames tracked since it.
-    newest_keyframe: Option<(usize, usize)>,
 }
 
 impl Dynamics {
@@ -129,7 +127,6 @@ impl Dynamics {
             awaited: Waiting::default(),
             applied: Vec::new(),
             followed: None,
-            newest_keyframe: None,
         }
     }
 
@@ -138,29 +135,21 @@ impl Dynamics {
         (self.config.mode == Mode::Dop).then_some(&self.config.dop)
     }
 
-    /// Which points take part in the next frame's pose.
-    pub fn participation(&self) -> Participation<'_> {
+    /// Which points take part in the next frame's pose; `clock` is the tracker's
+    /// newest keyframe and the frames tracked since it
+    /// ([`crate::tracking::Tracker::keyframe_clock`]).
+    pub fn participation(&self, clock: Option<(usize, usize)>) -> Participation<'_> {
         let dop = self.dop();
         Participation {
             dop,
             followed: self.followed.as_ref(),
-            probation: self.newest_keyframe.filter(|_| dop.is_some()).map(
-                |(keyframe_id, frames_since)| Probation {
+            probation: clock
+                .filter(|_| dop.is_some())
+                .map(|(keyframe_id, frames_since)| Probation {
                     keyframe_id,
                     frames_since,
                     frames: self.config.probation_frames,
-                },
-            ),
-        }
-    }
-
-    /// After each frame: the probation clock restarts at a new keyframe (`id`) and
-    /// counts each other tracked frame.
-    pub fn after_frame(&mut self, new_keyframe_id: Option<usize>, tracked: bool) {
-        match (new_keyframe_id, self.newest_keyframe.as_mut()) {
-            (Some(id), _) => self.newest_keyframe = Some((id, 0)),
-            (None, Some((_, frames_since))) if tracked => *frames_since += 1,
-            _ => {}
+                }),
         }
     }
 
@@ -195,7 +184,9 @@ impl Dynamics {
         if self.model_milliseconds.len() > 1 {
             for (model, times) in &mut self.model_milliseconds {
                 let median = crate::eval::stats::median(times);
-                self.totals.per_model_median_ms.insert(model.clone(), median);
+                self.totals
+                    .per_model_median_ms
+                    .insert(model.clone(), median);
             }
         }
         self.totals
@@ -372,24 +363,15 @@ mod tests {
     }
 
     #[test]
-    fn the_probation_clock_restarts_at_each_keyframe_and_counts_tracked_frames() {
-        let mut d = dynamics(Mode::Dop);
-        assert_eq!(d.participation().probation, None);
-        d.after_frame(Some(4), true);
-        let probation = |d: &Dynamics| {
-            d.participation()
-                .probation
-                .map(|p| (p.keyframe_id, p.frames_since))
-        };
-        assert_eq!(probation(&d), Some((4, 0)));
-        d.after_frame(None, true);
-        d.after_frame(None, false);
-        assert_eq!(probation(&d), Some((4, 1)), "a lost frame does not count");
-        d.after_frame(Some(5), true);
-        assert_eq!(probation(&d), Some((5, 0)));
+    fn the_newest_keyframe_is_on_probation_with_the_model_only() {
+        let d = dynamics(Mode::Dop);
+        assert_eq!(d.participation(None).probation, None);
+        let probation = d.participation(Some((4, 1))).probation.unwrap();
+        assert_eq!((probation.keyframe_id, probation.frames_since), (4, 1));
+        assert_eq!(probation.frames, 2);
         // Without the model there is no probation and no gate.
-        let mut off = dynamics(Mode::Off);
-        off.after_frame(Some(4), true);
-        assert!(off.participation().probation.is_none() && off.participation().dop.is_none());
+        let off = dynamics(Mode::Off);
+        let gate = off.participation(Some((4, 1)));
+        assert!(gate.probation.is_none() && gate.dop.is_none());
     }
 }

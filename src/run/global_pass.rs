@@ -30,7 +30,7 @@ pub fn global_pass(
         camera: &setup.camera,
         pyramid: &setup.extractor.pyramid,
         size: (camera.width as f32, camera.height as f32),
-        moving_threshold: pass.tracked.moving_threshold,
+        moving_threshold: setup.mode.moving_threshold(&setup.config.dop),
     };
     let report = crate::global::run(
         &mut pass.tracked.map,

@@ -22,7 +22,8 @@ pub struct FrameView<'a> {
     pub frame: Option<&'a Frame>,
     /// The DOP model, when on.
     pub dop: Option<&'a DopConfig>,
-    pub picture: &'a Picture,
+    /// The frame's picture, when an observer draws on it (debug pictures).
+    pub picture: Option<&'a Picture>,
 }
 
 impl FrameView<'_> {
@@ -86,10 +87,10 @@ pub struct DebugFrames {
 
 impl FrameObserver for DebugFrames {
     fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
-        let Some(frame) = view.frame else {
+        let (Some(frame), Some(picture)) = (view.frame, view.picture) else {
             return Ok(());
         };
-        let mut picture = view.picture.clone().into_colour();
+        let mut picture = picture.clone().into_colour();
         let dop = view.dop.cloned().unwrap_or_default();
         crate::detect::draw::draw_keypoints(&mut picture, frame, &dop);
         let path = self.dir.join(format!("{:06}.png", view.index));

@@ -82,14 +82,16 @@ pub fn tracking_pass(
         };
         let extraction_ms = started.elapsed().as_secs_f64() * 1e3;
         let timestamp = frame.timestamp;
-        let (report, tracking_ms) = system.track(frame, &picture, started);
+        // The detector takes the picture; a copy only for the debug pictures.
+        let shown = options.debug_frames.is_some().then(|| picture.clone());
+        let (report, tracking_ms) = system.track(frame, picture, started);
         let view = FrameView {
             index,
             timestamp,
             report: &report,
             frame: system.tracked_frame(index),
             dop: system.dop(),
-            picture: &picture,
+            picture: shown.as_ref(),
         };
         if let Err(message) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
             stop = Some(message);

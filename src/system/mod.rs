@@ -74,8 +74,6 @@ pub struct Tracked {
     pub detection: DetectionTotals,
     /// What the detections did that the last [`System::take_applied`] left.
     pub applied: Vec<Applied>,
-    /// The points above this moving probability are dynamic (1: none).
-    pub moving_threshold: f32,
 }
 
 /// The online system (see the module doc).
@@ -87,7 +85,6 @@ pub struct System {
     detection: Option<Worker<Detection>>,
     dynamics: Dynamics,
     execution: Execution,
-    moving_threshold: f32,
 }
 
 impl System {
@@ -110,10 +107,7 @@ impl System {
             size,
             setup.close_depth,
         );
-        if setup.mode == Mode::Dop {
-            mapper.moving_threshold = config.dop.removal_threshold;
-        }
-        let moving_threshold = mapper.moving_threshold;
+        mapper.moving_threshold = setup.mode.moving_threshold(&config.dop);
         let recognition = helpers.vocabulary.map(|vocabulary| {
             vocabulary.map(|vocabulary| {
                 let stage = Recognition {
@@ -161,7 +155,6 @@ impl System {
             detection,
             dynamics,
             execution: setup.execution,
-            moving_threshold,
         }
     }
 
@@ -192,17 +185,15 @@ impl System {
     pub fn track(
         &mut self,
         frame: Frame,
-        picture: &Picture,
+        picture: Picture,
         started: Instant,
     ) -> (FrameReport, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
-        let gate = self.dynamics.participation();
+        let gate = self.dynamics.participation(self.tracker.keyframe_clock());
         let report = self
             .tracker
             .track(&self.map, frame, &gate, self.mapping.is_idle());
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;
-        let tracked = report.state == TrackingState::Ok;
-        self.dynamics.after_frame(report.new_keyframe_id, tracked);
         if let Some(key) = report.new_keyframe {
             // Marked before local mapping sees the keyframe, whose BA leaves its points
             // out while they wait.
@@ -218,7 +209,7 @@ impl System {
                 worker.submit(Job {
                     id: index,
                     timestamp,
-                    image: picture.clone().into_colour(),
+                    image: picture.into_colour(),
                 });
                 if awaits && self.dynamics.submitted() == 1 {
                     // The first map waits for its detection: nothing older can carry
@@ -253,8 +244,10 @@ impl System {
         }
         let mut map = self.map.write().expect("map lock poisoned");
         self.dynamics.receive(&mut map, outcomes);
-        self.tracker
-            .refresh_moving(&map, &self.dynamics.participation());
+        self.tracker.refresh_moving(
+            &map,
+            &self.dynamics.participation(self.tracker.keyframe_clock()),
+        );
     }
 
     /// Waits for the helpers (the detector's last outcomes are applied), then hands the
@@ -285,7 +278,6 @@ impl System {
             mapping,
             detection: self.dynamics.finish(),
             applied,
-            moving_threshold: self.moving_threshold,
         }
     }
 }

@@ -41,9 +41,6 @@ pub struct FrameReport {
     /// The keyframe made from this frame, for local mapping.
     #[serde(skip)]
     pub new_keyframe: Option<KeyFrameKey>,
-    /// Its id (its points' `first_keyframe_id`).
-    #[serde(skip)]
-    pub new_keyframe_id: Option<usize>,
     /// Milliseconds: matching and local-map search, pose optimisation, total tracking
     /// (feature extraction is timed by the caller).
     pub matching_ms: f64,
@@ -81,7 +78,6 @@ impl FrameReport {
             geometric_lowered: 0,
             lost: None,
             new_keyframe: None,
-            new_keyframe_id: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
             dop_ms: 0.0,

@@ -168,6 +168,7 @@ impl Tracker {
         }
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
+        self.newest_keyframe_id = Some(id);
     }
 
     /// Camera-frame position of keypoint `i` from its depth.

@@ -49,6 +49,8 @@ pub struct Tracker {
     velocity: Option<Se3>,
     reference: Option<KeyFrameKey>,
     frames_since_keyframe: usize,
+    /// The id of the keyframe this tracker made last.
+    newest_keyframe_id: Option<usize>,
     /// The active map segment, the number of segments started, and since when
     /// (timestamp) tracking is lost.
     segment: usize,
@@ -82,6 +84,7 @@ impl Tracker {
             velocity: None,
             reference: None,
             frames_since_keyframe: 0,
+            newest_keyframe_id: None,
             segment: 0,
             segments: 0,
             lost_since: None,
@@ -92,6 +95,13 @@ impl Tracker {
 
     pub fn state(&self) -> TrackingState {
         self.state
+    }
+
+    /// The keyframe this tracker made last (its id) and the frames tracked since: the
+    /// DOP model keeps that keyframe's new points on probation.
+    pub fn keyframe_clock(&self) -> Option<(usize, usize)> {
+        self.newest_keyframe_id
+            .map(|id| (id, self.frames_since_keyframe))
     }
 
     /// The last tracked frame (with its moving probabilities).
@@ -274,7 +284,6 @@ impl Tracker {
             let key = self.reference.expect("just inserted");
             report.keyframe = true;
             report.new_keyframe = Some(key);
-            report.new_keyframe_id = Some(map.keyframes[key].id);
             let keyframe = &map.keyframes[key];
             (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
@@ -316,7 +325,6 @@ impl Tracker {
         );
         report.keyframe = true;
         report.new_keyframe = self.reference;
-        report.new_keyframe_id = self.reference.map(|k| map.keyframes[k].id);
         report.state = TrackingState::Ok;
         report.lost = None;
         report.segment = self.segment;
