@@ -4,10 +4,10 @@
 # (the same idempotent steps as tools/setup.sh, without the demo).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Always the idempotent set-up: a machine with Rust but without the Debian packages,
+# ONNX Runtime or the detector gets them too (it skips what is there).
+bash tools/setup.sh --no-demo
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
-if ! command -v cargo >/dev/null 2>&1; then
-    bash tools/setup.sh --no-demo
-fi
 source tools/system_packages.sh
 cargo test --release "${CARGO_FEATURES[@]}"
 # The batch on a real one-node Slurm cluster (DOPSLAM_SKIP_SLURM=1 skips it, saying so).
