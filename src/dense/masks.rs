@@ -14,10 +14,13 @@
 //!    predicted there by [`ObjectTracks`], as in the tracking pass);
 //! 2. discs of `keypoint_radius` pixels around the frame's keypoints in a removed
 //!    (dynamic) state, with depth within \(\delta_z / 2\) of the keypoint's;
+//! 3. with `segments`, the depth segments grown from the dynamic keypoints outside
+//!    every object's box ([`super::segments`]): movers no detector knows;
 //!
 //! then dilated by `border` pixels. `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
+use super::segments::{grow_segments, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
 use crate::dop::tracks::{Object, ObjectTracks};
@@ -37,6 +40,8 @@ pub struct MaskSettings {
     pub foreground_share: f32,
     /// No disc around a dynamic keypoint inside an object's box but behind it.
     pub skip_behind_objects: bool,
+    /// Grow depth segments from the dynamic keypoints outside every object's box.
+    pub segments: Option<SegmentSettings>,
 }
 
 /// One detected keyframe: its dynamic boxes (pixels) and objects (world).
@@ -177,7 +182,16 @@ impl MaskSource {
                     .filter_map(|object| object.to_box(&self.camera, camera_from_world))
                     .collect();
                 any |= self.object_masks(&mut mask, depth, &objects);
-                any |= self.keypoint_discs(&mut mask, depth, timestamp, &objects);
+                let keypoints = self.frame_keypoints(timestamp);
+                any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects);
+                if let Some(segments) = &self.settings.segments {
+                    let seeds: Vec<(f32, f32)> = keypoints
+                        .iter()
+                        .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
+                        .map(|p| (p[0], p[1]))
+                        .collect();
+                    any |= grow_segments(&mut mask, depth, &seeds, segments);
+                }
             }
         }
         any.then(|| dilate(&mask, w, h, self.settings.border as usize))
@@ -207,20 +221,10 @@ impl MaskSource {
         &self,
         mask: &mut [bool],
         depth: &DepthImage,
-        timestamp: f64,
+        keypoints: &[[f32; 3]],
         objects: &[ObjectBox],
     ) -> bool {
         let (w, h) = (depth.width as usize, depth.height as usize);
-        let i = self
-            .keypoints
-            .partition_point(|k| k.timestamp < timestamp - 1e-6);
-        let Some(frame) = self
-            .keypoints
-            .get(i)
-            .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
-        else {
-            return false;
-        };
         let behind = |x: f32, y: f32, z: f32| {
             self.settings.skip_behind_objects
                 && z > 0.0
@@ -230,7 +234,7 @@ impl MaskSource {
         };
         let r = self.settings.keypoint_radius as f32;
         let mut any = false;
-        for &[x, y, z] in frame.points.iter().filter(|p| !behind(p[0], p[1], p[2])) {
+        for &[x, y, z] in keypoints.iter().filter(|p| !behind(p[0], p[1], p[2])) {
             let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
             any |= fill_box(mask, w, h, bbox, |u, v| {
                 let (du, dv) = (u as f32 - x, v as f32 - y);
@@ -240,6 +244,17 @@ impl MaskSource {
             });
         }
         any
+    }
+
+    /// The dynamic keypoints of the frame at `timestamp` (none if it has no entry).
+    fn frame_keypoints(&self, timestamp: f64) -> &[[f32; 3]] {
+        let i = self
+            .keypoints
+            .partition_point(|k| k.timestamp < timestamp - 1e-6);
+        self.keypoints
+            .get(i)
+            .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
+            .map_or(&[], |k| &k.points)
     }
 }
 
@@ -419,6 +434,7 @@ mod tests {
                 keypoint_radius: 0,
                 foreground_share,
                 skip_behind_objects: false,
+                segments: None,
             };
             person_mask([250.0, 80.0, 640.0, 480.0], &[], settings)
         };
@@ -446,6 +462,7 @@ mod tests {
                 keypoint_radius: 5,
                 foreground_share: 0.1,
                 skip_behind_objects,
+                segments: None,
             };
             let keypoints = [[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]];
             person_mask([230.0, 80.0, 410.0, 470.0], &keypoints, settings)
@@ -477,6 +494,7 @@ mod tests {
             keypoint_radius: 8,
             foreground_share: 0.0,
             skip_behind_objects: false,
+            segments: None,
         };
         let identity = Se3::identity();
         let source = MaskSource::new(

@@ -17,6 +17,7 @@ pub mod masks;
 pub mod more_detections;
 pub mod neighbours;
 pub mod render;
+pub mod segments;
 pub mod tsdf;
 
 use std::collections::HashMap;
@@ -41,6 +42,7 @@ use crate::io::{IoError, Trajectory};
 use cloud::{CloudBuilder, CloudSettings};
 use disparity::{stereo_depth, StereoDepth};
 use masks::{FrameKeypoints, MaskSettings, MaskSource};
+use segments::SegmentSettings;
 use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
 
 /// Which frames go into the TSDF.
@@ -127,6 +129,15 @@ pub struct DenseConfig {
     /// it (false: none there; more static pixels fused, but a second mover behind the
     /// first loses its discs).
     pub mask_discs_behind_objects: bool,
+    /// Grow a depth segment from the dynamic keypoints outside every detected mover's
+    /// box (movers no detector knows, see [`segments`]): a region is kept when at least
+    /// `mask_segment_edge_share` of its border is a depth edge to something farther,
+    /// it holds `mask_segment_support` keypoints or more, and it grows at most
+    /// `mask_segment_radius` pixels from its seed.
+    pub mask_segments: bool,
+    pub mask_segment_radius: u32,
+    pub mask_segment_edge_share: f32,
+    pub mask_segment_support: usize,
     /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
     /// colour frame beside its mask, against the ground truth of a synthetic sequence
     /// (green: mover masked, red: static masked, yellow: mover fused).
@@ -138,6 +149,7 @@ pub struct DenseConfig {
 impl Default for DenseConfig {
     fn default() -> Self {
         let tsdf = TsdfSettings::default();
+        let segments = SegmentSettings::default();
         Self {
             enabled: true,
             fusion: Fusion::Tsdf,
@@ -165,6 +177,10 @@ impl Default for DenseConfig {
             keypoint_radius: 10,
             mask_foreground_share: 0.10,
             mask_discs_behind_objects: true,
+            mask_segments: true,
+            mask_segment_radius: segments.radius,
+            mask_segment_edge_share: segments.edge_share,
+            mask_segment_support: segments.support,
             mask_pictures_every: 0,
             ply_encoding: PlyEncoding::Binary,
         }
@@ -192,6 +208,12 @@ impl DenseConfig {
             return Err(format!(
                 "dense.cloud_free_space must be a number above -1, not {}",
                 self.cloud_free_space
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
+            return Err(format!(
+                "dense.mask_segment_edge_share must be in [0, 1], not {}",
+                self.mask_segment_edge_share
             ));
         }
         if !(0.0..=1.0).contains(&self.mask_foreground_share) {
@@ -266,6 +288,39 @@ pub struct FusedTruth {
     /// Share of mover pixels kept out, and of static pixels fused.
     pub dynamic_removed: f64,
     pub static_kept: f64,
+    /// Of the mover pixels, those on movers of no COCO class (which no detector
+    /// knows; from `masks/instances.txt`), those fused anyway, and the share kept out
+    /// (`None` without such movers).
+    pub unknown_mover_pixels: u64,
+    pub unknown_mover_pixels_fused: u64,
+    pub unknown_removed: Option<f64>,
+}
+
+impl FusedTruth {
+    /// The shares, once every frame is counted.
+    fn finish(mut self) -> Self {
+        let share = |part: u64, whole: u64| part as f64 / whole.max(1) as f64;
+        self.dynamic_removed = 1.0 - share(self.mover_pixels_fused, self.mover_pixels);
+        self.static_kept = share(self.static_pixels_fused, self.static_pixels);
+        self.unknown_removed = (self.unknown_mover_pixels > 0).then(|| {
+            1.0 - share(self.unknown_mover_pixels_fused, self.unknown_mover_pixels)
+        });
+        self
+    }
+}
+
+/// Which instance ids of the truth masks are movers no detector knows (a class that is
+/// not a COCO name), by id.
+fn unknown_instances(masks: &Path) -> Result<Vec<bool>, IoError> {
+    let mut unknown = Vec::new();
+    for (id, class) in crate::io::image_files::read_instance_classes(masks)?.unwrap_or_default() {
+        let id = id as usize;
+        if unknown.len() <= id {
+            unknown.resize(id + 1, false);
+        }
+        unknown[id] = crate::detect::coco::class_id(&class).is_none();
+    }
+    Ok(unknown)
 }
 
 /// What the dense pass did.
@@ -503,6 +558,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             keypoint_radius: config.keypoint_radius,
             foreground_share: config.mask_foreground_share,
             skip_behind_objects: !config.mask_discs_behind_objects,
+            segments: config.mask_segments.then(|| SegmentSettings {
+                radius: config.mask_segment_radius,
+                edge_share: config.mask_segment_edge_share,
+                support: config.mask_segment_support,
+                ..SegmentSettings::default()
+            }),
         },
         inputs.camera,
         inputs.dop,
@@ -545,11 +606,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         cloud: cloud_on.then_some(cloud),
     };
     write_maps(&out, inputs.masking, config, maps, &trajectory, &mut report)?;
-    if let Some(mut t) = truth {
-        t.dynamic_removed = 1.0 - t.mover_pixels_fused as f64 / t.mover_pixels.max(1) as f64;
-        t.static_kept = t.static_pixels_fused as f64 / t.static_pixels.max(1) as f64;
-        report.truth = Some(t);
-    }
+    report.truth = truth.map(FusedTruth::finish);
     report.total_s = started.elapsed().as_secs_f64();
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
@@ -671,6 +728,10 @@ fn fuse_frames(
             Some(dir)
         }
     };
+    let unknown = match &inputs.truth_masks {
+        Some(dir) => unknown_instances(dir)?,
+        None => Vec::new(),
+    };
     let mut fused = Fused {
         frames: 0,
         keyframes_in_cloud: 0,
@@ -698,7 +759,7 @@ fn fuse_frames(
                 crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
             });
             if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
-                count_truth(truth, ids.as_raw(), &input, config.max_depth);
+                count_truth(truth, ids.as_raw(), &unknown, &input, config.max_depth);
             }
             if let Some(dir) = pictures
                 .as_ref()
@@ -810,8 +871,15 @@ pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
     write_atomic(path, &bytes)
 }
 
-/// Counts fused and masked pixels against instance ids (0: static).
-fn count_truth(truth: &mut FusedTruth, ids: &[u16], input: &FrameInput, max_depth: f64) {
+/// Counts fused and masked pixels against instance ids (0: static; `unknown[id]`: a
+/// mover no detector knows).
+fn count_truth(
+    truth: &mut FusedTruth,
+    ids: &[u16],
+    unknown: &[bool],
+    input: &FrameInput,
+    max_depth: f64,
+) {
     truth.frames += 1;
     for (i, &id) in ids.iter().enumerate() {
         let d = input.depth.metres.get(i).copied().unwrap_or(0.0) as f64;
@@ -822,6 +890,10 @@ fn count_truth(truth: &mut FusedTruth, ids: &[u16], input: &FrameInput, max_dept
         if id > 0 {
             truth.mover_pixels += 1;
             truth.mover_pixels_fused += fused as u64;
+            if unknown.get(id as usize).copied().unwrap_or(false) {
+                truth.unknown_mover_pixels += 1;
+                truth.unknown_mover_pixels_fused += fused as u64;
+            }
         } else {
             truth.static_pixels += 1;
             truth.static_pixels_fused += fused as u64;

@@ -87,6 +87,40 @@ pub fn read_instance_mask(path: &Path) -> Option<image::ImageBuffer<image::Luma<
     }
 }
 
+/// The file beside the instance masks naming each instance's class (`id class` a
+/// line, `#` comments).
+pub const INSTANCES: &str = "instances.txt";
+
+/// Reads `masks/instances.txt` (see [`INSTANCES`]): each instance id and its class;
+/// `Ok(None)` when the file is absent (masks written before it existed).
+pub fn read_instance_classes(masks: &Path) -> Result<Option<Vec<(u16, String)>>, IoError> {
+    let path = masks.join(INSTANCES);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(source) => return Err(IoError::Read { path, source }),
+    };
+    let mut classes = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let parsed = line
+            .split_once(' ')
+            .and_then(|(id, class)| Some((id.parse::<u16>().ok()?, class.trim().to_string())));
+        let Some(entry) = parsed else {
+            return Err(IoError::Parse {
+                path,
+                line: n + 1,
+                message: format!("expected `instance class`, got {line:?}"),
+            });
+        };
+        classes.push(entry);
+    }
+    Ok(Some(classes))
+}
+
 /// Reads an image as 8-bit grey.
 pub fn read_gray(path: &Path) -> Result<GrayImage, IoError> {
     Ok(open(path)?.to_luma8())

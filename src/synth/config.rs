@@ -94,6 +94,9 @@ pub struct SynthConfig {
     pub people: PeopleConfig,
     pub seated: SeatedConfig,
     pub objects: ObjectsConfig,
+    /// `[[unknown]]`: movers of no COCO class (a box slid across the floor, a balloon
+    /// drifting), which no detector knows: only the geometric check can find them.
+    pub unknown: Vec<ObjectsConfig>,
     pub oracle: OracleConfig,
     pub sensor: SensorConfig,
     pub stereo: StereoConfig,
@@ -152,7 +155,10 @@ impl SynthConfig {
             .map_err(|m| format!("camera: {m}"))?;
         self.oracle.validate()?;
         self.sensor.validate()?;
-        self.objects.validate()?;
+        self.objects.validate("objects", true)?;
+        for objects in &self.unknown {
+            objects.validate("unknown", false)?;
+        }
         self.street.validate()?;
         if !(0.0..=2.0).contains(&self.stereo.baseline) {
             return Err(format!(

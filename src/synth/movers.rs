@@ -111,6 +111,11 @@ pub struct ObjectsConfig {
     pub distance: f64,
     /// Half length of the path (m).
     pub span: f64,
+    /// Seconds the object stands still in the middle and at each end of its path.
+    pub pause: f64,
+    /// Height of the object's bottom above the floor (m): 0 stands on it, 1.3 floats
+    /// at head height like a balloon.
+    pub lift: f64,
 }
 
 impl Default for ObjectsConfig {
@@ -122,23 +127,50 @@ impl Default for ObjectsConfig {
             speed: 0.3,
             distance: 1.4,
             span: 0.8,
+            pause: 0.0,
+            lift: 0.0,
         }
     }
 }
 
 impl ObjectsConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        if coco::class_id(&self.class).is_none() {
-            return Err(format!(
-                "objects.class: {:?} is not a COCO class name",
-                self.class
-            ));
+    /// Checks the section `key` (`objects`, or `unknown` for movers of no COCO class:
+    /// `known` says which the class must be).
+    pub fn validate(&self, key: &str, known: bool) -> Result<(), String> {
+        match (coco::class_id(&self.class).is_some(), known) {
+            (false, true) => {
+                return Err(format!(
+                    "{key}.class: {:?} is not a COCO class name",
+                    self.class
+                ))
+            }
+            (true, false) => {
+                return Err(format!(
+                    "{key}.class: {:?} is a COCO class (a detector knows it); movers no detector knows go here, others under [objects]",
+                    self.class
+                ))
+            }
+            _ => {}
         }
         if self.size.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(format!(
-                "objects.size must be positive, got {:?}",
+                "{key}.size must be positive, got {:?}",
                 self.size
             ));
+        }
+        for (name, value) in [("speed", self.speed), ("span", self.span)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("{key}.{name} must be positive, got {value}"));
+            }
+        }
+        for (name, value) in [
+            ("distance", self.distance),
+            ("pause", self.pause),
+            ("lift", self.lift),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("{key}.{name} must be 0 or more, got {value}"));
+            }
         }
         Ok(())
     }
@@ -176,7 +208,8 @@ pub enum Behaviour {
 pub struct Mover {
     pub instance: u16,
     pub class: String,
-    pub class_id: u32,
+    /// The COCO class id; `None` for a mover no detector knows.
+    pub class_id: Option<u32>,
     /// The box's minimum corner at the two ends of its path.
     pub start: Vector3<f64>,
     pub end: Vector3<f64>,
@@ -386,7 +419,7 @@ pub fn place_people(
             Mover {
                 instance: i as u16 + 1,
                 class: "person".into(),
-                class_id: 0,
+                class_id: Some(0),
                 start: corner(a),
                 end: corner(b),
                 size,
@@ -429,7 +462,7 @@ pub fn place_seated(
             Mover {
                 instance: first_instance + i as u16,
                 class: "person".into(),
-                class_id: 0,
+                class_id: Some(0),
                 start: corner(seat),
                 end: corner(exit),
                 size,
@@ -447,9 +480,10 @@ pub fn place_seated(
         .collect()
 }
 
-/// Places `count` objects on the floor `distance` in front of the mean camera position,
-/// each pushed back and forth sideways along its own path (0.7 m farther each). Call
-/// after [`place_people`] (which sets the floor).
+/// Places `count` objects `lift` above the floor, `distance` in front of the mean camera
+/// position, each pushed back and forth sideways along its own path (0.7 m farther
+/// each), standing still `pause` seconds in the middle and at each end. Call after
+/// [`place_people`] (which sets the floor).
 pub fn place_objects(
     config: &ObjectsConfig,
     poses: &[Se3],
@@ -460,7 +494,7 @@ pub fn place_objects(
         return Vec::new();
     };
     let (up, sign, floor) = (p.up, p.sign, p.floor);
-    let class_id = coco::class_id(&config.class).unwrap_or(56);
+    let class_id = coco::class_id(&config.class);
     // Width across the path, height along up, depth along the viewing direction.
     let mut size = Vector3::zeros();
     size[(up + 1) % 3] = config.size[0];
@@ -469,7 +503,11 @@ pub fn place_objects(
     (0..config.count)
         .map(|i| {
             let middle = p.centre + p.forward * (config.distance + 0.7 * i as f64);
-            let corner = |p: Vector3<f64>| standing_corner(p, &size, up, sign, floor);
+            let corner = |p: Vector3<f64>| {
+                let mut c = standing_corner(p, &size, up, sign, floor);
+                c[up] += sign * config.lift;
+                c
+            };
             Mover {
                 instance: first_instance + i as u16,
                 class: config.class.clone(),
@@ -480,7 +518,7 @@ pub fn place_objects(
                 speed: config.speed,
                 phase: 0.9 * i as f64,
                 behaviour: Behaviour::Walk {
-                    pause: 0.0,
+                    pause: config.pause,
                     gait: None,
                 },
                 up: (up, sign),
@@ -578,7 +616,7 @@ mod tests {
         let mover = Mover {
             instance: 1,
             class: "person".into(),
-            class_id: 0,
+            class_id: Some(0),
             start: Vector3::zeros(),
             end: Vector3::new(2.0, 0.0, 0.0),
             size: Vector3::repeat(0.4),

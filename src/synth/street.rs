@@ -254,7 +254,7 @@ pub fn build_street(
                instance: u16| Mover {
         instance,
         class: "car".into(),
-        class_id: 2,
+        class_id: Some(2),
         start: min,
         end,
         size,
@@ -332,7 +332,7 @@ pub fn build_street(
         movers.push(Mover {
             instance: movers.len() as u16 + 1,
             class: "person".into(),
-            class_id: 0,
+            class_id: Some(0),
             start: corner(start),
             end: corner(end),
             size,

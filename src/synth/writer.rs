@@ -103,7 +103,8 @@ fn check_output_folder(out: &Path, force: bool) -> Result<(), SynthError> {
 }
 
 /// Exact boxes of the movers seen in a frame (before [`OracleConfig::apply`]), from its instance mask (x2, y2
-/// exclusive); instances covering fewer than 20 pixels are left out.
+/// exclusive); instances covering fewer than 20 pixels, and movers of no COCO class
+/// (which no detector knows), are left out.
 pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Detection> {
     // One pass over the mask: per instance id, the bounding box and pixel count.
     let mut boxes: std::collections::HashMap<u16, (u32, u32, u32, u32, usize)> =
@@ -123,9 +124,10 @@ pub fn oracle_detections(mask: &[u16], width: u32, movers: &[Mover]) -> Vec<Dete
         .iter()
         .filter_map(|mover| {
             let &(x1, y1, x2, y2, count) = boxes.get(&mover.instance)?;
+            let class_id = mover.class_id?;
             (count >= 20).then(|| Detection {
                 class: mover.class.to_string(),
-                class_id: mover.class_id,
+                class_id,
                 score: 1.0,
                 bbox: [x1 as f32, y1 as f32, x2 as f32, y2 as f32],
                 instance: Some(mover.instance),
@@ -465,12 +467,14 @@ fn scene_and_movers(
         &scene,
         movers.len() as u16 + 1,
     ));
-    movers.extend(place_objects(
-        &config.objects,
-        poses,
-        &scene,
-        movers.len() as u16 + 1,
-    ));
+    for objects in std::iter::once(&config.objects).chain(&config.unknown) {
+        movers.extend(place_objects(
+            objects,
+            poses,
+            &scene,
+            movers.len() as u16 + 1,
+        ));
+    }
     if let Some(first) = movers.first() {
         let swept: Vec<_> = movers.iter().map(Mover::swept_box).collect();
         scene.make_room_for(&swept, first.up.0, 0.6);
@@ -598,6 +602,7 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     if stereo {
         write_kitti_files(&world, &out.join("kitti"))?;
     }
+    write_instances(&out.join("masks"), &world.movers)?;
     let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
     write_atomic(
         &out.join("scene.toml"),
@@ -609,6 +614,19 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         out: out.to_path_buf(),
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// `masks/instances.txt`: each mover's instance id (its value in the masks) and class;
+/// a class that is not a COCO name is a mover no detector knows.
+fn write_instances(masks: &Path, movers: &[Mover]) -> Result<(), SynthError> {
+    let mut text = String::from("# instance class\n");
+    for mover in movers {
+        text += &format!("{} {}\n", mover.instance, mover.class);
+    }
+    Ok(write_atomic(
+        &masks.join(crate::io::image_files::INSTANCES),
+        text.as_bytes(),
+    )?)
 }
 
 /// The KITTI odometry side files: `calib.txt` (P0/P2 left, P1/P3 right with

@@ -1,0 +1,288 @@
+//! Depth segments grown from dynamic keypoints: the masks of movers no detector knows.
+//!
+//! A mover of no COCO class (a box pushed across the floor, a balloon) has no box;
+//! only its keypoints that the geometric check found moving mark it, and a disc around
+//! each covers a few per cent of it. Here each such keypoint seeds a region grown over
+//! its depth segment: 4-neighbours \(q\) of a region pixel \(p\) join while
+//! \(|d_q - d_p| \le s\,d_p + 5\,\mathrm{mm}\) (no depth edge between them, step share
+//! \(s\)), \(|d_q - z_0| \le b\) (within the band \(b\) around the seed's depth
+//! \(z_0\)), and \(q\) lies within `radius` pixels of the seed (each axis).
+//!
+//! A keypoint is found where texture is, often on a mover's outline, and its pixel may
+//! then be the background's: the seed is the nearest depth within `snap` pixels of it
+//! (a keypoint held moving at a depth edge belongs to what is in front).
+//!
+//! A mover stands in front of what it hides: most of its segment's border is a depth
+//! edge to something farther (or to no depth). A wall around a keypoint wrongly held
+//! moving is not: its region ends at the band or the radius. So a region is kept when
+//! the share of its border pixels that are such edges is at least `edge_share`, and it
+//! holds at least `support` seeds. Borders at the image edge count neither way.
+
+use crate::io::image_files::DepthImage;
+
+/// How segments are grown and kept.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmentSettings {
+    /// Half side of the square a region may grow in, pixels.
+    pub radius: u32,
+    /// Depth step share \(s\) that still joins two neighbours.
+    pub step: f32,
+    /// Depth band \(b\) around the seed's depth, metres.
+    pub band: f32,
+    /// Share of the border that must be a depth edge to something farther.
+    pub edge_share: f32,
+    /// Seeds a region must hold.
+    pub support: usize,
+    /// Half side of the square around a keypoint searched for its seed pixel.
+    pub snap: u32,
+    /// Pixels looked across a hole in the depth for what lies beyond it.
+    pub hole: u32,
+    /// Bend (share of the depth over 4 pixels each way) that makes a concave crease,
+    /// where growth stops.
+    pub crease: f32,
+}
+
+impl Default for SegmentSettings {
+    fn default() -> Self {
+        Self {
+            radius: 160,
+            step: 0.02,
+            band: 0.4,
+            edge_share: 0.75,
+            support: 1,
+            snap: 3,
+            hole: 8,
+            crease: 0.008,
+        }
+    }
+}
+
+/// One grown region: its pixels and how its border ended.
+struct Region {
+    pixels: Vec<usize>,
+    /// Border steps to something farther or without depth, and those that ended at
+    /// the band, the radius, something nearer or another region.
+    edges: usize,
+    limits: usize,
+}
+
+/// Sets in `mask` the depth segments grown from `seeds` (`(x, y)` pixels) that pass
+/// the border test; returns whether any pixel was set.
+pub fn grow_segments(
+    mask: &mut [bool],
+    depth: &DepthImage,
+    seeds: &[(f32, f32)],
+    settings: &SegmentSettings,
+) -> bool {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    // The region (1, 2, …) each visited pixel belongs to; 0: none yet.
+    let mut owner = vec![0u32; w * h];
+    let seed_pixels: Vec<usize> = seeds
+        .iter()
+        .filter_map(|&(x, y)| nearest_depth(depth, x, y, settings.snap))
+        .collect();
+    let mut any = false;
+    let mut id = 0u32;
+    for &start in &seed_pixels {
+        if owner[start] != 0 {
+            continue;
+        }
+        id += 1;
+        let region = grow(&mut owner, depth, start, id, settings);
+        let support = seed_pixels.iter().filter(|&&s| owner[s] == id).count();
+        let judged = region.edges + region.limits;
+        let edge_share = region.edges as f32 / judged.max(1) as f32;
+        if support >= settings.support && judged > 0 && edge_share >= settings.edge_share {
+            for &i in &region.pixels {
+                mask[i] = true;
+            }
+            any = true;
+        }
+    }
+    any
+}
+
+/// The pixel with the nearest depth within `snap` pixels of `(x, y)` (each axis), or
+/// `None` when none there has a depth.
+fn nearest_depth(depth: &DepthImage, x: f32, y: f32, snap: u32) -> Option<usize> {
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    let (u, v) = (x.round() as i64, y.round() as i64);
+    let r = snap as i64;
+    let mut best: Option<(f32, usize)> = None;
+    for qv in (v - r).max(0)..=(v + r).min(h - 1) {
+        for qu in (u - r).max(0)..=(u + r).min(w - 1) {
+            let i = (qv * w + qu) as usize;
+            let d = depth.metres[i];
+            if d > 0.0 && best.is_none_or(|(b, _)| d < b) {
+                best = Some((d, i));
+            }
+        }
+    }
+    best.map(|(_, i)| i)
+}
+
+/// Whether the depth profile through `(u, v)` along `(du, dv)` bends towards the
+/// camera there (a concave crease: a box standing on the floor, seen from in front):
+/// with \(k\) = 4 pixels, \((d_{+k} - d_0) - (d_0 - d_{-k}) < -c\,d_0\).
+fn concave(depth: &DepthImage, (u, v): (i64, i64), (du, dv): (i64, i64), c: f32) -> bool {
+    const K: i64 = 4;
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    let at = |k: i64| {
+        let (x, y) = (u + k * du, v + k * dv);
+        (x >= 0 && y >= 0 && x < w && y < h)
+            .then(|| depth.metres[(y * w + x) as usize])
+            .filter(|&d| d > 0.0)
+    };
+    match (at(-K), at(0), at(K)) {
+        (Some(before), Some(here), Some(after)) => (after - here) - (here - before) < -c * here,
+        _ => false,
+    }
+}
+
+/// The first depth from `(u, v)` along `(du, dv)` within `hole` pixels past the
+/// neighbour, if any.
+fn across_hole(depth: &DepthImage, (u, v): (i64, i64), (du, dv): (i64, i64), hole: u32) -> Option<f32> {
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    (2..=hole as i64 + 1)
+        .map(|k| (u + k * du, v + k * dv))
+        .take_while(|&(x, y)| x >= 0 && y >= 0 && x < w && y < h)
+        .map(|(x, y)| depth.metres[(y * w + x) as usize])
+        .find(|&d| d > 0.0)
+}
+
+/// Grows region `id` from pixel `start` (breadth first), marking `owner`.
+fn grow(
+    owner: &mut [u32],
+    depth: &DepthImage,
+    start: usize,
+    id: u32,
+    settings: &SegmentSettings,
+) -> Region {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let d = &depth.metres;
+    let (su, sv) = ((start % w) as i64, (start / w) as i64);
+    let z0 = d[start];
+    let r = settings.radius as i64;
+    let mut region = Region {
+        pixels: vec![start],
+        edges: 0,
+        limits: 0,
+    };
+    owner[start] = id;
+    let mut next = 0;
+    while next < region.pixels.len() {
+        let p = region.pixels[next];
+        next += 1;
+        let (pu, pv) = ((p % w) as i64, (p / w) as i64);
+        let dp = d[p];
+        for (du, dv) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+            let (qu, qv) = (pu + du, pv + dv);
+            if qu < 0 || qv < 0 || qu >= w as i64 || qv >= h as i64 {
+                continue;
+            }
+            let q = qv as usize * w + qu as usize;
+            if owner[q] == id {
+                continue;
+            }
+            let dq = d[q];
+            let step = settings.step * dp + 0.005;
+            if dq <= 0.0 {
+                // A hole: depth sensors lose the pixels along a depth edge. Judge the
+                // border by the first depth across it.
+                match across_hole(depth, (pu, pv), (du, dv), settings.hole) {
+                    Some(beyond) if beyond > dp + step => region.edges += 1,
+                    Some(beyond) if beyond < dp - step => region.limits += 1,
+                    _ => {}
+                }
+                continue;
+            }
+            if dq > dp + step {
+                region.edges += 1;
+                continue;
+            }
+            let inside = (qu - su).abs() <= r && (qv - sv).abs() <= r;
+            if owner[q] != 0 || !inside || dq < dp - step || (dq - z0).abs() > settings.band {
+                region.limits += 1;
+                continue;
+            }
+            if concave(depth, (pu, pv), (du, dv), settings.crease) {
+                // Where the mover meets what it stands on: neither edge nor limit.
+                continue;
+            }
+            owner[q] = id;
+            region.pixels.push(q);
+        }
+    }
+    region
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 200 x 150 wall at 3 m with a 40 x 30 block at 2 m (x 80..120, y 60..90)
+    /// standing on nothing (a balloon).
+    fn wall_with_block() -> DepthImage {
+        let mut depth = DepthImage::new(200, 150);
+        for v in 0..150 {
+            for u in 0..200 {
+                let block = (80..120).contains(&u) && (60..90).contains(&v);
+                depth.metres[v * 200 + u] = if block { 2.0 } else { 3.0 };
+            }
+        }
+        depth
+    }
+
+    fn grown(depth: &DepthImage, seeds: &[(f32, f32)]) -> Vec<bool> {
+        let mut mask = vec![false; depth.metres.len()];
+        let settings = SegmentSettings {
+            radius: 100,
+            support: 2,
+            ..SegmentSettings::default()
+        };
+        grow_segments(&mut mask, depth, seeds, &settings);
+        mask
+    }
+
+    #[test]
+    fn two_seeds_on_a_block_in_front_of_a_wall_mask_the_whole_block_only() {
+        let depth = wall_with_block();
+        let mask = grown(&depth, &[(85.0, 65.0), (110.0, 80.0)]);
+        let count = mask.iter().filter(|&&m| m).count();
+        assert_eq!(count, 40 * 30, "the block, every pixel of it");
+        assert!(mask[75 * 200 + 100] && !mask[75 * 200 + 60]);
+    }
+
+    #[test]
+    fn seeds_on_the_wall_or_a_lone_seed_mask_nothing() {
+        let depth = wall_with_block();
+        let wall = grown(&depth, &[(20.0, 20.0), (30.0, 25.0), (170.0, 130.0)]);
+        assert!(!wall.iter().any(|&m| m), "the wall ends at the floor's band and at the block, not at depth edges");
+        let lone = grown(&depth, &[(100.0, 75.0)]);
+        assert!(!lone.iter().any(|&m| m), "one seed is too little support");
+    }
+
+    /// A block standing on a floor: the concave crease where it meets the floor stops
+    /// the growth, so most of its border stays a depth edge and it is masked.
+    #[test]
+    fn a_block_on_a_sloping_floor_is_masked() {
+        let mut depth = wall_with_block();
+        // Rows 90.. are a floor coming towards the camera: 3 m at row 90 to 1.5 m.
+        for v in 90..150 {
+            for u in 0..200 {
+                depth.metres[v * 200 + u] = 3.0 - 1.5 * (v - 90) as f32 / 60.0;
+            }
+        }
+        // The block's front stands on the floor where it is 2 m away: row 130.
+        for v in 60..130 {
+            for u in 80..120 {
+                depth.metres[v * 200 + u] = 2.0;
+            }
+        }
+        let mask = grown(&depth, &[(85.0, 65.0), (110.0, 120.0)]);
+        assert!(mask[70 * 200 + 100] && mask[125 * 200 + 100], "the block");
+        assert!(!mask[70 * 200 + 60] && !mask[110 * 200 + 60], "the wall, the floor beside it");
+        // The floor in front of it joins within the band (0.4 m: 16 rows), no farther.
+        assert!(!mask[147 * 200 + 100], "the floor beyond the band");
+    }
+}
