@@ -15,12 +15,15 @@
 //! 2. discs of `keypoint_radius` pixels around the frame's keypoints in a removed
 //!    (dynamic) state, with depth within \(\delta_z / 2\) of the keypoint's;
 //! 3. with `segments`, the depth segments grown from the dynamic keypoints outside
-//!    every object's box ([`super::segments`]): movers no detector knows;
+//!    every object's box ([`super::segments`]): movers no detector knows. A kept
+//!    segment is followed: its centre, placed in the world, seeds the next frames'
+//!    growth for `follow_seconds` after a keypoint last supported it (a box set down
+//!    for a while stays out of the map);
 //!
 //! then dilated by `border` pixels. `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
-use super::segments::{grow_segments, SegmentSettings};
+use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
 use crate::dop::tracks::{Object, ObjectTracks};
@@ -40,8 +43,20 @@ pub struct MaskSettings {
     pub foreground_share: f32,
     /// No disc around a dynamic keypoint inside an object's box but behind it.
     pub skip_behind_objects: bool,
-    /// Grow depth segments from the dynamic keypoints outside every object's box.
-    pub segments: Option<SegmentSettings>,
+    /// A disc only around a dynamic keypoint with at least this many other dynamic
+    /// keypoints within `4 * keypoint_radius` pixels (0: every one).
+    pub disc_neighbours: usize,
+    /// Grow depth segments from the dynamic keypoints outside every object's box, and
+    /// follow them for this many seconds after a keypoint last supported them.
+    pub segments: Option<(SegmentSettings, f64)>,
+}
+
+/// A segment kept in an earlier frame: its centre in the world, and when a dynamic
+/// keypoint last supported it.
+#[derive(Debug, Clone, Copy)]
+struct FollowedSegment {
+    centre: nalgebra::Vector3<f64>,
+    since: f64,
 }
 
 /// One detected keyframe: its dynamic boxes (pixels) and objects (world).
@@ -69,6 +84,8 @@ pub struct MaskSource {
     keyframes: Vec<KeyframeObjects>,
     /// Sorted by time.
     keypoints: Vec<FrameKeypoints>,
+    /// The segments kept in the latest masked frame.
+    followed: Vec<FollowedSegment>,
 }
 
 impl MaskSource {
@@ -139,13 +156,15 @@ impl MaskSource {
             dop: dop.clone(),
             keyframes,
             keypoints,
+            followed: Vec::new(),
         }
     }
 
     /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
-    /// nothing in it is dynamic.
+    /// nothing in it is dynamic. Frames come in time order (segments are followed from
+    /// one to the next).
     pub fn mask(
-        &self,
+        &mut self,
         timestamp: f64,
         depth: &DepthImage,
         camera_from_world: &Se3,
@@ -184,17 +203,92 @@ impl MaskSource {
                 any |= self.object_masks(&mut mask, depth, &objects);
                 let keypoints = self.frame_keypoints(timestamp);
                 any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects);
-                if let Some(segments) = &self.settings.segments {
-                    let seeds: Vec<(f32, f32)> = keypoints
-                        .iter()
-                        .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
-                        .map(|p| (p[0], p[1]))
-                        .collect();
-                    any |= grow_segments(&mut mask, depth, &seeds, segments);
-                }
+                let seeds: Vec<Seed> = keypoints
+                    .iter()
+                    .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
+                    .map(|p| Seed {
+                        x: p[0],
+                        y: p[1],
+                        followed: false,
+                        since: timestamp,
+                    })
+                    .collect();
+                any |= self.segment_masks(
+                    &mut mask,
+                    depth,
+                    (timestamp, camera_from_world),
+                    seeds,
+                    &objects,
+                );
             }
         }
         any.then(|| dilate(&mask, w, h, self.settings.border as usize))
+    }
+
+    /// The depth segments grown from the frame's keypoint `seeds` and from the segments
+    /// followed from earlier frames; remembers the kept ones for the next frame, except
+    /// those mostly inside a detected mover's box (the detector follows those).
+    fn segment_masks(
+        &mut self,
+        mask: &mut [bool],
+        depth: &DepthImage,
+        (timestamp, camera_from_world): (f64, &Se3),
+        mut seeds: Vec<Seed>,
+        objects: &[ObjectBox],
+    ) -> bool {
+        let Some((settings, follow_seconds)) = self.settings.segments else {
+            return false;
+        };
+        let camera = &self.camera;
+        seeds.extend(
+            self.followed
+                .iter()
+                .filter(|f| timestamp - f.since <= follow_seconds)
+                .filter_map(|f| {
+                    let p = camera_from_world * nalgebra::Point3::from(f.centre);
+                    let pixel = (p.z > 0.0).then(|| camera.project(&p.coords))?;
+                    Some(Seed {
+                        x: pixel.x as f32,
+                        y: pixel.y as f32,
+                        followed: true,
+                        since: f.since,
+                    })
+                }),
+        );
+        let segments = grow_segments(depth, &seeds, &settings);
+        let world_from_camera = camera_from_world.inverse();
+        let w = depth.width as usize;
+        let in_boxes = |i: &usize| {
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            objects.iter().any(|b| b.contains(x, y))
+        };
+        self.followed = segments
+            .iter()
+            .filter(|segment| {
+                2 * segment.pixels.iter().filter(|i| in_boxes(i)).count() < segment.pixels.len()
+            })
+            .map(|segment| {
+                let sum: nalgebra::Vector3<f64> = segment
+                    .pixels
+                    .iter()
+                    .map(|&i| {
+                        let pixel = nalgebra::Vector2::new((i % w) as f64, (i / w) as f64);
+                        camera.unproject(&pixel, depth.metres[i] as f64)
+                    })
+                    .sum();
+                let centre = sum / segment.pixels.len().max(1) as f64;
+                FollowedSegment {
+                    centre: (world_from_camera * nalgebra::Point3::from(centre)).coords,
+                    since: segment.since,
+                }
+            })
+            .collect();
+        for segment in &segments {
+            for &i in &segment.pixels {
+                mask[i] = true;
+            }
+        }
+        !segments.is_empty()
     }
 
     /// Each object's box, cut at its depth: the pixels within `delta_z` of it, and
@@ -233,8 +327,21 @@ impl MaskSource {
                 })
         };
         let r = self.settings.keypoint_radius as f32;
+        let reach = 4.0 * r;
+        let supported = |p: &[f32; 3]| {
+            let n = self.settings.disc_neighbours;
+            n == 0
+                || keypoints
+                    .iter()
+                    .filter(|q| (q[0] - p[0]).abs() <= reach && (q[1] - p[1]).abs() <= reach)
+                    .nth(n)
+                    .is_some()
+        };
         let mut any = false;
-        for &[x, y, z] in keypoints.iter().filter(|p| !behind(p[0], p[1], p[2])) {
+        for &[x, y, z] in keypoints
+            .iter()
+            .filter(|p| !behind(p[0], p[1], p[2]) && supported(p))
+        {
             let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
             any |= fill_box(mask, w, h, bbox, |u, v| {
                 let (du, dv) = (u as f32 - x, v as f32 - y);
@@ -404,7 +511,7 @@ mod tests {
             timestamp: 1.0,
             points: keypoints.to_vec(),
         }];
-        let source = MaskSource::new(
+        let mut source = MaskSource::new(
             Mode::Dop,
             settings,
             camera,
@@ -434,6 +541,7 @@ mod tests {
                 keypoint_radius: 0,
                 foreground_share,
                 skip_behind_objects: false,
+                disc_neighbours: 0,
                 segments: None,
             };
             person_mask([250.0, 80.0, 640.0, 480.0], &[], settings)
@@ -462,6 +570,7 @@ mod tests {
                 keypoint_radius: 5,
                 foreground_share: 0.1,
                 skip_behind_objects,
+                disc_neighbours: 0,
                 segments: None,
             };
             let keypoints = [[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]];
@@ -473,6 +582,67 @@ mod tests {
         assert!(!at(&skipped, 240, 300), "behind the person");
         assert!(at(&skipped, 100, 300), "outside any box");
         assert!(at(&skipped, 320, 300), "the person");
+    }
+
+    /// A mover no detector knows (the slab of [`scene`], no detection): two dynamic
+    /// keypoints on it at t = 1 mask its whole depth segment; the segment is followed
+    /// to t = 2 without keypoints, and let go 3 s after its last support. A lone
+    /// dynamic keypoint on the wall gets no disc with `disc_neighbours`.
+    #[test]
+    fn a_mover_without_a_box_is_masked_by_its_segment_and_followed() {
+        let (camera, depth) = scene();
+        let settings = MaskSettings {
+            border: 0,
+            keypoint_radius: 5,
+            foreground_share: 0.1,
+            skip_behind_objects: true,
+            disc_neighbours: 2,
+            // The slab is 360 pixels tall.
+            segments: Some((
+                SegmentSettings {
+                    radius: 200,
+                    ..SegmentSettings::default()
+                },
+                3.0,
+            )),
+        };
+        let keypoints = vec![FrameKeypoints {
+            timestamp: 1.0,
+            points: vec![[300.0, 260.0, 1.5], [340.0, 300.0, 1.5], [60.0, 60.0, 3.0]],
+        }];
+        let mut source = MaskSource::new(
+            Mode::Dop,
+            settings,
+            camera,
+            &DopConfig::default(),
+            &["person".to_string()],
+            vec![],
+            keypoints,
+            &|_| Some(Se3::identity()),
+            &|_| Some(depth.clone()),
+        );
+        let identity = Se3::identity();
+        // (slab pixels masked, other pixels masked)
+        let count = |m: &[bool]| {
+            let slab = |i: usize| depth.metres[i] < 2.0;
+            let masked = |i: &usize| m[*i];
+            let on = (0..m.len()).filter(|&i| slab(i)).filter(masked).count();
+            (
+                on,
+                (0..m.len()).filter(|&i| !slab(i)).filter(masked).count(),
+            )
+        };
+        let first = source.mask(1.0, &depth, &identity).expect("a mask");
+        let (on, off) = count(&first);
+        assert!(
+            on >= 140 * 360 * 99 / 100 && off == 0,
+            "the slab only: {on}, {off}"
+        );
+        assert!(!at(&first, 60, 60), "no disc around the lone keypoint");
+        let followed = source.mask(2.0, &depth, &identity).expect("followed");
+        let (followed_on, followed_off) = count(&followed);
+        assert!(followed_on >= on && followed_off == 0);
+        assert!(source.mask(4.5, &depth, &identity).is_none(), "let go");
     }
 
     #[test]
@@ -494,10 +664,11 @@ mod tests {
             keypoint_radius: 8,
             foreground_share: 0.0,
             skip_behind_objects: false,
+            disc_neighbours: 0,
             segments: None,
         };
         let identity = Se3::identity();
-        let source = MaskSource::new(
+        let mut source = MaskSource::new(
             Mode::Dop,
             settings,
             camera,
@@ -522,7 +693,7 @@ mod tests {
         }
         // Far from any keyframe nothing is masked; --no-dop masks nothing.
         assert!(source.mask(5.0, &depth, &identity).is_none());
-        let boxes = MaskSource::new(
+        let mut boxes = MaskSource::new(
             Mode::MaskBoxes,
             settings,
             camera,

@@ -33,9 +33,9 @@ use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
-use crate::io::run_dir::{names, RunDir};
 use crate::io::image_files::DepthImage;
 use crate::io::ply::{write_obj, write_ply, PlyEncoding};
+use crate::io::run_dir::{names, RunDir};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
@@ -129,6 +129,11 @@ pub struct DenseConfig {
     /// it (false: none there; more static pixels fused, but a second mover behind the
     /// first loses its discs).
     pub mask_discs_behind_objects: bool,
+    /// A disc only around a dynamic keypoint with at least this many other dynamic
+    /// keypoints within four disc radii (0: around every one): the geometric check's
+    /// lone false alarms on the static scene get none, a mover's keypoints come in
+    /// groups.
+    pub mask_disc_neighbours: usize,
     /// Grow a depth segment from the dynamic keypoints outside every detected mover's
     /// box (movers no detector knows, see [`segments`]): a region is kept when at least
     /// `mask_segment_edge_share` of its border is a depth edge to something farther,
@@ -138,6 +143,9 @@ pub struct DenseConfig {
     pub mask_segment_radius: u32,
     pub mask_segment_edge_share: f32,
     pub mask_segment_support: usize,
+    /// A kept segment seeds the next frames' growth for this many seconds after a
+    /// dynamic keypoint last supported it (0: no following).
+    pub mask_segment_follow_seconds: f64,
     /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
     /// colour frame beside its mask, against the ground truth of a synthetic sequence
     /// (green: mover masked, red: static masked, yellow: mover fused).
@@ -177,10 +185,12 @@ impl Default for DenseConfig {
             keypoint_radius: 10,
             mask_foreground_share: 0.10,
             mask_discs_behind_objects: true,
+            mask_disc_neighbours: 6,
             mask_segments: true,
             mask_segment_radius: segments.radius,
             mask_segment_edge_share: segments.edge_share,
             mask_segment_support: segments.support,
+            mask_segment_follow_seconds: 3.0,
             mask_pictures_every: 0,
             ply_encoding: PlyEncoding::Binary,
         }
@@ -208,6 +218,14 @@ impl DenseConfig {
             return Err(format!(
                 "dense.cloud_free_space must be a number above -1, not {}",
                 self.cloud_free_space
+            ));
+        }
+        if !(self.mask_segment_follow_seconds.is_finite()
+            && self.mask_segment_follow_seconds >= 0.0)
+        {
+            return Err(format!(
+                "dense.mask_segment_follow_seconds must be 0 or more, not {}",
+                self.mask_segment_follow_seconds
             ));
         }
         if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
@@ -302,9 +320,8 @@ impl FusedTruth {
         let share = |part: u64, whole: u64| part as f64 / whole.max(1) as f64;
         self.dynamic_removed = 1.0 - share(self.mover_pixels_fused, self.mover_pixels);
         self.static_kept = share(self.static_pixels_fused, self.static_pixels);
-        self.unknown_removed = (self.unknown_mover_pixels > 0).then(|| {
-            1.0 - share(self.unknown_mover_pixels_fused, self.unknown_mover_pixels)
-        });
+        self.unknown_removed = (self.unknown_mover_pixels > 0)
+            .then(|| 1.0 - share(self.unknown_mover_pixels_fused, self.unknown_mover_pixels));
         self
     }
 }
@@ -482,7 +499,6 @@ pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
     bar
 }
 
-
 /// Reads `dynamic_keypoints.json` (empty when the run had no DOP model).
 pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
     if !path.exists() {
@@ -500,8 +516,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let started = Instant::now();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
-    let keyframes =
-        Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
+    let keyframes = Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
     let mut poses = poses_by_time(&trajectory);
     let mut other_segment_frames = 0;
     if let Some(keep) = largest_segment(&run)? {
@@ -551,18 +566,22 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         }
         _ => None,
     };
-    let mask_source = MaskSource::new(
+    let mut mask_source = MaskSource::new(
         inputs.masking,
         MaskSettings {
             border: config.mask_border,
             keypoint_radius: config.keypoint_radius,
             foreground_share: config.mask_foreground_share,
             skip_behind_objects: !config.mask_discs_behind_objects,
-            segments: config.mask_segments.then(|| SegmentSettings {
-                radius: config.mask_segment_radius,
-                edge_share: config.mask_segment_edge_share,
-                support: config.mask_segment_support,
-                ..SegmentSettings::default()
+            disc_neighbours: config.mask_disc_neighbours,
+            segments: config.mask_segments.then(|| {
+                let settings = SegmentSettings {
+                    radius: config.mask_segment_radius,
+                    edge_share: config.mask_segment_edge_share,
+                    support: config.mask_segment_support,
+                    ..SegmentSettings::default()
+                };
+                (settings, config.mask_segment_follow_seconds)
             }),
         },
         inputs.camera,
@@ -591,8 +610,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         inputs,
         config,
         &chosen,
-        &mask_source,
-        (fuse_tsdf.then_some(&mut volume), cloud_on.then_some(&mut cloud)),
+        &mut mask_source,
+        (
+            fuse_tsdf.then_some(&mut volume),
+            cloud_on.then_some(&mut cloud),
+        ),
         &mut truth,
     )?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
@@ -711,7 +733,7 @@ fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[(usize, Se3, bool)],
-    mask_source: &MaskSource,
+    mask_source: &mut MaskSource,
     (mut volume, mut cloud): (Option<&mut TsdfVolume>, Option<&mut CloudBuilder>),
     truth: &mut Option<FusedTruth>,
 ) -> Result<Fused, IoError> {
@@ -773,7 +795,9 @@ fn fuse_frames(
             if let Some(volume) = volume.as_deref_mut() {
                 volume.integrate(&input);
             }
-            fused.integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            fused
+                .integration_ms
+                .push(start.elapsed().as_secs_f64() * 1e3);
             if let (Some(cloud), true) = (cloud.as_deref_mut(), is_keyframe) {
                 cloud.add(&input);
                 fused.keyframes_in_cloud += 1;
@@ -916,13 +940,18 @@ mod tests {
     #[test]
     fn only_the_largest_unmerged_segment_is_fused() {
         let dir = run_with_segments("two", "# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n");
-        let keep = largest_segment(&RunDir::new(&dir)).unwrap().expect("two segments");
+        let keep = largest_segment(&RunDir::new(&dir))
+            .unwrap()
+            .expect("two segments");
         let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
         assert_eq!(keep, expected);
         // One segment (or no file): every frame.
         let dir = run_with_segments("one", "1.0 0\n1.1 0\n");
         assert_eq!(largest_segment(&RunDir::new(&dir)).unwrap(), None);
-        assert_eq!(largest_segment(&RunDir::new(dir.join("absent"))).unwrap(), None);
+        assert_eq!(
+            largest_segment(&RunDir::new(dir.join("absent"))).unwrap(),
+            None
+        );
         let dir = run_with_segments("bad", "1.0 0\n1.1 zero\n");
         let error = largest_segment(&RunDir::new(&dir)).unwrap_err().to_string();
         assert!(

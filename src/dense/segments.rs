@@ -66,40 +66,66 @@ struct Region {
     limits: usize,
 }
 
-/// Sets in `mask` the depth segments grown from `seeds` (`(x, y)` pixels) that pass
-/// the border test; returns whether any pixel was set.
+/// Where a region is grown from: a dynamic keypoint of the frame (`since` is the
+/// frame's time), or a segment kept earlier, projected into the frame (`since`: when a
+/// keypoint last supported it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Seed {
+    pub x: f32,
+    pub y: f32,
+    pub followed: bool,
+    pub since: f64,
+}
+
+/// A kept segment: its pixels, and when a dynamic keypoint last supported it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segment {
+    pub pixels: Vec<usize>,
+    pub since: f64,
+}
+
+/// The depth segments grown from `seeds` that pass the border test and hold at least
+/// `support` keypoint seeds or a followed one.
 pub fn grow_segments(
-    mask: &mut [bool],
     depth: &DepthImage,
-    seeds: &[(f32, f32)],
+    seeds: &[Seed],
     settings: &SegmentSettings,
-) -> bool {
+) -> Vec<Segment> {
     let (w, h) = (depth.width as usize, depth.height as usize);
     // The region (1, 2, …) each visited pixel belongs to; 0: none yet.
     let mut owner = vec![0u32; w * h];
-    let seed_pixels: Vec<usize> = seeds
+    let seed_pixels: Vec<(usize, &Seed)> = seeds
         .iter()
-        .filter_map(|&(x, y)| nearest_depth(depth, x, y, settings.snap))
+        .filter_map(|seed| Some((nearest_depth(depth, seed.x, seed.y, settings.snap)?, seed)))
         .collect();
-    let mut any = false;
+    let mut kept = Vec::new();
     let mut id = 0u32;
-    for &start in &seed_pixels {
+    for &(start, _) in &seed_pixels {
         if owner[start] != 0 {
             continue;
         }
         id += 1;
         let region = grow(&mut owner, depth, start, id, settings);
-        let support = seed_pixels.iter().filter(|&&s| owner[s] == id).count();
+        let inside: Vec<&Seed> = seed_pixels
+            .iter()
+            .filter(|(pixel, _)| owner[*pixel] == id)
+            .map(|(_, seed)| *seed)
+            .collect();
+        let keypoints = inside.iter().filter(|s| !s.followed).count();
+        let followed = inside.iter().any(|s| s.followed);
         let judged = region.edges + region.limits;
         let edge_share = region.edges as f32 / judged.max(1) as f32;
-        if support >= settings.support && judged > 0 && edge_share >= settings.edge_share {
-            for &i in &region.pixels {
-                mask[i] = true;
-            }
-            any = true;
+        if (keypoints >= settings.support || followed)
+            && judged > 0
+            && edge_share >= settings.edge_share
+        {
+            kept.push(Segment {
+                pixels: region.pixels,
+                since: inside.iter().map(|s| s.since).fold(f64::MIN, f64::max),
+            });
         }
     }
-    any
+    kept
 }
 
 /// The pixel with the nearest depth within `snap` pixels of `(x, y)` (each axis), or
@@ -141,7 +167,12 @@ fn concave(depth: &DepthImage, (u, v): (i64, i64), (du, dv): (i64, i64), c: f32)
 
 /// The first depth from `(u, v)` along `(du, dv)` within `hole` pixels past the
 /// neighbour, if any.
-fn across_hole(depth: &DepthImage, (u, v): (i64, i64), (du, dv): (i64, i64), hole: u32) -> Option<f32> {
+fn across_hole(
+    depth: &DepthImage,
+    (u, v): (i64, i64),
+    (du, dv): (i64, i64),
+    hole: u32,
+) -> Option<f32> {
     let (w, h) = (depth.width as i64, depth.height as i64);
     (2..=hole as i64 + 1)
         .map(|k| (u + k * du, v + k * dv))
@@ -234,13 +265,30 @@ mod tests {
     }
 
     fn grown(depth: &DepthImage, seeds: &[(f32, f32)]) -> Vec<bool> {
+        let seeds: Vec<Seed> = seeds
+            .iter()
+            .map(|&(x, y)| Seed {
+                x,
+                y,
+                followed: false,
+                since: 0.0,
+            })
+            .collect();
+        grown_from(depth, &seeds)
+    }
+
+    fn grown_from(depth: &DepthImage, seeds: &[Seed]) -> Vec<bool> {
         let mut mask = vec![false; depth.metres.len()];
         let settings = SegmentSettings {
             radius: 100,
             support: 2,
             ..SegmentSettings::default()
         };
-        grow_segments(&mut mask, depth, seeds, &settings);
+        for segment in grow_segments(depth, seeds, &settings) {
+            for i in segment.pixels {
+                mask[i] = true;
+            }
+        }
         mask
     }
 
@@ -257,9 +305,26 @@ mod tests {
     fn seeds_on_the_wall_or_a_lone_seed_mask_nothing() {
         let depth = wall_with_block();
         let wall = grown(&depth, &[(20.0, 20.0), (30.0, 25.0), (170.0, 130.0)]);
-        assert!(!wall.iter().any(|&m| m), "the wall ends at the floor's band and at the block, not at depth edges");
+        assert!(
+            !wall.iter().any(|&m| m),
+            "the wall ends at the floor's band and at the block, not at depth edges"
+        );
         let lone = grown(&depth, &[(100.0, 75.0)]);
         assert!(!lone.iter().any(|&m| m), "one seed is too little support");
+        // A segment followed from earlier frames needs no keypoint of its own.
+        let followed = Seed {
+            x: 100.0,
+            y: 75.0,
+            followed: true,
+            since: 0.0,
+        };
+        assert_eq!(
+            grown_from(&depth, &[followed])
+                .iter()
+                .filter(|&&m| m)
+                .count(),
+            1200
+        );
     }
 
     /// A block standing on a floor: the concave crease where it meets the floor stops
@@ -281,7 +346,10 @@ mod tests {
         }
         let mask = grown(&depth, &[(85.0, 65.0), (110.0, 120.0)]);
         assert!(mask[70 * 200 + 100] && mask[125 * 200 + 100], "the block");
-        assert!(!mask[70 * 200 + 60] && !mask[110 * 200 + 60], "the wall, the floor beside it");
+        assert!(
+            !mask[70 * 200 + 60] && !mask[110 * 200 + 60],
+            "the wall, the floor beside it"
+        );
         // The floor in front of it joins within the band (0.4 m: 16 rows), no farther.
         assert!(!mask[147 * 200 + 100], "the floor beyond the band");
     }

@@ -57,4 +57,3 @@ pub fn skipped(job: &Job) -> Outcome {
         skipped: true,
     }
 }
-

@@ -280,4 +280,3 @@ pub fn ensure_font() -> Result<(), String> {
     })
     .clone()
 }
-

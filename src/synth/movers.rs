@@ -153,10 +153,7 @@ impl ObjectsConfig {
             _ => {}
         }
         if self.size.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(format!(
-                "{key}.size must be positive, got {:?}",
-                self.size
-            ));
+            return Err(format!("{key}.size must be positive, got {:?}", self.size));
         }
         for (name, value) in [("speed", self.speed), ("span", self.span)] {
             if !(value.is_finite() && value > 0.0) {
