@@ -238,6 +238,7 @@ fn every_preset_loads_and_validates() {
             "street_demo",
             "street_kitti00",
             "street_kitti04",
+            "unknown_movers",
             "walking_halfsphere",
             "walking_rpy",
             "walking_static",

@@ -108,6 +108,73 @@ fn pushed_objects_carry_their_class() {
     assert!(bad.validate().unwrap_err().contains("spaceship"));
 }
 
+/// Movers of no COCO class are in the masks and named in `masks/instances.txt`, but
+/// get no oracle box (no detector knows them); the balloon floats at its lift; a COCO
+/// class under `[[unknown]]` is an error naming the key.
+#[test]
+fn unknown_movers_are_masked_and_named_but_never_boxed() {
+    let out = common::temp_dir("synth-unknown");
+    let mut config = preset("unknown_movers", 12);
+    config.sensor.exposure_time = 0.0;
+    generate(&config, &out, false).unwrap();
+    let classes = dopslam::io::image_files::read_instance_classes(&out.join("masks"))
+        .unwrap()
+        .expect("instances.txt");
+    assert_eq!(
+        classes,
+        vec![
+            (1, "person".into()),
+            (2, "box".into()),
+            (3, "balloon".into())
+        ]
+    );
+    let (mut boxed, mut seen) = (
+        std::collections::BTreeSet::new(),
+        std::collections::BTreeSet::new(),
+    );
+    for entry in std::fs::read_dir(out.join("detections_oracle")).unwrap() {
+        let path = entry.unwrap().path();
+        let frame: FrameDetections =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        boxed.extend(frame.detections.iter().filter_map(|d| d.instance));
+        let stem = path.file_stem().unwrap().to_string_lossy().into_owned();
+        let mask =
+            dopslam::io::image_files::read_instance_mask(&out.join(format!("masks/{stem}.png")))
+                .expect("a mask per frame");
+        seen.extend(mask.as_raw().iter().copied().filter(|&id| id > 0));
+    }
+    assert!(
+        seen.contains(&2) && seen.contains(&3),
+        "both in view: {seen:?}"
+    );
+    assert!(
+        boxed.iter().all(|&id| id == 1),
+        "only the person is boxed: {boxed:?}"
+    );
+    let world = World::new(&config).unwrap();
+    let (up, sign) = world.movers[0].up;
+    let bottom = |m: &dopslam::synth::movers::Mover| {
+        let c = m.cuboid_at(0.0);
+        if sign > 0.0 {
+            c.min[up]
+        } else {
+            -c.max[up]
+        }
+    };
+    let lift = bottom(&world.movers[2]) - bottom(&world.movers[1]);
+    assert!(
+        (lift - 1.35).abs() < 1e-9,
+        "the balloon floats 1.35 m up: {lift}"
+    );
+    let mut bad = config.clone();
+    bad.unknown[0].class = "suitcase".into();
+    let message = bad.validate().unwrap_err();
+    assert!(
+        message.contains("unknown.class") && message.contains("suitcase"),
+        "{message}"
+    );
+}
+
 /// Stereo output reads back through the KITTI reader with the right baseline, and the
 /// right image shows each point at the disparity \(f_x b / z\).
 #[test]

@@ -28,7 +28,7 @@ done
 presets=("$@")
 [ ${#presets[@]} -gt 0 ] || presets=(cutout_xyz cutout_static cutout_rpy cutout_halfsphere cutout_seated_leaves)
 [ -n "${DOPSLAM_BIN:-}" ] || cargo build --release --quiet
-mkdir -p "$out"
+mkdir -p "$out/runs" "$out/seq"
 printf '[detector]\nmodel = "deimv2-femto"\n' > "$out/deimv2-femto.toml"
 printf '[[detector.pool]]\nmodel = "yolov4-tiny"\nscore_threshold = 0.1\n[[detector.pool]]\nmodel = "deimv2-femto"\nscore_threshold = 0.3\n' > "$out/pool.toml"
 printf '' > "$out/yolov4-tiny.toml"
