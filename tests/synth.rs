@@ -239,6 +239,7 @@ fn every_preset_loads_and_validates() {
             "street_kitti00",
             "street_kitti04",
             "unknown_movers",
+            "unknown_movers_close",
             "walking_halfsphere",
             "walking_rpy",
             "walking_static",
