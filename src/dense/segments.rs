@@ -48,7 +48,7 @@ impl Default for SegmentSettings {
             radius: 160,
             step: 0.02,
             band: 0.4,
-            edge_share: 0.75,
+            edge_share: 0.9,
             support: 1,
             snap: 3,
             hole: 8,
