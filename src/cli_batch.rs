@@ -162,10 +162,7 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
 }
 
 /// What a shard did.
-fn shard_done(
-    summary: &dopslam::batch::BatchSummary,
-    shard: dopslam::batch::shard::Shard,
-) -> Result<()> {
+fn shard_done(summary: &dopslam::batch::BatchSummary, shard: dopslam::batch::shard::Shard) -> Result<()> {
     let e = &summary.executed;
     for note in &summary.notes {
         eprintln!("note: {note}");
@@ -179,10 +176,7 @@ fn shard_done(
         e.interrupted
     );
     if dopslam::interrupt::requested() || e.interrupted > 0 {
-        bail!(
-            "interrupted: {} runs not done; run the same shard again to finish them",
-            e.interrupted
-        );
+        bail!("interrupted: {} runs not done; run the same shard again to finish them", e.interrupted);
     }
     Ok(())
 }

@@ -44,19 +44,11 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     let data = DataDir::locate();
     let cwd = std::env::current_dir().unwrap_or_default();
     let shown = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    println!(
-        "data directory: {} ({})",
-        shown(&data.path).display(),
-        data.origin
-    );
+    println!("data directory: {} ({})", shown(&data.path).display(), data.origin);
     println!("looked for, in this order:");
     println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");
     match std::env::var_os(data_dir::ENV) {
-        Some(v) => println!(
-            "  2. {}={} (when set, the only place looked at)",
-            data_dir::ENV,
-            v.to_string_lossy()
-        ),
+        Some(v) => println!("  2. {}={} (when set, the only place looked at)", data_dir::ENV, v.to_string_lossy()),
         None => println!("  2. {} (unset)", data_dir::ENV),
     }
     match data_dir::install_record() {
@@ -65,32 +57,20 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
             record.display(),
             std::fs::read_to_string(&record).unwrap_or_default().trim()
         ),
-        Some(record) => println!(
-            "  3. the install record {} (none: tools/setup.sh writes it)",
-            record.display()
-        ),
+        Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
         None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
     }
-    println!(
-        "  4. ./data under the working directory ({})",
-        cwd.join("data").display()
-    );
+    println!("  4. ./data under the working directory ({})", cwd.join("data").display());
     let mut needed = vec![Needed {
         what: "ONNX Runtime library (keyframe detector)",
         path: dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref()),
         required: true,
     }];
-    needed.extend(
-        config
-            .detector
-            .model_files()
-            .into_iter()
-            .map(|path| Needed {
-                what: "detector model (the config's)",
-                path,
-                required: true,
-            }),
-    );
+    needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
+        what: "detector model (the config's)",
+        path,
+        required: true,
+    }));
     for (model, what) in [
         (Model::YoloxNano, "detector model yolox-nano (optional)"),
         (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
@@ -110,47 +90,24 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     });
     println!("files:");
     for n in &needed {
-        println!(
-            "  {:<8} {:<44} {}",
-            status(&n.path),
-            n.what,
-            shown(&n.path).display()
-        );
+        println!("  {:<8} {:<44} {}", status(&n.path), n.what, shown(&n.path).display());
     }
     println!(
         "stereo dense map (OpenCV SGBM): {}",
-        if cfg!(feature = "opencv") {
-            "built in"
-        } else {
-            "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)"
-        }
+        if cfg!(feature = "opencv") { "built in" } else { "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)" }
     );
-    let missing: Vec<&Needed> = needed
-        .iter()
-        .filter(|n| n.required && !n.path.is_file())
-        .collect();
+    let missing: Vec<&Needed> = needed.iter().filter(|n| n.required && !n.path.is_file()).collect();
     if missing.is_empty() {
         println!("everything a default run needs is in place");
         return Ok(());
     }
     if data.origin == DataOrigin::WorkingDirectory && !data.path.is_dir() {
-        println!(
-            "no data directory was found: dopslam looked at ./data of {}",
-            cwd.display()
-        );
+        println!("no data directory was found: dopslam looked at ./data of {}", cwd.display());
     }
     anyhow::bail!(
         "{} missing ({}): {}",
-        if missing.len() == 1 {
-            "one file is"
-        } else {
-            "files are"
-        },
-        missing
-            .iter()
-            .map(|n| shown(&n.path).display().to_string())
-            .collect::<Vec<_>>()
-            .join(", "),
+        if missing.len() == 1 { "one file is" } else { "files are" },
+        missing.iter().map(|n| shown(&n.path).display().to_string()).collect::<Vec<_>>().join(", "),
         data_dir::INSTALL_HINT
     )
 }

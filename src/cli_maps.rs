@@ -8,11 +8,11 @@ use clap::Args;
 use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
 use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
-use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::dop::Mode;
-use dopslam::io::run_dir::{names, RunDir, RunSummary};
+use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
+use dopslam::io::run_dir::{names, RunDir, RunSummary};
 use dopslam::run::dense_pass;
 
 #[derive(Args)]
@@ -64,11 +64,7 @@ pub fn print_settings_notes(config: &Config) {
 
 /// Refuses to fuse a run with a sequence it did not track: at least 90 % of the run's
 /// poses must have a frame of the sequence at their timestamp (1 µs).
-fn same_frames(
-    run: &RunDir,
-    sequence: &dyn dopslam::io::sequence::Sequence,
-    dir: &Path,
-) -> Result<()> {
+fn same_frames(run: &RunDir, sequence: &dyn dopslam::io::sequence::Sequence, dir: &Path) -> Result<()> {
     let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
     let frames: std::collections::HashSet<i64> = (0..sequence.len())
         .map(|i| (sequence.timestamp(i) * 1e6).round() as i64)
@@ -331,14 +327,7 @@ pub fn compare_with_baseline(
     points_only.dense.fusion = dopslam::dense::Fusion::Points;
     points_only.dense.frames = FrameChoice::Keyframes;
     points_only.dense.pictures = false;
-    dense_pass(
-        sequence,
-        &points_only,
-        (run, &no_masks),
-        Mode::Off,
-        None,
-        true,
-    )?;
+    dense_pass(sequence, &points_only, (run, &no_masks), Mode::Off, None, true)?;
     let baseline_map = if baseline.join(cloud).exists() {
         ("no_dop_cloud", baseline.join(cloud))
     } else {
@@ -361,8 +350,7 @@ pub fn compare_with_baseline(
     alignments.push(run_alignment(baseline));
     let static_scene = sequence_dir.join("static_scene.ply");
     let movers = sequence_dir.join("movers.ply");
-    let mut cameras =
-        Trajectory::read(&RunDir::new(run).trajectory(), TrajectoryFormat::Tum)?.poses;
+    let mut cameras = Trajectory::read(&RunDir::new(run).trajectory(), TrajectoryFormat::Tum)?.poses;
     if let Some(align) = &alignments[0] {
         cameras.iter_mut().for_each(|pose| *pose = align * *pose);
     }
@@ -394,9 +382,7 @@ pub fn print_summary(
     let ate = |r: &dopslam::run::RunReport| {
         r.ate
             .as_ref()
-            .map_or("- (no ground truth)".to_string(), |a| {
-                format!("{:.4} m", a.ape.statistics.rmse)
-            })
+            .map_or("- (no ground truth)".to_string(), |a| format!("{:.4} m", a.ape.statistics.rmse))
     };
     let movers: Vec<String> = comparison
         .names
@@ -407,27 +393,12 @@ pub fn print_summary(
             format!("{name} {count} of {}", m.points)
         })
         .collect();
-    let what = if comparison.movers.is_some() {
-        "mover points"
-    } else {
-        "ghost points"
-    };
+    let what = if comparison.movers.is_some() { "mover points" } else { "ghost points" };
     println!("summary:");
-    println!(
-        "  ATE RMSE with DOP {}, without DOP (ORB-SLAM2 behaviour) {}",
-        ate(dop),
-        ate(no_dop)
-    );
+    println!("  ATE RMSE with DOP {}, without DOP (ORB-SLAM2 behaviour) {}", ate(dop), ate(no_dop));
     println!("  {what} in each map: {}", movers.join(", "));
-    if let Some(picture) = comparison
-        .outputs
-        .iter()
-        .find(|p| p.ends_with("compare_perspective.png"))
-    {
-        println!(
-            "  picture (left to right as listed, ghosts in red): {}",
-            picture.display()
-        );
+    if let Some(picture) = comparison.outputs.iter().find(|p| p.ends_with("compare_perspective.png")) {
+        println!("  picture (left to right as listed, ghosts in red): {}", picture.display());
     }
     if let Some(table) = comparison.outputs.first().and_then(|p| p.parent()) {
         println!("  table: {}", table.join("compare.md").display());

@@ -11,10 +11,10 @@ use serde::Serialize;
 
 use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
-use dopslam::frame::stereo::extract_and_match;
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
+use dopslam::frame::stereo::extract_and_match;
 
 #[derive(Args)]
 pub struct StereoArgs {

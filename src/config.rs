@@ -388,9 +388,7 @@ fn check_value(value: &toml::Value, key: &str) -> Result<(), String> {
         toml::Value::Integer(x) if *x < 0 && !may_be_negative(key) => {
             Err(format!("{key} must not be negative, got {x}"))
         }
-        toml::Value::Table(table) => table
-            .iter()
-            .try_for_each(|(k, v)| check_value(v, &child(k))),
+        toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| check_value(v, &child(k))),
         toml::Value::Array(items) => items
             .iter()
             .enumerate()
@@ -457,31 +455,18 @@ mod tests {
     fn every_number_is_finite_and_sizes_are_not_negative() {
         for (text, key) in [
             ("[tracking]\nth_depth = nan\n", "tracking.th_depth"),
-            (
-                "[tracking]\nmotion_search_radius = -1.0\n",
-                "tracking.motion_search_radius",
-            ),
+            ("[tracking]\nmotion_search_radius = -1.0\n", "tracking.motion_search_radius"),
             ("[dop]\ngamma = inf\n", "dop.gamma"),
             ("[dense]\nvoxel = nan\n", "dense.voxel"),
-            (
-                "[global.smoothing]\nacceleration = -1.0\n",
-                "global.smoothing.acceleration",
-            ),
-            (
-                "[stereo]\nsgbm_disparities = -16\n",
-                "stereo.sgbm_disparities",
-            ),
+            ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),
+            ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
         ] {
             let message = Config::from_toml(text).unwrap_err();
             assert!(message.contains(key), "{text}: {message}");
         }
         assert!(Config::from_toml("[dense]\ncloud_free_space = -0.5\n").is_ok());
         let distorted = "[dataset.camera]\nfx = 517.3\nfy = 516.5\ncx = 318.6\ncy = 255.3\nwidth = 640\nheight = 480\ndistortion = [0.26, -0.95, -0.005, 0.003, 1.16]\n";
-        assert!(
-            Config::from_toml(distorted).is_ok(),
-            "{:?}",
-            Config::from_toml(distorted)
-        );
+        assert!(Config::from_toml(distorted).is_ok(), "{:?}", Config::from_toml(distorted));
     }
 
     #[test]

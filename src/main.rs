@@ -21,11 +21,11 @@ use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
 mod cli_batch;
+mod cli_values;
 mod cli_doctor;
 mod cli_global;
 mod cli_maps;
 mod cli_stereo;
-mod cli_values;
 
 #[derive(Parser)]
 #[command(
@@ -346,11 +346,7 @@ fn check_detect_outputs(args: &DetectArgs) -> Result<()> {
         .file_stem()
         .map_or("image".into(), |s| s.to_string_lossy().into_owned());
     for ext in ["png", "json"] {
-        check_file(
-            &args.out.join(format!("{name}.{ext}")),
-            "detection output",
-            &[&args.input],
-        )?;
+        check_file(&args.out.join(format!("{name}.{ext}")), "detection output", &[&args.input])?;
     }
     prepare_dir(&args.out, "output", &[])?;
     Ok(())

@@ -255,12 +255,7 @@ fn shards_started_together_then_collected_equal_one_batch() {
     let children: Vec<_> = (1..=3)
         .map(|k| {
             Command::new(env!("CARGO_BIN_EXE_dopslam"))
-                .args([
-                    "batch",
-                    &manifest.to_string_lossy(),
-                    "--out",
-                    &out.to_string_lossy(),
-                ])
+                .args(["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy()])
                 .args(["--shard", &format!("{k}/3"), "--jobs", "1"])
                 .stdout(std::process::Stdio::piped())
                 .stderr(std::process::Stdio::piped())
@@ -277,36 +272,17 @@ fn shards_started_together_then_collected_equal_one_batch() {
         assert!(String::from_utf8_lossy(&output.stdout).contains("shard "));
     }
     assert_eq!(generated, 2, "each of the two sequences is generated once");
-    assert!(
-        !out.join("results.csv").exists(),
-        "a shard writes no tables"
-    );
+    assert!(!out.join("results.csv").exists(), "a shard writes no tables");
     assert_eq!(finished_runs(&out), 4);
-    let (ok, stdout, stderr) = dopslam(&[
-        "batch",
-        &manifest.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--collect",
-        "--strict",
-    ]);
+    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect", "--strict"]);
     assert!(ok, "{stdout}{stderr}");
-    assert!(
-        stdout.contains("4 of 4 runs finished (0 failed), 0 missing"),
-        "{stdout}"
-    );
+    assert!(stdout.contains("4 of 4 runs finished (0 failed), 0 missing"), "{stdout}");
     let single = base.join("single");
     batch(&manifest, &single);
     // Every column but the tracking times (which real clocks give).
     let deterministic = |rows: Vec<Vec<String>>| -> Vec<Vec<String>> {
         rows.into_iter()
-            .map(|r| {
-                r.iter()
-                    .enumerate()
-                    .filter(|(i, _)| *i != 11 && *i != 12)
-                    .map(|(_, c)| c.clone())
-                    .collect()
-            })
+            .map(|r| r.iter().enumerate().filter(|(i, _)| *i != 11 && *i != 12).map(|(_, c)| c.clone()).collect())
             .collect()
     };
     assert_eq!(
@@ -316,18 +292,8 @@ fn shards_started_together_then_collected_equal_one_batch() {
     // A run gone missing: --collect says which, and --strict fails.
     let gone = out.join("runs/static_room/no-dop/r1/run.json");
     std::fs::remove_file(&gone).unwrap();
-    let (ok, stdout, _) = dopslam(&[
-        "batch",
-        &manifest.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--collect",
-        "--strict",
-    ]);
-    assert!(
-        !ok && stdout.contains("missing: static_room/no-dop/r1"),
-        "{stdout}"
-    );
+    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect", "--strict"]);
+    assert!(!ok && stdout.contains("missing: static_room/no-dop/r1"), "{stdout}");
 }
 
 /// `--slurm` writes the array and collection scripts with the manifest's resources.
@@ -337,40 +303,18 @@ fn slurm_scripts_name_the_shards_and_the_resources() {
     let manifest = manifest(&base, 1, "");
     let out = base.join("out");
     let (ok, stdout, stderr) = dopslam(&[
-        "batch",
-        &manifest.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--slurm",
-        "--partition",
-        "short",
-        "--time",
-        "1:00:00",
-        "--max-parallel",
-        "2",
+        "batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(),
+        "--slurm", "--partition", "short", "--time", "1:00:00", "--max-parallel", "2",
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("4 array tasks for 4 runs"), "{stdout}");
     let array = std::fs::read_to_string(out.join("slurm/array.sbatch")).unwrap();
-    for line in [
-        "#SBATCH --array=1-4%2",
-        "#SBATCH --partition=short",
-        "#SBATCH --time=1:00:00",
-        "#SBATCH --cpus-per-task=2",
-        "#SBATCH --mem=3072M",
-        "--shard \"$SLURM_ARRAY_TASK_ID/4\"",
-    ] {
+    for line in ["#SBATCH --array=1-4%2", "#SBATCH --partition=short", "#SBATCH --time=1:00:00", "#SBATCH --cpus-per-task=2", "#SBATCH --mem=3072M", "--shard \"$SLURM_ARRAY_TASK_ID/4\""] {
         assert!(array.contains(line), "{line} not in\n{array}");
     }
     let collect = std::fs::read_to_string(out.join("slurm/collect.sbatch")).unwrap();
     assert!(collect.contains("--collect"), "{collect}");
     assert!(!out.join("runs").exists(), "--slurm runs nothing");
-    let (ok, _, stderr) = dopslam(&[
-        "batch",
-        &manifest.to_string_lossy(),
-        "--slurm",
-        "--partition",
-        "a b",
-    ]);
+    let (ok, _, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--slurm", "--partition", "a b"]);
     assert!(!ok && stderr.contains("--partition"), "{stderr}");
 }

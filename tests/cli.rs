@@ -315,15 +315,7 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
             .current_dir(&base)
             .env("DOPSLAM_DATA", data)
-            .args([
-                "run",
-                "seq",
-                "--frames",
-                "10",
-                "--no-dense",
-                "--deterministic",
-                "--out",
-            ])
+            .args(["run", "seq", "--frames", "10", "--no-dense", "--deterministic", "--out"])
             .arg(out)
             .args(extra)
             .output()
@@ -344,10 +336,7 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
     );
     assert!(!out.exists(), "nothing is written before the check");
     let (ok, err) = run(&empty, &out, &["--detections", "none"]);
-    assert!(
-        !ok && err.contains("vocabulary.dbow") && err.contains("--no-loops"),
-        "{err}"
-    );
+    assert!(!ok && err.contains("vocabulary.dbow") && err.contains("--no-loops"), "{err}");
     assert!(!out.exists(), "nothing is written before the check");
     let (ok, err) = run(&empty, &out, &["--detections", "none", "--no-loops"]);
     assert!(ok, "{err}");
@@ -360,19 +349,13 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         .unwrap();
     let text = String::from_utf8_lossy(&doctor.stdout);
     assert!(!doctor.status.success());
-    assert!(
-        text.contains("MISSING") && text.contains("DOPSLAM_DATA"),
-        "{text}"
-    );
+    assert!(text.contains("MISSING") && text.contains("DOPSLAM_DATA"), "{text}");
     // The checkout's data directory, when setup installed the detector into it.
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     if !data.join("ort/libonnxruntime.so").exists()
         || !data.join("models/yolov4-tiny-320x256.onnx").exists()
     {
-        eprintln!(
-            "skipping the detector half: bash tools/setup.sh has not installed it into {}",
-            data.display()
-        );
+        eprintln!("skipping the detector half: bash tools/setup.sh has not installed it into {}", data.display());
         return;
     }
     let out = base.join("out-installed");
@@ -382,22 +365,7 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let setup = &report["setup"];
     assert_eq!(setup["detections"], "onnx", "{setup}");
-    assert!(
-        setup["detector_files"][0]
-            .as_str()
-            .unwrap()
-            .ends_with("models/yolov4-tiny-320x256.onnx"),
-        "{setup}"
-    );
-    assert!(
-        setup["vocabulary"]
-            .as_str()
-            .unwrap()
-            .ends_with("vocabulary.dbow"),
-        "{setup}"
-    );
-    assert!(
-        setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"),
-        "{setup}"
-    );
+    assert!(setup["detector_files"][0].as_str().unwrap().ends_with("models/yolov4-tiny-320x256.onnx"), "{setup}");
+    assert!(setup["vocabulary"].as_str().unwrap().ends_with("vocabulary.dbow"), "{setup}");
+    assert!(setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"), "{setup}");
 }

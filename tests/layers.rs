@@ -58,9 +58,7 @@ fn code(text: &str) -> String {
     let mut lines = text.lines().peekable();
     while let Some(line) = lines.next() {
         let test_module = line.trim() == "#[cfg(test)]"
-            && lines
-                .peek()
-                .is_some_and(|next| next.trim_end().ends_with("mod tests {"));
+            && lines.peek().is_some_and(|next| next.trim_end().ends_with("mod tests {"));
         if test_module {
             break;
         }
@@ -232,11 +230,7 @@ fn there_are_no_import_circles() {
     let edges = references(&src());
     // A sanity check that references are found at all.
     let pass: Module = vec!["run".into(), "tracking_pass".into()];
-    assert!(
-        edges[&pass].contains(&vec!["system".to_string()]),
-        "{:?}",
-        edges[&pass]
-    );
+    assert!(edges[&pass].contains(&vec!["system".to_string()]), "{:?}", edges[&pass]);
     let mut found = Vec::new();
     for (folder, graph) in sibling_graphs(&edges) {
         for circle in circles(&graph) {

@@ -12,11 +12,11 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::manifest::PlannedSequence;
+use crate::dop::Mode;
 use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
 use crate::config::Config;
 use crate::dense::compare::CompareSettings;
 use crate::dense::comparison::{compare_maps, run_alignment, CompareInputs};
-use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
 use crate::eval::report::{evaluate, EvalOptions, EvalReport, RpeSpec};
 use crate::eval::rpe::DeltaUnit;

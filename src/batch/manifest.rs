@@ -25,6 +25,7 @@ use crate::config::Config;
 use crate::detect::Source;
 use crate::dop::Mode;
 
+
 /// The `[batch]` table: what every sequence gets unless it says otherwise.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]

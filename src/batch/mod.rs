@@ -30,9 +30,9 @@ pub mod slurm;
 
 use std::path::{Path, PathBuf};
 
-use crate::dop::Mode;
 use execute::{Executed, Executor, RunJob};
 use machine::{budget_jobs, machine_description};
+use crate::dop::Mode;
 use manifest::{absolute, Manifest, PlannedSequence, SequenceSource};
 use record::{RunRecord, RunStatus};
 use results::GroupSummary;
@@ -146,24 +146,16 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     } else {
         prepare_sequences(&plan, &mine, options.progress)
     };
-    let jobs = options
-        .jobs
-        .or(plan.manifest.batch.jobs)
-        .unwrap_or_else(|| {
-            budget_jobs(
-                plan.manifest.batch.cores_per_run,
-                plan.manifest.batch.memory_per_run_gib,
-            )
-        });
+    let jobs = options.jobs.or(plan.manifest.batch.jobs).unwrap_or_else(|| {
+        budget_jobs(
+            plan.manifest.batch.cores_per_run,
+            plan.manifest.batch.memory_per_run_gib,
+        )
+    });
     let (executed, skipped) = if options.collect {
         (Executed::default(), 0)
     } else {
-        execute(
-            &plan,
-            (&mine, options),
-            (&sequence_dirs, &unavailable),
-            jobs,
-        )?
+        execute(&plan, (&mine, options), (&sequence_dirs, &unavailable), jobs)?
     };
     let mut summary = BatchSummary {
         out: out.clone(),
@@ -244,10 +236,7 @@ fn execute(
         eprintln!(
             "batch {}{}: {} runs ({} finished before), {} to do, {jobs} at a time",
             plan.out.display(),
-            options
-                .shard
-                .map(|s| format!(", shard {s}"))
-                .unwrap_or_default(),
+            options.shard.map(|s| format!(", shard {s}")).unwrap_or_default(),
             mine.len(),
             skipped,
             todo.len()
@@ -414,9 +403,9 @@ fn prepare_sequence(
                 Ok(config) => config,
                 Err(problem) => return (dir, Some(problem)),
             };
-            let part =
-                out.join("sequences")
-                    .join(format!("{}.part{}", sequence.name, std::process::id()));
+            let part = out
+                .join("sequences")
+                .join(format!("{}.part{}", sequence.name, std::process::id()));
             let generated = shard::once_per_folder(&dir, || {
                 if progress {
                     eprintln!("generating {} from {}", sequence.name, preset.display());
@@ -428,10 +417,7 @@ fn prepare_sequence(
                             .map_err(|e| format!("cannot rename {}: {e}", part.display()))
                     })
             });
-            (
-                synthetic_run_dir(sequence, out, Some(&config)),
-                generated.err(),
-            )
+            (synthetic_run_dir(sequence, out, Some(&config)), generated.err())
         }
     }
 }

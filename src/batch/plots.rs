@@ -73,7 +73,11 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
 
 /// The trajectories of each mode's median run (aligned) over the ground truth, seen
 /// along the axis of least motion, with equal metres per pixel on both axes.
-pub fn trajectories(path: &Path, title: &str, runs: &[(Mode, &EvalReport)]) -> Result<(), String> {
+pub fn trajectories(
+    path: &Path,
+    title: &str,
+    runs: &[(Mode, &EvalReport)],
+) -> Result<(), String> {
     // The ground truth as far as the most complete run matched it.
     let Some(fullest) = runs
         .iter()
@@ -168,7 +172,11 @@ fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
 }
 
 /// The APE of each mode's median run over time (seconds from the first pose).
-pub fn ape_over_time(path: &Path, title: &str, runs: &[(Mode, &EvalReport)]) -> Result<(), String> {
+pub fn ape_over_time(
+    path: &Path,
+    title: &str,
+    runs: &[(Mode, &EvalReport)],
+) -> Result<(), String> {
     let Some(t0) = runs
         .iter()
         .filter_map(|(_, r)| r.ape.timestamps.first().copied())

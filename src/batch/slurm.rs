@@ -48,9 +48,7 @@ fn quote(text: &str) -> String {
 /// A value for an `#SBATCH` line: no newlines or blanks that would end the line.
 fn checked(name: &str, value: &str) -> Result<String, String> {
     if value.is_empty() || value.chars().any(|c| c.is_whitespace() || c == '#') {
-        return Err(format!(
-            "--{name} {value:?}: not a Slurm value (no blanks or '#')"
-        ));
+        return Err(format!("--{name} {value:?}: not a Slurm value (no blanks or '#')"));
     }
     Ok(value.to_string())
 }
@@ -100,10 +98,7 @@ pub fn write_scripts(
         quote(&manifest.to_string_lossy()),
         quote(&plan.out.to_string_lossy())
     );
-    let throttle = options
-        .max_parallel
-        .map(|k| format!("%{k}"))
-        .unwrap_or_default();
+    let throttle = options.max_parallel.map(|k| format!("%{k}")).unwrap_or_default();
     let array_text = format!(
         "{}\n#SBATCH --array=1-{shards}{throttle}\n#SBATCH --cpus-per-task={cpus}\n#SBATCH --mem={mem}\n#SBATCH --output={}\n\
          # One shard of the batch per array task (dopslam batch --shard K/{shards}); written by dopslam batch --slurm.\n\

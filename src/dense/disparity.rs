@@ -68,11 +68,7 @@ pub fn sgbm_disparity(
 
 /// What OpenCV's matcher needs of a pair, checked here: OpenCV reports a violation by
 /// a C++ exception inside its worker threads, which aborts the process.
-pub fn check_size(
-    left: &GrayImage,
-    right: &GrayImage,
-    settings: &SgbmSettings,
-) -> Result<(), String> {
+pub fn check_size(left: &GrayImage, right: &GrayImage, settings: &SgbmSettings) -> Result<(), String> {
     if left.dimensions() != right.dimensions() {
         return Err(format!(
             "the stereo pair's images differ in size: {}x{} and {}x{}",

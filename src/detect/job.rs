@@ -57,3 +57,4 @@ pub fn skipped(job: &Job) -> Outcome {
         skipped: true,
     }
 }
+

@@ -7,8 +7,8 @@
 
 pub mod coco;
 pub mod draw;
-pub mod job;
 pub mod onnx;
+pub mod job;
 pub mod yolo;
 
 use std::path::{Path, PathBuf};
@@ -224,15 +224,11 @@ impl DetectorConfig {
             );
         }
         if !self.pool.is_empty() && (self.model_path.is_some() || !self.model_paths.is_empty()) {
-            return Err(
-                "detector: set pool (several models) or model_path / model_paths, not both".into(),
-            );
+            return Err("detector: set pool (several models) or model_path / model_paths, not both".into());
         }
         for (i, entry) in self.pool.iter().enumerate() {
             if let Some(t) = entry.score_threshold.filter(|t| !(0.0..=1.0).contains(t)) {
-                return Err(format!(
-                    "detector.pool[{i}].score_threshold must be in [0, 1], got {t}"
-                ));
+                return Err(format!("detector.pool[{i}].score_threshold must be in [0, 1], got {t}"));
             }
         }
         for class in self.dynamic_classes.iter().chain(&self.static_classes) {
@@ -261,10 +257,7 @@ impl DetectorConfig {
         self.model_files()
             .into_iter()
             .map(|path| (path, "detector model"))
-            .chain([(
-                onnx::runtime_library(self.ort_library.as_deref()),
-                "ONNX Runtime library",
-            )])
+            .chain([(onnx::runtime_library(self.ort_library.as_deref()), "ONNX Runtime library")])
             .collect()
     }
 

@@ -280,3 +280,4 @@ pub fn ensure_font() -> Result<(), String> {
     })
     .clone()
 }
+

@@ -10,8 +10,8 @@ use nalgebra::Vector2;
 
 use crate::features::{Descriptor, KeyPoint, OrbExtractor};
 use crate::geometry::camera::PinholeCamera;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::image_files::DepthImage;
+use crate::geometry::stereo_camera::StereoCamera;
 
 use stereo::extract_and_match;
 

@@ -152,12 +152,8 @@ pub fn looks_swapped(
     bf: f64,
     fx: f64,
 ) -> Option<(usize, usize)> {
-    let given = extract_and_match((left, right), extractor, bf, fx)
-        .1
-        .matched();
-    let exchanged = extract_and_match((right, left), extractor, bf, fx)
-        .1
-        .matched();
+    let given = extract_and_match((left, right), extractor, bf, fx).1.matched();
+    let exchanged = extract_and_match((right, left), extractor, bf, fx).1.matched();
     (exchanged >= 100 && exchanged >= 2 * given).then_some((given, exchanged))
 }
 

@@ -115,8 +115,8 @@ mod tests {
     use super::*;
     use crate::features::ScalePyramid;
     use crate::geometry::camera::PinholeCamera;
-    use crate::geometry::stereo_camera::StereoCamera;
     use crate::map::MapPoint;
+    use crate::geometry::stereo_camera::StereoCamera;
     use crate::random::Rng;
     use nalgebra::{Rotation3, Translation3, Vector3};
 

@@ -34,10 +34,10 @@ use super::word_matching::{match_by_words, static_point};
 use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
 use crate::features::ScalePyramid;
 use crate::geometry::se3::{self, Se3};
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::mapping::fusion;
 use crate::optim::pose_graph::GraphReport;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::random::Rng;
 
 /// Loop-closing parameters (ORB-SLAM2's values by default).
@@ -772,8 +772,8 @@ fn merge_segments(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Frame;
     use crate::map::{KeyFrame, MapPoint};
+    use crate::frame::Frame;
     use nalgebra::{Rotation3, Translation3};
 
     fn keyframe(segment: usize, camera_from_world: Se3) -> KeyFrame {

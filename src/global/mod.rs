@@ -23,9 +23,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::bow::Vocabulary;
 use crate::features::ScalePyramid;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::tracking::FrameReport;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 
@@ -130,10 +130,7 @@ pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String>
         } else {
             crate::io::data_dir::INSTALL_HINT.to_string()
         };
-        format!(
-            "loop closing needs the vocabulary {}: {e}; {fix}; or run with --no-loops",
-            path.display()
-        )
+        format!("loop closing needs the vocabulary {}: {e}; {fix}; or run with --no-loops", path.display())
     })
 }
 

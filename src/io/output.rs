@@ -46,10 +46,7 @@ fn invalid(path: &Path, message: impl Into<String>) -> IoError {
 /// it; writes and removes a probe file to prove it can be written.
 pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
     if dir.to_str().is_none() {
-        return Err(invalid(
-            dir,
-            format!("the {what} path is not valid UTF-8; choose a folder whose name is"),
-        ));
+        return Err(invalid(dir, format!("the {what} path is not valid UTF-8; choose a folder whose name is")));
     }
     for input in inputs {
         if is_within(dir, input) {
@@ -61,16 +58,10 @@ pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoErr
     }
     match std::fs::metadata(dir) {
         Ok(meta) if !meta.is_dir() => {
-            return Err(invalid(
-                dir,
-                format!("the {what} path is a file, not a folder"),
-            ))
+            return Err(invalid(dir, format!("the {what} path is a file, not a folder")))
         }
         Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
-            return Err(invalid(
-                dir,
-                format!("the {what} path is a loop of symbolic links"),
-            ))
+            return Err(invalid(dir, format!("the {what} path is a loop of symbolic links")))
         }
         _ => {}
     }
@@ -92,18 +83,12 @@ pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoErr
 /// made and written, and it is none of `inputs`.
 pub fn check_file(path: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
     if inputs.iter().any(|input| resolved(path) == resolved(input)) {
-        return Err(invalid(
-            path,
-            format!("the {what} would replace an input file"),
-        ));
+        return Err(invalid(path, format!("the {what} would replace an input file")));
     }
     if path.is_dir() {
         return Err(invalid(path, format!("the {what} path is a folder")));
     }
-    let parent = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     prepare_dir(parent, &format!("{what}'s"), &[])
 }
 
@@ -196,27 +181,17 @@ mod tests {
         let error = check_file(&input.join("rgb"), "picture", &[]).unwrap_err();
         assert!(error.to_string().contains("folder"), "{error}");
         std::fs::write(input.join("a.png"), b"x").unwrap();
-        let error =
-            check_file(&input.join("./a.png"), "picture", &[&input.join("a.png")]).unwrap_err();
+        let error = check_file(&input.join("./a.png"), "picture", &[&input.join("a.png")]).unwrap_err();
         assert!(error.to_string().contains("replace an input"), "{error}");
         let lock = DirLock::take(&base.join("out")).unwrap();
-        assert!(
-            DirLock::take(&base.join("out")).is_err(),
-            "a second lock is refused"
-        );
+        assert!(DirLock::take(&base.join("out")).is_err(), "a second lock is refused");
         drop(lock);
         assert!(DirLock::take(&base.join("out")).is_ok());
         std::fs::write(base.join("out/trajectory.txt"), b"old").unwrap();
         std::fs::create_dir_all(base.join("out/plots")).unwrap();
         let moved = move_previous_outputs(&base.join("out"), &[]).unwrap();
-        assert_eq!(
-            moved,
-            vec!["trajectory.txt".to_string(), "plots".to_string()]
-        );
-        assert_eq!(
-            std::fs::read(base.join("out/previous/trajectory.txt")).unwrap(),
-            b"old"
-        );
+        assert_eq!(moved, vec!["trajectory.txt".to_string(), "plots".to_string()]);
+        assert_eq!(std::fs::read(base.join("out/previous/trajectory.txt")).unwrap(), b"old");
         assert!(!base.join("out/trajectory.txt").exists());
         std::fs::remove_dir_all(&base).unwrap();
     }

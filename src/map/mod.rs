@@ -7,8 +7,8 @@ use nalgebra::Vector3;
 use slotmap::{new_key_type, SlotMap};
 
 use crate::features::Descriptor;
-use crate::frame::Frame;
 use crate::geometry::se3::Se3;
+use crate::frame::Frame;
 
 new_key_type! {
     /// A keyframe in the map.

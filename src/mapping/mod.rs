@@ -23,8 +23,8 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::features::ScalePyramid;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, MapPoint, MapPointKey, SharedMap};
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// Local mapping parameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

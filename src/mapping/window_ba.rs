@@ -12,9 +12,9 @@ use std::collections::HashMap;
 use nalgebra::Vector3;
 
 use crate::features::ScalePyramid;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem, BaReport};
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// A copied-out window: the problem and where each of its parts came from.
 pub struct Window {
@@ -188,9 +188,9 @@ impl Window {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Frame;
     use crate::geometry::se3::Se3;
     use crate::map::{KeyFrame, MapPoint};
+    use crate::frame::Frame;
 
     /// Real time: the points a keyframe made before its detection came back may be on
     /// a person, and stay out of local BA until it does.

@@ -11,8 +11,8 @@ use nalgebra::{Matrix6, Vector3, Vector6};
 
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::point_jacobian_wrt_pose;
-use crate::geometry::se3::{self, Se3};
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::geometry::se3::{self, Se3};
 
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
