@@ -493,10 +493,30 @@ mod tests {
         (camera, depth)
     }
 
+    /// A DOP mask source over [`scene`] (identity poses, its depth on every keyframe).
+    fn scene_source(
+        settings: MaskSettings,
+        frames: Vec<FrameDetections>,
+        keypoints: Vec<FrameKeypoints>,
+    ) -> MaskSource {
+        let (camera, depth) = scene();
+        MaskSource::new(
+            Mode::Dop,
+            settings,
+            camera,
+            &DopConfig::default(),
+            &["person".to_string()],
+            frames,
+            keypoints,
+            &|_| Some(Se3::identity()),
+            &|_| Some(depth.clone()),
+        )
+    }
+
     /// The DOP mask at t = 1 of [`scene`] with one person detected in `bbox` at t = 1,
     /// the frame's dynamic `keypoints`, and `settings`.
     fn person_mask(bbox: [f32; 4], keypoints: &[[f32; 3]], settings: MaskSettings) -> Vec<bool> {
-        let (camera, depth) = scene();
+        let (_, depth) = scene();
         let frames = vec![FrameDetections {
             timestamp: 1.0,
             detections: vec![Detection {
@@ -511,17 +531,7 @@ mod tests {
             timestamp: 1.0,
             points: keypoints.to_vec(),
         }];
-        let mut source = MaskSource::new(
-            Mode::Dop,
-            settings,
-            camera,
-            &DopConfig::default(),
-            &["person".to_string()],
-            frames,
-            keypoints,
-            &|_| Some(Se3::identity()),
-            &|_| Some(depth.clone()),
-        );
+        let mut source = scene_source(settings, frames, keypoints);
         source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
     }
 
@@ -590,7 +600,7 @@ mod tests {
     /// dynamic keypoint on the wall gets no disc with `disc_neighbours`.
     #[test]
     fn a_mover_without_a_box_is_masked_by_its_segment_and_followed() {
-        let (camera, depth) = scene();
+        let (_, depth) = scene();
         let settings = MaskSettings {
             border: 0,
             keypoint_radius: 5,
@@ -610,17 +620,7 @@ mod tests {
             timestamp: 1.0,
             points: vec![[300.0, 260.0, 1.5], [340.0, 300.0, 1.5], [60.0, 60.0, 3.0]],
         }];
-        let mut source = MaskSource::new(
-            Mode::Dop,
-            settings,
-            camera,
-            &DopConfig::default(),
-            &["person".to_string()],
-            vec![],
-            keypoints,
-            &|_| Some(Se3::identity()),
-            &|_| Some(depth.clone()),
-        );
+        let mut source = scene_source(settings, vec![], keypoints);
         let identity = Se3::identity();
         // (slab pixels masked, other pixels masked)
         let count = |m: &[bool]| {
@@ -668,17 +668,7 @@ mod tests {
             segments: None,
         };
         let identity = Se3::identity();
-        let mut source = MaskSource::new(
-            Mode::Dop,
-            settings,
-            camera,
-            &DopConfig::default(),
-            &["person".to_string()],
-            frames.clone(),
-            vec![],
-            &|_| Some(Se3::identity()),
-            &|_| Some(depth.clone()),
-        );
+        let mut source = scene_source(settings, frames.clone(), vec![]);
         // A frame 0.2 s later, camera moved 10 cm to the right: the person shifts left.
         let moved = crate::geometry::se3::from_parts(
             Vector3::new(-0.1, 0.0, 0.0),
