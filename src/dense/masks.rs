@@ -610,7 +610,7 @@ mod tests {
             // The slab is 360 pixels tall.
             segments: Some((
                 SegmentSettings {
-                    radius: 200,
+                    radius: 240,
                     ..SegmentSettings::default()
                 },
                 3.0,
