@@ -13,10 +13,14 @@
 //! (a keypoint held moving at a depth edge belongs to what is in front).
 //!
 //! A mover stands in front of what it hides: most of its segment's border is a depth
-//! edge to something farther (or to no depth). A wall around a keypoint wrongly held
-//! moving is not: its region ends at the band or the radius. So a region is kept when
-//! the share of its border pixels that are such edges is at least `edge_share`, and it
-//! holds at least `support` seeds. Borders at the image edge count neither way.
+//! edge to something farther. A wall around a keypoint wrongly held moving is not: its
+//! region ends at the band, the radius or something nearer. So a region is kept when
+//! the share of its border steps that are such edges is at least `edge_share`, and it
+//! holds at least `support` keypoint seeds (or a followed one, see [`Seed`]). Depth
+//! sensors lose the pixels along a depth edge: across such a hole the first depth
+//! within `hole` pixels decides. Borders at the image edge, and concave creases (where
+//! a box stands on the floor: the depth profile bends towards the camera), count
+//! neither way and stop the growth.
 
 use crate::io::image_files::DepthImage;
 
