@@ -203,23 +203,25 @@ impl MaskSource {
                 any |= self.object_masks(&mut mask, depth, &objects);
                 let keypoints = self.frame_keypoints(timestamp);
                 any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects);
-                let seeds: Vec<Seed> = keypoints
-                    .iter()
-                    .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
-                    .map(|p| Seed {
-                        x: p[0],
-                        y: p[1],
-                        followed: false,
-                        since: timestamp,
-                    })
-                    .collect();
-                any |= self.segment_masks(
-                    &mut mask,
-                    depth,
-                    (timestamp, camera_from_world),
-                    seeds,
-                    &objects,
-                );
+                if self.settings.segments.is_some() {
+                    let seeds: Vec<Seed> = keypoints
+                        .iter()
+                        .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
+                        .map(|p| Seed {
+                            x: p[0],
+                            y: p[1],
+                            followed: false,
+                            since: timestamp,
+                        })
+                        .collect();
+                    any |= self.segment_masks(
+                        &mut mask,
+                        depth,
+                        (timestamp, camera_from_world),
+                        seeds,
+                        &objects,
+                    );
+                }
             }
         }
         any.then(|| dilate(&mask, w, h, self.settings.border as usize))

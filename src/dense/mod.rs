@@ -33,9 +33,9 @@ use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
+use crate::io::run_dir::{names, RunDir};
 use crate::io::image_files::DepthImage;
 use crate::io::ply::{write_obj, write_ply, PlyEncoding};
-use crate::io::run_dir::{names, RunDir};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
@@ -516,7 +516,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let started = Instant::now();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
-    let keyframes = Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
+    let keyframes =
+        Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
     let mut poses = poses_by_time(&trajectory);
     let mut other_segment_frames = 0;
     if let Some(keep) = largest_segment(&run)? {
@@ -611,10 +612,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         config,
         &chosen,
         &mut mask_source,
-        (
-            fuse_tsdf.then_some(&mut volume),
-            cloud_on.then_some(&mut cloud),
-        ),
+        (fuse_tsdf.then_some(&mut volume), cloud_on.then_some(&mut cloud)),
         &mut truth,
     )?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
@@ -795,9 +793,7 @@ fn fuse_frames(
             if let Some(volume) = volume.as_deref_mut() {
                 volume.integrate(&input);
             }
-            fused
-                .integration_ms
-                .push(start.elapsed().as_secs_f64() * 1e3);
+            fused.integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
             if let (Some(cloud), true) = (cloud.as_deref_mut(), is_keyframe) {
                 cloud.add(&input);
                 fused.keyframes_in_cloud += 1;
@@ -940,18 +936,13 @@ mod tests {
     #[test]
     fn only_the_largest_unmerged_segment_is_fused() {
         let dir = run_with_segments("two", "# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n");
-        let keep = largest_segment(&RunDir::new(&dir))
-            .unwrap()
-            .expect("two segments");
+        let keep = largest_segment(&RunDir::new(&dir)).unwrap().expect("two segments");
         let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
         assert_eq!(keep, expected);
         // One segment (or no file): every frame.
         let dir = run_with_segments("one", "1.0 0\n1.1 0\n");
         assert_eq!(largest_segment(&RunDir::new(&dir)).unwrap(), None);
-        assert_eq!(
-            largest_segment(&RunDir::new(dir.join("absent"))).unwrap(),
-            None
-        );
+        assert_eq!(largest_segment(&RunDir::new(dir.join("absent"))).unwrap(), None);
         let dir = run_with_segments("bad", "1.0 0\n1.1 zero\n");
         let error = largest_segment(&RunDir::new(&dir)).unwrap_err().to_string();
         assert!(

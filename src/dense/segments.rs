@@ -95,6 +95,10 @@ pub fn grow_segments(
     seeds: &[Seed],
     settings: &SegmentSettings,
 ) -> Vec<Segment> {
+    if seeds.is_empty() {
+        // Most frames: no full-frame bookkeeping.
+        return Vec::new();
+    }
     let (w, h) = (depth.width as usize, depth.height as usize);
     // The region (1, 2, …) each visited pixel belongs to; 0: none yet.
     let mut owner = vec![0u32; w * h];
