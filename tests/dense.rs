@@ -181,3 +181,68 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         assert!(base.join("compare").join(name).exists(), "{name} missing");
     }
 }
+
+/// Movers no detector knows (a box slid across the floor, a balloon; the oracle boxes
+/// only the walker) are kept out by the free space they leave: fused with the
+/// free-space evidence, far more of their pixels stay out of the map than without it,
+/// and the static scene loses no more of its pixels.
+#[test]
+fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/unknown_movers.toml");
+    let mut synth = SynthConfig::load(&path).unwrap();
+    synth.sequence.frames = 150;
+    let base = common::temp_dir("dense-free-space");
+    let seq = base.join("seq");
+    generate(&synth, &seq, false).unwrap();
+
+    let mut config = Config::default();
+    config.detector.source = Source::Oracle;
+    config.dop.mode = Mode::Dop;
+    config.dense.voxel = 0.03;
+    config.dense.truncation = 0.09;
+    config.dense.cloud = false;
+    config.dense.pictures = false;
+    config.dense.detect_every = 0;
+    let sequence = open_sequence(&seq, &config).unwrap();
+    let run_dir = base.join("run");
+    let options = RunOptions {
+        deterministic: true,
+        sequence_dir: Some(seq.clone()),
+        dense: false,
+        ..RunOptions::default()
+    };
+    run_sequence(sequence.as_ref(), &config, &run_dir, &options).unwrap();
+    let fuse = |seconds: f64, name: &str| {
+        let mut config = config.clone();
+        config.dense.mask_free_space_seconds = seconds;
+        let out = base.join(name);
+        let report = dense_pass(
+            sequence.as_ref(),
+            &config,
+            (&run_dir, &out),
+            Mode::Dop,
+            Some(&seq),
+            false,
+        )
+        .unwrap();
+        report.truth.expect("ground-truth masks were counted")
+    };
+    let without = fuse(0.0, "without");
+    let with = fuse(0.5, "with");
+    eprintln!("without free space: {without:?}\nwith free space: {with:?}");
+    let unknown =
+        |t: &dopslam::dense::FusedTruth| t.unknown_removed.expect("unknown movers in view");
+    assert!(
+        unknown(&with) > unknown(&without) + 0.1,
+        "unknown movers kept out: {} without, {} with",
+        unknown(&without),
+        unknown(&with)
+    );
+    assert!(with.dynamic_removed > without.dynamic_removed);
+    assert!(
+        with.static_kept >= without.static_kept - 0.01,
+        "static pixels fused: {} without, {} with",
+        without.static_kept,
+        with.static_kept
+    );
+}

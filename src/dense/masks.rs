@@ -23,6 +23,7 @@
 //! then dilated by `border` pixels. `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
+use super::free_space::Evidence;
 use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
@@ -163,11 +164,16 @@ impl MaskSource {
     /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
     /// nothing in it is dynamic. Frames come in time order (segments are followed from
     /// one to the next).
+    ///
+    /// With `evidence` ([`super::free_space`], DOP only), pixels seen through by the
+    /// neighbour frames are masked too, and the discs and the dilation leave out the
+    /// pixels seen still.
     pub fn mask(
         &mut self,
         timestamp: f64,
         depth: &DepthImage,
         camera_from_world: &Se3,
+        evidence: Option<&Evidence>,
     ) -> Option<Vec<bool>> {
         if self.masking == Mode::Off {
             return None;
@@ -175,6 +181,7 @@ impl MaskSource {
         let (w, h) = (depth.width as usize, depth.height as usize);
         let mut mask = vec![false; w * h];
         let mut any = false;
+        let evidence = evidence.filter(|_| self.masking == Mode::Dop);
         let after = self.keyframes.partition_point(|k| k.timestamp < timestamp);
         let near: Vec<&KeyframeObjects> = [after.checked_sub(1), Some(after)]
             .into_iter()
@@ -202,14 +209,47 @@ impl MaskSource {
                     .collect();
                 any |= self.object_masks(&mut mask, depth, &objects);
                 let keypoints = self.frame_keypoints(timestamp);
-                any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects);
+                let mut discs = vec![false; w * h];
+                self.keypoint_discs(&mut discs, depth, keypoints, &objects);
+                // Disc pixels seen still are left out, except inside an object's box
+                // and in front of what lies behind it there: a second mover, hidden in
+                // part and paused, may have no other mask than its discs.
+                let backs: Vec<f32> = match evidence {
+                    Some(_) => objects.iter().map(|b| box_background(depth, b)).collect(),
+                    None => Vec::new(),
+                };
+                let still = |i: usize| {
+                    let (x, y, d) = ((i % w) as f32, (i / w) as f32, depth.metres[i]);
+                    let in_front = |(b, back): (&ObjectBox, &f32)| {
+                        b.contains(x, y) && d > 0.0 && d < back - self.dop.delta_z
+                    };
+                    evidence.is_some_and(|e| e.still[i])
+                        && !objects.iter().zip(&backs).any(in_front)
+                };
+                for (i, disc) in discs.into_iter().enumerate() {
+                    if disc && !still(i) {
+                        mask[i] = true;
+                        any = true;
+                    }
+                }
+                if let Some(e) = evidence {
+                    for (m, &moving) in mask.iter_mut().zip(&e.moving) {
+                        *m |= moving;
+                        any |= moving;
+                    }
+                }
                 if self.settings.segments.is_some() {
-                    let seeds: Vec<Seed> = keypoints
+                    let outside = keypoints
                         .iter()
                         .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
-                        .map(|p| Seed {
-                            x: p[0],
-                            y: p[1],
+                        .map(|p| (p[0], p[1]));
+                    // Seeds seen moving count inside a box too: a second mover partly
+                    // hidden behind a detected one.
+                    let seeds: Vec<Seed> = outside
+                        .chain(evidence.map_or(Vec::new(), |e| moving_seeds(e, w, h)))
+                        .map(|(x, y)| Seed {
+                            x,
+                            y,
                             followed: false,
                             since: timestamp,
                         })
@@ -218,13 +258,22 @@ impl MaskSource {
                         &mut mask,
                         depth,
                         (timestamp, camera_from_world),
-                        seeds,
+                        (seeds, evidence.map(|e| e.moving.as_slice())),
                         &objects,
                     );
                 }
             }
         }
-        any.then(|| dilate(&mask, w, h, self.settings.border as usize))
+        any.then(|| {
+            let mut grown = dilate(&mask, w, h, self.settings.border as usize);
+            if let Some(e) = evidence {
+                // The ring the dilation adds keeps none of the pixels seen still.
+                for ((g, &m), &still) in grown.iter_mut().zip(&mask).zip(&e.still) {
+                    *g &= m || !still;
+                }
+            }
+            grown
+        })
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
@@ -235,7 +284,7 @@ impl MaskSource {
         mask: &mut [bool],
         depth: &DepthImage,
         (timestamp, camera_from_world): (f64, &Se3),
-        mut seeds: Vec<Seed>,
+        (mut seeds, moving): (Vec<Seed>, Option<&[bool]>),
         objects: &[ObjectBox],
     ) -> bool {
         let Some((settings, follow_seconds)) = self.settings.segments else {
@@ -257,7 +306,7 @@ impl MaskSource {
                     })
                 }),
         );
-        let segments = grow_segments(depth, &seeds, &settings);
+        let segments = grow_segments(depth, &seeds, moving, &settings);
         let world_from_camera = camera_from_world.inverse();
         let w = depth.width as usize;
         let in_boxes = |i: &usize| {
@@ -365,6 +414,44 @@ impl MaskSource {
             .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
             .map_or(&[], |k| &k.points)
     }
+}
+
+/// What lies behind a box's object: the 90th percentile of the depths in the box
+/// (every 4th pixel each way; 0 without any).
+fn box_background(depth: &DepthImage, b: &ObjectBox) -> f32 {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
+    let [x1, y1, x2, y2] = b.bbox;
+    let mut depths: Vec<f32> = (clip(y1, h)..clip(y2, h))
+        .step_by(4)
+        .flat_map(|v| {
+            (clip(x1, w)..clip(x2, w))
+                .step_by(4)
+                .map(move |u| v * w + u)
+        })
+        .map(|i| depth.metres[i])
+        .filter(|&d| d > 0.0)
+        .collect();
+    if depths.is_empty() {
+        return 0.0;
+    }
+    let k = (depths.len() - 1) * 9 / 10;
+    *depths.select_nth_unstable_by(k, f32::total_cmp).1
+}
+
+/// Grid step (pixels) of the seeds taken from the free-space evidence.
+const MOVING_SEED_STEP: usize = 8;
+
+/// The pixels seen moving on a grid of [`MOVING_SEED_STEP`]: seeds of depth segments,
+/// so that a mover whose free space shows only at its trailing edge (a flat face
+/// sliding sideways stays at the same depth) is masked over its whole segment.
+fn moving_seeds(evidence: &Evidence, w: usize, h: usize) -> Vec<(f32, f32)> {
+    (0..h)
+        .step_by(MOVING_SEED_STEP)
+        .flat_map(|v| (0..w).step_by(MOVING_SEED_STEP).map(move |u| (u, v)))
+        .filter(|&(u, v)| evidence.moving[v * w + u])
+        .map(|(u, v)| (u as f32, v as f32))
+        .collect()
 }
 
 /// Every `step`-th pixel with depth, as keypoints for [`object_depth`].
@@ -534,7 +621,9 @@ mod tests {
             points: keypoints.to_vec(),
         }];
         let mut source = scene_source(settings, frames, keypoints);
-        source.mask(1.0, &depth, &Se3::identity()).expect("a mask")
+        source
+            .mask(1.0, &depth, &Se3::identity(), None)
+            .expect("a mask")
     }
 
     fn at(mask: &[bool], u: u32, v: u32) -> bool {
@@ -634,17 +723,20 @@ mod tests {
                 (0..m.len()).filter(|&i| !slab(i)).filter(masked).count(),
             )
         };
-        let first = source.mask(1.0, &depth, &identity).expect("a mask");
+        let first = source.mask(1.0, &depth, &identity, None).expect("a mask");
         let (on, off) = count(&first);
         assert!(
             on >= 140 * 360 * 99 / 100 && off == 0,
             "the slab only: {on}, {off}"
         );
         assert!(!at(&first, 60, 60), "no disc around the lone keypoint");
-        let followed = source.mask(2.0, &depth, &identity).expect("followed");
+        let followed = source.mask(2.0, &depth, &identity, None).expect("followed");
         let (followed_on, followed_off) = count(&followed);
         assert!(followed_on >= on && followed_off == 0);
-        assert!(source.mask(4.5, &depth, &identity).is_none(), "let go");
+        assert!(
+            source.mask(4.5, &depth, &identity, None).is_none(),
+            "let go"
+        );
     }
 
     #[test]
@@ -677,14 +769,14 @@ mod tests {
             nalgebra::Matrix3::identity(),
         );
         for (pose, shift) in [(identity, 0i32), (moved, -36)] {
-            let mask = source.mask(1.2, &depth, &pose).expect("a mask");
+            let mask = source.mask(1.2, &depth, &pose, None).expect("a mask");
             let at = |u: i32, v: i32| mask[(v as u32 * camera.width + (u + shift) as u32) as usize];
             assert!(at(320, 300), "the person's centre");
             assert!(!at(240, 300), "the wall inside the box stays static");
             assert!(!at(100, 300), "outside the box");
         }
         // Far from any keyframe nothing is masked; --no-dop masks nothing.
-        assert!(source.mask(5.0, &depth, &identity).is_none());
+        assert!(source.mask(5.0, &depth, &identity, None).is_none());
         let mut boxes = MaskSource::new(
             Mode::MaskBoxes,
             settings,
@@ -696,7 +788,7 @@ mod tests {
             &|_| None,
             &|_| None,
         );
-        let mask = boxes.mask(1.0, &depth, &identity).expect("a mask");
+        let mask = boxes.mask(1.0, &depth, &identity, None).expect("a mask");
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
     }
 }

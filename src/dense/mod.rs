@@ -12,6 +12,7 @@ pub mod cloud;
 pub mod compare;
 pub mod comparison;
 pub mod disparity;
+pub mod free_space;
 pub mod marching_cubes;
 pub mod masks;
 pub mod more_detections;
@@ -41,6 +42,7 @@ use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
 use cloud::{CloudBuilder, CloudSettings};
 use disparity::{stereo_depth, StereoDepth};
+use free_space::{FreeSpaceSettings, NeighbourWindow};
 use masks::{FrameKeypoints, MaskSettings, MaskSource};
 use segments::SegmentSettings;
 use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
@@ -146,6 +148,11 @@ pub struct DenseConfig {
     /// A kept segment seeds the next frames' growth for this many seconds after a
     /// dynamic keypoint last supported it (0: no following).
     pub mask_segment_follow_seconds: f64,
+    /// Free-space evidence ([`free_space`]): each fused frame's pixels are checked
+    /// against the frames this many seconds (and half as many) before and after it;
+    /// pixels those frames saw through are masked (movers, also those no detector
+    /// found), and discs and dilation leave out pixels they saw still. 0: off.
+    pub mask_free_space_seconds: f64,
     /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
     /// colour frame beside its mask, against the ground truth of a synthetic sequence
     /// (green: mover masked, red: static masked, yellow: mover fused).
@@ -191,6 +198,7 @@ impl Default for DenseConfig {
             mask_segment_edge_share: segments.edge_share,
             mask_segment_support: segments.support,
             mask_segment_follow_seconds: 3.0,
+            mask_free_space_seconds: FreeSpaceSettings::default().seconds,
             mask_pictures_every: 0,
             ply_encoding: PlyEncoding::Binary,
         }
@@ -220,13 +228,13 @@ impl DenseConfig {
                 self.cloud_free_space
             ));
         }
-        if !(self.mask_segment_follow_seconds.is_finite()
-            && self.mask_segment_follow_seconds >= 0.0)
-        {
-            return Err(format!(
-                "dense.mask_segment_follow_seconds must be 0 or more, not {}",
-                self.mask_segment_follow_seconds
-            ));
+        for (name, value) in [
+            ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
+            ("mask_free_space_seconds", self.mask_free_space_seconds),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("dense.{name} must be 0 or more, not {value}"));
+            }
         }
         if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
             return Err(format!(
@@ -267,6 +275,14 @@ impl DenseConfig {
             max_weight: self.max_weight,
             carve: self.carve,
             margin: self.image_margin,
+        }
+    }
+
+    /// The free-space evidence's settings.
+    pub fn free_space_settings(&self) -> FreeSpaceSettings {
+        FreeSpaceSettings {
+            seconds: self.mask_free_space_seconds,
+            ..FreeSpaceSettings::default()
         }
     }
 
@@ -607,11 +623,21 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         ..DenseReport::default()
     };
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
+    let mut window = (inputs.masking == Mode::Dop && config.mask_free_space_seconds > 0.0)
+        .then(|| {
+            let posed = (0..sequence.len())
+                .filter_map(|i| {
+                    let t = sequence.timestamp(i);
+                    Some((t, i, *poses.get(&key(t))?))
+                })
+                .collect();
+            NeighbourWindow::new(config.free_space_settings(), posed)
+        });
     let fused = fuse_frames(
         inputs,
         config,
         &chosen,
-        &mut mask_source,
+        (&mut mask_source, window.as_mut()),
         (fuse_tsdf.then_some(&mut volume), cloud_on.then_some(&mut cloud)),
         &mut truth,
     )?;
@@ -731,7 +757,7 @@ fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[(usize, Se3, bool)],
-    mask_source: &mut MaskSource,
+    (mask_source, mut window): (&mut MaskSource, Option<&mut NeighbourWindow>),
     (mut volume, mut cloud): (Option<&mut TsdfVolume>, Option<&mut CloudBuilder>),
     truth: &mut Option<FusedTruth>,
 ) -> Result<Fused, IoError> {
@@ -764,7 +790,15 @@ fn fuse_frames(
         let loaded = load_group(inputs, group, sequence_frame)?;
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
-            let mask = mask_source.mask(timestamp, &depth, &pose);
+            let evidence = match window.as_deref_mut() {
+                Some(window) => Some(window.evidence(
+                    &inputs.camera,
+                    (timestamp, &depth, &pose),
+                    |i| frame_depth(inputs, i),
+                )?),
+                None => None,
+            };
+            let mask = mask_source.mask(timestamp, &depth, &pose, evidence.as_ref());
             if let Some(m) = &mask {
                 fused.masked += m.iter().filter(|&&x| x).count() as u64;
             }

@@ -44,6 +44,9 @@ pub struct SegmentSettings {
     /// Bend (share of the depth over 4 pixels each way) that makes a concave crease,
     /// where growth stops.
     pub crease: f32,
+    /// Share of a region's pixels seen moving by the free-space evidence that keeps
+    /// it whatever its border.
+    pub moving_share: f32,
 }
 
 impl Default for SegmentSettings {
@@ -57,6 +60,7 @@ impl Default for SegmentSettings {
             snap: 3,
             hole: 8,
             crease: 0.008,
+            moving_share: 0.1,
         }
     }
 }
@@ -88,11 +92,16 @@ pub struct Segment {
     pub since: f64,
 }
 
-/// The depth segments grown from `seeds` that pass the border test and hold at least
-/// `support` keypoint seeds or a followed one.
+/// The depth segments grown from `seeds` that hold at least `support` keypoint seeds
+/// or a followed one, and pass the border test or, with `moving` (pixels the
+/// neighbour frames saw through, [`super::free_space`]), have at least
+/// `moving_share` of their pixels seen moving: a mover's segment reaches beyond the
+/// depth band (a box's top and sides) and then fails the border test, while a false
+/// alarm on a wall holds a few moving pixels in thousands.
 pub fn grow_segments(
     depth: &DepthImage,
     seeds: &[Seed],
+    moving: Option<&[bool]>,
     settings: &SegmentSettings,
 ) -> Vec<Segment> {
     if seeds.is_empty() {
@@ -123,9 +132,12 @@ pub fn grow_segments(
         let followed = inside.iter().any(|s| s.followed);
         let judged = region.edges + region.limits;
         let edge_share = region.edges as f32 / judged.max(1) as f32;
+        let seen_moving = moving.is_some_and(|m| {
+            let count = region.pixels.iter().filter(|&&i| m[i]).count();
+            count as f32 >= settings.moving_share * region.pixels.len() as f32
+        });
         if (keypoints >= settings.support || followed)
-            && judged > 0
-            && edge_share >= settings.edge_share
+            && ((judged > 0 && edge_share >= settings.edge_share) || seen_moving)
         {
             kept.push(Segment {
                 pixels: region.pixels,
@@ -292,7 +304,7 @@ mod tests {
             support: 2,
             ..SegmentSettings::default()
         };
-        for segment in grow_segments(depth, seeds, &settings) {
+        for segment in grow_segments(depth, seeds, None, &settings) {
             for i in segment.pixels {
                 mask[i] = true;
             }

@@ -1,0 +1,391 @@
+//! Movers seen by the free space they leave behind, and static pixels seen still: the
+//! dense pass runs after tracking, so every frame's depth and final pose are known, and
+//! each pixel of a frame can be checked against the frames a moment before and after.
+//!
+//! A pixel \((u, v)\) of frame \(t\) with depth \(z\) is the point
+//! \(X = T_{wc}(t)\, z K^{-1} (u, v, 1)^\top\). Moved into a neighbour frame \(j\),
+//! \(p = T_{cw}(j) X\), it projects to \((u_j, v_j)\), where \(j\) measured depth \(d_j\).
+//! With the tolerance \(\tau(z) = \tau_0 + \tau_2 z^2\) (depth sensors' error grows with
+//! the square of the depth):
+//! - *seen through*: every valid depth of \(j\) within `reach` pixels of \((u_j, v_j)\)
+//!   lies beyond \(p_z + \tau(p_z)\). Frame \(j\) looked through the place where \(X\)
+//!   was: at time \(j\) nothing was there, so \(X\) belongs to something that moves
+//!   (a walker, a pushed box, a person no detector found). Looking at the nearest
+//!   depth around \((u_j, v_j)\) keeps a static depth edge, which a pose or pixel error
+//!   puts on the far side, from counting.
+//! - *still*: \(|d_j - p_z| \le \tau(p_z)\) at \((u_j, v_j)\): the same surface, in the
+//!   same place.
+//! - otherwise nothing is known: something stood in front of \(X\) at time \(j\), there
+//!   is no depth, or \(X\) falls outside \(j\)'s image.
+//!
+//! A pixel is *moving* when at least one neighbour saw through it and none saw it
+//! still, or two neighbours saw through it; isolated moving pixels are dropped (at
+//! least `density` of the moving test's \((2 \cdot 4 + 1)^2\) window must be moving).
+//! A pixel is *still* when at least two neighbours saw it still and none saw through
+//! it. A person who stops is still while they stand: the detector's boxes keep them
+//! out of the map then, the free space the moment they walk on.
+
+use rayon::prelude::*;
+
+use crate::geometry::camera::PinholeCamera;
+use crate::geometry::se3::Se3;
+use crate::io::image_files::DepthImage;
+
+/// How the neighbours are chosen and judged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FreeSpaceSettings {
+    /// The neighbours: the frames nearest \(t \pm s\) and \(t \pm s/2\), seconds.
+    pub seconds: f64,
+    /// \(\tau_0\) (metres) and \(\tau_2\) (per metre) of the tolerance.
+    pub tolerance: (f32, f32),
+    /// Pixels around the projection whose nearest depth decides "seen through".
+    pub reach: usize,
+    /// Share of the 9x9 window around a moving pixel that must be moving too.
+    pub density: f32,
+}
+
+impl Default for FreeSpaceSettings {
+    fn default() -> Self {
+        Self {
+            seconds: 0.5,
+            tolerance: (0.03, 0.015),
+            reach: 2,
+            density: 0.3,
+        }
+    }
+}
+
+impl FreeSpaceSettings {
+    /// The neighbours' times around `t`.
+    pub fn neighbour_times(&self, t: f64) -> [f64; 4] {
+        let s = self.seconds;
+        [t - s, t - s / 2.0, t + s / 2.0, t + s]
+    }
+
+    fn tau(&self, z: f32) -> f32 {
+        self.tolerance.0 + self.tolerance.1 * z * z
+    }
+}
+
+/// A neighbour frame: its pose, depth, and the nearest valid depth around each pixel.
+pub struct Neighbour {
+    pub timestamp: f64,
+    camera_from_world: Se3,
+    depth: DepthImage,
+    /// The smallest valid depth within `reach` pixels (0: none).
+    nearest: Vec<f32>,
+}
+
+impl Neighbour {
+    pub fn new(timestamp: f64, camera_from_world: Se3, depth: DepthImage, reach: usize) -> Self {
+        let nearest = nearest_depth(&depth, reach);
+        Self {
+            timestamp,
+            camera_from_world,
+            depth,
+            nearest,
+        }
+    }
+}
+
+/// The neighbour frames of the frames fused in time order: each posed frame is loaded
+/// once, when a fused frame first needs it, and let go once every later fused frame is
+/// past it.
+pub struct NeighbourWindow {
+    settings: FreeSpaceSettings,
+    /// Every posed frame: time, index in the sequence, `camera_from_world`; by time.
+    posed: Vec<(f64, usize, Se3)>,
+    loaded: std::collections::BTreeMap<usize, Neighbour>,
+}
+
+impl NeighbourWindow {
+    pub fn new(settings: FreeSpaceSettings, mut posed: Vec<(f64, usize, Se3)>) -> Self {
+        posed.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Self {
+            settings,
+            posed,
+            loaded: Default::default(),
+        }
+    }
+
+    /// The evidence on the frame at `timestamp` (`depth`, `camera_from_world`), from
+    /// the posed frames nearest its neighbour times (within a quarter of
+    /// `seconds`), loaded by `load` (a sequence index to its depth) when first needed.
+    pub fn evidence<E>(
+        &mut self,
+        camera: &PinholeCamera,
+        (timestamp, depth, camera_from_world): (f64, &DepthImage, &Se3),
+        load: impl Fn(usize) -> Result<DepthImage, E>,
+    ) -> Result<Evidence, E> {
+        let s = self.settings.seconds;
+        self.loaded
+            .retain(|_, n| n.timestamp >= timestamp - s - 1e-6);
+        let mut wanted = Vec::new();
+        for target in self.settings.neighbour_times(timestamp) {
+            let i = self.posed.partition_point(|p| p.0 < target);
+            let nearest = [i.checked_sub(1), Some(i)]
+                .into_iter()
+                .flatten()
+                .filter_map(|k| self.posed.get(k))
+                .min_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()));
+            if let Some(&(t, index, pose)) = nearest {
+                let near_enough = (t - target).abs() <= s / 4.0 && (t - timestamp).abs() > 1e-6;
+                if near_enough && !wanted.contains(&index) {
+                    if !self.loaded.contains_key(&index) {
+                        let neighbour = Neighbour::new(t, pose, load(index)?, self.settings.reach);
+                        self.loaded.insert(index, neighbour);
+                    }
+                    wanted.push(index);
+                }
+            }
+        }
+        let neighbours: Vec<&Neighbour> = wanted.iter().map(|i| &self.loaded[i]).collect();
+        Ok(evidence(
+            camera,
+            depth,
+            camera_from_world,
+            &neighbours,
+            &self.settings,
+        ))
+    }
+}
+
+/// The smallest valid (positive) depth in the square of side `2 r + 1` around each
+/// pixel, 0 where there is none (separable: rows, then columns).
+fn nearest_depth(depth: &DepthImage, r: usize) -> Vec<f32> {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let valid_min = |a: f32, b: f32| match (a > 0.0, b > 0.0) {
+        (true, true) => a.min(b),
+        (true, false) => a,
+        _ => b,
+    };
+    let mut rows = vec![0.0f32; w * h];
+    for v in 0..h {
+        for u in 0..w {
+            let (lo, hi) = (u.saturating_sub(r), (u + r).min(w - 1));
+            rows[v * w + u] = (lo..=hi).fold(0.0, |m, x| valid_min(m, depth.metres[v * w + x]));
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for v in 0..h {
+        let (lo, hi) = (v.saturating_sub(r), (v + r).min(h - 1));
+        for u in 0..w {
+            out[v * w + u] = (lo..=hi).fold(0.0, |m, y| valid_min(m, rows[y * w + u]));
+        }
+    }
+    out
+}
+
+/// What the neighbours say of each pixel of a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evidence {
+    /// Seen through by the neighbours (a mover), isolated pixels dropped.
+    pub moving: Vec<bool>,
+    /// Seen in the same place by at least two neighbours, and through by none.
+    pub still: Vec<bool>,
+}
+
+/// The evidence of `neighbours` on the frame with `depth` at `camera_from_world`.
+pub fn evidence(
+    camera: &PinholeCamera,
+    depth: &DepthImage,
+    camera_from_world: &Se3,
+    neighbours: &[&Neighbour],
+    settings: &FreeSpaceSettings,
+) -> Evidence {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let world_from_camera = camera_from_world.inverse();
+    let relative: Vec<Se3> = neighbours
+        .iter()
+        .map(|n| n.camera_from_world * world_from_camera)
+        .collect();
+    let verdicts: Vec<(u8, u8)> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            let relative = &relative;
+            (0..w).map(move |u| {
+                let z = depth.metres[v * w + u];
+                if z <= 0.0 {
+                    return (0, 0);
+                }
+                let pixel = nalgebra::Vector2::new(u as f64, v as f64);
+                let point = nalgebra::Point3::from(camera.unproject(&pixel, z as f64));
+                let (mut through, mut still) = (0u8, 0u8);
+                for (n, j_from_t) in neighbours.iter().zip(relative) {
+                    match judge(camera, n, &(j_from_t * point), settings) {
+                        Some(true) => through += 1,
+                        Some(false) => still += 1,
+                        None => {}
+                    }
+                }
+                (through, still)
+            })
+        })
+        .collect();
+    let raw: Vec<bool> = verdicts
+        .iter()
+        .map(|&(through, still)| through >= 2 || (through == 1 && still == 0))
+        .collect();
+    Evidence {
+        moving: keep_dense(&raw, w, h, 4, settings.density),
+        still: verdicts
+            .iter()
+            .map(|&(through, still)| through == 0 && still >= 2)
+            .collect(),
+    }
+}
+
+/// `Some(true)`: neighbour `n` saw through `p` (in its camera frame); `Some(false)`:
+/// it saw the same surface there; `None`: it cannot tell.
+fn judge(
+    camera: &PinholeCamera,
+    n: &Neighbour,
+    p: &nalgebra::Point3<f64>,
+    settings: &FreeSpaceSettings,
+) -> Option<bool> {
+    if p.z < 0.1 {
+        return None;
+    }
+    let q = camera.project(&p.coords);
+    let (u, v) = (q.x.round(), q.y.round());
+    let (w, h) = (n.depth.width as f64, n.depth.height as f64);
+    if u < 0.0 || v < 0.0 || u >= w || v >= h {
+        return None;
+    }
+    let i = v as usize * n.depth.width as usize + u as usize;
+    let z = p.z as f32;
+    let tau = settings.tau(z);
+    let nearest = n.nearest[i];
+    if nearest > z + tau {
+        return Some(true);
+    }
+    let d = n.depth.metres[i];
+    (d > 0.0 && (d - z).abs() <= tau).then_some(false)
+}
+
+/// The set pixels of `mask` with at least `share` of the square of side `2 r + 1`
+/// around them set too (summed-area table).
+fn keep_dense(mask: &[bool], w: usize, h: usize, r: usize, share: f32) -> Vec<bool> {
+    let mut sums = vec![0u32; (w + 1) * (h + 1)];
+    for v in 0..h {
+        let mut row = 0u32;
+        for u in 0..w {
+            row += mask[v * w + u] as u32;
+            sums[(v + 1) * (w + 1) + u + 1] = sums[v * (w + 1) + u + 1] + row;
+        }
+    }
+    let area = ((2 * r + 1) * (2 * r + 1)) as f32;
+    (0..w * h)
+        .map(|i| {
+            if !mask[i] {
+                return false;
+            }
+            let (u, v) = (i % w, i / w);
+            let (x1, y1) = (u.saturating_sub(r), v.saturating_sub(r));
+            let (x2, y2) = ((u + r + 1).min(w), (v + r + 1).min(h));
+            let count = sums[y2 * (w + 1) + x2] + sums[y1 * (w + 1) + x1]
+                - sums[y1 * (w + 1) + x2]
+                - sums[y2 * (w + 1) + x1];
+            count as f32 >= share * area
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera() -> PinholeCamera {
+        PinholeCamera {
+            fx: 100.0,
+            fy: 100.0,
+            cx: 32.0,
+            cy: 24.0,
+            width: 64,
+            height: 48,
+            distortion: [0.0; 5],
+        }
+    }
+
+    /// A wall at 3 m, and a block at 1.5 m over columns `x1..x2`, rows 10..30.
+    fn scene(block: Option<(usize, usize)>) -> DepthImage {
+        let mut depth = DepthImage::new(64, 48);
+        for v in 0..48 {
+            for u in 0..64 {
+                let on_block =
+                    block.is_some_and(|(x1, x2)| (x1..x2).contains(&u) && (10..30).contains(&v));
+                depth.metres[v * 64 + u] = if on_block { 1.5 } else { 3.0 };
+            }
+        }
+        depth
+    }
+
+    #[test]
+    fn a_block_that_moved_is_moving_and_the_wall_is_still() {
+        let settings = FreeSpaceSettings::default();
+        let pose = Se3::identity();
+        // The block stands at columns 20..36 now, at 4..20 before and 36..52 after.
+        let now = scene(Some((20, 36)));
+        let before = Neighbour::new(0.0, pose, scene(Some((4, 20))), settings.reach);
+        let after = Neighbour::new(1.0, pose, scene(Some((36, 52))), settings.reach);
+        let e = evidence(&camera(), &now, &pose, &[&before, &after], &settings);
+        let at = |u: usize, v: usize| v * 64 + u;
+        // Inside the block (away from its outline): seen through before and after.
+        assert!(e.moving[at(28, 20)]);
+        assert!(!e.still[at(28, 20)]);
+        // The wall far from every position of the block: still, not moving.
+        assert!(e.still[at(60, 40)] && !e.moving[at(60, 40)]);
+        // The wall where the block stood before: hidden then, seen after; not moving.
+        assert!(!e.moving[at(10, 20)]);
+        // No pixel of the wall is called moving.
+        let wall_moving = (0..48 * 64)
+            .filter(|&i| now.metres[i] > 2.0 && e.moving[i])
+            .count();
+        assert_eq!(wall_moving, 0);
+    }
+
+    #[test]
+    fn a_block_that_stays_is_still_and_a_moved_camera_changes_nothing() {
+        let settings = FreeSpaceSettings::default();
+        let now_pose = Se3::identity();
+        // The camera moves 5 cm to the right; the whole scene is static.
+        let moved = crate::geometry::se3::from_parts(
+            nalgebra::Vector3::new(-0.05, 0.0, 0.0),
+            nalgebra::Matrix3::identity(),
+        );
+        let now = scene(Some((20, 36)));
+        // The static scene seen from the moved camera: the block (1.5 m) shifts by
+        // fx * 0.05 / 1.5 = 3.3 pixels to the left; the wall is the same everywhere.
+        let render_from = |camera_from_world: &Se3| {
+            let shift = (camera_from_world.translation.vector.x * 100.0 / 1.5).round() as i64;
+            let mut depth = DepthImage::new(64, 48);
+            for v in 0..48i64 {
+                for u in 0..64i64 {
+                    let on_block = (20 + shift..36 + shift).contains(&u) && (10..30).contains(&v);
+                    depth.metres[(v * 64 + u) as usize] = if on_block { 1.5 } else { 3.0 };
+                }
+            }
+            depth
+        };
+        let before = Neighbour::new(0.0, moved, render_from(&moved), settings.reach);
+        let same = Neighbour::new(1.0, now_pose, now.clone(), settings.reach);
+        let e = evidence(&camera(), &now, &now_pose, &[&before, &same], &settings);
+        assert!(e.moving.iter().all(|m| !m), "nothing moves");
+        assert!(e.still[28 + 20 * 64], "the block is still");
+        assert!(e.still[60 + 40 * 64], "the wall is still");
+    }
+
+    #[test]
+    fn lone_moving_pixels_are_dropped() {
+        let mut mask = vec![false; 20 * 20];
+        mask[5 * 20 + 5] = true;
+        for v in 10..18 {
+            for u in 10..18 {
+                mask[v * 20 + u] = true;
+            }
+        }
+        let kept = keep_dense(&mask, 20, 20, 4, 0.3);
+        assert!(!kept[5 * 20 + 5]);
+        assert!(kept[14 * 20 + 14]);
+    }
+}
