@@ -151,26 +151,32 @@ impl NeighbourWindow {
 }
 
 /// The smallest valid (positive) depth in the square of side `2 r + 1` around each
-/// pixel, 0 where there is none (separable: rows, then columns).
+/// pixel, 0 where there is none (separable: rows, then columns; a missing depth
+/// counts as infinitely far).
 fn nearest_depth(depth: &DepthImage, r: usize) -> Vec<f32> {
     let (w, h) = (depth.width as usize, depth.height as usize);
-    let valid_min = |a: f32, b: f32| match (a > 0.0, b > 0.0) {
-        (true, true) => a.min(b),
-        (true, false) => a,
-        _ => b,
-    };
-    let mut rows = vec![0.0f32; w * h];
+    let far: Vec<f32> = depth
+        .metres
+        .iter()
+        .map(|&d| if d > 0.0 { d } else { f32::INFINITY })
+        .collect();
+    let mut rows = vec![f32::INFINITY; w * h];
     for v in 0..h {
+        let line = &far[v * w..(v + 1) * w];
         for u in 0..w {
             let (lo, hi) = (u.saturating_sub(r), (u + r).min(w - 1));
-            rows[v * w + u] = (lo..=hi).fold(0.0, |m, x| valid_min(m, depth.metres[v * w + x]));
+            rows[v * w + u] = line[lo..=hi].iter().copied().fold(f32::INFINITY, f32::min);
         }
     }
-    let mut out = vec![0.0f32; w * h];
-    for v in 0..h {
-        let (lo, hi) = (v.saturating_sub(r), (v + r).min(h - 1));
-        for u in 0..w {
-            out[v * w + u] = (lo..=hi).fold(0.0, |m, y| valid_min(m, rows[y * w + u]));
+    let mut out = vec![f32::INFINITY; w * h];
+    for (v, line) in out.chunks_mut(w).enumerate() {
+        for y in v.saturating_sub(r)..=(v + r).min(h - 1) {
+            for (o, &m) in line.iter_mut().zip(&rows[y * w..(y + 1) * w]) {
+                *o = o.min(m);
+            }
+        }
+        for o in line.iter_mut().filter(|o| !o.is_finite()) {
+            *o = 0.0;
         }
     }
     out
@@ -185,6 +191,44 @@ pub struct Evidence {
     pub still: Vec<bool>,
 }
 
+/// A pixel's ray of the frame seen from a neighbour, in `f32`: the neighbour's
+/// camera point of pixel \((u, v)\) at depth \(z\) is
+/// \(p = z (a_v + u\,b) + t\) with \(b = R e_x / f_x\) and
+/// \(a_v = R ((-c_x / f_x), (v - c_y) / f_y, 1)^\top\), `R`, `t` the neighbour-from-frame
+/// transform.
+struct Ray {
+    b: [f32; 3],
+    a0: [f32; 3],
+    a_per_row: [f32; 3],
+    t: [f32; 3],
+}
+
+impl Ray {
+    fn new(camera: &PinholeCamera, j_from_t: &Se3) -> Self {
+        let r = j_from_t.rotation.matrix();
+        let column = |k: usize| [r[(0, k)] as f32, r[(1, k)] as f32, r[(2, k)] as f32];
+        let (c0, c1, c2) = (column(0), column(1), column(2));
+        let (fx, fy, cx, cy) = (
+            camera.fx as f32,
+            camera.fy as f32,
+            camera.cx as f32,
+            camera.cy as f32,
+        );
+        let tv = j_from_t.translation.vector;
+        Self {
+            b: c0.map(|x| x / fx),
+            a0: [0, 1, 2].map(|i| c0[i] * (-cx / fx) + c1[i] * (-cy / fy) + c2[i]),
+            a_per_row: c1.map(|x| x / fy),
+            t: [tv.x as f32, tv.y as f32, tv.z as f32],
+        }
+    }
+
+    /// The neighbour's camera point of pixel `(u, v)` at depth `z`.
+    fn point(&self, u: f32, v: f32, z: f32) -> [f32; 3] {
+        [0, 1, 2].map(|i| z * (self.a0[i] + v * self.a_per_row[i] + u * self.b[i]) + self.t[i])
+    }
+}
+
 /// The evidence of `neighbours` on the frame with `depth` at `camera_from_world`.
 pub fn evidence(
     camera: &PinholeCamera,
@@ -195,33 +239,26 @@ pub fn evidence(
 ) -> Evidence {
     let (w, h) = (depth.width as usize, depth.height as usize);
     let world_from_camera = camera_from_world.inverse();
-    let relative: Vec<Se3> = neighbours
+    let rays: Vec<Ray> = neighbours
         .iter()
-        .map(|n| n.camera_from_world * world_from_camera)
+        .map(|n| Ray::new(camera, &(n.camera_from_world * world_from_camera)))
         .collect();
-    let verdicts: Vec<(u8, u8)> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|v| {
-            let relative = &relative;
-            (0..w).map(move |u| {
-                let z = depth.metres[v * w + u];
-                if z <= 0.0 {
-                    return (0, 0);
+    let mut verdicts = vec![(0u8, 0u8); w * h];
+    verdicts.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, verdict) in row.iter_mut().enumerate() {
+            let z = depth.metres[v * w + u];
+            if z <= 0.0 {
+                continue;
+            }
+            for (n, ray) in neighbours.iter().zip(&rays) {
+                match judge(camera, n, ray.point(u as f32, v as f32, z), settings) {
+                    Some(true) => verdict.0 += 1,
+                    Some(false) => verdict.1 += 1,
+                    None => {}
                 }
-                let pixel = nalgebra::Vector2::new(u as f64, v as f64);
-                let point = nalgebra::Point3::from(camera.unproject(&pixel, z as f64));
-                let (mut through, mut still) = (0u8, 0u8);
-                for (n, j_from_t) in neighbours.iter().zip(relative) {
-                    match judge(camera, n, &(j_from_t * point), settings) {
-                        Some(true) => through += 1,
-                        Some(false) => still += 1,
-                        None => {}
-                    }
-                }
-                (through, still)
-            })
-        })
-        .collect();
+            }
+        }
+    });
     let raw: Vec<bool> = verdicts
         .iter()
         .map(|&(through, still)| through >= 2 || (through == 1 && still == 0))
@@ -240,23 +277,22 @@ pub fn evidence(
 fn judge(
     camera: &PinholeCamera,
     n: &Neighbour,
-    p: &nalgebra::Point3<f64>,
+    [x, y, z]: [f32; 3],
     settings: &FreeSpaceSettings,
 ) -> Option<bool> {
-    if p.z < 0.1 {
+    if z < 0.1 {
         return None;
     }
-    let q = camera.project(&p.coords);
-    let (u, v) = (q.x.round(), q.y.round());
-    let (w, h) = (n.depth.width as f64, n.depth.height as f64);
-    if u < 0.0 || v < 0.0 || u >= w || v >= h {
+    // Rounded to the nearest pixel (`+ 0.5` then truncated, valid from -0.5 on).
+    let u = camera.fx as f32 * x / z + camera.cx as f32 + 0.5;
+    let v = camera.fy as f32 * y / z + camera.cy as f32 + 0.5;
+    let (w, h) = (n.depth.width as f32, n.depth.height as f32);
+    if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
         return None;
     }
     let i = v as usize * n.depth.width as usize + u as usize;
-    let z = p.z as f32;
     let tau = settings.tau(z);
-    let nearest = n.nearest[i];
-    if nearest > z + tau {
+    if n.nearest[i] > z + tau {
         return Some(true);
     }
     let d = n.depth.metres[i];
