@@ -19,8 +19,13 @@
 //!    segment is followed: its centre, placed in the world, seeds the next frames'
 //!    growth for `follow_seconds` after a keypoint last supported it (a box set down
 //!    for a while stays out of the map);
+//! 4. with the free-space evidence of the frames around ([`super::free_space`]), the
+//!    pixels they saw through, which also seed segments (kept when a tenth of a
+//!    segment was seen moving); discs leave out the pixels they saw in place, except
+//!    inside an object's box in front of what lies behind it;
 //!
-//! then dilated by `border` pixels. `Mode::MaskBoxes` (`--mask-boxes`) masks whole
+//! then dilated by `border` pixels (the ring the dilation adds leaves out pixels seen
+//! in place). `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use super::free_space::Evidence;
