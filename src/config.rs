@@ -134,6 +134,9 @@ pub struct StereoConfig {
     /// `dense.allocate_first`: off by default, since its first pass would match every
     /// stereo pair twice.
     pub allocate_first: bool,
+    /// `dense.mask_free_space_seconds`: off by default, since each fused pair would
+    /// need two more pairs matched, and the depth tolerance is a depth sensor's.
+    pub mask_free_space_seconds: f64,
     /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
     pub sgbm_disparities: i32,
     pub sgbm_block: i32,
@@ -150,6 +153,7 @@ impl Default for StereoConfig {
             max_depth: 25.0,
             cloud_voxel: 0.1,
             allocate_first: false,
+            mask_free_space_seconds: 0.0,
             sgbm_disparities: 128,
             sgbm_block: 5,
         }
@@ -179,6 +183,12 @@ impl StereoConfig {
             if value.is_nan() || value <= 0.0 {
                 return Err(format!("stereo.{key} must be positive, got {value}"));
             }
+        }
+        if !(self.mask_free_space_seconds.is_finite() && self.mask_free_space_seconds >= 0.0) {
+            return Err(format!(
+                "stereo.mask_free_space_seconds must be 0 or more, got {}",
+                self.mask_free_space_seconds
+            ));
         }
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(format!(
@@ -234,6 +244,7 @@ impl Config {
             config.dense.max_depth = stereo.max_depth;
             config.dense.cloud_voxel = stereo.cloud_voxel;
             config.dense.allocate_first = stereo.allocate_first;
+            config.dense.mask_free_space_seconds = stereo.mask_free_space_seconds;
         }
         config
     }

@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use dopslam::config::Config;
 use dopslam::dense::compare::CompareSettings;
@@ -12,35 +12,60 @@ use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs};
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;
-use dopslam::run::{dense_pass, open_sequence, run_sequence, RunOptions};
+use dopslam::io::sequence::Sequence;
+use dopslam::run::{dense_pass, open_sequence, run_sequence, RunOptions, RunReport};
 use dopslam::synth::{generate, SynthConfig};
 
-#[test]
-fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
+/// The first `frames` frames of synth preset `name` (without its frame timing), in a
+/// new folder `seq` under a temporary folder named `dir`: (that folder, `seq`).
+fn preset_sequence(name: &str, frames: usize, dir: &str) -> (PathBuf, PathBuf) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("configs/synth/{name}.toml"));
     let mut synth = SynthConfig::load(&path).unwrap();
     synth.sequence.timing = None;
-    synth.sequence.frames = 150;
-    let base = common::temp_dir("dense-walking");
+    synth.sequence.frames = frames;
+    let base = common::temp_dir(dir);
     let seq = base.join("seq");
     generate(&synth, &seq, false).unwrap();
+    (base, seq)
+}
 
+/// A deterministic run of the sequence in `seq` into `run_dir`, with or without the
+/// dense pass: the opened sequence and the run's report.
+fn deterministic_run(
+    seq: &Path,
+    config: &Config,
+    run_dir: &Path,
+    dense: bool,
+) -> (Box<dyn Sequence>, RunReport) {
+    let sequence = open_sequence(seq, config).unwrap();
+    let options = RunOptions {
+        deterministic: true,
+        sequence_dir: Some(seq.to_path_buf()),
+        dense,
+        ..RunOptions::default()
+    };
+    let report = run_sequence(sequence.as_ref(), config, run_dir, &options).unwrap();
+    (sequence, report)
+}
+
+/// The default config with the oracle boxes and the DOP model.
+fn oracle_config() -> Config {
     let mut config = Config::default();
     config.detector.source = Source::Oracle;
     config.dop.mode = Mode::Dop;
+    config
+}
+
+#[test]
+fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
+    let (base, seq) = preset_sequence("walking_xyz", 150, "dense-walking");
+    let mut config = oracle_config();
     config.dense.voxel = 0.02;
     config.dense.truncation = 0.06;
     config.dense.cloud_stride = 4;
     config.dense.normal_neighbours = 8;
-    let sequence = open_sequence(&seq, &config).unwrap();
     let run_dir = base.join("run");
-    let options = RunOptions {
-        deterministic: true,
-        sequence_dir: Some(seq.clone()),
-        dense: true,
-        ..RunOptions::default()
-    };
-    let report = run_sequence(sequence.as_ref(), &config, &run_dir, &options).unwrap();
+    let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
     let dense = report.dense.expect("the dense pass ran");
     assert_eq!(dense.frames_fused, report.totals.tracked);
     // Every 5th frame detected for the masks, beside the keyframes.
@@ -188,30 +213,15 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 /// and the static scene loses no more of its pixels.
 #[test]
 fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/unknown_movers.toml");
-    let mut synth = SynthConfig::load(&path).unwrap();
-    synth.sequence.frames = 150;
-    let base = common::temp_dir("dense-free-space");
-    let seq = base.join("seq");
-    generate(&synth, &seq, false).unwrap();
-
-    let mut config = Config::default();
-    config.detector.source = Source::Oracle;
-    config.dop.mode = Mode::Dop;
+    let (base, seq) = preset_sequence("unknown_movers", 150, "dense-free-space");
+    let mut config = oracle_config();
     config.dense.voxel = 0.03;
     config.dense.truncation = 0.09;
     config.dense.cloud = false;
     config.dense.pictures = false;
     config.dense.detect_every = 0;
-    let sequence = open_sequence(&seq, &config).unwrap();
     let run_dir = base.join("run");
-    let options = RunOptions {
-        deterministic: true,
-        sequence_dir: Some(seq.clone()),
-        dense: false,
-        ..RunOptions::default()
-    };
-    run_sequence(sequence.as_ref(), &config, &run_dir, &options).unwrap();
+    let (sequence, _) = deterministic_run(&seq, &config, &run_dir, false);
     let fuse = |seconds: f64, name: &str| {
         let mut config = config.clone();
         config.dense.mask_free_space_seconds = seconds;
