@@ -214,29 +214,7 @@ impl MaskSource {
                     .collect();
                 any |= self.object_masks(&mut mask, depth, &objects);
                 let keypoints = self.frame_keypoints(timestamp);
-                let mut discs = vec![false; w * h];
-                self.keypoint_discs(&mut discs, depth, keypoints, &objects);
-                // Disc pixels seen still are left out, except inside an object's box
-                // and in front of what lies behind it there: a second mover, hidden in
-                // part and paused, may have no other mask than its discs.
-                let backs: Vec<f32> = match evidence {
-                    Some(_) => objects.iter().map(|b| box_background(depth, b)).collect(),
-                    None => Vec::new(),
-                };
-                let still = |i: usize| {
-                    let (x, y, d) = ((i % w) as f32, (i / w) as f32, depth.metres[i]);
-                    let in_front = |(b, back): (&ObjectBox, &f32)| {
-                        b.contains(x, y) && d > 0.0 && d < back - self.dop.delta_z
-                    };
-                    evidence.is_some_and(|e| e.still[i])
-                        && !objects.iter().zip(&backs).any(in_front)
-                };
-                for (i, disc) in discs.into_iter().enumerate() {
-                    if disc && !still(i) {
-                        mask[i] = true;
-                        any = true;
-                    }
-                }
+                any |= self.discs_not_still(&mut mask, depth, keypoints, &objects, evidence);
                 if let Some(e) = evidence {
                     for (m, &moving) in mask.iter_mut().zip(&e.moving) {
                         *m |= moving;
@@ -279,6 +257,41 @@ impl MaskSource {
             }
             grown
         })
+    }
+
+    /// [`Self::keypoint_discs`] without the pixels `evidence` saw still, except inside
+    /// an object's box and in front of what lies behind it there: a second mover,
+    /// hidden in part and paused, may have no other mask than its discs.
+    fn discs_not_still(
+        &self,
+        mask: &mut [bool],
+        depth: &DepthImage,
+        keypoints: &[[f32; 3]],
+        objects: &[ObjectBox],
+        evidence: Option<&Evidence>,
+    ) -> bool {
+        let w = depth.width as usize;
+        let mut discs = vec![false; mask.len()];
+        self.keypoint_discs(&mut discs, depth, keypoints, objects);
+        let backs: Vec<f32> = match evidence {
+            Some(_) => objects.iter().map(|b| box_background(depth, b)).collect(),
+            None => Vec::new(),
+        };
+        let still = |i: usize| {
+            let (x, y, d) = ((i % w) as f32, (i / w) as f32, depth.metres[i]);
+            let in_front = |(b, back): (&ObjectBox, &f32)| {
+                b.contains(x, y) && d > 0.0 && d < back - self.dop.delta_z
+            };
+            evidence.is_some_and(|e| e.still[i]) && !objects.iter().zip(&backs).any(in_front)
+        };
+        let mut any = false;
+        for (i, disc) in discs.into_iter().enumerate() {
+            if disc && !still(i) {
+                mask[i] = true;
+                any = true;
+            }
+        }
+        any
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
