@@ -118,8 +118,9 @@ impl NeighbourWindow {
         load: impl Fn(usize) -> Result<DepthImage, E>,
     ) -> Result<Evidence, E> {
         let s = self.settings.seconds;
+        // A neighbour may lie up to a quarter of `s` beyond its target time.
         self.loaded
-            .retain(|_, n| n.timestamp >= timestamp - s - 1e-6);
+            .retain(|_, n| n.timestamp >= timestamp - 1.25 * s - 1e-6);
         let mut wanted = Vec::new();
         for target in self.settings.neighbour_times(timestamp) {
             let i = self.posed.partition_point(|p| p.0 < target);
@@ -155,6 +156,9 @@ impl NeighbourWindow {
 /// counts as infinitely far).
 fn nearest_depth(depth: &DepthImage, r: usize) -> Vec<f32> {
     let (w, h) = (depth.width as usize, depth.height as usize);
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
     let far: Vec<f32> = depth
         .metres
         .iter()
@@ -238,6 +242,12 @@ pub fn evidence(
     settings: &FreeSpaceSettings,
 ) -> Evidence {
     let (w, h) = (depth.width as usize, depth.height as usize);
+    if w == 0 || h == 0 {
+        return Evidence {
+            moving: Vec::new(),
+            still: Vec::new(),
+        };
+    }
     let world_from_camera = camera_from_world.inverse();
     let rays: Vec<Ray> = neighbours
         .iter()
