@@ -69,7 +69,7 @@ impl FreeSpaceSettings {
 
 /// A neighbour frame: its pose, depth, and the nearest valid depth around each pixel.
 pub struct Neighbour {
-    pub timestamp: f64,
+    timestamp: f64,
     camera_from_world: Se3,
     depth: DepthImage,
     /// The smallest valid depth within `reach` pixels (0: none).
@@ -110,18 +110,19 @@ impl NeighbourWindow {
 
     /// The evidence on the frame at `timestamp` (`depth`, `camera_from_world`), from
     /// the posed frames nearest its neighbour times (within a quarter of
-    /// `seconds`), loaded by `load` (a sequence index to its depth) when first needed.
-    pub fn evidence<E>(
+    /// `seconds`), loaded by `load` (a sequence index to its depth) when first needed,
+    /// those new to the window in parallel.
+    pub fn evidence<E: Send>(
         &mut self,
         camera: &PinholeCamera,
         (timestamp, depth, camera_from_world): (f64, &DepthImage, &Se3),
-        load: impl Fn(usize) -> Result<DepthImage, E>,
+        load: impl Fn(usize) -> Result<DepthImage, E> + Sync,
     ) -> Result<Evidence, E> {
         let s = self.settings.seconds;
         // A neighbour may lie up to a quarter of `s` beyond its target time.
         self.loaded
             .retain(|_, n| n.timestamp >= timestamp - 1.25 * s - 1e-6);
-        let mut wanted = Vec::new();
+        let mut wanted: Vec<(f64, usize, Se3)> = Vec::new();
         for target in self.settings.neighbour_times(timestamp) {
             let i = self.posed.partition_point(|p| p.0 < target);
             let nearest = [i.checked_sub(1), Some(i)]
@@ -131,16 +132,19 @@ impl NeighbourWindow {
                 .min_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()));
             if let Some(&(t, index, pose)) = nearest {
                 let near_enough = (t - target).abs() <= s / 4.0 && (t - timestamp).abs() > 1e-6;
-                if near_enough && !wanted.contains(&index) {
-                    if !self.loaded.contains_key(&index) {
-                        let neighbour = Neighbour::new(t, pose, load(index)?, self.settings.reach);
-                        self.loaded.insert(index, neighbour);
-                    }
-                    wanted.push(index);
+                if near_enough && !wanted.iter().any(|w| w.1 == index) {
+                    wanted.push((t, index, pose));
                 }
             }
         }
-        let neighbours: Vec<&Neighbour> = wanted.iter().map(|i| &self.loaded[i]).collect();
+        let reach = self.settings.reach;
+        let new: Vec<(usize, Neighbour)> = wanted
+            .par_iter()
+            .filter(|w| !self.loaded.contains_key(&w.1))
+            .map(|&(t, index, pose)| Ok((index, Neighbour::new(t, pose, load(index)?, reach))))
+            .collect::<Result<_, E>>()?;
+        self.loaded.extend(new);
+        let neighbours: Vec<&Neighbour> = wanted.iter().map(|w| &self.loaded[&w.1]).collect();
         Ok(evidence(
             camera,
             depth,

@@ -214,7 +214,8 @@ impl MaskSource {
                     .collect();
                 any |= self.object_masks(&mut mask, depth, &objects);
                 let keypoints = self.frame_keypoints(timestamp);
-                any |= self.discs_not_still(&mut mask, depth, keypoints, &objects, evidence);
+                let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
+                any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects, &keep);
                 if let Some(e) = evidence {
                     for (m, &moving) in mask.iter_mut().zip(&e.moving) {
                         *m |= moving;
@@ -257,41 +258,6 @@ impl MaskSource {
             }
             grown
         })
-    }
-
-    /// [`Self::keypoint_discs`] without the pixels `evidence` saw still, except inside
-    /// an object's box and in front of what lies behind it there: a second mover,
-    /// hidden in part and paused, may have no other mask than its discs.
-    fn discs_not_still(
-        &self,
-        mask: &mut [bool],
-        depth: &DepthImage,
-        keypoints: &[[f32; 3]],
-        objects: &[ObjectBox],
-        evidence: Option<&Evidence>,
-    ) -> bool {
-        let w = depth.width as usize;
-        let mut discs = vec![false; mask.len()];
-        self.keypoint_discs(&mut discs, depth, keypoints, objects);
-        let backs: Vec<f32> = match evidence {
-            Some(_) => objects.iter().map(|b| box_background(depth, b)).collect(),
-            None => Vec::new(),
-        };
-        let still = |i: usize| {
-            let (x, y, d) = ((i % w) as f32, (i / w) as f32, depth.metres[i]);
-            let in_front = |(b, back): (&ObjectBox, &f32)| {
-                b.contains(x, y) && d > 0.0 && d < back - self.dop.delta_z
-            };
-            evidence.is_some_and(|e| e.still[i]) && !objects.iter().zip(&backs).any(in_front)
-        };
-        let mut any = false;
-        for (i, disc) in discs.into_iter().enumerate() {
-            if disc && !still(i) {
-                mask[i] = true;
-                any = true;
-            }
-        }
-        any
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
@@ -379,13 +345,15 @@ impl MaskSource {
     /// Discs around the frame's dynamic keypoints (depth within `delta_z / 2` of the
     /// keypoint's), except keypoints inside a detected mover's box but more than
     /// `delta_z` behind it: the background the mover stands in front of, which the
-    /// object's mask already judged (with `skip_behind_objects`).
+    /// object's mask already judged (with `skip_behind_objects`); only the pixels
+    /// `keep(u, v)` allows.
     fn keypoint_discs(
         &self,
         mask: &mut [bool],
         depth: &DepthImage,
         keypoints: &[[f32; 3]],
         objects: &[ObjectBox],
+        keep: &dyn Fn(usize, usize) -> bool,
     ) -> bool {
         let (w, h) = (depth.width as usize, depth.height as usize);
         let behind = |x: f32, y: f32, z: f32| {
@@ -417,6 +385,7 @@ impl MaskSource {
                 let d = depth.at(u as u32, v as u32);
                 du * du + dv * dv <= r * r
                     && (z <= 0.0 || d == 0.0 || (d - z).abs() <= self.dop.delta_z / 2.0)
+                    && keep(u, v)
             });
         }
         any
@@ -431,6 +400,31 @@ impl MaskSource {
             .get(i)
             .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
             .map_or(&[], |k| &k.points)
+    }
+}
+
+/// Which disc pixels `(u, v)` to mask: all without `evidence`; with it, none that the
+/// neighbours saw still, except inside an object's box and more than `delta_z` in
+/// front of what lies behind it there (a second mover, hidden in part and paused, may
+/// have no other mask than its discs).
+fn disc_keep<'a>(
+    depth: &'a DepthImage,
+    objects: &'a [ObjectBox],
+    evidence: Option<&'a Evidence>,
+    delta_z: f32,
+) -> impl Fn(usize, usize) -> bool + 'a {
+    let backs: Vec<f32> = match evidence {
+        Some(_) => objects.iter().map(|b| box_background(depth, b)).collect(),
+        None => Vec::new(),
+    };
+    let w = depth.width as usize;
+    move |u, v| {
+        let Some(e) = evidence else { return true };
+        let i = v * w + u;
+        let (x, y, d) = (u as f32, v as f32, depth.metres[i]);
+        let in_front =
+            |(b, back): (&ObjectBox, &f32)| b.contains(x, y) && d > 0.0 && d < back - delta_z;
+        !e.still[i] || objects.iter().zip(&backs).any(in_front)
     }
 }
 

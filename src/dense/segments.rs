@@ -132,12 +132,15 @@ pub fn grow_segments(
         let followed = inside.iter().any(|s| s.followed);
         let judged = region.edges + region.limits;
         let edge_share = region.edges as f32 / judged.max(1) as f32;
-        let seen_moving = moving.is_some_and(|m| {
-            let count = region.pixels.iter().filter(|&&i| m[i]).count();
-            count as f32 >= settings.moving_share * region.pixels.len() as f32
-        });
+        // Counted only when the border test fails.
+        let seen_moving = || {
+            moving.is_some_and(|m| {
+                let count = region.pixels.iter().filter(|&&i| m[i]).count();
+                count as f32 >= settings.moving_share * region.pixels.len() as f32
+            })
+        };
         if (keypoints >= settings.support || followed)
-            && ((judged > 0 && edge_share >= settings.edge_share) || seen_moving)
+            && ((judged > 0 && edge_share >= settings.edge_share) || seen_moving())
         {
             kept.push(Segment {
                 pixels: region.pixels,
