@@ -20,13 +20,13 @@ cd "$(dirname "$0")/.."
 bin=${DOPSLAM_BIN:-./target/release/dopslam}
 seeds=5
 jobs=1
-frame_args=()
+frames_text=""
 out=outputs/bench/masks
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds=$2; shift 2 ;;
     --jobs) jobs=$2; shift 2 ;;
-    --frames) frame_args=(--frames "$2"); shift 2 ;;
+    --frames) frames_text="--frames $2"; shift 2 ;;
     --out) out=$2; shift 2 ;;
     *) break ;;
   esac
@@ -43,7 +43,7 @@ printf '[dense]\nfusion = "points"\npictures = false\n' > "$out/points-on.toml"
 
 one() {
   local preset=$1 s=$2 seed_args=() seq run frames
-  read -r -a frames <<<"$frame_args_text"
+  read -r -a frames <<<"$frames_text"
   seq=$out/seq/$preset-$s
   run=$out/runs/$preset-$s
   [ "$s" -gt 1 ] && seed_args=(--seed $((1000 + s - 1)))
@@ -80,8 +80,7 @@ PY
   rm -rf "$run/compare-off" "$run/compare-on"
 }
 export -f one
-export bin out
-export frame_args_text="${frame_args[*]:-}"
+export bin out frames_text
 rm -f "$out/rows.jsonl"
 for preset in "${presets[@]}"; do
   for ((s = 1; s <= seeds; s++)); do echo "$preset $s"; done
