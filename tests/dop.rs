@@ -16,13 +16,17 @@ fn run(seq: &Path, mode: Mode, out: &Path) -> RunReport {
     let mut config = Config::default();
     config.detector.source = Source::Oracle;
     config.dop.mode = mode;
-    let sequence = open_sequence(seq, &config).unwrap();
+    run_with(seq, &config, out)
+}
+
+fn run_with(seq: &Path, config: &Config, out: &Path) -> RunReport {
+    let sequence = open_sequence(seq, config).unwrap();
     let options = RunOptions {
         deterministic: true,
         sequence_dir: Some(seq.to_path_buf()),
         ..RunOptions::default()
     };
-    run_sequence(sequence.as_ref(), &config, out, &options).unwrap()
+    run_sequence(sequence.as_ref(), config, out, &options).unwrap()
 }
 
 #[test]
@@ -72,4 +76,46 @@ fn dop_removes_the_walkers_and_beats_orb_slam2_behaviour() {
     );
     assert!(off.frames.iter().all(|f| f.tracking.dynamic_keypoints == 0));
     assert!(mask.detection.map_points_removed > 0);
+}
+
+/// A box carried close to the camera from the first frame, in front of a flat wall
+/// that hardly tells a sideways step from a turn: the pose follows the box, so its
+/// points stay pose inliers and only the rigidity test, which needs no pose, sees
+/// them move (no detector knows a box).
+#[test]
+fn the_rigidity_test_keeps_a_box_the_pose_follows_out_of_it() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/unknown_movers_close.toml");
+    let mut synth = SynthConfig::load(&path).unwrap();
+    synth.sequence.frames = 90;
+    let base = common::temp_dir("dop-rigidity");
+    let seq = base.join("seq");
+    generate(&synth, &seq, false).unwrap();
+    let mut config = Config::default();
+    config.detector.source = Source::None;
+    config.global.enabled = false;
+    let with = run_with(&seq, &config, &base.join("with"));
+    config.dop.rigidity_sigmas = 0.0;
+    let without = run_with(&seq, &config, &base.join("without"));
+    let rmse = |r: &RunReport| r.ate.as_ref().unwrap().ape.statistics.rmse;
+    let moved =
+        |r: &RunReport| -> usize { r.frames.iter().map(|f| f.tracking.rigidity_outliers).sum() };
+    eprintln!(
+        "ATE RMSE: without the rigidity test {:.4} m, with it {:.4} m ({} points found moved)",
+        rmse(&without),
+        rmse(&with),
+        moved(&with)
+    );
+    assert_eq!(moved(&without), 0);
+    assert!(moved(&with) > 0);
+    assert!(
+        rmse(&without) > 0.05,
+        "the box no longer drags the pose: {}",
+        rmse(&without)
+    );
+    assert!(
+        rmse(&with) < 0.03,
+        "with the rigidity test: {} m",
+        rmse(&with)
+    );
 }

@@ -16,6 +16,7 @@
 
 pub mod boxes;
 pub mod consistency;
+pub mod rigidity;
 pub mod tracks;
 
 use serde::{Deserialize, Serialize};
@@ -149,6 +150,12 @@ pub struct DopConfig {
     pub geometric_frames: u32,
     pub alpha_geometric: f32,
     pub geometric_max_outliers: f32,
+    /// The rigidity test of the geometric check ([`rigidity`]): a matched point that
+    /// keeps its distances (within `rigidity_sigmas` standard deviations of the
+    /// sensor's depth noise) to fewer than `rigidity_agreement` of the others counts
+    /// as a pose outlier whatever the pose says. 0 sigmas: off.
+    pub rigidity_sigmas: f32,
+    pub rigidity_agreement: f32,
     /// The other half of the geometric check ([`consistency`]): a point that stays
     /// consistent with the static points' pose for `static_seconds` is verified static;
     /// its \(P\) then falls as outliers make it rise, and a detection counts as
@@ -185,6 +192,8 @@ impl Default for DopConfig {
             geometric_frames: 2,
             alpha_geometric: 0.3,
             geometric_max_outliers: 0.35,
+            rigidity_sigmas: 3.0,
+            rigidity_agreement: 0.5,
             static_check: true,
             static_seconds: 1.0,
         }
@@ -208,6 +217,13 @@ impl DopConfig {
         unit("central_fraction", self.central_fraction)?;
         unit("alpha_geometric", self.alpha_geometric)?;
         unit("geometric_max_outliers", self.geometric_max_outliers)?;
+        unit("rigidity_agreement", self.rigidity_agreement)?;
+        if !(self.rigidity_sigmas >= 0.0 && self.rigidity_sigmas.is_finite()) {
+            return Err(format!(
+                "dop.rigidity_sigmas must be a number >= 0 (0: off), got {}",
+                self.rigidity_sigmas
+            ));
+        }
         if self.track_seconds < 0.0
             || self.track_gate < 0.0
             || self.track_max_speed < 0.0

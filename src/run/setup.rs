@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use super::RunError;
 use crate::config::Config;
+use crate::dop::rigidity::DepthNoise;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;
 use crate::geometry::stereo_camera::StereoCamera;
@@ -83,6 +84,12 @@ impl Setup {
             mode: self.mode,
             alpha: self.alpha,
             close_depth: self.close_depth,
+            depth_noise: match self.sensor {
+                SensorKind::Rgbd => DepthNoise::Rgbd,
+                SensorKind::Stereo => DepthNoise::Stereo {
+                    bf: self.camera.bf,
+                },
+            },
             execution,
             detection_cache,
         }

@@ -23,6 +23,7 @@ use crate::bow::Vocabulary;
 use crate::config::Config;
 use crate::detect::job::{Job, Outcome};
 use crate::detect::Detector;
+use crate::dop::rigidity::DepthNoise;
 use crate::dop::{DopConfig, Mode};
 use crate::dynamics::{Applied, DetectionTotals, Dynamics, DynamicsConfig};
 use crate::features::ScalePyramid;
@@ -52,6 +53,8 @@ pub struct SystemSetup<'a> {
     pub alpha: f32,
     /// RGB-D close/far limit in metres (`ThDepth` baselines).
     pub close_depth: f32,
+    /// The sensor's depth noise (the geometric check's rigidity test).
+    pub depth_noise: DepthNoise,
     pub execution: Execution,
     /// Where each keyframe's detections are written.
     pub detection_cache: PathBuf,
@@ -99,7 +102,8 @@ impl System {
             setup.pyramid.clone(),
             size.0,
             size.1,
-        );
+        )
+        .with_depth_noise(setup.depth_noise);
         let mut mapper = LocalMapper::new(
             config.mapping.clone(),
             setup.camera,

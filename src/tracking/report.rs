@@ -35,6 +35,8 @@ pub struct FrameReport {
     /// frame.
     pub geometric_raised: usize,
     pub geometric_lowered: usize,
+    /// Matched points the rigidity test found moved (`crate::dop::rigidity`).
+    pub rigidity_outliers: usize,
     /// Why a lost frame got no pose (the last search's reason).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lost: Option<Reject>,
@@ -76,6 +78,7 @@ impl FrameReport {
             dynamic_map_points: 0,
             geometric_raised: 0,
             geometric_lowered: 0,
+            rigidity_outliers: 0,
             lost: None,
             new_keyframe: None,
             matching_ms: 0.0,

@@ -172,7 +172,7 @@ impl Tracker {
     }
 
     /// Camera-frame position of keypoint `i` from its depth.
-    fn back_project(&self, frame: &Frame, i: usize) -> Vector3<f64> {
+    pub(super) fn back_project(&self, frame: &Frame, i: usize) -> Vector3<f64> {
         let k = &frame.keypoints[i];
         let z = frame.depth[i] as f64;
         Vector3::new(

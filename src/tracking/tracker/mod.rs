@@ -22,6 +22,7 @@ mod tests;
 
 use std::time::Instant;
 
+use crate::dop::rigidity::DepthNoise;
 use crate::dynamics::frames::{geometric_check, Participation};
 use crate::features::ScalePyramid;
 use crate::frame::Frame;
@@ -58,6 +59,8 @@ pub struct Tracker {
     lost_since: Option<f64>,
     width: f32,
     height: f32,
+    /// The sensor's depth noise, for the rigidity test.
+    depth_noise: DepthNoise,
 }
 
 /// Timers of one frame.
@@ -90,6 +93,15 @@ impl Tracker {
             lost_since: None,
             width: width as f32,
             height: height as f32,
+            depth_noise: DepthNoise::Rgbd,
+        }
+    }
+
+    /// The tracker with `depth_noise` as its sensor's (RGB-D by default).
+    pub fn with_depth_noise(self, depth_noise: DepthNoise) -> Self {
+        Self {
+            depth_noise,
+            ..self
         }
     }
 
@@ -151,12 +163,13 @@ impl Tracker {
         self.count_visibility(&mut map, &seen.visible, tracked.as_ref().ok());
         if let (Ok(estimate), Some(dop)) = (&tracked, gate.dop) {
             if dop.geometric {
-                let checks = self.consistency(
+                let (checks, moved) = self.consistency(
                     (&map, &frame, gate),
-                    &estimate.camera_from_world,
+                    (dop, &estimate.camera_from_world),
                     &seen.candidates,
                     &estimate.matches,
                 );
+                report.rigidity_outliers = moved;
                 (report.geometric_raised, report.geometric_lowered) =
                     geometric_check(dop, &mut map, &checks, frame.timestamp);
             }
