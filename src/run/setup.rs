@@ -86,9 +86,7 @@ impl Setup {
             close_depth: self.close_depth,
             depth_noise: match self.sensor {
                 SensorKind::Rgbd => DepthNoise::Rgbd,
-                SensorKind::Stereo => DepthNoise::Stereo {
-                    bf: self.camera.bf,
-                },
+                SensorKind::Stereo => DepthNoise::Stereo { bf: self.camera.bf },
             },
             execution,
             detection_cache,
