@@ -70,45 +70,10 @@ pub fn agreement(
         .collect()
 }
 
-/// Which depth noise model a sensor follows.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum DepthNoise {
-    /// A structured-light or time-of-flight RGB-D camera ([`rgbd_depth_sigma`]).
-    Rgbd,
-    /// A stereo pair with baseline `bf` (pixels times metres) and a disparity noise of
-    /// [`STEREO_DISPARITY_SIGMA`] pixels ([`stereo_depth_sigma`]).
-    Stereo { bf: f64 },
-}
-
-/// The disparity noise assumed for stereo matches, in pixels (ORB-SLAM2 refines
-/// disparities to a tenth of a pixel; a pixel leaves room for matches off by one).
-pub const STEREO_DISPARITY_SIGMA: f64 = 1.0;
-
-impl DepthNoise {
-    /// The depth noise (standard deviation, metres) at depth `z`.
-    pub fn sigma(&self, z: f64) -> f64 {
-        match *self {
-            DepthNoise::Rgbd => rgbd_depth_sigma(z.max(0.4)),
-            DepthNoise::Stereo { bf } => stereo_depth_sigma(z, bf, STEREO_DISPARITY_SIGMA),
-        }
-    }
-}
-
-/// The depth noise of an RGB-D (Kinect-type) sensor at depth `z` metres (Nguyen, Izadi
-/// and Lovell 2012): \(\sigma_z = 0.0012 + 0.0019 (z - 0.4)^2\).
-pub fn rgbd_depth_sigma(z: f64) -> f64 {
-    0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
-}
-
-/// The depth noise of a stereo pair with baseline `bf` (pixels times metres) at depth
-/// `z`, for a disparity noise of `disparity_sigma` pixels: \(\sigma_z = z^2 \sigma_d / bf\).
-pub fn stereo_depth_sigma(z: f64, bf: f64, disparity_sigma: f64) -> f64 {
-    z * z * disparity_sigma / bf
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::depth_noise::kinect_depth_sigma;
     use crate::geometry::se3::{self, Se3};
     use crate::random::Rng;
     use proptest::prelude::*;
@@ -132,7 +97,7 @@ mod tests {
                 );
                 let now = if i >= n { world + shift } else { world };
                 let z = (camera_from_world * nalgebra::Point3::from(now)).coords;
-                let sigma = rgbd_depth_sigma(z.z.max(0.4));
+                let sigma = kinect_depth_sigma(z.z.max(0.4));
                 let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma * 0.5;
                 Matched {
                     world,
@@ -173,12 +138,5 @@ mod tests {
         assert!(agreement(&points, &all, 3.0, 4)
             .iter()
             .all(|s| s == &Some(1.0)));
-    }
-
-    #[test]
-    fn stereo_noise_grows_with_the_square_of_depth() {
-        let near = stereo_depth_sigma(1.0, 40.0, 0.5);
-        assert!((stereo_depth_sigma(2.0, 40.0, 0.5) - 4.0 * near).abs() < 1e-12);
-        assert!(rgbd_depth_sigma(0.4) == 0.0012);
     }
 }

@@ -6,6 +6,7 @@
 
 pub mod alignment;
 pub mod camera;
+pub mod depth_noise;
 pub mod mesh;
 pub mod se3;
 pub mod sim3;

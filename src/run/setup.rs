@@ -10,9 +10,9 @@ use serde::Serialize;
 
 use super::RunError;
 use crate::config::Config;
-use crate::dop::rigidity::DepthNoise;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;
+use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};

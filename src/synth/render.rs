@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::scene::Shape;
 use super::scene::{Cuboid, Scene};
 use crate::geometry::camera::PinholeCamera;
+use crate::geometry::depth_noise::kinect_depth_sigma;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::random::Rng;
@@ -106,11 +107,6 @@ impl SensorConfig {
         }
         Ok(())
     }
-}
-
-/// The standard deviation of Kinect depth noise at depth `z` metres.
-pub fn kinect_depth_sigma(z: f64) -> f64 {
-    0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
 }
 
 /// What the camera sees at one instant: its pose and the movers' shapes with their

@@ -22,10 +22,10 @@ mod tests;
 
 use std::time::Instant;
 
-use crate::dop::rigidity::DepthNoise;
 use crate::dynamics::frames::{geometric_check, Participation};
 use crate::features::ScalePyramid;
 use crate::frame::Frame;
+use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::{self, Se3};
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};

@@ -6,6 +6,8 @@
 
 use std::time::Instant;
 
+use nalgebra::Vector3;
+
 use super::{Timing, Tracker};
 use crate::dop::rigidity::{agreement, Matched};
 use crate::dop::DopConfig;
@@ -21,6 +23,8 @@ use crate::tracking::report::PoseEstimate;
 struct Judged {
     keypoint: usize,
     key: MapPointKey,
+    /// The map point's position (world).
+    position: Vector3<f64>,
     /// Within the pose's gate.
     consistent: bool,
     /// Left out of the pose as dynamic.
@@ -167,12 +171,13 @@ impl Tracker {
                 Some(Judged {
                     keypoint: i,
                     key,
+                    position: point.position,
                     consistent,
                     excluded,
                 })
             })
             .collect();
-        let moved = self.moved(map, frame, dop, &judged);
+        let moved = self.moved(frame, dop, &judged);
         let checks = judged
             .iter()
             .zip(&moved)
@@ -185,7 +190,7 @@ impl Tracker {
     /// which keep their distances to fewer than `rigidity_agreement` of the matches not
     /// left out as dynamic, within `rigidity_sigmas` standard deviations of the
     /// sensor's depth noise. Needs no pose, so it sees a mover that the pose follows.
-    fn moved(&self, map: &Map, frame: &Frame, dop: &DopConfig, judged: &[Judged]) -> Vec<bool> {
+    fn moved(&self, frame: &Frame, dop: &DopConfig, judged: &[Judged]) -> Vec<bool> {
         let mut moved = vec![false; judged.len()];
         if dop.rigidity_sigmas <= 0.0 {
             return moved;
@@ -198,7 +203,7 @@ impl Tracker {
             .map(|&n| {
                 let camera = self.back_project(frame, judged[n].keypoint);
                 Matched {
-                    world: map.points[judged[n].key].position,
+                    world: judged[n].position,
                     camera,
                     sigma: self.depth_noise.sigma(camera.z),
                 }
