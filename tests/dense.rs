@@ -210,7 +210,8 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 /// Movers no detector knows (a box slid across the floor, a balloon; the oracle boxes
 /// only the walker) are kept out by the free space they leave: fused with the
 /// free-space evidence, far more of their pixels stay out of the map than without it,
-/// and the static scene loses no more of its pixels.
+/// more again with the far neighbours (the box stands still for two seconds), and the
+/// static scene loses no more of its pixels.
 #[test]
 fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
     let (base, seq) = preset_sequence("unknown_movers", 150, "dense-free-space");
@@ -222,9 +223,10 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
     config.dense.detect_every = 0;
     let run_dir = base.join("run");
     let (sequence, _) = deterministic_run(&seq, &config, &run_dir, false);
-    let fuse = |seconds: f64, name: &str| {
+    let fuse = |(seconds, far_seconds): (f64, f64), name: &str| {
         let mut config = config.clone();
         config.dense.mask_free_space_seconds = seconds;
+        config.dense.mask_free_space_far_seconds = far_seconds;
         let out = base.join(name);
         let report = dense_pass(
             sequence.as_ref(),
@@ -237,9 +239,10 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         .unwrap();
         report.truth.expect("ground-truth masks were counted")
     };
-    let without = fuse(0.0, "without");
-    let with = fuse(0.5, "with");
-    eprintln!("without free space: {without:?}\nwith free space: {with:?}");
+    let without = fuse((0.0, 0.0), "without");
+    let with = fuse((0.5, 0.0), "with");
+    let far = fuse((0.5, 4.0), "far");
+    eprintln!("without free space: {without:?}\nwith free space: {with:?}\nfar too: {far:?}");
     let unknown =
         |t: &dopslam::dense::FusedTruth| t.unknown_removed.expect("unknown movers in view");
     assert!(
@@ -254,5 +257,17 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         "static pixels fused: {} without, {} with",
         without.static_kept,
         with.static_kept
+    );
+    assert!(
+        unknown(&far) > unknown(&with) + 0.1,
+        "unknown movers kept out: {} near only, {} with far neighbours",
+        unknown(&with),
+        unknown(&far)
+    );
+    assert!(
+        far.static_kept >= with.static_kept - 0.01,
+        "static pixels fused: {} near only, {} with far neighbours",
+        with.static_kept,
+        far.static_kept
     );
 }

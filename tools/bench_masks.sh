@@ -2,10 +2,11 @@
 # Benchmark (not a test): the dense masks with and without the free-space evidence
 # ([dense] mask_free_space_seconds), issue 35's dense goals. For each preset and seed:
 # synth, one tracking pass with the real detector in the default real-time mode
-# (--no-dense), then `dopslam fuse` with the evidence off and on (the default): movers'
-# pixels kept out and static pixels fused against the ground-truth masks (and the
-# unknown movers' share on the non-COCO presets); then the keyframes' point cloud
-# without carving (fusion = "points") both ways, judged by `dopslam compare-maps`
+# (--no-dense), then `dopslam fuse` with the evidence off, near (the frames within
+# 0.5 s only: mask_free_space_far_seconds = 0) and on (the default, the far neighbours
+# too): movers' pixels kept out and static pixels fused against the ground-truth masks
+# (and the unknown movers' share on the non-COCO presets); then the keyframes' point
+# cloud without carving (fusion = "points") each way, judged by `dopslam compare-maps`
 # against the sequence's movers.ply (mover points). One JSON line per run and variant
 # goes to OUT/rows.jsonl; tools/masks_table.py prints the medians.
 #
@@ -37,8 +38,10 @@ presets=("$@")
 mkdir -p "$out/runs" "$out/seq"
 # The fusions: no mesh, cloud or pictures where only the masks are measured.
 printf '[dense]\nmask_free_space_seconds = 0.0\nmesh = false\ncloud = false\npictures = false\n' > "$out/off.toml"
+printf '[dense]\nmask_free_space_far_seconds = 0.0\nmesh = false\ncloud = false\npictures = false\n' > "$out/near.toml"
 printf '[dense]\nmesh = false\ncloud = false\npictures = false\n' > "$out/on.toml"
 printf '[dense]\nfusion = "points"\nmask_free_space_seconds = 0.0\npictures = false\n' > "$out/points-off.toml"
+printf '[dense]\nfusion = "points"\nmask_free_space_far_seconds = 0.0\npictures = false\n' > "$out/points-near.toml"
 printf '[dense]\nfusion = "points"\npictures = false\n' > "$out/points-on.toml"
 
 one() {
@@ -50,7 +53,7 @@ one() {
   [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" "${seed_args[@]}" ${frames[@]+"${frames[@]}"} --out "$seq" --force >/dev/null
   rm -rf "$run"
   "$bin" run "$seq" --out "$run" --no-dense --dop --detections onnx >"$run.log" 2>&1 || { echo "failed: $run.log" >&2; return; }
-  for variant in off on; do
+  for variant in off near on; do
     "$bin" fuse "$run" --config "$out/$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
     cp "$run/dense.json" "$run/dense-$variant.json"
     "$bin" fuse "$run" --config "$out/points-$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
@@ -77,7 +80,7 @@ print(json.dumps(dict(
 PY
   done
   rm -f "$run/dense_points.ply"
-  rm -rf "$run/compare-off" "$run/compare-on"
+  rm -rf "$run/compare-off" "$run/compare-near" "$run/compare-on"
 }
 export -f one
 export bin out frames_text

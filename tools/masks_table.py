@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """The table of tools/bench_masks.sh: medians over seeds of each preset, and over every
-run, with the free-space evidence off and on (issue 35's dense goals: movers' pixels
+run, with the free-space evidence off, near (the frames within 0.5 s only) and on
+(near and far neighbours; issue 35's dense goals: movers' pixels
 kept out >= 99.5 %, static pixels fused >= 90 %, a cloud without carving with <= 0.1 %
 of its points on movers, >= 98 % of the unknown movers' pixels kept out).
 
@@ -55,11 +56,11 @@ def main():
     presets = sorted({r["preset"] for r in rows}, key=lambda p: (p.startswith("unknown"), p))
     groups = []
     for preset in presets:
-        for variant in ("off", "on"):
+        for variant in ("off", "near", "on"):
             chosen = [r for r in rows if r["preset"] == preset and r["free_space"] == variant]
             if chosen:
                 groups.append(((preset, variant), chosen))
-    for variant in ("off", "on"):
+    for variant in ("off", "near", "on"):
         cutouts = [r for r in rows if r["preset"].startswith("cutout_") and r["free_space"] == variant]
         if cutouts:
             groups.append((("all cut-out presets", variant), cutouts))

@@ -34,8 +34,16 @@ use crate::io::image_files::DepthImage;
 /// How the neighbours are chosen and judged.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FreeSpaceSettings {
-    /// The neighbours: the frames nearest \(t \pm s\) and \(t \pm s/2\), seconds.
+    /// The near neighbours: the frames nearest \(t \pm s\) and \(t \pm s/2\),
+    /// seconds.
     pub seconds: f64,
+    /// The far neighbours (0: none): the frames nearest \(t \pm f\) and
+    /// \(t \pm f/2\), each target rounded to a multiple of \(f/8\) so that the
+    /// frames fused one after another share them (a few frames kept loaded, not all
+    /// of the last \(f\) seconds). A mover that stands still longer than the near
+    /// window (a box set down, a person who waits) was elsewhere seconds before or
+    /// after: those frames saw through where it stands.
+    pub far_seconds: f64,
     /// \(\tau_0\) (metres) and \(\tau_2\) (per metre) of the tolerance.
     pub tolerance: (f32, f32),
     /// Pixels around the projection whose nearest depth decides "seen through".
@@ -48,6 +56,7 @@ impl Default for FreeSpaceSettings {
     fn default() -> Self {
         Self {
             seconds: 0.5,
+            far_seconds: 6.0,
             tolerance: (0.03, 0.015),
             reach: 2,
             density: 0.3,
@@ -56,10 +65,36 @@ impl Default for FreeSpaceSettings {
 }
 
 impl FreeSpaceSettings {
-    /// The neighbours' times around `t`.
-    pub fn neighbour_times(&self, t: f64) -> [f64; 4] {
+    /// The neighbours' target times around `t`, each with how far from it the chosen
+    /// frame may lie and whether it is a far one (see [`Self::far_seconds`]).
+    pub fn neighbour_times(&self, t: f64) -> Vec<Target> {
+        let mut targets = Vec::with_capacity(8);
         let s = self.seconds;
-        [t - s, t - s / 2.0, t + s / 2.0, t + s]
+        if s > 0.0 {
+            targets.extend([-s, -s / 2.0, s / 2.0, s].map(|d| Target {
+                time: t + d,
+                within: s / 4.0,
+                far: false,
+            }));
+        }
+        let (f, step) = (self.far_seconds, self.far_seconds / 8.0);
+        if f > 0.0 {
+            targets.extend([-f, -f / 2.0, f / 2.0, f].map(|d| Target {
+                time: ((t + d) / step).round() * step,
+                within: step / 2.0,
+                far: true,
+            }));
+        }
+        targets
+    }
+
+    /// How long before the fused frame's time a loaded near (`far` false) or far
+    /// neighbour can still be wanted.
+    fn kept_back(&self, far: bool) -> f64 {
+        match far {
+            false => 1.25 * self.seconds,
+            true => 1.125 * self.far_seconds,
+        }
     }
 
     fn tau(&self, z: f32) -> f32 {
@@ -67,9 +102,19 @@ impl FreeSpaceSettings {
     }
 }
 
+/// A neighbour's target time: the posed frame nearest `time`, if within `within`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Target {
+    pub time: f64,
+    pub within: f64,
+    pub far: bool,
+}
+
 /// A neighbour frame: its pose, depth, and the nearest valid depth around each pixel.
 pub struct Neighbour {
     timestamp: f64,
+    /// Wanted as a far neighbour (kept loaded longer).
+    far: bool,
     camera_from_world: Se3,
     depth: DepthImage,
     /// The smallest valid depth within `reach` pixels (0: none).
@@ -81,6 +126,7 @@ impl Neighbour {
         let nearest = nearest_depth(&depth, reach);
         Self {
             timestamp,
+            far: false,
             camera_from_world,
             depth,
             nearest,
@@ -109,41 +155,50 @@ impl NeighbourWindow {
     }
 
     /// The evidence on the frame at `timestamp` (`depth`, `camera_from_world`), from
-    /// the posed frames nearest its neighbour times (within a quarter of
-    /// `seconds`), loaded by `load` (a sequence index to its depth) when first needed,
-    /// those new to the window in parallel.
+    /// the posed frames nearest its neighbour times (see
+    /// [`FreeSpaceSettings::neighbour_times`]), loaded by `load` (a sequence index to
+    /// its depth) when first needed, those new to the window in parallel.
     pub fn evidence<E: Send>(
         &mut self,
         camera: &PinholeCamera,
         (timestamp, depth, camera_from_world): (f64, &DepthImage, &Se3),
         load: impl Fn(usize) -> Result<DepthImage, E> + Sync,
     ) -> Result<Evidence, E> {
-        let s = self.settings.seconds;
-        // A neighbour may lie up to a quarter of `s` beyond its target time.
+        let settings = self.settings;
         self.loaded
-            .retain(|_, n| n.timestamp >= timestamp - 1.25 * s - 1e-6);
-        let mut wanted: Vec<(f64, usize, Se3)> = Vec::new();
-        for target in self.settings.neighbour_times(timestamp) {
-            let i = self.posed.partition_point(|p| p.0 < target);
+            .retain(|_, n| n.timestamp >= timestamp - settings.kept_back(n.far) - 1e-6);
+        let mut wanted: Vec<(f64, usize, Se3, bool)> = Vec::new();
+        for target in settings.neighbour_times(timestamp) {
+            let i = self.posed.partition_point(|p| p.0 < target.time);
             let nearest = [i.checked_sub(1), Some(i)]
                 .into_iter()
                 .flatten()
                 .filter_map(|k| self.posed.get(k))
-                .min_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()));
+                .min_by(|a, b| {
+                    (a.0 - target.time)
+                        .abs()
+                        .total_cmp(&(b.0 - target.time).abs())
+                });
             if let Some(&(t, index, pose)) = nearest {
-                let near_enough = (t - target).abs() <= s / 4.0 && (t - timestamp).abs() > 1e-6;
+                let near_enough =
+                    (t - target.time).abs() <= target.within && (t - timestamp).abs() > 1e-6;
                 if near_enough && !wanted.iter().any(|w| w.1 == index) {
-                    wanted.push((t, index, pose));
+                    wanted.push((t, index, pose, target.far));
                 }
             }
         }
-        let reach = self.settings.reach;
+        let reach = settings.reach;
         let new: Vec<(usize, Neighbour)> = wanted
             .par_iter()
             .filter(|w| !self.loaded.contains_key(&w.1))
-            .map(|&(t, index, pose)| Ok((index, Neighbour::new(t, pose, load(index)?, reach))))
+            .map(|&(t, index, pose, _)| Ok((index, Neighbour::new(t, pose, load(index)?, reach))))
             .collect::<Result<_, E>>()?;
         self.loaded.extend(new);
+        for w in wanted.iter().filter(|w| w.3) {
+            if let Some(n) = self.loaded.get_mut(&w.1) {
+                n.far = true;
+            }
+        }
         let neighbours: Vec<&Neighbour> = wanted.iter().map(|w| &self.loaded[&w.1]).collect();
         Ok(evidence(
             camera,
@@ -423,6 +478,71 @@ mod tests {
         assert!(e.moving.iter().all(|m| !m), "nothing moves");
         assert!(e.still[28 + 20 * 64], "the block is still");
         assert!(e.still[60 + 40 * 64], "the wall is still");
+    }
+
+    /// A block that stands still through the near window (4.5-5.5 s) but stood
+    /// elsewhere before 4 s and after 6 s: only the far neighbours see through it.
+    #[test]
+    fn far_neighbours_find_a_mover_that_stands_still_through_the_near_window() {
+        let fps = 30.0;
+        let time = |i: usize| i as f64 / fps;
+        let block_at = |t: f64| match (t - 5.0).abs() < 1.0 {
+            true => (20, 36),
+            false => (44, 60),
+        };
+        let posed: Vec<(f64, usize, Se3)> =
+            (0..300).map(|i| (time(i), i, Se3::identity())).collect();
+        let load = |i: usize| Ok::<_, ()>(scene(Some(block_at(time(i)))));
+        let now = scene(Some(block_at(5.0)));
+        let at_block = 28 + 20 * 64;
+        let judged = |far_seconds: f64| {
+            let settings = FreeSpaceSettings {
+                far_seconds,
+                ..FreeSpaceSettings::default()
+            };
+            let mut window = NeighbourWindow::new(settings, posed.clone());
+            window
+                .evidence(&camera(), (5.0, &now, &Se3::identity()), load)
+                .unwrap()
+        };
+        let near = judged(0.0);
+        assert!(!near.moving[at_block] && near.still[at_block]);
+        let far = judged(4.0);
+        assert!(far.moving[at_block] && !far.still[at_block]);
+        // The wall away from both places of the block is still either way.
+        assert!(far.still[2 + 40 * 64] && !far.moving[2 + 40 * 64]);
+    }
+
+    /// Frames fused one after another share their far neighbours (targets on a grid
+    /// of an eighth of `far_seconds`), each near target lies `seconds` or half of it
+    /// away.
+    #[test]
+    fn far_targets_lie_on_a_grid_and_near_ones_follow_the_frame() {
+        let settings = FreeSpaceSettings {
+            far_seconds: 4.0,
+            ..FreeSpaceSettings::default()
+        };
+        let far = |t: f64| -> Vec<f64> {
+            let targets = settings.neighbour_times(t);
+            targets.iter().filter(|x| x.far).map(|x| x.time).collect()
+        };
+        assert_eq!(far(10.0), far(10.0 + 1.0 / 30.0));
+        assert_eq!(far(10.0), vec![6.0, 8.0, 12.0, 14.0]);
+        let near: Vec<f64> = settings
+            .neighbour_times(10.1)
+            .iter()
+            .filter(|x| !x.far)
+            .map(|x| x.time)
+            .collect();
+        assert_eq!(near.len(), 4);
+        for (got, want) in near.iter().zip([9.6, 9.85, 10.35, 10.6]) {
+            assert!((got - want).abs() < 1e-9, "{got} != {want}");
+        }
+        let off = FreeSpaceSettings {
+            far_seconds: 0.0,
+            ..settings
+        };
+        assert!(off.neighbour_times(10.0).iter().all(|x| !x.far));
     }
 
     #[test]

@@ -153,6 +153,11 @@ pub struct DenseConfig {
     /// pixels those frames saw through are masked (movers, also those no detector
     /// found), and discs and dilation leave out pixels they saw still. 0: off.
     pub mask_free_space_seconds: f64,
+    /// Far neighbours added to the free-space evidence (when it is on): the frames
+    /// this many seconds (and half as many) before and after each fused frame. A mover
+    /// that stands still longer than the near window (a box set down, a person who
+    /// waits) was seen elsewhere then, and its place seen through. 0: none.
+    pub mask_free_space_far_seconds: f64,
     /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
     /// colour frame beside its mask, against the ground truth of a synthetic sequence
     /// (green: mover masked, red: static masked, yellow: mover fused).
@@ -199,6 +204,7 @@ impl Default for DenseConfig {
             mask_segment_support: segments.support,
             mask_segment_follow_seconds: 3.0,
             mask_free_space_seconds: FreeSpaceSettings::default().seconds,
+            mask_free_space_far_seconds: FreeSpaceSettings::default().far_seconds,
             mask_pictures_every: 0,
             ply_encoding: PlyEncoding::Binary,
         }
@@ -231,6 +237,7 @@ impl DenseConfig {
         for (name, value) in [
             ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
             ("mask_free_space_seconds", self.mask_free_space_seconds),
+            ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(format!("dense.{name} must be 0 or more, not {value}"));
@@ -282,6 +289,7 @@ impl DenseConfig {
     pub fn free_space_settings(&self) -> FreeSpaceSettings {
         FreeSpaceSettings {
             seconds: self.mask_free_space_seconds,
+            far_seconds: self.mask_free_space_far_seconds,
             ..FreeSpaceSettings::default()
         }
     }
