@@ -314,12 +314,13 @@ pub fn evidence(
         .collect();
     let mut verdicts = vec![(0u8, 0u8); w * h];
     verdicts.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-        for (u, verdict) in row.iter_mut().enumerate() {
-            let z = depth.metres[v * w + u];
-            if z <= 0.0 {
-                continue;
-            }
-            for (n, ray) in neighbours.iter().zip(&rays) {
+        let row_depth = &depth.metres[v * w..(v + 1) * w];
+        // One neighbour at a time along the row: its depth is read row by row.
+        for (n, ray) in neighbours.iter().zip(&rays) {
+            for (u, (verdict, &z)) in row.iter_mut().zip(row_depth).enumerate() {
+                if z <= 0.0 {
+                    continue;
+                }
                 match judge(camera, n, ray.point(u as f32, v as f32, z), settings) {
                     Some(true) => verdict.0 += 1,
                     Some(false) => verdict.1 += 1,
