@@ -182,8 +182,12 @@ impl NeighbourWindow {
             if let Some(&(t, index, pose)) = nearest {
                 let near_enough =
                     (t - target.time).abs() <= target.within && (t - timestamp).abs() > 1e-6;
-                if near_enough && !wanted.iter().any(|w| w.1 == index) {
-                    wanted.push((t, index, pose, target.far));
+                if near_enough {
+                    match wanted.iter_mut().find(|w| w.1 == index) {
+                        // Wanted near and far: kept loaded as long as a far one.
+                        Some(w) => w.3 |= target.far,
+                        None => wanted.push((t, index, pose, target.far)),
+                    }
                 }
             }
         }

@@ -45,23 +45,22 @@ pub fn agreement(
             k2 * (p.sigma * p.sigma) as f32,
         )
     };
+    let compacted: Vec<_> = points.iter().map(compact).collect();
     let stride = reference.len().div_ceil(MAX_PARTNERS).max(1);
-    let partners: Vec<_> = reference
+    let partners: Vec<usize> = reference
         .iter()
         .step_by(stride)
-        .filter_map(|&j| points.get(j).map(compact))
+        .copied()
+        .filter(|&j| j < points.len())
         .collect();
-    points
+    compacted
         .iter()
-        .map(|p| {
-            let (world, camera, spread) = compact(p);
+        .enumerate()
+        .map(|(i, (world, camera, spread))| {
             let (mut kept, mut compared) = (0usize, 0usize);
-            for (q_world, q_camera, q_spread) in &partners {
-                let in_map = (world - q_world).norm();
-                if in_map == 0.0 {
-                    continue; // itself
-                }
-                let change = in_map - (camera - q_camera).norm();
+            for &j in partners.iter().filter(|&&j| j != i) {
+                let (q_world, q_camera, q_spread) = &compacted[j];
+                let change = (world - q_world).norm() - (camera - q_camera).norm();
                 compared += 1;
                 kept += usize::from(change * change <= spread + q_spread);
             }
@@ -73,7 +72,7 @@ pub fn agreement(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::depth_noise::kinect_depth_sigma;
+    use crate::geometry::depth_noise::DepthNoise;
     use crate::geometry::se3::{self, Se3};
     use crate::random::Rng;
     use proptest::prelude::*;
@@ -97,7 +96,7 @@ mod tests {
                 );
                 let now = if i >= n { world + shift } else { world };
                 let z = (camera_from_world * nalgebra::Point3::from(now)).coords;
-                let sigma = kinect_depth_sigma(z.z.max(0.4));
+                let sigma = DepthNoise::Rgbd.sigma(z.z);
                 let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma * 0.5;
                 Matched {
                     world,
