@@ -268,6 +268,12 @@ impl Config {
         }
         self.dense.validate()?;
         self.global.smoothing.validate()?;
+        if !(0.0..=1.0).contains(&self.tracking.prediction_gate_share) {
+            return Err(format!(
+                "tracking.prediction_gate_share must be in [0, 1], got {}",
+                self.tracking.prediction_gate_share
+            ));
+        }
         if !(0.0..=1.0).contains(&self.mapping.redundancy) {
             return Err(format!(
                 "mapping.redundancy must be in [0, 1], got {}",
@@ -467,6 +473,8 @@ mod tests {
         for (text, key) in [
             ("[tracking]\nth_depth = nan\n", "tracking.th_depth"),
             ("[tracking]\nmotion_search_radius = -1.0\n", "tracking.motion_search_radius"),
+            ("[tracking]\nprediction_gate_share = 1.5\n", "tracking.prediction_gate_share"),
+            ("[tracking]\nprediction_gate_share = nan\n", "tracking.prediction_gate_share"),
             ("[dop]\ngamma = inf\n", "dop.gamma"),
             ("[dense]\nvoxel = nan\n", "dense.voxel"),
             ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),

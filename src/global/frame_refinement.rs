@@ -23,7 +23,7 @@ use super::GlobalInputs;
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::map::Map;
-use crate::optim::pose_only::{optimise_pose, PoseObservation};
+use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
 use crate::tracking::{FrameObservation, FrameReport};
 
 /// Fewest static points a frame needs to be estimated again.
@@ -106,7 +106,12 @@ fn refined_pose(
     if observations.len() < MIN_POINTS {
         return None;
     }
-    let estimate = optimise_pose(inputs.camera, initial, &observations);
+    let estimate = optimise_pose_predicted(
+        inputs.camera,
+        initial,
+        &observations,
+        inputs.prediction_gate_share,
+    );
     (estimate.inlier_count() * 2 >= observations.len()).then_some(estimate.camera_from_world)
 }
 
@@ -159,6 +164,7 @@ mod tests {
             pyramid: &pyramid,
             size: (640.0, 480.0),
             moving_threshold: 0.6,
+            prediction_gate_share: 0.7,
         };
         let truth = Se3::from_parts(
             Translation3::new(0.1, -0.05, 0.2),

@@ -111,6 +111,9 @@ pub struct GlobalInputs<'a> {
     pub size: (f32, f32),
     /// Points above this moving probability are dynamic and take no part.
     pub moving_threshold: f32,
+    /// The frames' refinement starts from the points its initial pose explains when
+    /// they are this share of all (`[tracking] prediction_gate_share`; 0: off).
+    pub prediction_gate_share: f64,
 }
 
 impl GlobalConfig {

@@ -31,6 +31,11 @@ pub fn global_pass(
         pyramid: &setup.extractor.pyramid,
         size: (camera.width as f32, camera.height as f32),
         moving_threshold: setup.mode.moving_threshold(&setup.config.dop),
+        prediction_gate_share: if setup.mode == crate::dop::Mode::Dop {
+            setup.config.tracking.prediction_gate_share
+        } else {
+            0.0
+        },
     };
     let report = crate::global::run(
         &mut pass.tracked.map,

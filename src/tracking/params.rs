@@ -95,6 +95,12 @@ pub struct TrackerConfig {
     /// gap between deterministic and real-time runs (README), also with the geometric
     /// check off. 0 turns it off.
     pub probation_frames: usize,
+    /// The prediction gate of the pose ([`crate::optim::pose_only`]; DOP model only):
+    /// when at least this share of a frame's matches lie within half the inlier gate of
+    /// the predicted pose, the pose is optimised from those alone and the rest are
+    /// judged by the result. A mover that starts to move cannot drag the pose along a
+    /// direction the static scene hardly constrains. 0 turns it off.
+    pub prediction_gate_share: f64,
 }
 
 impl Default for TrackerConfig {
@@ -111,6 +117,7 @@ impl Default for TrackerConfig {
             new_map_after_seconds: 3.0,
             held_out_min_points: 60,
             probation_frames: 2,
+            prediction_gate_share: 0.7,
         }
     }
 }

@@ -15,7 +15,7 @@ use crate::dynamics::frames::Participation;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
 use crate::map::{Map, MapPoint, MapPointKey};
-use crate::optim::pose_only::{optimise_pose, within_gate, PoseObservation};
+use crate::optim::pose_only::{optimise_pose_predicted, within_gate, PoseObservation};
 use crate::tracking::params::{MIN_POSE_OBSERVATIONS, MIN_TRUSTED_POINTS, RIGIDITY_MIN_PARTNERS};
 use crate::tracking::report::PoseEstimate;
 
@@ -72,7 +72,7 @@ impl Tracker {
         } else {
             self.admit_waiting(
                 frame,
-                initial,
+                (initial, self.prediction_gate_share(gate)),
                 awaiting,
                 (&mut observations, &mut indices),
                 (points, &mut kept),
@@ -86,7 +86,12 @@ impl Tracker {
                 inliers: 0,
             };
         }
-        let estimate = optimise_pose(&self.camera, initial, &observations);
+        let estimate = optimise_pose_predicted(
+            &self.camera,
+            initial,
+            &observations,
+            self.prediction_gate_share(gate),
+        );
         let mut inliers = 0;
         for (n, &i) in indices.iter().enumerate() {
             if estimate.inliers[n] {
@@ -109,13 +114,15 @@ impl Tracker {
     fn admit_waiting(
         &self,
         frame: &Frame,
-        initial: &Se3,
+        (initial, share): (&Se3, f64),
         awaiting: Vec<(usize, &MapPoint)>,
         (observations, indices): (&mut Vec<PoseObservation>, &mut Vec<usize>),
         (points, kept): (&[Option<MapPointKey>], &mut [Option<MapPointKey>]),
     ) {
         let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
-            .then(|| optimise_pose(&self.camera, initial, observations))
+            .then(|| {
+                optimise_pose_predicted(&self.camera, initial, observations, share)
+            })
             .filter(|estimate| {
                 estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
             });
@@ -130,6 +137,16 @@ impl Tracker {
             } else {
                 kept[i] = points[i];
             }
+        }
+    }
+
+    /// The prediction gate's share (`[tracking] prediction_gate_share`) with the DOP
+    /// model; 0 (ORB-SLAM2's rounds) without it.
+    fn prediction_gate_share(&self, gate: &Participation) -> f64 {
+        if gate.dop.is_some() {
+            self.config.prediction_gate_share
+        } else {
+            0.0
         }
     }
 
