@@ -1,24 +1,30 @@
 #!/usr/bin/env bash
-# Benchmark (not a test): the geometric check's rigidity test ([dop] rigidity_sigmas,
-# docs/dop-model.md). Per preset and seed, one sequence, tracked with the test off
-# (rigidity_sigmas = 0) and on (the default), in the default real-time mode with the
-# installed detector (--deterministic: inline detection, reproducible). Prints one
-# markdown row per run and the medians per preset: ATE RMSE, points the test found
-# moved per frame, the dynamic keypoints' precision / recall against the true masks,
-# median tracking time.
+# Benchmark (not a test): the geometric check's rigidity test ([dop] rigidity_sigmas)
+# or, with --toggle prediction-gate, the pose's prediction gate ([tracking]
+# prediction_gate_share); docs/dop-model.md. Per preset and seed, one sequence,
+# tracked --runs times with the toggle off (0) and on (the default), in the default
+# real-time mode with the installed detector (--deterministic: inline detection,
+# reproducible). Prints one markdown row per run and the medians per preset: ATE
+# RMSE, points the rigidity test found moved per frame, the dynamic keypoints'
+# precision / recall against the true masks, median tracking time.
 #
-#   bash tools/bench_rigidity.sh [--seeds N] [--frames F] [--out DIR] [--deterministic] [PRESET ...]
+#   bash tools/bench_rigidity.sh [--toggle rigidity|prediction-gate] [--seeds N] [--runs R]
+#                                [--frames F] [--out DIR] [--deterministic] [PRESET ...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=${DOPSLAM_BIN:-./target/release/dopslam}
 seeds=3
-out=outputs/bench/rigidity
+runs=1
+toggle=rigidity
+out=
 mode=()
 frames=()
 presets=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds=$2; shift 2 ;;
+    --runs) runs=$2; shift 2 ;;
+    --toggle) toggle=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     --frames) frames=(--frames "$2"); shift 2 ;;
     --deterministic) mode=(--deterministic); shift ;;
@@ -28,8 +34,14 @@ while [ $# -gt 0 ]; do
 done
 [ ${#presets[@]} -gt 0 ] || presets=(unknown_movers_close unknown_movers cutout_xyz cutout_static)
 [ -n "${DOPSLAM_BIN:-}" ] || cargo build --release --quiet
+case "$toggle" in
+  rigidity) off='[dop]\nrigidity_sigmas = 0.0\n' ;;
+  prediction-gate) off='[tracking]\nprediction_gate_share = 0.0\n' ;;
+  *) echo "unknown toggle $toggle (rigidity | prediction-gate)" >&2; exit 2 ;;
+esac
+out=${out:-outputs/bench/$toggle}
 mkdir -p "$out"
-printf '[dop]\nrigidity_sigmas = 0.0\n' > "$out/off.toml"
+printf "$off" > "$out/off.toml"
 printf '' > "$out/on.toml"
 : > "$out/rows.jsonl"
 for preset in "${presets[@]}"; do
@@ -38,8 +50,8 @@ for preset in "${presets[@]}"; do
     seed_args=()
     [ "$s" -gt 1 ] && seed_args=(--seed $((1000 + s - 1)))
     [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" "${seed_args[@]}" "${frames[@]}" --out "$seq" --force >/dev/null
-    for variant in off on; do
-      run=$out/run/$variant/$preset-$s
+    for variant in off on; do for ((r = 1; r <= runs; r++)); do
+      run=$out/run/$variant/$preset-$s-$r
       mkdir -p "$(dirname "$run")"
       "$bin" run "$seq" --out "$run" --no-dense "${mode[@]}" --config "$out/$variant.toml" >"$run.log" 2>&1 \
         || { echo "run failed: $run.log" >&2; continue; }
@@ -56,20 +68,21 @@ print(json.dumps(dict(
     precision=c.get("precision"), recall=c.get("recall"),
     median_ms=statistics.median(f["tracking_ms"] for f in frames))))
 PY
-    done
+    done; done
   done
 done
-python3 - "$out/rows.jsonl" <<'PY'
+python3 - "$out/rows.jsonl" "$toggle" <<'PY'
 import json, statistics, sys
 rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
 fmt = lambda r: "%.1f | %.0f | %.3f / %.3f | %.1f" % (
     r["ate_mm"], r["moved_per_frame"], r["precision"] or 0, r["recall"] or 0, r["median_ms"])
-print("| preset | seed | rigidity | ATE (mm) | found moved per frame | keypoint precision / recall | median ms |")
+toggle = sys.argv[2]
+print(f"| preset | seed | {toggle} | ATE (mm) | found moved per frame | keypoint precision / recall | median ms |")
 print("|---|---|---|---|---|---|---|")
 for r in rows:
     print(f"| {r['preset']} | {r['seed']} | {r['variant']} | {fmt(r)} |")
 print()
-print("| preset | rigidity | runs | median ATE (mm) | found moved per frame | precision / recall | median ms |")
+print(f"| preset | {toggle} | runs | median ATE (mm) | found moved per frame | precision / recall | median ms |")
 print("|---|---|---|---|---|---|---|")
 for preset in dict.fromkeys(r["preset"] for r in rows):
     for variant in ("off", "on"):
