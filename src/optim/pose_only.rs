@@ -24,8 +24,8 @@ use nalgebra::{Matrix6, Vector3, Vector6};
 
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::point_jacobian_wrt_pose;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::geometry::se3::{self, Se3};
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -210,7 +210,11 @@ pub fn optimise_pose_predicted(
             }
         }
         // Classify every observation that takes part (outliers may come back).
-        for ((o, inlier), &part) in observations.iter().zip(inliers.iter_mut()).zip(&taking_part) {
+        for ((o, inlier), &part) in observations
+            .iter()
+            .zip(inliers.iter_mut())
+            .zip(&taking_part)
+        {
             *inlier = part && within_gate(camera, &pose, o);
         }
         if inliers.iter().filter(|&&i| i).count() < 10 {
@@ -219,7 +223,11 @@ pub fn optimise_pose_predicted(
     }
     let pose = se3::normalised(&pose);
     // Those left out by the prediction gate are judged by the final pose alone.
-    for ((o, inlier), &part) in observations.iter().zip(inliers.iter_mut()).zip(&taking_part) {
+    for ((o, inlier), &part) in observations
+        .iter()
+        .zip(inliers.iter_mut())
+        .zip(&taking_part)
+    {
         if !part {
             *inlier = within_gate(camera, &pose, o);
         }
@@ -320,9 +328,17 @@ mod tests {
             .map(|i| {
                 let on_box = i < movers;
                 let p_camera = if on_box {
-                    Vector3::new(rng.range(0.2, 0.9), rng.range(-0.2, 0.5), rng.range(1.25, 1.35))
+                    Vector3::new(
+                        rng.range(0.2, 0.9),
+                        rng.range(-0.2, 0.5),
+                        rng.range(1.25, 1.35),
+                    )
                 } else {
-                    Vector3::new(rng.range(-1.8, 1.8), rng.range(-1.3, 1.3), rng.range(3.4, 3.8))
+                    Vector3::new(
+                        rng.range(-1.8, 1.8),
+                        rng.range(-1.3, 1.3),
+                        rng.range(3.4, 3.8),
+                    )
                 };
                 let mut point_world = (world_from_camera * nalgebra::Point3::from(p_camera)).coords;
                 if on_box {
@@ -346,7 +362,8 @@ mod tests {
     fn the_prediction_gate_keeps_a_moving_box_from_dragging_the_pose() {
         let truth = se3::exp(&Vector6::new(0.05, -0.02, 0.1, 0.01, -0.02, 0.005));
         // The motion model predicted within a millimetre and a few hundredths of a degree.
-        let predicted = se3::exp(&Vector6::new(0.001, -0.0005, 0.0005, 0.0003, -0.0002, 0.0)) * truth;
+        let predicted =
+            se3::exp(&Vector6::new(0.001, -0.0005, 0.0005, 0.0003, -0.0002, 0.0)) * truth;
         let observations = wall_and_box(&truth, 40, 0.012, 7);
         let apart = |a: &Se3, b: &Se3| se3::log(&(a * b.inverse())).fixed_rows::<3>(0).norm();
         let free = optimise_pose(&camera(), &predicted, &observations);
@@ -355,11 +372,20 @@ mod tests {
         // sideways-step-and-turn direction).
         let wall = optimise_pose(&camera(), &predicted, &observations[40..]).camera_from_world;
         let dragged = apart(&free.camera_from_world, &wall);
-        assert!(dragged > 0.01, "without the gate the box drags the pose {dragged} m");
+        assert!(
+            dragged > 0.01,
+            "without the gate the box drags the pose {dragged} m"
+        );
         let off = apart(&gated.camera_from_world, &wall);
-        assert!(off < 0.001, "with the gate the pose is {off} m from the wall's own");
+        assert!(
+            off < 0.001,
+            "with the gate the pose is {off} m from the wall's own"
+        );
         let box_inliers = gated.inliers[..40].iter().filter(|&&i| i).count();
-        assert!(box_inliers <= 8, "{box_inliers} of the box's 40 points are inliers");
+        assert!(
+            box_inliers <= 8,
+            "{box_inliers} of the box's 40 points are inliers"
+        );
         assert!(gated.inliers[40..].iter().filter(|&&i| i).count() >= 340);
     }
 

@@ -120,9 +120,7 @@ impl Tracker {
         (points, kept): (&[Option<MapPointKey>], &mut [Option<MapPointKey>]),
     ) {
         let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
-            .then(|| {
-                optimise_pose_predicted(&self.camera, initial, observations, share)
-            })
+            .then(|| optimise_pose_predicted(&self.camera, initial, observations, share))
             .filter(|estimate| {
                 estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
             });
