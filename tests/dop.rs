@@ -79,11 +79,13 @@ fn dop_removes_the_walkers_and_beats_orb_slam2_behaviour() {
 }
 
 /// A box carried close to the camera from the first frame, in front of a flat wall
-/// that hardly tells a sideways step from a turn: the pose follows the box, so its
-/// points stay pose inliers and only the rigidity test, which needs no pose, sees
-/// them move (no detector knows a box).
+/// that hardly tells a sideways step from a turn (no detector knows a box). Without
+/// the rigidity test and the prediction gate the pose follows the box, so its points
+/// stay pose inliers. The rigidity test, which needs no pose, sees them move; the
+/// prediction gate keeps them out of the pose from their first frame of motion; each
+/// alone and both together keep the box from dragging the pose.
 #[test]
-fn the_rigidity_test_keeps_a_box_the_pose_follows_out_of_it() {
+fn the_rigidity_test_and_the_prediction_gate_keep_a_box_out_of_the_pose() {
     let path =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/unknown_movers_close.toml");
     let mut synth = SynthConfig::load(&path).unwrap();
@@ -91,31 +93,46 @@ fn the_rigidity_test_keeps_a_box_the_pose_follows_out_of_it() {
     let base = common::temp_dir("dop-rigidity");
     let seq = base.join("seq");
     generate(&synth, &seq, false).unwrap();
-    let mut config = Config::default();
-    config.detector.source = Source::None;
-    config.global.enabled = false;
-    let with = run_with(&seq, &config, &base.join("with"));
-    config.dop.rigidity_sigmas = 0.0;
-    let without = run_with(&seq, &config, &base.join("without"));
+    let run = |rigidity: bool, gate: bool, name: &str| {
+        let mut config = Config::default();
+        config.detector.source = Source::None;
+        config.global.enabled = false;
+        if !rigidity {
+            config.dop.rigidity_sigmas = 0.0;
+        }
+        if !gate {
+            config.tracking.prediction_gate_share = 0.0;
+        }
+        run_with(&seq, &config, &base.join(name))
+    };
+    let neither = run(false, false, "neither");
+    let rigidity = run(true, false, "rigidity");
+    let gate = run(false, true, "gate");
+    let both = run(true, true, "both");
     let rmse = |r: &RunReport| r.ate.as_ref().unwrap().ape.statistics.rmse;
     let moved =
         |r: &RunReport| -> usize { r.frames.iter().map(|f| f.tracking.rigidity_outliers).sum() };
     eprintln!(
-        "ATE RMSE: without the rigidity test {:.4} m, with it {:.4} m ({} points found moved)",
-        rmse(&without),
-        rmse(&with),
-        moved(&with)
+        "ATE RMSE: neither {:.4} m, rigidity test {:.4} m ({} points found moved), \
+         prediction gate {:.4} m, both {:.4} m",
+        rmse(&neither),
+        rmse(&rigidity),
+        moved(&rigidity),
+        rmse(&gate),
+        rmse(&both)
     );
-    assert_eq!(moved(&without), 0);
-    assert!(moved(&with) > 0);
+    assert_eq!(moved(&neither), 0);
+    assert!(moved(&rigidity) > 0 && moved(&both) > 0);
     assert!(
-        rmse(&without) > 0.05,
+        rmse(&neither) > 0.05,
         "the box no longer drags the pose: {}",
-        rmse(&without)
+        rmse(&neither)
     );
-    assert!(
-        rmse(&with) < 0.03,
-        "with the rigidity test: {} m",
-        rmse(&with)
-    );
+    for (name, report) in [
+        ("rigidity test", &rigidity),
+        ("prediction gate", &gate),
+        ("both", &both),
+    ] {
+        assert!(rmse(report) < 0.03, "with the {name}: {} m", rmse(report));
+    }
 }
