@@ -75,7 +75,7 @@ const ITERATIONS: usize = 10;
 /// The prediction gate's share of the \(\chi^2_{0.95}\) gate (see the module's notes).
 /// Measured on `unknown_movers_close` (`--deterministic`, seeds 1 and 2): the full gate
 /// let the box's slowest points in (ATE 12.1 and 14.6 mm), a half kept them out (2.0
-/// and 1.7 mm), a quarter left too few points to start from (11.6 and 8.3 mm).
+/// and 1.7 mm), a quarter was worse again (11.6 and 8.3 mm).
 pub const PREDICTION_GATE_FACTOR: f64 = 0.5;
 /// Fewest observations the prediction gate starts from.
 const PREDICTION_GATE_MIN: usize = 10;
