@@ -104,8 +104,18 @@ fn squared(e: &Vector3<f64>, stereo: bool, information: f64) -> f64 {
 /// Whether `observation` reprojects within the \(\chi^2_{0.95}\) gate from `pose`
 /// (the test that makes an inlier).
 pub fn within_gate(camera: &StereoCamera, pose: &Se3, observation: &PoseObservation) -> bool {
+    within_share_of_gate(camera, pose, observation, 1.0)
+}
+
+/// Whether `observation` reprojects within `share` of its gate from `pose`.
+fn within_share_of_gate(
+    camera: &StereoCamera,
+    pose: &Se3,
+    observation: &PoseObservation,
+    share: f64,
+) -> bool {
     error(camera, pose, observation).is_some_and(|(e, _)| {
-        squared(&e, observation.stereo, observation.information) <= gate(observation)
+        squared(&e, observation.stereo, observation.information) <= share * gate(observation)
     })
 }
 
@@ -253,11 +263,7 @@ fn prediction_gate(
     }
     let agree: Vec<bool> = observations
         .iter()
-        .map(|o| {
-            error(camera, predicted, o).is_some_and(|(e, _)| {
-                squared(&e, o.stereo, o.information) <= PREDICTION_GATE_FACTOR * gate(o)
-            })
-        })
+        .map(|o| within_share_of_gate(camera, predicted, o, PREDICTION_GATE_FACTOR))
         .collect();
     let n = agree.iter().filter(|&&a| a).count();
     if n >= PREDICTION_GATE_MIN && n as f64 >= share * observations.len() as f64 {
