@@ -4,14 +4,13 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use common::{dopslam, sorted_files as sorted};
 
 /// A six-frame static room in a fresh folder.
-fn room(name: &str) -> PathBuf {
-    let base = common::temp_dir(name);
-    let seq = base.join("seq");
+fn room(name: &str) -> common::TestDir {
+    let seq = common::temp_dir(name).child("seq");
     common::synth_static_room(&seq, 6);
     seq
 }

@@ -18,7 +18,7 @@ use dopslam::synth::{generate, SynthConfig};
 
 /// The first `frames` frames of synth preset `name` (without its frame timing), in a
 /// new folder `seq` under a temporary folder named `dir`: (that folder, `seq`).
-fn preset_sequence(name: &str, frames: usize, dir: &str) -> (PathBuf, PathBuf) {
+fn preset_sequence(name: &str, frames: usize, dir: &str) -> (common::TestDir, PathBuf) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("configs/synth/{name}.toml"));
     let mut synth = SynthConfig::load(&path).unwrap();
     synth.sequence.timing = None;

@@ -19,7 +19,7 @@ fn a_revisited_place_ranks_its_true_match_first() {
     let mut config = SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
     config.sequence.frames = 31;
     config.sequence.fps = 1.0;
-    let seq = common::temp_dir("global-place").join("seq");
+    let seq = common::temp_dir("global-place").child("seq");
     generate(&config, &seq, false).unwrap();
     let extractor = dopslam::features::OrbExtractor::new(&dopslam::config::Config::default().orb);
     let frames = common::sorted_files(&seq.join("rgb"));
@@ -72,7 +72,7 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
     // machine made the test fail).
     synth.sequence.frames = 340;
     synth.sequence.fps = 10.0;
-    let seq = common::temp_dir("global-thread").join("seq");
+    let seq = common::temp_dir("global-thread").child("seq");
     generate(&synth, &seq, false).unwrap();
     let mut config = dopslam::config::Config::default();
     config.detector.source = dopslam::detect::Source::None;

@@ -40,7 +40,7 @@ fn write_tum_folder(root: &Path, frames: usize) {
 
 #[test]
 fn tum_layout_loads_lazily_with_scaled_depth() {
-    let root = common::temp_dir("tum-layout").join("rgbd_dataset_freiburg3_test");
+    let root = common::temp_dir("tum-layout").child("rgbd_dataset_freiburg3_test");
     write_tum_folder(&root, 5);
     let sequence = TumSequence::open(&root, &TumOptions::default()).unwrap();
     assert_eq!(sequence.len(), 5);

@@ -4,14 +4,16 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::OnceLock;
 
 use common::{dopslam, temp_dir};
 
 /// A 40-frame street (KITTI 00-02 intrinsics and baseline), generated once.
 fn street() -> &'static Path {
-    static STREET: OnceLock<PathBuf> = OnceLock::new();
+    // Kept for the whole process (a static is never dropped): tools/test.sh removes
+    // the temporary folder it gives the test run.
+    static STREET: OnceLock<common::TestDir> = OnceLock::new();
     STREET.get_or_init(|| {
         let dir = temp_dir("stereo-street");
         let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/street_demo.toml");
@@ -25,7 +27,7 @@ fn street() -> &'static Path {
             "40",
         ]);
         assert!(ok, "{err}");
-        dir.join("kitti/sequences/00")
+        dir.child("kitti/sequences/00")
     })
 }
 
@@ -70,9 +72,9 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
 }
 
 /// A three-frame copy of the street in the KITTI layout, to break.
-fn small_copy(name: &str) -> PathBuf {
+fn small_copy(name: &str) -> common::TestDir {
     let from = street();
-    let to = temp_dir(name).join("00");
+    let to = temp_dir(name).child("00");
     for sub in ["image_0", "image_1"] {
         std::fs::create_dir_all(to.join(sub)).unwrap();
         for i in 0..3 {

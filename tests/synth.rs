@@ -53,7 +53,7 @@ fn same_seed_gives_identical_files_and_refuses_to_overwrite() {
 
 #[test]
 fn depth_back_projects_onto_the_scene() {
-    let out = common::temp_dir("synth-consistency").join("static_room");
+    let out = common::temp_dir("synth-consistency").child("static_room");
     let mut config = small_config(4);
     config.sensor.depth_noise = false;
     config.sensor.disparity_step = 0.0;
@@ -119,7 +119,7 @@ fn bad_input_is_refused() {
 
 #[test]
 fn masks_match_the_movers_and_detections_box_them() {
-    let out = common::temp_dir("synth-movers").join("walking");
+    let out = common::temp_dir("synth-movers").child("walking");
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/walking_xyz.toml");
     let mut config = SynthConfig::load(&path).unwrap();
     config.sequence.frames = 30;

@@ -4,18 +4,18 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use dopslam::config::Config;
 use dopslam::run::{open_sequence, run_sequence, RunOptions};
 use dopslam::synth::{generate, SynthConfig};
 
-fn static_room(frames: usize, name: &str) -> PathBuf {
+fn static_room(frames: usize, name: &str) -> common::TestDir {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
     let mut config = SynthConfig::load(&path).unwrap();
     config.sequence.frames = frames;
-    let out = common::temp_dir(name).join("seq");
+    let out = common::temp_dir(name).child("seq");
     generate(&config, &out, false).unwrap();
     out
 }
@@ -245,7 +245,7 @@ fn a_covered_lens_starts_a_map_segment_that_the_loop_merges() {
     let mut synth = SynthConfig::load(&path).unwrap();
     synth.sequence.frames = 300;
     synth.sequence.fps = 10.0;
-    let seq = common::temp_dir("track-segments").join("seq");
+    let seq = common::temp_dir("track-segments").child("seq");
     generate(&synth, &seq, false).unwrap();
     let colour = common::sorted_files(&seq.join("rgb"));
     let depth = common::sorted_files(&seq.join("depth"));
@@ -302,7 +302,7 @@ fn keyframes_get_their_detections_from_the_detection_worker() {
         let out = base.join(format!("run-{deterministic}"));
         let options = RunOptions {
             deterministic,
-            sequence_dir: Some(seq.clone()),
+            sequence_dir: Some(seq.to_path_buf()),
             ..RunOptions::default()
         };
         let report = run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();

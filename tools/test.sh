@@ -9,6 +9,15 @@ cd "$(dirname "$0")/.."
 bash tools/setup.sh --no-demo
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
+# The tests write their synthetic sequences under one temporary folder of this run,
+# removed when the run ends, however it ends (each test also removes its own).
+TMPDIR=$(mktemp -d "${TMPDIR:-/tmp}/dopslam-tests.XXXXXX")
+export TMPDIR
+trap 'rm -rf "$TMPDIR"' EXIT
+free_mib=$(df -Pm "$TMPDIR" | awk 'NR == 2 { print $4 }')
+if [ "${free_mib:-0}" -lt 2048 ]; then
+  echo "warning: ${free_mib} MiB free under $TMPDIR; the tests write up to about 0.5 GiB there at a time" >&2
+fi
 cargo test --release "${CARGO_FEATURES[@]}"
 # The batch on a real one-node Slurm cluster (DOPSLAM_SKIP_SLURM=1 skips it, saying so).
 bash tools/test_slurm.sh ./target/release/dopslam

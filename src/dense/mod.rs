@@ -991,5 +991,8 @@ mod tests {
             error.contains("line 2") && error.contains(names::SEGMENTS),
             "{error}"
         );
+        for name in ["two", "one", "bad"] {
+            let _ = std::fs::remove_dir_all(run_with_segments(name, ""));
+        }
     }
 }

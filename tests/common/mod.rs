@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// The real reference data beside the checkout (`../shared/data`), or where
 /// `DOPSLAM_SHARED_DATA` points. `None` (with a message saying why the test skips)
@@ -21,12 +21,54 @@ pub fn shared_data(test: &str) -> Option<PathBuf> {
     }
 }
 
-/// A fresh, empty temporary folder for one test.
-pub fn temp_dir(name: &str) -> PathBuf {
+/// A test's temporary folder: removed with everything in it when dropped (also when
+/// the test fails), unless `DOPSLAM_KEEP_TEST_DIRS` is set. A whole run writes some
+/// gigabytes of synthetic sequences; left behind they fill the disk of the next run.
+/// It dereferences to the folder, or to the path inside it that [`TestDir::child`] chose.
+#[must_use = "the folder is removed when this is dropped"]
+pub struct TestDir {
+    root: PathBuf,
+    path: PathBuf,
+}
+
+impl TestDir {
+    /// The same guard, dereferencing to `name` inside the folder (not created here).
+    pub fn child(mut self, name: &str) -> TestDir {
+        self.path = self.path.join(name);
+        self
+    }
+}
+
+impl std::ops::Deref for TestDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl AsRef<Path> for TestDir {
+    fn as_ref(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for TestDir {
+    fn drop(&mut self) {
+        if std::env::var_os("DOPSLAM_KEEP_TEST_DIRS").is_none() {
+            let _ = std::fs::remove_dir_all(&self.root);
+        }
+    }
+}
+
+/// A fresh, empty temporary folder for one test, removed when the returned guard drops.
+pub fn temp_dir(name: &str) -> TestDir {
     let dir = std::env::temp_dir().join(format!("dopslam-it-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    TestDir {
+        root: dir.clone(),
+        path: dir,
+    }
 }
 
 /// The files of a folder, sorted by name.
