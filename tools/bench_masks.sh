@@ -10,8 +10,11 @@
 # against the sequence's movers.ply (mover points). One JSON line per run and variant
 # goes to OUT/rows.jsonl; tools/masks_table.py prints the medians.
 #
-#   bash tools/bench_masks.sh [--seeds N] [--jobs J] [--frames F] [--out DIR] [PRESET ...]
+#   bash tools/bench_masks.sh [--seeds N] [--jobs J] [--frames F] [--variants "V ..."]
+#                             [--out DIR] [PRESET ...]
 #
+# --variants: which of off, near, on to fuse (default all three; "on" alone measures
+# the default masks at a third of the time).
 # --frames F: the first F frames of each preset only (a quick check of the script).
 # Default presets: the five cut-out presets and the two non-COCO ones. Seeds 1001,
 # 1002, ... beside each preset's own. DOPSLAM_BIN: the binary (default
@@ -22,15 +25,20 @@ bin=${DOPSLAM_BIN:-./target/release/dopslam}
 seeds=5
 jobs=1
 frames_text=""
+variants="off near on"
 out=outputs/bench/masks
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds=$2; shift 2 ;;
     --jobs) jobs=$2; shift 2 ;;
     --frames) frames_text="--frames $2"; shift 2 ;;
+    --variants) variants=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     *) break ;;
   esac
+done
+for variant in $variants; do
+  case "$variant" in off | near | on) ;; *) echo "--variants: '$variant' is not off, near or on" >&2; exit 2 ;; esac
 done
 presets=("$@")
 [ ${#presets[@]} -gt 0 ] || presets=(cutout_xyz cutout_static cutout_rpy cutout_halfsphere cutout_seated_leaves unknown_movers unknown_movers_close)
@@ -53,7 +61,7 @@ one() {
   [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" "${seed_args[@]}" ${frames[@]+"${frames[@]}"} --out "$seq" --force >/dev/null
   rm -rf "$run"
   "$bin" run "$seq" --out "$run" --no-dense --dop --detections onnx >"$run.log" 2>&1 || { echo "failed: $run.log" >&2; return; }
-  for variant in off near on; do
+  for variant in $variants; do
     "$bin" fuse "$run" --config "$out/$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
     cp "$run/dense.json" "$run/dense-$variant.json"
     "$bin" fuse "$run" --config "$out/points-$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
@@ -83,7 +91,7 @@ PY
   rm -rf "$run/compare-off" "$run/compare-near" "$run/compare-on"
 }
 export -f one
-export bin out frames_text
+export bin out frames_text variants
 rm -f "$out/rows.jsonl"
 for preset in "${presets[@]}"; do
   for ((s = 1; s <= seeds; s++)); do echo "$preset $s"; done
