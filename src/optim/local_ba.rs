@@ -256,134 +256,22 @@ fn levenberg_marquardt(
     robust: bool,
     iterations: usize,
 ) -> f64 {
-    // Free poses get consecutive indices in the reduced system.
-    let mut free_index = vec![usize::MAX; problem.poses.len()];
-    let mut free = 0;
-    for (i, fixed) in problem.fixed.iter().enumerate() {
-        if !fixed {
-            free_index[i] = free;
-            free += 1;
-        }
-    }
-    let n_points = problem.points.len();
-    // The pattern of the reduced camera system: free poses that share an active point.
-    let mut cameras_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
-    for (o, _) in problem.observations.iter().zip(active).filter(|(_, &a)| a) {
-        let c = free_index[o.camera];
-        if c != usize::MAX {
-            cameras_of[o.point].push(c);
-        }
-    }
-    let pairs = cameras_of.iter().flat_map(|cams| {
-        cams.iter()
-            .enumerate()
-            .flat_map(move |(a, &c1)| cams[..a].iter().map(move |&c2| (c1, c2)))
-    });
-    let Some(pattern) = BlockPattern::new(free, 6, pairs) else {
+    let Some(layout) = SchurLayout::new(problem, active) else {
         return cost(problem, camera, active, robust);
     };
-    // The active observations of each point, in observation order.
-    let mut observations_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
-    for (i, _) in active.iter().enumerate().filter(|(_, &a)| a) {
-        observations_of[problem.observations[i].point].push(i);
-    }
-    // Each point's pair slots, in the order the Schur loop visits them (the coupling
-    // blocks of a point follow its observations of free poses, one each).
-    let slots: Vec<Vec<(usize, bool)>> = observations_of
-        .par_iter()
-        .map(|indices| {
-            let cameras: Vec<usize> = indices
-                .iter()
-                .map(|&i| free_index[problem.observations[i].camera])
-                .filter(|&c| c != usize::MAX)
-                .collect();
-            let mut s = Vec::with_capacity(cameras.len() * (cameras.len() + 1) / 2);
-            for (a, &c1) in cameras.iter().enumerate() {
-                for &c2 in &cameras[..=a] {
-                    s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
-                }
-            }
-            s
-        })
-        .collect();
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
-        let NormalBlocks {
-            u,
-            b_pose,
-            v,
-            b_point,
-            coupling,
-        } = linearise(
+        let blocks = linearise(
             problem,
             camera,
-            (&observations_of, &free_index, free),
+            (&layout.observations_of, &layout.free_index, layout.free),
             robust,
         );
         let mut accepted = false;
         for _ in 0..8 {
-            let damped_v: Vec<Option<Matrix3<f64>>> = v
-                .iter()
-                .map(|m| {
-                    let mut d = *m;
-                    for k in 0..3 {
-                        d[(k, k)] += lambda * m[(k, k)] + 1e-12;
-                    }
-                    d.try_inverse()
-                })
-                .collect();
-            // Reduced camera system S = U - W V^{-1} W^T, accumulated per point over a
-            // fixed number of chunks in parallel (each its own copy of the values), then
-            // summed in chunk order: the sum does not depend on the thread count, so
-            // deterministic runs repeat exactly on any machine.
-            let chunk = n_points.div_ceil(SCHUR_CHUNKS).max(1);
-            let partials: Vec<(Vec<f64>, DVector<f64>)> = (0..n_points.div_ceil(chunk))
-                .into_par_iter()
-                .map(|c| {
-                    let mut values = pattern.zeros();
-                    let mut rhs = DVector::<f64>::zeros(6 * free);
-                    for j in c * chunk..((c + 1) * chunk).min(n_points) {
-                        let Some(v_inv) = damped_v[j] else {
-                            continue;
-                        };
-                        let blocks = &coupling[j];
-                        let mut pair = slots[j].iter();
-                        for (a, &(c1, w1)) in blocks.iter().enumerate() {
-                            let w1_vinv = w1 * v_inv;
-                            let mut rows = rhs.fixed_rows_mut::<6>(6 * c1);
-                            rows += w1_vinv * b_point[j];
-                            for &(_, w2) in &blocks[..=a] {
-                                let slot = *pair.next().expect("one slot per pair");
-                                let m: Matrix6<f64> = -(w1_vinv * w2.transpose());
-                                pattern.add_at(&mut values, slot, m.as_slice());
-                            }
-                        }
-                    }
-                    (values, rhs)
-                })
-                .collect();
-            let mut reduced = (pattern.zeros(), DVector::<f64>::zeros(6 * free));
-            for (values, rhs) in partials {
-                for (x, y) in reduced.0.iter_mut().zip(&values) {
-                    *x += y;
-                }
-                reduced.1 += rhs;
-            }
-            let (mut values, schur_rhs) = reduced;
-            let mut rhs = DVector::<f64>::zeros(6 * free);
-            for c in 0..free {
-                let mut rows = rhs.fixed_rows_mut::<6>(6 * c);
-                rows += b_pose[c];
-                // Damp the pose diagonal with the undamped U only.
-                let mut d = u[c];
-                for k in 0..6 {
-                    d[(k, k)] += lambda * u[c][(k, k)] + 1e-12;
-                }
-                pattern.add(&mut values, c, c, d.as_slice());
-            }
-            rhs -= schur_rhs;
-            let Some(delta_pose) = pattern.solve(&values, &rhs) else {
+            let damped_v = damped_point_inverses(&blocks.v, lambda);
+            let Some(delta_pose) = solve_poses(&layout, &blocks, &damped_v, lambda) else {
                 lambda *= 10.0;
                 continue;
             };
@@ -394,22 +282,7 @@ fn levenberg_marquardt(
                 points: problem.points.clone(),
                 observations: std::mem::take(&mut problem.observations),
             };
-            for (i, pose) in candidate.poses.iter_mut().enumerate() {
-                let c = free_index[i];
-                if c != usize::MAX {
-                    let d: Vector6<f64> = delta_pose.fixed_rows::<6>(6 * c).into_owned();
-                    *pose = se3::normalised(&(se3::exp(&d) * *pose));
-                }
-            }
-            for j in 0..n_points {
-                let Some(v_inv) = damped_v[j] else { continue };
-                let mut r = b_point[j];
-                for &(c, w) in &coupling[j] {
-                    let d: Vector6<f64> = delta_pose.fixed_rows::<6>(6 * c).into_owned();
-                    r -= w.transpose() * d;
-                }
-                candidate.points[j] += v_inv * r;
-            }
+            apply_step(&mut candidate, &layout, &blocks, &damped_v, &delta_pose);
             let candidate_cost = cost(&candidate, camera, active, robust);
             problem.observations = std::mem::take(&mut candidate.observations);
             if candidate_cost < current {
@@ -428,6 +301,188 @@ fn levenberg_marquardt(
         }
     }
     current
+}
+
+/// What stays fixed over one solve: the free poses' indices in the reduced system
+/// (`usize::MAX` for a fixed pose), the reduced camera system's block pattern (free
+/// poses that share an active point), each point's active observations in observation
+/// order, and each point's pair slots in the order the Schur loop visits them.
+struct SchurLayout {
+    free_index: Vec<usize>,
+    free: usize,
+    pattern: BlockPattern,
+    observations_of: Vec<Vec<usize>>,
+    slots: Vec<Vec<(usize, bool)>>,
+}
+
+impl SchurLayout {
+    /// `None` when no free pose shares a point (nothing to solve).
+    fn new(problem: &BaProblem, active: &[bool]) -> Option<SchurLayout> {
+        let mut free_index = vec![usize::MAX; problem.poses.len()];
+        let mut free = 0;
+        for (i, fixed) in problem.fixed.iter().enumerate() {
+            if !fixed {
+                free_index[i] = free;
+                free += 1;
+            }
+        }
+        let n_points = problem.points.len();
+        let mut cameras_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
+        for (o, _) in problem.observations.iter().zip(active).filter(|(_, &a)| a) {
+            let c = free_index[o.camera];
+            if c != usize::MAX {
+                cameras_of[o.point].push(c);
+            }
+        }
+        let pairs = cameras_of.iter().flat_map(|cams| {
+            cams.iter()
+                .enumerate()
+                .flat_map(move |(a, &c1)| cams[..a].iter().map(move |&c2| (c1, c2)))
+        });
+        let pattern = BlockPattern::new(free, 6, pairs)?;
+        let mut observations_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
+        for (i, _) in active.iter().enumerate().filter(|(_, &a)| a) {
+            observations_of[problem.observations[i].point].push(i);
+        }
+        // The coupling blocks of a point follow its observations of free poses, one each.
+        let slots = observations_of
+            .par_iter()
+            .map(|indices| {
+                let cameras: Vec<usize> = indices
+                    .iter()
+                    .map(|&i| free_index[problem.observations[i].camera])
+                    .filter(|&c| c != usize::MAX)
+                    .collect();
+                let mut s = Vec::with_capacity(cameras.len() * (cameras.len() + 1) / 2);
+                for (a, &c1) in cameras.iter().enumerate() {
+                    for &c2 in &cameras[..=a] {
+                        s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
+                    }
+                }
+                s
+            })
+            .collect();
+        Some(SchurLayout {
+            free_index,
+            free,
+            pattern,
+            observations_of,
+            slots,
+        })
+    }
+}
+
+/// \((V_j + \lambda\,\mathrm{diag}(V_j))^{-1}\) per point (`None` where singular).
+fn damped_point_inverses(v: &[Matrix3<f64>], lambda: f64) -> Vec<Option<Matrix3<f64>>> {
+    v.iter()
+        .map(|m| {
+            let mut d = *m;
+            for k in 0..3 {
+                d[(k, k)] += lambda * m[(k, k)] + 1e-12;
+            }
+            d.try_inverse()
+        })
+        .collect()
+}
+
+/// The pose step \(\delta_T\) of the damped reduced camera system
+/// \((U + \lambda\,\mathrm{diag}(U) - W V_\lambda^{-1} W^\top)\,\delta_T = b_T - W V_\lambda^{-1} b_X\);
+/// `None` when the factorisation fails.
+fn solve_poses(
+    layout: &SchurLayout,
+    blocks: &NormalBlocks,
+    damped_v: &[Option<Matrix3<f64>>],
+    lambda: f64,
+) -> Option<DVector<f64>> {
+    let (mut values, schur_rhs) = schur_complement(layout, blocks, damped_v);
+    let mut rhs = DVector::<f64>::zeros(6 * layout.free);
+    for c in 0..layout.free {
+        let mut rows = rhs.fixed_rows_mut::<6>(6 * c);
+        rows += blocks.b_pose[c];
+        // Damp the pose diagonal with the undamped U only.
+        let mut d = blocks.u[c];
+        for k in 0..6 {
+            d[(k, k)] += lambda * blocks.u[c][(k, k)] + 1e-12;
+        }
+        layout.pattern.add(&mut values, c, c, d.as_slice());
+    }
+    rhs -= schur_rhs;
+    layout.pattern.solve(&values, &rhs)
+}
+
+/// \(-W V_\lambda^{-1} W^\top\) in the pattern's values and \(W V_\lambda^{-1} b_X\),
+/// accumulated per point over a fixed number of chunks in parallel (each its own copy
+/// of the values), then summed in chunk order: the sum does not depend on the thread
+/// count, so deterministic runs repeat exactly on any machine.
+fn schur_complement(
+    layout: &SchurLayout,
+    blocks: &NormalBlocks,
+    damped_v: &[Option<Matrix3<f64>>],
+) -> (Vec<f64>, DVector<f64>) {
+    let n_points = damped_v.len();
+    let pattern = &layout.pattern;
+    let chunk = n_points.div_ceil(SCHUR_CHUNKS).max(1);
+    let partials: Vec<(Vec<f64>, DVector<f64>)> = (0..n_points.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let mut values = pattern.zeros();
+            let mut rhs = DVector::<f64>::zeros(6 * layout.free);
+            let end = ((c + 1) * chunk).min(n_points);
+            for (j, v_inv) in damped_v.iter().enumerate().take(end).skip(c * chunk) {
+                let Some(v_inv) = *v_inv else {
+                    continue;
+                };
+                let coupling = &blocks.coupling[j];
+                let mut pair = layout.slots[j].iter();
+                for (a, &(c1, w1)) in coupling.iter().enumerate() {
+                    let w1_vinv = w1 * v_inv;
+                    let mut rows = rhs.fixed_rows_mut::<6>(6 * c1);
+                    rows += w1_vinv * blocks.b_point[j];
+                    for &(_, w2) in &coupling[..=a] {
+                        let slot = *pair.next().expect("one slot per pair");
+                        let m: Matrix6<f64> = -(w1_vinv * w2.transpose());
+                        pattern.add_at(&mut values, slot, m.as_slice());
+                    }
+                }
+            }
+            (values, rhs)
+        })
+        .collect();
+    let mut reduced = (pattern.zeros(), DVector::<f64>::zeros(6 * layout.free));
+    for (values, rhs) in partials {
+        for (x, y) in reduced.0.iter_mut().zip(&values) {
+            *x += y;
+        }
+        reduced.1 += rhs;
+    }
+    reduced
+}
+
+/// Applies \(\delta_T\) to the free poses (left perturbation) and the back-substituted
+/// \(\delta_X = V_\lambda^{-1}(b_X - W^\top \delta_T)\) to the points of `candidate`.
+fn apply_step(
+    candidate: &mut BaProblem,
+    layout: &SchurLayout,
+    blocks: &NormalBlocks,
+    damped_v: &[Option<Matrix3<f64>>],
+    delta_pose: &DVector<f64>,
+) {
+    for (i, pose) in candidate.poses.iter_mut().enumerate() {
+        let c = layout.free_index[i];
+        if c != usize::MAX {
+            let d: Vector6<f64> = delta_pose.fixed_rows::<6>(6 * c).into_owned();
+            *pose = se3::normalised(&(se3::exp(&d) * *pose));
+        }
+    }
+    for (j, v_inv) in damped_v.iter().enumerate() {
+        let Some(v_inv) = v_inv else { continue };
+        let mut r = blocks.b_point[j];
+        for &(c, w) in &blocks.coupling[j] {
+            let d: Vector6<f64> = delta_pose.fixed_rows::<6>(6 * c).into_owned();
+            r -= w.transpose() * d;
+        }
+        candidate.points[j] += v_inv * r;
+    }
 }
 
 /// Runs ORB-SLAM2's two passes: `first` iterations with the Huber kernel, then, without
