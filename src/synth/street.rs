@@ -186,191 +186,262 @@ pub fn build_street(
     appearance: &Appearance,
     seed: u64,
 ) -> (Scene, Vec<Mover>) {
-    let up = up_axis(poses);
-    let cameras: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
-    // The road follows the path's height (KITTI 00 climbs 11 m in its first 1000
-    // frames): everything stands on the road under its own path point.
-    let floor_under = |p: &Vector3<f64>| p[up.0] - up.1 * config.camera_height;
-    let (mut lo, mut hi) = (
-        Vector3::repeat(f64::INFINITY),
-        Vector3::repeat(f64::NEG_INFINITY),
-    );
-    for c in &cameras {
-        lo = lo.inf(c);
-        hi = hi.sup(c);
-    }
-    // The "room": ground well below the lowest road, a far sky above, distant facades
-    // all round; the road itself is slabs along the path (below).
-    let margin = config.half_width + 25.0;
-    let (mut min, mut max) = (lo.add_scalar(-margin), hi.add_scalar(margin));
-    let (low, high) = if up.1 > 0.0 { (lo, hi) } else { (hi, lo) };
-    let ground = low[up.0] - up.1 * (config.camera_height + ROAD_THICKNESS);
-    let sky = high[up.0] + up.1 * 30.0;
-    (min[up.0], max[up.0]) = (ground.min(sky), ground.max(sky));
-    let mut scene = Scene {
-        room: Cuboid {
-            min,
-            max,
-            texture: 1,
-        },
-        furniture: Vec::new(),
-        look: super::scene::Look::Blocks,
+    let street = Street {
+        config,
+        poses,
+        up: up_axis(poses),
+        cameras: poses.iter().map(|p| p.translation.vector).collect(),
     };
+    let mut scene = street.room();
     let mut rng = Rng::new(seed ^ 0x57EE7);
-    for point in along_path(poses, up, config.building_spacing) {
-        for side in [-1.0, 1.0] {
-            let depth = rng.range(6.0, 10.0);
-            let setback = config.half_width + depth / 2.0 + rng.range(0.0, 3.0);
-            let centre = point.position + point.left * side * setback;
-            let dims = (
-                rng.range(0.8, 1.1) * config.building_spacing,
-                depth,
-                rng.range(config.building_height[0], config.building_height[1]),
-            );
-            // Sunk below the road so that no slope shows a gap under it.
-            let (min, size) = standing_box(
-                centre,
-                &point.heading,
-                (dims.0, dims.1, dims.2 + ROAD_THICKNESS),
-                up,
-                floor_under(&point.position) - up.1 * ROAD_THICKNESS,
-            );
-            if clear_of(&cameras, min, size, config.half_width) {
-                let texture = 2 + scene.furniture.len() as u32;
-                scene.furniture.push(Cuboid {
-                    min,
-                    max: min + size,
-                    texture,
-                });
-            }
-        }
-    }
-    let mut movers = Vec::new();
-    let car = |min: Vector3<f64>,
-               end: Vector3<f64>,
-               size: Vector3<f64>,
-               speed: f64,
-               phase: f64,
-               instance: u16| Mover {
-        instance,
-        class: "car".into(),
-        class_id: Some(2),
-        start: min,
-        end,
-        size,
-        speed,
-        phase,
-        behaviour: Behaviour::Walk {
-            pause: 0.0,
-            gait: None,
-        },
-        up,
-        appearance: Appearance::Box,
-    };
-    // Parked cars: a mover that never moves, so masks and oracle boxes call it a car.
-    for point in along_path(poses, up, config.parking_spacing) {
-        for side in [-1.0, 1.0] {
-            if rng.uniform() >= config.parked_share {
-                continue;
-            }
-            let centre = point.position + point.left * side * config.parking_offset;
-            let floor = floor_under(&point.position);
-            let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
-            if !clear_of(&cameras, min, size, config.parking_offset - 1.2) {
-                continue;
-            }
-            let instance = movers.len() as u16 + 1;
-            movers.push(car(min, min, size, 1.0, 0.0, instance));
-        }
-    }
-    let points = along_path(poses, up, 1.0);
+    street.add_buildings(&mut scene, &mut rng);
+    let mut movers = street.parked_cars(&mut rng);
+    let points = along_path(poses, street.up, 1.0);
     if points.is_empty() {
         return (scene, movers);
     }
-    let pick = |rng: &mut Rng| &points[(rng.next_u64() % points.len() as u64) as usize];
-    for i in 0..config.moving_cars {
-        // The other lane: 1.8 m to the left, 30 m each way along the heading, where
-        // that straight line keeps clear of the (possibly curving) camera path.
-        for _attempt in 0..20 {
-            let point = pick(&mut rng);
-            let centre = point.position + point.left * 1.8;
-            let floor = floor_under(&point.position);
-            let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
-            let (start, end) = (min - point.heading * 30.0, min + point.heading * 30.0);
-            let clear = (0..=30).all(|k| {
-                let at = start.lerp(&end, k as f64 / 30.0);
-                clear_of(&cameras, at, size, 1.2)
-            });
-            if clear {
-                let instance = movers.len() as u16 + 1;
-                movers.push(car(
-                    start,
-                    end,
-                    size,
-                    config.car_speed,
-                    2.9 * i as f64,
-                    instance,
-                ));
-                break;
-            }
-        }
-    }
-    for i in 0..config.pedestrians {
-        let point = pick(&mut rng);
-        let (start, end) = if i % 2 == 0 {
-            // Crossing the road 12 m ahead of where the camera passes.
-            let ahead = point.position + point.heading * 12.0;
-            (ahead + point.left * 5.0, ahead - point.left * 5.0)
-        } else {
-            let kerb = point.position - point.left * (config.parking_offset + 1.6);
-            (kerb - point.heading * 6.0, kerb + point.heading * 6.0)
-        };
-        let mut size = Vector3::repeat(0.45);
-        size[up.0] = 1.75;
-        let floor = floor_under(&point.position);
-        let corner = |p: Vector3<f64>| standing_corner(p, &size, up.0, up.1, floor);
-        movers.push(Mover {
-            instance: movers.len() as u16 + 1,
-            class: "person".into(),
-            class_id: Some(0),
-            start: corner(start),
-            end: corner(end),
-            size,
-            speed: config.pedestrian_speed,
-            phase: 1.3 * i as f64,
-            behaviour: Behaviour::Walk {
-                pause: 0.0,
-                gait: Some(1.4),
-            },
-            up,
-            appearance: appearance.clone(),
-        });
-    }
+    street.add_moving_cars(&points, &mut movers, &mut rng);
+    street.add_pedestrians(&points, appearance, &mut movers, &mut rng);
     let driving: Vec<Cuboid> = movers
         .iter()
         .filter(|m| m.start != m.end)
         .map(Mover::swept_box)
         .collect();
-    scene.make_room_for(&driving, up.0, 0.3);
-    // The road: a slab under every few metres of path, its top `camera_height` below
-    // the cameras there, wide enough to reach the buildings.
-    let reach = config.half_width + 12.0;
-    for point in along_path(poses, up, config.road_spacing) {
-        let top = floor_under(&point.position);
-        let (min, size) = standing_box(
-            point.position,
-            &point.heading,
-            (config.road_spacing * 1.5, 2.0 * reach, ROAD_THICKNESS),
-            up,
-            top - up.1 * ROAD_THICKNESS,
-        );
-        scene.furniture.push(Cuboid {
-            min,
-            max: min + size,
-            texture: 1,
-        });
-    }
+    scene.make_room_for(&driving, street.up.0, 0.3);
+    street.add_road(&mut scene);
     (scene, movers)
+}
+
+/// What every part of the street is placed by: the config, the camera path, its up
+/// axis (index, sign) and the cameras' centres.
+struct Street<'a> {
+    config: &'a StreetConfig,
+    poses: &'a [Se3],
+    up: (usize, f64),
+    cameras: Vec<Vector3<f64>>,
+}
+
+impl Street<'_> {
+    /// The road's height under a path point: the road follows the path's height (KITTI
+    /// 00 climbs 11 m in its first 1000 frames), and everything stands on the road under
+    /// its own path point.
+    fn floor_under(&self, p: &Vector3<f64>) -> f64 {
+        p[self.up.0] - self.up.1 * self.config.camera_height
+    }
+
+    /// The "room": ground well below the lowest road, a far sky above, distant facades
+    /// all round; the road itself is slabs along the path ([`Street::add_road`]).
+    fn room(&self) -> Scene {
+        let (config, up) = (self.config, self.up);
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for c in &self.cameras {
+            lo = lo.inf(c);
+            hi = hi.sup(c);
+        }
+        let margin = config.half_width + 25.0;
+        let (mut min, mut max) = (lo.add_scalar(-margin), hi.add_scalar(margin));
+        let (low, high) = if up.1 > 0.0 { (lo, hi) } else { (hi, lo) };
+        let ground = low[up.0] - up.1 * (config.camera_height + ROAD_THICKNESS);
+        let sky = high[up.0] + up.1 * 30.0;
+        (min[up.0], max[up.0]) = (ground.min(sky), ground.max(sky));
+        Scene {
+            room: Cuboid {
+                min,
+                max,
+                texture: 1,
+            },
+            furniture: Vec::new(),
+            look: super::scene::Look::Blocks,
+        }
+    }
+
+    /// A building on each side of every `building_spacing` metres of path, where it
+    /// keeps clear of the cameras.
+    fn add_buildings(&self, scene: &mut Scene, rng: &mut Rng) {
+        let (config, up) = (self.config, self.up);
+        for point in along_path(self.poses, up, config.building_spacing) {
+            for side in [-1.0, 1.0] {
+                let depth = rng.range(6.0, 10.0);
+                let setback = config.half_width + depth / 2.0 + rng.range(0.0, 3.0);
+                let centre = point.position + point.left * side * setback;
+                let dims = (
+                    rng.range(0.8, 1.1) * config.building_spacing,
+                    depth,
+                    rng.range(config.building_height[0], config.building_height[1]),
+                );
+                // Sunk below the road so that no slope shows a gap under it.
+                let (min, size) = standing_box(
+                    centre,
+                    &point.heading,
+                    (dims.0, dims.1, dims.2 + ROAD_THICKNESS),
+                    up,
+                    self.floor_under(&point.position) - up.1 * ROAD_THICKNESS,
+                );
+                if clear_of(&self.cameras, min, size, config.half_width) {
+                    let texture = 2 + scene.furniture.len() as u32;
+                    scene.furniture.push(Cuboid {
+                        min,
+                        max: min + size,
+                        texture,
+                    });
+                }
+            }
+        }
+    }
+
+    /// A car box from `start` to `end` (equal for a parked car: a mover that never
+    /// moves, so that masks and oracle boxes call it a car).
+    fn car(
+        &self,
+        (start, end): (Vector3<f64>, Vector3<f64>),
+        size: Vector3<f64>,
+        speed: f64,
+        phase: f64,
+        instance: u16,
+    ) -> Mover {
+        Mover {
+            instance,
+            class: "car".into(),
+            class_id: Some(2),
+            start,
+            end,
+            size,
+            speed,
+            phase,
+            behaviour: Behaviour::Walk {
+                pause: 0.0,
+                gait: None,
+            },
+            up: self.up,
+            appearance: Appearance::Box,
+        }
+    }
+
+    /// Parked cars along both kerbs, each spot taken with probability `parked_share`.
+    fn parked_cars(&self, rng: &mut Rng) -> Vec<Mover> {
+        let (config, up) = (self.config, self.up);
+        let mut movers = Vec::new();
+        for point in along_path(self.poses, up, config.parking_spacing) {
+            for side in [-1.0, 1.0] {
+                if rng.uniform() >= config.parked_share {
+                    continue;
+                }
+                let centre = point.position + point.left * side * config.parking_offset;
+                let floor = self.floor_under(&point.position);
+                let (min, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), up, floor);
+                if !clear_of(&self.cameras, min, size, config.parking_offset - 1.2) {
+                    continue;
+                }
+                let instance = movers.len() as u16 + 1;
+                movers.push(self.car((min, min), size, 1.0, 0.0, instance));
+            }
+        }
+        movers
+    }
+
+    /// `moving_cars` cars in the other lane: 1.8 m to the left, 30 m each way along the
+    /// heading, where that straight line keeps clear of the (possibly curving) camera
+    /// path; up to 20 tries each.
+    fn add_moving_cars(&self, points: &[PathPoint], movers: &mut Vec<Mover>, rng: &mut Rng) {
+        for i in 0..self.config.moving_cars {
+            for _attempt in 0..20 {
+                let point = pick(points, rng);
+                let centre = point.position + point.left * 1.8;
+                let floor = self.floor_under(&point.position);
+                let (min, size) =
+                    standing_box(centre, &point.heading, (4.3, 1.8, 1.5), self.up, floor);
+                let (start, end) = (min - point.heading * 30.0, min + point.heading * 30.0);
+                let clear = (0..=30).all(|k| {
+                    let at = start.lerp(&end, k as f64 / 30.0);
+                    clear_of(&self.cameras, at, size, 1.2)
+                });
+                if clear {
+                    let instance = movers.len() as u16 + 1;
+                    let phase = 2.9 * i as f64;
+                    movers.push(self.car(
+                        (start, end),
+                        size,
+                        self.config.car_speed,
+                        phase,
+                        instance,
+                    ));
+                    break;
+                }
+            }
+        }
+    }
+
+    /// `pedestrians` people: every other one crosses the road 12 m ahead of where the
+    /// camera passes, the others walk along the far kerb.
+    fn add_pedestrians(
+        &self,
+        points: &[PathPoint],
+        appearance: &Appearance,
+        movers: &mut Vec<Mover>,
+        rng: &mut Rng,
+    ) {
+        let (config, up) = (self.config, self.up);
+        for i in 0..config.pedestrians {
+            let point = pick(points, rng);
+            let (start, end) = if i % 2 == 0 {
+                let ahead = point.position + point.heading * 12.0;
+                (ahead + point.left * 5.0, ahead - point.left * 5.0)
+            } else {
+                let kerb = point.position - point.left * (config.parking_offset + 1.6);
+                (kerb - point.heading * 6.0, kerb + point.heading * 6.0)
+            };
+            let mut size = Vector3::repeat(0.45);
+            size[up.0] = 1.75;
+            let floor = self.floor_under(&point.position);
+            let corner = |p: Vector3<f64>| standing_corner(p, &size, up.0, up.1, floor);
+            movers.push(Mover {
+                instance: movers.len() as u16 + 1,
+                class: "person".into(),
+                class_id: Some(0),
+                start: corner(start),
+                end: corner(end),
+                size,
+                speed: config.pedestrian_speed,
+                phase: 1.3 * i as f64,
+                behaviour: Behaviour::Walk {
+                    pause: 0.0,
+                    gait: Some(1.4),
+                },
+                up,
+                appearance: appearance.clone(),
+            });
+        }
+    }
+
+    /// The road: a slab under every few metres of path, its top `camera_height` below
+    /// the cameras there, wide enough to reach the buildings.
+    fn add_road(&self, scene: &mut Scene) {
+        let (config, up) = (self.config, self.up);
+        let reach = config.half_width + 12.0;
+        for point in along_path(self.poses, up, config.road_spacing) {
+            let top = self.floor_under(&point.position);
+            let (min, size) = standing_box(
+                point.position,
+                &point.heading,
+                (config.road_spacing * 1.5, 2.0 * reach, ROAD_THICKNESS),
+                up,
+                top - up.1 * ROAD_THICKNESS,
+            );
+            scene.furniture.push(Cuboid {
+                min,
+                max: min + size,
+                texture: 1,
+            });
+        }
+    }
+}
+
+/// A path point drawn uniformly from `points` (not empty).
+fn pick<'p>(points: &'p [PathPoint], rng: &mut Rng) -> &'p PathPoint {
+    &points[(rng.next_u64() % points.len() as u64) as usize]
 }
 
 #[cfg(test)]
