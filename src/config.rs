@@ -477,6 +477,8 @@ mod tests {
             ("[tracking]\nprediction_gate_share = nan\n", "tracking.prediction_gate_share"),
             ("[dop]\ngamma = inf\n", "dop.gamma"),
             ("[dense]\nvoxel = nan\n", "dense.voxel"),
+            ("[dense]\nmask_segment_radius_metres = -0.6\n", "dense.mask_segment_radius_metres"),
+            ("[dense]\nmask_segment_radius_metres = inf\n", "dense.mask_segment_radius_metres"),
             ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),
             ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
         ] {

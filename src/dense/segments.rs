@@ -6,7 +6,12 @@
 //! its depth segment: 4-neighbours \(q\) of a region pixel \(p\) join while
 //! \(|d_q - d_p| \le s\,d_p + 5\,\mathrm{mm}\) (no depth edge between them, step share
 //! \(s\)), \(|d_q - z_0| \le b\) (within the band \(b\) around the seed's depth
-//! \(z_0\)), and \(q\) lies within `radius` pixels of the seed (each axis).
+//! \(z_0\)), and \(q\) lies within \(r = \max(r_{px}, f R / z_0)\) pixels of the seed
+//! (each axis): at least `radius` pixels \(r_{px}\), and as far as a mover's half
+//! extent `radius_metres` \(R\) reaches at the seed's depth with focal length \(f\). A
+//! mover close to the camera fills much of the image (a box carried 1.3 m away is
+//! some 400 pixels wide); a fixed pixel radius wide enough for it lets the regions
+//! of false alarms on far walls grow over metres of static surface.
 //!
 //! A keypoint is found where texture is, often on a mover's outline, and its pixel may
 //! then be the background's: the seed is the nearest depth within `snap` pixels of it
@@ -27,8 +32,11 @@ use crate::io::image_files::DepthImage;
 /// How segments are grown and kept.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SegmentSettings {
-    /// Half side of the square a region may grow in, pixels.
+    /// Half side of the square a region may grow in, pixels: the least, see
+    /// `radius_metres`.
     pub radius: u32,
+    /// Half side of that square in metres at the seed's depth (0: `radius` only).
+    pub radius_metres: f32,
     /// Depth step share \(s\) that still joins two neighbours.
     pub step: f32,
     /// Depth band \(b\) around the seed's depth, metres.
@@ -53,6 +61,7 @@ impl Default for SegmentSettings {
     fn default() -> Self {
         Self {
             radius: 160,
+            radius_metres: 0.6,
             step: 0.02,
             band: 0.4,
             edge_share: 0.9,
@@ -62,6 +71,19 @@ impl Default for SegmentSettings {
             crease: 0.008,
             moving_share: 0.1,
         }
+    }
+}
+
+impl SegmentSettings {
+    /// \(r = \max(r_{px}, f R / z_0)\): the half side in pixels of the square a region
+    /// grown from a seed at depth `z0` (metres) may fill, with focal length `focal`.
+    fn radius_at(&self, z0: f32, focal: f32) -> i64 {
+        let metric = if z0 > 0.0 {
+            focal * self.radius_metres / z0
+        } else {
+            0.0
+        };
+        (self.radius as f32).max(metric) as i64
     }
 }
 
@@ -102,7 +124,7 @@ pub fn grow_segments(
     depth: &DepthImage,
     seeds: &[Seed],
     moving: Option<&[bool]>,
-    settings: &SegmentSettings,
+    (settings, focal): (&SegmentSettings, f32),
 ) -> Vec<Segment> {
     if seeds.is_empty() {
         // Most frames: no full-frame bookkeeping.
@@ -122,7 +144,7 @@ pub fn grow_segments(
             continue;
         }
         id += 1;
-        let region = grow(&mut owner, depth, start, id, settings);
+        let region = grow(&mut owner, depth, start, id, (settings, focal));
         let inside: Vec<&Seed> = seed_pixels
             .iter()
             .filter(|(pixel, _)| owner[*pixel] == id)
@@ -210,13 +232,13 @@ fn grow(
     depth: &DepthImage,
     start: usize,
     id: u32,
-    settings: &SegmentSettings,
+    (settings, focal): (&SegmentSettings, f32),
 ) -> Region {
     let (w, h) = (depth.width as usize, depth.height as usize);
     let d = &depth.metres;
     let (su, sv) = ((start % w) as i64, (start / w) as i64);
     let z0 = d[start];
-    let r = settings.radius as i64;
+    let r = settings.radius_at(z0, focal);
     let mut region = Region {
         pixels: vec![start],
         edges: 0,
@@ -304,10 +326,11 @@ mod tests {
         let mut mask = vec![false; depth.metres.len()];
         let settings = SegmentSettings {
             radius: 100,
+            radius_metres: 0.0,
             support: 2,
             ..SegmentSettings::default()
         };
-        for segment in grow_segments(depth, seeds, None, &settings) {
+        for segment in grow_segments(depth, seeds, None, (&settings, 500.0)) {
             for i in segment.pixels {
                 mask[i] = true;
             }
@@ -348,6 +371,48 @@ mod tests {
                 .count(),
             1200
         );
+    }
+
+    /// A box carried close to the camera (1 m, 260 pixels wide at focal length 500) in
+    /// front of a wall at 3 m: a 100-pixel radius stops its region short of its far
+    /// side, which then fails the border test; 0.6 m reach 300 pixels at its depth and
+    /// mask all of it. Seeds on the wall still grow nothing.
+    #[test]
+    fn a_close_box_wider_than_the_pixel_radius_is_masked_with_the_metric_radius() {
+        let (w, h) = (400usize, 200usize);
+        let mut depth = DepthImage::new(w as u32, h as u32);
+        for v in 0..h {
+            for u in 0..w {
+                let close = (20..280).contains(&u) && (40..160).contains(&v);
+                depth.metres[v * w + u] = if close { 1.0 } else { 3.0 };
+            }
+        }
+        let seeds = [(30.0, 50.0), (40.0, 60.0), (380.0, 20.0), (390.0, 30.0)].map(|(x, y)| Seed {
+            x,
+            y,
+            followed: false,
+            since: 0.0,
+        });
+        let masked = |radius_metres: f32| {
+            let settings = SegmentSettings {
+                radius: 100,
+                radius_metres,
+                support: 2,
+                ..SegmentSettings::default()
+            };
+            grow_segments(&depth, &seeds, None, (&settings, 500.0))
+                .iter()
+                .map(|s| s.pixels.len())
+                .sum::<usize>()
+        };
+        assert_eq!(
+            masked(0.0),
+            0,
+            "cut at 100 pixels, the region fails the border test"
+        );
+        assert_eq!(masked(0.6), 260 * 120, "the whole box, nothing of the wall");
+        assert_eq!(SegmentSettings::default().radius_at(1.3, 535.4), 247);
+        assert_eq!(SegmentSettings::default().radius_at(4.0, 535.4), 160);
     }
 
     /// A block standing on a floor: the concave crease where it meets the floor stops
