@@ -15,6 +15,8 @@
 #
 # --variants: which of off, near, on to fuse (default all three; "on" alone measures
 # the default masks at a third of the time).
+# --refuse: keep the tracking runs already in OUT/runs and only fuse them again (a
+# change to the dense pass, measured on the same trajectories; rows.jsonl is rewritten).
 # --frames F: the first F frames of each preset only (a quick check of the script).
 # Default presets: the five cut-out presets and the two non-COCO ones. Seeds 1001,
 # 1002, ... beside each preset's own. DOPSLAM_BIN: the binary (default
@@ -26,6 +28,7 @@ seeds=5
 jobs=1
 frames_text=""
 variants="off near on"
+refuse=0
 out=outputs/bench/masks
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -33,6 +36,7 @@ while [ $# -gt 0 ]; do
     --jobs) jobs=$2; shift 2 ;;
     --frames) frames_text="--frames $2"; shift 2 ;;
     --variants) variants=$2; shift 2 ;;
+    --refuse) refuse=1; shift ;;
     --out) out=$2; shift 2 ;;
     *) break ;;
   esac
@@ -59,8 +63,12 @@ one() {
   run=$out/runs/$preset-$s
   [ "$s" -gt 1 ] && seed_args=(--seed $((1000 + s - 1)))
   [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" "${seed_args[@]}" ${frames[@]+"${frames[@]}"} --out "$seq" --force >/dev/null
-  rm -rf "$run"
-  "$bin" run "$seq" --out "$run" --no-dense --dop --detections onnx >"$run.log" 2>&1 || { echo "failed: $run.log" >&2; return; }
+  if [ "$refuse" = 1 ]; then
+    [ -f "$run/report.json" ] || { echo "no tracking run to fuse again: $run" >&2; return; }
+  else
+    rm -rf "$run"
+    "$bin" run "$seq" --out "$run" --no-dense --dop --detections onnx >"$run.log" 2>&1 || { echo "failed: $run.log" >&2; return; }
+  fi
   for variant in $variants; do
     "$bin" fuse "$run" --config "$out/$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
     cp "$run/dense.json" "$run/dense-$variant.json"
@@ -91,7 +99,7 @@ PY
   rm -rf "$run/compare-off" "$run/compare-near" "$run/compare-on"
 }
 export -f one
-export bin out frames_text variants
+export bin out frames_text variants refuse
 rm -f "$out/rows.jsonl"
 for preset in "${presets[@]}"; do
   for ((s = 1; s <= seeds; s++)); do echo "$preset $s"; done
