@@ -144,7 +144,7 @@ pub struct DenseConfig {
     /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
     pub mask_segments: bool,
     pub mask_segment_radius: u32,
-    pub mask_segment_radius_metres: f64,
+    pub mask_segment_radius_metres: f32,
     pub mask_segment_edge_share: f32,
     pub mask_segment_support: usize,
     /// A kept segment seeds the next frames' growth for this many seconds after a
@@ -202,7 +202,7 @@ impl Default for DenseConfig {
             mask_disc_neighbours: 6,
             mask_segments: true,
             mask_segment_radius: segments.radius,
-            mask_segment_radius_metres: segments.radius_metres as f64,
+            mask_segment_radius_metres: segments.radius_metres,
             mask_segment_edge_share: segments.edge_share,
             mask_segment_support: segments.support,
             mask_segment_follow_seconds: 3.0,
@@ -239,7 +239,7 @@ impl DenseConfig {
         }
         for (name, value) in [
             ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
-            ("mask_segment_radius_metres", self.mask_segment_radius_metres),
+            ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
         ] {
@@ -606,7 +606,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
             segments: config.mask_segments.then(|| {
                 let settings = SegmentSettings {
                     radius: config.mask_segment_radius,
-                    radius_metres: config.mask_segment_radius_metres as f32,
+                    radius_metres: config.mask_segment_radius_metres,
                     edge_share: config.mask_segment_edge_share,
                     support: config.mask_segment_support,
                     ..SegmentSettings::default()
