@@ -26,6 +26,7 @@ Standard library only.
 import argparse
 import bisect
 import collections
+import functools
 import glob
 import json
 import os
@@ -52,7 +53,10 @@ def oracle(sequence):
     return [float(os.path.basename(f)[:-5]) for f in files], files
 
 
+@functools.lru_cache(maxsize=4096)
 def people_in(path):
+    """The oracle person boxes of one frame (each read once: the windows of nearby
+    misses overlap)."""
     with open(path) as f:
         return [d for d in json.load(f)["detections"] if d["class"] == "person"]
 

@@ -972,32 +972,28 @@ fn count_truth(
 mod tests {
     use super::*;
 
-    fn run_with_segments(name: &str, text: &str) -> std::path::PathBuf {
-        let dir =
-            std::env::temp_dir().join(format!("dopslam-segments-{name}-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        std::fs::write(RunDir::new(&dir).segments(), text).unwrap();
-        dir
-    }
-
     #[test]
     fn only_the_largest_unmerged_segment_is_fused() {
-        let dir = run_with_segments("two", "# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n");
-        let keep = largest_segment(&RunDir::new(&dir)).unwrap().expect("two segments");
+        let dir = std::env::temp_dir().join(format!("dopslam-segments-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let run = RunDir::new(&dir);
+        let with = |text: &str| {
+            std::fs::write(run.segments(), text).unwrap();
+            largest_segment(&run)
+        };
+        let keep = with("# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n")
+            .unwrap()
+            .expect("two segments");
         let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
         assert_eq!(keep, expected);
         // One segment (or no file): every frame.
-        let dir = run_with_segments("one", "1.0 0\n1.1 0\n");
-        assert_eq!(largest_segment(&RunDir::new(&dir)).unwrap(), None);
+        assert_eq!(with("1.0 0\n1.1 0\n").unwrap(), None);
         assert_eq!(largest_segment(&RunDir::new(dir.join("absent"))).unwrap(), None);
-        let dir = run_with_segments("bad", "1.0 0\n1.1 zero\n");
-        let error = largest_segment(&RunDir::new(&dir)).unwrap_err().to_string();
+        let error = with("1.0 0\n1.1 zero\n").unwrap_err().to_string();
         assert!(
             error.contains("line 2") && error.contains(names::SEGMENTS),
             "{error}"
         );
-        for name in ["two", "one", "bad"] {
-            let _ = std::fs::remove_dir_all(run_with_segments(name, ""));
-        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -145,17 +145,19 @@ struct NormalBlocks {
     coupling: Vec<Vec<(usize, Matrix6x3<f64>)>>,
 }
 
-/// The normal equations' blocks, from the active observations (`observations_of`, per
-/// point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
+/// The normal equations' blocks, from the active observations (the layout's
+/// `observations_of`, per point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
 /// point its coupling blocks \(W\) with the free poses (index in the reduced system).
 /// Points are linearised in parallel in a fixed number of chunks; the pose blocks are
 /// summed over the chunks in order, so the result does not depend on the thread count.
 fn linearise(
     problem: &BaProblem,
     camera: &StereoCamera,
-    (observations_of, free_index, free): (&[Vec<usize>], &[usize], usize),
+    layout: &SchurLayout,
     robust: bool,
 ) -> NormalBlocks {
+    let (observations_of, free_index, free) =
+        (&layout.observations_of, &layout.free_index, layout.free);
     type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
     type ChunkBlocks = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>);
     let chunks: Vec<ChunkBlocks> = observations_of
@@ -262,12 +264,7 @@ fn levenberg_marquardt(
     let mut current = cost(problem, camera, active, robust);
     let mut lambda = 1e-4;
     for _ in 0..iterations {
-        let blocks = linearise(
-            problem,
-            camera,
-            (&layout.observations_of, &layout.free_index, layout.free),
-            robust,
-        );
+        let blocks = linearise(problem, camera, &layout, robust);
         let mut accepted = false;
         for _ in 0..8 {
             let damped_v = damped_point_inverses(&blocks.v, lambda);
