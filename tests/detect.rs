@@ -450,6 +450,9 @@ fn a_pool_config_names_its_files_and_is_checked() {
     let mut bad = config.clone();
     bad.pool[0].score_threshold = Some(1.5);
     assert!(bad.validate().unwrap_err().contains("detector.pool[0].score_threshold"));
+    let mut factor = config.clone();
+    factor.border_score_factor = -0.5;
+    assert!(factor.validate().unwrap_err().contains("detector.border_score_factor"));
     let mut both = config.clone();
     both.model_path = Some("/x.onnx".into());
     assert!(both.validate().unwrap_err().contains("pool"));
@@ -457,4 +460,55 @@ fn a_pool_config_names_its_files_and_is_checked() {
     onnx.source = Source::Onnx;
     let error = onnx.resolved_source().unwrap_err().to_string();
     assert!(error.contains("/nowhere/d.onnx"), "{error}");
+}
+
+/// `[detector] border_score_factor`: with it, the boxes of the plain threshold are all
+/// still there, and every box more touches the image's left or right border with a
+/// score between the two thresholds (people cut by the border, in crops of real photos
+/// that cut them).
+#[test]
+fn border_boxes_are_kept_from_the_lower_threshold_only() {
+    let Some(shared) = common::shared_data("border score threshold") else {
+        return;
+    };
+    let Some(library) = library() else { return };
+    let model = repo("data/models/yolov4-tiny-320x256.onnx");
+    if !model.is_file() {
+        eprintln!(
+            "skipping: no {} (bash tools/setup.sh converts it)",
+            model.display()
+        );
+        return;
+    }
+    let (threshold, factor) = (0.15, 0.5);
+    let mut detector = load(&model, Layout::Yolov4, &library);
+    detector.score_threshold = threshold;
+    let mut more = 0;
+    for name in ["bus.jpg", "zidane.jpg", "person.jpg"] {
+        let photo = image::open(shared.join("frames/photos").join(name))
+            .unwrap()
+            .to_rgb8();
+        let (w, h) = photo.dimensions();
+        // Windows of two thirds of the width, from the left to the right edge.
+        for step in 0..5 {
+            let x = step * (w / 3) / 4;
+            let crop = image::imageops::crop_imm(&photo, x, 0, 2 * w / 3, h).to_image();
+            detector.border_score_factor = 1.0;
+            let plain = detector.detect(0.0, &crop).unwrap();
+            detector.border_score_factor = factor;
+            let with = detector.detect(0.0, &crop).unwrap();
+            for d in &plain {
+                assert!(with.contains(d), "{name} at {x}: {d:?} lost");
+            }
+            for d in with.iter().filter(|d| !plain.contains(d)) {
+                more += 1;
+                let touches = d.bbox[0] <= 2.0 || d.bbox[2] >= crop.width() as f32 - 2.0;
+                assert!(
+                    touches && d.score >= threshold * factor && d.score < threshold,
+                    "{name} at {x}: {d:?}"
+                );
+            }
+        }
+    }
+    assert!(more > 0, "no crop gave a border box between the thresholds");
 }

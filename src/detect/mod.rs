@@ -166,6 +166,10 @@ pub struct DetectorConfig {
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
     pub score_threshold: f32,
+    /// A box touching the image's left or right border is kept from this share of the
+    /// score threshold (each model's own in a pool): a person cut by the border scores
+    /// lower. 1 holds border boxes to the same threshold.
+    pub border_score_factor: f32,
     pub nms_threshold: f32,
     /// The folder of a detection cache (`source = "cache"`).
     pub cache_dir: Option<PathBuf>,
@@ -190,6 +194,7 @@ impl Default for DetectorConfig {
             ort_library: None,
             threads: 1,
             score_threshold: 0.15,
+            border_score_factor: 0.5,
             nms_threshold: 0.45,
             cache_dir: None,
             dynamic_classes: ["person", "bicycle", "car", "motorcycle", "bus", "truck"]
@@ -206,6 +211,7 @@ impl DetectorConfig {
     pub fn validate(&self) -> Result<(), String> {
         for (name, v) in [
             ("score_threshold", self.score_threshold),
+            ("border_score_factor", self.border_score_factor),
             ("nms_threshold", self.nms_threshold),
         ] {
             if !(0.0..=1.0).contains(&v) {
@@ -328,6 +334,7 @@ impl DetectorConfig {
                     self.threads,
                 )?;
                 detector.score_threshold = self.score_threshold;
+                detector.border_score_factor = self.border_score_factor;
                 detector.nms_threshold = self.nms_threshold;
                 Box::new(detector)
             }

@@ -10,7 +10,7 @@ use image::RgbImage;
 use ort::session::Session;
 use ort::value::Tensor;
 
-use super::yolo::{decode_end_to_end, non_maximum_suppression, Layout};
+use super::yolo::{decode_end_to_end, keep_confident, non_maximum_suppression, Layout};
 use super::{DetectError, Detection, Detector};
 
 /// Where the ONNX Runtime library is: `configured`, else `ORT_DYLIB_PATH`, else
@@ -73,6 +73,9 @@ pub struct PoolModel {
 pub struct OnnxDetector {
     networks: Vec<Network>,
     pub score_threshold: f32,
+    /// A box touching the image's left or right border is kept from this share of its
+    /// network's threshold ([`keep_confident`]).
+    pub border_score_factor: f32,
     pub nms_threshold: f32,
     /// Each network's time on the last image, milliseconds.
     last_ms: Vec<f64>,
@@ -120,6 +123,7 @@ impl OnnxDetector {
         let mut detector = Self {
             networks: Vec::with_capacity(models.len()),
             score_threshold: 0.3,
+            border_score_factor: 1.0,
             nms_threshold: 0.45,
             last_ms: Vec::new(),
         };
@@ -161,8 +165,11 @@ impl OnnxDetector {
             score_threshold,
         } = &mut self.networks[index];
         let (layout, threshold) = (*layout, score_threshold.unwrap_or(default_threshold));
+        // Decoded down to the border boxes' threshold, then the others are held to theirs.
+        let lowest = threshold * self.border_score_factor;
+        let keep = |found: Vec<Detection>| keep_confident(found, threshold, lowest, image.width());
         if layout == Layout::Deimv2 {
-            return end_to_end(session, (*width, *height), model, image, threshold);
+            return end_to_end(session, (*width, *height), model, image, lowest).map(keep);
         }
         let size = (*width as usize, *height as usize);
         let mut input = layout.prepare(image, *width, *height);
@@ -192,7 +199,8 @@ impl OnnxDetector {
                 ),
             });
         }
-        Ok(layout.decode(data, dims[1] as usize, size, &input, threshold))
+        let found = layout.decode(data, dims[1] as usize, size, &input, lowest);
+        Ok(keep(found))
     }
 
     fn infer(&mut self, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
