@@ -9,8 +9,9 @@ the `detections/` that `dopslam detect` wrote for the same frames (several folde
 separated: the union of their boxes, as an ensemble would give). A person counts when its
 box covers at least MIN_AREA of the image; it is found when a person detection overlaps it
 with IoU >= 0.5 (the issue's measure, as `detection.person_recall` in a run's report).
-Prints the recall overall, by box size and for boxes cut by the image border, the median
-inference time read from the detect log, and the largest misses.
+Prints the recall overall, by box size and for boxes cut by the image border, the person
+boxes found on no true person (IoU under 0.1 with every oracle person, of any size: false
+alarms), the median inference time read from the detect log, and the largest misses.
 """
 import argparse
 import json
@@ -48,13 +49,17 @@ def main():
     by_bin = {b: [0, 0] for b in bins}
     border = [0, 0]
     misses = []
+    boxes = false_alarms = 0
     for name in sorted(os.listdir(args.found.split(",")[0])):
         oracle = os.path.join(args.oracle, name)
         if not os.path.isfile(oracle):
             continue
         found = [b for d in args.found.split(",") if os.path.isfile(os.path.join(d, name))
                  for b in people(os.path.join(d, name))]
-        for t in people(oracle):
+        truth = people(oracle)
+        boxes += len(found)
+        false_alarms += sum(all(iou(t, f) < 0.1 for t in truth) for f in found)
+        for t in truth:
             share = (t[2] - t[0]) * (t[3] - t[1]) / image_area
             if share < args.min_area:
                 continue
@@ -80,6 +85,7 @@ def main():
     line += "; by share of the image: " + ", ".join(
         f"{int(100 * lo)}-{min(100, int(100 * hi))} % {rate(*by_bin[(lo, hi)])}" for lo, hi in bins)
     line += f"; cut by the border {rate(*border)}"
+    line += f"; person boxes on no person {false_alarms} of {boxes}"
     if args.log:
         with open(args.log) as f:
             times = [float(m) for m in re.findall(r"\(([0-9.]+) ms\)", f.read())]
