@@ -312,12 +312,14 @@ const GROUP_INSIDE: f32 = 0.8;
 /// A group box is covered this much by the boxes inside it.
 const GROUP_COVER: f32 = 0.5;
 
-/// The boxes scored at least `threshold`, and those touching the image's left or right
-/// border (within [`BORDER_TOUCH`] pixels of column 0 or `width`) scored at least
-/// `border_threshold`. A person cut by the border shows the network a shoulder and a
-/// leg, not a person, and scores lower for it: at the same threshold the cut-out
-/// presets lost most of their missed people there (docs/design.md, "People cut by the
-/// border").
+/// The boxes scored at least `threshold`, and the narrow ones touching the image's left
+/// or right border (within [`BORDER_TOUCH`] pixels of column 0 or `width`, at most
+/// [`BORDER_WIDTH_SHARE`] of the image wide) scored at least `border_threshold`. A
+/// person cut by the border shows the network a shoulder and a leg, not a person, and
+/// scores lower for it: at the same threshold the cut-out presets lost most of their
+/// missed people there. Wide weak boxes from a border are kept out: they are boxes
+/// around the whole scene, whose masks took the wall (docs/design.md, "People cut by
+/// the border").
 pub fn keep_confident(
     mut detections: Vec<Detection>,
     threshold: f32,
@@ -325,15 +327,20 @@ pub fn keep_confident(
     width: u32,
 ) -> Vec<Detection> {
     let right = width as f32 - BORDER_TOUCH;
+    let widest = BORDER_WIDTH_SHARE * width as f32;
     detections.retain(|d| {
-        d.score >= threshold
-            || (d.score >= border_threshold && (d.bbox[0] <= BORDER_TOUCH || d.bbox[2] >= right))
+        let [x1, _, x2, _] = d.bbox;
+        let cut =
+            (x1 <= BORDER_TOUCH || x2 >= right) && x2.min(width as f32) - x1.max(0.0) <= widest;
+        d.score >= threshold || (d.score >= border_threshold && cut)
     });
     detections
 }
 
 /// A box this close (pixels) to the left or right image border touches it.
 const BORDER_TOUCH: f32 = 2.0;
+/// The widest box (share of the image width) kept from the border threshold.
+const BORDER_WIDTH_SHARE: f32 = 0.3;
 
 /// Greedy non-maximum suppression per class: best score first, dropping boxes of the
 /// same class that overlap a kept one by more than `threshold` IoU, and group boxes
@@ -387,6 +394,7 @@ mod tests {
             detection(0, 0.1, [610.0, 100.0, 638.5, 480.0]), // weak, right border
             detection(0, 0.1, [300.0, 0.0, 400.0, 100.0]),   // weak, top border: dropped
             detection(0, 0.05, [0.0, 100.0, 40.0, 480.0]),   // below the border's: dropped
+            detection(0, 0.1, [0.0, 10.0, 600.0, 480.0]),    // weak, wide from the border: dropped
         ];
         let kept = keep_confident(found.clone(), 0.15, 0.075, 640);
         let boxes: Vec<[f32; 4]> = kept.iter().map(|d| d.bbox).collect();
