@@ -166,9 +166,10 @@ pub struct DetectorConfig {
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
     pub score_threshold: f32,
-    /// A box touching the image's left or right border is kept from this share of the
-    /// score threshold (each model's own in a pool): a person cut by the border scores
-    /// lower. 1 holds border boxes to the same threshold.
+    /// A box touching the image's left or right border, at most 0.3 of the image wide,
+    /// is kept from this share of the score threshold (each model's own in a pool): a
+    /// person cut by the border scores lower. 1 holds border boxes to the same
+    /// threshold.
     pub border_score_factor: f32,
     pub nms_threshold: f32,
     /// The folder of a detection cache (`source = "cache"`).

@@ -73,8 +73,8 @@ pub struct PoolModel {
 pub struct OnnxDetector {
     networks: Vec<Network>,
     pub score_threshold: f32,
-    /// A box touching the image's left or right border is kept from this share of its
-    /// network's threshold ([`keep_confident`]).
+    /// A narrow box touching the image's left or right border is kept from this share
+    /// of its network's threshold ([`keep_confident`]).
     pub border_score_factor: f32,
     pub nms_threshold: f32,
     /// Each network's time on the last image, milliseconds.
