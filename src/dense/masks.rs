@@ -290,7 +290,7 @@ impl MaskSource {
                     })
                 }),
         );
-        let segments = grow_segments(depth, &seeds, moving, (&settings, camera.fx as f32));
+        let segments = grow_segments(depth, &seeds, moving, &settings, camera.fx as f32);
         let world_from_camera = camera_from_world.inverse();
         let w = depth.width as usize;
         let in_boxes = |i: &usize| {

@@ -119,12 +119,14 @@ pub struct Segment {
 /// neighbour frames saw through, [`super::free_space`]), have at least
 /// `moving_share` of their pixels seen moving: a mover's segment reaches beyond the
 /// depth band (a box's top and sides) and then fails the border test, while a false
-/// alarm on a wall holds a few moving pixels in thousands.
+/// alarm on a wall holds a few moving pixels in thousands. `focal` (pixels) turns
+/// `radius_metres` into pixels at each seed's depth.
 pub fn grow_segments(
     depth: &DepthImage,
     seeds: &[Seed],
     moving: Option<&[bool]>,
-    (settings, focal): (&SegmentSettings, f32),
+    settings: &SegmentSettings,
+    focal: f32,
 ) -> Vec<Segment> {
     if seeds.is_empty() {
         // Most frames: no full-frame bookkeeping.
@@ -144,7 +146,7 @@ pub fn grow_segments(
             continue;
         }
         id += 1;
-        let region = grow(&mut owner, depth, start, id, (settings, focal));
+        let region = grow(&mut owner, depth, start, id, settings, focal);
         let inside: Vec<&Seed> = seed_pixels
             .iter()
             .filter(|(pixel, _)| owner[*pixel] == id)
@@ -232,7 +234,8 @@ fn grow(
     depth: &DepthImage,
     start: usize,
     id: u32,
-    (settings, focal): (&SegmentSettings, f32),
+    settings: &SegmentSettings,
+    focal: f32,
 ) -> Region {
     let (w, h) = (depth.width as usize, depth.height as usize);
     let d = &depth.metres;
@@ -330,7 +333,7 @@ mod tests {
             support: 2,
             ..SegmentSettings::default()
         };
-        for segment in grow_segments(depth, seeds, None, (&settings, 500.0)) {
+        for segment in grow_segments(depth, seeds, None, &settings, 500.0) {
             for i in segment.pixels {
                 mask[i] = true;
             }
@@ -400,7 +403,7 @@ mod tests {
                 support: 2,
                 ..SegmentSettings::default()
             };
-            grow_segments(&depth, &seeds, None, (&settings, 500.0))
+            grow_segments(&depth, &seeds, None, &settings, 500.0)
                 .iter()
                 .map(|s| s.pixels.len())
                 .sum::<usize>()
