@@ -11,10 +11,10 @@ use serde::Serialize;
 
 use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
+use dopslam::frame::stereo::extract_and_match;
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
-use dopslam::frame::stereo::extract_and_match;
 
 #[derive(Args)]
 pub struct StereoArgs {
@@ -42,6 +42,8 @@ struct StereoFigures {
     /// Matched keypoints where SGBM has a disparity too, and how far apart they are.
     compared: usize,
     median_difference_px: f64,
+    /// Median of ORB's disparity less SGBM's (a bias of one matcher shows here).
+    median_signed_difference_px: f64,
     within_1px_percent: f64,
     sgbm_valid_percent: f64,
     /// ORB on both images and the row matching.
@@ -75,17 +77,19 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
     .map_err(anyhow::Error::msg)?;
     let sgbm_ms = start.elapsed().as_secs_f64() * 1e3;
     let width = left.width() as usize;
-    let mut differences: Vec<f64> = lf
+    let mut signed: Vec<f64> = lf
         .keypoints
         .iter()
         .zip(&matches.right_u)
         .filter(|(_, &u)| u >= 0.0)
         .filter_map(|(k, &u)| {
             let d = sgbm[k.y.round() as usize * width + k.x.round() as usize];
-            (d > 0.0).then(|| ((k.x - u) - d).abs() as f64)
+            (d > 0.0).then(|| ((k.x - u) - d) as f64)
         })
         .collect();
+    let mut differences: Vec<f64> = signed.iter().map(|d| d.abs()).collect();
     differences.sort_by(f64::total_cmp);
+    signed.sort_by(f64::total_cmp);
     let matched = matches.matched();
     let figures = StereoFigures {
         keypoints: lf.len(),
@@ -97,6 +101,11 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         } else {
             dopslam::eval::stats::median_of_sorted(&differences)
         },
+        median_signed_difference_px: if signed.is_empty() {
+            f64::NAN
+        } else {
+            dopslam::eval::stats::median_of_sorted(&signed)
+        },
         within_1px_percent: 100.0 * differences.iter().filter(|&&d| d <= 1.0).count() as f64
             / differences.len().max(1) as f64,
         sgbm_valid_percent: 100.0 * sgbm.iter().filter(|&&d| d > 0.0).count() as f64
@@ -105,13 +114,14 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         sgbm_ms,
     };
     println!(
-        "{} of {} left keypoints matched ({:.1} %); against SGBM ({:.1} % of pixels valid) on {} of them: median difference {:.3} px, {:.1} % within 1 px",
+        "{} of {} left keypoints matched ({:.1} %); against SGBM ({:.1} % of pixels valid) on {} of them: median difference {:.3} px (signed {:+.3}), {:.1} % within 1 px",
         figures.matched,
         figures.keypoints,
         figures.matched_percent,
         figures.sgbm_valid_percent,
         figures.compared,
         figures.median_difference_px,
+        figures.median_signed_difference_px,
         figures.within_1px_percent
     );
     println!(

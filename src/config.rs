@@ -140,6 +140,11 @@ pub struct StereoConfig {
     /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
     pub sgbm_disparities: i32,
     pub sgbm_block: i32,
+    /// Keypoints farther than this many baselines are bearings only: their disparity
+    /// still places new points, but adds no residual to the pose or bundle adjustment
+    /// (0: every matched keypoint keeps its disparity residual). See
+    /// [`crate::frame::stereo::bearings_beyond`].
+    pub bearing_baselines: f64,
 }
 
 impl Default for StereoConfig {
@@ -156,6 +161,7 @@ impl Default for StereoConfig {
             mask_free_space_seconds: 0.0,
             sgbm_disparities: 128,
             sgbm_block: 5,
+            bearing_baselines: 22.0,
         }
     }
 }
@@ -184,11 +190,13 @@ impl StereoConfig {
                 return Err(format!("stereo.{key} must be positive, got {value}"));
             }
         }
-        if !(self.mask_free_space_seconds.is_finite() && self.mask_free_space_seconds >= 0.0) {
-            return Err(format!(
-                "stereo.mask_free_space_seconds must be 0 or more, got {}",
-                self.mask_free_space_seconds
-            ));
+        for (key, value) in [
+            ("mask_free_space_seconds", self.mask_free_space_seconds),
+            ("bearing_baselines", self.bearing_baselines),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("stereo.{key} must be 0 or more, got {value}"));
+            }
         }
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(format!(
@@ -481,6 +489,8 @@ mod tests {
             ("[dense]\nmask_segment_radius_metres = inf\n", "dense.mask_segment_radius_metres"),
             ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),
             ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
+            ("[stereo]\nbearing_baselines = -1.0\n", "stereo.bearing_baselines"),
+            ("[stereo]\nbearing_baselines = inf\n", "stereo.bearing_baselines"),
         ] {
             let message = Config::from_toml(text).unwrap_err();
             assert!(message.contains(key), "{text}: {message}");

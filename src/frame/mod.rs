@@ -10,10 +10,10 @@ use nalgebra::Vector2;
 
 use crate::features::{Descriptor, KeyPoint, OrbExtractor};
 use crate::geometry::camera::PinholeCamera;
-use crate::io::image_files::DepthImage;
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::io::image_files::DepthImage;
 
-use stereo::extract_and_match;
+use stereo::{bearings_beyond, extract_and_match};
 
 pub mod matching;
 pub mod stereo;
@@ -110,16 +110,19 @@ impl Frame {
 
     /// Extracts features from both images of a rectified stereo pair (in parallel) and
     /// gives each left keypoint the depth of its row match in the right image
-    /// ([`extract_and_match`]).
+    /// ([`extract_and_match`]); keypoints farther than `bearing_depth` metres keep their
+    /// depth but lose their right column ([`bearings_beyond`]; 0: none do).
     pub fn from_stereo(
         index: usize,
         timestamp: f64,
         (left, right): (&GrayImage, &GrayImage),
         extractor: &OrbExtractor,
         camera: &StereoCamera,
+        bearing_depth: f32,
     ) -> Self {
-        let (left_features, matches) =
+        let (left_features, mut matches) =
             extract_and_match((left, right), extractor, camera.bf, camera.fx);
+        bearings_beyond(&mut matches, bearing_depth);
         Self::from_parts(
             index,
             timestamp,

@@ -120,6 +120,28 @@ pub fn match_stereo(
     matches
 }
 
+/// Makes the keypoints farther than `depth` metres bearings only: they keep their depth
+/// (which places the points a keyframe makes from them) but lose their right column,
+/// so the optimisers weigh only their image position, \((u, v)\), not the disparity
+/// residual \(u_R - (u - bf/z)\). `depth` 0 leaves every keypoint as it is.
+///
+/// Why: a constant disparity error \(\delta\) (the rectification of a real rig) moves
+/// the depth by \(\Delta z \approx z^2 \delta / bf\), a share \(z\delta/bf\) of it
+/// that grows with the distance. As residuals the far disparities pull the scale of
+/// every pose and point that shares them; on the real KITTI clips the path grew 6 %
+/// over 51 frames with them, and the ATE halved without them beyond 22 baselines
+/// (`docs/design.md`, "Stereo on real images").
+pub fn bearings_beyond(matches: &mut StereoMatches, depth: f32) {
+    if depth <= 0.0 {
+        return;
+    }
+    for (z, u) in matches.depth.iter().zip(matches.right_u.iter_mut()) {
+        if *z > depth {
+            *u = -1.0;
+        }
+    }
+}
+
 /// Extracts ORB from both images of a rectified pair (in parallel) and matches the
 /// left keypoints into the right image: the left features and their stereo depths.
 pub fn extract_and_match(
@@ -152,8 +174,12 @@ pub fn looks_swapped(
     bf: f64,
     fx: f64,
 ) -> Option<(usize, usize)> {
-    let given = extract_and_match((left, right), extractor, bf, fx).1.matched();
-    let exchanged = extract_and_match((right, left), extractor, bf, fx).1.matched();
+    let given = extract_and_match((left, right), extractor, bf, fx)
+        .1
+        .matched();
+    let exchanged = extract_and_match((right, left), extractor, bf, fx)
+        .1
+        .matched();
     (exchanged >= 100 && exchanged >= 2 * given).then_some((given, exchanged))
 }
 
@@ -334,6 +360,20 @@ mod tests {
         for (z, u) in matches.depth.iter().zip(&matches.right_u) {
             assert_eq!(*z > 0.0, *u >= 0.0);
         }
+    }
+
+    #[test]
+    fn far_keypoints_keep_their_depth_and_lose_their_right_column() {
+        let mut matches = StereoMatches {
+            depth: vec![5.0, 11.0, 30.0, 0.0],
+            right_u: vec![100.0, 200.0, 300.0, -1.0],
+        };
+        let unchanged = matches.clone();
+        bearings_beyond(&mut matches, 0.0);
+        assert_eq!(matches, unchanged);
+        bearings_beyond(&mut matches, 11.8);
+        assert_eq!(matches.depth, unchanged.depth);
+        assert_eq!(matches.right_u, vec![100.0, 200.0, -1.0, -1.0]);
     }
 
     #[test]

@@ -12,6 +12,7 @@ use super::RunError;
 use crate::config::Config;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;
+use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::kitti::KittiSequence;
@@ -35,6 +36,9 @@ pub struct Setup {
     pub alpha: f32,
     /// RGB-D close/far limit in metres: `ThDepth` baselines, \(z_{close} = t_d\,b\).
     pub close_depth: f32,
+    /// Stereo: keypoints farther than this (metres; `[stereo] bearing_baselines`
+    /// baselines) are bearings only ([`crate::frame::stereo::bearings_beyond`]).
+    pub bearing_depth: f32,
     /// Loop closing's vocabulary ([`loop_vocabulary`]).
     pub vocabulary: LoopVocabulary,
 }
@@ -52,7 +56,10 @@ impl Setup {
         let vocabulary = loop_vocabulary(&config.global)?;
         let mut config = config.for_sensor(sequence.sensor());
         config.detector.source = detection_source(&config)?;
-        let calibration = resolve_calibration(sequence, &config)?;
+        let (calibration, size_warning) = calibration_and_warning(sequence, &config)?;
+        if let Some(warning) = size_warning {
+            eprintln!("warning: {warning}");
+        }
         let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
         let extractor = OrbExtractor::new(&config.orb);
         warn_if_swapped(sequence, &extractor, &camera);
@@ -64,6 +71,7 @@ impl Setup {
                 SensorKind::Stereo => config.dop.alpha_stereo,
             },
             close_depth: (config.tracking.th_depth * camera.bf / camera.fx) as f32,
+            bearing_depth: (config.stereo.bearing_baselines * camera.bf / camera.fx) as f32,
             config,
             sensor,
             calibration,
@@ -156,11 +164,21 @@ pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, 
 }
 
 /// The calibration to use: the config's camera, else its settings file, else the
-/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m.
+/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m. Its
+/// image size is the images' ([`fit_to_images`]; [`Setup::resolve`] prints the
+/// warning when they differ).
 pub fn resolve_calibration(
     sequence: &dyn Sequence,
     config: &Config,
 ) -> Result<Calibration, RunError> {
+    Ok(calibration_and_warning(sequence, config)?.0)
+}
+
+/// [`resolve_calibration`] and the warning of [`fit_to_images`], when there is one.
+fn calibration_and_warning(
+    sequence: &dyn Sequence,
+    config: &Config,
+) -> Result<(Calibration, Option<String>), RunError> {
     let mut calibration = match (&config.dataset.settings, sequence.calibration(), config.dataset.camera) {
         (Some(path), _, _) => OrbSlamSettings::read(path)?.calibration,
         (None, Some(own), _) => own.clone(),
@@ -184,7 +202,57 @@ pub fn resolve_calibration(
     if calibration.bf.is_none() {
         calibration.bf = Some(40.0);
     }
-    Ok(calibration)
+    if let Some(size) = first_image_size(sequence) {
+        let from = match (&config.dataset.settings, config.dataset.camera) {
+            (_, Some(_)) => "the camera given (--camera, [dataset.camera])".to_owned(),
+            (Some(path), None) => format!("the settings file {}", path.display()),
+            (None, None) => format!("the calibration of sequence {}", sequence.name()),
+        };
+        let warning = fit_to_images(&mut calibration.camera, size, &from)?;
+        return Ok((calibration, warning));
+    }
+    Ok((calibration, None))
+}
+
+/// The size of the sequence's first frame (colour or left image); `None` when it
+/// cannot be read (the tracking pass then names the file).
+fn first_image_size(sequence: &dyn Sequence) -> Option<(u32, u32)> {
+    if sequence.is_empty() {
+        return None;
+    }
+    Some(match sequence.load(0).ok()?.images {
+        crate::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
+        crate::io::sequence::FrameImages::Stereo { left, .. } => left.dimensions(),
+    })
+}
+
+/// The images decide the size, as in ORB-SLAM2: a camera whose `Camera.width/height`
+/// differ from the images' (ORB-SLAM2's own KITTI 03 and 04-12 settings say 1241x376
+/// for images of 1242x375 and 1226x370) takes the images' size, and the warning naming
+/// both is returned. An error only where the principal point falls outside the image:
+/// such intrinsics belong to other images.
+pub fn fit_to_images(
+    camera: &mut PinholeCamera,
+    (width, height): (u32, u32),
+    from: &str,
+) -> Result<Option<String>, RunError> {
+    let inside = |c: f64, size: u32| c >= 0.0 && c < size as f64;
+    if !inside(camera.cx, width) || !inside(camera.cy, height) {
+        return Err(RunError::Input(format!(
+            "{from}: its principal point ({}, {}) lies outside the images, which are {width}x{height}: the calibration is for another camera",
+            camera.cx, camera.cy
+        )));
+    }
+    if (camera.width, camera.height) == (width, height) {
+        return Ok(None);
+    }
+    let warning = format!(
+        "{from} says {}x{} but the images are {width}x{height}: using the images' size (the intrinsics as given)",
+        camera.width, camera.height
+    );
+    camera.width = width;
+    camera.height = height;
+    Ok(Some(warning))
 }
 
 /// config, the settings file and `--camera`, and the runtime files it loaded.
@@ -300,4 +368,54 @@ pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocab
     crate::global::load_vocabulary(config)
         .map(|v| Some(Ok(v)))
         .map_err(RunError::Input)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(width: u32, height: u32) -> PinholeCamera {
+        PinholeCamera {
+            fx: 707.09,
+            fy: 707.09,
+            cx: 601.89,
+            cy: 183.11,
+            width,
+            height,
+            distortion: [0.0; 5],
+        }
+    }
+
+    #[test]
+    fn the_images_decide_the_size() {
+        // ORB-SLAM2's Stereo_KITTI04-12.yaml says 1241x376; KITTI 06 is 1226x370.
+        let mut settings = camera(1241, 376);
+        let warning = fit_to_images(&mut settings, (1226, 370), "the settings file K.yaml")
+            .unwrap()
+            .expect("a warning");
+        assert!(
+            warning.contains("K.yaml")
+                && warning.contains("1241x376")
+                && warning.contains("1226x370"),
+            "{warning}"
+        );
+        assert_eq!((settings.width, settings.height), (1226, 370));
+        assert_eq!(settings.fx, 707.09);
+        let mut same = camera(1226, 370);
+        assert_eq!(fit_to_images(&mut same, (1226, 370), "x").unwrap(), None);
+    }
+
+    #[test]
+    fn a_principal_point_outside_the_images_is_refused() {
+        let mut settings = camera(1241, 376);
+        let error = fit_to_images(&mut settings, (480, 360), "the settings file K.yaml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("K.yaml")
+                && error.contains("principal point")
+                && error.contains("480x360"),
+            "{error}"
+        );
+    }
 }

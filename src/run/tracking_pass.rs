@@ -144,7 +144,7 @@ fn next_frame(
     let expected = (calibration.camera.width, calibration.camera.height);
     if size != expected {
         return Err(format!(
-            "frame {index}: the image is {}x{} but the calibration (and the first frame) say {}x{}: every frame of a sequence must have one size",
+            "frame {index}: the image is {}x{} but the first frame is {}x{}: every frame of a sequence must have one size",
             size.0, size.1, expected.0, expected.1
         ));
     }
@@ -175,6 +175,7 @@ fn next_frame(
                 (&left, &right),
                 &budgeted,
                 &setup.camera,
+                setup.bearing_depth,
             );
             (frame, Picture::Grey(left), started)
         }
