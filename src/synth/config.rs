@@ -79,6 +79,12 @@ impl Default for SceneConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct StereoConfig {
     pub baseline: f64,
+    /// A real rig's rectification error, in pixels: the right camera is rendered with
+    /// its principal point this far right of the one `calib.txt` states, so every
+    /// measured disparity is this much smaller than the geometry's, \(d = d_0 -
+    /// \delta\) (depth too far by a share \(z\delta / bf\) that grows with the
+    /// distance, as on the real KITTI 01 clip; `docs/design.md`). 0: a perfect rig.
+    pub rectification_error_px: f64,
 }
 
 /// A whole synth preset.
@@ -160,6 +166,14 @@ impl SynthConfig {
             objects.validate("unknown", false)?;
         }
         self.street.validate()?;
+        if !(self.stereo.rectification_error_px.is_finite()
+            && self.stereo.rectification_error_px.abs() <= 5.0)
+        {
+            return Err(format!(
+                "stereo.rectification_error_px must be -5 to 5 pixels, got {}",
+                self.stereo.rectification_error_px
+            ));
+        }
         if !(0.0..=2.0).contains(&self.stereo.baseline) {
             return Err(format!(
                 "stereo.baseline must be 0 (off) to 2 m, got {}",

@@ -386,10 +386,13 @@ impl World {
             gain: self.config.sensor.gain(t),
             noise_seed: self.frame_seed(index) ^ 0x5EC0_4D00,
         };
+        // The rig's rectification error: the right camera's true principal point.
+        let mut camera = self.camera;
+        camera.cx += self.config.stereo.rectification_error_px;
         render_colour(
             &self.visible_scene(&self.poses[index]),
             &self.view(t, self.poses[index] * offset),
-            &self.camera,
+            &camera,
             &self.config.sensor,
             &exposure,
         )

@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Benchmark (not a test): the two real KITTI stereo clips of ../shared/data/real/kitti
+# (frames 0-50 of sequences 01 and 06, KITTI's ground truth), run as a user runs them:
+# ORB-SLAM2's own settings files, the real detector, default real-time mode, --no-dense.
+# Runs are interleaved (clip, then mode, then repetition) so that load on the machine
+# falls on every mode alike. Prints per run and the medians: ATE RMSE (SE(3), as evo and
+# the issue's table), ATE RMSE with Sim(3) alignment (what is left once the scale is
+# forgiven), estimated path length / true, median tracking time per frame.
+#
+#   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--out DIR]
+#     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
+#               --mask-boxes, and --dop with [stereo] bearing_baselines = 0 (before)
+#   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+runs=3
+modes="dop no-dop"
+extra=0
+out=outputs/bench/kitti
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --runs) runs=$2; shift 2 ;;
+    --modes) modes=$2; shift 2 ;;
+    --extra) extra=1; shift ;;
+    --out) out=$2; shift 2 ;;
+    *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
+  esac
+done
+data=${DOPSLAM_SHARED_DATA:-../shared/data}
+kitti=$data/real/kitti
+if [ ! -d "$kitti/sequences/01/image_0" ]; then
+  echo "no real KITTI clips at $kitti (set DOPSLAM_SHARED_DATA)" >&2; exit 1
+fi
+cargo build --release --quiet
+bin=./target/release/dopslam
+mkdir -p "$out"
+settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
+printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
+# One run: clip, label, then dopslam's arguments. Appends a line to runs.tsv.
+one() {
+  local clip=$1 label=$2; shift 2
+  local dir="$out/runs/$clip-$label"
+  rm -rf "$dir"
+  if ! "$bin" run "$kitti/sequences/$clip" --settings "$(settings_of "$clip")" --out "$dir" --no-dense "$@" >"$dir.log" 2>&1; then
+    echo "$clip $label: dopslam run failed (see $dir.log)" >&2; return
+  fi
+  python3 tools/kitti_clip_figures.py run "$bin" "$kitti" "$clip" "${label%%#*}" "$dir" >> "$out/runs.tsv"
+}
+rm -f "$out/runs.tsv"
+echo "cores: $(nproc); $runs real-time run(s) of each mode, interleaved"
+for clip in 01 06; do
+  for r in $(seq 1 "$runs"); do
+    for mode in $modes; do one "$clip" "$mode#$r" "--$mode"; done
+  done
+  if [ "$extra" = 1 ]; then
+    one "$clip" "dop-deterministic" --dop --deterministic
+    one "$clip" "no-dop-deterministic" --no-dop --deterministic
+    one "$clip" "mask-boxes" --mask-boxes
+    one "$clip" "dop-bearings-off" --dop --config "$out/bearings_off.toml"
+  fi
+done
+python3 tools/kitti_clip_figures.py table "$out/runs.tsv" | tee "$out/results.md"
+echo "wrote $out/results.md (runs in $out/runs)"

@@ -1,0 +1,87 @@
+#!/usr/bin/env python3
+"""Figures of tools/bench_kitti.sh (standard library only).
+
+  kitti_clip_figures.py run BIN KITTI CLIP LABEL RUN_DIR   -> one tab-separated line
+  kitti_clip_figures.py table RUNS_TSV                      -> the markdown table
+"""
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+
+
+def rotation_to_quaternion(m):
+    """(qx, qy, qz, qw) of a 3x3 rotation (rows), the largest-diagonal branch."""
+    trace = m[0][0] + m[1][1] + m[2][2]
+    if trace > 0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        return ((m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s)
+    i = max(range(3), key=lambda k: m[k][k])
+    j, k = (i + 1) % 3, (i + 2) % 3
+    s = 2.0 * math.sqrt(1.0 + m[i][i] - m[j][j] - m[k][k])
+    q = [0.0, 0.0, 0.0, 0.0]
+    q[i] = 0.25 * s
+    q[j] = (m[j][i] + m[i][j]) / s
+    q[k] = (m[k][i] + m[i][k]) / s
+    q[3] = (m[k][j] - m[j][k]) / s
+    return tuple(q)
+
+
+def truth_in_tum(kitti, clip, path):
+    """The clip's KITTI poses with its times, as a TUM trajectory file at `path`."""
+    times = [float(t) for t in open(os.path.join(kitti, "sequences", clip, "times.txt"))]
+    with open(path, "w") as out:
+        for t, line in zip(times, open(os.path.join(kitti, "poses", clip + ".txt"))):
+            v = [float(x) for x in line.split()]
+            m = [v[0:3], v[4:7], v[8:11]]
+            q = rotation_to_quaternion(m)
+            out.write(f"{t:.6f} {v[3]} {v[7]} {v[11]} {q[0]} {q[1]} {q[2]} {q[3]}\n")
+    return [(v[3], v[7], v[11]) for v in ([float(x) for x in l.split()] for l in open(os.path.join(kitti, "poses", clip + ".txt")))]
+
+
+def path_length(points):
+    return sum(math.dist(points[i], points[i + 1]) for i in range(len(points) - 1))
+
+
+def run_line(binary, kitti, clip, label, run_dir):
+    report = json.load(open(os.path.join(run_dir, "report.json")))
+    truth_file = os.path.join(run_dir, "truth_tum.txt")
+    truth = truth_in_tum(kitti, clip, truth_file)
+    estimate = [tuple(float(x) for x in l.split()[1:4])
+                for l in open(os.path.join(run_dir, "trajectory.txt")) if not l.startswith("#")]
+    sim3 = subprocess.run([binary, "eval", truth_file, os.path.join(run_dir, "trajectory.txt"),
+                           "--align", "sim3", "--json"], capture_output=True, text=True)
+    ate_sim3 = float("nan")
+    if sim3.returncode == 0:
+        ate_sim3 = json.loads(sim3.stdout)["ape"]["statistics"]["rmse"]
+    ratio = path_length(estimate) / path_length(truth[: len(estimate)])
+    totals = report["totals"]
+    fields = [clip, label, report["ate"]["ape"]["statistics"]["rmse"], ate_sim3, ratio,
+              totals["median_tracking_ms"], totals["tracked"], totals["frames"]]
+    print("\t".join(str(f) for f in fields))
+
+
+def table(tsv):
+    rows = [l.rstrip("\n").split("\t") for l in open(tsv) if l.strip()]
+    groups = {}
+    for clip, label, ate, sim3, ratio, ms, tracked, frames in rows:
+        groups.setdefault((clip, label), []).append(
+            (float(ate), float(sim3), float(ratio), float(ms), f"{tracked}/{frames}"))
+    print("| clip | mode | runs | ATE RMSE SE(3) (m): median [runs] | ATE Sim(3) (m) | path / true | tracking ms (median) | tracked |")
+    print("|---|---|---|---|---|---|---|---|")
+    for (clip, label), runs in groups.items():
+        med = lambda k: statistics.median(r[k] for r in runs)
+        each = ", ".join(f"{r[0]:.3f}" for r in runs)
+        print(f"| KITTI {clip} | {label} | {len(runs)} | {med(0):.3f} [{each}] | {med(1):.3f} | {med(2):.4f} | "
+              f"{med(3):.1f} | {', '.join(r[4] for r in runs)} |")
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "run":
+        run_line(*sys.argv[2:7])
+    elif sys.argv[1] == "table":
+        table(sys.argv[2])
+    else:
+        sys.exit(__doc__)
