@@ -238,6 +238,7 @@ fn every_preset_loads_and_validates() {
             "street_demo",
             "street_kitti00",
             "street_kitti04",
+            "street_kitti04_rig",
             "unknown_movers",
             "unknown_movers_close",
             "walking_halfsphere",
