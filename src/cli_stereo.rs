@@ -84,7 +84,7 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         .filter(|(_, &u)| u >= 0.0)
         .filter_map(|(k, &u)| {
             let d = sgbm[k.y.round() as usize * width + k.x.round() as usize];
-            (d > 0.0).then(|| ((k.x - u) - d) as f64)
+            (d > 0.0).then_some(((k.x - u) - d) as f64)
         })
         .collect();
     let mut differences: Vec<f64> = signed.iter().map(|d| d.abs()).collect();

@@ -33,30 +33,31 @@ if [ ! -d "$kitti/sequences/01/image_0" ]; then
 fi
 cargo build --release --quiet
 bin=./target/release/dopslam
-mkdir -p "$out"
+mkdir -p "$out/runs"
 settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
 printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
-# One run: clip, label, then dopslam's arguments. Appends a line to runs.tsv.
+# One run: clip, label, repetition, then dopslam's arguments. Appends a line to runs.tsv.
 one() {
-  local clip=$1 label=$2; shift 2
-  local dir="$out/runs/$clip-$label"
+  local clip=$1 label=$2 rep=$3; shift 3
+  local slug=${label//[^a-z0-9-]/_}
+  local dir="$out/runs/$clip-$slug-r$rep"
   rm -rf "$dir"
   if ! "$bin" run "$kitti/sequences/$clip" --settings "$(settings_of "$clip")" --out "$dir" --no-dense "$@" >"$dir.log" 2>&1; then
     echo "$clip $label: dopslam run failed (see $dir.log)" >&2; return
   fi
-  python3 tools/kitti_clip_figures.py run "$bin" "$kitti" "$clip" "${label%%#*}" "$dir" >> "$out/runs.tsv"
+  python3 tools/kitti_clip_figures.py run "$bin" "$kitti" "$clip" "$label" "$dir" >> "$out/runs.tsv"
 }
 rm -f "$out/runs.tsv"
 echo "cores: $(nproc); $runs real-time run(s) of each mode, interleaved"
 for clip in 01 06; do
   for r in $(seq 1 "$runs"); do
-    for mode in $modes; do one "$clip" "$mode#$r" "--$mode"; done
+    for mode in $modes; do one "$clip" "$mode" "$r" "--$mode"; done
   done
   if [ "$extra" = 1 ]; then
-    one "$clip" "dop-deterministic" --dop --deterministic
-    one "$clip" "no-dop-deterministic" --no-dop --deterministic
-    one "$clip" "mask-boxes" --mask-boxes
-    one "$clip" "dop-bearings-off" --dop --config "$out/bearings_off.toml"
+    one "$clip" "dop --deterministic" 1 --dop --deterministic
+    one "$clip" "no-dop --deterministic" 1 --no-dop --deterministic
+    one "$clip" "mask-boxes" 1 --mask-boxes
+    one "$clip" "dop, bearing_baselines = 0 (before)" 1 --dop --config "$out/bearings_off.toml"
   fi
 done
 python3 tools/kitti_clip_figures.py table "$out/runs.tsv" | tee "$out/results.md"
