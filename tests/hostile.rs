@@ -254,8 +254,20 @@ fn outputs_never_overwrite_inputs_or_lose_results() {
     std::fs::write(base.join("out/dense_mesh.ply"), "old").unwrap();
     std::fs::write(base.join("out/trajectory.txt"), "old").unwrap();
     case("run into an old output folder", &run_args(&seq_s, &out_s), true, &["previous/"]);
-    assert_eq!(std::fs::read_to_string(base.join("out/previous/dense_mesh.ply")).unwrap(), "old");
+    let kept = common::sorted_files(&base.join("out/previous"));
+    assert_eq!(kept.len(), 1, "one earlier run: {kept:?}");
+    assert_eq!(std::fs::read_to_string(kept[0].join("dense_mesh.ply")).unwrap(), "old");
     assert!(!base.join("out/dense_mesh.ply").exists(), "no stale dense map beside the new run");
+    // A third run keeps both earlier ones (never a deleted finished run), and a user's
+    // own file in previous/ stays as it was.
+    std::fs::write(base.join("out/previous/notes.txt"), "mine").unwrap();
+    let second = std::fs::read(base.join("out/trajectory.txt")).unwrap();
+    case("run into it a third time", &run_args(&seq_s, &out_s), true, &["previous/"]);
+    let kept: Vec<_> = common::sorted_files(&base.join("out/previous")).into_iter().filter(|p| p.is_dir()).collect();
+    assert_eq!(kept.len(), 2, "both earlier runs kept: {kept:?}");
+    assert!(kept.iter().any(|k| std::fs::read_to_string(k.join("dense_mesh.ply")).is_ok_and(|t| t == "old")));
+    assert!(kept.iter().any(|k| std::fs::read(k.join("trajectory.txt")).is_ok_and(|t| t == second)));
+    assert_eq!(std::fs::read_to_string(base.join("out/previous/notes.txt")).unwrap(), "mine");
     // fuse with another sequence's frames.
     let other = base.join("other");
     let synth = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");

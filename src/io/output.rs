@@ -136,28 +136,72 @@ pub fn lock_file(path: &Path, wait: bool) -> std::io::Result<Option<std::fs::Fil
 
 pub use super::run_dir::RUN_OUTPUTS;
 
-/// Moves an earlier run's outputs in `dir` into `dir/previous/` (replacing an older
-/// `previous/`): the names moved.
-pub fn move_previous_outputs(dir: &Path, keep: &[&str]) -> Result<Vec<String>, IoError> {
+/// Moves an earlier run's outputs in `dir` into a folder of their own under
+/// `dir/previous/`, named by when that run last wrote ([`utc_stamp`] of the newest
+/// modification time among them; `-2`, `-3` … added when that name is taken). Nothing
+/// is ever deleted: every earlier run stays, and files the tool did not write (a
+/// user's `previous/notes.txt`) are not touched. Returns the names moved and the folder
+/// they went to (`None` when there was nothing to move).
+pub fn move_previous_outputs(
+    dir: &Path,
+    keep: &[&str],
+) -> Result<(Vec<String>, Option<PathBuf>), IoError> {
     let present: Vec<&str> = RUN_OUTPUTS
         .iter()
         .copied()
         .filter(|name| !keep.contains(name) && dir.join(name).symlink_metadata().is_ok())
         .collect();
     if present.is_empty() {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), None));
     }
+    let written = present
+        .iter()
+        .filter_map(|name| dir.join(name).symlink_metadata().ok()?.modified().ok())
+        .max()
+        .unwrap_or_else(std::time::SystemTime::now);
     let previous = dir.join(super::run_dir::names::PREVIOUS);
-    if previous.exists() {
-        std::fs::remove_dir_all(&previous)
-            .map_err(|e| invalid(&previous, format!("cannot replace: {e}")))?;
-    }
-    std::fs::create_dir_all(&previous).map_err(|e| invalid(&previous, e.to_string()))?;
+    let stamp = utc_stamp(written);
+    let target = (1..)
+        .map(|n| match n {
+            1 => previous.join(&stamp),
+            n => previous.join(format!("{stamp}-{n}")),
+        })
+        .find(|candidate| candidate.symlink_metadata().is_err())
+        .expect("an unused name");
+    std::fs::create_dir_all(&target).map_err(|e| invalid(&target, e.to_string()))?;
     for name in &present {
-        std::fs::rename(dir.join(name), previous.join(name))
-            .map_err(|e| invalid(&dir.join(name), format!("cannot move into previous/: {e}")))?;
+        std::fs::rename(dir.join(name), target.join(name)).map_err(|e| {
+            invalid(&dir.join(name), format!("cannot move into {}: {e}", target.display()))
+        })?;
     }
-    Ok(present.iter().map(|s| s.to_string()).collect())
+    Ok((present.iter().map(|s| s.to_string()).collect(), Some(target)))
+}
+
+/// A time as UTC `YYYY-MM-DDTHH-MM-SSZ` (dashes for colons: a valid folder name
+/// everywhere). The date from the days since 1970-01-01 by the civil-calendar
+/// arithmetic of eras of 400 years (146097 days).
+pub fn utc_stamp(time: std::time::SystemTime) -> String {
+    let seconds = time
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let (days, of_day) = (seconds.div_euclid(86_400), seconds.rem_euclid(86_400));
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let day_of_era = z - era * 146_097;
+    let year_of_era =
+        (day_of_era - day_of_era / 1460 + day_of_era / 36_524 - day_of_era / 146_096) / 365;
+    let day_of_year = day_of_era - (365 * year_of_era + year_of_era / 4 - year_of_era / 100);
+    let mp = (5 * day_of_year + 2) / 153;
+    let day = day_of_year - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = year_of_era + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}-{:02}-{:02}Z",
+        of_day / 3600,
+        of_day % 3600 / 60,
+        of_day % 60
+    )
 }
 
 #[cfg(test)]
@@ -189,10 +233,47 @@ mod tests {
         assert!(DirLock::take(&base.join("out")).is_ok());
         std::fs::write(base.join("out/trajectory.txt"), b"old").unwrap();
         std::fs::create_dir_all(base.join("out/plots")).unwrap();
-        let moved = move_previous_outputs(&base.join("out"), &[]).unwrap();
+        let (moved, to) = move_previous_outputs(&base.join("out"), &[]).unwrap();
         assert_eq!(moved, vec!["trajectory.txt".to_string(), "plots".to_string()]);
-        assert_eq!(std::fs::read(base.join("out/previous/trajectory.txt")).unwrap(), b"old");
+        let to = to.unwrap();
+        assert_eq!(to.parent().unwrap(), base.join("out/previous"));
+        assert_eq!(std::fs::read(to.join("trajectory.txt")).unwrap(), b"old");
         assert!(!base.join("out/trajectory.txt").exists());
         std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    /// A run, then a second, then a third into one folder: both earlier runs are kept,
+    /// each in a folder of its own, and a user's file in `previous/` is untouched.
+    #[test]
+    fn earlier_runs_are_all_kept() {
+        let base = std::env::temp_dir().join(format!("dopslam-previous-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        std::fs::create_dir_all(base.join("previous")).unwrap();
+        std::fs::write(base.join("previous/notes.txt"), b"mine").unwrap();
+        let mut kept = Vec::new();
+        for run in ["first", "second", "third"] {
+            let (_, to) = move_previous_outputs(&base, &[]).unwrap();
+            kept.extend(to);
+            std::fs::write(base.join("trajectory.txt"), run).unwrap();
+            std::fs::write(base.join("report.json"), run).unwrap();
+        }
+        assert_eq!(kept.len(), 2, "{kept:?}");
+        assert_ne!(kept[0], kept[1]);
+        for (folder, run) in kept.iter().zip(["first", "second"]) {
+            assert_eq!(std::fs::read_to_string(folder.join("trajectory.txt")).unwrap(), run);
+            assert_eq!(std::fs::read_to_string(folder.join("report.json")).unwrap(), run);
+        }
+        assert_eq!(std::fs::read(base.join("previous/notes.txt")).unwrap(), b"mine");
+        assert_eq!(std::fs::read_to_string(base.join("trajectory.txt")).unwrap(), "third");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    #[test]
+    fn utc_stamps_follow_the_calendar() {
+        let at = |s: u64| std::time::UNIX_EPOCH + std::time::Duration::from_secs(s);
+        assert_eq!(utc_stamp(at(0)), "1970-01-01T00-00-00Z");
+        assert_eq!(utc_stamp(at(951_782_400)), "2000-02-29T00-00-00Z");
+        assert_eq!(utc_stamp(at(1_795_779_296)), "2026-11-27T11-34-56Z");
+        assert_eq!(utc_stamp(at(4_107_542_399)), "2100-02-28T23-59-59Z");
     }
 }

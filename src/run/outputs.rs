@@ -28,7 +28,8 @@ use crate::tracking::TrackingState;
 /// Before any work (after the set-up): the paths are UTF-8 (the report names them),
 /// the output and debug folders can be written and are not inside the input sequence,
 /// no other run writes into the output folder (the lock returned is held for the run),
-/// and an earlier run's outputs there move into `previous/`.
+/// and an earlier run's outputs there move into a folder of their own under
+/// `previous/` (nothing is deleted).
 pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::DirLock, RunError> {
     use crate::io::output;
     let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
@@ -43,12 +44,12 @@ pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::Di
         output::prepare_dir(debug, "debug frames", &inputs)?;
     }
     let lock = output::DirLock::take(out)?;
-    let moved = output::move_previous_outputs(out, &[])?;
-    if !moved.is_empty() && options.progress {
+    let (moved, to) = output::move_previous_outputs(out, &[])?;
+    if let (Some(to), true) = (to, options.progress) {
         eprintln!(
-            "{} held an earlier run's outputs: moved into {}/previous/ ({})",
+            "{} held an earlier run's outputs: moved into {} ({}); earlier runs stay in previous/",
             out.display(),
-            out.display(),
+            to.display(),
             moved.join(", ")
         );
     }
