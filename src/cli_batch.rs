@@ -18,6 +18,11 @@ pub struct BatchArgs {
     /// Run again the runs that failed in an earlier invocation (finished ones are skipped).
     #[arg(long)]
     retry_failed: bool,
+    /// Keep finished runs made with other settings than the manifest's now (another
+    /// frame count, config, settings file, detector or dopslam): they are marked stale
+    /// in every table instead of being run again.
+    #[arg(long)]
+    keep_stale: bool,
     /// Evaluate the finished runs again from their files (ATE, RPE, map figures), e.g.
     /// after changing [eval] settings; no run is repeated.
     #[arg(long)]
@@ -77,6 +82,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         out: args.out.clone(),
         jobs: args.jobs,
         retry_failed: args.retry_failed,
+        keep_stale: args.keep_stale,
         reevaluate: args.reevaluate,
         progress: !args.quiet,
         shard: args.shard,

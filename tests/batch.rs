@@ -318,3 +318,57 @@ fn slurm_scripts_name_the_shards_and_the_resources() {
     let (ok, _, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--slurm", "--partition", "a b"]);
     assert!(!ok && stderr.contains("--partition"), "{stderr}");
 }
+
+/// A run made with other settings is never taken for one of the batch's: after the
+/// manifest's frames change, the run is made again with a line saying why, and the old
+/// run is kept aside; with `--keep-stale` it stays and is marked stale in the tables;
+/// `--collect` with a manifest that is not the folder's own is refused.
+#[test]
+fn runs_made_with_other_settings_are_run_again_or_kept_marked_stale() {
+    let dir = temp_dir("batch-stale");
+    let path = dir.join("frames.toml");
+    let write = |frames: usize| {
+        let text = format!(
+            "[batch]\nmodes = [\"no-dop\"]\ndeterministic = true\nframes = {frames}\n\n\
+             [[sequence]]\npreset = \"static_room\"\nsynth_frames = 24\n"
+        );
+        std::fs::write(&path, text).unwrap();
+    };
+    let frames_of = |run: &Path| -> u64 {
+        let text = std::fs::read_to_string(run.join("run.json")).unwrap();
+        let record: serde_json::Value = serde_json::from_str(&text).unwrap();
+        record["figures"]["frames"].as_u64().unwrap()
+    };
+    let out = dir.join("out");
+    let run = out.join("runs/static_room/no-dop/r1");
+    write(10);
+    batch(&path, &out);
+    assert_eq!(frames_of(&run), 10);
+    write(20);
+    let (_, stderr) = batch(&path, &out);
+    assert!(
+        stderr.contains("static_room/no-dop/r1: made with other settings (frames 10 -> 20)"),
+        "{stderr}"
+    );
+    assert_eq!(frames_of(&run), 20, "the run was made again");
+    let aside = common::sorted_files(&out.join("stale/static_room/no-dop"));
+    assert_eq!(aside.len(), 1, "the 10-frame run is kept aside: {aside:?}");
+    assert_eq!(frames_of(&aside[0]), 10);
+    // --keep-stale: the 20-frame run stays, marked stale in the tables.
+    write(15);
+    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--keep-stale"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert_eq!(frames_of(&run), 20, "kept");
+    let rows = csv_rows(&out.join("runs.csv"));
+    assert_eq!(rows[0][3], "stale", "{rows:?}");
+    let results = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(results.contains("Stale runs") && results.contains("frames 20 -> 15"), "{results}");
+    // --collect with another manifest than the folder's own.
+    let other = dir.join("other.toml");
+    std::fs::write(&other, "[batch]\nmodes = [\"dop\"]\n\n[[sequence]]\npreset = \"static_room\"\n").unwrap();
+    let (ok, _, stderr) = dopslam(&["batch", &other.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect"]);
+    assert!(!ok);
+    assert!(stderr.contains("another manifest") && stderr.contains("other.toml") && stderr.contains("manifest.toml"), "{stderr}");
+    let copy = std::fs::read_to_string(out.join("manifest.toml")).unwrap();
+    assert!(copy.contains("frames = 15"), "the folder's manifest stays: {copy}");
+}

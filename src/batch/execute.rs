@@ -34,6 +34,8 @@ pub struct RunJob {
     /// 1-based.
     pub repetition: usize,
     pub dir: PathBuf,
+    /// What decides its result ([`super::fingerprint`]); filled in before it runs.
+    pub inputs: super::fingerprint::RunInputs,
 }
 
 /// How the runs are executed.
@@ -134,6 +136,7 @@ impl Executor<'_> {
         let sequence = &self.sequences[job.sequence];
         let start = Instant::now();
         let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
+        record.inputs = job.inputs.clone();
         let result = self
             .start(job)
             .and_then(|child| wait(child, &job.dir))
@@ -182,11 +185,7 @@ impl Executor<'_> {
         std::fs::create_dir_all(&job.dir)
             .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
         let config_path = job.dir.join("config.toml");
-        let mut config = sequence.config.clone();
-        if job.mode == Mode::Off {
-            // ORB-SLAM2 runs no detector.
-            config.detector.source = crate::detect::Source::None;
-        }
+        let config = run_config(sequence, job.mode);
         let text = toml::to_string(&config).map_err(|e| format!("config: {e}"))?;
         write_atomic(&config_path, text.as_bytes()).map_err(|e| e.to_string())?;
         let log = std::fs::File::create(job.dir.join("log.txt"))
@@ -282,6 +281,16 @@ impl Executor<'_> {
         }
         Ok(figures)
     }
+}
+
+/// The config a run of `sequence` in `mode` is given (its `config.toml`): the
+/// sequence's, with no detector for ORB-SLAM2 (`no-dop`).
+pub fn run_config(sequence: &PlannedSequence, mode: Mode) -> Config {
+    let mut config = sequence.config.clone();
+    if mode == Mode::Off {
+        config.detector.source = crate::detect::Source::None;
+    }
+    config
 }
 
 /// Waits for the child; on a stop request, passes it on and reports `false` (the run's

@@ -19,6 +19,7 @@
 
 pub mod execute;
 pub mod figures;
+pub mod fingerprint;
 pub mod html;
 pub mod machine;
 pub mod manifest;
@@ -59,6 +60,9 @@ pub struct BatchOptions {
     pub shard: Option<shard::Shard>,
     /// Run nothing: make the tables, plots and report from the finished runs.
     pub collect: bool,
+    /// Keep finished runs whose inputs differ from the manifest's (marked stale in
+    /// the tables) instead of running them again.
+    pub keep_stale: bool,
 }
 
 /// What a batch did.
@@ -133,7 +137,19 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     let out = &plan.out;
     std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    write_atomic(&out.join("manifest.toml"), &text).map_err(|e| e.to_string())?;
+    let own = out.join("manifest.toml");
+    if options.collect {
+        if std::fs::read(&own).is_ok_and(|copy| copy != text) {
+            return Err(format!(
+                "{} is the batch of another manifest (its copy {} differs from {}): collect with that manifest, or run this one into another --out",
+                out.display(),
+                own.display(),
+                path.display()
+            ));
+        }
+    } else {
+        write_atomic(&own, &text).map_err(|e| e.to_string())?;
+    }
     let mut notes = Vec::new();
     // The runs this invocation is for: a shard's, or all.
     let mine = match options.shard {
@@ -183,7 +199,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         }
     }
     if summary.tables {
-        summary.groups = write_tables(&plan, path, &sequence_dirs, &mut notes)?;
+        summary.groups = write_tables(&plan, (path, &options.program), &sequence_dirs, &mut notes)?;
     }
     summary.notes = notes;
     Ok(summary)
@@ -220,15 +236,25 @@ fn execute(
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
+    let fingerprinter = fingerprint::Fingerprinter::new(&options.program);
     for job in mine {
-        match RunRecord::read(&job.dir) {
+        let mut job = job.clone();
+        job.inputs = run_inputs(&fingerprinter, plan, &job, sequence_dirs);
+        let record = match RunRecord::read(&job.dir) {
+            Some(r) if !r.inputs.eq(&job.inputs) && !options.keep_stale => {
+                set_aside_stale(plan, &job, &r)?;
+                None
+            }
+            other => other,
+        };
+        match record {
             Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
             _ => match &unavailable[job.sequence] {
                 Some(problem) => {
-                    record_unavailable(job, &plan.planned[job.sequence], problem)?;
+                    record_unavailable(&job, &plan.planned[job.sequence], problem)?;
                     unavailable_runs += 1;
                 }
-                None => todo.push(job.clone()),
+                None => todo.push(job),
             },
         }
     }
@@ -266,18 +292,72 @@ fn execute(
     Ok((executed, skipped))
 }
 
+/// What decides the result of `job` today ([`fingerprint`]).
+fn run_inputs(
+    fingerprinter: &fingerprint::Fingerprinter,
+    plan: &BatchPlan,
+    job: &RunJob,
+    sequence_dirs: &[PathBuf],
+) -> fingerprint::RunInputs {
+    let sequence = &plan.planned[job.sequence];
+    let execution = fingerprint::Execution {
+        deterministic: plan.manifest.batch.deterministic,
+        pace: plan.manifest.batch.pace,
+    };
+    fingerprinter.inputs(
+        (&sequence_dirs[job.sequence], sequence.frames),
+        job.mode.flag(),
+        &execute::run_config(sequence, job.mode),
+        execution,
+    )
+}
+
+/// A finished run made with other inputs than `job`'s: says what differs and moves
+/// its folder to `OUT/stale/<sequence>/<mode>/r<k>-<UTC time>/` (never deleted), so
+/// that it is run again.
+fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result<(), String> {
+    let reasons = fingerprint::differences(&record.inputs, &job.inputs).join(", ");
+    let label = plan.label(job);
+    let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
+    let to = plan
+        .out
+        .join("stale")
+        .join(&label)
+        .with_file_name(format!("r{}-{stamp}", job.repetition));
+    std::fs::create_dir_all(to.parent().unwrap_or(&plan.out))
+        .map_err(|e| format!("cannot create {}: {e}", to.display()))?;
+    std::fs::rename(&job.dir, &to)
+        .map_err(|e| format!("cannot move {} to {}: {e}", job.dir.display(), to.display()))?;
+    eprintln!(
+        "{label}: made with other settings ({reasons}): run again; the old run is in {} (--keep-stale keeps such runs)",
+        to.display()
+    );
+    Ok(())
+}
+
 /// The tables, plots and report from the finished runs; the groups' summaries.
 fn write_tables(
     plan: &BatchPlan,
-    path: &Path,
+    (path, program): (&Path, &Path),
     sequence_dirs: &[PathBuf],
     notes: &mut Vec<String>,
 ) -> Result<Vec<GroupSummary>, String> {
     let (manifest, planned, out) = (&plan.manifest, &plan.planned, &plan.out);
+    let fingerprinter = fingerprint::Fingerprinter::new(program);
     let records: Vec<RunRecord> = plan
         .runs
         .iter()
-        .filter_map(|j| RunRecord::read(&j.dir))
+        .filter_map(|j| {
+            let mut record = RunRecord::read(&j.dir)?;
+            let now = run_inputs(&fingerprinter, plan, j, sequence_dirs);
+            let reasons = fingerprint::differences(&record.inputs, &now);
+            record.stale = (!reasons.is_empty()).then(|| reasons.join(", "));
+            Some(record)
+        })
+        .collect();
+    let stale: Vec<String> = records
+        .iter()
+        .filter_map(|r| Some(format!("{}/{}/r{} ({})", r.sequence, r.mode.name(), r.repetition, r.stale.as_ref()?)))
         .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
     let mut modes: Vec<Mode> = manifest.batch.modes.clone();
@@ -291,7 +371,13 @@ fn write_tables(
     let groups = results::summarise(&records, &names, &modes);
     let finished = records.iter().filter(|r| r.status == RunStatus::Ok).count();
     let failed = records.len() - finished;
-    let header = header_lines(manifest, planned, path, (finished, failed, plan.runs.len()));
+    let mut header = header_lines(manifest, planned, path, (finished, failed, plan.runs.len()));
+    if !stale.is_empty() {
+        header.push(format!(
+            "**Stale runs** (kept with --keep-stale, made with other settings than this manifest's): {}",
+            stale.join("; ")
+        ));
+    }
     results::write_results(
         out,
         &records,
@@ -335,6 +421,7 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
                     mode,
                     repetition,
                     dir: record::run_dir(out, &sequence.name, mode, repetition),
+                    inputs: Default::default(),
                 });
             }
         }

@@ -32,6 +32,13 @@ pub struct RunRecord {
     pub seconds: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub figures: Option<RunFigures>,
+    /// What decided the result ([`super::fingerprint`]): a run whose inputs differ
+    /// from the batch's is not taken for one of its runs.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub inputs: super::fingerprint::RunInputs,
+    /// Set on a run kept with `--keep-stale` although its inputs differ: what differs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stale: Option<String>,
 }
 
 /// The figures of a successful run.
@@ -145,6 +152,8 @@ impl RunRecord {
             error: None,
             seconds: 0.0,
             figures: None,
+            inputs: Default::default(),
+            stale: None,
         }
     }
 

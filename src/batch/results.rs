@@ -246,15 +246,20 @@ const RUNS_CSV_COLUMNS: [&str; 21] = [
 fn runs_csv_row(r: &RunRecord) -> [String; 21] {
     let f = r.figures.clone().unwrap_or_default();
     let map = f.map.clone().unwrap_or_default();
-    let error = r.error.as_deref().unwrap_or("").replace(['"', '\n'], "'");
+    // A stale run (kept with --keep-stale) says so in `status`, and why in `error`.
+    let error = match &r.stale {
+        Some(why) => format!("stale: made with other settings ({why})"),
+        None => r.error.clone().unwrap_or_default(),
+    }
+    .replace(['"', '\n'], "'");
     [
         r.sequence.clone(),
         r.mode.name().to_string(),
         r.repetition.to_string(),
-        if r.status == RunStatus::Ok {
-            "ok"
-        } else {
-            "failed"
+        match (r.status, &r.stale) {
+            (RunStatus::Ok, None) => "ok",
+            (RunStatus::Ok, Some(_)) => "stale",
+            _ => "failed",
         }
         .to_string(),
         format!("{:.1}", r.seconds),
@@ -441,6 +446,8 @@ mod tests {
             },
             error: ate.is_none().then(|| "boom".into()),
             seconds: 1.0,
+            inputs: Default::default(),
+            stale: None,
             figures: ate.map(|a| RunFigures {
                 ate_rmse: Some(a),
                 coverage_percent: 100.0,

@@ -125,6 +125,7 @@ mod tests {
                         mode,
                         repetition: r,
                         dir: std::path::PathBuf::from(format!("{}/{}/{r}", p.name, mode.name())),
+                        inputs: Default::default(),
                     });
                 }
             }
