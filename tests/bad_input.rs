@@ -52,6 +52,11 @@ fn timestamps_out_of_order_are_sorted() {
     std::fs::write(seq.join("rgb.txt"), [comments, entries].concat().join("\n")).unwrap();
     let (ok, out, err) = run(&seq, "out");
     assert!(ok && out.contains("tracked 6 of 6"), "{out}{err}");
+    // Not silently: the warning names the file and the lines that go backwards.
+    assert!(
+        err.contains("rgb.txt: timestamps go backwards on line(s) 4, 5, 6, 7, 8"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -175,7 +175,14 @@ fn dense_commands_report_bad_input_clearly() {
     // fuse: a folder that is not a run, a run that names no sequence.
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
     assert!(!ok && err.contains("not a finished run"), "{err}");
+    // Any JSON is not a run report.
     write(&dir.join("report.json"), "{\"mode\": \"dop\"}");
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
+    assert!(!ok && err.contains("not a dopslam run report") && err.contains("report.json"), "{err}");
+    write(
+        &dir.join("report.json"),
+        "{\"mode\": \"dop\", \"totals\": {\"frames\": 1, \"tracked\": 1, \"coverage_percent\": 100.0, \"keyframes\": 1, \"map_points\": 1, \"median_tracking_ms\": 1.0, \"mean_tracking_ms\": 1.0}}",
+    );
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
     assert!(!ok && err.contains("--sequence"), "{err}");
     // A [dense] section with an impossible voxel, named by key.

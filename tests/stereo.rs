@@ -157,6 +157,19 @@ fn a_missing_calib_txt_is_named() {
     assert!(err.contains("calib.txt"), "{err}");
 }
 
+/// In KITTI's layout the order of `times.txt` decides which image is which frame: a
+/// time going backwards is refused, naming the line.
+#[test]
+fn times_going_backwards_are_refused() {
+    let sequence = small_copy("stereo-times");
+    let text = std::fs::read_to_string(sequence.join("times.txt")).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines.swap(1, 2);
+    std::fs::write(sequence.join("times.txt"), lines.join("\n")).unwrap();
+    let err = run_fails(&sequence);
+    assert!(err.contains("times.txt") && err.contains("on line 3"), "{err}");
+}
+
 #[test]
 fn a_right_image_of_another_size_is_refused() {
     let sequence = small_copy("stereo-sizes");

@@ -103,6 +103,18 @@ pub fn read_file_list(path: &Path, min_fields: usize) -> Result<Vec<ListEntry>, 
             line: line_number,
         });
     }
+    let backwards: Vec<String> = entries
+        .windows(2)
+        .filter(|pair| pair[1].timestamp < pair[0].timestamp)
+        .map(|pair| pair[1].line.to_string())
+        .collect();
+    if !backwards.is_empty() {
+        eprintln!(
+            "warning: {}: timestamps go backwards on line(s) {}: the entries are taken in time order",
+            path.display(),
+            backwards.join(", ")
+        );
+    }
     entries.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     let mut deduplicated: Vec<ListEntry> = Vec::with_capacity(entries.len());
     for entry in entries {

@@ -139,6 +139,17 @@ impl KittiSequence {
         if times.is_empty() {
             return Err(IoError::invalid(&times_path, "lists no frame times"));
         }
+        if let Some(k) = (1..times.len()).find(|&k| times[k] < times[k - 1]) {
+            return Err(IoError::invalid(
+                &times_path,
+                format!(
+                    "time {} on line {} comes before {} on the line above: KITTI frames are numbered in time order (line k is image k-1), so the order decides which image is which",
+                    times[k],
+                    k + 1,
+                    times[k - 1]
+                ),
+            ));
+        }
         let (left, right) = (
             count_pngs(&root.join("image_0"))?,
             count_pngs(&root.join("image_1"))?,

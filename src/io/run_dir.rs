@@ -146,8 +146,15 @@ impl RunDir {
     pub fn read_summary(&self) -> Result<RunSummary, IoError> {
         let path = self.report();
         let text = super::errors::read_text(&path)?;
-        serde_json::from_str(&text)
-            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))
+        let summary: RunSummary = serde_json::from_str(&text)
+            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))?;
+        if summary.frames.is_empty() && summary.totals.is_none() {
+            return Err(IoError::invalid(
+                &path,
+                "not a dopslam run report: it lists no frames and no totals (every run's report.json has both)",
+            ));
+        }
+        Ok(summary)
     }
 }
 
