@@ -158,6 +158,16 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
         );
         return Ok(());
     }
+    if dopslam::batch::runs_to_do(&plan, program) == 0 {
+        println!(
+            "nothing to submit: all {} runs are finished in {} with this manifest's settings; `dopslam batch {} --out {} --collect` makes the tables",
+            plan.runs.len(),
+            plan.out.display(),
+            args.manifest.display(),
+            plan.out.display()
+        );
+        return Ok(());
+    }
     let (array, collect) = dopslam::batch::slurm::submit(&scripts).map_err(anyhow::Error::msg)?;
     println!("submitted: array job {array}, collection job {collect} (after the array)");
     println!(

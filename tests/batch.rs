@@ -372,3 +372,32 @@ fn runs_made_with_other_settings_are_run_again_or_kept_marked_stale() {
     let copy = std::fs::read_to_string(out.join("manifest.toml")).unwrap();
     assert!(copy.contains("frames = 15"), "the folder's manifest stays: {copy}");
 }
+
+/// At the batch level: a second batch on the same folder waits for no one and is
+/// refused, an output folder inside an input sequence is refused, and `--slurm
+/// --submit` with every run finished submits nothing.
+#[test]
+fn a_batch_is_alone_on_its_folder_never_in_its_inputs_and_submits_no_empty_array() {
+    let dir = temp_dir("batch-level");
+    let seq = dir.join("room");
+    synth_static_room(&seq, 8);
+    let path = dir.join("room.toml");
+    let text = format!(
+        "[batch]\nmodes = [\"no-dop\"]\ndeterministic = true\n\n[[sequence]]\npath = \"{}\"\nname = \"room\"\n",
+        seq.display()
+    );
+    std::fs::write(&path, text).unwrap();
+    let (ok, _, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &seq.join("results").to_string_lossy()]);
+    assert!(!ok && stderr.contains("inside the input sequence"), "{stderr}");
+    assert!(!seq.join("results").exists(), "nothing written into the input");
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let held = std::fs::File::create(out.join(".dopslam-batch.lock")).unwrap();
+    held.lock().unwrap();
+    let (ok, _, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    assert!(!ok && stderr.contains("another dopslam batch"), "{stderr}");
+    drop(held);
+    batch(&path, &out);
+    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--slurm", "--submit"]);
+    assert!(ok && stdout.contains("nothing to submit"), "{stdout}\n{stderr}");
+}

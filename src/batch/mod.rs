@@ -135,7 +135,9 @@ impl BatchPlan {
 pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, String> {
     let plan = BatchPlan::new(path, options.out.as_deref())?;
     let out = &plan.out;
+    check_not_an_input(&plan)?;
     std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let _lock = batch_lock(out, options.shard.is_some())?;
     let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     let own = out.join("manifest.toml");
     if options.collect {
@@ -203,6 +205,66 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
     }
     summary.notes = notes;
     Ok(summary)
+}
+
+/// Refuses an output folder that is, or lies inside, one of the batch's recorded
+/// sequence folders: a batch never writes into its inputs.
+fn check_not_an_input(plan: &BatchPlan) -> Result<(), String> {
+    for sequence in &plan.planned {
+        if let SequenceSource::Folder(input) = &sequence.source {
+            if crate::io::output::is_within(&plan.out, input) {
+                return Err(format!(
+                    "the output folder {} is inside the input sequence {} ({}): choose another --out (a batch never writes into its inputs)",
+                    plan.out.display(),
+                    input.display(),
+                    sequence.name
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The batch's lock on its output folder (`OUT/.dopslam-batch.lock`, held while it
+/// runs): a whole batch or a collection holds it alone; the shards of one batch share
+/// it (they run together by design), so neither a second batch nor a collection runs
+/// beside them.
+fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, String> {
+    let path = out.join(".dopslam-batch.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(|e| format!("cannot lock {}: {e}", path.display()))?;
+    let taken = match shard {
+        true => file.try_lock_shared(),
+        false => file.try_lock(),
+    };
+    match taken {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => Err(format!(
+            "another dopslam batch is writing into {}: wait for it to end or choose another --out",
+            out.display()
+        )),
+        Err(std::fs::TryLockError::Error(e)) => Err(format!("cannot lock {}: {e}", path.display())),
+    }
+}
+
+/// How many of the batch's runs are still to do: no finished `run.json`, or one made
+/// with other inputs ([`fingerprint`]) than `program` would run with now.
+pub fn runs_to_do(plan: &BatchPlan, program: &Path) -> usize {
+    let fingerprinter = fingerprint::Fingerprinter::new(program);
+    let dirs: Vec<PathBuf> = plan.planned.iter().map(|p| sequence_dir(p, &plan.out)).collect();
+    plan.runs
+        .iter()
+        .filter(|job| match RunRecord::read(&job.dir) {
+            Some(r) if r.status == RunStatus::Ok => {
+                r.inputs != run_inputs(&fingerprinter, plan, job, &dirs)
+            }
+            _ => true,
+        })
+        .count()
 }
 
 /// The sequences the runs `mine` need: each folder, generating synthetic ones once
