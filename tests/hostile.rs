@@ -203,6 +203,10 @@ fn sequence_folders() {
     let looped = base.join("loop");
     std::os::unix::fs::symlink(&looped, &looped).unwrap();
     case("info on a symlink loop", &["info", &s(&looped)], false, &["loop of symbolic links"]);
+    // The same for a file: a settings file or a trajectory that is a loop says so.
+    let seq_s = s(&seq);
+    case("run --settings a symlink loop", &["run", &seq_s, "--settings", &s(&looped), "--out", &out_s], false, &["loop of symbolic links"]);
+    case("eval a symlink loop", &["eval", &s(&looped), &s(&looped)], false, &["loop of symbolic links"]);
     let kitti = base.join("kitti");
     std::fs::create_dir_all(kitti.join("sequences/00")).unwrap();
     case("run on a KITTI root", &run_args(&s(&kitti), &out_s), false, &["sequences/00"]);

@@ -46,14 +46,25 @@ impl IoError {
     }
 }
 
+/// `Ok` when `path` exists; else `Missing` (with `what`), or, for a symbolic link that
+/// leads back to itself, an error that says it is a loop (not "not found").
+pub fn check_exists(path: &std::path::Path, what: &str) -> Result<(), IoError> {
+    match std::fs::metadata(path) {
+        Ok(_) => Ok(()),
+        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            message: "a loop of symbolic links (it leads back to itself), not a file".into(),
+        }),
+        Err(_) => Err(IoError::Missing {
+            path: path.to_path_buf(),
+            what: what.into(),
+        }),
+    }
+}
+
 /// Reads a whole text file, naming it in the error.
 pub fn read_text(path: &std::path::Path) -> Result<String, IoError> {
-    if !path.exists() {
-        return Err(IoError::Missing {
-            path: path.to_path_buf(),
-            what: "no such file".into(),
-        });
-    }
+    check_exists(path, "no such file")?;
     std::fs::read_to_string(path).map_err(|source| IoError::Read {
         path: path.to_path_buf(),
         source,

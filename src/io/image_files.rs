@@ -41,12 +41,7 @@ fn open(path: &Path) -> Result<image::DynamicImage, IoError> {
 
 /// Opens an image; `what` says what the missing file was meant to be.
 fn open_as(path: &Path, what: &str) -> Result<image::DynamicImage, IoError> {
-    if !path.exists() {
-        return Err(IoError::Missing {
-            path: path.to_path_buf(),
-            what: what.into(),
-        });
-    }
+    super::errors::check_exists(path, what)?;
     image::open(path).map_err(|e| IoError::Image {
         path: path.to_path_buf(),
         message: e.to_string(),
