@@ -24,14 +24,36 @@ struct Needed {
     path: PathBuf,
     /// Whether a default run needs it (else it is an option).
     required: bool,
+    /// How it is loaded to check it.
+    load: Load,
 }
 
-fn status(path: &Path) -> &'static str {
-    if path.is_file() {
-        "ok"
-    } else {
-        "MISSING"
+/// How `doctor` loads a file: as a run would, so that a corrupt file is found here.
+#[derive(Clone, Copy)]
+enum Load {
+    Runtime,
+    Model(dopslam::detect::yolo::Layout),
+    Vocabulary,
+}
+
+/// `Ok` when `needed` loads (a session opened on one blank image, the vocabulary read
+/// whole, the library loaded), else what is wrong; `None` when the file is missing.
+fn load_check(needed: &Needed, library: &Path) -> Option<Result<(), String>> {
+    if !needed.path.is_file() {
+        return None;
     }
+    Some(match needed.load {
+        Load::Runtime => dopslam::detect::onnx::check_runtime(&needed.path).map_err(|e| e.to_string()),
+        Load::Model(layout) => dopslam::detect::onnx::OnnxDetector::load(&needed.path, layout, library, 1)
+            .map(|_| ())
+            .map_err(|e| e.to_string()),
+        Load::Vocabulary => dopslam::bow::vocabulary::Vocabulary::read(&needed.path)
+            .and_then(|v| match v.is_empty() {
+                true => Err(dopslam::io::IoError::invalid(&needed.path, "holds no words")),
+                false => Ok(()),
+            })
+            .map_err(|e| e.to_string()),
+    })
 }
 
 /// Prints the search order and each runtime file; fails when a file a default run
@@ -52,24 +74,31 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         None => println!("  2. {} (unset)", data_dir::ENV),
     }
     match data_dir::install_record() {
-        Some(record) if record.is_file() => println!(
-            "  3. the install record {} -> {}",
-            record.display(),
-            std::fs::read_to_string(&record).unwrap_or_default().trim()
-        ),
+        Some(record) if record.is_file() => {
+            let named = std::fs::read_to_string(&record).unwrap_or_default().trim().to_string();
+            let skipped = match Path::new(&named) {
+                p if !p.is_absolute() => " (skipped: not an absolute path)",
+                p if !p.is_dir() => " (skipped: no such directory; run tools/setup.sh again)",
+                _ => "",
+            };
+            println!("  3. the install record {} -> {named}{skipped}", record.display())
+        }
         Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
         None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
     }
     println!("  4. ./data under the working directory ({})", cwd.join("data").display());
+    let library = dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref());
     let mut needed = vec![Needed {
         what: "ONNX Runtime library (keyframe detector)",
-        path: dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref()),
+        path: library.clone(),
         required: true,
+        load: Load::Runtime,
     }];
     needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
         what: "detector model (the config's)",
         path,
         required: true,
+        load: Load::Model(config.detector.model.layout()),
     }));
     for (model, what) in [
         (Model::YoloxNano, "detector model yolox-nano (optional)"),
@@ -80,6 +109,7 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
                 what,
                 path,
                 required: false,
+                load: Load::Model(model.layout()),
             }));
         }
     }
@@ -87,19 +117,41 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         what: "place-recognition vocabulary (loop closing)",
         path: config.global.vocabulary_file(),
         required: true,
+        load: Load::Vocabulary,
     });
-    println!("files:");
+    println!("files (each loaded as a run loads it):");
+    let mut broken = Vec::new();
     for n in &needed {
-        println!("  {:<8} {:<44} {}", status(&n.path), n.what, shown(&n.path).display());
+        let checked = load_check(n, &library);
+        let status = match &checked {
+            None => "MISSING",
+            Some(Ok(())) => "ok",
+            Some(Err(_)) => "BROKEN",
+        };
+        println!("  {:<8} {:<44} {}", status, n.what, shown(&n.path).display());
+        if let Some(Err(why)) = checked {
+            println!("           {why}");
+            if n.required {
+                broken.push(format!("{} ({why})", shown(&n.path).display()));
+            }
+        }
     }
     println!(
         "stereo dense map (OpenCV SGBM): {}",
         if cfg!(feature = "opencv") { "built in" } else { "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)" }
     );
     let missing: Vec<&Needed> = needed.iter().filter(|n| n.required && !n.path.is_file()).collect();
-    if missing.is_empty() {
-        println!("everything a default run needs is in place");
+    if missing.is_empty() && broken.is_empty() {
+        println!("everything a default run needs is in place and loads");
         return Ok(());
+    }
+    if missing.is_empty() {
+        anyhow::bail!(
+            "{} cannot be loaded: {}; {}",
+            if broken.len() == 1 { "one file" } else { "files" },
+            broken.join("; "),
+            data_dir::INSTALL_HINT
+        );
     }
     if data.origin == DataOrigin::WorkingDirectory && !data.path.is_dir() {
         println!("no data directory was found: dopslam looked at ./data of {}", cwd.display());

@@ -376,3 +376,44 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
     assert!(setup["vocabulary"].as_str().unwrap().ends_with("vocabulary.dbow"), "{setup}");
     assert!(setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"), "{setup}");
 }
+
+/// `dopslam doctor` loads each file as a run would: a truncated model, a truncated
+/// vocabulary and a library that is no library are each BROKEN, with the reason, and
+/// the doctor fails; with the installed data everything loads. Skips, saying why,
+/// where setup has not installed the data.
+#[test]
+fn the_doctor_finds_corrupt_files() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let model = data.join("models/yolov4-tiny-320x256.onnx");
+    if !data.join("ort/libonnxruntime.so").exists() || !model.exists() || !data.join("vocabulary.dbow").exists() {
+        eprintln!("skipping the_doctor_finds_corrupt_files: bash tools/setup.sh has not installed the data into {}", data.display());
+        return;
+    }
+    let doctor = |dir: &Path| {
+        let output = Command::new(env!("CARGO_BIN_EXE_dopslam")).env("DOPSLAM_DATA", dir).arg("doctor").output().unwrap();
+        (output.status.success(), String::from_utf8_lossy(&output.stdout).into_owned(), String::from_utf8_lossy(&output.stderr).into_owned())
+    };
+    let (ok, stdout, stderr) = doctor(&data);
+    assert!(ok && stdout.contains("in place and loads"), "{stdout}{stderr}");
+    let base = common::temp_dir("cli-doctor");
+    std::fs::create_dir_all(base.join("models")).unwrap();
+    std::fs::create_dir_all(base.join("ort")).unwrap();
+    let head = |from: &Path, to: &Path, bytes: usize| {
+        let all = std::fs::read(from).unwrap();
+        std::fs::write(to, &all[..bytes.min(all.len())]).unwrap();
+    };
+    head(&model, &base.join("models/yolov4-tiny-320x256.onnx"), 100_000);
+    head(&data.join("vocabulary.dbow"), &base.join("vocabulary.dbow"), 1000);
+    std::fs::write(base.join("ort/libonnxruntime.so"), b"not a shared library").unwrap();
+    let (ok, stdout, stderr) = doctor(&base);
+    assert!(!ok, "{stdout}");
+    assert_eq!(stdout.matches("BROKEN").count(), 3, "{stdout}");
+    assert!(stdout.contains("truncated") && stderr.contains("cannot be loaded"), "{stdout}{stderr}");
+    // The install record that was skipped says why.
+    let home = base.join("home");
+    std::fs::create_dir_all(home.join("dopslam")).unwrap();
+    std::fs::write(home.join("dopslam/data-dir"), "/nowhere/data\n").unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_dopslam")).env_remove("DOPSLAM_DATA").env("XDG_DATA_HOME", &home).arg("doctor").output().unwrap();
+    let text = String::from_utf8_lossy(&output.stdout);
+    assert!(text.contains("/nowhere/data (skipped: no such directory"), "{text}");
+}

@@ -48,6 +48,12 @@ fn environment(library: &Path) -> Result<&'static ort::environment::Environment,
     result.as_ref().map_err(|m| DetectError::Runtime(m.clone()))
 }
 
+/// Loads the ONNX Runtime library (once a process), for `dopslam doctor`: the error
+/// says why it cannot be used (missing, not a library, the wrong version).
+pub fn check_runtime(library: &Path) -> Result<(), DetectError> {
+    environment(library).map(|_| ())
+}
+
 /// One network: a model file in an ONNX Runtime session, with its fixed input size,
 /// its layout and its own score threshold (else the detector's).
 struct Network {
