@@ -225,10 +225,35 @@ impl Config {
             path: path.to_path_buf(),
             message,
         })?;
+        config.resolve_paths(path.parent().unwrap_or(Path::new("")));
         if let Some(settings) = config.dataset.settings.clone() {
             config.apply_orbslam_settings(&settings)?;
         }
         Ok(config)
+    }
+
+    /// Takes the config's relative file paths from `base`, the folder of the config
+    /// file (as a synth preset's are): `[dataset] settings`, `[detector] model_path`,
+    /// `model_paths`, each pool entry's `path`, `ort_library`, `cache_dir` and
+    /// `[global] vocabulary`. `[dataset] association_file` stays relative to the
+    /// sequence folder, where such files live.
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let from = |path: &mut PathBuf| {
+            if path.is_relative() && !base.as_os_str().is_empty() {
+                *path = base.join(&*path);
+            }
+        };
+        let detector = &mut self.detector;
+        let optional = [
+            &mut self.dataset.settings,
+            &mut detector.model_path,
+            &mut detector.ort_library,
+            &mut detector.cache_dir,
+            &mut self.global.vocabulary,
+        ];
+        optional.into_iter().flatten().for_each(from);
+        detector.model_paths.iter_mut().for_each(from);
+        detector.pool.iter_mut().filter_map(|e| e.path.as_mut()).for_each(from);
     }
 
     /// Parses and validates TOML text; the message names the offending key.
@@ -498,6 +523,26 @@ mod tests {
         assert!(Config::from_toml("[dense]\ncloud_free_space = -0.5\n").is_ok());
         let distorted = "[dataset.camera]\nfx = 517.3\nfy = 516.5\ncx = 318.6\ncy = 255.3\nwidth = 640\nheight = 480\ndistortion = [0.26, -0.95, -0.005, 0.003, 1.16]\n";
         assert!(Config::from_toml(distorted).is_ok(), "{:?}", Config::from_toml(distorted));
+    }
+
+    /// Relative paths are the config file's, wherever the command runs.
+    #[test]
+    fn relative_paths_are_taken_from_the_config_folder() {
+        let dir = std::env::temp_dir().join(format!("dopslam-config-paths-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("cams")).unwrap();
+        std::fs::write(
+            dir.join("cams/cam.yaml"),
+            "%YAML:1.0\nCamera.fx: 500.0\nCamera.fy: 500.0\nCamera.cx: 320.0\nCamera.cy: 240.0\n",
+        )
+        .unwrap();
+        let text = "[dataset]\nsettings = \"cams/cam.yaml\"\n[detector]\nmodel_paths = [\"m/a.onnx\", \"/abs/b.onnx\"]\n[global]\nvocabulary = \"voc.dbow\"\n";
+        std::fs::write(dir.join("my.toml"), text).unwrap();
+        let config = Config::load(&dir.join("my.toml")).unwrap();
+        assert_eq!(config.dataset.settings, Some(dir.join("cams/cam.yaml")));
+        assert_eq!(config.detector.model_paths, [dir.join("m/a.onnx"), PathBuf::from("/abs/b.onnx")]);
+        assert_eq!(config.global.vocabulary, Some(dir.join("voc.dbow")));
+        assert!(config.dataset.settings_applied.is_some(), "the settings file was read");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
