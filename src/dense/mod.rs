@@ -670,6 +670,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
     write_atomic(&out.dense_report(), json.as_bytes())?;
+    // A request that came while the files were written: they were finished whole, and
+    // the command still ends as interrupted.
+    interrupted(out.root(), "asked while the dense map was written: it was finished whole")?;
     Ok(report)
 }
 
@@ -693,63 +696,79 @@ fn write_maps(
         "dopslam dense map, masking {:?}, voxel {} m",
         masking, config.voxel
     );
-    let mut mesh_or_cloud = None;
     let Maps { volume, cloud } = maps;
-    if config.fuses_tsdf() {
+    // Everything is computed before anything is written: an interrupt until then
+    // leaves the earlier dense map as it was.
+    let mesh = config.fuses_tsdf().then(|| {
         let start = Instant::now();
         let mesh = marching_cubes::extract(&volume);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
-        let path = out.file(names::DENSE_MESH_PLY);
-        write_ply(&path, &mesh, None, config.ply_encoding, &comment)?;
-        report.outputs.push(path);
-        if config.obj {
-            let path = out.file(names::DENSE_MESH_OBJ);
-            write_obj(&path, &mesh, &comment)?;
-            report.outputs.push(path);
-        }
-        mesh_or_cloud = Some(mesh);
-    }
-    if let Some(cloud) = cloud {
+        mesh
+    });
+    let points = cloud.map(|cloud| {
         let start = Instant::now();
         let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
         let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
-        drop(volume);
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();
         report.cloud_seen_through = dropped;
-        let path = out.file(names::DENSE_POINTS);
-        write_ply(&path, &points, None, config.ply_encoding, &comment)?;
+        points
+    });
+    drop(volume);
+    interrupted(out.root(), "the dense map was not written; the earlier one is as it was")?;
+    if let Some(mesh) = &mesh {
+        let path = out.file(names::DENSE_MESH_PLY);
+        write_ply(&path, mesh, None, config.ply_encoding, &comment)?;
         report.outputs.push(path);
-        if mesh_or_cloud.is_none() {
-            mesh_or_cloud = Some(points);
+        if config.obj {
+            let path = out.file(names::DENSE_MESH_OBJ);
+            write_obj(&path, mesh, &comment)?;
+            report.outputs.push(path);
         }
     }
-    if let (true, Some(map)) = (config.pictures, &mesh_or_cloud) {
-        if let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) {
-            let colours = render::with_ghosts(map, &[]);
-            let pictures = [
-                (
-                    names::DENSE_PERSPECTIVE,
-                    render::perspective(
-                        &map.vertices,
-                        &colours,
-                        &view.camera_from_world,
-                        &render::picture_camera(),
-                    ),
-                ),
-                (
-                    names::DENSE_TOP,
-                    render::top(&map.vertices, &colours, &view, 800),
-                ),
-            ];
-            for (name, picture) in pictures {
-                let path = out.file(name);
-                save_png(&path, &picture)?;
-                report.outputs.push(path);
-            }
-        }
+    if let Some(points) = &points {
+        let path = out.file(names::DENSE_POINTS);
+        write_ply(&path, points, None, config.ply_encoding, &comment)?;
+        report.outputs.push(path);
+    }
+    if let (true, Some(map)) = (config.pictures, mesh.as_ref().or(points.as_ref())) {
+        write_pictures(out, map, trajectory, report)?;
+    }
+    Ok(())
+}
+
+/// The dense map's pictures (perspective and top view) from the cameras' side.
+fn write_pictures(
+    out: &RunDir,
+    map: &crate::geometry::mesh::Mesh,
+    trajectory: &Trajectory,
+    report: &mut DenseReport,
+) -> Result<(), IoError> {
+    let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) else {
+        return Ok(());
+    };
+    let colours = render::with_ghosts(map, &[]);
+    let pictures = [
+        (
+            names::DENSE_PERSPECTIVE,
+            render::perspective(
+                &map.vertices,
+                &colours,
+                &view.camera_from_world,
+                &render::picture_camera(),
+            ),
+        ),
+        (
+            names::DENSE_TOP,
+            render::top(&map.vertices, &colours, &view, 800),
+        ),
+    ];
+    for (name, picture) in pictures {
+        let path = out.file(name);
+        save_png(&path, &picture)?;
+        report.outputs.push(path);
     }
     Ok(())
 }
@@ -891,13 +910,15 @@ fn load_group<T: Send>(
 
 /// `Err` once an interrupt was asked for: the dense map is then not written.
 fn check_interrupt(inputs: &DenseInputs) -> Result<(), IoError> {
+    interrupted(inputs.out_dir, "the dense map was not written")
+}
+
+/// `Err` naming `dir` and saying `what` once an interrupt was asked for.
+fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
     if crate::interrupt::requested() {
         return Err(IoError::invalid(
-            inputs.out_dir,
-            format!(
-                "{}: the dense map was not written",
-                crate::interrupt::MESSAGE
-            ),
+            dir,
+            format!("{}: {what}", crate::interrupt::MESSAGE),
         ));
     }
     Ok(())

@@ -258,8 +258,12 @@ mod tests {
         std::fs::write(run.report(), "[1, 2]").unwrap();
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("not a dopslam run report"), "{e}");
-        // What fuse needs may be all there is; the totals are asked for by name.
+        // Any JSON object is not a report: one lists frames or totals.
         std::fs::write(run.report(), "{\"mode\": \"dop\"}").unwrap();
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("not a dopslam run report") && e.contains("no frames"), "{e}");
+        // What fuse needs may be all there is; the totals are asked for by name.
+        std::fs::write(run.report(), "{\"mode\": \"dop\", \"frames\": [{\"dynamic_keypoints\": 0}]}").unwrap();
         let summary = run.read_summary().unwrap();
         assert_eq!(summary.mode, "dop");
         let e = summary.totals(&run.report()).unwrap_err().to_string();
