@@ -227,7 +227,13 @@ impl Config {
         })?;
         config.resolve_paths(path.parent().unwrap_or(Path::new("")));
         if let Some(settings) = config.dataset.settings.clone() {
-            config.apply_orbslam_settings(&settings)?;
+            // The error names the config that named the settings file.
+            config
+                .apply_orbslam_settings(&settings)
+                .map_err(|e| ConfigError::Invalid {
+                    path: path.to_path_buf(),
+                    message: format!("[dataset] settings: {e}"),
+                })?;
         }
         Ok(config)
     }
@@ -542,6 +548,9 @@ mod tests {
         assert_eq!(config.detector.model_paths, [dir.join("m/a.onnx"), PathBuf::from("/abs/b.onnx")]);
         assert_eq!(config.global.vocabulary, Some(dir.join("voc.dbow")));
         assert!(config.dataset.settings_applied.is_some(), "the settings file was read");
+        std::fs::write(dir.join("missing.toml"), "[dataset]\nsettings = \"nope.yaml\"\n").unwrap();
+        let e = Config::load(&dir.join("missing.toml")).unwrap_err().to_string();
+        assert!(e.contains("missing.toml") && e.contains("[dataset] settings") && e.contains("nope.yaml"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -74,9 +74,51 @@ fn real_kitti_06_runs_with_orbslam2s_settings_of_another_image_size() {
         err.contains("says 1241x376 but the images are 1226x370"),
         "no size warning: {err}"
     );
+    assert!(!err.contains("looks swapped"), "a false alarm: {err}");
     assert_eq!(report["setup"]["calibration"]["camera"]["width"], 1226);
     assert_eq!(report["totals"]["tracked"], 51);
     // 60 m. ORB-SLAM2: 0.055 m; this build about 0.026 m.
     let ate = ate(&report);
     assert!(ate < 0.06, "ATE RMSE {ate} m");
+}
+
+/// The real KITTI 06 pair with its cameras swapped (image_0 the right camera): the run
+/// warns that the pair looks swapped (on real images most matches then point the
+/// wrong way; counting matches at a positive disparity alone did not tell).
+#[test]
+fn a_swapped_real_pair_is_named() {
+    let test = "a_swapped_real_pair_is_named";
+    let Some(data) = common::shared_data(test) else {
+        return;
+    };
+    let clip = data.join("real/kitti/sequences/06");
+    if !clip.join("image_0").is_dir() {
+        eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
+        return;
+    }
+    let dir = temp_dir("real-kitti-swapped");
+    let swapped = dir.join("06");
+    std::fs::create_dir_all(&swapped).unwrap();
+    std::os::unix::fs::symlink(clip.join("image_1"), swapped.join("image_0")).unwrap();
+    std::os::unix::fs::symlink(clip.join("image_0"), swapped.join("image_1")).unwrap();
+    for file in ["calib.txt", "times.txt"] {
+        std::fs::copy(clip.join(file), swapped.join(file)).unwrap();
+    }
+    let settings = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI04-12.yaml");
+    let (_, stdout, err) = dopslam(&[
+        "run",
+        &swapped.to_string_lossy(),
+        "--settings",
+        &settings.to_string_lossy(),
+        "--out",
+        &dir.join("out").to_string_lossy(),
+        "--frames",
+        "3",
+        "--detections",
+        "none",
+        "--no-dense",
+        "--no-loops",
+        "--deterministic",
+    ]);
+    assert!(err.contains("looks swapped") && err.contains("negative disparity"), "{stdout}\n{err}");
 }

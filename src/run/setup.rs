@@ -113,11 +113,9 @@ fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &S
         return;
     };
     let pair = (left, right);
-    if let Some((given, exchanged)) =
-        crate::frame::stereo::looks_swapped(pair, extractor, camera.bf, camera.fx)
-    {
+    if let Some((positive, negative)) = crate::frame::stereo::looks_swapped(pair, extractor, camera.fx) {
         eprintln!(
-            "warning: the stereo pair of {} looks swapped: {exchanged} keypoints match with image_1 as the left camera, {given} as given (image_0 must be the left camera)",
+            "warning: the stereo pair of {} looks swapped: {negative} keypoints match at a negative disparity and {positive} at a positive one (image_0 must be the left camera, image_1 the right)",
             sequence.name()
         );
     }
