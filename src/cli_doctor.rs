@@ -120,7 +120,7 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         load: Load::Vocabulary,
     });
     println!("files (each loaded as a run loads it):");
-    let mut broken = Vec::new();
+    let (mut missing, mut broken) = (Vec::new(), Vec::new());
     for n in &needed {
         let checked = load_check(n, &library);
         let status = match &checked {
@@ -129,18 +129,21 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
             Some(Err(_)) => "BROKEN",
         };
         println!("  {:<8} {:<44} {}", status, n.what, shown(&n.path).display());
-        if let Some(Err(why)) = checked {
-            println!("           {why}");
-            if n.required {
-                broken.push(format!("{} ({why})", shown(&n.path).display()));
+        match checked {
+            None if n.required => missing.push(shown(&n.path).display().to_string()),
+            Some(Err(why)) => {
+                println!("           {why}");
+                if n.required {
+                    broken.push(format!("{} ({why})", shown(&n.path).display()));
+                }
             }
+            _ => {}
         }
     }
     println!(
         "stereo dense map (OpenCV SGBM): {}",
         if cfg!(feature = "opencv") { "built in" } else { "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)" }
     );
-    let missing: Vec<&Needed> = needed.iter().filter(|n| n.required && !n.path.is_file()).collect();
     if missing.is_empty() && broken.is_empty() {
         println!("everything a default run needs is in place and loads");
         return Ok(());
@@ -159,7 +162,7 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     anyhow::bail!(
         "{} missing ({}): {}",
         if missing.len() == 1 { "one file is" } else { "files are" },
-        missing.iter().map(|n| shown(&n.path).display().to_string()).collect::<Vec<_>>().join(", "),
+        missing.join(", "),
         data_dir::INSTALL_HINT
     )
 }

@@ -30,15 +30,17 @@ def rotation_to_quaternion(m):
 
 
 def truth_in_tum(kitti, clip, path):
-    """The clip's KITTI poses with its times, as a TUM trajectory file at `path`."""
+    """The clip's KITTI poses with its times, as a TUM trajectory file at `path`; the
+    camera positions."""
     times = [float(t) for t in open(os.path.join(kitti, "sequences", clip, "times.txt"))]
+    positions = []
     with open(path, "w") as out:
         for t, line in zip(times, open(os.path.join(kitti, "poses", clip + ".txt"))):
             v = [float(x) for x in line.split()]
-            m = [v[0:3], v[4:7], v[8:11]]
-            q = rotation_to_quaternion(m)
+            q = rotation_to_quaternion([v[0:3], v[4:7], v[8:11]])
             out.write(f"{t:.6f} {v[3]} {v[7]} {v[11]} {q[0]} {q[1]} {q[2]} {q[3]}\n")
-    return [(v[3], v[7], v[11]) for v in ([float(x) for x in l.split()] for l in open(os.path.join(kitti, "poses", clip + ".txt")))]
+            positions.append((v[3], v[7], v[11]))
+    return positions
 
 
 def path_length(points):

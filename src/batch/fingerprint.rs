@@ -3,7 +3,7 @@
 //! the frames, the mode, how it ran (deterministic or real time, the pace), the
 //! effective config (the `config.toml` the run is given), the content of the ORB-SLAM2
 //! settings file it names, the detector's files and the `dopslam` binary. Each is a
-//! value or an FNV-1a hash of the content ([`content_hash`]), under a name, so that a
+//! value or an FNV-1a hash of the content ([`crate::run::content_hash`]), under a name, so that a
 //! difference can be said by name ("frames 10 -> 30", "config changed").
 
 use std::collections::{BTreeMap, HashMap};
@@ -12,16 +12,14 @@ use std::sync::Mutex;
 
 use crate::config::Config;
 use crate::pacing::Pace;
+use crate::run::content_hash;
 
 /// The named inputs of one run (see the module doc).
 pub type RunInputs = BTreeMap<String, String>;
 
-/// FNV-1a (64 bits, hex) of `bytes`.
-pub fn content_hash(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    });
-    format!("{hash:016x}")
+/// The hash of a file's content, `missing` when it cannot be read.
+fn file_hash(path: &Path) -> String {
+    std::fs::read(path).map_or_else(|_| "missing".into(), |bytes| content_hash(&bytes))
 }
 
 /// Makes the inputs of runs, hashing each file it reads once.
@@ -40,23 +38,18 @@ pub struct Execution {
 impl Fingerprinter {
     /// For runs started with `program`: its version and the hash of its file.
     pub fn new(program: &Path) -> Self {
-        let me = Self {
+        Self {
             files: Mutex::new(HashMap::new()),
-            program: String::new(),
-        };
-        let program = format!("{} {}", env!("CARGO_PKG_VERSION"), me.file(program));
-        Self { program, ..me }
+            program: format!("{} {}", env!("CARGO_PKG_VERSION"), file_hash(program)),
+        }
     }
 
-    /// The hash of a file's content, `missing` when it cannot be read.
+    /// [`file_hash`], each file read once.
     fn file(&self, path: &Path) -> String {
         let mut files = self.files.lock().expect("fingerprint cache poisoned");
         files
             .entry(path.to_path_buf())
-            .or_insert_with(|| match std::fs::read(path) {
-                Ok(bytes) => content_hash(&bytes),
-                Err(_) => "missing".into(),
-            })
+            .or_insert_with(|| file_hash(path))
             .clone()
     }
 

@@ -170,10 +170,13 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
             plan.manifest.batch.memory_per_run_gib,
         )
     });
+    // One for the whole invocation: the binary and the detector files are hashed once.
+    let fingerprinter = fingerprint::Fingerprinter::new(&options.program);
     let (executed, skipped) = if options.collect {
         (Executed::default(), 0)
     } else {
-        execute(&plan, (&mine, options), (&sequence_dirs, &unavailable), jobs)?
+        let dirs = (&sequence_dirs[..], &unavailable[..]);
+        execute(&plan, (&mine, options), dirs, (jobs, &fingerprinter))?
     };
     let mut summary = BatchSummary {
         out: out.clone(),
@@ -201,7 +204,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
         }
     }
     if summary.tables {
-        summary.groups = write_tables(&plan, (path, &options.program), &sequence_dirs, &mut notes)?;
+        summary.groups = write_tables(&plan, (path, &fingerprinter), &sequence_dirs, &mut notes)?;
     }
     summary.notes = notes;
     Ok(summary)
@@ -230,24 +233,16 @@ fn check_not_an_input(plan: &BatchPlan) -> Result<(), String> {
 /// it (they run together by design), so neither a second batch nor a collection runs
 /// beside them.
 fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, String> {
+    use crate::io::output::{lock_file, LockMode};
     let path = out.join(".dopslam-batch.lock");
-    let file = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&path)
-        .map_err(|e| format!("cannot lock {}: {e}", path.display()))?;
-    let taken = match shard {
-        true => file.try_lock_shared(),
-        false => file.try_lock(),
-    };
-    match taken {
-        Ok(()) => Ok(file),
-        Err(std::fs::TryLockError::WouldBlock) => Err(format!(
+    let mode = if shard { LockMode::TryShared } else { LockMode::Try };
+    match lock_file(&path, mode) {
+        Ok(Some(file)) => Ok(file),
+        Ok(None) => Err(format!(
             "another dopslam batch is writing into {}: wait for it to end or choose another --out",
             out.display()
         )),
-        Err(std::fs::TryLockError::Error(e)) => Err(format!("cannot lock {}: {e}", path.display())),
+        Err(e) => Err(format!("cannot lock {}: {e}", path.display())),
     }
 }
 
@@ -293,17 +288,16 @@ fn execute(
     plan: &BatchPlan,
     (mine, options): (&[RunJob], &BatchOptions),
     (sequence_dirs, unavailable): (&[PathBuf], &[Option<String>]),
-    jobs: usize,
+    (jobs, fingerprinter): (usize, &fingerprint::Fingerprinter),
 ) -> Result<(Executed, usize), String> {
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
-    let fingerprinter = fingerprint::Fingerprinter::new(&options.program);
     for job in mine {
         let mut job = job.clone();
-        job.inputs = run_inputs(&fingerprinter, plan, &job, sequence_dirs);
+        job.inputs = run_inputs(fingerprinter, plan, &job, sequence_dirs);
         let record = match RunRecord::read(&job.dir) {
-            Some(r) if !r.inputs.eq(&job.inputs) && !options.keep_stale => {
+            Some(r) if r.inputs != job.inputs && !options.keep_stale => {
                 set_aside_stale(plan, &job, &r)?;
                 None
             }
@@ -400,18 +394,17 @@ fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result
 /// The tables, plots and report from the finished runs; the groups' summaries.
 fn write_tables(
     plan: &BatchPlan,
-    (path, program): (&Path, &Path),
+    (path, fingerprinter): (&Path, &fingerprint::Fingerprinter),
     sequence_dirs: &[PathBuf],
     notes: &mut Vec<String>,
 ) -> Result<Vec<GroupSummary>, String> {
     let (manifest, planned, out) = (&plan.manifest, &plan.planned, &plan.out);
-    let fingerprinter = fingerprint::Fingerprinter::new(program);
     let records: Vec<RunRecord> = plan
         .runs
         .iter()
         .filter_map(|j| {
             let mut record = RunRecord::read(&j.dir)?;
-            let now = run_inputs(&fingerprinter, plan, j, sequence_dirs);
+            let now = run_inputs(fingerprinter, plan, j, sequence_dirs);
             let reasons = fingerprint::differences(&record.inputs, &now);
             record.stale = (!reasons.is_empty()).then(|| reasons.join(", "));
             Some(record)

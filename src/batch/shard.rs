@@ -85,7 +85,7 @@ pub fn once_per_folder(
             .map_err(|e| format!("cannot create {}: {e}", parent.display()))?;
     }
     // Held until this function returns: the lock goes with the file handle.
-    let _lock = crate::io::output::lock_file(&lock_path, true)
+    let _lock = crate::io::output::lock_file(&lock_path, crate::io::output::LockMode::Wait)
         .map_err(|e| format!("cannot lock {}: {e}", lock_path.display()))?;
     // Made by another process while this one waited?
     if dir.is_dir() {

@@ -53,7 +53,7 @@ pub fn check_exists(path: &std::path::Path, what: &str) -> Result<(), IoError> {
         Ok(_) => Ok(()),
         Err(e) if e.raw_os_error() == Some(libc::ELOOP) => Err(IoError::Invalid {
             path: path.to_path_buf(),
-            message: "a loop of symbolic links (it leads back to itself), not a file".into(),
+            message: "a loop of symbolic links (it leads back to itself)".into(),
         }),
         Err(_) => Err(IoError::Missing {
             path: path.to_path_buf(),

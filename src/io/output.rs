@@ -103,7 +103,7 @@ impl DirLock {
     /// Takes the lock or says that another process holds it.
     pub fn take(dir: &Path) -> Result<Self, IoError> {
         let path = dir.join(".dopslam.lock");
-        match lock_file(&path, false) {
+        match lock_file(&path, LockMode::Try) {
             Ok(Some(file)) => Ok(Self { _file: file }),
             Ok(None) => Err(invalid(
                 dir,
@@ -114,20 +114,34 @@ impl DirLock {
     }
 }
 
-/// Opens (creating) the file at `path` and locks it exclusively (`flock` on Unix: the
-/// lock goes with the returned handle, and with the process however it ends): waiting
-/// for another holder when `wait`, else `Ok(None)` while another holds it.
-pub fn lock_file(path: &Path, wait: bool) -> std::io::Result<Option<std::fs::File>> {
+/// How [`lock_file`] takes its lock.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LockMode {
+    /// Exclusive, waiting for another holder.
+    Wait,
+    /// Exclusive, `Ok(None)` while another holds it.
+    Try,
+    /// Shared with other shared holders, `Ok(None)` while an exclusive one holds it.
+    TryShared,
+}
+
+/// Opens (creating) the file at `path` and locks it as `mode` says (`flock` on Unix:
+/// the lock goes with the returned handle, and with the process however it ends).
+pub fn lock_file(path: &Path, mode: LockMode) -> std::io::Result<Option<std::fs::File>> {
     let file = std::fs::OpenOptions::new()
         .create(true)
         .truncate(false)
         .write(true)
         .open(path)?;
-    if wait {
-        file.lock()?;
-        return Ok(Some(file));
-    }
-    match file.try_lock() {
+    let taken = match mode {
+        LockMode::Wait => {
+            file.lock()?;
+            return Ok(Some(file));
+        }
+        LockMode::Try => file.try_lock(),
+        LockMode::TryShared => file.try_lock_shared(),
+    };
+    match taken {
         Ok(()) => Ok(Some(file)),
         Err(std::fs::TryLockError::WouldBlock) => Ok(None),
         Err(std::fs::TryLockError::Error(e)) => Err(e),

@@ -28,7 +28,7 @@ pub use dense_pass::dense_pass;
 pub use error::RunError;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
-    check_sequence_folder, detection_source, effective_mode, first_frame_hash, open_sequence,
+    check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash, open_sequence,
     resolve_calibration, RunSetup, Setup,
 };
 

@@ -56,13 +56,15 @@ impl Setup {
         let vocabulary = loop_vocabulary(&config.global)?;
         let mut config = config.for_sensor(sequence.sensor());
         config.detector.source = detection_source(&config)?;
-        let (calibration, size_warning) = calibration_and_warning(sequence, &config)?;
+        // The first frame, read once: it decides the image size and shows a swapped pair.
+        let first = sequence.load(0).ok();
+        let (calibration, size_warning) = calibration_and_warning(sequence, &config, first.as_ref())?;
         if let Some(warning) = size_warning {
             eprintln!("warning: {warning}");
         }
         let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
         let extractor = OrbExtractor::new(&config.orb);
-        warn_if_swapped(sequence, &extractor, &camera);
+        warn_if_swapped(sequence.name(), first.as_ref(), &extractor, &camera);
         let sensor = sequence.sensor();
         Ok(Self {
             mode: effective_mode(&config),
@@ -104,19 +106,20 @@ impl Setup {
 
 /// For a stereo sequence, a warning when its first pair looks swapped (see
 /// [`crate::frame::stereo::looks_swapped`]): such a pair still tracks, badly.
-fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &StereoCamera) {
-    if sequence.sensor() != SensorKind::Stereo || sequence.is_empty() {
-        return;
-    }
-    let Ok(frame) = sequence.load(0) else { return };
-    let crate::io::sequence::FrameImages::Stereo { left, right } = &frame.images else {
+fn warn_if_swapped(
+    name: &str,
+    first: Option<&crate::io::sequence::Frame>,
+    extractor: &OrbExtractor,
+    camera: &StereoCamera,
+) {
+    let Some(crate::io::sequence::FrameImages::Stereo { left, right }) = first.map(|f| &f.images)
+    else {
         return;
     };
     let pair = (left, right);
     if let Some((positive, negative)) = crate::frame::stereo::looks_swapped(pair, extractor, camera.fx) {
         eprintln!(
-            "warning: the stereo pair of {} looks swapped: {negative} keypoints match at a negative disparity and {positive} at a positive one (image_0 must be the left camera, image_1 the right)",
-            sequence.name()
+            "warning: the stereo pair of {name} looks swapped: {negative} keypoints match at a negative disparity and {positive} at a positive one (image_0 must be the left camera, image_1 the right)"
         );
     }
 }
@@ -124,29 +127,23 @@ fn warn_if_swapped(sequence: &dyn Sequence, extractor: &OrbExtractor, camera: &S
 /// Says what is wrong when `root` is no sequence folder: missing, a file, a loop of
 /// symbolic links, or a KITTI dataset's root instead of one of its sequences.
 pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
-    match std::fs::metadata(root) {
-        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
-            Err(IoError::invalid(root, "a loop of symbolic links, not a sequence folder"))
-        }
-        Err(_) => Err(IoError::Missing {
-            path: root.to_path_buf(),
-            what: "sequence folder".into(),
-        }),
-        Ok(meta) if !meta.is_dir() => Err(IoError::invalid(
+    crate::io::errors::check_exists(root, "sequence folder")?;
+    if !root.is_dir() {
+        return Err(IoError::invalid(
             root,
             "a file, not a sequence folder (TUM/Bonn: the folder holding rgb.txt and depth.txt; KITTI: sequences/NN)",
-        )),
-        Ok(_) if root.join("sequences").is_dir() && !root.join("image_0").is_dir() && !root.join("rgb.txt").exists() => {
-            Err(IoError::invalid(
-                root,
-                format!(
-                    "a KITTI dataset's root: run one of its sequences, e.g. {}",
-                    root.join("sequences/00").display()
-                ),
-            ))
-        }
-        Ok(_) => Ok(()),
+        ));
     }
+    if root.join("sequences").is_dir() && !root.join("image_0").is_dir() && !root.join("rgb.txt").exists() {
+        return Err(IoError::invalid(
+            root,
+            format!(
+                "a KITTI dataset's root: run one of its sequences, e.g. {}",
+                root.join("sequences/00").display()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
@@ -169,13 +166,16 @@ pub fn resolve_calibration(
     sequence: &dyn Sequence,
     config: &Config,
 ) -> Result<Calibration, RunError> {
-    Ok(calibration_and_warning(sequence, config)?.0)
+    let first = sequence.load(0).ok();
+    Ok(calibration_and_warning(sequence, config, first.as_ref())?.0)
 }
 
-/// [`resolve_calibration`] and the warning of [`fit_to_images`], when there is one.
+/// [`resolve_calibration`] with the sequence's `first` frame (its size decides), and
+/// the warning of [`fit_to_images`], when there is one.
 fn calibration_and_warning(
     sequence: &dyn Sequence,
     config: &Config,
+    first: Option<&crate::io::sequence::Frame>,
 ) -> Result<(Calibration, Option<String>), RunError> {
     let mut calibration = match (&config.dataset.settings, sequence.calibration(), config.dataset.camera) {
         (Some(path), _, _) => OrbSlamSettings::read(path)?.calibration,
@@ -200,7 +200,7 @@ fn calibration_and_warning(
     if calibration.bf.is_none() {
         calibration.bf = Some(40.0);
     }
-    if let Some(size) = first_image_size(sequence) {
+    if let Some(size) = first.map(image_size) {
         let from = match (&config.dataset.settings, config.dataset.camera) {
             (_, Some(_)) => "the camera given (--camera, [dataset.camera])".to_owned(),
             (Some(path), None) => format!("the settings file {}", path.display()),
@@ -212,16 +212,12 @@ fn calibration_and_warning(
     Ok((calibration, None))
 }
 
-/// The size of the sequence's first frame (colour or left image); `None` when it
-/// cannot be read (the tracking pass then names the file).
-fn first_image_size(sequence: &dyn Sequence) -> Option<(u32, u32)> {
-    if sequence.is_empty() {
-        return None;
-    }
-    Some(match sequence.load(0).ok()?.images {
+/// The size of a frame (its colour or left image).
+fn image_size(frame: &crate::io::sequence::Frame) -> (u32, u32) {
+    match &frame.images {
         crate::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
         crate::io::sequence::FrameImages::Stereo { left, .. } => left.dimensions(),
-    })
+    }
 }
 
 /// The images decide the size, as in ORB-SLAM2: a camera whose `Camera.width/height`
@@ -286,10 +282,16 @@ pub fn first_frame_hash(sequence: &dyn Sequence) -> Option<String> {
         crate::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb.as_raw(),
         crate::io::sequence::FrameImages::Stereo { left, .. } => left.as_raw(),
     };
+    Some(content_hash(bytes))
+}
+
+/// FNV-1a (64 bits, hex) of `bytes`: the fingerprints of a sequence and of a batch
+/// run's inputs.
+pub fn content_hash(bytes: &[u8]) -> String {
     let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
     });
-    Some(format!("{hash:016x}"))
+    format!("{hash:016x}")
 }
 
 impl RunSetup {
