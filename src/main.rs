@@ -88,6 +88,10 @@ struct DetectArgs {
     /// For a sequence: detect every Nth frame.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     every: u64,
+    /// Also detect on N x N overlapping tiles of each image and merge the boxes
+    /// (overrides the config's [detector] tiles; 1: the whole image only).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4))]
+    tiles: Option<u32>,
     /// Print the detections as JSON on stdout (one array: per image or frame its name,
     /// timestamp, milliseconds and detections) instead of the table.
     #[arg(long)]
@@ -370,6 +374,9 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     if !args.model_path.is_empty() {
         detector_config.model_path = None;
         detector_config.model_paths = args.model_path.clone();
+    }
+    if let Some(tiles) = args.tiles {
+        detector_config.tiles = tiles;
     }
     let mut detector = detector_config
         .open(args.input.is_dir().then_some(args.input.as_path()))?

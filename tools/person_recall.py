@@ -9,7 +9,8 @@ the `detections/` that `dopslam detect` wrote for the same frames (several folde
 separated: the union of their boxes, as an ensemble would give). A person counts when its
 box covers at least MIN_AREA of the image; it is found when a person detection overlaps it
 with IoU >= 0.5 (the issue's measure, as `detection.person_recall` in a run's report).
-Prints the recall overall, by box size and for boxes cut by the image border, the person
+Prints the recall overall, by box size, by box height (< 40, 40-80, 80-160, > 160 px)
+and for boxes cut by the image border, the person
 boxes found on no true person (IoU under 0.1 with every oracle person, of any size: false
 alarms), the median inference time read from the detect log, and the largest misses.
 """
@@ -42,11 +43,14 @@ def main():
     ap.add_argument("--height", type=float, default=480)
     ap.add_argument("--misses", type=int, default=0, help="list the N largest misses")
     ap.add_argument("--label", default="")
+    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = ap.parse_args()
     image_area = args.width * args.height
     bins = [(0.01, 0.05), (0.05, 0.2), (0.2, 1.01)]
     hits = total = 0
     by_bin = {b: [0, 0] for b in bins}
+    heights = [(0, 40), (40, 80), (80, 160), (160, 1e9)]
+    by_height = {b: [0, 0] for b in heights}
     border = [0, 0]
     misses = []
     boxes = false_alarms = 0
@@ -70,6 +74,10 @@ def main():
                 if b[0] <= share < b[1]:
                     by_bin[b][0] += ok
                     by_bin[b][1] += 1
+            for lo, hi in heights:
+                if lo <= t[3] - t[1] < hi:
+                    by_height[(lo, hi)][0] += ok
+                    by_height[(lo, hi)][1] += 1
             cut = t[0] <= 1 or t[1] <= 1 or t[2] >= args.width - 1 or t[3] >= args.height - 1
             if cut:
                 border[0] += ok
@@ -81,9 +89,18 @@ def main():
     def rate(h, n):
         return f"{h}/{n} = {h / n:.3f}" if n else "-"
 
+    if args.json:
+        print(json.dumps(dict(
+            label=args.label, recall=hits / total if total else None, people=total,
+            by_height={f"{lo}-{hi if hi < 1e9 else ''}": (h / n if n else None, n)
+                       for (lo, hi), (h, n) in by_height.items()},
+            false_alarms=false_alarms, boxes=boxes)))
+        return
     line = f"{args.label:24s} person recall {rate(hits, total)}"
     line += "; by share of the image: " + ", ".join(
         f"{int(100 * lo)}-{min(100, int(100 * hi))} % {rate(*by_bin[(lo, hi)])}" for lo, hi in bins)
+    line += "; by height: " + ", ".join(
+        f"{lo}-{hi if hi < 1e9 else ''} px {rate(*by_height[(lo, hi)])}" for lo, hi in heights)
     line += f"; cut by the border {rate(*border)}"
     line += f"; person boxes on no person {false_alarms} of {boxes}"
     if args.log:

@@ -10,6 +10,7 @@
 
 pub mod cloud;
 pub mod compare;
+pub mod config;
 pub mod comparison;
 pub mod disparity;
 pub mod free_space;
@@ -27,7 +28,7 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::detect::FrameDetections;
 use crate::dop::{DopConfig, Mode};
@@ -36,290 +37,18 @@ use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::run_dir::{names, RunDir};
 use crate::io::image_files::DepthImage;
-use crate::io::ply::{write_obj, write_ply, PlyEncoding};
+use crate::io::ply::{write_obj, write_ply};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
-use cloud::{CloudBuilder, CloudSettings};
+use cloud::CloudBuilder;
 use disparity::{stereo_depth, StereoDepth};
-use free_space::{FreeSpaceSettings, NeighbourWindow};
+use free_space::NeighbourWindow;
 use masks::{FrameKeypoints, MaskSettings, MaskSource};
 use segments::SegmentSettings;
-use tsdf::{FrameInput, TsdfSettings, TsdfVolume};
+use tsdf::{FrameInput, TsdfVolume};
 
-/// Which frames go into the TSDF.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FrameChoice {
-    All,
-    Keyframes,
-}
-
-/// How the dense map is fused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Fusion {
-    /// A TSDF with space carving, meshed by marching cubes; the keyframes' point cloud
-    /// loses what the TSDF has since seen through (`cloud_free_space`).
-    Tsdf,
-    /// ORB-SLAM2's dense point cloud (the paper's Fig. 9): the keyframes' clouds
-    /// joined and voxel-downsampled, no TSDF and no carving, so a mover the masks miss
-    /// stays in the map wherever it stood.
-    Points,
-    /// Both: the TSDF mesh, and the keyframes' cloud without carving (the demo shows
-    /// each).
-    Both,
-}
-
-/// `[dense]`: the dense map.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DenseConfig {
-    /// Run the dense pass after tracking (`dopslam run`).
-    pub enabled: bool,
-    /// TSDF mesh (default), ORB-SLAM2-style point cloud without carving, or both.
-    pub fusion: Fusion,
-    /// TSDF voxel edge and truncation, metres.
-    pub voxel: f64,
-    pub truncation: f64,
-    /// Depths beyond this are not fused, metres.
-    pub max_depth: f64,
-    /// Weight cap: lower forgets faster (carving of what left).
-    pub max_weight: f32,
-    /// Carve free space along rays (erases surfaces that later proved empty).
-    pub carve: bool,
-    /// Pixels this close to the image border fuse no surface into the TSDF (they still
-    /// carve): a person cut by the border to a sliver is found by no detector.
-    pub image_margin: u32,
-    /// Allocate every fused frame's blocks before fusing any (a first pass that reads
-    /// the depth of every frame once more: for stereo, SGBM twice), so that carving
-    /// also counts the free space seen before a mover came (see
-    /// [`TsdfVolume::allocate`]).
-    pub allocate_first: bool,
-    /// Frames fused into the TSDF: all tracked frames or keyframes only.
-    pub frames: FrameChoice,
-    /// Fuse every n-th chosen frame.
-    pub frame_step: usize,
-    /// Outputs: the mesh (PLY), the mesh as OBJ too, the point cloud, pictures.
-    pub mesh: bool,
-    pub obj: bool,
-    pub cloud: bool,
-    pub pictures: bool,
-    /// Point cloud (from keyframes): voxel edge, pixel stride, outlier removal
-    /// (neighbours, 0 off; threshold in standard deviations), neighbours for normals
-    /// (0: none).
-    pub cloud_voxel: f64,
-    pub cloud_stride: usize,
-    pub outlier_neighbours: usize,
-    pub outlier_std: f64,
-    pub normal_neighbours: usize,
-    /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
-    /// missed by the masks that later left): \(F\) above this, in truncation units
-    /// (1 or more: off; needs the mesh).
-    pub cloud_free_space: f32,
-    /// With the DOP model, also detect on every n-th fused frame for the masks (0: the
-    /// keyframes' detections only; see [`more_detections`]).
-    pub detect_every: usize,
-    /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
-    pub mask_border: u32,
-    pub keypoint_radius: u32,
-    /// The depth an object's mask is cut at: the nearest depth mode holding at least
-    /// this share of its box's pixels (the mover stands in front of what it hides);
-    /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
-    pub mask_foreground_share: f32,
-    /// Discs also around dynamic keypoints inside a detected mover's box but behind
-    /// it (false: none there; more static pixels fused, but a second mover behind the
-    /// first loses its discs).
-    pub mask_discs_behind_objects: bool,
-    /// A disc only around a dynamic keypoint with at least this many other dynamic
-    /// keypoints within four disc radii (0: around every one): the geometric check's
-    /// lone false alarms on the static scene get none, a mover's keypoints come in
-    /// groups.
-    pub mask_disc_neighbours: usize,
-    /// Grow a depth segment from the dynamic keypoints outside every detected mover's
-    /// box (movers no detector knows, see [`segments`]): a region is kept when at least
-    /// `mask_segment_edge_share` of its border is a depth edge to something farther,
-    /// it holds `mask_segment_support` keypoints or more, and it grows at most
-    /// `mask_segment_radius` pixels from its seed, or as far as
-    /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
-    pub mask_segments: bool,
-    pub mask_segment_radius: u32,
-    pub mask_segment_radius_metres: f32,
-    pub mask_segment_edge_share: f32,
-    pub mask_segment_support: usize,
-    /// A kept segment seeds the next frames' growth for this many seconds after a
-    /// dynamic keypoint last supported it (0: no following).
-    pub mask_segment_follow_seconds: f64,
-    /// Free-space evidence ([`free_space`]): each fused frame's pixels are checked
-    /// against the frames this many seconds (and half as many) before and after it;
-    /// pixels those frames saw through are masked (movers, also those no detector
-    /// found), and discs and dilation leave out pixels they saw still. 0: off.
-    pub mask_free_space_seconds: f64,
-    /// Far neighbours added to the free-space evidence (when it is on): the frames
-    /// this many seconds (and half as many) before and after each fused frame. A mover
-    /// that stands still longer than the near window (a box set down, a person who
-    /// waits) was seen elsewhere then, and its place seen through. 0: none.
-    pub mask_free_space_far_seconds: f64,
-    /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
-    /// colour frame beside its mask, against the ground truth of a synthetic sequence
-    /// (green: mover masked, red: static masked, yellow: mover fused).
-    pub mask_pictures_every: usize,
-    /// PLY encoding: binary (little endian) or ascii.
-    pub ply_encoding: PlyEncoding,
-}
-
-impl Default for DenseConfig {
-    fn default() -> Self {
-        let tsdf = TsdfSettings::default();
-        let segments = SegmentSettings::default();
-        Self {
-            enabled: true,
-            fusion: Fusion::Tsdf,
-            voxel: tsdf.voxel,
-            truncation: tsdf.truncation,
-            max_depth: tsdf.max_depth,
-            max_weight: tsdf.max_weight,
-            carve: tsdf.carve,
-            image_margin: tsdf.margin,
-            allocate_first: true,
-            frames: FrameChoice::All,
-            frame_step: 1,
-            mesh: true,
-            obj: true,
-            cloud: true,
-            pictures: true,
-            cloud_voxel: 0.01,
-            cloud_stride: 2,
-            outlier_neighbours: 16,
-            outlier_std: 2.0,
-            normal_neighbours: 16,
-            cloud_free_space: 0.5,
-            detect_every: 5,
-            mask_border: 6,
-            keypoint_radius: 10,
-            mask_foreground_share: 0.10,
-            mask_discs_behind_objects: true,
-            mask_disc_neighbours: 6,
-            mask_segments: true,
-            mask_segment_radius: segments.radius,
-            mask_segment_radius_metres: segments.radius_metres,
-            mask_segment_edge_share: segments.edge_share,
-            mask_segment_support: segments.support,
-            mask_segment_follow_seconds: 3.0,
-            mask_free_space_seconds: FreeSpaceSettings::default().seconds,
-            mask_free_space_far_seconds: FreeSpaceSettings::default().far_seconds,
-            mask_pictures_every: 0,
-            ply_encoding: PlyEncoding::Binary,
-        }
-    }
-}
-
-impl DenseConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = [
-            ("voxel", self.voxel),
-            ("truncation", self.truncation),
-            ("max_depth", self.max_depth),
-            ("max_weight", self.max_weight as f64),
-            ("cloud_voxel", self.cloud_voxel),
-            ("outlier_std", self.outlier_std),
-        ];
-        for (name, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!(
-                    "dense.{name} must be a positive number, not {value}"
-                ));
-            }
-        }
-        if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
-            return Err(format!(
-                "dense.cloud_free_space must be a number above -1, not {}",
-                self.cloud_free_space
-            ));
-        }
-        for (name, value) in [
-            ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
-            ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
-            ("mask_free_space_seconds", self.mask_free_space_seconds),
-            ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
-        ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("dense.{name} must be 0 or more, not {value}"));
-            }
-        }
-        if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
-            return Err(format!(
-                "dense.mask_segment_edge_share must be in [0, 1], not {}",
-                self.mask_segment_edge_share
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.mask_foreground_share) {
-            return Err(format!(
-                "dense.mask_foreground_share must be in [0, 1], not {}",
-                self.mask_foreground_share
-            ));
-        }
-        if self.truncation < self.voxel {
-            return Err(format!(
-                "dense.truncation ({}) must be at least one voxel ({})",
-                self.truncation, self.voxel
-            ));
-        }
-        if self.voxel < 0.002 {
-            return Err(format!(
-                "dense.voxel {} m is below 2 mm: no depth sensor resolves that",
-                self.voxel
-            ));
-        }
-        if self.frame_step == 0 || self.cloud_stride == 0 {
-            return Err("dense.frame_step and dense.cloud_stride must be at least 1".into());
-        }
-        Ok(())
-    }
-
-    /// The TSDF volume's settings.
-    pub fn tsdf(&self) -> TsdfSettings {
-        TsdfSettings {
-            voxel: self.voxel,
-            truncation: self.truncation,
-            max_depth: self.max_depth,
-            max_weight: self.max_weight,
-            carve: self.carve,
-            margin: self.image_margin,
-        }
-    }
-
-    /// The free-space evidence's settings.
-    pub fn free_space_settings(&self) -> FreeSpaceSettings {
-        FreeSpaceSettings {
-            seconds: self.mask_free_space_seconds,
-            far_seconds: self.mask_free_space_far_seconds,
-            ..FreeSpaceSettings::default()
-        }
-    }
-
-    /// Whether the TSDF (and its mesh) is fused.
-    pub fn fuses_tsdf(&self) -> bool {
-        self.mesh && self.fusion != Fusion::Points
-    }
-
-    /// Whether the cloud is written, and whether it loses what the TSDF saw through.
-    fn cloud_carved(&self) -> bool {
-        self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
-    }
-
-    fn cloud_settings(&self) -> CloudSettings {
-        CloudSettings {
-            voxel: self.cloud_voxel,
-            stride: self.cloud_stride,
-            max_depth: self.max_depth,
-            outlier_neighbours: self.outlier_neighbours,
-            outlier_std: self.outlier_std,
-            normal_neighbours: self.normal_neighbours,
-            margin: self.image_margin,
-        }
-    }
-}
+pub use config::{DenseConfig, FrameChoice, Fusion};
 
 /// Pixels fused against a synthetic sequence's ground-truth masks.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
@@ -416,7 +145,7 @@ pub struct DenseInputs<'a> {
     /// How stereo pairs become depth (stereo sequences only).
     pub stereo: Option<StereoDepth>,
     /// The detector for `detect_every` (DOP masks only).
-    pub detector: Option<std::sync::Mutex<Box<dyn crate::detect::Detector>>>,
+    pub detector: Option<(std::sync::Mutex<Box<dyn crate::detect::Detector>>, String)>,
 }
 
 /// A frame's depth and colour: an RGB-D frame's own, or a stereo pair's SGBM depth
@@ -581,12 +310,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .step_by(config.frame_step)
         .collect();
     let extra_detections = match (&inputs.detector, inputs.masking) {
-        (Some(detector), Mode::Dop) if config.detect_every > 0 => {
+        (Some((detector, describe)), Mode::Dop) if config.detect_every > 0 => {
             let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
             let mut detector = detector.lock().expect("detector lock poisoned");
             Some(more_detections::add(
                 sequence,
-                detector.as_mut(),
+                (detector.as_mut(), describe),
                 (&fused, config.detect_every),
                 &out.dense_detections(),
                 &mut detections,

@@ -6,7 +6,8 @@
 //! later. The dense pass is offline, so it can afford the detector on every
 //! `detect_every`-th fused frame as well: more chances to find each person, and shorter
 //! gaps for the followed objects to be predicted across. These detections only make
-//! masks; the trajectory is already final. They are cached in `detections_dense/`
+//! masks; the trajectory is already final. The detector is `[dense] detect_model` (a
+//! better one than the tracking pass can afford, see docs/design.md). They are cached in `detections_dense/`
 //! ([`crate::io::run_dir::RunDir::dense_detections`]) of the output folder in the detection cache's format, so `dopslam fuse` runs the
 //! detector once per frame.
 
@@ -32,23 +33,21 @@ pub struct ExtraDetections {
 }
 
 /// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
-/// in `cache` from an earlier fusion, then every `every`-th of the `fused` frames that
-/// has none yet, detected now and cached. Frames the detector fails on keep the
-/// keyframes' masks, with a warning.
+/// in `cache` by the same detector (`describe`, kept in `cache/detector.txt`), then
+/// every `every`-th of the `fused` frames that has none yet, detected now and cached.
+/// A keyframe's own boxes stay, joined by the new ones that overlap none of its boxes
+/// of their class. Frames the detector fails on keep the keyframes' masks, with a
+/// warning.
 pub fn add(
     sequence: &dyn Sequence,
-    detector: &mut dyn Detector,
+    (detector, describe): (&mut dyn Detector, &str),
     (fused, every): (&[usize], usize),
     cache: &Path,
     detections: &mut Vec<FrameDetections>,
     progress: bool,
 ) -> Result<ExtraDetections, IoError> {
-    let cached = crate::dense::read_detections(cache)?;
-    let known: HashSet<i64> = detections
-        .iter()
-        .chain(&cached)
-        .map(|f| super::key(f.timestamp))
-        .collect();
+    let cached = cached_by(cache, describe)?;
+    let known: HashSet<i64> = cached.iter().map(|f| super::key(f.timestamp)).collect();
     let todo = frames_to_detect(fused, every, |i| sequence.timestamp(i), &known);
     let mut extra = ExtraDetections {
         cached: cached.len(),
@@ -62,9 +61,59 @@ pub fn add(
             todo.len()
         );
     }
-    detections.extend(cached);
-    detections.extend(found);
+    merge(detections, cached.into_iter().chain(found));
     Ok(extra)
+}
+
+/// The detections cached in `cache` by the detector `describe`. A cache of another
+/// detector (or of none named) is not used: its files are detected again and
+/// overwritten, and `detector.txt` names the new detector.
+fn cached_by(cache: &Path, describe: &str) -> Result<Vec<FrameDetections>, IoError> {
+    let stamp = cache.join("detector.txt");
+    let same = std::fs::read_to_string(&stamp).is_ok_and(|s| s.trim_end() == describe);
+    if same {
+        return crate::dense::read_detections(cache);
+    }
+    let earlier = crate::dense::read_detections(cache)?.len();
+    if earlier > 0 {
+        eprintln!(
+            "note: the {earlier} dense-pass detections in {} were made by another detector: detecting again",
+            cache.display()
+        );
+    }
+    std::fs::create_dir_all(cache).map_err(|source| IoError::Write {
+        path: cache.to_path_buf(),
+        source,
+    })?;
+    crate::io::atomic::write_atomic(&stamp, format!("{describe}\n").as_bytes())
+        .map_err(|e| IoError::invalid(&stamp, e.to_string()))?;
+    Ok(Vec::new())
+}
+
+/// Joins `more` into `detections`: a frame already there keeps its boxes and gains
+/// those of `more` that overlap none of its boxes of their class by more than 0.45 IoU.
+fn merge(detections: &mut Vec<FrameDetections>, more: impl Iterator<Item = FrameDetections>) {
+    let mut at: std::collections::HashMap<i64, usize> = detections
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (super::key(f.timestamp), i))
+        .collect();
+    for frame in more {
+        let Some(&i) = at.get(&super::key(frame.timestamp)) else {
+            at.insert(super::key(frame.timestamp), detections.len());
+            detections.push(frame);
+            continue;
+        };
+        let known = &mut detections[i].detections;
+        for d in frame.detections {
+            let duplicate = known
+                .iter()
+                .any(|k| k.class_id == d.class_id && crate::detect::yolo::iou(&k.bbox, &d.bbox) > 0.45);
+            if !duplicate {
+                known.push(d);
+            }
+        }
+    }
 }
 
 /// The frames among `fused` (sequence indices, in order) to detect on: every
@@ -137,6 +186,49 @@ pub fn detect_frames(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn frame(timestamp: f64, boxes: &[[f32; 4]]) -> FrameDetections {
+        FrameDetections {
+            timestamp,
+            detections: boxes
+                .iter()
+                .map(|&bbox| crate::detect::Detection {
+                    class: "person".into(),
+                    class_id: 0,
+                    score: 0.5,
+                    bbox,
+                    instance: None,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_keyframe_keeps_its_boxes_and_gains_only_new_ones() {
+        let mut detections = vec![frame(1.0, &[[0.0, 0.0, 10.0, 20.0]])];
+        let more = vec![
+            frame(1.0, &[[0.5, 0.0, 10.0, 20.0], [100.0, 100.0, 110.0, 120.0]]),
+            frame(2.0, &[[0.0, 0.0, 10.0, 20.0]]),
+        ];
+        merge(&mut detections, more.into_iter());
+        assert_eq!(detections.len(), 2);
+        assert_eq!(detections[0].detections.len(), 2);
+        assert_eq!(detections[0].detections[1].bbox, [100.0, 100.0, 110.0, 120.0]);
+        assert_eq!(detections[1].timestamp, 2.0);
+    }
+
+    #[test]
+    fn a_cache_of_another_detector_is_not_used() {
+        let dir = std::env::temp_dir().join(format!("dopslam-dense-cache-{}", std::process::id()));
+        let cache = dir.join("detections_dense");
+        std::fs::create_dir_all(&cache).unwrap();
+        crate::detect::write_cache(&cache, &frame(1.0, &[[0.0, 0.0, 5.0, 5.0]])).unwrap();
+        assert!(cached_by(&cache, "model a").unwrap().is_empty(), "no name: not used");
+        crate::detect::write_cache(&cache, &frame(1.0, &[[0.0, 0.0, 5.0, 5.0]])).unwrap();
+        assert_eq!(cached_by(&cache, "model a").unwrap().len(), 1);
+        assert!(cached_by(&cache, "model b").unwrap().is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn every_nth_fused_frame_is_detected_unless_known() {

@@ -8,6 +8,7 @@
 pub mod coco;
 pub mod draw;
 pub mod onnx;
+pub mod tiles;
 pub mod job;
 pub mod yolo;
 
@@ -182,6 +183,10 @@ pub struct DetectorConfig {
     /// real detector would (YOLOv4-tiny at 320x256: 26 ms a keyframe alone on 2 cores,
     /// 44-62 ms beside tracking); 0 answers at once.
     pub simulated_latency_ms: f64,
+    /// An ONNX source also runs on `tiles` x `tiles` overlapping tiles of each image
+    /// and merges all boxes by one NMS ([`tiles::Tiled`]): far people reach the
+    /// network larger, at `tiles`² + 1 inferences an image. 1: the whole image only.
+    pub tiles: u32,
 }
 
 impl Default for DetectorConfig {
@@ -203,6 +208,7 @@ impl Default for DetectorConfig {
                 .to_vec(),
             static_classes: Vec::new(),
             simulated_latency_ms: 60.0,
+            tiles: 1,
         }
     }
 }
@@ -223,6 +229,12 @@ impl DetectorConfig {
             return Err(format!(
                 "detector.simulated_latency_ms must be >= 0, got {}",
                 self.simulated_latency_ms
+            ));
+        }
+        if !(1..=4).contains(&self.tiles) {
+            return Err(format!(
+                "detector.tiles must be 1 (the whole image) to 4, got {}",
+                self.tiles
             ));
         }
         if self.model_path.is_some() && !self.model_paths.is_empty() {
@@ -290,6 +302,31 @@ impl DetectorConfig {
         Ok(source)
     }
 
+    /// What this detector is, in one line (source, model files, tiles, thresholds): a
+    /// cache of its boxes is reused only by the same detector.
+    pub fn describe(&self) -> String {
+        match self.source {
+            Source::Onnx | Source::Auto => {
+                let models: Vec<String> = self
+                    .pool_models()
+                    .iter()
+                    .map(|m| format!("{} ({:?}, threshold {:?})", m.path.display(), m.layout, m.score_threshold))
+                    .collect();
+                format!(
+                    "onnx: {}; tiles {}; score_threshold {}; border_score_factor {}; nms_threshold {}",
+                    models.join(", "),
+                    self.tiles,
+                    self.score_threshold,
+                    self.border_score_factor,
+                    self.nms_threshold
+                )
+            }
+            Source::Cache => format!("cache: {:?}", self.cache_dir),
+            Source::Oracle => "oracle".into(),
+            Source::None => "none".into(),
+        }
+    }
+
     /// The models an ONNX source runs: the pool, else the model's files.
     pub fn pool_models(&self) -> Vec<onnx::PoolModel> {
         if self.pool.is_empty() {
@@ -337,7 +374,16 @@ impl DetectorConfig {
                 detector.score_threshold = self.score_threshold;
                 detector.border_score_factor = self.border_score_factor;
                 detector.nms_threshold = self.nms_threshold;
-                Box::new(detector)
+                if self.tiles > 1 {
+                    Box::new(tiles::Tiled::new(
+                        Box::new(detector),
+                        self.tiles,
+                        TILE_OVERLAP,
+                        self.nms_threshold,
+                    ))
+                } else {
+                    Box::new(detector)
+                }
             }
             Source::Cache => {
                 let dir = self.cache_dir.clone().ok_or_else(|| {
@@ -356,6 +402,10 @@ impl DetectorConfig {
         }))
     }
 }
+
+/// How much neighbouring tiles overlap (a share of a tile's side): a person of up to
+/// a fifth of the image's width lies whole in some tile of a 2 x 2 grid.
+const TILE_OVERLAP: f32 = 0.25;
 
 /// The cache file name of a frame: its timestamp with 6 decimals.
 pub fn cache_file(dir: &Path, timestamp: f64) -> PathBuf {

@@ -24,9 +24,9 @@ pub fn dense_pass(
 ) -> Result<DenseReport, RunError> {
     let config = &config.for_sensor(sequence.sensor());
     let calibration = resolve_calibration(sequence, config)?;
+    let dense_detector = config.dense.detector(&config.detector);
     let detector = match masking {
-        Mode::Dop if config.dense.detect_every > 0 => config
-            .detector
+        Mode::Dop if config.dense.detect_every > 0 => dense_detector
             .open(sequence_dir)
             .map_err(|e| RunError::Input(e.to_string()))?,
         _ => None,
@@ -45,7 +45,7 @@ pub fn dense_pass(
             bf: calibration.bf.unwrap_or(40.0),
             sgbm: config.stereo.sgbm(),
         }),
-        detector: detector.map(std::sync::Mutex::new),
+        detector: detector.map(|d| (std::sync::Mutex::new(d), dense_detector.describe())),
     };
     Ok(fuse_run(&inputs, &config.dense)?)
 }

@@ -342,11 +342,20 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
     if config.detector.source == Source::Auto && config.dop.mode == Mode::Off {
         return Ok(Source::None);
     }
-    config.detector.resolved_source().map_err(|e| {
+    let source = config.detector.resolved_source().map_err(|e| {
         RunError::Input(format!(
             "{e}; or run without a detector: --detections none (config: [detector] source = \"none\")"
         ))
-    })
+    })?;
+    let dense = &config.dense;
+    if dense.enabled && config.dop.mode == Mode::Dop && dense.detect_every > 0 {
+        dense.detector(&config.detector).resolved_source().map_err(|e| {
+            RunError::Input(format!(
+                "the dense pass's detector ([dense] detect_model): {e}; or use the tracking pass's: [dense] detect_model = \"tracking\""
+            ))
+        })?;
+    }
+    Ok(source)
 }
 
 /// What loop closing runs with: see [`loop_vocabulary`].

@@ -51,6 +51,10 @@ pub struct SceneConfig {
     /// How the surfaces look: `blocks` (every face its own noise and coloured blocks)
     /// or `room` (a wooden floor, plaster walls with framed pictures, a tiled ceiling).
     pub look: SceneLook,
+    /// A table in the middle of the camera path, standing on the floor: `[length,
+    /// width, height]` in metres (the length along the mean viewing direction); none
+    /// when absent. A camera circling it looks down at it, as in TUM's fr2_desk.
+    pub table: Option<[f64; 3]>,
 }
 
 /// `[scene] look`.
@@ -69,6 +73,7 @@ impl Default for SceneConfig {
             furniture: 14,
             clearance: 0.9,
             look: SceneLook::Blocks,
+            table: None,
         }
     }
 }
@@ -166,6 +171,13 @@ impl SynthConfig {
             objects.validate("unknown", false)?;
         }
         self.street.validate()?;
+        if let Some(table) = self.scene.table {
+            if !table.iter().all(|s| s.is_finite() && *s > 0.0 && *s <= 10.0) {
+                return Err(format!(
+                    "scene.table must be [length, width, height], each above 0 and at most 10 m, got {table:?}"
+                ));
+            }
+        }
         if !(self.stereo.rectification_error_px.is_finite()
             && self.stereo.rectification_error_px.abs() <= 5.0)
         {

@@ -433,6 +433,24 @@ pub fn place_people(
         .collect()
 }
 
+/// Adds a table of `[length, width, height]` metres to the scene's furniture, centred
+/// under the mean camera position and standing on the floor, its length along the mean
+/// viewing direction. Call after [`place_people`] (which sets the floor).
+pub fn place_table(size: [f64; 3], poses: &[Se3], scene: &mut Scene) {
+    let Some(at) = placement(poses, scene, 1) else {
+        return;
+    };
+    let half = at.forward.abs() * size[0] * 0.5 + at.lateral.abs() * size[1] * 0.5;
+    let (mut min, mut max) = (at.centre - half, at.centre + half);
+    min[at.up] = at.floor.min(at.floor + at.sign * size[2]);
+    max[at.up] = at.floor.max(at.floor + at.sign * size[2]);
+    scene.furniture.push(Cuboid {
+        min,
+        max,
+        texture: 2 + scene.furniture.len() as u32,
+    });
+}
+
 /// Places `count` seated people `distance` in front of the mean camera position, spread
 /// sideways 0.9 m apart; each leaves sideways (4 m) after `sit_seconds`. Instance ids
 /// continue after `first_instance - 1`. Call after [`place_people`] (which sets the floor).

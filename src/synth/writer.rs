@@ -14,7 +14,7 @@ use thiserror::Error;
 
 use super::config::SynthConfig;
 use super::motion::poses_at;
-use super::movers::{place_objects, place_people, place_seated, Appearance, Mover};
+use super::movers::{place_objects, place_people, place_seated, place_table, Appearance, Mover};
 use super::oracle::OracleConfig;
 use super::render::{render, render_colour, Exposure, Rendered, View};
 use super::scene::Scene;
@@ -462,6 +462,9 @@ fn scene_and_movers(
         }
     };
     let mut movers = place_people(&config.people, &appearance(None), poses, &mut scene);
+    if let Some(table) = config.scene.table {
+        place_table(table, poses, &mut scene);
+    }
     movers.extend(place_seated(
         &config.seated,
         &appearance(seated.clone()),

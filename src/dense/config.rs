@@ -1,0 +1,340 @@
+//! The `[dense]` section: what the dense pass fuses, how the movers are masked, what
+//! it writes, and the settings of each part built from it.
+
+use serde::{Deserialize, Serialize};
+
+use super::cloud::CloudSettings;
+use super::free_space::FreeSpaceSettings;
+use super::segments::SegmentSettings;
+use super::tsdf::TsdfSettings;
+use crate::detect::{DetectorConfig, Model, Source};
+use crate::io::ply::PlyEncoding;
+
+/// `[dense] detect_model`: the model of the dense pass's own detections.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DenseModel {
+    /// The tracking pass's `[detector]` as it is.
+    Tracking,
+    Yolov4Tiny,
+    YoloxNano,
+    Deimv2Femto,
+}
+
+impl DenseModel {
+    /// The model, `None` for the tracking pass's.
+    pub fn model(self) -> Option<Model> {
+        match self {
+            DenseModel::Tracking => None,
+            DenseModel::Yolov4Tiny => Some(Model::Yolov4Tiny),
+            DenseModel::YoloxNano => Some(Model::YoloxNano),
+            DenseModel::Deimv2Femto => Some(Model::Deimv2Femto),
+        }
+    }
+}
+
+/// Which frames go into the TSDF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameChoice {
+    All,
+    Keyframes,
+}
+
+/// How the dense map is fused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Fusion {
+    /// A TSDF with space carving, meshed by marching cubes; the keyframes' point cloud
+    /// loses what the TSDF has since seen through (`cloud_free_space`).
+    Tsdf,
+    /// ORB-SLAM2's dense point cloud (the paper's Fig. 9): the keyframes' clouds
+    /// joined and voxel-downsampled, no TSDF and no carving, so a mover the masks miss
+    /// stays in the map wherever it stood.
+    Points,
+    /// Both: the TSDF mesh, and the keyframes' cloud without carving (the demo shows
+    /// each).
+    Both,
+}
+
+/// `[dense]`: the dense map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DenseConfig {
+    /// Run the dense pass after tracking (`dopslam run`).
+    pub enabled: bool,
+    /// TSDF mesh (default), ORB-SLAM2-style point cloud without carving, or both.
+    pub fusion: Fusion,
+    /// TSDF voxel edge and truncation, metres.
+    pub voxel: f64,
+    pub truncation: f64,
+    /// Depths beyond this are not fused, metres.
+    pub max_depth: f64,
+    /// Weight cap: lower forgets faster (carving of what left).
+    pub max_weight: f32,
+    /// Carve free space along rays (erases surfaces that later proved empty).
+    pub carve: bool,
+    /// Pixels this close to the image border fuse no surface into the TSDF (they still
+    /// carve): a person cut by the border to a sliver is found by no detector.
+    pub image_margin: u32,
+    /// Allocate every fused frame's blocks before fusing any (a first pass that reads
+    /// the depth of every frame once more: for stereo, SGBM twice), so that carving
+    /// also counts the free space seen before a mover came (see
+    /// [`TsdfVolume::allocate`]).
+    pub allocate_first: bool,
+    /// Frames fused into the TSDF: all tracked frames or keyframes only.
+    pub frames: FrameChoice,
+    /// Fuse every n-th chosen frame.
+    pub frame_step: usize,
+    /// Outputs: the mesh (PLY), the mesh as OBJ too, the point cloud, pictures.
+    pub mesh: bool,
+    pub obj: bool,
+    pub cloud: bool,
+    pub pictures: bool,
+    /// Point cloud (from keyframes): voxel edge, pixel stride, outlier removal
+    /// (neighbours, 0 off; threshold in standard deviations), neighbours for normals
+    /// (0: none).
+    pub cloud_voxel: f64,
+    pub cloud_stride: usize,
+    pub outlier_neighbours: usize,
+    pub outlier_std: f64,
+    pub normal_neighbours: usize,
+    /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
+    /// missed by the masks that later left): \(F\) above this, in truncation units
+    /// (1 or more: off; needs the mesh).
+    pub cloud_free_space: f32,
+    /// With the DOP model, also detect on every n-th fused frame for the masks (0: the
+    /// keyframes' detections only; see [`super::more_detections`]).
+    pub detect_every: usize,
+    /// The model of those detections, when the run's detector is ONNX: the dense
+    /// pass is offline and can afford a better one than the tracking pass's.
+    pub detect_model: DenseModel,
+    /// ... run on the whole image and on `detect_tiles` x `detect_tiles` overlapping
+    /// tiles of it ([`crate::detect::tiles`]); 1: the whole image only.
+    pub detect_tiles: u32,
+    /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
+    pub mask_border: u32,
+    pub keypoint_radius: u32,
+    /// The depth an object's mask is cut at: the nearest depth mode holding at least
+    /// this share of its box's pixels (the mover stands in front of what it hides);
+    /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
+    pub mask_foreground_share: f32,
+    /// Discs also around dynamic keypoints inside a detected mover's box but behind
+    /// it (false: none there; more static pixels fused, but a second mover behind the
+    /// first loses its discs).
+    pub mask_discs_behind_objects: bool,
+    /// A disc only around a dynamic keypoint with at least this many other dynamic
+    /// keypoints within four disc radii (0: around every one): the geometric check's
+    /// lone false alarms on the static scene get none, a mover's keypoints come in
+    /// groups.
+    pub mask_disc_neighbours: usize,
+    /// Grow a depth segment from the dynamic keypoints outside every detected mover's
+    /// box (movers no detector knows, see [`segments`]): a region is kept when at least
+    /// `mask_segment_edge_share` of its border is a depth edge to something farther,
+    /// it holds `mask_segment_support` keypoints or more, and it grows at most
+    /// `mask_segment_radius` pixels from its seed, or as far as
+    /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
+    pub mask_segments: bool,
+    pub mask_segment_radius: u32,
+    pub mask_segment_radius_metres: f32,
+    pub mask_segment_edge_share: f32,
+    pub mask_segment_support: usize,
+    /// A kept segment seeds the next frames' growth for this many seconds after a
+    /// dynamic keypoint last supported it (0: no following).
+    pub mask_segment_follow_seconds: f64,
+    /// Free-space evidence ([`free_space`]): each fused frame's pixels are checked
+    /// against the frames this many seconds (and half as many) before and after it;
+    /// pixels those frames saw through are masked (movers, also those no detector
+    /// found), and discs and dilation leave out pixels they saw still. 0: off.
+    pub mask_free_space_seconds: f64,
+    /// Far neighbours added to the free-space evidence (when it is on): the frames
+    /// this many seconds (and half as many) before and after each fused frame. A mover
+    /// that stands still longer than the near window (a box set down, a person who
+    /// waits) was seen elsewhere then, and its place seen through. 0: none.
+    pub mask_free_space_far_seconds: f64,
+    /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
+    /// colour frame beside its mask, against the ground truth of a synthetic sequence
+    /// (green: mover masked, red: static masked, yellow: mover fused).
+    pub mask_pictures_every: usize,
+    /// PLY encoding: binary (little endian) or ascii.
+    pub ply_encoding: PlyEncoding,
+}
+
+impl Default for DenseConfig {
+    fn default() -> Self {
+        let tsdf = TsdfSettings::default();
+        let segments = SegmentSettings::default();
+        Self {
+            enabled: true,
+            fusion: Fusion::Tsdf,
+            voxel: tsdf.voxel,
+            truncation: tsdf.truncation,
+            max_depth: tsdf.max_depth,
+            max_weight: tsdf.max_weight,
+            carve: tsdf.carve,
+            image_margin: tsdf.margin,
+            allocate_first: true,
+            frames: FrameChoice::All,
+            frame_step: 1,
+            mesh: true,
+            obj: true,
+            cloud: true,
+            pictures: true,
+            cloud_voxel: 0.01,
+            cloud_stride: 2,
+            outlier_neighbours: 16,
+            outlier_std: 2.0,
+            normal_neighbours: 16,
+            cloud_free_space: 0.5,
+            detect_every: 5,
+            detect_model: DenseModel::Deimv2Femto,
+            detect_tiles: 1,
+            mask_border: 6,
+            keypoint_radius: 10,
+            mask_foreground_share: 0.10,
+            mask_discs_behind_objects: true,
+            mask_disc_neighbours: 6,
+            mask_segments: true,
+            mask_segment_radius: segments.radius,
+            mask_segment_radius_metres: segments.radius_metres,
+            mask_segment_edge_share: segments.edge_share,
+            mask_segment_support: segments.support,
+            mask_segment_follow_seconds: 3.0,
+            mask_free_space_seconds: FreeSpaceSettings::default().seconds,
+            mask_free_space_far_seconds: FreeSpaceSettings::default().far_seconds,
+            mask_pictures_every: 0,
+            ply_encoding: PlyEncoding::Binary,
+        }
+    }
+}
+
+impl DenseConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("voxel", self.voxel),
+            ("truncation", self.truncation),
+            ("max_depth", self.max_depth),
+            ("max_weight", self.max_weight as f64),
+            ("cloud_voxel", self.cloud_voxel),
+            ("outlier_std", self.outlier_std),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!(
+                    "dense.{name} must be a positive number, not {value}"
+                ));
+            }
+        }
+        if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
+            return Err(format!(
+                "dense.cloud_free_space must be a number above -1, not {}",
+                self.cloud_free_space
+            ));
+        }
+        for (name, value) in [
+            ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
+            ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
+            ("mask_free_space_seconds", self.mask_free_space_seconds),
+            ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("dense.{name} must be 0 or more, not {value}"));
+            }
+        }
+        if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
+            return Err(format!(
+                "dense.mask_segment_edge_share must be in [0, 1], not {}",
+                self.mask_segment_edge_share
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.mask_foreground_share) {
+            return Err(format!(
+                "dense.mask_foreground_share must be in [0, 1], not {}",
+                self.mask_foreground_share
+            ));
+        }
+        if self.truncation < self.voxel {
+            return Err(format!(
+                "dense.truncation ({}) must be at least one voxel ({})",
+                self.truncation, self.voxel
+            ));
+        }
+        if self.voxel < 0.002 {
+            return Err(format!(
+                "dense.voxel {} m is below 2 mm: no depth sensor resolves that",
+                self.voxel
+            ));
+        }
+        if !(1..=4).contains(&self.detect_tiles) {
+            return Err(format!(
+                "dense.detect_tiles must be 1 (the whole image) to 4, not {}",
+                self.detect_tiles
+            ));
+        }
+        if self.frame_step == 0 || self.cloud_stride == 0 {
+            return Err("dense.frame_step and dense.cloud_stride must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    /// The detector of the dense pass's own detections: the run's `tracking` one, with
+    /// [`Self::detect_model`] and [`Self::detect_tiles`] when it is ONNX (an oracle or
+    /// a cache stays what it is).
+    pub fn detector(&self, tracking: &DetectorConfig) -> DetectorConfig {
+        let mut detector = tracking.clone();
+        if !matches!(tracking.source, Source::Onnx | Source::Auto) {
+            return detector;
+        }
+        if let Some(model) = self.detect_model.model() {
+            detector.model = model;
+            detector.model_path = None;
+            detector.model_paths.clear();
+            detector.pool.clear();
+        }
+        detector.tiles = self.detect_tiles;
+        detector
+    }
+
+    /// The TSDF volume's settings.
+    pub fn tsdf(&self) -> TsdfSettings {
+        TsdfSettings {
+            voxel: self.voxel,
+            truncation: self.truncation,
+            max_depth: self.max_depth,
+            max_weight: self.max_weight,
+            carve: self.carve,
+            margin: self.image_margin,
+        }
+    }
+
+    /// The free-space evidence's settings.
+    pub fn free_space_settings(&self) -> FreeSpaceSettings {
+        FreeSpaceSettings {
+            seconds: self.mask_free_space_seconds,
+            far_seconds: self.mask_free_space_far_seconds,
+            ..FreeSpaceSettings::default()
+        }
+    }
+
+    /// Whether the TSDF (and its mesh) is fused.
+    pub fn fuses_tsdf(&self) -> bool {
+        self.mesh && self.fusion != Fusion::Points
+    }
+
+    /// Whether the cloud is written, and whether it loses what the TSDF saw through.
+    pub(super) fn cloud_carved(&self) -> bool {
+        self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
+    }
+
+    pub(super) fn cloud_settings(&self) -> CloudSettings {
+        CloudSettings {
+            voxel: self.cloud_voxel,
+            stride: self.cloud_stride,
+            max_depth: self.max_depth,
+            outlier_neighbours: self.outlier_neighbours,
+            outlier_std: self.outlier_std,
+            normal_neighbours: self.normal_neighbours,
+            margin: self.image_margin,
+        }
+    }
+}
