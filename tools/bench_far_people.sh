@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Benchmark (not a test): far people in the dense map (issue 47). For each preset and
 # seed: synth, one tracking pass with the real detector in the default real-time mode
-# (--no-dense), then `dopslam fuse` twice on the same trajectory: "before" (the dense
-# pass's own detections made by the tracking pass's detector, [dense] detect_model =
-# "tracking") and "after" (the defaults). Each variant gives, against the sequence's
+# (--no-dense), then `dopslam fuse` on the same trajectory with each of the variants
+# (--variants, default "before after deim"): "before" (the dense pass's own detections
+# on the whole image only, [dense] detect_tiles = 1, as before issue 47), "after" (the
+# defaults: 2 x 2 tiles and the whole image) and "deim" (DEIMv2-femto on the whole
+# image, where tools/setup.sh could install it). Each variant gives, against the sequence's
 # ground truth: movers' pixels kept out and static pixels fused (dense.json), the TSDF
 # mesh's vertices on movers and the keyframes' cloud without carving (fusion =
 # "points") points on movers (`dopslam compare-maps` against movers.ply), the person
@@ -11,7 +13,8 @@
 # against the oracle boxes) and the dense pass's time. One JSON line per run and
 # variant goes to OUT/rows.jsonl; tools/far_people_table.py prints the table.
 #
-#   bash tools/bench_far_people.sh [--seeds N] [--frames F] [--out DIR] [PRESET ...]
+#   bash tools/bench_far_people.sh [--seeds N] [--frames F] [--variants "V ..."]
+#                                  [--out DIR] [PRESET ...]
 #
 # Default preset: desk_far_people. Seeds: the preset's own, then 1001, 1002, ...
 # --frames F: the first F frames only (a quick check of the script).
@@ -21,13 +24,15 @@ cd "$(dirname "$0")/.."
 bin=${DOPSLAM_BIN:-./target/release/dopslam}
 seeds=3
 frames=()
+variants="before after deim"
 out=outputs/bench/far_people
 while [ $# -gt 0 ]; do
   case "$1" in
     --seeds) seeds=$2; shift 2 ;;
     --frames) frames=(--frames "$2"); shift 2 ;;
+    --variants) variants=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
-    -h | --help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h | --help) sed -n '2,23p' "$0"; exit 0 ;;
     *) break ;;
   esac
 done
@@ -35,10 +40,16 @@ presets=("$@")
 [ ${#presets[@]} -gt 0 ] || presets=(desk_far_people)
 [ -n "${DOPSLAM_BIN:-}" ] || cargo build --release --quiet
 mkdir -p "$out/runs" "$out/seq"
-printf '[dense]\ndetect_model = "tracking"\nobj = false\npictures = false\n' > "$out/before.toml"
-printf '[dense]\nobj = false\npictures = false\n' > "$out/after.toml"
-printf '[dense]\ndetect_model = "tracking"\nfusion = "points"\npictures = false\n' > "$out/points-before.toml"
-printf '[dense]\nfusion = "points"\npictures = false\n' > "$out/points-after.toml"
+for variant in $variants; do
+  case "$variant" in
+    before) keys='detect_tiles = 1\n' ;;
+    after) keys='' ;;
+    deim) keys='detect_model = "deimv2-femto"\ndetect_tiles = 1\n' ;;
+    *) echo "--variants: '$variant' is not before, after or deim" >&2; exit 2 ;;
+  esac
+  printf "[dense]\n${keys}obj = false\npictures = false\n" > "$out/$variant.toml"
+  printf "[dense]\n${keys}fusion = \"points\"\npictures = false\n" > "$out/points-$variant.toml"
+done
 rows=$out/rows.jsonl
 rm -f "$rows"
 
@@ -58,7 +69,7 @@ for preset in "${presets[@]}"; do
       ${frames[@]+"${frames[@]}"} --out "$seq" --force >/dev/null
     rm -rf "$run"
     "$bin" run "$seq" --out "$run" --no-dense --dop --detections onnx >"$run.log" 2>&1 || { echo "failed: $run.log" >&2; continue; }
-    for variant in before after; do
+    for variant in $variants; do
       "$bin" fuse "$run" --config "$out/$variant.toml" >>"$run.log" 2>&1 || { echo "fuse failed: $run.log" >&2; continue; }
       cp "$run/dense.json" "$run/dense-$variant.json"
       judge "$run/dense_mesh.ply" "$seq" >"$run/mesh-$variant.json" 2>>"$run.log"
