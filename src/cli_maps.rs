@@ -6,8 +6,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use dopslam::config::Config;
-use dopslam::dense::compare::CompareSettings;
-use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs, Comparison};
+use dopslam::dense::map_figures::CompareSettings;
+use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs, Comparison};
 use dopslam::dop::Mode;
 use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;

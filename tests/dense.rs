@@ -7,8 +7,8 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use dopslam::config::Config;
-use dopslam::dense::compare::CompareSettings;
-use dopslam::dense::comparison::{compare_maps, run_alignment, CompareInputs};
+use dopslam::dense::map_figures::CompareSettings;
+use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;

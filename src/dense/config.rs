@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::cloud::CloudSettings;
 use super::free_space::FreeSpaceSettings;
+use super::masks::MaskSettings;
 use super::segments::SegmentSettings;
 use super::tsdf::TsdfSettings;
 use crate::detect::{DetectorConfig, Model, Source};
@@ -295,6 +296,27 @@ impl DenseConfig {
         detector
     }
 
+    /// The masks' settings.
+    pub fn mask_settings(&self) -> MaskSettings {
+        MaskSettings {
+            border: self.mask_border,
+            keypoint_radius: self.keypoint_radius,
+            foreground_share: self.mask_foreground_share,
+            skip_behind_objects: !self.mask_discs_behind_objects,
+            disc_neighbours: self.mask_disc_neighbours,
+            segments: self.mask_segments.then(|| {
+                let settings = SegmentSettings {
+                    radius: self.mask_segment_radius,
+                    radius_metres: self.mask_segment_radius_metres,
+                    edge_share: self.mask_segment_edge_share,
+                    support: self.mask_segment_support,
+                    ..SegmentSettings::default()
+                };
+                (settings, self.mask_segment_follow_seconds)
+            }),
+        }
+    }
+
     /// The TSDF volume's settings.
     pub fn tsdf(&self) -> TsdfSettings {
         TsdfSettings {
@@ -326,7 +348,7 @@ impl DenseConfig {
         self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
     }
 
-    pub(super) fn cloud_settings(&self) -> CloudSettings {
+    pub fn cloud_settings(&self) -> CloudSettings {
         CloudSettings {
             voxel: self.cloud_voxel,
             stride: self.cloud_stride,

@@ -80,6 +80,16 @@ pub struct FrameKeypoints {
     pub points: Vec<[f32; 3]>,
 }
 
+/// What the masks are made for: the masking mode, the camera, the DOP model's settings
+/// and the classes that move.
+#[derive(Clone, Copy)]
+pub struct MaskContext<'a> {
+    pub masking: Mode,
+    pub camera: PinholeCamera,
+    pub dop: &'a DopConfig,
+    pub dynamic_classes: &'a [String],
+}
+
 /// Everything the masks are made from.
 pub struct MaskSource {
     pub masking: Mode,
@@ -95,21 +105,22 @@ pub struct MaskSource {
 }
 
 impl MaskSource {
-    /// Builds the keyframes' objects from their detections: `pose_at(t)` gives a
-    /// keyframe's final `camera_from_world`, `depth_at(t)` its depth map (frames
-    /// missing either keep their pixel boxes only).
-    #[allow(clippy::too_many_arguments)]
+    /// Builds the detected frames' objects from their `detections`: `pose_at(t)`
+    /// gives a frame's final `camera_from_world`, `depth_at(t)` its depth map (frames
+    /// missing either keep their pixel boxes only); `keypoints` are the frames'
+    /// dynamic keypoints.
     pub fn new(
-        masking: Mode,
+        context: MaskContext,
         settings: MaskSettings,
-        camera: PinholeCamera,
-        dop: &DopConfig,
-        dynamic_classes: &[String],
-        mut detections: Vec<FrameDetections>,
-        mut keypoints: Vec<FrameKeypoints>,
-        pose_at: &dyn Fn(f64) -> Option<Se3>,
-        depth_at: &dyn Fn(f64) -> Option<DepthImage>,
+        (mut detections, mut keypoints): (Vec<FrameDetections>, Vec<FrameKeypoints>),
+        (pose_at, depth_at): (&dyn Fn(f64) -> Option<Se3>, &dyn Fn(f64) -> Option<DepthImage>),
     ) -> Self {
+        let MaskContext {
+            masking,
+            camera,
+            dop,
+            dynamic_classes,
+        } = context;
         detections.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
         keypoints.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
         let mut tracks = ObjectTracks::default();
@@ -602,15 +613,15 @@ mod tests {
     ) -> MaskSource {
         let (camera, depth) = scene();
         MaskSource::new(
-            Mode::Dop,
+            MaskContext {
+                masking: Mode::Dop,
+                camera,
+                dop: &DopConfig::default(),
+                dynamic_classes: &["person".to_string()],
+            },
             settings,
-            camera,
-            &DopConfig::default(),
-            &["person".to_string()],
-            frames,
-            keypoints,
-            &|_| Some(Se3::identity()),
-            &|_| Some(depth.clone()),
+            (frames, keypoints),
+            (&|_| Some(Se3::identity()), &|_| Some(depth.clone())),
         )
     }
 
@@ -790,15 +801,15 @@ mod tests {
         // Far from any keyframe nothing is masked; --no-dop masks nothing.
         assert!(source.mask(5.0, &depth, &identity, None).is_none());
         let mut boxes = MaskSource::new(
-            Mode::MaskBoxes,
+            MaskContext {
+                masking: Mode::MaskBoxes,
+                camera,
+                dop: &DopConfig::default(),
+                dynamic_classes: &["person".to_string()],
+            },
             settings,
-            camera,
-            &DopConfig::default(),
-            &["person".to_string()],
-            frames,
-            vec![],
-            &|_| None,
-            &|_| None,
+            (frames, vec![]),
+            (&|_| None, &|_| None),
         );
         let mask = boxes.mask(1.0, &depth, &identity, None).expect("a mask");
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");

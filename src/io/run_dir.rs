@@ -10,6 +10,47 @@ use serde::Deserialize;
 
 use super::IoError;
 
+/// `segments.txt`: each tracked frame's timestamp and map segment after the loops'
+/// merges, a `timestamp segment` line each (the tracking pass writes it, the dense pass
+/// fuses only the largest segment).
+pub fn write_segments(path: &Path, frames: &[(f64, usize)]) -> Result<(), IoError> {
+    let mut text = String::from(
+        "# timestamp segment: each tracked frame's map segment after the loops' merges\n",
+    );
+    for (timestamp, segment) in frames {
+        text.push_str(&format!("{timestamp:.6} {segment}\n"));
+    }
+    super::atomic::write_atomic(path, text.as_bytes())
+}
+
+/// Reads [`write_segments`]'s file: `None` when there is none (a run written before
+/// the file existed); a malformed line is an error naming it.
+pub fn read_segments(path: &Path) -> Result<Option<Vec<(f64, usize)>>, IoError> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(None);
+    };
+    let mut frames = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut fields = line.split_whitespace();
+        let parsed = match (fields.next(), fields.next(), fields.next()) {
+            (Some(t), Some(s), None) => t.parse::<f64>().ok().zip(s.parse::<usize>().ok()),
+            _ => None,
+        };
+        let Some(frame) = parsed else {
+            return Err(IoError::invalid(
+                path,
+                format!("line {}: expected `timestamp segment`, got {line:?}", n + 1),
+            ));
+        };
+        frames.push(frame);
+    }
+    Ok(Some(frames))
+}
+
 /// A run's output folder.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RunDir {

@@ -179,23 +179,19 @@ fn write_keyframes_and_map(run: &RunDir, map: &Map) -> Result<(), RunError> {
     Ok(())
 }
 
-/// `segments.txt`: each tracked frame's map segment after the loops' `merges`.
+/// `segments.txt` ([`crate::io::run_dir::write_segments`]): each tracked frame's map
+/// segment after the loops' `merges`.
 fn write_segments(
     run: &RunDir,
     lines: &[FrameLine],
     merges: &[(usize, usize)],
 ) -> Result<(), RunError> {
-    let mut by_frame = String::from(
-        "# timestamp segment: each tracked frame's map segment after the loops' merges\n",
-    );
-    for line in lines
+    let frames: Vec<(f64, usize)> = lines
         .iter()
         .filter(|l| l.tracking.state == TrackingState::Ok)
-    {
-        let segment = final_segment(merges, line.tracking.segment);
-        by_frame.push_str(&format!("{:.6} {segment}\n", line.tracking.timestamp));
-    }
-    Ok(write_atomic(&run.segments(), by_frame.as_bytes())?)
+        .map(|l| (l.tracking.timestamp, final_segment(merges, l.tracking.segment)))
+        .collect();
+    Ok(crate::io::run_dir::write_segments(&run.segments(), &frames)?)
 }
 
 /// The run's totals.

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::compare::{
+use super::map_figures::{
     distance_colour, judge, static_accuracy, table, CompareSettings, MapFigures, StaticReference,
 };
 use super::render::{self, Viewpoint};
