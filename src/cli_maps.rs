@@ -13,7 +13,7 @@ use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
 use dopslam::io::run_dir::{names, RunDir, RunSummary};
-use dopslam::run::dense_pass;
+use dopslam::run::{dense_pass, DenseSetup};
 
 #[derive(Args)]
 pub struct FuseArgs {
@@ -142,7 +142,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     }
     let dense = dense_pass(
         sequence.as_ref(),
-        &config,
+        &DenseSetup::resolve(sequence.as_ref(), &config)?,
         (&args.run, &args.run),
         masking,
         Some(&sequence_dir),
@@ -327,7 +327,8 @@ pub fn compare_with_baseline(
     points_only.dense.fusion = dopslam::dense::Fusion::Points;
     points_only.dense.frames = FrameChoice::Keyframes;
     points_only.dense.pictures = false;
-    dense_pass(sequence, &points_only, (run, &no_masks), Mode::Off, None, true)?;
+    let setup = DenseSetup::resolve(sequence, &points_only)?;
+    dense_pass(sequence, &setup, (run, &no_masks), Mode::Off, None, true)?;
     let baseline_map = if baseline.join(cloud).exists() {
         ("no_dop_cloud", baseline.join(cloud))
     } else {

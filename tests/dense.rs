@@ -13,7 +13,7 @@ use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::read_ply;
 use dopslam::io::sequence::Sequence;
-use dopslam::run::{dense_pass, open_sequence, run_sequence, RunOptions, RunReport};
+use dopslam::run::{dense_pass, open_sequence, run_sequence, DenseSetup, RunOptions, RunReport};
 use dopslam::synth::{generate, SynthConfig};
 
 /// The first `frames` frames of synth preset `name` (without its frame timing), in a
@@ -112,7 +112,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         .install(|| {
             dense_pass(
                 sequence.as_ref(),
-                &config,
+                &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
                 (&run_dir, &one_dir),
                 Mode::Dop,
                 Some(&seq),
@@ -123,7 +123,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     // Fused again into the run's folder: the detections come from its cache.
     let again = dense_pass(
         sequence.as_ref(),
-        &config,
+        &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
         (&run_dir, &run_dir),
         Mode::Dop,
         Some(&seq),
@@ -145,7 +145,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let unmasked_dir = base.join("unmasked");
     let unmasked = dense_pass(
         sequence.as_ref(),
-        &config,
+        &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
         (&run_dir, &unmasked_dir),
         Mode::Off,
         Some(&seq),
@@ -230,7 +230,7 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         let out = base.join(name);
         let report = dense_pass(
             sequence.as_ref(),
-            &config,
+            &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
             (&run_dir, &out),
             Mode::Dop,
             Some(&seq),

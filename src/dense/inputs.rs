@@ -5,8 +5,11 @@
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
 use super::disparity::{stereo_depth, StereoDepth};
 use super::masks::FrameKeypoints;
+use super::{interrupted, Chosen};
 use crate::detect::FrameDetections;
 use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
@@ -185,6 +188,28 @@ pub(super) fn sequence_frame(inputs: &DenseInputs, i: usize) -> Result<LoadedFra
     let timestamp = frame.timestamp;
     depth_and_colour(frame.images, inputs.stereo.as_ref(), inputs.run_dir)
         .map(|(depth, rgb)| (timestamp, depth, rgb))
+}
+
+/// The chosen frames in groups of two per thread: each group is decoded in parallel,
+/// then used in order.
+pub(super) fn groups(chosen: &[Chosen]) -> std::slice::Chunks<'_, Chosen> {
+    chosen.chunks(rayon::current_num_threads().max(1) * 2)
+}
+
+/// A group of chosen frames, each loaded by `load` in parallel (after an interrupt
+/// check, see [`check_interrupt`]).
+pub(super) fn load_group<T: Send>(
+    inputs: &DenseInputs,
+    group: &[Chosen],
+    load: impl Fn(&DenseInputs, usize) -> Result<T, IoError> + Sync,
+) -> Result<Vec<Result<T, IoError>>, IoError> {
+    check_interrupt(inputs)?;
+    Ok(group.par_iter().map(|&(i, _, _)| load(inputs, i)).collect())
+}
+
+/// `Err` once an interrupt was asked for: the dense map is then not written.
+pub(super) fn check_interrupt(inputs: &DenseInputs) -> Result<(), IoError> {
+    interrupted(inputs.out_dir, "the dense map was not written")
 }
 
 #[cfg(test)]

@@ -7,6 +7,11 @@
 //! `dynamic_keypoints.json`; the frames come from the sequence. Masks: [`masks`].
 //! Outputs: `dense_mesh.ply`, `dense_mesh.obj`, `dense_points.ply`, `dense.json`,
 //! and pictures `dense_perspective.png`, `dense_top.png`.
+//!
+//! [`fuse_run`] reads like the run: [`inputs`] (what the run folder and the sequence
+//! hold), [`more_detections`] (the pass's own detections), [`masks`], [`tsdf`] and
+//! [`cloud`] (fusion), [`outputs`] (the files), [`truth`] (the count against a
+//! synthetic sequence's masks); [`config`] is the `[dense]` section.
 
 pub mod cloud;
 pub mod compare_maps;
@@ -19,6 +24,7 @@ pub mod marching_cubes;
 pub mod masks;
 pub mod more_detections;
 pub mod neighbours;
+pub mod outputs;
 pub mod render;
 pub mod segments;
 pub mod truth;
@@ -29,7 +35,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::detect::FrameDetections;
@@ -37,19 +42,20 @@ use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::image_files::DepthImage;
-use crate::io::ply::{write_obj, write_ply};
 use crate::io::run_dir::{names, RunDir};
 use crate::io::sequence::Sequence;
-use crate::io::{IoError, Trajectory};
+use crate::io::IoError;
 use cloud::CloudBuilder;
 use free_space::NeighbourWindow;
-use inputs::{frame_depth, key, sequence_frame, RunInputs};
+use inputs::{frame_depth, groups, key, load_group, sequence_frame, RunInputs};
 use masks::{MaskContext, MaskSource};
+use outputs::{write_maps, Maps};
 use truth::{count_truth, unknown_instances};
 use tsdf::{FrameInput, TsdfVolume};
 
 pub use config::{DenseConfig, FrameChoice, Fusion};
 pub use inputs::{read_detections, read_keypoints, DenseInputs};
+pub use outputs::save_png;
 pub use truth::FusedTruth;
 
 /// What the dense pass did.
@@ -132,7 +138,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
 
 /// A frame to fuse: its index in the sequence, final `camera_from_world`, and whether
 /// it is a keyframe (the cloud takes keyframes only).
-type Chosen = (usize, Se3, bool);
+pub(super) type Chosen = (usize, Se3, bool);
 
 /// The frames to fuse, in sequence order: every tracked frame of the largest segment
 /// (keyframes only for a point cloud alone, or with `frames = "keyframes"`), every
@@ -250,103 +256,6 @@ fn fuse(
         cloud: cloud_on.then_some(cloud),
     };
     Ok((maps, truth))
-}
-
-/// The fused volume and the keyframe cloud (when one is made).
-struct Maps {
-    volume: TsdfVolume,
-    cloud: Option<CloudBuilder>,
-}
-
-/// Writes the mesh (marching cubes over the volume, when it was fused), the point
-/// cloud (carved by the volume when asked) and the pictures into `out`.
-fn write_maps(
-    out: &RunDir,
-    masking: Mode,
-    config: &DenseConfig,
-    maps: Maps,
-    trajectory: &Trajectory,
-    report: &mut DenseReport,
-) -> Result<(), IoError> {
-    let comment = format!(
-        "dopslam dense map, masking {:?}, voxel {} m",
-        masking, config.voxel
-    );
-    let Maps { volume, cloud } = maps;
-    // Everything is computed before anything is written: an interrupt until then
-    // leaves the earlier dense map as it was.
-    let mesh = config.fuses_tsdf().then(|| {
-        let start = Instant::now();
-        let mesh = marching_cubes::extract(&volume);
-        report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
-        report.mesh_vertices = mesh.len();
-        report.mesh_triangles = mesh.triangles.len();
-        mesh
-    });
-    let points = cloud.map(|cloud| {
-        let start = Instant::now();
-        let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
-        let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
-        report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
-        report.cloud_points = points.len();
-        report.cloud_seen_through = dropped;
-        points
-    });
-    drop(volume);
-    interrupted(out.root(), "the dense map was not written; the earlier one is as it was")?;
-    if let Some(mesh) = &mesh {
-        let path = out.file(names::DENSE_MESH_PLY);
-        write_ply(&path, mesh, None, config.ply_encoding, &comment)?;
-        report.outputs.push(path);
-        if config.obj {
-            let path = out.file(names::DENSE_MESH_OBJ);
-            write_obj(&path, mesh, &comment)?;
-            report.outputs.push(path);
-        }
-    }
-    if let Some(points) = &points {
-        let path = out.file(names::DENSE_POINTS);
-        write_ply(&path, points, None, config.ply_encoding, &comment)?;
-        report.outputs.push(path);
-    }
-    if let (true, Some(map)) = (config.pictures, mesh.as_ref().or(points.as_ref())) {
-        write_pictures(out, map, trajectory, report)?;
-    }
-    Ok(())
-}
-
-/// The dense map's pictures (perspective and top view) from the cameras' side.
-fn write_pictures(
-    out: &RunDir,
-    map: &crate::geometry::mesh::Mesh,
-    trajectory: &Trajectory,
-    report: &mut DenseReport,
-) -> Result<(), IoError> {
-    let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) else {
-        return Ok(());
-    };
-    let colours = render::with_ghosts(map, &[]);
-    let pictures = [
-        (
-            names::DENSE_PERSPECTIVE,
-            render::perspective(
-                &map.vertices,
-                &colours,
-                &view.camera_from_world,
-                &render::picture_camera(),
-            ),
-        ),
-        (
-            names::DENSE_TOP,
-            render::top(&map.vertices, &colours, &view, 800),
-        ),
-    ];
-    for (name, picture) in pictures {
-        let path = out.file(name);
-        save_png(&path, &picture)?;
-        report.outputs.push(path);
-    }
-    Ok(())
 }
 
 /// What [`fuse_frames`] did.
@@ -467,30 +376,8 @@ fn allocate_blocks(
     Ok(())
 }
 
-/// The chosen frames in groups of two per thread: each group is decoded in parallel,
-/// then used in order.
-fn groups(chosen: &[Chosen]) -> std::slice::Chunks<'_, Chosen> {
-    chosen.chunks(rayon::current_num_threads().max(1) * 2)
-}
-
-/// A group of chosen frames, each loaded by `load` in parallel (after an interrupt
-/// check, see [`check_interrupt`]).
-fn load_group<T: Send>(
-    inputs: &DenseInputs,
-    group: &[Chosen],
-    load: impl Fn(&DenseInputs, usize) -> Result<T, IoError> + Sync,
-) -> Result<Vec<Result<T, IoError>>, IoError> {
-    check_interrupt(inputs)?;
-    Ok(group.par_iter().map(|&(i, _, _)| load(inputs, i)).collect())
-}
-
-/// `Err` once an interrupt was asked for: the dense map is then not written.
-fn check_interrupt(inputs: &DenseInputs) -> Result<(), IoError> {
-    interrupted(inputs.out_dir, "the dense map was not written")
-}
-
 /// `Err` naming `dir` and saying `what` once an interrupt was asked for.
-fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
+pub(super) fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
     if crate::interrupt::requested() {
         return Err(IoError::invalid(
             dir,
@@ -498,19 +385,4 @@ fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
         ));
     }
     Ok(())
-}
-
-/// Writes a PNG atomically.
-pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
-    let mut bytes = Vec::new();
-    picture
-        .write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
-        )
-        .map_err(|e| IoError::Write {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(e),
-        })?;
-    write_atomic(path, &bytes)
 }

@@ -6,8 +6,10 @@
 //! height) starts at \(x_i = i (W - w_t) / (g - 1)\). The network sees each tile at
 //! its own input size, so a person of height \(h\) pixels reaches it at about
 //! \(h \cdot s_{in} / h_t\) instead of \(h \cdot s_{in} / H\): \(g / (1 + o)\) times
-//! larger. The whole image is detected too (people larger than a tile), and every
-//! box, moved back into the image, goes through one class-wise NMS.
+//! larger. The whole image is detected too (people larger than a tile). A tile's box
+//! that touches a side of the tile inside the image is part of an object cut by the
+//! tile and is dropped; every other box, moved back into the image, goes through one
+//! class-wise NMS.
 
 use image::RgbImage;
 
@@ -61,17 +63,56 @@ pub fn tiles(width: u32, height: u32, grid: u32, overlap: f32) -> Vec<(u32, u32,
     out
 }
 
+/// The sides of a tile that cut through the image (not the image's own border), in
+/// the tile's pixels. A box touching one holds part of an object only: its score can
+/// beat the whole object's box from another tile or the whole image, and NMS would
+/// then keep the part, so such boxes are dropped (the object lies whole in the
+/// neighbouring tile when it is narrower than the overlap, else in the whole image).
+struct Seams {
+    left: bool,
+    top: bool,
+    right: Option<f32>,
+    bottom: Option<f32>,
+}
+
+impl Seams {
+    fn of((x, y, w, h): (u32, u32, u32, u32), (width, height): (u32, u32)) -> Self {
+        Self {
+            left: x > 0,
+            top: y > 0,
+            right: (x + w < width).then_some(w as f32),
+            bottom: (y + h < height).then_some(h as f32),
+        }
+    }
+
+    fn touched_by(&self, [x1, y1, x2, y2]: &[f32; 4]) -> bool {
+        const TOUCH: f32 = 2.0;
+        (self.left && *x1 <= TOUCH)
+            || (self.top && *y1 <= TOUCH)
+            || self.right.is_some_and(|r| *x2 >= r - TOUCH)
+            || self.bottom.is_some_and(|b| *y2 >= b - TOUCH)
+    }
+}
+
 impl Detector for Tiled {
     fn detect(&mut self, timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError> {
         let start = std::time::Instant::now();
         let mut found = self.inner.detect(timestamp, image)?;
-        for (x, y, w, h) in tiles(image.width(), image.height(), self.grid, self.overlap) {
+        let (width, height) = (image.width(), image.height());
+        for (x, y, w, h) in tiles(width, height, self.grid, self.overlap) {
             let tile = image::imageops::crop_imm(image, x, y, w, h).to_image();
-            found.extend(self.inner.detect(timestamp, &tile)?.into_iter().map(|mut d| {
-                let [x1, y1, x2, y2] = d.bbox;
-                d.bbox = [x1 + x as f32, y1 + y as f32, x2 + x as f32, y2 + y as f32];
-                d
-            }));
+            let seams = Seams::of((x, y, w, h), (width, height));
+            found.extend(
+                self.inner
+                    .detect(timestamp, &tile)?
+                    .into_iter()
+                    .filter(|d| !seams.touched_by(&d.bbox))
+                    .map(|mut d| {
+                        let [x1, y1, x2, y2] = d.bbox;
+                        d.bbox = [x1 + x as f32, y1 + y as f32, x2 + x as f32, y2 + y as f32];
+                        d
+                    }),
+            );
         }
         self.last_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(non_maximum_suppression(
@@ -130,6 +171,19 @@ mod tests {
                 instance: None,
             }])
         }
+    }
+
+    #[test]
+    fn boxes_cut_by_a_seam_inside_the_image_are_dropped() {
+        // The top-left tile of 640 x 480: its right and bottom sides are seams.
+        let seams = Seams::of((0, 0, 400, 300), (640, 480));
+        assert!(seams.touched_by(&[300.0, 100.0, 399.5, 200.0]), "cut on the right");
+        assert!(seams.touched_by(&[100.0, 250.0, 150.0, 299.0]), "cut at the bottom");
+        assert!(!seams.touched_by(&[0.0, 0.0, 50.0, 120.0]), "the image's own corner");
+        // The bottom-right tile: its left and top sides are seams.
+        let seams = Seams::of((240, 180, 400, 300), (640, 480));
+        assert!(seams.touched_by(&[1.0, 50.0, 60.0, 120.0]));
+        assert!(!seams.touched_by(&[300.0, 200.0, 400.0, 300.0]), "the image's corner");
     }
 
     #[test]

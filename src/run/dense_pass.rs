@@ -3,27 +3,64 @@
 
 use std::path::Path;
 
-use super::setup::resolve_calibration;
+use super::setup::{resolve_calibration, stereo_bf, Setup};
 use super::RunError;
 use crate::config::Config;
 use crate::dense::disparity::StereoDepth;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
 use crate::dop::Mode;
+use crate::geometry::camera::PinholeCamera;
 use crate::io::sequence::{SensorKind, Sequence};
+
+/// What the dense pass runs with, resolved once: the config for the sequence's
+/// sensor, the camera, and for a stereo sequence how its pairs become depth.
+#[derive(Debug, Clone)]
+pub struct DenseSetup {
+    pub config: Config,
+    pub camera: PinholeCamera,
+    pub stereo: Option<StereoDepth>,
+}
+
+impl DenseSetup {
+    /// The dense pass of a run: from the run's set-up, nothing resolved again.
+    pub fn of_run(setup: &Setup) -> Self {
+        Self::new(setup.config.clone(), setup.calibration.camera, setup.sensor, setup.camera.bf)
+    }
+
+    /// For `dopslam fuse` (no tracking pass before it): the sensor's config and the
+    /// calibration of `sequence` under `config`.
+    pub fn resolve(sequence: &dyn Sequence, config: &Config) -> Result<Self, RunError> {
+        let config = config.for_sensor(sequence.sensor());
+        let calibration = resolve_calibration(sequence, &config)?;
+        let bf = stereo_bf(&calibration);
+        Ok(Self::new(config, calibration.camera, sequence.sensor(), bf))
+    }
+
+    fn new(config: Config, camera: PinholeCamera, sensor: SensorKind, bf: f64) -> Self {
+        let stereo = (sensor == SensorKind::Stereo).then(|| StereoDepth {
+            bf,
+            sgbm: config.stereo.sgbm(),
+        });
+        Self {
+            config,
+            camera,
+            stereo,
+        }
+    }
+}
 
 /// The dense pass over the run in `run_dir`, outputs into `out_dir` (see
 /// [`crate::dense`]); with `sequence_dir`'s ground-truth `masks/`, when it has them,
 /// the fused pixels are counted against them.
 pub fn dense_pass(
     sequence: &dyn Sequence,
-    config: &Config,
+    setup: &DenseSetup,
     (run_dir, out_dir): (&Path, &Path),
     masking: Mode,
     sequence_dir: Option<&Path>,
     progress: bool,
 ) -> Result<DenseReport, RunError> {
-    let config = &config.for_sensor(sequence.sensor());
-    let calibration = resolve_calibration(sequence, config)?;
+    let config = &setup.config;
     let dense_detector = config.dense.detector(&config.detector);
     let detector = match masking {
         Mode::Dop if config.dense.detect_every > 0 => dense_detector
@@ -33,7 +70,7 @@ pub fn dense_pass(
     };
     let inputs = DenseInputs {
         sequence,
-        camera: calibration.camera,
+        camera: setup.camera,
         run_dir,
         out_dir,
         masking,
@@ -41,10 +78,7 @@ pub fn dense_pass(
         dynamic_classes: &config.detector.dynamic_classes,
         truth_masks: sequence_dir.map(|d| d.join("masks")).filter(|d| d.is_dir()),
         progress,
-        stereo: (sequence.sensor() == SensorKind::Stereo).then(|| StereoDepth {
-            bf: calibration.bf.unwrap_or(40.0),
-            sgbm: config.stereo.sgbm(),
-        }),
+        stereo: setup.stereo.clone(),
         detector: detector.map(|d| (std::sync::Mutex::new(d), dense_detector.describe())),
     };
     Ok(fuse_run(&inputs, &config.dense)?)

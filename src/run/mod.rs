@@ -24,7 +24,7 @@ pub mod truth;
 
 use std::path::{Path, PathBuf};
 
-pub use dense_pass::dense_pass;
+pub use dense_pass::{dense_pass, DenseSetup};
 pub use error::RunError;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
@@ -88,7 +88,7 @@ pub fn run_sequence(
     if options.dense && dense_due && !crate::interrupt::requested() {
         let dense = dense_pass(
             sequence,
-            config,
+            &DenseSetup::of_run(&setup),
             (out, out),
             setup.mode,
             options.sequence_dir.as_deref(),

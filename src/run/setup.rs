@@ -62,7 +62,7 @@ impl Setup {
         if let Some(warning) = size_warning {
             eprintln!("warning: {warning}");
         }
-        let camera = StereoCamera::new(&calibration.camera, calibration.bf.unwrap_or(40.0));
+        let camera = StereoCamera::new(&calibration.camera, stereo_bf(&calibration));
         let extractor = OrbExtractor::new(&config.orb);
         warn_if_swapped(sequence.name(), first.as_ref(), &extractor, &camera);
         let sensor = sequence.sensor();
@@ -158,10 +158,16 @@ pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, 
     )?))
 }
 
+/// The baseline times focal length (pixel-metres) a run uses: the calibration's,
+/// else ORB-SLAM2's virtual 40 px·m for RGB-D.
+pub fn stereo_bf(calibration: &Calibration) -> f64 {
+    calibration.bf.unwrap_or(40.0)
+}
+
 /// The calibration to use: the config's camera, else its settings file, else the
-/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m. Its
-/// image size is the images' ([`fit_to_images`]; [`Setup::resolve`] prints the
-/// warning when they differ).
+/// sequence's own; RGB-D without a baseline gets ORB-SLAM2's virtual 40 px·m
+/// ([`stereo_bf`]). Its image size is the images' ([`fit_to_images`];
+/// [`Setup::resolve`] prints the warning when they differ).
 pub fn resolve_calibration(
     sequence: &dyn Sequence,
     config: &Config,

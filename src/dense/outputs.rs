@@ -1,0 +1,126 @@
+//! The dense pass's outputs: the mesh (PLY, OBJ), the point cloud (PLY) and the
+//! pictures, each computed before any file is written.
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::cloud::CloudBuilder;
+use super::tsdf::TsdfVolume;
+use super::{interrupted, marching_cubes, render, DenseConfig, DenseReport};
+use crate::dop::Mode;
+use crate::io::atomic::write_atomic;
+use crate::io::ply::{write_obj, write_ply};
+use crate::io::run_dir::{names, RunDir};
+use crate::io::{IoError, Trajectory};
+
+/// The fused volume and the keyframe cloud (when one is made).
+pub(super) struct Maps {
+    pub volume: TsdfVolume,
+    pub cloud: Option<CloudBuilder>,
+}
+
+/// Writes the mesh (marching cubes over the volume, when it was fused), the point
+/// cloud (carved by the volume when asked) and the pictures into `out`.
+pub(super) fn write_maps(
+    out: &RunDir,
+    masking: Mode,
+    config: &DenseConfig,
+    maps: Maps,
+    trajectory: &Trajectory,
+    report: &mut DenseReport,
+) -> Result<(), IoError> {
+    let comment = format!(
+        "dopslam dense map, masking {:?}, voxel {} m",
+        masking, config.voxel
+    );
+    let Maps { volume, cloud } = maps;
+    // Everything is computed before anything is written: an interrupt until then
+    // leaves the earlier dense map as it was.
+    let mesh = config.fuses_tsdf().then(|| {
+        let start = Instant::now();
+        let mesh = marching_cubes::extract(&volume);
+        report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.mesh_vertices = mesh.len();
+        report.mesh_triangles = mesh.triangles.len();
+        mesh
+    });
+    let points = cloud.map(|cloud| {
+        let start = Instant::now();
+        let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
+        let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
+        report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.cloud_points = points.len();
+        report.cloud_seen_through = dropped;
+        points
+    });
+    drop(volume);
+    interrupted(out.root(), "the dense map was not written; the earlier one is as it was")?;
+    if let Some(mesh) = &mesh {
+        let path = out.file(names::DENSE_MESH_PLY);
+        write_ply(&path, mesh, None, config.ply_encoding, &comment)?;
+        report.outputs.push(path);
+        if config.obj {
+            let path = out.file(names::DENSE_MESH_OBJ);
+            write_obj(&path, mesh, &comment)?;
+            report.outputs.push(path);
+        }
+    }
+    if let Some(points) = &points {
+        let path = out.file(names::DENSE_POINTS);
+        write_ply(&path, points, None, config.ply_encoding, &comment)?;
+        report.outputs.push(path);
+    }
+    if let (true, Some(map)) = (config.pictures, mesh.as_ref().or(points.as_ref())) {
+        write_pictures(out, map, trajectory, report)?;
+    }
+    Ok(())
+}
+
+/// The dense map's pictures (perspective and top view) from the cameras' side.
+fn write_pictures(
+    out: &RunDir,
+    map: &crate::geometry::mesh::Mesh,
+    trajectory: &Trajectory,
+    report: &mut DenseReport,
+) -> Result<(), IoError> {
+    let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) else {
+        return Ok(());
+    };
+    let colours = render::with_ghosts(map, &[]);
+    let pictures = [
+        (
+            names::DENSE_PERSPECTIVE,
+            render::perspective(
+                &map.vertices,
+                &colours,
+                &view.camera_from_world,
+                &render::picture_camera(),
+            ),
+        ),
+        (
+            names::DENSE_TOP,
+            render::top(&map.vertices, &colours, &view, 800),
+        ),
+    ];
+    for (name, picture) in pictures {
+        let path = out.file(name);
+        save_png(&path, &picture)?;
+        report.outputs.push(path);
+    }
+    Ok(())
+}
+
+/// Writes a PNG atomically.
+pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
+    let mut bytes = Vec::new();
+    picture
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| IoError::Write {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(e),
+        })?;
+    write_atomic(path, &bytes)
+}
