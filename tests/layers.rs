@@ -256,3 +256,29 @@ fn a_circle_is_found() {
     assert_eq!(found.len(), 1);
     assert_eq!(found[0].len(), 3);
 }
+
+/// Modules of one floor that never import each other in the named direction: the
+/// global and dense passes are independent stages after tracking; local mapping and
+/// the tracker meet only through the map and the system; the map knows nothing of the
+/// DOP state over a run (the dynamics read and write the map, not the other way).
+const NEVER: &[(&str, &str)] = &[
+    ("global", "dense"),
+    ("dense", "global"),
+    ("mapping", "tracking"),
+    ("tracking", "mapping"),
+    ("map", "dynamics"),
+];
+
+#[test]
+fn modules_of_one_floor_keep_apart_where_they_must() {
+    let edges = references(&src());
+    let mut found = Vec::new();
+    for (from, targets) in &edges {
+        for to in targets {
+            if NEVER.iter().any(|&(a, b)| from[0] == a && to[0] == b) {
+                found.push(format!("{} imports {}", from.join("::"), to.join("::")));
+            }
+        }
+    }
+    assert!(found.is_empty(), "imports the layers forbid:\n{}", found.join("\n"));
+}
