@@ -86,11 +86,20 @@ fn same_frames(run: &RunDir, sequence: &dyn dopslam::io::sequence::Sequence, dir
 }
 
 /// The masking a run used, from its report.json.
-fn run_masking(report: &RunSummary) -> Mode {
-    match report.mode.as_str() {
-        "off" => Mode::Off,
-        "mask-boxes" => Mode::MaskBoxes,
-        _ => Mode::Dop,
+/// How the run in `run` treated movers, as its report says: the dense pass masks
+/// the same way unless told otherwise.
+fn run_masking(run: &RunDir, report: &RunSummary) -> Result<Mode> {
+    match Mode::from_name(&report.mode) {
+        Some(mode) => Ok(mode),
+        None if report.mode.is_empty() => bail!(
+            "{} does not say how the run treated moving objects: pass --dop, --mask-boxes or --no-dop",
+            run.report().display()
+        ),
+        None => bail!(
+            "{} says mode {:?}, which is none of off, mask-boxes and dop: pass --dop, --mask-boxes or --no-dop",
+            run.report().display(),
+            report.mode
+        ),
     }
 }
 
@@ -127,7 +136,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     } else if args.dop {
         Mode::Dop
     } else {
-        run_masking(&report)
+        run_masking(&run, &report)?
     };
     let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
     same_frames(&run, sequence.as_ref(), &sequence_dir)?;

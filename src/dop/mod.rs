@@ -54,6 +54,17 @@ impl Mode {
         }
     }
 
+    /// The mode a report or manifest names: its serialised name (`off`, `mask-boxes`,
+    /// `dop`) or [`Self::name`]; `None` for any other text.
+    pub fn from_name(name: &str) -> Option<Mode> {
+        match name {
+            "off" | "no-dop" => Some(Mode::Off),
+            "mask-boxes" => Some(Mode::MaskBoxes),
+            "dop" => Some(Mode::Dop),
+            _ => None,
+        }
+    }
+
     /// The moving probability above which a map point is dynamic and takes no part
     /// in new points, local BA or the global pass: the model's removal threshold with
     /// the DOP model, else 1 (none is).
@@ -380,6 +391,17 @@ pub fn raise_unknown_in_boxes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_mode_is_found_by_each_of_its_names_and_nothing_else() {
+        for mode in Mode::ALL {
+            assert_eq!(Mode::from_name(mode.name()), Some(mode));
+            let serialised = serde_json::to_string(&mode).unwrap();
+            assert_eq!(Mode::from_name(serialised.trim_matches('"')), Some(mode));
+        }
+        assert_eq!(Mode::from_name(""), None);
+        assert_eq!(Mode::from_name("DOP"), None);
+    }
 
     #[test]
     fn unknown_keypoints_on_a_followed_object_are_raised() {
