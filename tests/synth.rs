@@ -226,6 +226,7 @@ fn every_preset_loads_and_validates() {
             "cutout_xyz",
             "demo",
             "demo_walking",
+            "desk_far_people",
             "fr1_xyz_room",
             "fr2_desk_room",
             "loop_room",
