@@ -80,6 +80,10 @@ pub struct FrameKeypoints {
     pub points: Vec<[f32; 3]>,
 }
 
+/// A frame's final `camera_from_world` by its timestamp, and its depth map.
+pub type PoseAt<'a> = &'a dyn Fn(f64) -> Option<Se3>;
+pub type DepthAt<'a> = &'a dyn Fn(f64) -> Option<DepthImage>;
+
 /// What the masks are made for: the masking mode, the camera, the DOP model's settings
 /// and the classes that move.
 #[derive(Clone, Copy)]
@@ -113,7 +117,7 @@ impl MaskSource {
         context: MaskContext,
         settings: MaskSettings,
         (mut detections, mut keypoints): (Vec<FrameDetections>, Vec<FrameKeypoints>),
-        (pose_at, depth_at): (&dyn Fn(f64) -> Option<Se3>, &dyn Fn(f64) -> Option<DepthImage>),
+        (pose_at, depth_at): (PoseAt, DepthAt),
     ) -> Self {
         let MaskContext {
             masking,

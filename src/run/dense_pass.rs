@@ -78,7 +78,7 @@ pub fn dense_pass(
         dynamic_classes: &config.detector.dynamic_classes,
         truth_masks: sequence_dir.map(|d| d.join("masks")).filter(|d| d.is_dir()),
         progress,
-        stereo: setup.stereo.clone(),
+        stereo: setup.stereo,
         detector: detector.map(|d| (std::sync::Mutex::new(d), dense_detector.describe())),
     };
     Ok(fuse_run(&inputs, &config.dense)?)
