@@ -266,12 +266,7 @@ impl DenseConfig {
                 self.voxel
             ));
         }
-        if !(1..=4).contains(&self.detect_tiles) {
-            return Err(format!(
-                "dense.detect_tiles must be 1 (the whole image) to 4, not {}",
-                self.detect_tiles
-            ));
-        }
+        crate::detect::tiles::check_grid("dense.detect_tiles", self.detect_tiles)?;
         if self.frame_step == 0 || self.cloud_stride == 0 {
             return Err("dense.frame_step and dense.cloud_stride must be at least 1".into());
         }

@@ -16,6 +16,9 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::detect::{write_cache, Detector, FrameDetections};
+use crate::io::atomic::write_atomic;
+use crate::io::output::{move_previous_outputs, RUN_OUTPUTS};
+use crate::io::run_dir::names;
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::IoError;
 
@@ -66,27 +69,33 @@ pub fn add(
 }
 
 /// The detections cached in `cache` by the detector `describe`. A cache of another
-/// detector (or of none named) is not used: its files are detected again and
-/// overwritten, and `detector.txt` names the new detector.
+/// detector (or of none named) is not used, nor mixed with the new boxes: it moves into
+/// the run folder's `previous/` ([`move_previous_outputs`], nothing is deleted), and a
+/// new `detector.txt` names the detector of the boxes detected now.
 fn cached_by(cache: &Path, describe: &str) -> Result<Vec<FrameDetections>, IoError> {
     let stamp = cache.join("detector.txt");
     let same = std::fs::read_to_string(&stamp).is_ok_and(|s| s.trim_end() == describe);
     if same {
         return crate::dense::read_detections(cache);
     }
-    let earlier = crate::dense::read_detections(cache)?.len();
-    if earlier > 0 {
-        eprintln!(
-            "note: the {earlier} dense-pass detections in {} were made by another detector: detecting again",
-            cache.display()
-        );
+    if let Some(run) = cache.parent().filter(|_| cache.exists()) {
+        let others: Vec<&str> = RUN_OUTPUTS
+            .into_iter()
+            .filter(|name| *name != names::DENSE_DETECTIONS)
+            .collect();
+        if let (_, Some(to)) = move_previous_outputs(run, &others)? {
+            eprintln!(
+                "note: the dense-pass detections in {} were made by another detector: moved to {}, detecting again",
+                cache.display(),
+                to.display()
+            );
+        }
     }
     std::fs::create_dir_all(cache).map_err(|source| IoError::Write {
         path: cache.to_path_buf(),
         source,
     })?;
-    crate::io::atomic::write_atomic(&stamp, format!("{describe}\n").as_bytes())
-        .map_err(|e| IoError::invalid(&stamp, e.to_string()))?;
+    write_atomic(&stamp, format!("{describe}\n").as_bytes())?;
     Ok(Vec::new())
 }
 

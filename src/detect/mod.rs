@@ -231,12 +231,7 @@ impl DetectorConfig {
                 self.simulated_latency_ms
             ));
         }
-        if !(1..=4).contains(&self.tiles) {
-            return Err(format!(
-                "detector.tiles must be 1 (the whole image) to 4, got {}",
-                self.tiles
-            ));
-        }
+        tiles::check_grid("detector.tiles", self.tiles)?;
         if self.model_path.is_some() && !self.model_paths.is_empty() {
             return Err(
                 "detector: set model_path (one file) or model_paths (several), not both".into(),

@@ -39,6 +39,15 @@ impl Tiled {
     }
 }
 
+/// Checks a tile grid's side, `key` naming the config key: 1 (the whole image only)
+/// to 4.
+pub fn check_grid(key: &str, grid: u32) -> Result<(), String> {
+    if (1..=4).contains(&grid) {
+        return Ok(());
+    }
+    Err(format!("{key} must be 1 (the whole image) to 4, got {grid}"))
+}
+
 /// The tiles' rectangles `(x, y, width, height)` of a `width` x `height` image.
 pub fn tiles(width: u32, height: u32, grid: u32, overlap: f32) -> Vec<(u32, u32, u32, u32)> {
     if grid <= 1 {
