@@ -16,6 +16,7 @@ pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
 use crate::io::tum::TumOptions;
+use crate::io::recording::{RecordingOptions, TopicChoice};
 pub use crate::mapping::MappingConfig;
 pub use crate::tracking::TrackerConfig;
 
@@ -46,6 +47,13 @@ pub struct DatasetConfig {
     pub settings: Option<PathBuf>,
     /// Camera intrinsics (override both the settings file and the sequence's).
     pub camera: Option<PinholeCamera>,
+    /// A recording's colour topic (`sensor_msgs/Image` or `CompressedImage`); unset:
+    /// found from the messages ([`crate::io::recording::topics`]).
+    pub rgb_topic: Option<String>,
+    /// A recording's depth topic (registered to the colour camera); unset: found.
+    pub depth_topic: Option<String>,
+    /// A recording's `sensor_msgs/CameraInfo` topic; unset: the colour topic's.
+    pub camera_info_topic: Option<String>,
     /// What applying `settings` did (set by [`Config::apply_orbslam_settings`]).
     #[serde(skip)]
     pub settings_applied: Option<SettingsApplied>,
@@ -60,6 +68,19 @@ impl DatasetConfig {
             association_file: self.association_file.clone(),
         }
     }
+
+    /// How to read a recording (ROS bag, MCAP) under this config.
+    pub fn recording_options(&self) -> RecordingOptions {
+        RecordingOptions {
+            topics: TopicChoice {
+                rgb: self.rgb_topic.clone(),
+                depth: self.depth_topic.clone(),
+                camera_info: self.camera_info_topic.clone(),
+            },
+            depth_scale: self.depth_scale,
+            max_difference: self.max_difference,
+        }
+    }
 }
 
 impl Default for DatasetConfig {
@@ -70,6 +91,9 @@ impl Default for DatasetConfig {
             association_file: None,
             settings: None,
             camera: None,
+            rgb_topic: None,
+            depth_topic: None,
+            camera_info_topic: None,
             settings_applied: None,
         }
     }

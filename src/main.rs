@@ -25,6 +25,7 @@ mod cli_values;
 mod cli_doctor;
 mod cli_global;
 mod cli_maps;
+mod cli_recording;
 mod cli_stereo;
 
 #[derive(Parser)]
@@ -52,7 +53,7 @@ enum Command {
     Fuse(cli_maps::FuseArgs),
     /// Compare dense maps (PLY) against a static reference and each other: accuracy, completion, ghosts, SA/DA.
     CompareMaps(cli_maps::CompareArgs),
-    /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout): frames, pairing, calibration, ground truth.
+    /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS bag, MCAP): frames, pairing, topics, calibration, ground truth.
     Info(InfoArgs),
     /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
     Detect(DetectArgs),
@@ -70,7 +71,7 @@ enum Command {
 
 #[derive(Args)]
 struct DetectArgs {
-    /// An image file, or a sequence folder (TUM/Bonn RGB-D layout).
+    /// An image file, a sequence folder (TUM/Bonn RGB-D layout) or a recording (ROS bag, MCAP).
     input: PathBuf,
     /// A TOML config whose [detector] section picks the model (default: YOLOv4-tiny ONNX).
     #[arg(long)]
@@ -96,6 +97,8 @@ struct DetectArgs {
     /// timestamp, milliseconds and detections) instead of the table.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    topics: cli_recording::TopicArgs,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -196,17 +199,22 @@ struct SynthArgs {
 
 #[derive(Args)]
 struct InfoArgs {
-    /// The sequence folder.
+    /// The sequence folder, or a recording (ROS 1 .bag, ROS 2 bag folder, .mcap, .db3).
     sequence: PathBuf,
     /// A TOML config ([dataset] section: depth scale, association tolerance or file).
     #[arg(long)]
     config: Option<PathBuf>,
+    #[command(flatten)]
+    topics: cli_recording::TopicArgs,
 }
 
 #[derive(Args)]
 struct RunArgs {
-    /// The sequence folder (TUM/Bonn RGB-D layout, or one written by `dopslam synth`).
+    /// The sequence folder (TUM/Bonn RGB-D layout, KITTI stereo, or one written by `dopslam
+    /// synth`), or a recording (ROS 1 .bag, ROS 2 bag folder, .mcap, .db3).
     sequence: PathBuf,
+    #[command(flatten)]
+    topics: cli_recording::TopicArgs,
     /// A TOML config (configs/default.toml lists every key).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -381,7 +389,11 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     let mut detector = detector_config
         .open(args.input.is_dir().then_some(args.input.as_path()))?
         .expect("a source other than none");
-    let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir() {
+    let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir()
+        || dopslam::io::recording::is_recording(&args.input)
+    {
+        let mut config = config.clone();
+        args.topics.apply(&mut config);
         let sequence = dopslam::run::open_sequence(&args.input, &config)?;
         let mut frames = Vec::new();
         for index in (0..sequence.len()).step_by(args.every as usize) {
@@ -587,8 +599,12 @@ fn run_synth(args: SynthArgs) -> Result<()> {
 }
 
 fn run_info(args: InfoArgs) -> Result<()> {
-    let config = load_config(args.config.as_deref())?;
+    let mut config = load_config(args.config.as_deref())?;
     let root = &args.sequence;
+    if dopslam::io::recording::is_recording(root) {
+        args.topics.apply(&mut config);
+        return cli_recording::print_recording_info(root, &config);
+    }
     dopslam::run::check_sequence_folder(root)?;
     let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
         Box::new(KittiSequence::open(root, None)?)
@@ -640,6 +656,7 @@ fn run_info(args: InfoArgs) -> Result<()> {
 fn run_run(args: RunArgs) -> Result<()> {
     use clap::ValueEnum;
     let mut config = load_config(args.config.as_deref())?;
+    args.topics.apply(&mut config);
     if let Some(source) = args.detections {
         config.detector.source = source;
     }

@@ -11,6 +11,7 @@ pub mod image_files;
 pub mod kitti;
 pub mod orbslam_settings;
 pub mod ply;
+pub mod recording;
 pub mod sequence;
 pub mod trajectory;
 pub mod tum;

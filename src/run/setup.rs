@@ -17,6 +17,7 @@ use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::kitti::KittiSequence;
 use crate::io::orbslam_settings::{Calibration, OrbSlamSettings};
+use crate::io::recording::RecordingSequence;
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
@@ -146,8 +147,17 @@ pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
     Ok(())
 }
 
-/// Opens a TUM/Bonn folder or a KITTI sequence folder (`image_0/` inside).
+/// Opens a TUM/Bonn folder, a KITTI sequence folder (`image_0/` inside) or a recording
+/// (ROS 1 `.bag`, ROS 2 bag folder, `.mcap`, `.db3`; see [`crate::io::recording`]), whose
+/// warnings (no index, cut short, stamps out of order) are printed here.
 pub fn open_sequence(root: &Path, config: &Config) -> Result<Box<dyn Sequence>, IoError> {
+    if crate::io::recording::is_recording(root) {
+        let recording = RecordingSequence::open(root, &config.dataset.recording_options())?;
+        for warning in &recording.description.warnings {
+            eprintln!("warning: {warning}");
+        }
+        return Ok(Box::new(recording));
+    }
     check_sequence_folder(root)?;
     if root.join("image_0").is_dir() {
         return Ok(Box::new(KittiSequence::open(root, None)?));

@@ -1,0 +1,89 @@
+//! The command line's side of recordings (ROS bags, MCAP): the topic options shared by
+//! `info`, `run` and `detect`, and what `dopslam info` prints about a recording.
+
+use std::path::Path;
+
+use anyhow::Result;
+use clap::Args;
+use dopslam::config::Config;
+use dopslam::io::recording::RecordingSequence;
+use dopslam::io::sequence::Sequence;
+
+/// Which topics of a recording make the frames (override `[dataset]`'s keys).
+#[derive(Args, Debug, Clone, Default)]
+pub struct TopicArgs {
+    /// A recording's colour topic (sensor_msgs/Image or CompressedImage); default: found
+    /// from the messages' encodings.
+    #[arg(long)]
+    pub rgb_topic: Option<String>,
+    /// A recording's depth topic, registered to the colour camera; default: found.
+    #[arg(long)]
+    pub depth_topic: Option<String>,
+    /// A recording's sensor_msgs/CameraInfo topic; default: the colour topic's.
+    #[arg(long)]
+    pub camera_info_topic: Option<String>,
+}
+
+impl TopicArgs {
+    /// Writes the topics given into the config's `[dataset]`.
+    pub fn apply(&self, config: &mut Config) {
+        let dataset = &mut config.dataset;
+        for (given, key) in [
+            (&self.rgb_topic, &mut dataset.rgb_topic),
+            (&self.depth_topic, &mut dataset.depth_topic),
+            (&self.camera_info_topic, &mut dataset.camera_info_topic),
+        ] {
+            if given.is_some() {
+                key.clone_from(given);
+            }
+        }
+    }
+}
+
+/// `dopslam info` on a recording: its topics with rates, the ones chosen, the frames
+/// paired, the calibration found and what the scan warned about.
+pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
+    let recording = RecordingSequence::open(path, &config.dataset.recording_options())?;
+    let d = &recording.description;
+    println!("recording {}: {} topics", path.display(), d.topics.len());
+    for (name, msg_type, count, rate) in &d.topics {
+        println!("  {name:<40} {msg_type:<28} {count:>7} messages  {rate:>6.1} Hz");
+    }
+    println!(
+        "colour: {}\ndepth: {} (registered to the colour camera)",
+        d.colour, d.depth
+    );
+    match &d.camera_info {
+        Some(topic) => println!("camera info: {topic}"),
+        None => println!("camera info: none (give the calibration with --settings or --camera)"),
+    }
+    println!(
+        "frames: {} colour/depth pairs (tolerance {} s)",
+        d.frames, config.dataset.max_difference
+    );
+    if !recording.is_empty() {
+        let (first, last) = (
+            recording.timestamp(0),
+            recording.timestamp(recording.len() - 1),
+        );
+        println!("time span {:.3} s ({first:.6} .. {last:.6})", last - first);
+    }
+    if let Some(c) = recording.calibration() {
+        let k = &c.camera;
+        println!(
+            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}, {:.1} Hz",
+            k.fx,
+            k.fy,
+            k.cx,
+            k.cy,
+            k.width,
+            k.height,
+            k.distortion,
+            c.fps.unwrap_or(0.0)
+        );
+    }
+    for warning in &d.warnings {
+        println!("warning: {warning}");
+    }
+    Ok(())
+}

@@ -1,0 +1,250 @@
+//! Frames of a recording: colour and depth messages paired by stamp (TUM's rule), and
+//! decoded into the images a [`crate::io::sequence::Frame`] holds.
+//!
+//! Encodings: colour `rgb8`, `bgr8`, `rgba8`, `bgra8`, `mono8` and compressed JPEG or
+//! PNG; depth `16UC1` / `mono16` (raw units, divided by the depth scale), `32FC1`
+//! (metres; NaN and non-positive values are no depth) and `compressedDepth` PNG
+//! (`16UC1`, or `32FC1` quantised as \(z = a / (q - b)\) with \(a, b\) from its
+//! 12-byte header).
+
+use std::path::Path;
+
+use image::RgbImage;
+
+use super::messages::{self, Wire};
+use super::topics::Chosen;
+use super::{Catalog, Entry, Store, COMPRESSED};
+use crate::io::file_list::associate_greedy;
+use crate::io::image_files::DepthImage;
+use crate::io::IoError;
+
+/// One frame: its colour and depth messages and whether each is compressed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FramePair {
+    pub colour: Entry,
+    pub depth: Entry,
+    pub colour_compressed: bool,
+    pub depth_compressed: bool,
+}
+
+/// Pairs the chosen colour and depth topics' messages by stamp.
+pub fn pair(
+    path: &Path,
+    catalog: &Catalog,
+    chosen: &Chosen,
+    max_difference: f64,
+) -> Result<Vec<FramePair>, IoError> {
+    let colour = catalog.topic(&chosen.colour).expect("chosen topics exist");
+    let depth = catalog.topic(&chosen.depth).expect("chosen topics exist");
+    let stamps = |t: &super::Topic| t.messages.iter().map(|m| m.stamp).collect::<Vec<_>>();
+    let pairs = associate_greedy(&stamps(colour), &stamps(depth), 0.0, max_difference);
+    if pairs.is_empty() {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "none of the {} colour images ({}, stamps {:.3}-{:.3}) has a depth image ({}, {} messages, stamps {:.3}-{:.3}) within {max_difference} s: are the two stamped by different clocks? (raise [dataset] max_difference)",
+                colour.messages.len(), colour.name, colour.messages[0].stamp, colour.messages.last().expect("non-empty").stamp,
+                depth.name, depth.messages.len(), depth.messages[0].stamp, depth.messages.last().expect("non-empty").stamp
+            ),
+        ));
+    }
+    Ok(pairs
+        .into_iter()
+        .map(|(i, j)| FramePair {
+            colour: colour.messages[i],
+            depth: depth.messages[j],
+            colour_compressed: colour.msg_type == COMPRESSED,
+            depth_compressed: depth.msg_type == COMPRESSED,
+        })
+        .collect())
+}
+
+/// Decodes a frame's messages read back from the store.
+pub struct Reader<'a> {
+    pub path: &'a Path,
+    pub store: &'a dyn Store,
+    pub wire: Wire,
+}
+
+impl Reader<'_> {
+    fn bad(&self, entry: &Entry, what: &str, message: impl std::fmt::Display) -> IoError {
+        IoError::Image {
+            path: self.path.to_path_buf(),
+            message: format!("the {what} image stamped {:.6}: {message}", entry.stamp),
+        }
+    }
+
+    /// The colour image of a frame.
+    pub fn colour(&self, pair: &FramePair) -> Result<RgbImage, IoError> {
+        let entry = &pair.colour;
+        let data = self.store.read(entry.at)?;
+        let bad = |m: String| self.bad(entry, "colour", m);
+        if pair.colour_compressed {
+            let c = messages::compressed(&data, self.wire).map_err(bad)?;
+            let image = image::load_from_memory(c.data)
+                .map_err(|e| bad(format!("{} data: {e}", c.format)))?;
+            return Ok(image.to_rgb8());
+        }
+        let raw = messages::image(&data, self.wire).map_err(bad)?;
+        let channels = match raw.encoding.as_str() {
+            "rgb8" | "bgr8" => 3,
+            "rgba8" | "bgra8" => 4,
+            "mono8" => 1,
+            other => return Err(bad(format!("encoding {other:?} is not a colour encoding read here (rgb8, bgr8, rgba8, bgra8, mono8)"))),
+        };
+        let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
+        if step < w * channels {
+            return Err(bad(format!(
+                "step {step} is shorter than a row of {w} pixels of {}",
+                raw.encoding
+            )));
+        }
+        let swap = raw.encoding.starts_with("bgr");
+        let mut rgb = Vec::with_capacity(w * h * 3);
+        for row in raw.data.chunks(step).take(h) {
+            for px in row[..w * channels].chunks_exact(channels) {
+                match (channels, swap) {
+                    (1, _) => rgb.extend([px[0]; 3]),
+                    (_, false) => rgb.extend(&px[..3]),
+                    (_, true) => rgb.extend([px[2], px[1], px[0]]),
+                }
+            }
+        }
+        Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
+    }
+
+    /// The depth image of a frame in metres.
+    pub fn depth(&self, pair: &FramePair, depth_scale: f64) -> Result<DepthImage, IoError> {
+        let entry = &pair.depth;
+        let data = self.store.read(entry.at)?;
+        let bad = |m: String| self.bad(entry, "depth", m);
+        if pair.depth_compressed {
+            let c = messages::compressed(&data, self.wire).map_err(bad)?;
+            return compressed_depth(&c, depth_scale).map_err(bad);
+        }
+        let raw = messages::image(&data, self.wire).map_err(bad)?;
+        let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
+        let bytes =
+            match raw.encoding.as_str() {
+                "16UC1" | "mono16" => 2,
+                "32FC1" => 4,
+                other => return Err(bad(format!(
+                    "encoding {other:?} is not a depth encoding read here (16UC1, mono16, 32FC1)"
+                ))),
+            };
+        if step < w * bytes {
+            return Err(bad(format!(
+                "step {step} is shorter than a row of {w} pixels of {}",
+                raw.encoding
+            )));
+        }
+        let scale = (1.0 / depth_scale) as f32;
+        let mut metres = Vec::with_capacity(w * h);
+        for row in raw.data.chunks(step).take(h) {
+            for px in row[..w * bytes].chunks_exact(bytes) {
+                let value = match (bytes, raw.big_endian) {
+                    (2, false) => u16::from_le_bytes([px[0], px[1]]) as f32 * scale,
+                    (2, true) => u16::from_be_bytes([px[0], px[1]]) as f32 * scale,
+                    (_, false) => f32::from_le_bytes([px[0], px[1], px[2], px[3]]),
+                    (_, true) => f32::from_be_bytes([px[0], px[1], px[2], px[3]]),
+                };
+                metres.push(if value.is_finite() && value > 0.0 {
+                    value
+                } else {
+                    0.0
+                });
+            }
+        }
+        Ok(DepthImage {
+            width: raw.width,
+            height: raw.height,
+            metres,
+        })
+    }
+}
+
+/// Decodes `compressed_depth_image_transport`'s format: a 12-byte header (`i32`
+/// format, two `f32` quantisation parameters) and a 16-bit PNG.
+fn compressed_depth(c: &messages::CompressedImage, depth_scale: f64) -> Result<DepthImage, String> {
+    if !c.format.contains("png") {
+        return Err(format!(
+            "format {:?}: only PNG compressedDepth is read (not RVL)",
+            c.format
+        ));
+    }
+    let (header, png) = c
+        .data
+        .split_at_checked(12)
+        .ok_or("compressedDepth data shorter than its 12-byte header")?;
+    let a = f32::from_le_bytes(header[4..8].try_into().expect("4 bytes"));
+    let b = f32::from_le_bytes(header[8..12].try_into().expect("4 bytes"));
+    let image = image::load_from_memory_with_format(png, image::ImageFormat::Png)
+        .map_err(|e| format!("compressedDepth PNG: {e}"))?;
+    let image::DynamicImage::ImageLuma16(raw) = image else {
+        return Err(format!(
+            "compressedDepth PNG is {:?}, not 16-bit grey",
+            image.color()
+        ));
+    };
+    let float = c.format.starts_with("32FC1");
+    let scale = (1.0 / depth_scale) as f32;
+    let metres = raw
+        .as_raw()
+        .iter()
+        .map(|&q| match (q, float) {
+            (0, _) => 0.0,
+            (q, true) => {
+                let z = a / (q as f32 - b);
+                if z.is_finite() && z > 0.0 {
+                    z
+                } else {
+                    0.0
+                }
+            }
+            (q, false) => q as f32 * scale,
+        })
+        .collect();
+    Ok(DepthImage {
+        width: raw.width(),
+        height: raw.height(),
+        metres,
+    })
+}
+
+/// What `dopslam info` says about a recording.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Description {
+    /// Every topic: name, type, messages, rate in Hz.
+    pub topics: Vec<(String, String, usize, f64)>,
+    pub colour: String,
+    pub depth: String,
+    pub camera_info: Option<String>,
+    pub frames: usize,
+    pub warnings: Vec<String>,
+}
+
+impl Description {
+    pub fn new(catalog: &Catalog, chosen: &Chosen, frames: usize) -> Self {
+        let topics = catalog
+            .topics
+            .iter()
+            .map(|t| {
+                let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
+                let rate = if span > 0.0 {
+                    (t.messages.len() - 1) as f64 / span
+                } else {
+                    0.0
+                };
+                (t.name.clone(), t.msg_type.clone(), t.messages.len(), rate)
+            })
+            .collect();
+        Self {
+            topics,
+            colour: chosen.colour.clone(),
+            depth: chosen.depth.clone(),
+            camera_info: chosen.camera_info.clone(),
+            frames,
+            warnings: catalog.warnings.clone(),
+        }
+    }
+}

@@ -1,0 +1,318 @@
+//! Recordings as sensors and `rosbag record` write them, read as a [`Sequence`]: ROS 1
+//! bags (`.bag`), ROS 2 bags (a folder with `metadata.yaml`, SQLite `.db3` or `.mcap`
+//! storage) and single `.db3` / `.mcap` files.
+//!
+//! Opening a recording scans it once into a [`Catalog`]: each topic's messages with
+//! their header stamps and where they lie ([`Location`]); no image is kept. Frames
+//! then load one at a time from the [`Store`], so a recording of any size streams.
+//! The topics are chosen as described in [`topics`], the calibration comes from the
+//! colour stream's `sensor_msgs/CameraInfo`.
+
+pub mod frames;
+pub mod messages;
+pub mod ros1;
+pub mod ros2;
+pub mod topics;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+pub use messages::Wire;
+pub use topics::TopicChoice;
+
+use super::orbslam_settings::Calibration;
+use super::sequence::{Frame, FrameImages, SensorKind, Sequence};
+use super::{IoError, Trajectory};
+
+/// Where a message lies in its store: two numbers whose meaning is the store's (a ROS 1
+/// chunk's byte position and an offset in it; an MCAP chunk and a message's ordinal in
+/// it; a SQLite row id).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Location(pub u64, pub u64);
+
+/// One message of a topic: its stamp (the `std_msgs/Header` stamp, else the time it was
+/// recorded) and where it lies.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Entry {
+    pub stamp: f64,
+    pub at: Location,
+}
+
+/// A topic of a recording with its messages in stamp order.
+#[derive(Debug, Clone)]
+pub struct Topic {
+    pub name: String,
+    /// The message type in ROS 1 spelling (`sensor_msgs/Image`, also for ROS 2's
+    /// `sensor_msgs/msg/Image`).
+    pub msg_type: String,
+    pub messages: Vec<Entry>,
+}
+
+/// The message types read for frames and calibration.
+pub const IMAGE: &str = "sensor_msgs/Image";
+pub const COMPRESSED: &str = "sensor_msgs/CompressedImage";
+pub const CAMERA_INFO: &str = "sensor_msgs/CameraInfo";
+
+fn has_header(msg_type: &str) -> bool {
+    [IMAGE, COMPRESSED, CAMERA_INFO].contains(&msg_type)
+}
+
+/// What a scan of a recording found.
+#[derive(Debug, Clone)]
+pub struct Catalog {
+    pub wire: Wire,
+    pub topics: Vec<Topic>,
+    /// The store's topic or connection ids to indices into `topics` (ROS 1 bags may have
+    /// several connections for one topic).
+    ids: HashMap<u64, usize>,
+    /// Said once to the user: no index, cut short, stamps out of order.
+    pub warnings: Vec<String>,
+    /// Messages of our types whose header could not be decoded, by topic.
+    undecodable: HashMap<usize, usize>,
+}
+
+impl Catalog {
+    pub fn new(wire: Wire) -> Self {
+        Self {
+            wire,
+            topics: Vec::new(),
+            ids: HashMap::new(),
+            warnings: Vec::new(),
+            undecodable: HashMap::new(),
+        }
+    }
+
+    /// Declares the store's topic `id`.
+    pub fn add_topic(&mut self, id: impl Into<u64>, name: &str, msg_type: &str) {
+        let msg_type = msg_type.replacen("/msg/", "/", 1);
+        let index = match self.topics.iter().position(|t| t.name == name) {
+            Some(i) => i,
+            None => {
+                self.topics.push(Topic {
+                    name: name.to_owned(),
+                    msg_type,
+                    messages: Vec::new(),
+                });
+                self.topics.len() - 1
+            }
+        };
+        self.ids.insert(id.into(), index);
+    }
+
+    /// Adds a message of topic `id`; `received` (seconds) stands in for a missing or
+    /// zero header stamp.
+    pub fn add_message(&mut self, id: impl Into<u64>, at: Location, data: &[u8], received: f64) {
+        let Some(&index) = self.ids.get(&id.into()) else {
+            return;
+        };
+        let topic = &mut self.topics[index];
+        let stamp = if has_header(&topic.msg_type) {
+            match messages::stamp(data, self.wire) {
+                Ok(stamp) if stamp > 0.0 => stamp,
+                Ok(_) => received,
+                Err(_) => {
+                    *self.undecodable.entry(index).or_default() += 1;
+                    return;
+                }
+            }
+        } else {
+            received
+        };
+        topic.messages.push(Entry { stamp, at });
+    }
+
+    /// Sorts each topic by stamp (saying where they were out of order) and drops
+    /// topics without messages.
+    pub fn finish(mut self) -> Self {
+        for (index, count) in &self.undecodable {
+            self.warnings.push(format!(
+                "{count} messages of topic {} could not be decoded as {} and are skipped",
+                self.topics[*index].name, self.topics[*index].msg_type
+            ));
+        }
+        for topic in &mut self.topics {
+            let out_of_order = topic
+                .messages
+                .windows(2)
+                .filter(|w| w[1].stamp < w[0].stamp)
+                .count();
+            if out_of_order > 0 {
+                self.warnings.push(format!(
+                    "topic {}: {out_of_order} messages come before an earlier stamp; they are read in stamp order",
+                    topic.name
+                ));
+                topic.messages.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
+            }
+        }
+        self.topics.retain(|t| !t.messages.is_empty());
+        self
+    }
+
+    pub fn topic(&self, name: &str) -> Option<&Topic> {
+        self.topics.iter().find(|t| t.name == name)
+    }
+}
+
+/// Reads a message's bytes back from where the scan found it.
+pub trait Store: Send + Sync {
+    fn read(&self, at: Location) -> Result<Vec<u8>, IoError>;
+}
+
+/// How to read a recording (from `[dataset]` and the command line).
+#[derive(Debug, Clone, Default)]
+pub struct RecordingOptions {
+    pub topics: TopicChoice,
+    /// Raw 16-bit depth units per metre; `None`: 1000 (millimetres, REP 118).
+    pub depth_scale: Option<f64>,
+    /// Tolerance in seconds for pairing colour and depth stamps.
+    pub max_difference: f64,
+}
+
+/// Whether `path` looks like a recording rather than a sequence folder.
+pub fn is_recording(path: &Path) -> bool {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    matches!(ext, "bag" | "mcap" | "db3") || (path.is_dir() && path.join("metadata.yaml").is_file())
+}
+
+/// Opens the store of a recording by its kind.
+fn open_store(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    super::errors::check_exists(path, "recording")?;
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if path.is_dir() {
+        return ros2::open_bag_folder(path);
+    }
+    match ext {
+        "bag" => {
+            let (bag, catalog) = ros1::Ros1Bag::open(path)?;
+            Ok((Box::new(bag), catalog))
+        }
+        "mcap" => ros2::open_mcap(path),
+        "db3" => ros2::open_sqlite(path),
+        _ => Err(IoError::invalid(
+            path,
+            "not a recording (.bag, .mcap, .db3 or a ROS 2 bag folder)",
+        )),
+    }
+}
+
+/// A recording read as a sequence of RGB-D frames.
+pub struct RecordingSequence {
+    name: String,
+    path: PathBuf,
+    store: Box<dyn Store>,
+    wire: Wire,
+    frames: Vec<frames::FramePair>,
+    calibration: Option<Calibration>,
+    depth_scale: f64,
+    /// What the scan and the topic choice said, for `dopslam info` and the run's log.
+    pub description: frames::Description,
+}
+
+impl std::fmt::Debug for RecordingSequence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RecordingSequence")
+            .field("path", &self.path)
+            .field("frames", &self.frames.len())
+            .finish()
+    }
+}
+
+impl RecordingSequence {
+    /// Opens a recording: scans it, chooses the topics, pairs colour and depth.
+    pub fn open(path: &Path, options: &RecordingOptions) -> Result<Self, IoError> {
+        let (store, catalog) = open_store(path)?;
+        let catalog = catalog.finish();
+        let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
+        let depth_scale = options.depth_scale.unwrap_or(1000.0);
+        if !(depth_scale.is_finite() && depth_scale > 0.0) {
+            return Err(IoError::invalid(
+                path,
+                format!("depth scale must be positive, got {depth_scale}"),
+            ));
+        }
+        let frames = frames::pair(path, &catalog, &choice, options.max_difference)?;
+        let calibration = match &choice.camera_info {
+            Some(info) => Some(topics::calibration(path, &catalog, store.as_ref(), info)?),
+            None => None,
+        };
+        let name = path
+            .file_stem()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "recording".into());
+        let description = frames::Description::new(&catalog, &choice, frames.len());
+        Ok(Self {
+            name,
+            path: path.to_path_buf(),
+            store,
+            wire: catalog.wire,
+            frames,
+            calibration,
+            depth_scale,
+            description,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Sequence for RecordingSequence {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn sensor(&self) -> SensorKind {
+        SensorKind::Rgbd
+    }
+
+    fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn timestamp(&self, index: usize) -> f64 {
+        self.frames[index].colour.stamp
+    }
+
+    fn load(&self, index: usize) -> Result<Frame, IoError> {
+        let pair = &self.frames[index];
+        let reader = frames::Reader {
+            path: &self.path,
+            store: self.store.as_ref(),
+            wire: self.wire,
+        };
+        let rgb = reader.colour(pair)?;
+        let depth = reader.depth(pair, self.depth_scale)?;
+        if (rgb.width(), rgb.height()) != (depth.width, depth.height) {
+            return Err(IoError::invalid(
+                &self.path,
+                format!(
+                    "frame {index}: depth is {}x{} but its colour image is {}x{} (is the depth registered to the colour camera?)",
+                    depth.width, depth.height, rgb.width(), rgb.height()
+                ),
+            ));
+        }
+        Ok(Frame {
+            index,
+            timestamp: pair.colour.stamp,
+            images: FrameImages::Rgbd { rgb, depth },
+        })
+    }
+
+    fn load_depth(&self, index: usize) -> Result<Option<super::image_files::DepthImage>, IoError> {
+        let reader = frames::Reader {
+            path: &self.path,
+            store: self.store.as_ref(),
+            wire: self.wire,
+        };
+        Ok(Some(reader.depth(&self.frames[index], self.depth_scale)?))
+    }
+
+    fn ground_truth(&self) -> Option<&Trajectory> {
+        None
+    }
+
+    fn calibration(&self) -> Option<&Calibration> {
+        self.calibration.as_ref()
+    }
+}

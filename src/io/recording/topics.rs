@@ -1,0 +1,314 @@
+//! Which topics of a recording make the frames, and the calibration they carry.
+//!
+//! Without options: the colour stream is the `Image` / `CompressedImage` topic whose
+//! first message has a colour encoding (names with `color`, `colour` or `rgb` first,
+//! 8-bit grey infrared last); the depth stream the one with a depth encoding (`16UC1`,
+//! `32FC1`, `compressedDepth`; names with `registered` or `aligned` first); the camera
+//! info the `CameraInfo` topic sharing the longest name prefix with the colour topic.
+//! Where two topics tie, the choice is the user's: the error lists them.
+
+use std::path::Path;
+
+use super::messages::{self, Wire};
+use super::{Catalog, Store, Topic, CAMERA_INFO, COMPRESSED, IMAGE};
+use crate::geometry::camera::PinholeCamera;
+use crate::io::orbslam_settings::Calibration;
+use crate::io::IoError;
+
+/// The topics the user named (`[dataset] rgb_topic`, `depth_topic`, `camera_info_topic`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TopicChoice {
+    pub rgb: Option<String>,
+    pub depth: Option<String>,
+    pub camera_info: Option<String>,
+}
+
+/// The topics chosen.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chosen {
+    pub colour: String,
+    pub depth: String,
+    pub camera_info: Option<String>,
+}
+
+/// What a stream of images holds, from its first message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Content {
+    Colour,
+    Grey,
+    Depth,
+    Other,
+}
+
+fn content(topic: &Topic, store: &dyn Store, wire: Wire) -> Result<Content, IoError> {
+    let data = store.read(topic.messages[0].at)?;
+    Ok(match topic.msg_type.as_str() {
+        IMAGE => match messages::image(&data, wire).map(|i| i.encoding) {
+            Ok(e) if ["rgb8", "bgr8", "rgba8", "bgra8"].contains(&e.as_str()) => Content::Colour,
+            Ok(e) if e == "mono8" => Content::Grey,
+            Ok(e) if ["16UC1", "32FC1", "mono16"].contains(&e.as_str()) => Content::Depth,
+            _ => Content::Other,
+        },
+        COMPRESSED => match messages::compressed(&data, wire).map(|c| c.format) {
+            Ok(f) if f.contains("compressedDepth") => Content::Depth,
+            Ok(_) => Content::Colour,
+            Err(_) => Content::Other,
+        },
+        _ => Content::Other,
+    })
+}
+
+/// The list of topics for an error: name, type and message count.
+pub fn listing(catalog: &Catalog) -> String {
+    let mut lines: Vec<String> = catalog
+        .topics
+        .iter()
+        .map(|t| format!("{} ({}, {} messages)", t.name, t.msg_type, t.messages.len()))
+        .collect();
+    lines.sort();
+    if lines.is_empty() {
+        return "it has no messages".into();
+    }
+    format!("its topics: {}", lines.join(", "))
+}
+
+/// A topic named by the user: it must exist and have one of `types`.
+fn named<'a>(
+    path: &Path,
+    catalog: &'a Catalog,
+    name: &str,
+    types: &[&str],
+    key: &str,
+) -> Result<&'a Topic, IoError> {
+    let topic = catalog.topic(name).ok_or_else(|| {
+        IoError::invalid(
+            path,
+            format!(
+                "{key} {name}: no such topic with messages; {}",
+                listing(catalog)
+            ),
+        )
+    })?;
+    if !types.contains(&topic.msg_type.as_str()) {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{key} {name} carries {}, not {}",
+                topic.msg_type,
+                types.join(" or ")
+            ),
+        ));
+    }
+    Ok(topic)
+}
+
+/// The best-ranked topic among `candidates` (lower rank first); an error when none, or
+/// when two share the best rank.
+fn best(
+    path: &Path,
+    catalog: &Catalog,
+    mut candidates: Vec<(u8, &Topic)>,
+    what: &str,
+    key: &str,
+) -> Result<String, IoError> {
+    candidates.sort_by_key(|(rank, t)| (*rank, t.name.clone()));
+    match candidates.as_slice() {
+        [] => Err(IoError::invalid(
+            path,
+            format!("no {what} topic found; {}", listing(catalog)),
+        )),
+        [(r0, a), (r1, b), ..] if r0 == r1 => Err(IoError::invalid(
+            path,
+            format!(
+                "two {what} topics, {} and {}: name one with {key}",
+                a.name, b.name
+            ),
+        )),
+        [(_, first), ..] => Ok(first.name.clone()),
+    }
+}
+
+fn contains_any(name: &str, words: &[&str]) -> bool {
+    let lower = name.to_ascii_lowercase();
+    words.iter().any(|w| lower.contains(w))
+}
+
+/// Chooses the colour, depth and camera-info topics.
+pub fn choose(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    choice: &TopicChoice,
+) -> Result<Chosen, IoError> {
+    let images = [IMAGE, COMPRESSED];
+    let mut colour = Vec::new();
+    let mut depth = Vec::new();
+    for topic in catalog
+        .topics
+        .iter()
+        .filter(|t| images.contains(&t.msg_type.as_str()))
+    {
+        match content(topic, store, catalog.wire)? {
+            Content::Colour => colour.push((
+                u8::from(!contains_any(&topic.name, &["color", "colour", "rgb"])),
+                topic,
+            )),
+            Content::Grey => colour.push((2, topic)),
+            Content::Depth => depth.push((
+                u8::from(!contains_any(&topic.name, &["registered", "aligned"])),
+                topic,
+            )),
+            Content::Other => {}
+        }
+    }
+    let colour = match &choice.rgb {
+        Some(name) => named(path, catalog, name, &images, "rgb_topic")?
+            .name
+            .clone(),
+        None => best(
+            path,
+            catalog,
+            colour,
+            "colour image",
+            "--rgb-topic ([dataset] rgb_topic)",
+        )?,
+    };
+    let depth = match &choice.depth {
+        Some(name) => named(path, catalog, name, &images, "depth_topic")?
+            .name
+            .clone(),
+        None => best(
+            path,
+            catalog,
+            depth,
+            "depth image",
+            "--depth-topic ([dataset] depth_topic)",
+        )?,
+    };
+    let camera_info = match &choice.camera_info {
+        Some(name) => Some(
+            named(path, catalog, name, &[CAMERA_INFO], "camera_info_topic")?
+                .name
+                .clone(),
+        ),
+        None => nearest_info(catalog, &colour),
+    };
+    check_registered(path, catalog, store, &depth, camera_info.as_deref())?;
+    Ok(Chosen {
+        colour,
+        depth,
+        camera_info,
+    })
+}
+
+/// The `CameraInfo` topic whose name shares the longest prefix with `image`'s.
+fn nearest_info(catalog: &Catalog, image: &str) -> Option<String> {
+    let common = |a: &str| {
+        a.bytes()
+            .zip(image.bytes())
+            .take_while(|(x, y)| x == y)
+            .count()
+    };
+    catalog
+        .topics
+        .iter()
+        .filter(|t| t.msg_type == CAMERA_INFO)
+        .max_by_key(|t| (common(&t.name), std::cmp::Reverse(t.name.clone())))
+        .map(|t| t.name.clone())
+}
+
+/// Depth in the depth camera's own geometry (its `CameraInfo` differs from the colour
+/// stream's) cannot be used as it is: an error until registration exists.
+fn check_registered(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    depth: &str,
+    colour_info: Option<&str>,
+) -> Result<(), IoError> {
+    let (Some(colour_info), Some(depth_info)) = (colour_info, nearest_info(catalog, depth)) else {
+        return Ok(());
+    };
+    if depth_info == colour_info {
+        return Ok(());
+    }
+    let first = |name: &str| -> Result<messages::CameraInfo, IoError> {
+        let topic = catalog.topic(name).expect("a chosen topic exists");
+        let data = store.read(topic.messages[0].at)?;
+        messages::camera_info(&data, catalog.wire)
+            .map_err(|e| IoError::invalid(path, format!("topic {name}: {e}")))
+    };
+    let (c, d) = (first(colour_info)?, first(&depth_info)?);
+    let same = (c.width, c.height) == (d.width, d.height)
+        && c.k
+            .iter()
+            .zip(&d.k)
+            .all(|(a, b)| (a - b).abs() <= 1e-6 * a.abs().max(1.0));
+    if same {
+        return Ok(());
+    }
+    Err(IoError::invalid(
+        path,
+        format!(
+            "depth topic {depth} is in the depth camera's own geometry ({depth_info}: {}x{}, fx {:.2}; colour {colour_info}: {}x{}, fx {:.2}); registering it into the colour camera is not supported yet: record aligned depth (RealSense: align_depth, Azure Kinect: depth_mode with --color-align), or name a registered depth topic with --depth-topic",
+            d.width, d.height, d.k[0], c.width, c.height, c.k[0]
+        ),
+    ))
+}
+
+/// The calibration of the first message of `topic` (a `CameraInfo`), with the frame
+/// rate of the topic's stamps.
+pub fn calibration(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    topic: &str,
+) -> Result<Calibration, IoError> {
+    let t = catalog.topic(topic).expect("a chosen topic exists");
+    let data = store.read(t.messages[0].at)?;
+    let bad = |e: String| IoError::invalid(path, format!("camera info topic {topic}: {e}"));
+    let info = messages::camera_info(&data, catalog.wire).map_err(bad)?;
+    let [fx, _, cx, _, fy, cy, ..] = info.k;
+    if !(fx > 0.0 && fy > 0.0 && cx.is_finite() && cy.is_finite()) {
+        return Err(bad(format!(
+            "K = {:?} is no calibration (uncalibrated camera?): pass --settings or --camera",
+            info.k
+        )));
+    }
+    let mut distortion = [0.0; 5];
+    match info.distortion_model.as_str() {
+        "plumb_bob" | "rational_polynomial" | "" => {
+            for (d, v) in distortion.iter_mut().zip(&info.d) {
+                *d = *v;
+            }
+            if info.d.iter().skip(5).any(|v| *v != 0.0) {
+                return Err(bad(
+                    "rational_polynomial with k4-k6 set is not supported (only k1, k2, p1, p2, k3)"
+                        .into(),
+                ));
+            }
+        }
+        other => {
+            return Err(bad(format!(
+                "distortion model {other:?} is not supported (plumb_bob, rational_polynomial)"
+            )))
+        }
+    }
+    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
+    let fps = (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span);
+    Ok(Calibration {
+        camera: PinholeCamera {
+            fx,
+            fy,
+            cx,
+            cy,
+            width: info.width,
+            height: info.height,
+            distortion,
+        },
+        bf: None,
+        depth_scale: None,
+        th_depth: None,
+        fps,
+    })
+}

@@ -1,0 +1,177 @@
+#!/usr/bin/env python3
+"""Writes a TUM-layout RGB-D folder (e.g. `dopslam synth`'s) as a recording, with the
+independent writers of the `rosbags` package: a ROS 1 bag (as TUM publishes its
+sequences) or a ROS 2 bag (SQLite 3 or MCAP storage, CDR messages).
+
+The tests and tools/bench_recordings.sh make their fixtures with it; dopslam itself
+never runs it. Topics follow TUM's bags: /camera/rgb/image_color,
+/camera/depth/image, /camera/rgb/camera_info, /camera/depth/camera_info.
+
+    write_recording.py SEQ OUT.bag --format ros1 [--compression bz2|lz4]
+    write_recording.py SEQ OUT_DIR --format ros2-sqlite|ros2-mcap
+      [--rgb rgb8|bgr8|png|jpeg] [--depth 32FC1|16UC1|compressedDepth] [--frames N]
+      [--repeat K]  (each frame written K times with new stamps: a large recording)
+
+Depth: 32FC1 in metres (the folder's raw value times float32(1/5000), so a reader
+that divides as dopslam does gets the same floats); 16UC1 and compressedDepth keep the
+folder's raw values (5000 per metre: read them with [dataset] depth_scale = 5000).
+"""
+import argparse
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+
+def read_list(path):
+    rows = []
+    for line in Path(path).read_text().splitlines():
+        if line.strip() and not line.startswith('#'):
+            stamp, name = line.split()[:2]
+            rows.append((stamp, name))
+    return rows
+
+
+def read_calibration(seq):
+    values = {}
+    for line in (seq / 'calibration.yaml').read_text().splitlines():
+        if ':' in line and not line.startswith('%'):
+            key, value = line.split(':', 1)
+            try:
+                values[key.strip()] = float(value)
+            except ValueError:
+                pass
+    return values
+
+
+def split_stamp(text):
+    sec, _, frac = text.partition('.')
+    return int(sec), int((frac + '000000000')[:9])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('seq', type=Path)
+    parser.add_argument('out', type=Path)
+    parser.add_argument('--format', choices=['ros1', 'ros2-sqlite', 'ros2-mcap'], required=True)
+    parser.add_argument('--compression', choices=['none', 'bz2', 'lz4'], default='none')
+    parser.add_argument('--rgb', choices=['rgb8', 'bgr8', 'png', 'jpeg'], default='rgb8')
+    parser.add_argument('--depth', choices=['32FC1', '16UC1', 'compressedDepth'], default='32FC1')
+    parser.add_argument('--frames', type=int, default=0)
+    parser.add_argument('--repeat', type=int, default=1)
+    args = parser.parse_args()
+
+    from rosbags.typesys import Stores, get_typestore
+    ros1 = args.format == 'ros1'
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    T = store.types
+    Header, Time = T['std_msgs/msg/Header'], T['builtin_interfaces/msg/Time']
+    RawImage, Compressed = T['sensor_msgs/msg/Image'], T['sensor_msgs/msg/CompressedImage']
+    CameraInfo, Roi = T['sensor_msgs/msg/CameraInfo'], T['sensor_msgs/msg/RegionOfInterest']
+
+    seq = args.seq
+    cal = read_calibration(seq)
+    width, height = int(cal['Camera.width']), int(cal['Camera.height'])
+    rgb_rows, depth_rows = read_list(seq / 'rgb.txt'), read_list(seq / 'depth.txt')
+    if args.frames:
+        rgb_rows, depth_rows = rgb_rows[:args.frames], depth_rows[:args.frames]
+    period = 1.0 / cal.get('Camera.fps', 30.0)
+    span_ns = int(round((len(rgb_rows) * period) * 1e9))
+
+    def header(stamp_ns, frame):
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        kwargs = dict(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame)
+        if ros1:
+            kwargs['seq'] = 0
+        return Header(**kwargs)
+
+    def info(stamp_ns, frame):
+        fx, fy, cx, cy = (cal[f'Camera.{k}'] for k in ('fx', 'fy', 'cx', 'cy'))
+        d = np.array([cal.get(f'Camera.{k}', 0.0) for k in ('k1', 'k2', 'p1', 'p2', 'k3')])
+        matrices = dict(d=d, k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0]), r=np.eye(3).flatten(),
+                        p=np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1.0, 0]))
+        if ros1:  # ROS 1 spells them D, K, R, P
+            matrices = {k.upper(): v for k, v in matrices.items()}
+        return CameraInfo(
+            header=header(stamp_ns, frame), height=height, width=width, distortion_model='plumb_bob',
+            binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+            **matrices)
+
+    def colour(stamp_ns, path):
+        rgb = np.asarray(Image.open(seq / path).convert('RGB'))
+        if args.rgb in ('png', 'jpeg'):
+            buf = io.BytesIO()
+            Image.fromarray(rgb).save(buf, format=args.rgb.upper(), quality=95)
+            return COMPRESSED, Compressed(header=header(stamp_ns, 'rgb'), format=args.rgb,
+                                          data=np.frombuffer(buf.getvalue(), np.uint8))
+        if args.rgb == 'bgr8':
+            rgb = rgb[:, :, ::-1]
+        return IMAGE, RawImage(header=header(stamp_ns, 'rgb'), height=height, width=width, encoding=args.rgb,
+                               is_bigendian=0, step=width * 3, data=np.ascontiguousarray(rgb).reshape(-1))
+
+    def depth(stamp_ns, path):
+        raw = np.asarray(Image.open(seq / path)).astype(np.uint16)
+        if args.depth == 'compressedDepth':
+            buf = io.BytesIO()
+            Image.fromarray(raw).save(buf, format='PNG')
+            config = np.array([0], '<i4').tobytes() + np.array([0.0, 0.0], '<f4').tobytes()
+            return COMPRESSED, Compressed(header=header(stamp_ns, 'depth'), format='16UC1; compressedDepth png',
+                                          data=np.frombuffer(config + buf.getvalue(), np.uint8))
+        if args.depth == '16UC1':
+            data = raw.astype('<u2')
+            step = width * 2
+        else:
+            metres = raw.astype(np.float32) * np.float32(1.0 / 5000.0)
+            metres[raw == 0] = np.nan
+            data = metres.astype('<f4')
+            step = width * 4
+        return IMAGE, RawImage(header=header(stamp_ns, 'depth'), height=height, width=width, encoding=args.depth,
+                               is_bigendian=0, step=step, data=np.frombuffer(data.tobytes(), np.uint8))
+
+    IMAGE, COMPRESSED = 'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage'
+    kinds = {'rgb': COMPRESSED if args.rgb in ('png', 'jpeg') else IMAGE,
+             'depth': COMPRESSED if args.depth == 'compressedDepth' else IMAGE}
+    topics = [('/camera/rgb/image_color', kinds['rgb']), ('/camera/depth/image', kinds['depth']),
+              ('/camera/rgb/camera_info', 'sensor_msgs/msg/CameraInfo'),
+              ('/camera/depth/camera_info', 'sensor_msgs/msg/CameraInfo')]
+
+    if ros1:
+        from rosbags.rosbag1 import Writer
+        writer = Writer(args.out)
+        if args.compression != 'none':
+            writer.set_compression(getattr(Writer.CompressionFormat, args.compression.upper()))
+        serialise = store.serialize_ros1
+        add = lambda topic, kind: writer.add_connection(topic, kind, typestore=store)  # noqa: E731
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        plugin = StoragePlugin.MCAP if args.format == 'ros2-mcap' else StoragePlugin.SQLITE3
+        writer = Writer(args.out, version=9, storage_plugin=plugin)
+        serialise = store.serialize_cdr
+        add = lambda topic, kind: writer.add_connection(topic, kind, typestore=store)  # noqa: E731
+
+    written = 0
+    with writer:
+        conns = {topic: add(topic, kind) for topic, kind in topics}
+        for repeat in range(args.repeat):
+            shift = repeat * span_ns
+            events = []
+            for stamp, path in rgb_rows:
+                ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1))) + shift
+                events.append((ns, 0, '/camera/rgb/image_color', lambda ns=ns, p=path: colour(ns, p)))
+                events.append((ns, 2, '/camera/rgb/camera_info', lambda ns=ns: (None, info(ns, 'rgb'))))
+            for stamp, path in depth_rows:
+                ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1))) + shift
+                events.append((ns, 1, '/camera/depth/image', lambda ns=ns, p=path: depth(ns, p)))
+                events.append((ns, 3, '/camera/depth/camera_info', lambda ns=ns: (None, info(ns, 'depth'))))
+            for ns, _, topic, make in sorted(events, key=lambda e: (e[0], e[1])):
+                _, msg = make()
+                kind = dict(topics)[topic]
+                writer.write(conns[topic], ns, serialise(msg, kind))
+                written += 1
+    print(f'wrote {written} messages to {args.out}', file=sys.stderr)
+
+
+if __name__ == '__main__':
+    main()
