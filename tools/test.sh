@@ -9,6 +9,12 @@ cd "$(dirname "$0")/.."
 bash tools/setup.sh --no-demo
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
+# The independent writers the recording tests use (tests/recordings.rs: the Python
+# rosbags package writes ROS 1 and ROS 2 bags), in the venv setup.sh made; with them
+# installed, a test that cannot find them fails instead of skipping.
+{ [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
+data/venv/bin/pip install -q rosbags pillow numpy
+export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 # The tests write their synthetic sequences under one temporary folder of this run,
 # removed when the run ends, however it ends (each test also removes its own).
 TMPDIR=$(mktemp -d "${TMPDIR:-/tmp}/dopslam-tests.XXXXXX")

@@ -11,6 +11,9 @@ never runs it. Topics follow TUM's bags: /camera/rgb/image_color,
     write_recording.py SEQ OUT_DIR --format ros2-sqlite|ros2-mcap
       [--rgb rgb8|bgr8|png|jpeg] [--depth 32FC1|16UC1|compressedDepth] [--frames N]
       [--repeat K]  (each frame written K times with new stamps: a large recording)
+      [--shuffle]  (messages written out of stamp order)  [--no-depth]
+      [--corrupt-frame K]  (frame K's JPEG zeroed after its first 20 bytes)  [--rgb 8UC3]  (an encoding no
+      reader takes for colour)
 
 Depth: 32FC1 in metres (the folder's raw value times float32(1/5000), so a reader
 that divides as dopslam does gets the same floats); 16UC1 and compressedDepth keep the
@@ -51,16 +54,28 @@ def split_stamp(text):
     return int(sec), int((frac + '000000000')[:9])
 
 
+def shuffled(events):
+    """The events with each frame's four messages swapped with the next frame's."""
+    out = []
+    for start in range(0, len(events), 8):
+        block = events[start:start + 8]
+        out.extend(block[4:] + block[:4])
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('seq', type=Path)
     parser.add_argument('out', type=Path)
     parser.add_argument('--format', choices=['ros1', 'ros2-sqlite', 'ros2-mcap'], required=True)
     parser.add_argument('--compression', choices=['none', 'bz2', 'lz4'], default='none')
-    parser.add_argument('--rgb', choices=['rgb8', 'bgr8', 'png', 'jpeg'], default='rgb8')
+    parser.add_argument('--rgb', choices=['rgb8', 'bgr8', 'png', 'jpeg', '8UC3'], default='rgb8')
     parser.add_argument('--depth', choices=['32FC1', '16UC1', 'compressedDepth'], default='32FC1')
     parser.add_argument('--frames', type=int, default=0)
     parser.add_argument('--repeat', type=int, default=1)
+    parser.add_argument('--shuffle', action='store_true')
+    parser.add_argument('--no-depth', action='store_true')
+    parser.add_argument('--corrupt-frame', type=int, default=-1)
     args = parser.parse_args()
 
     from rosbags.typesys import Stores, get_typestore
@@ -99,15 +114,19 @@ def main():
             binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
             **matrices)
 
-    def colour(stamp_ns, path):
+    def colour(stamp_ns, path, index):
         rgb = np.asarray(Image.open(seq / path).convert('RGB'))
         if args.rgb in ('png', 'jpeg'):
             buf = io.BytesIO()
             Image.fromarray(rgb).save(buf, format=args.rgb.upper(), quality=95)
+            data = buf.getvalue()
+            if index == args.corrupt_frame:
+                data = data[:20] + bytes(len(data) - 20)  # the header kept, the rest zeros
             return COMPRESSED, Compressed(header=header(stamp_ns, 'rgb'), format=args.rgb,
-                                          data=np.frombuffer(buf.getvalue(), np.uint8))
+                                          data=np.frombuffer(data, np.uint8))
         if args.rgb == 'bgr8':
             rgb = rgb[:, :, ::-1]
+        # '8UC3' writes the same bytes under an encoding that names no colour order.
         return IMAGE, RawImage(header=header(stamp_ns, 'rgb'), height=height, width=width, encoding=args.rgb,
                                is_bigendian=0, step=width * 3, data=np.ascontiguousarray(rgb).reshape(-1))
 
@@ -157,15 +176,18 @@ def main():
         for repeat in range(args.repeat):
             shift = repeat * span_ns
             events = []
-            for stamp, path in rgb_rows:
+            for index, (stamp, path) in enumerate(rgb_rows):
                 ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1))) + shift
-                events.append((ns, 0, '/camera/rgb/image_color', lambda ns=ns, p=path: colour(ns, p)))
+                events.append((ns, 0, '/camera/rgb/image_color', lambda ns=ns, p=path, i=index: colour(ns, p, i)))
                 events.append((ns, 2, '/camera/rgb/camera_info', lambda ns=ns: (None, info(ns, 'rgb'))))
-            for stamp, path in depth_rows:
+            for stamp, path in ([] if args.no_depth else depth_rows):
                 ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1))) + shift
                 events.append((ns, 1, '/camera/depth/image', lambda ns=ns, p=path: depth(ns, p)))
                 events.append((ns, 3, '/camera/depth/camera_info', lambda ns=ns: (None, info(ns, 'depth'))))
-            for ns, _, topic, make in sorted(events, key=lambda e: (e[0], e[1])):
+            events.sort(key=lambda e: (e[0], e[1]))
+            if args.shuffle:  # each frame's messages after the next frame's: stamps out of order
+                events = shuffled(events)
+            for ns, _, topic, make in events:
                 _, msg = make()
                 kind = dict(topics)[topic]
                 writer.write(conns[topic], ns, serialise(msg, kind))

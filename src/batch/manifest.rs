@@ -90,9 +90,11 @@ impl Default for BatchSettings {
 pub struct SequenceEntry {
     /// The name in tables (default: the folder's or the preset's name, with `-s<seed>`).
     pub name: Option<String>,
-    /// A sequence folder (TUM/Bonn RGB-D or KITTI stereo layout).
+    /// A sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS 1
+    /// `.bag`, ROS 2 bag folder, `.mcap`, `.db3`).
     pub path: Option<PathBuf>,
-    /// A glob of sequence folders (`*`, `?`, `[...]`), each its own sequence.
+    /// A glob of sequence folders or recordings (`*`, `?`, `[...]`; `lab/*.bag`), each
+    /// its own sequence.
     pub glob: Option<String>,
     /// A `dopslam synth` preset: a name under `configs/synth/` or a path to a TOML.
     pub preset: Option<String>,
@@ -104,6 +106,10 @@ pub struct SequenceEntry {
     pub settings: Option<PathBuf>,
     /// The depth images' scale (TUM: 5000 per metre).
     pub depth_scale: Option<f64>,
+    /// A recording's colour, depth and camera-info topics (`[dataset]`'s keys).
+    pub rgb_topic: Option<String>,
+    pub depth_topic: Option<String>,
+    pub camera_info_topic: Option<String>,
     /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
     pub config: Option<PathBuf>,
     pub modes: Option<Vec<Mode>>,
@@ -248,6 +254,16 @@ impl Manifest {
             if entry.depth_scale.is_some() {
                 config.dataset.depth_scale = entry.depth_scale;
             }
+            let topics = [
+                (&entry.rgb_topic, &mut config.dataset.rgb_topic),
+                (&entry.depth_topic, &mut config.dataset.depth_topic),
+                (&entry.camera_info_topic, &mut config.dataset.camera_info_topic),
+            ];
+            for (given, key) in topics {
+                if given.is_some() {
+                    key.clone_from(given);
+                }
+            }
             if let Some(source) = entry.detections.or(self.batch.detections) {
                 config.detector.source = source;
             }
@@ -258,10 +274,10 @@ impl Manifest {
                 vec![(folder_name(&path), SequenceSource::Folder(path))]
             } else if let Some(pattern) = &entry.glob {
                 let pattern = self.resolve(Path::new(pattern));
-                let folders = glob_folders(&pattern).map_err(context)?;
+                let folders = glob_sequences(&pattern).map_err(context)?;
                 if folders.is_empty() {
                     return Err(context(format!(
-                        "glob {} matches no folder",
+                        "glob {} matches no sequence folder or recording",
                         pattern.display()
                     )));
                 }
@@ -386,13 +402,13 @@ fn safe_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
 }
 
-/// The folders a glob pattern matches, sorted.
-fn glob_folders(pattern: &Path) -> Result<Vec<PathBuf>, String> {
+/// The folders and recordings a glob pattern matches, sorted.
+fn glob_sequences(pattern: &Path) -> Result<Vec<PathBuf>, String> {
     let text = pattern.to_string_lossy();
     let paths = glob::glob(&text).map_err(|e| format!("glob {text:?}: {e}"))?;
     let mut folders: Vec<PathBuf> = paths
         .filter_map(Result::ok)
-        .filter(|p| p.is_dir())
+        .filter(|p| p.is_dir() || crate::io::recording::is_recording(p))
         .map(|p| absolute(&p))
         .collect();
     folders.sort();

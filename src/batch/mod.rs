@@ -522,8 +522,9 @@ fn prepare_sequence(
 ) -> (PathBuf, Option<String>) {
     match &sequence.source {
         SequenceSource::Folder(path) => {
-            let problem =
-                (!path.is_dir()).then(|| format!("{}: no such sequence folder", path.display()));
+            let readable = path.is_dir() || crate::io::recording::is_recording(path) && path.exists();
+            let problem = (!readable)
+                .then(|| format!("{}: no such sequence folder or recording", path.display()));
             (path.clone(), problem)
         }
         SequenceSource::Synthetic {

@@ -229,7 +229,7 @@ impl Description {
             .topics
             .iter()
             .map(|t| {
-                let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
+                let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages.first().map_or(0.0, |m| m.stamp);
                 let rate = if span > 0.0 {
                     (t.messages.len() - 1) as f64 / span
                 } else {

@@ -121,8 +121,8 @@ impl Catalog {
         topic.messages.push(Entry { stamp, at });
     }
 
-    /// Sorts each topic by stamp (saying where they were out of order) and drops
-    /// topics without messages.
+    /// Sorts each topic by stamp (saying where they were out of order). Topics without
+    /// messages stay: errors list them.
     pub fn finish(mut self) -> Self {
         for (index, count) in &self.undecodable {
             self.warnings.push(format!(
@@ -144,7 +144,6 @@ impl Catalog {
                 topic.messages.sort_by(|a, b| a.stamp.total_cmp(&b.stamp));
             }
         }
-        self.topics.retain(|t| !t.messages.is_empty());
         self
     }
 

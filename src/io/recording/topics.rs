@@ -80,7 +80,7 @@ fn named<'a>(
     types: &[&str],
     key: &str,
 ) -> Result<&'a Topic, IoError> {
-    let topic = catalog.topic(name).ok_or_else(|| {
+    let topic = catalog.topic(name).filter(|t| !t.messages.is_empty()).ok_or_else(|| {
         IoError::invalid(
             path,
             format!(
@@ -146,7 +146,7 @@ pub fn choose(
     for topic in catalog
         .topics
         .iter()
-        .filter(|t| images.contains(&t.msg_type.as_str()))
+        .filter(|t| !t.messages.is_empty() && images.contains(&t.msg_type.as_str()))
     {
         match content(topic, store, catalog.wire)? {
             Content::Colour => colour.push((
@@ -212,7 +212,7 @@ fn nearest_info(catalog: &Catalog, image: &str) -> Option<String> {
     catalog
         .topics
         .iter()
-        .filter(|t| t.msg_type == CAMERA_INFO)
+        .filter(|t| t.msg_type == CAMERA_INFO && !t.messages.is_empty())
         .max_by_key(|t| (common(&t.name), std::cmp::Reverse(t.name.clone())))
         .map(|t| t.name.clone())
 }

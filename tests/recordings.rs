@@ -1,0 +1,173 @@
+//! Recordings written by an independent writer (the Python `rosbags` package, through
+//! tools/write_recording.py) from one `dopslam synth` folder: each lossless one tracks
+//! to the folder's trajectory byte for byte under `--deterministic`, and damaged or
+//! unusual ones get the warnings and errors a user needs.
+//!
+//! The writer runs in the Python that `DOPSLAM_TEST_PYTHON` names, else `data/venv`'s
+//! (tools/test.sh installs `rosbags` there). Without it the tests skip, saying why,
+//! unless `DOPSLAM_REQUIRE_RECORDING_WRITERS` is set (tools/test.sh sets it).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+/// The Python with `rosbags`, `numpy` and `PIL`, or `None` (the test skips).
+fn writer_python(test: &str) -> Option<PathBuf> {
+    let python = std::env::var_os("DOPSLAM_TEST_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("data/venv/bin/python"));
+    let ok = std::process::Command::new(&python)
+        .args(["-c", "import rosbags, numpy, PIL"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(python);
+    }
+    let why = format!("{} cannot import rosbags, numpy and PIL (tools/test.sh installs them)", python.display());
+    assert!(std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(), "{test}: {why}");
+    eprintln!("skipping {test}: {why}");
+    None
+}
+
+/// Writes `seq` as a recording at `out` with the writer's `options`.
+fn write(python: &Path, seq: &Path, out: &Path, options: &[&str]) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/write_recording.py");
+    let output = std::process::Command::new(python)
+        .arg(script)
+        .arg(seq)
+        .arg(out)
+        .args(options)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+}
+
+/// `dopslam run INPUT --deterministic` without detector, dense or global pass, with a
+/// `[dataset]` table; the trajectory's text, and stderr.
+fn track(input: &Path, out: &Path, dataset: &str) -> (bool, String, String) {
+    let config = out.with_extension("toml");
+    std::fs::write(&config, format!("[dataset]\n{dataset}\n")).unwrap();
+    let args = ["run", &input.to_string_lossy(), "--out", &out.to_string_lossy(), "--config"];
+    let config = config.to_string_lossy();
+    let (ok, _, err) = common::dopslam(
+        &[&args[..], &[&config, "--deterministic", "--no-dense", "--no-global", "--detections", "none"]].concat(),
+    );
+    let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap_or_default();
+    (ok, trajectory, err)
+}
+
+#[test]
+fn each_writer_s_recording_tracks_as_its_folder() {
+    let Some(python) = writer_python("each_writer_s_recording_tracks_as_its_folder") else { return };
+    let dir = common::temp_dir("recordings-equal");
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, 24);
+    let (ok, folder, err) = track(&seq, &dir.join("out-folder"), "");
+    assert!(ok, "{err}");
+    assert_eq!(folder.lines().filter(|l| !l.starts_with('#')).count(), 24);
+    // (name, writer options, [dataset] keys): 16-bit depth keeps the folder's 5000 per metre.
+    let cases: [(&str, &[&str], &str); 5] = [
+        ("ros1.bag", &["--format", "ros1", "--shuffle"], ""),
+        ("ros1-bz2.bag", &["--format", "ros1", "--compression", "bz2", "--rgb", "bgr8", "--depth", "16UC1"], "depth_scale = 5000.0"),
+        ("ros1-lz4.bag", &["--format", "ros1", "--compression", "lz4", "--rgb", "png", "--depth", "compressedDepth"], "depth_scale = 5000.0"),
+        ("ros2-sqlite", &["--format", "ros2-sqlite"], ""),
+        ("ros2-mcap", &["--format", "ros2-mcap", "--rgb", "png", "--depth", "16UC1"], "depth_scale = 5000.0"),
+    ];
+    for (name, options, dataset) in cases {
+        let recording = dir.join(name);
+        write(&python, &seq, &recording, options);
+        let (ok, trajectory, err) = track(&recording, &dir.join(format!("out-{name}")), dataset);
+        assert!(ok, "{name}: {err}");
+        assert_eq!(trajectory, folder, "{name}: the trajectory differs from the folder's");
+        if name == "ros1.bag" {
+            assert!(err.contains("come before an earlier stamp"), "{name}: {err}");
+        }
+    }
+    // The MCAP file alone opens as its bag folder does.
+    let mcap = common::sorted_files(&dir.join("ros2-mcap")).into_iter().find(|p| p.extension().is_some_and(|e| e == "mcap"));
+    let (ok, trajectory, err) = track(&mcap.unwrap(), &dir.join("out-mcap-file"), "depth_scale = 5000.0");
+    assert!(ok && trajectory == folder, "{err}");
+}
+
+/// The bag header's `index_pos` field, and where its 8 bytes are.
+fn index_pos(bag: &[u8]) -> (u64, usize) {
+    let at = bag.windows(10).position(|w| w == b"index_pos=").unwrap() + 10;
+    (u64::from_le_bytes(bag[at..at + 8].try_into().unwrap()), at)
+}
+
+#[test]
+fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
+    let Some(python) = writer_python("damaged_and_unusual_recordings_are_read_or_refused_with_reasons") else { return };
+    let dir = common::temp_dir("recordings-bad");
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, 12);
+    let info = |path: &Path, extra: &[&str]| common::dopslam(&[&["info", &path.to_string_lossy()][..], extra].concat());
+    let bag = dir.join("full.bag");
+    write(&python, &seq, &bag, &["--format", "ros1", "--compression", "lz4"]);
+    let bytes = std::fs::read(&bag).unwrap();
+
+    // No index (a recorder that died): index_pos 0 and no index section; all frames read.
+    let (pos, at) = index_pos(&bytes);
+    let mut unindexed = bytes[..pos as usize].to_vec();
+    unindexed[at..at + 8].copy_from_slice(&0u64.to_le_bytes());
+    let path = dir.join("unindexed.bag");
+    std::fs::write(&path, &unindexed).unwrap();
+    let (ok, out, err) = info(&path, &[]);
+    assert!(ok, "{err}");
+    assert!(out.contains("no index") && out.contains("frames: 12 "), "{out}");
+
+    // Cut in the middle of a chunk: the frames of the whole chunks before it, a warning
+    // naming the byte.
+    let path = dir.join("cut.bag");
+    std::fs::write(&path, &unindexed[..unindexed.len() * 2 / 3]).unwrap();
+    let (ok, out, err) = info(&path, &[]);
+    assert!(ok, "{err}");
+    assert!(out.contains("cut short") && out.contains("byte"), "{out}");
+    let frames: usize = out.split("frames: ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!((1..12).contains(&frames), "{out}");
+
+    // A topic that is not there: the error lists the topics present with their types.
+    let (ok, _, err) = info(&bag, &["--depth-topic", "/camera/depth_registered/image_raw"]);
+    assert!(!ok && err.contains("/camera/depth/image (sensor_msgs/Image, 12 messages)"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    // No depth frames at all; a colour encoding no reader takes, named at the frame.
+    let odd = dir.join("odd.bag");
+    write(&python, &seq, &odd, &["--format", "ros1", "--rgb", "8UC3", "--no-depth"]);
+    let (ok, _, err) = info(&odd, &[]);
+    assert!(!ok && err.contains("no colour image topic found"), "{err}");
+    let odd2 = dir.join("odd2.bag");
+    write(&python, &seq, &odd2, &["--format", "ros1", "--rgb", "8UC3"]);
+    let (ok, _, err) = common::dopslam(&[
+        "run", &odd2.to_string_lossy(), "--rgb-topic", "/camera/rgb/image_color", "--out",
+        &dir.join("out-odd").to_string_lossy(), "--no-dense", "--detections", "none",
+    ]);
+    assert!(!ok && err.contains("\"8UC3\" is not a colour encoding"), "{err}");
+    let (ok, _, err) = info(&odd, &["--rgb-topic", "/camera/rgb/image_color"]);
+    assert!(!ok && err.contains("no depth image topic found"), "{err}");
+
+    // A corrupt JPEG in frame 6: the run stops there as for a corrupt PNG in a folder,
+    // naming the recording and the frame's stamp, with what was done written.
+    let jpeg = dir.join("jpeg.bag");
+    write(&python, &seq, &jpeg, &["--format", "ros1", "--rgb", "jpeg", "--corrupt-frame", "6"]);
+    let out = dir.join("out-jpeg");
+    let (ok, _, err) = common::dopslam(&[
+        "run", &jpeg.to_string_lossy(), "--out", &out.to_string_lossy(), "--no-dense", "--detections", "none",
+    ]);
+    assert!(!ok && err.contains("jpeg.bag") && err.contains("colour image stamped"), "{err}");
+    assert!(out.join("trajectory.txt").exists(), "the frames before it are written");
+
+    // Not a bag at all, and a bag of an older format.
+    let path = dir.join("text.bag");
+    std::fs::write(&path, "hello").unwrap();
+    let (ok, _, err) = info(&path, &[]);
+    assert!(!ok && err.contains("not a ROS bag"), "{err}");
+    let path = dir.join("not.mcap");
+    std::fs::write(&path, vec![7u8; 100]).unwrap();
+    let (ok, _, err) = info(&path, &[]);
+    assert!(!ok && err.contains("not.mcap") && !err.contains("panicked"), "{err}");
+    let path = dir.join("not.db3");
+    std::fs::write(&path, vec![7u8; 100]).unwrap();
+    let (ok, _, err) = info(&path, &[]);
+    assert!(!ok && err.contains("not.db3") && !err.contains("panicked"), "{err}");
+}
