@@ -87,3 +87,49 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     }
     Ok(())
 }
+
+/// The layouts `dopslam convert` writes.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Layout {
+    /// TUM RGB-D: rgb/ and depth/ PNGs (16-bit, 5000 per metre), rgb.txt, depth.txt,
+    /// calibration.yaml.
+    Tum,
+}
+
+/// `dopslam convert`.
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// A recording (ROS 1 .bag, ROS 2 bag folder, .mcap, .db3) or any RGB-D sequence.
+    input: std::path::PathBuf,
+    /// The layout to write.
+    #[arg(long, value_enum, default_value = "tum")]
+    to: Layout,
+    /// The output folder: must not exist yet (or be empty).
+    out: std::path::PathBuf,
+    /// A TOML config ([dataset]: depth scale, tolerance, topics).
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Convert only the first N frames.
+    #[arg(long)]
+    frames: Option<usize>,
+    #[command(flatten)]
+    topics: TopicArgs,
+}
+
+/// Runs `dopslam convert`.
+pub fn run_convert(args: ConvertArgs, mut config: Config) -> Result<()> {
+    args.topics.apply(&mut config);
+    // The output is checked before the recording is scanned (which can take a while).
+    let partial = dopslam::io::recording::convert::prepare(&args.out)?;
+    std::fs::remove_dir_all(&partial)?;
+    let sequence = dopslam::run::open_sequence(&args.input, &config)?;
+    let frames = args.frames.unwrap_or(usize::MAX).min(sequence.len());
+    let Layout::Tum = args.to;
+    let written =
+        dopslam::io::recording::convert::to_tum(sequence.as_ref(), &args.out, frames, true)?;
+    println!(
+        "wrote {written} frames to {} (TUM layout)",
+        args.out.display()
+    );
+    Ok(())
+}

@@ -55,6 +55,8 @@ enum Command {
     CompareMaps(cli_maps::CompareArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS bag, MCAP): frames, pairing, topics, calibration, ground truth.
     Info(InfoArgs),
+    /// Write a recording (ROS bag, MCAP) as a TUM RGB-D folder that every tool reads.
+    Convert(cli_recording::ConvertArgs),
     /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
     Detect(DetectArgs),
     /// Train or inspect the place-recognition vocabulary (bag of binary words) of the global pass.
@@ -807,6 +809,9 @@ fn main() -> ExitCode {
         Command::Demo(args) => run_demo(args),
         Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
+        Command::Convert(args) => {
+            load_config(args.config.as_deref()).and_then(|config| cli_recording::run_convert(args, config))
+        }
         Command::Run(args) => run_run(args),
         Command::Fuse(args) => cli_maps::run_fuse(args),
         Command::CompareMaps(args) => cli_maps::run_compare(args),

@@ -23,8 +23,14 @@ fn writer_python(test: &str) -> Option<PathBuf> {
     if ok {
         return Some(python);
     }
-    let why = format!("{} cannot import rosbags, numpy and PIL (tools/test.sh installs them)", python.display());
-    assert!(std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(), "{test}: {why}");
+    let why = format!(
+        "{} cannot import rosbags, numpy and PIL (tools/test.sh installs them)",
+        python.display()
+    );
+    assert!(
+        std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
+        "{test}: {why}"
+    );
     eprintln!("skipping {test}: {why}");
     None
 }
@@ -39,7 +45,11 @@ fn write(python: &Path, seq: &Path, out: &Path, options: &[&str]) {
         .args(options)
         .output()
         .unwrap();
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
 }
 
 /// `dopslam run INPUT --deterministic` without detector, dense or global pass, with a
@@ -47,10 +57,27 @@ fn write(python: &Path, seq: &Path, out: &Path, options: &[&str]) {
 fn track(input: &Path, out: &Path, dataset: &str) -> (bool, String, String) {
     let config = out.with_extension("toml");
     std::fs::write(&config, format!("[dataset]\n{dataset}\n")).unwrap();
-    let args = ["run", &input.to_string_lossy(), "--out", &out.to_string_lossy(), "--config"];
+    let args = [
+        "run",
+        &input.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--config",
+    ];
     let config = config.to_string_lossy();
     let (ok, _, err) = common::dopslam(
-        &[&args[..], &[&config, "--deterministic", "--no-dense", "--no-global", "--detections", "none"]].concat(),
+        &[
+            &args[..],
+            &[
+                &config,
+                "--deterministic",
+                "--no-dense",
+                "--no-global",
+                "--detections",
+                "none",
+            ],
+        ]
+        .concat(),
     );
     let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap_or_default();
     (ok, trajectory, err)
@@ -58,7 +85,9 @@ fn track(input: &Path, out: &Path, dataset: &str) -> (bool, String, String) {
 
 #[test]
 fn each_writer_s_recording_tracks_as_its_folder() {
-    let Some(python) = writer_python("each_writer_s_recording_tracks_as_its_folder") else { return };
+    let Some(python) = writer_python("each_writer_s_recording_tracks_as_its_folder") else {
+        return;
+    };
     let dir = common::temp_dir("recordings-equal");
     let seq = dir.join("seq");
     common::synth_static_room(&seq, 24);
@@ -68,25 +97,86 @@ fn each_writer_s_recording_tracks_as_its_folder() {
     // (name, writer options, [dataset] keys): 16-bit depth keeps the folder's 5000 per metre.
     let cases: [(&str, &[&str], &str); 5] = [
         ("ros1.bag", &["--format", "ros1", "--shuffle"], ""),
-        ("ros1-bz2.bag", &["--format", "ros1", "--compression", "bz2", "--rgb", "bgr8", "--depth", "16UC1"], "depth_scale = 5000.0"),
-        ("ros1-lz4.bag", &["--format", "ros1", "--compression", "lz4", "--rgb", "png", "--depth", "compressedDepth"], "depth_scale = 5000.0"),
+        (
+            "ros1-bz2.bag",
+            &[
+                "--format",
+                "ros1",
+                "--compression",
+                "bz2",
+                "--rgb",
+                "bgr8",
+                "--depth",
+                "16UC1",
+            ],
+            "depth_scale = 5000.0",
+        ),
+        (
+            "ros1-lz4.bag",
+            &[
+                "--format",
+                "ros1",
+                "--compression",
+                "lz4",
+                "--rgb",
+                "png",
+                "--depth",
+                "compressedDepth",
+            ],
+            "depth_scale = 5000.0",
+        ),
         ("ros2-sqlite", &["--format", "ros2-sqlite"], ""),
-        ("ros2-mcap", &["--format", "ros2-mcap", "--rgb", "png", "--depth", "16UC1"], "depth_scale = 5000.0"),
+        (
+            "ros2-mcap",
+            &["--format", "ros2-mcap", "--rgb", "png", "--depth", "16UC1"],
+            "depth_scale = 5000.0",
+        ),
     ];
     for (name, options, dataset) in cases {
         let recording = dir.join(name);
         write(&python, &seq, &recording, options);
         let (ok, trajectory, err) = track(&recording, &dir.join(format!("out-{name}")), dataset);
         assert!(ok, "{name}: {err}");
-        assert_eq!(trajectory, folder, "{name}: the trajectory differs from the folder's");
+        assert_eq!(
+            trajectory, folder,
+            "{name}: the trajectory differs from the folder's"
+        );
         if name == "ros1.bag" {
-            assert!(err.contains("come before an earlier stamp"), "{name}: {err}");
+            assert!(
+                err.contains("come before an earlier stamp"),
+                "{name}: {err}"
+            );
         }
     }
     // The MCAP file alone opens as its bag folder does.
-    let mcap = common::sorted_files(&dir.join("ros2-mcap")).into_iter().find(|p| p.extension().is_some_and(|e| e == "mcap"));
-    let (ok, trajectory, err) = track(&mcap.unwrap(), &dir.join("out-mcap-file"), "depth_scale = 5000.0");
+    let mcap = common::sorted_files(&dir.join("ros2-mcap"))
+        .into_iter()
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"));
+    let (ok, trajectory, err) = track(
+        &mcap.unwrap(),
+        &dir.join("out-mcap-file"),
+        "depth_scale = 5000.0",
+    );
     assert!(ok && trajectory == folder, "{err}");
+    // `dopslam convert` writes the TUM folder that tracks the same; it never overwrites.
+    let tum = dir.join("converted");
+    let bag = dir.join("ros1-bz2.bag");
+    let convert = |out: &Path| {
+        let args = [
+            "convert",
+            &bag.to_string_lossy(),
+            &out.to_string_lossy(),
+            "--config",
+        ];
+        let config = dir.join("out-ros1-bz2.toml"); // track()'s [dataset] depth_scale = 5000
+        common::dopslam(&[&args[..], &[&config.to_string_lossy()[..]]].concat())
+    };
+    let (ok, _, err) = convert(&tum);
+    assert!(ok, "{err}");
+    let (ok, trajectory, err) = track(&tum, &dir.join("out-converted"), "");
+    assert!(ok && trajectory == folder, "{err}");
+    let (ok, _, err) = convert(&tum);
+    assert!(!ok && err.contains("not an empty folder"), "{err}");
 }
 
 /// The bag header's `index_pos` field, and where its 8 bytes are.
@@ -97,13 +187,24 @@ fn index_pos(bag: &[u8]) -> (u64, usize) {
 
 #[test]
 fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
-    let Some(python) = writer_python("damaged_and_unusual_recordings_are_read_or_refused_with_reasons") else { return };
+    let Some(python) =
+        writer_python("damaged_and_unusual_recordings_are_read_or_refused_with_reasons")
+    else {
+        return;
+    };
     let dir = common::temp_dir("recordings-bad");
     let seq = dir.join("seq");
     common::synth_static_room(&seq, 12);
-    let info = |path: &Path, extra: &[&str]| common::dopslam(&[&["info", &path.to_string_lossy()][..], extra].concat());
+    let info = |path: &Path, extra: &[&str]| {
+        common::dopslam(&[&["info", &path.to_string_lossy()][..], extra].concat())
+    };
     let bag = dir.join("full.bag");
-    write(&python, &seq, &bag, &["--format", "ros1", "--compression", "lz4"]);
+    write(
+        &python,
+        &seq,
+        &bag,
+        &["--format", "ros1", "--compression", "lz4"],
+    );
     let bytes = std::fs::read(&bag).unwrap();
 
     // No index (a recorder that died): index_pos 0 and no index section; all frames read.
@@ -114,7 +215,10 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
     std::fs::write(&path, &unindexed).unwrap();
     let (ok, out, err) = info(&path, &[]);
     assert!(ok, "{err}");
-    assert!(out.contains("no index") && out.contains("frames: 12 "), "{out}");
+    assert!(
+        out.contains("no index") && out.contains("frames: 12 "),
+        "{out}"
+    );
 
     // Cut in the middle of a chunk: the frames of the whole chunks before it, a warning
     // naming the byte.
@@ -123,39 +227,85 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
     let (ok, out, err) = info(&path, &[]);
     assert!(ok, "{err}");
     assert!(out.contains("cut short") && out.contains("byte"), "{out}");
-    let frames: usize = out.split("frames: ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    let frames: usize = out
+        .split("frames: ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
     assert!((1..12).contains(&frames), "{out}");
 
     // A topic that is not there: the error lists the topics present with their types.
-    let (ok, _, err) = info(&bag, &["--depth-topic", "/camera/depth_registered/image_raw"]);
-    assert!(!ok && err.contains("/camera/depth/image (sensor_msgs/Image, 12 messages)"), "{err}");
+    let (ok, _, err) = info(
+        &bag,
+        &["--depth-topic", "/camera/depth_registered/image_raw"],
+    );
+    assert!(
+        !ok && err.contains("/camera/depth/image (sensor_msgs/Image, 12 messages)"),
+        "{err}"
+    );
     assert!(!err.contains("panicked"), "{err}");
 
     // No depth frames at all; a colour encoding no reader takes, named at the frame.
     let odd = dir.join("odd.bag");
-    write(&python, &seq, &odd, &["--format", "ros1", "--rgb", "8UC3", "--no-depth"]);
+    write(
+        &python,
+        &seq,
+        &odd,
+        &["--format", "ros1", "--rgb", "8UC3", "--no-depth"],
+    );
     let (ok, _, err) = info(&odd, &[]);
     assert!(!ok && err.contains("no colour image topic found"), "{err}");
     let odd2 = dir.join("odd2.bag");
     write(&python, &seq, &odd2, &["--format", "ros1", "--rgb", "8UC3"]);
     let (ok, _, err) = common::dopslam(&[
-        "run", &odd2.to_string_lossy(), "--rgb-topic", "/camera/rgb/image_color", "--out",
-        &dir.join("out-odd").to_string_lossy(), "--no-dense", "--detections", "none",
+        "run",
+        &odd2.to_string_lossy(),
+        "--rgb-topic",
+        "/camera/rgb/image_color",
+        "--out",
+        &dir.join("out-odd").to_string_lossy(),
+        "--no-dense",
+        "--detections",
+        "none",
     ]);
-    assert!(!ok && err.contains("\"8UC3\" is not a colour encoding"), "{err}");
+    assert!(
+        !ok && err.contains("\"8UC3\" is not a colour encoding"),
+        "{err}"
+    );
     let (ok, _, err) = info(&odd, &["--rgb-topic", "/camera/rgb/image_color"]);
     assert!(!ok && err.contains("no depth image topic found"), "{err}");
 
     // A corrupt JPEG in frame 6: the run stops there as for a corrupt PNG in a folder,
     // naming the recording and the frame's stamp, with what was done written.
     let jpeg = dir.join("jpeg.bag");
-    write(&python, &seq, &jpeg, &["--format", "ros1", "--rgb", "jpeg", "--corrupt-frame", "6"]);
+    write(
+        &python,
+        &seq,
+        &jpeg,
+        &["--format", "ros1", "--rgb", "jpeg", "--corrupt-frame", "6"],
+    );
     let out = dir.join("out-jpeg");
     let (ok, _, err) = common::dopslam(&[
-        "run", &jpeg.to_string_lossy(), "--out", &out.to_string_lossy(), "--no-dense", "--detections", "none",
+        "run",
+        &jpeg.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--no-dense",
+        "--detections",
+        "none",
     ]);
-    assert!(!ok && err.contains("jpeg.bag") && err.contains("colour image stamped"), "{err}");
-    assert!(out.join("trajectory.txt").exists(), "the frames before it are written");
+    assert!(
+        !ok && err.contains("jpeg.bag") && err.contains("colour image stamped"),
+        "{err}"
+    );
+    assert!(
+        out.join("trajectory.txt").exists(),
+        "the frames before it are written"
+    );
 
     // Not a bag at all, and a bag of an older format.
     let path = dir.join("text.bag");
@@ -165,9 +315,15 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
     let path = dir.join("not.mcap");
     std::fs::write(&path, vec![7u8; 100]).unwrap();
     let (ok, _, err) = info(&path, &[]);
-    assert!(!ok && err.contains("not.mcap") && !err.contains("panicked"), "{err}");
+    assert!(
+        !ok && err.contains("not.mcap") && !err.contains("panicked"),
+        "{err}"
+    );
     let path = dir.join("not.db3");
     std::fs::write(&path, vec![7u8; 100]).unwrap();
     let (ok, _, err) = info(&path, &[]);
-    assert!(!ok && err.contains("not.db3") && !err.contains("panicked"), "{err}");
+    assert!(
+        !ok && err.contains("not.db3") && !err.contains("panicked"),
+        "{err}"
+    );
 }

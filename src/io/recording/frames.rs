@@ -124,14 +124,15 @@ impl Reader<'_> {
         }
         let raw = messages::image(&data, self.wire).map_err(bad)?;
         let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
-        let bytes =
-            match raw.encoding.as_str() {
-                "16UC1" | "mono16" => 2,
-                "32FC1" => 4,
-                other => return Err(bad(format!(
+        let bytes = match raw.encoding.as_str() {
+            "16UC1" | "mono16" => 2,
+            "32FC1" => 4,
+            other => {
+                return Err(bad(format!(
                     "encoding {other:?} is not a depth encoding read here (16UC1, mono16, 32FC1)"
-                ))),
-            };
+                )))
+            }
+        };
         if step < w * bytes {
             return Err(bad(format!(
                 "step {step} is shorter than a row of {w} pixels of {}",
@@ -229,7 +230,8 @@ impl Description {
             .topics
             .iter()
             .map(|t| {
-                let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages.first().map_or(0.0, |m| m.stamp);
+                let span = t.messages.last().map_or(0.0, |m| m.stamp)
+                    - t.messages.first().map_or(0.0, |m| m.stamp);
                 let rate = if span > 0.0 {
                     (t.messages.len() - 1) as f64 / span
                 } else {

@@ -8,6 +8,7 @@
 //! The topics are chosen as described in [`topics`], the calibration comes from the
 //! colour stream's `sensor_msgs/CameraInfo`.
 
+pub mod convert;
 pub mod frames;
 pub mod messages;
 pub mod ros1;

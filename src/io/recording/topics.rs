@@ -80,15 +80,18 @@ fn named<'a>(
     types: &[&str],
     key: &str,
 ) -> Result<&'a Topic, IoError> {
-    let topic = catalog.topic(name).filter(|t| !t.messages.is_empty()).ok_or_else(|| {
-        IoError::invalid(
-            path,
-            format!(
-                "{key} {name}: no such topic with messages; {}",
-                listing(catalog)
-            ),
-        )
-    })?;
+    let topic = catalog
+        .topic(name)
+        .filter(|t| !t.messages.is_empty())
+        .ok_or_else(|| {
+            IoError::invalid(
+                path,
+                format!(
+                    "{key} {name}: no such topic with messages; {}",
+                    listing(catalog)
+                ),
+            )
+        })?;
     if !types.contains(&topic.msg_type.as_str()) {
         return Err(IoError::invalid(
             path,
