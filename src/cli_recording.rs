@@ -49,10 +49,18 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     for (name, msg_type, count, rate) in &d.topics {
         println!("  {name:<40} {msg_type:<28} {count:>7} messages  {rate:>6.1} Hz");
     }
+    let registration = if d.registered {
+        "recorded in the colour camera"
+    } else {
+        "in its own camera: registered into the colour camera (/tf_static)"
+    };
     println!(
-        "colour: {}\ndepth: {} (registered to the colour camera)",
-        d.colour, d.depth
+        "colour: {}\ndepth: {} ({registration}), {} units per metre",
+        d.colour, d.depth, d.depth_scale
     );
+    for note in &d.notes {
+        println!("  {note}");
+    }
     match &d.camera_info {
         Some(topic) => println!("camera info: {topic}"),
         None => println!("camera info: none (give the calibration with --settings or --camera)"),

@@ -327,3 +327,127 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
         "{err}"
     );
 }
+
+/// A synth preset with a depth camera of its own (other intrinsics, 25 mm beside the
+/// colour camera) and noise-free depth, so the colour camera's depth is the truth.
+const DEPTH_CAMERA_PRESET: &str = r#"
+name = "depth_camera"
+[sequence]
+frames = 6
+fps = 30.0
+seed = 11
+[motion]
+kind = "xyz"
+[scene]
+room_margin = 2.5
+furniture = 14
+clearance = 0.9
+[sensor]
+depth_noise = false
+disparity_step = 0.0
+[depth_camera]
+offset = [0.025, 0.0, 0.0]
+[depth_camera.camera]
+fx = 570.0
+fy = 570.0
+cx = 318.5
+cy = 242.5
+width = 640
+height = 480
+distortion = [0.0, 0.0, 0.0, 0.0, 0.0]
+"#;
+
+#[test]
+fn a_realsense_recording_is_registered_into_the_colour_camera() {
+    use dopslam::io::image_files::{read_depth, read_rgb};
+    use dopslam::io::recording::{RecordingOptions, RecordingSequence};
+    use dopslam::io::sequence::{FrameImages, Sequence};
+    let Some(python) = writer_python("a_realsense_recording_is_registered_into_the_colour_camera")
+    else {
+        return;
+    };
+    let ok = std::process::Command::new(&python)
+        .args(["-c", "import pyrealsense2"])
+        .output();
+    if !ok.is_ok_and(|o| o.status.success()) {
+        assert!(
+            std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
+            "pyrealsense2 is missing"
+        );
+        eprintln!("skipping: {} cannot import pyrealsense2", python.display());
+        return;
+    }
+    let dir = common::temp_dir("recordings-realsense");
+    let preset = dir.join("preset.toml");
+    std::fs::write(&preset, DEPTH_CAMERA_PRESET).unwrap();
+    let seq = dir.join("seq");
+    let (ok, _, err) = common::dopslam(&[
+        "synth",
+        "--config",
+        &preset.to_string_lossy(),
+        "--out",
+        &seq.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/write_realsense.py");
+    let recording = dir.join("realsense.db3");
+    let output = std::process::Command::new(&python)
+        .arg(script)
+        .arg(&seq)
+        .arg(&recording)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+
+    let sequence = RecordingSequence::open(
+        &recording,
+        &RecordingOptions {
+            max_difference: 0.02,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        !sequence.description.registered,
+        "the depth is in its own camera"
+    );
+    assert_eq!(sequence.len(), 6);
+    let names: Vec<String> = std::fs::read_to_string(seq.join("rgb.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().nth(1).unwrap().to_owned())
+        .collect();
+    let (mut close, mut both, mut truth_valid) = (0usize, 0usize, 0usize);
+    for (index, name) in names.iter().enumerate() {
+        let FrameImages::Rgbd { rgb, depth } = sequence.load(index).unwrap().images else {
+            panic!("RGB-D")
+        };
+        assert!(
+            (sequence.timestamp(index) - name[4..name.len() - 4].parse::<f64>().unwrap()).abs()
+                < 1e-6
+        );
+        assert_eq!(
+            rgb,
+            read_rgb(&seq.join(name)).unwrap(),
+            "frame {index}: the colour image, channels in order"
+        );
+        let truth = read_depth(&seq.join(name.replace("rgb/", "depth/")), 5000.0).unwrap();
+        for (r, t) in depth.metres.iter().zip(&truth.metres) {
+            truth_valid += usize::from(*t > 0.0);
+            if *t > 0.0 && *r > 0.0 {
+                both += 1;
+                close += usize::from((r - t).abs() <= 0.001);
+            }
+        }
+    }
+    let (share, coverage) = (close as f64 / both as f64, both as f64 / truth_valid as f64);
+    eprintln!("registered depth within 1 mm of the truth on {:.2} % of {both} pixels; {:.1} % of the truth's pixels have depth", 100.0 * share, 100.0 * coverage);
+    assert!(share >= 0.99, "{share}");
+    // The depth camera's narrower view ((535/570)^2 = 0.88 of the colour image) bounds it.
+    assert!(coverage >= 0.85, "{coverage}");
+}

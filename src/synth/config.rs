@@ -92,6 +92,19 @@ pub struct StereoConfig {
     pub rectification_error_px: f64,
 }
 
+/// A depth camera of its own beside the colour camera, as RealSense and Azure Kinect
+/// sensors are built: its depth is also written unregistered, under `depth_camera/`
+/// with `depth_camera.yaml` (for the recording readers' registration tests).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthCameraConfig {
+    /// Its intrinsics and image size (a pinhole: `distortion` must be zeros).
+    pub camera: PinholeCamera,
+    /// Its position in the colour camera's frame (metres; no rotation), i.e. the
+    /// translation of \(T_{cd}\) (`colour_from_depth`).
+    pub offset: [f64; 3],
+}
+
 /// A whole synth preset.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -111,6 +124,7 @@ pub struct SynthConfig {
     pub oracle: OracleConfig,
     pub sensor: SensorConfig,
     pub stereo: StereoConfig,
+    pub depth_camera: Option<DepthCameraConfig>,
     pub street: StreetConfig,
 }
 
@@ -191,6 +205,15 @@ impl SynthConfig {
                 "stereo.baseline must be 0 (off) to 2 m, got {}",
                 self.stereo.baseline
             ));
+        }
+        if let Some(depth) = &self.depth_camera {
+            depth.camera.validate().map_err(|e| format!("depth_camera.camera: {e}"))?;
+            if !depth.camera.is_undistorted() {
+                return Err("depth_camera.camera.distortion must be zeros (a pinhole is rendered)".into());
+            }
+            if depth.offset.iter().any(|v| !(v.is_finite() && v.abs() <= 0.5)) {
+                return Err(format!("depth_camera.offset must be within 0.5 m, got {:?}", depth.offset));
+            }
         }
         Ok(())
     }

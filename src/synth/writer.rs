@@ -16,7 +16,7 @@ use super::config::SynthConfig;
 use super::motion::poses_at;
 use super::movers::{place_objects, place_people, place_seated, place_table, Appearance, Mover};
 use super::oracle::OracleConfig;
-use super::render::{render, render_colour, Exposure, Rendered, View};
+use super::render::{render, render_colour, render_depth, Exposure, Rendered, View};
 use super::scene::Scene;
 use super::sprite::Sprite;
 use crate::detect::{Detection, FrameDetections};
@@ -25,7 +25,7 @@ use crate::geometry::mesh::Mesh;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::file_list::read_file_list;
-use crate::io::image_files::depth_to_png16;
+use crate::io::image_files::{depth_to_png16, DepthImage};
 use crate::io::orbslam_settings::{Calibration, OrbSettings, OrbSlamSettings};
 use crate::io::ply::{write_ply, PlyEncoding};
 use crate::io::trajectory::TrajectoryFormat;
@@ -399,6 +399,31 @@ impl World {
     }
 }
 
+impl World {
+    /// The depth camera's own depth of frame `index`, when the config has one.
+    pub fn render_depth_camera(&self, index: usize) -> Option<DepthImage> {
+        let depth = self.config.depth_camera.as_ref()?;
+        let [x, y, z] = depth.offset;
+        let offset = Se3::from_parts(nalgebra::Translation3::new(x, y, z), nalgebra::Rotation3::identity().into());
+        let pose = self.poses[index] * offset;
+        let seed = self.frame_seed(index) ^ 0xDE_D7_CA;
+        let view = self.view(self.times[index], pose);
+        Some(render_depth(&self.visible_scene(&pose), &view, &depth.camera, &self.config.sensor, seed))
+    }
+}
+
+/// Writes `depth_camera.yaml`: the depth camera's intrinsics as an ORB-SLAM2 settings
+/// file, and its offset as `ColourFromDepth.tx/ty/tz`.
+fn write_depth_camera_file(config: &SynthConfig, out: &Path) -> Result<(), SynthError> {
+    let Some(depth) = &config.depth_camera else { return Ok(()) };
+    let calibration = Calibration { camera: depth.camera, bf: None, depth_scale: Some(5000.0), th_depth: None, fps: Some(config.sequence.fps) };
+    let mut text = OrbSlamSettings::to_yaml(&calibration, &Default::default());
+    for (axis, value) in ["tx", "ty", "tz"].iter().zip(depth.offset) {
+        text += &format!("ColourFromDepth.{axis}: {value:?}\n");
+    }
+    Ok(write_atomic(&out.join("depth_camera.yaml"), text.as_bytes())?)
+}
+
 /// Loads a cut-out named by the config, if any.
 fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>, SynthError> {
     path.as_deref()
@@ -503,6 +528,11 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             })?;
         }
     }
+    if config.depth_camera.is_some() {
+        let dir = out.join("depth_camera");
+        std::fs::create_dir_all(&dir).map_err(|source| IoError::Write { path: dir, source })?;
+        write_depth_camera_file(config, out)?;
+    }
     let camera = world.camera;
     let times = &world.times;
     let progress = ProgressBar::new(times.len() as u64);
@@ -529,6 +559,10 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             };
             let truth_seed = world.frame_seed(index) ^ 0x0AC1_E5EE;
             write_images(out, world.stamp(index), &rendered)?;
+            if let Some(depth) = world.render_depth_camera(index) {
+                let name = format!("depth_camera/{:.6}.png", world.stamp(index));
+                depth_to_png16(&depth, 5000.0).save(out.join(&name)).map_err(save_error(out, &name))?;
+            }
             let tum = (out, world.stamp(index));
             let targets: &[(&Path, f64)] = if stereo {
                 &[tum, (&kitti, world.times[index])]

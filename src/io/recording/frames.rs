@@ -12,6 +12,7 @@ use std::path::Path;
 use image::RgbImage;
 
 use super::messages::{self, Wire};
+use super::register::Registration;
 use super::topics::Chosen;
 use super::{Catalog, Entry, Store, COMPRESSED};
 use crate::io::file_list::associate_greedy;
@@ -64,6 +65,8 @@ pub struct Reader<'a> {
     pub path: &'a Path,
     pub store: &'a dyn Store,
     pub wire: Wire,
+    /// Applied to each depth image when the depth is in its own camera.
+    pub registration: Option<&'a Registration>,
 }
 
 impl Reader<'_> {
@@ -113,8 +116,24 @@ impl Reader<'_> {
         Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
     }
 
-    /// The depth image of a frame in metres.
+    /// The depth image of a frame in metres, in the colour camera.
     pub fn depth(&self, pair: &FramePair, depth_scale: f64) -> Result<DepthImage, IoError> {
+        let depth = self.raw_depth(pair, depth_scale)?;
+        let Some(registration) = self.registration else {
+            return Ok(depth);
+        };
+        registration.apply(&depth).ok_or_else(|| {
+            let size = format!("{}x{}", depth.width, depth.height);
+            self.bad(
+                &pair.depth,
+                "depth",
+                format!("{size}, not the size its camera info gives"),
+            )
+        })
+    }
+
+    /// The depth image of a frame in metres, in its own camera.
+    fn raw_depth(&self, pair: &FramePair, depth_scale: f64) -> Result<DepthImage, IoError> {
         let entry = &pair.depth;
         let data = self.store.read(entry.at)?;
         let bad = |m: String| self.bad(entry, "depth", m);
@@ -222,6 +241,12 @@ pub struct Description {
     pub camera_info: Option<String>,
     pub frames: usize,
     pub warnings: Vec<String>,
+    /// What the reader did beyond the plain topics (device clock stamps).
+    pub notes: Vec<String>,
+    /// Whether the depth was recorded in the colour camera already.
+    pub registered: bool,
+    /// Raw 16-bit depth units per metre in use.
+    pub depth_scale: f64,
 }
 
 impl Description {
@@ -247,6 +272,9 @@ impl Description {
             camera_info: chosen.camera_info.clone(),
             frames,
             warnings: catalog.warnings.clone(),
+            notes: Vec::new(),
+            registered: true,
+            depth_scale: 1000.0,
         }
     }
 }

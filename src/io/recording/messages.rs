@@ -122,19 +122,63 @@ impl<'a> Cursor<'a> {
 
     /// `std_msgs/Header`: the stamp in seconds (ROS 1 has a `seq` before it).
     fn header(&mut self) -> Result<f64, DecodeError> {
+        Ok(self.header_and_frame()?.0)
+    }
+
+    /// `std_msgs/Header`: the stamp in seconds and the frame id.
+    fn header_and_frame(&mut self) -> Result<(f64, String), DecodeError> {
         if self.wire == Wire::Ros1 {
             self.u32("header.seq")?;
         }
         let sec = self.u32("header.stamp.sec")?;
         let nsec = self.u32("header.stamp.nsec")?;
-        self.string("header.frame_id")?;
-        Ok(sec as f64 + nsec as f64 * 1e-9)
+        let frame = self.string("header.frame_id")?;
+        Ok((sec as f64 + nsec as f64 * 1e-9, frame))
     }
 }
 
 /// The stamp of a message with a `std_msgs/Header` first (every type here).
 pub fn stamp(data: &[u8], wire: Wire) -> Result<f64, DecodeError> {
     Cursor::new(data, wire)?.header()
+}
+
+/// A `std_msgs/String`'s text (librealsense keeps stream info and options in them).
+pub fn string(data: &[u8], wire: Wire) -> Result<String, DecodeError> {
+    Cursor::new(data, wire)?.string("data")
+}
+
+/// One `geometry_msgs/TransformStamped`: the pose of `child` in `parent`, i.e.
+/// \(p_{parent} = R(q)\, p_{child} + t\).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transform {
+    pub parent: String,
+    pub child: String,
+    pub translation: [f64; 3],
+    /// \((x, y, z, w)\).
+    pub rotation: [f64; 4],
+}
+
+/// Decodes a `tf2_msgs/TFMessage` (ROS 1 `tf/tfMessage` has the same layout).
+pub fn transforms(data: &[u8], wire: Wire) -> Result<Vec<Transform>, DecodeError> {
+    let mut c = Cursor::new(data, wire)?;
+    let n = c.u32("transforms")? as usize;
+    if n > 10_000 {
+        return Err(format!("transforms: {n} entries (at most 10000 expected)"));
+    }
+    (0..n)
+        .map(|_| {
+            let (_, parent) = c.header_and_frame()?;
+            let child = c.string("child_frame_id")?;
+            let translation = c.f64s::<3>("transform.translation")?;
+            let rotation = c.f64s::<4>("transform.rotation")?;
+            Ok(Transform {
+                parent,
+                child,
+                translation,
+                rotation,
+            })
+        })
+        .collect()
 }
 
 /// A `sensor_msgs/Image`.
@@ -203,6 +247,8 @@ pub fn compressed(data: &[u8], wire: Wire) -> Result<CompressedImage<'_>, Decode
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraInfo {
     pub stamp: f64,
+    /// The camera's frame (in `/tf_static`).
+    pub frame: String,
     pub width: u32,
     pub height: u32,
     /// `plumb_bob`, `rational_polynomial`, `equidistant`, or empty.
@@ -218,7 +264,7 @@ pub struct CameraInfo {
 /// Decodes a `sensor_msgs/CameraInfo`.
 pub fn camera_info(data: &[u8], wire: Wire) -> Result<CameraInfo, DecodeError> {
     let mut c = Cursor::new(data, wire)?;
-    let stamp = c.header()?;
+    let (stamp, frame) = c.header_and_frame()?;
     let height = c.u32("height")?;
     let width = c.u32("width")?;
     let distortion_model = c.string("distortion_model")?;
@@ -234,6 +280,7 @@ pub fn camera_info(data: &[u8], wire: Wire) -> Result<CameraInfo, DecodeError> {
     let p = c.f64s::<12>("P")?;
     Ok(CameraInfo {
         stamp,
+        frame,
         width,
         height,
         distortion_model,

@@ -11,8 +11,11 @@
 pub mod convert;
 pub mod frames;
 pub mod messages;
+pub mod realsense;
+pub mod register;
 pub mod ros1;
 pub mod ros2;
+pub mod tf;
 pub mod topics;
 
 use std::collections::HashMap;
@@ -204,6 +207,8 @@ pub struct RecordingSequence {
     frames: Vec<frames::FramePair>,
     calibration: Option<Calibration>,
     depth_scale: f64,
+    /// How depth reaches the colour camera, when it is recorded in its own.
+    registration: Option<register::Registration>,
     /// What the scan and the topic choice said, for `dopslam info` and the run's log.
     pub description: frames::Description,
 }
@@ -221,9 +226,12 @@ impl RecordingSequence {
     /// Opens a recording: scans it, chooses the topics, pairs colour and depth.
     pub fn open(path: &Path, options: &RecordingOptions) -> Result<Self, IoError> {
         let (store, catalog) = open_store(path)?;
-        let catalog = catalog.finish();
+        let mut catalog = catalog.finish();
+        let device_stamps = realsense::device_stamps(&mut catalog, store.as_ref())?;
         let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
-        let depth_scale = options.depth_scale.unwrap_or(1000.0);
+        let registration = topics::registration(path, &catalog, store.as_ref(), &choice)?;
+        let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
+        let depth_scale = options.depth_scale.or(recorded_scale).unwrap_or(1000.0);
         if !(depth_scale.is_finite() && depth_scale > 0.0) {
             return Err(IoError::invalid(
                 path,
@@ -232,14 +240,23 @@ impl RecordingSequence {
         }
         let frames = frames::pair(path, &catalog, &choice, options.max_difference)?;
         let calibration = match &choice.camera_info {
-            Some(info) => Some(topics::calibration(path, &catalog, store.as_ref(), info)?),
+            Some(info) => Some(topics::calibration(
+                path,
+                &catalog,
+                store.as_ref(),
+                info,
+                &choice.colour,
+            )?),
             None => None,
         };
         let name = path
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "recording".into());
-        let description = frames::Description::new(&catalog, &choice, frames.len());
+        let mut description = frames::Description::new(&catalog, &choice, frames.len());
+        description.notes = device_stamps;
+        description.registered = registration.is_none();
+        description.depth_scale = depth_scale;
         Ok(Self {
             name,
             path: path.to_path_buf(),
@@ -248,8 +265,18 @@ impl RecordingSequence {
             frames,
             calibration,
             depth_scale,
+            registration,
             description,
         })
+    }
+
+    fn reader(&self) -> frames::Reader<'_> {
+        frames::Reader {
+            path: &self.path,
+            store: self.store.as_ref(),
+            wire: self.wire,
+            registration: self.registration.as_ref(),
+        }
     }
 
     pub fn path(&self) -> &Path {
@@ -276,11 +303,7 @@ impl Sequence for RecordingSequence {
 
     fn load(&self, index: usize) -> Result<Frame, IoError> {
         let pair = &self.frames[index];
-        let reader = frames::Reader {
-            path: &self.path,
-            store: self.store.as_ref(),
-            wire: self.wire,
-        };
+        let reader = self.reader();
         let rgb = reader.colour(pair)?;
         let depth = reader.depth(pair, self.depth_scale)?;
         if (rgb.width(), rgb.height()) != (depth.width, depth.height) {
@@ -300,11 +323,7 @@ impl Sequence for RecordingSequence {
     }
 
     fn load_depth(&self, index: usize) -> Result<Option<super::image_files::DepthImage>, IoError> {
-        let reader = frames::Reader {
-            path: &self.path,
-            store: self.store.as_ref(),
-            wire: self.wire,
-        };
+        let reader = self.reader();
         Ok(Some(reader.depth(&self.frames[index], self.depth_scale)?))
     }
 

@@ -10,7 +10,8 @@
 use std::path::Path;
 
 use super::messages::{self, Wire};
-use super::{Catalog, Store, Topic, CAMERA_INFO, COMPRESSED, IMAGE};
+use super::register::Registration;
+use super::{tf, Catalog, Store, Topic, CAMERA_INFO, COMPRESSED, IMAGE};
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::Calibration;
 use crate::io::IoError;
@@ -196,7 +197,6 @@ pub fn choose(
         ),
         None => nearest_info(catalog, &colour),
     };
-    check_registered(path, catalog, store, &depth, camera_info.as_deref())?;
     Ok(Chosen {
         colour,
         depth,
@@ -220,53 +220,14 @@ fn nearest_info(catalog: &Catalog, image: &str) -> Option<String> {
         .map(|t| t.name.clone())
 }
 
-/// Depth in the depth camera's own geometry (its `CameraInfo` differs from the colour
-/// stream's) cannot be used as it is: an error until registration exists.
-fn check_registered(
-    path: &Path,
-    catalog: &Catalog,
-    store: &dyn Store,
-    depth: &str,
-    colour_info: Option<&str>,
-) -> Result<(), IoError> {
-    let (Some(colour_info), Some(depth_info)) = (colour_info, nearest_info(catalog, depth)) else {
-        return Ok(());
-    };
-    if depth_info == colour_info {
-        return Ok(());
-    }
-    let first = |name: &str| -> Result<messages::CameraInfo, IoError> {
-        let topic = catalog.topic(name).expect("a chosen topic exists");
-        let data = store.read(topic.messages[0].at)?;
-        messages::camera_info(&data, catalog.wire)
-            .map_err(|e| IoError::invalid(path, format!("topic {name}: {e}")))
-    };
-    let (c, d) = (first(colour_info)?, first(&depth_info)?);
-    let same = (c.width, c.height) == (d.width, d.height)
-        && c.k
-            .iter()
-            .zip(&d.k)
-            .all(|(a, b)| (a - b).abs() <= 1e-6 * a.abs().max(1.0));
-    if same {
-        return Ok(());
-    }
-    Err(IoError::invalid(
-        path,
-        format!(
-            "depth topic {depth} is in the depth camera's own geometry ({depth_info}: {}x{}, fx {:.2}; colour {colour_info}: {}x{}, fx {:.2}); registering it into the colour camera is not supported yet: record aligned depth (RealSense: align_depth, Azure Kinect: depth_mode with --color-align), or name a registered depth topic with --depth-topic",
-            d.width, d.height, d.k[0], c.width, c.height, c.k[0]
-        ),
-    ))
-}
-
-/// The calibration of the first message of `topic` (a `CameraInfo`), with the frame
-/// rate of the topic's stamps.
-pub fn calibration(
+/// The first `CameraInfo` of `topic` and the camera it describes (plumb_bob, or
+/// rational_polynomial without its k4-k6).
+fn camera_of(
     path: &Path,
     catalog: &Catalog,
     store: &dyn Store,
     topic: &str,
-) -> Result<Calibration, IoError> {
+) -> Result<(messages::CameraInfo, PinholeCamera), IoError> {
     let t = catalog.topic(topic).expect("a chosen topic exists");
     let data = store.read(t.messages[0].at)?;
     let bad = |e: String| IoError::invalid(path, format!("camera info topic {topic}: {e}"));
@@ -297,18 +258,80 @@ pub fn calibration(
             )))
         }
     }
-    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
-    let fps = (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span);
-    Ok(Calibration {
-        camera: PinholeCamera {
+    let (width, height) = (info.width, info.height);
+    Ok((
+        info,
+        PinholeCamera {
             fx,
             fy,
             cx,
             cy,
-            width: info.width,
-            height: info.height,
+            width,
+            height,
             distortion,
         },
+    ))
+}
+
+/// How the chosen depth reaches the colour camera: `None` when it is registered
+/// already (one camera info for both, one frame, or the same intrinsics and no
+/// transform or an identity between the frames, as TUM's bags); else the
+/// [`Registration`] by the `/tf_static` transform between the two cameras' frames.
+pub fn registration(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    chosen: &Chosen,
+) -> Result<Option<Registration>, IoError> {
+    let (Some(colour_info), Some(depth_info)) =
+        (&chosen.camera_info, nearest_info(catalog, &chosen.depth))
+    else {
+        return Ok(None);
+    };
+    if depth_info == *colour_info {
+        return Ok(None);
+    }
+    let (c, colour) = camera_of(path, catalog, store, colour_info)?;
+    let (d, depth) = camera_of(path, catalog, store, &depth_info)?;
+    if c.frame == d.frame {
+        return Ok(None);
+    }
+    let same_intrinsics = (c.width, c.height) == (d.width, d.height)
+        && c.k
+            .iter()
+            .zip(&d.k)
+            .all(|(a, b)| (a - b).abs() <= 1e-6 * a.abs().max(1.0))
+        && c.d == d.d;
+    let transforms = tf::static_transforms(path, catalog, store)?;
+    match tf::between(&transforms, &c.frame, &d.frame) {
+        Some(t) if same_intrinsics && t.translation.vector.norm() < 1e-9 && t.rotation.angle() < 1e-9 => Ok(None),
+        Some(colour_from_depth) => Ok(Some(Registration::new(&depth, &colour, colour_from_depth))),
+        None if same_intrinsics => Ok(None),
+        None => Err(IoError::invalid(
+            path,
+            format!(
+                "depth topic {} is in the depth camera's own geometry ({depth_info}: {}x{}, fx {:.2}; colour {colour_info}: {}x{}, fx {:.2}) and /tf_static has no transform between their frames {:?} and {:?}: record /tf_static, or aligned depth (name it with --depth-topic)",
+                chosen.depth, d.width, d.height, d.k[0], c.width, c.height, c.k[0], d.frame, c.frame
+            ),
+        )),
+    }
+}
+
+/// The calibration of the first message of the `CameraInfo` topic `info`, with the
+/// frame rate of the `images` topic's stamps.
+pub fn calibration(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    info: &str,
+    images: &str,
+) -> Result<Calibration, IoError> {
+    let (_, camera) = camera_of(path, catalog, store, info)?;
+    let t = catalog.topic(images).expect("a chosen topic exists");
+    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
+    let fps = (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span);
+    Ok(Calibration {
+        camera,
         bf: None,
         depth_scale: None,
         th_depth: None,

@@ -1,0 +1,193 @@
+//! Depth registration: a depth image in the depth camera's own geometry (RealSense and
+//! Azure Kinect record it so) re-sampled into the colour camera, as `rs2::align` does.
+//!
+//! Each depth pixel \((u, v)\) with depth \(z\) covers the square between its corners
+//! \((u \pm \tfrac12, v \pm \tfrac12)\). Both corners are undistorted with the depth
+//! camera's Brown-Conrady model, lifted to depth \(z\), moved into the colour camera by
+//! \(T_{cd}\) (`colour_from_depth`), projected and distorted with the colour camera's
+//! model; the colour pixels between the two images of the corners get the depth of the
+//! pixel centre's point in the colour camera, \(z_c = (T_{cd}\, z\, \bar x)_z\). Where
+//! several depth pixels land on one colour pixel the nearest wins (a z-buffer), so a
+//! foreground edge hides the background behind it.
+
+use nalgebra::{Isometry3, Point3, Vector2};
+
+use crate::geometry::camera::PinholeCamera;
+use crate::io::image_files::DepthImage;
+
+/// A depth camera's image resampled into a colour camera.
+#[derive(Debug, Clone)]
+pub struct Registration {
+    colour: PinholeCamera,
+    colour_from_depth: Isometry3<f64>,
+    depth_size: (u32, u32),
+    /// The undistorted normalised coordinates of the depth pixels' corners, row-major
+    /// over \((w + 1) \times (h + 1)\).
+    corners: Vec<Vector2<f64>>,
+    /// The same for the pixels' centres, row-major over \(w \times h\).
+    centres: Vec<Vector2<f64>>,
+}
+
+/// The normalised ideal coordinates \((x, y)\) of a (distorted) pixel of `camera`.
+fn normalised(camera: &PinholeCamera, pixel: Vector2<f64>) -> Vector2<f64> {
+    let ideal = camera.undistort(&pixel);
+    Vector2::new(
+        (ideal.x - camera.cx) / camera.fx,
+        (ideal.y - camera.cy) / camera.fy,
+    )
+}
+
+impl Registration {
+    /// Precomputes the depth camera's rays.
+    pub fn new(
+        depth: &PinholeCamera,
+        colour: &PinholeCamera,
+        colour_from_depth: Isometry3<f64>,
+    ) -> Self {
+        let (w, h) = (depth.width, depth.height);
+        let corners = (0..=h)
+            .flat_map(|v| (0..=w).map(move |u| Vector2::new(u as f64 - 0.5, v as f64 - 0.5)))
+            .map(|p| normalised(depth, p))
+            .collect();
+        let centres = (0..h)
+            .flat_map(|v| (0..w).map(move |u| Vector2::new(u as f64, v as f64)))
+            .map(|p| normalised(depth, p))
+            .collect();
+        Self {
+            colour: colour.clone(),
+            colour_from_depth,
+            depth_size: (w, h),
+            corners,
+            centres,
+        }
+    }
+
+    /// The point in the colour camera of normalised depth-camera coordinates at depth `z`.
+    fn to_colour(&self, ray: &Vector2<f64>, z: f64) -> Point3<f64> {
+        self.colour_from_depth * Point3::new(ray.x * z, ray.y * z, z)
+    }
+
+    /// The (distorted) colour pixel of a point in the colour camera.
+    fn pixel(&self, p: &Point3<f64>) -> Vector2<f64> {
+        self.colour.distort(&self.colour.project(&p.coords))
+    }
+
+    /// `depth` (in the depth camera, of the size given to [`Registration::new`])
+    /// resampled into the colour camera; `None` when its size is another.
+    pub fn apply(&self, depth: &DepthImage) -> Option<DepthImage> {
+        let (w, h) = self.depth_size;
+        if (depth.width, depth.height) != (w, h) {
+            return None;
+        }
+        let (cw, ch) = (self.colour.width as i64, self.colour.height as i64);
+        let mut out = vec![f32::INFINITY; (cw * ch) as usize];
+        for v in 0..h as usize {
+            for u in 0..w as usize {
+                let z = depth.metres[v * w as usize + u] as f64;
+                if z <= 0.0 {
+                    continue;
+                }
+                let centre = self.to_colour(&self.centres[v * w as usize + u], z);
+                if centre.z <= 0.0 {
+                    continue;
+                }
+                let stride = w as usize + 1;
+                let a = self.pixel(&self.to_colour(&self.corners[v * stride + u], z));
+                let b = self.pixel(&self.to_colour(&self.corners[(v + 1) * stride + u + 1], z));
+                let round = |x: f64| (x + 0.5).floor() as i64;
+                let (x0, x1) = (round(a.x.min(b.x)).max(0), round(a.x.max(b.x)).min(cw - 1));
+                let (y0, y1) = (round(a.y.min(b.y)).max(0), round(a.y.max(b.y)).min(ch - 1));
+                let zc = centre.z as f32;
+                for y in y0..=y1 {
+                    for x in x0..=x1 {
+                        let cell = &mut out[(y * cw + x) as usize];
+                        *cell = cell.min(zc);
+                    }
+                }
+            }
+        }
+        let metres = out
+            .into_iter()
+            .map(|z| if z.is_finite() { z } else { 0.0 })
+            .collect();
+        Some(DepthImage {
+            width: cw as u32,
+            height: ch as u32,
+            metres,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    fn camera(f: f64, w: u32, h: u32, distortion: [f64; 5]) -> PinholeCamera {
+        PinholeCamera {
+            fx: f,
+            fy: f,
+            cx: w as f64 / 2.0 - 0.5,
+            cy: h as f64 / 2.0 - 0.5,
+            width: w,
+            height: h,
+            distortion,
+        }
+    }
+
+    /// A wall at 2 m seen by a distorted depth camera 25 mm beside the colour camera
+    /// lands at 2 m in the colour camera, filling it but for the side the depth camera
+    /// does not see.
+    #[test]
+    fn a_wall_seen_from_the_side_lands_at_its_depth() {
+        let depth_camera = camera(300.0, 160, 120, [0.05, -0.02, 0.0, 0.0, 0.0]);
+        let colour = camera(320.0, 160, 120, [0.0; 5]);
+        let colour_from_depth = Isometry3::from_parts(
+            Translation3::new(0.025, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        let registration = Registration::new(&depth_camera, &colour, colour_from_depth);
+        let mut wall = DepthImage::new(160, 120);
+        wall.metres.iter_mut().for_each(|z| *z = 2.0);
+        let out = registration.apply(&wall).unwrap();
+        let valid: Vec<f32> = out.metres.iter().copied().filter(|&z| z > 0.0).collect();
+        assert!(valid.iter().all(|z| (z - 2.0).abs() < 1e-4));
+        assert!(
+            valid.len() as f64 > 0.9 * out.metres.len() as f64,
+            "{} of {}",
+            valid.len(),
+            out.metres.len()
+        );
+        // A closer box in front: the z-buffer keeps the box where both land.
+        for v in 50..70 {
+            for u in 70..90 {
+                wall.metres[v * 160 + u] = 1.0;
+            }
+        }
+        let out = registration.apply(&wall).unwrap();
+        let near = out
+            .metres
+            .iter()
+            .filter(|&&z| (z - 1.0).abs() < 1e-4)
+            .count();
+        assert!(
+            (300..600).contains(&near),
+            "{near} colour pixels on the box"
+        );
+        // A rotation turns depth: the centre pixel of a 2 m wall, the camera turned 10°.
+        let turned = Isometry3::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.17),
+        );
+        let registration = Registration::new(&depth_camera, &colour, turned);
+        assert!(
+            registration.apply(&DepthImage::new(10, 10)).is_none(),
+            "another size"
+        );
+        let out = registration.apply(&wall).unwrap();
+        assert!(out
+            .metres
+            .iter()
+            .any(|&z| z > 0.0 && (z - 2.0).abs() > 0.01));
+    }
+}
