@@ -404,7 +404,7 @@ impl World {
     pub fn render_depth_camera(&self, index: usize) -> Option<DepthImage> {
         let depth = self.config.depth_camera.as_ref()?;
         let [x, y, z] = depth.offset;
-        let offset = Se3::from_parts(nalgebra::Translation3::new(x, y, z), nalgebra::Rotation3::identity().into());
+        let offset = Se3::from_parts(nalgebra::Translation3::new(x, y, z), nalgebra::Rotation3::identity());
         let pose = self.poses[index] * offset;
         let seed = self.frame_seed(index) ^ 0xDE_D7_CA;
         let view = self.view(self.times[index], pose);
