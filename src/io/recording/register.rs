@@ -54,7 +54,7 @@ impl Registration {
             .map(|p| normalised(depth, p))
             .collect();
         Self {
-            colour: colour.clone(),
+            colour: *colour,
             colour_from_depth,
             depth_size: (w, h),
             corners,
