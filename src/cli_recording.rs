@@ -141,3 +141,21 @@ pub fn run_convert(args: ConvertArgs, mut config: Config) -> Result<()> {
     );
     Ok(())
 }
+
+/// `dopslam info --read-frames`: decodes every frame on this thread and prints the rate
+/// and the process's peak memory.
+pub fn read_all_frames(path: &Path, config: &Config) -> Result<()> {
+    let sequence = dopslam::run::open_sequence(path, config)?;
+    let start = std::time::Instant::now();
+    for index in 0..sequence.len() {
+        std::hint::black_box(sequence.load(index)?);
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let peak = dopslam::memory::peak_resident_mib().map_or("?".into(), |m| format!("{m:.0}"));
+    println!(
+        "read {} frames in {seconds:.2} s ({:.1} frames/s, one core), peak memory {peak} MiB",
+        sequence.len(),
+        sequence.len() as f64 / seconds.max(1e-9)
+    );
+    Ok(())
+}

@@ -208,6 +208,11 @@ struct InfoArgs {
     config: Option<PathBuf>,
     #[command(flatten)]
     topics: cli_recording::TopicArgs,
+    /// Also decode every frame, one core, and say how fast (frames/s) and at what peak
+    /// memory: checks that a recording or folder reads whole, and that reading is no
+    /// bottleneck.
+    #[arg(long)]
+    read_frames: bool,
 }
 
 #[derive(Args)]
@@ -605,8 +610,18 @@ fn run_info(args: InfoArgs) -> Result<()> {
     let root = &args.sequence;
     if dopslam::io::recording::is_recording(root) {
         args.topics.apply(&mut config);
-        return cli_recording::print_recording_info(root, &config);
+        cli_recording::print_recording_info(root, &config)?;
+    } else {
+        describe_folder(root, &config)?;
     }
+    if args.read_frames {
+        cli_recording::read_all_frames(root, &config)?;
+    }
+    Ok(())
+}
+
+/// `dopslam info` on a TUM/Bonn or KITTI folder.
+fn describe_folder(root: &Path, config: &Config) -> Result<()> {
     dopslam::run::check_sequence_folder(root)?;
     let sequence: Box<dyn Sequence> = if root.join("image_0").is_dir() {
         Box::new(KittiSequence::open(root, None)?)

@@ -105,12 +105,12 @@ impl Reader<'_> {
         let swap = raw.encoding.starts_with("bgr");
         let mut rgb = Vec::with_capacity(w * h * 3);
         for row in raw.data.chunks(step).take(h) {
-            for px in row[..w * channels].chunks_exact(channels) {
-                match (channels, swap) {
-                    (1, _) => rgb.extend([px[0]; 3]),
-                    (_, false) => rgb.extend(&px[..3]),
-                    (_, true) => rgb.extend([px[2], px[1], px[0]]),
-                }
+            let row = &row[..w * channels];
+            match (channels, swap) {
+                (3, false) => rgb.extend_from_slice(row),
+                (1, _) => rgb.extend(row.iter().flat_map(|&g| [g; 3])),
+                (_, false) => rgb.extend(row.chunks_exact(channels).flat_map(|px| [px[0], px[1], px[2]])),
+                (_, true) => rgb.extend(row.chunks_exact(channels).flat_map(|px| [px[2], px[1], px[0]])),
             }
         }
         Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
@@ -159,20 +159,15 @@ impl Reader<'_> {
             )));
         }
         let scale = (1.0 / depth_scale) as f32;
+        let valid = |z: f32| if z.is_finite() && z > 0.0 { z } else { 0.0 };
         let mut metres = Vec::with_capacity(w * h);
         for row in raw.data.chunks(step).take(h) {
-            for px in row[..w * bytes].chunks_exact(bytes) {
-                let value = match (bytes, raw.big_endian) {
-                    (2, false) => u16::from_le_bytes([px[0], px[1]]) as f32 * scale,
-                    (2, true) => u16::from_be_bytes([px[0], px[1]]) as f32 * scale,
-                    (_, false) => f32::from_le_bytes([px[0], px[1], px[2], px[3]]),
-                    (_, true) => f32::from_be_bytes([px[0], px[1], px[2], px[3]]),
-                };
-                metres.push(if value.is_finite() && value > 0.0 {
-                    value
-                } else {
-                    0.0
-                });
+            let px = row[..w * bytes].chunks_exact(bytes);
+            match (bytes, raw.big_endian) {
+                (2, false) => metres.extend(px.map(|p| valid(u16::from_le_bytes([p[0], p[1]]) as f32 * scale))),
+                (2, true) => metres.extend(px.map(|p| valid(u16::from_be_bytes([p[0], p[1]]) as f32 * scale))),
+                (_, false) => metres.extend(px.map(|p| valid(f32::from_le_bytes([p[0], p[1], p[2], p[3]])))),
+                (_, true) => metres.extend(px.map(|p| valid(f32::from_be_bytes([p[0], p[1], p[2], p[3]])))),
             }
         }
         Ok(DepthImage {

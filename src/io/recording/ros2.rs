@@ -165,6 +165,7 @@ pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
                 message.log_time as f64 * 1e-9,
             );
         }
+        release(&map, index);
     }
     let store = Mcap {
         path: path.to_path_buf(),
@@ -173,6 +174,25 @@ pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         cache: Mutex::new(None),
     };
     Ok((Box::new(store), catalog))
+}
+
+/// Drops the pages of chunk `index` from the process's memory (they are read again
+/// from the file when needed), so that reading a recording of any size keeps the
+/// memory of a few chunks, not of the file. The range reaches 64 KiB beyond the chunk
+/// on both sides: the kernel maps pages around each one touched ("fault-around"), so
+/// reading a chunk also maps the end of the one before it.
+fn release(map: &memmap2::Mmap, index: &mcap::records::ChunkIndex) {
+    const AROUND: usize = 64 * 1024;
+    let start = (index.chunk_start_offset as usize).saturating_sub(AROUND);
+    let end = (index.chunk_start_offset as usize)
+        .saturating_add(index.chunk_length as usize)
+        .saturating_add(AROUND)
+        .min(map.len());
+    if start < end {
+        // SAFETY: a read-only mapping of a file: MADV_DONTNEED only drops pages, which
+        // the next access reads again from the file; no borrow of them is alive here.
+        let _ = unsafe { map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start, end - start) };
+    }
 }
 
 impl Store for Mcap {
@@ -194,6 +214,7 @@ impl Store for Mcap {
                 .map(|m| m.map(|m| m.data.into_owned()))
                 .collect::<Result<Vec<_>, _>>()
                 .map_err(|e| bad(e.to_string()))?;
+            release(&self.map, index);
             *cache = Some((at.0, messages));
         }
         let (_, messages) = cache.as_ref().expect("filled above");
