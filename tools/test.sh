@@ -10,10 +10,15 @@ bash tools/setup.sh --no-demo
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
 # The independent writers the recording tests use (tests/recordings.rs: the Python
-# rosbags package writes ROS 1 and ROS 2 bags), in the venv setup.sh made; with them
+# rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
+# venv setup.sh made; with them
 # installed, a test that cannot find them fails instead of skipping.
+# pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of the tests only.
+if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
 { [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
-data/venv/bin/pip install -q rosbags pillow numpy
+data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" pillow numpy
 export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 # The tests write their synthetic sequences under one temporary folder of this run,
 # removed when the run ends, however it ends (each test also removes its own).
