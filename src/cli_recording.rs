@@ -22,6 +22,10 @@ pub struct TopicArgs {
     /// A recording's sensor_msgs/CameraInfo topic; default: the colour topic's.
     #[arg(long)]
     pub camera_info_topic: Option<String>,
+    /// A recording's pose topic (PoseStamped, Odometry, TransformStamped) to evaluate
+    /// the trajectory against.
+    #[arg(long)]
+    pub ground_truth_topic: Option<String>,
 }
 
 impl TopicArgs {
@@ -32,6 +36,7 @@ impl TopicArgs {
             (&self.rgb_topic, &mut dataset.rgb_topic),
             (&self.depth_topic, &mut dataset.depth_topic),
             (&self.camera_info_topic, &mut dataset.camera_info_topic),
+            (&self.ground_truth_topic, &mut dataset.ground_truth_topic),
         ] {
             if given.is_some() {
                 key.clone_from(given);
@@ -88,6 +93,13 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
             k.height,
             k.distortion,
             c.fps.unwrap_or(0.0)
+        );
+    }
+    if let Some(truth) = recording.ground_truth() {
+        println!(
+            "ground truth: {} poses, path length {:.3} m",
+            truth.len(),
+            truth.path_length()
         );
     }
     for warning in &d.warnings {

@@ -54,6 +54,9 @@ pub struct DatasetConfig {
     pub depth_topic: Option<String>,
     /// A recording's `sensor_msgs/CameraInfo` topic; unset: the colour topic's.
     pub camera_info_topic: Option<String>,
+    /// A recording's pose topic to read as the ground truth (`PoseStamped`,
+    /// `Odometry`, `TransformStamped`); unset: none.
+    pub ground_truth_topic: Option<String>,
     /// What applying `settings` did (set by [`Config::apply_orbslam_settings`]).
     #[serde(skip)]
     pub settings_applied: Option<SettingsApplied>,
@@ -79,6 +82,7 @@ impl DatasetConfig {
             },
             depth_scale: self.depth_scale,
             max_difference: self.max_difference,
+            ground_truth_topic: self.ground_truth_topic.clone(),
         }
     }
 }
@@ -94,6 +98,7 @@ impl Default for DatasetConfig {
             rgb_topic: None,
             depth_topic: None,
             camera_info_topic: None,
+            ground_truth_topic: None,
             settings_applied: None,
         }
     }

@@ -128,8 +128,16 @@ fn each_writer_s_recording_tracks_as_its_folder() {
         ("ros2-sqlite", &["--format", "ros2-sqlite"], ""),
         (
             "ros2-mcap",
-            &["--format", "ros2-mcap", "--rgb", "png", "--depth", "16UC1"],
-            "depth_scale = 5000.0",
+            &[
+                "--format",
+                "ros2-mcap",
+                "--rgb",
+                "png",
+                "--depth",
+                "16UC1",
+                "--ground-truth",
+            ],
+            "depth_scale = 5000.0\nground_truth_topic = \"/ground_truth\"",
         ),
     ];
     for (name, options, dataset) in cases {
@@ -148,6 +156,15 @@ fn each_writer_s_recording_tracks_as_its_folder() {
             );
         }
     }
+    // The ground truth from the MCAP bag's pose topic scores the run as groundtruth.txt does.
+    let ate = |out: &str| -> serde_json::Value {
+        let report = std::fs::read_to_string(dir.join(out).join("report.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&report).unwrap()["ate"]["ape"]["statistics"]
+            ["rmse"]
+            .clone()
+    };
+    assert!(ate("out-folder").as_f64().is_some_and(|r| r > 0.0));
+    assert_eq!(ate("out-ros2-mcap"), ate("out-folder"));
     // The MCAP file alone opens as its bag folder does.
     let mcap = common::sorted_files(&dir.join("ros2-mcap"))
         .into_iter()

@@ -12,6 +12,7 @@ never runs it. Topics follow TUM's bags: /camera/rgb/image_color,
       [--rgb rgb8|bgr8|png|jpeg] [--depth 32FC1|16UC1|compressedDepth] [--frames N]
       [--repeat K]  (each frame written K times with new stamps: a large recording)
       [--shuffle]  (messages written out of stamp order)  [--no-depth]
+      [--ground-truth]  (groundtruth.txt as PoseStamped on /ground_truth)
       [--corrupt-frame K]  (frame K's JPEG zeroed after its first 20 bytes)  [--rgb 8UC3]  (an encoding no
       reader takes for colour)
 
@@ -76,6 +77,8 @@ def main():
     parser.add_argument('--shuffle', action='store_true')
     parser.add_argument('--no-depth', action='store_true')
     parser.add_argument('--corrupt-frame', type=int, default=-1)
+    parser.add_argument('--ground-truth', action='store_true',
+                        help='also groundtruth.txt as geometry_msgs/PoseStamped on /ground_truth')
     args = parser.parse_args()
 
     from rosbags.typesys import Stores, get_typestore
@@ -156,6 +159,20 @@ def main():
               ('/camera/rgb/camera_info', 'sensor_msgs/msg/CameraInfo'),
               ('/camera/depth/camera_info', 'sensor_msgs/msg/CameraInfo')]
 
+    PoseStamped, Pose = T['geometry_msgs/msg/PoseStamped'], T['geometry_msgs/msg/Pose']
+    Point, Quaternion = T['geometry_msgs/msg/Point'], T['geometry_msgs/msg/Quaternion']
+    truth = []
+    if args.ground_truth:
+        topics.append(('/ground_truth', 'geometry_msgs/msg/PoseStamped'))
+        for line in (seq / 'groundtruth.txt').read_text().splitlines():
+            if line.strip() and not line.startswith('#'):
+                stamp, *v = line.split()
+                truth.append((stamp, [float(x) for x in v]))
+
+    def pose(stamp_ns, v):
+        return PoseStamped(header=header(stamp_ns, 'world'), pose=Pose(
+            position=Point(x=v[0], y=v[1], z=v[2]), orientation=Quaternion(x=v[3], y=v[4], z=v[5], w=v[6])))
+
     if ros1:
         from rosbags.rosbag1 import Writer
         writer = Writer(args.out)
@@ -184,6 +201,9 @@ def main():
                 ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1))) + shift
                 events.append((ns, 1, '/camera/depth/image', lambda ns=ns, p=path: depth(ns, p)))
                 events.append((ns, 3, '/camera/depth/camera_info', lambda ns=ns: (None, info(ns, 'depth'))))
+            for stamp, v in truth if repeat == 0 else []:
+                ns = sum(a * b for a, b in zip(split_stamp(stamp), (1_000_000_000, 1)))
+                events.append((ns, 4, '/ground_truth', lambda ns=ns, v=v: (None, pose(ns, v))))
             events.sort(key=lambda e: (e[0], e[1]))
             if args.shuffle:  # each frame's messages after the next frame's: stamps out of order
                 events = shuffled(events)

@@ -106,10 +106,12 @@ pub struct SequenceEntry {
     pub settings: Option<PathBuf>,
     /// The depth images' scale (TUM: 5000 per metre).
     pub depth_scale: Option<f64>,
-    /// A recording's colour, depth and camera-info topics (`[dataset]`'s keys).
+    /// A recording's colour, depth, camera-info and ground-truth topics (`[dataset]`'s
+    /// keys).
     pub rgb_topic: Option<String>,
     pub depth_topic: Option<String>,
     pub camera_info_topic: Option<String>,
+    pub ground_truth_topic: Option<String>,
     /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
     pub config: Option<PathBuf>,
     pub modes: Option<Vec<Mode>>,
@@ -258,6 +260,7 @@ impl Manifest {
                 (&entry.rgb_topic, &mut config.dataset.rgb_topic),
                 (&entry.depth_topic, &mut config.dataset.depth_topic),
                 (&entry.camera_info_topic, &mut config.dataset.camera_info_topic),
+                (&entry.ground_truth_topic, &mut config.dataset.ground_truth_topic),
             ];
             for (given, key) in topics {
                 if given.is_some() {

@@ -109,8 +109,14 @@ impl Reader<'_> {
             match (channels, swap) {
                 (3, false) => rgb.extend_from_slice(row),
                 (1, _) => rgb.extend(row.iter().flat_map(|&g| [g; 3])),
-                (_, false) => rgb.extend(row.chunks_exact(channels).flat_map(|px| [px[0], px[1], px[2]])),
-                (_, true) => rgb.extend(row.chunks_exact(channels).flat_map(|px| [px[2], px[1], px[0]])),
+                (_, false) => rgb.extend(
+                    row.chunks_exact(channels)
+                        .flat_map(|px| [px[0], px[1], px[2]]),
+                ),
+                (_, true) => rgb.extend(
+                    row.chunks_exact(channels)
+                        .flat_map(|px| [px[2], px[1], px[0]]),
+                ),
             }
         }
         Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
@@ -164,10 +170,16 @@ impl Reader<'_> {
         for row in raw.data.chunks(step).take(h) {
             let px = row[..w * bytes].chunks_exact(bytes);
             match (bytes, raw.big_endian) {
-                (2, false) => metres.extend(px.map(|p| valid(u16::from_le_bytes([p[0], p[1]]) as f32 * scale))),
-                (2, true) => metres.extend(px.map(|p| valid(u16::from_be_bytes([p[0], p[1]]) as f32 * scale))),
-                (_, false) => metres.extend(px.map(|p| valid(f32::from_le_bytes([p[0], p[1], p[2], p[3]])))),
-                (_, true) => metres.extend(px.map(|p| valid(f32::from_be_bytes([p[0], p[1], p[2], p[3]])))),
+                (2, false) => metres
+                    .extend(px.map(|p| valid(u16::from_le_bytes([p[0], p[1]]) as f32 * scale))),
+                (2, true) => metres
+                    .extend(px.map(|p| valid(u16::from_be_bytes([p[0], p[1]]) as f32 * scale))),
+                (_, false) => {
+                    metres.extend(px.map(|p| valid(f32::from_le_bytes([p[0], p[1], p[2], p[3]]))))
+                }
+                (_, true) => {
+                    metres.extend(px.map(|p| valid(f32::from_be_bytes([p[0], p[1], p[2], p[3]]))))
+                }
             }
         }
         Ok(DepthImage {

@@ -181,6 +181,38 @@ pub fn transforms(data: &[u8], wire: Wire) -> Result<Vec<Transform>, DecodeError
         .collect()
 }
 
+/// The pose types a ground-truth topic may carry.
+pub const POSE_TYPES: [&str; 3] = [
+    "geometry_msgs/PoseStamped",
+    "nav_msgs/Odometry",
+    "geometry_msgs/TransformStamped",
+];
+
+/// A stamped pose: the stamp, the position and the orientation \((x, y, z, w)\).
+pub type StampedPose = (f64, [f64; 3], [f64; 4]);
+
+/// Decodes one of [`POSE_TYPES`] (in ROS 1 spelling) into its stamped pose; for an
+/// `Odometry` the pose without its covariance.
+pub fn stamped_pose(data: &[u8], wire: Wire, msg_type: &str) -> Result<StampedPose, DecodeError> {
+    let mut c = Cursor::new(data, wire)?;
+    let stamp = c.header()?;
+    match msg_type {
+        "geometry_msgs/PoseStamped" => {}
+        "nav_msgs/Odometry" | "geometry_msgs/TransformStamped" => {
+            c.string("child_frame_id")?;
+        }
+        other => {
+            return Err(format!(
+                "{other} is not a pose type ({})",
+                POSE_TYPES.join(", ")
+            ))
+        }
+    }
+    let position = c.f64s::<3>("position")?;
+    let orientation = c.f64s::<4>("orientation")?;
+    Ok((stamp, position, orientation))
+}
+
 /// A `sensor_msgs/Image`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawImage<'a> {

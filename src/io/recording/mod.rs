@@ -169,6 +169,9 @@ pub struct RecordingOptions {
     pub depth_scale: Option<f64>,
     /// Tolerance in seconds for pairing colour and depth stamps.
     pub max_difference: f64,
+    /// A pose topic to read as the ground truth (`PoseStamped`, `Odometry`,
+    /// `TransformStamped`).
+    pub ground_truth_topic: Option<String>,
 }
 
 /// Whether `path` looks like a recording rather than a sequence folder.
@@ -209,6 +212,7 @@ pub struct RecordingSequence {
     depth_scale: f64,
     /// How depth reaches the colour camera, when it is recorded in its own.
     registration: Option<register::Registration>,
+    ground_truth: Option<Trajectory>,
     /// What the scan and the topic choice said, for `dopslam info` and the run's log.
     pub description: frames::Description,
 }
@@ -231,6 +235,10 @@ impl RecordingSequence {
         let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
         let registration = topics::registration(path, &catalog, store.as_ref(), &choice)?;
         let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
+        let ground_truth = match &options.ground_truth_topic {
+            Some(topic) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
+            None => None,
+        };
         let depth_scale = options.depth_scale.or(recorded_scale).unwrap_or(1000.0);
         if !(depth_scale.is_finite() && depth_scale > 0.0) {
             return Err(IoError::invalid(
@@ -266,6 +274,7 @@ impl RecordingSequence {
             calibration,
             depth_scale,
             registration,
+            ground_truth,
             description,
         })
     }
@@ -328,7 +337,7 @@ impl Sequence for RecordingSequence {
     }
 
     fn ground_truth(&self) -> Option<&Trajectory> {
-        None
+        self.ground_truth.as_ref()
     }
 
     fn calibration(&self) -> Option<&Calibration> {

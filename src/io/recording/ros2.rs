@@ -191,7 +191,9 @@ fn release(map: &memmap2::Mmap, index: &mcap::records::ChunkIndex) {
     if start < end {
         // SAFETY: a read-only mapping of a file: MADV_DONTNEED only drops pages, which
         // the next access reads again from the file; no borrow of them is alive here.
-        let _ = unsafe { map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start, end - start) };
+        let _ = unsafe {
+            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start, end - start)
+        };
     }
 }
 

@@ -12,9 +12,13 @@ use std::path::Path;
 use super::messages::{self, Wire};
 use super::register::Registration;
 use super::{tf, Catalog, Store, Topic, CAMERA_INFO, COMPRESSED, IMAGE};
+use nalgebra::{Quaternion, Translation3, UnitQuaternion};
+
 use crate::geometry::camera::PinholeCamera;
+use crate::geometry::se3::Se3;
 use crate::io::orbslam_settings::Calibration;
 use crate::io::IoError;
+use crate::io::Trajectory;
 
 /// The topics the user named (`[dataset] rgb_topic`, `depth_topic`, `camera_info_topic`).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -337,4 +341,43 @@ pub fn calibration(
         th_depth: None,
         fps,
     })
+}
+
+/// The ground truth from a pose topic (`PoseStamped`, `Odometry` or `TransformStamped`):
+/// the pose of the camera (or of the body the topic follows) in the world, by stamp.
+pub fn ground_truth(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    topic: &str,
+) -> Result<Trajectory, IoError> {
+    let t = named(
+        path,
+        catalog,
+        topic,
+        &messages::POSE_TYPES,
+        "ground_truth_topic",
+    )?;
+    let mut trajectory = Trajectory::default();
+    for entry in &t.messages {
+        let data = store.read(entry.at)?;
+        let (stamp, [x, y, z], [qx, qy, qz, qw]) =
+            messages::stamped_pose(&data, catalog.wire, &t.msg_type)
+                .map_err(|e| IoError::invalid(path, format!("ground_truth_topic {topic}: {e}")))?;
+        let rotation = UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz));
+        if !(rotation.coords.iter().all(|v| v.is_finite())
+            && [x, y, z].iter().all(|v| v.is_finite()))
+        {
+            return Err(IoError::invalid(
+                path,
+                format!("ground_truth_topic {topic}: a pose at {stamp:.6} is not finite"),
+            ));
+        }
+        let stamp = if stamp > 0.0 { stamp } else { entry.stamp };
+        trajectory.push(
+            stamp,
+            Se3::from_parts(Translation3::new(x, y, z), rotation.to_rotation_matrix()),
+        );
+    }
+    Ok(trajectory)
 }
