@@ -475,4 +475,25 @@ mod tests {
         let text = toml::to_string(&config).unwrap();
         assert_eq!(Config::from_toml(&text).unwrap(), config);
     }
+
+    #[test]
+    fn a_glob_takes_recordings_and_their_topics() {
+        let dir = std::env::temp_dir().join(format!("dopslam-glob-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("folder")).unwrap();
+        for file in ["a.bag", "b.mcap", "notes.txt"] {
+            std::fs::write(dir.join(file), "x").unwrap();
+        }
+        let pattern = dir.join("*").to_string_lossy().into_owned();
+        let m = parse(&format!(
+            "[[sequence]]\nglob = {pattern:?}\nrgb_topic = \"/cam/rgb\"\nground_truth_topic = \"/mocap\"\n"
+        ))
+        .unwrap();
+        let planned = m.plan().unwrap();
+        let names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(names, ["a", "b", "folder"], "the text file is no sequence");
+        let dataset = &planned[0].config.dataset;
+        assert_eq!(dataset.rgb_topic.as_deref(), Some("/cam/rgb"));
+        assert_eq!(dataset.ground_truth_topic.as_deref(), Some("/mocap"));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
