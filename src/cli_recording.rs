@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::Result;
 use clap::Args;
 use dopslam::config::Config;
+use dopslam::io::recording::convert::{self, Layout};
 use dopslam::io::recording::RecordingSequence;
 use dopslam::io::sequence::Sequence;
 
@@ -54,15 +55,22 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     for (name, msg_type, count, rate) in &d.topics {
         println!("  {name:<40} {msg_type:<28} {count:>7} messages  {rate:>6.1} Hz");
     }
-    let registration = if d.registered {
-        "recorded in the colour camera"
+    if d.stereo {
+        println!(
+            "stereo pair: left {}, right {} (rectified)",
+            d.colour, d.depth
+        );
     } else {
-        "in its own camera: registered into the colour camera (/tf_static)"
-    };
-    println!(
-        "colour: {}\ndepth: {} ({registration}), {} units per metre",
-        d.colour, d.depth, d.depth_scale
-    );
+        let registration = if d.registered {
+            "recorded in the colour camera"
+        } else {
+            "in its own camera: registered into the colour camera (/tf_static)"
+        };
+        println!(
+            "colour: {}\ndepth: {} ({registration}), {} units per metre",
+            d.colour, d.depth, d.depth_scale
+        );
+    }
     for note in &d.notes {
         println!("  {note}");
     }
@@ -71,8 +79,14 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
         None => println!("camera info: none (give the calibration with --settings or --camera)"),
     }
     println!(
-        "frames: {} colour/depth pairs (tolerance {} s)",
-        d.frames, config.dataset.max_difference
+        "frames: {} {} pairs (tolerance {} s)",
+        d.frames,
+        if d.stereo {
+            "left/right"
+        } else {
+            "colour/depth"
+        },
+        config.dataset.max_difference
     );
     if !recording.is_empty() {
         let (first, last) = (
@@ -84,7 +98,7 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     if let Some(c) = recording.calibration() {
         let k = &c.camera;
         println!(
-            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}, {:.1} Hz",
+            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}, {:.1} Hz{}",
             k.fx,
             k.fy,
             k.cx,
@@ -92,7 +106,11 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
             k.width,
             k.height,
             k.distortion,
-            c.fps.unwrap_or(0.0)
+            c.fps.unwrap_or(0.0),
+            c.bf.map_or(String::new(), |bf| format!(
+                ", bf {bf:.3} (baseline {:.4} m)",
+                bf / k.fx
+            ))
         );
     }
     if let Some(truth) = recording.ground_truth() {
@@ -110,10 +128,12 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
 
 /// The layouts `dopslam convert` writes.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum Layout {
-    /// TUM RGB-D: rgb/ and depth/ PNGs (16-bit, 5000 per metre), rgb.txt, depth.txt,
-    /// calibration.yaml.
+pub enum LayoutArg {
+    /// TUM RGB-D (RGB-D recordings): rgb/ and depth/ PNGs (16-bit, 5000 per metre),
+    /// rgb.txt, depth.txt, calibration.yaml.
     Tum,
+    /// KITTI odometry (stereo recordings): image_0/, image_1/, times.txt, calib.txt.
+    Kitti,
 }
 
 /// `dopslam convert`.
@@ -123,7 +143,7 @@ pub struct ConvertArgs {
     input: std::path::PathBuf,
     /// The layout to write.
     #[arg(long, value_enum, default_value = "tum")]
-    to: Layout,
+    to: LayoutArg,
     /// The output folder: must not exist yet (or be empty).
     out: std::path::PathBuf,
     /// A TOML config ([dataset]: depth scale, tolerance, topics).
@@ -139,16 +159,18 @@ pub struct ConvertArgs {
 /// Runs `dopslam convert`.
 pub fn run_convert(args: ConvertArgs, mut config: Config) -> Result<()> {
     args.topics.apply(&mut config);
+    let layout = match args.to {
+        LayoutArg::Tum => Layout::Tum,
+        LayoutArg::Kitti => Layout::Kitti,
+    };
     // The output is checked before the recording is scanned (which can take a while).
-    let partial = dopslam::io::recording::convert::prepare(&args.out)?;
+    let partial = convert::prepare(&args.out, layout)?;
     std::fs::remove_dir_all(&partial)?;
     let sequence = dopslam::run::open_sequence(&args.input, &config)?;
     let frames = args.frames.unwrap_or(usize::MAX).min(sequence.len());
-    let Layout::Tum = args.to;
-    let written =
-        dopslam::io::recording::convert::to_tum(sequence.as_ref(), &args.out, frames, true)?;
+    let written = convert::convert(sequence.as_ref(), &args.out, frames, layout, true)?;
     println!(
-        "wrote {written} frames to {} (TUM layout)",
+        "wrote {written} frames to {} ({layout:?} layout)",
         args.out.display()
     );
     Ok(())

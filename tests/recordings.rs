@@ -468,3 +468,59 @@ fn a_realsense_recording_is_registered_into_the_colour_camera() {
     // The depth camera's narrower view ((535/570)^2 = 0.88 of the colour image) bounds it.
     assert!(coverage >= 0.85, "{coverage}");
 }
+
+#[test]
+fn a_stereo_bag_tracks_as_its_kitti_folder_and_converts_back() {
+    let Some(python) = writer_python("a_stereo_bag_tracks_as_its_kitti_folder_and_converts_back")
+    else {
+        return;
+    };
+    let dir = common::temp_dir("recordings-stereo");
+    let seq = dir.join("seq");
+    let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/street_demo.toml");
+    let (ok, _, err) = common::dopslam(&[
+        "synth",
+        "--config",
+        &preset.to_string_lossy(),
+        "--out",
+        &seq.to_string_lossy(),
+        "--frames",
+        "20",
+    ]);
+    assert!(ok, "{err}");
+    let kitti = seq.join("kitti/sequences/00");
+    let (ok, folder, err) = track(&kitti, &dir.join("out-folder"), "");
+    assert!(ok, "{err}");
+    let bag = dir.join("stereo.bag");
+    write(&python, &seq, &bag, &["--format", "ros1", "--stereo"]);
+    let (ok, out, err) = common::dopslam(&["info", &bag.to_string_lossy()]);
+    assert!(
+        ok && out.contains("stereo pair: left /stereo/left/image_rect")
+            && out.contains("baseline 0.5372"),
+        "{out}{err}"
+    );
+    let (ok, trajectory, err) = track(&bag, &dir.join("out-bag"), "");
+    assert!(ok, "{err}");
+    assert_eq!(
+        trajectory, folder,
+        "the stereo bag's trajectory differs from the folder's"
+    );
+    // Back to a KITTI folder: the same again; and not to the TUM layout.
+    let converted = dir.join("converted");
+    let (ok, _, err) = common::dopslam(&[
+        "convert",
+        &bag.to_string_lossy(),
+        "--to",
+        "kitti",
+        &converted.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, trajectory, err) = track(&converted, &dir.join("out-converted"), "");
+    assert!(ok && trajectory == folder, "{err}");
+    let (ok, _, err) = common::dopslam(&[
+        "convert",
+        &bag.to_string_lossy(),
+        &dir.join("tum").to_string_lossy(),
+    ]);
+    assert!(!ok && err.contains("--to kitti"), "{err}");
+}

@@ -13,6 +13,9 @@ never runs it. Topics follow TUM's bags: /camera/rgb/image_color,
       [--repeat K]  (each frame written K times with new stamps: a large recording)
       [--shuffle]  (messages written out of stamp order)  [--no-depth]
       [--ground-truth]  (groundtruth.txt as PoseStamped on /ground_truth)
+    write_recording.py SEQ OUT --format ... --stereo
+      (the stereo pair of SEQ/kitti/sequences/00 as mono8 /stereo/left|right/image_rect
+      with their camera_info, the right one's P holding -fx * baseline)
       [--corrupt-frame K]  (frame K's JPEG zeroed after its first 20 bytes)  [--rgb 8UC3]  (an encoding no
       reader takes for colour)
 
@@ -64,6 +67,41 @@ def shuffled(events):
     return out
 
 
+def stereo(args, header, RawImage, CameraInfo, Roi, ros1):
+    """The messages of a synth folder's KITTI stereo pair: (stamp ns, topic, message)."""
+    kitti = args.seq / 'kitti' / 'sequences' / '00'
+    times = [float(t) for t in (kitti / 'times.txt').read_text().split()]
+    if args.frames:
+        times = times[:args.frames]
+    calib = {line.split(':')[0]: [float(v) for v in line.split(':')[1].split()]
+             for line in (kitti / 'calib.txt').read_text().splitlines() if ':' in line}
+    first = Image.open(kitti / 'image_0' / '000000.png')
+    width, height = first.size
+
+    def info(stamp_ns, p):
+        matrices = dict(d=np.zeros(5), k=np.array([p[0], 0, p[2], 0, p[5], p[6], 0, 0, 1.0]),
+                        r=np.eye(3).flatten(), p=np.array(p))
+        if ros1:
+            matrices = {k.upper(): v for k, v in matrices.items()}
+        return CameraInfo(header=header(stamp_ns, 'camera'), height=height, width=width,
+                          distortion_model='plumb_bob', binning_x=0, binning_y=0,
+                          roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **matrices)
+
+    events = []
+    for index, t in enumerate(times):
+        ns = int(round(t * 1e9))
+        for side, folder, p in (('left', 'image_0', calib['P0']), ('right', 'image_1', calib['P1'])):
+            grey = np.asarray(Image.open(kitti / folder / f'{index:06d}.png').convert('L'))
+            events.append((ns, f'/stereo/{side}/image_rect', RawImage(
+                header=header(ns, side), height=height, width=width, encoding='mono8', is_bigendian=0,
+                step=width, data=np.ascontiguousarray(grey).reshape(-1))))
+            events.append((ns, f'/stereo/{side}/camera_info', info(ns, p)))
+    topics = [('/stereo/left/image_rect', 'sensor_msgs/msg/Image'), ('/stereo/right/image_rect', 'sensor_msgs/msg/Image'),
+              ('/stereo/left/camera_info', 'sensor_msgs/msg/CameraInfo'),
+              ('/stereo/right/camera_info', 'sensor_msgs/msg/CameraInfo')]
+    return events, topics
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('seq', type=Path)
@@ -77,6 +115,7 @@ def main():
     parser.add_argument('--shuffle', action='store_true')
     parser.add_argument('--no-depth', action='store_true')
     parser.add_argument('--corrupt-frame', type=int, default=-1)
+    parser.add_argument('--stereo', action='store_true')
     parser.add_argument('--ground-truth', action='store_true',
                         help='also groundtruth.txt as geometry_msgs/PoseStamped on /ground_truth')
     args = parser.parse_args()
@@ -173,6 +212,9 @@ def main():
         return PoseStamped(header=header(stamp_ns, 'world'), pose=Pose(
             position=Point(x=v[0], y=v[1], z=v[2]), orientation=Quaternion(x=v[3], y=v[4], z=v[5], w=v[6])))
 
+    if args.stereo:
+        stereo_events, topics = stereo(args, header, RawImage, CameraInfo, Roi, ros1)
+
     if ros1:
         from rosbags.rosbag1 import Writer
         writer = Writer(args.out)
@@ -190,7 +232,11 @@ def main():
     written = 0
     with writer:
         conns = {topic: add(topic, kind) for topic, kind in topics}
-        for repeat in range(args.repeat):
+        if args.stereo:
+            for ns, topic, msg in stereo_events:
+                writer.write(conns[topic], ns, serialise(msg, dict(topics)[topic]))
+                written += 1
+        for repeat in range(0 if args.stereo else args.repeat):
             shift = repeat * span_ns
             events = []
             for index, (stamp, path) in enumerate(rgb_rows):

@@ -9,14 +9,14 @@
 
 use std::path::Path;
 
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 
 use super::messages::{self, Wire};
 use super::register::Registration;
 use super::topics::Chosen;
 use super::{Catalog, Entry, Store, COMPRESSED};
 use crate::io::file_list::associate_greedy;
-use crate::io::image_files::DepthImage;
+use crate::io::image_files::{grey_from_rgb, DepthImage};
 use crate::io::IoError;
 
 /// One frame: its colour and depth messages and whether each is compressed.
@@ -75,6 +75,44 @@ impl Reader<'_> {
             path: self.path.to_path_buf(),
             message: format!("the {what} image stamped {:.6}: {message}", entry.stamp),
         }
+    }
+
+    /// The grey image of one camera of a stereo pair: `mono8` as it is, other
+    /// encodings through [`grey_from_rgb`], compressed ones through the decoder's own.
+    pub fn grey(&self, entry: &Entry, compressed: bool) -> Result<GrayImage, IoError> {
+        let data = self.store.read(entry.at)?;
+        let bad = |m: String| self.bad(entry, "stereo", m);
+        if compressed {
+            let c = messages::compressed(&data, self.wire).map_err(bad)?;
+            let image = image::load_from_memory(c.data)
+                .map_err(|e| bad(format!("{} data: {e}", c.format)))?;
+            return Ok(image.to_luma8());
+        }
+        let raw = messages::image(&data, self.wire).map_err(bad)?;
+        if raw.encoding == "mono8" {
+            let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
+            if step < w {
+                return Err(bad(format!(
+                    "step {step} is shorter than a row of {w} pixels of mono8"
+                )));
+            }
+            let grey: Vec<u8> = raw
+                .data
+                .chunks(step)
+                .take(h)
+                .flat_map(|row| &row[..w])
+                .copied()
+                .collect();
+            return Ok(GrayImage::from_raw(raw.width, raw.height, grey)
+                .expect("rows of the announced size"));
+        }
+        let pair = FramePair {
+            colour: *entry,
+            depth: *entry,
+            colour_compressed: false,
+            depth_compressed: false,
+        };
+        Ok(grey_from_rgb(&self.colour(&pair)?))
     }
 
     /// The colour image of a frame.
@@ -246,6 +284,8 @@ pub struct Description {
     pub colour: String,
     pub depth: String,
     pub camera_info: Option<String>,
+    /// A stereo pair: `colour` is the left image topic, `depth` the right one.
+    pub stereo: bool,
     pub frames: usize,
     pub warnings: Vec<String>,
     /// What the reader did beyond the plain topics (device clock stamps).
@@ -277,6 +317,7 @@ impl Description {
             colour: chosen.colour.clone(),
             depth: chosen.depth.clone(),
             camera_info: chosen.camera_info.clone(),
+            stereo: chosen.stereo.is_some(),
             frames,
             warnings: catalog.warnings.clone(),
             notes: Vec::new(),

@@ -133,7 +133,7 @@ impl<'a> Cursor<'a> {
         let sec = self.u32("header.stamp.sec")?;
         let nsec = self.u32("header.stamp.nsec")?;
         let frame = self.string("header.frame_id")?;
-        Ok((sec as f64 + nsec as f64 * 1e-9, frame))
+        Ok((sec as f64 + nsec as f64 / 1e9, frame))
     }
 }
 

@@ -207,7 +207,9 @@ pub struct RecordingSequence {
     path: PathBuf,
     store: Box<dyn Store>,
     wire: Wire,
+    /// Colour and depth, or left and right of a stereo pair.
     frames: Vec<frames::FramePair>,
+    sensor: SensorKind,
     calibration: Option<Calibration>,
     depth_scale: f64,
     /// How depth reaches the colour camera, when it is recorded in its own.
@@ -257,6 +259,23 @@ impl RecordingSequence {
             )?),
             None => None,
         };
+        let calibration = match (&choice.stereo, calibration) {
+            (Some(right_info), Some(mut calibration)) => {
+                calibration.bf = Some(topics::stereo_bf(
+                    path,
+                    &catalog,
+                    store.as_ref(),
+                    right_info.as_deref(),
+                )?);
+                Some(calibration)
+            }
+            (_, calibration) => calibration,
+        };
+        let sensor = if choice.stereo.is_some() {
+            SensorKind::Stereo
+        } else {
+            SensorKind::Rgbd
+        };
         let name = path
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())
@@ -273,6 +292,7 @@ impl RecordingSequence {
             frames,
             calibration,
             depth_scale,
+            sensor,
             registration,
             ground_truth,
             description,
@@ -299,7 +319,7 @@ impl Sequence for RecordingSequence {
     }
 
     fn sensor(&self) -> SensorKind {
-        SensorKind::Rgbd
+        self.sensor
     }
 
     fn len(&self) -> usize {
@@ -313,6 +333,27 @@ impl Sequence for RecordingSequence {
     fn load(&self, index: usize) -> Result<Frame, IoError> {
         let pair = &self.frames[index];
         let reader = self.reader();
+        if self.sensor == SensorKind::Stereo {
+            let (left, right) = (
+                reader.grey(&pair.colour, pair.colour_compressed)?,
+                reader.grey(&pair.depth, pair.depth_compressed)?,
+            );
+            if left.dimensions() != right.dimensions() {
+                let (l, r) = (left.dimensions(), right.dimensions());
+                return Err(IoError::invalid(
+                    &self.path,
+                    format!(
+                        "frame {index}: the left image is {}x{}, the right {}x{}",
+                        l.0, l.1, r.0, r.1
+                    ),
+                ));
+            }
+            return Ok(Frame {
+                index,
+                timestamp: pair.colour.stamp,
+                images: FrameImages::Stereo { left, right },
+            });
+        }
         let rgb = reader.colour(pair)?;
         let depth = reader.depth(pair, self.depth_scale)?;
         if (rgb.width(), rgb.height()) != (depth.width, depth.height) {
@@ -332,6 +373,9 @@ impl Sequence for RecordingSequence {
     }
 
     fn load_depth(&self, index: usize) -> Result<Option<super::image_files::DepthImage>, IoError> {
+        if self.sensor == SensorKind::Stereo {
+            return Ok(None);
+        }
         let reader = self.reader();
         Ok(Some(reader.depth(&self.frames[index], self.depth_scale)?))
     }

@@ -279,7 +279,7 @@ impl Ros1Bag {
                 OP_MESSAGE => {
                     let id = header.u32("conn").map_err(in_chunk)?;
                     let time = header.u64("time").map_err(in_chunk)?;
-                    let received = (time & 0xffff_ffff) as f64 + (time >> 32) as f64 * 1e-9;
+                    let received = (time & 0xffff_ffff) as f64 + (time >> 32) as f64 / 1e9;
                     catalog.add_message(id, Location(chunk_pos, offset as u64), data, received);
                 }
                 _ => {}

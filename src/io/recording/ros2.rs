@@ -88,7 +88,7 @@ pub fn open_sqlite(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
                 topic as u64,
                 Location(id as u64, 0),
                 data,
-                time as f64 * 1e-9,
+                time as f64 / 1e9,
             );
         }
     }
@@ -162,7 +162,7 @@ pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
                 message.channel.id,
                 Location(i as u64, n as u64),
                 &message.data,
-                message.log_time as f64 * 1e-9,
+                message.log_time as f64 / 1e9,
             );
         }
         release(&map, index);

@@ -31,9 +31,15 @@ pub struct TopicChoice {
 /// The topics chosen.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Chosen {
+    /// The colour image; of a stereo pair, the left image.
     pub colour: String,
+    /// The depth image; of a stereo pair, the right image.
     pub depth: String,
+    /// The colour (left) camera's info.
     pub camera_info: Option<String>,
+    /// A rectified stereo pair (no depth topic, a `left` and a `right` image topic):
+    /// the right camera's info, whose projection holds the baseline.
+    pub stereo: Option<Option<String>>,
 }
 
 /// What a stream of images holds, from its first message.
@@ -169,6 +175,11 @@ pub fn choose(
             Content::Other => {}
         }
     }
+    if choice.depth.is_none() && depth.is_empty() {
+        if let Some(pair) = stereo_pair(catalog, &colour, choice) {
+            return Ok(pair);
+        }
+    }
     let colour = match &choice.rgb {
         Some(name) => named(path, catalog, name, &images, "rgb_topic")?
             .name
@@ -205,7 +216,53 @@ pub fn choose(
         colour,
         depth,
         camera_info,
+        stereo: None,
     })
+}
+
+/// A rectified stereo pair among the image topics: one whose name has `left` (or the
+/// one named by `rgb_topic`) and the same name with `right`.
+fn stereo_pair(catalog: &Catalog, images: &[(u8, &Topic)], choice: &TopicChoice) -> Option<Chosen> {
+    let mut lefts: Vec<&str> = match &choice.rgb {
+        Some(name) => vec![name.as_str()],
+        None => images
+            .iter()
+            .map(|(_, t)| t.name.as_str())
+            .filter(|n| n.contains("left"))
+            .collect(),
+    };
+    lefts.sort();
+    lefts.into_iter().find_map(|left| {
+        let right = left.replacen("left", "right", 1);
+        images.iter().any(|(_, t)| t.name == right).then(|| Chosen {
+            colour: left.to_owned(),
+            camera_info: choice
+                .camera_info
+                .clone()
+                .or_else(|| nearest_info(catalog, left)),
+            stereo: Some(nearest_info(catalog, &right)),
+            depth: right,
+        })
+    })
+}
+
+/// The baseline times the focal length (pixel-metres) of a rectified stereo pair from
+/// the right camera's projection, \(P_{03} = -f_x b\).
+pub fn stereo_bf(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    right_info: Option<&str>,
+) -> Result<f64, IoError> {
+    let missing = || {
+        IoError::invalid(path, "a stereo pair needs the right camera's sensor_msgs/CameraInfo with its baseline in P (P[3] = -fx * baseline)")
+    };
+    let (info, _) = camera_of(path, catalog, store, right_info.ok_or_else(missing)?)?;
+    let bf = -info.p[3];
+    if !(bf.is_finite() && bf > 0.0) {
+        return Err(missing());
+    }
+    Ok(bf)
 }
 
 /// The `CameraInfo` topic whose name shares the longest prefix with `image`'s.
@@ -287,6 +344,9 @@ pub fn registration(
     store: &dyn Store,
     chosen: &Chosen,
 ) -> Result<Option<Registration>, IoError> {
+    if chosen.stereo.is_some() {
+        return Ok(None);
+    }
     let (Some(colour_info), Some(depth_info)) =
         (&chosen.camera_info, nearest_info(catalog, &chosen.depth))
     else {
