@@ -55,7 +55,7 @@ enum Command {
     CompareMaps(cli_maps::CompareArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS bag, MCAP): frames, pairing, topics, calibration, ground truth.
     Info(InfoArgs),
-    /// Write a recording (ROS bag, MCAP) as a TUM RGB-D folder that every tool reads.
+    /// Write a recording (ROS bag, MCAP, RealSense) as a TUM RGB-D or KITTI stereo folder that every tool reads.
     Convert(cli_recording::ConvertArgs),
     /// Detect objects (COCO) in an image or a sequence: prints them and draws boxes onto PNGs.
     Detect(DetectArgs),

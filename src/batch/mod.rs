@@ -522,7 +522,7 @@ fn prepare_sequence(
 ) -> (PathBuf, Option<String>) {
     match &sequence.source {
         SequenceSource::Folder(path) => {
-            let readable = path.is_dir() || crate::io::recording::is_recording(path) && path.exists();
+            let readable = path.is_dir() || (crate::io::recording::is_recording(path) && path.exists());
             let problem = (!readable)
                 .then(|| format!("{}: no such sequence folder or recording", path.display()));
             (path.clone(), problem)
