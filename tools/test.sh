@@ -11,9 +11,9 @@ command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
 # The independent writers the recording tests use (tests/recordings.rs: the Python
 # rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
-# venv setup.sh made; with them
-# installed, a test that cannot find them fails instead of skipping.
-# pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of the tests only.
+# venv setup.sh made; with them installed, a test that cannot find them fails instead
+# of skipping. pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of
+# the tests only.
 if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
