@@ -7,7 +7,7 @@ use anyhow::Result;
 use clap::Args;
 use dopslam::config::Config;
 use dopslam::io::recording::convert::{self, Layout};
-use dopslam::io::recording::RecordingSequence;
+use dopslam::io::recording::{RecordingSequence, TopicChoice};
 use dopslam::io::sequence::Sequence;
 
 /// Which topics of a recording make the frames (override `[dataset]`'s keys).
@@ -32,17 +32,12 @@ pub struct TopicArgs {
 impl TopicArgs {
     /// Writes the topics given into the config's `[dataset]`.
     pub fn apply(&self, config: &mut Config) {
-        let dataset = &mut config.dataset;
-        for (given, key) in [
-            (&self.rgb_topic, &mut dataset.rgb_topic),
-            (&self.depth_topic, &mut dataset.depth_topic),
-            (&self.camera_info_topic, &mut dataset.camera_info_topic),
-            (&self.ground_truth_topic, &mut dataset.ground_truth_topic),
-        ] {
-            if given.is_some() {
-                key.clone_from(given);
-            }
-        }
+        config.dataset.override_topics(&TopicChoice {
+            rgb: self.rgb_topic.clone(),
+            depth: self.depth_topic.clone(),
+            camera_info: self.camera_info_topic.clone(),
+            ground_truth: self.ground_truth_topic.clone(),
+        });
     }
 }
 

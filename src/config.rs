@@ -72,17 +72,38 @@ impl DatasetConfig {
         }
     }
 
+    /// The recording topics this config names.
+    pub fn topics(&self) -> TopicChoice {
+        TopicChoice {
+            rgb: self.rgb_topic.clone(),
+            depth: self.depth_topic.clone(),
+            camera_info: self.camera_info_topic.clone(),
+            ground_truth: self.ground_truth_topic.clone(),
+        }
+    }
+
+    /// Each topic `given` names replaces this config's (command-line options, batch
+    /// entries).
+    pub fn override_topics(&mut self, given: &TopicChoice) {
+        let keys = [
+            (&given.rgb, &mut self.rgb_topic),
+            (&given.depth, &mut self.depth_topic),
+            (&given.camera_info, &mut self.camera_info_topic),
+            (&given.ground_truth, &mut self.ground_truth_topic),
+        ];
+        for (given, key) in keys {
+            if given.is_some() {
+                key.clone_from(given);
+            }
+        }
+    }
+
     /// How to read a recording (ROS bag, MCAP) under this config.
     pub fn recording_options(&self) -> RecordingOptions {
         RecordingOptions {
-            topics: TopicChoice {
-                rgb: self.rgb_topic.clone(),
-                depth: self.depth_topic.clone(),
-                camera_info: self.camera_info_topic.clone(),
-            },
+            topics: self.topics(),
             depth_scale: self.depth_scale,
             max_difference: self.max_difference,
-            ground_truth_topic: self.ground_truth_topic.clone(),
         }
     }
 }

@@ -256,17 +256,12 @@ impl Manifest {
             if entry.depth_scale.is_some() {
                 config.dataset.depth_scale = entry.depth_scale;
             }
-            let topics = [
-                (&entry.rgb_topic, &mut config.dataset.rgb_topic),
-                (&entry.depth_topic, &mut config.dataset.depth_topic),
-                (&entry.camera_info_topic, &mut config.dataset.camera_info_topic),
-                (&entry.ground_truth_topic, &mut config.dataset.ground_truth_topic),
-            ];
-            for (given, key) in topics {
-                if given.is_some() {
-                    key.clone_from(given);
-                }
-            }
+            config.dataset.override_topics(&crate::io::recording::TopicChoice {
+                rgb: entry.rgb_topic.clone(),
+                depth: entry.depth_topic.clone(),
+                camera_info: entry.camera_info_topic.clone(),
+                ground_truth: entry.ground_truth_topic.clone(),
+            });
             if let Some(source) = entry.detections.or(self.batch.detections) {
                 config.detector.source = source;
             }

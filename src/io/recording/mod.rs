@@ -169,9 +169,6 @@ pub struct RecordingOptions {
     pub depth_scale: Option<f64>,
     /// Tolerance in seconds for pairing colour and depth stamps.
     pub max_difference: f64,
-    /// A pose topic to read as the ground truth (`PoseStamped`, `Odometry`,
-    /// `TransformStamped`).
-    pub ground_truth_topic: Option<String>,
 }
 
 /// Whether `path` looks like a recording rather than a sequence folder.
@@ -237,7 +234,7 @@ impl RecordingSequence {
         let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
         let registration = topics::registration(path, &catalog, store.as_ref(), &choice)?;
         let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
-        let ground_truth = match &options.ground_truth_topic {
+        let ground_truth = match &options.topics.ground_truth {
             Some(topic) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
             None => None,
         };

@@ -20,12 +20,15 @@ use crate::io::orbslam_settings::Calibration;
 use crate::io::IoError;
 use crate::io::Trajectory;
 
-/// The topics the user named (`[dataset] rgb_topic`, `depth_topic`, `camera_info_topic`).
+/// The topics the user named (`[dataset] rgb_topic`, `depth_topic`, `camera_info_topic`,
+/// `ground_truth_topic`, the same options of the command line and batch manifests).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TopicChoice {
     pub rgb: Option<String>,
     pub depth: Option<String>,
     pub camera_info: Option<String>,
+    /// A pose topic read as the ground truth; never chosen unnamed.
+    pub ground_truth: Option<String>,
 }
 
 /// The topics chosen.
