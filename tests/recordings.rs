@@ -37,7 +37,12 @@ fn writer_python(test: &str) -> Option<PathBuf> {
 
 /// Writes `seq` as a recording at `out` with the writer's `options`.
 fn write(python: &Path, seq: &Path, out: &Path, options: &[&str]) {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/write_recording.py");
+    run_writer(python, "write_recording.py", seq, out, options);
+}
+
+/// Runs the writer `tools/SCRIPT SEQ OUT OPTIONS...` and checks that it succeeded.
+fn run_writer(python: &Path, script: &str, seq: &Path, out: &Path, options: &[&str]) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools").join(script);
     let output = std::process::Command::new(python)
         .arg(script)
         .arg(seq)
@@ -398,27 +403,9 @@ fn a_realsense_recording_is_registered_into_the_colour_camera() {
     let preset = dir.join("preset.toml");
     std::fs::write(&preset, DEPTH_CAMERA_PRESET).unwrap();
     let seq = dir.join("seq");
-    let (ok, _, err) = common::dopslam(&[
-        "synth",
-        "--config",
-        &preset.to_string_lossy(),
-        "--out",
-        &seq.to_string_lossy(),
-    ]);
-    assert!(ok, "{err}");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/write_realsense.py");
+    common::synth_preset(&preset, &seq, 6);
     let recording = dir.join("realsense.db3");
-    let output = std::process::Command::new(&python)
-        .arg(script)
-        .arg(&seq)
-        .arg(&recording)
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    run_writer(&python, "write_realsense.py", &seq, &recording, &[]);
 
     let sequence = RecordingSequence::open(
         &recording,
@@ -478,16 +465,7 @@ fn a_stereo_bag_tracks_as_its_kitti_folder_and_converts_back() {
     let dir = common::temp_dir("recordings-stereo");
     let seq = dir.join("seq");
     let preset = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/street_demo.toml");
-    let (ok, _, err) = common::dopslam(&[
-        "synth",
-        "--config",
-        &preset.to_string_lossy(),
-        "--out",
-        &seq.to_string_lossy(),
-        "--frames",
-        "20",
-    ]);
-    assert!(ok, "{err}");
+    common::synth_preset(&preset, &seq, 20);
     let kitti = seq.join("kitti/sequences/00");
     let (ok, folder, err) = track(&kitti, &dir.join("out-folder"), "");
     assert!(ok, "{err}");

@@ -17,22 +17,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-
-def read_yaml(path):
-    values = {}
-    for line in Path(path).read_text().splitlines():
-        if ':' in line and not line.startswith('%'):
-            key, value = line.split(':', 1)
-            try:
-                values[key.strip()] = float(value)
-            except ValueError:
-                pass
-    return values
-
-
-def read_list(path):
-    return [line.split()[:2] for line in Path(path).read_text().splitlines()
-            if line.strip() and not line.startswith('#')]
+from write_recording import read_list, read_settings  # the folder's lists and settings, as there
 
 
 def main():
@@ -43,7 +28,7 @@ def main():
     args = parser.parse_args()
     import pyrealsense2 as rs
 
-    colour_cal, depth_cal = read_yaml(args.seq / 'calibration.yaml'), read_yaml(args.seq / 'depth_camera.yaml')
+    colour_cal, depth_cal = read_settings(args.seq / 'calibration.yaml'), read_settings(args.seq / 'depth_camera.yaml')
 
     def intrinsics(cal):
         i = rs.intrinsics()

@@ -41,9 +41,10 @@ def read_list(path):
     return rows
 
 
-def read_calibration(seq):
+def read_settings(path):
+    """The numeric keys of an ORB-SLAM2 settings file (`Camera.fx: 535.4`)."""
     values = {}
-    for line in (seq / 'calibration.yaml').read_text().splitlines():
+    for line in Path(path).read_text().splitlines():
         if ':' in line and not line.startswith('%'):
             key, value = line.split(':', 1)
             try:
@@ -129,7 +130,7 @@ def main():
     CameraInfo, Roi = T['sensor_msgs/msg/CameraInfo'], T['sensor_msgs/msg/RegionOfInterest']
 
     seq = args.seq
-    cal = read_calibration(seq)
+    cal = read_settings(seq / 'calibration.yaml')
     width, height = int(cal['Camera.width']), int(cal['Camera.height'])
     rgb_rows, depth_rows = read_list(seq / 'rgb.txt'), read_list(seq / 'depth.txt')
     if args.frames:

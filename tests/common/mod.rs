@@ -98,6 +98,11 @@ pub fn dopslam(args: &[&str]) -> (bool, String, String) {
 pub fn synth_static_room(seq: &std::path::Path, frames: usize) {
     let preset =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/static_room.toml");
+    synth_preset(&preset, seq, frames);
+}
+
+/// `frames` frames of the synth preset at `preset` written by `dopslam synth` into `seq`.
+pub fn synth_preset(preset: &std::path::Path, seq: &std::path::Path, frames: usize) {
     let frames = frames.to_string();
     let (ok, _, err) = dopslam(&[
         "synth",

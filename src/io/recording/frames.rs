@@ -106,70 +106,38 @@ impl Reader<'_> {
             return Ok(GrayImage::from_raw(raw.width, raw.height, grey)
                 .expect("rows of the announced size"));
         }
-        let pair = FramePair {
-            colour: *entry,
-            depth: *entry,
-            colour_compressed: false,
-            depth_compressed: false,
-        };
-        Ok(grey_from_rgb(&self.colour(&pair)?))
+        Ok(grey_from_rgb(&rgb_from_raw(&raw).map_err(bad)?))
     }
 
     /// The colour image of a frame.
-    pub fn colour(&self, pair: &FramePair) -> Result<RgbImage, IoError> {
-        let entry = &pair.colour;
+    pub fn colour(&self, entry: &Entry, compressed: bool) -> Result<RgbImage, IoError> {
         let data = self.store.read(entry.at)?;
         let bad = |m: String| self.bad(entry, "colour", m);
-        if pair.colour_compressed {
+        if compressed {
             let c = messages::compressed(&data, self.wire).map_err(bad)?;
             let image = image::load_from_memory(c.data)
                 .map_err(|e| bad(format!("{} data: {e}", c.format)))?;
             return Ok(image.to_rgb8());
         }
         let raw = messages::image(&data, self.wire).map_err(bad)?;
-        let channels = match raw.encoding.as_str() {
-            "rgb8" | "bgr8" => 3,
-            "rgba8" | "bgra8" => 4,
-            "mono8" => 1,
-            other => return Err(bad(format!("encoding {other:?} is not a colour encoding read here (rgb8, bgr8, rgba8, bgra8, mono8)"))),
-        };
-        let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
-        if step < w * channels {
-            return Err(bad(format!(
-                "step {step} is shorter than a row of {w} pixels of {}",
-                raw.encoding
-            )));
-        }
-        let swap = raw.encoding.starts_with("bgr");
-        let mut rgb = Vec::with_capacity(w * h * 3);
-        for row in raw.data.chunks(step).take(h) {
-            let row = &row[..w * channels];
-            match (channels, swap) {
-                (3, false) => rgb.extend_from_slice(row),
-                (1, _) => rgb.extend(row.iter().flat_map(|&g| [g; 3])),
-                (_, false) => rgb.extend(
-                    row.chunks_exact(channels)
-                        .flat_map(|px| [px[0], px[1], px[2]]),
-                ),
-                (_, true) => rgb.extend(
-                    row.chunks_exact(channels)
-                        .flat_map(|px| [px[2], px[1], px[0]]),
-                ),
-            }
-        }
-        Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
+        rgb_from_raw(&raw).map_err(bad)
     }
 
     /// The depth image of a frame in metres, in the colour camera.
-    pub fn depth(&self, pair: &FramePair, depth_scale: f64) -> Result<DepthImage, IoError> {
-        let depth = self.raw_depth(pair, depth_scale)?;
+    pub fn depth(
+        &self,
+        entry: &Entry,
+        compressed: bool,
+        depth_scale: f64,
+    ) -> Result<DepthImage, IoError> {
+        let depth = self.raw_depth(entry, compressed, depth_scale)?;
         let Some(registration) = self.registration else {
             return Ok(depth);
         };
         registration.apply(&depth).ok_or_else(|| {
             let size = format!("{}x{}", depth.width, depth.height);
             self.bad(
-                &pair.depth,
+                entry,
                 "depth",
                 format!("{size}, not the size its camera info gives"),
             )
@@ -177,11 +145,15 @@ impl Reader<'_> {
     }
 
     /// The depth image of a frame in metres, in its own camera.
-    fn raw_depth(&self, pair: &FramePair, depth_scale: f64) -> Result<DepthImage, IoError> {
-        let entry = &pair.depth;
+    fn raw_depth(
+        &self,
+        entry: &Entry,
+        compressed: bool,
+        depth_scale: f64,
+    ) -> Result<DepthImage, IoError> {
         let data = self.store.read(entry.at)?;
         let bad = |m: String| self.bad(entry, "depth", m);
-        if pair.depth_compressed {
+        if compressed {
             let c = messages::compressed(&data, self.wire).map_err(bad)?;
             return compressed_depth(&c, depth_scale).map_err(bad);
         }
@@ -226,6 +198,46 @@ impl Reader<'_> {
             metres,
         })
     }
+}
+
+/// An RGB image of a raw colour or grey `sensor_msgs/Image` (`rgb8`, `bgr8`, `rgba8`,
+/// `bgra8`, `mono8`).
+fn rgb_from_raw(raw: &messages::RawImage) -> Result<RgbImage, String> {
+    let channels = match raw.encoding.as_str() {
+        "rgb8" | "bgr8" => 3,
+        "rgba8" | "bgra8" => 4,
+        "mono8" => 1,
+        other => {
+            return Err(format!(
+                "encoding {other:?} is not a colour encoding read here (rgb8, bgr8, rgba8, bgra8, mono8)"
+            ))
+        }
+    };
+    let (w, h, step) = (raw.width as usize, raw.height as usize, raw.step as usize);
+    if step < w * channels {
+        return Err(format!(
+            "step {step} is shorter than a row of {w} pixels of {}",
+            raw.encoding
+        ));
+    }
+    let swap = raw.encoding.starts_with("bgr");
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for row in raw.data.chunks(step).take(h) {
+        let row = &row[..w * channels];
+        match (channels, swap) {
+            (3, false) => rgb.extend_from_slice(row),
+            (1, _) => rgb.extend(row.iter().flat_map(|&g| [g; 3])),
+            (_, false) => rgb.extend(
+                row.chunks_exact(channels)
+                    .flat_map(|px| [px[0], px[1], px[2]]),
+            ),
+            (_, true) => rgb.extend(
+                row.chunks_exact(channels)
+                    .flat_map(|px| [px[2], px[1], px[0]]),
+            ),
+        }
+    }
+    Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
 }
 
 /// Decodes `compressed_depth_image_transport`'s format: a 12-byte header (`i32`

@@ -351,8 +351,8 @@ impl Sequence for RecordingSequence {
                 images: FrameImages::Stereo { left, right },
             });
         }
-        let rgb = reader.colour(pair)?;
-        let depth = reader.depth(pair, self.depth_scale)?;
+        let rgb = reader.colour(&pair.colour, pair.colour_compressed)?;
+        let depth = reader.depth(&pair.depth, pair.depth_compressed, self.depth_scale)?;
         if (rgb.width(), rgb.height()) != (depth.width, depth.height) {
             return Err(IoError::invalid(
                 &self.path,
@@ -374,7 +374,12 @@ impl Sequence for RecordingSequence {
             return Ok(None);
         }
         let reader = self.reader();
-        Ok(Some(reader.depth(&self.frames[index], self.depth_scale)?))
+        let pair = &self.frames[index];
+        Ok(Some(reader.depth(
+            &pair.depth,
+            pair.depth_compressed,
+            self.depth_scale,
+        )?))
     }
 
     fn ground_truth(&self) -> Option<&Trajectory> {

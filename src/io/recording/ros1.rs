@@ -32,6 +32,8 @@ const OP_CONNECTION: u8 = 0x07;
 pub struct Ros1Bag {
     path: PathBuf,
     file: File,
+    /// The file's length when it was opened: records past it are cut off.
+    len: u64,
     /// The chunk last decompressed (the next frame is almost always in it).
     cache: Mutex<Option<(u64, Arc<Vec<u8>>)>>,
 }
@@ -146,9 +148,11 @@ impl Ros1Bag {
                 format!("{version}: only format 2.0 (\"#ROSBAG V2.0\") is read; `rosbag fix` converts older bags"),
             ));
         }
+        let len = file.metadata().map_err(read_error)?.len();
         let bag = Self {
             path: path.to_path_buf(),
             file,
+            len,
             cache: Mutex::new(None),
         };
         let catalog = bag.scan()?;
@@ -162,12 +166,8 @@ impl Ros1Bag {
     /// Reads the record at `pos` of the file: its header, and its data (when the
     /// header's op is in `want_data`), and the position after it. `None` when the
     /// record is cut by the end of the file.
-    fn file_record(
-        &self,
-        pos: u64,
-        len: u64,
-        want_data: &[u8],
-    ) -> Result<Option<FileRecord>, IoError> {
+    fn file_record(&self, pos: u64, want_data: &[u8]) -> Result<Option<FileRecord>, IoError> {
+        let len = self.len;
         let read = |at: u64, n: usize| -> Result<Option<Vec<u8>>, IoError> {
             if at + n as u64 > len {
                 return Ok(None);
@@ -212,20 +212,12 @@ impl Ros1Bag {
 
     /// Scans every chunk once: the connections, and each message's place and stamp.
     fn scan(&self) -> Result<Catalog, IoError> {
-        let len = self
-            .file
-            .metadata()
-            .map_err(|source| IoError::Read {
-                path: self.path.clone(),
-                source,
-            })?
-            .len();
+        let len = self.len;
         let mut catalog = Catalog::new(super::Wire::Ros1);
         let mut pos = MAGIC.len() as u64;
         let mut index_pos = None;
         while pos < len {
-            let Some(FileRecord { header, data, end }) = self.file_record(pos, len, &[OP_CHUNK])?
-            else {
+            let Some(FileRecord { header, data, end }) = self.file_record(pos, &[OP_CHUNK])? else {
                 catalog.warnings.push(format!(
                     "{}: the bag is cut short: the record at byte {pos} runs past its end ({len} bytes); the messages before it are read",
                     self.path.display()
@@ -331,19 +323,11 @@ impl Ros1Bag {
                 return Ok(chunk.clone());
             }
         }
-        let len = self
-            .file
-            .metadata()
-            .map_err(|source| IoError::Read {
-                path: self.path.clone(),
-                source,
-            })?
-            .len();
         let Some(FileRecord {
             header,
             data: Some(data),
             ..
-        }) = self.file_record(pos, len, &[OP_CHUNK])?
+        }) = self.file_record(pos, &[OP_CHUNK])?
         else {
             return Err(self.invalid(format!(
                 "no chunk at byte {pos} any more (was the bag changed?)"

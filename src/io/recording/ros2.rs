@@ -102,10 +102,15 @@ pub fn open_sqlite(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
 impl Store for Sqlite {
     fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
         let connection = self.connection.lock().unwrap_or_else(|p| p.into_inner());
-        let bad = |e: rusqlite::Error| IoError::invalid(&self.path, format!("message {}: {e}", at.0));
+        let bad =
+            |e: rusqlite::Error| IoError::invalid(&self.path, format!("message {}: {e}", at.0));
         // One prepared statement for every frame (cached by the connection).
-        let mut statement = connection.prepare_cached("SELECT data FROM messages WHERE id = ?1").map_err(bad)?;
-        statement.query_row([at.0 as i64], |row| row.get(0)).map_err(bad)
+        let mut statement = connection
+            .prepare_cached("SELECT data FROM messages WHERE id = ?1")
+            .map_err(bad)?;
+        statement
+            .query_row([at.0 as i64], |row| row.get(0))
+            .map_err(bad)
     }
 }
 
