@@ -73,8 +73,11 @@ pub fn prepare(out: &Path, layout: Layout) -> Result<PathBuf, IoError> {
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     let partial = parent.join(format!(".{name}.partial-{}", std::process::id()));
-    for dir in layout.folders().map(|f| partial.join(f)) {
-        std::fs::create_dir_all(&dir).map_err(|source| IoError::Write { path: dir, source })?;
+    // A new folder, never one that is there already: only what this conversion made is
+    // removed when it fails.
+    let folders = std::iter::once(partial.clone()).chain(layout.folders().map(|f| partial.join(f)));
+    for dir in folders {
+        std::fs::create_dir(&dir).map_err(|source| IoError::Write { path: dir, source })?;
     }
     Ok(partial)
 }
