@@ -162,6 +162,7 @@ pub struct Config {
     pub dense: DenseConfig,
     pub global: crate::global::GlobalConfig,
     pub stereo: StereoConfig,
+    pub output: crate::view::OutputConfig,
 }
 
 /// What a stereo sequence (a street at 10 Hz, 1241x376) runs with instead of the
@@ -356,6 +357,7 @@ impl Config {
             ));
         }
         self.dense.validate()?;
+        self.output.validate()?;
         self.global.smoothing.validate()?;
         if !(0.0..=1.0).contains(&self.tracking.prediction_gate_share) {
             return Err(format!(

@@ -37,3 +37,4 @@ pub mod synth;
 pub mod system;
 pub mod threads;
 pub mod tracking;
+pub mod view;

@@ -22,6 +22,7 @@ use dopslam::io::Trajectory;
 
 mod cli_batch;
 mod cli_values;
+mod cli_view;
 mod cli_doctor;
 mod cli_global;
 mod cli_maps;
@@ -69,6 +70,8 @@ enum Command {
     Batch(cli_batch::BatchArgs),
     /// Match one rectified stereo pair as tracking does and compare with OpenCV's SGBM disparities.
     Stereo(cli_stereo::StereoArgs),
+    /// Build the Rerun recording of a finished run folder (trajectories, events, boxes, removed keypoints, images, dense map) without tracking again.
+    View(cli_view::ViewArgs),
 }
 
 #[derive(Args)]
@@ -283,6 +286,8 @@ struct RunArgs {
     /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
     #[arg(long, conflicts_with = "no_dense")]
     compare_no_dop: bool,
+    #[command(flatten)]
+    rerun: cli_view::RerunArgs,
 }
 
 /// `--camera fx,fy,cx,cy[,width,height]`; without a size, the first frame's.
@@ -692,6 +697,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         debug_frames: args.debug_frames.clone(),
         dense: !args.no_dense && config.dense.enabled,
         pace: args.pace,
+        rerun: None,
     };
     if args.no_global {
         config.global.enabled = false;
@@ -720,7 +726,22 @@ fn run_run(args: RunArgs) -> Result<()> {
         mode.to_possible_value()
             .map_or("?".into(), |v| v.get_name().to_string())
     );
-    let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &args.out, &options)?;
+    let logger = cli_view::open_for_run(&args.rerun, &config)?;
+    let options = dopslam::run::RunOptions {
+        rerun: logger.as_ref().map(|l| l.handle()),
+        ..options
+    };
+    let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &args.out, &options);
+    let report = match (report, logger) {
+        (Ok(report), logger) => (report, logger),
+        (Err(e), Some(logger)) => {
+            // What was logged before the run stopped stays readable.
+            let _ = dopslam::run::finish_recording(logger, false);
+            return Err(e.into());
+        }
+        (Err(e), None) => return Err(e.into()),
+    };
+    let (report, logger) = report;
     let t = &report.totals;
     println!(
         "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
@@ -782,6 +803,25 @@ fn run_run(args: RunArgs) -> Result<()> {
         );
     }
     if args.compare_no_dop {
+        compare_no_dop(&args, &config, sequence.as_ref(), &options, &report)?;
+    }
+    if let Some(logger) = logger {
+        drop(options);
+        dopslam::run::finish_recording(logger, true)?;
+    }
+    Ok(())
+}
+
+/// `run --compare-no-dop`: the same run with --no-dop into OUT/no_dop, the two dense
+/// maps compared, and the baseline's trajectory and dense map in the run's recording.
+fn compare_no_dop(
+    args: &RunArgs,
+    config: &Config,
+    sequence: &dyn Sequence,
+    options: &dopslam::run::RunOptions,
+    report: &dopslam::run::RunReport,
+) -> Result<()> {
+    {
         let baseline_dir = args.out.join(dopslam::io::run_dir::names::NO_DOP);
         let mut baseline = config.clone();
         baseline.dop.mode = dopslam::dop::Mode::Off;
@@ -791,15 +831,24 @@ fn run_run(args: RunArgs) -> Result<()> {
             "the baseline: the same run with --no-dop into {}",
             baseline_dir.display()
         );
+        let baseline_options = dopslam::run::RunOptions {
+            rerun: None,
+            ..options.clone()
+        };
         let baseline_report =
-            dopslam::run::run_sequence(sequence.as_ref(), &baseline, &baseline_dir, &options)?;
+            dopslam::run::run_sequence(sequence, &baseline, &baseline_dir, &baseline_options)?;
         let comparison = cli_maps::compare_with_baseline(
             (&args.out, &baseline_dir),
-            sequence.as_ref(),
+            sequence,
             &args.sequence,
-            &config,
+            config,
         )?;
-        cli_maps::print_summary(&report, &baseline_report, &comparison);
+        cli_maps::print_summary(report, &baseline_report, &comparison);
+        if let Some(log) = &options.rerun {
+            let run = dopslam::io::run_dir::RunDir::new(&baseline_dir);
+            dopslam::view::results::log_results(log, &run, "no_dop", None)
+                .map_err(anyhow::Error::msg)?;
+        }
     }
     Ok(())
 }
@@ -836,6 +885,9 @@ fn main() -> ExitCode {
         Command::Doctor(args) => cli_doctor::run_doctor(args),
         Command::Batch(args) => cli_batch::run_batch(args),
         Command::Stereo(args) => cli_stereo::run_stereo(args),
+        Command::View(args) => {
+            load_config(args.config.as_deref()).and_then(|config| cli_view::run_view(args, config))
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -18,7 +18,7 @@ const FLOORS: &[&[&str]] = &[
     &["frame", "detect", "eval"],
     &["map", "bow", "dynamics"],
     &["mapping", "tracking"],
-    &["global", "dense"],
+    &["global", "dense", "view"],
     &["config"],
     &["system"],
     &["run", "synth", "demo"],

@@ -24,5 +24,5 @@ fi
 CARGO_FEATURES=()
 if ! pkg-config --exists opencv4 2>/dev/null || ! command -v clang >/dev/null 2>&1; then
     printf '\033[1m[setup]\033[0m warning: OpenCV (libopencv-dev) or clang not found: building without the opencv feature (no dense map for stereo)\n'
-    CARGO_FEATURES=(--no-default-features)
+    CARGO_FEATURES=(--no-default-features --features rerun)
 fi

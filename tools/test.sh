@@ -13,12 +13,13 @@ source tools/system_packages.sh
 # rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
 # venv setup.sh made; with them installed, a test that cannot find them fails instead
 # of skipping. pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of
-# the tests only.
+# the tests only. rerun-sdk (with its dataframe API) reads the runs' Rerun recordings
+# back (tests/rerun.rs): the same version as the `rerun` crate (Cargo.toml).
 if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
 { [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
-data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" pillow numpy
+data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" "rerun-sdk[datafusion]==0.36.3" pillow numpy
 export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 # The tests write their synthetic sequences under one temporary folder of this run,
 # removed when the run ends, however it ends (each test also removes its own).

@@ -75,6 +75,12 @@ pub enum Applied {
         timestamp: f64,
         boxes: Vec<[f32; 4]>,
     },
+    /// Every mode: what the detector found on the keyframe of frame `frame` (for the
+    /// run's Rerun recording).
+    Detected {
+        frame: usize,
+        detections: Vec<crate::detect::Detection>,
+    },
     /// Mask boxes: the keyframe's keypoints and which of them lie in a dynamic box.
     Keypoints {
         timestamp: f64,
@@ -236,6 +242,10 @@ impl Dynamics {
         for d in &frame.detections {
             *totals.per_class.entry(d.class.clone()).or_default() += 1;
         }
+        self.applied.push(Applied::Detected {
+            frame: job,
+            detections: frame.detections.clone(),
+        });
         if let Err(e) = write_cache(&config.cache, &frame) {
             totals.errors.push(e.to_string());
         }

@@ -91,6 +91,8 @@ pub mod names {
     pub const NO_MASKS: &str = "no_masks";
     pub const UNMASKED: &str = "unmasked";
     pub const COMPARE_NO_DOP: &str = "compare_no_dop";
+    /// The run's Rerun recording (`[output] rerun`).
+    pub const RERUN: &str = "run.rrd";
     /// An earlier run's outputs, moved aside.
     pub const PREVIOUS: &str = "previous";
 }
@@ -98,7 +100,7 @@ pub mod names {
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,
 /// `log.txt` and `run.json` beside them are the batch's own): what
 /// [`super::output::move_previous_outputs`] moves aside.
-pub const RUN_OUTPUTS: [&str; 22] = [
+pub const RUN_OUTPUTS: [&str; 23] = [
     names::TRAJECTORY,
     names::TRACKING_TRAJECTORY,
     names::KEYFRAMES,
@@ -121,6 +123,7 @@ pub const RUN_OUTPUTS: [&str; 22] = [
     names::NO_MASKS,
     names::UNMASKED,
     names::COMPARE_NO_DOP,
+    names::RERUN,
 ];
 
 impl RunDir {
@@ -171,6 +174,10 @@ impl RunDir {
 
     pub fn dense_detections(&self) -> PathBuf {
         self.file(names::DENSE_DETECTIONS)
+    }
+
+    pub fn rerun(&self) -> PathBuf {
+        self.file(names::RERUN)
     }
 
     pub fn dense_report(&self) -> PathBuf {
@@ -247,9 +254,24 @@ pub struct DetectionSummary {
     pub map_points_removed: usize,
 }
 
+/// One frame's line (what older reports may lack reads as zero, empty or false).
 #[derive(Debug, Clone, Deserialize)]
 pub struct FrameSummary {
     pub dynamic_keypoints: usize,
+    #[serde(default)]
+    pub index: usize,
+    #[serde(default)]
+    pub timestamp: f64,
+    /// `ok`, `lost` or `not_initialised`.
+    #[serde(default)]
+    pub state: String,
+    #[serde(default)]
+    pub keyframe: bool,
+    #[serde(default)]
+    pub keypoints: usize,
+    /// Why a lost frame got no pose (`{"reason": ...}`).
+    #[serde(default)]
+    pub lost: Option<serde_json::Value>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -18,6 +18,7 @@ pub mod global_pass;
 pub mod observers;
 pub mod outputs;
 pub mod report;
+pub mod rerun_log;
 pub mod setup;
 pub mod tracking_pass;
 pub mod truth;
@@ -37,7 +38,9 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::pacing::Pace;
 use global_pass::global_pass;
+use crate::view::{At, Entry, Logger, Target};
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
+use rerun_log::RerunLog;
 use outputs::Computed;
 use tracking_pass::{tracking_pass, TrackingPass};
 use truth::TruthScorer;
@@ -61,6 +64,9 @@ pub struct RunOptions {
     pub dense: bool,
     /// Real-time mode: frames at the recording's rate, or as fast as tracking goes.
     pub pace: Pace,
+    /// The Rerun recording the run logs into (`--rerun`, `--rerun-connect`); without
+    /// one, `[output] rerun` makes `run.rrd` in the run folder.
+    pub rerun: Option<crate::view::LogHandle>,
 }
 
 /// Runs the passes over `sequence` and writes their outputs into `out`: tracking, the
@@ -76,6 +82,17 @@ pub fn run_sequence(
     let setup = Setup::resolve(sequence, config)?;
     let _lock = outputs::prepare(out, options)?;
     let run = RunDir::new(out);
+    let own_log = open_run_recording(config, &run, options)?;
+    let options = &RunOptions {
+        rerun: options
+            .rerun
+            .clone()
+            .or_else(|| own_log.as_ref().map(|l| l.handle())),
+        ..options.clone()
+    };
+    if let Some(log) = &options.rerun {
+        log_pinhole(log, &setup.calibration.camera);
+    }
     let mut watch = Watchers::new(sequence, options);
     let mut pass = tracking_pass(sequence, &setup, options, &run, &mut watch.observers())?;
     let global = global_pass(&mut pass, &setup, &run)?;
@@ -102,6 +119,13 @@ pub fn run_sequence(
             (Some(_), _) => {}
         }
     }
+    if let Some(log) = &options.rerun {
+        crate::view::results::log_results(log, &run, "", sequence.ground_truth())
+            .map_err(RunError::Input)?;
+    }
+    if let Some(logger) = own_log {
+        finish_recording(logger, options.progress)?;
+    }
     match stop {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -112,10 +136,60 @@ pub fn run_sequence(
     }
 }
 
+/// `run.rrd` in the run folder when `[output] rerun` asks for it and no recording was
+/// handed in; opened before any work (a build without the feature says so here).
+fn open_run_recording(
+    config: &crate::config::Config,
+    run: &RunDir,
+    options: &RunOptions,
+) -> Result<Option<Logger>, RunError> {
+    if !config.output.rerun || options.rerun.is_some() {
+        return Ok(None);
+    }
+    let target = Target::File(run.rerun());
+    Logger::open(target, &config.output, "dopslam")
+        .map(Some)
+        .map_err(|e| RunError::Input(format!("[output] rerun: {e}")))
+}
+
+/// The camera's pinhole, logged once.
+pub fn log_pinhole(log: &crate::view::LogHandle, camera: &crate::geometry::camera::PinholeCamera) {
+    let entry = Entry::Pinhole {
+        fx: camera.fx,
+        fy: camera.fy,
+        cx: camera.cx,
+        cy: camera.cy,
+        width: camera.width,
+        height: camera.height,
+    };
+    log.log("", At::Always, entry);
+}
+
+/// Closes a recording and says what it held (images dropped when logging fell
+/// behind are always said).
+pub fn finish_recording(logger: Logger, progress: bool) -> Result<(), RunError> {
+    let target = logger.target.clone();
+    let summary = logger.finish().map_err(RunError::Input)?;
+    let name = match &target {
+        Target::File(path) => path.display().to_string(),
+        Target::Connect(address) => address.clone(),
+    };
+    if summary.dropped_images > 0 {
+        eprintln!(
+            "warning: the Rerun recording fell behind the run and dropped {} image(s) ({name}); poses and everything else are complete",
+            summary.dropped_images
+        );
+    } else if progress {
+        eprintln!("Rerun recording: {} entries to {name}", summary.logged);
+    }
+    Ok(())
+}
+
 /// The observers of a run's tracking pass.
 struct Watchers {
     progress: Progress,
     debug: Option<DebugFrames>,
+    rerun: Option<RerunLog>,
     keypoints: DynamicKeypoints,
     truth: TruthScorer,
 }
@@ -128,6 +202,7 @@ impl Watchers {
         Self {
             progress: Progress::new(total, options.progress),
             debug: options.debug_frames.clone().map(|dir| DebugFrames { dir }),
+            rerun: options.rerun.clone().map(RerunLog::new),
             keypoints: DynamicKeypoints::default(),
             truth: TruthScorer::new(options.sequence_dir.clone()),
         }
@@ -137,6 +212,9 @@ impl Watchers {
         let mut list: Vec<&mut dyn FrameObserver> = Vec::new();
         if let Some(debug) = self.debug.as_mut() {
             list.push(debug);
+        }
+        if let Some(rerun) = self.rerun.as_mut() {
+            list.push(rerun);
         }
         list.push(&mut self.keypoints);
         list.push(&mut self.truth);

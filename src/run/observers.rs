@@ -10,6 +10,7 @@ use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
 use crate::frame::Frame;
+use crate::io::image_files::DepthImage;
 use crate::tracking::input::Picture;
 use crate::tracking::{FrameReport, TrackingState};
 
@@ -22,8 +23,14 @@ pub struct FrameView<'a> {
     pub frame: Option<&'a Frame>,
     /// The DOP model, when on.
     pub dop: Option<&'a DopConfig>,
-    /// The frame's picture, when an observer draws on it (debug pictures).
+    /// The frame's picture, when an observer draws on it (debug pictures, the Rerun
+    /// recording).
     pub picture: Option<&'a Picture>,
+    /// The frame's depth, when the Rerun recording logs it.
+    pub depth: Option<&'a DepthImage>,
+    /// At a keyframe, when the Rerun recording is on: the recent keyframes' map
+    /// points, static and moving ([`crate::system::System::recent_map_points`]).
+    pub recent_map: Option<&'a crate::system::RecentMap>,
 }
 
 impl FrameView<'_> {

@@ -14,6 +14,7 @@ use super::{RunError, RunOptions};
 use crate::config::Config;
 use crate::eval::stats::median;
 use crate::frame::Frame;
+use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::pacing::{Pace, Pacer};
@@ -21,6 +22,9 @@ use crate::system::worker::Execution;
 use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
 use crate::tracking::TrackingState;
+
+/// The Rerun recording's local map: the points of this many recent keyframes.
+const RECENT_KEYFRAMES: usize = 10;
 
 /// What the tracking pass hands on.
 pub struct TrackingPass {
@@ -65,15 +69,19 @@ pub fn tracking_pass(
             stop = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
             break;
         }
+        let keep_depth = options
+            .rerun
+            .as_ref()
+            .is_some_and(|log| log.config.rerun_depth);
         let ready = next_frame(
             sequence,
-            index,
+            (index, keep_depth),
             setup,
             &system,
             &mut pacer,
             &mut depth_check,
         );
-        let (frame, picture, started) = match ready {
+        let (frame, picture, started, depth) = match ready {
             Ok(ready) => ready,
             Err(message) => {
                 stop = Some(message);
@@ -82,9 +90,13 @@ pub fn tracking_pass(
         };
         let extraction_ms = started.elapsed().as_secs_f64() * 1e3;
         let timestamp = frame.timestamp;
-        // The detector takes the picture; a copy only for the debug pictures.
-        let shown = options.debug_frames.is_some().then(|| picture.clone());
+        // The detector takes the picture; a copy only for the debug pictures and the
+        // Rerun recording.
+        let logged = options.rerun.is_some();
+        let shown = (options.debug_frames.is_some() || logged).then(|| picture.clone());
         let (report, tracking_ms) = system.track(frame, picture, started);
+        let recent_map =
+            (logged && report.keyframe).then(|| system.recent_map_points(RECENT_KEYFRAMES));
         let view = FrameView {
             index,
             timestamp,
@@ -92,6 +104,8 @@ pub fn tracking_pass(
             frame: system.tracked_frame(index),
             dop: system.dop(),
             picture: shown.as_ref(),
+            depth: depth.as_ref(),
+            recent_map: recent_map.as_ref(),
         };
         if let Err(message) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
             stop = Some(message);
@@ -123,15 +137,16 @@ pub fn tracking_pass(
 }
 
 /// Frame `index` loaded, paced, checked and made ready for tracking, with the time
-/// its extraction started; an error says why the pass must stop.
+/// its extraction started and (when `keep_depth`) its depth; an error says why the
+/// pass must stop.
 fn next_frame(
     sequence: &dyn Sequence,
-    index: usize,
+    (index, keep_depth): (usize, bool),
     setup: &Setup,
     system: &System,
     pacer: &mut Pacer,
     depth_check: &mut DepthCheck,
-) -> Result<(Frame, Picture, Instant), String> {
+) -> Result<(Frame, Picture, Instant, Option<DepthImage>), String> {
     let loaded = sequence
         .load(index)
         .map_err(|e| format!("frame {index}: {e}"))?;
@@ -165,7 +180,7 @@ fn next_frame(
                 &setup.camera,
                 &calibration.camera,
             );
-            (frame, Picture::Colour(rgb), started)
+            (frame, Picture::Colour(rgb), started, keep_depth.then_some(depth))
         }
         FrameImages::Stereo { left, right } => {
             let started = Instant::now();
@@ -177,7 +192,7 @@ fn next_frame(
                 &setup.camera,
                 setup.bearing_depth,
             );
-            (frame, Picture::Grey(left), started)
+            (frame, Picture::Grey(left), started, None)
         }
     })
 }

@@ -80,6 +80,7 @@ impl FrameObserver for TruthScorer {
                             .add(&TruthCounts::new(&mask, positions, in_box, &[]));
                     }
                 }
+                Applied::Detected { .. } => {}
             }
         }
     }

@@ -19,6 +19,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use nalgebra::Vector3;
+
 use crate::bow::Vocabulary;
 use crate::config::Config;
 use crate::detect::job::{Job, Outcome};
@@ -77,6 +79,14 @@ pub struct Tracked {
     pub detection: DetectionTotals,
     /// What the detections did that the last [`System::take_applied`] left.
     pub applied: Vec<Applied>,
+}
+
+/// The recent keyframes' map points ([`System::recent_map_points`]).
+#[derive(Debug, Clone, Default)]
+pub struct RecentMap {
+    pub fixed: Vec<Vector3<f64>>,
+    /// Points the DOP model removes (moving probability above its threshold).
+    pub moving: Vec<Vector3<f64>>,
 }
 
 /// The online system (see the module doc).
@@ -180,6 +190,31 @@ impl System {
     /// Frame `index` as tracked (with its moving probabilities), if tracking kept it.
     pub fn tracked_frame(&self, index: usize) -> Option<&Frame> {
         self.tracker.last_frame().filter(|f| f.index == index)
+    }
+
+    /// The points of the last `keyframes` keyframes, split into static ones and ones
+    /// the DOP model removes (for the run's Rerun recording).
+    pub fn recent_map_points(&self, keyframes: usize) -> RecentMap {
+        let map = self.map.read().expect("map lock poisoned");
+        let dop = self.dynamics.dop();
+        let mut seen = std::collections::HashSet::new();
+        let (mut fixed, mut moving) = (Vec::new(), Vec::new());
+        for key in map.keyframe_order.iter().rev().take(keyframes) {
+            let Some(keyframe) = map.keyframes.get(*key) else {
+                continue;
+            };
+            for point_key in keyframe.map_points.iter().flatten() {
+                let Some(point) = map.points.get(*point_key).filter(|_| seen.insert(*point_key)) else {
+                    continue;
+                };
+                if dop.is_some_and(|d| d.removed(point.moving)) {
+                    moving.push(point.position);
+                } else {
+                    fixed.push(point.position);
+                }
+            }
+        }
+        RecentMap { fixed, moving }
     }
 
     /// Tracks one frame (`picture` is what the detector sees of it) and hands a new

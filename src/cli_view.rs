@@ -1,0 +1,216 @@
+//! The Rerun recording from the command line: `run --rerun OUT.rrd` /
+//! `--rerun-connect ADDR`, and `dopslam view RUN_DIR` (the recording of a finished run
+//! folder, without tracking again).
+
+use std::net::{TcpStream, ToSocketAddrs};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+
+use dopslam::config::Config;
+use dopslam::geometry::camera::PinholeCamera;
+use dopslam::io::run_dir::RunDir;
+use dopslam::io::sequence::Sequence;
+use dopslam::view::{Logger, Target};
+
+/// Where `run` sends its recording.
+#[derive(Args, Debug, Clone, Default)]
+pub struct RerunArgs {
+    /// Write a Rerun recording of the run into this new file (open it with `rerun
+    /// OUT.rrd`, from `pip install rerun-sdk==0.36.3`): images, keypoints by DOP
+    /// state, boxes, poses, map, events, then the final trajectory and dense map.
+    #[arg(long, value_name = "OUT.rrd", conflicts_with = "rerun_connect")]
+    pub rerun: Option<PathBuf>,
+    /// Stream the run to a running Rerun viewer instead (HOST:PORT, or
+    /// rerun+http://HOST:PORT/proxy; the viewer listens on 9876). A viewer that does
+    /// not answer is a warning, and the run goes on.
+    #[arg(long, value_name = "ADDR")]
+    pub rerun_connect: Option<String>,
+}
+
+/// `dopslam view`.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// A finished run folder (what `dopslam run --out` wrote).
+    run: PathBuf,
+    /// The recording to write (a new file; default: RUN_NAME.rrd in the working folder).
+    #[arg(
+        short = 'o',
+        long = "out",
+        value_name = "OUT.rrd",
+        conflicts_with = "connect"
+    )]
+    out: Option<PathBuf>,
+    /// Stream to a running viewer instead (HOST:PORT or rerun+http://HOST:PORT/proxy).
+    #[arg(long, value_name = "ADDR")]
+    connect: Option<String>,
+    /// The config the run was made with (images are logged from the sequence the
+    /// report names when it can be opened; [output] sets the image scale).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+/// A viewer's proxy address from `HOST:PORT` or a full `rerun+http://` address, and
+/// the host and port to try first.
+fn proxy_address(address: &str) -> Result<(String, String)> {
+    let rest = address
+        .strip_prefix("rerun+http://")
+        .or_else(|| address.strip_prefix("rerun+https://"))
+        .unwrap_or(address);
+    let host_port = rest.split('/').next().unwrap_or_default();
+    if !host_port.contains(':') {
+        bail!("--rerun-connect {address:?}: give HOST:PORT (the viewer listens on 9876) or rerun+http://HOST:PORT/proxy");
+    }
+    Ok((
+        format!("rerun+http://{host_port}/proxy"),
+        host_port.to_string(),
+    ))
+}
+
+/// The recording `run` logs into: a new file (an error before any work when it
+/// exists or cannot be written), or a viewer (a warning when it does not answer).
+pub fn open_for_run(args: &RerunArgs, config: &Config) -> Result<Option<Logger>> {
+    if let Some(path) = &args.rerun {
+        let logger = Logger::open(Target::File(path.clone()), &config.output, "dopslam")
+            .map_err(anyhow::Error::msg)
+            .context("--rerun")?;
+        return Ok(Some(logger));
+    }
+    let Some(address) = &args.rerun_connect else {
+        return Ok(None);
+    };
+    connect(address, config)
+}
+
+/// A recording streamed to the viewer at `address`; `None`, with a warning, when
+/// nothing answers there.
+fn connect(address: &str, config: &Config) -> Result<Option<Logger>> {
+    if !dopslam::view::AVAILABLE {
+        bail!(dopslam::view::MISSING_FEATURE);
+    }
+    let (proxy, host_port) = proxy_address(address)?;
+    let answered = host_port
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut addresses| addresses.next())
+        .map(|socket| TcpStream::connect_timeout(&socket, Duration::from_secs(2)));
+    match answered {
+        Some(Ok(_)) => {}
+        Some(Err(e)) => {
+            eprintln!("warning: --rerun-connect {address}: {e}; the run goes on without the Rerun stream (start the viewer with `rerun`)");
+            return Ok(None);
+        }
+        None => {
+            eprintln!("warning: --rerun-connect {address}: the address does not resolve; the run goes on without the Rerun stream");
+            return Ok(None);
+        }
+    }
+    let logger = Logger::open(Target::Connect(proxy), &config.output, "dopslam")
+        .map_err(anyhow::Error::msg)?;
+    Ok(Some(logger))
+}
+
+/// `dopslam view RUN_DIR`.
+pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
+    let run = RunDir::new(&args.run);
+    let summary = run.read_summary()?;
+    let logger = match (&args.connect, &args.out) {
+        (Some(address), _) => match connect(address, &config)? {
+            Some(logger) => logger,
+            None => bail!("--connect {address}: no viewer answers there"),
+        },
+        (None, out) => {
+            let path = out.clone().unwrap_or_else(|| default_out(&args.run));
+            Logger::open(Target::File(path), &config.output, "dopslam")
+                .map_err(anyhow::Error::msg)?
+        }
+    };
+    let log = logger.handle();
+    if let Some(camera) = report_camera(&run.report()) {
+        dopslam::run::log_pinhole(&log, &camera);
+    }
+    let sequence = open_reported_sequence(summary.sequence_path.as_deref(), &config);
+    let replayed = dopslam::view::results::replay_frames(&log, &run, &summary, sequence.as_deref())
+        .map_err(anyhow::Error::msg)?;
+    let truth = sequence.as_deref().and_then(|s| s.ground_truth());
+    dopslam::view::results::log_results(&log, &run, "", truth).map_err(anyhow::Error::msg)?;
+    let baseline = run.sub_run(dopslam::io::run_dir::names::NO_DOP);
+    if baseline.report().exists() {
+        dopslam::view::results::log_results(&log, &baseline, "no_dop", None)
+            .map_err(anyhow::Error::msg)?;
+    }
+    drop(log);
+    let target = logger.target.clone();
+    dopslam::run::finish_recording(logger, false)?;
+    println!(
+        "{} frames ({} poses, {} images, {} keyframes' boxes) into {}",
+        replayed.frames,
+        replayed.poses,
+        replayed.images,
+        replayed.keyframe_boxes,
+        match target {
+            Target::File(path) => path.display().to_string(),
+            Target::Connect(address) => address,
+        }
+    );
+    Ok(())
+}
+
+/// `NAME.rrd` in the working folder for the run folder `NAME`.
+fn default_out(run: &Path) -> PathBuf {
+    let name = run
+        .canonicalize()
+        .ok()
+        .and_then(|p| p.file_name().map(|n| n.to_os_string()))
+        .unwrap_or_else(|| "run".into());
+    PathBuf::from(name).with_extension("rrd")
+}
+
+/// The camera `report.json` names (`setup.calibration.camera`).
+fn report_camera(report: &Path) -> Option<PinholeCamera> {
+    let text = std::fs::read_to_string(report).ok()?;
+    let value: serde_json::Value = serde_json::from_str(&text).ok()?;
+    serde_json::from_value(
+        value
+            .get("setup")?
+            .get("calibration")?
+            .get("camera")?
+            .clone(),
+    )
+    .ok()
+}
+
+/// The sequence the report names, when it still opens (a warning says why not).
+fn open_reported_sequence(path: Option<&Path>, config: &Config) -> Option<Box<dyn Sequence>> {
+    let path = path?;
+    match dopslam::run::open_sequence(path, config) {
+        Ok(sequence) => Some(sequence),
+        Err(e) => {
+            eprintln!(
+                "warning: the run's sequence {} does not open ({e}): no images in the recording",
+                path.display()
+            );
+            None
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn viewer_addresses() {
+        assert_eq!(
+            proxy_address("127.0.0.1:9876").unwrap().0,
+            "rerun+http://127.0.0.1:9876/proxy"
+        );
+        assert_eq!(
+            proxy_address("rerun+http://host:9000/proxy").unwrap().1,
+            "host:9000"
+        );
+        assert!(proxy_address("localhost").is_err());
+    }
+}

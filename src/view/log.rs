@@ -1,0 +1,195 @@
+//! The [`Logger`] that writes a run's recording ([`super::entry`]) on its own
+//! thread. The tracking thread only sends: the queue is bounded
+//! (`[output] rerun_queue`), and when the logging thread falls behind, images are
+//! dropped (counted, and said at the end) while poses and everything else wait for
+//! room.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use super::entry::{At, Entry, Message, Target};
+use super::OutputConfig;
+
+enum Command {
+    Log(Box<Message>),
+    Stop,
+}
+
+/// What a finished recording says about itself.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LogSummary {
+    pub logged: usize,
+    /// Images dropped because the logging thread fell behind.
+    pub dropped_images: usize,
+}
+
+/// A cloneable way to log into a [`Logger`]'s recording.
+#[derive(Clone)]
+pub struct LogHandle {
+    sender: SyncSender<Command>,
+    dropped: Arc<AtomicUsize>,
+    pub config: Arc<OutputConfig>,
+}
+
+impl std::fmt::Debug for LogHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("LogHandle")
+    }
+}
+
+impl LogHandle {
+    /// Logs `entry` under `prefix` at `at`. An image is dropped when the queue is
+    /// full; anything else waits for room. A recording whose thread stopped (its
+    /// error is reported by [`Logger::finish`]) takes nothing more.
+    pub fn log(&self, prefix: &'static str, at: At, entry: Entry) {
+        let command = Command::Log(Box::new(Message { prefix, at, entry }));
+        let droppable = matches!(&command, Command::Log(m) if m.entry.droppable());
+        if droppable {
+            if let Err(TrySendError::Full(_)) = self.sender.try_send(command) {
+                self.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        } else {
+            let _ = self.sender.send(command);
+        }
+    }
+}
+
+/// The recording and its logging thread.
+pub struct Logger {
+    handle: LogHandle,
+    thread: JoinHandle<Result<usize, String>>,
+    pub target: Target,
+}
+
+impl Logger {
+    /// Opens the recording: a file is created now (an error names it when it exists
+    /// or cannot be written); a viewer that refuses the connection is an error the
+    /// caller may turn into a warning. Without the `rerun` feature: an error saying so.
+    pub fn open(target: Target, config: &OutputConfig, name: &'static str) -> Result<Self, String> {
+        if !super::AVAILABLE {
+            return Err(super::MISSING_FEATURE.into());
+        }
+        if let Target::File(path) = &target {
+            check_new_file(path)?;
+        }
+        let stream = super::entities::open_stream(&target, name)?;
+        let (sender, receiver) = sync_channel(config.rerun_queue);
+        let settings = config.clone();
+        let thread = std::thread::Builder::new()
+            .name("rerun-log".into())
+            .spawn(move || write_all(stream, receiver, &settings))
+            .map_err(|e| format!("cannot start the Rerun logging thread: {e}"))?;
+        Ok(Self {
+            handle: LogHandle {
+                sender,
+                dropped: Arc::new(AtomicUsize::new(0)),
+                config: Arc::new(config.clone()),
+            },
+            thread,
+            target,
+        })
+    }
+
+    pub fn handle(&self) -> LogHandle {
+        self.handle.clone()
+    }
+
+    /// Writes what is queued, closes the recording and says what it held.
+    pub fn finish(self) -> Result<LogSummary, String> {
+        let _ = self.handle.sender.send(Command::Stop);
+        let logged = self
+            .thread
+            .join()
+            .map_err(|_| "the Rerun logging thread panicked".to_string())??;
+        Ok(LogSummary {
+            logged,
+            dropped_images: self.handle.dropped.load(Ordering::Relaxed),
+        })
+    }
+}
+
+/// A recording file is made new next to nothing the user has: an existing file is an
+/// error, and so is a folder that cannot be written (checked by creating the file).
+fn check_new_file(path: &Path) -> Result<(), String> {
+    if path.exists() {
+        return Err(format!(
+            "{} exists: a recording is never written over; remove it or name another file",
+            path.display()
+        ));
+    }
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| {
+            format!(
+                "cannot write {}: its folder {} cannot be made: {e}",
+                path.display(),
+                parent.display()
+            )
+        })?;
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)
+        .map(drop)
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+/// The logging thread: logs each message until told to stop (or every sender is
+/// gone), then flushes. Returns how many entries it logged.
+fn write_all(
+    stream: super::entities::Stream,
+    receiver: Receiver<Command>,
+    config: &OutputConfig,
+) -> Result<usize, String> {
+    let mut logged = 0;
+    while let Ok(Command::Log(message)) = receiver.recv() {
+        stream.log(&message, config)?;
+        logged += 1;
+    }
+    stream.close()?;
+    Ok(logged)
+}
+
+#[cfg(all(test, feature = "rerun"))]
+mod tests {
+    use super::*;
+    use crate::view::entry::At;
+
+    /// A queue of one: images sent faster than they are encoded are dropped and
+    /// counted, poses never are, and what was logged plus what was dropped is all
+    /// that was sent.
+    #[test]
+    fn behind_it_drops_images_only_and_counts_them() {
+        let dir = std::env::temp_dir().join(format!("dopslam-rerun-log-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let path = dir.join("t.rrd");
+        let config = OutputConfig {
+            rerun_queue: 1,
+            rerun_image_scale: 1.0,
+            ..OutputConfig::default()
+        };
+        let logger = Logger::open(Target::File(path.clone()), &config, "test").unwrap();
+        let log = logger.handle();
+        let image = image::RgbImage::from_pixel(640, 480, image::Rgb([90, 120, 200]));
+        let (images, poses) = (60, 60);
+        for index in 0..images.max(poses) {
+            let at = At::Frame { index, seconds: index as f64 / 30.0 };
+            log.log("", at, Entry::Image(image.clone()));
+            let world_from_camera = crate::geometry::se3::Se3::identity();
+            log.log("", at, Entry::Camera { world_from_camera });
+        }
+        drop(log);
+        let summary = logger.finish().unwrap();
+        assert!(summary.dropped_images > 0, "{summary:?}");
+        assert_eq!(summary.logged + summary.dropped_images, images + poses);
+        assert!(summary.logged >= poses);
+        assert!(std::fs::metadata(&path).unwrap().len() > 0);
+        // The file exists now: a second recording there is refused.
+        let again = Logger::open(Target::File(path), &config, "test").err().unwrap();
+        assert!(again.contains("exists"), "{again}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,464 @@
+//! A finished run folder, logged: what the run left (the final trajectory, the ground
+//! truth aligned to it, the loops, the dense mesh and cloud; [`log_results`]) and,
+//! for `dopslam view`, the tracking pass replayed from the files it wrote
+//! ([`replay_frames`]): poses, keyframes, events, the removed keypoints, the detector's
+//! boxes, and the images when the sequence is at hand.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Vector3;
+
+use super::entry::{centres, At, Entry, Level};
+use super::log::LogHandle;
+use crate::detect::{cache_file, read_cache_file};
+use crate::eval::associate::{associate, AssociationRule};
+use crate::geometry::alignment::{umeyama, AlignmentKind};
+use crate::io::run_dir::{FrameSummary, RunDir, RunSummary};
+use crate::io::sequence::{FrameImages, Sequence};
+use crate::io::trajectory::Trajectory;
+
+/// The tracking pass's trajectory is drawn again every this many frames.
+pub const TRAJECTORY_EVERY: usize = 10;
+
+/// What happened at one frame, for the events: its state, whether it made a keyframe,
+/// why it was lost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameFacts {
+    pub index: usize,
+    /// `ok`, `lost`, `not_initialised`.
+    pub state: String,
+    pub keyframe: bool,
+    pub lost: Option<String>,
+}
+
+/// The events of a frame after one in state `previous`: keyframe inserted, tracking
+/// lost (with why), relocalised.
+pub fn frame_events(previous: Option<&str>, facts: &FrameFacts) -> Vec<(Level, String)> {
+    let mut events = Vec::new();
+    let index = facts.index;
+    match (previous, facts.state.as_str()) {
+        (Some("ok"), "lost") => {
+            let why = facts.lost.as_deref().unwrap_or("no reason given");
+            events.push((
+                Level::Warning,
+                format!("frame {index}: tracking lost ({why})"),
+            ));
+        }
+        (Some("lost"), "ok") => events.push((Level::Info, format!("frame {index}: relocalised"))),
+        (Some("not_initialised") | None, "ok") => {
+            events.push((Level::Info, format!("frame {index}: tracking started")))
+        }
+        _ => {}
+    }
+    if facts.keyframe {
+        events.push((Level::Info, format!("frame {index}: keyframe inserted")));
+    }
+    events
+}
+
+/// A frame's events as one entry (one text per frame and entity: a second one at the
+/// same time would hide the first), a warning when one of them is.
+pub fn events_entry(events: Vec<(Level, String)>) -> Option<Entry> {
+    if events.is_empty() {
+        return None;
+    }
+    let level = if events.iter().any(|(l, _)| *l == Level::Warning) {
+        Level::Warning
+    } else {
+        Level::Info
+    };
+    let texts: Vec<String> = events.into_iter().map(|(_, t)| t).collect();
+    Some(Entry::Event {
+        level,
+        text: texts.join("; "),
+        loop_closed: false,
+    })
+}
+
+/// Logs what the run folder holds after the run (under `prefix`): the final
+/// trajectory, `truth` aligned to it (SE(3), as `dopslam eval`), the loops and the
+/// dense map. Each part that is absent is left out; a file that cannot be read is an
+/// error naming it.
+pub fn log_results(
+    log: &LogHandle,
+    run: &RunDir,
+    prefix: &'static str,
+    truth: Option<&Trajectory>,
+) -> Result<(), String> {
+    let final_path = run.trajectory();
+    let estimate = if final_path.exists() {
+        Some(Trajectory::read_tum(&final_path).map_err(|e| e.to_string())?)
+    } else {
+        None
+    };
+    if let Some(estimate) = &estimate {
+        log.log(
+            prefix,
+            At::Always,
+            Entry::Trajectory {
+                name: "final",
+                centres: centres(&estimate.poses),
+            },
+        );
+        if let Some(aligned) = truth.and_then(|t| aligned_truth(t, estimate)) {
+            log.log(
+                prefix,
+                At::Always,
+                Entry::Trajectory {
+                    name: "truth",
+                    centres: aligned,
+                },
+            );
+        }
+    }
+    if run.report().exists() {
+        let summary = run.read_summary().map_err(|e| e.to_string())?;
+        log_loops(log, &summary, estimate.as_ref(), prefix);
+    }
+    log_dense(log, run, prefix)
+}
+
+/// The ground-truth centres moved into the estimate's world (SE(3) Umeyama over the
+/// poses paired by time, TUM's 20 ms); `None` when fewer than three pair.
+fn aligned_truth(truth: &Trajectory, estimate: &Trajectory) -> Option<Vec<Vector3<f64>>> {
+    let pairs = associate(truth, estimate, AssociationRule::TumGreedy, 0.02, 0.0).pairs;
+    if pairs.len() < 3 {
+        return None;
+    }
+    let source: Vec<Vector3<f64>> = pairs
+        .iter()
+        .map(|&(t, _)| truth.poses[t].translation.vector)
+        .collect();
+    let target: Vec<Vector3<f64>> = pairs
+        .iter()
+        .map(|&(_, e)| estimate.poses[e].translation.vector)
+        .collect();
+    let estimate_from_truth = umeyama(&source, &target, AlignmentKind::Se3).ok()?;
+    Some(
+        truth
+            .poses
+            .iter()
+            .map(|p| estimate_from_truth.transform_point(&p.translation.vector))
+            .collect(),
+    )
+}
+
+/// The closed loops: an event at each loop's keyframe, and the edges between the two
+/// keyframes' final centres.
+fn log_loops(
+    log: &LogHandle,
+    summary: &RunSummary,
+    estimate: Option<&Trajectory>,
+    prefix: &'static str,
+) {
+    let loops = summary.global.as_ref().map_or(&[][..], |g| &g.loops[..]);
+    let time_of = |value: &serde_json::Value, key: &str| value.get(key).and_then(|v| v.as_f64());
+    let mut edges = Vec::new();
+    for found in loops {
+        let (Some(at), Some(matched)) = (
+            time_of(found, "keyframe_time"),
+            time_of(found, "matched_time"),
+        ) else {
+            continue;
+        };
+        let index = nearest_frame(&summary.frames, at);
+        let correction = time_of(found, "correction_m").unwrap_or(f64::NAN);
+        log.log(
+            prefix,
+            At::Frame { index, seconds: at },
+            Entry::Event {
+                level: Level::Info,
+                text: format!(
+                    "frame {index}: loop closed with the keyframe at {matched:.3} s (keyframe moved {correction:.3} m)"
+                ),
+                loop_closed: true,
+            },
+        );
+        if let Some(estimate) = estimate {
+            if let (Some(a), Some(b)) = (centre_at(estimate, at), centre_at(estimate, matched)) {
+                edges.push((a, b));
+            }
+        }
+    }
+    if !edges.is_empty() {
+        log.log(prefix, At::Always, Entry::LoopEdges(edges));
+    }
+}
+
+/// The index of the report's frame nearest `seconds` (0 without frames).
+fn nearest_frame(frames: &[FrameSummary], seconds: f64) -> usize {
+    frames
+        .iter()
+        .min_by(|a, b| {
+            (a.timestamp - seconds)
+                .abs()
+                .total_cmp(&(b.timestamp - seconds).abs())
+        })
+        .map_or(0, |f| f.index)
+}
+
+/// The centre of the pose nearest `seconds` (within 20 ms).
+fn centre_at(trajectory: &Trajectory, seconds: f64) -> Option<Vector3<f64>> {
+    let (i, t) = trajectory
+        .timestamps
+        .iter()
+        .enumerate()
+        .min_by(|a, b| (a.1 - seconds).abs().total_cmp(&(b.1 - seconds).abs()))?;
+    ((t - seconds).abs() <= 0.02).then(|| trajectory.poses[i].translation.vector)
+}
+
+/// The dense mesh and cloud, decimated to `rerun_max_points` (every n-th triangle or
+/// point).
+fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), String> {
+    let limit = log.config.rerun_max_points;
+    let mesh_path = run.file(crate::io::run_dir::names::DENSE_MESH_PLY);
+    if mesh_path.exists() {
+        let mesh = crate::io::ply::read_ply(&mesh_path).map_err(|e| e.to_string())?;
+        let step = mesh.triangles.len().div_ceil(limit).max(1);
+        log.log(
+            prefix,
+            At::Always,
+            Entry::Mesh {
+                triangles: mesh.triangles.iter().step_by(step).copied().collect(),
+                vertices: mesh.vertices,
+                colours: mesh.colours,
+            },
+        );
+    }
+    let cloud_path = run.file(crate::io::run_dir::names::DENSE_POINTS);
+    if cloud_path.exists() {
+        let cloud = crate::io::ply::read_ply(&cloud_path).map_err(|e| e.to_string())?;
+        let step = cloud.vertices.len().div_ceil(limit).max(1);
+        let colours = if cloud.colours.len() == cloud.vertices.len() {
+            cloud.colours.iter().step_by(step).copied().collect()
+        } else {
+            Vec::new()
+        };
+        log.log(
+            prefix,
+            At::Always,
+            Entry::Cloud {
+                points: cloud.vertices.iter().step_by(step).copied().collect(),
+                colours,
+            },
+        );
+    }
+    Ok(())
+}
+
+/// What the replay logged.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Replayed {
+    pub frames: usize,
+    pub poses: usize,
+    pub images: usize,
+    pub keyframe_boxes: usize,
+}
+
+/// The tracking pass replayed from the run folder: each frame of `report.json` at its
+/// index and time, with the pose of `trajectory_tracking.txt`, its events, the removed
+/// keypoints (`dynamic_keypoints.json`), the boxes of the detection cache at their
+/// keyframe, and the image when `sequence` is given.
+pub fn replay_frames(
+    log: &LogHandle,
+    run: &RunDir,
+    summary: &RunSummary,
+    sequence: Option<&dyn Sequence>,
+) -> Result<Replayed, String> {
+    let tracking_path = run.tracking_trajectory();
+    let tracking = if tracking_path.exists() {
+        Trajectory::read_tum(&tracking_path).map_err(|e| e.to_string())?
+    } else {
+        Trajectory::read_tum(&run.trajectory()).map_err(|e| e.to_string())?
+    };
+    let pose_at: BTreeMap<u64, usize> = tracking
+        .timestamps
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (time_key(*t), i))
+        .collect();
+    let removed = read_removed(run)?;
+    let mut replayed = Replayed::default();
+    let mut previous: Option<String> = None;
+    let mut path = Vec::new();
+    let mut keyframes = Vec::new();
+    for frame in &summary.frames {
+        let at = At::Frame {
+            index: frame.index,
+            seconds: frame.timestamp,
+        };
+        replayed.frames += 1;
+        if let Some(&i) = pose_at.get(&time_key(frame.timestamp)) {
+            let pose = tracking.poses[i];
+            log.log(
+                "",
+                at,
+                Entry::Camera {
+                    world_from_camera: pose,
+                },
+            );
+            replayed.poses += 1;
+            path.push(pose.translation.vector);
+            if frame.keyframe {
+                keyframes.push(pose.translation.vector);
+                log.log("", at, Entry::Keyframes(keyframes.clone()));
+            }
+        }
+        if frame.index.is_multiple_of(TRAJECTORY_EVERY)
+            || Some(frame.index) == summary.frames.last().map(|f| f.index)
+        {
+            log.log(
+                "",
+                at,
+                Entry::Trajectory {
+                    name: "tracking",
+                    centres: path.clone(),
+                },
+            );
+        }
+        let facts = FrameFacts {
+            index: frame.index,
+            state: frame.state.clone(),
+            keyframe: frame.keyframe,
+            lost: frame.lost.as_ref().map(|v| {
+                v.get("reason")
+                    .and_then(|r| r.as_str())
+                    .unwrap_or("?")
+                    .to_string()
+            }),
+        };
+        if let Some(entry) = events_entry(frame_events(previous.as_deref(), &facts)) {
+            log.log("", at, entry);
+        }
+        previous = Some(frame.state.clone());
+        if let Some(points) = removed.get(&time_key(frame.timestamp)) {
+            log.log(
+                "",
+                at,
+                Entry::Keypoints {
+                    kept: Vec::new(),
+                    removed: points.clone(),
+                },
+            );
+        }
+        if frame.keyframe {
+            replayed.keyframe_boxes += log_cached_boxes(log, run, frame, at)?;
+        }
+        if let Some(sequence) = sequence {
+            replayed.images += log_image(log, sequence, frame.index, at)?;
+        }
+    }
+    Ok(replayed)
+}
+
+/// A timestamp as a map key (microseconds, as the files write them).
+fn time_key(seconds: f64) -> u64 {
+    (seconds * 1e6).round().max(0.0) as u64
+}
+
+/// The removed keypoints of each frame, by time (empty without the file).
+fn read_removed(run: &RunDir) -> Result<BTreeMap<u64, Vec<[f32; 2]>>, String> {
+    let path = run.dynamic_keypoints();
+    if !path.exists() {
+        return Ok(BTreeMap::new());
+    }
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let frames: Vec<crate::dense::masks::FrameKeypoints> = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: not a dynamic-keypoints file: {e}", path.display()))?;
+    Ok(frames
+        .into_iter()
+        .map(|f| {
+            (
+                time_key(f.timestamp),
+                f.points.iter().map(|p| [p[0], p[1]]).collect(),
+            )
+        })
+        .collect())
+}
+
+/// The cached boxes of the keyframe `frame`, when the cache has its file: 1 if logged.
+fn log_cached_boxes(
+    log: &LogHandle,
+    run: &RunDir,
+    frame: &FrameSummary,
+    at: At,
+) -> Result<usize, String> {
+    let file = cache_file(&run.detections(), frame.timestamp);
+    if !file.exists() {
+        return Ok(0);
+    }
+    let cached = read_cache_file(&file).map_err(|e| e.to_string())?;
+    let boxes = cached
+        .detections
+        .into_iter()
+        .map(|d| (frame.index, d))
+        .collect();
+    log.log("", at, Entry::Boxes(boxes));
+    Ok(1)
+}
+
+/// The colour (or left) image of frame `index`: 1 if logged.
+fn log_image(
+    log: &LogHandle,
+    sequence: &dyn Sequence,
+    index: usize,
+    at: At,
+) -> Result<usize, String> {
+    if index >= sequence.len() {
+        return Ok(0);
+    }
+    let loaded = sequence
+        .load(index)
+        .map_err(|e| format!("frame {index}: {e}"))?;
+    let rgb = match loaded.images {
+        FrameImages::Rgbd { rgb, .. } => rgb,
+        FrameImages::Stereo { left, .. } => image::DynamicImage::ImageLuma8(left).to_rgb8(),
+    };
+    log.log("", at, Entry::Image(rgb));
+    Ok(1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn facts(index: usize, state: &str, keyframe: bool) -> FrameFacts {
+        FrameFacts {
+            index,
+            state: state.into(),
+            keyframe,
+            lost: Some("few_inliers".into()),
+        }
+    }
+
+    #[test]
+    fn events_follow_state_changes() {
+        assert_eq!(frame_events(None, &facts(0, "ok", true)).len(), 2);
+        assert!(frame_events(Some("ok"), &facts(5, "ok", false)).is_empty());
+        let lost = frame_events(Some("ok"), &facts(6, "lost", false));
+        assert_eq!(lost[0].0, Level::Warning);
+        assert!(lost[0].1.contains("few_inliers"), "{:?}", lost);
+        assert!(frame_events(Some("lost"), &facts(9, "ok", false))[0]
+            .1
+            .contains("relocalised"));
+        assert!(frame_events(Some("lost"), &facts(9, "lost", false)).is_empty());
+    }
+
+    #[test]
+    fn nearest_frame_by_time() {
+        let frame = |index, timestamp| FrameSummary {
+            dynamic_keypoints: 0,
+            index,
+            timestamp,
+            state: "ok".into(),
+            keyframe: false,
+            keypoints: 0,
+            lost: None,
+        };
+        let frames = [frame(0, 1.0), frame(1, 1.1), frame(2, 1.2)];
+        assert_eq!(nearest_frame(&frames, 1.14), 1);
+        assert_eq!(nearest_frame(&frames, 9.0), 2);
+        assert_eq!(nearest_frame(&[], 9.0), 0);
+    }
+}

@@ -1,0 +1,324 @@
+//! The Rerun recording of a run, read back by an independent reader: the Python
+//! `rerun-sdk` of the same version (tools/read_rerun.py, through its dataframe API).
+//!
+//! The reader runs in the Python that `DOPSLAM_TEST_PYTHON` names, else `data/venv`'s
+//! (tools/test.sh installs `rerun-sdk` there). Without it the tests skip, saying why,
+//! unless `DOPSLAM_REQUIRE_RECORDING_WRITERS` is set (tools/test.sh sets it).
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+/// The Python with `rerun`, or `None` (the test skips).
+fn reader_python(test: &str) -> Option<PathBuf> {
+    let python = std::env::var_os("DOPSLAM_TEST_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("data/venv/bin/python"));
+    let ok = std::process::Command::new(&python)
+        .args(["-c", "import rerun, datafusion"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(python);
+    }
+    let why = format!(
+        "{} cannot import rerun (rerun-sdk[datafusion]; tools/test.sh installs it)",
+        python.display()
+    );
+    assert!(
+        std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
+        "{test}: {why}"
+    );
+    eprintln!("skipping {test}: {why}");
+    None
+}
+
+/// What tools/read_rerun.py reads from `rrd`.
+fn read(python: &Path, rrd: &Path) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
+    let output = std::process::Command::new(python)
+        .arg(script)
+        .arg(rrd)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).unwrap()
+}
+
+fn report(run: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("report.json")).unwrap()).unwrap()
+}
+
+/// Per frame index, a count the reader gives.
+fn per_frame(read: &Value, key: &str) -> BTreeMap<usize, u64> {
+    read[key]
+        .as_object()
+        .unwrap()
+        .iter()
+        .map(|(k, v)| (k.parse().unwrap(), v.as_u64().unwrap()))
+        .collect()
+}
+
+fn strings(value: &Value) -> Vec<String> {
+    value
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect()
+}
+
+/// `loop_room` in the default real-time mode with `--rerun`: one pose per tracked
+/// frame, each frame's keypoints (kept + removed) as many as report.json counts, the
+/// removed ones as its `dynamic_keypoints`, and the loop closed as an event with its
+/// edge drawn.
+#[test]
+fn a_run_logs_every_pose_keypoint_and_the_loop() {
+    let Some(python) = reader_python("a_run_logs_every_pose_keypoint_and_the_loop") else {
+        return;
+    };
+    let seq = common::temp_dir("rerun-loop").child("seq");
+    let dir = seq.parent().unwrap().to_path_buf();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    // 34 s at 10 fps: the camera passes its start (see tests/global.rs).
+    let mut synth =
+        dopslam::synth::SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
+    synth.sequence.frames = 340;
+    synth.sequence.fps = 10.0;
+    dopslam::synth::generate(&synth, &seq, false).unwrap();
+    let out = dir.join("run");
+    let rrd = dir.join("loop.rrd");
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &seq.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--detections",
+        "oracle",
+        "--no-dense",
+        "--rerun",
+        &rrd.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let read = read(&python, &rrd);
+    let report = report(&out);
+    let frames = report["frames"].as_array().unwrap();
+    let tracked: Vec<usize> = frames
+        .iter()
+        .filter(|f| f["state"] == "ok")
+        .map(|f| f["index"].as_u64().unwrap() as usize)
+        .collect();
+    let poses: Vec<usize> = read["pose_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .collect();
+    assert_eq!(poses, tracked);
+    let (kept, removed) = (per_frame(&read, "kept"), per_frame(&read, "removed"));
+    for f in frames.iter().filter(|f| f["state"] == "ok") {
+        let i = f["index"].as_u64().unwrap() as usize;
+        let all = kept.get(&i).copied().unwrap_or(0) + removed.get(&i).copied().unwrap_or(0);
+        assert_eq!(all, f["keypoints"].as_u64().unwrap(), "frame {i}");
+        // The first frame shows its keyframe's detection, which it waited for; no
+        // pose was estimated on it, so the report counts none removed.
+        if i != tracked[0] {
+            let removed = removed.get(&i).copied().unwrap_or(0);
+            assert_eq!(
+                removed,
+                f["dynamic_keypoints"].as_u64().unwrap(),
+                "frame {i}"
+            );
+        }
+    }
+    assert_eq!(read["images"].as_u64().unwrap() as usize, frames.len());
+    let events = strings(&read["events"]);
+    assert!(
+        events.iter().any(|e| e.contains("loop closed")),
+        "{events:?}"
+    );
+    let keyframes = frames.iter().filter(|f| f["keyframe"] == true).count();
+    assert_eq!(
+        events
+            .iter()
+            .filter(|e| e.contains("keyframe inserted"))
+            .count(),
+        keyframes
+    );
+    let entities = strings(&read["entities"]);
+    // (No detections here: the room has no movers; the view test has boxes.)
+    for entity in [
+        "world/camera",
+        "world/camera/image",
+        "world/map/static",
+        "world/keyframes",
+        "world/trajectory/tracking",
+        "events",
+        "events/loops",
+    ] {
+        assert!(
+            entities.iter().any(|e| e == entity),
+            "{entity} missing from {entities:?}"
+        );
+    }
+    let fixed = strings(&read["static_entities"]);
+    for entity in [
+        "world/trajectory/final",
+        "world/trajectory/truth",
+        "world/loops",
+        "world/camera/image",
+    ] {
+        assert!(
+            fixed.iter().any(|e| e == entity),
+            "{entity} missing from {fixed:?}"
+        );
+    }
+    let truth_poses = read["static_sizes"]["world/trajectory/truth"]
+        .as_u64()
+        .unwrap();
+    assert!(truth_poses >= 300, "{truth_poses}");
+}
+
+/// `dopslam view` on a finished run (DOP with the dense pass) gives a recording with the
+/// run's entities (all but the kept keypoints, which a run folder does not hold), and
+/// the dense mesh and cloud; `[output] rerun` writes run.rrd into the run folder.
+#[test]
+fn view_rebuilds_the_recording_of_a_finished_run() {
+    let Some(python) = reader_python("view_rebuilds_the_recording_of_a_finished_run") else {
+        return;
+    };
+    let seq = common::temp_dir("rerun-view").child("seq");
+    let dir = seq.parent().unwrap().to_path_buf();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    common::synth_preset(&root.join("configs/synth/walking_xyz.toml"), &seq, 40);
+    let config = dir.join("rerun.toml");
+    std::fs::write(
+        &config,
+        "[output]\nrerun = true\nrerun_image_scale = 0.25\n",
+    )
+    .unwrap();
+    let out = dir.join("run");
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &seq.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--config",
+        &config.to_string_lossy(),
+        "--detections",
+        "oracle",
+        "--deterministic",
+    ]);
+    assert!(ok, "{err}");
+    let live = read(&python, &out.join("run.rrd"));
+    let viewed_path = dir.join("viewed.rrd");
+    let (ok, stdout, err) = common::dopslam(&[
+        "view",
+        &out.to_string_lossy(),
+        "-o",
+        &viewed_path.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("40 frames"), "{stdout}");
+    let viewed = read(&python, &viewed_path);
+    assert!(strings(&live["entities"])
+        .iter()
+        .any(|e| e == "world/camera/image/detections"));
+    let mut expected = strings(&live["entities"]);
+    expected.retain(|e| !e.starts_with("world/map/") && e != "world/camera/image/keypoints");
+    let mut got = strings(&viewed["entities"]);
+    got.retain(|e| e != "world/camera/image/keypoints");
+    assert_eq!(got, expected);
+    assert_eq!(viewed["pose_frames"], live["pose_frames"]);
+    assert_eq!(per_frame(&viewed, "removed"), per_frame(&live, "removed"));
+    assert_eq!(viewed["images"], live["images"]);
+    for entity in [
+        "world/dense/mesh",
+        "world/dense/cloud",
+        "world/trajectory/final",
+        "world/trajectory/truth",
+    ] {
+        assert!(
+            strings(&live["static_entities"])
+                .iter()
+                .any(|e| e == entity),
+            "live: {entity}"
+        );
+        assert!(
+            strings(&viewed["static_entities"])
+                .iter()
+                .any(|e| e == entity),
+            "viewed: {entity}"
+        );
+    }
+    // A recording is never written over.
+    let (ok, _, err) = common::dopslam(&[
+        "view",
+        &out.to_string_lossy(),
+        "-o",
+        &viewed_path.to_string_lossy(),
+    ]);
+    assert!(!ok && err.contains("exists"), "{err}");
+}
+
+/// An `.rrd` that cannot be written fails before any work, naming it; a viewer that
+/// does not answer is a warning and the run goes on.
+#[test]
+fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
+    let seq = common::temp_dir("rerun-bad").child("seq");
+    let dir = seq.parent().unwrap().to_path_buf();
+    common::synth_static_room(&seq, 12);
+    let blocker = dir.join("file");
+    std::fs::write(&blocker, "x").unwrap();
+    let rrd = blocker.join("run.rrd");
+    let out = dir.join("run");
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &seq.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--detections",
+        "none",
+        "--no-dense",
+        "--no-global",
+        "--rerun",
+        &rrd.to_string_lossy(),
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("run.rrd") && err.contains("cannot be made"),
+        "{err}"
+    );
+    assert!(!out.join("report.json").exists(), "the run started: {err}");
+    // A port nothing listens on (bound, then released).
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &seq.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--detections",
+        "none",
+        "--no-dense",
+        "--no-global",
+        "--rerun-connect",
+        &format!("127.0.0.1:{port}"),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("warning: --rerun-connect") && err.contains("goes on"),
+        "{err}"
+    );
+    assert!(out.join("report.json").exists());
+}

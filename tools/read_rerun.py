@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""Reads a dopslam Rerun recording (.rrd) back with the Python `rerun-sdk` and prints
+what it holds as JSON: the entity paths (temporal and static), the frames with a
+camera pose, each frame's kept and removed keypoint counts, the events, and the
+number of points of the static entities.
+
+It goes through rerun-sdk's dataframe API (a local server holding the file as a
+dataset), independently of dopslam's writer. Used by tests/rerun.rs:
+
+    data/venv/bin/python tools/read_rerun.py RUN.rrd
+"""
+
+import json
+import sys
+
+import rerun as rr
+
+
+def entity_of(column):
+    """`/world/camera:Transform3D:translation` -> `world/camera`."""
+    return column.split(":")[0].lstrip("/")
+
+
+def counts(frame, column):
+    """Per frame index, the number of instances in `column` (its last row wins)."""
+    out = {}
+    if column not in frame.columns:
+        return out
+    for index, value in zip(frame["frame"], frame[column]):
+        if value is not None and hasattr(value, "__len__"):
+            out[int(index)] = len(value)
+    return out
+
+
+def main():
+    path = sys.argv[1]
+    with rr.server.Server(host="127.0.0.1", datasets={"run": [path]}) as server:
+        dataset = server.client().get_dataset("run")
+        temporal = dataset.reader(index="frame").to_pandas()
+        static = dataset.reader(index=None).to_pandas()
+    columns = [c for c in temporal.columns if ":" in c]
+    static_columns = [c for c in static.columns if ":" in c and not c.startswith("property:")]
+    poses = set()
+    for column in columns:
+        if entity_of(column) == "world/camera" and "Transform3D" in column:
+            for index, value in zip(temporal["frame"], temporal[column]):
+                if value is not None:
+                    poses.add(int(index))
+    events = []
+    for column in columns:
+        if entity_of(column).startswith("events") and column.endswith(":text"):
+            for value in temporal[column]:
+                if value is not None:
+                    events.extend(str(v) for v in value)
+    static_sizes = {}
+    for column in static_columns:
+        if column.endswith(":positions") or column.endswith(":vertex_positions") or column.endswith(":strips"):
+            value = static[column].iloc[0] if len(static) else None
+            if value is not None:
+                static_sizes[entity_of(column)] = sum(len(v) for v in value) if column.endswith(":strips") else len(value)
+    print(json.dumps({
+        "version": rr.__version__,
+        "entities": sorted({entity_of(c) for c in columns}),
+        "static_entities": sorted({entity_of(c) for c in static_columns}),
+        "pose_frames": sorted(poses),
+        "kept": counts(temporal, "/world/camera/image/keypoints:Points2D:positions"),
+        "removed": counts(temporal, "/world/camera/image/removed:Points2D:positions"),
+        "images": len(counts(temporal, "/world/camera/image:EncodedImage:blob")),
+        "events": events,
+        "static_sizes": static_sizes,
+    }))
+
+
+if __name__ == "__main__":
+    main()
