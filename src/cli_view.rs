@@ -127,7 +127,7 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
                 .map_err(anyhow::Error::msg)?
         }
     };
-    let log = logger.handle();
+    let log = logger.waiting_handle();
     if let Some(camera) = report_camera(&run.report()) {
         dopslam::run::log_pinhole(&log, &camera);
     }

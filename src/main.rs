@@ -732,16 +732,10 @@ fn run_run(args: RunArgs) -> Result<()> {
         ..options
     };
     let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &args.out, &options);
-    let report = match (report, logger) {
-        (Ok(report), logger) => (report, logger),
-        (Err(e), Some(logger)) => {
-            // What was logged before the run stopped stays readable.
-            let _ = dopslam::run::finish_recording(logger, false);
-            return Err(e.into());
-        }
-        (Err(e), None) => return Err(e.into()),
-    };
-    let (report, logger) = report;
+    // On an error the recording closes as it drops: what was logged stays readable.
+    let mut report = report?;
+    // --rerun's, or the run's own run.rrd ([output] rerun).
+    let recording = logger.or(report.recording.take());
     let t = &report.totals;
     println!(
         "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
@@ -803,10 +797,10 @@ fn run_run(args: RunArgs) -> Result<()> {
         );
     }
     if args.compare_no_dop {
-        compare_no_dop(&args, &config, sequence.as_ref(), &options, &report)?;
+        let log = recording.as_ref().map(|l| l.handle());
+        compare_no_dop(&args, &config, sequence.as_ref(), &options, (&report, log))?;
     }
-    if let Some(logger) = logger {
-        drop(options);
+    if let Some(logger) = recording {
         dopslam::run::finish_recording(logger, true)?;
     }
     Ok(())
@@ -819,36 +813,36 @@ fn compare_no_dop(
     config: &Config,
     sequence: &dyn Sequence,
     options: &dopslam::run::RunOptions,
-    report: &dopslam::run::RunReport,
+    (report, log): (&dopslam::run::RunReport, Option<dopslam::view::LogHandle>),
 ) -> Result<()> {
-    {
-        let baseline_dir = args.out.join(dopslam::io::run_dir::names::NO_DOP);
-        let mut baseline = config.clone();
-        baseline.dop.mode = dopslam::dop::Mode::Off;
-        // ORB-SLAM2 behaviour needs no detector.
-        baseline.detector.source = dopslam::detect::Source::None;
-        eprintln!(
-            "the baseline: the same run with --no-dop into {}",
-            baseline_dir.display()
-        );
-        let baseline_options = dopslam::run::RunOptions {
-            rerun: None,
-            ..options.clone()
-        };
-        let baseline_report =
-            dopslam::run::run_sequence(sequence, &baseline, &baseline_dir, &baseline_options)?;
-        let comparison = cli_maps::compare_with_baseline(
-            (&args.out, &baseline_dir),
-            sequence,
-            &args.sequence,
-            config,
-        )?;
-        cli_maps::print_summary(report, &baseline_report, &comparison);
-        if let Some(log) = &options.rerun {
-            let run = dopslam::io::run_dir::RunDir::new(&baseline_dir);
-            dopslam::view::results::log_results(log, &run, "no_dop", None)
-                .map_err(anyhow::Error::msg)?;
-        }
+    let baseline_dir = args.out.join(dopslam::io::run_dir::names::NO_DOP);
+    let mut baseline = config.clone();
+    baseline.dop.mode = dopslam::dop::Mode::Off;
+    // The baseline's trajectory and maps go into the run's recording (below).
+    baseline.output.rerun = false;
+    // ORB-SLAM2 behaviour needs no detector.
+    baseline.detector.source = dopslam::detect::Source::None;
+    eprintln!(
+        "the baseline: the same run with --no-dop into {}",
+        baseline_dir.display()
+    );
+    let baseline_options = dopslam::run::RunOptions {
+        rerun: None,
+        ..options.clone()
+    };
+    let baseline_report =
+        dopslam::run::run_sequence(sequence, &baseline, &baseline_dir, &baseline_options)?;
+    let comparison = cli_maps::compare_with_baseline(
+        (&args.out, &baseline_dir),
+        sequence,
+        &args.sequence,
+        config,
+    )?;
+    cli_maps::print_summary(report, &baseline_report, &comparison);
+    if let Some(log) = &log {
+        let run = dopslam::io::run_dir::RunDir::new(&baseline_dir);
+        dopslam::view::results::log_results(log, &run, "no_dop", None)
+            .map_err(anyhow::Error::msg)?;
     }
     Ok(())
 }

@@ -16,6 +16,10 @@ import sys
 import rerun as rr
 
 
+# What a run logs per frame (the rest, trajectories and the dense map, is static).
+TEMPORAL = ["/world/camera/**", "/world/map/**", "/world/keyframes", "/world/trajectory/tracking", "/events/**"]
+
+
 def entity_of(column):
     """`/world/camera:Transform3D:translation` -> `world/camera`."""
     return column.split(":")[0].lstrip("/")
@@ -36,7 +40,9 @@ def main():
     path = sys.argv[1]
     with rr.server.Server(host="127.0.0.1", datasets={"run": [path]}) as server:
         dataset = server.client().get_dataset("run")
-        temporal = dataset.reader(index="frame").to_pandas()
+        # The per-frame entities only: a static column (the dense mesh) would be
+        # repeated on every row.
+        temporal = dataset.filter_contents(TEMPORAL).reader(index="frame").to_pandas()
         static = dataset.reader(index=None).to_pandas()
     columns = [c for c in temporal.columns if ":" in c]
     static_columns = [c for c in static.columns if ":" in c and not c.startswith("property:")]

@@ -131,5 +131,5 @@ if [ "$run_demo" = 1 ]; then
         2>&1 | tee outputs/demo/run.log | sed -n '/^summary:/,$p; /^error/p'
     $bin eval outputs/demo/sequence/groundtruth.txt outputs/demo/run/trajectory.txt \
         --plot outputs/demo/run/plots --save-report outputs/demo/run/evaluation.json > outputs/demo/eval.log 2>&1
-    say "outputs/demo/run: trajectory.txt, dense_mesh.ply/.obj, dense_points.ply, report.json, plots/; no_dop/ (ORB-SLAM2 behaviour); compare_no_dop/ (table, pictures); the whole log: outputs/demo/run.log"
+    say "outputs/demo/run: trajectory.txt, dense_mesh.ply/.obj, dense_points.ply, report.json, plots/; no_dop/ (ORB-SLAM2 behaviour); compare_no_dop/ (table, pictures); run.rrd (the Rerun recording: pip install rerun-sdk==0.36.3, then rerun outputs/demo/run/run.rrd); the whole log: outputs/demo/run.log"
 fi

@@ -277,6 +277,9 @@ pub struct FrameSummary {
 #[derive(Debug, Clone, Deserialize)]
 pub struct GlobalSummary {
     pub loops: Vec<serde_json::Value>,
+    /// Every loop candidate that reached consistency checking, with its outcome.
+    #[serde(default)]
+    pub candidates: Vec<serde_json::Value>,
 }
 
 impl RunSummary {

@@ -37,8 +37,8 @@ use crate::dop::Mode;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::pacing::Pace;
-use global_pass::global_pass;
 use crate::view::{At, Entry, Logger, Target};
+use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
 use rerun_log::RerunLog;
 use outputs::Computed;
@@ -123,9 +123,7 @@ pub fn run_sequence(
         crate::view::results::log_results(log, &run, "", sequence.ground_truth())
             .map_err(RunError::Input)?;
     }
-    if let Some(logger) = own_log {
-        finish_recording(logger, options.progress)?;
-    }
+    report.recording = own_log;
     match stop {
         Some(message) => Err(RunError::Interrupted {
             message,
@@ -137,7 +135,8 @@ pub fn run_sequence(
 }
 
 /// `run.rrd` in the run folder when `[output] rerun` asks for it and no recording was
-/// handed in; opened before any work (a build without the feature says so here).
+/// handed in; opened before any work (a build without the feature says so here). The
+/// run hands it back open in [`RunReport::recording`].
 fn open_run_recording(
     config: &crate::config::Config,
     run: &RunDir,

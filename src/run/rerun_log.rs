@@ -7,8 +7,8 @@ use nalgebra::Vector3;
 
 use super::observers::{FrameObserver, FrameView};
 use crate::dynamics::Applied;
-use crate::view::{At, Entry, LogHandle};
 use crate::view::results::{events_entry, frame_events, FrameFacts, TRAJECTORY_EVERY};
+use crate::view::{At, Entry, LogHandle};
 
 /// Logs the tracking pass (see the module doc).
 pub struct RerunLog {
@@ -90,7 +90,9 @@ impl FrameObserver for RerunLog {
                     .map(String::from)
             }),
         };
-        if let Some(entry) = events_entry(frame_events(self.previous.as_deref(), &facts)) {
+        if let Some(entry) =
+            events_entry(view.index, frame_events(self.previous.as_deref(), &facts))
+        {
             self.log(entry);
         }
         self.previous = Some(state);

@@ -12,7 +12,7 @@
 //! | `world/camera/image/depth` | depth (with `rerun_depth`) |
 //! | `world/map/static`, `world/map/moving` | the local map at keyframes |
 //! | `world/keyframes` | keyframe centres |
-//! | `world/trajectory/{tracking,final,truth}` | trajectories |
+//! | `world/trajectory/{tracking,final,truth}` | trajectories (blue, green, grey; a baseline's red) |
 //! | `world/loops` | closed loops' edges |
 //! | `world/dense/mesh`, `world/dense/cloud` | the dense map |
 //! | `events`, `events/loops` | keyframes, tracking lost and relocalised; loops closed |
@@ -26,6 +26,9 @@ pub use without_rerun::{open_stream, Stream};
 
 #[cfg(feature = "rerun")]
 use super::entry::{At, Entry, Level, Message};
+
+/// Timestamps above this many seconds (1973) are Unix times; below, durations.
+pub const UNIX_TIME_AFTER: f64 = 1e8;
 
 /// The entity path of `rest` under `prefix` (`world/...`), or of the events.
 pub fn path(prefix: &str, rest: &str) -> String {
@@ -134,7 +137,13 @@ mod with_rerun {
             match message.at {
                 At::Frame { index, seconds } => {
                     stream.set_time_sequence("frame", index as i64);
-                    stream.set_duration_secs("time", seconds);
+                    // TUM's stamps are Unix times (shown as dates), KITTI's and most
+                    // recordings' own clocks start near 0 (shown as durations).
+                    if seconds > UNIX_TIME_AFTER {
+                        stream.set_timestamp_secs_since_epoch("time", seconds);
+                    } else {
+                        stream.set_duration_secs("time", seconds);
+                    }
                 }
                 At::Always => {}
             }
@@ -154,7 +163,30 @@ mod with_rerun {
             }
         }
 
+        /// Each entry to the method of its group (every variant named: a new one
+        /// must be given a group).
         fn log_entry(
+            &self,
+            message: &Message,
+            config: &OutputConfig,
+        ) -> rerun::RecordingStreamResult<()> {
+            match &message.entry {
+                Entry::Pinhole { .. }
+                | Entry::Camera { .. }
+                | Entry::Image(_)
+                | Entry::Depth { .. } => self.log_camera(message, config),
+                Entry::Keypoints { .. } | Entry::Boxes(_) => self.log_pixels(message, config),
+                Entry::Mesh { .. } | Entry::Cloud { .. } => self.log_dense(message),
+                Entry::MapPoints { .. }
+                | Entry::Keyframes(_)
+                | Entry::Trajectory { .. }
+                | Entry::Event { .. }
+                | Entry::LoopEdges(_) => self.log_world(message),
+            }
+        }
+
+        /// The camera: its pinhole, pose, image and depth.
+        fn log_camera(
             &self,
             message: &Message,
             config: &OutputConfig,
@@ -213,6 +245,20 @@ mod with_rerun {
                     .with_meter(1.0);
                     self.send(at, at_path(DEPTH), &depth)
                 }
+                _ => unreachable!("log_entry sends only these here"),
+            }
+        }
+
+        /// What is drawn on the image: keypoints and boxes (scaled with it).
+        fn log_pixels(
+            &self,
+            message: &Message,
+            config: &OutputConfig,
+        ) -> rerun::RecordingStreamResult<()> {
+            let (prefix, at) = (message.prefix, message.at);
+            let scale = config.rerun_image_scale as f32;
+            let at_path = |rest: &str| path(prefix, rest);
+            match &message.entry {
                 Entry::Keypoints { kept, removed } => {
                     let positions = kept.iter().map(|(p, _)| [p[0] * scale, p[1] * scale]);
                     let colours: Vec<Color> = kept
@@ -242,12 +288,21 @@ mod with_rerun {
                             (d.bbox[3] - d.bbox[1]) * scale,
                         ]
                     });
-                    let labels = detections.iter().map(|(keyframe, d)| {
-                        format!("{} {:.2} (keyframe of frame {keyframe})", d.class, d.score)
-                    });
+                    let labels = detections
+                        .iter()
+                        .map(|(keyframe, d)| format!("{} {:.2} (kf {keyframe})", d.class, d.score));
                     let boxes = Boxes2D::from_mins_and_sizes(mins, sizes).with_labels(labels);
                     self.send(at, at_path(DETECTIONS), &boxes)
                 }
+                _ => unreachable!("log_entry sends only these here"),
+            }
+        }
+
+        /// The world: map points, keyframes, trajectories, events, loops.
+        fn log_world(&self, message: &Message) -> rerun::RecordingStreamResult<()> {
+            let (prefix, at) = (message.prefix, message.at);
+            let at_path = |rest: &str| path(prefix, rest);
+            match &message.entry {
                 Entry::MapPoints { fixed, moving } => {
                     let fixed_points = Points3D::new(fixed.iter().map(vec3))
                         .with_colors([Color::from_rgb(200, 200, 200)])
@@ -265,9 +320,12 @@ mod with_rerun {
                     self.send(at, at_path(KEYFRAMES), &points)
                 }
                 Entry::Trajectory { name, centres } => {
-                    let colour = match *name {
-                        "truth" => Color::from_rgb(120, 120, 120),
-                        "final" => Color::from_rgb(40, 200, 80),
+                    // A baseline's (`no_dop`) in red, the run's green (final) and
+                    // blue (tracking), the ground truth grey.
+                    let colour = match (*name, prefix.is_empty()) {
+                        ("truth", _) => Color::from_rgb(120, 120, 120),
+                        (_, false) => Color::from_rgb(230, 60, 60),
+                        ("final", true) => Color::from_rgb(40, 200, 80),
                         _ => Color::from_rgb(60, 120, 255),
                     };
                     let strip = LineStrips3D::new([centres.iter().map(vec3).collect::<Vec<_>>()])
@@ -277,14 +335,14 @@ mod with_rerun {
                 Entry::Event {
                     level,
                     text,
-                    loop_closed,
+                    about_loops,
                 } => {
                     let level = match level {
                         Level::Info => rerun::TextLogLevel::INFO,
                         Level::Warning => rerun::TextLogLevel::WARN,
                     };
                     let log = TextLog::new(text.as_str()).with_level(level);
-                    let entity = if *loop_closed {
+                    let entity = if *about_loops {
                         format!("{}/loops", at_path(EVENTS))
                     } else {
                         at_path(EVENTS)
@@ -297,6 +355,15 @@ mod with_rerun {
                         LineStrips3D::new(strips).with_colors([Color::from_rgb(255, 160, 0)]);
                     self.send(at, at_path(LOOPS), &lines)
                 }
+                _ => unreachable!("log_entry sends only these here"),
+            }
+        }
+
+        /// The dense map.
+        fn log_dense(&self, message: &Message) -> rerun::RecordingStreamResult<()> {
+            let (prefix, at) = (message.prefix, message.at);
+            let at_path = |rest: &str| path(prefix, rest);
+            match &message.entry {
                 Entry::Mesh {
                     vertices,
                     triangles,
@@ -320,6 +387,7 @@ mod with_rerun {
                     }
                     self.send(at, at_path(CLOUD), &cloud)
                 }
+                _ => unreachable!("log_entry sends only these here"),
             }
         }
 

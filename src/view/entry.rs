@@ -66,13 +66,13 @@ pub enum Entry {
         name: &'static str,
         centres: Vec<Vector3<f64>>,
     },
-    /// Something that happened in tracking (keyframe, lost, relocalised), or a loop
-    /// closed (`loop_closed`: logged under `events/loops`, so that it does not hide
-    /// the tracking events of its keyframe's frame).
+    /// Something that happened in tracking (keyframe, lost, relocalised), or to loops
+    /// (`about_loops`: candidates and closures, logged under `events/loops`, so that
+    /// they do not hide the tracking events of their keyframe's frame).
     Event {
         level: Level,
         text: String,
-        loop_closed: bool,
+        about_loops: bool,
     },
     /// The closed loops' edges, each between two camera centres.
     LoopEdges(Vec<(Vector3<f64>, Vector3<f64>)>),

@@ -31,6 +31,8 @@ pub struct LogSummary {
 pub struct LogHandle {
     sender: SyncSender<Command>,
     dropped: Arc<AtomicUsize>,
+    /// Images are dropped when the queue is full (a run), or wait (`dopslam view`).
+    drops_images: bool,
     pub config: Arc<OutputConfig>,
 }
 
@@ -46,7 +48,8 @@ impl LogHandle {
     /// error is reported by [`Logger::finish`]) takes nothing more.
     pub fn log(&self, prefix: &'static str, at: At, entry: Entry) {
         let command = Command::Log(Box::new(Message { prefix, at, entry }));
-        let droppable = matches!(&command, Command::Log(m) if m.entry.droppable());
+        let droppable =
+            self.drops_images && matches!(&command, Command::Log(m) if m.entry.droppable());
         if droppable {
             if let Err(TrySendError::Full(_)) = self.sender.try_send(command) {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -57,11 +60,34 @@ impl LogHandle {
     }
 }
 
-/// The recording and its logging thread.
+/// The recording and its logging thread. Dropped without [`Logger::finish`] (a run
+/// that stopped on an error), it still writes what was queued and closes the file.
 pub struct Logger {
     handle: LogHandle,
-    thread: JoinHandle<Result<usize, String>>,
+    thread: Option<JoinHandle<Result<usize, String>>>,
     pub target: Target,
+}
+
+impl std::fmt::Debug for Logger {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Logger({:?})", self.target)
+    }
+}
+
+impl Drop for Logger {
+    fn drop(&mut self) {
+        if self.thread.is_none() {
+            return;
+        }
+        match self.close() {
+            Err(e) => eprintln!("warning: {e}"),
+            Ok(summary) if summary.dropped_images > 0 => eprintln!(
+                "warning: the Rerun recording fell behind the run and dropped {} image(s) ({:?})",
+                summary.dropped_images, self.target
+            ),
+            Ok(_) => {}
+        }
+    }
 }
 
 impl Logger {
@@ -86,22 +112,39 @@ impl Logger {
             handle: LogHandle {
                 sender,
                 dropped: Arc::new(AtomicUsize::new(0)),
+                drops_images: true,
                 config: Arc::new(config.clone()),
             },
-            thread,
+            thread: Some(thread),
             target,
         })
     }
 
+    /// A handle that drops images when the logging thread falls behind (a run).
     pub fn handle(&self) -> LogHandle {
         self.handle.clone()
     }
 
+    /// A handle whose images wait for room like everything else (`dopslam view`,
+    /// which has no real time to keep).
+    pub fn waiting_handle(&self) -> LogHandle {
+        LogHandle {
+            drops_images: false,
+            ..self.handle.clone()
+        }
+    }
+
     /// Writes what is queued, closes the recording and says what it held.
-    pub fn finish(self) -> Result<LogSummary, String> {
+    pub fn finish(mut self) -> Result<LogSummary, String> {
+        self.close()
+    }
+
+    fn close(&mut self) -> Result<LogSummary, String> {
+        let Some(thread) = self.thread.take() else {
+            return Err("the Rerun recording was closed already".into());
+        };
         let _ = self.handle.sender.send(Command::Stop);
-        let logged = self
-            .thread
+        let logged = thread
             .join()
             .map_err(|_| "the Rerun logging thread panicked".to_string())??;
         Ok(LogSummary {
@@ -176,7 +219,10 @@ mod tests {
         let image = image::RgbImage::from_pixel(640, 480, image::Rgb([90, 120, 200]));
         let (images, poses) = (60, 60);
         for index in 0..images.max(poses) {
-            let at = At::Frame { index, seconds: index as f64 / 30.0 };
+            let at = At::Frame {
+                index,
+                seconds: index as f64 / 30.0,
+            };
             log.log("", at, Entry::Image(image.clone()));
             let world_from_camera = crate::geometry::se3::Se3::identity();
             log.log("", at, Entry::Camera { world_from_camera });
@@ -188,7 +234,9 @@ mod tests {
         assert!(summary.logged >= poses);
         assert!(std::fs::metadata(&path).unwrap().len() > 0);
         // The file exists now: a second recording there is refused.
-        let again = Logger::open(Target::File(path), &config, "test").err().unwrap();
+        let again = Logger::open(Target::File(path), &config, "test")
+            .err()
+            .unwrap();
         assert!(again.contains("exists"), "{again}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -46,7 +46,7 @@ impl Default for OutputConfig {
             rerun_image_scale: 0.5,
             rerun_jpeg_quality: 80,
             rerun_depth: false,
-            rerun_max_points: 200_000,
+            rerun_max_points: 500_000,
             rerun_queue: 64,
         }
     }

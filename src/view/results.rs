@@ -35,30 +35,26 @@ pub struct FrameFacts {
 /// lost (with why), relocalised.
 pub fn frame_events(previous: Option<&str>, facts: &FrameFacts) -> Vec<(Level, String)> {
     let mut events = Vec::new();
-    let index = facts.index;
     match (previous, facts.state.as_str()) {
         (Some("ok"), "lost") => {
             let why = facts.lost.as_deref().unwrap_or("no reason given");
-            events.push((
-                Level::Warning,
-                format!("frame {index}: tracking lost ({why})"),
-            ));
+            events.push((Level::Warning, format!("tracking lost ({why})")));
         }
-        (Some("lost"), "ok") => events.push((Level::Info, format!("frame {index}: relocalised"))),
+        (Some("lost"), "ok") => events.push((Level::Info, "relocalised".to_string())),
         (Some("not_initialised") | None, "ok") => {
-            events.push((Level::Info, format!("frame {index}: tracking started")))
+            events.push((Level::Info, "tracking started".to_string()))
         }
         _ => {}
     }
     if facts.keyframe {
-        events.push((Level::Info, format!("frame {index}: keyframe inserted")));
+        events.push((Level::Info, "keyframe inserted".to_string()));
     }
     events
 }
 
-/// A frame's events as one entry (one text per frame and entity: a second one at the
-/// same time would hide the first), a warning when one of them is.
-pub fn events_entry(events: Vec<(Level, String)>) -> Option<Entry> {
+/// The events of frame `index` as one entry (one text per frame and entity: a second
+/// one at the same time would hide the first), a warning when one of them is.
+pub fn events_entry(index: usize, events: Vec<(Level, String)>) -> Option<Entry> {
     if events.is_empty() {
         return None;
     }
@@ -70,14 +66,14 @@ pub fn events_entry(events: Vec<(Level, String)>) -> Option<Entry> {
     let texts: Vec<String> = events.into_iter().map(|(_, t)| t).collect();
     Some(Entry::Event {
         level,
-        text: texts.join("; "),
-        loop_closed: false,
+        text: format!("frame {index}: {}", texts.join("; ")),
+        about_loops: false,
     })
 }
 
 /// Logs what the run folder holds after the run (under `prefix`): the final
-/// trajectory, `truth` aligned to it (SE(3), as `dopslam eval`), the loops and the
-/// dense map. Each part that is absent is left out; a file that cannot be read is an
+/// trajectory, `truth` aligned to it (SE(3), as `dopslam eval`), the loops (of the run
+/// itself: a baseline's, under a prefix, are left out) and the dense map. Each part that is absent is left out; a file that cannot be read is an
 /// error naming it.
 pub fn log_results(
     log: &LogHandle,
@@ -111,9 +107,10 @@ pub fn log_results(
             );
         }
     }
-    if run.report().exists() {
+    // The loops of the run itself (a baseline's would fill the run's events).
+    if run.report().exists() && prefix.is_empty() {
         let summary = run.read_summary().map_err(|e| e.to_string())?;
-        log_loops(log, &summary, estimate.as_ref(), prefix);
+        log_loops(log, &summary, estimate.as_ref());
     }
     log_dense(log, run, prefix)
 }
@@ -143,36 +140,56 @@ fn aligned_truth(truth: &Trajectory, estimate: &Trajectory) -> Option<Vec<Vector
     )
 }
 
-/// The closed loops: an event at each loop's keyframe, and the edges between the two
-/// keyframes' final centres.
+/// The loops: an event at each candidate's keyframe (detected, with the outcome of
+/// its checks) and at each closed loop's, joined per frame; and the edges between the
+/// two keyframes' final centres of the closed ones.
 fn log_loops(
     log: &LogHandle,
     summary: &RunSummary,
     estimate: Option<&Trajectory>,
-    prefix: &'static str,
 ) {
-    let loops = summary.global.as_ref().map_or(&[][..], |g| &g.loops[..]);
-    let time_of = |value: &serde_json::Value, key: &str| value.get(key).and_then(|v| v.as_f64());
-    let mut edges = Vec::new();
-    for found in loops {
-        let (Some(at), Some(matched)) = (
-            time_of(found, "keyframe_time"),
-            time_of(found, "matched_time"),
-        ) else {
+    let (loops, candidates) = summary
+        .global
+        .as_ref()
+        .map_or((&[][..], &[][..]), |g| (&g.loops[..], &g.candidates[..]));
+    let number = |value: &serde_json::Value, key: &str| value.get(key).and_then(|v| v.as_f64());
+    let times = |value: &serde_json::Value| {
+        Some((
+            number(value, "keyframe_time")?,
+            number(value, "matched_time")?,
+        ))
+    };
+    let mut texts: BTreeMap<usize, (f64, Vec<String>)> = BTreeMap::new();
+    let mut say = |at: f64, text: String| {
+        let index = nearest_frame(&summary.frames, at);
+        texts.entry(index).or_insert((at, Vec::new())).1.push(text);
+    };
+    for candidate in candidates {
+        let Some((at, matched)) = times(candidate) else {
             continue;
         };
-        let index = nearest_frame(&summary.frames, at);
-        let correction = time_of(found, "correction_m").unwrap_or(f64::NAN);
-        log.log(
-            prefix,
-            At::Frame { index, seconds: at },
-            Entry::Event {
-                level: Level::Info,
-                text: format!(
-                    "frame {index}: loop closed with the keyframe at {matched:.3} s (keyframe moved {correction:.3} m)"
-                ),
-                loop_closed: true,
-            },
+        let outcome = candidate
+            .get("outcome")
+            .and_then(|o| o.as_str())
+            .unwrap_or("?");
+        let frame = nearest_frame(&summary.frames, matched);
+        say(
+            at,
+            format!("loop candidate with the keyframe of frame {frame}: {outcome}"),
+        );
+    }
+    let mut edges = Vec::new();
+    for found in loops {
+        let Some((at, matched)) = times(found) else {
+            continue;
+        };
+        let correction = number(found, "correction_m").unwrap_or(f64::NAN);
+        let frame = nearest_frame(&summary.frames, matched);
+        say(
+            at,
+            format!(
+                "loop closed with the keyframe of frame {frame} (keyframe moved {correction:.3} m)"
+            ),
         );
         if let Some(estimate) = estimate {
             if let (Some(a), Some(b)) = (centre_at(estimate, at), centre_at(estimate, matched)) {
@@ -180,8 +197,16 @@ fn log_loops(
             }
         }
     }
+    for (index, (seconds, lines)) in texts {
+        let entry = Entry::Event {
+            level: Level::Info,
+            text: format!("frame {index}: {}", lines.join("; ")),
+            about_loops: true,
+        };
+        log.log("", At::Frame { index, seconds }, entry);
+    }
     if !edges.is_empty() {
-        log.log(prefix, At::Always, Entry::LoopEdges(edges));
+        log.log("", At::Always, Entry::LoopEdges(edges));
     }
 }
 
@@ -215,15 +240,8 @@ fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), 
     if mesh_path.exists() {
         let mesh = crate::io::ply::read_ply(&mesh_path).map_err(|e| e.to_string())?;
         let step = mesh.triangles.len().div_ceil(limit).max(1);
-        log.log(
-            prefix,
-            At::Always,
-            Entry::Mesh {
-                triangles: mesh.triangles.iter().step_by(step).copied().collect(),
-                vertices: mesh.vertices,
-                colours: mesh.colours,
-            },
-        );
+        let kept: Vec<[u32; 3]> = mesh.triangles.iter().step_by(step).copied().collect();
+        log.log(prefix, At::Always, compact_mesh(&mesh, kept));
     }
     let cloud_path = run.file(crate::io::run_dir::names::DENSE_POINTS);
     if cloud_path.exists() {
@@ -244,6 +262,34 @@ fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), 
         );
     }
     Ok(())
+}
+
+/// The mesh of `triangles` (of `mesh`) with only the vertices they use, renumbered.
+fn compact_mesh(mesh: &crate::geometry::mesh::Mesh, triangles: Vec<[u32; 3]>) -> Entry {
+    let mut new_index = vec![u32::MAX; mesh.vertices.len()];
+    let (mut vertices, mut colours) = (Vec::new(), Vec::new());
+    let coloured = mesh.colours.len() == mesh.vertices.len();
+    let triangles = triangles
+        .into_iter()
+        .map(|t| {
+            t.map(|v| {
+                let slot = &mut new_index[v as usize];
+                if *slot == u32::MAX {
+                    *slot = vertices.len() as u32;
+                    vertices.push(mesh.vertices[v as usize]);
+                    if coloured {
+                        colours.push(mesh.colours[v as usize]);
+                    }
+                }
+                *slot
+            })
+        })
+        .collect();
+    Entry::Mesh {
+        vertices,
+        triangles,
+        colours,
+    }
 }
 
 /// What the replay logged.
@@ -327,7 +373,7 @@ pub fn replay_frames(
                     .to_string()
             }),
         };
-        if let Some(entry) = events_entry(frame_events(previous.as_deref(), &facts)) {
+        if let Some(entry) = events_entry(frame.index, frame_events(previous.as_deref(), &facts)) {
             log.log("", at, entry);
         }
         previous = Some(frame.state.clone());
@@ -443,6 +489,36 @@ mod tests {
             .1
             .contains("relocalised"));
         assert!(frame_events(Some("lost"), &facts(9, "lost", false)).is_empty());
+    }
+
+    #[test]
+    fn a_decimated_mesh_keeps_only_its_vertices() {
+        let mesh = crate::geometry::mesh::Mesh {
+            vertices: vec![
+                [0.0; 3],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [5.0; 3],
+                [0.0, 0.0, 1.0],
+            ],
+            colours: vec![[1, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4], [5, 5, 5]],
+            normals: Vec::new(),
+            triangles: vec![[0, 1, 2], [3, 3, 3], [4, 2, 1]],
+        };
+        let Entry::Mesh {
+            vertices,
+            triangles,
+            colours,
+        } = compact_mesh(&mesh, vec![mesh.triangles[2]])
+        else {
+            unreachable!()
+        };
+        assert_eq!(triangles, vec![[0, 1, 2]]);
+        assert_eq!(
+            vertices,
+            vec![[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
+        );
+        assert_eq!(colours, vec![[5, 5, 5], [3, 3, 3], [2, 2, 2]]);
     }
 
     #[test]
