@@ -13,26 +13,7 @@ use std::path::{Path, PathBuf};
 
 /// The Python with `rosbags`, `numpy` and `PIL`, or `None` (the test skips).
 fn writer_python(test: &str) -> Option<PathBuf> {
-    let python = std::env::var_os("DOPSLAM_TEST_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("data/venv/bin/python"));
-    let ok = std::process::Command::new(&python)
-        .args(["-c", "import rosbags, numpy, PIL"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(python);
-    }
-    let why = format!(
-        "{} cannot import rosbags, numpy and PIL (tools/test.sh installs them)",
-        python.display()
-    );
-    assert!(
-        std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
-        "{test}: {why}"
-    );
-    eprintln!("skipping {test}: {why}");
-    None
+    common::test_python(test, "rosbags, numpy, PIL")
 }
 
 /// Writes `seq` as a recording at `out` with the writer's `options`.

@@ -12,44 +12,28 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
-/// The Python with `rerun`, or `None` (the test skips).
+/// The Python with `rerun` (and its dataframe API), or `None` (the test skips).
 fn reader_python(test: &str) -> Option<PathBuf> {
-    let python = std::env::var_os("DOPSLAM_TEST_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("data/venv/bin/python"));
-    let ok = std::process::Command::new(&python)
-        .args(["-c", "import rerun, datafusion"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(python);
-    }
-    let why = format!(
-        "{} cannot import rerun (rerun-sdk[datafusion]; tools/test.sh installs it)",
-        python.display()
-    );
-    assert!(
-        std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
-        "{test}: {why}"
-    );
-    eprintln!("skipping {test}: {why}");
-    None
+    common::test_python(test, "rerun, datafusion")
 }
 
-/// What tools/read_rerun.py reads from `rrd`.
-fn read(python: &Path, rrd: &Path) -> Value {
+/// What tools/read_rerun.py reads from `rrd`, or its error.
+fn try_read(python: &Path, rrd: &Path) -> Result<Value, String> {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
     let output = std::process::Command::new(python)
         .arg(script)
         .arg(rrd)
         .output()
         .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    serde_json::from_slice(&output.stdout).unwrap()
+    if !output.status.success() {
+        return Err(String::from_utf8_lossy(&output.stderr).into_owned());
+    }
+    serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())
+}
+
+/// What tools/read_rerun.py reads from `rrd`.
+fn read(python: &Path, rrd: &Path) -> Value {
+    try_read(python, rrd).unwrap()
 }
 
 fn report(run: &Path) -> Value {
@@ -239,24 +223,20 @@ fn view_rebuilds_the_recording_of_a_finished_run() {
     assert_eq!(viewed["pose_frames"], live["pose_frames"]);
     assert_eq!(per_frame(&viewed, "removed"), per_frame(&live, "removed"));
     assert_eq!(viewed["images"], live["images"]);
-    for entity in [
+    let fixed = [
         "world/dense/mesh",
         "world/dense/cloud",
         "world/trajectory/final",
         "world/trajectory/truth",
-    ] {
-        assert!(
-            strings(&live["static_entities"])
-                .iter()
-                .any(|e| e == entity),
-            "live: {entity}"
-        );
-        assert!(
-            strings(&viewed["static_entities"])
-                .iter()
-                .any(|e| e == entity),
-            "viewed: {entity}"
-        );
+    ];
+    for entity in fixed {
+        for (name, read) in [("live", &live), ("viewed", &viewed)] {
+            let logged = strings(&read["static_entities"]);
+            assert!(
+                logged.iter().any(|e| e == entity),
+                "{name}: {entity} not in {logged:?}"
+            );
+        }
     }
     // A recording is never written over.
     let (ok, _, err) = common::dopslam(&[
@@ -279,18 +259,15 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
     std::fs::write(&blocker, "x").unwrap();
     let rrd = blocker.join("run.rrd");
     let out = dir.join("run");
-    let (ok, _, err) = common::dopslam(&[
-        "run",
-        &seq.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--detections",
-        "none",
-        "--no-dense",
-        "--no-global",
-        "--rerun",
-        &rrd.to_string_lossy(),
-    ]);
+    // A short run without detector, dense or global pass, logged as `rerun_args` say.
+    let run = |rerun_args: &[&str]| {
+        let (seq, out) = (seq.to_string_lossy(), out.to_string_lossy());
+        let mut args = vec!["run", &seq, "--out", &out, "--detections", "none"];
+        args.extend(["--no-dense", "--no-global"]);
+        args.extend(rerun_args);
+        common::dopslam(&args)
+    };
+    let (ok, _, err) = run(&["--rerun", &rrd.to_string_lossy()]);
     assert!(!ok, "{err}");
     assert!(
         err.contains("run.rrd") && err.contains("cannot be made"),
@@ -303,6 +280,48 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
         .local_addr()
         .unwrap()
         .port();
+    let (ok, _, err) = run(&["--rerun-connect", &format!("127.0.0.1:{port}")]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("warning: --rerun-connect") && err.contains("goes on"),
+        "{err}"
+    );
+    assert!(out.join("report.json").exists());
+}
+
+/// `--rerun-connect` to a listening Rerun server (the rerun-sdk's own, saving what it
+/// receives): every tracked frame's pose and image arrive.
+#[test]
+fn streaming_to_a_listening_server_delivers_every_pose() {
+    let Some(python) = reader_python("streaming_to_a_listening_server_delivers_every_pose") else {
+        return;
+    };
+    let seq = common::temp_dir("rerun-connect").child("seq");
+    let dir = seq.parent().unwrap().to_path_buf();
+    common::synth_static_room(&seq, 20);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let received = dir.join("received.rrd");
+    let mut server = std::process::Command::new(python.with_file_name("rerun"))
+        .args([
+            "--port",
+            &port.to_string(),
+            "--save",
+            &received.to_string_lossy(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let listening = (0..100).any(|_| {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        std::net::TcpStream::connect(("127.0.0.1", port)).is_ok()
+    });
+    assert!(listening, "the Rerun server did not listen on {port}");
+    let out = dir.join("run");
     let (ok, _, err) = common::dopslam(&[
         "run",
         &seq.to_string_lossy(),
@@ -316,9 +335,26 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
         &format!("127.0.0.1:{port}"),
     ]);
     assert!(ok, "{err}");
-    assert!(
-        err.contains("warning: --rerun-connect") && err.contains("goes on"),
-        "{err}"
-    );
-    assert!(out.join("report.json").exists());
+    assert!(!err.contains("warning: --rerun-connect"), "{err}");
+    let tracked = report(&out)["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["state"] == "ok")
+        .count();
+    // The server writes what it receives as it comes: wait for the last of it.
+    let mut poses = 0;
+    for _ in 0..50 {
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        // (A file caught mid-write may not read yet.)
+        if let Ok(got) = try_read(&python, &received) {
+            poses = got["pose_frames"].as_array().unwrap().len();
+            if poses == tracked {
+                break;
+            }
+        }
+    }
+    let _ = server.kill();
+    let _ = server.wait();
+    assert_eq!(poses, tracked);
 }

@@ -176,12 +176,13 @@ mod with_rerun {
                 | Entry::Image(_)
                 | Entry::Depth { .. } => self.log_camera(message, config),
                 Entry::Keypoints { .. } | Entry::Boxes(_) => self.log_pixels(message, config),
-                Entry::Mesh { .. } | Entry::Cloud { .. } => self.log_dense(message),
                 Entry::MapPoints { .. }
                 | Entry::Keyframes(_)
                 | Entry::Trajectory { .. }
                 | Entry::Event { .. }
-                | Entry::LoopEdges(_) => self.log_world(message),
+                | Entry::LoopEdges(_)
+                | Entry::Mesh { .. }
+                | Entry::Cloud { .. } => self.log_world(message),
             }
         }
 
@@ -298,7 +299,7 @@ mod with_rerun {
             }
         }
 
-        /// The world: map points, keyframes, trajectories, events, loops.
+        /// The world: map points, keyframes, trajectories, events, loops, the dense map.
         fn log_world(&self, message: &Message) -> rerun::RecordingStreamResult<()> {
             let (prefix, at) = (message.prefix, message.at);
             let at_path = |rest: &str| path(prefix, rest);
@@ -355,15 +356,6 @@ mod with_rerun {
                         LineStrips3D::new(strips).with_colors([Color::from_rgb(255, 160, 0)]);
                     self.send(at, at_path(LOOPS), &lines)
                 }
-                _ => unreachable!("log_entry sends only these here"),
-            }
-        }
-
-        /// The dense map.
-        fn log_dense(&self, message: &Message) -> rerun::RecordingStreamResult<()> {
-            let (prefix, at) = (message.prefix, message.at);
-            let at_path = |rest: &str| path(prefix, rest);
-            match &message.entry {
                 Entry::Mesh {
                     vertices,
                     triangles,

@@ -143,11 +143,7 @@ fn aligned_truth(truth: &Trajectory, estimate: &Trajectory) -> Option<Vec<Vector
 /// The loops: an event at each candidate's keyframe (detected, with the outcome of
 /// its checks) and at each closed loop's, joined per frame; and the edges between the
 /// two keyframes' final centres of the closed ones.
-fn log_loops(
-    log: &LogHandle,
-    summary: &RunSummary,
-    estimate: Option<&Trajectory>,
-) {
+fn log_loops(log: &LogHandle, summary: &RunSummary, estimate: Option<&Trajectory>) {
     let (loops, candidates) = summary
         .global
         .as_ref()

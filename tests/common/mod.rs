@@ -21,6 +21,34 @@ pub fn shared_data(test: &str) -> Option<PathBuf> {
     }
 }
 
+/// The Python of the independent writers and readers the tests use (`DOPSLAM_TEST_PYTHON`,
+/// else `data/venv`'s, which tools/test.sh fills) when it can import `modules`
+/// (comma-separated); `None` (the test skips, saying why) otherwise, unless
+/// `DOPSLAM_REQUIRE_RECORDING_WRITERS` is set (tools/test.sh sets it): then the test
+/// fails.
+pub fn test_python(test: &str, modules: &str) -> Option<PathBuf> {
+    let python = std::env::var_os("DOPSLAM_TEST_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("data/venv/bin/python"));
+    let ok = std::process::Command::new(&python)
+        .args(["-c", &format!("import {modules}")])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(python);
+    }
+    let why = format!(
+        "{} cannot import {modules} (tools/test.sh installs them)",
+        python.display()
+    );
+    assert!(
+        std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
+        "{test}: {why}"
+    );
+    eprintln!("skipping {test}: {why}");
+    None
+}
+
 /// A test's temporary folder: removed with everything in it when dropped (also when
 /// the test fails), unless `DOPSLAM_KEEP_TEST_DIRS` is set. A whole run writes some
 /// gigabytes of synthetic sequences; left behind they fill the disk of the next run.
