@@ -25,15 +25,20 @@ def entity_of(column):
     return column.split(":")[0].lstrip("/")
 
 
-def counts(frame, column):
+def counts(table, column):
     """Per frame index, the number of instances in `column` (its last row wins)."""
     out = {}
-    if column not in frame.columns:
+    if column not in table:
         return out
-    for index, value in zip(frame["frame"], frame[column]):
-        if value is not None and hasattr(value, "__len__"):
+    for index, value in zip(table["frame"], table[column]):
+        if value is not None:
             out[int(index)] = len(value)
     return out
+
+
+def columns_of(frame):
+    """A pyarrow table as {column: list of Python values} (None where null)."""
+    return {name: frame.column(name).to_pylist() for name in frame.column_names}
 
 
 def main():
@@ -42,10 +47,10 @@ def main():
         dataset = server.client().get_dataset("run")
         # The per-frame entities only: a static column (the dense mesh) would be
         # repeated on every row.
-        temporal = dataset.filter_contents(TEMPORAL).reader(index="frame").to_pandas()
-        static = dataset.reader(index=None).to_pandas()
-    columns = [c for c in temporal.columns if ":" in c]
-    static_columns = [c for c in static.columns if ":" in c and not c.startswith("property:")]
+        temporal = columns_of(dataset.filter_contents(TEMPORAL).reader(index="frame").to_arrow_table())
+        static = columns_of(dataset.reader(index=None).to_arrow_table())
+    columns = [c for c in temporal if ":" in c]
+    static_columns = [c for c in static if ":" in c and not c.startswith("property:")]
     poses = set()
     for column in columns:
         if entity_of(column) == "world/camera" and "Transform3D" in column:
@@ -61,7 +66,7 @@ def main():
     static_sizes = {}
     for column in static_columns:
         if column.endswith(":positions") or column.endswith(":vertex_positions") or column.endswith(":strips"):
-            value = static[column].iloc[0] if len(static) else None
+            value = static[column][0] if static[column] else None
             if value is not None:
                 static_sizes[entity_of(column)] = sum(len(v) for v in value) if column.endswith(":strips") else len(value)
     print(json.dumps({
