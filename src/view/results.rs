@@ -13,6 +13,7 @@ use super::log::LogHandle;
 use crate::detect::{cache_file, read_cache_file};
 use crate::eval::associate::{associate, AssociationRule};
 use crate::geometry::alignment::{umeyama, AlignmentKind};
+use crate::geometry::se3::Se3;
 use crate::io::run_dir::{FrameSummary, RunDir, RunSummary};
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::Trajectory;
@@ -320,18 +321,56 @@ pub fn replay_frames(
         .map(|(i, t)| (time_key(*t), i))
         .collect();
     let removed = read_removed(run)?;
-    let mut replayed = Replayed::default();
-    let mut previous: Option<String> = None;
-    let mut path = Vec::new();
-    let mut keyframes = Vec::new();
+    let mut replay = Replay {
+        log,
+        replayed: Replayed::default(),
+        previous: None,
+        path: Vec::new(),
+        keyframes: Vec::new(),
+    };
+    let last = summary.frames.last().map(|f| f.index);
     for frame in &summary.frames {
         let at = At::Frame {
             index: frame.index,
             seconds: frame.timestamp,
         };
-        replayed.frames += 1;
-        if let Some(&i) = pose_at.get(&time_key(frame.timestamp)) {
-            let pose = tracking.poses[i];
+        let pose = pose_at
+            .get(&time_key(frame.timestamp))
+            .map(|&i| tracking.poses[i]);
+        replay.pose_and_events(frame, at, pose, Some(frame.index) == last);
+        if let Some(points) = removed.get(&time_key(frame.timestamp)) {
+            let entry = Entry::Keypoints {
+                kept: Vec::new(),
+                removed: points.clone(),
+            };
+            log.log("", at, entry);
+        }
+        if frame.keyframe {
+            replay.replayed.keyframe_boxes += log_cached_boxes(log, run, frame, at)?;
+        }
+        if let Some(sequence) = sequence {
+            replay.replayed.images += log_image(log, sequence, frame.index, at)?;
+        }
+    }
+    Ok(replay.replayed)
+}
+
+/// The state of a replay: the path and keyframes so far, the last frame's state.
+struct Replay<'a> {
+    log: &'a LogHandle,
+    replayed: Replayed,
+    previous: Option<String>,
+    path: Vec<Vector3<f64>>,
+    keyframes: Vec<Vector3<f64>>,
+}
+
+impl Replay<'_> {
+    /// A frame's pose (when tracked), keyframes, trajectory so far (every
+    /// [`TRAJECTORY_EVERY`] frames and at the `last`) and events.
+    fn pose_and_events(&mut self, frame: &FrameSummary, at: At, pose: Option<Se3>, last: bool) {
+        let log = self.log;
+        self.replayed.frames += 1;
+        if let Some(pose) = pose {
             log.log(
                 "",
                 at,
@@ -339,22 +378,21 @@ pub fn replay_frames(
                     world_from_camera: pose,
                 },
             );
-            replayed.poses += 1;
-            path.push(pose.translation.vector);
+            self.replayed.poses += 1;
+            self.path.push(pose.translation.vector);
             if frame.keyframe {
-                keyframes.push(pose.translation.vector);
-                log.log("", at, Entry::Keyframes(keyframes.clone()));
+                self.keyframes.push(pose.translation.vector);
+                log.log("", at, Entry::Keyframes(self.keyframes.clone()));
             }
         }
-        if frame.index.is_multiple_of(TRAJECTORY_EVERY)
-            || Some(frame.index) == summary.frames.last().map(|f| f.index)
-        {
+        if frame.index.is_multiple_of(TRAJECTORY_EVERY) || last {
+            let centres = self.path.clone();
             log.log(
                 "",
                 at,
                 Entry::Trajectory {
                     name: "tracking",
-                    centres: path.clone(),
+                    centres,
                 },
             );
         }
@@ -363,34 +401,17 @@ pub fn replay_frames(
             state: frame.state.clone(),
             keyframe: frame.keyframe,
             lost: frame.lost.as_ref().map(|v| {
-                v.get("reason")
-                    .and_then(|r| r.as_str())
-                    .unwrap_or("?")
-                    .to_string()
+                let reason = v.get("reason").and_then(|r| r.as_str());
+                reason.unwrap_or("?").to_string()
             }),
         };
-        if let Some(entry) = events_entry(frame.index, frame_events(previous.as_deref(), &facts)) {
+        if let Some(entry) =
+            events_entry(frame.index, frame_events(self.previous.as_deref(), &facts))
+        {
             log.log("", at, entry);
         }
-        previous = Some(frame.state.clone());
-        if let Some(points) = removed.get(&time_key(frame.timestamp)) {
-            log.log(
-                "",
-                at,
-                Entry::Keypoints {
-                    kept: Vec::new(),
-                    removed: points.clone(),
-                },
-            );
-        }
-        if frame.keyframe {
-            replayed.keyframe_boxes += log_cached_boxes(log, run, frame, at)?;
-        }
-        if let Some(sequence) = sequence {
-            replayed.images += log_image(log, sequence, frame.index, at)?;
-        }
+        self.previous = Some(frame.state.clone());
     }
-    Ok(replayed)
 }
 
 /// A timestamp as a map key (microseconds, as the files write them).
