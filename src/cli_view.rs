@@ -114,7 +114,19 @@ fn connect(address: &str, config: &Config) -> Result<Option<Logger>> {
 
 /// `dopslam view RUN_DIR`.
 pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
+    if !args.run.is_dir() {
+        bail!(
+            "{}: no such run folder (what `dopslam run --out` wrote)",
+            args.run.display()
+        );
+    }
     let run = RunDir::new(&args.run);
+    if !run.report().exists() {
+        bail!(
+            "{}: not a finished run folder (it has no report.json)",
+            args.run.display()
+        );
+    }
     let summary = run.read_summary()?;
     let logger = match (&args.connect, &args.out) {
         (Some(address), _) => match connect(address, &config)? {

@@ -287,6 +287,21 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
         "{err}"
     );
     assert!(out.join("report.json").exists());
+    // `view` of what is not a finished run folder names it.
+    let missing = dir.join("missing");
+    for (folder, says) in [
+        (missing, "no such run folder"),
+        (seq.to_path_buf(), "not a finished run folder"),
+    ] {
+        let (ok, _, err) = common::dopslam(&[
+            "view",
+            &folder.to_string_lossy(),
+            "-o",
+            &dir.join("v.rrd").to_string_lossy(),
+        ]);
+        assert!(!ok && err.contains(says), "{err}");
+    }
+    assert!(!dir.join("v.rrd").exists());
 }
 
 /// `--rerun-connect` to a listening Rerun server (the rerun-sdk's own, saving what it
