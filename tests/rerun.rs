@@ -50,6 +50,17 @@ fn per_frame(read: &Value, key: &str) -> BTreeMap<usize, u64> {
         .collect()
 }
 
+/// Asserts that the list of entities `value` holds each of `names`.
+fn assert_has(value: &Value, names: &[&str]) {
+    let list = strings(value);
+    for name in names {
+        assert!(
+            list.iter().any(|e| e == name),
+            "{name} missing from {list:?}"
+        );
+    }
+}
+
 fn strings(value: &Value) -> Vec<String> {
     value
         .as_array()
@@ -136,34 +147,25 @@ fn a_run_logs_every_pose_keypoint_and_the_loop() {
             .count(),
         keyframes
     );
-    let entities = strings(&read["entities"]);
     // (No detections here: the room has no movers; the view test has boxes.)
-    for entity in [
+    let temporal = [
         "world/camera",
         "world/camera/image",
         "world/map/static",
         "world/keyframes",
-        "world/trajectory/tracking",
-        "events",
-        "events/loops",
-    ] {
-        assert!(
-            entities.iter().any(|e| e == entity),
-            "{entity} missing from {entities:?}"
-        );
-    }
-    let fixed = strings(&read["static_entities"]);
-    for entity in [
+    ];
+    assert_has(&read["entities"], &temporal);
+    assert_has(
+        &read["entities"],
+        &["world/trajectory/tracking", "events", "events/loops"],
+    );
+    let fixed = [
         "world/trajectory/final",
         "world/trajectory/truth",
         "world/loops",
         "world/camera/image",
-    ] {
-        assert!(
-            fixed.iter().any(|e| e == entity),
-            "{entity} missing from {fixed:?}"
-        );
-    }
+    ];
+    assert_has(&read["static_entities"], &fixed);
     let truth_poses = read["static_sizes"]["world/trajectory/truth"]
         .as_u64()
         .unwrap();
@@ -229,15 +231,8 @@ fn view_rebuilds_the_recording_of_a_finished_run() {
         "world/trajectory/final",
         "world/trajectory/truth",
     ];
-    for entity in fixed {
-        for (name, read) in [("live", &live), ("viewed", &viewed)] {
-            let logged = strings(&read["static_entities"]);
-            assert!(
-                logged.iter().any(|e| e == entity),
-                "{name}: {entity} not in {logged:?}"
-            );
-        }
-    }
+    assert_has(&live["static_entities"], &fixed);
+    assert_has(&viewed["static_entities"], &fixed);
     // A recording is never written over.
     let (ok, _, err) = common::dopslam(&[
         "view",
