@@ -5,10 +5,11 @@
 # recording's size per 1000 frames at the default image scale.
 #
 #   tools/bench_rerun.sh [PRESET] [FRAMES] [REPEATS]
-#   (default: configs/synth/walking_xyz.toml, 300 frames, 3 runs each)
+#   (default: configs/synth/demo.toml, the bundled demo room with two real people,
+#   300 frames, 3 runs each)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-preset=${1:-configs/synth/walking_xyz.toml}
+preset=${1:-configs/synth/demo.toml}
 frames=${2:-300}
 repeats=${3:-3}
 command -v dopslam >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
