@@ -50,6 +50,23 @@ fn per_frame(read: &Value, key: &str) -> BTreeMap<usize, u64> {
         .collect()
 }
 
+/// The synth `preset` as `edit` changes it, written into a new test folder: the
+/// sequence (its guard) and the folder.
+fn sequence(
+    test: &str,
+    preset: &str,
+    edit: impl FnOnce(&mut dopslam::synth::SynthConfig),
+) -> (common::TestDir, PathBuf) {
+    let seq = common::temp_dir(test).child("seq");
+    let dir = seq.parent().unwrap().to_path_buf();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = root.join("configs/synth").join(format!("{preset}.toml"));
+    let mut synth = dopslam::synth::SynthConfig::load(&path).unwrap();
+    edit(&mut synth);
+    dopslam::synth::generate(&synth, &seq, false).unwrap();
+    (seq, dir)
+}
+
 /// Asserts that the list of entities `value` holds each of `names`.
 fn assert_has(value: &Value, names: &[&str]) {
     let list = strings(value);
@@ -79,15 +96,11 @@ fn a_run_logs_every_pose_keypoint_and_the_loop() {
     let Some(python) = reader_python("a_run_logs_every_pose_keypoint_and_the_loop") else {
         return;
     };
-    let seq = common::temp_dir("rerun-loop").child("seq");
-    let dir = seq.parent().unwrap().to_path_buf();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     // 34 s at 10 fps: the camera passes its start (see tests/global.rs).
-    let mut synth =
-        dopslam::synth::SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
-    synth.sequence.frames = 340;
-    synth.sequence.fps = 10.0;
-    dopslam::synth::generate(&synth, &seq, false).unwrap();
+    let (seq, dir) = sequence("rerun-loop", "loop_room", |synth| {
+        synth.sequence.frames = 340;
+        synth.sequence.fps = 10.0;
+    });
     let out = dir.join("run");
     let rrd = dir.join("loop.rrd");
     let (ok, _, err) = common::dopslam(&[
@@ -180,15 +193,11 @@ fn view_rebuilds_the_recording_of_a_finished_run() {
     let Some(python) = reader_python("view_rebuilds_the_recording_of_a_finished_run") else {
         return;
     };
-    let seq = common::temp_dir("rerun-view").child("seq");
-    let dir = seq.parent().unwrap().to_path_buf();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut synth =
-        dopslam::synth::SynthConfig::load(&root.join("configs/synth/walking_xyz.toml")).unwrap();
-    // Regular 30 Hz timing instead of the recorded one (which lives in ../shared).
-    synth.sequence.timing = None;
-    synth.sequence.frames = 40;
-    dopslam::synth::generate(&synth, &seq, false).unwrap();
+    let (seq, dir) = sequence("rerun-view", "walking_xyz", |synth| {
+        // Regular 30 Hz timing instead of the recorded one (which lives in ../shared).
+        synth.sequence.timing = None;
+        synth.sequence.frames = 40;
+    });
     let config = dir.join("rerun.toml");
     std::fs::write(
         &config,
