@@ -64,15 +64,13 @@ pub fn tracking_pass(
         Execution::Threads => options.pace,
     });
     let mut stop = None;
+    let logged = options.rerun.as_ref();
+    let keep_depth = logged.is_some_and(|log| log.config.rerun_depth);
     for index in 0..total {
         if crate::interrupt::requested() {
             stop = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
             break;
         }
-        let keep_depth = options
-            .rerun
-            .as_ref()
-            .is_some_and(|log| log.config.rerun_depth);
         let ready = next_frame(
             sequence,
             (index, keep_depth),
@@ -92,11 +90,10 @@ pub fn tracking_pass(
         let timestamp = frame.timestamp;
         // The detector takes the picture; a copy only for the debug pictures and the
         // Rerun recording.
-        let logged = options.rerun.is_some();
-        let shown = (options.debug_frames.is_some() || logged).then(|| picture.clone());
+        let shown = (options.debug_frames.is_some() || logged.is_some()).then(|| picture.clone());
         let (report, tracking_ms) = system.track(frame, picture, started);
-        let recent_map =
-            (logged && report.keyframe).then(|| system.recent_map_points(RECENT_KEYFRAMES));
+        let recent_map = (logged.is_some() && report.keyframe)
+            .then(|| system.recent_map_points(RECENT_KEYFRAMES));
         let view = FrameView {
             index,
             timestamp,
