@@ -10,7 +10,6 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use dopslam::config::Config;
-use dopslam::geometry::camera::PinholeCamera;
 use dopslam::io::run_dir::RunDir;
 use dopslam::io::sequence::Sequence;
 use dopslam::view::{Logger, Target};
@@ -140,8 +139,8 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         }
     };
     let log = logger.waiting_handle();
-    if let Some(camera) = report_camera(&run.report()) {
-        dopslam::run::log_pinhole(&log, &camera);
+    if let Some(camera) = summary.camera() {
+        dopslam::run::log_pinhole(&log, camera);
     }
     let sequence = open_reported_sequence(summary.sequence_path.as_deref(), &config);
     let replayed = dopslam::view::results::replay_frames(&log, &run, &summary, sequence.as_deref())
@@ -178,20 +177,6 @@ fn default_out(run: &Path) -> PathBuf {
         .and_then(|p| p.file_name().map(|n| n.to_os_string()))
         .unwrap_or_else(|| "run".into());
     PathBuf::from(name).with_extension("rrd")
-}
-
-/// The camera `report.json` names (`setup.calibration.camera`).
-fn report_camera(report: &Path) -> Option<PinholeCamera> {
-    let text = std::fs::read_to_string(report).ok()?;
-    let value: serde_json::Value = serde_json::from_str(&text).ok()?;
-    serde_json::from_value(
-        value
-            .get("setup")?
-            .get("calibration")?
-            .get("camera")?
-            .clone(),
-    )
-    .ok()
 }
 
 /// The sequence the report names, when it still opens (a warning says why not).

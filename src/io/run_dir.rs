@@ -236,6 +236,14 @@ pub struct RunSummary {
 pub struct SetupSummary {
     #[serde(default)]
     pub first_frame_hash: Option<String>,
+    #[serde(default)]
+    pub calibration: Option<CalibrationSummary>,
+}
+
+/// The camera a run used (`setup.calibration.camera`).
+#[derive(Debug, Clone, Deserialize)]
+pub struct CalibrationSummary {
+    pub camera: crate::geometry::camera::PinholeCamera,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -283,6 +291,11 @@ pub struct GlobalSummary {
 }
 
 impl RunSummary {
+    /// The camera the run used, when its report says.
+    pub fn camera(&self) -> Option<&crate::geometry::camera::PinholeCamera> {
+        Some(&self.setup.as_ref()?.calibration.as_ref()?.camera)
+    }
+
     /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).
     pub fn first_frame_hash(&self) -> Option<&str> {
         self.setup.as_ref()?.first_frame_hash.as_deref()

@@ -15,7 +15,7 @@ pub struct RerunLog {
     log: LogHandle,
     /// The last frame's time: detections arriving are logged there.
     at: At,
-    previous: Option<String>,
+    previous: Option<&'static str>,
     path: Vec<Vector3<f64>>,
     keyframes: Vec<Vector3<f64>>,
 }
@@ -74,13 +74,10 @@ impl FrameObserver for RerunLog {
                 centres: self.path.clone(),
             });
         }
-        let state = serde_json::to_value(report.state)
-            .ok()
-            .and_then(|v| v.as_str().map(String::from))
-            .unwrap_or_default();
+        let state = report.state.as_str();
         let facts = FrameFacts {
             index: view.index,
-            state: state.clone(),
+            state,
             keyframe: report.keyframe,
             lost: report.lost.and_then(|r| {
                 serde_json::to_value(r)
@@ -90,9 +87,7 @@ impl FrameObserver for RerunLog {
                     .map(String::from)
             }),
         };
-        if let Some(entry) =
-            events_entry(view.index, frame_events(self.previous.as_deref(), &facts))
-        {
+        if let Some(entry) = events_entry(view.index, frame_events(self.previous, &facts)) {
             self.log(entry);
         }
         self.previous = Some(state);

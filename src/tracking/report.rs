@@ -15,6 +15,17 @@ pub enum TrackingState {
     Lost,
 }
 
+impl TrackingState {
+    /// The state's name as `report.json` writes it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TrackingState::NotInitialised => "not_initialised",
+            TrackingState::Ok => "ok",
+            TrackingState::Lost => "lost",
+        }
+    }
+}
+
 /// What tracking one frame did, for the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameReport {
@@ -126,4 +137,16 @@ pub struct PoseEstimate {
     pub camera_from_world: Se3,
     pub matches: Vec<Option<MapPointKey>>,
     pub inliers: usize,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::TrackingState;
+
+    #[test]
+    fn state_names_are_the_reports() {
+        for state in [TrackingState::NotInitialised, TrackingState::Ok, TrackingState::Lost] {
+            assert_eq!(serde_json::to_value(state).unwrap(), state.as_str());
+        }
+    }
 }

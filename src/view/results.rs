@@ -24,19 +24,19 @@ pub const TRAJECTORY_EVERY: usize = 10;
 /// What happened at one frame, for the events: its state, whether it made a keyframe,
 /// why it was lost.
 #[derive(Debug, Clone, PartialEq)]
-pub struct FrameFacts {
+pub struct FrameFacts<'a> {
     pub index: usize,
     /// `ok`, `lost`, `not_initialised`.
-    pub state: String,
+    pub state: &'a str,
     pub keyframe: bool,
     pub lost: Option<String>,
 }
 
 /// The events of a frame after one in state `previous`: keyframe inserted, tracking
 /// lost (with why), relocalised.
-pub fn frame_events(previous: Option<&str>, facts: &FrameFacts) -> Vec<(Level, String)> {
+pub fn frame_events(previous: Option<&str>, facts: &FrameFacts<'_>) -> Vec<(Level, String)> {
     let mut events = Vec::new();
-    match (previous, facts.state.as_str()) {
+    match (previous, facts.state) {
         (Some("ok"), "lost") => {
             let why = facts.lost.as_deref().unwrap_or("no reason given");
             events.push((Level::Warning, format!("tracking lost ({why})")));
@@ -398,7 +398,7 @@ impl Replay<'_> {
         }
         let facts = FrameFacts {
             index: frame.index,
-            state: frame.state.clone(),
+            state: &frame.state,
             keyframe: frame.keyframe,
             lost: frame.lost.as_ref().map(|v| {
                 let reason = v.get("reason").and_then(|r| r.as_str());
@@ -419,16 +419,11 @@ fn time_key(seconds: f64) -> u64 {
     (seconds * 1e6).round().max(0.0) as u64
 }
 
-/// The removed keypoints of each frame, by time (empty without the file).
+/// The removed keypoints of each frame, by time (empty without the file), read as the
+/// dense pass reads them.
 fn read_removed(run: &RunDir) -> Result<BTreeMap<u64, Vec<[f32; 2]>>, String> {
-    let path = run.dynamic_keypoints();
-    if !path.exists() {
-        return Ok(BTreeMap::new());
-    }
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    let frames: Vec<crate::dense::masks::FrameKeypoints> = serde_json::from_str(&text)
-        .map_err(|e| format!("{}: not a dynamic-keypoints file: {e}", path.display()))?;
+    let frames = crate::dense::inputs::read_keypoints(&run.dynamic_keypoints())
+        .map_err(|e| e.to_string())?;
     Ok(frames
         .into_iter()
         .map(|f| {
@@ -486,10 +481,10 @@ fn log_image(
 mod tests {
     use super::*;
 
-    fn facts(index: usize, state: &str, keyframe: bool) -> FrameFacts {
+    fn facts(index: usize, state: &str, keyframe: bool) -> FrameFacts<'_> {
         FrameFacts {
             index,
-            state: state.into(),
+            state,
             keyframe,
             lost: Some("few_inliers".into()),
         }
