@@ -51,6 +51,18 @@ pub struct ViewArgs {
     pub config: Option<PathBuf>,
 }
 
+/// dopslam never writes into its inputs: a recording at or inside `input` is refused.
+fn refuse_inside(option: &str, path: &Path, input: &Path) -> Result<()> {
+    if dopslam::io::output::is_within(path, input) {
+        bail!(
+            "{option} {}: inside the input {}; dopslam never writes into its inputs (name a file elsewhere)",
+            path.display(),
+            input.display()
+        );
+    }
+    Ok(())
+}
+
 /// A viewer's proxy address from `HOST:PORT` or a full `rerun+http://` address, and
 /// the host and port to try first.
 fn proxy_address(address: &str) -> Result<(String, String)> {
@@ -70,8 +82,9 @@ fn proxy_address(address: &str) -> Result<(String, String)> {
 
 /// The recording `run` logs into: a new file (an error before any work when it
 /// exists or cannot be written), or a viewer (a warning when it does not answer).
-pub fn open_for_run(args: &RerunArgs, config: &Config) -> Result<Option<Logger>> {
+pub fn open_for_run(args: &RerunArgs, config: &Config, input: &Path) -> Result<Option<Logger>> {
     if let Some(path) = &args.rerun {
+        refuse_inside("--rerun", path, input)?;
         let logger = Logger::open(Target::File(path.clone()), &config.output, "dopslam")
             .map_err(anyhow::Error::msg)
             .context("--rerun")?;
@@ -134,6 +147,7 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         },
         (None, out) => {
             let path = out.clone().unwrap_or_else(|| default_out(&args.run));
+            refuse_inside("-o", &path, &args.run)?;
             Logger::open(Target::File(path), &config.output, "dopslam")
                 .map_err(anyhow::Error::msg)?
         }

@@ -726,7 +726,7 @@ fn run_run(args: RunArgs) -> Result<()> {
         mode.to_possible_value()
             .map_or("?".into(), |v| v.get_name().to_string())
     );
-    let logger = cli_view::open_for_run(&args.rerun, &config)?;
+    let logger = cli_view::open_for_run(&args.rerun, &config, &args.sequence)?;
     let options = dopslam::run::RunOptions {
         rerun: logger.as_ref().map(|l| l.handle()),
         ..options

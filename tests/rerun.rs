@@ -283,6 +283,10 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
         "{err}"
     );
     assert!(!out.join("report.json").exists(), "the run started: {err}");
+    // Nor into the input sequence.
+    let (ok, _, err) = run(&["--rerun", &seq.join("run.rrd").to_string_lossy()]);
+    assert!(!ok && err.contains("never writes into its inputs"), "{err}");
+    assert!(!seq.join("run.rrd").exists());
     // A port nothing listens on (bound, then released).
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
