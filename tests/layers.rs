@@ -260,8 +260,11 @@ fn a_circle_is_found() {
 /// Modules of one floor that never import each other in the named direction: the
 /// global and dense passes are independent stages after tracking; local mapping and
 /// the tracker meet only through the map and the system; the map knows nothing of the
-/// DOP state over a run (the dynamics read and write the map, not the other way).
+/// DOP state over a run (the dynamics read and write the map, not the other way). One
+/// pair across floors: the global pass takes the tracking pass's frames as the map's
+/// [`FrameRecord`](dopslam::map::record::FrameRecord)s, not the tracker's types.
 const NEVER: &[(&str, &str)] = &[
+    ("global", "tracking"),
     ("global", "dense"),
     ("dense", "global"),
     ("mapping", "tracking"),

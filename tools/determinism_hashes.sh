@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Benchmark helper (not a test): the safety net of a refactor. Runs dopslam
-# --deterministic on the demo and three presets (150 frames, real detector, dense
-# pass) and prints one hash per output file; JSON reports are hashed without their
+# --deterministic on the demo and five presets, a stereo street among them (150
+# frames, real detector, dense pass) and prints one hash per output file; JSON reports are hashed without their
 # timing and memory fields and with the output folder's path replaced, so two builds
 # that compute the same thing print the same lines.
 #
@@ -12,9 +12,10 @@ cd "$(dirname "$0")/.."
 bin=$(realpath "${1:-./target/release/dopslam}")
 work=outputs/determinism
 mkdir -p "$work"
-for preset in demo demo_walking cutout_xyz cutout_halfsphere; do
+for preset in demo demo_walking cutout_xyz cutout_halfsphere loop_room street_demo; do
   seq=$work/seq-$preset
   [ -f "$seq/rgb.txt" ] || "$bin" synth --config "configs/synth/$preset.toml" --out "$seq" --frames 150 --force >/dev/null 2>&1
+  [ -d "$seq/kitti/sequences/00" ] && seq=$seq/kitti/sequences/00  # a stereo preset
   out=$work/run-$preset
   rm -rf "$out"
   extra=()
@@ -37,6 +38,8 @@ for folder in sorted(d for d in os.listdir(root) if d.startswith("run-")):
     for dirpath, dirs, files in sorted(os.walk(os.path.join(root, folder))):
         dirs.sort()
         for name in sorted(files):
+            if name.endswith(".rrd"):
+                continue  # a Rerun recording holds its own ids and wall-clock times
             path = os.path.join(dirpath, name)
             data = open(path, "rb").read()
             if name.endswith(".json"):

@@ -24,7 +24,7 @@ use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
-use crate::tracking::{FrameObservation, FrameReport};
+use crate::map::record::{FrameObservation, FrameRecord};
 
 /// Fewest static points a frame needs to be estimated again.
 pub const MIN_POINTS: usize = 30;
@@ -47,11 +47,11 @@ pub struct RefinementReport {
 pub fn refine_frames<'a>(
     map: &Map,
     inputs: &GlobalInputs,
-    frames: impl Iterator<Item = &'a mut FrameReport>,
+    frames: impl Iterator<Item = &'a mut FrameRecord>,
 ) -> RefinementReport {
     let start = Instant::now();
-    let mut frames: Vec<&mut FrameReport> = frames
-        .filter(|f| !f.keyframe && f.reference.is_some() && !f.pose_observations.is_empty())
+    let mut frames: Vec<&mut FrameRecord> = frames
+        .filter(|f| !f.is_keyframe() && f.reference.is_some() && !f.observations.is_empty())
         .collect();
     let shifts: Vec<Option<f64>> = frames
         .par_iter_mut()
@@ -71,11 +71,11 @@ pub fn refine_frames<'a>(
 
 /// One frame: its new pose relative to its reference keyframe, and how far it moved
 /// (metres); `None` where it keeps its pose.
-fn refine(map: &Map, inputs: &GlobalInputs, frame: &mut FrameReport) -> Option<f64> {
+fn refine(map: &Map, inputs: &GlobalInputs, frame: &mut FrameRecord) -> Option<f64> {
     let (key, camera_from_reference) = frame.reference?;
     let reference_from_world = map.keyframe_pose(key)?;
     let initial = camera_from_reference * reference_from_world;
-    let pose = refined_pose(map, inputs, &initial, &frame.pose_observations)?;
+    let pose = refined_pose(map, inputs, &initial, &frame.observations)?;
     frame.reference = Some((key, pose * reference_from_world.inverse()));
     frame.camera_from_world = Some(pose);
     let centre = |p: &Se3| p.inverse().translation.vector;

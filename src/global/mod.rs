@@ -26,7 +26,7 @@ use crate::features::ScalePyramid;
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::geometry::stereo_camera::StereoCamera;
-use crate::tracking::FrameReport;
+use crate::map::record::FrameRecord;
 use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
 
 /// The `[global]` section of a config.
@@ -145,7 +145,7 @@ pub fn run<'a>(
     inputs: &GlobalInputs,
     config: &GlobalConfig,
     recognised: Result<PlaceRecognition, String>,
-    frames: impl Iterator<Item = &'a mut FrameReport>,
+    frames: impl Iterator<Item = &'a mut FrameRecord>,
 ) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
@@ -169,7 +169,7 @@ pub fn run<'a>(
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
     }
-    let mut frames: Vec<&mut FrameReport> = frames.collect();
+    let mut frames: Vec<&mut FrameRecord> = frames.collect();
     if config.refine_frames {
         report.frames = Some(frame_refinement::refine_frames(
             map,

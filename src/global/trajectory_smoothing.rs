@@ -38,7 +38,7 @@ use crate::geometry::se3::Se3;
 use crate::geometry::so3;
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
-use crate::tracking::FrameReport;
+use crate::map::record::FrameRecord;
 
 /// A longer gap between frames (in median frame intervals) starts a new run.
 pub const MAX_GAP: f64 = 2.5;
@@ -110,12 +110,12 @@ pub struct SmoothingReport {
 pub fn smooth_frames<'a>(
     map: &Map,
     config: &SmoothingConfig,
-    frames: impl Iterator<Item = &'a mut FrameReport>,
+    frames: impl Iterator<Item = &'a mut FrameRecord>,
 ) -> SmoothingReport {
     let start = Instant::now();
     // Frames with a pose, their world_from_camera and their reference's
     // reference_from_world.
-    let mut frames: Vec<(&mut FrameReport, Se3, Se3)> = frames
+    let mut frames: Vec<(&mut FrameRecord, Se3, Se3)> = frames
         .filter_map(|f| {
             let (key, camera_from_reference) = f.reference?;
             let reference_from_world = map.keyframe_pose(key)?;
@@ -146,7 +146,7 @@ pub fn smooth_frames<'a>(
         }
     }
     let times: Vec<f64> = frames.iter().map(|f| f.0.timestamp).collect();
-    let anchors: Vec<bool> = frames.iter().map(|f| f.0.keyframe).collect();
+    let anchors: Vec<bool> = frames.iter().map(|f| f.0.is_keyframe()).collect();
     let centres: Vec<Vector3<f64>> = frames.iter().map(|f| f.1.translation.vector).collect();
     let rotations: Vec<Rotation3<f64>> = frames.iter().map(|f| f.1.rotation).collect();
     // Measured rotation increments, world frame.
@@ -186,7 +186,7 @@ pub fn smooth_frames<'a>(
         );
         for (i, (centre, delta)) in new_centres.iter().zip(&corrections).enumerate() {
             let (frame, before, reference_from_world) = &mut frames[run.start + i];
-            let Some((key, _)) = frame.reference.filter(|_| !frame.keyframe) else {
+            let Some((key, _)) = frame.reference.filter(|_| !frame.is_keyframe()) else {
                 continue;
             };
             let rotation = so3::exp(delta) * rotations[run.start + i];

@@ -1,6 +1,7 @@
 //! The sparse map: keyframes and map points in arenas with typed keys (`slotmap`), so
 //! that removing an entity is safe and a key of one kind can never index the other.
 
+pub mod record;
 pub mod visibility;
 
 use nalgebra::Vector3;

@@ -24,7 +24,7 @@ pub fn global_pass(
     let Some(recognised) = pass.tracked.recognised.take() else {
         return Ok(None);
     };
-    let tracking = write_tracking_trajectory(run, &pass.tracked.map, &pass.lines)?;
+    let tracking = write_tracking_trajectory(run, &pass.tracked.map, &pass.records)?;
     let camera = &setup.calibration.camera;
     let inputs = GlobalInputs {
         camera: &setup.camera,
@@ -42,7 +42,7 @@ pub fn global_pass(
         &inputs,
         &setup.config.global,
         recognised,
-        pass.lines.iter_mut().map(|l| &mut l.tracking),
+        pass.records.iter_mut(),
     );
     Ok(Some((report, tracking)))
 }

@@ -235,6 +235,7 @@ impl Watchers {
         let TrackingPass {
             tracked,
             mut lines,
+            records,
             stop,
         } = pass;
         for (line, truth) in lines.iter_mut().zip(self.truth.per_frame) {
@@ -255,6 +256,7 @@ impl Watchers {
             mapping: tracked.mapping,
             detection,
             lines,
+            records,
             stopped: stop,
             global,
         };

@@ -12,13 +12,16 @@ use crate::dynamics::Applied;
 use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
 use crate::tracking::input::Picture;
-use crate::tracking::{FrameReport, TrackingState};
+use crate::map::record::FrameRecord;
+use crate::tracking::{FrameStats, TrackingState};
 
 /// One frame as the system left it.
 pub struct FrameView<'a> {
     pub index: usize,
     pub timestamp: f64,
-    pub report: &'a FrameReport,
+    /// The frame's report line and its record (pose, reference keyframe).
+    pub stats: &'a FrameStats,
+    pub record: &'a FrameRecord,
     /// The frame with its moving probabilities, when tracking kept it.
     pub frame: Option<&'a Frame>,
     /// The DOP model, when on.
@@ -37,7 +40,7 @@ impl FrameView<'_> {
     /// The frame, when it was tracked (state Ok).
     pub fn tracked(&self) -> Option<&Frame> {
         self.frame
-            .filter(|_| self.report.state == TrackingState::Ok)
+            .filter(|_| self.stats.state == TrackingState::Ok)
     }
 }
 
@@ -77,7 +80,7 @@ impl Progress {
 
 impl FrameObserver for Progress {
     fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
-        self.bar.set_message(format!("{:?}", view.report.state));
+        self.bar.set_message(format!("{:?}", view.stats.state));
         self.bar.inc(1);
         Ok(())
     }

@@ -21,6 +21,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::Trajectory;
+use crate::map::record::FrameRecord;
 use crate::map::Map;
 use crate::mapping::MappingStats;
 use crate::tracking::TrackingState;
@@ -58,17 +59,11 @@ pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::Di
 
 /// Every tracked frame's pose: relative to its reference keyframe, placed on that
 /// keyframe's current pose (so frames follow the keyframes' corrections).
-pub fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
+pub fn trajectory_of(map: &Map, records: &[FrameRecord]) -> Trajectory {
     let mut trajectory = Trajectory::default();
-    for line in lines {
-        let corrected = line
-            .tracking
-            .reference
-            .and_then(|(key, camera_from_reference)| {
-                Some(camera_from_reference * map.keyframe_pose(key)?)
-            });
-        if let Some(pose) = corrected.or(line.tracking.camera_from_world) {
-            trajectory.push(line.tracking.timestamp, pose.inverse());
+    for record in records {
+        if let Some(pose) = record.camera_from_world_on(|key| map.keyframe_pose(key)) {
+            trajectory.push(record.timestamp, pose.inverse());
         }
     }
     trajectory
@@ -78,9 +73,9 @@ pub fn trajectory_of(map: &Map, lines: &[FrameLine]) -> Trajectory {
 pub fn write_tracking_trajectory(
     run: &RunDir,
     map: &Map,
-    lines: &[FrameLine],
+    records: &[FrameRecord],
 ) -> Result<Trajectory, RunError> {
-    let tracking = trajectory_of(map, lines);
+    let tracking = trajectory_of(map, records);
     tracking.write(&run.tracking_trajectory(), TrajectoryFormat::Tum)?;
     Ok(tracking)
 }
@@ -101,6 +96,7 @@ pub struct Computed<'a> {
     pub mapping: MappingStats,
     pub detection: DetectionTotals,
     pub lines: Vec<FrameLine>,
+    pub records: Vec<FrameRecord>,
     /// Why the run stopped early, if it did.
     pub stopped: Option<String>,
     /// The global pass's report and the tracking pass's trajectory, when it ran.
@@ -121,11 +117,12 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         mapping,
         detection,
         lines,
+        records,
         stopped,
         global,
     } = computed;
     let map = &map;
-    let trajectory = trajectory_of(map, &lines);
+    let trajectory = trajectory_of(map, &records);
     trajectory.write(&run.trajectory(), TrajectoryFormat::Tum)?;
     write_keyframes_and_map(run, map)?;
     let merges: Vec<(usize, usize)> = global

@@ -12,7 +12,7 @@ use crate::eval::report::EvalReport;
 use crate::eval::truth::TruthCounts;
 use crate::global::GlobalReport;
 use crate::mapping::MappingStats;
-use crate::tracking::{FrameReport, TrackingState};
+use crate::tracking::{FrameStats, TrackingState};
 
 /// Totals of a run.
 #[derive(Debug, Clone, Serialize)]
@@ -109,7 +109,7 @@ pub fn final_segment(merges: &[(usize, usize)], mut segment: usize) -> usize {
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameLine {
     #[serde(flatten)]
-    pub tracking: FrameReport,
+    pub tracking: FrameStats,
     pub extraction_ms: f64,
     pub tracking_ms: f64,
     /// Against the ground-truth masks of a synthetic sequence (absent elsewhere).

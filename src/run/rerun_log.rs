@@ -54,12 +54,12 @@ impl RerunLog {
 
 impl FrameObserver for RerunLog {
     fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
-        let report = view.report;
+        let (report, record) = (view.stats, view.record);
         self.at = At::Frame {
             index: view.index,
             seconds: view.timestamp,
         };
-        if let Some(camera_from_world) = report.camera_from_world {
+        if let Some(camera_from_world) = record.camera_from_world {
             let world_from_camera = camera_from_world.inverse();
             self.log(Entry::Camera { world_from_camera });
             self.path.push(world_from_camera.translation.vector);

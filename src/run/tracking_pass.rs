@@ -21,7 +21,8 @@ use crate::pacing::{Pace, Pacer};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
-use crate::tracking::TrackingState;
+use crate::map::record::FrameRecord;
+use crate::tracking::{TrackedFrame, TrackingState};
 
 /// The Rerun recording's local map: the points of this many recent keyframes.
 const RECENT_KEYFRAMES: usize = 10;
@@ -30,6 +31,8 @@ const RECENT_KEYFRAMES: usize = 10;
 pub struct TrackingPass {
     pub tracked: Tracked,
     pub lines: Vec<FrameLine>,
+    /// One record per line, for the global pass and the final trajectory.
+    pub records: Vec<FrameRecord>,
     /// Why the pass stopped before the last frame, if it did.
     pub stop: Option<String>,
 }
@@ -58,6 +61,7 @@ pub fn tracking_pass(
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));
     let mut lines = Vec::with_capacity(total);
+    let mut records = Vec::with_capacity(total);
     let mut depth_check = DepthCheck::default();
     let mut pacer = Pacer::new(match execution {
         Execution::Inline => Pace::Free,
@@ -91,13 +95,14 @@ pub fn tracking_pass(
         // The detector takes the picture; a copy only for the debug pictures and the
         // Rerun recording.
         let shown = (options.debug_frames.is_some() || logged.is_some()).then(|| picture.clone());
-        let (report, tracking_ms) = system.track(frame, picture, started);
-        let recent_map = (logged.is_some() && report.keyframe)
+        let (TrackedFrame { stats, record }, tracking_ms) = system.track(frame, picture, started);
+        let recent_map = (logged.is_some() && stats.keyframe)
             .then(|| system.recent_map_points(RECENT_KEYFRAMES));
         let view = FrameView {
             index,
             timestamp,
-            report: &report,
+            stats: &stats,
+            record: &record,
             frame: system.tracked_frame(index),
             dop: system.dop(),
             picture: shown.as_ref(),
@@ -111,8 +116,9 @@ pub fn tracking_pass(
         system.receive_detections();
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
+        records.push(record);
         lines.push(FrameLine {
-            tracking: report,
+            tracking: stats,
             extraction_ms,
             tracking_ms,
             truth: None,
@@ -129,6 +135,7 @@ pub fn tracking_pass(
     Ok(TrackingPass {
         tracked,
         lines,
+        records,
         stop,
     })
 }

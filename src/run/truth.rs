@@ -42,8 +42,8 @@ impl FrameObserver for TruthScorer {
                 None => vec![false; positions.len()],
             };
             let in_pose: Vec<u32> = view
-                .report
-                .pose_observations
+                .record
+                .observations
                 .iter()
                 .map(|o| o.keypoint)
                 .collect();

@@ -36,7 +36,7 @@ use crate::global::loop_closing::PlaceRecognition;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;
-use crate::tracking::{FrameReport, Tracker, TrackingState};
+use crate::tracking::{TrackedFrame, Tracker, TrackingState};
 use stages::{Detection, LocalMapping, Recognition};
 use worker::{Execution, Worker};
 
@@ -226,14 +226,14 @@ impl System {
         frame: Frame,
         picture: Picture,
         started: Instant,
-    ) -> (FrameReport, f64) {
+    ) -> (TrackedFrame, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
         let gate = self.dynamics.participation(self.tracker.keyframe_clock());
         let report = self
             .tracker
             .track(&self.map, frame, &gate, self.mapping.is_idle());
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;
-        if let Some(key) = report.new_keyframe {
+        if let Some(key) = report.record.keyframe {
             // Marked before local mapping sees the keyframe, whose BA leaves its points
             // out while they wait.
             let awaits = self.detection.is_some()

@@ -9,5 +9,5 @@ pub mod report;
 pub mod tracker;
 
 pub use params::TrackerConfig;
-pub use report::{FrameObservation, FrameReport, PoseEstimate, Reject, TrackingState};
+pub use report::{FrameStats, PoseEstimate, Reject, TrackedFrame, TrackingState};
 pub use tracker::Tracker;

@@ -1,10 +1,11 @@
-//! What tracking one frame hands on: the report line, the pose observations for the
-//! global pass, and why a frame was lost.
+//! What tracking one frame hands on: the report line, the record for the global pass
+//! ([`FrameRecord`]), and why a frame was lost.
 
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::se3::Se3;
-use crate::map::{KeyFrameKey, MapPointKey};
+use crate::map::record::FrameRecord;
+use crate::map::MapPointKey;
 
 /// Tracking state of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -26,9 +27,27 @@ impl TrackingState {
     }
 }
 
-/// What tracking one frame did, for the report.
+/// What tracking one frame did: the report line and the record the global pass
+/// corrects.
+#[derive(Debug, Clone)]
+pub struct TrackedFrame {
+    pub stats: FrameStats,
+    pub record: FrameRecord,
+}
+
+impl TrackedFrame {
+    /// Both halves of `frame` before tracking it, in `state` and `segment`.
+    pub fn start(frame: &crate::frame::Frame, state: TrackingState, segment: usize) -> Self {
+        Self {
+            stats: FrameStats::start(frame, state, segment),
+            record: FrameRecord::start(frame.index, frame.timestamp, segment),
+        }
+    }
+}
+
+/// What tracking one frame did, for the report (one line of `report.json`).
 #[derive(Debug, Clone, Serialize)]
-pub struct FrameReport {
+pub struct FrameStats {
     pub index: usize,
     pub timestamp: f64,
     pub state: TrackingState,
@@ -51,30 +70,16 @@ pub struct FrameReport {
     /// Why a lost frame got no pose (the last search's reason).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lost: Option<Reject>,
-    /// The keyframe made from this frame, for local mapping.
-    #[serde(skip)]
-    pub new_keyframe: Option<KeyFrameKey>,
     /// Milliseconds: matching and local-map search, pose optimisation, total tracking
     /// (feature extraction is timed by the caller).
     pub matching_ms: f64,
     pub optimisation_ms: f64,
     /// The DOP model's probabilities (propagation and expansion).
     pub dop_ms: f64,
-    #[serde(skip)]
-    pub camera_from_world: Option<Se3>,
-    /// The reference keyframe and the pose relative to it, \(T_{cr}\): the final
-    /// trajectory is \(T_{cr} T_{rw}\) with the reference's corrected pose.
-    #[serde(skip)]
-    pub reference: Option<(KeyFrameKey, Se3)>,
-    /// The keypoints whose map points took part in the final pose as inliers, with
-    /// what the global pass needs to estimate the pose again on the final map (and the
-    /// keypoint indices, for scoring against ground-truth masks).
-    #[serde(skip)]
-    pub pose_observations: Vec<FrameObservation>,
 }
 
-impl FrameReport {
-    /// The report of `frame` before tracking it, in `state` and `segment`.
+impl FrameStats {
+    /// The report line of `frame` before tracking it, in `state` and `segment`.
     pub fn start(frame: &crate::frame::Frame, state: TrackingState, segment: usize) -> Self {
         Self {
             index: frame.index,
@@ -91,27 +96,11 @@ impl FrameReport {
             geometric_lowered: 0,
             rigidity_outliers: 0,
             lost: None,
-            new_keyframe: None,
             matching_ms: 0.0,
             optimisation_ms: 0.0,
             dop_ms: 0.0,
-            camera_from_world: None,
-            reference: None,
-            pose_observations: Vec::new(),
         }
     }
-}
-
-/// One keypoint of a tracked frame and the map point it saw (undistorted level-0
-/// pixel, virtual right coordinate, negative without depth).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameObservation {
-    pub point: MapPointKey,
-    pub keypoint: u32,
-    pub x: f32,
-    pub y: f32,
-    pub right_u: f32,
-    pub level: u8,
 }
 
 /// Why a search gave no pose.

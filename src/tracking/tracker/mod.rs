@@ -30,7 +30,8 @@ use crate::geometry::se3::{self, Se3};
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};
 use crate::tracking::params::TrackerConfig;
-use crate::tracking::report::{FrameObservation, FrameReport, PoseEstimate, Reject, TrackingState};
+use crate::map::record::FrameObservation;
+use crate::tracking::report::{PoseEstimate, Reject, TrackedFrame, TrackingState};
 use search::LocalSearch;
 
 /// The last tracked frame, kept for the motion model.
@@ -132,9 +133,9 @@ impl Tracker {
         mut frame: Frame,
         gate: &Participation,
         mapping_idle: bool,
-    ) -> FrameReport {
+    ) -> TrackedFrame {
         let mut timing = Timing::default();
-        let mut report = FrameReport::start(&frame, self.state, self.segment);
+        let mut report = TrackedFrame::start(&frame, self.state, self.segment);
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
             self.start_segment((&mut map, gate), frame, Se3::identity(), &mut report);
@@ -169,17 +170,17 @@ impl Tracker {
                     &seen.candidates,
                     &estimate.matches,
                 );
-                report.rigidity_outliers = moved;
-                (report.geometric_raised, report.geometric_lowered) =
+                report.stats.rigidity_outliers = moved;
+                (report.stats.geometric_raised, report.stats.geometric_lowered) =
                     geometric_check(dop, &mut map, &checks, frame.timestamp);
             }
         }
-        report.matching_ms = timing.matching;
-        report.optimisation_ms = timing.optimisation;
+        report.stats.matching_ms = timing.matching;
+        report.stats.optimisation_ms = timing.optimisation;
         match tracked {
             Err(reject) => self.lose((&mut map, gate), frame, reject, &mut report),
             Ok(estimate) => {
-                report.dynamic_map_points = seen.dynamic;
+                report.stats.dynamic_map_points = seen.dynamic;
                 if let Some(dop) = gate.dop {
                     let start = Instant::now();
                     frame.moving = self.moving_probabilities(
@@ -190,9 +191,9 @@ impl Tracker {
                         &estimate.camera_from_world,
                         &estimate.matches,
                     );
-                    report.dynamic_keypoints =
+                    report.stats.dynamic_keypoints =
                         frame.moving.iter().filter(|p| dop.removed(**p)).count();
-                    report.dop_ms = start.elapsed().as_secs_f64() * 1e3;
+                    report.stats.dop_ms = start.elapsed().as_secs_f64() * 1e3;
                 }
                 self.accept((&mut map, gate), frame, estimate, mapping_idle, &mut report);
             }
@@ -228,12 +229,12 @@ impl Tracker {
         (map, gate): (&mut Map, &Participation),
         frame: Frame,
         reject: Reject,
-        report: &mut FrameReport,
+        report: &mut TrackedFrame,
     ) {
         self.state = TrackingState::Lost;
         self.velocity = None;
-        report.state = TrackingState::Lost;
-        report.lost = Some(reject);
+        report.stats.state = TrackingState::Lost;
+        report.stats.lost = Some(reject);
         let since = *self.lost_since.get_or_insert(frame.timestamp);
         if frame.timestamp - since >= self.config.new_map_after_seconds {
             if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
@@ -250,7 +251,7 @@ impl Tracker {
         frame: Frame,
         estimate: PoseEstimate,
         mapping_idle: bool,
-        report: &mut FrameReport,
+        report: &mut TrackedFrame,
     ) {
         let PoseEstimate {
             camera_from_world: pose,
@@ -259,11 +260,12 @@ impl Tracker {
         } = estimate;
         self.lost_since = None;
         self.state = TrackingState::Ok;
-        report.state = TrackingState::Ok;
-        report.segment = self.segment;
-        report.inliers = inliers;
-        report.matches = points.iter().filter(|p| p.is_some()).count();
-        report.pose_observations = points
+        report.stats.state = TrackingState::Ok;
+        report.stats.segment = self.segment;
+        report.record.segment = self.segment;
+        report.stats.inliers = inliers;
+        report.stats.matches = points.iter().filter(|p| p.is_some()).count();
+        report.record.observations = points
             .iter()
             .enumerate()
             .filter_map(|(i, k)| {
@@ -295,15 +297,15 @@ impl Tracker {
         let (pose, points) = if need {
             self.insert_keyframe((map, &frame, gate), pose, points, false);
             let key = self.reference.expect("just inserted");
-            report.keyframe = true;
-            report.new_keyframe = Some(key);
+            report.stats.keyframe = true;
+            report.record.keyframe = Some(key);
             let keyframe = &map.keyframes[key];
             (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
             (pose, points)
         };
-        report.camera_from_world = Some(pose);
-        report.reference = self.reference.and_then(|k| {
+        report.record.camera_from_world = Some(pose);
+        report.record.reference = self.reference.and_then(|k| {
             let keyframe = map.keyframes.get(k)?;
             Some((k, pose * keyframe.world_from_camera()))
         });
@@ -322,7 +324,7 @@ impl Tracker {
         (map, gate): (&mut Map, &Participation),
         frame: Frame,
         camera_from_world: Se3,
-        report: &mut FrameReport,
+        report: &mut TrackedFrame,
     ) {
         let with_depth = frame.depth.iter().filter(|&&z| z > 0.0).count();
         if with_depth < self.config.min_initial_points {
@@ -336,14 +338,15 @@ impl Tracker {
             vec![None; frame.len()],
             true,
         );
-        report.keyframe = true;
-        report.new_keyframe = self.reference;
-        report.state = TrackingState::Ok;
-        report.lost = None;
-        report.segment = self.segment;
-        report.camera_from_world = Some(camera_from_world);
-        report.reference = self.reference.map(|k| (k, Se3::identity()));
-        report.inliers = with_depth;
+        report.stats.keyframe = true;
+        report.record.keyframe = self.reference;
+        report.stats.state = TrackingState::Ok;
+        report.stats.lost = None;
+        report.stats.segment = self.segment;
+        report.record.segment = self.segment;
+        report.record.camera_from_world = Some(camera_from_world);
+        report.record.reference = self.reference.map(|k| (k, Se3::identity()));
+        report.stats.inliers = with_depth;
         self.state = TrackingState::Ok;
         self.velocity = None;
         self.lost_since = None;
