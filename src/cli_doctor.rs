@@ -67,58 +67,8 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     let cwd = std::env::current_dir().unwrap_or_default();
     let shown = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     println!("data directory: {} ({})", shown(&data.path).display(), data.origin);
-    println!("looked for, in this order:");
-    println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");
-    match std::env::var_os(data_dir::ENV) {
-        Some(v) => println!("  2. {}={} (when set, the only place looked at)", data_dir::ENV, v.to_string_lossy()),
-        None => println!("  2. {} (unset)", data_dir::ENV),
-    }
-    match data_dir::install_record() {
-        Some(record) if record.is_file() => {
-            let named = std::fs::read_to_string(&record).unwrap_or_default().trim().to_string();
-            let skipped = match Path::new(&named) {
-                p if !p.is_absolute() => " (skipped: not an absolute path)",
-                p if !p.is_dir() => " (skipped: no such directory; run tools/setup.sh again)",
-                _ => "",
-            };
-            println!("  3. the install record {} -> {named}{skipped}", record.display())
-        }
-        Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
-        None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
-    }
-    println!("  4. ./data under the working directory ({})", cwd.join("data").display());
-    let library = dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref());
-    let mut needed = vec![Needed {
-        what: "ONNX Runtime library (keyframe detector)",
-        path: library.clone(),
-        required: true,
-        load: Load::Runtime,
-    }];
-    needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
-        what: "detector model (the config's)",
-        path,
-        required: true,
-        load: Load::Model(config.detector.model.layout()),
-    }));
-    for (model, what) in [
-        (Model::YoloxNano, "detector model yolox-nano (optional)"),
-        (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
-    ] {
-        if config.detector.model != model && config.detector.pool.is_empty() {
-            needed.extend(model.default_paths().into_iter().map(|path| Needed {
-                what,
-                path,
-                required: false,
-                load: Load::Model(model.layout()),
-            }));
-        }
-    }
-    needed.push(Needed {
-        what: "place-recognition vocabulary (loop closing)",
-        path: config.global.vocabulary_file(),
-        required: true,
-        load: Load::Vocabulary,
-    });
+    print_search_order(&cwd);
+    let (needed, library) = needed_files(&config);
     println!("files (each loaded as a run loads it):");
     let (mut missing, mut broken) = (Vec::new(), Vec::new());
     for n in &needed {
@@ -166,3 +116,65 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         data_dir::INSTALL_HINT
     )
 }
+/// The places runtime files are looked for, in order, as `run` looks.
+fn print_search_order(cwd: &Path) {
+    println!("looked for, in this order:");
+    println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");
+    match std::env::var_os(data_dir::ENV) {
+        Some(v) => println!("  2. {}={} (when set, the only place looked at)", data_dir::ENV, v.to_string_lossy()),
+        None => println!("  2. {} (unset)", data_dir::ENV),
+    }
+    match data_dir::install_record() {
+        Some(record) if record.is_file() => {
+            let named = std::fs::read_to_string(&record).unwrap_or_default().trim().to_string();
+            let skipped = match Path::new(&named) {
+                p if !p.is_absolute() => " (skipped: not an absolute path)",
+                p if !p.is_dir() => " (skipped: no such directory; run tools/setup.sh again)",
+                _ => "",
+            };
+            println!("  3. the install record {} -> {named}{skipped}", record.display())
+        }
+        Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
+        None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
+    }
+    println!("  4. ./data under the working directory ({})", cwd.join("data").display());
+}
+
+/// The files a run with `config` loads (the optional detector models besides), with
+/// the ONNX Runtime library's path.
+fn needed_files(config: &Config) -> (Vec<Needed>, std::path::PathBuf) {
+    let library = dopslam::detect::onnx::runtime_library(config.detector.ort_library.as_deref());
+    let mut needed = vec![Needed {
+        what: "ONNX Runtime library (keyframe detector)",
+        path: library.clone(),
+        required: true,
+        load: Load::Runtime,
+    }];
+    needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
+        what: "detector model (the config's)",
+        path,
+        required: true,
+        load: Load::Model(config.detector.model.layout()),
+    }));
+    for (model, what) in [
+        (Model::YoloxNano, "detector model yolox-nano (optional)"),
+        (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
+    ] {
+        if config.detector.model != model && config.detector.pool.is_empty() {
+            needed.extend(model.default_paths().into_iter().map(|path| Needed {
+                what,
+                path,
+                required: false,
+                load: Load::Model(model.layout()),
+            }));
+        }
+    }
+    needed.push(Needed {
+        what: "place-recognition vocabulary (loop closing)",
+        path: config.global.vocabulary_file(),
+        required: true,
+        load: Load::Vocabulary,
+    });
+    (needed, library)
+}
+

@@ -677,18 +677,7 @@ fn describe_folder(root: &Path, config: &Config) -> Result<()> {
 
 fn run_run(args: RunArgs) -> Result<()> {
     use clap::ValueEnum;
-    let mut config = load_config(args.config.as_deref())?;
-    args.topics.apply(&mut config);
-    if let Some(source) = args.detections {
-        config.detector.source = source;
-    }
-    match &args.settings {
-        Some(path) => cli_maps::apply_settings(&mut config, path)?,
-        None => cli_maps::print_settings_notes(&config),
-    }
-    if args.no_loops {
-        config.global.loops.enabled = false;
-    }
+    let mut config = run_config(&args)?;
     let options = dopslam::run::RunOptions {
         max_frames: args.frames,
         progress: true,
@@ -699,16 +688,6 @@ fn run_run(args: RunArgs) -> Result<()> {
         pace: args.pace,
         rerun: None,
     };
-    if args.no_global {
-        config.global.enabled = false;
-    }
-    if args.no_dop {
-        config.dop.mode = dopslam::dop::Mode::Off;
-    } else if args.mask_boxes {
-        config.dop.mode = dopslam::dop::Mode::MaskBoxes;
-    } else if args.dop {
-        config.dop.mode = dopslam::dop::Mode::Dop;
-    }
     // A missing detector fails here, a missing vocabulary when the run starts: both
     // before any work.
     let source = dopslam::run::detection_source(&config)?;
@@ -736,6 +715,57 @@ fn run_run(args: RunArgs) -> Result<()> {
     let mut report = report?;
     // --rerun's, or the run's own run.rrd ([output] rerun).
     let recording = logger.or(report.recording.take());
+    print_run_summary(&report);
+    println!("wrote {}", args.out.display());
+    let errors = &report.detection.errors;
+    if !errors.is_empty() {
+        bail!(
+            "the run finished and its outputs are written, but {} keyframe detection(s) failed (report.json lists them), the first: {}",
+            errors.len(),
+            errors[0]
+        );
+    }
+    if args.compare_no_dop {
+        let log = recording.as_ref().map(|l| l.handle());
+        compare_no_dop(&args, &config, sequence.as_ref(), &options, (&report, log))?;
+    }
+    if let Some(logger) = recording {
+        dopslam::run::finish_recording(logger, true)?;
+    }
+    Ok(())
+}
+
+/// The configuration of `dopslam run`: the file, then ORB-SLAM2's settings, then the
+/// command line's options over both.
+fn run_config(args: &RunArgs) -> Result<dopslam::config::Config> {
+    let mut config = load_config(args.config.as_deref())?;
+    args.topics.apply(&mut config);
+    if let Some(source) = args.detections {
+        config.detector.source = source;
+    }
+    match &args.settings {
+        Some(path) => cli_maps::apply_settings(&mut config, path)?,
+        None => cli_maps::print_settings_notes(&config),
+    }
+    if args.no_loops {
+        config.global.loops.enabled = false;
+    }
+    if args.no_global {
+        config.global.enabled = false;
+    }
+    if args.no_dop {
+        config.dop.mode = dopslam::dop::Mode::Off;
+    } else if args.mask_boxes {
+        config.dop.mode = dopslam::dop::Mode::MaskBoxes;
+    } else if args.dop {
+        config.dop.mode = dopslam::dop::Mode::Dop;
+    }
+    Ok(config)
+}
+
+/// What `dopslam run` prints of its report: tracking, map segments, times, the
+/// global pass, ATE and the dense map.
+fn print_run_summary(report: &dopslam::run::RunReport) {
     let t = &report.totals;
     println!(
         "{}: tracked {} of {} frames ({:.1} %), lost {}, {} keyframes, {} map points",
@@ -787,23 +817,6 @@ fn run_run(args: RunArgs) -> Result<()> {
     if let Some(dense) = &report.dense {
         cli_maps::print_dense(dense);
     }
-    println!("wrote {}", args.out.display());
-    let errors = &report.detection.errors;
-    if !errors.is_empty() {
-        bail!(
-            "the run finished and its outputs are written, but {} keyframe detection(s) failed (report.json lists them), the first: {}",
-            errors.len(),
-            errors[0]
-        );
-    }
-    if args.compare_no_dop {
-        let log = recording.as_ref().map(|l| l.handle());
-        compare_no_dop(&args, &config, sequence.as_ref(), &options, (&report, log))?;
-    }
-    if let Some(logger) = recording {
-        dopslam::run::finish_recording(logger, true)?;
-    }
-    Ok(())
 }
 
 /// `run --compare-no-dop`: the same run with --no-dop into OUT/no_dop, the two dense

@@ -243,71 +243,8 @@ impl Manifest {
         let mut planned = Vec::new();
         for (i, entry) in self.sequences.iter().enumerate() {
             let context = |m: String| format!("[[sequence]] #{}: {m}", i + 1);
-            let mut config = match &entry.config {
-                Some(path) => self.load_config(Some(path)).map_err(context)?,
-                None => base_config.clone(),
-            };
-            if let Some(settings) = &entry.settings {
-                let path = absolute(&self.resolve(settings));
-                config
-                    .apply_orbslam_settings(&path)
-                    .map_err(|e| context(e.to_string()))?;
-            }
-            if entry.depth_scale.is_some() {
-                config.dataset.depth_scale = entry.depth_scale;
-            }
-            config.dataset.override_topics(&crate::io::recording::TopicChoice {
-                rgb: entry.rgb_topic.clone(),
-                depth: entry.depth_topic.clone(),
-                camera_info: entry.camera_info_topic.clone(),
-                ground_truth: entry.ground_truth_topic.clone(),
-            });
-            if let Some(source) = entry.detections.or(self.batch.detections) {
-                config.detector.source = source;
-            }
-            config.dense.enabled = entry.dense.unwrap_or(self.batch.dense);
-            config.global.enabled = self.batch.global;
-            let sources: Vec<(String, SequenceSource)> = if let Some(path) = &entry.path {
-                let path = absolute(&self.resolve(path));
-                vec![(folder_name(&path), SequenceSource::Folder(path))]
-            } else if let Some(pattern) = &entry.glob {
-                let pattern = self.resolve(Path::new(pattern));
-                let folders = glob_sequences(&pattern).map_err(context)?;
-                if folders.is_empty() {
-                    return Err(context(format!(
-                        "glob {} matches no sequence folder or recording",
-                        pattern.display()
-                    )));
-                }
-                folders
-                    .into_iter()
-                    .map(|p| (folder_name(&p), SequenceSource::Folder(p)))
-                    .collect()
-            } else {
-                let preset = self.find_preset(entry.preset.as_deref().unwrap_or_default());
-                let preset = preset.map_err(context)?;
-                let stem = folder_name(&preset);
-                let seeds: Vec<Option<u64>> = if entry.seeds.is_empty() {
-                    vec![None]
-                } else {
-                    entry.seeds.iter().map(|&s| Some(s)).collect()
-                };
-                seeds
-                    .into_iter()
-                    .map(|seed| {
-                        let name = match seed {
-                            Some(s) => format!("{stem}-s{s}"),
-                            None => stem.clone(),
-                        };
-                        let source = SequenceSource::Synthetic {
-                            preset: preset.clone(),
-                            seed,
-                            frames: entry.synth_frames,
-                        };
-                        (name, source)
-                    })
-                    .collect()
-            };
+            let config = self.entry_config(entry, &base_config).map_err(context)?;
+            let sources = self.entry_sources(entry).map_err(context)?;
             let several = sources.len() > 1;
             for (k, (default_name, source)) in sources.into_iter().enumerate() {
                 let name = match (&entry.name, several) {
@@ -343,6 +280,83 @@ impl Manifest {
             ));
         }
         Ok(planned)
+    }
+
+    /// The config of one `[[sequence]]` entry: its own file or the batch's, then its
+    /// ORB-SLAM2 settings and options.
+    fn entry_config(&self, entry: &SequenceEntry, base_config: &Config) -> Result<Config, String> {
+        let mut config = match &entry.config {
+            Some(path) => self.load_config(Some(path))?,
+            None => base_config.clone(),
+        };
+        if let Some(settings) = &entry.settings {
+            let path = absolute(&self.resolve(settings));
+            config
+                .apply_orbslam_settings(&path)
+                .map_err(|e| e.to_string())?;
+        }
+        if entry.depth_scale.is_some() {
+            config.dataset.depth_scale = entry.depth_scale;
+        }
+        config.dataset.override_topics(&crate::io::recording::TopicChoice {
+            rgb: entry.rgb_topic.clone(),
+            depth: entry.depth_topic.clone(),
+            camera_info: entry.camera_info_topic.clone(),
+            ground_truth: entry.ground_truth_topic.clone(),
+        });
+        if let Some(source) = entry.detections.or(self.batch.detections) {
+            config.detector.source = source;
+        }
+        config.dense.enabled = entry.dense.unwrap_or(self.batch.dense);
+        config.global.enabled = self.batch.global;
+        Ok(config)
+    }
+
+    /// The sequences of one `[[sequence]]` entry with their default names: its folder
+    /// or recording, the matches of its glob, or its preset once per seed.
+    fn entry_sources(&self, entry: &SequenceEntry) -> Result<Vec<(String, SequenceSource)>, String> {
+        let sources = if let Some(path) = &entry.path {
+            let path = absolute(&self.resolve(path));
+            vec![(folder_name(&path), SequenceSource::Folder(path))]
+        } else if let Some(pattern) = &entry.glob {
+            let pattern = self.resolve(Path::new(pattern));
+            let folders = glob_sequences(&pattern)?;
+            if folders.is_empty() {
+                return Err(format!(
+                    "glob {} matches no sequence folder or recording",
+                    pattern.display()
+                ));
+            }
+            folders
+                .into_iter()
+                .map(|p| (folder_name(&p), SequenceSource::Folder(p)))
+                .collect()
+        } else {
+            let preset = self.find_preset(entry.preset.as_deref().unwrap_or_default());
+            let preset = preset?;
+            let stem = folder_name(&preset);
+            let seeds: Vec<Option<u64>> = if entry.seeds.is_empty() {
+                vec![None]
+            } else {
+                entry.seeds.iter().map(|&s| Some(s)).collect()
+            };
+            seeds
+                .into_iter()
+                .map(|seed| {
+                    let name = match seed {
+                        Some(s) => format!("{stem}-s{s}"),
+                        None => stem.clone(),
+                    };
+                    let source = SequenceSource::Synthetic {
+                        preset: preset.clone(),
+                        seed,
+                        frames: entry.synth_frames,
+                    };
+                    (name, source)
+                })
+                .collect()
+        };
+        Ok(sources)
     }
 
     fn load_config(&self, path: Option<&Path>) -> Result<Config, String> {

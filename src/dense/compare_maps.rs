@@ -93,9 +93,43 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
     let names: Vec<String> = meshes.iter().map(|(n, _)| n.clone()).collect();
     let figures: Vec<&MapFigures> = maps.iter().collect();
     let table = table(&names, &figures);
+    let mut outputs = write_distance_maps(inputs, &meshes, &maps)?;
+    outputs.extend(write_pictures(inputs, &reference_mesh, &meshes, &maps)?);
+    let comparison = Comparison {
+        names,
+        reference: inputs.reference.to_path_buf(),
+        movers: inputs.movers.map(Path::to_path_buf),
+        settings: inputs.settings,
+        maps,
+        table,
+        outputs,
+    };
+    let json = serde_json::to_string_pretty(&comparison).expect("comparison serialises");
+    write_atomic(&inputs.out.join("compare.json"), json.as_bytes())?;
+    let md = format!(
+        "# Dense maps compared\n\nReference: `{}`{}\n\n{}\nPictures: left to right as the columns; ghosts (farther than {} m from the reference) in red.\n",
+        inputs.reference.display(),
+        inputs
+            .movers
+            .map(|m| format!("; movers' ground truth: `{}`", m.display()))
+            .unwrap_or_default(),
+        comparison.table,
+        inputs.settings.ghost_distance
+    );
+    write_atomic(&inputs.out.join("compare.md"), md.as_bytes())?;
+    Ok(comparison)
+}
+
+/// `NAME_distance.ply` per map: its points coloured by their distance to the
+/// reference, the distance as a scalar. Returns the paths written.
+fn write_distance_maps(
+    inputs: &CompareInputs,
+    meshes: &[(String, Mesh)],
+    maps: &[MapFigures],
+) -> Result<Vec<PathBuf>, IoError> {
     let mut outputs = Vec::new();
     let full = (inputs.settings.ghost_distance * 2.0) as f32;
-    for ((name, mesh), figures) in meshes.iter().zip(&maps) {
+    for ((name, mesh), figures) in meshes.iter().zip(maps) {
         let coloured = Mesh {
             colours: figures
                 .distances
@@ -114,6 +148,19 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         )?;
         outputs.push(path);
     }
+    Ok(outputs)
+}
+
+/// `compare_top.png` and `compare_perspective.png`: the maps side by side, ghosts in
+/// red, seen from the run's cameras (else from above the reference). Returns the paths
+/// written.
+fn write_pictures(
+    inputs: &CompareInputs,
+    reference_mesh: &Mesh,
+    meshes: &[(String, Mesh)],
+    maps: &[MapFigures],
+) -> Result<Vec<PathBuf>, IoError> {
+    let mut outputs = Vec::new();
     let view = match inputs.cameras {
         Some(cameras) => Viewpoint::from_cameras(cameras),
         None => Viewpoint::from_points(&reference_mesh.vertices),
@@ -127,16 +174,12 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
                 .collect();
             render::with_ghosts(mesh, &flags)
         };
-        let coloured: Vec<Vec<[u8; 3]>> = meshes
-            .iter()
-            .map(|(_, m)| m)
-            .zip(&maps)
-            .map(ghost)
-            .collect();
+        let coloured: Vec<Vec<[u8; 3]>> =
+            meshes.iter().map(|(_, m)| m).zip(maps).map(ghost).collect();
         let camera = render::picture_camera();
         let mut top = None::<image::RgbImage>;
         let mut perspective = None::<image::RgbImage>;
-        for (((name, mesh), colours), figures) in meshes.iter().zip(&coloured).zip(&maps) {
+        for (((name, mesh), colours), figures) in meshes.iter().zip(&coloured).zip(maps) {
             let caption = match figures.mover_points {
                 Some(movers) => format!("{name}: {movers} mover points"),
                 None => format!("{name}: {} ghost points", figures.ghost_points),
@@ -166,29 +209,7 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
             }
         }
     }
-    let comparison = Comparison {
-        names,
-        reference: inputs.reference.to_path_buf(),
-        movers: inputs.movers.map(Path::to_path_buf),
-        settings: inputs.settings,
-        maps,
-        table,
-        outputs,
-    };
-    let json = serde_json::to_string_pretty(&comparison).expect("comparison serialises");
-    write_atomic(&inputs.out.join("compare.json"), json.as_bytes())?;
-    let md = format!(
-        "# Dense maps compared\n\nReference: `{}`{}\n\n{}\nPictures: left to right as the columns; ghosts (farther than {} m from the reference) in red.\n",
-        inputs.reference.display(),
-        inputs
-            .movers
-            .map(|m| format!("; movers' ground truth: `{}`", m.display()))
-            .unwrap_or_default(),
-        comparison.table,
-        inputs.settings.ghost_distance
-    );
-    write_atomic(&inputs.out.join("compare.md"), md.as_bytes())?;
-    Ok(comparison)
+    Ok(outputs)
 }
 
 /// Moves a mesh by `pose` (points and normals).

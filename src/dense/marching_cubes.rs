@@ -172,106 +172,124 @@ struct Piece {
 /// The mesh of the zero level set of `volume`.
 pub fn extract(volume: &TsdfVolume) -> Mesh {
     let table = table();
-    let voxel = volume.settings.voxel;
     let pieces: Vec<Piece> = volume
         .coords
         .par_iter()
-        .map(|&coord| {
-            let sample = |g: [i64; 3]| -> Option<Sample> {
-                let b = BLOCK as i64;
-                let block = [g[0].div_euclid(b), g[1].div_euclid(b), g[2].div_euclid(b)];
-                let local = [g[0].rem_euclid(b), g[1].rem_euclid(b), g[2].rem_euclid(b)];
-                let blk = volume.block([block[0] as i32, block[1] as i32, block[2] as i32])?;
-                let i = voxel_index(local[0] as usize, local[1] as usize, local[2] as usize);
-                (blk.weight[i] > 0.0).then(|| (blk.sdf[i], blk.colour_weight[i] > 0, blk.colour[i]))
-            };
-            let mut piece = Piece {
-                vertices: Vec::new(),
-                triangles: Vec::new(),
-            };
-            let mut local: FxMap<EdgeKey, u32> = FxMap::default();
-            let base = coord.map(|c| c as i64 * BLOCK as i64);
-            for z in 0..BLOCK as i64 {
-                for y in 0..BLOCK as i64 {
-                    for x in 0..BLOCK as i64 {
-                        let origin = [base[0] + x, base[1] + y, base[2] + z];
-                        let mut values: [Sample; 8] = [(0.0, false, [0; 3]); 8];
-                        let mut complete = true;
-                        let mut case = 0;
-                        for (c, value) in values.iter_mut().enumerate() {
-                            let k = corner(c);
-                            let g = [
-                                origin[0] + k[0] as i64,
-                                origin[1] + k[1] as i64,
-                                origin[2] + k[2] as i64,
-                            ];
-                            match sample(g) {
-                                Some(s) => *value = s,
-                                None => {
-                                    complete = false;
-                                    break;
-                                }
-                            }
-                            if value.0 < 0.0 {
-                                case |= 1 << c;
-                            }
-                        }
-                        if !complete || table[case].is_empty() {
-                            continue;
-                        }
-                        let mut vertex_of = |e: u8| -> u32 {
-                            let (a, b) = EDGES[e as usize];
-                            let (ka, kb) = (corner(a), corner(b));
-                            let axis = (0..3).find(|&i| ka[i] != kb[i]).expect("an axis");
-                            let lower = [
-                                origin[0] + ka[0].min(kb[0]) as i64,
-                                origin[1] + ka[1].min(kb[1]) as i64,
-                                origin[2] + ka[2].min(kb[2]) as i64,
-                            ];
-                            let key = (lower, axis as u8);
-                            if let Some(&i) = local.get(&key) {
-                                return i;
-                            }
-                            let (fa, fb) = (values[a].0, values[b].0);
-                            // Kept off the corners: a corner whose value is exactly 0
-                            // would give each of its crossed edges a vertex at the same
-                            // place (duplicates that some readers merge, degenerate
-                            // triangles).
-                            let t = (fa / (fa - fb)).clamp(CORNER_GAP, 1.0 - CORNER_GAP);
-                            let position = [0, 1, 2].map(|i| {
-                                let pa = (origin[i] + ka[i] as i64) as f64;
-                                let pb = (origin[i] + kb[i] as i64) as f64;
-                                ((pa + t as f64 * (pb - pa)) * voxel) as f32
-                            });
-                            // A corner seen only as free space has no colour.
-                            let colour = if values[a].1 == values[b].1 {
-                                [0, 1, 2].map(|i| {
-                                    let (ca, cb) = (values[a].2[i] as f32, values[b].2[i] as f32);
-                                    (ca + t * (cb - ca)).round() as u8
-                                })
-                            } else if values[a].1 {
-                                values[a].2
-                            } else {
-                                values[b].2
-                            };
-                            let index = piece.vertices.len() as u32;
-                            piece.vertices.push((key, position, colour));
-                            local.insert(key, index);
-                            index
-                        };
-                        for tri in &table[case] {
-                            let t = tri.map(&mut vertex_of);
-                            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                                piece.triangles.push(t);
-                            }
-                        }
+        .map(|&coord| block_piece(volume, table, coord))
+        .collect();
+    weld(pieces)
+}
+
+/// The triangles of the cubes whose lower corner lies in the block at `coord` (cubes
+/// reach into the neighbouring blocks).
+fn block_piece(volume: &TsdfVolume, table: &[Vec<[u8; 3]>], coord: [i32; 3]) -> Piece {
+    let voxel = volume.settings.voxel;
+    let mut piece = Piece {
+        vertices: Vec::new(),
+        triangles: Vec::new(),
+    };
+    let mut local: FxMap<EdgeKey, u32> = FxMap::default();
+    let base = coord.map(|c| c as i64 * BLOCK as i64);
+    for z in 0..BLOCK as i64 {
+        for y in 0..BLOCK as i64 {
+            for x in 0..BLOCK as i64 {
+                let origin = [base[0] + x, base[1] + y, base[2] + z];
+                let Some((values, case)) = cube_samples(volume, origin) else {
+                    continue;
+                };
+                if table[case].is_empty() {
+                    continue;
+                }
+                let mut vertex_of = |e: u8| -> u32 {
+                    let (key, position, colour) = edge_vertex(&values, origin, e, voxel);
+                    if let Some(&i) = local.get(&key) {
+                        return i;
+                    }
+                    let index = piece.vertices.len() as u32;
+                    piece.vertices.push((key, position, colour));
+                    local.insert(key, index);
+                    index
+                };
+                for tri in &table[case] {
+                    let t = tri.map(&mut vertex_of);
+                    if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                        piece.triangles.push(t);
                     }
                 }
             }
-            piece
+        }
+    }
+    piece
+}
+
+/// The samples at the 8 corners of the cube with lower corner `origin` (global voxel
+/// coordinates) and its case (bit c set where corner c is inside, SDF < 0); `None`
+/// where a corner has no observation.
+fn cube_samples(volume: &TsdfVolume, origin: [i64; 3]) -> Option<([Sample; 8], usize)> {
+    let sample = |g: [i64; 3]| -> Option<Sample> {
+        let b = BLOCK as i64;
+        let block = [g[0].div_euclid(b), g[1].div_euclid(b), g[2].div_euclid(b)];
+        let local = [g[0].rem_euclid(b), g[1].rem_euclid(b), g[2].rem_euclid(b)];
+        let blk = volume.block([block[0] as i32, block[1] as i32, block[2] as i32])?;
+        let i = voxel_index(local[0] as usize, local[1] as usize, local[2] as usize);
+        (blk.weight[i] > 0.0).then(|| (blk.sdf[i], blk.colour_weight[i] > 0, blk.colour[i]))
+    };
+    let mut values: [Sample; 8] = [(0.0, false, [0; 3]); 8];
+    let mut case = 0;
+    for (c, value) in values.iter_mut().enumerate() {
+        let k = corner(c);
+        *value = sample([
+            origin[0] + k[0] as i64,
+            origin[1] + k[1] as i64,
+            origin[2] + k[2] as i64,
+        ])?;
+        if value.0 < 0.0 {
+            case |= 1 << c;
+        }
+    }
+    Some((values, case))
+}
+
+/// The vertex on edge `e` of the cube at `origin`: its key, where the SDF crosses zero
+/// along the edge (linear interpolation, \(t = f_a / (f_a - f_b)\)), in metres, and
+/// its colour.
+fn edge_vertex(
+    values: &[Sample; 8],
+    origin: [i64; 3],
+    e: u8,
+    voxel: f64,
+) -> (EdgeKey, [f32; 3], [u8; 3]) {
+    let (a, b) = EDGES[e as usize];
+    let (ka, kb) = (corner(a), corner(b));
+    let axis = (0..3).find(|&i| ka[i] != kb[i]).expect("an axis");
+    let lower = [
+        origin[0] + ka[0].min(kb[0]) as i64,
+        origin[1] + ka[1].min(kb[1]) as i64,
+        origin[2] + ka[2].min(kb[2]) as i64,
+    ];
+    let key = (lower, axis as u8);
+    let (fa, fb) = (values[a].0, values[b].0);
+    // Kept off the corners: a corner whose value is exactly 0 would give each of its
+    // crossed edges a vertex at the same place (duplicates that some readers merge,
+    // degenerate triangles).
+    let t = (fa / (fa - fb)).clamp(CORNER_GAP, 1.0 - CORNER_GAP);
+    let position = [0, 1, 2].map(|i| {
+        let pa = (origin[i] + ka[i] as i64) as f64;
+        let pb = (origin[i] + kb[i] as i64) as f64;
+        ((pa + t as f64 * (pb - pa)) * voxel) as f32
+    });
+    // A corner seen only as free space has no colour.
+    let colour = if values[a].1 == values[b].1 {
+        [0, 1, 2].map(|i| {
+            let (ca, cb) = (values[a].2[i] as f32, values[b].2[i] as f32);
+            (ca + t * (cb - ca)).round() as u8
         })
-        .collect();
-    weld(pieces)
+    } else if values[a].1 {
+        values[a].2
+    } else {
+        values[b].2
+    };
+    (key, position, colour)
 }
 
 /// Joins the blocks' pieces, sharing vertices on the edges between blocks.

@@ -430,67 +430,10 @@ fn integrate_block(
     reciprocals: &[u32],
     frame: &FrameInput,
 ) {
-    let (w, h) = (frame.depth.width, frame.depth.height);
     let tau = settings.truncation as f32;
     let inv_tau = 1.0 / tau;
-    let far = (settings.max_depth + settings.truncation) as f32;
     let max_depth = settings.max_depth as f32;
-    let (fx, fy, cx, cy) = (
-        camera.fx as f32,
-        camera.fy as f32,
-        camera.cx as f32,
-        camera.cy as f32,
-    );
-    // Voxel centres sit at integer multiples of the voxel size (a corner-aligned
-    // lattice shared by neighbouring blocks); in the camera voxel (x, y, z) is
-    // p = R c + t + x R e_x v + y R e_y v + z R e_z v.
-    let r = frame.camera_from_world.rotation.matrix();
-    let corner = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64) * block_size;
-    let o = (r * corner + frame.camera_from_world.translation.vector).cast::<f32>();
-    let step = |k: usize| (r.column(k) * settings.voxel).into_owned().cast::<f32>();
-    let (dx, dy, dz) = (step(0), step(1), step(2));
-    let (wf, hf) = (w as f32, h as f32);
-    let w = w as i32;
-    // Voxel (x, y, z) sits at index k = (z B + y) B + x: rows of B voxels along x, in
-    // lanes the compiler vectorises (no branches, signed conversions).
-    const NONE: i32 = -1;
-    let xs: [f32; BLOCK] = std::array::from_fn(|x| x as f32);
-    let mut pixels = [NONE; BLOCK_VOXELS];
-    let mut zs = [0f32; BLOCK_VOXELS];
-    // Whether the pixel lies within the border margin (its index rounds below
-    // `margin` or to `size - margin` or beyond).
-    let mut rims = [false; BLOCK_VOXELS];
-    let m = settings.margin as f32 - 0.5;
-    for (row, ((pixels, zs), rims)) in pixels
-        .chunks_exact_mut(BLOCK)
-        .zip(zs.chunks_exact_mut(BLOCK))
-        .zip(rims.chunks_exact_mut(BLOCK))
-        .enumerate()
-    {
-        let (y, z) = ((row % BLOCK) as f32, (row / BLOCK) as f32);
-        let base = o + dy * y + dz * z;
-        for (((pixel, z_out), rim), &x) in pixels
-            .iter_mut()
-            .zip(zs.iter_mut())
-            .zip(rims.iter_mut())
-            .zip(&xs)
-        {
-            let (px, py, pz) = (base.x + dx.x * x, base.y + dx.y * x, base.z + dx.z * x);
-            let inv = 1.0 / pz;
-            let uf = fx * px * inv + cx;
-            let vf = fy * py * inv + cy;
-            let seen = (pz > 0.0)
-                & (pz <= far)
-                & (uf >= -0.5)
-                & (vf >= -0.5)
-                & (uf < wf - 0.5)
-                & (vf < hf - 0.5);
-            let (u, v) = (nearest(uf, wf), nearest(vf, hf));
-            *pixel = if seen { v * w + u } else { NONE };
-            *z_out = pz;
-            *rim = (uf < m) | (vf < m) | (uf >= wf - 1.0 - m) | (vf >= hf - 1.0 - m);
-        }
-    }
+    let Projected { pixels, zs, rims } = project_block(coord, block_size, settings, camera, frame);
     // The measured depth at each voxel's pixel (0: none), and whether a mask marks
     // that pixel dynamic (or it lies in the border margin, which fuses no surface).
     let depth = &frame.depth.metres;
@@ -532,13 +475,111 @@ fn integrate_block(
         // Colour only within the band; `measured` becomes that flag.
         *d = m * f32::from(u8::from(eta <= tau));
     }
+    fuse_colour(block, &pixels, &measured, reciprocals, frame);
+    block.surface = block
+        .sdf
+        .iter()
+        .zip(&block.weight)
+        .any(|(&f, &w)| f < 0.0 && w > 0.0);
+}
+
+/// Where a block's voxels fall in a frame ([`project_block`]).
+struct Projected {
+    pixels: [i32; BLOCK_VOXELS],
+    zs: [f32; BLOCK_VOXELS],
+    rims: [bool; BLOCK_VOXELS],
+}
+
+/// A voxel no pixel sees.
+const NONE: i32 = -1;
+
+/// Each voxel of the block at `coord`: the index of its pixel in `frame` (`NONE`
+/// where the camera does not see it), its depth in the camera, and whether its pixel
+/// lies in the border margin. In a loop without branches that the compiler vectorises.
+#[inline]
+fn project_block(
+    coord: &[i32; 3],
+    block_size: f64,
+    settings: &TsdfSettings,
+    camera: &PinholeCamera,
+    frame: &FrameInput,
+) -> Projected {
+    let (w, h) = (frame.depth.width, frame.depth.height);
+    let far = (settings.max_depth + settings.truncation) as f32;
+    let (fx, fy, cx, cy) = (
+        camera.fx as f32,
+        camera.fy as f32,
+        camera.cx as f32,
+        camera.cy as f32,
+    );
+    // Voxel centres sit at integer multiples of the voxel size (a corner-aligned
+    // lattice shared by neighbouring blocks); in the camera voxel (x, y, z) is
+    // p = R c + t + x R e_x v + y R e_y v + z R e_z v.
+    let r = frame.camera_from_world.rotation.matrix();
+    let corner = Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64) * block_size;
+    let o = (r * corner + frame.camera_from_world.translation.vector).cast::<f32>();
+    let step = |k: usize| (r.column(k) * settings.voxel).into_owned().cast::<f32>();
+    let (dx, dy, dz) = (step(0), step(1), step(2));
+    let (wf, hf) = (w as f32, h as f32);
+    let w = w as i32;
+    // Voxel (x, y, z) sits at index k = (z B + y) B + x: rows of B voxels along x, in
+    // lanes the compiler vectorises (no branches, signed conversions).
+    let xs: [f32; BLOCK] = std::array::from_fn(|x| x as f32);
+    let mut pixels = [NONE; BLOCK_VOXELS];
+    let mut zs = [0f32; BLOCK_VOXELS];
+    // Whether the pixel lies within the border margin (its index rounds below
+    // `margin` or to `size - margin` or beyond).
+    let mut rims = [false; BLOCK_VOXELS];
+    let m = settings.margin as f32 - 0.5;
+    for (row, ((pixels, zs), rims)) in pixels
+        .chunks_exact_mut(BLOCK)
+        .zip(zs.chunks_exact_mut(BLOCK))
+        .zip(rims.chunks_exact_mut(BLOCK))
+        .enumerate()
+    {
+        let (y, z) = ((row % BLOCK) as f32, (row / BLOCK) as f32);
+        let base = o + dy * y + dz * z;
+        for (((pixel, z_out), rim), &x) in pixels
+            .iter_mut()
+            .zip(zs.iter_mut())
+            .zip(rims.iter_mut())
+            .zip(&xs)
+        {
+            let (px, py, pz) = (base.x + dx.x * x, base.y + dx.y * x, base.z + dx.z * x);
+            let inv = 1.0 / pz;
+            let uf = fx * px * inv + cx;
+            let vf = fy * py * inv + cy;
+            let seen = (pz > 0.0)
+                & (pz <= far)
+                & (uf >= -0.5)
+                & (vf >= -0.5)
+                & (uf < wf - 0.5)
+                & (vf < hf - 0.5);
+            let (u, v) = (nearest(uf, wf), nearest(vf, hf));
+            *pixel = if seen { v * w + u } else { NONE };
+            *z_out = pz;
+            *rim = (uf < m) | (vf < m) | (uf >= wf - 1.0 - m) | (vf >= hf - 1.0 - m);
+        }
+    }
+    Projected { pixels, zs, rims }
+}
+
+/// Colour of the voxels whose `flags` are set: the running mean, from their pixels.
+#[inline]
+fn fuse_colour(
+    block: &mut Block,
+    pixels: &[i32; BLOCK_VOXELS],
+    flags: &[f32; BLOCK_VOXELS],
+    reciprocals: &[u32],
+    frame: &FrameInput,
+) {
     // Colour: the running mean c <- c + (c_pixel - c) / (n + 1), with n the capped
     // count, in 16-bit fixed point (`reciprocals[n]` = 2^16 / (n + 1), rounded).
     let colour = frame.colour.as_raw();
     let cap = reciprocals.len() - 1;
     for ((&pixel, &flag), (old, seen)) in pixels
         .iter()
-        .zip(&measured)
+        .zip(flags)
         .zip(block.colour.iter_mut().zip(block.colour_weight.iter_mut()))
     {
         if flag == 0.0 {
@@ -553,11 +594,6 @@ fn integrate_block(
         }
         *seen = seen.saturating_add(1);
     }
-    block.surface = block
-        .sdf
-        .iter()
-        .zip(&block.weight)
-        .any(|(&f, &w)| f < 0.0 && w > 0.0);
 }
 
 #[cfg(test)]

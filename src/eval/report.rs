@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use serde::Serialize;
 use thiserror::Error;
 
-use super::associate::{associate, AssociationRule};
+use super::associate::{associate, Association, AssociationRule};
 use super::ate::{absolute_errors, PoseRelation};
 use super::kitti_odometry::{kitti_errors, KittiErrors};
 use super::rpe::{
@@ -200,6 +200,80 @@ pub fn evaluate(
     estimate: &Trajectory,
     options: &EvalOptions,
 ) -> Result<EvalReport, EvalError> {
+    let (association, max_diff) = associate_checked(reference, estimate, options)?;
+    let matched = association.pairs.len();
+    let coverage = matched as f64 / association.max_pairs as f64;
+    let reference_ids: Vec<usize> = association.pairs.iter().map(|p| p.0).collect();
+    let estimate_ids: Vec<usize> = association.pairs.iter().map(|p| p.1).collect();
+    let reference_sync = reference.select(&reference_ids);
+    let estimate_sync = estimate.select(&estimate_ids);
+
+    let kitti =
+        kitti_errors(&reference_sync.poses, &estimate_sync.poses).filter(|k| k.segments > 0);
+    let (transform, poses_used) = alignment_transform(&reference_sync, &estimate_sync, options)?;
+    let aligned = aligned_by(&transform, &estimate_sync);
+
+    let ape_errors = absolute_errors(&reference_sync.poses, &aligned.poses, options.ape_relation);
+    let ape = MetricResult {
+        metric: "APE",
+        relation: options.ape_relation,
+        unit: options.ape_relation.unit().to_string(),
+        delta: None,
+        statistics: Statistics::of(&ape_errors).expect("matched > 0"),
+        errors: ape_errors,
+        timestamps: aligned.timestamps.clone(),
+    };
+
+    let rpe = options
+        .rpe
+        .iter()
+        .map(|spec| {
+            rpe_metric(
+                spec,
+                (reference, estimate),
+                (&reference_sync, &aligned),
+                &transform,
+                options,
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+
+    let r = transform.rotation.matrix();
+    Ok(EvalReport {
+        reference_poses: reference.len(),
+        estimate_poses: estimate.len(),
+        matched_poses: matched,
+        max_pairs: association.max_pairs,
+        coverage,
+        association: options.association,
+        max_diff,
+        offset: options.offset,
+        alignment: AlignmentUsed {
+            mode: options.align,
+            rotation: [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
+            translation: transform.translation.into(),
+            scale: transform.scale,
+            poses_used,
+        },
+        ape,
+        rpe,
+        kitti,
+        reference: reference_sync,
+        aligned_estimate: aligned,
+    })
+}
+
+/// The pose pairs of `reference` and `estimate` under `options`' association rule,
+/// with the `max_diff` used; an error when they do not overlap enough.
+fn associate_checked(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    options: &EvalOptions,
+) -> Result<(Association, f64), EvalError> {
     check_not_empty(reference, "reference")?;
     check_not_empty(estimate, "estimate")?;
     if options.association == AssociationRule::ByIndex && reference.len() != estimate.len() {
@@ -239,111 +313,77 @@ pub fn evaluate(
             required: 100.0 * options.min_coverage,
         });
     }
-    let reference_ids: Vec<usize> = association.pairs.iter().map(|p| p.0).collect();
-    let estimate_ids: Vec<usize> = association.pairs.iter().map(|p| p.1).collect();
-    let reference_sync = reference.select(&reference_ids);
-    let estimate_sync = estimate.select(&estimate_ids);
+    Ok((association, max_diff))
+}
 
-    let kitti =
-        kitti_errors(&reference_sync.poses, &estimate_sync.poses).filter(|k| k.segments > 0);
-    let (transform, poses_used) = alignment_transform(&reference_sync, &estimate_sync, options)?;
-    let align = |trajectory: &Trajectory| Trajectory {
+/// `trajectory` moved by `transform` (the alignment), pose by pose.
+fn aligned_by(transform: &Sim3, trajectory: &Trajectory) -> Trajectory {
+    Trajectory {
         timestamps: trajectory.timestamps.clone(),
         poses: trajectory
             .poses
             .iter()
             .map(|p| transform.apply_to_pose(p))
             .collect::<Vec<Se3>>(),
-    };
-    let aligned = align(&estimate_sync);
-
-    let ape_errors = absolute_errors(&reference_sync.poses, &aligned.poses, options.ape_relation);
-    let ape = MetricResult {
-        metric: "APE",
-        relation: options.ape_relation,
-        unit: options.ape_relation.unit().to_string(),
-        delta: None,
-        statistics: Statistics::of(&ape_errors).expect("matched > 0"),
-        errors: ape_errors,
-        timestamps: aligned.timestamps.clone(),
-    };
-
-    let mut rpe = Vec::new();
-    for spec in &options.rpe {
-        let (errors, timestamps, unit) = match spec.unit {
-            DeltaUnit::Seconds => {
-                let (stamps, errors) = relative_errors_seconds(
-                    reference,
-                    &align(estimate),
-                    spec.delta,
-                    options.offset,
-                    options.rpe_relation,
-                )
-                .into_iter()
-                .unzip();
-                (errors, stamps, format!("{}/s", options.rpe_relation.unit()))
-            }
-            unit => {
-                let pairs = match unit {
-                    DeltaUnit::Frames => {
-                        pairs_by_index(aligned.len(), spec.delta.round().max(1.0) as usize)
-                    }
-                    DeltaUnit::Metres => pairs_by_path(&aligned.poses, spec.delta),
-                    DeltaUnit::Degrees => pairs_by_angle(&aligned.poses, spec.delta, true),
-                    DeltaUnit::Radians => pairs_by_angle(&aligned.poses, spec.delta, false),
-                    DeltaUnit::Seconds => unreachable!("handled above"),
-                };
-                let errors = relative_errors(
-                    &reference_sync.poses,
-                    &aligned.poses,
-                    &pairs,
-                    options.rpe_relation,
-                );
-                let stamps = pairs.iter().map(|&(_, j)| aligned.timestamps[j]).collect();
-                (errors, stamps, options.rpe_relation.unit().to_string())
-            }
-        };
-        let statistics = Statistics::of(&errors).ok_or(EvalError::NoRpePairs {
-            delta: spec.delta,
-            unit: spec.unit.symbol(),
-        })?;
-        rpe.push(MetricResult {
-            metric: "RPE",
-            relation: options.rpe_relation,
-            unit,
-            delta: Some(*spec),
-            statistics,
-            errors,
-            timestamps,
-        });
     }
+}
 
-    let r = transform.rotation.matrix();
-    Ok(EvalReport {
-        reference_poses: reference.len(),
-        estimate_poses: estimate.len(),
-        matched_poses: matched,
-        max_pairs: association.max_pairs,
-        coverage,
-        association: options.association,
-        max_diff,
-        offset: options.offset,
-        alignment: AlignmentUsed {
-            mode: options.align,
-            rotation: [
-                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
-                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
-                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
-            ],
-            translation: transform.translation.into(),
-            scale: transform.scale,
-            poses_used,
-        },
-        ape,
-        rpe,
-        kitti,
-        reference: reference_sync,
-        aligned_estimate: aligned,
+/// One RPE metric (`spec`): the aligned estimate's relative errors against the
+/// reference's, \(E_{ij} = (Q_i^{-1} Q_j)^{-1} (P_i^{-1} P_j)\) over the pairs `spec`
+/// picks (frames, metres, degrees or radians apart on the synchronised poses; seconds
+/// apart on the full trajectories, as TUM's `evaluate_rpe.py` does).
+fn rpe_metric(
+    spec: &RpeSpec,
+    (reference, estimate): (&Trajectory, &Trajectory),
+    (reference_sync, aligned): (&Trajectory, &Trajectory),
+    transform: &Sim3,
+    options: &EvalOptions,
+) -> Result<MetricResult, EvalError> {
+    let (errors, timestamps, unit) = match spec.unit {
+        DeltaUnit::Seconds => {
+            let (stamps, errors) = relative_errors_seconds(
+                reference,
+                &aligned_by(transform, estimate),
+                spec.delta,
+                options.offset,
+                options.rpe_relation,
+            )
+            .into_iter()
+            .unzip();
+            (errors, stamps, format!("{}/s", options.rpe_relation.unit()))
+        }
+        unit => {
+            let pairs = match unit {
+                DeltaUnit::Frames => {
+                    pairs_by_index(aligned.len(), spec.delta.round().max(1.0) as usize)
+                }
+                DeltaUnit::Metres => pairs_by_path(&aligned.poses, spec.delta),
+                DeltaUnit::Degrees => pairs_by_angle(&aligned.poses, spec.delta, true),
+                DeltaUnit::Radians => pairs_by_angle(&aligned.poses, spec.delta, false),
+                DeltaUnit::Seconds => unreachable!("handled above"),
+            };
+            let errors = relative_errors(
+                &reference_sync.poses,
+                &aligned.poses,
+                &pairs,
+                options.rpe_relation,
+            );
+            let stamps = pairs.iter().map(|&(_, j)| aligned.timestamps[j]).collect();
+            (errors, stamps, options.rpe_relation.unit().to_string())
+        }
+    };
+    let statistics = Statistics::of(&errors).ok_or(EvalError::NoRpePairs {
+        delta: spec.delta,
+        unit: spec.unit.symbol(),
+    })?;
+    Ok(MetricResult {
+        metric: "RPE",
+        relation: options.rpe_relation,
+        unit,
+        delta: Some(*spec),
+        statistics,
+        errors,
+        timestamps,
     })
 }
 

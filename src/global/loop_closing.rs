@@ -1,5 +1,6 @@
 //! Loop detection and correction (ORB-SLAM §VII, ORB-SLAM2's `LoopClosing`) over the
-//! keyframes in the order they were made. Stages 1 and 2 ([`PlaceRecognition`]) run
+//! keyframes in the order they were made. Stages 1 and 2 ([`PlaceRecognition`], in
+//! [`super::place_recognition`]) run
 //! beside the tracking pass (`system::stages::Recognition`); stages 3 and 4
 //! ([`LoopCloser`]) in the global pass, no loop within `gap` keyframes after the last:
 //! 1. **Candidates**: database hits not covisible with the keyframe, scoring at least the
@@ -29,82 +30,29 @@ use std::collections::{HashMap, HashSet};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
+use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
+use super::place_recognition::PlaceRecognition;
 use super::word_matching::{match_by_words, static_point};
-use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
-use crate::features::ScalePyramid;
+use super::GlobalInputs;
 use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::mapping::fusion;
 use crate::optim::pose_graph::GraphReport;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::random::Rng;
 
-/// Loop-closing parameters (ORB-SLAM2's values by default).
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LoopConfig {
-    /// Look for loops (needs the vocabulary); `dopslam run --no-loops` turns it off and
-    /// the global pass keeps full BA and the frames' refinement.
-    pub enabled: bool,
-    pub min_consistency: usize,
-    /// No loop is searched within this many keyframes after the last one.
-    pub gap: usize,
-    pub min_inliers: usize,
-    pub min_guided_matches: usize,
-    /// Covisibility edges of at least this weight join the essential graph.
-    pub covisibility_weight: usize,
-    pub ransac_iterations: usize,
-    /// Lowe's ratio for matching through the vocabulary.
-    pub ratio: f32,
-}
+/// The seed of stage 3's RANSAC: the same samples in every run, so that a run's loops
+/// do not depend on the clock.
+const LOOP_RANSAC_SEED: u64 = 7;
 
-impl Default for LoopConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            min_consistency: 3,
-            gap: 10,
-            min_inliers: 20,
-            min_guided_matches: 40,
-            covisibility_weight: 100,
-            ransac_iterations: 300,
-            ratio: 0.75,
-        }
-    }
-}
-
-/// The keyframe that looks for a loop and the one it matched: ids (insertion numbers)
-/// and timestamps.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct LoopPair {
-    pub keyframe: usize,
-    pub matched: usize,
-    pub keyframe_time: f64,
-    pub matched_time: f64,
-}
-
-impl LoopPair {
-    fn of(map: &Map, (key, matched): (KeyFrameKey, KeyFrameKey)) -> Self {
-        let (a, b) = (&map.keyframes[key], &map.keyframes[matched]);
-        Self {
-            keyframe: a.id,
-            matched: b.id,
-            keyframe_time: a.frame.timestamp,
-            matched_time: b.frame.timestamp,
-        }
-    }
-}
-
-/// A candidate and what became of it.
-#[derive(Debug, Clone, Serialize)]
-pub struct Candidate {
-    #[serde(flatten)]
-    pub pair: LoopPair,
-    pub score: f64,
-    pub accepted: bool,
-    /// Why it was accepted or where it stopped.
-    pub outcome: String,
+/// A loop that passed stage 3: the corrected pose \(T_{kc} T_{cw}\), the figures, and
+/// the candidate's group with its static points.
+struct Verified {
+    corrected: Se3,
+    inliers: usize,
+    guided_matches: usize,
+    loop_group: Vec<KeyFrameKey>,
+    loop_points: Vec<MapPointKey>,
 }
 
 /// A loop that was closed.
@@ -132,166 +80,10 @@ pub struct SegmentMerge {
     pub into: usize,
 }
 
-/// What loop closing needs of the system.
-pub struct LoopInputs<'a> {
-    pub camera: &'a StereoCamera,
-    pub pyramid: &'a ScalePyramid,
-    pub size: (f32, f32),
-    pub moving_threshold: f32,
-}
-
-/// Stages 1 and 2 (place recognition and consistency), apart from the correction:
-/// run on each keyframe as local mapping finishes it during the tracking pass (in its
-/// own thread or inline, `system::stages::Recognition`).
-pub struct PlaceRecognition {
-    config: LoopConfig,
-    database: Database<KeyFrameKey>,
-    words: HashMap<KeyFrameKey, (BowVector, FeatureVector)>,
-    /// Groups of the previous keyframe's candidates and how many keyframes in a row
-    /// each has been seen.
-    groups: Vec<(HashSet<KeyFrameKey>, usize)>,
-    /// Each keyframe searched that has consistent candidates, in order, with them and
-    /// their scores.
-    pub found: Vec<(KeyFrameKey, Vec<(KeyFrameKey, f64)>)>,
-    /// Candidates that failed the consistency check.
-    pub rejected: Vec<Candidate>,
-    /// Time spent, milliseconds.
-    pub milliseconds: f64,
-}
-
-impl PlaceRecognition {
-    pub fn new(vocabulary: &Vocabulary, config: LoopConfig) -> Self {
-        Self {
-            config,
-            database: Database::new(vocabulary),
-            words: HashMap::new(),
-            groups: Vec::new(),
-            found: Vec::new(),
-            rejected: Vec::new(),
-            milliseconds: 0.0,
-        }
-    }
-
-    /// The keyframe's words, its consistent candidates (searched once the database
-    /// holds `gap` keyframes), then it joins the database.
-    pub fn process(&mut self, vocabulary: &Vocabulary, map: &Map, key: KeyFrameKey) {
-        if let Some(kf) = map.keyframes.get(key) {
-            let start = std::time::Instant::now();
-            let words = vocabulary.transform(&kf.frame.descriptors);
-            self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
-            self.process_with_words(map, key, words);
-        }
-    }
-
-    /// [`Self::process`] with the words already computed (outside the map's lock).
-    pub fn process_with_words(
-        &mut self,
-        map: &Map,
-        key: KeyFrameKey,
-        words: (BowVector, FeatureVector),
-    ) {
-        let start = std::time::Instant::now();
-        if !map.keyframes.contains_key(key) {
-            return;
-        }
-        self.words.insert(key, words);
-        let candidates = if self.database.len() >= self.config.gap {
-            self.consistent_candidates(map, key)
-        } else {
-            Vec::new()
-        };
-        self.database.add(key, &self.words[&key].0);
-        if !candidates.is_empty() {
-            self.found.push((key, candidates));
-        }
-        self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
-    }
-
-    /// Stages 1 and 2: the candidates consistent over enough keyframes, with scores.
-    fn consistent_candidates(&mut self, map: &Map, key: KeyFrameKey) -> Vec<(KeyFrameKey, f64)> {
-        let kf = &map.keyframes[key];
-        let bow = &self.words[&key].0;
-        let connected: HashSet<KeyFrameKey> = kf.connections.iter().map(|(k, _)| *k).collect();
-        let min_score = connected
-            .iter()
-            .filter_map(|k| self.words.get(k))
-            .map(|(b, _)| Vocabulary::score(bow, b))
-            .fold(f64::INFINITY, f64::min);
-        let min_score = if min_score.is_finite() {
-            min_score
-        } else {
-            0.0
-        };
-        let hits = self.database.query(bow, |k| {
-            k != key && !connected.contains(&k) && map.keyframes.contains_key(k)
-        });
-        let max_common = hits.iter().map(|h| h.common).max().unwrap_or(0);
-        let hits: Vec<_> = hits
-            .into_iter()
-            .filter(|h| h.score >= min_score && h.common as f64 >= 0.8 * max_common as f64)
-            .collect();
-        let scores: HashMap<KeyFrameKey, f64> = hits.iter().map(|h| (h.id, h.score)).collect();
-        // Accumulate each hit's score with its covisible hits; keep the best of each group.
-        let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
-        for h in &hits {
-            let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
-            for n in map.keyframes[h.id].best_covisible(10) {
-                if let Some(&s) = scores.get(&n) {
-                    total += s;
-                    if s > best_score {
-                        (best, best_score) = (n, s);
-                    }
-                }
-            }
-            grouped.push((best, best_score, total));
-        }
-        let best_total = grouped.iter().map(|g| g.2).fold(0.0, f64::max);
-        let mut candidates: Vec<(KeyFrameKey, f64)> = Vec::new();
-        for (k, s, total) in grouped {
-            if total >= 0.75 * best_total && !candidates.iter().any(|(c, _)| *c == k) {
-                candidates.push((k, s));
-            }
-        }
-        // Consistency with the previous keyframes' groups.
-        let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
-        let mut enough = Vec::new();
-        for &(c, score) in &candidates {
-            let mut group: HashSet<KeyFrameKey> = map.keyframes[c]
-                .connections
-                .iter()
-                .map(|(k, _)| *k)
-                .collect();
-            group.insert(c);
-            let mut count = 1;
-            for (previous, n) in &self.groups {
-                if previous.iter().any(|k| group.contains(k)) {
-                    count = count.max(n + 1);
-                }
-            }
-            if count >= self.config.min_consistency {
-                enough.push((c, score));
-            } else {
-                self.rejected.push(Candidate {
-                    pair: LoopPair::of(map, (key, c)),
-                    score,
-                    accepted: false,
-                    outcome: format!(
-                        "seen by {count} consecutive keyframes of {} needed",
-                        self.config.min_consistency
-                    ),
-                });
-            }
-            next_groups.push((group, count));
-        }
-        self.groups = next_groups;
-        enough
-    }
-}
-
 /// Loop closing across keyframes: verification and correction of what place
 /// recognition found beside the tracking pass (its config is theirs).
 pub struct LoopCloser<'a> {
-    inputs: LoopInputs<'a>,
+    inputs: &'a GlobalInputs<'a>,
     recognition: PlaceRecognition,
     last_loop: Option<usize>,
     pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
@@ -302,7 +94,7 @@ pub struct LoopCloser<'a> {
 
 impl<'a> LoopCloser<'a> {
     /// Continues from place recognition that ran beside tracking.
-    pub fn with_recognition(inputs: LoopInputs<'a>, recognition: PlaceRecognition) -> Self {
+    pub fn with_recognition(inputs: &'a GlobalInputs<'a>, recognition: PlaceRecognition) -> Self {
         Self {
             inputs,
             recognition,
@@ -310,7 +102,7 @@ impl<'a> LoopCloser<'a> {
             loops: Vec::new(),
             candidates: Vec::new(),
             closed: Vec::new(),
-            rng: Rng::new(7),
+            rng: Rng::new(LOOP_RANSAC_SEED),
         }
     }
 
@@ -332,16 +124,9 @@ impl<'a> LoopCloser<'a> {
             if self.recent(map, key) {
                 for (c, score) in candidates {
                     if map.keyframes.contains_key(c) {
-                        self.record(
-                            map,
-                            (key, c),
-                            score,
-                            format!(
-                                "within {} keyframes of the last loop",
-                                self.recognition.config.gap
-                            ),
-                            false,
-                        );
+                        let gap = self.recognition.config.gap;
+                        let reject = LoopReject::TooSoon { gap };
+                        self.record(map, (key, c), score, LoopOutcome::Rejected(reject));
                     }
                 }
                 continue;
@@ -375,15 +160,10 @@ impl<'a> LoopCloser<'a> {
         map: &Map,
         (key, candidate): (KeyFrameKey, KeyFrameKey),
         score: f64,
-        outcome: String,
-        accepted: bool,
+        outcome: LoopOutcome,
     ) {
-        self.candidates.push(Candidate {
-            pair: LoopPair::of(map, (key, candidate)),
-            score,
-            accepted,
-            outcome,
-        });
+        let pair = LoopPair::of(map, (key, candidate));
+        self.candidates.push(Candidate::new(pair, score, outcome));
     }
 
     /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
@@ -393,54 +173,56 @@ impl<'a> LoopCloser<'a> {
         key: KeyFrameKey,
         (candidate, score): (KeyFrameKey, f64),
     ) -> bool {
-        let threshold = self.inputs.moving_threshold;
+        let verified = match self.verify_geometry(map, key, candidate) {
+            Ok(verified) => verified,
+            Err(reject) => {
+                self.record(map, (key, candidate), score, LoopOutcome::Rejected(reject));
+                return false;
+            }
+        };
+        let outcome = LoopOutcome::Accepted {
+            inliers: verified.inliers,
+            guided_matches: verified.guided_matches,
+        };
+        self.record(map, (key, candidate), score, outcome);
+        self.correct_loop(map, (key, candidate), verified);
+        true
+    }
+
+    /// Stage 3 for one candidate: the vocabulary matches, the rigid motion by RANSAC,
+    /// the guided search with the corrected pose \(T_{kc} T_{cw}\).
+    fn verify_geometry(
+        &mut self,
+        map: &Map,
+        key: KeyFrameKey,
+        candidate: KeyFrameKey,
+    ) -> Result<Verified, LoopReject> {
+        let config = &self.recognition.config;
+        let (min_inliers, min_guided) = (config.min_inliers, config.min_guided_matches);
         let matches = {
             let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
             match_by_words(
                 map,
                 (a, &self.recognition.words[&key].1),
                 (b, &self.recognition.words[&candidate].1),
-                self.recognition.config.ratio,
-                threshold,
+                config.ratio,
+                self.inputs.moving_threshold,
             )
         };
-        if matches.len() < self.recognition.config.min_inliers {
-            self.record(
-                map,
-                (key, candidate),
-                score,
-                format!(
-                    "{} vocabulary matches with static points, {} needed",
-                    matches.len(),
-                    self.recognition.config.min_inliers
-                ),
-                false,
-            );
-            return false;
+        if matches.len() < min_inliers {
+            return Err(LoopReject::FewMatches {
+                found: matches.len(),
+                needed: min_inliers,
+            });
         }
-        let Some((keyframe_from_candidate, inliers)) = self.ransac(map, key, candidate, &matches)
-        else {
-            self.record(
-                map,
-                (key, candidate),
-                score,
-                "no rigid motion fits the 3-D matches".into(),
-                false,
-            );
-            return false;
-        };
-        if inliers < self.recognition.config.min_inliers {
-            self.record(
-                map,
-                (key, candidate),
-                score,
-                format!(
-                    "{inliers} RANSAC inliers, {} needed",
-                    self.recognition.config.min_inliers
-                ),
-                false,
-            );
-            return false;
+        let (keyframe_from_candidate, inliers) = self
+            .ransac(map, key, candidate, &matches)
+            .ok_or(LoopReject::NoRigidMotion)?;
+        if inliers < min_inliers {
+            return Err(LoopReject::FewInliers {
+                found: inliers,
+                needed: min_inliers,
+            });
         }
         // Guided search: the candidate's covisible points projected with the corrected pose.
         let corrected = keyframe_from_candidate * map.keyframes[candidate].camera_from_world;
@@ -449,7 +231,6 @@ impl<'a> LoopCloser<'a> {
             .filter(|k| map.keyframes.contains_key(*k))
             .collect();
         let loop_points = self.static_points(map, &loop_group);
-        let original = map.keyframes[key].camera_from_world;
         let guided = fusion::search_from(
             map,
             (key, &corrected),
@@ -458,30 +239,38 @@ impl<'a> LoopCloser<'a> {
             self.inputs.pyramid,
             self.inputs.size,
         );
-        if guided.len() < self.recognition.config.min_guided_matches {
-            self.record(
-                map,
-                (key, candidate),
-                score,
-                format!(
-                    "{inliers} inliers, but {} matches after guided search, {} needed",
-                    guided.len(),
-                    self.recognition.config.min_guided_matches
-                ),
-                false,
-            );
-            return false;
+        if guided.len() < min_guided {
+            return Err(LoopReject::FewGuidedMatches {
+                inliers,
+                found: guided.len(),
+                needed: min_guided,
+            });
         }
-        self.record(
-            map,
-            (key, candidate),
-            score,
-            format!(
-                "accepted: {inliers} inliers, {} matches after guided search",
-                guided.len()
-            ),
-            true,
-        );
+        Ok(Verified {
+            corrected,
+            inliers,
+            guided_matches: guided.len(),
+            loop_group,
+            loop_points,
+        })
+    }
+
+    /// Stage 4 for a verified loop: segments merged when the loop joins two, the
+    /// correction carried, the loop recorded.
+    fn correct_loop(
+        &mut self,
+        map: &mut Map,
+        (key, candidate): (KeyFrameKey, KeyFrameKey),
+        verified: Verified,
+    ) {
+        let Verified {
+            corrected,
+            inliers,
+            guided_matches,
+            loop_group,
+            loop_points,
+        } = verified;
+        let original = map.keyframes[key].camera_from_world;
         let moved = se3::log(&(corrected * original.inverse()));
         let merged = merge_segments(
             map,
@@ -495,7 +284,7 @@ impl<'a> LoopCloser<'a> {
         self.closed.push(ClosedLoop {
             pair,
             inliers,
-            guided_matches: guided.len(),
+            guided_matches,
             correction_m: (corrected.inverse().translation.vector
                 - original.inverse().translation.vector)
                 .norm(),
@@ -505,7 +294,6 @@ impl<'a> LoopCloser<'a> {
             merged,
         });
         self.last_loop = Some(pair.keyframe);
-        true
     }
 
     fn static_points(&self, map: &Map, keyframes: &[KeyFrameKey]) -> Vec<MapPointKey> {

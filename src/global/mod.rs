@@ -9,9 +9,11 @@
 //!
 //! Entry point: [`run`] on the map the tracking pass left.
 
+pub mod candidates;
 pub mod essential_graph;
 pub mod frame_refinement;
 pub mod loop_closing;
+pub mod place_recognition;
 pub mod trajectory_smoothing;
 pub mod word_matching;
 
@@ -27,7 +29,9 @@ use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::record::FrameRecord;
-use loop_closing::{Candidate, ClosedLoop, LoopCloser, LoopConfig, LoopInputs, PlaceRecognition};
+use candidates::Candidate;
+use loop_closing::{ClosedLoop, LoopCloser};
+use place_recognition::{LoopConfig, PlaceRecognition};
 
 /// The `[global]` section of a config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -151,15 +155,7 @@ pub fn run<'a>(
     let mut report = GlobalReport::default();
     match recognised {
         Ok(recognition) => {
-            let mut closer = LoopCloser::with_recognition(
-                LoopInputs {
-                    camera: inputs.camera,
-                    pyramid: inputs.pyramid,
-                    size: inputs.size,
-                    moving_threshold: inputs.moving_threshold,
-                },
-                recognition,
-            );
+            let mut closer = LoopCloser::with_recognition(inputs, recognition);
             closer.close_found(map);
             (report.loops, report.candidates, report.loop_detection_ms) = closer.finish();
         }

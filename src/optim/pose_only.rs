@@ -143,82 +143,7 @@ pub fn optimise_pose_predicted(
     let mut inliers = taking_part.clone();
     for round in 0..ROUNDS {
         let robust = round < 2;
-        let cost = |pose: &Se3, inliers: &[bool]| -> f64 {
-            observations
-                .iter()
-                .zip(inliers)
-                .filter(|(_, &inlier)| inlier)
-                .map(|(o, _)| match error(camera, pose, o) {
-                    Some((e, _)) => {
-                        let s = squared(&e, o.stereo, o.information);
-                        if robust {
-                            let delta = gate(o).sqrt();
-                            let r = s.sqrt();
-                            if r <= delta {
-                                s
-                            } else {
-                                2.0 * delta * r - delta * delta
-                            }
-                        } else {
-                            s
-                        }
-                    }
-                    None => 1e6,
-                })
-                .sum()
-        };
-        let mut lambda = 1e-5;
-        let mut current = cost(&pose, &inliers);
-        for _ in 0..ITERATIONS {
-            let mut h = Matrix6::<f64>::zeros();
-            let mut b = Vector6::<f64>::zeros();
-            for (o, _) in observations.iter().zip(&inliers).filter(|(_, &i)| i) {
-                let Some((e, p)) = error(camera, &pose, o) else {
-                    continue;
-                };
-                let s = squared(&e, o.stereo, o.information);
-                let w = o.information
-                    * if robust {
-                        huber_weight(s, gate(o).sqrt())
-                    } else {
-                        1.0
-                    };
-                // e = z - π(p(δ)): ∂e/∂δ = -J_π J_p.
-                let j = camera.jacobian(&p) * point_jacobian_wrt_pose(&p);
-                let rows = if o.stereo { 3 } else { 2 };
-                for r in 0..rows {
-                    let row = j.row(r);
-                    h += w * row.transpose() * row;
-                    b += w * row.transpose() * e[r];
-                }
-            }
-            // Normal equations with ∂e/∂δ = -J: (JᵀWJ) δ = JᵀWe.
-            let mut accepted = false;
-            for _ in 0..6 {
-                let mut damped = h;
-                for k in 0..6 {
-                    damped[(k, k)] += lambda * (h[(k, k)] + 1e-9);
-                }
-                let Some(delta) = damped.cholesky().map(|c| c.solve(&b)) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let candidate = se3::exp(&delta) * pose;
-                let candidate_cost = cost(&candidate, &inliers);
-                if candidate_cost <= current {
-                    pose = candidate;
-                    let improvement = current - candidate_cost;
-                    current = candidate_cost;
-                    lambda = (lambda * 0.3).max(1e-9);
-                    accepted = delta.norm() > 1e-10 && improvement > 1e-12 * current.max(1.0);
-                    break;
-                }
-                lambda *= 10.0;
-            }
-            if !accepted {
-                break;
-            }
-        }
+        pose = levenberg_marquardt(camera, pose, observations, &inliers, robust);
         // Classify every observation that takes part (outliers may come back).
         for ((o, inlier), &part) in observations
             .iter()
@@ -246,6 +171,107 @@ pub fn optimise_pose_predicted(
         camera_from_world: pose,
         inliers,
     }
+}
+
+/// One round's Levenberg-Marquardt iterations from `pose` over the `inliers` (Huber
+/// weights when `robust`): with \(H = J^\top W J\), the damped normal equations
+/// \((H + \lambda\,(\mathrm{diag}\,H + \epsilon))\,\delta = J^\top W e\), a step
+/// \(T \leftarrow \exp(\delta)\,T\) kept when it lowers the cost. Returns the last
+/// pose kept.
+fn levenberg_marquardt(
+    camera: &StereoCamera,
+    mut pose: Se3,
+    observations: &[PoseObservation],
+    inliers: &[bool],
+    robust: bool,
+) -> Se3 {
+    let mut lambda = 1e-5;
+    let mut current = cost(camera, &pose, observations, inliers, robust);
+    for _ in 0..ITERATIONS {
+        let mut h = Matrix6::<f64>::zeros();
+        let mut b = Vector6::<f64>::zeros();
+        for (o, _) in observations.iter().zip(inliers).filter(|(_, &i)| i) {
+            let Some((e, p)) = error(camera, &pose, o) else {
+                continue;
+            };
+            let s = squared(&e, o.stereo, o.information);
+            let w = o.information
+                * if robust {
+                    huber_weight(s, gate(o).sqrt())
+                } else {
+                    1.0
+                };
+            // e = z - π(p(δ)): ∂e/∂δ = -J_π J_p.
+            let j = camera.jacobian(&p) * point_jacobian_wrt_pose(&p);
+            let rows = if o.stereo { 3 } else { 2 };
+            for r in 0..rows {
+                let row = j.row(r);
+                h += w * row.transpose() * row;
+                b += w * row.transpose() * e[r];
+            }
+        }
+        // Normal equations with ∂e/∂δ = -J: (JᵀWJ) δ = JᵀWe.
+        let mut accepted = false;
+        for _ in 0..6 {
+            let mut damped = h;
+            for k in 0..6 {
+                damped[(k, k)] += lambda * (h[(k, k)] + 1e-9);
+            }
+            let Some(delta) = damped.cholesky().map(|c| c.solve(&b)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let candidate = se3::exp(&delta) * pose;
+            let candidate_cost = cost(camera, &candidate, observations, inliers, robust);
+            if candidate_cost <= current {
+                pose = candidate;
+                let improvement = current - candidate_cost;
+                current = candidate_cost;
+                lambda = (lambda * 0.3).max(1e-9);
+                accepted = delta.norm() > 1e-10 && improvement > 1e-12 * current.max(1.0);
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    pose
+}
+
+/// The cost of `pose` over the `inliers`: the squared errors, Huber-robustified with
+/// each observation's gate as the threshold when `robust`; \(10^6\) for a point
+/// behind the camera.
+fn cost(
+    camera: &StereoCamera,
+    pose: &Se3,
+    observations: &[PoseObservation],
+    inliers: &[bool],
+    robust: bool,
+) -> f64 {
+    observations
+        .iter()
+        .zip(inliers)
+        .filter(|(_, &inlier)| inlier)
+        .map(|(o, _)| match error(camera, pose, o) {
+            Some((e, _)) => {
+                let s = squared(&e, o.stereo, o.information);
+                if robust {
+                    let delta = gate(o).sqrt();
+                    let r = s.sqrt();
+                    if r <= delta {
+                        s
+                    } else {
+                        2.0 * delta * r - delta * delta
+                    }
+                } else {
+                    s
+                }
+            }
+            None => 1e6,
+        })
+        .sum()
 }
 
 /// Which observations take part in the rounds: those within [`PREDICTION_GATE_FACTOR`]

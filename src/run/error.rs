@@ -14,12 +14,37 @@ pub enum RunError {
     /// calibration).
     #[error("{0}")]
     Input(String),
-    /// The run stopped before the last frame (a frame that failed to load, tracking
-    /// that never started, an interruption); what was done is written.
-    #[error("{message} (outputs of the {done} frames done are in {out})")]
-    Interrupted {
-        message: String,
+    /// The run stopped before the last frame; what was done is written.
+    #[error("{reason} (outputs of the {done} frames done are in {out})")]
+    Stopped {
+        reason: StopReason,
         done: usize,
         out: PathBuf,
     },
+}
+
+/// Why the tracking pass stopped before the last frame (in `report.json` as its
+/// sentence, `stopped`).
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum StopReason {
+    /// SIGINT or SIGTERM arrived before frame `frame`.
+    #[error("{} at frame {frame}", crate::interrupt::MESSAGE)]
+    Interrupted { frame: usize },
+    /// A frame could not be loaded or failed its checks (size, depth): the message
+    /// names the file and what is wrong.
+    #[error("{0}")]
+    BadFrame(String),
+    /// An observer of the pass (debug pictures, the Rerun recording) failed.
+    #[error("{0}")]
+    Observer(String),
+    /// No frame had enough keypoints with depth to start the map; the message says
+    /// what the frames had.
+    #[error("{0}")]
+    NeverStarted(String),
+}
+
+impl serde::Serialize for StopReason {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
 }

@@ -26,7 +26,7 @@ pub mod truth;
 use std::path::{Path, PathBuf};
 
 pub use dense_pass::{dense_pass, DenseSetup};
-pub use error::RunError;
+pub use error::{RunError, StopReason};
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
     check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash, open_sequence,
@@ -125,8 +125,8 @@ pub fn run_sequence(
     }
     report.recording = own_log;
     match stop {
-        Some(message) => Err(RunError::Interrupted {
-            message,
+        Some(reason) => Err(RunError::Stopped {
+            reason,
             done: report.frames.len(),
             out: out.to_path_buf(),
         }),

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
 use super::setup::RunSetup;
-use super::{RunError, RunOptions};
+use super::{RunError, RunOptions, StopReason};
 use crate::dense::masks::FrameKeypoints;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;
@@ -98,7 +98,7 @@ pub struct Computed<'a> {
     pub lines: Vec<FrameLine>,
     pub records: Vec<FrameRecord>,
     /// Why the run stopped early, if it did.
-    pub stopped: Option<String>,
+    pub stopped: Option<StopReason>,
     /// The global pass's report and the tracking pass's trajectory, when it ran.
     pub global: Option<(GlobalReport, Trajectory)>,
 }

@@ -140,10 +140,9 @@ pub struct RunReport {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub global: Option<GlobalReport>,
     pub frames: Vec<FrameLine>,
-    /// Why the run stopped before the last frame (a frame that failed to load, tracking
-    /// that never started, an interruption), if it did.
+    /// Why the run stopped before the last frame, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub stopped: Option<String>,
+    pub stopped: Option<super::StopReason>,
     /// The dense pass, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,

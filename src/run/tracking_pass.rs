@@ -10,7 +10,7 @@ use std::time::Instant;
 use super::observers::{FrameObserver, FrameView};
 use super::report::FrameLine;
 use super::setup::Setup;
-use super::{RunError, RunOptions};
+use super::{RunError, RunOptions, StopReason};
 use crate::config::Config;
 use crate::eval::stats::median;
 use crate::frame::Frame;
@@ -34,7 +34,7 @@ pub struct TrackingPass {
     /// One record per line, for the global pass and the final trajectory.
     pub records: Vec<FrameRecord>,
     /// Why the pass stopped before the last frame, if it did.
-    pub stop: Option<String>,
+    pub stop: Option<StopReason>,
 }
 
 /// Tracks the frames of `sequence` (up to `options.max_frames`).
@@ -46,17 +46,8 @@ pub fn tracking_pass(
     observers: &mut [&mut dyn FrameObserver],
 ) -> Result<TrackingPass, RunError> {
     let config = &setup.config;
-    let detector = config
-        .detector
-        .open(options.sequence_dir.as_deref())
-        .map_err(|e| RunError::Input(e.to_string()))?
-        .map(|d| (d, config.detector.latency()));
     let execution = Execution::of(options.deterministic);
-    let helpers = Helpers {
-        vocabulary: setup.vocabulary.clone(),
-        detector,
-    };
-    let mut system = System::start(&setup.system(execution, run.detections()), helpers);
+    let mut system = start_system(setup, options, run, execution)?;
     let total = options
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));
@@ -72,7 +63,7 @@ pub fn tracking_pass(
     let keep_depth = logged.is_some_and(|log| log.config.rerun_depth);
     for index in 0..total {
         if crate::interrupt::requested() {
-            stop = Some(format!("{} at frame {index}", crate::interrupt::MESSAGE));
+            stop = Some(StopReason::Interrupted { frame: index });
             break;
         }
         let ready = next_frame(
@@ -86,7 +77,7 @@ pub fn tracking_pass(
         let (frame, picture, started, depth) = match ready {
             Ok(ready) => ready,
             Err(message) => {
-                stop = Some(message);
+                stop = Some(StopReason::BadFrame(message));
                 break;
             }
         };
@@ -110,7 +101,7 @@ pub fn tracking_pass(
             recent_map: recent_map.as_ref(),
         };
         if let Err(message) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
-            stop = Some(message);
+            stop = Some(StopReason::Observer(message));
             break;
         }
         system.receive_detections();
@@ -126,7 +117,7 @@ pub fn tracking_pass(
     }
     observers.iter_mut().for_each(|o| o.finish());
     if stop.is_none() && system.state() == TrackingState::NotInitialised {
-        stop = Some(never_started(&lines, config, setup.sensor));
+        stop = Some(StopReason::NeverStarted(never_started(&lines, config, setup.sensor)));
     }
     let tracked = system.finish();
     observers
@@ -138,6 +129,27 @@ pub fn tracking_pass(
         records,
         stop,
     })
+}
+
+/// The system of the run, with its helpers: the vocabulary and the detector (opened
+/// here: its model is loaded before the first frame).
+fn start_system(
+    setup: &Setup,
+    options: &RunOptions,
+    run: &RunDir,
+    execution: Execution,
+) -> Result<System, RunError> {
+    let config = &setup.config;
+    let detector = config
+        .detector
+        .open(options.sequence_dir.as_deref())
+        .map_err(|e| RunError::Input(e.to_string()))?
+        .map(|d| (d, config.detector.latency()));
+    let helpers = Helpers {
+        vocabulary: setup.vocabulary.clone(),
+        detector,
+    };
+    Ok(System::start(&setup.system(execution, run.detections()), helpers))
 }
 
 /// Frame `index` loaded, paced, checked and made ready for tracking, with the time

@@ -540,71 +540,10 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         ProgressStyle::with_template("synth {bar:40} {pos}/{len} frames ({eta} left)")
             .expect("valid template"),
     );
-    let (mut rgb_txt, mut depth_txt, mut associations) = (
-        String::from("# color images\n# timestamp filename\n"),
-        String::from("# depth maps\n# timestamp filename\n"),
-        String::new(),
-    );
-    // Frames render and encode in parallel (each frame's noise has its own seed, so the
-    // files do not depend on the order); the index files are written afterwards.
-    let mover_voxels: Vec<Vec<[i32; 3]>> = (0..times.len())
-        .into_par_iter()
-        .map(|index| {
-            let rendered = world.render(index);
-            let voxels = mover_voxels(&rendered, &camera, &world.poses[index]);
-            let truth = TruthSources {
-                camera: &camera,
-                movers: &world.movers,
-                oracle: &config.oracle,
-            };
-            let truth_seed = world.frame_seed(index) ^ 0x0AC1_E5EE;
-            write_images(out, world.stamp(index), &rendered)?;
-            if let Some(depth) = world.render_depth_camera(index) {
-                let name = format!("depth_camera/{:.6}.png", world.stamp(index));
-                depth_to_png16(&depth, 5000.0).save(out.join(&name)).map_err(save_error(out, &name))?;
-            }
-            let tum = (out, world.stamp(index));
-            let targets: &[(&Path, f64)] = if stereo {
-                &[tum, (&kitti, world.times[index])]
-            } else {
-                &[tum]
-            };
-            write_truth(targets, &rendered, truth, truth_seed)?;
-            if stereo {
-                let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
-                let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
-                for (sub, grey) in [("image_0", left), ("image_1", right)] {
-                    let name = format!("{sub}/{index:06}.png");
-                    grey.save(kitti.join(&name))
-                        .map_err(save_error(&kitti, &name))?;
-                }
-            }
-            progress.inc(1);
-            Ok::<_, SynthError>(voxels)
-        })
-        .collect::<Result<_, _>>()?;
-    let poses = &world.poses;
-    let t0 = world.t0;
-    let mut ground_truth = Trajectory::default();
-    for (t, pose) in times.iter().zip(poses) {
-        let stamp = t0 + t;
-        let (rgb_name, depth_name) = (
-            format!("rgb/{stamp:.6}.png"),
-            format!("depth/{stamp:.6}.png"),
-        );
-        let _ = writeln!(rgb_txt, "{stamp:.6} {rgb_name}");
-        let _ = writeln!(depth_txt, "{stamp:.6} {depth_name}");
-        let _ = writeln!(
-            associations,
-            "{stamp:.6} {rgb_name} {stamp:.6} {depth_name}"
-        );
-        ground_truth.push(stamp, *pose);
-    }
+    // The frames first; the index files afterwards.
+    let mover_voxels = render_frames((&world, config), out, stereo.then_some(kitti.as_path()), &progress)?;
     progress.finish_and_clear();
-    write_atomic(&out.join("rgb.txt"), rgb_txt.as_bytes())?;
-    write_atomic(&out.join("depth.txt"), depth_txt.as_bytes())?;
-    write_atomic(&out.join("associations.txt"), associations.as_bytes())?;
-    ground_truth.write(&out.join("groundtruth.txt"), TrajectoryFormat::Tum)?;
+    write_index_files(&world, out)?;
     let calibration = Calibration {
         camera,
         bf: Some(40.0),
@@ -623,6 +562,108 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         PlyEncoding::Ascii,
         "dopslam synth static scene",
     )?;
+    write_movers(out, mover_voxels)?;
+    if stereo {
+        write_kitti_files(&world, &out.join("kitti"))?;
+    }
+    write_instances(&out.join("masks"), &world.movers)?;
+    let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
+    write_atomic(
+        &out.join("scene.toml"),
+        format!("# dopslam synth: the config this sequence was generated with\n{scene_toml}")
+            .as_bytes(),
+    )?;
+    Ok(SynthSummary {
+        frames: world.times.len(),
+        out: out.to_path_buf(),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Renders every frame of `world` and writes its images and truth (in parallel: each
+/// frame's noise has its own seed, so the files do not depend on the order); returns
+/// each frame's mover voxels.
+fn render_frames(
+    (world, config): (&World, &SynthConfig),
+    out: &Path,
+    kitti: Option<&Path>,
+    progress: &ProgressBar,
+) -> Result<Vec<Vec<[i32; 3]>>, SynthError> {
+    let (camera, times) = (world.camera, &world.times);
+    let stereo = kitti.is_some();
+    let kitti = kitti.unwrap_or(out);
+    (0..times.len())
+        .into_par_iter()
+        .map(|index| {
+            let rendered = world.render(index);
+            let voxels = mover_voxels(&rendered, &camera, &world.poses[index]);
+            let truth = TruthSources {
+                camera: &camera,
+                movers: &world.movers,
+                oracle: &config.oracle,
+            };
+            let truth_seed = world.frame_seed(index) ^ 0x0AC1_E5EE;
+            write_images(out, world.stamp(index), &rendered)?;
+            if let Some(depth) = world.render_depth_camera(index) {
+                let name = format!("depth_camera/{:.6}.png", world.stamp(index));
+                depth_to_png16(&depth, 5000.0).save(out.join(&name)).map_err(save_error(out, &name))?;
+            }
+            let tum = (out, world.stamp(index));
+            let targets: &[(&Path, f64)] = if stereo {
+                &[tum, (kitti, world.times[index])]
+            } else {
+                &[tum]
+            };
+            write_truth(targets, &rendered, truth, truth_seed)?;
+            if stereo {
+                let left = image::DynamicImage::ImageRgb8(rendered.rgb).to_luma8();
+                let right = image::DynamicImage::ImageRgb8(world.render_right(index)).to_luma8();
+                for (sub, grey) in [("image_0", left), ("image_1", right)] {
+                    let name = format!("{sub}/{index:06}.png");
+                    grey.save(kitti.join(&name))
+                        .map_err(save_error(kitti, &name))?;
+                }
+            }
+            progress.inc(1);
+            Ok::<_, SynthError>(voxels)
+        })
+        .collect()
+}
+
+/// `rgb.txt`, `depth.txt`, `associations.txt` and `groundtruth.txt` of `world`.
+fn write_index_files(world: &World, out: &Path) -> Result<(), SynthError> {
+    let times = &world.times;
+    let (mut rgb_txt, mut depth_txt, mut associations) = (
+        String::from("# color images\n# timestamp filename\n"),
+        String::from("# depth maps\n# timestamp filename\n"),
+        String::new(),
+    );
+    let poses = &world.poses;
+    let t0 = world.t0;
+    let mut ground_truth = Trajectory::default();
+    for (t, pose) in times.iter().zip(poses) {
+        let stamp = t0 + t;
+        let (rgb_name, depth_name) = (
+            format!("rgb/{stamp:.6}.png"),
+            format!("depth/{stamp:.6}.png"),
+        );
+        let _ = writeln!(rgb_txt, "{stamp:.6} {rgb_name}");
+        let _ = writeln!(depth_txt, "{stamp:.6} {depth_name}");
+        let _ = writeln!(
+            associations,
+            "{stamp:.6} {rgb_name} {stamp:.6} {depth_name}"
+        );
+        ground_truth.push(stamp, *pose);
+    }
+    write_atomic(&out.join("rgb.txt"), rgb_txt.as_bytes())?;
+    write_atomic(&out.join("depth.txt"), depth_txt.as_bytes())?;
+    write_atomic(&out.join("associations.txt"), associations.as_bytes())?;
+    ground_truth.write(&out.join("groundtruth.txt"), TrajectoryFormat::Tum)?;
+    Ok(())
+}
+
+/// `movers.ply`: the mover voxels of every frame, merged.
+fn write_movers(out: &Path, mover_voxels: Vec<Vec<[i32; 3]>>) -> Result<(), SynthError> {
     let mut movers: Vec<[i32; 3]> = mover_voxels.into_iter().flatten().collect();
     movers.sort_unstable();
     movers.dedup();
@@ -639,21 +680,7 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
         PlyEncoding::Binary,
         "dopslam synth: where movers were (every frame's mover pixels at exact depth, 2 cm voxels)",
     )?;
-    if stereo {
-        write_kitti_files(&world, &out.join("kitti"))?;
-    }
-    write_instances(&out.join("masks"), &world.movers)?;
-    let scene_toml = toml::to_string(config).map_err(|e| SynthError::Config(e.to_string()))?;
-    write_atomic(
-        &out.join("scene.toml"),
-        format!("# dopslam synth: the config this sequence was generated with\n{scene_toml}")
-            .as_bytes(),
-    )?;
-    Ok(SynthSummary {
-        frames: world.times.len(),
-        out: out.to_path_buf(),
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok(())
 }
 
 /// `masks/instances.txt`: each mover's instance id (its value in the masks) and class;

@@ -32,7 +32,7 @@ use crate::frame::Frame;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
-use crate::global::loop_closing::PlaceRecognition;
+use crate::global::place_recognition::PlaceRecognition;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;

@@ -10,7 +10,7 @@ use super::worker::Stage;
 use crate::bow::Vocabulary;
 use crate::detect::job::{run, skipped, Job, Outcome};
 use crate::detect::Detector;
-use crate::global::loop_closing::PlaceRecognition;
+use crate::global::place_recognition::PlaceRecognition;
 use crate::map::{KeyFrameKey, SharedMap};
 use crate::mapping::LocalMapper;
 

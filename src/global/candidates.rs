@@ -1,0 +1,173 @@
+//! Loop candidates and what became of them ([`LoopOutcome`]): written by place
+//! recognition (stage 2) and loop closing (stages 3 and 4), reported in `report.json`.
+
+use serde::Serialize;
+
+use crate::map::{KeyFrameKey, Map};
+
+/// The keyframe that looks for a loop and the one it matched: ids (insertion numbers)
+/// and timestamps.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LoopPair {
+    pub keyframe: usize,
+    pub matched: usize,
+    pub keyframe_time: f64,
+    pub matched_time: f64,
+}
+
+impl LoopPair {
+    pub(super) fn of(map: &Map, (key, matched): (KeyFrameKey, KeyFrameKey)) -> Self {
+        let (a, b) = (&map.keyframes[key], &map.keyframes[matched]);
+        Self {
+            keyframe: a.id,
+            matched: b.id,
+            keyframe_time: a.frame.timestamp,
+            matched_time: b.frame.timestamp,
+        }
+    }
+}
+
+/// A candidate and what became of it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Candidate {
+    #[serde(flatten)]
+    pub pair: LoopPair,
+    pub score: f64,
+    pub accepted: bool,
+    /// Why it was accepted or where it stopped (in `report.json` as its sentence).
+    #[serde(serialize_with = "as_sentence")]
+    pub outcome: LoopOutcome,
+}
+
+impl Candidate {
+    /// The candidate `pair` at `score` and what became of it.
+    pub fn new(pair: LoopPair, score: f64, outcome: LoopOutcome) -> Self {
+        Self {
+            pair,
+            score,
+            accepted: matches!(outcome, LoopOutcome::Accepted { .. }),
+            outcome,
+        }
+    }
+}
+
+/// What became of a loop candidate: accepted, or the stage that rejected it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopOutcome {
+    Accepted {
+        inliers: usize,
+        guided_matches: usize,
+    },
+    Rejected(LoopReject),
+}
+
+/// Where a loop candidate stopped, in the order of the stages.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopReject {
+    /// Stage 2: its group overlapped the groups of too few consecutive keyframes.
+    Inconsistent { count: usize, needed: usize },
+    /// Its keyframe came too soon after the last loop closed.
+    TooSoon { gap: usize },
+    /// Stage 3: too few vocabulary matches with static points.
+    FewMatches { found: usize, needed: usize },
+    /// Stage 3: RANSAC found no rigid motion.
+    NoRigidMotion,
+    /// Stage 3: the rigid motion has too few inliers.
+    FewInliers { found: usize, needed: usize },
+    /// Stage 3: too few matches after the guided search.
+    FewGuidedMatches {
+        inliers: usize,
+        found: usize,
+        needed: usize,
+    },
+}
+
+impl std::fmt::Display for LoopOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            LoopOutcome::Accepted {
+                inliers,
+                guided_matches,
+            } => write!(
+                f,
+                "accepted: {inliers} inliers, {guided_matches} matches after guided search"
+            ),
+            LoopOutcome::Rejected(reject) => reject.fmt(f),
+        }
+    }
+}
+
+impl std::fmt::Display for LoopReject {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            LoopReject::Inconsistent { count, needed } => {
+                write!(
+                    f,
+                    "seen by {count} consecutive keyframes of {needed} needed"
+                )
+            }
+            LoopReject::TooSoon { gap } => write!(f, "within {gap} keyframes of the last loop"),
+            LoopReject::FewMatches { found, needed } => {
+                write!(
+                    f,
+                    "{found} vocabulary matches with static points, {needed} needed"
+                )
+            }
+            LoopReject::NoRigidMotion => write!(f, "no rigid motion fits the 3-D matches"),
+            LoopReject::FewInliers { found, needed } => {
+                write!(f, "{found} RANSAC inliers, {needed} needed")
+            }
+            LoopReject::FewGuidedMatches {
+                inliers,
+                found,
+                needed,
+            } => write!(
+                f,
+                "{inliers} inliers, but {found} matches after guided search, {needed} needed"
+            ),
+        }
+    }
+}
+
+fn as_sentence<S: serde::Serializer>(
+    outcome: &LoopOutcome,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    serializer.collect_str(outcome)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{LoopOutcome, LoopReject};
+
+    #[test]
+    fn outcomes_read_as_the_report_writes_them() {
+        let rejected = LoopOutcome::Rejected(LoopReject::FewGuidedMatches {
+            inliers: 31,
+            found: 12,
+            needed: 40,
+        });
+        assert_eq!(
+            rejected.to_string(),
+            "31 inliers, but 12 matches after guided search, 40 needed"
+        );
+        let accepted = LoopOutcome::Accepted {
+            inliers: 31,
+            guided_matches: 80,
+        };
+        assert_eq!(
+            serde_json::to_value(super::Candidate::new(
+                super::LoopPair {
+                    keyframe: 9,
+                    matched: 1,
+                    keyframe_time: 2.0,
+                    matched_time: 0.5
+                },
+                0.2,
+                accepted
+            ))
+            .unwrap()["outcome"],
+            "accepted: 31 inliers, 80 matches after guided search"
+        );
+    }
+}

@@ -1,0 +1,194 @@
+//! Stages 1 and 2 of loop closing (ORB-SLAM §VII-A, B): place recognition through
+//! the vocabulary and the consistency of candidates over consecutive keyframes. They
+//! run on each keyframe beside the tracking pass; [`super::loop_closing`] verifies and
+//! corrects what they found in the global pass.
+
+use std::collections::{HashMap, HashSet};
+
+use serde::Serialize;
+
+use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
+use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
+use crate::map::{KeyFrameKey, Map};
+
+/// Loop-closing parameters (ORB-SLAM2's values by default).
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopConfig {
+    /// Look for loops (needs the vocabulary); `dopslam run --no-loops` turns it off and
+    /// the global pass keeps full BA and the frames' refinement.
+    pub enabled: bool,
+    pub min_consistency: usize,
+    /// No loop is searched within this many keyframes after the last one.
+    pub gap: usize,
+    pub min_inliers: usize,
+    pub min_guided_matches: usize,
+    /// Covisibility edges of at least this weight join the essential graph.
+    pub covisibility_weight: usize,
+    pub ransac_iterations: usize,
+    /// Lowe's ratio for matching through the vocabulary.
+    pub ratio: f32,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            min_consistency: 3,
+            gap: 10,
+            min_inliers: 20,
+            min_guided_matches: 40,
+            covisibility_weight: 100,
+            ransac_iterations: 300,
+            ratio: 0.75,
+        }
+    }
+}
+
+/// Stages 1 and 2 (place recognition and consistency), apart from the correction:
+/// run on each keyframe as local mapping finishes it during the tracking pass (in its
+/// own thread or inline, `system::stages::Recognition`).
+pub struct PlaceRecognition {
+    pub(super) config: LoopConfig,
+    database: Database<KeyFrameKey>,
+    pub(super) words: HashMap<KeyFrameKey, (BowVector, FeatureVector)>,
+    /// Groups of the previous keyframe's candidates and how many keyframes in a row
+    /// each has been seen.
+    groups: Vec<(HashSet<KeyFrameKey>, usize)>,
+    /// Each keyframe searched that has consistent candidates, in order, with them and
+    /// their scores.
+    pub found: Vec<(KeyFrameKey, Vec<(KeyFrameKey, f64)>)>,
+    /// Candidates that failed the consistency check.
+    pub rejected: Vec<Candidate>,
+    /// Time spent, milliseconds.
+    pub milliseconds: f64,
+}
+
+impl PlaceRecognition {
+    pub fn new(vocabulary: &Vocabulary, config: LoopConfig) -> Self {
+        Self {
+            config,
+            database: Database::new(vocabulary),
+            words: HashMap::new(),
+            groups: Vec::new(),
+            found: Vec::new(),
+            rejected: Vec::new(),
+            milliseconds: 0.0,
+        }
+    }
+
+    /// The keyframe's words, its consistent candidates (searched once the database
+    /// holds `gap` keyframes), then it joins the database.
+    pub fn process(&mut self, vocabulary: &Vocabulary, map: &Map, key: KeyFrameKey) {
+        if let Some(kf) = map.keyframes.get(key) {
+            let start = std::time::Instant::now();
+            let words = vocabulary.transform(&kf.frame.descriptors);
+            self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
+            self.process_with_words(map, key, words);
+        }
+    }
+
+    /// [`Self::process`] with the words already computed (outside the map's lock).
+    pub fn process_with_words(
+        &mut self,
+        map: &Map,
+        key: KeyFrameKey,
+        words: (BowVector, FeatureVector),
+    ) {
+        let start = std::time::Instant::now();
+        if !map.keyframes.contains_key(key) {
+            return;
+        }
+        self.words.insert(key, words);
+        let candidates = if self.database.len() >= self.config.gap {
+            self.consistent_candidates(map, key)
+        } else {
+            Vec::new()
+        };
+        self.database.add(key, &self.words[&key].0);
+        if !candidates.is_empty() {
+            self.found.push((key, candidates));
+        }
+        self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
+    }
+
+    /// Stages 1 and 2: the candidates consistent over enough keyframes, with scores.
+    fn consistent_candidates(&mut self, map: &Map, key: KeyFrameKey) -> Vec<(KeyFrameKey, f64)> {
+        let kf = &map.keyframes[key];
+        let bow = &self.words[&key].0;
+        let connected: HashSet<KeyFrameKey> = kf.connections.iter().map(|(k, _)| *k).collect();
+        let min_score = connected
+            .iter()
+            .filter_map(|k| self.words.get(k))
+            .map(|(b, _)| Vocabulary::score(bow, b))
+            .fold(f64::INFINITY, f64::min);
+        let min_score = if min_score.is_finite() {
+            min_score
+        } else {
+            0.0
+        };
+        let hits = self.database.query(bow, |k| {
+            k != key && !connected.contains(&k) && map.keyframes.contains_key(k)
+        });
+        let max_common = hits.iter().map(|h| h.common).max().unwrap_or(0);
+        let hits: Vec<_> = hits
+            .into_iter()
+            .filter(|h| h.score >= min_score && h.common as f64 >= 0.8 * max_common as f64)
+            .collect();
+        let scores: HashMap<KeyFrameKey, f64> = hits.iter().map(|h| (h.id, h.score)).collect();
+        // Accumulate each hit's score with its covisible hits; keep the best of each group.
+        let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
+        for h in &hits {
+            let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
+            for n in map.keyframes[h.id].best_covisible(10) {
+                if let Some(&s) = scores.get(&n) {
+                    total += s;
+                    if s > best_score {
+                        (best, best_score) = (n, s);
+                    }
+                }
+            }
+            grouped.push((best, best_score, total));
+        }
+        let best_total = grouped.iter().map(|g| g.2).fold(0.0, f64::max);
+        let mut candidates: Vec<(KeyFrameKey, f64)> = Vec::new();
+        for (k, s, total) in grouped {
+            if total >= 0.75 * best_total && !candidates.iter().any(|(c, _)| *c == k) {
+                candidates.push((k, s));
+            }
+        }
+        // Consistency with the previous keyframes' groups.
+        let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
+        let mut enough = Vec::new();
+        for &(c, score) in &candidates {
+            let mut group: HashSet<KeyFrameKey> = map.keyframes[c]
+                .connections
+                .iter()
+                .map(|(k, _)| *k)
+                .collect();
+            group.insert(c);
+            let mut count = 1;
+            for (previous, n) in &self.groups {
+                if previous.iter().any(|k| group.contains(k)) {
+                    count = count.max(n + 1);
+                }
+            }
+            if count >= self.config.min_consistency {
+                enough.push((c, score));
+            } else {
+                let reject = LoopReject::Inconsistent {
+                    count,
+                    needed: self.config.min_consistency,
+                };
+                self.rejected.push(Candidate::new(
+                    LoopPair::of(map, (key, c)),
+                    score,
+                    LoopOutcome::Rejected(reject),
+                ));
+            }
+            next_groups.push((group, count));
+        }
+        self.groups = next_groups;
+        enough
+    }
+}
