@@ -7,11 +7,11 @@
 //!
 //! Each frame the tracker receives from here which points take part in its pose
 //! ([`frames::Participation`]: the model, the followed objects, the newest keyframe's
-//! probation); what it does with the probabilities frame by frame is in
-//! `tracking::tracker::moving`.
+//! probation); after the pose, the model's step on the frame is [`tracked`].
 
 pub mod frames;
 pub mod keyframes;
+pub mod tracked;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;

@@ -36,6 +36,8 @@ use crate::global::place_recognition::PlaceRecognition;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;
+use crate::dynamics::tracked::{after_pose, feature_budget, refresh_last, DopFigures};
+use crate::tracking::tracker::Located;
 use crate::tracking::{TrackedFrame, Tracker, TrackingState};
 use stages::{Detection, LocalMapping, Recognition};
 use worker::{Execution, Worker};
@@ -177,9 +179,9 @@ impl System {
         self.tracker.state()
     }
 
-    /// The keypoint budget for the next frame ([`Tracker::feature_budget`]).
+    /// The keypoint budget for the next frame ([`feature_budget`]).
     pub fn feature_budget(&self, n_features: usize) -> usize {
-        self.tracker.feature_budget(n_features, self.dynamics.dop())
+        feature_budget(n_features, self.dynamics.dop(), self.tracker.last_frame())
     }
 
     /// The DOP model, when on.
@@ -229,9 +231,20 @@ impl System {
     ) -> (TrackedFrame, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
         let gate = self.dynamics.participation(self.tracker.keyframe_clock());
-        let report = self
-            .tracker
-            .track(&self.map, frame, &gate, self.mapping.is_idle());
+        let report = match self.tracker.locate(&self.map, frame, &gate) {
+            Located::Started(report) => *report,
+            Located::Searched(mut search) => {
+                let mut map = self.map.write().expect("map lock poisoned");
+                // The DOP model's step between the pose and the keyframe decision.
+                let sensor = self.tracker.sensor();
+                let (frame, pose) = search.parts();
+                let dop = pose.map_or_else(DopFigures::default, |pose| {
+                    after_pose(&gate, (&mut map, frame), pose, &sensor, self.tracker.last_frame())
+                });
+                let mapping_idle = self.mapping.is_idle();
+                self.tracker.settle((&mut map, &gate), *search, dop, mapping_idle)
+            }
+        };
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;
         if let Some(key) = report.record.keyframe {
             // Marked before local mapping sees the keyframe, whose BA leaves its points
@@ -283,10 +296,10 @@ impl System {
         }
         let mut map = self.map.write().expect("map lock poisoned");
         self.dynamics.receive(&mut map, outcomes);
-        self.tracker.refresh_moving(
-            &map,
-            &self.dynamics.participation(self.tracker.keyframe_clock()),
-        );
+        let gate = self.dynamics.participation(self.tracker.keyframe_clock());
+        if let Some(last) = self.tracker.last_tracked() {
+            refresh_last(&gate, &map, last);
+        }
     }
 
     /// Waits for the helpers (the detector's last outcomes are applied), then hands the

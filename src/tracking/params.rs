@@ -20,9 +20,6 @@ pub const MIN_POSE_OBSERVATIONS: usize = 10;
 /// Points that take part in the pose that are enough for a pose of their own, against
 /// which waiting points are tested before they join (see `Tracker::optimise`).
 pub const MIN_TRUSTED_POINTS: usize = 20;
-/// Matches with depth a point is compared with before the rigidity test gives a
-/// verdict on it (see `crate::dop::rigidity`).
-pub const RIGIDITY_MIN_PARTNERS: usize = 20;
 /// Ratio of the local-map projection search.
 pub const LOCAL_MAP_MATCH_RATIO: f32 = 0.8;
 /// Local-map search radius (pixels at level 0) for a view close to the point's mean

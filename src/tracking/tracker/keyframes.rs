@@ -4,7 +4,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::Tracker;
+use super::{TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
@@ -63,12 +63,13 @@ impl Tracker {
     /// ([`KeyframePolicy`]); always when the reference keyframe is gone.
     pub(super) fn need_keyframe(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         pose: &Se3,
         points: &[Option<MapPointKey>],
         inliers: usize,
         mapping_idle: bool,
     ) -> bool {
+        let TrackInput { map, frame, gate } = input;
         let Some(reference) = self.reference.and_then(|k| map.keyframes.get(k)) else {
             return true;
         };
@@ -173,13 +174,7 @@ impl Tracker {
 
     /// Camera-frame position of keypoint `i` from its depth.
     pub(super) fn back_project(&self, frame: &Frame, i: usize) -> Vector3<f64> {
-        let k = &frame.keypoints[i];
-        let z = frame.depth[i] as f64;
-        Vector3::new(
-            (k.x as f64 - self.camera.cx) * z / self.camera.fx,
-            (k.y as f64 - self.camera.cy) * z / self.camera.fy,
-            z,
-        )
+        self.sensor().back_project(frame, i)
     }
 }
 

@@ -6,23 +6,22 @@
 //! the keyframe decision and new map points from depth ([`keyframes`]); relocalisation
 //! by EPnP RANSAC after a loss ([`relocalise`]); when relocalisation keeps failing, a
 //! new map segment (ORB-SLAM3's Atlas: a new map, merged when a loop connects it). The
-//! DOP model's per-frame part is [`moving`].
+//! DOP model's per-frame part runs between [`Tracker::locate`] and [`Tracker::settle`]
+//! ([`crate::dynamics::tracked`]).
 //!
 //! The map is shared with local mapping, which may run in its own thread: searches and
 //! pose optimisation hold the map's read lock; only the counters and a new keyframe
 //! take the write lock. Feature extraction happens before, without it.
 
 pub mod keyframes;
-mod moving;
 mod pose;
 mod relocalise;
 mod search;
 #[cfg(test)]
 mod tests;
 
-use std::time::Instant;
-
-use crate::dynamics::frames::{geometric_check, Participation};
+use crate::dynamics::frames::Participation;
+use crate::dynamics::tracked::{DopFigures, LastTracked, Sensor, TrackedPose};
 use crate::features::ScalePyramid;
 use crate::frame::Frame;
 use crate::geometry::depth_noise::DepthNoise;
@@ -62,6 +61,45 @@ pub struct Tracker {
     height: f32,
     /// The sensor's depth noise, for the rigidity test.
     depth_noise: DepthNoise,
+}
+
+/// What the tracker's searches look at: the map (read), the frame, and which points
+/// take part.
+#[derive(Clone, Copy)]
+pub(super) struct TrackInput<'a> {
+    pub map: &'a Map,
+    pub frame: &'a Frame,
+    pub gate: &'a Participation<'a>,
+}
+
+/// The first half of tracking a frame ([`Tracker::locate`]).
+pub enum Located {
+    /// The frame started a map segment: tracked.
+    Started(Box<TrackedFrame>),
+    /// The frame was searched: for the DOP model, then [`Tracker::settle`].
+    Searched(Box<Search>),
+}
+
+/// A frame searched against the map: the pose found (or why none was) and what the
+/// local search saw.
+pub struct Search {
+    frame: Frame,
+    tracked: Result<PoseEstimate, Reject>,
+    seen: LocalSearch,
+    report: TrackedFrame,
+}
+
+impl Search {
+    /// The frame (its probabilities are the DOP model's to set) and, when a pose was
+    /// found, the pose with the search's candidates and the inliers kept.
+    pub fn parts(&mut self) -> (&mut Frame, Option<TrackedPose<'_>>) {
+        let pose = self.tracked.as_ref().ok().map(|estimate| TrackedPose {
+            camera_from_world: &estimate.camera_from_world,
+            candidates: &self.seen.candidates,
+            matches: &estimate.matches,
+        });
+        (&mut self.frame, pose)
+    }
 }
 
 /// Timers of one frame.
@@ -122,24 +160,29 @@ impl Tracker {
         self.last.as_ref().map(|l| &l.frame)
     }
 
-    /// Tracks one frame against `shared`; a new keyframe is returned in the report for
-    /// local mapping. `gate` says which points take part (the DOP model's state, from
-    /// [`crate::dynamics`]). `mapping_idle` says whether local mapping has caught up
-    /// (always in deterministic mode); while it has not, a keyframe is only made when
-    /// tracking gets weak.
-    pub fn track(
-        &mut self,
-        shared: &SharedMap,
-        mut frame: Frame,
-        gate: &Participation,
-        mapping_idle: bool,
-    ) -> TrackedFrame {
+    /// The last tracked frame with its map points and pose, for the DOP model's
+    /// refresh after a detection ([`crate::dynamics::tracked::refresh_last`]).
+    pub fn last_tracked(&mut self) -> Option<LastTracked<'_>> {
+        self.last.as_mut().map(|l| LastTracked {
+            frame: &mut l.frame,
+            points: &l.points,
+            camera_from_world: &l.camera_from_world,
+        })
+    }
+
+    /// The first half of tracking a frame against `shared` (under its read lock): the
+    /// pose search (motion model, else reference keyframe; relocalisation when lost)
+    /// and the local map. `gate` says which points take part (the DOP model's state,
+    /// from [`crate::dynamics`]). The first frame of a map segment is done here
+    /// ([`Located::Started`]); otherwise the search goes to the DOP model
+    /// ([`crate::dynamics::tracked::after_pose`]) and then to [`Tracker::settle`].
+    pub fn locate(&mut self, shared: &SharedMap, frame: Frame, gate: &Participation) -> Located {
         let mut timing = Timing::default();
         let mut report = TrackedFrame::start(&frame, self.state, self.segment);
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
             self.start_segment((&mut map, gate), frame, Se3::identity(), &mut report);
-            return report;
+            return Located::Started(Box::new(report));
         }
         let map = shared.read().expect("map lock poisoned");
         // Local mapping may have culled the reference keyframe: take the segment's newest.
@@ -149,56 +192,73 @@ impl Tracker {
         {
             self.reference = map.newest_of_segment(self.segment);
         }
+        let input = TrackInput {
+            map: &map,
+            frame: &frame,
+            gate,
+        };
         let found = if self.state == TrackingState::Ok {
-            self.track_motion_model((&map, &frame, gate), &mut timing)
-                .or_else(|_| self.track_reference_keyframe((&map, &frame, gate), &mut timing))
+            self.track_motion_model(input, &mut timing)
+                .or_else(|_| self.track_reference_keyframe(input, &mut timing))
         } else {
-            self.relocalise((&map, &frame, gate), &mut timing)
+            self.relocalise(input, &mut timing)
         };
         let mut seen = LocalSearch::default();
-        let tracked = found.and_then(|found| {
-            self.track_local_map((&map, &frame, gate), found, &mut seen, &mut timing)
-        });
-        drop(map);
-        let mut map = shared.write().expect("map lock poisoned");
-        self.count_visibility(&mut map, &seen.visible, tracked.as_ref().ok());
-        if let (Ok(estimate), Some(dop)) = (&tracked, gate.dop) {
-            if dop.geometric {
-                let (checks, moved) = self.consistency(
-                    (&map, &frame, gate),
-                    (dop, &estimate.camera_from_world),
-                    &seen.candidates,
-                    &estimate.matches,
-                );
-                report.stats.rigidity_outliers = moved;
-                (report.stats.geometric_raised, report.stats.geometric_lowered) =
-                    geometric_check(dop, &mut map, &checks, frame.timestamp);
-            }
-        }
+        let tracked =
+            found.and_then(|found| self.track_local_map(input, found, &mut seen, &mut timing));
         report.stats.matching_ms = timing.matching;
         report.stats.optimisation_ms = timing.optimisation;
+        Located::Searched(Box::new(Search {
+            frame,
+            tracked,
+            seen,
+            report,
+        }))
+    }
+
+    /// The second half of tracking a frame (under the map's write lock), after the DOP
+    /// model's step (`dop`, with the frame's probabilities set): culling's counters,
+    /// then OK or LOST, the keyframe decision and the frame as the last frame.
+    /// `mapping_idle` says whether local mapping has caught up (always in
+    /// deterministic mode); while it has not, a keyframe is only made when tracking
+    /// gets weak. A new keyframe is in the record, for local mapping.
+    pub fn settle(
+        &mut self,
+        (map, gate): (&mut Map, &Participation),
+        search: Search,
+        dop: DopFigures,
+        mapping_idle: bool,
+    ) -> TrackedFrame {
+        let Search {
+            frame,
+            tracked,
+            seen,
+            mut report,
+        } = search;
+        self.count_visibility(map, &seen.visible, tracked.as_ref().ok());
+        let stats = &mut report.stats;
+        (stats.geometric_raised, stats.geometric_lowered) =
+            (dop.geometric_raised, dop.geometric_lowered);
+        (stats.rigidity_outliers, stats.dynamic_keypoints) =
+            (dop.rigidity_outliers, dop.dynamic_keypoints);
+        stats.dop_ms = dop.dop_ms;
         match tracked {
-            Err(reject) => self.lose((&mut map, gate), frame, reject, &mut report),
+            Err(reject) => self.lose((map, gate), frame, reject, &mut report),
             Ok(estimate) => {
                 report.stats.dynamic_map_points = seen.dynamic;
-                if let Some(dop) = gate.dop {
-                    let start = Instant::now();
-                    frame.moving = self.moving_probabilities(
-                        dop,
-                        gate.followed,
-                        &map,
-                        &frame,
-                        &estimate.camera_from_world,
-                        &estimate.matches,
-                    );
-                    report.stats.dynamic_keypoints =
-                        frame.moving.iter().filter(|p| dop.removed(**p)).count();
-                    report.stats.dop_ms = start.elapsed().as_secs_f64() * 1e3;
-                }
-                self.accept((&mut map, gate), frame, estimate, mapping_idle, &mut report);
+                self.accept((map, gate), frame, estimate, mapping_idle, &mut report);
             }
         }
         report
+    }
+
+    /// What the DOP model needs of the sensor.
+    pub fn sensor(&self) -> Sensor<'_> {
+        Sensor {
+            camera: &self.camera,
+            pyramid: &self.pyramid,
+            depth_noise: self.depth_noise,
+        }
     }
 
     /// Counters for map point culling: predicted visible here, found as an inlier.
@@ -287,8 +347,13 @@ impl Tracker {
         self.frames_since_keyframe += 1;
         // The keyframe decision looks at the frame as counted.
         let counted = gate.counting_this_frame();
+        let input = TrackInput {
+            map,
+            frame: &frame,
+            gate: &counted,
+        };
         let need = self.need_keyframe(
-            (map, &frame, &counted),
+            input,
             &pose,
             &points,
             inliers,

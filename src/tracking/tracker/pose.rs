@@ -1,35 +1,19 @@
 //! Pose-only estimation from matched points (ORB-SLAM2's `PoseOptimization` after each
 //! search): which matches take part (dynamic points never, points that wait for their
-//! keyframe's detection or out their probation only when too few others remain), the
-//! optimisation with its robust gate, and the geometric check's verdicts on the final
-//! matches.
+//! keyframe's detection or out their probation only when too few others remain) and
+//! the optimisation with its robust gate. The geometric check's verdicts on the final
+//! matches are the DOP model's ([`crate::dynamics::tracked`]).
 
 use std::time::Instant;
 
-use nalgebra::Vector3;
-
-use super::{Timing, Tracker};
-use crate::dop::rigidity::{agreement, Matched};
-use crate::dop::DopConfig;
+use super::{Timing, TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
-use crate::map::{Map, MapPoint, MapPointKey};
+use crate::map::{MapPoint, MapPointKey};
 use crate::optim::pose_only::{optimise_pose_predicted, within_gate, PoseObservation};
-use crate::tracking::params::{MIN_POSE_OBSERVATIONS, MIN_TRUSTED_POINTS, RIGIDITY_MIN_PARTNERS};
+use crate::tracking::params::{MIN_POSE_OBSERVATIONS, MIN_TRUSTED_POINTS};
 use crate::tracking::report::PoseEstimate;
-
-/// One final match as the geometric check sees it.
-struct Judged {
-    keypoint: usize,
-    key: MapPointKey,
-    /// The map point's position (world).
-    position: Vector3<f64>,
-    /// Within the pose's gate.
-    consistent: bool,
-    /// Left out of the pose as dynamic.
-    excluded: bool,
-}
 
 impl Tracker {
     /// Optimises a pose from matched `points`, starting at `initial`. Dynamic points
@@ -39,11 +23,12 @@ impl Tracker {
     /// with no inliers.
     pub(super) fn optimise(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         initial: &Se3,
         points: &[Option<MapPointKey>],
         timing: &mut Timing,
     ) -> PoseEstimate {
+        let TrackInput { map, frame, gate } = input;
         let start = Instant::now();
         let mut indices = Vec::new();
         let mut observations = Vec::new();
@@ -150,92 +135,6 @@ impl Tracker {
 
     /// Keypoint `i` of `frame` seeing `point`, for the pose optimisation.
     pub(super) fn observation(&self, frame: &Frame, i: usize, point: &MapPoint) -> PoseObservation {
-        let k = &frame.keypoints[i];
-        PoseObservation::of_keypoint(
-            point.position,
-            (k.x, k.y, frame.right_u[i]),
-            self.pyramid.inverse_sigma2[k.level as usize],
-        )
-    }
-
-    /// The geometric check's verdicts on the frame's final matches: the optimisation's
-    /// inliers are consistent; points that took no part (dynamic, waiting) are tested
-    /// against the final pose with the same gate. A point the rigidity test finds moved
-    /// ([`Tracker::moved`]) is inconsistent whatever the pose says. Also returns how
-    /// many the rigidity test found moved.
-    pub(super) fn consistency(
-        &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
-        (dop, pose): (&DopConfig, &Se3),
-        candidates: &[Option<MapPointKey>],
-        inliers: &[Option<MapPointKey>],
-    ) -> (Vec<(MapPointKey, bool)>, usize) {
-        let judged: Vec<Judged> = candidates
-            .iter()
-            .zip(inliers)
-            .enumerate()
-            .filter_map(|(i, (candidate, inlier))| {
-                let key = (*candidate)?;
-                let point = map.points.get(key)?;
-                let excluded = gate.excluded(point);
-                let consistent = if excluded || gate.awaiting(map, point) {
-                    within_gate(&self.camera, pose, &self.observation(frame, i, point))
-                } else {
-                    inlier.is_some()
-                };
-                Some(Judged {
-                    keypoint: i,
-                    key,
-                    position: point.position,
-                    consistent,
-                    excluded,
-                })
-            })
-            .collect();
-        let moved = self.moved(frame, dop, &judged);
-        let checks = judged
-            .iter()
-            .zip(&moved)
-            .map(|(j, moved)| (j.key, j.consistent && !moved))
-            .collect();
-        (checks, moved.iter().filter(|m| **m).count())
-    }
-
-    /// The rigidity test ([`crate::dop::rigidity`]) on the judged matches with depth:
-    /// which keep their distances to fewer than `rigidity_agreement` of the matches not
-    /// left out as dynamic, within `rigidity_sigmas` standard deviations of the
-    /// sensor's depth noise. Needs no pose, so it sees a mover that the pose follows.
-    fn moved(&self, frame: &Frame, dop: &DopConfig, judged: &[Judged]) -> Vec<bool> {
-        let mut moved = vec![false; judged.len()];
-        if dop.rigidity_sigmas <= 0.0 {
-            return moved;
-        }
-        let with_depth: Vec<usize> = (0..judged.len())
-            .filter(|&n| frame.depth[judged[n].keypoint] > 0.0)
-            .collect();
-        let matched: Vec<Matched> = with_depth
-            .iter()
-            .map(|&n| {
-                let camera = self.back_project(frame, judged[n].keypoint);
-                Matched {
-                    world: judged[n].position,
-                    camera,
-                    sigma: self.depth_noise.sigma(camera.z),
-                }
-            })
-            .collect();
-        let reference: Vec<usize> = (0..with_depth.len())
-            .filter(|&m| !judged[with_depth[m]].excluded)
-            .collect();
-        let shares = agreement(
-            &matched,
-            &reference,
-            f64::from(dop.rigidity_sigmas),
-            RIGIDITY_MIN_PARTNERS,
-        );
-        for (&n, share) in with_depth.iter().zip(shares) {
-            moved[n] = share.is_some_and(|s| s < dop.rigidity_agreement);
-        }
-        moved
+        self.sensor().observation(frame, i, point)
     }
 }

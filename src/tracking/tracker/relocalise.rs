@@ -8,8 +8,7 @@
 use std::time::Instant;
 
 use super::search::live_points;
-use super::{Timing, Tracker};
-use crate::dynamics::frames::Participation;
+use super::{Timing, TrackInput, Tracker};
 use crate::features::{hamming, TH_LOW};
 use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::frame::Frame;
@@ -24,14 +23,15 @@ impl Tracker {
     /// becomes the reference (and its segment the active one).
     pub(super) fn relocalise(
         &mut self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
+        let TrackInput { map, frame, .. } = input;
         let start = Instant::now();
         let ranked = rank_keyframes(map, frame);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         for key in ranked.into_iter().take(RELOCALISATION_CANDIDATES) {
-            if let Some(found) = self.relocalise_against((map, frame, gate), key, timing) {
+            if let Some(found) = self.relocalise_against(input, key, timing) {
                 self.segment = map.keyframes[key].segment;
                 self.reference = Some(key);
                 return Ok(found);
@@ -44,10 +44,11 @@ impl Tracker {
     /// matches when the inliers fall short.
     fn relocalise_against(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         key: KeyFrameKey,
         timing: &mut Timing,
     ) -> Option<PoseEstimate> {
+        let TrackInput { map, frame, .. } = input;
         let start = Instant::now();
         let kf = &map.keyframes[key];
         let (keys, descriptors) = live_points(map, kf);
@@ -83,7 +84,7 @@ impl Tracker {
                 points[i] = Some(keys[q]);
             }
         }
-        let mut estimate = self.optimise((map, frame, gate), &pose, &points, timing);
+        let mut estimate = self.optimise(input, &pose, &points, timing);
         if estimate.inliers < MIN_SEARCH_INLIERS {
             return None;
         }
@@ -103,12 +104,7 @@ impl Tracker {
                 points[i] = Some(query_keys[q]);
             }
             timing.matching += start.elapsed().as_secs_f64() * 1e3;
-            estimate = self.optimise(
-                (map, frame, gate),
-                &estimate.camera_from_world,
-                &points,
-                timing,
-            );
+            estimate = self.optimise(input, &estimate.camera_from_world, &points, timing);
         }
         (estimate.inliers >= RELOCALISATION_ACCEPT).then_some(estimate)
     }

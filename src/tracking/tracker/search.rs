@@ -9,11 +9,10 @@ use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
 
-use super::{Timing, Tracker};
+use super::{Timing, TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
-use crate::frame::Frame;
 use crate::geometry::se3::{self, Se3};
 use crate::map::visibility::predict_view;
 use crate::map::{KeyFrame, KeyFrameKey, Map, MapPointKey};
@@ -58,9 +57,10 @@ impl Tracker {
     /// Projects the last frame's map points with the constant-velocity prediction.
     pub(super) fn track_motion_model(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
+        let TrackInput { map, frame, .. } = input;
         let (Some(velocity), Some(last)) = (self.velocity, self.last.as_ref()) else {
             return Err(Reject::NoMotionModel);
         };
@@ -113,7 +113,7 @@ impl Tracker {
             points[i] = Some(keys[q]);
         }
         enough(
-            self.optimise((map, frame, gate), &predicted, &points, timing),
+            self.optimise(input, &predicted, &points, timing),
             MIN_SEARCH_INLIERS,
         )
     }
@@ -121,11 +121,12 @@ impl Tracker {
     /// Brute-force matches against a keyframe's map points, starting from `initial`.
     pub(super) fn track_against_keyframe(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         keyframe: KeyFrameKey,
         initial: Se3,
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
+        let TrackInput { map, frame, .. } = input;
         let start = Instant::now();
         let kf = map.keyframes.get(keyframe).ok_or(Reject::NoReference)?;
         let (keys, descriptors) = live_points(map, kf);
@@ -142,7 +143,7 @@ impl Tracker {
             points[i] = Some(keys[q]);
         }
         enough(
-            self.optimise((map, frame, gate), &initial, &points, timing),
+            self.optimise(input, &initial, &points, timing),
             MIN_SEARCH_INLIERS,
         )
     }
@@ -150,7 +151,7 @@ impl Tracker {
     /// Brute force against the reference keyframe, from the last frame's pose.
     pub(super) fn track_reference_keyframe(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
         let initial = self
@@ -159,7 +160,7 @@ impl Tracker {
             .ok_or(Reject::NoMotionModel)?
             .camera_from_world;
         let reference = self.reference.ok_or(Reject::NoReference)?;
-        self.track_against_keyframe((map, frame, gate), reference, initial, timing)
+        self.track_against_keyframe(input, reference, initial, timing)
     }
 
     /// Pixel and right coordinate of a world point, if in front and inside the image.
@@ -181,11 +182,12 @@ impl Tracker {
     /// and matches, and optimises again; with at least `min_inliers` inliers.
     pub(super) fn track_local_map(
         &self,
-        (map, frame, gate): (&Map, &Frame, &Participation),
+        input: TrackInput,
         found: PoseEstimate,
         seen: &mut LocalSearch,
         timing: &mut Timing,
     ) -> Result<PoseEstimate, Reject> {
+        let TrackInput { map, frame, gate } = input;
         let start = Instant::now();
         let (pose, mut points) = (found.camera_from_world, found.matches);
         let local = map.covisible_keyframes(
@@ -203,7 +205,7 @@ impl Tracker {
         }
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         seen.visible.extend(keys.iter().chain(&matched).copied());
-        let estimate = self.optimise((map, frame, gate), &pose, &points, timing);
+        let estimate = self.optimise(input, &pose, &points, timing);
         seen.candidates = points;
         enough(estimate, self.config.min_inliers)
     }

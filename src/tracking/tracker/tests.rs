@@ -4,6 +4,7 @@
 use super::*;
 use crate::dop::DopConfig;
 use crate::dynamics::frames::{geometric_check, Participation};
+use crate::dynamics::tracked::DopFigures;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
@@ -145,12 +146,12 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
         (pinhole.width, pinhole.height),
     );
     let error_with = |tracker: &Tracker, map: &Map, keys: &[Option<MapPointKey>]| {
-        let estimate = tracker.optimise(
-            (map, &frame, &gate),
-            &Se3::identity(),
-            keys,
-            &mut Timing::default(),
-        );
+        let input = TrackInput {
+            map,
+            frame: &frame,
+            gate: &gate,
+        };
+        let estimate = tracker.optimise(input, &Se3::identity(), keys, &mut Timing::default());
         estimate.camera_from_world.translation.vector.norm()
     };
     let mixed = error_with(&tracker, &map, &keys);
@@ -214,7 +215,12 @@ fn points_that_wait_do_not_make_keyframes() {
     tracker.reference = Some(map.add_keyframe(keyframe));
     tracker.frames_since_keyframe = 5;
     let need = |map: &Map| {
-        tracker.need_keyframe((map, &frame, &gate), &Se3::identity(), &tracked, room, true)
+        let input = TrackInput {
+            map,
+            frame: &frame,
+            gate: &gate,
+        };
+        tracker.need_keyframe(input, &Se3::identity(), &tracked, room, true)
     };
     assert!(need(&map), "100 of 500 points: very weak");
     map.awaiting_detection.insert(7);
@@ -240,4 +246,137 @@ fn dynamic_points_that_stay_consistent_are_lowered_back_into_the_pose() {
     assert!(keys[..2]
         .iter()
         .all(|k| map.points[*k].consistency.verified_static(&dop)));
+}
+
+/// A room of `n` points in front of the camera, each with its own descriptor.
+fn fixture_room(n: usize) -> Vec<(Vector3<f64>, crate::features::Descriptor)> {
+    let mut rng = crate::random::Rng::new(11);
+    (0..n)
+        .map(|i| {
+            let (column, row) = ((i % 30) as f64, (i / 30) as f64);
+            let position = Vector3::new(
+                -1.0 + column * 0.07,
+                -0.7 + row * 0.07,
+                2.5 + (i % 7) as f64 * 0.25,
+            );
+            let descriptor = std::array::from_fn(|_| rng.next_u64());
+            (position, descriptor)
+        })
+        .collect()
+}
+
+/// The frame a camera at `camera_from_world` sees of `room`: every point in the image,
+/// with its descriptor, depth and right coordinate (`bf` = 40 pixel metres).
+fn fixture_frame(
+    index: usize,
+    pinhole: &PinholeCamera,
+    room: &[(Vector3<f64>, crate::features::Descriptor)],
+    camera_from_world: &Se3,
+) -> Frame {
+    let (mut keypoints, mut descriptors, mut depth, mut right_u) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (position, descriptor) in room {
+        let p = camera_from_world * nalgebra::Point3::from(*position);
+        let pixel = pinhole.project(&p.coords);
+        if p.z <= 0.0 || pixel.x < 1.0 || pixel.y < 1.0 {
+            continue;
+        }
+        if pixel.x >= pinhole.width as f64 - 1.0 || pixel.y >= pinhole.height as f64 - 1.0 {
+            continue;
+        }
+        keypoints.push(crate::features::KeyPoint {
+            x: pixel.x as f32,
+            y: pixel.y as f32,
+            ..Default::default()
+        });
+        descriptors.push(*descriptor);
+        depth.push(p.z as f32);
+        right_u.push((pixel.x - 40.0 / p.z) as f32);
+    }
+    Frame::from_parts(
+        index,
+        index as f64 * 0.1,
+        keypoints,
+        descriptors,
+        depth,
+        right_u,
+        (pinhole.width, pinhole.height),
+    )
+}
+
+/// [`Tracker::locate`] then [`Tracker::settle`], as the system calls them without the
+/// DOP model.
+fn track_fixture(tracker: &mut Tracker, map: &SharedMap, frame: Frame) -> TrackedFrame {
+    let gate = Participation::default();
+    match tracker.locate(map, frame, &gate) {
+        Located::Started(done) => *done,
+        Located::Searched(search) => {
+            let mut map = map.write().unwrap();
+            tracker.settle((&mut map, &gate), *search, DopFigures::default(), true)
+        }
+    }
+}
+
+/// A small map and frames built here: the first frame starts the map, the second is
+/// tracked at its true pose (against the reference keyframe: no motion model yet), a
+/// frame of unknown descriptors is lost with the reason.
+#[test]
+fn a_fixture_map_tracks_the_true_pose_and_names_why_a_frame_is_lost() {
+    let pinhole = PinholeCamera::tum_fr3();
+    let mut tracker = Tracker::new(
+        TrackerConfig::default(),
+        StereoCamera::new(&pinhole, 40.0),
+        ScalePyramid::new(8, 1.2),
+        pinhole.width,
+        pinhole.height,
+    );
+    let map = SharedMap::default();
+    let room = fixture_room(600);
+    let first = track_fixture(
+        &mut tracker,
+        &map,
+        fixture_frame(0, &pinhole, &room, &Se3::identity()),
+    );
+    assert_eq!(first.stats.state, TrackingState::Ok);
+    assert!(first.record.keyframe.is_some());
+    assert_eq!(map.read().unwrap().points.len(), 600);
+
+    let truth = Se3::from_parts(
+        nalgebra::Translation3::new(0.03, -0.01, 0.02),
+        nalgebra::Rotation3::from_euler_angles(0.01, -0.02, 0.005),
+    );
+    let second = track_fixture(
+        &mut tracker,
+        &map,
+        fixture_frame(1, &pinhole, &room, &truth),
+    );
+    assert_eq!(
+        second.stats.state,
+        TrackingState::Ok,
+        "{:?}",
+        second.stats.lost
+    );
+    let pose = second.record.camera_from_world.expect("tracked");
+    let error = pose * truth.inverse();
+    assert!(error.translation.vector.norm() < 1e-3, "{error:?}");
+    assert!(error.rotation.angle() < 1e-3);
+    assert!(second.stats.inliers > 500, "{}", second.stats.inliers);
+    assert_eq!(second.record.observations.len(), second.stats.inliers);
+
+    let strangers: Vec<_> = fixture_room(600)
+        .into_iter()
+        .map(|(position, descriptor)| (position, descriptor.map(|d| !d)))
+        .collect();
+    let lost = track_fixture(
+        &mut tracker,
+        &map,
+        fixture_frame(2, &pinhole, &strangers, &truth),
+    );
+    assert_eq!(lost.stats.state, TrackingState::Lost);
+    assert!(lost.record.camera_from_world.is_none());
+    assert!(
+        matches!(lost.stats.lost, Some(Reject::FewMatches { found, .. }) if found < 15),
+        "{:?}",
+        lost.stats.lost
+    );
 }
