@@ -116,7 +116,7 @@ pub fn geometric_check(
     let mut judged = Vec::with_capacity(checks.len());
     let (mut total, mut outliers) = (0, 0);
     for &(key, consistent) in checks {
-        let Some(point) = map.points.get(key) else {
+        let Some(point) = map.points().get(key) else {
             continue;
         };
         let dynamic = dop.removed(point.moving);
@@ -131,11 +131,10 @@ pub fn geometric_check(
     }
     let (mut raised, mut lowered) = (0, 0);
     for (key, consistent, dynamic) in judged {
-        let point = &mut map.points[key];
-        match point
-            .consistency
-            .observe(consistent, time, dynamic, &mut point.moving, dop)
-        {
+        let Some((moving, consistency)) = map.point_dop_mut(key) else {
+            continue;
+        };
+        match consistency.observe(consistent, time, dynamic, moving, dop) {
             Verdict::Raised => raised += 1,
             Verdict::Lowered => lowered += 1,
             Verdict::Unchanged => {}
@@ -190,7 +189,7 @@ mod tests {
         assert!(!gate.counting_this_frame().awaiting(&map, &point(7, 0.0)));
         assert!(!gate.awaiting(&map, &point(6, 0.0)));
         // A keyframe waiting for its detection holds its points back.
-        map.awaiting_detection.insert(6);
+        map.await_detection(6);
         assert!(gate.awaiting(&map, &point(6, 0.0)));
     }
 }

@@ -83,7 +83,7 @@ pub fn apply_detections(
 
 /// The keypoints of keyframe `key` as the DOP model sees them.
 fn keypoints_of(map: &Map, key: KeyFrameKey) -> Option<Vec<Keypoint>> {
-    Some(map.keyframes.get(key)?.frame.dop_keypoints())
+    Some(map.keyframes().get(key)?.frame.dop_keypoints())
 }
 
 /// Applies `boxes` (detected or predicted) to the map points of keyframe `key`.
@@ -101,7 +101,7 @@ pub fn apply_boxes(
     let Some(keypoints) = keypoints_of(map, key) else {
         return effect;
     };
-    let kf = &map.keyframes[key];
+    let kf = &map.keyframes()[key];
     let verdict: Vec<Option<bool>> = match config.mode {
         Mode::Off => return effect,
         Mode::MaskBoxes => keypoints
@@ -121,24 +121,24 @@ pub fn apply_boxes(
         let remove = match config.mode {
             Mode::MaskBoxes => s,
             _ => {
-                let Some(p) = map.points.get_mut(point) else {
+                let Some((moving, consistency)) = map.point_dop_mut(point) else {
                     continue;
                 };
-                p.consistency.on_moving_object =
+                consistency.on_moving_object =
                     s && in_moved_box(boxes, keypoints[i].x, keypoints[i].y);
                 // On a dynamic object, but the geometry says it has not moved.
-                let verified = p.consistency.verified_static(config);
+                let verified = consistency.verified_static(config);
                 effect.verified_static += usize::from(s && verified);
-                p.moving = update(p.moving, s && !verified, alpha);
+                *moving = update(*moving, s && !verified, alpha);
                 effect.updated += 1;
                 // A point that is consistent right now is not "staying dynamic": it
                 // keeps its chance to be verified.
                 let holding =
-                    config.static_check && p.consistency.inlier_run >= config.geometric_frames;
-                p.moving >= config.cull_threshold && !holding
+                    config.static_check && consistency.inlier_run >= config.geometric_frames;
+                *moving >= config.cull_threshold && !holding
             }
         };
-        if remove && map.points.contains_key(point) {
+        if remove && map.points().contains_key(point) {
             map.remove_point(point);
             effect.removed += 1;
         }
@@ -199,7 +199,7 @@ impl DynamicObjects {
         alpha: f32,
     ) -> ObjectsEffect {
         let mut result = ObjectsEffect::default();
-        let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes.get(key)) else {
+        let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes().get(key)) else {
             return result;
         };
         self.detected.insert(key);
@@ -241,7 +241,7 @@ impl DynamicObjects {
         result.effect = apply_boxes(map, key, &boxes, config, alpha);
         // Keyframes made after this one whose own detections have not come back.
         let later: Vec<(KeyFrameKey, f64)> = map
-            .keyframes
+            .keyframes()
             .iter()
             .filter(|(k, later)| {
                 later.id > id && !self.detected.contains(k) && !self.reached.contains(k)
@@ -249,7 +249,7 @@ impl DynamicObjects {
             .map(|(k, later)| (k, later.frame.timestamp))
             .collect();
         for (later_key, later_time) in later {
-            let pose = map.keyframes[later_key].camera_from_world;
+            let pose = map.keyframes()[later_key].camera_from_world;
             let boxes: Vec<ObjectBox> = self
                 .tracks
                 .predicted(later_time, config)
@@ -309,7 +309,7 @@ mod tests {
     fn observed_points(map: &mut Map, key: KeyFrameKey, n: usize) -> Vec<crate::map::MapPointKey> {
         (0..n)
             .map(|i| {
-                let p = map.points.insert(MapPoint::new(
+                let p = map.insert_point(MapPoint::new(
                     Vector3::z(),
                     [0; 4],
                     Vector3::z(),
@@ -362,13 +362,13 @@ mod tests {
                 "update {n}"
             );
             for &point in &points[..4] {
-                assert!((map.points[point].moving - p).abs() < 1e-5);
+                assert!((map.points()[point].moving - p).abs() < 1e-5);
             }
         }
         // The wall behind the person and the point outside the box decay towards 0:
         // 0.5 * 0.7^4.
         for &point in &points[4..] {
-            assert!((map.points[point].moving - 0.12005).abs() < 1e-5);
+            assert!((map.points()[point].moving - 0.12005).abs() < 1e-5);
         }
         let effect = apply_detections(&mut map, key, &person(), &classes, &config, 0.3);
         assert_eq!(
@@ -379,14 +379,14 @@ mod tests {
                 ..Default::default()
             }
         );
-        assert!(points[..4].iter().all(|p| !map.points.contains_key(*p)));
-        assert!(points[4..].iter().all(|p| map.points.contains_key(*p)));
+        assert!(points[..4].iter().all(|p| !map.points().contains_key(*p)));
+        assert!(points[4..].iter().all(|p| map.points().contains_key(*p)));
     }
 
     /// A second keyframe at time `t`, seeing the same scene from the same pose.
     fn add_keyframe_like(map: &mut Map, t: f64) -> (KeyFrameKey, Vec<crate::map::MapPointKey>) {
         let (source, first, _) = map_with(&SCENE);
-        let mut frame = source.keyframes[first].frame.clone();
+        let mut frame = source.keyframes()[first].frame.clone();
         frame.timestamp = t;
         let key = map.add_keyframe(KeyFrame::new(frame, crate::geometry::se3::Se3::identity()));
         (key, observed_points(map, key, SCENE.len()))
@@ -406,17 +406,17 @@ mod tests {
         // The second keyframe's points on the person went up, the wall behind and the
         // point outside the (predicted, widened) box went down or stayed.
         for &p in &second_points[..4] {
-            assert!((map.points[p].moving - 0.65).abs() < 1e-5);
+            assert!((map.points()[p].moving - 0.65).abs() < 1e-5);
         }
-        assert!((map.points[second_points[4]].moving - 0.35).abs() < 1e-5);
-        assert!(map.points[second_points[5]].moving <= 0.5);
+        assert!((map.points()[second_points[4]].moving - 0.35).abs() < 1e-5);
+        assert!(map.points()[second_points[5]].moving <= 0.5);
         // The detector misses the person at 0.5 s: the followed object gives the box.
         let (third, third_points) = add_keyframe_like(&mut map, 0.5);
         let done = objects.receive(&mut map, third, &[], &classes, &config, 0.3);
         assert_eq!(done.predicted_boxes, 1);
         assert_eq!(done.boxes.len(), 1);
         for &p in &third_points[..4] {
-            assert!((map.points[p].moving - 0.65).abs() < 1e-5);
+            assert!((map.points()[p].moving - 0.65).abs() < 1e-5);
         }
         // Past track_seconds the object is forgotten.
         let (fourth, fourth_points) = add_keyframe_like(&mut map, 2.0);
@@ -424,7 +424,7 @@ mod tests {
         assert_eq!(done.predicted_boxes, 0);
         assert!(fourth_points[..4]
             .iter()
-            .all(|&p| map.points[p].moving < 0.5));
+            .all(|&p| map.points()[p].moving < 0.5));
     }
 
     /// A point the geometric check verified static counts as S = 0 inside the box of
@@ -435,7 +435,7 @@ mod tests {
         let config = DopConfig::default();
         let verify = |map: &mut Map, points: &[crate::map::MapPointKey]| {
             for &p in points {
-                let c = &mut map.points[p].consistency;
+                let c = &mut map.point_mut(p).consistency;
                 c.inlier_run = 40;
                 c.since = 0.0;
                 c.until = 2.0;
@@ -453,7 +453,7 @@ mod tests {
             verify(&mut map, &points);
             let effect = apply_boxes(&mut map, key, &[person(moved)], &config, 0.3);
             for &p in &points[..4] {
-                let point = &map.points[p];
+                let point = &map.points()[p];
                 let expected = if moved { 0.65 } else { 0.35 };
                 assert!((point.moving - expected).abs() < 1e-5, "moved {moved}");
                 assert_eq!(point.consistency.on_moving_object, moved);
@@ -461,12 +461,12 @@ mod tests {
             }
             assert_eq!(effect.verified_static, if moved { 0 } else { 4 });
             // The wall behind stays verified either way.
-            assert!(map.points[points[4]].consistency.verified_static(&config));
+            assert!(map.points()[points[4]].consistency.verified_static(&config));
             // A later keyframe that puts the points elsewhere ends the flag.
             apply_boxes(&mut map, key, &[], &config, 0.3);
             assert!(points[..4]
                 .iter()
-                .all(|&p| !map.points[p].consistency.on_moving_object));
+                .all(|&p| !map.points()[p].consistency.on_moving_object));
         }
     }
 
@@ -490,7 +490,7 @@ mod tests {
         ] {
             let (mut map, key, points) = map_with(&SCENE);
             for &p in &points {
-                let c = &mut map.points[p].consistency;
+                let c = &mut map.point_mut(p).consistency;
                 (c.inlier_run, c.since, c.until) = (40, 0.0, 2.0);
             }
             let effect = apply_detections(&mut map, key, &detections, &classes, &config, 0.3);
@@ -501,7 +501,7 @@ mod tests {
                 "{class}"
             );
             for &p in &points[..4] {
-                let point = &map.points[p];
+                let point = &map.points()[p];
                 assert_eq!(point.consistency.verified_static(&config), verified);
                 assert_eq!(point.moving > 0.5, !verified, "{class}");
             }
@@ -525,7 +525,7 @@ mod tests {
                 ..Default::default()
             }
         );
-        assert!(map.points.contains_key(points[5]));
+        assert!(map.points().contains_key(points[5]));
         // A static class removes nothing.
         let (mut map, key, _) = map_with(&SCENE);
         let chair = vec![Detection {

@@ -165,9 +165,9 @@ impl Dynamics {
     /// mapping sees the keyframe.
     pub fn on_keyframe(&mut self, map: &mut Map, job: usize, key: KeyFrameKey, awaits: bool) {
         if awaits {
-            if let Some(id) = map.keyframes.get(key).map(|kf| kf.id) {
+            if let Some(id) = map.keyframes().get(key).map(|kf| kf.id) {
                 self.awaited.insert(job, id);
-                map.awaiting_detection.insert(id);
+                map.await_detection(id);
             }
         }
         self.keyframe_of_job.insert(job, key);
@@ -204,7 +204,7 @@ impl Dynamics {
     pub fn receive(&mut self, map: &mut Map, outcomes: Vec<Outcome>) {
         for outcome in outcomes {
             for id in self.awaited.release(&outcome) {
-                map.awaiting_detection.remove(&id);
+                map.detection_came_back(id);
             }
             if outcome.skipped {
                 self.totals.skipped += 1;
@@ -253,7 +253,7 @@ impl Dynamics {
             return;
         };
         if config.mode == Mode::MaskBoxes {
-            if let Some(kf) = map.keyframes.get(key) {
+            if let Some(kf) = map.keyframes().get(key) {
                 let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
                 let positions: Vec<(f32, f32)> =
                     kf.frame.keypoints.iter().map(|k| (k.x, k.y)).collect();
@@ -302,9 +302,7 @@ impl Dynamics {
             totals.map_points_removed += done.removed;
             totals.map_points_verified_static += done.verified_static;
         }
-        if let Some(kf) = map.keyframes.get_mut(key) {
-            kf.detections = Some(frame.detections);
-        }
+        map.set_detections(key, frame.detections);
     }
 }
 

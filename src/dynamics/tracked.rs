@@ -150,7 +150,7 @@ fn judge_matches(
         .enumerate()
         .filter_map(|(i, (candidate, inlier))| {
             let key = (*candidate)?;
-            let point = map.points.get(key)?;
+            let point = map.points().get(key)?;
             let excluded = gate.excluded(point);
             let consistent = if excluded || gate.awaiting(map, point) {
                 let observation = sensor.observation(frame, i, point);
@@ -227,7 +227,7 @@ fn moving_probabilities(
 ) -> Vec<f32> {
     let from_map: Vec<Option<f32>> = points
         .iter()
-        .map(|k| k.and_then(|k| map.points.get(k)).map(|p| p.moving))
+        .map(|k| k.and_then(|k| map.points().get(k)).map(|p| p.moving))
         .collect();
     let from_last: Vec<Option<f32>> = match (last, dop.propagation) {
         (Some(last), true) => (0..frame.len())
@@ -275,7 +275,7 @@ pub fn refresh_last(gate: &Participation, map: &Map, last: LastTracked) {
     let from_map: Vec<Option<f32>> = last
         .points
         .iter()
-        .map(|k| k.and_then(|k| map.points.get(k)).map(|p| p.moving))
+        .map(|k| k.and_then(|k| map.points().get(k)).map(|p| p.moving))
         .collect();
     let kept: Vec<Option<f32>> = last
         .frame

@@ -17,7 +17,7 @@ pub struct LoopPair {
 
 impl LoopPair {
     pub(super) fn of(map: &Map, (key, matched): (KeyFrameKey, KeyFrameKey)) -> Self {
-        let (a, b) = (&map.keyframes[key], &map.keyframes[matched]);
+        let (a, b) = (&map.keyframes()[key], &map.keyframes()[matched]);
         Self {
             keyframe: a.id,
             matched: b.id,

@@ -29,16 +29,16 @@ pub fn optimise(
     min_weight: usize,
 ) -> GraphReport {
     // The fixed keyframe's segment: the others share no edge with it.
-    let segment = map.keyframes.get(fixed).map(|kf| kf.segment);
+    let segment = map.keyframes().get(fixed).map(|kf| kf.segment);
     let keys: Vec<KeyFrameKey> = map
-        .keyframe_order
+        .keyframe_order()
         .iter()
         .copied()
-        .filter(|k| map.keyframes.get(*k).map(|kf| kf.segment) == segment)
+        .filter(|k| map.keyframes().get(*k).map(|kf| kf.segment) == segment)
         .collect();
     let index: HashMap<KeyFrameKey, usize> =
         keys.iter().enumerate().map(|(i, k)| (*k, i)).collect();
-    let world_from = |k: KeyFrameKey| map.keyframes[k].world_from_camera();
+    let world_from = |k: KeyFrameKey| map.keyframes()[k].world_from_camera();
     let before = |k: KeyFrameKey| {
         uncorrected.get(&k).map_or_else(
             || world_from(k),
@@ -61,17 +61,17 @@ pub fn optimise(
         }
     };
     for &(a, b) in loops {
-        if map.keyframes.contains_key(a) && map.keyframes.contains_key(b) {
+        if map.keyframes().contains_key(a) && map.keyframes().contains_key(b) {
             push(a, b, world_from(a).inverse() * world_from(b), &mut edges);
         }
     }
     for &k in &keys {
-        let kf = &map.keyframes[k];
-        if let Some(parent) = kf.parent.filter(|p| map.keyframes.contains_key(*p)) {
+        let kf = &map.keyframes()[k];
+        if let Some(parent) = kf.parent.filter(|p| map.keyframes().contains_key(*p)) {
             push(parent, k, before(parent).inverse() * before(k), &mut edges);
         }
         for &(other, weight) in &kf.connections {
-            if weight >= min_weight && map.keyframes.contains_key(other) {
+            if weight >= min_weight && map.keyframes().contains_key(other) {
                 push(k, other, before(k).inverse() * before(other), &mut edges);
             }
         }
@@ -83,11 +83,11 @@ pub fn optimise(
     };
     let old: Vec<Se3> = keys
         .iter()
-        .map(|k| map.keyframes[*k].camera_from_world)
+        .map(|k| map.keyframes()[*k].camera_from_world)
         .collect();
     let report = graph.optimise(&GraphOptions::default());
     for (k, world_from_camera) in keys.iter().zip(&graph.poses) {
-        map.keyframes[*k].camera_from_world = world_from_camera.inverse();
+        map.set_keyframe_pose(*k, world_from_camera.inverse());
     }
     // Points follow their keyframe: X' = T'_wr T_rw X.
     let moves: HashMap<KeyFrameKey, Se3> = keys
@@ -95,7 +95,8 @@ pub fn optimise(
         .enumerate()
         .map(|(i, k)| (*k, graph.poses[i] * old[i]))
         .collect();
-    for (key, point) in map.points.iter_mut() {
+    let mut moved = Vec::new();
+    for (key, point) in map.points() {
         let reference = placed_by
             .get(&key)
             .copied()
@@ -108,8 +109,11 @@ pub fn optimise(
                     .find(|k| moves.contains_key(k))
             });
         if let Some(m) = reference.and_then(|k| moves.get(&k)) {
-            point.position = (m * nalgebra::Point3::from(point.position)).coords;
+            moved.push((key, (m * nalgebra::Point3::from(point.position)).coords));
         }
+    }
+    for (key, position) in moved {
+        map.set_point_position(key, position);
     }
     report
 }

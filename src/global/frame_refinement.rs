@@ -93,7 +93,7 @@ fn refined_pose(
     let observations: Vec<PoseObservation> = observations
         .iter()
         .filter_map(|o| {
-            let point = map.points.get(o.point)?;
+            let point = map.points().get(o.point)?;
             (point.moving <= inputs.moving_threshold).then(|| {
                 PoseObservation::of_keypoint(
                     point.position,
@@ -141,7 +141,7 @@ mod tests {
                 point.moving = 0.9;
                 point.position += Vector3::new(0.3, 0.0, 0.0);
             }
-            let key = map.points.insert(point);
+            let key = map.insert_point(point);
             let seen = camera.project(&Vector3::new(x, y, z));
             observations.push(FrameObservation {
                 point: key,

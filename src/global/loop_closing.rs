@@ -108,7 +108,7 @@ impl<'a> LoopCloser<'a> {
 
     /// Whether `key` comes within `gap` keyframes after the last loop closed.
     fn recent(&self, map: &Map, key: KeyFrameKey) -> bool {
-        let id = map.keyframes.get(key).map_or(0, |kf| kf.id);
+        let id = map.keyframes().get(key).map_or(0, |kf| kf.id);
         self.last_loop
             .is_some_and(|last| id < last + self.recognition.config.gap)
     }
@@ -118,12 +118,12 @@ impl<'a> LoopCloser<'a> {
     pub fn close_found(&mut self, map: &mut Map) {
         let found = std::mem::take(&mut self.recognition.found);
         for (key, candidates) in found {
-            if !map.keyframes.contains_key(key) {
+            if !map.keyframes().contains_key(key) {
                 continue;
             }
             if self.recent(map, key) {
                 for (c, score) in candidates {
-                    if map.keyframes.contains_key(c) {
+                    if map.keyframes().contains_key(c) {
                         let gap = self.recognition.config.gap;
                         let reject = LoopReject::TooSoon { gap };
                         self.record(map, (key, c), score, LoopOutcome::Rejected(reject));
@@ -138,7 +138,7 @@ impl<'a> LoopCloser<'a> {
     /// Stages 3 and 4 for the candidates until one closes a loop.
     fn verify(&mut self, map: &mut Map, key: KeyFrameKey, candidates: Vec<(KeyFrameKey, f64)>) {
         for candidate in candidates {
-            if !map.keyframes.contains_key(candidate.0) {
+            if !map.keyframes().contains_key(candidate.0) {
                 continue;
             }
             if self.verify_and_correct(map, key, candidate) {
@@ -200,7 +200,7 @@ impl<'a> LoopCloser<'a> {
         let config = &self.recognition.config;
         let (min_inliers, min_guided) = (config.min_inliers, config.min_guided_matches);
         let matches = {
-            let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+            let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
             match_by_words(
                 map,
                 (a, &self.recognition.words[&key].1),
@@ -225,10 +225,10 @@ impl<'a> LoopCloser<'a> {
             });
         }
         // Guided search: the candidate's covisible points projected with the corrected pose.
-        let corrected = keyframe_from_candidate * map.keyframes[candidate].camera_from_world;
+        let corrected = keyframe_from_candidate * map.keyframes()[candidate].camera_from_world;
         let loop_group: Vec<KeyFrameKey> = std::iter::once(candidate)
-            .chain(map.keyframes[candidate].best_covisible(usize::MAX))
-            .filter(|k| map.keyframes.contains_key(*k))
+            .chain(map.keyframes()[candidate].best_covisible(usize::MAX))
+            .filter(|k| map.keyframes().contains_key(*k))
             .collect();
         let loop_points = self.static_points(map, &loop_group);
         let guided = fusion::search_from(
@@ -270,7 +270,7 @@ impl<'a> LoopCloser<'a> {
             loop_group,
             loop_points,
         } = verified;
-        let original = map.keyframes[key].camera_from_world;
+        let original = map.keyframes()[key].camera_from_world;
         let moved = se3::log(&(corrected * original.inverse()));
         let merged = merge_segments(
             map,
@@ -300,7 +300,7 @@ impl<'a> LoopCloser<'a> {
         let mut seen = HashSet::new();
         let mut points = Vec::new();
         for k in keyframes {
-            let kf = &map.keyframes[*k];
+            let kf = &map.keyframes()[*k];
             for i in 0..kf.map_points.len() {
                 if let Some(p) = static_point(map, kf, i, self.inputs.moving_threshold) {
                     if seen.insert(p) {
@@ -321,10 +321,10 @@ impl<'a> LoopCloser<'a> {
         candidate: KeyFrameKey,
         matches: &[(usize, usize)],
     ) -> Option<(Se3, usize)> {
-        let (a, b) = (&map.keyframes[key], &map.keyframes[candidate]);
+        let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
         let in_camera = |kf: &crate::map::KeyFrame, i: usize| -> Vector3<f64> {
             let p =
-                map.points[kf.map_points[i].expect("matched keypoints observe points")].position;
+                map.points()[kf.map_points[i].expect("matched keypoints observe points")].position;
             (kf.camera_from_world * Point3::from(p)).coords
         };
         let pk: Vec<Vector3<f64>> = matches.iter().map(|&(i, _)| in_camera(a, i)).collect();
@@ -400,15 +400,15 @@ impl<'a> LoopCloser<'a> {
     ) -> (usize, GraphReport) {
         let scale_factors = self.inputs.pyramid.factors.clone();
         let neighbourhood: Vec<KeyFrameKey> = std::iter::once(key)
-            .chain(map.keyframes[key].connections.iter().map(|(k, _)| *k))
-            .filter(|k| map.keyframes.contains_key(*k) && !loop_group.contains(k))
+            .chain(map.keyframes()[key].connections.iter().map(|(k, _)| *k))
+            .filter(|k| map.keyframes().contains_key(*k) && !loop_group.contains(k))
             .collect();
         let before_links: HashMap<KeyFrameKey, HashSet<KeyFrameKey>> = neighbourhood
             .iter()
             .map(|k| {
                 (
                     *k,
-                    map.keyframes[*k]
+                    map.keyframes()[*k]
                         .connections
                         .iter()
                         .map(|(c, _)| *c)
@@ -439,7 +439,7 @@ impl<'a> LoopCloser<'a> {
         }
         // New links between the neighbourhood and the rest are loop edges.
         for &n in &neighbourhood {
-            let Some(kf) = map.keyframes.get(n) else {
+            let Some(kf) = map.keyframes().get(n) else {
                 continue;
             };
             for (c, _) in &kf.connections {
@@ -457,7 +457,7 @@ impl<'a> LoopCloser<'a> {
             candidate,
             self.recognition.config.covisibility_weight,
         );
-        let all: Vec<MapPointKey> = map.points.keys().collect();
+        let all: Vec<MapPointKey> = map.points().keys().collect();
         for p in all {
             map.update_point(p, &scale_factors);
         }
@@ -480,10 +480,10 @@ fn carry_correction(
     neighbourhood: &[KeyFrameKey],
     loop_group: &[KeyFrameKey],
 ) -> (HashMap<KeyFrameKey, Se3>, HashMap<MapPointKey, KeyFrameKey>) {
-    let m = map.keyframes[key].world_from_camera() * corrected;
-    let (id, segment) = (map.keyframes[key].id, map.keyframes[key].segment);
-    let later = map.keyframe_order.iter().copied().filter(|k| {
-        map.keyframes
+    let m = map.keyframes()[key].world_from_camera() * corrected;
+    let (id, segment) = (map.keyframes()[key].id, map.keyframes()[key].segment);
+    let later = map.keyframe_order().iter().copied().filter(|k| {
+        map.keyframes()
             .get(*k)
             .is_some_and(|kf| kf.id > id && kf.segment == segment)
             && !neighbourhood.contains(k)
@@ -505,15 +505,16 @@ fn move_rigidly(
     let mut before = HashMap::new();
     let mut placed_by = HashMap::new();
     for &n in keyframes {
-        let old = map.keyframes[n].camera_from_world;
+        let old = map.keyframes()[n].camera_from_world;
         before.insert(n, old);
-        map.keyframes[n].camera_from_world = se3::normalised(&(old * m));
-        for p in map.keyframes[n].observed_points() {
+        map.set_keyframe_pose(n, se3::normalised(&(old * m)));
+        for p in map.keyframes()[n].observed_points() {
             if placed_by.contains_key(&p) {
                 continue;
             }
-            if let Some(point) = map.points.get_mut(p) {
-                point.position = (m_inverse * Point3::from(point.position)).coords;
+            if let Some(point) = map.points().get(p) {
+                let position = (m_inverse * Point3::from(point.position)).coords;
+                map.set_point_position(p, position);
                 placed_by.insert(p, n);
             }
         }
@@ -531,24 +532,24 @@ fn merge_segments(
     corrected: &Se3,
     scale_factors: &[f64],
 ) -> Option<SegmentMerge> {
-    let (segment, into) = (map.keyframes[key].segment, map.keyframes[candidate].segment);
+    let (segment, into) = (map.keyframes()[key].segment, map.keyframes()[candidate].segment);
     if segment == into {
         return None;
     }
-    let m = map.keyframes[key].world_from_camera() * corrected;
+    let m = map.keyframes()[key].world_from_camera() * corrected;
     let members: Vec<KeyFrameKey> = map
-        .keyframe_order
+        .keyframe_order()
         .iter()
         .copied()
         .filter(|k| {
-            map.keyframes
+            map.keyframes()
                 .get(*k)
                 .is_some_and(|kf| kf.segment == segment)
         })
         .collect();
     let (_, moved) = move_rigidly(map, &members, &m);
     for &k in &members {
-        map.keyframes[k].segment = into;
+        map.set_keyframe_segment(k, into);
     }
     // Normals turn with the segment.
     for p in moved.into_keys() {
@@ -587,7 +588,7 @@ mod tests {
     }
 
     fn observed_point(map: &mut Map, keyframe: KeyFrameKey, position: [f64; 3]) -> MapPointKey {
-        let p = map.points.insert(MapPoint::new(
+        let p = map.insert_point(MapPoint::new(
             Vector3::from(position),
             [0; 4],
             Vector3::z(),
@@ -616,17 +617,17 @@ mod tests {
         let late = observed_point(&mut map, k[7], [0.3, 0.2, 2.5]);
         let elsewhere = observed_point(&mut map, other, [0.1, 0.1, 1.0]);
         let before: Vec<Se3> = map
-            .keyframes
+            .keyframes()
             .values()
             .map(|kf| kf.camera_from_world)
             .collect();
-        let positions = |map: &Map| [early, late, elsewhere].map(|p| map.points[p].position);
+        let positions = |map: &Map| [early, late, elsewhere].map(|p| map.points()[p].position);
         let (points_before, late_in_camera) = (
             positions(&map),
-            map.keyframes[k[7]].camera_from_world * Point3::from(map.points[late].position),
+            map.keyframes()[k[7]].camera_from_world * Point3::from(map.points()[late].position),
         );
         let four_from_seven =
-            map.keyframes[k[4]].camera_from_world * map.keyframes[k[7]].world_from_camera();
+            map.keyframes()[k[4]].camera_from_world * map.keyframes()[k[7]].world_from_camera();
         // A large correction, like the 70 m / 41 degree one on the street.
         let corrected = pose([30.0, -2.0, 60.0], [0.1, 0.7, 0.0]) * before[4];
 
@@ -637,16 +638,16 @@ mod tests {
         assert_eq!(moved, HashSet::from([k[3], k[4], k[5], k[6], k[7]]));
         for (i, kf) in [k[0], k[1], k[2], other].into_iter().enumerate() {
             let index = [0, 1, 2, 8][i];
-            assert_eq!(map.keyframes[kf].camera_from_world, before[index]);
+            assert_eq!(map.keyframes()[kf].camera_from_world, before[index]);
         }
         assert!(
-            se3::log(&(map.keyframes[k[4]].camera_from_world * corrected.inverse())).norm() < 1e-9
+            se3::log(&(map.keyframes()[k[4]].camera_from_world * corrected.inverse())).norm() < 1e-9
         );
         // The later part keeps its shape and its points stay put in its cameras.
-        let after = map.keyframes[k[4]].camera_from_world * map.keyframes[k[7]].world_from_camera();
+        let after = map.keyframes()[k[4]].camera_from_world * map.keyframes()[k[7]].world_from_camera();
         assert!(se3::log(&(after * four_from_seven.inverse())).norm() < 1e-9);
         let late_after =
-            map.keyframes[k[7]].camera_from_world * Point3::from(map.points[late].position);
+            map.keyframes()[k[7]].camera_from_world * Point3::from(map.points()[late].position);
         assert!((late_after - late_in_camera).norm() < 1e-9);
         assert_eq!(placed_by.get(&late), Some(&k[7]));
         let points_after = positions(&map);
@@ -668,7 +669,7 @@ mod tests {
             kf.parent = keys.last().copied();
             let key = map.add_keyframe(kf);
             if let Some(&previous) = keys.last() {
-                map.keyframes[key].connections.push((previous, 200));
+                map.keyframe_mut(key).connections.push((previous, 200));
             }
             keys.push(key);
             truth.push(world_from_true.inverse());
@@ -684,8 +685,8 @@ mod tests {
         let (k, truth) = drifted_circle(&mut map);
         let loop_error = |map: &Map| {
             se3::log(
-                &(map.keyframes[k[150]].camera_from_world
-                    * map.keyframes[k[0]].world_from_camera()
+                &(map.keyframes()[k[150]].camera_from_world
+                    * map.keyframes()[k[0]].world_from_camera()
                     * (truth[150] * truth[0].inverse()).inverse()),
             )
             .norm()
@@ -693,7 +694,7 @@ mod tests {
         let drifted = loop_error(&map);
         // Keyframe 150 lands where the truth puts it relative to keyframe 0: a 45 degree
         // correction, with 49 keyframes after it.
-        let corrected = truth[150] * truth[0].inverse() * map.keyframes[k[0]].camera_from_world;
+        let corrected = truth[150] * truth[0].inverse() * map.keyframes()[k[0]].camera_from_world;
         let (uncorrected, placed_by) = carry_correction(
             &mut map,
             k[150],
@@ -728,9 +729,9 @@ mod tests {
         let p = observed_point(&mut map, c, [0.2, 0.1, 2.0]);
         let q = observed_point(&mut map, a, [-0.4, 0.0, 3.0]);
         let in_c =
-            |map: &Map| map.keyframes[c].camera_from_world * Point3::from(map.points[p].position);
-        let (before_c, before_q) = (in_c(&map), map.points[q].position);
-        let b_from_c = map.keyframes[b].camera_from_world * map.keyframes[c].world_from_camera();
+            |map: &Map| map.keyframes()[c].camera_from_world * Point3::from(map.points()[p].position);
+        let (before_c, before_q) = (in_c(&map), map.points()[q].position);
+        let b_from_c = map.keyframes()[b].camera_from_world * map.keyframes()[c].world_from_camera();
         let corrected = pose([-1.0, 0.2, 0.3], [0.0, -1.2, 0.1]);
 
         let merge = merge_segments(&mut map, (b, a), &corrected, &[1.0; 8]);
@@ -742,15 +743,15 @@ mod tests {
                 into: 0
             })
         );
-        let landed = map.keyframes[b].camera_from_world * corrected.inverse();
+        let landed = map.keyframes()[b].camera_from_world * corrected.inverse();
         assert!(se3::log(&landed).norm() < 1e-9);
         // The segment's own geometry is unchanged: relative poses, points in its cameras.
-        let after = map.keyframes[b].camera_from_world * map.keyframes[c].world_from_camera();
+        let after = map.keyframes()[b].camera_from_world * map.keyframes()[c].world_from_camera();
         assert!(se3::log(&(after * b_from_c.inverse())).norm() < 1e-9);
         assert!((in_c(&map) - before_c).norm() < 1e-9);
         // The other segment stays where it was.
-        assert_eq!(map.points[q].position, before_q);
-        assert!(map.keyframes.values().all(|kf| kf.segment == 0));
+        assert_eq!(map.points()[q].position, before_q);
+        assert!(map.keyframes().values().all(|kf| kf.segment == 0));
         assert_eq!(
             map.segment_anchors().into_iter().collect::<Vec<_>>(),
             vec![a]

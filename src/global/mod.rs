@@ -213,7 +213,7 @@ pub fn full_bundle_adjustment(
     let removed = window.apply(map, &ba, &inputs.pyramid.factors);
     if removed > 0 {
         // Removed observations change what keyframes share.
-        let keyframes = map.keyframe_order.clone();
+        let keyframes = map.keyframe_order().to_vec();
         for k in keyframes {
             map.update_connections(k);
         }

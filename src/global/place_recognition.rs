@@ -80,7 +80,7 @@ impl PlaceRecognition {
     /// The keyframe's words, its consistent candidates (searched once the database
     /// holds `gap` keyframes), then it joins the database.
     pub fn process(&mut self, vocabulary: &Vocabulary, map: &Map, key: KeyFrameKey) {
-        if let Some(kf) = map.keyframes.get(key) {
+        if let Some(kf) = map.keyframes().get(key) {
             let start = std::time::Instant::now();
             let words = vocabulary.transform(&kf.frame.descriptors);
             self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
@@ -96,7 +96,7 @@ impl PlaceRecognition {
         words: (BowVector, FeatureVector),
     ) {
         let start = std::time::Instant::now();
-        if !map.keyframes.contains_key(key) {
+        if !map.keyframes().contains_key(key) {
             return;
         }
         self.words.insert(key, words);
@@ -114,7 +114,7 @@ impl PlaceRecognition {
 
     /// Stages 1 and 2: the candidates consistent over enough keyframes, with scores.
     fn consistent_candidates(&mut self, map: &Map, key: KeyFrameKey) -> Vec<(KeyFrameKey, f64)> {
-        let kf = &map.keyframes[key];
+        let kf = &map.keyframes()[key];
         let bow = &self.words[&key].0;
         let connected: HashSet<KeyFrameKey> = kf.connections.iter().map(|(k, _)| *k).collect();
         let min_score = connected
@@ -128,7 +128,7 @@ impl PlaceRecognition {
             0.0
         };
         let hits = self.database.query(bow, |k| {
-            k != key && !connected.contains(&k) && map.keyframes.contains_key(k)
+            k != key && !connected.contains(&k) && map.keyframes().contains_key(k)
         });
         let max_common = hits.iter().map(|h| h.common).max().unwrap_or(0);
         let hits: Vec<_> = hits
@@ -140,7 +140,7 @@ impl PlaceRecognition {
         let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
         for h in &hits {
             let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
-            for n in map.keyframes[h.id].best_covisible(10) {
+            for n in map.keyframes()[h.id].best_covisible(10) {
                 if let Some(&s) = scores.get(&n) {
                     total += s;
                     if s > best_score {
@@ -161,7 +161,7 @@ impl PlaceRecognition {
         let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
         let mut enough = Vec::new();
         for &(c, score) in &candidates {
-            let mut group: HashSet<KeyFrameKey> = map.keyframes[c]
+            let mut group: HashSet<KeyFrameKey> = map.keyframes()[c]
                 .connections
                 .iter()
                 .map(|(k, _)| *k)

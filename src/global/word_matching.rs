@@ -16,7 +16,7 @@ pub fn static_point(
     moving_threshold: f32,
 ) -> Option<MapPointKey> {
     kf.map_points[index].filter(|p| {
-        map.points
+        map.points()
             .get(*p)
             .is_some_and(|x| x.moving <= moving_threshold)
     })

@@ -149,25 +149,143 @@ const MIN_COVISIBILITY: usize = 15;
 /// The map shared by tracking and local mapping.
 pub type SharedMap = std::sync::Arc<std::sync::RwLock<Map>>;
 
-/// The map.
+/// The map. Its fields are its own: it is read through [`Map::keyframes`],
+/// [`Map::points`] and the like, and written only through its methods, grouped by what
+/// they change (observations and connections, poses and positions, segments,
+/// detection waits, the DOP state of points, culling's counters), so that a point's
+/// observations and its keyframes' map points always agree.
 #[derive(Debug, Default)]
 pub struct Map {
-    pub keyframes: SlotMap<KeyFrameKey, KeyFrame>,
-    pub points: SlotMap<MapPointKey, MapPoint>,
+    keyframes: SlotMap<KeyFrameKey, KeyFrame>,
+    points: SlotMap<MapPointKey, MapPoint>,
     /// Keyframes in insertion order.
-    pub keyframe_order: Vec<KeyFrameKey>,
+    keyframe_order: Vec<KeyFrameKey>,
     /// Keyframes ever inserted (the next keyframe's id).
-    pub keyframes_created: usize,
+    keyframes_created: usize,
     /// Culled keyframes: their parent at removal and \(T_{cp}\) (camera from parent),
     /// so frames tracked against them keep a pose that follows later corrections.
-    pub culled: std::collections::HashMap<KeyFrameKey, (KeyFrameKey, Se3)>,
+    culled: std::collections::HashMap<KeyFrameKey, (KeyFrameKey, Se3)>,
     /// Keyframes (ids) whose detection has not come back (real-time mode). The points
     /// they made may sit on a person the detector is about to report: tracking keeps
     /// them out of the pose while enough others remain, and local BA leaves them out.
-    pub awaiting_detection: std::collections::HashSet<usize>,
+    awaiting_detection: std::collections::HashSet<usize>,
+}
+
+/// Reads.
+impl Map {
+    /// The keyframes, by key.
+    pub fn keyframes(&self) -> &SlotMap<KeyFrameKey, KeyFrame> {
+        &self.keyframes
+    }
+
+    /// The map points, by key.
+    pub fn points(&self) -> &SlotMap<MapPointKey, MapPoint> {
+        &self.points
+    }
+
+    /// The keyframes in insertion order (culled ones left out).
+    pub fn keyframe_order(&self) -> &[KeyFrameKey] {
+        &self.keyframe_order
+    }
+
+    /// How many keyframes were ever inserted (the next keyframe's id).
+    pub fn keyframes_created(&self) -> usize {
+        self.keyframes_created
+    }
+}
+
+/// Test fixtures write what they need directly.
+#[cfg(test)]
+impl Map {
+    pub(crate) fn point_mut(&mut self, key: MapPointKey) -> &mut MapPoint {
+        &mut self.points[key]
+    }
+
+    pub(crate) fn keyframe_mut(&mut self, key: KeyFrameKey) -> &mut KeyFrame {
+        &mut self.keyframes[key]
+    }
+}
+
+/// Writes other than observations and connections, grouped by what they change.
+impl Map {
+    /// Inserts a point that no keyframe observes yet ([`Map::add_observation`] adds
+    /// them).
+    pub fn insert_point(&mut self, point: MapPoint) -> MapPointKey {
+        debug_assert!(point.observations.is_empty(), "observations come through add_observation");
+        self.points.insert(point)
+    }
+
+    /// Poses: keyframe `key` at \(T_{cw}\) = `camera_from_world` (after an
+    /// optimisation or a loop's correction). False when the keyframe is gone.
+    pub fn set_keyframe_pose(&mut self, key: KeyFrameKey, camera_from_world: Se3) -> bool {
+        self.keyframes
+            .get_mut(key)
+            .map(|kf| kf.camera_from_world = camera_from_world)
+            .is_some()
+    }
+
+    /// Positions: point `key` at `position` (world). Its normal and distances follow
+    /// with [`Map::update_point`]. False when the point is gone.
+    pub fn set_point_position(&mut self, key: MapPointKey, position: Vector3<f64>) -> bool {
+        self.points
+            .get_mut(key)
+            .map(|p| p.position = position)
+            .is_some()
+    }
+
+    /// Segments: keyframe `key` now belongs to `segment` (a loop merged its segment).
+    pub fn set_keyframe_segment(&mut self, key: KeyFrameKey, segment: usize) {
+        if let Some(kf) = self.keyframes.get_mut(key) {
+            kf.segment = segment;
+        }
+    }
+
+    /// Detection waits: keyframe `keyframe_id`'s detection is on its way.
+    pub fn await_detection(&mut self, keyframe_id: usize) {
+        self.awaiting_detection.insert(keyframe_id);
+    }
+
+    /// Detection waits: keyframe `keyframe_id`'s detection came back (or never will).
+    pub fn detection_came_back(&mut self, keyframe_id: usize) {
+        self.awaiting_detection.remove(&keyframe_id);
+    }
+
+    /// Detections: what the detector found in keyframe `key`.
+    pub fn set_detections(&mut self, key: KeyFrameKey, detections: Vec<crate::detect::Detection>) {
+        if let Some(kf) = self.keyframes.get_mut(key) {
+            kf.detections = Some(detections);
+        }
+    }
+
+    /// The DOP state of point `key`: its moving probability and its geometric
+    /// consistency, to update together.
+    pub fn point_dop_mut(
+        &mut self,
+        key: MapPointKey,
+    ) -> Option<(&mut f32, &mut crate::dop::consistency::Consistency)> {
+        self.points
+            .get_mut(key)
+            .map(|p| (&mut p.moving, &mut p.consistency))
+    }
 }
 
 impl Map {
+    /// Culling's counters after a frame: the points predicted `visible` in it, and
+    /// those `found` there as inliers of its pose (a point is culled when found in too
+    /// few of the frames that should see it).
+    pub fn count_visibility(&mut self, visible: &[MapPointKey], found: &[Option<MapPointKey>]) {
+        for key in visible {
+            if let Some(p) = self.points.get_mut(*key) {
+                p.visible += 1;
+            }
+        }
+        for key in found.iter().flatten() {
+            if let Some(p) = self.points.get_mut(*key) {
+                p.found += 1;
+            }
+        }
+    }
+
     /// Whether `point` was made by a keyframe whose detection has not come back.
     pub fn awaits_detection(&self, point: &MapPoint) -> bool {
         self.awaiting_detection.contains(&point.first_keyframe_id)

@@ -16,7 +16,7 @@ use crate::map::{KeyFrameKey, Map, MapPointKey};
 pub fn cull_points(map: &mut Map, recent: &mut Vec<MapPointKey>, current_id: usize) -> usize {
     let mut removed = 0;
     recent.retain(|&key| {
-        let Some(point) = map.points.get(key) else {
+        let Some(point) = map.points().get(key) else {
             return false;
         };
         let age = current_id.saturating_sub(point.first_keyframe_id);
@@ -33,12 +33,12 @@ pub fn cull_points(map: &mut Map, recent: &mut Vec<MapPointKey>, current_id: usi
 
 /// Whether `keyframe` is redundant (see the module notes); `close_depth` in metres.
 pub fn is_redundant(map: &Map, keyframe: KeyFrameKey, close_depth: f32, redundancy: f64) -> bool {
-    let Some(kf) = map.keyframes.get(keyframe) else {
+    let Some(kf) = map.keyframes().get(keyframe) else {
         return false;
     };
     let (mut points, mut redundant) = (0usize, 0usize);
     for (i, key) in kf.map_points.iter().enumerate() {
-        let Some(point) = key.and_then(|k| map.points.get(k)) else {
+        let Some(point) = key.and_then(|k| map.points().get(k)) else {
             continue;
         };
         let depth = kf.frame.depth[i];
@@ -56,7 +56,7 @@ pub fn is_redundant(map: &Map, keyframe: KeyFrameKey, close_depth: f32, redundan
             .filter(|(other, j)| {
                 *other != keyframe
                     && map
-                        .keyframes
+                        .keyframes()
                         .get(*other)
                         .is_some_and(|o| o.frame.keypoints[*j].level <= level + 1)
             })
@@ -101,26 +101,26 @@ mod tests {
         let b = map.add_keyframe(keyframe(4, 1.0));
         let mut keys = Vec::new();
         for i in 0..4 {
-            let key = map.points.insert(point(0));
+            let key = map.insert_point(point(0));
             map.add_observation(key, a, i);
             keys.push(key);
         }
         // Seen by two keyframes, found often: survives.
         map.add_observation(keys[0], b, 0);
-        map.points[keys[0]].visible = 10;
-        map.points[keys[0]].found = 5;
+        map.point_mut(keys[0]).visible = 10;
+        map.point_mut(keys[0]).found = 5;
         // Rarely found when visible: culled at once.
-        map.points[keys[1]].visible = 10;
-        map.points[keys[1]].found = 2;
+        map.point_mut(keys[1]).visible = 10;
+        map.point_mut(keys[1]).found = 2;
         let mut recent = keys.clone();
         assert_eq!(cull_points(&mut map, &mut recent, 1), 1);
-        assert!(!map.points.contains_key(keys[1]));
+        assert!(!map.points().contains_key(keys[1]));
         // Two keyframes later, points seen by one keyframe only go.
         assert_eq!(cull_points(&mut map, &mut recent, 2), 2);
         assert_eq!(recent, vec![keys[0]]);
         // After three keyframes the survivor leaves probation.
         assert_eq!(cull_points(&mut map, &mut recent, 3), 0);
-        assert!(recent.is_empty() && map.points.contains_key(keys[0]));
+        assert!(recent.is_empty() && map.points().contains_key(keys[0]));
     }
 
     #[test]
@@ -130,7 +130,7 @@ mod tests {
             .map(|_| map.add_keyframe(keyframe(10, 1.0)))
             .collect();
         for i in 0..10 {
-            let p = map.points.insert(point(0));
+            let p = map.insert_point(point(0));
             // Points 0..9 seen by all five keyframes, except point 9 only by two.
             let seen_by = if i == 9 { 2 } else { 5 };
             for kf in &keys[..seen_by] {

@@ -34,7 +34,7 @@ pub fn search(
     pyramid: &ScalePyramid,
     size: (f32, f32),
 ) -> Vec<Fusion> {
-    let Some(kf) = map.keyframes.get(keyframe) else {
+    let Some(kf) = map.keyframes().get(keyframe) else {
         return Vec::new();
     };
     search_from(
@@ -57,13 +57,13 @@ pub fn search_from(
     pyramid: &ScalePyramid,
     size: (f32, f32),
 ) -> Vec<Fusion> {
-    let Some(kf) = map.keyframes.get(keyframe) else {
+    let Some(kf) = map.keyframes().get(keyframe) else {
         return Vec::new();
     };
     let frame = &kf.frame;
     let mut found = Vec::new();
     for &key in points {
-        let Some(point) = map.points.get(key) else {
+        let Some(point) = map.points().get(key) else {
             continue;
         };
         if point.observations.iter().any(|(k, _)| *k == keyframe) {
@@ -128,16 +128,16 @@ pub fn apply(map: &mut Map, fusions: &[Fusion]) -> usize {
                 index,
             } => {
                 let free = map
-                    .keyframes
+                    .keyframes()
                     .get(keyframe)
                     .is_some_and(|kf| kf.map_points[index].is_none());
-                if free && map.points.contains_key(point) {
+                if free && map.points().contains_key(point) {
                     map.add_observation(point, keyframe, index);
                     applied += 1;
                 }
             }
             Fusion::Merge { a, b } => {
-                let (Some(pa), Some(pb)) = (map.points.get(a), map.points.get(b)) else {
+                let (Some(pa), Some(pb)) = (map.points().get(a), map.points().get(b)) else {
                     continue;
                 };
                 if pa.observations.len() > pb.observations.len() {

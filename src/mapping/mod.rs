@@ -135,13 +135,13 @@ impl LocalMapper {
         let factors = self.pyramid.factors.clone();
         let id = {
             let mut m = map.write().expect("map lock poisoned");
-            let Some(kf) = m.keyframes.get(key) else {
+            let Some(kf) = m.keyframes().get(key) else {
                 return;
             };
             let id = kf.id;
             let points: Vec<MapPointKey> = kf.map_points.iter().flatten().copied().collect();
             for p in points {
-                if m.points.get(p).is_some_and(|p| p.first_keyframe_id == id) {
+                if m.points().get(p).is_some_and(|p| p.first_keyframe_id == id) {
                     self.recent.push(p);
                 }
                 // Fusion updates every point of the keyframe at its end anyway.
@@ -184,14 +184,14 @@ impl LocalMapper {
         }
         if self.config.cull_keyframes && !self.more_waiting() {
             let mut m = map.write().expect("map lock poisoned");
-            let neighbours: Vec<KeyFrameKey> = m.keyframes[key]
+            let neighbours: Vec<KeyFrameKey> = m.keyframes()[key]
                 .connections
                 .iter()
                 .map(|(k, _)| *k)
                 .collect();
             for k in neighbours {
                 // Keyframes newer than this one may be in use by tracking.
-                let older = m.keyframes.get(k).is_some_and(|kf| kf.id > 0 && kf.id < id);
+                let older = m.keyframes().get(k).is_some_and(|kf| kf.id > 0 && kf.id < id);
                 if older && culling::is_redundant(&m, k, self.close_depth, self.config.redundancy) {
                     m.remove_keyframe(k);
                     self.stats.keyframes_culled += 1;
@@ -209,11 +209,11 @@ impl LocalMapper {
     fn triangulate(&mut self, map: &SharedMap, key: KeyFrameKey, id: usize) {
         let found: Vec<(KeyFrameKey, Vec<triangulation::NewPoint>)> = {
             let m = map.read().expect("map lock poisoned");
-            let kf = &m.keyframes[key];
+            let kf = &m.keyframes()[key];
             kf.best_covisible(self.config.neighbours)
                 .into_iter()
                 .filter_map(|other| {
-                    let o = m.keyframes.get(other)?;
+                    let o = m.keyframes().get(other)?;
                     let points = triangulation::triangulate_pair(
                         kf,
                         o,
@@ -230,15 +230,15 @@ impl LocalMapper {
         for (other, points) in found {
             for p in points {
                 let free = |k: KeyFrameKey, i: usize| {
-                    m.keyframes
+                    m.keyframes()
                         .get(k)
                         .is_some_and(|kf| kf.map_points[i].is_none())
                 };
                 if !free(key, p.index1) || !free(other, p.index2) {
                     continue;
                 }
-                let descriptor = m.keyframes[key].frame.descriptors[p.index1];
-                let point = m.points.insert(MapPoint::new(
+                let descriptor = m.keyframes()[key].frame.descriptors[p.index1];
+                let point = m.insert_point(MapPoint::new(
                     p.position,
                     descriptor,
                     nalgebra::Vector3::z(),
@@ -258,13 +258,13 @@ impl LocalMapper {
     fn fuse(&mut self, map: &SharedMap, key: KeyFrameKey) {
         let fusions = {
             let m = map.read().expect("map lock poisoned");
-            let kf = &m.keyframes[key];
+            let kf = &m.keyframes()[key];
             let mut targets = Vec::new();
             for k in kf.best_covisible(self.config.neighbours) {
                 if !targets.contains(&k) {
                     targets.push(k);
                 }
-                for second in m.keyframes[k].best_covisible(5) {
+                for second in m.keyframes()[k].best_covisible(5) {
                     if second != key && !targets.contains(&second) {
                         targets.push(second);
                     }
@@ -283,7 +283,7 @@ impl LocalMapper {
                     &self.pyramid,
                     self.size,
                 ));
-                for p in m.keyframes[*t].map_points.iter().flatten() {
+                for p in m.keyframes()[*t].map_points.iter().flatten() {
                     if seen.insert(*p) {
                         theirs.push(*p);
                     }
@@ -301,7 +301,7 @@ impl LocalMapper {
         };
         let mut m = map.write().expect("map lock poisoned");
         self.stats.fusions += fusion::apply(&mut m, &fusions);
-        for p in m.keyframes[key].observed_points() {
+        for p in m.keyframes()[key].observed_points() {
             m.update_point(p, &self.pyramid.factors);
         }
         m.update_connections(key);

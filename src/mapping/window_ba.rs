@@ -37,12 +37,12 @@ impl Window {
         pyramid: &ScalePyramid,
         moving_threshold: f32,
     ) -> Option<Self> {
-        let kf = map.keyframes.get(key)?;
+        let kf = map.keyframes().get(key)?;
         let mut local = vec![key];
         local.extend(
             kf.best_covisible(size.saturating_sub(1))
                 .into_iter()
-                .filter(|k| map.keyframes.contains_key(*k)),
+                .filter(|k| map.keyframes().contains_key(*k)),
         );
         Self::over(map, local, pyramid, moving_threshold)
     }
@@ -52,10 +52,10 @@ impl Window {
     /// each map segment holds its gauge.
     pub fn whole_map(map: &Map, pyramid: &ScalePyramid, moving_threshold: f32) -> Option<Self> {
         let keyframes = map
-            .keyframe_order
+            .keyframe_order()
             .iter()
             .copied()
-            .filter(|k| map.keyframes.contains_key(*k))
+            .filter(|k| map.keyframes().contains_key(*k))
             .collect();
         Self::over(map, keyframes, pyramid, moving_threshold)
     }
@@ -76,8 +76,8 @@ impl Window {
         let usable =
             |x: &&crate::map::MapPoint| x.moving <= moving_threshold && !map.awaits_detection(x);
         for k in &local {
-            for p in map.keyframes[*k].map_points.iter().flatten() {
-                if let Some(point) = map.points.get(*p).filter(usable) {
+            for p in map.keyframes()[*k].map_points.iter().flatten() {
+                if let Some(point) = map.points().get(*p).filter(usable) {
                     point_index.entry(*p).or_insert_with(|| {
                         points.push(*p);
                         positions.push(point.position);
@@ -90,8 +90,8 @@ impl Window {
         let mut in_window: std::collections::HashSet<KeyFrameKey> = local.iter().copied().collect();
         let mut cameras = local;
         for p in &points {
-            for (k, _) in &map.points[*p].observations {
-                if map.keyframes.contains_key(*k) && in_window.insert(*k) {
+            for (k, _) in &map.points()[*p].observations {
+                if map.keyframes().contains_key(*k) && in_window.insert(*k) {
                     cameras.push(*k);
                     fixed.push(true);
                 }
@@ -103,7 +103,7 @@ impl Window {
         let mut observations = Vec::new();
         let mut sources = Vec::new();
         for (c, k) in cameras.iter().enumerate() {
-            let keyframe = &map.keyframes[*k];
+            let keyframe = &map.keyframes()[*k];
             for (i, p) in keyframe.map_points.iter().enumerate() {
                 let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
                     continue;
@@ -123,7 +123,7 @@ impl Window {
         let problem = BaProblem {
             poses: cameras
                 .iter()
-                .map(|k| map.keyframes[*k].camera_from_world)
+                .map(|k| map.keyframes()[*k].camera_from_world)
                 .collect(),
             fixed,
             points: positions,
@@ -152,15 +152,11 @@ impl Window {
     pub fn apply(&self, map: &mut Map, report: &BaReport, scale_factors: &[f64]) -> usize {
         for (c, k) in self.cameras.iter().enumerate() {
             if !self.problem.fixed[c] {
-                if let Some(kf) = map.keyframes.get_mut(*k) {
-                    kf.camera_from_world = self.problem.poses[c];
-                }
+                map.set_keyframe_pose(*k, self.problem.poses[c]);
             }
         }
         for (p, x) in self.points.iter().zip(&self.problem.points) {
-            if let Some(point) = map.points.get_mut(*p) {
-                point.position = *x;
-            }
+            map.set_point_position(*p, *x);
         }
         let mut removed = 0;
         for (((k, i), inlier), o) in self
@@ -170,7 +166,7 @@ impl Window {
             .zip(&self.problem.observations)
         {
             let same = map
-                .keyframes
+                .keyframes()
                 .get(*k)
                 .is_some_and(|kf| kf.map_points[*i] == Some(self.points[o.point]));
             if !inlier && same {
@@ -204,7 +200,7 @@ mod tests {
         for i in 0..n {
             // Three points from the first keyframe, two made by the second.
             let made_by = if i < 3 { 0 } else { 1 };
-            let point = map.points.insert(MapPoint::new(
+            let point = map.insert_point(MapPoint::new(
                 Vector3::new(i as f64 * 0.1, 0.0, 2.0),
                 [0; 4],
                 Vector3::z(),
@@ -224,7 +220,7 @@ mod tests {
                 .len()
         };
         assert_eq!(points(&map), 5);
-        map.awaiting_detection.insert(1);
+        map.await_detection(1);
         assert_eq!(points(&map), 3);
     }
 }

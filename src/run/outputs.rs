@@ -162,8 +162,8 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
 /// `keyframes.txt` and `map.ply`.
 fn write_keyframes_and_map(run: &RunDir, map: &Map) -> Result<(), RunError> {
     let mut keyframes = Trajectory::default();
-    for key in &map.keyframe_order {
-        let kf = &map.keyframes[*key];
+    for key in map.keyframe_order() {
+        let kf = &map.keyframes()[*key];
         keyframes.push(kf.frame.timestamp, kf.world_from_camera());
     }
     keyframes.write(&run.keyframes(), TrajectoryFormat::Tum)?;
@@ -215,8 +215,8 @@ fn totals(map: &Map, lines: &[FrameLine], merges: &[(usize, usize)], tracked: us
         lost_spans,
         segments,
         largest_segment_percent,
-        keyframes: map.keyframes.len(),
-        map_points: map.points.len(),
+        keyframes: map.keyframes().len(),
+        map_points: map.points().len(),
         median_tracking_ms: column(|l| l.tracking_ms),
         mean_tracking_ms: lines.iter().map(|l| l.tracking_ms).sum::<f64>()
             / lines.len().max(1) as f64,

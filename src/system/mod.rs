@@ -201,12 +201,12 @@ impl System {
         let dop = self.dynamics.dop();
         let mut seen = std::collections::HashSet::new();
         let (mut fixed, mut moving) = (Vec::new(), Vec::new());
-        for key in map.keyframe_order.iter().rev().take(keyframes) {
-            let Some(keyframe) = map.keyframes.get(*key) else {
+        for key in map.keyframe_order().iter().rev().take(keyframes) {
+            let Some(keyframe) = map.keyframes().get(*key) else {
                 continue;
             };
             for point_key in keyframe.map_points.iter().flatten() {
-                let Some(point) = map.points.get(*point_key).filter(|_| seen.insert(*point_key)) else {
+                let Some(point) = map.points().get(*point_key).filter(|_| seen.insert(*point_key)) else {
                     continue;
                 };
                 if dop.is_some_and(|d| d.removed(point.moving)) {

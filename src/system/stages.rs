@@ -55,7 +55,7 @@ impl Stage for Recognition {
     fn process(&mut self, key: KeyFrameKey, _: &mut Vec<()>) {
         let descriptors = {
             let m = self.map.read().expect("map lock poisoned");
-            match m.keyframes.get(key) {
+            match m.keyframes().get(key) {
                 Some(kf) => kf.frame.descriptors.clone(),
                 None => return,
             }

@@ -6,9 +6,10 @@ use nalgebra::{Point3, Vector3};
 
 use super::{TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
+use crate::dynamics::tracked::Sensor;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
-use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
+use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey};
 use crate::tracking::params::*;
 
 /// What the keyframe decision looks at for one tracked frame.
@@ -69,40 +70,11 @@ impl Tracker {
         inliers: usize,
         mapping_idle: bool,
     ) -> bool {
-        let TrackInput { map, frame, gate } = input;
-        let Some(reference) = self.reference.and_then(|k| map.keyframes.get(k)) else {
+        let map = input.map;
+        let Some(reference) = self.reference.and_then(|k| map.keyframes().get(k)) else {
             return true;
         };
-        // Points the DOP model leaves out cannot be tracked, and points that wait (for
-        // their keyframe's detection, or out their probation) take no part in the pose
-        // yet: neither counts. Counted, the points a keyframe makes on a person the
-        // detector has not reported yet make the next frames look weak, and each of them
-        // a keyframe that makes more such points.
-        let reference_points = reference
-            .map_points
-            .iter()
-            .flatten()
-            .filter(|k| {
-                map.points
-                    .get(**k)
-                    .is_some_and(|p| !gate.excluded(p) && !gate.awaiting(map, p))
-            })
-            .count();
-        // Close points: tracked ones that take part in the pose, and untracked ones that
-        // could make new points (dynamic keypoints cannot, so they do not ask for a
-        // keyframe; otherwise a person close to the camera makes one every frame).
-        let close = self.close_depth();
-        let (mut tracked_close, mut untracked_close) = (0, 0);
-        for (i, z) in frame.depth.iter().enumerate() {
-            if *z > 0.0 && *z < close {
-                match points[i].and_then(|k| map.points.get(k)) {
-                    Some(p) if !gate.excluded(p) => tracked_close += 1,
-                    Some(_) => {}
-                    None if !gate.dynamic_keypoint(frame, i) => untracked_close += 1,
-                    None => {}
-                }
-            }
-        }
+        let counted = count_points(input, &reference.map_points, points, self.close_depth());
         let relative = *pose * reference.world_from_camera();
         let moved = relative.translation.vector.norm() >= self.config.keyframe_min_translation
             || relative.rotation.angle().to_degrees() >= self.config.keyframe_min_rotation_deg;
@@ -111,9 +83,9 @@ impl Tracker {
         };
         policy.need_keyframe(&KeyframeInputs {
             inliers,
-            reference_points,
-            tracked_close,
-            untracked_close,
+            reference_points: counted.reference,
+            tracked_close: counted.tracked_close,
+            untracked_close: counted.untracked_close,
             frames_since_keyframe: self.frames_since_keyframe,
             moved,
             mapping_idle,
@@ -138,7 +110,7 @@ impl Tracker {
         let mut keyframe = KeyFrame::new(frame.clone(), camera_from_world);
         keyframe.segment = self.segment;
         let key = map.add_keyframe(keyframe);
-        let id = map.keyframes[key].id;
+        let id = map.keyframes()[key].id;
         let world_from_camera = camera_from_world.inverse();
         let close = self.close_depth();
         for (i, point) in points.iter().enumerate() {
@@ -146,35 +118,111 @@ impl Tracker {
                 map.add_observation(*point, key, i);
             }
         }
-        let mut candidates: Vec<usize> = (0..frame.len())
-            .filter(|&i| {
-                frame.depth[i] > 0.0 && points[i].is_none() && !gate.dynamic_keypoint(frame, i)
-            })
-            .collect();
-        candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
-        for (created, i) in candidates.into_iter().enumerate() {
-            if !first && frame.depth[i] > close && created >= NEW_POINTS_AT_LEAST {
-                break;
-            }
-            let position = (world_from_camera * Point3::from(self.back_project(frame, i))).coords;
-            let point = map.points.insert(MapPoint::new(
-                position,
-                frame.descriptors[i],
-                Vector3::z(),
-                (0.0, 0.0),
-                id,
-            ));
-            map.add_observation(point, key, i);
-            map.update_point(point, &self.pyramid.factors);
-        }
+        let new = NewPoints {
+            keyframe: (key, id),
+            world_from_camera: &world_from_camera,
+            close,
+            first,
+        };
+        points_from_depth(map, (frame, gate), &points, new, &self.sensor());
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
         self.newest_keyframe_id = Some(id);
     }
+}
 
-    /// Camera-frame position of keypoint `i` from its depth.
-    pub(super) fn back_project(&self, frame: &Frame, i: usize) -> Vector3<f64> {
-        self.sensor().back_project(frame, i)
+/// A new keyframe's points from depth: the keyframe (key and id), its pose, the close
+/// depth, and whether it is its segment's first.
+struct NewPoints<'a> {
+    keyframe: (KeyFrameKey, usize),
+    world_from_camera: &'a Se3,
+    close: f32,
+    first: bool,
+}
+
+/// Map points from depth for a new keyframe made from `frame`: its unmatched keypoints
+/// with depth that are not dynamic, nearest first, \(X_w = T_{wc}\,z K^{-1} (u, v,
+/// 1)^\top\): all the close ones, far ones too until [`NEW_POINTS_AT_LEAST`] are made;
+/// all of them for a segment's first keyframe.
+fn points_from_depth(
+    map: &mut Map,
+    (frame, gate): (&Frame, &Participation),
+    points: &[Option<MapPointKey>],
+    new: NewPoints,
+    sensor: &Sensor,
+) {
+    let mut candidates: Vec<usize> = (0..frame.len())
+        .filter(|&i| {
+            frame.depth[i] > 0.0 && points[i].is_none() && !gate.dynamic_keypoint(frame, i)
+        })
+        .collect();
+    candidates.sort_by(|&a, &b| frame.depth[a].total_cmp(&frame.depth[b]));
+    for (created, i) in candidates.into_iter().enumerate() {
+        if !new.first && frame.depth[i] > new.close && created >= NEW_POINTS_AT_LEAST {
+            break;
+        }
+        let position = (new.world_from_camera * Point3::from(sensor.back_project(frame, i))).coords;
+        let point = map.insert_point(MapPoint::new(
+            position,
+            frame.descriptors[i],
+            Vector3::z(),
+            (0.0, 0.0),
+            new.keyframe.1,
+        ));
+        map.add_observation(point, new.keyframe.0, i);
+        map.update_point(point, &sensor.pyramid.factors);
+    }
+}
+
+/// The points the keyframe decision counts: the reference keyframe's, and the close
+/// ones of the frame, tracked or not.
+struct Counted {
+    reference: usize,
+    tracked_close: usize,
+    untracked_close: usize,
+}
+
+/// What [`KeyframePolicy`] counts of a frame tracked with `points`, against the
+/// reference keyframe's `reference_points`.
+fn count_points(
+    input: TrackInput,
+    reference_points: &[Option<MapPointKey>],
+    points: &[Option<MapPointKey>],
+    close: f32,
+) -> Counted {
+    let TrackInput { map, frame, gate } = input;
+    // Points the DOP model leaves out cannot be tracked, and points that wait (for
+    // their keyframe's detection, or out their probation) take no part in the pose
+    // yet: neither counts. Counted, the points a keyframe makes on a person the
+    // detector has not reported yet make the next frames look weak, and each of them
+    // a keyframe that makes more such points.
+    let reference = reference_points
+        .iter()
+        .flatten()
+        .filter(|k| {
+            map.points()
+                .get(**k)
+                .is_some_and(|p| !gate.excluded(p) && !gate.awaiting(map, p))
+        })
+        .count();
+    // Close points: tracked ones that take part in the pose, and untracked ones that
+    // could make new points (dynamic keypoints cannot, so they do not ask for a
+    // keyframe; otherwise a person close to the camera makes one every frame).
+    let (mut tracked_close, mut untracked_close) = (0, 0);
+    for (i, z) in frame.depth.iter().enumerate() {
+        if *z > 0.0 && *z < close {
+            match points[i].and_then(|k| map.points().get(k)) {
+                Some(p) if !gate.excluded(p) => tracked_close += 1,
+                Some(_) => {}
+                None if !gate.dynamic_keypoint(frame, i) => untracked_close += 1,
+                None => {}
+            }
+        }
+    }
+    Counted {
+        reference,
+        tracked_close,
+        untracked_close,
     }
 }
 

@@ -15,6 +15,7 @@
 
 pub mod keyframes;
 mod pose;
+mod projection;
 mod relocalise;
 mod search;
 #[cfg(test)]
@@ -31,6 +32,7 @@ use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};
 use crate::tracking::params::TrackerConfig;
 use crate::map::record::FrameObservation;
 use crate::tracking::report::{PoseEstimate, Reject, TrackedFrame, TrackingState};
+use projection::Projector;
 use search::LocalSearch;
 
 /// The last tracked frame, kept for the motion model.
@@ -151,8 +153,7 @@ impl Tracker {
     /// The keyframe this tracker made last (its id) and the frames tracked since: the
     /// DOP model keeps that keyframe's new points on probation.
     pub fn keyframe_clock(&self) -> Option<(usize, usize)> {
-        self.newest_keyframe_id
-            .map(|id| (id, self.frames_since_keyframe))
+        self.newest_keyframe_id.map(|id| (id, self.frames_since_keyframe))
     }
 
     /// The last tracked frame (with its moving probabilities).
@@ -186,10 +187,7 @@ impl Tracker {
         }
         let map = shared.read().expect("map lock poisoned");
         // Local mapping may have culled the reference keyframe: take the segment's newest.
-        if self
-            .reference
-            .is_some_and(|k| !map.keyframes.contains_key(k))
-        {
+        if self.reference.is_some_and(|k| !map.keyframes().contains_key(k)) {
             self.reference = map.newest_of_segment(self.segment);
         }
         let input = TrackInput {
@@ -235,7 +233,8 @@ impl Tracker {
             seen,
             mut report,
         } = search;
-        self.count_visibility(map, &seen.visible, tracked.as_ref().ok());
+        let found = tracked.as_ref().map_or(&[][..], |e| &e.matches[..]);
+        map.count_visibility(&seen.visible, found);
         let stats = &mut report.stats;
         (stats.geometric_raised, stats.geometric_lowered) =
             (dop.geometric_raised, dop.geometric_lowered);
@@ -252,33 +251,21 @@ impl Tracker {
         report
     }
 
+    /// What a projection of map points needs.
+    fn projector(&self) -> Projector<'_> {
+        Projector {
+            camera: &self.camera,
+            pyramid: &self.pyramid,
+            size: (self.width, self.height),
+        }
+    }
+
     /// What the DOP model needs of the sensor.
     pub fn sensor(&self) -> Sensor<'_> {
         Sensor {
             camera: &self.camera,
             pyramid: &self.pyramid,
             depth_noise: self.depth_noise,
-        }
-    }
-
-    /// Counters for map point culling: predicted visible here, found as an inlier.
-    fn count_visibility(
-        &self,
-        map: &mut Map,
-        visible: &[MapPointKey],
-        tracked: Option<&PoseEstimate>,
-    ) {
-        for key in visible {
-            if let Some(p) = map.points.get_mut(*key) {
-                p.visible += 1;
-            }
-        }
-        if let Some(estimate) = tracked {
-            for key in estimate.matches.iter().flatten() {
-                if let Some(p) = map.points.get_mut(*key) {
-                    p.found += 1;
-                }
-            }
         }
     }
 
@@ -329,7 +316,7 @@ impl Tracker {
             .iter()
             .enumerate()
             .filter_map(|(i, k)| {
-                let key = k.filter(|&k| map.points.get(k).is_some_and(|p| !gate.excluded(p)))?;
+                let key = k.filter(|&k| map.points().get(k).is_some_and(|p| !gate.excluded(p)))?;
                 let keypoint = &frame.keypoints[i];
                 Some(FrameObservation {
                     point: key,
@@ -364,14 +351,14 @@ impl Tracker {
             let key = self.reference.expect("just inserted");
             report.stats.keyframe = true;
             report.record.keyframe = Some(key);
-            let keyframe = &map.keyframes[key];
+            let keyframe = &map.keyframes()[key];
             (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
             (pose, points)
         };
         report.record.camera_from_world = Some(pose);
         report.record.reference = self.reference.and_then(|k| {
-            let keyframe = map.keyframes.get(k)?;
+            let keyframe = map.keyframes().get(k)?;
             Some((k, pose * keyframe.world_from_camera()))
         });
         self.last = Some(LastFrame {
@@ -417,7 +404,7 @@ impl Tracker {
         self.lost_since = None;
         let points = self
             .reference
-            .and_then(|k| map.keyframes.get(k))
+            .and_then(|k| map.keyframes().get(k))
             .map_or_else(Vec::new, |kf| kf.map_points.clone());
         self.last = Some(LastFrame {
             frame,

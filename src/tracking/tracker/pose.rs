@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use super::{Timing, TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
+use crate::dynamics::tracked::Sensor;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
 use crate::map::{MapPoint, MapPointKey};
@@ -29,13 +30,13 @@ impl Tracker {
         timing: &mut Timing,
     ) -> PoseEstimate {
         let TrackInput { map, frame, gate } = input;
-        let start = Instant::now();
+        let (start, sensor) = (Instant::now(), self.sensor());
         let mut indices = Vec::new();
         let mut observations = Vec::new();
         let mut kept = vec![None; points.len()];
         let mut awaiting = Vec::new();
         for (i, key) in points.iter().enumerate() {
-            let Some(point) = key.and_then(|k| map.points.get(k)) else {
+            let Some(point) = key.and_then(|k| map.points().get(k)) else {
                 continue;
             };
             if gate.excluded(point) {
@@ -46,7 +47,7 @@ impl Tracker {
                 awaiting.push((i, point));
                 continue;
             }
-            observations.push(self.observation(frame, i, point));
+            observations.push(sensor.observation(frame, i, point));
             indices.push(i);
         }
         if observations.len() >= self.config.held_out_min_points {
@@ -55,7 +56,8 @@ impl Tracker {
                 kept[i] = points[i];
             }
         } else {
-            self.admit_waiting(
+            admit_waiting(
+                &sensor,
                 frame,
                 (initial, self.prediction_gate_share(gate)),
                 awaiting,
@@ -92,37 +94,6 @@ impl Tracker {
         }
     }
 
-    /// Too few others to go without them: the waiting points join the pose, but when
-    /// the others can give a pose of their own, only those that agree with it (a person
-    /// the detector has not reported yet moved away from it, and would outnumber the
-    /// room's few points); the others keep their match only.
-    fn admit_waiting(
-        &self,
-        frame: &Frame,
-        (initial, share): (&Se3, f64),
-        awaiting: Vec<(usize, &MapPoint)>,
-        (observations, indices): (&mut Vec<PoseObservation>, &mut Vec<usize>),
-        (points, kept): (&[Option<MapPointKey>], &mut [Option<MapPointKey>]),
-    ) {
-        let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
-            .then(|| optimise_pose_predicted(&self.camera, initial, observations, share))
-            .filter(|estimate| {
-                estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
-            });
-        for (i, point) in awaiting {
-            let observation = self.observation(frame, i, point);
-            let agrees = trusted.as_ref().is_none_or(|estimate| {
-                within_gate(&self.camera, &estimate.camera_from_world, &observation)
-            });
-            if agrees {
-                observations.push(observation);
-                indices.push(i);
-            } else {
-                kept[i] = points[i];
-            }
-        }
-    }
-
     /// The prediction gate's share (`[tracking] prediction_gate_share`) with the DOP
     /// model; 0 (ORB-SLAM2's rounds) without it.
     fn prediction_gate_share(&self, gate: &Participation) -> f64 {
@@ -132,9 +103,35 @@ impl Tracker {
             0.0
         }
     }
+}
 
-    /// Keypoint `i` of `frame` seeing `point`, for the pose optimisation.
-    pub(super) fn observation(&self, frame: &Frame, i: usize, point: &MapPoint) -> PoseObservation {
-        self.sensor().observation(frame, i, point)
+/// Too few others to go without them: the waiting points join the pose, but when
+/// the others can give a pose of their own, only those that agree with it (a person
+/// the detector has not reported yet moved away from it, and would outnumber the
+/// room's few points); the others keep their match only.
+fn admit_waiting(
+    sensor: &Sensor,
+    frame: &Frame,
+    (initial, share): (&Se3, f64),
+    awaiting: Vec<(usize, &MapPoint)>,
+    (observations, indices): (&mut Vec<PoseObservation>, &mut Vec<usize>),
+    (points, kept): (&[Option<MapPointKey>], &mut [Option<MapPointKey>]),
+) {
+    let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
+        .then(|| optimise_pose_predicted(sensor.camera, initial, observations, share))
+        .filter(|estimate| {
+            estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
+        });
+    for (i, point) in awaiting {
+        let observation = sensor.observation(frame, i, point);
+        let agrees = trusted.as_ref().is_none_or(|estimate| {
+            within_gate(sensor.camera, &estimate.camera_from_world, &observation)
+        });
+        if agrees {
+            observations.push(observation);
+            indices.push(i);
+        } else {
+            kept[i] = points[i];
+        }
     }
 }

@@ -10,9 +10,9 @@ use std::time::Instant;
 use super::search::live_points;
 use super::{Timing, TrackInput, Tracker};
 use crate::features::{hamming, TH_LOW};
-use crate::frame::matching::{brute_force, search_by_projection, Query};
+use crate::frame::matching::{brute_force, search_by_projection};
 use crate::frame::Frame;
-use crate::map::{KeyFrameKey, Map, MapPointKey};
+use crate::map::{KeyFrameKey, Map};
 use crate::optim::pnp::{epnp_ransac, Correspondence, Ransac};
 use crate::optim::robust::CHI2_MONO;
 use crate::tracking::params::*;
@@ -32,7 +32,7 @@ impl Tracker {
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
         for key in ranked.into_iter().take(RELOCALISATION_CANDIDATES) {
             if let Some(found) = self.relocalise_against(input, key, timing) {
-                self.segment = map.keyframes[key].segment;
+                self.segment = map.keyframes()[key].segment;
                 self.reference = Some(key);
                 return Ok(found);
             }
@@ -50,7 +50,7 @@ impl Tracker {
     ) -> Option<PoseEstimate> {
         let TrackInput { map, frame, .. } = input;
         let start = Instant::now();
-        let kf = &map.keyframes[key];
+        let kf = &map.keyframes()[key];
         let (keys, descriptors) = live_points(map, kf);
         let matches = brute_force(frame, &descriptors, RELOCALISATION_MATCH_RATIO);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
@@ -64,7 +64,7 @@ impl Tracker {
             .map(|&(q, i)| {
                 let k = &frame.keypoints[i];
                 Correspondence {
-                    world: map.points[keys[q]].position,
+                    world: map.points()[keys[q]].position,
                     normalised: nalgebra::Vector2::new(
                         (k.x as f64 - self.camera.cx) / self.camera.fx,
                         (k.y as f64 - self.camera.cy) / self.camera.fy,
@@ -93,7 +93,8 @@ impl Tracker {
             let mut points = estimate.matches;
             let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
             let (query_keys, queries) =
-                self.keyframe_queries(map, key, &points, &estimate.camera_from_world);
+                self.projector()
+                    .keyframe_queries(map, key, &points, &estimate.camera_from_world);
             for (q, i) in search_by_projection(
                 frame,
                 &queries,
@@ -108,42 +109,6 @@ impl Tracker {
         }
         (estimate.inliers >= RELOCALISATION_ACCEPT).then_some(estimate)
     }
-
-    /// The keyframe's points not matched yet, projected at `pose`, as queries.
-    fn keyframe_queries(
-        &self,
-        map: &Map,
-        key: KeyFrameKey,
-        points: &[Option<MapPointKey>],
-        pose: &crate::geometry::se3::Se3,
-    ) -> (Vec<MapPointKey>, Vec<Query>) {
-        let kf = &map.keyframes[key];
-        let (mut query_keys, mut queries) = (Vec::new(), Vec::new());
-        for (i, p) in kf.map_points.iter().enumerate() {
-            let Some(p) = p.filter(|p| !points.contains(&Some(*p))) else {
-                continue;
-            };
-            let Some(point) = map.points.get(p) else {
-                continue;
-            };
-            let Some((u, v, ur)) = self.project(pose, &point.position) else {
-                continue;
-            };
-            let level = kf.frame.keypoints[i].level;
-            query_keys.push(p);
-            queries.push(Query {
-                u,
-                v,
-                min_level: level.saturating_sub(1),
-                max_level: (level + 1).min(self.pyramid.levels() as u8 - 1),
-                radius: RELOCALISATION_SEARCH_RADIUS * self.pyramid.factors[level as usize] as f32,
-                descriptor: point.descriptor,
-                right_u: Some(ur),
-                angle: None,
-            });
-        }
-        (query_keys, queries)
-    }
 }
 
 /// Every keyframe ranked by how many of a sample of the frame's descriptors match one
@@ -153,10 +118,10 @@ fn rank_keyframes(map: &Map, frame: &Frame) -> Vec<KeyFrameKey> {
         .step_by(RELOCALISATION_SAMPLE_STEP)
         .collect();
     let mut ranked: Vec<(usize, usize, KeyFrameKey)> = map
-        .keyframe_order
+        .keyframe_order()
         .iter()
         .map(|&key| {
-            let kf = &map.keyframes[key];
+            let kf = &map.keyframes()[key];
             let descriptors: Vec<_> = kf
                 .map_points
                 .iter()

@@ -7,14 +7,11 @@
 use std::collections::HashSet;
 use std::time::Instant;
 
-use nalgebra::{Point3, Vector3};
 
 use super::{Timing, TrackInput, Tracker};
-use crate::dynamics::frames::Participation;
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::geometry::se3::{self, Se3};
-use crate::map::visibility::predict_view;
 use crate::map::{KeyFrame, KeyFrameKey, Map, MapPointKey};
 use crate::tracking::params::*;
 use crate::tracking::report::{PoseEstimate, Reject};
@@ -25,7 +22,7 @@ pub(super) fn live_points(map: &Map, kf: &KeyFrame) -> (Vec<MapPointKey>, Vec<De
     kf.map_points
         .iter()
         .zip(&kf.frame.descriptors)
-        .filter_map(|(p, d)| p.filter(|p| map.points.contains_key(*p)).map(|p| (p, *d)))
+        .filter_map(|(p, d)| p.filter(|p| map.points().contains_key(*p)).map(|p| (p, *d)))
         .unzip()
 }
 
@@ -70,10 +67,10 @@ impl Tracker {
         let mut queries = Vec::new();
         for (i, key) in last.points.iter().enumerate() {
             let Some(key) = key else { continue };
-            let Some(point) = map.points.get(*key) else {
+            let Some(point) = map.points().get(*key) else {
                 continue;
             };
-            let Some((u, v, ur)) = self.project(&predicted, &point.position) else {
+            let Some((u, v, ur)) = self.projector().project(&predicted, &point.position) else {
                 continue;
             };
             let level = last.frame.keypoints[i].level;
@@ -128,7 +125,7 @@ impl Tracker {
     ) -> Result<PoseEstimate, Reject> {
         let TrackInput { map, frame, .. } = input;
         let start = Instant::now();
-        let kf = map.keyframes.get(keyframe).ok_or(Reject::NoReference)?;
+        let kf = map.keyframes().get(keyframe).ok_or(Reject::NoReference)?;
         let (keys, descriptors) = live_points(map, kf);
         let matches = brute_force(frame, &descriptors, REFERENCE_MATCH_RATIO);
         timing.matching += start.elapsed().as_secs_f64() * 1e3;
@@ -163,21 +160,6 @@ impl Tracker {
         self.track_against_keyframe(input, reference, initial, timing)
     }
 
-    /// Pixel and right coordinate of a world point, if in front and inside the image.
-    pub(super) fn project(
-        &self,
-        camera_from_world: &Se3,
-        position: &Vector3<f64>,
-    ) -> Option<(f32, f32, f32)> {
-        let p = camera_from_world * Point3::from(*position);
-        if p.z <= 0.0 {
-            return None;
-        }
-        let uvr = self.camera.project(&p.coords);
-        let (u, v) = (uvr.x as f32, uvr.y as f32);
-        (u >= 0.0 && v >= 0.0 && u < self.width && v < self.height).then_some((u, v, uvr.z as f32))
-    }
-
     /// Searches the local map (points of the covisible keyframes) from `found`'s pose
     /// and matches, and optimises again; with at least `min_inliers` inliers.
     pub(super) fn track_local_map(
@@ -196,7 +178,8 @@ impl Tracker {
         );
         let matched: HashSet<MapPointKey> = points.iter().flatten().copied().collect();
         let (keys, queries) =
-            self.local_queries((map, gate), &local, &matched, &pose, &mut seen.dynamic);
+            self.projector()
+                .local_queries((map, gate), &local, &matched, &pose, &mut seen.dynamic);
         let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
         let matches =
             search_by_projection(frame, &queries, &mut taken, LOCAL_MAP_MATCH_RATIO, false);
@@ -208,60 +191,5 @@ impl Tracker {
         let estimate = self.optimise(input, &pose, &points, timing);
         seen.candidates = points;
         enough(estimate, self.config.min_inliers)
-    }
-
-    /// The local map's points not matched yet, each with its predicted view as a query;
-    /// counts the points left out as dynamic.
-    fn local_queries(
-        &self,
-        (map, gate): (&Map, &Participation),
-        local: &[KeyFrameKey],
-        matched: &HashSet<MapPointKey>,
-        pose: &Se3,
-        dynamic: &mut usize,
-    ) -> (Vec<MapPointKey>, Vec<Query>) {
-        let mut keys = Vec::new();
-        let mut queries = Vec::new();
-        let mut seen = HashSet::new();
-        for &kf in local {
-            for key in map.keyframes[kf].map_points.iter().flatten() {
-                if matched.contains(key) || !seen.insert(*key) {
-                    continue;
-                }
-                let Some(point) = map.points.get(*key) else {
-                    continue;
-                };
-                if gate.excluded(point) {
-                    *dynamic += 1;
-                }
-                let Some(view) = predict_view(
-                    point,
-                    pose,
-                    &self.camera,
-                    (self.width, self.height),
-                    &self.pyramid,
-                ) else {
-                    continue;
-                };
-                let level = view.level;
-                let radius = if view.view_cos > LOCAL_MAP_CLOSE_VIEW_COS {
-                    LOCAL_MAP_RADIUS_CLOSE_VIEW
-                } else {
-                    LOCAL_MAP_RADIUS
-                } * self.pyramid.factors[level as usize] as f32;
-                keys.push(*key);
-                queries.push(Query {
-                    u: view.u,
-                    v: view.v,
-                    min_level: level.saturating_sub(1),
-                    max_level: level,
-                    radius,
-                    descriptor: point.descriptor,
-                    right_u: Some(view.right_u),
-                    angle: None,
-                });
-            }
-        }
-        (keys, queries)
     }
 }

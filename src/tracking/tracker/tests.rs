@@ -14,7 +14,7 @@ fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
     let mut map = Map::default();
     let keys = (0..n)
         .map(|_| {
-            map.points.insert(MapPoint::new(
+            map.insert_point(MapPoint::new(
                 Vector3::z(),
                 [0; 4],
                 Vector3::z(),
@@ -43,14 +43,14 @@ fn geometric_check_raises_points_that_stay_outliers() {
         geometric_check(&dop, &mut map, &checks(&keys, 2), 0.0),
         (0, 0)
     );
-    assert_eq!(map.points[keys[0]].consistency.outlier_run, 1);
+    assert_eq!(map.points()[keys[0]].consistency.outlier_run, 1);
     // The second frame in a row raises them: 0.5 -> 0.65.
     assert_eq!(
         geometric_check(&dop, &mut map, &checks(&keys, 2), 0.1),
         (2, 0)
     );
-    assert!((map.points[keys[0]].moving - 0.65).abs() < 1e-6);
-    assert!((map.points[keys[2]].moving - 0.5).abs() < 1e-6);
+    assert!((map.points()[keys[0]].moving - 0.65).abs() < 1e-6);
+    assert!((map.points()[keys[2]].moving - 0.5).abs() < 1e-6);
     // Now dynamic, they are not raised again.
     assert_eq!(
         geometric_check(&dop, &mut map, &checks(&keys, 2), 0.2),
@@ -64,7 +64,7 @@ fn geometric_check_raises_points_that_stay_outliers() {
     let (mut map, keys) = map_with_points(10);
     geometric_check(&dop, &mut map, &checks(&keys, 1), 0.0);
     geometric_check(&dop, &mut map, &checks(&keys, 0), 0.1);
-    assert_eq!(map.points[keys[0]].consistency.outlier_run, 0);
+    assert_eq!(map.points()[keys[0]].consistency.outlier_run, 0);
 }
 
 #[test]
@@ -80,14 +80,14 @@ fn geometric_check_skips_frames_where_the_pose_is_in_doubt() {
     }
     assert!(keys
         .iter()
-        .all(|k| map.points[*k].consistency == Default::default()));
+        .all(|k| map.points()[*k].consistency == Default::default()));
     // Dynamic points do not count towards the share: 4 dynamic outliers of 10 do
     // not put the pose in doubt.
     for k in &keys[..4] {
-        map.points[*k].moving = 0.9;
+        map.point_mut(*k).moving = 0.9;
     }
     geometric_check(&dop, &mut map, &checks(&keys, 4), 4.0);
-    assert_eq!(map.points[keys[9]].consistency.inlier_run, 1);
+    assert_eq!(map.points()[keys[9]].consistency.inlier_run, 1);
 }
 
 /// Real time: the points of a keyframe whose detection has not come back take no
@@ -122,7 +122,7 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
         } else {
             (seen + Vector3::new(0.1, 0.0, 0.0), 7)
         };
-        keys.push(Some(map.points.insert(MapPoint::new(
+        keys.push(Some(map.insert_point(MapPoint::new(
             position,
             [0; 4],
             Vector3::z(),
@@ -156,7 +156,7 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
     };
     let mixed = error_with(&tracker, &map, &keys);
     assert!(mixed > 0.02, "the person pulls the pose: {mixed}");
-    map.awaiting_detection.insert(7);
+    map.await_detection(7);
     assert!(error_with(&tracker, &map, &keys) < 1e-3);
     // With too few other points the awaiting ones join, but only those that agree
     // with the pose the others give on their own: not the person's.
@@ -168,9 +168,9 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
         .enumerate()
         .map(|(i, k)| k.filter(|_| i < 10 || i >= room))
         .collect();
-    map.awaiting_detection.clear();
+    map.detection_came_back(7);
     let few_mixed = error_with(&tracker, &map, &few);
-    map.awaiting_detection.insert(7);
+    map.await_detection(7);
     assert!((error_with(&tracker, &map, &few) - few_mixed).abs() < 1e-9);
     assert!(few_mixed > 0.02, "{few_mixed}");
 }
@@ -201,7 +201,7 @@ fn points_that_wait_do_not_make_keyframes() {
     let mut keyframe = KeyFrame::new(frame.clone(), Se3::identity());
     for (i, slot) in keyframe.map_points.iter_mut().enumerate() {
         let first = if i < room { 0 } else { 7 };
-        *slot = Some(map.points.insert(MapPoint::new(
+        *slot = Some(map.insert_point(MapPoint::new(
             Vector3::z(),
             [0; 4],
             Vector3::z(),
@@ -223,7 +223,7 @@ fn points_that_wait_do_not_make_keyframes() {
         tracker.need_keyframe(input, &Se3::identity(), &tracked, room, true)
     };
     assert!(need(&map), "100 of 500 points: very weak");
-    map.awaiting_detection.insert(7);
+    map.await_detection(7);
     assert!(!need(&map));
 }
 
@@ -233,7 +233,7 @@ fn dynamic_points_that_stay_consistent_are_lowered_back_into_the_pose() {
     let (mut map, keys) = map_with_points(10);
     // Two points on a parked car: detected, dynamic, but they never move.
     for k in &keys[..2] {
-        map.points[*k].moving = 0.75;
+        map.point_mut(*k).moving = 0.75;
     }
     let mut lowered = 0;
     for n in 0..30 {
@@ -242,10 +242,10 @@ fn dynamic_points_that_stay_consistent_are_lowered_back_into_the_pose() {
     assert!(lowered > 0);
     assert!(keys[..2]
         .iter()
-        .all(|k| !dop.removed(map.points[*k].moving)));
+        .all(|k| !dop.removed(map.points()[*k].moving)));
     assert!(keys[..2]
         .iter()
-        .all(|k| map.points[*k].consistency.verified_static(&dop)));
+        .all(|k| map.points()[*k].consistency.verified_static(&dop)));
 }
 
 /// A room of `n` points in front of the camera, each with its own descriptor.
@@ -339,7 +339,7 @@ fn a_fixture_map_tracks_the_true_pose_and_names_why_a_frame_is_lost() {
     );
     assert_eq!(first.stats.state, TrackingState::Ok);
     assert!(first.record.keyframe.is_some());
-    assert_eq!(map.read().unwrap().points.len(), 600);
+    assert_eq!(map.read().unwrap().points().len(), 600);
 
     let truth = Se3::from_parts(
         nalgebra::Translation3::new(0.03, -0.01, 0.02),
