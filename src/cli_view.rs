@@ -86,7 +86,7 @@ pub fn open_for_run(args: &RerunArgs, config: &Config, input: &Path) -> Result<O
     if let Some(path) = &args.rerun {
         refuse_inside("--rerun", path, input)?;
         let logger = Logger::open(Target::File(path.clone()), &config.output, "dopslam")
-            .map_err(anyhow::Error::msg)
+            .map_err(anyhow::Error::from)
             .context("--rerun")?;
         return Ok(Some(logger));
     }
@@ -119,8 +119,7 @@ fn connect(address: &str, config: &Config) -> Result<Option<Logger>> {
             return Ok(None);
         }
     }
-    let logger = Logger::open(Target::Connect(proxy), &config.output, "dopslam")
-        .map_err(anyhow::Error::msg)?;
+    let logger = Logger::open(Target::Connect(proxy), &config.output, "dopslam")?;
     Ok(Some(logger))
 }
 
@@ -148,8 +147,7 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         (None, out) => {
             let path = out.clone().unwrap_or_else(|| default_out(&args.run));
             refuse_inside("-o", &path, &args.run)?;
-            Logger::open(Target::File(path), &config.output, "dopslam")
-                .map_err(anyhow::Error::msg)?
+            Logger::open(Target::File(path), &config.output, "dopslam")?
         }
     };
     let log = logger.waiting_handle();
@@ -157,14 +155,13 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         dopslam::run::log_pinhole(&log, camera);
     }
     let sequence = open_reported_sequence(summary.sequence_path.as_deref(), &config);
-    let replayed = dopslam::view::results::replay_frames(&log, &run, &summary, sequence.as_deref())
-        .map_err(anyhow::Error::msg)?;
+    let replayed =
+        dopslam::view::results::replay_frames(&log, &run, &summary, sequence.as_deref())?;
     let truth = sequence.as_deref().and_then(|s| s.ground_truth());
-    dopslam::view::results::log_results(&log, &run, "", truth).map_err(anyhow::Error::msg)?;
+    dopslam::view::results::log_results(&log, &run, "", truth)?;
     let baseline = run.sub_run(dopslam::io::run_dir::names::NO_DOP);
     if baseline.report().exists() {
-        dopslam::view::results::log_results(&log, &baseline, "no_dop", None)
-            .map_err(anyhow::Error::msg)?;
+        dopslam::view::results::log_results(&log, &baseline, "no_dop", None)?;
     }
     drop(log);
     let target = logger.target.clone();

@@ -854,8 +854,7 @@ fn compare_no_dop(
     cli_maps::print_summary(report, &baseline_report, &comparison);
     if let Some(log) = &log {
         let run = dopslam::io::run_dir::RunDir::new(&baseline_dir);
-        dopslam::view::results::log_results(log, &run, "no_dop", None)
-            .map_err(anyhow::Error::msg)?;
+        dopslam::view::results::log_results(log, &run, "no_dop", None)?;
     }
     Ok(())
 }

@@ -10,6 +10,9 @@ use crate::io::IoError;
 pub enum RunError {
     #[error(transparent)]
     Io(#[from] IoError),
+    /// The run's Rerun recording failed.
+    #[error(transparent)]
+    View(#[from] crate::view::ViewError),
     /// Bad input found before any work (a missing model, an empty sequence, no
     /// calibration).
     #[error("{0}")]

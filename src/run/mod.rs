@@ -120,8 +120,7 @@ pub fn run_sequence(
         }
     }
     if let Some(log) = &options.rerun {
-        crate::view::results::log_results(log, &run, "", sequence.ground_truth())
-            .map_err(RunError::Input)?;
+        crate::view::results::log_results(log, &run, "", sequence.ground_truth())?;
     }
     report.recording = own_log;
     match stop {
@@ -168,7 +167,7 @@ pub fn log_pinhole(log: &crate::view::LogHandle, camera: &crate::geometry::camer
 /// behind are always said).
 pub fn finish_recording(logger: Logger, progress: bool) -> Result<(), RunError> {
     let target = logger.target.clone();
-    let summary = logger.finish().map_err(RunError::Input)?;
+    let summary = logger.finish()?;
     let name = match &target {
         Target::File(path) => path.display().to_string(),
         Target::Connect(address) => address.clone(),

@@ -71,21 +71,21 @@ pub fn probability_colour(p: f32) -> [u8; 3] {
 #[cfg(not(feature = "rerun"))]
 mod without_rerun {
     use super::super::entry::{Message, Target};
-    use super::super::OutputConfig;
+    use super::super::{OutputConfig, ViewError};
 
     /// Stands where the recording would be: never made (see [`super::super::Logger::open`]).
     pub struct Stream;
 
-    pub fn open_stream(_target: &Target, _name: &'static str) -> Result<Stream, String> {
-        Err(super::super::MISSING_FEATURE.into())
+    pub fn open_stream(_target: &Target, _name: &'static str) -> Result<Stream, ViewError> {
+        Err(ViewError::NotBuilt)
     }
 
     impl Stream {
-        pub fn log(&self, _message: &Message, _config: &OutputConfig) -> Result<(), String> {
-            Err(super::super::MISSING_FEATURE.into())
+        pub fn log(&self, _message: &Message, _config: &OutputConfig) -> Result<(), ViewError> {
+            Err(ViewError::NotBuilt)
         }
 
-        pub fn close(self) -> Result<(), String> {
+        pub fn close(self) -> Result<(), ViewError> {
             Ok(())
         }
     }
@@ -95,7 +95,7 @@ mod without_rerun {
 mod with_rerun {
     use super::*;
     use crate::view::entry::Target;
-    use crate::view::OutputConfig;
+    use crate::view::{OutputConfig, ViewError};
     use rerun::{
         Boxes2D, Color, DepthImage, EncodedImage, LineStrips3D, Mesh3D, Pinhole, Points2D,
         Points3D, RecordingStream, TextLog, Transform3D,
@@ -107,15 +107,21 @@ mod with_rerun {
     }
 
     /// Opens the stream to `target` under the application id `name`.
-    pub fn open_stream(target: &Target, name: &'static str) -> Result<Stream, String> {
+    pub fn open_stream(target: &Target, name: &'static str) -> Result<Stream, ViewError> {
         let builder = rerun::RecordingStreamBuilder::new(name);
         let stream = match target {
-            Target::File(path) => builder
-                .save(path)
-                .map_err(|e| format!("cannot write {}: {e}", path.display()))?,
-            Target::Connect(address) => builder
-                .connect_grpc_opts(address.clone())
-                .map_err(|e| format!("--rerun-connect {address}: {e}"))?,
+            Target::File(path) => builder.save(path).map_err(|e| ViewError::Create {
+                path: path.clone(),
+                error: e.to_string(),
+            })?,
+            Target::Connect(address) => {
+                builder
+                    .connect_grpc_opts(address.clone())
+                    .map_err(|e| ViewError::Connect {
+                        address: address.clone(),
+                        message: e.to_string(),
+                    })?
+            }
         };
         Ok(Stream { stream })
     }
@@ -132,7 +138,7 @@ mod with_rerun {
 
     impl Stream {
         /// Logs one message (images scaled and compressed here, off the tracking thread).
-        pub fn log(&self, message: &Message, config: &OutputConfig) -> Result<(), String> {
+        pub fn log(&self, message: &Message, config: &OutputConfig) -> Result<(), ViewError> {
             let stream = &self.stream;
             match message.at {
                 At::Frame { index, seconds } => {
@@ -148,7 +154,10 @@ mod with_rerun {
                 At::Always => {}
             }
             let logged = self.log_entry(message, config);
-            logged.map_err(|e| format!("cannot log to the Rerun recording: {e}"))
+            logged.map_err(|e| ViewError::Sdk {
+                stage: "log to",
+                message: e.to_string(),
+            })
         }
 
         fn send<A: rerun::AsComponents>(
@@ -384,10 +393,11 @@ mod with_rerun {
         }
 
         /// Writes what is buffered and closes the stream.
-        pub fn close(self) -> Result<(), String> {
-            self.stream
-                .flush_blocking()
-                .map_err(|e| format!("cannot finish the Rerun recording: {e}"))?;
+        pub fn close(self) -> Result<(), ViewError> {
+            self.stream.flush_blocking().map_err(|e| ViewError::Sdk {
+                stage: "finish",
+                message: e.to_string(),
+            })?;
             self.stream.disconnect();
             Ok(())
         }

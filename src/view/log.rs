@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use super::entry::{At, Entry, Message, Target};
-use super::OutputConfig;
+use super::{OutputConfig, ViewError};
 
 enum Command {
     Log(Box<Message>),
@@ -64,7 +64,7 @@ impl LogHandle {
 /// that stopped on an error), it still writes what was queued and closes the file.
 pub struct Logger {
     handle: LogHandle,
-    thread: Option<JoinHandle<Result<usize, String>>>,
+    thread: Option<JoinHandle<Result<usize, ViewError>>>,
     pub target: Target,
 }
 
@@ -94,9 +94,13 @@ impl Logger {
     /// Opens the recording: a file is created now (an error names it when it exists
     /// or cannot be written); a viewer that refuses the connection is an error the
     /// caller may turn into a warning. Without the `rerun` feature: an error saying so.
-    pub fn open(target: Target, config: &OutputConfig, name: &'static str) -> Result<Self, String> {
+    pub fn open(
+        target: Target,
+        config: &OutputConfig,
+        name: &'static str,
+    ) -> Result<Self, ViewError> {
         if !super::AVAILABLE {
-            return Err(super::MISSING_FEATURE.into());
+            return Err(ViewError::NotBuilt);
         }
         if let Target::File(path) = &target {
             check_new_file(path)?;
@@ -107,7 +111,7 @@ impl Logger {
         let thread = std::thread::Builder::new()
             .name("rerun-log".into())
             .spawn(move || write_all(stream, receiver, &settings))
-            .map_err(|e| format!("cannot start the Rerun logging thread: {e}"))?;
+            .map_err(|e| ViewError::Thread(format!("cannot start: {e}")))?;
         Ok(Self {
             handle: LogHandle {
                 sender,
@@ -135,18 +139,18 @@ impl Logger {
     }
 
     /// Writes what is queued, closes the recording and says what it held.
-    pub fn finish(mut self) -> Result<LogSummary, String> {
+    pub fn finish(mut self) -> Result<LogSummary, ViewError> {
         self.close()
     }
 
-    fn close(&mut self) -> Result<LogSummary, String> {
+    fn close(&mut self) -> Result<LogSummary, ViewError> {
         let Some(thread) = self.thread.take() else {
-            return Err("the Rerun recording was closed already".into());
+            return Err(ViewError::Closed);
         };
         let _ = self.handle.sender.send(Command::Stop);
         let logged = thread
             .join()
-            .map_err(|_| "the Rerun logging thread panicked".to_string())??;
+            .map_err(|_| ViewError::Thread("panicked".into()))??;
         Ok(LogSummary {
             logged,
             dropped_images: self.handle.dropped.load(Ordering::Relaxed),
@@ -156,20 +160,15 @@ impl Logger {
 
 /// A recording file is made new next to nothing the user has: an existing file is an
 /// error, and so is a folder that cannot be written (checked by creating the file).
-fn check_new_file(path: &Path) -> Result<(), String> {
+fn check_new_file(path: &Path) -> Result<(), ViewError> {
     if path.exists() {
-        return Err(format!(
-            "{} exists: a recording is never written over; remove it or name another file",
-            path.display()
-        ));
+        return Err(ViewError::Exists(path.to_path_buf()));
     }
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| {
-            format!(
-                "cannot write {}: its folder {} cannot be made: {e}",
-                path.display(),
-                parent.display()
-            )
+        std::fs::create_dir_all(parent).map_err(|error| ViewError::Folder {
+            path: path.to_path_buf(),
+            folder: parent.to_path_buf(),
+            error,
         })?;
     }
     std::fs::OpenOptions::new()
@@ -177,7 +176,10 @@ fn check_new_file(path: &Path) -> Result<(), String> {
         .create_new(true)
         .open(path)
         .map(drop)
-        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+        .map_err(|error| ViewError::Create {
+            path: path.to_path_buf(),
+            error: error.to_string(),
+        })
 }
 
 /// The logging thread: logs each message until told to stop (or every sender is
@@ -186,7 +188,7 @@ fn write_all(
     stream: super::entities::Stream,
     receiver: Receiver<Command>,
     config: &OutputConfig,
-) -> Result<usize, String> {
+) -> Result<usize, ViewError> {
     let mut logged = 0;
     while let Ok(Command::Log(message)) = receiver.recv() {
         stream.log(&message, config)?;
@@ -237,7 +239,8 @@ mod tests {
         let again = Logger::open(Target::File(path), &config, "test")
             .err()
             .unwrap();
-        assert!(again.contains("exists"), "{again}");
+        assert!(matches!(again, ViewError::Exists(_)), "{again}");
+        assert!(again.to_string().contains("exists"), "{again}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -13,8 +13,11 @@
 
 pub mod entities;
 pub mod entry;
+pub mod error;
 pub mod log;
 pub mod results;
+
+pub use error::ViewError;
 
 use serde::{Deserialize, Serialize};
 

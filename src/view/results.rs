@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use super::entry::{centres, At, Entry, Level};
 use super::log::LogHandle;
+use super::ViewError;
 use crate::detect::{cache_file, read_cache_file};
 use crate::eval::associate::{associate, AssociationRule};
 use crate::geometry::alignment::{umeyama, AlignmentKind};
@@ -81,10 +82,10 @@ pub fn log_results(
     run: &RunDir,
     prefix: &'static str,
     truth: Option<&Trajectory>,
-) -> Result<(), String> {
+) -> Result<(), ViewError> {
     let final_path = run.trajectory();
     let estimate = if final_path.exists() {
-        Some(Trajectory::read_tum(&final_path).map_err(|e| e.to_string())?)
+        Some(Trajectory::read_tum(&final_path)?)
     } else {
         None
     };
@@ -110,7 +111,7 @@ pub fn log_results(
     }
     // The loops of the run itself (a baseline's would fill the run's events).
     if run.report().exists() && prefix.is_empty() {
-        let summary = run.read_summary().map_err(|e| e.to_string())?;
+        let summary = run.read_summary()?;
         log_loops(log, &summary, estimate.as_ref());
     }
     log_dense(log, run, prefix)
@@ -231,18 +232,18 @@ fn centre_at(trajectory: &Trajectory, seconds: f64) -> Option<Vector3<f64>> {
 
 /// The dense mesh and cloud, decimated to `rerun_max_points` (every n-th triangle or
 /// point).
-fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), String> {
+fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), ViewError> {
     let limit = log.config.rerun_max_points;
     let mesh_path = run.file(crate::io::run_dir::names::DENSE_MESH_PLY);
     if mesh_path.exists() {
-        let mesh = crate::io::ply::read_ply(&mesh_path).map_err(|e| e.to_string())?;
+        let mesh = crate::io::ply::read_ply(&mesh_path)?;
         let step = mesh.triangles.len().div_ceil(limit).max(1);
         let kept: Vec<[u32; 3]> = mesh.triangles.iter().step_by(step).copied().collect();
         log.log(prefix, At::Always, compact_mesh(&mesh, kept));
     }
     let cloud_path = run.file(crate::io::run_dir::names::DENSE_POINTS);
     if cloud_path.exists() {
-        let cloud = crate::io::ply::read_ply(&cloud_path).map_err(|e| e.to_string())?;
+        let cloud = crate::io::ply::read_ply(&cloud_path)?;
         let step = cloud.vertices.len().div_ceil(limit).max(1);
         let colours = if cloud.colours.len() == cloud.vertices.len() {
             cloud.colours.iter().step_by(step).copied().collect()
@@ -307,12 +308,12 @@ pub fn replay_frames(
     run: &RunDir,
     summary: &RunSummary,
     sequence: Option<&dyn Sequence>,
-) -> Result<Replayed, String> {
+) -> Result<Replayed, ViewError> {
     let tracking_path = run.tracking_trajectory();
     let tracking = if tracking_path.exists() {
-        Trajectory::read_tum(&tracking_path).map_err(|e| e.to_string())?
+        Trajectory::read_tum(&tracking_path)?
     } else {
-        Trajectory::read_tum(&run.trajectory()).map_err(|e| e.to_string())?
+        Trajectory::read_tum(&run.trajectory())?
     };
     let pose_at: BTreeMap<u64, usize> = tracking
         .timestamps
@@ -421,9 +422,8 @@ fn time_key(seconds: f64) -> u64 {
 
 /// The removed keypoints of each frame, by time (empty without the file), read as the
 /// dense pass reads them.
-fn read_removed(run: &RunDir) -> Result<BTreeMap<u64, Vec<[f32; 2]>>, String> {
-    let frames = crate::dense::inputs::read_keypoints(&run.dynamic_keypoints())
-        .map_err(|e| e.to_string())?;
+fn read_removed(run: &RunDir) -> Result<BTreeMap<u64, Vec<[f32; 2]>>, ViewError> {
+    let frames = crate::dense::inputs::read_keypoints(&run.dynamic_keypoints())?;
     Ok(frames
         .into_iter()
         .map(|f| {
@@ -441,12 +441,12 @@ fn log_cached_boxes(
     run: &RunDir,
     frame: &FrameSummary,
     at: At,
-) -> Result<usize, String> {
+) -> Result<usize, ViewError> {
     let file = cache_file(&run.detections(), frame.timestamp);
     if !file.exists() {
         return Ok(0);
     }
-    let cached = read_cache_file(&file).map_err(|e| e.to_string())?;
+    let cached = read_cache_file(&file)?;
     let boxes = cached
         .detections
         .into_iter()
@@ -462,13 +462,13 @@ fn log_image(
     sequence: &dyn Sequence,
     index: usize,
     at: At,
-) -> Result<usize, String> {
+) -> Result<usize, ViewError> {
     if index >= sequence.len() {
         return Ok(0);
     }
     let loaded = sequence
         .load(index)
-        .map_err(|e| format!("frame {index}: {e}"))?;
+        .map_err(|source| ViewError::Frame { index, source })?;
     let rgb = match loaded.images {
         FrameImages::Rgbd { rgb, .. } => rgb,
         FrameImages::Stereo { left, .. } => image::DynamicImage::ImageLuma8(left).to_rgb8(),
