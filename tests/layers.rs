@@ -272,6 +272,21 @@ const NEVER: &[(&str, &str)] = &[
     ("map", "dynamics"),
 ];
 
+/// The files of `run/` import their siblings, not their folder: what they share
+/// (`RunError`, `RunOptions`) has a file of its own, so `run/mod.rs` is the top of the
+/// folder and nothing points back up into it.
+#[test]
+fn the_files_of_run_never_import_their_folder() {
+    let edges = references(&src());
+    let run = vec!["run".to_string()];
+    let back: Vec<String> = edges
+        .iter()
+        .filter(|(from, targets)| from.len() > 1 && from[0] == "run" && targets.contains(&run))
+        .map(|(from, _)| from.join("::"))
+        .collect();
+    assert!(back.is_empty(), "these import run/mod.rs: {back:?}");
+}
+
 #[test]
 fn modules_of_one_floor_keep_apart_where_they_must() {
     let edges = references(&src());

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::setup::{resolve_calibration, stereo_bf, Setup};
-use super::RunError;
+use super::error::RunError;
 use crate::config::Config;
 use crate::dense::disparity::StereoDepth;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};

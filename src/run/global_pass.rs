@@ -5,7 +5,7 @@
 use super::outputs::write_tracking_trajectory;
 use super::setup::Setup;
 use super::tracking_pass::TrackingPass;
-use super::RunError;
+use super::error::RunError;
 use crate::global::{GlobalInputs, GlobalReport};
 use crate::io::run_dir::RunDir;
 use crate::io::Trajectory;

@@ -14,6 +14,7 @@
 
 pub mod dense_pass;
 pub mod error;
+pub mod options;
 pub mod global_pass;
 pub mod observers;
 pub mod outputs;
@@ -23,10 +24,11 @@ pub mod setup;
 pub mod tracking_pass;
 pub mod truth;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub use dense_pass::{dense_pass, DenseSetup};
 pub use error::{RunError, StopReason};
+pub use options::RunOptions;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
     check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash, open_sequence,
@@ -36,7 +38,6 @@ pub use setup::{
 use crate::dop::Mode;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
-use crate::pacing::Pace;
 use crate::view::{At, Entry, Logger, Target};
 use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
@@ -44,30 +45,6 @@ use rerun_log::RerunLog;
 use outputs::Computed;
 use tracking_pass::{tracking_pass, TrackingPass};
 use truth::TruthScorer;
-
-/// Options of a run.
-#[derive(Debug, Clone, Default)]
-pub struct RunOptions {
-    /// Stop after this many frames.
-    pub max_frames: Option<usize>,
-    pub progress: bool,
-    /// Run local mapping and detection inline after each keyframe instead of in their
-    /// own threads, so that results repeat exactly.
-    pub deterministic: bool,
-    /// The sequence folder, where the oracle detections are (`detections_oracle/`).
-    pub sequence_dir: Option<PathBuf>,
-    /// Write each frame with its keypoints coloured by DOP state here (the paper's
-    /// Fig. 4): green high-confidence static, yellow low-confidence static, orange
-    /// low-confidence dynamic, red high-confidence dynamic (removed: orange and red).
-    pub debug_frames: Option<PathBuf>,
-    /// Run the dense pass after tracking (`[dense]` settings).
-    pub dense: bool,
-    /// Real-time mode: frames at the recording's rate, or as fast as tracking goes.
-    pub pace: Pace,
-    /// The Rerun recording the run logs into (`--rerun`, `--rerun-connect`); without
-    /// one, `[output] rerun` makes `run.rrd` in the run folder.
-    pub rerun: Option<crate::view::LogHandle>,
-}
 
 /// Runs the passes over `sequence` and writes their outputs into `out`: tracking, the
 /// global pass (on a complete run), the outputs, then (when `options.dense`) the dense

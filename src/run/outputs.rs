@@ -9,7 +9,8 @@ use std::path::Path;
 
 use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
 use super::setup::RunSetup;
-use super::{RunError, RunOptions, StopReason};
+use super::error::{RunError, StopReason};
+use super::options::RunOptions;
 use crate::dense::masks::FrameKeypoints;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;

@@ -142,7 +142,7 @@ pub struct RunReport {
     pub frames: Vec<FrameLine>,
     /// Why the run stopped before the last frame, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub stopped: Option<super::StopReason>,
+    pub stopped: Option<super::error::StopReason>,
     /// The dense pass, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,

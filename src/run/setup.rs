@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::RunError;
+use super::error::RunError;
 use crate::config::Config;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;

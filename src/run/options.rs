@@ -1,0 +1,30 @@
+//! What a run is asked to do besides its config: frames, progress, determinism,
+//! debug pictures, the dense pass, the pace and the Rerun recording.
+
+use std::path::PathBuf;
+
+use crate::pacing::Pace;
+
+/// Options of a run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Stop after this many frames.
+    pub max_frames: Option<usize>,
+    pub progress: bool,
+    /// Run local mapping and detection inline after each keyframe instead of in their
+    /// own threads, so that results repeat exactly.
+    pub deterministic: bool,
+    /// The sequence folder, where the oracle detections are (`detections_oracle/`).
+    pub sequence_dir: Option<PathBuf>,
+    /// Write each frame with its keypoints coloured by DOP state here (the paper's
+    /// Fig. 4): green high-confidence static, yellow low-confidence static, orange
+    /// low-confidence dynamic, red high-confidence dynamic (removed: orange and red).
+    pub debug_frames: Option<PathBuf>,
+    /// Run the dense pass after tracking (`[dense]` settings).
+    pub dense: bool,
+    /// Real-time mode: frames at the recording's rate, or as fast as tracking goes.
+    pub pace: Pace,
+    /// The Rerun recording the run logs into (`--rerun`, `--rerun-connect`); without
+    /// one, `[output] rerun` makes `run.rrd` in the run folder.
+    pub rerun: Option<crate::view::LogHandle>,
+}
