@@ -8,6 +8,7 @@
 mod common;
 
 use std::collections::BTreeMap;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
@@ -333,17 +334,20 @@ fn streaming_to_a_listening_server_delivers_every_pose() {
         .unwrap()
         .port();
     let received = dir.join("received.rrd");
-    let mut server = std::process::Command::new(python.with_file_name("rerun"))
-        .args([
-            "--port",
-            &port.to_string(),
-            "--save",
-            &received.to_string_lossy(),
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let _server = Server(
+        std::process::Command::new(python.with_file_name("rerun"))
+            .process_group(0)
+            .args([
+                "--port",
+                &port.to_string(),
+                "--save",
+                &received.to_string_lossy(),
+            ])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let listening = (0..100).any(|_| {
         std::thread::sleep(std::time::Duration::from_millis(100));
         std::net::TcpStream::connect(("127.0.0.1", port)).is_ok()
@@ -382,7 +386,20 @@ fn streaming_to_a_listening_server_delivers_every_pose() {
             }
         }
     }
-    let _ = server.kill();
-    let _ = server.wait();
     assert_eq!(poses, tracked);
+}
+
+/// A Rerun server of a test, stopped with its children however the test ends: the
+/// venv's `rerun` script runs the viewer binary as its child, so the whole process
+/// group goes.
+struct Server(std::process::Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        // SAFETY: kill(2) on the group this test started (process_group(0) above).
+        unsafe {
+            libc::kill(-(self.0.id() as i32), libc::SIGKILL);
+        }
+        let _ = self.0.wait();
+    }
 }

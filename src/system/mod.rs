@@ -231,6 +231,8 @@ impl System {
     ) -> (TrackedFrame, f64) {
         let (index, timestamp) = (frame.index, frame.timestamp);
         let gate = self.dynamics.participation(self.tracker.keyframe_clock());
+        // Whether local mapping has caught up, as the frame arrives.
+        let mapping_idle = self.mapping.is_idle();
         let report = match self.tracker.locate(&self.map, frame, &gate) {
             Located::Started(report) => *report,
             Located::Searched(mut search) => {
@@ -241,7 +243,6 @@ impl System {
                 let dop = pose.map_or_else(DopFigures::default, |pose| {
                     after_pose(&gate, (&mut map, frame), pose, &sensor, self.tracker.last_frame())
                 });
-                let mapping_idle = self.mapping.is_idle();
                 self.tracker.settle((&mut map, &gate), *search, dop, mapping_idle)
             }
         };

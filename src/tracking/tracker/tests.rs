@@ -26,6 +26,19 @@ fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
     (map, keys)
 }
 
+/// A tracker with the default config on TUM fr3's camera (`bf` = 40 pixel metres).
+fn fr3_tracker() -> (PinholeCamera, Tracker) {
+    let pinhole = PinholeCamera::tum_fr3();
+    let tracker = Tracker::new(
+        TrackerConfig::default(),
+        StereoCamera::new(&pinhole, 40.0),
+        ScalePyramid::new(8, 1.2),
+        pinhole.width,
+        pinhole.height,
+    );
+    (pinhole, tracker)
+}
+
 /// Verdicts: the first `outliers` points inconsistent, the others consistent.
 fn checks(keys: &[MapPointKey], outliers: usize) -> Vec<(MapPointKey, bool)> {
     keys.iter()
@@ -181,14 +194,7 @@ fn points_awaiting_their_detection_stay_out_of_the_pose() {
 /// while they wait for their detection they do not count.
 #[test]
 fn points_that_wait_do_not_make_keyframes() {
-    let pinhole = PinholeCamera::tum_fr3();
-    let mut tracker = Tracker::new(
-        TrackerConfig::default(),
-        StereoCamera::new(&pinhole, 40.0),
-        ScalePyramid::new(8, 1.2),
-        pinhole.width,
-        pinhole.height,
-    );
+    let (pinhole, mut tracker) = fr3_tracker();
     let dop = DopConfig::default();
     let gate = Participation {
         dop: Some(&dop),
@@ -322,14 +328,7 @@ fn track_fixture(tracker: &mut Tracker, map: &SharedMap, frame: Frame) -> Tracke
 /// frame of unknown descriptors is lost with the reason.
 #[test]
 fn a_fixture_map_tracks_the_true_pose_and_names_why_a_frame_is_lost() {
-    let pinhole = PinholeCamera::tum_fr3();
-    let mut tracker = Tracker::new(
-        TrackerConfig::default(),
-        StereoCamera::new(&pinhole, 40.0),
-        ScalePyramid::new(8, 1.2),
-        pinhole.width,
-        pinhole.height,
-    );
+    let (pinhole, mut tracker) = fr3_tracker();
     let map = SharedMap::default();
     let room = fixture_room(600);
     let first = track_fixture(
