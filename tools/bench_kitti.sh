@@ -11,6 +11,7 @@
 #     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
 #               --mask-boxes, and --dop with [stereo] bearing_baselines = 0 (before)
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
+#   DOPSLAM_BIN=/path/to/dopslam                (default: ./target/release/dopslam)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=3
@@ -32,7 +33,7 @@ if [ ! -d "$kitti/sequences/01/image_0" ]; then
   echo "no real KITTI clips at $kitti (set DOPSLAM_SHARED_DATA)" >&2; exit 1
 fi
 cargo build --release --quiet
-bin=./target/release/dopslam
+bin=${DOPSLAM_BIN:-./target/release/dopslam}
 mkdir -p "$out/runs"
 settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
 printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"

@@ -201,10 +201,11 @@ fn block_piece(volume: &TsdfVolume, table: &[Vec<[u8; 3]>], coord: [i32; 3]) -> 
                     continue;
                 }
                 let mut vertex_of = |e: u8| -> u32 {
-                    let (key, position, colour) = edge_vertex(&values, origin, e, voxel);
+                    let key = edge_key(origin, e);
                     if let Some(&i) = local.get(&key) {
                         return i;
                     }
+                    let (position, colour) = edge_vertex(&values, origin, e, voxel);
                     let index = piece.vertices.len() as u32;
                     piece.vertices.push((key, position, colour));
                     local.insert(key, index);
@@ -250,15 +251,9 @@ fn cube_samples(volume: &TsdfVolume, origin: [i64; 3]) -> Option<([Sample; 8], u
     Some((values, case))
 }
 
-/// The vertex on edge `e` of the cube at `origin`: its key, where the SDF crosses zero
-/// along the edge (linear interpolation, \(t = f_a / (f_a - f_b)\)), in metres, and
-/// its colour.
-fn edge_vertex(
-    values: &[Sample; 8],
-    origin: [i64; 3],
-    e: u8,
-    voxel: f64,
-) -> (EdgeKey, [f32; 3], [u8; 3]) {
+/// The key of edge `e` of the cube at `origin`: its lower corner and its axis, shared
+/// by the cubes around the edge.
+fn edge_key(origin: [i64; 3], e: u8) -> EdgeKey {
     let (a, b) = EDGES[e as usize];
     let (ka, kb) = (corner(a), corner(b));
     let axis = (0..3).find(|&i| ka[i] != kb[i]).expect("an axis");
@@ -267,7 +262,15 @@ fn edge_vertex(
         origin[1] + ka[1].min(kb[1]) as i64,
         origin[2] + ka[2].min(kb[2]) as i64,
     ];
-    let key = (lower, axis as u8);
+    (lower, axis as u8)
+}
+
+/// The vertex on edge `e` of the cube at `origin`: where the SDF crosses zero along
+/// the edge (linear interpolation, \(t = f_a / (f_a - f_b)\)), in metres, and its
+/// colour.
+fn edge_vertex(values: &[Sample; 8], origin: [i64; 3], e: u8, voxel: f64) -> ([f32; 3], [u8; 3]) {
+    let (a, b) = EDGES[e as usize];
+    let (ka, kb) = (corner(a), corner(b));
     let (fa, fb) = (values[a].0, values[b].0);
     // Kept off the corners: a corner whose value is exactly 0 would give each of its
     // crossed edges a vertex at the same place (duplicates that some readers merge,
@@ -289,7 +292,7 @@ fn edge_vertex(
     } else {
         values[b].2
     };
-    (key, position, colour)
+    (position, colour)
 }
 
 /// Joins the blocks' pieces, sharing vertices on the edges between blocks.

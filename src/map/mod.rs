@@ -216,21 +216,19 @@ impl Map {
     }
 
     /// Poses: keyframe `key` at \(T_{cw}\) = `camera_from_world` (after an
-    /// optimisation or a loop's correction). False when the keyframe is gone.
-    pub fn set_keyframe_pose(&mut self, key: KeyFrameKey, camera_from_world: Se3) -> bool {
-        self.keyframes
-            .get_mut(key)
-            .map(|kf| kf.camera_from_world = camera_from_world)
-            .is_some()
+    /// optimisation or a loop's correction); nothing when the keyframe is gone.
+    pub fn set_keyframe_pose(&mut self, key: KeyFrameKey, camera_from_world: Se3) {
+        if let Some(kf) = self.keyframes.get_mut(key) {
+            kf.camera_from_world = camera_from_world;
+        }
     }
 
-    /// Positions: point `key` at `position` (world). Its normal and distances follow
-    /// with [`Map::update_point`]. False when the point is gone.
-    pub fn set_point_position(&mut self, key: MapPointKey, position: Vector3<f64>) -> bool {
-        self.points
-            .get_mut(key)
-            .map(|p| p.position = position)
-            .is_some()
+    /// Positions: point `key` at `position` (world); nothing when the point is gone.
+    /// Its normal and distances follow with [`Map::update_point`].
+    pub fn set_point_position(&mut self, key: MapPointKey, position: Vector3<f64>) {
+        if let Some(p) = self.points.get_mut(key) {
+            p.position = position;
+        }
     }
 
     /// Segments: keyframe `key` now belongs to `segment` (a loop merged its segment).

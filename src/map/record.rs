@@ -9,7 +9,6 @@ use crate::geometry::se3::Se3;
 /// One frame's hand-off from the tracking pass to the global pass.
 #[derive(Debug, Clone, Default)]
 pub struct FrameRecord {
-    pub index: usize,
     pub timestamp: f64,
     /// The map segment the frame was tracked in.
     pub segment: usize,
@@ -27,10 +26,9 @@ pub struct FrameRecord {
 }
 
 impl FrameRecord {
-    /// The record of the frame `index` at `timestamp`, before tracking in `segment`.
-    pub fn start(index: usize, timestamp: f64, segment: usize) -> Self {
+    /// The record of the frame at `timestamp`, before tracking in `segment`.
+    pub fn start(timestamp: f64, segment: usize) -> Self {
         Self {
-            index,
             timestamp,
             segment,
             ..Self::default()

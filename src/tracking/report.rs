@@ -40,8 +40,20 @@ impl TrackedFrame {
     pub fn start(frame: &crate::frame::Frame, state: TrackingState, segment: usize) -> Self {
         Self {
             stats: FrameStats::start(frame, state, segment),
-            record: FrameRecord::start(frame.index, frame.timestamp, segment),
+            record: FrameRecord::start(frame.timestamp, segment),
         }
+    }
+
+    /// The frame was tracked in `segment`: both halves say so.
+    pub fn in_segment(&mut self, segment: usize) {
+        self.stats.segment = segment;
+        self.record.segment = segment;
+    }
+
+    /// Keyframe `key` was made from the frame: both halves say so.
+    pub fn made_keyframe(&mut self, key: Option<crate::map::KeyFrameKey>) {
+        self.stats.keyframe = key.is_some();
+        self.record.keyframe = key;
     }
 }
 

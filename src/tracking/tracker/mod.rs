@@ -308,8 +308,7 @@ impl Tracker {
         self.lost_since = None;
         self.state = TrackingState::Ok;
         report.stats.state = TrackingState::Ok;
-        report.stats.segment = self.segment;
-        report.record.segment = self.segment;
+        report.in_segment(self.segment);
         report.stats.inliers = inliers;
         report.stats.matches = points.iter().filter(|p| p.is_some()).count();
         report.record.observations = points
@@ -349,8 +348,7 @@ impl Tracker {
         let (pose, points) = if need {
             self.insert_keyframe((map, &frame, gate), pose, points, false);
             let key = self.reference.expect("just inserted");
-            report.stats.keyframe = true;
-            report.record.keyframe = Some(key);
+            report.made_keyframe(Some(key));
             let keyframe = &map.keyframes()[key];
             (keyframe.camera_from_world, keyframe.map_points.clone())
         } else {
@@ -390,12 +388,10 @@ impl Tracker {
             vec![None; frame.len()],
             true,
         );
-        report.stats.keyframe = true;
-        report.record.keyframe = self.reference;
+        report.made_keyframe(self.reference);
         report.stats.state = TrackingState::Ok;
         report.stats.lost = None;
-        report.stats.segment = self.segment;
-        report.record.segment = self.segment;
+        report.in_segment(self.segment);
         report.record.camera_from_world = Some(camera_from_world);
         report.record.reference = self.reference.map(|k| (k, Se3::identity()));
         report.stats.inliers = with_depth;
