@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::checks::{self, BadValue};
+
 pub use crate::dense::DenseConfig;
 pub use crate::detect::DetectorConfig;
 pub use crate::dop::DopConfig;
@@ -27,10 +29,28 @@ pub enum ConfigError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("config {path}: {message}")]
-    Invalid { path: PathBuf, message: String },
+    #[error("config {path}: {problem}")]
+    Invalid { path: PathBuf, problem: ConfigProblem },
+    /// The ORB-SLAM2 settings file that a config names (`[dataset] settings`) failed.
+    #[error("config {config}: [dataset] settings: {source}")]
+    NamedSettings {
+        config: PathBuf,
+        source: Box<ConfigError>,
+    },
     #[error(transparent)]
     Settings(#[from] crate::io::IoError),
+}
+
+/// What is wrong with a config's text.
+#[derive(Debug, Error)]
+pub enum ConfigProblem {
+    /// Not TOML, an unknown key or a value of the wrong type (toml's message, which
+    /// names the key and the line).
+    #[error("{}", .0.to_string().trim_end())]
+    Syntax(#[from] toml::de::Error),
+    /// A value out of its range.
+    #[error(transparent)]
+    Value(#[from] BadValue),
 }
 
 /// How a sequence is read.
@@ -226,10 +246,8 @@ impl StereoConfig {
         }
     }
 
-    fn validate(&self) -> Result<(), String> {
-        if self.n_features == 0 {
-            return Err("stereo.n_features must be positive".into());
-        }
+    fn validate(&self) -> Result<(), BadValue> {
+        checks::at_least_one("stereo.n_features", self.n_features as u64)?;
         for (key, value) in [
             ("th_depth", self.th_depth),
             ("voxel", self.voxel),
@@ -237,28 +255,24 @@ impl StereoConfig {
             ("max_depth", self.max_depth),
             ("cloud_voxel", self.cloud_voxel),
         ] {
-            if value.is_nan() || value <= 0.0 {
-                return Err(format!("stereo.{key} must be positive, got {value}"));
-            }
+            checks::positive(&format!("stereo.{key}"), value)?;
         }
         for (key, value) in [
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("bearing_baselines", self.bearing_baselines),
         ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("stereo.{key} must be 0 or more, got {value}"));
-            }
+            checks::non_negative(&format!("stereo.{key}"), value)?;
         }
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
-            return Err(format!(
-                "stereo.sgbm_disparities must be a multiple of 16 from 16 to 1024, got {}",
-                self.sgbm_disparities
+            return Err(BadValue::new(
+                "stereo.sgbm_disparities",
+                format!("must be a multiple of 16 from 16 to 1024, got {}", self.sgbm_disparities),
             ));
         }
         if self.sgbm_block < 1 || self.sgbm_block % 2 == 0 || self.sgbm_block > 21 {
-            return Err(format!(
-                "stereo.sgbm_block must be odd, 1 to 21, got {}",
-                self.sgbm_block
+            return Err(BadValue::new(
+                "stereo.sgbm_block",
+                format!("must be odd, 1 to 21, got {}", self.sgbm_block),
             ));
         }
         Ok(())
@@ -272,18 +286,18 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        let mut config = Self::from_toml(&text).map_err(|message| ConfigError::Invalid {
+        let mut config = Self::from_toml(&text).map_err(|problem| ConfigError::Invalid {
             path: path.to_path_buf(),
-            message,
+            problem,
         })?;
         config.resolve_paths(path.parent().unwrap_or(Path::new("")));
         if let Some(settings) = config.dataset.settings.clone() {
             // The error names the config that named the settings file.
             config
                 .apply_orbslam_settings(&settings)
-                .map_err(|e| ConfigError::Invalid {
-                    path: path.to_path_buf(),
-                    message: format!("[dataset] settings: {e}"),
+                .map_err(|e| ConfigError::NamedSettings {
+                    config: path.to_path_buf(),
+                    source: Box::new(e),
                 })?;
         }
         Ok(config)
@@ -314,8 +328,8 @@ impl Config {
     }
 
     /// Parses and validates TOML text; the message names the offending key.
-    pub fn from_toml(text: &str) -> Result<Self, String> {
-        let config: Config = toml::from_str(text).map_err(|e| e.to_string().trim().to_string())?;
+    pub fn from_toml(text: &str) -> Result<Self, ConfigProblem> {
+        let config: Config = toml::from_str(text)?;
         config.validate()?;
         Ok(config)
     }
@@ -339,69 +353,31 @@ impl Config {
         config
     }
 
-    /// Checks every value's range; the message names the key.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks every value's range; the error names the key.
+    pub fn validate(&self) -> Result<(), BadValue> {
         self.check_numbers()?;
         self.orb.validate()?;
         self.stereo.validate()?;
         self.detector.validate()?;
         self.dop.validate()?;
-        if let Some(class) = self
-            .dop
-            .never_static_classes
-            .iter()
-            .find(|c| crate::detect::coco::class_id(c).is_none())
-        {
-            return Err(format!(
-                "dop.never_static_classes: {class:?} is not a COCO class name"
-            ));
-        }
+        let never_static = &self.dop.never_static_classes;
+        crate::detect::coco::check_class_names("dop.never_static_classes", never_static)?;
         self.dense.validate()?;
         self.output.validate()?;
         self.global.smoothing.validate()?;
-        if !(0.0..=1.0).contains(&self.tracking.prediction_gate_share) {
-            return Err(format!(
-                "tracking.prediction_gate_share must be in [0, 1], got {}",
-                self.tracking.prediction_gate_share
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.mapping.redundancy) {
-            return Err(format!(
-                "mapping.redundancy must be in [0, 1], got {}",
-                self.mapping.redundancy
-            ));
-        }
-        if self.mapping.local_ba_keyframes == 0 {
-            return Err("mapping.local_ba_keyframes must be at least 1".into());
-        }
+        checks::unit_interval("tracking.prediction_gate_share", self.tracking.prediction_gate_share)?;
+        checks::unit_interval("mapping.redundancy", self.mapping.redundancy)?;
+        checks::at_least_one("mapping.local_ba_keyframes", self.mapping.local_ba_keyframes as u64)?;
         if let Some(scale) = self.dataset.depth_scale {
-            if !(scale.is_finite() && scale > 0.0) {
-                return Err(format!("dataset.depth_scale must be positive, got {scale}"));
-            }
+            checks::positive("dataset.depth_scale", scale)?;
         }
-        if self.dataset.max_difference.is_nan() || self.dataset.max_difference <= 0.0 {
-            return Err(format!(
-                "dataset.max_difference must be positive, got {}",
-                self.dataset.max_difference
-            ));
-        }
+        checks::positive("dataset.max_difference", self.dataset.max_difference)?;
         if let Some(camera) = &self.dataset.camera {
-            camera
-                .validate()
-                .map_err(|m| format!("dataset.camera: {m}"))?;
+            camera.validate().map_err(|bad| bad.within("dataset"))?;
         }
-        if !(0.0..=1.0).contains(&self.eval.min_coverage) {
-            return Err(format!(
-                "eval.min_coverage must be in [0, 1], got {}",
-                self.eval.min_coverage
-            ));
-        }
+        checks::unit_interval("eval.min_coverage", self.eval.min_coverage)?;
         if let Some(max_diff) = self.eval.max_diff {
-            if max_diff.is_nan() || max_diff < 0.0 {
-                return Err(format!(
-                    "eval.max_diff must not be negative, got {max_diff}"
-                ));
-            }
+            checks::non_negative("eval.max_diff", max_diff)?;
         }
         Ok(())
     }
@@ -453,9 +429,9 @@ impl Config {
             no_meaning,
             unknown,
         });
-        self.validate().map_err(|message| ConfigError::Invalid {
+        self.validate().map_err(|bad| ConfigError::Invalid {
             path: path.to_path_buf(),
-            message,
+            problem: bad.into(),
         })?;
         Ok(settings)
     }
@@ -472,13 +448,14 @@ impl Config {
     /// Every number of the config, wherever it is: finite (no NaN, no infinity, which
     /// TOML accepts) and, but for [`may_be_negative`] keys, not below 0. The sections' own
     /// checks then narrow the ranges.
-    fn check_numbers(&self) -> Result<(), String> {
-        let value = toml::Value::try_from(self).map_err(|e| format!("config: {e}"))?;
+    fn check_numbers(&self) -> Result<(), BadValue> {
+        let value = toml::Value::try_from(self)
+            .map_err(|e| BadValue::new("config", format!("cannot be written as TOML: {e}")))?;
         check_value(&value, "")
     }
 }
 
-fn check_value(value: &toml::Value, key: &str) -> Result<(), String> {
+fn check_value(value: &toml::Value, key: &str) -> Result<(), BadValue> {
     let child = |name: &str| {
         if key.is_empty() {
             name.to_string()
@@ -488,13 +465,13 @@ fn check_value(value: &toml::Value, key: &str) -> Result<(), String> {
     };
     match value {
         toml::Value::Float(x) if !x.is_finite() => {
-            Err(format!("{key} must be a finite number, got {x}"))
+            Err(BadValue::new(key, format!("must be a finite number, got {x}")))
         }
         toml::Value::Float(x) if *x < 0.0 && !may_be_negative(key) => {
-            Err(format!("{key} must not be negative, got {x}"))
+            Err(BadValue::new(key, format!("must not be negative, got {x}")))
         }
         toml::Value::Integer(x) if *x < 0 && !may_be_negative(key) => {
-            Err(format!("{key} must not be negative, got {x}"))
+            Err(BadValue::new(key, format!("must not be negative, got {x}")))
         }
         toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| check_value(v, &child(k))),
         toml::Value::Array(items) => items
@@ -553,9 +530,9 @@ mod tests {
 
     #[test]
     fn unknown_keys_are_named() {
-        let message = Config::from_toml("[orb]\nn_featurez = 1500\n").unwrap_err();
+        let message = Config::from_toml("[orb]\nn_featurez = 1500\n").unwrap_err().to_string();
         assert!(message.contains("n_featurez"), "{message}");
-        let message = Config::from_toml("[nonsense]\n").unwrap_err();
+        let message = Config::from_toml("[nonsense]\n").unwrap_err().to_string();
         assert!(message.contains("nonsense"), "{message}");
     }
 
@@ -575,8 +552,10 @@ mod tests {
             ("[stereo]\nbearing_baselines = -1.0\n", "stereo.bearing_baselines"),
             ("[stereo]\nbearing_baselines = inf\n", "stereo.bearing_baselines"),
         ] {
-            let message = Config::from_toml(text).unwrap_err();
-            assert!(message.contains(key), "{text}: {message}");
+            match Config::from_toml(text) {
+                Err(ConfigProblem::Value(bad)) => assert_eq!(bad.key, key, "{text}: {bad}"),
+                other => panic!("{text}: {other:?}"),
+            }
         }
         assert!(Config::from_toml("[dense]\ncloud_free_space = -0.5\n").is_ok());
         let distorted = "[dataset.camera]\nfx = 517.3\nfy = 516.5\ncx = 318.6\ncy = 255.3\nwidth = 640\nheight = 480\ndistortion = [0.26, -0.95, -0.005, 0.003, 1.16]\n";
@@ -608,9 +587,14 @@ mod tests {
 
     #[test]
     fn bad_values_are_named() {
-        let message = Config::from_toml("[orb]\nscale_factor = 0.5\n").unwrap_err();
-        assert!(message.contains("orb.scale_factor"), "{message}");
-        let message = Config::from_toml("[dataset]\ndepth_scale = -5000.0\n").unwrap_err();
-        assert!(message.contains("dataset.depth_scale"), "{message}");
+        for (text, key) in [
+            ("[orb]\nscale_factor = 0.5\n", "orb.scale_factor"),
+            ("[dataset]\ndepth_scale = -5000.0\n", "dataset.depth_scale"),
+            ("[dataset.camera]\nfx = 0.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 2\nheight = 2\n", "dataset.camera.fx"),
+            ("[dop]\nnever_static_classes = [\"ghost\"]\n", "dop.never_static_classes"),
+        ] {
+            let message = Config::from_toml(text).unwrap_err().to_string();
+            assert!(message.starts_with(key), "{message}");
+        }
     }
 }

@@ -13,6 +13,7 @@
 
 pub mod batch;
 pub mod bow;
+pub mod checks;
 pub mod config;
 pub mod demo;
 pub mod dense;

@@ -584,7 +584,7 @@ fn run_demo(args: DemoArgs) -> Result<()> {
 }
 
 fn run_synth(args: SynthArgs) -> Result<()> {
-    let mut config = dopslam::synth::SynthConfig::load(&args.config).map_err(anyhow::Error::msg)?;
+    let mut config = dopslam::synth::SynthConfig::load(&args.config)?;
     if let Some(seed) = args.seed {
         config.sequence.seed = seed;
     }

@@ -357,7 +357,7 @@ fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
     };
     let error = both.validate().unwrap_err();
     assert!(
-        error.contains("model_path") && error.contains("model_paths"),
+        error.key == "detector.model_path" && error.problem.contains("model_paths"),
         "{error}"
     );
     let present = dir.join("present.onnx");
@@ -449,13 +449,13 @@ fn a_pool_config_names_its_files_and_is_checked() {
     assert_eq!(models[1].layout, Layout::Deimv2);
     let mut bad = config.clone();
     bad.pool[0].score_threshold = Some(1.5);
-    assert!(bad.validate().unwrap_err().contains("detector.pool[0].score_threshold"));
+    assert!(bad.validate().unwrap_err().key == "detector.pool[0].score_threshold");
     let mut factor = config.clone();
     factor.border_score_factor = -0.5;
-    assert!(factor.validate().unwrap_err().contains("detector.border_score_factor"));
+    assert!(factor.validate().unwrap_err().key == "detector.border_score_factor");
     let mut both = config.clone();
     both.model_path = Some("/x.onnx".into());
-    assert!(both.validate().unwrap_err().contains("pool"));
+    assert!(both.validate().unwrap_err().key == "detector.pool");
     let mut onnx = config;
     onnx.source = Source::Onnx;
     let error = onnx.resolved_source().unwrap_err().to_string();

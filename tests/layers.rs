@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 /// The floors of the crate, bottom first: a module may import its own floor and the
 /// ones below.
 const FLOORS: &[&[&str]] = &[
-    &["random", "interrupt", "memory", "threads", "pacing"],
+    &["random", "checks", "interrupt", "memory", "threads", "pacing"],
     &["geometry"],
     &["io", "features"],
     &["optim", "dop"],

@@ -96,7 +96,7 @@ fn bad_input_is_refused() {
     let base = common::temp_dir("synth-bad");
     let path = base.join("bad.toml");
     std::fs::write(&path, "[sequence]\nframez = 3\n").unwrap();
-    let message = SynthConfig::load(&path).unwrap_err();
+    let message = SynthConfig::load(&path).unwrap_err().to_string();
     assert!(
         message.contains("framez") && message.contains("bad.toml"),
         "{message}"

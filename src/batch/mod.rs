@@ -544,7 +544,7 @@ fn prepare_sequence(
             });
             let config = match config {
                 Ok(config) => config,
-                Err(problem) => return (dir, Some(problem)),
+                Err(problem) => return (dir, Some(problem.to_string())),
             };
             let part = out
                 .join("sequences")

@@ -8,6 +8,7 @@ use super::free_space::FreeSpaceSettings;
 use super::masks::MaskSettings;
 use super::segments::SegmentSettings;
 use super::tsdf::TsdfSettings;
+use crate::checks::{self, BadValue};
 use crate::detect::{DetectorConfig, Model, Source};
 use crate::io::ply::PlyEncoding;
 
@@ -210,26 +211,21 @@ impl Default for DenseConfig {
 }
 
 impl DenseConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = [
+    pub fn validate(&self) -> Result<(), BadValue> {
+        for (name, value) in [
             ("voxel", self.voxel),
             ("truncation", self.truncation),
             ("max_depth", self.max_depth),
             ("max_weight", self.max_weight as f64),
             ("cloud_voxel", self.cloud_voxel),
             ("outlier_std", self.outlier_std),
-        ];
-        for (name, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!(
-                    "dense.{name} must be a positive number, not {value}"
-                ));
-            }
+        ] {
+            checks::positive(&format!("dense.{name}"), value)?;
         }
         if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
-            return Err(format!(
-                "dense.cloud_free_space must be a number above -1, not {}",
-                self.cloud_free_space
+            return Err(BadValue::new(
+                "dense.cloud_free_space",
+                format!("must be a number above -1, got {}", self.cloud_free_space),
             ));
         }
         for (name, value) in [
@@ -238,39 +234,25 @@ impl DenseConfig {
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
         ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("dense.{name} must be 0 or more, not {value}"));
-            }
+            checks::non_negative(&format!("dense.{name}"), value)?;
         }
-        if !(0.0..=1.0).contains(&self.mask_segment_edge_share) {
-            return Err(format!(
-                "dense.mask_segment_edge_share must be in [0, 1], not {}",
-                self.mask_segment_edge_share
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.mask_foreground_share) {
-            return Err(format!(
-                "dense.mask_foreground_share must be in [0, 1], not {}",
-                self.mask_foreground_share
-            ));
-        }
+        checks::unit_interval("dense.mask_segment_edge_share", self.mask_segment_edge_share)?;
+        checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;
         if self.truncation < self.voxel {
-            return Err(format!(
-                "dense.truncation ({}) must be at least one voxel ({})",
-                self.truncation, self.voxel
+            return Err(BadValue::new(
+                "dense.truncation",
+                format!("({}) must be at least one voxel ({})", self.truncation, self.voxel),
             ));
         }
         if self.voxel < 0.002 {
-            return Err(format!(
-                "dense.voxel {} m is below 2 mm: no depth sensor resolves that",
-                self.voxel
+            return Err(BadValue::new(
+                "dense.voxel",
+                format!("{} m is below 2 mm: no depth sensor resolves that", self.voxel),
             ));
         }
         crate::detect::tiles::check_grid("dense.detect_tiles", self.detect_tiles)?;
-        if self.frame_step == 0 || self.cloud_stride == 0 {
-            return Err("dense.frame_step and dense.cloud_stride must be at least 1".into());
-        }
-        Ok(())
+        checks::at_least_one("dense.frame_step", self.frame_step as u64)?;
+        checks::at_least_one("dense.cloud_stride", self.cloud_stride as u64)
     }
 
     /// The detector of the dense pass's own detections: the run's `tracking` one, with

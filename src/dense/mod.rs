@@ -110,7 +110,7 @@ pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
 pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseReport, IoError> {
     config
         .validate()
-        .map_err(|m| IoError::invalid(inputs.run_dir, m))?;
+        .map_err(|m| IoError::invalid(inputs.run_dir, m.to_string()))?;
     let started = Instant::now();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let mut read = inputs::read_run(&run, inputs.masking)?;

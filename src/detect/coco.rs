@@ -95,6 +95,17 @@ const ALIASES: [(&str, &str); 6] = [
     ("tvmonitor", "tv"),
 ];
 
+/// `Ok` when every name of `classes` (the list at `key`) is a COCO class name.
+pub fn check_class_names(key: &str, classes: &[String]) -> Result<(), crate::checks::BadValue> {
+    match classes.iter().find(|c| class_id(c).is_none()) {
+        Some(class) => Err(crate::checks::BadValue::new(
+            key,
+            format!("lists {class:?}, which is not a COCO class name"),
+        )),
+        None => Ok(()),
+    }
+}
+
 /// The COCO index of a class name (case-insensitive, aliases accepted).
 pub fn class_id(name: &str) -> Option<u32> {
     let lower = name.trim().to_lowercase();

@@ -18,6 +18,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::checks::{non_negative, unit_interval, BadValue};
 use crate::io::data_dir::{DataDir, INSTALL_HINT};
 use yolo::Layout;
 
@@ -215,40 +216,34 @@ impl Default for DetectorConfig {
 
 impl DetectorConfig {
     /// Checks thresholds and class names.
-    pub fn validate(&self) -> Result<(), String> {
-        for (name, v) in [
-            ("score_threshold", self.score_threshold),
-            ("border_score_factor", self.border_score_factor),
-            ("nms_threshold", self.nms_threshold),
-        ] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(format!("detector.{name} must be in [0, 1], got {v}"));
-            }
-        }
-        if !(self.simulated_latency_ms.is_finite() && self.simulated_latency_ms >= 0.0) {
-            return Err(format!(
-                "detector.simulated_latency_ms must be >= 0, got {}",
-                self.simulated_latency_ms
-            ));
-        }
+    pub fn validate(&self) -> Result<(), BadValue> {
+        unit_interval("detector.score_threshold", self.score_threshold)?;
+        unit_interval("detector.border_score_factor", self.border_score_factor)?;
+        unit_interval("detector.nms_threshold", self.nms_threshold)?;
+        non_negative("detector.simulated_latency_ms", self.simulated_latency_ms)?;
         tiles::check_grid("detector.tiles", self.tiles)?;
         if self.model_path.is_some() && !self.model_paths.is_empty() {
-            return Err(
-                "detector: set model_path (one file) or model_paths (several), not both".into(),
-            );
+            return Err(BadValue::new(
+                "detector.model_path",
+                "is set beside detector.model_paths: set one file or several, not both",
+            ));
         }
         if !self.pool.is_empty() && (self.model_path.is_some() || !self.model_paths.is_empty()) {
-            return Err("detector: set pool (several models) or model_path / model_paths, not both".into());
+            return Err(BadValue::new(
+                "detector.pool",
+                "is set beside detector.model_path / model_paths: set several models or a path, not both",
+            ));
         }
         for (i, entry) in self.pool.iter().enumerate() {
-            if let Some(t) = entry.score_threshold.filter(|t| !(0.0..=1.0).contains(t)) {
-                return Err(format!("detector.pool[{i}].score_threshold must be in [0, 1], got {t}"));
+            if let Some(t) = entry.score_threshold {
+                unit_interval(&format!("detector.pool[{i}].score_threshold"), t)?;
             }
         }
-        for class in self.dynamic_classes.iter().chain(&self.static_classes) {
-            if coco::class_id(class).is_none() {
-                return Err(format!("detector: {class:?} is not a COCO class name"));
-            }
+        for (key, classes) in [
+            ("detector.dynamic_classes", &self.dynamic_classes),
+            ("detector.static_classes", &self.static_classes),
+        ] {
+            coco::check_class_names(key, classes)?;
         }
         Ok(())
     }

@@ -41,11 +41,14 @@ impl Tiled {
 
 /// Checks a tile grid's side, `key` naming the config key: 1 (the whole image only)
 /// to 4.
-pub fn check_grid(key: &str, grid: u32) -> Result<(), String> {
+pub fn check_grid(key: &str, grid: u32) -> Result<(), crate::checks::BadValue> {
     if (1..=4).contains(&grid) {
         return Ok(());
     }
-    Err(format!("{key} must be 1 (the whole image) to 4, got {grid}"))
+    Err(crate::checks::BadValue::new(
+        key,
+        format!("must be 1 (the whole image) to 4, got {grid}"),
+    ))
 }
 
 /// The tiles' rectangles `(x, y, width, height)` of a `width` x `height` image.

@@ -21,6 +21,8 @@ pub mod tracks;
 
 use serde::{Deserialize, Serialize};
 
+use crate::checks::{self, BadValue};
+
 /// How detections are used against moving objects (`dopslam run --no-dop |
 /// --mask-boxes | --dop`).
 ///
@@ -212,51 +214,37 @@ impl Default for DopConfig {
 }
 
 impl DopConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        let unit = |name: &str, v: f32| {
-            if (0.0..=1.0).contains(&v) {
-                Ok(())
-            } else {
-                Err(format!("dop.{name} must be in [0, 1], got {v}"))
-            }
-        };
-        unit("alpha_rgbd", self.alpha_rgbd)?;
-        unit("alpha_stereo", self.alpha_stereo)?;
-        unit("p_init", self.p_init)?;
-        unit("removal_threshold", self.removal_threshold)?;
-        unit("cull_threshold", self.cull_threshold)?;
-        unit("central_fraction", self.central_fraction)?;
-        unit("alpha_geometric", self.alpha_geometric)?;
-        unit("geometric_max_outliers", self.geometric_max_outliers)?;
-        unit("rigidity_agreement", self.rigidity_agreement)?;
-        if !(self.rigidity_sigmas >= 0.0 && self.rigidity_sigmas.is_finite()) {
-            return Err(format!(
-                "dop.rigidity_sigmas must be a number >= 0 (0: off), got {}",
-                self.rigidity_sigmas
-            ));
+    pub fn validate(&self) -> Result<(), BadValue> {
+        for (name, v) in [
+            ("alpha_rgbd", self.alpha_rgbd),
+            ("alpha_stereo", self.alpha_stereo),
+            ("p_init", self.p_init),
+            ("removal_threshold", self.removal_threshold),
+            ("cull_threshold", self.cull_threshold),
+            ("central_fraction", self.central_fraction),
+            ("alpha_geometric", self.alpha_geometric),
+            ("geometric_max_outliers", self.geometric_max_outliers),
+            ("rigidity_agreement", self.rigidity_agreement),
+        ] {
+            checks::unit_interval(&format!("dop.{name}"), v)?;
         }
-        if self.track_seconds < 0.0
-            || self.track_gate < 0.0
-            || self.track_max_speed < 0.0
-            || self.track_moved_metres < 0.0
-        {
-            return Err(
-                "dop.track_seconds, track_gate, track_max_speed and track_moved_metres must be >= 0"
-                    .into(),
-            );
+        for (name, v) in [
+            ("rigidity_sigmas", self.rigidity_sigmas),
+            ("track_seconds", self.track_seconds),
+            ("track_gate", self.track_gate),
+            ("track_max_speed", self.track_max_speed),
+            ("track_moved_metres", self.track_moved_metres),
+            ("static_seconds", self.static_seconds),
+            ("gamma", self.gamma),
+        ] {
+            checks::non_negative(&format!("dop.{name}"), v)?;
         }
-        if self.static_seconds < 0.0 {
-            return Err("dop.static_seconds must be >= 0".into());
-        }
-        if self.geometric_frames == 0 {
-            return Err("dop.geometric_frames must be at least 1".into());
-        }
+        checks::positive("dop.c", self.c)?;
+        checks::positive("dop.delta_z", self.delta_z)?;
+        checks::at_least_one("dop.geometric_frames", self.geometric_frames)?;
         let t = self.thresholds;
         if !(t[0] <= t[1] && t[1] <= t[2]) {
-            return Err(format!("dop.thresholds must increase, got {t:?}"));
-        }
-        if self.gamma < 0.0 || self.c <= 0.0 || self.delta_z <= 0.0 {
-            return Err("dop.gamma must be >= 0, dop.c and dop.delta_z > 0".into());
+            return Err(BadValue::new("dop.thresholds", format!("must increase, got {t:?}")));
         }
         Ok(())
     }

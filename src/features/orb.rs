@@ -9,6 +9,8 @@ use image::GrayImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::checks::BadValue;
+
 use super::descriptor::{describe, orientation, Descriptor, HALF_PATCH};
 use super::distribute::spread;
 use super::fast;
@@ -54,33 +56,34 @@ impl Default for OrbConfig {
 }
 
 impl OrbConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), BadValue> {
         let orb = self;
-        if orb.n_features == 0 {
-            return Err("orb.n_features must be positive".into());
-        }
+        crate::checks::at_least_one("orb.n_features", orb.n_features as u64)?;
         if !(orb.scale_factor > 1.0 && orb.scale_factor < 2.0) {
-            return Err(format!(
-                "orb.scale_factor must be in (1, 2), got {}",
-                orb.scale_factor
+            return Err(BadValue::new(
+                "orb.scale_factor",
+                format!("must be in (1, 2), got {}", orb.scale_factor),
             ));
         }
         if !(1..=16).contains(&orb.n_levels) {
-            return Err(format!(
-                "orb.n_levels must be in 1..=16, got {}",
-                orb.n_levels
+            return Err(BadValue::new(
+                "orb.n_levels",
+                format!("must be in 1..=16, got {}", orb.n_levels),
             ));
         }
         if !(1.0..=4.0).contains(&orb.max_features_factor) {
-            return Err(format!(
-                "orb.max_features_factor must be in [1, 4], got {}",
-                orb.max_features_factor
+            return Err(BadValue::new(
+                "orb.max_features_factor",
+                format!("must be in [1, 4], got {}", orb.max_features_factor),
             ));
         }
         if orb.min_th_fast > orb.ini_th_fast {
-            return Err(format!(
-                "orb.min_th_fast ({}) must not exceed orb.ini_th_fast ({})",
-                orb.min_th_fast, orb.ini_th_fast
+            return Err(BadValue::new(
+                "orb.min_th_fast",
+                format!(
+                    "({}) must not exceed orb.ini_th_fast ({})",
+                    orb.min_th_fast, orb.ini_th_fast
+                ),
             ));
         }
         Ok(())
@@ -345,11 +348,11 @@ mod tests {
             min_th_fast: 30,
             ..OrbConfig::default()
         };
-        assert!(bad.validate().unwrap_err().contains("min_th_fast"));
+        assert!(bad.validate().unwrap_err().key == "orb.min_th_fast");
         let bad = OrbConfig {
             max_features_factor: 0.5,
             ..OrbConfig::default()
         };
-        assert!(bad.validate().unwrap_err().contains("max_features_factor"));
+        assert!(bad.validate().unwrap_err().key == "orb.max_features_factor");
     }
 }

@@ -4,6 +4,8 @@
 use nalgebra::{Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::checks::{positive, BadValue};
+
 /// Intrinsics of a pinhole camera, in pixels; distortion as OpenCV's
 /// `(k1, k2, p1, p2, k3)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -90,23 +92,18 @@ impl PinholeCamera {
     }
 
     /// Checks that the intrinsics are usable, naming the first bad value.
-    pub fn validate(&self) -> Result<(), String> {
-        for (name, value) in [("fx", self.fx), ("fy", self.fy)] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!(
-                    "camera {name} must be a positive number, got {value}"
-                ));
-            }
-        }
-        for (name, value) in [("cx", self.cx), ("cy", self.cy)] {
+    pub fn validate(&self) -> Result<(), BadValue> {
+        positive("camera.fx", self.fx)?;
+        positive("camera.fy", self.fy)?;
+        for (key, value) in [("camera.cx", self.cx), ("camera.cy", self.cy)] {
             if !value.is_finite() {
-                return Err(format!("camera {name} must be finite, got {value}"));
+                return Err(BadValue::new(key, format!("must be finite, got {value}")));
             }
         }
         if self.width == 0 || self.height == 0 {
-            return Err(format!(
-                "camera size must be positive, got {}x{}",
-                self.width, self.height
+            return Err(BadValue::new(
+                "camera.width",
+                format!("and height must be positive, got {}x{}", self.width, self.height),
             ));
         }
         Ok(())
@@ -144,6 +141,6 @@ mod tests {
     fn validation_names_the_bad_value() {
         let mut camera = PinholeCamera::tum_fr3();
         camera.fy = -1.0;
-        assert!(camera.validate().unwrap_err().contains("fy"));
+        assert!(camera.validate().unwrap_err().key == "camera.fy");
     }
 }

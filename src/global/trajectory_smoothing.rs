@@ -33,6 +33,7 @@ use std::time::Instant;
 use nalgebra::{Rotation3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::checks::{positive, BadValue};
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
@@ -77,18 +78,9 @@ impl Default for SmoothingConfig {
 }
 
 impl SmoothingConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        for (key, value) in [
-            ("acceleration", self.acceleration),
-            ("angular_acceleration", self.angular_acceleration),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!(
-                    "global.smoothing.{key} must be a positive number, not {value}"
-                ));
-            }
-        }
-        Ok(())
+    pub fn validate(&self) -> Result<(), BadValue> {
+        positive("global.smoothing.acceleration", self.acceleration)?;
+        positive("global.smoothing.angular_acceleration", self.angular_acceleration)
     }
 }
 

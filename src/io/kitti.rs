@@ -70,7 +70,7 @@ pub fn read_kitti_calibration(
     };
     camera
         .validate()
-        .map_err(|message| IoError::invalid(path, message))?;
+        .map_err(|message| IoError::invalid(path, message.to_string()))?;
     let bf = -p1[3];
     if bf <= 0.0 {
         return Err(IoError::invalid(

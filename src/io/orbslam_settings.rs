@@ -186,7 +186,7 @@ impl OrbSlamSettings {
         };
         camera
             .validate()
-            .map_err(|message| IoError::invalid(path, message))?;
+            .map_err(|message| IoError::invalid(path, message.to_string()))?;
         let calibration = Calibration {
             camera,
             bf: number("Camera.bf")?,

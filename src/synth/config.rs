@@ -9,6 +9,8 @@ use super::movers::{ObjectsConfig, PeopleConfig, SeatedConfig};
 use super::oracle::OracleConfig;
 use super::render::SensorConfig;
 use super::street::StreetConfig;
+use crate::checks::{self, BadValue};
+use crate::config::{ConfigError, ConfigProblem};
 use crate::geometry::camera::PinholeCamera;
 
 /// How many frames, how fast, from which seed.
@@ -130,15 +132,18 @@ pub struct SynthConfig {
 
 impl SynthConfig {
     /// Reads a preset; relative paths inside it are taken from the current folder.
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read synth config {}: {e}", path.display()))?;
-        let mut config: SynthConfig = toml::from_str(&text)
-            .map_err(|e| format!("synth config {}: {}", path.display(), e.to_string().trim()))?;
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let invalid = |problem: ConfigProblem| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            problem,
+        };
+        let mut config: SynthConfig = toml::from_str(&text).map_err(|e| invalid(e.into()))?;
         config.resolve_paths(path.parent().unwrap_or(Path::new("")));
-        config
-            .validate()
-            .map_err(|m| format!("synth config {}: {m}", path.display()))?;
+        config.validate().map_err(|bad| invalid(bad.into()))?;
         Ok(config)
     }
 
@@ -165,19 +170,10 @@ impl SynthConfig {
         self.camera.unwrap_or_else(PinholeCamera::tum_fr3)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        if self.sequence.frames == 0 {
-            return Err("sequence.frames must be positive".into());
-        }
-        if self.sequence.fps.is_nan() || self.sequence.fps <= 0.0 {
-            return Err(format!(
-                "sequence.fps must be positive, got {}",
-                self.sequence.fps
-            ));
-        }
-        self.camera()
-            .validate()
-            .map_err(|m| format!("camera: {m}"))?;
+    pub fn validate(&self) -> Result<(), BadValue> {
+        checks::at_least_one("sequence.frames", self.sequence.frames as u64)?;
+        checks::positive("sequence.fps", self.sequence.fps)?;
+        self.camera().validate()?;
         self.oracle.validate()?;
         self.sensor.validate()?;
         self.objects.validate("objects", true)?;
@@ -187,32 +183,38 @@ impl SynthConfig {
         self.street.validate()?;
         if let Some(table) = self.scene.table {
             if !table.iter().all(|s| s.is_finite() && *s > 0.0 && *s <= 10.0) {
-                return Err(format!(
-                    "scene.table must be [length, width, height], each above 0 and at most 10 m, got {table:?}"
+                return Err(BadValue::new(
+                    "scene.table",
+                    format!("must be [length, width, height], each above 0 and at most 10 m, got {table:?}"),
                 ));
             }
         }
-        if !(self.stereo.rectification_error_px.is_finite()
-            && self.stereo.rectification_error_px.abs() <= 5.0)
-        {
-            return Err(format!(
-                "stereo.rectification_error_px must be -5 to 5 pixels, got {}",
-                self.stereo.rectification_error_px
+        let error_px = self.stereo.rectification_error_px;
+        if !(error_px.is_finite() && error_px.abs() <= 5.0) {
+            return Err(BadValue::new(
+                "stereo.rectification_error_px",
+                format!("must be -5 to 5 pixels, got {error_px}"),
             ));
         }
         if !(0.0..=2.0).contains(&self.stereo.baseline) {
-            return Err(format!(
-                "stereo.baseline must be 0 (off) to 2 m, got {}",
-                self.stereo.baseline
+            return Err(BadValue::new(
+                "stereo.baseline",
+                format!("must be 0 (off) to 2 m, got {}", self.stereo.baseline),
             ));
         }
         if let Some(depth) = &self.depth_camera {
-            depth.camera.validate().map_err(|e| format!("depth_camera.camera: {e}"))?;
+            depth.camera.validate().map_err(|bad| bad.within("depth_camera"))?;
             if !depth.camera.is_undistorted() {
-                return Err("depth_camera.camera.distortion must be zeros (a pinhole is rendered)".into());
+                return Err(BadValue::new(
+                    "depth_camera.camera.distortion",
+                    "must be zeros (a pinhole is rendered)",
+                ));
             }
             if depth.offset.iter().any(|v| !(v.is_finite() && v.abs() <= 0.5)) {
-                return Err(format!("depth_camera.offset must be within 0.5 m, got {:?}", depth.offset));
+                return Err(BadValue::new(
+                    "depth_camera.offset",
+                    format!("must be within 0.5 m, got {:?}", depth.offset),
+                ));
             }
         }
         Ok(())

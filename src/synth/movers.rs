@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::scene::{Cuboid, Scene, Shape};
 use super::sprite::{Billboard, Sprite};
+use crate::checks::{self, BadValue};
 use crate::detect::coco;
 use crate::geometry::se3::Se3;
 
@@ -136,38 +137,41 @@ impl Default for ObjectsConfig {
 impl ObjectsConfig {
     /// Checks the section `key` (`objects`, or `unknown` for movers of no COCO class:
     /// `known` says which the class must be).
-    pub fn validate(&self, key: &str, known: bool) -> Result<(), String> {
+    pub fn validate(&self, key: &str, known: bool) -> Result<(), BadValue> {
+        let class_key = format!("{key}.class");
         match (coco::class_id(&self.class).is_some(), known) {
             (false, true) => {
-                return Err(format!(
-                    "{key}.class: {:?} is not a COCO class name",
-                    self.class
+                return Err(BadValue::new(
+                    class_key,
+                    format!("{:?} is not a COCO class name", self.class),
                 ))
             }
             (true, false) => {
-                return Err(format!(
-                    "{key}.class: {:?} is a COCO class (a detector knows it); movers no detector knows go here, others under [objects]",
-                    self.class
+                return Err(BadValue::new(
+                    class_key,
+                    format!(
+                        "{:?} is a COCO class (a detector knows it); movers no detector knows go here, others under [objects]",
+                        self.class
+                    ),
                 ))
             }
             _ => {}
         }
         if self.size.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(format!("{key}.size must be positive, got {:?}", self.size));
+            return Err(BadValue::new(
+                format!("{key}.size"),
+                format!("must be positive, got {:?}", self.size),
+            ));
         }
         for (name, value) in [("speed", self.speed), ("span", self.span)] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!("{key}.{name} must be positive, got {value}"));
-            }
+            checks::positive(&format!("{key}.{name}"), value)?;
         }
         for (name, value) in [
             ("distance", self.distance),
             ("pause", self.pause),
             ("lift", self.lift),
         ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(format!("{key}.{name} must be 0 or more, got {value}"));
-            }
+            checks::non_negative(&format!("{key}.{name}"), value)?;
         }
         Ok(())
     }

@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::checks::{self, BadValue};
 use crate::detect::Detection;
 use crate::random::Rng;
 
@@ -50,31 +51,22 @@ impl OracleConfig {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        for (name, value) in [
-            ("oracle.miss_rate", self.miss_rate),
-            ("oracle.false_positive_rate", self.false_positive_rate),
-        ] {
-            if !(0.0..=1.0).contains(&value) {
-                return Err(format!("{name} must be in [0, 1], got {value}"));
-            }
-        }
+    pub fn validate(&self) -> Result<(), BadValue> {
+        checks::unit_interval("oracle.miss_rate", self.miss_rate)?;
+        checks::unit_interval("oracle.false_positive_rate", self.false_positive_rate)?;
         if !(0.0..=1.0).contains(&self.score_min)
             || !(self.score_min..=1.0).contains(&self.score_max)
         {
-            return Err(format!(
-                "oracle scores need 0 <= score_min <= score_max <= 1, got {} and {}",
-                self.score_min, self.score_max
+            return Err(BadValue::new(
+                "oracle.score_min",
+                format!(
+                    "and score_max need 0 <= score_min <= score_max <= 1, got {} and {}",
+                    self.score_min, self.score_max
+                ),
             ));
         }
-        if self.margin.is_nan()
-            || self.margin < 0.0
-            || self.jitter_px.is_nan()
-            || self.jitter_px < 0.0
-        {
-            return Err("oracle.margin and oracle.jitter_px must not be negative".into());
-        }
-        Ok(())
+        checks::non_negative("oracle.margin", self.margin)?;
+        checks::non_negative("oracle.jitter_px", self.jitter_px)
     }
 
     /// Turns exact boxes into detector-like ones, clamped to a `width` x `height` image.

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::scene::Shape;
 use super::scene::{Cuboid, Scene};
+use crate::checks::{self, BadValue};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::kinect_depth_sigma;
 use crate::geometry::se3::Se3;
@@ -80,29 +81,24 @@ impl SensorConfig {
             .collect()
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        if self.max_depth.is_nan() || self.max_depth <= 0.0 {
-            return Err(format!(
-                "sensor.max_depth must be positive, got {}",
-                self.max_depth
-            ));
-        }
+    pub fn validate(&self) -> Result<(), BadValue> {
+        checks::positive("sensor.max_depth", self.max_depth)?;
         if !(0.0..1.0).contains(&self.exposure_variation) {
-            return Err(format!(
-                "sensor.exposure_variation must be in [0, 1), got {}",
-                self.exposure_variation
+            return Err(BadValue::new(
+                "sensor.exposure_variation",
+                format!("must be in [0, 1), got {}", self.exposure_variation),
             ));
         }
         if !(0.0..=0.2).contains(&self.exposure_time) {
-            return Err(format!(
-                "sensor.exposure_time must be 0 to 0.2 s, got {}",
-                self.exposure_time
+            return Err(BadValue::new(
+                "sensor.exposure_time",
+                format!("must be 0 to 0.2 s, got {}", self.exposure_time),
             ));
         }
         if self.blur_samples == 0 || self.blur_samples > 32 {
-            return Err(format!(
-                "sensor.blur_samples must be 1 to 32, got {}",
-                self.blur_samples
+            return Err(BadValue::new(
+                "sensor.blur_samples",
+                format!("must be 1 to 32, got {}", self.blur_samples),
             ));
         }
         Ok(())

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::movers::{standing_corner, up_axis, Appearance, Behaviour, Mover};
 use super::scene::{Cuboid, Scene};
+use crate::checks::{self, BadValue};
 use crate::geometry::se3::Se3;
 use crate::random::Rng;
 
@@ -68,8 +69,8 @@ impl Default for StreetConfig {
 }
 
 impl StreetConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = [
+    pub fn validate(&self) -> Result<(), BadValue> {
+        for (key, value) in [
             ("camera_height", self.camera_height),
             ("half_width", self.half_width),
             ("building_spacing", self.building_spacing),
@@ -78,22 +79,17 @@ impl StreetConfig {
             ("pedestrian_speed", self.pedestrian_speed),
             ("render_range", self.render_range),
             ("road_spacing", self.road_spacing),
-        ];
-        for (key, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!("street.{key} must be positive, got {value}"));
-            }
+        ] {
+            checks::positive(&format!("street.{key}"), value)?;
         }
-        if !(0.0..=1.0).contains(&self.parked_share) {
-            return Err(format!(
-                "street.parked_share must be in [0, 1], got {}",
-                self.parked_share
-            ));
-        }
+        checks::unit_interval("street.parked_share", self.parked_share)?;
         if self.parking_offset >= self.half_width {
-            return Err(format!(
-                "street.parking_offset ({}) must be less than street.half_width ({}): cars park in front of the buildings",
-                self.parking_offset, self.half_width
+            return Err(BadValue::new(
+                "street.parking_offset",
+                format!(
+                    "({}) must be less than street.half_width ({}): cars park in front of the buildings",
+                    self.parking_offset, self.half_width
+                ),
             ));
         }
         Ok(())

@@ -43,6 +43,8 @@ pub enum SynthError {
     #[error("{0}")]
     Config(String),
     #[error(transparent)]
+    Value(#[from] crate::checks::BadValue),
+    #[error(transparent)]
     Io(#[from] IoError),
 }
 
@@ -260,7 +262,7 @@ pub struct World {
 impl World {
     /// Builds the world of a config: reads timing, trajectory and cut-out files.
     pub fn new(config: &SynthConfig) -> Result<Self, SynthError> {
-        config.validate().map_err(SynthError::Config)?;
+        config.validate()?;
         let (times, t0) = frame_times(config)?;
         let poses = poses_at(&config.motion, &times)?;
         let (scene, movers) = build_world(config, &poses)?;

@@ -21,6 +21,8 @@ pub use error::ViewError;
 
 use serde::{Deserialize, Serialize};
 
+use crate::checks::{self, BadValue};
+
 pub use entry::{At, Entry, Level, Target};
 pub use log::{LogHandle, LogSummary, Logger};
 
@@ -57,26 +59,22 @@ impl Default for OutputConfig {
 
 impl OutputConfig {
     /// Checks each value's range; the message names the key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), BadValue> {
         let scale = self.rerun_image_scale;
         if !(scale.is_finite() && scale > 0.0 && scale <= 1.0) {
-            return Err(format!(
-                "output.rerun_image_scale must be in (0, 1], got {scale}"
+            return Err(BadValue::new(
+                "output.rerun_image_scale",
+                format!("must be in (0, 1], got {scale}"),
             ));
         }
         if !(1..=100).contains(&self.rerun_jpeg_quality) {
-            return Err(format!(
-                "output.rerun_jpeg_quality must be in 1-100, got {}",
-                self.rerun_jpeg_quality
+            return Err(BadValue::new(
+                "output.rerun_jpeg_quality",
+                format!("must be in 1-100, got {}", self.rerun_jpeg_quality),
             ));
         }
-        if self.rerun_max_points == 0 {
-            return Err("output.rerun_max_points must be at least 1".into());
-        }
-        if self.rerun_queue == 0 {
-            return Err("output.rerun_queue must be at least 1".into());
-        }
-        Ok(())
+        checks::at_least_one("output.rerun_max_points", self.rerun_max_points as u64)?;
+        checks::at_least_one("output.rerun_queue", self.rerun_queue as u64)
     }
 }
 
