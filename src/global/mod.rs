@@ -127,17 +127,34 @@ impl GlobalConfig {
     }
 }
 
+/// Why the global pass runs without loop closing (in `report.json` as its sentence,
+/// `global.note`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NoLoops {
+    /// The config or `--no-loops` turned it off.
+    #[error("loop closing is off ([global.loops] enabled = false, --no-loops)")]
+    TurnedOff,
+    /// The vocabulary at `path` cannot be read (`problem`); `fix` says how to get one.
+    #[error("loop closing needs the vocabulary {}: {problem}; {fix}; or run with --no-loops", path.display())]
+    NoVocabulary {
+        path: PathBuf,
+        problem: String,
+        fix: &'static str,
+    },
+}
+
 /// The place-recognition vocabulary of `config`, or why loop detection cannot run:
-/// the message names the file and the ways out.
-pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, String> {
+/// the error names the file and the ways out.
+pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, NoLoops> {
     let path = config.vocabulary_file();
-    Vocabulary::read(&path).map(Arc::new).map_err(|e| {
-        let fix = if path.exists() {
-            "train one with `dopslam vocab train` or set [global] vocabulary".to_string()
+    Vocabulary::read(&path).map(Arc::new).map_err(|e| NoLoops::NoVocabulary {
+        fix: if path.exists() {
+            "train one with `dopslam vocab train` or set [global] vocabulary"
         } else {
-            crate::io::data_dir::INSTALL_HINT.to_string()
-        };
-        format!("loop closing needs the vocabulary {}: {e}; {fix}; or run with --no-loops", path.display())
+            crate::io::data_dir::INSTALL_HINT
+        },
+        problem: e.to_string(),
+        path,
     })
 }
 
@@ -148,7 +165,7 @@ pub fn run<'a>(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
-    recognised: Result<PlaceRecognition, String>,
+    recognised: Result<PlaceRecognition, NoLoops>,
     frames: impl Iterator<Item = &'a mut FrameRecord>,
 ) -> GlobalReport {
     let start = Instant::now();
@@ -159,7 +176,7 @@ pub fn run<'a>(
             closer.close_found(map);
             (report.loops, report.candidates, report.loop_detection_ms) = closer.finish();
         }
-        Err(note) => report.note = Some(note),
+        Err(why) => report.note = Some(why.to_string()),
     }
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
     if config.full_ba {

@@ -13,6 +13,9 @@ pub enum RunError {
     /// The run's Rerun recording failed.
     #[error(transparent)]
     View(#[from] crate::view::ViewError),
+    /// Loop closing is on but cannot run (no vocabulary): an error before any work.
+    #[error(transparent)]
+    NoLoops(#[from] crate::global::NoLoops),
     /// Bad input found before any work (a missing model, an empty sequence, no
     /// calibration).
     #[error("{0}")]

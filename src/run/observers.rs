@@ -10,6 +10,7 @@ use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
 use crate::frame::Frame;
+use crate::io::IoError;
 use crate::io::image_files::DepthImage;
 use crate::tracking::input::Picture;
 use crate::map::record::FrameRecord;
@@ -46,8 +47,8 @@ impl FrameView<'_> {
 
 /// Watches the tracking pass.
 pub trait FrameObserver {
-    /// After each frame; an error stops the pass (its message says why).
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String>;
+    /// After each frame; an error (a file it could not write) stops the pass.
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError>;
 
     /// After detections were applied to their keyframes.
     fn on_applied(&mut self, _applied: &[Applied]) {}
@@ -79,7 +80,7 @@ impl Progress {
 }
 
 impl FrameObserver for Progress {
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         self.bar.set_message(format!("{:?}", view.stats.state));
         self.bar.inc(1);
         Ok(())
@@ -96,7 +97,7 @@ pub struct DebugFrames {
 }
 
 impl FrameObserver for DebugFrames {
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         let (Some(frame), Some(picture)) = (view.frame, view.picture) else {
             return Ok(());
         };
@@ -106,7 +107,7 @@ impl FrameObserver for DebugFrames {
         let path = self.dir.join(format!("{:06}.png", view.index));
         std::fs::create_dir_all(&self.dir)
             .and_then(|_| picture.save(&path).map_err(std::io::Error::other))
-            .map_err(|e| format!("cannot write {}: {e}", path.display()))
+            .map_err(|source| IoError::Write { path, source })
     }
 }
 
@@ -117,7 +118,7 @@ pub struct DynamicKeypoints {
 }
 
 impl FrameObserver for DynamicKeypoints {
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         if let (Some(dop), Some(frame)) = (view.dop, view.tracked()) {
             self.frames.push(dynamic_keypoints(frame, dop));
         }

@@ -6,6 +6,7 @@
 use nalgebra::Vector3;
 
 use super::observers::{FrameObserver, FrameView};
+use crate::io::IoError;
 use crate::dynamics::Applied;
 use crate::view::results::{events_entry, frame_events, FrameFacts, TRAJECTORY_EVERY};
 use crate::view::{At, Entry, LogHandle};
@@ -53,7 +54,7 @@ impl RerunLog {
 }
 
 impl FrameObserver for RerunLog {
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         let (report, record) = (view.stats, view.record);
         self.at = At::Frame {
             index: view.index,

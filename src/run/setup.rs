@@ -376,7 +376,7 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
 
 /// What loop closing runs with: see [`loop_vocabulary`].
 pub type LoopVocabulary =
-    Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, String>>;
+    Option<Result<std::sync::Arc<crate::bow::vocabulary::Vocabulary>, crate::global::NoLoops>>;
 
 /// The vocabulary of loop closing: `None` without a global pass, `Some(Err(why))` when
 /// loop closing is off (the global pass runs without loops). A vocabulary that cannot
@@ -386,13 +386,11 @@ pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocab
         return Ok(None);
     }
     if !config.loops.enabled {
-        return Ok(Some(Err(
-            "loop closing is off ([global.loops] enabled = false, --no-loops)".into(),
-        )));
+        return Ok(Some(Err(crate::global::NoLoops::TurnedOff)));
     }
     crate::global::load_vocabulary(config)
         .map(|v| Some(Ok(v)))
-        .map_err(RunError::Input)
+        .map_err(RunError::NoLoops)
 }
 
 #[cfg(test)]

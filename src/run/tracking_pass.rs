@@ -101,8 +101,8 @@ pub fn tracking_pass(
             depth: depth.as_ref(),
             recent_map: recent_map.as_ref(),
         };
-        if let Err(message) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
-            stop = Some(StopReason::Observer(message));
+        if let Err(e) = observers.iter_mut().try_for_each(|o| o.on_frame(&view)) {
+            stop = Some(StopReason::Observer(e.to_string()));
             break;
         }
         system.receive_detections();

@@ -8,6 +8,7 @@ use std::path::PathBuf;
 
 use super::observers::{FrameObserver, FrameView};
 use crate::dynamics::Applied;
+use crate::io::IoError;
 use crate::eval::truth::{
     ground_truth_mask, ground_truth_people, Classification, Recall, TruthCounts,
 };
@@ -32,7 +33,7 @@ impl TruthScorer {
 }
 
 impl FrameObserver for TruthScorer {
-    fn on_frame(&mut self, view: &FrameView) -> Result<(), String> {
+    fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         let dir = self.sequence_dir.as_deref();
         let counts = view.tracked().and_then(|frame| {
             let mask = ground_truth_mask(dir, view.timestamp)?;

@@ -33,6 +33,7 @@ use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::global::place_recognition::PlaceRecognition;
+use crate::global::NoLoops;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;
@@ -68,7 +69,7 @@ pub struct SystemSetup<'a> {
 /// (`None`: no global pass; `Some(Err(why))`: the global pass runs without loops) and
 /// the keyframe detector with its simulated latency.
 pub struct Helpers {
-    pub vocabulary: Option<Result<Arc<Vocabulary>, String>>,
+    pub vocabulary: Option<Result<Arc<Vocabulary>, NoLoops>>,
     pub detector: Option<(Box<dyn Detector>, Duration)>,
 }
 
@@ -76,7 +77,7 @@ pub struct Helpers {
 pub struct Tracked {
     pub map: Map,
     /// Place recognition's findings (`None` without a global pass).
-    pub recognised: Option<Result<PlaceRecognition, String>>,
+    pub recognised: Option<Result<PlaceRecognition, NoLoops>>,
     pub mapping: MappingStats,
     pub detection: DetectionTotals,
     /// What the detections did that the last [`System::take_applied`] left.
@@ -96,7 +97,7 @@ pub struct System {
     map: SharedMap,
     tracker: Tracker,
     mapping: Worker<LocalMapping>,
-    recognition: Option<Result<Worker<Recognition>, String>>,
+    recognition: Option<Result<Worker<Recognition>, NoLoops>>,
     detection: Option<Worker<Detection>>,
     dynamics: Dynamics,
     execution: Execution,
