@@ -89,7 +89,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         collect: args.collect,
     };
     let summary =
-        dopslam::batch::run_batch(&args.manifest, &options).map_err(anyhow::Error::msg)?;
+        dopslam::batch::run_batch(&args.manifest, &options)?;
     if let Some(shard) = args.shard {
         return shard_done(&summary, shard);
     }
@@ -132,7 +132,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
 /// `--slurm`: the scripts, submitted with `--submit`.
 fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
     let plan = dopslam::batch::BatchPlan::new(&args.manifest, args.out.as_deref())
-        .map_err(anyhow::Error::msg)?;
+        ?;
     let options = dopslam::batch::slurm::SlurmOptions {
         partition: args.partition.clone(),
         time: args.time.clone(),
@@ -142,7 +142,7 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
         shards: args.shards,
     };
     let scripts = dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)
-        .map_err(anyhow::Error::msg)?;
+        ?;
     println!(
         "wrote {} ({} array tasks for {} runs) and {}",
         scripts.array.display(),
@@ -168,7 +168,7 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
         );
         return Ok(());
     }
-    let (array, collect) = dopslam::batch::slurm::submit(&scripts).map_err(anyhow::Error::msg)?;
+    let (array, collect) = dopslam::batch::slurm::submit(&scripts)?;
     println!("submitted: array job {array}, collection job {collect} (after the array)");
     println!(
         "results: {}/results.md once job {collect} ends (squeue -j {array},{collect})",

@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::manifest::PlannedSequence;
+use super::BatchError;
 use crate::dop::Mode;
 use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
 use crate::config::Config;
@@ -23,7 +24,7 @@ use crate::eval::rpe::DeltaUnit;
 use crate::io::atomic::write_atomic;
 use crate::io::run_dir::{names, RunDir};
 use crate::io::trajectory::TrajectoryFormat;
-use crate::io::Trajectory;
+use crate::io::{IoError, Trajectory};
 
 /// One run to do.
 #[derive(Debug, Clone)]
@@ -152,7 +153,7 @@ impl Executor<'_> {
                 record.status = RunStatus::Ok;
                 record.figures = Some(figures);
             }
-            Err(message) => record.error = Some(message),
+            Err(e) => record.error = Some(e.to_string()),
         }
         record.seconds = start.elapsed().as_secs_f64();
         if let Err(e) = record.write(&job.dir) {
@@ -164,33 +165,31 @@ impl Executor<'_> {
 
     /// Evaluates a finished run's folder again (after a change of evaluation settings or
     /// of dopslam's figures) and rewrites its `run.json`; the run itself is not repeated.
-    pub fn reevaluate(&self, job: &RunJob, mut record: RunRecord) -> Result<(), String> {
+    pub fn reevaluate(&self, job: &RunJob, mut record: RunRecord) -> Result<(), BatchError> {
         match self.figures(job) {
             Ok(figures) => record.figures = Some(figures),
             Err(e) => {
                 record.status = RunStatus::Failed;
-                record.error = Some(e);
+                record.error = Some(e.to_string());
             }
         }
-        record.write(&job.dir).map_err(|e| e.to_string())
+        Ok(record.write(&job.dir)?)
     }
 
     /// Starts `dopslam run` for `job` in a clean folder, with the sequence's config.
-    fn start(&self, job: &RunJob) -> Result<Child, String> {
+    fn start(&self, job: &RunJob) -> Result<Child, BatchError> {
         let sequence = &self.sequences[job.sequence];
         if job.dir.exists() {
-            std::fs::remove_dir_all(&job.dir)
-                .map_err(|e| format!("cannot clear {}: {e}", job.dir.display()))?;
+            std::fs::remove_dir_all(&job.dir).map_err(BatchError::file("clear", &job.dir))?;
         }
-        std::fs::create_dir_all(&job.dir)
-            .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
+        std::fs::create_dir_all(&job.dir).map_err(BatchError::file("create", &job.dir))?;
         let config_path = job.dir.join("config.toml");
         let config = run_config(sequence, job.mode);
-        let text = toml::to_string(&config).map_err(|e| format!("config: {e}"))?;
-        write_atomic(&config_path, text.as_bytes()).map_err(|e| e.to_string())?;
-        let log = std::fs::File::create(job.dir.join("log.txt"))
-            .map_err(|e| format!("cannot create {}/log.txt: {e}", job.dir.display()))?;
-        let log_err = log.try_clone().map_err(|e| format!("log.txt: {e}"))?;
+        let text = toml::to_string(&config)?;
+        write_atomic(&config_path, text.as_bytes())?;
+        let log_path = job.dir.join("log.txt");
+        let log = std::fs::File::create(&log_path).map_err(BatchError::file("create", &log_path))?;
+        let log_err = log.try_clone().map_err(BatchError::file("open", &log_path))?;
         let mut command = Command::new(self.program);
         command
             .arg("run")
@@ -225,17 +224,19 @@ impl Executor<'_> {
                 });
             }
         }
-        command
-            .spawn()
-            .map_err(|e| format!("cannot start {}: {e}", self.program.display()))
+        command.spawn().map_err(|source| BatchError::Process {
+            action: "start",
+            program: self.program.to_path_buf(),
+            source,
+        })
     }
 
     /// The figures of a finished run: its report, its evaluation against the
     /// sequence's ground truth (`eval.json`, `eval_rotation.json`) and, on a synthetic
     /// sequence with a static scene, its dense map against it (`map_compare/`).
-    fn figures(&self, job: &RunJob) -> Result<RunFigures, String> {
+    fn figures(&self, job: &RunJob) -> Result<RunFigures, BatchError> {
         let sequence = &self.sequences[job.sequence];
-        let mut figures = RunFigures::from_run(&job.dir).map_err(|e| e.to_string())?;
+        let mut figures = RunFigures::from_run(&job.dir)?;
         let sequence_dir = &self.sequence_dirs[job.sequence];
         if let Some(reference) = ground_truth(sequence_dir, &sequence.config)? {
             let rpe = RpeSpec {
@@ -257,8 +258,8 @@ impl Executor<'_> {
                 ("eval.json", &translation),
                 ("eval_rotation.json", &rotation),
             ] {
-                let json = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
-                write_atomic(&job.dir.join(name), json.as_bytes()).map_err(|e| e.to_string())?;
+                let json = serde_json::to_string_pretty(report).expect("an evaluation report is JSON");
+                write_atomic(&job.dir.join(name), json.as_bytes())?;
             }
             figures.ate_rmse = Some(translation.ape.statistics.rmse);
             figures.rpe_translation = translation.rpe.first().map(|m| m.statistics.rmse);
@@ -295,7 +296,7 @@ pub fn run_config(sequence: &PlannedSequence, mode: Mode) -> Config {
 
 /// Waits for the child; on a stop request, passes it on and reports `false` (the run's
 /// outputs are partial and it will be run again).
-fn wait(mut child: Child, dir: &Path) -> Result<bool, String> {
+fn wait(mut child: Child, dir: &Path) -> Result<bool, BatchError> {
     let mut asked = false;
     loop {
         match child.try_wait() {
@@ -305,9 +306,15 @@ fn wait(mut child: Child, dir: &Path) -> Result<bool, String> {
             Ok(Some(_)) if asked || crate::interrupt::requested() || was_interrupted(dir) => {
                 return Ok(false)
             }
-            Ok(Some(status)) => return Err(failure_message(status, dir)),
+            Ok(Some(status)) => return Err(BatchError::RunFailed(failure_message(status, dir))),
             Ok(None) => {}
-            Err(e) => return Err(format!("waiting for the run: {e}")),
+            Err(source) => {
+                return Err(BatchError::Process {
+                    action: "wait for",
+                    program: PathBuf::from("dopslam run"),
+                    source,
+                })
+            }
         }
         if crate::interrupt::requested() && !asked {
             asked = true;
@@ -345,8 +352,8 @@ fn failure_message(status: std::process::ExitStatus, dir: &Path) -> String {
 }
 
 /// The sequence's ground truth, if it has one.
-pub fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, String> {
-    let sequence = crate::run::open_sequence(dir, config).map_err(|e| e.to_string())?;
+pub fn ground_truth(dir: &Path, config: &Config) -> Result<Option<Trajectory>, IoError> {
+    let sequence = crate::run::open_sequence(dir, config)?;
     Ok(sequence.ground_truth().cloned())
 }
 
@@ -359,7 +366,7 @@ pub fn evaluate_run(
     config: &Config,
     rpe: RpeSpec,
     rpe_relation: PoseRelation,
-) -> Result<EvalReport, String> {
+) -> Result<EvalReport, BatchError> {
     let mut options = EvalOptions {
         association: config.eval.association,
         max_diff: config.eval.max_diff,
@@ -376,7 +383,7 @@ pub fn evaluate_run(
             options.rpe.clear();
             evaluate(reference, estimate, &options)
         })
-        .map_err(|e| format!("evaluation: {e}"))
+        .map_err(BatchError::Evaluation)
 }
 
 /// [`evaluate_run`] of a trajectory file (TUM format).
@@ -386,8 +393,8 @@ pub fn evaluate_trajectory(
     config: &Config,
     rpe: RpeSpec,
     rpe_relation: PoseRelation,
-) -> Result<EvalReport, String> {
-    let estimate = Trajectory::read(path, TrajectoryFormat::Tum).map_err(|e| e.to_string())?;
+) -> Result<EvalReport, BatchError> {
+    let estimate = Trajectory::read(path, TrajectoryFormat::Tum)?;
     evaluate_run(reference, &estimate, config, rpe, rpe_relation)
 }
 
@@ -395,7 +402,7 @@ pub fn evaluate_trajectory(
 fn compare_with_static_scene(
     run: &Path,
     sequence_dir: &Path,
-) -> Result<Option<MapFigures>, String> {
+) -> Result<Option<MapFigures>, BatchError> {
     let static_scene = sequence_dir.join("static_scene.ply");
     let mesh = [names::DENSE_MESH_PLY, names::DENSE_POINTS]
         .into_iter()
@@ -414,8 +421,7 @@ fn compare_with_static_scene(
         cameras: None,
         settings: CompareSettings::default(),
         out: &run.join("map_compare"),
-    })
-    .map_err(|e| format!("map comparison: {e}"))?;
+    })?;
     Ok(comparison.maps.first().map(|m| MapFigures {
         accuracy_median: Some(m.accuracy_median),
         ghost_points: Some(m.ghost_points),

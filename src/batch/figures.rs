@@ -6,6 +6,7 @@ use std::path::Path;
 
 use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
+use super::BatchError;
 use super::manifest::PlannedSequence;
 use crate::dop::Mode;
 use super::plots;
@@ -34,7 +35,7 @@ pub fn sequence_section(
     out: &Path,
     modes: &[Mode],
     rpe: RpeSpec,
-) -> Result<html::SequenceSection, String> {
+) -> Result<html::SequenceSection, BatchError> {
     let mut section = html::SequenceSection {
         name: sequence.name.clone(),
         figures: Vec::new(),
@@ -89,7 +90,7 @@ pub fn sequence_section(
         return Ok(section);
     }
     let dir = out.join("plots").join(&sequence.name);
-    std::fs::create_dir_all(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    std::fs::create_dir_all(&dir).map_err(BatchError::file("create", &dir))?;
     let by_mode: Vec<(Mode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
     let name = &sequence.name;
     let paths = [

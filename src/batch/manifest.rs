@@ -21,9 +21,78 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::config::Config;
+use thiserror::Error;
+
+use crate::checks::{self, BadValue};
+use crate::config::{Config, ConfigError};
 use crate::detect::Source;
 use crate::dop::Mode;
+
+/// A manifest that cannot be read or planned; the error names the file and the key or
+/// `[[sequence]]` entry.
+#[derive(Debug, Error)]
+pub enum ManifestError {
+    #[error("cannot read manifest {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("manifest {}: {problem}", path.display())]
+    Invalid {
+        path: PathBuf,
+        problem: Box<ManifestProblem>,
+    },
+}
+
+/// What is wrong in a manifest.
+#[derive(Debug, Error)]
+pub enum ManifestProblem {
+    /// Not TOML, an unknown key or a value of the wrong type (toml's message).
+    #[error("{}", .0.to_string().trim_end())]
+    Syntax(#[from] toml::de::Error),
+    /// A `[batch]` value out of its range.
+    #[error(transparent)]
+    Value(#[from] BadValue),
+    #[error("no [[sequence]] entry")]
+    NoSequence,
+    /// The `[[sequence]]` entry numbered `entry` (from 1).
+    #[error("[[sequence]] #{entry}: {problem}")]
+    Entry { entry: usize, problem: EntryProblem },
+    #[error("two sequences are named {0:?}: give them distinct `name`s")]
+    SameName(String),
+    #[error("sequence name {0:?}: use letters, digits, '-', '_' and '.' only")]
+    UnsafeName(String),
+    /// The batch's config file (`[batch] config`).
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
+
+/// What is wrong in one `[[sequence]]` entry.
+#[derive(Debug, Error)]
+pub enum EntryProblem {
+    #[error("give exactly one of path, glob or preset")]
+    Source,
+    #[error("seeds and synth_frames are for presets")]
+    SeedsWithoutPreset,
+    #[error("repetitions and modes must not be empty")]
+    Empty,
+    #[error(transparent)]
+    Value(#[from] BadValue),
+    /// Its config file or ORB-SLAM2 settings file.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("glob {pattern:?}: {source}")]
+    Glob {
+        pattern: String,
+        source: glob::PatternError,
+    },
+    #[error("glob {} matches no sequence folder or recording", .0.display())]
+    NoMatch(PathBuf),
+    #[error("preset {} does not exist", .0.display())]
+    NoPresetFile(PathBuf),
+    #[error("no preset named {name:?} (looked for {file})")]
+    NoPreset { name: String, file: String },
+}
 
 
 /// The `[batch]` table: what every sequence gets unless it says otherwise.
@@ -122,6 +191,25 @@ pub struct SequenceEntry {
     pub dense: Option<bool>,
 }
 
+impl SequenceEntry {
+    fn validate(&self) -> Result<(), EntryProblem> {
+        let sources = [self.path.is_some(), self.glob.is_some(), self.preset.is_some()];
+        if sources.iter().filter(|&&x| x).count() != 1 {
+            return Err(EntryProblem::Source);
+        }
+        if self.preset.is_none() && (!self.seeds.is_empty() || self.synth_frames.is_some()) {
+            return Err(EntryProblem::SeedsWithoutPreset);
+        }
+        if self.repetitions == Some(0) || self.modes.as_ref().is_some_and(Vec::is_empty) {
+            return Err(EntryProblem::Empty);
+        }
+        if let Some(scale) = self.depth_scale {
+            checks::positive("depth_scale", scale)?;
+        }
+        Ok(())
+    }
+}
+
 /// The whole manifest.
 #[derive(Debug, Clone, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -160,15 +248,19 @@ pub struct PlannedSequence {
 }
 
 impl Manifest {
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read manifest {}: {e}", path.display()))?;
-        let mut manifest: Manifest = toml::from_str(&text)
-            .map_err(|e| format!("manifest {}: {}", path.display(), e.to_string().trim()))?;
+    pub fn load(path: &Path) -> Result<Self, ManifestError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let invalid = |problem| ManifestError::Invalid {
+            path: path.to_path_buf(),
+            problem: Box::new(problem),
+        };
+        let mut manifest: Manifest =
+            toml::from_str(&text).map_err(|e| invalid(ManifestProblem::Syntax(e)))?;
         manifest.base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        manifest
-            .validate()
-            .map_err(|m| format!("manifest {}: {m}", path.display()))?;
+        manifest.validate().map_err(invalid)?;
         Ok(manifest)
     }
 
@@ -181,68 +273,40 @@ impl Manifest {
         }
     }
 
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), ManifestProblem> {
         let b = &self.batch;
         if b.modes.is_empty() {
-            return Err("[batch] modes is empty".into());
+            return Err(BadValue::new("batch.modes", "is empty").into());
         }
-        if b.repetitions == 0 {
-            return Err("[batch] repetitions must be at least 1".into());
+        checks::at_least_one("batch.repetitions", b.repetitions as u64)?;
+        checks::at_least_one("batch.cores_per_run", b.cores_per_run as u64)?;
+        checks::positive("batch.memory_per_run_gib", b.memory_per_run_gib)?;
+        if let Some(jobs) = b.jobs {
+            checks::at_least_one("batch.jobs", jobs as u64)?;
         }
-        if b.cores_per_run == 0 {
-            return Err("[batch] cores_per_run must be at least 1".into());
-        }
-        if !(b.memory_per_run_gib.is_finite() && b.memory_per_run_gib > 0.0) {
-            return Err("[batch] memory_per_run_gib must be positive".into());
-        }
-        if b.jobs == Some(0) {
-            return Err("[batch] jobs must be at least 1".into());
-        }
-        if !(b.rpe_seconds.is_finite() && b.rpe_seconds > 0.0) {
-            return Err("[batch] rpe_seconds must be positive".into());
-        }
+        checks::positive("batch.rpe_seconds", b.rpe_seconds)?;
         if self.sequences.is_empty() {
-            return Err("no [[sequence]] entry".into());
+            return Err(ManifestProblem::NoSequence);
         }
         for (i, s) in self.sequences.iter().enumerate() {
-            let sources = [s.path.is_some(), s.glob.is_some(), s.preset.is_some()];
-            if sources.iter().filter(|&&x| x).count() != 1 {
-                return Err(format!(
-                    "[[sequence]] #{}: give exactly one of path, glob or preset",
-                    i + 1
-                ));
-            }
-            if s.preset.is_none() && (!s.seeds.is_empty() || s.synth_frames.is_some()) {
-                return Err(format!(
-                    "[[sequence]] #{}: seeds and synth_frames are for presets",
-                    i + 1
-                ));
-            }
-            if s.repetitions == Some(0) || s.modes.as_ref().is_some_and(Vec::is_empty) {
-                return Err(format!(
-                    "[[sequence]] #{}: repetitions and modes must not be empty",
-                    i + 1
-                ));
-            }
-            if let Some(scale) = s.depth_scale {
-                if !(scale.is_finite() && scale > 0.0) {
-                    return Err(format!(
-                        "[[sequence]] #{}: depth_scale must be positive, got {scale}",
-                        i + 1
-                    ));
-                }
-            }
+            s.validate().map_err(|problem| ManifestProblem::Entry {
+                entry: i + 1,
+                problem,
+            })?;
         }
         Ok(())
     }
 
     /// The sequences with their configs: globs expanded, presets found, one entry
     /// per seed, names unique. Errors name the entry and what is wrong.
-    pub fn plan(&self) -> Result<Vec<PlannedSequence>, String> {
+    pub fn plan(&self) -> Result<Vec<PlannedSequence>, ManifestProblem> {
         let base_config = self.load_config(self.batch.config.as_deref())?;
         let mut planned = Vec::new();
         for (i, entry) in self.sequences.iter().enumerate() {
-            let context = |m: String| format!("[[sequence]] #{}: {m}", i + 1);
+            let context = |problem| ManifestProblem::Entry {
+                entry: i + 1,
+                problem,
+            };
             let config = self.entry_config(entry, &base_config).map_err(context)?;
             let sources = self.entry_sources(entry).map_err(context)?;
             let several = sources.len() > 1;
@@ -268,32 +332,24 @@ impl Manifest {
         let mut names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
         names.sort_unstable();
         if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
-            return Err(format!(
-                "two sequences are named {:?}: give them distinct `name`s",
-                w[0]
-            ));
+            return Err(ManifestProblem::SameName(w[0].to_string()));
         }
         if let Some(bad) = planned.iter().find(|p| !safe_name(&p.name)) {
-            return Err(format!(
-                "sequence name {:?}: use letters, digits, '-', '_' and '.' only",
-                bad.name
-            ));
+            return Err(ManifestProblem::UnsafeName(bad.name.clone()));
         }
         Ok(planned)
     }
 
     /// The config of one `[[sequence]]` entry: its own file or the batch's, then its
     /// ORB-SLAM2 settings and options.
-    fn entry_config(&self, entry: &SequenceEntry, base_config: &Config) -> Result<Config, String> {
+    fn entry_config(&self, entry: &SequenceEntry, base_config: &Config) -> Result<Config, EntryProblem> {
         let mut config = match &entry.config {
             Some(path) => self.load_config(Some(path))?,
             None => base_config.clone(),
         };
         if let Some(settings) = &entry.settings {
             let path = absolute(&self.resolve(settings));
-            config
-                .apply_orbslam_settings(&path)
-                .map_err(|e| e.to_string())?;
+            config.apply_orbslam_settings(&path)?;
         }
         if entry.depth_scale.is_some() {
             config.dataset.depth_scale = entry.depth_scale;
@@ -314,7 +370,10 @@ impl Manifest {
 
     /// The sequences of one `[[sequence]]` entry with their default names: its folder
     /// or recording, the matches of its glob, or its preset once per seed.
-    fn entry_sources(&self, entry: &SequenceEntry) -> Result<Vec<(String, SequenceSource)>, String> {
+    fn entry_sources(
+        &self,
+        entry: &SequenceEntry,
+    ) -> Result<Vec<(String, SequenceSource)>, EntryProblem> {
         let sources = if let Some(path) = &entry.path {
             let path = absolute(&self.resolve(path));
             vec![(folder_name(&path), SequenceSource::Folder(path))]
@@ -322,10 +381,7 @@ impl Manifest {
             let pattern = self.resolve(Path::new(pattern));
             let folders = glob_sequences(&pattern)?;
             if folders.is_empty() {
-                return Err(format!(
-                    "glob {} matches no sequence folder or recording",
-                    pattern.display()
-                ));
+                return Err(EntryProblem::NoMatch(pattern));
             }
             folders
                 .into_iter()
@@ -359,10 +415,10 @@ impl Manifest {
         Ok(sources)
     }
 
-    fn load_config(&self, path: Option<&Path>) -> Result<Config, String> {
+    fn load_config(&self, path: Option<&Path>) -> Result<Config, ConfigError> {
         match path {
             Some(path) => {
-                let mut config = Config::load(&self.resolve(path)).map_err(|e| e.to_string())?;
+                let mut config = Config::load(&self.resolve(path))?;
                 // The runs read it from their own folders: keep its paths reachable.
                 if let Some(settings) = &config.dataset.settings {
                     config.dataset.settings = Some(absolute(settings));
@@ -375,13 +431,13 @@ impl Manifest {
 
     /// A preset by path (relative to the manifest) or by name (`configs/synth/NAME.toml`
     /// under the current folder, else under the source tree dopslam was built from).
-    fn find_preset(&self, preset: &str) -> Result<PathBuf, String> {
+    fn find_preset(&self, preset: &str) -> Result<PathBuf, EntryProblem> {
         let as_path = self.resolve(Path::new(preset));
         if preset.ends_with(".toml") || preset.contains('/') {
             return if as_path.is_file() {
                 Ok(absolute(&as_path))
             } else {
-                Err(format!("preset {} does not exist", as_path.display()))
+                Err(EntryProblem::NoPresetFile(as_path))
             };
         }
         let file = format!("configs/synth/{preset}.toml");
@@ -392,7 +448,10 @@ impl Manifest {
         .into_iter()
         .find(|p| p.is_file())
         .map(|p| absolute(&p))
-        .ok_or_else(|| format!("no preset named {preset:?} (looked for {file})"))
+        .ok_or_else(|| EntryProblem::NoPreset {
+            name: preset.to_string(),
+            file,
+        })
     }
 }
 
@@ -415,9 +474,12 @@ fn safe_name(name: &str) -> bool {
 }
 
 /// The folders and recordings a glob pattern matches, sorted.
-fn glob_sequences(pattern: &Path) -> Result<Vec<PathBuf>, String> {
+fn glob_sequences(pattern: &Path) -> Result<Vec<PathBuf>, EntryProblem> {
     let text = pattern.to_string_lossy();
-    let paths = glob::glob(&text).map_err(|e| format!("glob {text:?}: {e}"))?;
+    let paths = glob::glob(&text).map_err(|source| EntryProblem::Glob {
+        pattern: text.to_string(),
+        source,
+    })?;
     let mut folders: Vec<PathBuf> = paths
         .filter_map(Result::ok)
         .filter(|p| p.is_dir() || crate::io::recording::is_recording(p))
@@ -433,7 +495,7 @@ mod tests {
 
     fn parse(text: &str) -> Result<Manifest, String> {
         let manifest: Manifest = toml::from_str(text).map_err(|e| e.to_string())?;
-        manifest.validate()?;
+        manifest.validate().map_err(|e| e.to_string())?;
         Ok(manifest)
     }
 
@@ -466,13 +528,14 @@ mod tests {
         let missing = parse("[[sequence]]\npreset = \"no_such_preset\"\n")
             .unwrap()
             .plan()
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(missing.contains("no_such_preset"), "{missing}");
         let twice = parse("[[sequence]]\npath = \"/tmp\"\n[[sequence]]\npath = \"/tmp\"\n")
             .unwrap()
             .plan()
             .unwrap_err();
-        assert!(twice.contains("\"tmp\""), "{twice}");
+        assert!(matches!(&twice, ManifestProblem::SameName(name) if name == "tmp"), "{twice}");
     }
 
     #[test]

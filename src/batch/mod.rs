@@ -17,6 +17,7 @@
 //! This layer sits above the run (`crate::run`): it starts `dopslam run` processes and reads
 //! what they wrote; nothing below imports it.
 
+pub mod error;
 pub mod execute;
 pub mod figures;
 pub mod fingerprint;
@@ -31,10 +32,11 @@ pub mod slurm;
 
 use std::path::{Path, PathBuf};
 
+pub use error::BatchError;
 use execute::{Executed, Executor, RunJob};
 use machine::{budget_jobs, machine_description};
 use crate::dop::Mode;
-use manifest::{absolute, Manifest, PlannedSequence, SequenceSource};
+use manifest::{absolute, Manifest, ManifestError, PlannedSequence, SequenceSource};
 use record::{RunRecord, RunStatus};
 use results::GroupSummary;
 
@@ -98,9 +100,12 @@ pub struct BatchPlan {
 impl BatchPlan {
     /// Reads the manifest at `path` and plans its runs into `out` (else the manifest's
     /// `out`, else `outputs/batch/<manifest name>`).
-    pub fn new(path: &Path, out: Option<&Path>) -> Result<Self, String> {
+    pub fn new(path: &Path, out: Option<&Path>) -> Result<Self, ManifestError> {
         let manifest = Manifest::load(path)?;
-        let planned = manifest.plan()?;
+        let planned = manifest.plan().map_err(|problem| ManifestError::Invalid {
+            path: path.to_path_buf(),
+            problem: Box::new(problem),
+        })?;
         let out = match (out, &manifest.batch.out) {
             (Some(out), _) => out.to_path_buf(),
             (None, Some(out)) => manifest.resolve(out),
@@ -132,25 +137,24 @@ impl BatchPlan {
 
 /// Runs the batch described by the manifest at `path`: every run (or a shard's), then
 /// the tables; with `options.collect`, the tables alone.
-pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, String> {
+pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, BatchError> {
     let plan = BatchPlan::new(path, options.out.as_deref())?;
     let out = &plan.out;
     check_not_an_input(&plan)?;
-    std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    std::fs::create_dir_all(out).map_err(BatchError::file("create", out))?;
     let _lock = batch_lock(out, options.shard.is_some())?;
-    let text = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text = std::fs::read(path).map_err(BatchError::file("read", path))?;
     let own = out.join("manifest.toml");
     if options.collect {
         if std::fs::read(&own).is_ok_and(|copy| copy != text) {
-            return Err(format!(
-                "{} is the batch of another manifest (its copy {} differs from {}): collect with that manifest, or run this one into another --out",
-                out.display(),
-                own.display(),
-                path.display()
-            ));
+            return Err(BatchError::OtherManifest {
+                out: out.clone(),
+                copy: own,
+                manifest: path.to_path_buf(),
+            });
         }
     } else {
-        write_atomic(&own, &text).map_err(|e| e.to_string())?;
+        write_atomic(&own, &text)?;
     }
     let mut notes = Vec::new();
     // The runs this invocation is for: a shard's, or all.
@@ -212,16 +216,15 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, St
 
 /// Refuses an output folder that is, or lies inside, one of the batch's recorded
 /// sequence folders: a batch never writes into its inputs.
-fn check_not_an_input(plan: &BatchPlan) -> Result<(), String> {
+fn check_not_an_input(plan: &BatchPlan) -> Result<(), BatchError> {
     for sequence in &plan.planned {
         if let SequenceSource::Folder(input) = &sequence.source {
             if crate::io::output::is_within(&plan.out, input) {
-                return Err(format!(
-                    "the output folder {} is inside the input sequence {} ({}): choose another --out (a batch never writes into its inputs)",
-                    plan.out.display(),
-                    input.display(),
-                    sequence.name
-                ));
+                return Err(BatchError::OutputInInput {
+                    out: plan.out.clone(),
+                    input: input.clone(),
+                    sequence: sequence.name.clone(),
+                });
             }
         }
     }
@@ -232,17 +235,14 @@ fn check_not_an_input(plan: &BatchPlan) -> Result<(), String> {
 /// runs): a whole batch or a collection holds it alone; the shards of one batch share
 /// it (they run together by design), so neither a second batch nor a collection runs
 /// beside them.
-fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, String> {
+fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, BatchError> {
     use crate::io::output::{lock_file, LockMode};
     let path = out.join(".dopslam-batch.lock");
     let mode = if shard { LockMode::TryShared } else { LockMode::Try };
     match lock_file(&path, mode) {
         Ok(Some(file)) => Ok(file),
-        Ok(None) => Err(format!(
-            "another dopslam batch is writing into {}: wait for it to end or choose another --out",
-            out.display()
-        )),
-        Err(e) => Err(format!("cannot lock {}: {e}", path.display())),
+        Ok(None) => Err(BatchError::Busy(out.to_path_buf())),
+        Err(e) => Err(BatchError::file("lock", path)(e)),
     }
 }
 
@@ -289,7 +289,7 @@ fn execute(
     (mine, options): (&[RunJob], &BatchOptions),
     (sequence_dirs, unavailable): (&[PathBuf], &[Option<String>]),
     (jobs, fingerprinter): (usize, &fingerprint::Fingerprinter),
-) -> Result<(Executed, usize), String> {
+) -> Result<(Executed, usize), BatchError> {
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
@@ -371,7 +371,7 @@ fn run_inputs(
 /// A finished run made with other inputs than `job`'s: says what differs and moves
 /// its folder to `OUT/stale/<sequence>/<mode>/r<k>-<UTC time>/` (never deleted), so
 /// that it is run again.
-fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result<(), String> {
+fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result<(), BatchError> {
     let reasons = fingerprint::differences(&record.inputs, &job.inputs).join(", ");
     let label = plan.label(job);
     let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
@@ -380,10 +380,9 @@ fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result
         .join("stale")
         .join(&label)
         .with_file_name(format!("r{}-{stamp}", job.repetition));
-    std::fs::create_dir_all(to.parent().unwrap_or(&plan.out))
-        .map_err(|e| format!("cannot create {}: {e}", to.display()))?;
-    std::fs::rename(&job.dir, &to)
-        .map_err(|e| format!("cannot move {} to {}: {e}", job.dir.display(), to.display()))?;
+    let parent = to.parent().unwrap_or(&plan.out);
+    std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
+    std::fs::rename(&job.dir, &to).map_err(BatchError::file("move a stale run to", &to))?;
     eprintln!(
         "{label}: made with other settings ({reasons}): run again; the old run is in {} (--keep-stale keeps such runs)",
         to.display()
@@ -397,7 +396,7 @@ fn write_tables(
     (path, fingerprinter): (&Path, &fingerprint::Fingerprinter),
     sequence_dirs: &[PathBuf],
     notes: &mut Vec<String>,
-) -> Result<Vec<GroupSummary>, String> {
+) -> Result<Vec<GroupSummary>, BatchError> {
     let (manifest, planned, out) = (&plan.manifest, &plan.planned, &plan.out);
     let records: Vec<RunRecord> = plan
         .runs
@@ -438,8 +437,7 @@ fn write_tables(
         &records,
         &groups,
         &format!("# Batch results\n\n{}", header.join("  \n")),
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let rpe = RpeSpec {
         delta: manifest.batch.rpe_seconds,
         unit: DeltaUnit::Seconds,
@@ -456,7 +454,7 @@ fn write_tables(
         }
     }
     let html = html::report_html("dopslam batch report", &header, &groups, &sections);
-    write_atomic(&out.join("report.html"), html.as_bytes()).map_err(|e| e.to_string())?;
+    write_atomic(&out.join("report.html"), html.as_bytes())?;
     Ok(groups)
 }
 
@@ -553,14 +551,11 @@ fn prepare_sequence(
                 if progress {
                     eprintln!("generating {} from {}", sequence.name, preset.display());
                 }
-                crate::synth::generate(&config, &part, true)
-                    .map_err(|e| e.to_string())
-                    .and_then(|_| {
-                        std::fs::rename(&part, &dir)
-                            .map_err(|e| format!("cannot rename {}: {e}", part.display()))
-                    })
+                crate::synth::generate(&config, &part, true)?;
+                std::fs::rename(&part, &dir).map_err(BatchError::file("rename", &part))
             });
-            (synthetic_run_dir(sequence, out, Some(&config)), generated.err())
+            let problem = generated.err().map(|e| e.to_string());
+            (synthetic_run_dir(sequence, out, Some(&config)), problem)
         }
     }
 }
@@ -570,12 +565,11 @@ fn record_unavailable(
     job: &RunJob,
     sequence: &PlannedSequence,
     problem: &str,
-) -> Result<(), String> {
-    std::fs::create_dir_all(&job.dir)
-        .map_err(|e| format!("cannot create {}: {e}", job.dir.display()))?;
+) -> Result<(), BatchError> {
+    std::fs::create_dir_all(&job.dir).map_err(BatchError::file("create", &job.dir))?;
     let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
     record.error = Some(problem.to_string());
-    record.write(&job.dir).map_err(|e| e.to_string())
+    Ok(record.write(&job.dir)?)
 }
 
 /// Where the dense map ran: `on`, `off` or `on for <sequences>`.

@@ -15,7 +15,7 @@ use crate::eval::report::EvalReport;
 
 const SIZE: (u32, u32) = (900, 640);
 
-pub use crate::eval::plot::ensure_font;
+pub use crate::eval::plot::{ensure_font, PlotError};
 
 /// The colour of a mode in every figure.
 pub fn mode_colour(mode: Mode) -> RGBColor {
@@ -26,11 +26,14 @@ pub fn mode_colour(mode: Mode) -> RGBColor {
     }
 }
 
-fn error_text<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> String + '_ {
-    move |e| format!("plot {}: {e}", path.display())
+fn error_text<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> PlotError + '_ {
+    move |e| PlotError::Draw {
+        path: path.to_path_buf(),
+        problem: e.to_string(),
+    }
 }
 
-fn canvas(path: &Path) -> Result<DrawingArea<BitMapBackend<'_>, Shift>, String> {
+fn canvas(path: &Path) -> Result<DrawingArea<BitMapBackend<'_>, Shift>, PlotError> {
     ensure_font()?;
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     root.fill(&WHITE).map_err(error_text(path))?;
@@ -77,7 +80,7 @@ pub fn trajectories(
     path: &Path,
     title: &str,
     runs: &[(Mode, &EvalReport)],
-) -> Result<(), String> {
+) -> Result<(), PlotError> {
     // The ground truth as far as the most complete run matched it.
     let Some(fullest) = runs
         .iter()
@@ -176,7 +179,7 @@ pub fn ape_over_time(
     path: &Path,
     title: &str,
     runs: &[(Mode, &EvalReport)],
-) -> Result<(), String> {
+) -> Result<(), PlotError> {
     let Some(t0) = runs
         .iter()
         .filter_map(|(_, r)| r.ape.timestamps.first().copied())
@@ -279,7 +282,7 @@ impl BoxStats {
 
 /// Box plots of the APE per mode, every pose of every repetition pooled ([`BoxStats`],
 /// as matplotlib draws them).
-pub fn ape_boxes(path: &Path, title: &str, modes: &[(Mode, Vec<f64>)]) -> Result<(), String> {
+pub fn ape_boxes(path: &Path, title: &str, modes: &[(Mode, Vec<f64>)]) -> Result<(), PlotError> {
     let boxes: Vec<(Mode, BoxStats)> = modes
         .iter()
         .filter_map(|(m, v)| BoxStats::of(v).map(|b| (*m, b)))

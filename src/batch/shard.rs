@@ -14,6 +14,7 @@
 
 use std::path::Path;
 
+use super::BatchError;
 use super::execute::RunJob;
 use super::manifest::PlannedSequence;
 
@@ -24,11 +25,16 @@ pub struct Shard {
     pub count: usize,
 }
 
+/// A `--shard` value that is not `K/N` with 1 <= K <= N.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("--shard {0:?}: expected K/N with 1 <= K <= N (as Slurm's $SLURM_ARRAY_TASK_ID/N with --array=1-N)")]
+pub struct BadShard(pub String);
+
 impl std::str::FromStr for Shard {
-    type Err = String;
+    type Err = BadShard;
 
     /// `K/N` with 1 <= K <= N.
-    fn from_str(text: &str) -> Result<Self, String> {
+    fn from_str(text: &str) -> Result<Self, BadShard> {
         let parsed = text
             .split_once('/')
             .and_then(|(k, n)| Some((k.trim().parse::<usize>().ok()?, n.trim().parse::<usize>().ok()?)));
@@ -36,9 +42,7 @@ impl std::str::FromStr for Shard {
             Some((index, count)) if count >= 1 && (1..=count).contains(&index) => {
                 Ok(Self { index, count })
             }
-            _ => Err(format!(
-                "--shard {text:?}: expected K/N with 1 <= K <= N (as Slurm's $SLURM_ARRAY_TASK_ID/N with --array=1-N)"
-            )),
+            _ => Err(BadShard(text.to_string())),
         }
     }
 }
@@ -74,19 +78,18 @@ pub fn select(runs: &[RunJob], planned: &[PlannedSequence], shard: Shard) -> Vec
 /// made it.
 pub fn once_per_folder(
     dir: &Path,
-    make: impl FnOnce() -> Result<(), String>,
-) -> Result<bool, String> {
+    make: impl FnOnce() -> Result<(), BatchError>,
+) -> Result<bool, BatchError> {
     if dir.is_dir() {
         return Ok(false);
     }
     let lock_path = dir.with_extension("lock");
     if let Some(parent) = lock_path.parent() {
-        std::fs::create_dir_all(parent)
-            .map_err(|e| format!("cannot create {}: {e}", parent.display()))?;
+        std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
     }
     // Held until this function returns: the lock goes with the file handle.
     let _lock = crate::io::output::lock_file(&lock_path, crate::io::output::LockMode::Wait)
-        .map_err(|e| format!("cannot lock {}: {e}", lock_path.display()))?;
+        .map_err(BatchError::file("lock", &lock_path))?;
     // Made by another process while this one waited?
     if dir.is_dir() {
         return Ok(false);
@@ -197,7 +200,7 @@ mod tests {
                     once_per_folder(&dir, || {
                         made.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
                         std::thread::sleep(std::time::Duration::from_millis(50));
-                        std::fs::create_dir(&dir).map_err(|e| e.to_string())
+                        std::fs::create_dir(&dir).map_err(BatchError::file("create", &dir))
                     })
                     .unwrap();
                 });

@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use super::BatchPlan;
+use super::{BatchError, BatchPlan};
 use crate::io::atomic::write_atomic;
 
 /// What `--slurm` was asked for.
@@ -45,10 +45,29 @@ fn quote(text: &str) -> String {
     format!("'{}'", text.replace('\'', r"'\''"))
 }
 
+/// What Slurm, or an option for it, refused.
+#[derive(Debug, thiserror::Error)]
+pub enum SlurmError {
+    /// A value with blanks or `#`, which would end its `#SBATCH` line.
+    #[error("--{option} {value:?}: not a Slurm value (no blanks or '#')")]
+    Value { option: &'static str, value: String },
+    #[error("--shards and --max-parallel must be at least 1")]
+    Zero,
+    #[error("cannot run sbatch ({0}): is Slurm installed and on the PATH? The scripts are written; submit them by hand")]
+    NoSbatch(std::io::Error),
+    #[error("sbatch {arguments} failed: {stderr}")]
+    Refused { arguments: String, stderr: String },
+    #[error("sbatch printed no job id: {0:?}")]
+    NoJobId(String),
+}
+
 /// A value for an `#SBATCH` line: no newlines or blanks that would end the line.
-fn checked(name: &str, value: &str) -> Result<String, String> {
+fn checked(option: &'static str, value: &str) -> Result<String, SlurmError> {
     if value.is_empty() || value.chars().any(|c| c.is_whitespace() || c == '#') {
-        return Err(format!("--{name} {value:?}: not a Slurm value (no blanks or '#')"));
+        return Err(SlurmError::Value {
+            option,
+            value: value.to_string(),
+        });
     }
     Ok(value.to_string())
 }
@@ -60,11 +79,11 @@ pub fn write_scripts(
     manifest: &Path,
     program: &Path,
     options: &SlurmOptions,
-) -> Result<SlurmScripts, String> {
+) -> Result<SlurmScripts, BatchError> {
     let batch = &plan.manifest.batch;
     let shards = options.shards.unwrap_or(plan.runs.len().min(1000)).max(1);
     if options.shards == Some(0) || options.max_parallel == Some(0) {
-        return Err("--shards and --max-parallel must be at least 1".into());
+        return Err(SlurmError::Zero.into());
     }
     let cpus = options.cpus_per_task.unwrap_or(batch.cores_per_run).max(1);
     let mem = match &options.mem {
@@ -73,13 +92,13 @@ pub fn write_scripts(
     };
     let dir = plan.out.join("slurm");
     let logs = dir.join("logs");
-    std::fs::create_dir_all(&logs).map_err(|e| format!("cannot create {}: {e}", logs.display()))?;
+    std::fs::create_dir_all(&logs).map_err(BatchError::file("create", &logs))?;
     let name = manifest
         .file_stem()
         .map_or("batch".into(), |s| s.to_string_lossy().into_owned());
     let name = checked("job-name", &name.replace(char::is_whitespace, "_"))?;
     let manifest = super::manifest::absolute(manifest);
-    let common = |job: &str| -> Result<String, String> {
+    let common = |job: &str| -> Result<String, SlurmError> {
         let mut lines = vec![
             "#!/bin/bash".to_string(),
             format!("#SBATCH --job-name=dopslam-{name}{job}"),
@@ -118,8 +137,8 @@ pub fn write_scripts(
         collect: dir.join("collect.sbatch"),
         shards,
     };
-    write_atomic(&scripts.array, array_text.as_bytes()).map_err(|e| e.to_string())?;
-    write_atomic(&scripts.collect, collect_text.as_bytes()).map_err(|e| e.to_string())?;
+    write_atomic(&scripts.array, array_text.as_bytes())?;
+    write_atomic(&scripts.collect, collect_text.as_bytes())?;
     Ok(scripts)
 }
 
@@ -130,20 +149,21 @@ fn job_id(stdout: &str) -> Option<String> {
 }
 
 /// Submits the array, then the collection job depending on it: their job ids.
-pub fn submit(scripts: &SlurmScripts) -> Result<(String, String), String> {
-    let sbatch = |args: &[&str]| -> Result<String, String> {
-        let output = Command::new("sbatch").arg("--parsable").args(args).output().map_err(|e| {
-            format!("cannot run sbatch ({e}): is Slurm installed and on the PATH? The scripts are written; submit them by hand")
-        })?;
+pub fn submit(scripts: &SlurmScripts) -> Result<(String, String), SlurmError> {
+    let sbatch = |args: &[&str]| -> Result<String, SlurmError> {
+        let output = Command::new("sbatch")
+            .arg("--parsable")
+            .args(args)
+            .output()
+            .map_err(SlurmError::NoSbatch)?;
         let stdout = String::from_utf8_lossy(&output.stdout);
         if !output.status.success() {
-            return Err(format!(
-                "sbatch {} failed: {}",
-                args.join(" "),
-                String::from_utf8_lossy(&output.stderr).trim()
-            ));
+            return Err(SlurmError::Refused {
+                arguments: args.join(" "),
+                stderr: String::from_utf8_lossy(&output.stderr).trim().to_string(),
+            });
         }
-        job_id(&stdout).ok_or_else(|| format!("sbatch printed no job id: {stdout:?}"))
+        job_id(&stdout).ok_or_else(|| SlurmError::NoJobId(stdout.to_string()))
     };
     let array = sbatch(&[&scripts.array.to_string_lossy()])?;
     let collect = sbatch(&[

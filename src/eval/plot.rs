@@ -260,24 +260,47 @@ const FONT_FILES: [&str; 4] = [
 
 /// Registers a TrueType font as plotters' "sans-serif" once (for the PNG figures and
 /// the labels of the map pictures); the error says what to install.
-pub fn ensure_font() -> Result<(), String> {
+pub fn ensure_font() -> Result<(), PlotError> {
     use std::path::PathBuf;
-    static FONT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    static FONT: std::sync::OnceLock<Result<(), PlotError>> = std::sync::OnceLock::new();
     FONT.get_or_init(|| {
         let candidates: Vec<PathBuf> = std::env::var_os("DOPSLAM_FONT")
             .map(PathBuf::from)
             .into_iter()
             .chain(FONT_FILES.iter().map(PathBuf::from))
             .collect();
-        let path = candidates.iter().find(|p| p.is_file()).ok_or_else(|| {
-            "no TrueType font for the plots: install Debian's fonts-dejavu-core or set DOPSLAM_FONT=/path/to/font.ttf".to_string()
+        let path = candidates.iter().find(|p| p.is_file()).ok_or(PlotError::NoFont)?;
+        let bytes = std::fs::read(path).map_err(|e| PlotError::Font {
+            path: path.clone(),
+            problem: e.to_string(),
         })?;
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
         // plotters keeps the font for the program's life.
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, bytes)
-            .map_err(|_| format!("{}: not a usable TrueType font", path.display()))
+            .map_err(|_| PlotError::Font {
+                path: path.clone(),
+                problem: "not a usable TrueType font".into(),
+            })
     })
     .clone()
+}
+
+/// Why a picture could not be drawn.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PlotError {
+    #[error("no TrueType font for the plots: install Debian's fonts-dejavu-core or set DOPSLAM_FONT=/path/to/font.ttf")]
+    NoFont,
+    /// The font file at `path` cannot be read or used.
+    #[error("font {}: {problem}", path.display())]
+    Font {
+        path: std::path::PathBuf,
+        problem: String,
+    },
+    /// Drawing or writing the picture at `path` failed (plotters' message).
+    #[error("plot {}: {problem}", path.display())]
+    Draw {
+        path: std::path::PathBuf,
+        problem: String,
+    },
 }
 
