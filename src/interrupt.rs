@@ -31,6 +31,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 pub struct Writing(());
 
 impl Writing {
+    /// Marks the start of a set of files written together.
     pub fn start() -> Self {
         WRITING.fetch_add(1, Ordering::SeqCst);
         Writing(())

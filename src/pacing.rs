@@ -41,6 +41,7 @@ pub struct Pacer {
 }
 
 impl Pacer {
+    /// A pacer that releases frames as `pace` says.
     pub fn new(pace: Pace) -> Self {
         Self {
             pace,

@@ -11,6 +11,7 @@ pub struct Rng {
 }
 
 impl Rng {
+    /// A generator from `seed` (the same seed, the same stream).
     pub fn new(seed: u64) -> Self {
         Self {
             state: seed ^ 0x9E37_79B9_7F4A_7C15,
@@ -18,6 +19,7 @@ impl Rng {
         }
     }
 
+    /// The next 64 random bits (splitmix64).
     pub fn next_u64(&mut self) -> u64 {
         self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.state;

@@ -14,13 +14,16 @@ pub struct Database<T: Copy> {
 /// One query result.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit<T> {
+    /// The entry's identifier (a keyframe).
     pub id: T,
+    /// The L1 similarity of the two bags of words, in [0, 1].
     pub score: f64,
     /// Words shared with the query.
     pub common: usize,
 }
 
 impl<T: Copy> Database<T> {
+    /// An empty database over `vocabulary`'s words.
     pub fn new(vocabulary: &Vocabulary) -> Self {
         Self {
             inverted: vec![Vec::new(); vocabulary.len()],
@@ -28,10 +31,12 @@ impl<T: Copy> Database<T> {
         }
     }
 
+    /// The entries added.
     pub fn len(&self) -> usize {
         self.entries.len()
     }
 
+    /// Whether no entry was added.
     pub fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }

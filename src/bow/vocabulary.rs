@@ -56,7 +56,9 @@ impl Node {
 /// A trained vocabulary.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Vocabulary {
+    /// Children per node (k).
     pub branching: usize,
+    /// Levels below the root (L); the words are the leaves.
     pub depth: usize,
     nodes: Vec<Node>,
     /// Node index of each word.
@@ -66,10 +68,13 @@ pub struct Vocabulary {
 /// How a vocabulary is trained.
 #[derive(Debug, Clone, Copy)]
 pub struct TrainOptions {
+    /// Children per node (k).
     pub branching: usize,
+    /// Levels below the root (L).
     pub depth: usize,
     /// k-medians iterations per split.
     pub iterations: usize,
+    /// The seed of the k-medians++ initial centres.
     pub seed: u64,
 }
 
@@ -259,10 +264,12 @@ impl Vocabulary {
         }
     }
 
+    /// The number of words (leaves).
     pub fn len(&self) -> usize {
         self.words.len()
     }
 
+    /// Whether the vocabulary has no word.
     pub fn is_empty(&self) -> bool {
         self.words.is_empty()
     }

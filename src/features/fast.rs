@@ -29,8 +29,11 @@ const CIRCLE: [(isize, isize); 16] = [
 /// A corner at integer pixel `(x, y)` with its score.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Corner {
+    /// Column.
     pub x: u32,
+    /// Row.
     pub y: u32,
+    /// FAST score: the largest threshold at which the pixel is still a corner.
     pub score: u8,
 }
 

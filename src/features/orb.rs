@@ -30,6 +30,7 @@ pub struct OrbConfig {
     pub n_features: usize,
     /// Scale between pyramid levels.
     pub scale_factor: f64,
+    /// Pyramid levels (ORB-SLAM2's `nLevels`).
     pub n_levels: usize,
     /// FAST threshold tried first in each cell.
     pub ini_th_fast: u8,
@@ -56,6 +57,7 @@ impl Default for OrbConfig {
 }
 
 impl OrbConfig {
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         let orb = self;
         crate::checks::at_least_one("orb.n_features", orb.n_features as u64)?;
@@ -93,7 +95,9 @@ impl OrbConfig {
 /// A keypoint in level-0 pixel coordinates.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct KeyPoint {
+    /// Column (level-0 pixels, sub-pixel).
     pub x: f32,
+    /// Row (level-0 pixels).
     pub y: f32,
     /// The pyramid level (ORB-SLAM's octave).
     pub level: u8,
@@ -106,15 +110,19 @@ pub struct KeyPoint {
 /// The keypoints of one image and their descriptors (same order).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct OrbFeatures {
+    /// The keypoints.
     pub keypoints: Vec<KeyPoint>,
+    /// One descriptor per keypoint.
     pub descriptors: Vec<Descriptor>,
 }
 
 impl OrbFeatures {
+    /// The number of keypoints.
     pub fn len(&self) -> usize {
         self.keypoints.len()
     }
 
+    /// Whether there is no keypoint.
     pub fn is_empty(&self) -> bool {
         self.keypoints.is_empty()
     }
@@ -123,12 +131,15 @@ impl OrbFeatures {
 /// Extracts ORB features with a fixed configuration.
 #[derive(Debug, Clone)]
 pub struct OrbExtractor {
+    /// The settings it extracts with.
     pub config: OrbConfig,
+    /// The scale pyramid of `config`.
     pub pyramid: ScalePyramid,
     per_level: Vec<usize>,
 }
 
 impl OrbExtractor {
+    /// An extractor for `config`, the keypoint budget spread over the levels.
     pub fn new(config: &OrbConfig) -> Self {
         let pyramid = ScalePyramid::new(config.n_levels, config.scale_factor);
         Self {

@@ -10,14 +10,20 @@ use serde::{Deserialize, Serialize};
 /// (\(\sigma_l^2 = s^{2l}\), one pixel at level 0).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScalePyramid {
+    /// \(s\): the scale between two levels.
     pub scale_factor: f64,
+    /// \(s^l\) per level.
     pub factors: Vec<f64>,
+    /// \(s^{-l}\) per level.
     pub inverse_factors: Vec<f64>,
+    /// \(\sigma_l^2 = s^{2l}\) per level.
     pub sigma2: Vec<f64>,
+    /// \(\sigma_l^{-2}\) per level.
     pub inverse_sigma2: Vec<f64>,
 }
 
 impl ScalePyramid {
+    /// The pyramid of `levels` levels `scale_factor` apart.
     pub fn new(levels: usize, scale_factor: f64) -> Self {
         let factors: Vec<f64> = (0..levels).map(|l| scale_factor.powi(l as i32)).collect();
         Self {
@@ -29,6 +35,7 @@ impl ScalePyramid {
         }
     }
 
+    /// The number of levels.
     pub fn levels(&self) -> usize {
         self.factors.len()
     }

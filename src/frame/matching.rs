@@ -13,11 +13,17 @@ const HISTOGRAM_BINS: usize = 30;
 /// to search, and its descriptor.
 #[derive(Debug, Clone, Copy)]
 pub struct Query {
+    /// Predicted column (level-0 pixels).
     pub u: f32,
+    /// Predicted row.
     pub v: f32,
+    /// The lowest pyramid level searched.
     pub min_level: u8,
+    /// The highest pyramid level searched.
     pub max_level: u8,
+    /// Search radius in level-0 pixels (scaled by the level's factor).
     pub radius: f32,
+    /// The point's descriptor.
     pub descriptor: Descriptor,
     /// Predicted right-image coordinate; the match must agree within `radius` when set.
     pub right_u: Option<f32>,

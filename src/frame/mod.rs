@@ -25,9 +25,13 @@ const GRID_ROWS: usize = 48;
 /// One frame's features and depth.
 #[derive(Debug, Clone)]
 pub struct Frame {
+    /// The frame's index in the sequence.
     pub index: usize,
+    /// Seconds (the sequence's clock).
     pub timestamp: f64,
+    /// Undistorted keypoints (level-0 pixels).
     pub keypoints: Vec<KeyPoint>,
+    /// One descriptor per keypoint.
     pub descriptors: Vec<Descriptor>,
     /// Depth in metres per keypoint; 0 when unknown.
     pub depth: Vec<f32>,
@@ -35,7 +39,9 @@ pub struct Frame {
     pub right_u: Vec<f32>,
     /// Moving probability per keypoint (the DOP model; 0.5, unknown, until set).
     pub moving: Vec<f32>,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     grid: Vec<Vec<u32>>,
 }
@@ -176,10 +182,12 @@ impl Frame {
         }
     }
 
+    /// The number of keypoints.
     pub fn len(&self) -> usize {
         self.keypoints.len()
     }
 
+    /// Whether the frame has no keypoint.
     pub fn is_empty(&self) -> bool {
         self.keypoints.is_empty()
     }

@@ -39,9 +39,13 @@ impl StereoMatches {
 
 /// The left and right images' features with their pyramid levels.
 pub struct StereoFeatures<'a> {
+    /// The left image's features.
     pub left: &'a OrbFeatures,
+    /// The right image's features.
     pub right: &'a OrbFeatures,
+    /// The left image's pyramid (for the sub-pixel search).
     pub left_levels: &'a [GrayImage],
+    /// The right image's pyramid.
     pub right_levels: &'a [GrayImage],
 }
 

@@ -17,17 +17,28 @@ use thiserror::Error;
 use super::sim3::Sim3;
 
 #[derive(Debug, Error, PartialEq)]
+/// Why an alignment could not be computed.
 pub enum AlignmentError {
     #[error("alignment needs at least {needed} point pairs, got {got}")]
-    TooFewPoints { needed: usize, got: usize },
+    /// Fewer point pairs than the alignment's unknowns need.
+    TooFewPoints {
+        /// Pairs needed.
+        needed: usize,
+        /// Pairs given.
+        got: usize,
+    },
     #[error(
         "alignment needs as many source points ({source_len}) as target points ({target_len})"
     )]
+    /// The two point lists have different lengths.
     LengthMismatch {
+        /// Points in the source list.
         source_len: usize,
+        /// Points in the target list.
         target_len: usize,
     },
     #[error("the source points are all at one place: the scale cannot be estimated")]
+    /// All source points coincide.
     Degenerate,
 }
 

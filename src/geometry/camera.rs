@@ -11,12 +11,19 @@ use crate::checks::{positive, BadValue};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PinholeCamera {
+    /// Focal length along x, in pixels.
     pub fx: f64,
+    /// Focal length along y, in pixels.
     pub fy: f64,
+    /// Principal point, x.
     pub cx: f64,
+    /// Principal point, y.
     pub cy: f64,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Brown-Conrady \((k_1, k_2, p_1, p_2, k_3)\), OpenCV's order; zeros: none.
     #[serde(default)]
     pub distortion: [f64; 5],
 }

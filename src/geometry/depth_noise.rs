@@ -9,7 +9,10 @@ pub enum DepthNoise {
     Rgbd,
     /// A stereo pair with baseline `bf` (pixels times metres) and a disparity noise of
     /// [`STEREO_DISPARITY_SIGMA`] pixels ([`stereo_depth_sigma`]).
-    Stereo { bf: f64 },
+    Stereo {
+        /// Baseline times \(f_x\).
+        bf: f64,
+    },
 }
 
 /// The disparity noise assumed for stereo matches, in pixels (ORB-SLAM2 refines

@@ -6,11 +6,13 @@ use nalgebra::Vector3;
 /// triangles as vertex indices, counter-clockwise seen from outside.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
+    /// Positions in metres (world frame).
     pub vertices: Vec<[f32; 3]>,
     /// Empty, or one per vertex.
     pub colours: Vec<[u8; 3]>,
     /// Empty, or one unit normal per vertex.
     pub normals: Vec<[f32; 3]>,
+    /// Triangles as vertex indices; empty for a point cloud.
     pub triangles: Vec<[u32; 3]>,
 }
 
@@ -23,10 +25,12 @@ impl Mesh {
         }
     }
 
+    /// Whether there is no vertex.
     pub fn is_empty(&self) -> bool {
         self.vertices.is_empty()
     }
 
+    /// The number of vertices.
     pub fn len(&self) -> usize {
         self.vertices.len()
     }

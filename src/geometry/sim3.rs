@@ -22,20 +22,27 @@ const SMALL: f64 = 1e-9;
 /// A similarity transform `a_from_b`: \(p_a = s R p_b + t\).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sim3 {
+    /// \(R\).
     pub rotation: Rotation3<f64>,
+    /// \(t\).
     pub translation: Vector3<f64>,
+    /// \(s > 0\).
     pub scale: f64,
 }
 
 /// A Sim(3) tangent vector: translation part, rotation part, log of the scale.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sim3Tangent {
+    /// \(\rho\): the translation part.
     pub rho: Vector3<f64>,
+    /// \(\phi\): the rotation part (axis times angle).
     pub phi: Vector3<f64>,
+    /// \(\sigma = \ln s\).
     pub sigma: f64,
 }
 
 impl Sim3 {
+    /// The identity (\(s = 1\)).
     pub fn identity() -> Self {
         Self {
             rotation: Rotation3::identity(),
@@ -44,6 +51,7 @@ impl Sim3 {
         }
     }
 
+    /// \(p_a = s R p_b + t\).
     pub fn new(rotation: Rotation3<f64>, translation: Vector3<f64>, scale: f64) -> Self {
         Self {
             rotation,

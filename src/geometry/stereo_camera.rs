@@ -10,14 +10,20 @@ use super::camera::PinholeCamera;
 /// Pinhole intrinsics plus the (virtual) stereo baseline times fx.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StereoCamera {
+    /// Focal length along x, in pixels.
     pub fx: f64,
+    /// Focal length along y, in pixels.
     pub fy: f64,
+    /// Principal point, x.
     pub cx: f64,
+    /// Principal point, y.
     pub cy: f64,
+    /// Baseline times \(f_x\) (pixels times metres): \(u_R = u - bf / z\).
     pub bf: f64,
 }
 
 impl StereoCamera {
+    /// The undistorted pinhole `camera` with baseline times fx `bf`.
     pub fn new(camera: &PinholeCamera, bf: f64) -> Self {
         Self {
             fx: camera.fx,

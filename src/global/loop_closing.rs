@@ -27,18 +27,20 @@
 
 use std::collections::{HashMap, HashSet};
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use serde::Serialize;
 
 use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
 use super::place_recognition::PlaceRecognition;
+use super::rigid_motion::RigidMotion;
 use super::word_matching::{match_by_words, static_point};
 use super::GlobalInputs;
 use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::mapping::fusion;
 use crate::optim::pose_graph::GraphReport;
+use crate::optim::ransac::{ransac, Rounds, SkipRepeats};
 use crate::random::Rng;
 
 /// The seed of stage 3's RANSAC: the same samples in every run, so that a run's loops
@@ -312,8 +314,9 @@ impl<'a> LoopCloser<'a> {
         points
     }
 
-    /// RANSAC over Horn's closed form: \(T_{kc}\) with \(P_k = T_{kc} P_c\) for the
-    /// camera-frame points, inliers reprojecting within the gate in both images.
+    /// RANSAC ([`crate::optim::ransac`]) over Horn's closed form: \(T_{kc}\) with
+    /// \(P_k = T_{kc} P_c\) for the camera-frame points, inliers reprojecting within the
+    /// gate in both images; refitted twice on the inliers.
     fn ransac(
         &mut self,
         map: &Map,
@@ -321,69 +324,13 @@ impl<'a> LoopCloser<'a> {
         candidate: KeyFrameKey,
         matches: &[(usize, usize)],
     ) -> Option<(Se3, usize)> {
-        let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
-        let in_camera = |kf: &crate::map::KeyFrame, i: usize| -> Vector3<f64> {
-            let p =
-                map.points()[kf.map_points[i].expect("matched keypoints observe points")].position;
-            (kf.camera_from_world * Point3::from(p)).coords
+        let estimator = RigidMotion::new(map, (key, candidate), matches, self.inputs);
+        let rounds = Rounds {
+            iterations: self.recognition.config.ransac_iterations,
+            min_inliers: 0,
+            refits: 2,
         };
-        let pk: Vec<Vector3<f64>> = matches.iter().map(|&(i, _)| in_camera(a, i)).collect();
-        let pc: Vec<Vector3<f64>> = matches.iter().map(|&(_, j)| in_camera(b, j)).collect();
-        let camera = self.inputs.camera;
-        let sigma2 = &self.inputs.pyramid.sigma2;
-        let reprojects = |kf: &crate::map::KeyFrame, i: usize, p: &Vector3<f64>| {
-            if p.z <= 0.0 {
-                return false;
-            }
-            let uv = camera.project(p);
-            let k = &kf.frame.keypoints[i];
-            let e2 = (uv.x - k.x as f64).powi(2) + (uv.y - k.y as f64).powi(2);
-            e2 < 9.21 * sigma2[k.level as usize]
-        };
-        let inliers_of = |t: &Se3| -> Vec<usize> {
-            let inverse = t.inverse();
-            (0..matches.len())
-                .filter(|&m| {
-                    let (i, j) = matches[m];
-                    reprojects(a, i, &(t * Point3::from(pc[m])).coords)
-                        && reprojects(b, j, &(inverse * Point3::from(pk[m])).coords)
-                })
-                .collect()
-        };
-        let fit = |set: &[usize]| -> Option<Se3> {
-            let source: Vec<Vector3<f64>> = set.iter().map(|&m| pc[m]).collect();
-            let target: Vec<Vector3<f64>> = set.iter().map(|&m| pk[m]).collect();
-            let s = crate::geometry::alignment::horn(&source, &target).ok()?;
-            Some(Se3::from_parts(s.translation.into(), s.rotation))
-        };
-        let mut best: Option<(Se3, Vec<usize>)> = None;
-        for _ in 0..self.recognition.config.ransac_iterations {
-            let mut sample = [0usize; 3];
-            for s in sample.iter_mut() {
-                *s = (self.rng.next_u64() % matches.len() as u64) as usize;
-            }
-            if sample[0] == sample[1] || sample[1] == sample[2] || sample[0] == sample[2] {
-                continue;
-            }
-            let Some(t) = fit(&sample) else { continue };
-            let inliers = inliers_of(&t);
-            if best.as_ref().is_none_or(|(_, b)| inliers.len() > b.len()) {
-                best = Some((t, inliers));
-            }
-        }
-        let (mut t, mut inliers) = best?;
-        // Refit on the inliers, twice.
-        for _ in 0..2 {
-            if inliers.len() < 3 {
-                break;
-            }
-            let Some(refit) = fit(&inliers) else { break };
-            let again = inliers_of(&refit);
-            if again.len() < inliers.len() {
-                break;
-            }
-            (t, inliers) = (refit, again);
-        }
+        let (t, inliers) = ransac(&estimator, &mut SkipRepeats(&mut self.rng), rounds)?;
         Some((t, inliers.len()))
     }
 
@@ -563,6 +510,7 @@ mod tests {
     use super::*;
     use crate::map::{KeyFrame, MapPoint};
     use crate::frame::Frame;
+    use nalgebra::Vector3;
     use nalgebra::{Rotation3, Translation3};
 
     fn keyframe(segment: usize, camera_from_world: Se3) -> KeyFrame {

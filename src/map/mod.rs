@@ -21,6 +21,7 @@ new_key_type! {
 /// A 3-D point seen by keyframes.
 #[derive(Debug, Clone)]
 pub struct MapPoint {
+    /// World position in metres.
     pub position: Vector3<f64>,
     /// The representative descriptor (the one of the first observation).
     pub descriptor: Descriptor,
@@ -28,12 +29,14 @@ pub struct MapPoint {
     pub normal: Vector3<f64>,
     /// Distances within which the point can be matched (scale invariance range).
     pub min_distance: f64,
+    /// The farthest of those distances.
     pub max_distance: f64,
     /// Keyframes that see the point and the keypoint index in each.
     pub observations: Vec<(KeyFrameKey, usize)>,
     /// Frames in whose frustum tracking predicted the point, and frames where it was
     /// matched as an inlier: their ratio culls points that are rarely re-found.
     pub visible: u32,
+    /// Frames where the point was matched as an inlier.
     pub found: u32,
     /// Sequence number ([`KeyFrame::id`]) of the keyframe that created the point.
     pub first_keyframe_id: usize,
@@ -81,6 +84,7 @@ pub struct KeyFrame {
     pub id: usize,
     /// The frame's features, depth and keypoint grid.
     pub frame: Frame,
+    /// \(T_{cw}\): the keyframe's pose.
     pub camera_from_world: Se3,
     /// The map point each keypoint observes.
     pub map_points: Vec<Option<MapPointKey>>,
@@ -89,6 +93,7 @@ pub struct KeyFrame {
     pub connections: Vec<(KeyFrameKey, usize)>,
     /// Spanning tree: the keyframe this one was attached to, and those attached to it.
     pub parent: Option<KeyFrameKey>,
+    /// The keyframes attached to this one in the spanning tree.
     pub children: Vec<KeyFrameKey>,
     /// The detector's boxes, once they come back from the detection thread.
     pub detections: Option<Vec<crate::detect::Detection>>,
@@ -115,6 +120,7 @@ impl KeyFrame {
         }
     }
 
+    /// \(T_{wc} = T_{cw}^{-1}\).
     pub fn world_from_camera(&self) -> Se3 {
         self.camera_from_world.inverse()
     }

@@ -9,6 +9,7 @@ use crate::geometry::se3::Se3;
 /// One frame's hand-off from the tracking pass to the global pass.
 #[derive(Debug, Clone, Default)]
 pub struct FrameRecord {
+    /// Seconds (the sequence's clock).
     pub timestamp: f64,
     /// The map segment the frame was tracked in.
     pub segment: usize,
@@ -59,10 +60,16 @@ impl FrameRecord {
 /// pixel, virtual right coordinate, negative without depth).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameObservation {
+    /// The map point.
     pub point: MapPointKey,
+    /// The keypoint's index in the frame.
     pub keypoint: u32,
+    /// Column (undistorted level-0 pixels).
     pub x: f32,
+    /// Row.
     pub y: f32,
+    /// Virtual right-image column; negative without depth.
     pub right_u: f32,
+    /// The keypoint's pyramid level.
     pub level: u8,
 }

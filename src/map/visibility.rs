@@ -14,10 +14,13 @@ use crate::geometry::stereo_camera::StereoCamera;
 /// A predicted view of a map point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct View {
+    /// Predicted column (level-0 pixels).
     pub u: f32,
+    /// Predicted row.
     pub v: f32,
     /// Predicted right-image coordinate \(u - bf / z\).
     pub right_u: f32,
+    /// The pyramid level the point's distance predicts.
     pub level: u8,
     /// Cosine between the viewing ray and the point's mean viewing direction.
     pub view_cos: f64,

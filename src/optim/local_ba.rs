@@ -26,10 +26,13 @@ use crate::geometry::se3::{self, Se3};
 /// One observation of point `point` by camera `camera`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BaObservation {
+    /// Index into `poses`.
     pub camera: usize,
+    /// Index into `points`.
     pub point: usize,
     /// \((u, v, u_R)\); `u_R` unused when not `stereo`.
     pub measurement: Vector3<f64>,
+    /// Whether `measurement` holds a right coordinate.
     pub stereo: bool,
     /// \(\sigma^{-2}\) of the keypoint's level.
     pub information: f64,
@@ -38,9 +41,13 @@ pub struct BaObservation {
 /// A bundle adjustment problem; `poses` are `camera_from_world`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BaProblem {
+    /// \(T_{cw}\) per camera.
     pub poses: Vec<Se3>,
+    /// Per camera: held fixed (the gauge and the outer keyframes).
     pub fixed: Vec<bool>,
+    /// World positions.
     pub points: Vec<Vector3<f64>>,
+    /// Every observation.
     pub observations: Vec<BaObservation>,
 }
 
@@ -49,7 +56,9 @@ pub struct BaProblem {
 pub struct BaReport {
     /// Per observation: inside the chi-square gate at the end.
     pub inliers: Vec<bool>,
+    /// \(\chi^2\) over the inliers before the first iteration.
     pub initial_cost: f64,
+    /// \(\chi^2\) over the inliers at the end.
     pub final_cost: f64,
 }
 

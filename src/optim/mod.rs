@@ -6,5 +6,6 @@ pub mod local_ba;
 pub mod pnp;
 pub mod pose_graph;
 pub mod pose_only;
+pub mod ransac;
 pub mod robust;
 pub mod stereo_projection;

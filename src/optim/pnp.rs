@@ -17,13 +17,16 @@ use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SymmetricEigen, Vector2, Vect
 
 use crate::geometry::alignment::{umeyama, AlignmentKind};
 use crate::geometry::se3::{self, Se3};
+use super::ransac::{ransac, Estimator, Redraw, Rounds};
 use crate::random::Rng;
 
 /// One correspondence: a world point and its normalised image coordinates
 /// \(((u - c_x)/f_x, (v - c_y)/f_y)\).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Correspondence {
+    /// The point in the world frame.
     pub world: Vector3<f64>,
+    /// Its observation in normalised coordinates.
     pub normalised: Vector2<f64>,
 }
 
@@ -209,9 +212,13 @@ fn reprojection_error(points: &[Correspondence], camera_from_world: &Se3) -> f64
 /// normalised coordinates (the chi-square gate times \(\sigma^2 / f^2\)).
 #[derive(Debug, Clone)]
 pub struct Ransac {
+    /// Hypotheses drawn.
     pub iterations: usize,
+    /// Correspondences per hypothesis (EPnP needs 4 or more).
     pub sample: usize,
+    /// The fewest inliers a pose needs.
     pub min_inliers: usize,
+    /// The seed of the samples (the same samples in every run).
     pub seed: u64,
 }
 
@@ -226,8 +233,44 @@ impl Default for Ransac {
     }
 }
 
-/// EPnP in RANSAC, the best hypothesis refitted on its inliers; returns the pose and
-/// the inlier flags, or `None` with fewer than `min_inliers` inliers.
+/// EPnP on the correspondences, a correspondence an inlier when it reprojects within
+/// its threshold in normalised coordinates.
+struct EpnpEstimator<'a> {
+    points: &'a [Correspondence],
+    thresholds: &'a [f64],
+    sample: usize,
+}
+
+impl Estimator for EpnpEstimator<'_> {
+    type Model = Se3;
+
+    fn count(&self) -> usize {
+        self.points.len()
+    }
+
+    fn sample_size(&self) -> usize {
+        self.sample
+    }
+
+    fn fit(&self, indices: &[usize]) -> Option<Se3> {
+        let subset: Vec<Correspondence> = indices.iter().map(|&i| self.points[i]).collect();
+        epnp(&subset)
+    }
+
+    fn inliers(&self, pose: &Se3) -> Vec<usize> {
+        (0..self.points.len())
+            .filter(|&i| {
+                let (p, t) = (&self.points[i], self.thresholds[i]);
+                let c = pose * nalgebra::Point3::from(p.world);
+                c.z > 0.0 && (Vector2::new(c.x / c.z, c.y / c.z) - p.normalised).norm_squared() < t
+            })
+            .collect()
+    }
+}
+
+/// EPnP in RANSAC ([`crate::optim::ransac`]), the best hypothesis refitted once on its
+/// inliers; returns the pose and the inlier flags, or `None` with fewer than
+/// `min_inliers` inliers.
 pub fn epnp_ransac(
     points: &[Correspondence],
     thresholds: &[f64],
@@ -236,52 +279,21 @@ pub fn epnp_ransac(
     if points.len() < settings.min_inliers.max(settings.sample) {
         return None;
     }
-    let mut rng = Rng::new(settings.seed);
-    let classify = |pose: &Se3| -> Vec<bool> {
-        points
-            .iter()
-            .zip(thresholds)
-            .map(|(p, t)| {
-                let c = pose * nalgebra::Point3::from(p.world);
-                c.z > 0.0 && (Vector2::new(c.x / c.z, c.y / c.z) - p.normalised).norm_squared() < *t
-            })
-            .collect()
+    let estimator = EpnpEstimator {
+        points,
+        thresholds,
+        sample: settings.sample,
     };
-    let mut best: Option<(usize, Se3, Vec<bool>)> = None;
-    let mut sample = Vec::with_capacity(settings.sample);
-    for _ in 0..settings.iterations {
-        sample.clear();
-        while sample.len() < settings.sample {
-            let i = (rng.uniform() * points.len() as f64) as usize % points.len();
-            if !sample.contains(&i) {
-                sample.push(i);
-            }
-        }
-        let subset: Vec<Correspondence> = sample.iter().map(|&i| points[i]).collect();
-        let Some(pose) = epnp(&subset) else { continue };
-        let inliers = classify(&pose);
-        let count = inliers.iter().filter(|&&b| b).count();
-        if best.as_ref().is_none_or(|(c, _, _)| count > *c) {
-            best = Some((count, pose, inliers));
-        }
-    }
-    let (count, pose, inliers) = best?;
-    if count < settings.min_inliers {
-        return None;
-    }
-    let subset: Vec<Correspondence> = points
-        .iter()
-        .zip(&inliers)
-        .filter(|(_, &b)| b)
-        .map(|(p, _)| *p)
-        .collect();
-    let refined = epnp(&subset).unwrap_or(pose);
-    let refined_inliers = classify(&refined);
-    if refined_inliers.iter().filter(|&&b| b).count() >= count {
-        Some((refined, refined_inliers))
-    } else {
-        Some((pose, inliers))
-    }
+    let rounds = Rounds {
+        iterations: settings.iterations,
+        min_inliers: settings.min_inliers,
+        refits: 1,
+    };
+    let mut rng = Rng::new(settings.seed);
+    let (pose, inliers) = ransac(&estimator, &mut Redraw(&mut rng), rounds)?;
+    let mut flags = vec![false; points.len()];
+    inliers.iter().for_each(|&i| flags[i] = true);
+    Some((pose, flags))
 }
 
 #[cfg(test)]

@@ -28,7 +28,9 @@ use crate::io::g2o::{G2oEdge, G2oGraph};
 /// One relative-pose constraint.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseEdge {
+    /// Index of the first pose.
     pub from: usize,
+    /// Index of the second pose.
     pub to: usize,
     /// \(Z = T_{from}^{-1} T_{to}\) as measured.
     pub measurement: Se3,
@@ -39,14 +41,18 @@ pub struct PoseEdge {
 /// A pose graph; `fixed` poses hold the gauge (the first pose when none is).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PoseGraph {
+    /// \(T_{wc}\) or \(T_{cw}\) per node, as the edges measure them.
     pub poses: Vec<Se3>,
+    /// Per pose: held fixed.
     pub fixed: Vec<bool>,
+    /// The constraints.
     pub edges: Vec<PoseEdge>,
 }
 
 /// Stopping rules.
 #[derive(Debug, Clone, Copy)]
 pub struct GraphOptions {
+    /// Gauss-Newton iterations at most.
     pub max_iterations: usize,
     /// Stop when an accepted step lowers the cost by less than this fraction.
     pub relative_tolerance: f64,
@@ -64,10 +70,13 @@ impl Default for GraphOptions {
 /// What an optimisation did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct GraphReport {
+    /// Iterations done.
     pub iterations: usize,
     /// \(\chi^2\) before and after (GTSAM's graph error is half of it).
     pub initial_cost: f64,
+    /// \(\chi^2\) at the end.
     pub final_cost: f64,
+    /// Whether the relative tolerance was reached.
     pub converged: bool,
 }
 

@@ -30,9 +30,11 @@ use crate::geometry::stereo_camera::StereoCamera;
 /// One map point seen in the frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseObservation {
+    /// The point's world position.
     pub point_world: Vector3<f64>,
     /// \((u, v, u_R)\); `u_R` is ignored when `stereo` is false.
     pub measurement: Vector3<f64>,
+    /// Whether `measurement` holds a right coordinate.
     pub stereo: bool,
     /// \(\sigma^{-2}\) of the keypoint's level.
     pub information: f64,
@@ -59,11 +61,14 @@ impl PoseObservation {
 /// The optimised pose and which observations are inliers.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseEstimate {
+    /// \(T_{cw}\).
     pub camera_from_world: Se3,
+    /// Per observation: inside the \(\chi^2\) gate at the end.
     pub inliers: Vec<bool>,
 }
 
 impl PoseEstimate {
+    /// The number of inliers.
     pub fn inlier_count(&self) -> usize {
         self.inliers.iter().filter(|&&i| i).count()
     }
