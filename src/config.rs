@@ -22,22 +22,35 @@ use crate::io::recording::{RecordingOptions, TopicChoice};
 pub use crate::mapping::MappingConfig;
 pub use crate::tracking::TrackerConfig;
 
+/// Why a config file cannot be used: each names the file.
 #[derive(Debug, Error)]
 pub enum ConfigError {
     #[error("cannot read config {path}: {source}")]
+    /// The file cannot be read.
     Read {
+        /// The config file.
         path: PathBuf,
+        /// The reason.
         source: std::io::Error,
     },
     #[error("config {path}: {problem}")]
-    Invalid { path: PathBuf, problem: ConfigProblem },
+    /// The file says something without meaning.
+    Invalid {
+        /// The config file.
+        path: PathBuf,
+        /// What is wrong.
+        problem: ConfigProblem,
+    },
     /// The ORB-SLAM2 settings file that a config names (`[dataset] settings`) failed.
     #[error("config {config}: [dataset] settings: {source}")]
     NamedSettings {
+        /// The config file that names the settings file.
         config: PathBuf,
+        /// What went wrong with the settings file.
         source: Box<ConfigError>,
     },
     #[error(transparent)]
+    /// An ORB-SLAM2 settings file that cannot be read.
     Settings(#[from] crate::io::IoError),
 }
 
@@ -149,9 +162,11 @@ impl Default for DatasetConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EvalConfig {
+    /// How estimated and reference poses are paired (evo's or TUM's rule).
     pub association: AssociationRule,
     /// Seconds; unset: the rule's own default (evo 0.01, TUM 0.02).
     pub max_diff: Option<f64>,
+    /// The alignment before the ATE (SE(3), Sim(3), none).
     pub align: AlignMode,
     /// Fail below this fraction of matched poses.
     pub min_coverage: f64,
@@ -172,16 +187,27 @@ impl Default for EvalConfig {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
+    /// `[orb]`: the feature extractor.
     pub orb: OrbConfig,
+    /// `[tracking]`: the tracker.
     pub tracking: TrackerConfig,
+    /// `[mapping]`: local mapping.
     pub mapping: MappingConfig,
+    /// `[detector]`: the keyframe detector.
     pub detector: DetectorConfig,
+    /// `[dop]`: the DOP model.
     pub dop: DopConfig,
+    /// `[dataset]`: how a sequence is read.
     pub dataset: DatasetConfig,
+    /// `[eval]`: the evaluation against ground truth.
     pub eval: EvalConfig,
+    /// `[dense]`: the dense pass.
     pub dense: DenseConfig,
+    /// `[global]`: loops, full BA, the frames refined.
     pub global: crate::global::GlobalConfig,
+    /// `[stereo]`: what changes for a stereo sequence.
     pub stereo: StereoConfig,
+    /// `[output]`: what a run writes beside its fixed outputs (the Rerun recording).
     pub output: crate::view::OutputConfig,
 }
 
@@ -198,7 +224,9 @@ pub struct StereoConfig {
     pub max_frames_between_keyframes: usize,
     /// TSDF voxel edge, truncation and farthest fused depth, metres.
     pub voxel: f64,
+    /// TSDF truncation, metres.
     pub truncation: f64,
+    /// The farthest fused depth, metres.
     pub max_depth: f64,
     /// Point-cloud voxel edge, metres.
     pub cloud_voxel: f64,
@@ -210,6 +238,7 @@ pub struct StereoConfig {
     pub mask_free_space_seconds: f64,
     /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
     pub sgbm_disparities: i32,
+    /// The SGBM block size (odd).
     pub sgbm_block: i32,
     /// Keypoints farther than this many baselines are bearings only: their disparity
     /// still places new points, but adds no residual to the pose or bundle adjustment
@@ -485,6 +514,7 @@ fn check_value(value: &toml::Value, key: &str) -> Result<(), BadValue> {
 /// What applying an ORB-SLAM2 settings file did (in `report.json`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct SettingsApplied {
+    /// The settings file.
     pub file: PathBuf,
     /// Keys that set something here.
     pub applied: Vec<String>,

@@ -52,16 +52,12 @@
 pub mod batch;
 pub mod bow;
 pub mod checks;
-#[allow(missing_docs)]
 pub mod config;
 pub mod demo;
 #[allow(missing_docs)]
 pub mod dense;
-#[allow(missing_docs)]
 pub mod detect;
-#[allow(missing_docs)]
 pub mod dop;
-#[allow(missing_docs)]
 pub mod dynamics;
 #[allow(missing_docs)]
 pub mod eval;
@@ -74,7 +70,6 @@ pub mod interrupt;
 #[allow(missing_docs)]
 pub mod io;
 pub mod map;
-#[allow(missing_docs)]
 pub mod mapping;
 pub mod memory;
 pub mod optim;
@@ -84,10 +79,8 @@ pub mod random;
 pub mod run;
 #[allow(missing_docs)]
 pub mod synth;
-#[allow(missing_docs)]
 pub mod system;
 pub mod threads;
-#[allow(missing_docs)]
 pub mod tracking;
 #[allow(missing_docs)]
 pub mod view;

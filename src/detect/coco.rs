@@ -2,6 +2,7 @@
 //! (YOLO's `coco.names`, with COCO's own spellings; "motorbike", "aeroplane", "sofa",
 //! "tvmonitor" and the like are accepted as aliases).
 
+/// The 80 COCO class names in the detectors' index order (0 = person).
 pub const CLASSES: [&str; 80] = [
     "person",
     "bicycle",

@@ -12,17 +12,24 @@ use super::{Detection, Detector};
 
 /// A keyframe image to detect in; `id` is the caller's (a frame index).
 pub struct Job {
+    /// The caller's identifier (a frame index).
     pub id: usize,
+    /// The frame's time, seconds.
     pub timestamp: f64,
+    /// The image.
     pub image: RgbImage,
 }
 
 /// The detections of a job (or the detector's error) and the inference time.
 #[derive(Debug, Clone)]
 pub struct Outcome {
+    /// The job's identifier.
     pub id: usize,
+    /// The frame's time, seconds.
     pub timestamp: f64,
+    /// The boxes, or why the detector failed.
     pub detections: Result<Vec<Detection>, String>,
+    /// The detector's time on the image.
     pub milliseconds: f64,
     /// Each model's share of it (a pool of models), name and milliseconds.
     pub model_milliseconds: Vec<(String, f64)>,

@@ -26,15 +26,29 @@ use yolo::Layout;
 #[derive(Debug, Error)]
 pub enum DetectError {
     #[error("detector model {path}: {message}")]
-    Model { path: PathBuf, message: String },
+    /// The model file cannot be loaded or run.
+    Model {
+        /// The model file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     #[error("{0}")]
+    /// ONNX Runtime cannot be loaded or started.
     Runtime(String),
     /// Files an ONNX source needs that are not there, each with what it is.
     #[error("{}: {hint}", missing_list(.0), hint = INSTALL_HINT)]
     Missing(Vec<(&'static str, PathBuf)>),
     #[error("detection cache {path}: {message}")]
-    Cache { path: PathBuf, message: String },
+    /// A detection cache cannot be read.
+    Cache {
+        /// The cache folder or file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     #[error("detector config: {0}")]
+    /// The detector's settings have no meaning.
     Config(String),
 }
 
@@ -49,6 +63,7 @@ fn missing_list(missing: &[(&'static str, PathBuf)]) -> String {
 
 /// A source of detections for a frame: a model, a cache, or the synthetic oracle.
 pub trait Detector: Send {
+    /// The detections in `image`, taken at `timestamp`.
     fn detect(&mut self, timestamp: f64, image: &RgbImage) -> Result<Vec<Detection>, DetectError>;
 
     /// Each model's time on the last image (name, milliseconds), for a detector that
@@ -90,6 +105,7 @@ pub enum Model {
 }
 
 impl Model {
+    /// How the model's output tensor is laid out.
     pub fn layout(self) -> Layout {
         match self {
             Model::Yolov4Tiny => Layout::Yolov4,
@@ -130,10 +146,13 @@ impl Model {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PoolEntry {
+    /// The model.
     pub model: Model,
     #[serde(default)]
+    /// Its file; unset: the installed one.
     pub path: Option<PathBuf>,
     #[serde(default)]
+    /// Its score threshold; unset: the detector's.
     pub score_threshold: Option<f32>,
 }
 
@@ -150,7 +169,9 @@ impl PoolEntry {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
+    /// Where detections come from (a model, a cache, the oracle, none).
     pub source: Source,
+    /// The model used when `source` is ONNX.
     pub model: Model,
     /// The model file (default: the model's own default files).
     pub model_path: Option<PathBuf>,
@@ -167,12 +188,14 @@ pub struct DetectorConfig {
     pub ort_library: Option<PathBuf>,
     /// ONNX Runtime intra-op threads.
     pub threads: usize,
+    /// Boxes below this score are dropped.
     pub score_threshold: f32,
     /// A box touching the image's left or right border, at most 0.3 of the image wide,
     /// is kept from this share of the score threshold (each model's own in a pool): a
     /// person cut by the border scores lower. 1 holds border boxes to the same
     /// threshold.
     pub border_score_factor: f32,
+    /// Intersection over union above which NMS drops the weaker box.
     pub nms_threshold: f32,
     /// The folder of a detection cache (`source = "cache"`).
     pub cache_dir: Option<PathBuf>,
@@ -408,6 +431,7 @@ pub struct CacheDetector {
 }
 
 impl CacheDetector {
+    /// Opens the cache folder `dir` (one JSON file per frame).
     pub fn open(dir: &Path) -> Result<Self, DetectError> {
         if !dir.is_dir() {
             return Err(DetectError::Cache {
@@ -460,6 +484,7 @@ pub struct Detection {
     pub class: String,
     /// COCO class index (0 = person).
     pub class_id: u32,
+    /// The class score, in [0, 1].
     pub score: f32,
     /// `[x1, y1, x2, y2]` in image pixels.
     #[serde(rename = "box")]
@@ -472,6 +497,8 @@ pub struct Detection {
 /// The detections of one frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameDetections {
+    /// The frame's time, seconds.
     pub timestamp: f64,
+    /// Its boxes.
     pub detections: Vec<Detection>,
 }

@@ -68,8 +68,11 @@ struct Network {
 /// A model of a pool: its file, layout, and score threshold (`None`: the detector's).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoolModel {
+    /// The model file.
     pub path: PathBuf,
+    /// Its output layout.
     pub layout: Layout,
+    /// Its own score threshold; unset: the detector's.
     pub score_threshold: Option<f32>,
 }
 
@@ -78,10 +81,12 @@ pub struct PoolModel {
 /// whose candidate boxes are pooled before one class-wise NMS.
 pub struct OnnxDetector {
     networks: Vec<Network>,
+    /// Boxes below this score are dropped.
     pub score_threshold: f32,
     /// A narrow box touching the image's left or right border is kept from this share
     /// of its network's threshold ([`keep_confident`]).
     pub border_score_factor: f32,
+    /// Intersection over union above which NMS drops the weaker box.
     pub nms_threshold: f32,
     /// Each network's time on the last image, milliseconds.
     last_ms: Vec<f64>,

@@ -33,8 +33,11 @@ pub enum Layout {
 
 /// An input tensor (NCHW, f32) and how to map boxes back to the image.
 pub struct Input {
+    /// The tensor's values, NCHW.
     pub data: Vec<f32>,
+    /// Image pixels per input pixel, x.
     pub scale_x: f32,
+    /// Image pixels per input pixel, y.
     pub scale_y: f32,
 }
 

@@ -15,7 +15,9 @@ use super::DopConfig;
 /// A detected box in image pixels and whether its class is dynamic.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObjectBox {
+    /// `[x1, y1, x2, y2]` in pixels.
     pub bbox: [f32; 4],
+    /// Whether the box's class moves (a person), else static (a parked car).
     pub dynamic: bool,
     /// The object's depth when known (a box predicted from a followed object); else
     /// it is estimated from the keypoints in the box's centre.
@@ -56,8 +58,11 @@ pub fn in_moved_box(boxes: &[ObjectBox], x: f32, y: f32) -> bool {
 /// A keypoint: pixel position and depth in metres (0 when unknown).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Keypoint {
+    /// Column, pixels.
     pub x: f32,
+    /// Row, pixels.
     pub y: f32,
+    /// Depth in metres; 0 when unknown.
     pub depth: f32,
 }
 

@@ -32,7 +32,9 @@ pub struct Consistency {
     pub outlier_run: u32,
     /// Consistent frames in the current run, and the times of its first and last.
     pub inlier_run: u32,
+    /// The time of the run's first consistent frame.
     pub since: f64,
+    /// The time of its last.
     pub until: f64,
     /// The latest keyframe that saw the point put it on an object followed moving.
     pub on_moving_object: bool,
@@ -41,8 +43,11 @@ pub struct Consistency {
 /// What one observation did to \(P\).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Verdict {
+    /// The geometric check raised the probability.
     Raised,
+    /// It lowered it.
     Lowered,
+    /// It left it as it was.
     Unchanged,
 }
 

@@ -95,6 +95,7 @@ pub struct DopConfig {
     pub mode: Mode,
     /// Smoothing weight of the latest detection: 0.3 RGB-D, 0.5 stereo (paper).
     pub alpha_rgbd: f32,
+    /// The same weight for a stereo sensor.
     pub alpha_stereo: f32,
     /// Probability of anything unknown (paper: 0.5).
     pub p_init: f32,
@@ -119,8 +120,11 @@ pub struct DopConfig {
     /// Central part of a box (fraction of width and height) whose depths give the
     /// object's depth.
     pub central_fraction: f32,
+    /// Propagation: new map points take the moving probability of the keypoints they come from.
     pub propagation: bool,
+    /// Expansion: keypoints near dynamic ones in image and depth share their probability.
     pub expansion: bool,
+    /// Detected boxes are refined to the object's depth segment.
     pub refine_boxes: bool,
     /// Follow dynamic objects across keyframes ([`tracks`]): a late detection reaches
     /// the keyframes made since, and a person the detector misses on one keyframe keeps
@@ -134,6 +138,7 @@ pub struct DopConfig {
     /// the frames tracked since, and a person's new keypoints between keyframes are
     /// dynamic before any keyframe sees them.
     pub track_frames: bool,
+    /// How long a followed object is predicted without a new detection, seconds.
     pub track_seconds: f32,
     /// Association distance of a predicted object and a detected one, metres.
     pub track_gate: f32,
@@ -160,20 +165,25 @@ pub struct DopConfig {
     /// more than `geometric_max_outliers` of the matches are outliers are not used
     /// (the pose itself may be wrong there).
     pub geometric: bool,
+    /// Frames over which a point's inconsistency is counted.
     pub geometric_frames: u32,
+    /// The smoothing weight of the geometric check's evidence.
     pub alpha_geometric: f32,
+    /// The share of outliers in those frames above which a point counts as moving.
     pub geometric_max_outliers: f32,
     /// The rigidity test of the geometric check ([`rigidity`]): a matched point that
     /// keeps its distances (within `rigidity_sigmas` standard deviations of the
     /// sensor's depth noise) to fewer than `rigidity_agreement` of the others counts
     /// as a pose outlier whatever the pose says. 0 sigmas: off.
     pub rigidity_sigmas: f32,
+    /// The share of a point's partners that must agree before the rigidity test calls it moved.
     pub rigidity_agreement: f32,
     /// The other half of the geometric check ([`consistency`]): a point that stays
     /// consistent with the static points' pose for `static_seconds` is verified static;
     /// its \(P\) then falls as outliers make it rise, and a detection counts as
     /// \(S_t = 0\) on it (parked cars, seated people).
     pub static_check: bool,
+    /// How long a box must stay still to count as static, seconds.
     pub static_seconds: f32,
 }
 
@@ -214,6 +224,7 @@ impl Default for DopConfig {
 }
 
 impl DopConfig {
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         for (name, v) in [
             ("alpha_rgbd", self.alpha_rgbd),
@@ -273,13 +284,18 @@ impl DopConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum State {
+    /// \(P < t_0\): static, high confidence.
     StaticHigh,
+    /// \(t_0 \le P < t_1\): static, low confidence.
     StaticLow,
+    /// \(t_1 \le P < t_2\): dynamic, low confidence.
     DynamicLow,
+    /// \(P \ge t_2\): dynamic, high confidence.
     DynamicHigh,
 }
 
 impl State {
+    /// Whether the state is one of the two high-confidence ones.
     pub fn high_confidence(self) -> bool {
         matches!(self, State::StaticHigh | State::DynamicHigh)
     }
@@ -293,8 +309,11 @@ pub fn update(previous: f32, on_dynamic_object: bool, alpha: f32) -> f32 {
 /// Where a keypoint's probability came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Origin {
+    /// From the map point the keypoint matched.
     MapPoint,
+    /// From the keypoint it matched in the last frame.
     LastFrame,
+    /// The initial value, \(P_{init}\).
     Initial,
 }
 

@@ -18,8 +18,11 @@ use nalgebra::Vector3;
 /// depth noise (standard deviation, metres) that bounds how far the two may disagree.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Matched {
+    /// The point in the world frame (the map's).
     pub world: Vector3<f64>,
+    /// The point in the camera frame (the frame's depth).
     pub camera: Vector3<f64>,
+    /// The depth noise at the point, metres.
     pub sigma: f64,
 }
 

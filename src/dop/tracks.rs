@@ -30,6 +30,7 @@ use crate::geometry::se3::Se3;
 /// A dynamic object seen (or predicted) at one time, in the world frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Object {
+    /// The object's centre in the world frame, metres.
     pub centre: Vector3<f64>,
     /// Width and height in metres.
     pub size: (f64, f64),
@@ -195,10 +196,12 @@ impl ObjectTracks {
             .collect()
     }
 
+    /// The number of objects followed.
     pub fn len(&self) -> usize {
         self.tracks.len()
     }
 
+    /// Whether no object is followed.
     pub fn is_empty(&self) -> bool {
         self.tracks.is_empty()
     }
@@ -210,7 +213,9 @@ impl ObjectTracks {
 /// ([`super::raise_unknown_in_boxes`]).
 #[derive(Debug, Clone)]
 pub struct FollowedObjects {
+    /// The objects and their motion.
     pub tracks: ObjectTracks,
+    /// The camera the boxes are predicted in.
     pub camera: PinholeCamera,
     /// The sensor's weight of a detection (`alpha_rgbd` or `alpha_stereo`).
     pub alpha: f32,

@@ -28,8 +28,11 @@ pub struct Participation<'a> {
 /// `frames` frames after it (`[tracking] probation_frames`); `frames_since` have passed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Probation {
+    /// The keyframe whose detections the points wait for.
     pub keyframe_id: usize,
+    /// Frames tracked since the points were made.
     pub frames_since: usize,
+    /// Frames a point waits at most.
     pub frames: usize,
 }
 

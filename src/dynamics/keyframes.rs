@@ -27,7 +27,9 @@ use crate::map::{KeyFrameKey, Map};
 /// Map points updated and removed by one keyframe's detections.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DetectionEffect {
+    /// Map points whose moving probability changed.
     pub updated: usize,
+    /// Map points removed as dynamic.
     pub removed: usize,
     /// Points on a detected dynamic object that the geometric check had verified
     /// static: their update counts as \(S_t = 0\).
@@ -149,10 +151,12 @@ pub fn apply_boxes(
 /// What one keyframe's detections did with the followed objects.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ObjectsEffect {
+    /// What the boxes did to the map points.
     pub effect: DetectionEffect,
     /// Dynamic boxes used on the keyframe: detected, then predicted for followed
     /// objects the detector missed.
     pub boxes: Vec<[f32; 4]>,
+    /// Boxes predicted for followed objects the detector missed.
     pub predicted_boxes: usize,
     /// Later keyframes that got this keyframe's objects (a late detection).
     pub later_keyframes: usize,
@@ -169,6 +173,7 @@ pub struct DynamicObjects {
 }
 
 impl DynamicObjects {
+    /// No object followed yet; boxes predicted in `camera`.
     pub fn new(camera: PinholeCamera) -> Self {
         Self {
             camera,

@@ -35,11 +35,14 @@ pub struct DetectionTotals {
     /// Keyframes handed to the detector, those whose detections came back, and those
     /// skipped because a newer keyframe was waiting (real-time mode).
     pub submitted: usize,
+    /// Keyframes whose detections came back.
     pub detected: usize,
+    /// Keyframes skipped (a newer one was waiting).
     pub skipped: usize,
     /// Boxes predicted for followed people the detector missed, and keyframes that a
     /// late detection reached after they were made.
     pub predicted_boxes: usize,
+    /// Later keyframes a late detection reached.
     pub later_keyframes_reached: usize,
     /// Person recall on detected keyframes against the ground-truth masks of a
     /// synthetic sequence: people covering at least 1 % of the image, found by a
@@ -56,6 +59,7 @@ pub struct DetectionTotals {
     /// Map points whose moving probability a keyframe's detections updated, and those
     /// removed as dynamic (by the DOP model or, with --mask-boxes, inside a box).
     pub map_points_updated: usize,
+    /// Map points removed as dynamic.
     pub map_points_removed: usize,
     /// Updates where a point on a detected dynamic object counted as static because
     /// the geometric check had verified it (`[dop] static_check`).
@@ -64,6 +68,7 @@ pub struct DetectionTotals {
     /// a `dopslam synth` sequence): every tracked frame with --dop, the detected
     /// keyframes with --mask-boxes (filled by the run's scorer).
     pub classification: Option<Classification>,
+    /// Detector errors, each once.
     pub errors: Vec<String>,
 }
 
@@ -72,19 +77,26 @@ pub struct DetectionTotals {
 pub enum Applied {
     /// DOP: the dynamic boxes used on the keyframe (detected, then predicted).
     Boxes {
+        /// The keyframe's time, seconds.
         timestamp: f64,
+        /// The boxes, `[x1, y1, x2, y2]` in pixels.
         boxes: Vec<[f32; 4]>,
     },
     /// Every mode: what the detector found on the keyframe of frame `frame` (for the
     /// run's Rerun recording).
     Detected {
+        /// The keyframe's frame index.
         frame: usize,
+        /// The detector's boxes.
         detections: Vec<crate::detect::Detection>,
     },
     /// Mask boxes: the keyframe's keypoints and which of them lie in a dynamic box.
     Keypoints {
+        /// The keyframe's time, seconds.
         timestamp: f64,
+        /// The keypoints' positions, pixels.
         positions: Vec<(f32, f32)>,
+        /// Per keypoint: inside a dynamic box.
         in_box: Vec<bool>,
     },
 }
@@ -92,10 +104,13 @@ pub enum Applied {
 /// How detections act on the map over a run.
 #[derive(Debug, Clone)]
 pub struct DynamicsConfig {
+    /// DOP, mask boxes or none (ORB-SLAM2).
     pub mode: Mode,
+    /// The DOP model's settings.
     pub dop: DopConfig,
     /// The sensor's weight of a detection (the paper: 0.3 RGB-D, 0.5 stereo).
     pub alpha: f32,
+    /// The COCO classes that move.
     pub dynamic_classes: Vec<String>,
     /// Where each keyframe's detections are written (the run's detection cache,
     /// readable back with `source = "cache"`).
@@ -122,6 +137,7 @@ pub struct Dynamics {
 }
 
 impl Dynamics {
+    /// The DOP state of a run that starts with `config`, boxes predicted in `camera`.
     pub fn new(config: DynamicsConfig, camera: PinholeCamera) -> Self {
         Self {
             objects: (config.mode == Mode::Dop).then(|| DynamicObjects::new(camera)),

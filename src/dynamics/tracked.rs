@@ -35,8 +35,11 @@ const PROPAGATION_RADIUS: f32 = 20.0;
 /// observations' information) and the depth noise (the rigidity test).
 #[derive(Debug, Clone, Copy)]
 pub struct Sensor<'a> {
+    /// The camera and its baseline.
     pub camera: &'a StereoCamera,
+    /// The scale pyramid (the keypoints' level variances).
     pub pyramid: &'a ScalePyramid,
+    /// The depth noise of the sensor.
     pub depth_noise: DepthNoise,
 }
 
@@ -68,8 +71,11 @@ impl Sensor<'_> {
 /// last search (before the pose's gate) and the matches kept as inliers.
 #[derive(Debug, Clone, Copy)]
 pub struct TrackedPose<'a> {
+    /// The frame's pose, \(T_{cw}\).
     pub camera_from_world: &'a Se3,
+    /// Per keypoint: the map point it was matched to before the pose.
     pub candidates: &'a [Option<MapPointKey>],
+    /// Per keypoint: the map point it is an inlier of after the pose.
     pub matches: &'a [Option<MapPointKey>],
 }
 
@@ -78,6 +84,7 @@ pub struct TrackedPose<'a> {
 pub struct DopFigures {
     /// Map points whose probability the geometric check raised and lowered.
     pub geometric_raised: usize,
+    /// Map points whose probability the geometric check lowered.
     pub geometric_lowered: usize,
     /// Matches the rigidity test found moved.
     pub rigidity_outliers: usize,
@@ -260,8 +267,11 @@ fn moving_probabilities(
 /// The last tracked frame, as [`refresh_last`] updates it: the frame, its map points
 /// and its pose.
 pub struct LastTracked<'a> {
+    /// The frame.
     pub frame: &'a mut Frame,
+    /// Per keypoint: the map point it observes.
     pub points: &'a [Option<MapPointKey>],
+    /// Its pose, \(T_{cw}\).
     pub camera_from_world: &'a Se3,
 }
 

@@ -16,8 +16,8 @@ use thiserror::Error;
 
 use super::sim3::Sim3;
 
-#[derive(Debug, Error, PartialEq)]
 /// Why an alignment could not be computed.
+#[derive(Debug, Error, PartialEq)]
 pub enum AlignmentError {
     #[error("alignment needs at least {needed} point pairs, got {got}")]
     /// Fewer point pairs than the alignment's unknowns need.

@@ -17,12 +17,20 @@ use crate::features::TH_LOW;
 pub enum Fusion {
     /// Keypoint `index` of `keyframe` observes `point`.
     Observe {
+        /// The map point.
         point: MapPointKey,
+        /// The keyframe.
         keyframe: KeyFrameKey,
+        /// The keypoint's index in the keyframe.
         index: usize,
     },
     /// `a` and `b` are the same point.
-    Merge { a: MapPointKey, b: MapPointKey },
+    Merge {
+        /// One point (the one with more observations is kept).
+        a: MapPointKey,
+        /// The other.
+        b: MapPointKey,
+    },
 }
 
 /// Projects `points` into `keyframe` and finds fusions.

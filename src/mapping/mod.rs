@@ -32,12 +32,17 @@ use crate::geometry::stereo_camera::StereoCamera;
 pub struct MappingConfig {
     /// Covisible keyframes searched for triangulation and fusion (ORB-SLAM2: 10).
     pub neighbours: usize,
+    /// Triangulate new points from the covisible keyframes.
     pub triangulation: bool,
+    /// Fuse duplicate points.
     pub fusion: bool,
+    /// Run local BA.
     pub local_ba: bool,
     /// Free keyframes in local BA: the new one and its best covisible ones.
     pub local_ba_keyframes: usize,
+    /// Cull points that are rarely re-found.
     pub cull_points: bool,
+    /// Cull redundant keyframes.
     pub cull_keyframes: bool,
     /// Fraction of a keyframe's close points seen by three others that makes it redundant.
     pub redundancy: f64,
@@ -61,21 +66,29 @@ impl Default for MappingConfig {
 /// What local mapping did over a run.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct MappingStats {
+    /// Keyframes processed.
     pub keyframes_processed: usize,
+    /// Points triangulated.
     pub points_triangulated: usize,
+    /// Points culled.
     pub points_culled: usize,
+    /// Points fused into others.
     pub fusions: usize,
+    /// Observations local BA dropped as outliers.
     pub ba_outliers_removed: usize,
+    /// Keyframes culled as redundant.
     pub keyframes_culled: usize,
     /// Keyframes whose local BA was skipped because more were waiting.
     pub ba_skipped: usize,
     /// Milliseconds spent in local mapping in total and in local BA.
     pub total_ms: f64,
+    /// Milliseconds in local BA.
     pub ba_ms: f64,
 }
 
 /// The local mapper: processes keyframes one by one on the shared map.
 pub struct LocalMapper {
+    /// Its settings.
     pub config: MappingConfig,
     camera: StereoCamera,
     pyramid: ScalePyramid,
@@ -90,6 +103,7 @@ pub struct LocalMapper {
     /// Keypoints with a moving probability above this make no new points (1: none
     /// excluded; the DOP model sets its removal threshold).
     pub moving_threshold: f32,
+    /// What it did so far.
     pub stats: MappingStats,
     /// Called with each keyframe once it is processed (loop detection takes it from
     /// here, as ORB-SLAM2's local mapping hands keyframes to loop closing).
@@ -97,6 +111,7 @@ pub struct LocalMapper {
 }
 
 impl LocalMapper {
+    /// A mapper with `config` for `camera` and `pyramid`.
     pub fn new(
         config: MappingConfig,
         camera: StereoCamera,

@@ -47,8 +47,11 @@ pub fn triangulate(
 /// A new point: its position and the keypoint index in each of the two keyframes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewPoint {
+    /// The point in the world frame.
     pub position: Vector3<f64>,
+    /// Its keypoint in the first keyframe.
     pub index1: usize,
+    /// Its keypoint in the second keyframe.
     pub index2: usize,
 }
 

@@ -18,6 +18,7 @@ use crate::geometry::stereo_camera::StereoCamera;
 
 /// A copied-out window: the problem and where each of its parts came from.
 pub struct Window {
+    /// The bundle adjustment problem.
     pub problem: BaProblem,
     cameras: Vec<KeyFrameKey>,
     points: Vec<MapPointKey>,

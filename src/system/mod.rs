@@ -50,9 +50,13 @@ const FIRST_DETECTION_WAIT: Duration = Duration::from_secs(5);
 pub struct SystemSetup<'a> {
     /// The config for the sequence's sensor.
     pub config: &'a Config,
+    /// The camera and its baseline.
     pub camera: StereoCamera,
+    /// The undistorted pinhole camera.
     pub pinhole: PinholeCamera,
+    /// The scale pyramid.
     pub pyramid: ScalePyramid,
+    /// DOP, mask boxes or none.
     pub mode: Mode,
     /// The sensor's weight of a detection.
     pub alpha: f32,
@@ -60,6 +64,7 @@ pub struct SystemSetup<'a> {
     pub close_depth: f32,
     /// The sensor's depth noise (the geometric check's rigidity test).
     pub depth_noise: DepthNoise,
+    /// Inline (deterministic) or threads (real time).
     pub execution: Execution,
     /// Where each keyframe's detections are written.
     pub detection_cache: PathBuf,
@@ -69,16 +74,21 @@ pub struct SystemSetup<'a> {
 /// (`None`: no global pass; `Some(Err(why))`: the global pass runs without loops) and
 /// the keyframe detector with its simulated latency.
 pub struct Helpers {
+    /// The vocabulary, or why loops cannot run (`None`: no global pass).
     pub vocabulary: Option<Result<Arc<Vocabulary>, NoLoops>>,
+    /// The detector and its simulated latency (`None`: no detection).
     pub detector: Option<(Box<dyn Detector>, Duration)>,
 }
 
 /// What the tracking pass leaves for the global pass: the map owned and unlocked.
 pub struct Tracked {
+    /// The map.
     pub map: Map,
     /// Place recognition's findings (`None` without a global pass).
     pub recognised: Option<Result<PlaceRecognition, NoLoops>>,
+    /// What local mapping did.
     pub mapping: MappingStats,
+    /// What detection did.
     pub detection: DetectionTotals,
     /// What the detections did that the last [`System::take_applied`] left.
     pub applied: Vec<Applied>,
@@ -87,6 +97,7 @@ pub struct Tracked {
 /// The recent keyframes' map points ([`System::recent_map_points`]).
 #[derive(Debug, Clone, Default)]
 pub struct RecentMap {
+    /// Points the DOP model keeps.
     pub fixed: Vec<Vector3<f64>>,
     /// Points the DOP model removes (moving probability above its threshold).
     pub moving: Vec<Vector3<f64>>,

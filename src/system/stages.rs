@@ -16,7 +16,9 @@ use crate::mapping::LocalMapper;
 
 /// Local mapping on the shared map ([`LocalMapper::process`]'s six steps per keyframe).
 pub struct LocalMapping {
+    /// The mapper.
     pub mapper: LocalMapper,
+    /// The shared map.
     pub map: SharedMap,
 }
 
@@ -41,8 +43,11 @@ impl Stage for LocalMapping {
 /// (they need the covisibility graph). Verification and correction wait for the global
 /// pass.
 pub struct Recognition {
+    /// Place recognition's state.
     pub recognition: PlaceRecognition,
+    /// The vocabulary.
     pub vocabulary: Arc<Vocabulary>,
+    /// The shared map.
     pub map: SharedMap,
 }
 
@@ -72,7 +77,9 @@ impl Stage for Recognition {
 /// (the older ones come back skipped) and answers no sooner than `latency` (a simulated
 /// detector time for instant sources such as the synthetic oracle).
 pub struct Detection {
+    /// The detector.
     pub detector: Box<dyn Detector>,
+    /// Its simulated latency.
     pub latency: Duration,
 }
 

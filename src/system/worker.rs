@@ -12,7 +12,9 @@ use std::time::Duration;
 
 /// Work done on jobs, one at a time, beside tracking.
 pub trait Stage: Send + 'static {
+    /// What the stage is given.
     type Job: Send + 'static;
+    /// What it hands back.
     type Output: Send + 'static;
     /// The thread's name.
     const NAME: &'static str;
@@ -36,11 +38,14 @@ pub trait Stage: Send + 'static {
 /// Whether the helpers run inline or on their threads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Execution {
+    /// Each job done at once on the caller's thread (deterministic).
     Inline,
+    /// Each stage on its own thread (real time).
     Threads,
 }
 
 impl Execution {
+    /// Inline when `deterministic`, else threads.
     pub fn of(deterministic: bool) -> Self {
         if deterministic {
             Self::Inline
@@ -72,17 +77,24 @@ enum Inner<S: Stage> {
 /// A handle another stage submits jobs through (local mapping hands its keyframes to
 /// place recognition): it processes at once when inline, else sends.
 pub enum Submitter<S: Stage> {
+    /// Processes each job at once.
     Inline {
+        /// The stage.
         stage: Arc<Mutex<Option<S>>>,
+        /// What it handed back.
         done: Arc<Mutex<Vec<S::Output>>>,
     },
+    /// Sends each job to the stage's thread.
     Thread {
+        /// The jobs' channel.
         jobs: Sender<S::Job>,
+        /// Jobs sent and not yet done.
         pending: Arc<AtomicUsize>,
     },
 }
 
 impl<S: Stage> Submitter<S> {
+    /// Hands `job` to the stage.
     pub fn submit(&mut self, job: S::Job) {
         match self {
             Self::Inline { stage, done } => process_inline(stage, done, job),

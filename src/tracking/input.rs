@@ -64,7 +64,9 @@ fn median_depth(depth: &DepthImage) -> Option<f64> {
 /// an RGB-D frame, the left image of a stereo pair.
 #[derive(Debug, Clone)]
 pub enum Picture {
+    /// A colour image (RGB-D).
     Colour(RgbImage),
+    /// A grey image (stereo).
     Grey(GrayImage),
 }
 

@@ -25,11 +25,14 @@ pub const LOCAL_MAP_MATCH_RATIO: f32 = 0.8;
 /// Local-map search radius (pixels at level 0) for a view close to the point's mean
 /// viewing direction (cosine above [`LOCAL_MAP_CLOSE_VIEW_COS`]), and otherwise.
 pub const LOCAL_MAP_RADIUS_CLOSE_VIEW: f32 = 2.5;
+/// The projection search radius (pixels at level 0) otherwise.
 pub const LOCAL_MAP_RADIUS: f32 = 4.0;
+/// The cosine above which the view counts as close.
 pub const LOCAL_MAP_CLOSE_VIEW_COS: f64 = 0.998;
 /// Relocalisation: every n-th keypoint of the frame ranks the keyframes, the best
 /// few are tried.
 pub const RELOCALISATION_SAMPLE_STEP: usize = 4;
+/// Relocalisation candidates tried at most.
 pub const RELOCALISATION_CANDIDATES: usize = 5;
 /// Ratio of the brute-force search against a relocalisation candidate.
 pub const RELOCALISATION_MATCH_RATIO: f32 = 0.75;
@@ -38,14 +41,17 @@ pub const RELOCALISATION_MATCH_RATIO: f32 = 0.75;
 pub const RELOCALISATION_ACCEPT: usize = 50;
 /// Radius (pixels at level 0) and ratio of that projection search.
 pub const RELOCALISATION_SEARCH_RADIUS: f32 = 10.0;
+/// The descriptor ratio of that search.
 pub const RELOCALISATION_SEARCH_RATIO: f32 = 0.9;
 /// Keyframe decision: tracked close points below this while more untracked close
 /// ones than [`KEYFRAME_UNTRACKED_CLOSE`] are available ask for a keyframe.
 pub const KEYFRAME_TRACKED_CLOSE: usize = 100;
+/// Untracked close points that ask for a keyframe.
 pub const KEYFRAME_UNTRACKED_CLOSE: usize = 70;
 /// Weak tracking: inliers below this share of the reference keyframe's points; very
 /// weak below the second.
 pub const KEYFRAME_WEAK_RATIO: f64 = 0.75;
+/// The share of the reference keyframe's points below which tracking is very weak.
 pub const KEYFRAME_VERY_WEAK_RATIO: f64 = 0.25;
 /// Inliers a frame needs to become a keyframe.
 pub const KEYFRAME_MIN_INLIERS: usize = 15;
@@ -76,6 +82,7 @@ pub struct TrackerConfig {
     /// (below 25 %). A person walking in front of a still camera hides points without
     /// any new view to map.
     pub keyframe_min_translation: f64,
+    /// The same for the rotation, degrees.
     pub keyframe_min_rotation_deg: f64,
     /// Seconds of failed relocalisation after which a new map segment starts at the
     /// next frame with enough depth (ORB-SLAM3's Atlas without IMU: 3 s). The new

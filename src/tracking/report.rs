@@ -11,8 +11,11 @@ use crate::map::MapPointKey;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackingState {
+    /// Before the map's first keyframe.
     NotInitialised,
+    /// Tracking.
     Ok,
+    /// Lost (relocalising).
     Lost,
 }
 
@@ -31,7 +34,9 @@ impl TrackingState {
 /// corrects.
 #[derive(Debug, Clone)]
 pub struct TrackedFrame {
+    /// The report line.
     pub stats: FrameStats,
+    /// The hand-off to the global pass.
     pub record: FrameRecord,
 }
 
@@ -60,22 +65,31 @@ impl TrackedFrame {
 /// What tracking one frame did, for the report (one line of `report.json`).
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameStats {
+    /// The frame's index.
     pub index: usize,
+    /// Seconds.
     pub timestamp: f64,
+    /// The tracker's state after the frame.
     pub state: TrackingState,
     /// The map segment the frame was tracked in (see [`super::TrackerConfig::new_map_after_seconds`]).
     pub segment: usize,
+    /// Keypoints extracted.
     pub keypoints: usize,
+    /// Keypoints matched to map points.
     pub matches: usize,
+    /// Matches that are pose inliers.
     pub inliers: usize,
+    /// Whether the frame became a keyframe.
     pub keyframe: bool,
     /// DOP: keypoints in a removed (dynamic) state, and local-map points left out as
     /// dynamic.
     pub dynamic_keypoints: usize,
+    /// Map points the DOP model removed.
     pub dynamic_map_points: usize,
     /// Map points whose probability the geometric check raised and lowered in this
     /// frame.
     pub geometric_raised: usize,
+    /// Map points whose probability the geometric check lowered.
     pub geometric_lowered: usize,
     /// Matched points the rigidity test found moved (`crate::dop::rigidity`).
     pub rigidity_outliers: usize,
@@ -85,6 +99,7 @@ pub struct FrameStats {
     /// Milliseconds: matching and local-map search, pose optimisation, total tracking
     /// (feature extraction is timed by the caller).
     pub matching_ms: f64,
+    /// Milliseconds in the pose optimisation.
     pub optimisation_ms: f64,
     /// The DOP model's probabilities (propagation and expansion).
     pub dop_ms: f64,
@@ -124,9 +139,19 @@ pub enum Reject {
     /// The reference keyframe is gone and the segment has none.
     NoReference,
     /// Too few descriptor matches to optimise a pose.
-    FewMatches { found: usize, needed: usize },
+    FewMatches {
+        /// How many there were.
+        found: usize,
+        /// How many are needed.
+        needed: usize,
+    },
     /// The optimised pose has too few inliers.
-    FewInliers { found: usize, needed: usize },
+    FewInliers {
+        /// How many there were.
+        found: usize,
+        /// How many are needed.
+        needed: usize,
+    },
     /// No keyframe gave a relocalisation with enough inliers.
     NotRelocalised,
 }
@@ -135,8 +160,11 @@ pub enum Reject {
 /// dynamic or waiting points, which took no part) and the inlier count.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseEstimate {
+    /// \(T_{cw}\).
     pub camera_from_world: Se3,
+    /// Per keypoint: the map point matched.
     pub matches: Vec<Option<MapPointKey>>,
+    /// The inliers' count.
     pub inliers: usize,
 }
 

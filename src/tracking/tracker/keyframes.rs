@@ -23,7 +23,9 @@ pub struct KeyframeInputs {
     /// Close keypoints (depth below `ThDepth` baselines) tracked with a point that
     /// takes part, and untracked ones that could make a new point.
     pub tracked_close: usize,
+    /// Untracked close points that could make new points.
     pub untracked_close: usize,
+    /// Frames since the last keyframe.
     pub frames_since_keyframe: usize,
     /// Whether the camera moved or turned enough from the reference keyframe.
     pub moved: bool,
@@ -42,10 +44,12 @@ pub struct KeyframeInputs {
 /// walking in front of a still camera hides points without any new view to map.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeyframePolicy {
+    /// A keyframe at least this often.
     pub max_frames_between_keyframes: usize,
 }
 
 impl KeyframePolicy {
+    /// Whether the frame described by `inputs` should become a keyframe.
     pub fn need_keyframe(&self, inputs: &KeyframeInputs) -> bool {
         let reference = inputs.reference_points as f64;
         let inliers = inputs.inliers as f64;

@@ -112,6 +112,7 @@ struct Timing {
 }
 
 impl Tracker {
+    /// A tracker for `config` with `camera`, `pyramid` and `extractor` settings.
     pub fn new(
         config: TrackerConfig,
         camera: StereoCamera,
@@ -146,6 +147,7 @@ impl Tracker {
         }
     }
 
+    /// The tracking state.
     pub fn state(&self) -> TrackingState {
         self.state
     }
