@@ -64,7 +64,6 @@ pub mod eval;
 pub mod features;
 pub mod frame;
 pub mod geometry;
-#[allow(missing_docs)]
 pub mod global;
 pub mod interrupt;
 #[allow(missing_docs)]
@@ -75,12 +74,10 @@ pub mod memory;
 pub mod optim;
 pub mod pacing;
 pub mod random;
-#[allow(missing_docs)]
 pub mod run;
 #[allow(missing_docs)]
 pub mod synth;
 pub mod system;
 pub mod threads;
 pub mod tracking;
-#[allow(missing_docs)]
 pub mod view;

@@ -9,9 +9,13 @@ use crate::map::{KeyFrameKey, Map};
 /// and timestamps.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct LoopPair {
+    /// The keyframe's id.
     pub keyframe: usize,
+    /// The matched keyframe's id.
     pub matched: usize,
+    /// The keyframe's time, seconds.
     pub keyframe_time: f64,
+    /// The matched keyframe's time, seconds.
     pub matched_time: f64,
 }
 
@@ -31,8 +35,11 @@ impl LoopPair {
 #[derive(Debug, Clone, Serialize)]
 pub struct Candidate {
     #[serde(flatten)]
+    /// The two keyframes.
     pub pair: LoopPair,
+    /// The place-recognition score of the match.
     pub score: f64,
+    /// Whether the loop was closed.
     pub accepted: bool,
     /// Why it was accepted or where it stopped (in `report.json` as its sentence).
     #[serde(serialize_with = "as_sentence")]
@@ -54,10 +61,14 @@ impl Candidate {
 /// What became of a loop candidate: accepted, or the stage that rejected it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LoopOutcome {
+    /// The loop was closed.
     Accepted {
+        /// Inliers of the rigid motion.
         inliers: usize,
+        /// Matches after the guided search.
         guided_matches: usize,
     },
+    /// Where it stopped.
     Rejected(LoopReject),
 }
 
@@ -65,19 +76,40 @@ pub enum LoopOutcome {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LoopReject {
     /// Stage 2: its group overlapped the groups of too few consecutive keyframes.
-    Inconsistent { count: usize, needed: usize },
+    Inconsistent {
+        /// Keyframes in a row that overlapped.
+        count: usize,
+        /// Keyframes needed.
+        needed: usize,
+    },
     /// Its keyframe came too soon after the last loop closed.
-    TooSoon { gap: usize },
+    TooSoon {
+        /// Keyframes to wait after a loop.
+        gap: usize,
+    },
     /// Stage 3: too few vocabulary matches with static points.
-    FewMatches { found: usize, needed: usize },
+    FewMatches {
+        /// How many there were.
+        found: usize,
+        /// How many are needed.
+        needed: usize,
+    },
     /// Stage 3: RANSAC found no rigid motion.
     NoRigidMotion,
     /// Stage 3: the rigid motion has too few inliers.
-    FewInliers { found: usize, needed: usize },
+    FewInliers {
+        /// How many there were.
+        found: usize,
+        /// How many are needed.
+        needed: usize,
+    },
     /// Stage 3: too few matches after the guided search.
     FewGuidedMatches {
+        /// Inliers of the rigid motion.
         inliers: usize,
+        /// Matches after the guided search.
         found: usize,
+        /// Matches needed.
         needed: usize,
     },
 }

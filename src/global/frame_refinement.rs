@@ -34,12 +34,15 @@ pub const MIN_POINTS: usize = 30;
 pub struct RefinementReport {
     /// Tracked frames that are not keyframes (keyframes have their BA poses).
     pub frames: usize,
+    /// Frames given a new pose.
     pub refined: usize,
     /// Kept their poses: too few static points left, or too few inliers.
     pub kept: usize,
     /// How far the refined frames moved from their corrected poses, millimetres.
     pub median_shift_mm: f64,
+    /// The largest shift, millimetres.
     pub max_shift_mm: f64,
+    /// The refinement's time.
     pub milliseconds: f64,
 }
 

@@ -61,13 +61,19 @@ struct Verified {
 #[derive(Debug, Clone, Serialize)]
 pub struct ClosedLoop {
     #[serde(flatten)]
+    /// The two keyframes.
     pub pair: LoopPair,
+    /// Inliers of the rigid motion.
     pub inliers: usize,
+    /// Matches after the guided search.
     pub guided_matches: usize,
     /// How far the keyframe moved: metres and degrees.
     pub correction_m: f64,
+    /// How far the keyframe turned, degrees.
     pub correction_deg: f64,
+    /// Map points fused across the loop.
     pub fused_points: usize,
+    /// What the essential-graph optimisation did.
     pub essential_graph: GraphReport,
     /// When the two keyframes were in different map segments: the keyframe's segment,
     /// moved rigidly onto the loop and merged into the matched keyframe's.
@@ -78,7 +84,9 @@ pub struct ClosedLoop {
 /// A map segment merged into another by a loop.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct SegmentMerge {
+    /// The segment moved.
     pub segment: usize,
+    /// The segment it was merged into.
     pub into: usize,
 }
 
@@ -88,8 +96,11 @@ pub struct LoopCloser<'a> {
     inputs: &'a GlobalInputs<'a>,
     recognition: PlaceRecognition,
     last_loop: Option<usize>,
+    /// The loops closed, keyframe and match.
     pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
+    /// Every candidate that reached consistency checking.
     pub candidates: Vec<Candidate>,
+    /// The loops closed, as reported.
     pub closed: Vec<ClosedLoop>,
     rng: Rng,
 }

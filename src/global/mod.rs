@@ -44,11 +44,14 @@ pub struct GlobalConfig {
     /// taken from the working directory. Unset: `vocabulary.dbow` in the runtime data
     /// directory ([`crate::io::data_dir`]).
     pub vocabulary: Option<PathBuf>,
+    /// `[global.loops]`: loop detection and closing.
     pub loops: LoopConfig,
     /// Full bundle adjustment at the end: iterations with the Huber kernel, then
     /// without it on the inliers.
     pub full_ba: bool,
+    /// Full BA iterations with the Huber kernel.
     pub full_ba_robust_iterations: usize,
+    /// Full BA iterations without it, on the inliers.
     pub full_ba_inlier_iterations: usize,
     /// After full BA, estimate every tracked frame's pose again against the final
     /// static map points it saw ([`frame_refinement`]).
@@ -75,24 +78,33 @@ impl Default for GlobalConfig {
 /// What the full bundle adjustment did.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FullBaReport {
+    /// Keyframes in the full BA.
     pub keyframes: usize,
     /// Keyframes held (the oldest of each map segment, and those with too few static
     /// observations).
     pub held: usize,
+    /// Map points in it.
     pub points: usize,
+    /// Observations in it.
     pub observations: usize,
+    /// \(\chi^2\) before.
     pub initial_cost: f64,
+    /// \(\chi^2\) after.
     pub final_cost: f64,
+    /// Observations dropped as outliers.
     pub outliers_removed: usize,
+    /// The full BA's time.
     pub milliseconds: f64,
 }
 
 /// What the global pass did (in `report.json`).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct GlobalReport {
+    /// The loops closed.
     pub loops: Vec<ClosedLoop>,
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
+    /// The full BA, when it ran.
     pub full_ba: Option<FullBaReport>,
     /// The frames estimated again on the final map.
     pub frames: Option<frame_refinement::RefinementReport>,
@@ -101,6 +113,7 @@ pub struct GlobalReport {
     /// Place recognition beside the tracking pass (its thread's time), and loop
     /// verification and correction in the global pass, milliseconds.
     pub loop_detection_ms: f64,
+    /// Loop verification and correction in the global pass, milliseconds.
     pub loop_closing_ms: f64,
     /// The global pass itself (loop closing and full BA).
     pub total_ms: f64,
@@ -111,8 +124,11 @@ pub struct GlobalReport {
 
 /// What the pass needs of the system.
 pub struct GlobalInputs<'a> {
+    /// The camera and its baseline.
     pub camera: &'a StereoCamera,
+    /// The scale pyramid.
     pub pyramid: &'a ScalePyramid,
+    /// The image size, pixels.
     pub size: (f32, f32),
     /// Points above this moving probability are dynamic and take no part.
     pub moving_threshold: f32,
@@ -138,8 +154,11 @@ pub enum NoLoops {
     /// The vocabulary at `path` cannot be read (`problem`); `fix` says how to get one.
     #[error("loop closing needs the vocabulary {}: {problem}; {fix}; or run with --no-loops", path.display())]
     NoVocabulary {
+        /// The vocabulary file.
         path: PathBuf,
+        /// Why it cannot be read.
         problem: String,
+        /// How to get one.
         fix: &'static str,
     },
 }

@@ -18,13 +18,17 @@ pub struct LoopConfig {
     /// Look for loops (needs the vocabulary); `dopslam run --no-loops` turns it off and
     /// the global pass keeps full BA and the frames' refinement.
     pub enabled: bool,
+    /// Keyframes in a row whose groups must overlap a candidate's (ORB-SLAM2: 3).
     pub min_consistency: usize,
     /// No loop is searched within this many keyframes after the last one.
     pub gap: usize,
+    /// Rigid-motion inliers a loop needs.
     pub min_inliers: usize,
+    /// Matches after the guided search a loop needs.
     pub min_guided_matches: usize,
     /// Covisibility edges of at least this weight join the essential graph.
     pub covisibility_weight: usize,
+    /// RANSAC hypotheses for the rigid motion.
     pub ransac_iterations: usize,
     /// Lowe's ratio for matching through the vocabulary.
     pub ratio: f32,
@@ -65,6 +69,7 @@ pub struct PlaceRecognition {
 }
 
 impl PlaceRecognition {
+    /// Place recognition over `vocabulary`'s words with `config`.
     pub fn new(vocabulary: &Vocabulary, config: LoopConfig) -> Self {
         Self {
             config,

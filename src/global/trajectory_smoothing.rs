@@ -57,6 +57,7 @@ const KEYFRAME_WEIGHT: f64 = 1e6;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SmoothingConfig {
+    /// Smooth the frames' poses after the global pass.
     pub enabled: bool,
     /// \(\sigma_a\): the camera's acceleration per axis, m/s². The real ground truths
     /// of TUM fr1_xyz, fr2_desk and a Bonn clip, at 30 Hz, have 0.09-0.46 m/s² (RMS
@@ -78,6 +79,7 @@ impl Default for SmoothingConfig {
 }
 
 impl SmoothingConfig {
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         positive("global.smoothing.acceleration", self.acceleration)?;
         positive("global.smoothing.angular_acceleration", self.angular_acceleration)
@@ -87,14 +89,19 @@ impl SmoothingConfig {
 /// What the smoothing did (in `report.json`, under `global`).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct SmoothingReport {
+    /// Frames smoothed.
     pub frames: usize,
+    /// Runs of consecutive tracked frames smoothed apart.
     pub runs: usize,
     /// The estimated measurement noise: centre (mm) and rotation (degrees).
     pub centre_noise_mm: f64,
+    /// The rotation noise, degrees.
     pub rotation_noise_deg: f64,
     /// How far the frames' centres moved, millimetres.
     pub median_shift_mm: f64,
+    /// The largest shift, millimetres.
     pub max_shift_mm: f64,
+    /// The smoothing's time.
     pub milliseconds: f64,
 }
 

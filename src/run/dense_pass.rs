@@ -16,8 +16,11 @@ use crate::io::sequence::{SensorKind, Sequence};
 /// sensor, the camera, and for a stereo sequence how its pairs become depth.
 #[derive(Debug, Clone)]
 pub struct DenseSetup {
+    /// The run's config.
     pub config: Config,
+    /// The undistorted colour camera.
     pub camera: PinholeCamera,
+    /// For a stereo sequence: how its depth is made.
     pub stereo: Option<StereoDepth>,
 }
 

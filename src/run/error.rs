@@ -6,9 +6,11 @@ use thiserror::Error;
 
 use crate::io::IoError;
 
+/// How a run fails; the message names the file or key and what is wrong.
 #[derive(Debug, Error)]
 pub enum RunError {
     #[error(transparent)]
+    /// A file of the run (input or output).
     Io(#[from] IoError),
     /// The run's Rerun recording failed.
     #[error(transparent)]
@@ -23,8 +25,11 @@ pub enum RunError {
     /// The run stopped before the last frame; what was done is written.
     #[error("{reason} (outputs of the {done} frames done are in {out})")]
     Stopped {
+        /// Why.
         reason: StopReason,
+        /// Frames done.
         done: usize,
+        /// The output folder.
         out: PathBuf,
     },
 }
@@ -35,7 +40,10 @@ pub enum RunError {
 pub enum StopReason {
     /// SIGINT or SIGTERM arrived before frame `frame`.
     #[error("{} at frame {frame}", crate::interrupt::MESSAGE)]
-    Interrupted { frame: usize },
+    Interrupted {
+        /// The frame not done.
+        frame: usize,
+    },
     /// A frame could not be loaded or failed its checks (size, depth): the message
     /// names the file and what is wrong.
     #[error("{0}")]

@@ -18,10 +18,13 @@ use crate::tracking::{FrameStats, TrackingState};
 
 /// One frame as the system left it.
 pub struct FrameView<'a> {
+    /// The frame's index.
     pub index: usize,
+    /// Seconds.
     pub timestamp: f64,
     /// The frame's report line and its record (pose, reference keyframe).
     pub stats: &'a FrameStats,
+    /// The frame's record.
     pub record: &'a FrameRecord,
     /// The frame with its moving probabilities, when tracking kept it.
     pub frame: Option<&'a Frame>,
@@ -63,6 +66,7 @@ pub struct Progress {
 }
 
 impl Progress {
+    /// A bar over `total` frames, drawn when `shown`.
     pub fn new(total: usize, shown: bool) -> Self {
         let bar = if shown {
             ProgressBar::new(total as u64)
@@ -93,6 +97,7 @@ impl FrameObserver for Progress {
 
 /// Each frame with its keypoints coloured by DOP state, as PNGs in a folder.
 pub struct DebugFrames {
+    /// The folder of the pictures.
     pub dir: PathBuf,
 }
 
@@ -114,6 +119,7 @@ impl FrameObserver for DebugFrames {
 /// The dynamic keypoints of every tracked frame (DOP mode), for the dense pass.
 #[derive(Default)]
 pub struct DynamicKeypoints {
+    /// One entry per tracked frame.
     pub frames: Vec<FrameKeypoints>,
 }
 

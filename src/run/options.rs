@@ -10,6 +10,7 @@ use crate::pacing::Pace;
 pub struct RunOptions {
     /// Stop after this many frames.
     pub max_frames: Option<usize>,
+    /// Show the progress bar.
     pub progress: bool,
     /// Run local mapping and detection inline after each keyframe instead of in their
     /// own threads, so that results repeat exactly.

@@ -89,14 +89,23 @@ pub fn write_dynamic_keypoints(run: &RunDir, keypoints: &[FrameKeypoints]) -> Re
 
 /// What the passes computed, for [`write`].
 pub struct Computed<'a> {
+    /// The sequence.
     pub sequence: &'a dyn Sequence,
+    /// Its folder or recording.
     pub sequence_path: Option<&'a Path>,
+    /// What the run was set up with.
     pub setup: RunSetup,
+    /// DOP, mask boxes or none.
     pub mode: Mode,
+    /// The map after the global pass.
     pub map: Map,
+    /// What local mapping did.
     pub mapping: MappingStats,
+    /// What detection did.
     pub detection: DetectionTotals,
+    /// One report line per frame.
     pub lines: Vec<FrameLine>,
+    /// One record per frame (the trajectory).
     pub records: Vec<FrameRecord>,
     /// Why the run stopped early, if it did.
     pub stopped: Option<StopReason>,

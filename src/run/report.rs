@@ -17,9 +17,13 @@ use crate::tracking::{FrameStats, TrackingState};
 /// Totals of a run.
 #[derive(Debug, Clone, Serialize)]
 pub struct RunTotals {
+    /// Frames read.
     pub frames: usize,
+    /// Frames tracked.
     pub tracked: usize,
+    /// Frames lost.
     pub lost: usize,
+    /// Frames before the map started.
     pub not_initialised: usize,
     /// Tracked frames over all frames, in %.
     pub coverage_percent: f64,
@@ -31,13 +35,19 @@ pub struct RunTotals {
     /// Tracked frames in the largest segment after the merges, over all frames, in %:
     /// the part of the run in one frame of reference.
     pub largest_segment_percent: f64,
+    /// Keyframes at the end.
     pub keyframes: usize,
+    /// Map points at the end.
     pub map_points: usize,
     /// Tracking time per frame (ORB extraction + tracking), as ORB-SLAM2 prints it.
     pub median_tracking_ms: f64,
+    /// The mean of the same.
     pub mean_tracking_ms: f64,
+    /// Median ORB extraction time.
     pub median_extraction_ms: f64,
+    /// Median matching time.
     pub median_matching_ms: f64,
+    /// Median pose-optimisation time.
     pub median_optimisation_ms: f64,
     /// The DOP model per frame (propagation and expansion; 0 without it).
     pub median_dop_ms: f64,
@@ -49,10 +59,13 @@ pub struct RunTotals {
 /// A map segment of a run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SegmentSpan {
+    /// The segment's number.
     pub segment: usize,
     /// First and last frame tracked in it, and how many were.
     pub first_frame: usize,
+    /// The last frame tracked in it.
     pub last_frame: usize,
+    /// Frames tracked in it.
     pub tracked_frames: usize,
     /// The segment a loop merged it into (in the global pass), following later merges.
     pub merged_into: Option<usize>,
@@ -109,8 +122,11 @@ pub fn final_segment(merges: &[(usize, usize)], mut segment: usize) -> usize {
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameLine {
     #[serde(flatten)]
+    /// The tracker's line.
     pub tracking: FrameStats,
+    /// ORB extraction, milliseconds.
     pub extraction_ms: f64,
+    /// Extraction and tracking, milliseconds.
     pub tracking_ms: f64,
     /// Against the ground-truth masks of a synthetic sequence (absent elsewhere).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -121,6 +137,7 @@ pub struct FrameLine {
 /// What `report.json` holds.
 #[derive(Debug, Serialize)]
 pub struct RunReport {
+    /// The sequence's name.
     pub sequence: String,
     /// What the run was set up with.
     pub setup: RunSetup,
@@ -128,17 +145,21 @@ pub struct RunReport {
     pub sequence_path: Option<PathBuf>,
     /// How moving objects were treated.
     pub mode: Mode,
+    /// Frame counts and timings.
     pub totals: RunTotals,
     /// ATE of `trajectory.txt` (after the global pass, when it ran).
     pub ate: Option<EvalReport>,
     /// ATE of `trajectory_tracking.txt` (the tracking pass alone), when the global pass ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ate_tracking: Option<EvalReport>,
+    /// What local mapping did.
     pub mapping: MappingStats,
+    /// What detection did.
     pub detection: DetectionTotals,
     /// The global pass: loops, candidates, full BA.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub global: Option<GlobalReport>,
+    /// One line per frame.
     pub frames: Vec<FrameLine>,
     /// Why the run stopped before the last frame, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]

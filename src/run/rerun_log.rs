@@ -22,6 +22,7 @@ pub struct RerunLog {
 }
 
 impl RerunLog {
+    /// A recorder logging into `log`.
     pub fn new(log: LogHandle) -> Self {
         Self {
             log,

@@ -28,10 +28,15 @@ use crate::system::SystemSetup;
 pub struct Setup {
     /// The config for the sequence's sensor, with the detection source resolved.
     pub config: Config,
+    /// RGB-D or stereo.
     pub sensor: SensorKind,
+    /// The camera, its baseline and depth scale.
     pub calibration: Calibration,
+    /// The camera and its baseline.
     pub camera: StereoCamera,
+    /// The ORB extractor.
     pub extractor: OrbExtractor,
+    /// DOP, mask boxes or none.
     pub mode: Mode,
     /// The sensor's weight of a detection (the paper: 0.3 RGB-D, 0.5 stereo).
     pub alpha: f32,
@@ -268,16 +273,20 @@ pub fn fit_to_images(
 /// config, the settings file and `--camera`, and the runtime files it loaded.
 #[derive(Debug, Clone, Serialize)]
 pub struct RunSetup {
+    /// The camera, its baseline and depth scale.
     pub calibration: Calibration,
+    /// The ORB settings.
     pub orb: crate::features::orb::OrbConfig,
     /// `ThDepth` and ORB-SLAM2's most frames between keyframes (`Camera.fps`).
     pub th_depth: f64,
+    /// The most frames between keyframes.
     pub max_frames_between_keyframes: usize,
     /// The ORB-SLAM2 settings file and which of its keys were applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub settings: Option<crate::config::SettingsApplied>,
     /// The runtime data directory and why it was chosen (`dopslam doctor`).
     pub data_dir: String,
+    /// Where detections came from.
     pub detections: crate::detect::Source,
     /// The detector's files (models, then the ONNX Runtime library) when it is ONNX.
     pub detector_files: Vec<PathBuf>,
@@ -311,6 +320,7 @@ pub fn content_hash(bytes: &[u8]) -> String {
 }
 
 impl RunSetup {
+    /// What `sequence` runs with under `config` and `calibration`.
     pub fn new(sequence: &dyn Sequence, config: &Config, calibration: &Calibration) -> Self {
         let data = crate::io::data_dir::DataDir::locate();
         let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);

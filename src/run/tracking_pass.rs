@@ -30,7 +30,9 @@ const RECENT_KEYFRAMES: usize = 10;
 
 /// What the tracking pass hands on.
 pub struct TrackingPass {
+    /// What the system leaves for the global pass.
     pub tracked: Tracked,
+    /// One report line per frame.
     pub lines: Vec<FrameLine>,
     /// One record per line, for the global pass and the final trajectory.
     pub records: Vec<FrameRecord>,

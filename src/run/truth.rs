@@ -19,11 +19,14 @@ pub struct TruthScorer {
     sequence_dir: Option<PathBuf>,
     /// One entry per frame observed, in order.
     pub per_frame: Vec<Option<TruthCounts>>,
+    /// Moving keypoints called moving, against the truth (DOP and mask boxes).
     pub classification: Option<Classification>,
+    /// The detector's recall of people, when the sequence has person masks.
     pub person_recall: Option<Recall>,
 }
 
 impl TruthScorer {
+    /// A scorer of the sequence at `sequence_dir` (no truth: nothing scored).
     pub fn new(sequence_dir: Option<PathBuf>) -> Self {
         Self {
             sequence_dir,

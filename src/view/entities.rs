@@ -40,19 +40,33 @@ pub fn path(prefix: &str, rest: &str) -> String {
     }
 }
 
+/// The camera's pose and pinhole.
 pub const CAMERA: &str = "camera";
+/// The frame's image.
 pub const IMAGE: &str = "camera/image";
+/// Its keypoints kept.
 pub const KEYPOINTS: &str = "camera/image/keypoints";
+/// Its keypoints removed as dynamic.
 pub const REMOVED: &str = "camera/image/removed";
+/// The detector's boxes.
 pub const DETECTIONS: &str = "camera/image/detections";
+/// The frame's depth.
 pub const DEPTH: &str = "camera/image/depth";
+/// The static map points.
 pub const MAP_STATIC: &str = "map/static";
+/// The moving map points.
 pub const MAP_MOVING: &str = "map/moving";
+/// The keyframes' centres.
 pub const KEYFRAMES: &str = "keyframes";
+/// The trajectories (tracking, final).
 pub const TRAJECTORY: &str = "trajectory";
+/// The loops closed.
 pub const LOOPS: &str = "loops";
+/// The TSDF mesh.
 pub const MESH: &str = "dense/mesh";
+/// The point cloud.
 pub const CLOUD: &str = "dense/cloud";
+/// Losses, relocalisations, loops and the run's summary.
 pub const EVENTS: &str = "events";
 
 /// The colour of a keypoint of moving probability `p`: green (static) through yellow

@@ -11,14 +11,23 @@ use crate::geometry::se3::Se3;
 /// always (static: calibration, the final trajectory, the dense map).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum At {
-    Frame { index: usize, seconds: f64 },
+    /// Frame `index`, at `seconds` (the sequence's clock).
+    Frame {
+        /// The frame's index.
+        index: usize,
+        /// Its time.
+        seconds: f64,
+    },
+    /// Static.
     Always,
 }
 
 /// The level of an event.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Level {
+    /// A fact.
     Info,
+    /// A problem.
     Warning,
 }
 
@@ -27,28 +36,42 @@ pub enum Level {
 pub enum Entry {
     /// The camera's pinhole (the full-size image's intrinsics, pixels).
     Pinhole {
+        /// Focal length x, pixels.
         fx: f64,
+        /// Focal length y, pixels.
         fy: f64,
+        /// Principal point x.
         cx: f64,
+        /// Principal point y.
         cy: f64,
+        /// Image width.
         width: u32,
+        /// Image height.
         height: u32,
     },
     /// The camera's pose.
-    Camera { world_from_camera: Se3 },
+    Camera {
+        /// \(T_{wc}\).
+        world_from_camera: Se3,
+    },
     /// The frame's colour (or grey) image, full size: scaled and JPEG-compressed on
     /// the logging thread.
     Image(image::RgbImage),
     /// The frame's depth in metres (0: none), full size.
     Depth {
+        /// Depth per pixel, metres (0: none).
         metres: Vec<f32>,
+        /// Width.
         width: u32,
+        /// Height.
         height: u32,
     },
     /// Keypoints (full-size pixels) with their moving probability, and the ones
     /// removed before pose estimation.
     Keypoints {
+        /// Kept keypoints with their moving probability.
         kept: Vec<([f32; 2], f32)>,
+        /// Removed keypoints.
         removed: Vec<[f32; 2]>,
     },
     /// The detector's boxes, each with the frame of the keyframe it was found on,
@@ -56,35 +79,47 @@ pub enum Entry {
     Boxes(Vec<(usize, Detection)>),
     /// The local map: static points and points flagged moving.
     MapPoints {
+        /// Static points.
         fixed: Vec<Vector3<f64>>,
+        /// Moving points.
         moving: Vec<Vector3<f64>>,
     },
     /// Camera centres of the keyframes so far.
     Keyframes(Vec<Vector3<f64>>),
     /// A trajectory (camera centres) under `name` (`tracking`, `final`, `truth`).
     Trajectory {
+        /// `tracking` or `final`.
         name: &'static str,
+        /// The camera centres.
         centres: Vec<Vector3<f64>>,
     },
     /// Something that happened in tracking (keyframe, lost, relocalised), or to loops
     /// (`about_loops`: candidates and closures, logged under `events/loops`, so that
     /// they do not hide the tracking events of their keyframe's frame).
     Event {
+        /// Info or warning.
         level: Level,
+        /// The sentence.
         text: String,
+        /// Whether it is about loops (shown with them).
         about_loops: bool,
     },
     /// The closed loops' edges, each between two camera centres.
     LoopEdges(Vec<(Vector3<f64>, Vector3<f64>)>),
     /// A dense mesh: vertices, triangles, optional colours.
     Mesh {
+        /// Positions, metres.
         vertices: Vec<[f32; 3]>,
+        /// Vertex indices.
         triangles: Vec<[u32; 3]>,
+        /// Per-vertex colours.
         colours: Vec<[u8; 3]>,
     },
     /// A dense point cloud with optional colours.
     Cloud {
+        /// Positions, metres.
         points: Vec<[f32; 3]>,
+        /// Per-point colours.
         colours: Vec<[u8; 3]>,
     },
 }
@@ -100,8 +135,11 @@ impl Entry {
 /// of `--compare-no-dop`), at a time.
 #[derive(Debug, Clone)]
 pub struct Message {
+    /// The entity path prefix.
     pub prefix: &'static str,
+    /// When.
     pub at: At,
+    /// What.
     pub entry: Entry,
 }
 

@@ -21,23 +21,38 @@ pub enum ViewError {
     /// The recording's folder could not be made.
     #[error("cannot write {}: its folder {} cannot be made: {error}", path.display(), folder.display())]
     Folder {
+        /// The recording's file.
         path: PathBuf,
+        /// Its folder.
         folder: PathBuf,
+        /// Why the folder cannot be made.
         error: std::io::Error,
     },
     /// The recording's file could not be created.
     #[error("cannot write {}: {error}", path.display())]
-    Create { path: PathBuf, error: String },
+    Create {
+        /// The recording's file.
+        path: PathBuf,
+        /// The SDK's message.
+        error: String,
+    },
     /// This build has no Rerun ([`super::MISSING_FEATURE`]).
     #[error("{}", super::MISSING_FEATURE)]
     NotBuilt,
     /// The viewer at `--rerun-connect` could not be reached.
     #[error("--rerun-connect {address}: {message}")]
-    Connect { address: String, message: String },
+    Connect {
+        /// The viewer's address.
+        address: String,
+        /// Why it could not be reached.
+        message: String,
+    },
     /// The Rerun SDK failed to `stage` ("log to", "finish") the recording.
     #[error("cannot {stage} the Rerun recording: {message}")]
     Sdk {
+        /// What the SDK was doing.
         stage: &'static str,
+        /// The SDK's message.
         message: String,
     },
     /// The logging thread could not start, or panicked.
@@ -48,5 +63,10 @@ pub enum ViewError {
     Closed,
     /// Frame `index` of the sequence could not be read for its picture.
     #[error("frame {index}: {source}")]
-    Frame { index: usize, source: IoError },
+    Frame {
+        /// The frame's index.
+        index: usize,
+        /// Why it could not be read.
+        source: IoError,
+    },
 }

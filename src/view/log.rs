@@ -21,6 +21,7 @@ enum Command {
 /// What a finished recording says about itself.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct LogSummary {
+    /// Entries logged.
     pub logged: usize,
     /// Images dropped because the logging thread fell behind.
     pub dropped_images: usize,
@@ -33,6 +34,7 @@ pub struct LogHandle {
     dropped: Arc<AtomicUsize>,
     /// Images are dropped when the queue is full (a run), or wait (`dopslam view`).
     drops_images: bool,
+    /// The `[output]` settings.
     pub config: Arc<OutputConfig>,
 }
 
@@ -65,6 +67,7 @@ impl LogHandle {
 pub struct Logger {
     handle: LogHandle,
     thread: Option<JoinHandle<Result<usize, ViewError>>>,
+    /// Where the recording goes.
     pub target: Target,
 }
 

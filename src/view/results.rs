@@ -26,10 +26,13 @@ pub const TRAJECTORY_EVERY: usize = 10;
 /// why it was lost.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameFacts<'a> {
+    /// The frame's index.
     pub index: usize,
     /// `ok`, `lost`, `not_initialised`.
     pub state: &'a str,
+    /// Whether it became a keyframe.
     pub keyframe: bool,
+    /// Why it was lost, if it was.
     pub lost: Option<String>,
 }
 
@@ -293,9 +296,13 @@ fn compact_mesh(mesh: &crate::geometry::mesh::Mesh, triangles: Vec<[u32; 3]>) ->
 /// What the replay logged.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Replayed {
+    /// Frames replayed.
     pub frames: usize,
+    /// Poses logged.
     pub poses: usize,
+    /// Images logged.
     pub images: usize,
+    /// Keyframes whose boxes were logged.
     pub keyframe_boxes: usize,
 }
 
