@@ -59,7 +59,6 @@ pub mod dense;
 pub mod detect;
 pub mod dop;
 pub mod dynamics;
-#[allow(missing_docs)]
 pub mod eval;
 pub mod features;
 pub mod frame;
@@ -75,7 +74,6 @@ pub mod optim;
 pub mod pacing;
 pub mod random;
 pub mod run;
-#[allow(missing_docs)]
 pub mod synth;
 pub mod system;
 pub mod threads;

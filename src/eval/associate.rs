@@ -15,6 +15,7 @@ use crate::io::Trajectory;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
+/// How estimated and reference poses are paired.
 pub enum AssociationRule {
     /// evo's nearest-timestamp rule (default tolerance 0.01 s).
     Evo,
@@ -38,6 +39,7 @@ impl AssociationRule {
 /// Index pairs `(reference, estimate)` and the pose count the coverage is judged against.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Association {
+    /// `(reference index, estimate index)` per pair, in time order.
     pub pairs: Vec<(usize, usize)>,
     /// The number of poses of the shorter trajectory (evo's `max_pairs`).
     pub max_pairs: usize,

@@ -44,6 +44,7 @@ impl PoseRelation {
         }
     }
 
+    /// The unit of the relation's errors: `m`, `deg`, `rad` or `unit-less`.
     pub fn unit(self) -> &'static str {
         match self {
             Self::TransPart => "m",

@@ -289,17 +289,22 @@ pub fn ensure_font() -> Result<(), PlotError> {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PlotError {
     #[error("no TrueType font for the plots: install Debian's fonts-dejavu-core or set DOPSLAM_FONT=/path/to/font.ttf")]
+    /// No TrueType font was found.
     NoFont,
     /// The font file at `path` cannot be read or used.
     #[error("font {}: {problem}", path.display())]
     Font {
+        /// The font file.
         path: std::path::PathBuf,
+        /// What is wrong with it.
         problem: String,
     },
     /// Drawing or writing the picture at `path` failed (plotters' message).
     #[error("plot {}: {problem}", path.display())]
     Draw {
+        /// The picture's file.
         path: std::path::PathBuf,
+        /// plotters' message.
         problem: String,
     },
 }

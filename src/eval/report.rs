@@ -38,23 +38,30 @@ pub enum AlignMode {
 /// One RPE to compute: a delta and its unit.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RpeSpec {
+    /// The distance between the two poses of a pair.
     pub delta: f64,
+    /// Its unit (frames, seconds, metres, degrees, radians).
     pub unit: DeltaUnit,
 }
 
 /// Everything an evaluation can be asked to do.
 #[derive(Debug, Clone)]
 pub struct EvalOptions {
+    /// How the poses are paired.
     pub association: AssociationRule,
     /// The association tolerance in seconds; `None` takes the rule's default.
     pub max_diff: Option<f64>,
     /// Added to the estimate's timestamps before association.
     pub offset: f64,
+    /// The alignment before the APE.
     pub align: AlignMode,
     /// Align with only the first n associated poses.
     pub n_align: Option<usize>,
+    /// What the APE measures (translation, rotation, full pose).
     pub ape_relation: PoseRelation,
+    /// The RPEs to compute.
     pub rpe: Vec<RpeSpec>,
+    /// What the RPEs measure.
     pub rpe_relation: PoseRelation,
     /// Fail when fewer than this fraction of the shorter trajectory's poses are matched.
     pub min_coverage: f64,
@@ -79,33 +86,64 @@ impl Default for EvalOptions {
     }
 }
 
+/// Why an evaluation cannot be made.
 #[derive(Debug, Error)]
 pub enum EvalError {
     #[error("the {which} trajectory is empty")]
-    Empty { which: &'static str },
+    /// One trajectory has no pose.
+    Empty {
+        /// `reference` or `estimate`.
+        which: &'static str,
+    },
     #[error("no matching timestamps between the reference ({reference_first:.6}..{reference_last:.6} s) and the estimate ({estimate_first:.6}..{estimate_last:.6} s) with max. time difference {max_diff} s and offset {offset} s; check that both use the same clock, or set --offset / --max-diff")]
+    /// No pose pairs within the tolerance.
     NoOverlap {
+        /// The tolerance, seconds.
         max_diff: f64,
+        /// The offset added to the estimate's times.
         offset: f64,
+        /// The reference's first time.
         reference_first: f64,
+        /// The reference's last time.
         reference_last: f64,
+        /// The estimate's first time.
         estimate_first: f64,
+        /// The estimate's last time.
         estimate_last: f64,
     },
     #[error("only {matched} of {max_pairs} poses ({percent:.1} %) could be matched with max. time difference {max_diff} s, below the required {required:.1} %; lower --min-coverage to accept this")]
+    /// Too few poses matched.
     LowCoverage {
+        /// Poses matched.
         matched: usize,
+        /// Poses the shorter trajectory has.
         max_pairs: usize,
+        /// `matched` over `max_pairs`, %.
         percent: f64,
+        /// The tolerance, seconds.
         max_diff: f64,
+        /// The coverage required, %.
         required: f64,
     },
     #[error("pairing by index needs equally long trajectories: the reference has {reference} poses, the estimate {estimate}")]
-    LengthMismatch { reference: usize, estimate: usize },
+    /// Pairing by index with trajectories of different lengths.
+    LengthMismatch {
+        /// Poses of the reference.
+        reference: usize,
+        /// Poses of the estimate.
+        estimate: usize,
+    },
     #[error("alignment failed: {0}")]
+    /// The alignment failed.
     Alignment(#[from] AlignmentError),
     #[error("RPE with delta {delta} {unit} found no pose pairs; use a smaller delta")]
-    NoRpePairs { delta: f64, unit: &'static str },
+    /// The RPE's delta is longer than the trajectory.
+    NoRpePairs {
+        /// The delta.
+        delta: f64,
+        /// Its unit.
+        unit: &'static str,
+    },
 }
 
 /// The result of one metric.
@@ -113,23 +151,32 @@ pub enum EvalError {
 pub struct MetricResult {
     /// "APE" or "RPE".
     pub metric: &'static str,
+    /// What the errors measure.
     pub relation: PoseRelation,
+    /// The errors' unit.
     pub unit: String,
+    /// The RPE's delta (none for the APE).
     pub delta: Option<RpeSpec>,
+    /// RMSE, mean, median, … of the errors.
     pub statistics: Statistics,
     /// The error of each pair, in order, and the estimate timestamp it belongs to.
     #[serde(skip)]
     pub errors: Vec<f64>,
     #[serde(skip)]
+    /// Their timestamps.
     pub timestamps: Vec<f64>,
 }
 
 /// The alignment that was applied, as \(p_{ref} = sRp_{est} + t\).
 #[derive(Debug, Clone, Serialize)]
 pub struct AlignmentUsed {
+    /// SE(3), Sim(3) or none.
     pub mode: AlignMode,
+    /// \(R\), row-major.
     pub rotation: [[f64; 3]; 3],
+    /// \(t\), metres.
     pub translation: [f64; 3],
+    /// \(s\) (1 without scale).
     pub scale: f64,
     /// How many poses it was estimated from.
     pub poses_used: usize,
@@ -138,17 +185,27 @@ pub struct AlignmentUsed {
 /// Everything `dopslam eval` reports.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalReport {
+    /// Poses of the reference.
     pub reference_poses: usize,
+    /// Poses of the estimate.
     pub estimate_poses: usize,
+    /// Pairs made.
     pub matched_poses: usize,
     /// The shorter trajectory's length, which coverage is measured against.
     pub max_pairs: usize,
+    /// `matched_poses` over `max_pairs`.
     pub coverage: f64,
+    /// The pairing rule.
     pub association: AssociationRule,
+    /// The tolerance used, seconds.
     pub max_diff: f64,
+    /// The offset added to the estimate's times.
     pub offset: f64,
+    /// The alignment applied.
     pub alignment: AlignmentUsed,
+    /// The APE.
     pub ape: MetricResult,
+    /// The RPEs.
     pub rpe: Vec<MetricResult>,
     /// KITTI's relative errors over 100-800 m segments of the associated poses
     /// (unaligned), when the reference path is at least 100 m long.
@@ -158,6 +215,7 @@ pub struct EvalReport {
     #[serde(skip)]
     pub reference: Trajectory,
     #[serde(skip)]
+    /// The aligned estimate.
     pub aligned_estimate: Trajectory,
 }
 

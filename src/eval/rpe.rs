@@ -44,6 +44,7 @@ pub enum DeltaUnit {
 }
 
 impl DeltaUnit {
+    /// The unit as printed: `frames`, `m`, `deg`, `rad` or `s`.
     pub fn symbol(self) -> &'static str {
         match self {
             Self::Frames => "frames",

@@ -9,13 +9,21 @@ use serde::Serialize;
 /// an even count is the mean of the two middle values.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Statistics {
+    /// Root mean square.
     pub rmse: f64,
+    /// Mean.
     pub mean: f64,
+    /// Median.
     pub median: f64,
+    /// Standard deviation (population).
     pub std: f64,
+    /// Smallest.
     pub min: f64,
+    /// Largest.
     pub max: f64,
+    /// Sum of squares.
     pub sse: f64,
+    /// How many.
     pub count: usize,
 }
 

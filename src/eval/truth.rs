@@ -13,11 +13,17 @@ use crate::detect::FrameDetections;
 /// Keypoints called dynamic (removed) against the ground-truth masks.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Classification {
+    /// Frames counted.
     pub frames: usize,
+    /// Mover keypoints removed.
     pub true_positives: usize,
+    /// Static keypoints removed.
     pub false_positives: usize,
+    /// Mover keypoints kept.
     pub false_negatives: usize,
+    /// Mover keypoints removed over all removed.
     pub precision: f64,
+    /// Mover keypoints removed over all mover keypoints.
     pub recall: f64,
 }
 
@@ -40,11 +46,17 @@ impl Classification {
 /// undistorted position off the image) are not counted.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct TruthCounts {
+    /// Keypoints on the static scene.
     pub static_keypoints: usize,
+    /// Keypoints on movers.
     pub mover_keypoints: usize,
+    /// Static keypoints removed.
     pub static_removed: usize,
+    /// Mover keypoints removed.
     pub mover_removed: usize,
+    /// Static keypoints in the pose.
     pub static_in_pose: usize,
+    /// Mover keypoints in the pose.
     pub mover_in_pose: usize,
     /// Static keypoints in the pose within [`NEAR_MOVER_PIXELS`] of a mover's pixel:
     /// corners on a mover's outline against the background move with the mover though
@@ -56,6 +68,7 @@ pub struct TruthCounts {
 const NEAR_MOVER_PIXELS: i64 = 4;
 
 impl TruthCounts {
+    /// The counts of keypoints at `positions` under the truth `mask`, with which were `called` moving and which are `in_pose`.
     pub fn new(
         mask: &image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
         positions: &[(f32, f32)],
@@ -122,9 +135,13 @@ pub fn ground_truth_mask(
 /// People found on keyframes against the ground truth.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Recall {
+    /// Keyframes with people.
     pub keyframes: usize,
+    /// People on them.
     pub people: usize,
+    /// People a dynamic box found.
     pub found: usize,
+    /// `found` over `people`.
     pub recall: f64,
     /// People covering over 20 % of the image that were missed.
     pub missed_large: usize,
@@ -135,6 +152,7 @@ pub struct Recall {
 /// A person on a keyframe that no dynamic box found with IoU >= 0.5.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Miss {
+    /// The keyframe's time.
     pub timestamp: f64,
     /// The person's tight box from the ground-truth mask.
     pub person: [f32; 4],
@@ -142,10 +160,12 @@ pub struct Miss {
     pub share: f32,
     /// The best IoU of any dynamic box with it, and that box.
     pub best_iou: f32,
+    /// That box.
     pub best_box: Option<[f32; 4]>,
 }
 
 impl Recall {
+    /// Counts the people of one keyframe's truth mask against its dynamic boxes.
     pub fn add(
         &mut self,
         timestamp: f64,

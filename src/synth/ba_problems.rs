@@ -14,12 +14,15 @@ use crate::random::Rng;
 /// The shape of a problem.
 #[derive(Debug, Clone, Copy)]
 pub struct BaSpec {
+    /// Keyframes.
     pub keyframes: usize,
+    /// Points.
     pub points: usize,
     /// Pixel noise of the measurements.
     pub pixel_sigma: f64,
     /// Perturbation of the initial poses (metres, radians) and points (metres).
     pub pose_sigma: (f64, f64),
+    /// Perturbation of the initial points, metres.
     pub point_sigma: f64,
     /// Observations per keyframe at most (a keyframe's map points, ORB-SLAM2: a few
     /// hundred); the visible points beyond are left unseen at random.

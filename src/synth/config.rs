@@ -17,9 +17,11 @@ use crate::geometry::camera::PinholeCamera;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SequenceConfig {
+    /// Frames rendered.
     pub frames: usize,
     /// Frame rate when no timing file is given.
     pub fps: f64,
+    /// The seed of everything random.
     pub seed: u64,
     /// Real frame timing: a TUM association file or rgb.txt (the first column is used).
     pub timing: Option<PathBuf>,
@@ -47,6 +49,7 @@ impl Default for SequenceConfig {
 pub struct SceneConfig {
     /// Distance from the camera path's bounding box to the walls, in metres.
     pub room_margin: f64,
+    /// Pieces of furniture.
     pub furniture: usize,
     /// Furniture keeps at least this far from every camera position, in metres.
     pub clearance: f64,
@@ -64,7 +67,9 @@ pub struct SceneConfig {
 #[serde(rename_all = "lowercase")]
 pub enum SceneLook {
     #[default]
+    /// Textured blocks in a plain room.
     Blocks,
+    /// A furnished room.
     Room,
 }
 
@@ -85,6 +90,7 @@ impl Default for SceneConfig {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StereoConfig {
+    /// The stereo baseline, metres.
     pub baseline: f64,
     /// A real rig's rectification error, in pixels: the right camera is rendered with
     /// its principal point this far right of the one `calib.txt` states, so every
@@ -113,20 +119,32 @@ pub struct DepthCameraConfig {
 pub struct SynthConfig {
     /// The preset's name (written into scene.toml).
     pub name: String,
+    /// `[sequence]`: frames, rate, seed, timing.
     pub sequence: SequenceConfig,
+    /// The camera (TUM fr3 when unset).
     pub camera: Option<PinholeCamera>,
+    /// `[motion]`: the camera's path.
     pub motion: MotionConfig,
+    /// `[scene]`: the room and its furniture.
     pub scene: SceneConfig,
+    /// `[people]`: walking people.
     pub people: PeopleConfig,
+    /// `[seated]`: seated people who get up.
     pub seated: SeatedConfig,
+    /// `[objects]`: moving objects of a COCO class.
     pub objects: ObjectsConfig,
     /// `[[unknown]]`: movers of no COCO class (a box slid across the floor, a balloon
     /// drifting), which no detector knows: only the geometric check can find them.
     pub unknown: Vec<ObjectsConfig>,
+    /// `[oracle]`: the synthetic detector.
     pub oracle: OracleConfig,
+    /// `[sensor]`: depth noise, exposure, blur.
     pub sensor: SensorConfig,
+    /// `[stereo]`: the right camera.
     pub stereo: StereoConfig,
+    /// `[depth_camera]`: a depth camera apart from the colour one.
     pub depth_camera: Option<DepthCameraConfig>,
+    /// `[street]`: the street instead of the room.
     pub street: StreetConfig,
 }
 
@@ -170,6 +188,7 @@ impl SynthConfig {
         self.camera.unwrap_or_else(PinholeCamera::tum_fr3)
     }
 
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         checks::at_least_one("sequence.frames", self.sequence.frames as u64)?;
         checks::positive("sequence.fps", self.sequence.fps)?;

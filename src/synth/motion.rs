@@ -40,9 +40,11 @@ pub enum MotionKind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MotionConfig {
+    /// Which path the camera takes.
     pub kind: MotionKind,
     /// For `file`: the trajectory (TUM or KITTI format).
     pub file: Option<PathBuf>,
+    /// The file's format.
     pub format: TrajectoryFormat,
     /// Multiplies the speed of procedural motions.
     pub speed: f64,

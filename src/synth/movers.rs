@@ -43,6 +43,7 @@ pub struct PeopleConfig {
     /// Cut-outs walk with a gait (legs opening and closing once per `stride` metres,
     /// a vertical bob) and face their walking direction.
     pub gait: bool,
+    /// Metres per step.
     pub stride: f64,
 }
 
@@ -69,6 +70,7 @@ impl Default for PeopleConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SeatedConfig {
+    /// Seated people.
     pub count: usize,
     /// How long each sits before leaving (s).
     pub sit_seconds: f64,
@@ -101,6 +103,7 @@ impl Default for SeatedConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ObjectsConfig {
+    /// Objects.
     pub count: usize,
     /// COCO class name.
     pub class: String,
@@ -184,7 +187,9 @@ pub enum Appearance {
     Box,
     /// A cut-out on a billboard; a seated person may have a second cut-out.
     Sprite {
+        /// The standing cut-out.
         standing: Option<Arc<Sprite>>,
+        /// The seated one.
         seated: Option<Arc<Sprite>>,
     },
 }
@@ -194,12 +199,20 @@ pub enum Appearance {
 pub enum Behaviour {
     /// Back and forth between `start` and `end` forever, stopping `pause` seconds in
     /// the middle and at each end; with `gait`, cut-outs step once per `stride` metres.
-    Walk { pause: f64, gait: Option<f64> },
+    Walk {
+        /// Seconds stopped.
+        pause: f64,
+        /// Metres per step, with a gait.
+        gait: Option<f64>,
+    },
     /// Seated at `start` (lower box, slight sway) until `sit_seconds`, then walks once to
     /// `end` at full height and stays there.
     Seated {
+        /// Seconds seated.
         sit_seconds: f64,
+        /// The box's height while seated, metres.
         seated_height: f64,
+        /// The sway's amplitude, metres.
         sway: f64,
     },
 }
@@ -207,20 +220,27 @@ pub enum Behaviour {
 /// A moving object.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mover {
+    /// The instance id in the masks.
     pub instance: u16,
+    /// The class name.
     pub class: String,
     /// The COCO class id; `None` for a mover no detector knows.
     pub class_id: Option<u32>,
     /// The box's minimum corner at the two ends of its path.
     pub start: Vector3<f64>,
+    /// The other end.
     pub end: Vector3<f64>,
+    /// The box's size, metres.
     pub size: Vector3<f64>,
+    /// Metres per second.
     pub speed: f64,
     /// Time offset in seconds along the back-and-forth walk.
     pub phase: f64,
+    /// How it moves.
     pub behaviour: Behaviour,
     /// The world axis that points up, and its sign.
     pub up: (usize, f64),
+    /// A box or a cut-out.
     pub appearance: Appearance,
 }
 

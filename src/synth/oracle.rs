@@ -22,6 +22,7 @@ pub struct OracleConfig {
     pub false_positive_rate: f64,
     /// Scores of true detections are uniform in [score_min, score_max].
     pub score_min: f64,
+    /// The highest score.
     pub score_max: f64,
 }
 
@@ -51,6 +52,7 @@ impl OracleConfig {
         }
     }
 
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         checks::unit_interval("oracle.miss_rate", self.miss_rate)?;
         checks::unit_interval("oracle.false_positive_rate", self.false_positive_rate)?;

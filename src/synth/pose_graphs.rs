@@ -12,11 +12,15 @@ use crate::random::Rng;
 /// A sphere graph's shape and noise.
 #[derive(Debug, Clone, Copy)]
 pub struct SphereSpec {
+    /// Rings of poses.
     pub rings: usize,
+    /// Poses per ring.
     pub per_ring: usize,
+    /// The sphere's radius, metres.
     pub radius: f64,
     /// Standard deviations of the measurements: metres and radians.
     pub sigma_translation: f64,
+    /// Rotation noise, radians.
     pub sigma_rotation: f64,
 }
 

@@ -81,6 +81,7 @@ impl SensorConfig {
             .collect()
     }
 
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         checks::positive("sensor.max_depth", self.max_depth)?;
         if !(0.0..1.0).contains(&self.exposure_variation) {
@@ -109,16 +110,22 @@ impl SensorConfig {
 /// instance ids.
 #[derive(Debug, Clone)]
 pub struct View {
+    /// The camera's pose.
     pub world_from_camera: Se3,
+    /// The movers' shapes and instance ids.
     pub movers: Vec<(Shape, u16)>,
 }
 
 /// One rendered frame: colour, noisy sensor depth, the exact depth, and the instance
 /// mask (row-major; 0 = static scene, else the mover's instance id).
 pub struct Rendered {
+    /// Colour.
     pub rgb: RgbImage,
+    /// Sensor depth with noise.
     pub depth: DepthImage,
+    /// Exact depth.
     pub exact_depth: DepthImage,
+    /// Instance mask, row-major.
     pub mask: Vec<u16>,
 }
 
@@ -282,8 +289,11 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
 /// draws from its own generator, so the parallel order does not matter).
 #[derive(Debug, Clone, Copy)]
 pub struct Exposure<'a> {
+    /// Views sampled during the exposure.
     pub views: &'a [View],
+    /// Brightness gain.
     pub gain: f64,
+    /// The seed of the sensor noise.
     pub noise_seed: u64,
 }
 

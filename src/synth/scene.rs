@@ -14,15 +14,20 @@ use crate::random::Rng;
 /// A mover's geometry in one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
+    /// A box.
     Box(Cuboid),
+    /// A cut-out.
     Billboard(Billboard),
 }
 
 /// An axis-aligned box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Cuboid {
+    /// The lower corner.
     pub min: Vector3<f64>,
+    /// The upper corner.
     pub max: Vector3<f64>,
+    /// The texture's id.
     pub texture: u32,
 }
 
@@ -33,6 +38,7 @@ pub struct Hit {
     pub t: f64,
     /// The surface normal, facing the ray.
     pub normal: Vector3<f64>,
+    /// The texture's id.
     pub texture: u32,
     /// Surface coordinates in metres (the two world coordinates along the face).
     pub uv: (f64, f64),
@@ -48,14 +54,20 @@ pub enum Look {
     Blocks,
     /// A furnished room: a wooden floor, plaster walls with framed pictures, a tiled
     /// ceiling ([`super::texture::room_texel`]); `up` is the world's up axis and sign.
-    Room { up: (usize, f64) },
+    Room {
+        /// The up axis and its sign.
+        up: (usize, f64),
+    },
 }
 
 /// A room with furniture.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
+    /// The room's walls.
     pub room: Cuboid,
+    /// The furniture.
     pub furniture: Vec<Cuboid>,
+    /// How the surfaces look.
     pub look: Look,
 }
 

@@ -17,8 +17,11 @@ use crate::io::IoError;
 /// An RGBA cut-out.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sprite {
+    /// The cut-out's file.
     pub path: PathBuf,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
     rgba: Vec<[u8; 4]>,
 }
@@ -60,14 +63,20 @@ impl Sprite {
 /// A cut-out standing at `base` (the middle of its bottom edge), facing a camera.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Billboard {
+    /// The middle of the bottom edge.
     pub base: Vector3<f64>,
     /// Unit vectors: world up, the billboard's right (as the camera sees it), and its
     /// normal (towards the camera).
     pub up: Vector3<f64>,
+    /// The right vector.
     pub right: Vector3<f64>,
+    /// The normal vector.
     pub normal: Vector3<f64>,
+    /// Height, metres.
     pub height: f64,
+    /// Width, metres.
     pub width: f64,
+    /// The cut-out.
     pub sprite: Arc<Sprite>,
     /// The walking pose: legs opened by this fraction of the width at the feet, and
     /// the cut-out mirrored (walking the other way).
@@ -79,7 +88,9 @@ pub struct Billboard {
 /// \(r\), so the legs open and close with the stride phase.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Gait {
+    /// Legs opened by this fraction of the width at the feet.
     pub open: f64,
+    /// Mirrored (walking the other way).
     pub mirrored: bool,
 }
 

@@ -20,6 +20,7 @@ use crate::random::Rng;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StreetConfig {
+    /// Render a street instead of the room.
     pub enabled: bool,
     /// Height of the cameras above the road (KITTI: 1.65 m).
     pub camera_height: f64,
@@ -31,14 +32,17 @@ pub struct StreetConfig {
     pub building_height: [f64; 2],
     /// Path length between parking spots on each side (m), and the share taken.
     pub parking_spacing: f64,
+    /// The share of spots taken.
     pub parked_share: f64,
     /// Lateral distance of parked cars' centres from the path (m).
     pub parking_offset: f64,
     /// Cars driving back and forth along the other lane, and their speed (m/s).
     pub moving_cars: usize,
+    /// Their speed (m/s).
     pub car_speed: f64,
     /// Pedestrians crossing ahead of the path or walking along the pavements.
     pub pedestrians: usize,
+    /// Their speed (m/s).
     pub pedestrian_speed: f64,
     /// Only what lies within this distance of the camera is rendered (m).
     pub render_range: f64,
@@ -69,6 +73,7 @@ impl Default for StreetConfig {
 }
 
 impl StreetConfig {
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         for (key, value) in [
             ("camera_height", self.camera_height),

@@ -103,8 +103,11 @@ fn noise_colour(id: u32, u: f64, v: f64) -> [f64; 3] {
 /// A surface of the `room` look ([`crate::synth::scene::Look::Room`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Surface {
+    /// The floor.
     Floor,
+    /// A wall.
     Wall,
+    /// The ceiling.
     Ceiling,
     /// Furniture keeps the multi-scale texture of its id (boxes, books, shelves).
     Furniture(u32),

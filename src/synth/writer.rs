@@ -36,23 +36,31 @@ use rayon::prelude::*;
 /// The depth PNG scale of generated sequences (TUM's).
 pub const DEPTH_SCALE: f64 = 5000.0;
 
+/// Why a sequence cannot be generated.
 #[derive(Debug, Error)]
 pub enum SynthError {
     #[error("output folder {0} is not empty; choose another or pass --force to overwrite")]
+    /// The output folder is not empty.
     NotEmpty(PathBuf),
     #[error("{0}")]
+    /// The config cannot be written or read back.
     Config(String),
     #[error(transparent)]
+    /// A value out of its range.
     Value(#[from] crate::checks::BadValue),
     #[error(transparent)]
+    /// A file that cannot be read or written.
     Io(#[from] IoError),
 }
 
 /// What `generate` wrote.
 #[derive(Debug, Clone)]
 pub struct SynthSummary {
+    /// Frames written.
     pub frames: usize,
+    /// The folder.
     pub out: PathBuf,
+    /// The time it took.
     pub seconds: f64,
 }
 
@@ -246,14 +254,19 @@ fn mover_voxels(
 /// Everything needed to render any frame of a config: frame times, camera poses, the
 /// static scene and the movers.
 pub struct World {
+    /// The config.
     pub config: SynthConfig,
+    /// The camera.
     pub camera: PinholeCamera,
     /// Frame times in seconds from the first frame, and the first frame's timestamp.
     pub times: Vec<f64>,
+    /// The first frame's timestamp.
     pub t0: f64,
     /// `world_from_camera` of each frame (the ground truth).
     pub poses: Vec<Se3>,
+    /// The static scene.
     pub scene: Scene,
+    /// The movers.
     pub movers: Vec<Mover>,
     /// Per frame, the instants and poses sampled over the exposure (empty without blur).
     exposure: Vec<Vec<(f64, Se3)>>,
