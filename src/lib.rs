@@ -48,13 +48,11 @@
 // fields of report and config structs), and lose their `allow` when done.
 #![warn(missing_docs)]
 
-#[allow(missing_docs)]
 pub mod batch;
 pub mod bow;
 pub mod checks;
 pub mod config;
 pub mod demo;
-#[allow(missing_docs)]
 pub mod dense;
 pub mod detect;
 pub mod dop;
@@ -65,7 +63,6 @@ pub mod frame;
 pub mod geometry;
 pub mod global;
 pub mod interrupt;
-#[allow(missing_docs)]
 pub mod io;
 pub mod map;
 pub mod mapping;

@@ -23,9 +23,11 @@ pub struct CloudSettings {
     pub voxel: f64,
     /// Use every `stride`-th pixel in each direction.
     pub stride: usize,
+    /// Depths beyond this are left out, metres.
     pub max_depth: f64,
     /// Neighbours for outlier removal (0: off) and its threshold in standard deviations.
     pub outlier_neighbours: usize,
+    /// The outlier threshold, standard deviations.
     pub outlier_std: f64,
     /// Neighbours for normals (0: no normals).
     pub normal_neighbours: usize,
@@ -51,6 +53,7 @@ pub struct CloudBuilder {
 }
 
 impl CloudBuilder {
+    /// A cloud of `camera`'s frames with `settings`.
     pub fn new(settings: CloudSettings, camera: PinholeCamera) -> Self {
         Self {
             settings,

@@ -25,13 +25,20 @@ use nalgebra::{Matrix3, Vector3};
 /// A comparison's result.
 #[derive(Debug, Serialize)]
 pub struct Comparison {
+    /// The maps' names.
     pub names: Vec<String>,
+    /// The static reference.
     pub reference: PathBuf,
+    /// The movers' reference, when there is one.
     pub movers: Option<PathBuf>,
+    /// The thresholds used.
     pub settings: CompareSettings,
+    /// The figures, one per map.
     pub maps: Vec<MapFigures>,
     #[serde(skip)]
+    /// The figures as a Markdown table.
     pub table: String,
+    /// The files written.
     pub outputs: Vec<PathBuf>,
 }
 
@@ -42,11 +49,15 @@ pub struct CompareInputs<'a> {
     /// Per map, a transform into the reference's frame (`reference_from_map`), e.g.
     /// the SE(3) alignment of its run's trajectory to the ground truth.
     pub alignments: &'a [Option<Se3>],
+    /// The static reference (PLY).
     pub reference: &'a Path,
+    /// The movers' surfaces, to count ghosts (PLY).
     pub movers: Option<&'a Path>,
     /// Camera poses (`world_from_camera`) to orient the pictures.
     pub cameras: Option<&'a [crate::geometry::se3::Se3]>,
+    /// The thresholds.
     pub settings: CompareSettings,
+    /// The output folder.
     pub out: &'a Path,
 }
 

@@ -18,8 +18,11 @@ use crate::io::ply::PlyEncoding;
 pub enum DenseModel {
     /// The tracking pass's `[detector]` as it is.
     Tracking,
+    /// YOLOv4-tiny.
     Yolov4Tiny,
+    /// YOLOX-nano.
     YoloxNano,
+    /// DEIMv2-femto.
     Deimv2Femto,
 }
 
@@ -39,7 +42,9 @@ impl DenseModel {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FrameChoice {
+    /// Every tracked frame.
     All,
+    /// Keyframes only.
     Keyframes,
 }
 
@@ -69,6 +74,7 @@ pub struct DenseConfig {
     pub fusion: Fusion,
     /// TSDF voxel edge and truncation, metres.
     pub voxel: f64,
+    /// TSDF truncation, metres.
     pub truncation: f64,
     /// Depths beyond this are not fused, metres.
     pub max_depth: f64,
@@ -90,16 +96,23 @@ pub struct DenseConfig {
     pub frame_step: usize,
     /// Outputs: the mesh (PLY), the mesh as OBJ too, the point cloud, pictures.
     pub mesh: bool,
+    /// The mesh as OBJ too.
     pub obj: bool,
+    /// The point cloud.
     pub cloud: bool,
+    /// Pictures of the map.
     pub pictures: bool,
     /// Point cloud (from keyframes): voxel edge, pixel stride, outlier removal
     /// (neighbours, 0 off; threshold in standard deviations), neighbours for normals
     /// (0: none).
     pub cloud_voxel: f64,
+    /// The cloud's pixel stride.
     pub cloud_stride: usize,
+    /// Neighbours for outlier removal (0: off).
     pub outlier_neighbours: usize,
+    /// The outlier threshold, standard deviations.
     pub outlier_std: f64,
+    /// Neighbours for normals (0: none).
     pub normal_neighbours: usize,
     /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
     /// missed by the masks that later left): \(F\) above this, in truncation units
@@ -116,6 +129,7 @@ pub struct DenseConfig {
     pub detect_tiles: u32,
     /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
     pub mask_border: u32,
+    /// The disc radius around a dynamic keypoint, pixels.
     pub keypoint_radius: u32,
     /// The depth an object's mask is cut at: the nearest depth mode holding at least
     /// this share of its box's pixels (the mover stands in front of what it hides);
@@ -137,9 +151,13 @@ pub struct DenseConfig {
     /// `mask_segment_radius` pixels from its seed, or as far as
     /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
     pub mask_segments: bool,
+    /// The segment's reach from its seed, pixels.
     pub mask_segment_radius: u32,
+    /// The segment's reach at the seed's depth, metres.
     pub mask_segment_radius_metres: f32,
+    /// The share of its border that must be a depth edge.
     pub mask_segment_edge_share: f32,
+    /// The keypoints a segment needs.
     pub mask_segment_support: usize,
     /// A kept segment seeds the next frames' growth for this many seconds after a
     /// dynamic keypoint last supported it (0: no following).
@@ -211,6 +229,7 @@ impl Default for DenseConfig {
 }
 
 impl DenseConfig {
+    /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
         for (name, value) in [
             ("voxel", self.voxel),
@@ -325,6 +344,7 @@ impl DenseConfig {
         self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
     }
 
+    /// The point cloud's settings.
     pub fn cloud_settings(&self) -> CloudSettings {
         CloudSettings {
             voxel: self.cloud_voxel,

@@ -24,6 +24,7 @@ pub struct SgbmSettings {
 pub struct StereoDepth {
     /// Baseline times \(f_x\), pixel·metres.
     pub bf: f64,
+    /// The semi-global matcher's settings.
     pub sgbm: SgbmSettings,
 }
 

@@ -105,8 +105,11 @@ impl FreeSpaceSettings {
 /// A neighbour's target time: the posed frame nearest `time`, if within `within`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Target {
+    /// The target time, seconds.
     pub time: f64,
+    /// The largest distance from it, seconds.
     pub within: f64,
+    /// Whether it is the far neighbour.
     pub far: bool,
 }
 
@@ -122,6 +125,7 @@ pub struct Neighbour {
 }
 
 impl Neighbour {
+    /// A neighbour frame at `timestamp` with its pose and depth; `reach` pixels of tolerance.
     pub fn new(timestamp: f64, camera_from_world: Se3, depth: DepthImage, reach: usize) -> Self {
         let nearest = nearest_depth(&depth, reach);
         Self {
@@ -145,6 +149,7 @@ pub struct NeighbourWindow {
 }
 
 impl NeighbourWindow {
+    /// The window over the `posed` frames (time, index, pose).
     pub fn new(settings: FreeSpaceSettings, mut posed: Vec<(f64, usize, Se3)>) -> Self {
         posed.sort_by(|a, b| a.0.total_cmp(&b.0));
         Self {

@@ -22,17 +22,23 @@ use crate::io::{IoError, Trajectory};
 
 /// Where the dense pass finds its inputs.
 pub struct DenseInputs<'a> {
+    /// The sequence.
     pub sequence: &'a dyn Sequence,
+    /// The undistorted colour camera.
     pub camera: PinholeCamera,
     /// The run folder (inputs).
     pub run_dir: &'a Path,
     /// Where the dense outputs go (usually the run folder).
     pub out_dir: &'a Path,
+    /// DOP, mask boxes or none.
     pub masking: Mode,
+    /// The DOP model's settings.
     pub dop: &'a DopConfig,
+    /// The COCO classes that move.
     pub dynamic_classes: &'a [String],
     /// A synthetic sequence's `masks/` folder, to count what was fused.
     pub truth_masks: Option<PathBuf>,
+    /// Show progress bars.
     pub progress: bool,
     /// How stereo pairs become depth (stereo sequences only).
     pub stereo: Option<StereoDepth>,

@@ -31,10 +31,15 @@ use crate::geometry::mesh::Mesh;
 /// Thresholds of a comparison, metres.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct CompareSettings {
+    /// Accuracy and precision threshold.
     pub threshold: f64,
+    /// Completion and recall threshold.
     pub completion_threshold: f64,
+    /// Points farther than this from the static reference are ghosts.
     pub ghost_distance: f64,
+    /// Points this close to a mover's surface are on the mover.
     pub mover_radius: f64,
+    /// The spacing of the reference's samples.
     pub sample_spacing: f64,
 }
 
@@ -52,13 +57,16 @@ impl Default for CompareSettings {
 
 /// The static reference: a surface or a point set.
 pub enum Reference {
+    /// A mesh.
     Surface(Box<TriMesh>),
+    /// A point set.
     Points(PointIndex),
 }
 
 /// The static reference, with its samples.
 pub struct StaticReference {
     reference: Reference,
+    /// Points sampled on the reference.
     pub samples: Vec<[f32; 3]>,
 }
 
@@ -103,18 +111,29 @@ impl StaticReference {
 /// The figures of one map.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct MapFigures {
+    /// Points in the map.
     pub points: usize,
+    /// Mean distance to the reference.
     pub accuracy_mean: f64,
+    /// Median distance to the reference.
     pub accuracy_median: f64,
+    /// Mean distance from the reference's samples to the map.
     pub completion_mean: f64,
+    /// Share of the samples within the completion threshold.
     pub completion_ratio: f64,
+    /// Share of the map within the threshold.
     pub precision: f64,
+    /// Share of the reference within the threshold.
     pub recall: f64,
+    /// The harmonic mean of precision and recall.
     pub fscore: f64,
+    /// Points farther than the ghost distance from the reference.
     pub ghost_points: usize,
+    /// Their share of the map.
     pub ghost_fraction: f64,
     /// With movers' ground truth.
     pub mover_points: Option<usize>,
+    /// Median distance of the mover points to the movers' surfaces.
     pub dynamic_accuracy: Option<f64>,
     /// Against the baseline map.
     pub static_accuracy: Option<f64>,

@@ -42,7 +42,9 @@ use crate::io::image_files::DepthImage;
 /// Settings of the masks.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MaskSettings {
+    /// Mask dilation, pixels.
     pub border: u32,
+    /// The disc radius around a dynamic keypoint, pixels.
     pub keypoint_radius: u32,
     /// The objects' depth: [`foreground_depth`] of the box's pixels with this share;
     /// 0: [`object_depth`] (the dominant depth of its centre).
@@ -68,35 +70,47 @@ struct FollowedSegment {
 /// One detected keyframe: its dynamic boxes (pixels) and objects (world).
 #[derive(Debug, Clone)]
 pub struct KeyframeObjects {
+    /// The keyframe's time.
     pub timestamp: f64,
+    /// Its boxes.
     pub boxes: Vec<ObjectBox>,
+    /// The followed objects seen from it.
     pub objects: Vec<Object>,
 }
 
 /// Dynamic keypoints of one frame: `(x, y, depth)`.
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct FrameKeypoints {
+    /// The frame's time.
     pub timestamp: f64,
+    /// Its dynamic keypoints `(x, y, depth)`.
     pub points: Vec<[f32; 3]>,
 }
 
 /// A frame's final `camera_from_world` by its timestamp, and its depth map.
 pub type PoseAt<'a> = &'a dyn Fn(f64) -> Option<Se3>;
+/// The depth of the frame at a time, if there is one.
 pub type DepthAt<'a> = &'a dyn Fn(f64) -> Option<DepthImage>;
 
 /// What the masks are made for: the masking mode, the camera, the DOP model's settings
 /// and the classes that move.
 #[derive(Clone, Copy)]
 pub struct MaskContext<'a> {
+    /// DOP, mask boxes or none.
     pub masking: Mode,
+    /// The undistorted camera.
     pub camera: PinholeCamera,
+    /// The DOP model's settings.
     pub dop: &'a DopConfig,
+    /// The COCO classes that move.
     pub dynamic_classes: &'a [String],
 }
 
 /// Everything the masks are made from.
 pub struct MaskSource {
+    /// DOP, mask boxes or none.
     pub masking: Mode,
+    /// The mask settings.
     pub settings: MaskSettings,
     camera: PinholeCamera,
     dop: DopConfig,

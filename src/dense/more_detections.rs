@@ -27,11 +27,14 @@ use crate::io::IoError;
 pub struct ExtraDetections {
     /// Frames detected now, and frames whose detections came from the cache.
     pub detected: usize,
+    /// Frames whose detections came from the cache.
     pub cached: usize,
+    /// Median detection time, milliseconds.
     pub median_ms: f64,
     /// Frames the detector failed on (a `cache` source has keyframes only): their
     /// masks come from the keyframes, as without `detect_every`; the first message.
     pub failed: usize,
+    /// The first failure's message.
     pub first_error: Option<String>,
 }
 

@@ -10,6 +10,7 @@ pub struct PointIndex {
 }
 
 impl PointIndex {
+    /// The index over `points`.
     pub fn new(points: &[[f32; 3]]) -> Self {
         Self {
             tree: (!points.is_empty())

@@ -101,16 +101,22 @@ struct Region {
 /// keypoint last supported it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Seed {
+    /// Column, pixels.
     pub x: f32,
+    /// Row, pixels.
     pub y: f32,
+    /// Whether it is a segment followed from earlier frames.
     pub followed: bool,
+    /// When a keypoint last supported it.
     pub since: f64,
 }
 
 /// A kept segment: its pixels, and when a dynamic keypoint last supported it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Segment {
+    /// Pixel indices, row-major.
     pub pixels: Vec<usize>,
+    /// When a keypoint last supported it.
     pub since: f64,
 }
 

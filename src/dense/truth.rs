@@ -11,21 +11,27 @@ use crate::io::IoError;
 /// Pixels fused against a synthetic sequence's ground-truth masks.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct FusedTruth {
+    /// Frames counted.
     pub frames: usize,
     /// Pixels with depth on movers, and those fused anyway.
     pub mover_pixels: u64,
+    /// Mover pixels fused.
     pub mover_pixels_fused: u64,
     /// Pixels with depth on the static scene, and those fused.
     pub static_pixels: u64,
+    /// Static pixels fused.
     pub static_pixels_fused: u64,
     /// Share of mover pixels kept out, and of static pixels fused.
     pub dynamic_removed: f64,
+    /// Share of static pixels fused.
     pub static_kept: f64,
     /// Of the mover pixels, those on movers of no COCO class (which no detector
     /// knows; from `masks/instances.txt`), those fused anyway, and the share kept out
     /// (`None` without such movers).
     pub unknown_mover_pixels: u64,
+    /// Those fused.
     pub unknown_mover_pixels_fused: u64,
+    /// The share kept out.
     pub unknown_removed: Option<f64>,
 }
 

@@ -121,8 +121,11 @@ fn key_block(key: u64) -> [i32; 3] {
 /// One block of voxels, x fastest.
 #[derive(Debug, Clone)]
 pub struct Block {
+    /// Signed distance per voxel, in truncation units.
     pub sdf: Vec<f32>,
+    /// Weight per voxel.
     pub weight: Vec<f32>,
+    /// Colour per voxel.
     pub colour: Vec<[u8; 3]>,
     /// Observations within the truncation band (those that set the colour).
     pub colour_weight: Vec<u16>,
@@ -158,18 +161,25 @@ pub fn voxel_index(x: usize, y: usize, z: usize) -> usize {
 /// One frame to fuse: depth in metres, colour, and an optional mask (`true`: dynamic,
 /// not fused), all of the camera's size.
 pub struct FrameInput<'a> {
+    /// Depth, metres.
     pub depth: &'a DepthImage,
+    /// Colour.
     pub colour: &'a image::RgbImage,
+    /// Per pixel: dynamic (not fused).
     pub dynamic: Option<&'a [bool]>,
+    /// \(T_{cw}\).
     pub camera_from_world: &'a Se3,
 }
 
 /// A sparse TSDF volume.
 #[derive(Debug, Clone)]
 pub struct TsdfVolume {
+    /// Its settings.
     pub settings: TsdfSettings,
     camera: PinholeCamera,
+    /// The blocks.
     pub blocks: Vec<Block>,
+    /// Each block's coordinates.
     pub coords: Vec<[i32; 3]>,
     index: FxMap<[i32; 3], u32>,
     frames: u32,
@@ -178,6 +188,7 @@ pub struct TsdfVolume {
 }
 
 impl TsdfVolume {
+    /// An empty volume for `camera`'s frames.
     pub fn new(settings: TsdfSettings, camera: PinholeCamera) -> Self {
         Self {
             settings,
