@@ -43,9 +43,6 @@
 //! buffer sized just above).
 
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
-// Every public item is documented in the modules without `allow(missing_docs)` below;
-// the others are being documented module by module (most of what they lack are the
-// fields of report and config structs), and lose their `allow` when done.
 #![warn(missing_docs)]
 
 pub mod batch;

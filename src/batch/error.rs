@@ -9,6 +9,7 @@ use super::manifest::ManifestError;
 use crate::eval::plot::PlotError;
 use crate::io::IoError;
 
+/// How a batch, or one of its runs, fails.
 #[derive(Debug, Error)]
 pub enum BatchError {
     /// The manifest cannot be read or planned (boxed: the largest of these errors).
@@ -20,8 +21,11 @@ pub enum BatchError {
     /// A folder or file that could not be created, cleared, moved or locked.
     #[error("cannot {action} {}: {source}", path.display())]
     File {
+        /// What was done: `create`, `clear`, `move`, `lock`, ….
         action: &'static str,
+        /// The folder or file.
         path: PathBuf,
+        /// Why it failed.
         source: std::io::Error,
     },
     /// The output folder lies inside one of the batch's recorded sequences.
@@ -31,8 +35,11 @@ pub enum BatchError {
         input.display()
     )]
     OutputInInput {
+        /// The output folder.
         out: PathBuf,
+        /// The input sequence it lies in.
         input: PathBuf,
+        /// The sequence's name.
         sequence: String,
     },
     /// Another batch holds the output folder's lock.
@@ -46,8 +53,11 @@ pub enum BatchError {
         manifest.display()
     )]
     OtherManifest {
+        /// The output folder.
         out: PathBuf,
+        /// The manifest's copy in it.
         copy: PathBuf,
+        /// The manifest given.
         manifest: PathBuf,
     },
     /// A run's `config.toml` could not be written as TOML.
@@ -56,8 +66,11 @@ pub enum BatchError {
     /// `dopslam run` could not be started or watched.
     #[error("cannot {action} {}: {source}", program.display())]
     Process {
+        /// `start` or `wait for`.
         action: &'static str,
+        /// The program.
         program: PathBuf,
+        /// Why it failed.
         source: std::io::Error,
     },
     /// The run ended with an error: its own error line, or its exit status.

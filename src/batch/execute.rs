@@ -31,9 +31,11 @@ use crate::io::{IoError, Trajectory};
 pub struct RunJob {
     /// Index into the planned sequences.
     pub sequence: usize,
+    /// The mode.
     pub mode: Mode,
     /// 1-based.
     pub repetition: usize,
+    /// The run's folder.
     pub dir: PathBuf,
     /// What decides its result ([`super::fingerprint`]); filled in before it runs.
     pub inputs: super::fingerprint::RunInputs,
@@ -43,21 +45,30 @@ pub struct RunJob {
 pub struct Executor<'a> {
     /// The `dopslam` program the runs are started with.
     pub program: &'a Path,
+    /// The planned sequences.
     pub sequences: &'a [PlannedSequence],
     /// The folder each sequence is read from (generated ones under the batch's output).
     pub sequence_dirs: &'a [PathBuf],
+    /// Runs at a time.
     pub jobs: usize,
+    /// Cores per run (`RAYON_NUM_THREADS`).
     pub cores_per_run: usize,
+    /// Runs with `--deterministic`.
     pub deterministic: bool,
+    /// How frames are paced.
     pub pace: crate::pacing::Pace,
+    /// The RPE's delta, seconds.
     pub rpe_seconds: f64,
+    /// Show the progress bar.
     pub progress: bool,
 }
 
 /// What a pass over the runs did.
 #[derive(Debug, Default)]
 pub struct Executed {
+    /// Runs finished.
     pub done: usize,
+    /// Runs failed.
     pub failed: usize,
     /// Runs left undone because the batch was interrupted.
     pub interrupted: usize,

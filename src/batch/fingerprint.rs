@@ -31,7 +31,9 @@ pub struct Fingerprinter {
 /// How a batch runs its runs (the same for all of them).
 #[derive(Debug, Clone, Copy)]
 pub struct Execution {
+    /// Runs with `--deterministic`.
     pub deterministic: bool,
+    /// How frames are paced.
     pub pace: Pace,
 }
 

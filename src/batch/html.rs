@@ -13,6 +13,7 @@ use super::results::{
 
 /// One sequence's section.
 pub struct SequenceSection {
+    /// The sequence's name.
     pub name: String,
     /// PNG figures (trajectories, APE over time, box plots), in order.
     pub figures: Vec<PathBuf>,

@@ -33,13 +33,19 @@ use crate::dop::Mode;
 #[derive(Debug, Error)]
 pub enum ManifestError {
     #[error("cannot read manifest {}: {source}", path.display())]
+    /// The file cannot be read.
     Read {
+        /// The manifest.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
     #[error("manifest {}: {problem}", path.display())]
+    /// The manifest says something the batch cannot do.
     Invalid {
+        /// The manifest.
         path: PathBuf,
+        /// What.
         problem: Box<ManifestProblem>,
     },
 }
@@ -54,13 +60,21 @@ pub enum ManifestProblem {
     #[error(transparent)]
     Value(#[from] BadValue),
     #[error("no [[sequence]] entry")]
+    /// The manifest names no sequence.
     NoSequence,
     /// The `[[sequence]]` entry numbered `entry` (from 1).
     #[error("[[sequence]] #{entry}: {problem}")]
-    Entry { entry: usize, problem: EntryProblem },
+    Entry {
+        /// The entry's number, from 1.
+        entry: usize,
+        /// What is wrong in it.
+        problem: EntryProblem,
+    },
     #[error("two sequences are named {0:?}: give them distinct `name`s")]
+    /// Two sequences share a name.
     SameName(String),
     #[error("sequence name {0:?}: use letters, digits, '-', '_' and '.' only")]
+    /// A name unfit for a folder.
     UnsafeName(String),
     /// The batch's config file (`[batch] config`).
     #[error(transparent)]
@@ -71,27 +85,42 @@ pub enum ManifestProblem {
 #[derive(Debug, Error)]
 pub enum EntryProblem {
     #[error("give exactly one of path, glob or preset")]
+    /// None or several of `path`, `glob` and `preset`.
     Source,
     #[error("seeds and synth_frames are for presets")]
+    /// `seeds` or `synth_frames` without a preset.
     SeedsWithoutPreset,
     #[error("repetitions and modes must not be empty")]
+    /// Empty `repetitions` or `modes`.
     Empty,
     #[error(transparent)]
+    /// A value out of its range.
     Value(#[from] BadValue),
     /// Its config file or ORB-SLAM2 settings file.
     #[error(transparent)]
     Config(#[from] ConfigError),
     #[error("glob {pattern:?}: {source}")]
+    /// The glob pattern is malformed.
     Glob {
+        /// The pattern.
         pattern: String,
+        /// glob's message.
         source: glob::PatternError,
     },
     #[error("glob {} matches no sequence folder or recording", .0.display())]
+    /// The glob matches nothing.
     NoMatch(PathBuf),
     #[error("preset {} does not exist", .0.display())]
+    /// The preset's file does not exist.
     NoPresetFile(PathBuf),
     #[error("no preset named {name:?} (looked for {file})")]
-    NoPreset { name: String, file: String },
+    /// No preset has the name.
+    NoPreset {
+        /// The name.
+        name: String,
+        /// The file looked for.
+        file: String,
+    },
 }
 
 
@@ -101,6 +130,7 @@ pub enum EntryProblem {
 pub struct BatchSettings {
     /// Output folder (the command line's `--out` wins; default `outputs/batch/<manifest name>`).
     pub out: Option<PathBuf>,
+    /// The modes every sequence runs in.
     pub modes: Vec<Mode>,
     /// Runs per sequence and mode (real-time runs differ: papers report the median of 5-10).
     pub repetitions: usize,
@@ -178,14 +208,21 @@ pub struct SequenceEntry {
     /// A recording's colour, depth, camera-info and ground-truth topics (`[dataset]`'s
     /// keys).
     pub rgb_topic: Option<String>,
+    /// The recording's depth topic.
     pub depth_topic: Option<String>,
+    /// The recording's camera-info topic.
     pub camera_info_topic: Option<String>,
+    /// The recording's ground-truth pose topic.
     pub ground_truth_topic: Option<String>,
     /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
     pub config: Option<PathBuf>,
+    /// Its modes (else the batch's).
     pub modes: Option<Vec<Mode>>,
+    /// Its repetitions (else the batch's).
     pub repetitions: Option<usize>,
+    /// Frames per run (else the batch's).
     pub frames: Option<usize>,
+    /// The detections' source (else the batch's).
     pub detections: Option<Source>,
     /// The dense map for this sequence's runs (instead of `[batch] dense`).
     pub dense: Option<bool>,
@@ -215,8 +252,10 @@ impl SequenceEntry {
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
     #[serde(default)]
+    /// `[batch]`.
     pub batch: BatchSettings,
     #[serde(default, rename = "sequence")]
+    /// The `[[sequence]]` entries.
     pub sequences: Vec<SequenceEntry>,
     /// The folder relative paths are taken from (the manifest's).
     #[serde(skip)]
@@ -226,11 +265,15 @@ pub struct Manifest {
 /// Where a sequence comes from.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SequenceSource {
+    /// A recorded folder or recording.
     Folder(PathBuf),
     /// A preset file and the seed to generate it with.
     Synthetic {
+        /// The preset's file.
         preset: PathBuf,
+        /// Its seed (else the preset's).
         seed: Option<u64>,
+        /// Frames to generate (else the preset's).
         frames: Option<usize>,
     },
 }
@@ -238,16 +281,22 @@ pub enum SequenceSource {
 /// One sequence of the batch with everything its runs need.
 #[derive(Debug, Clone)]
 pub struct PlannedSequence {
+    /// Its unique name.
     pub name: String,
+    /// Where its frames come from.
     pub source: SequenceSource,
     /// The config its runs use (overrides applied).
     pub config: Config,
+    /// Its modes.
     pub modes: Vec<Mode>,
+    /// Its repetitions.
     pub repetitions: usize,
+    /// Frames per run (else all).
     pub frames: Option<usize>,
 }
 
 impl Manifest {
+    /// Reads and checks the manifest at `path`.
     pub fn load(path: &Path) -> Result<Self, ManifestError> {
         let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
             path: path.to_path_buf(),

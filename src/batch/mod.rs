@@ -57,6 +57,7 @@ pub struct BatchOptions {
     pub retry_failed: bool,
     /// Evaluate the finished runs again from their files (no run is repeated).
     pub reevaluate: bool,
+    /// Show progress.
     pub progress: bool,
     /// Run only this part of the runs, and write no tables ([`shard`]).
     pub shard: Option<shard::Shard>,
@@ -70,18 +71,24 @@ pub struct BatchOptions {
 /// What a batch did.
 #[derive(Debug)]
 pub struct BatchSummary {
+    /// The batch's folder.
     pub out: PathBuf,
+    /// Runs in the plan.
     pub runs_planned: usize,
     /// Runs found finished from an earlier invocation.
     pub runs_skipped: usize,
+    /// What this invocation ran.
     pub executed: Executed,
+    /// Runs at a time.
     pub jobs: usize,
+    /// Per sequence and mode: medians and spreads.
     pub groups: Vec<GroupSummary>,
     /// Figures or sequences that could not be made, and why.
     pub notes: Vec<String>,
     /// Runs of the whole batch with no `run.json` (not run, or not finished), and
     /// those whose record says they failed, as `sequence/mode/r<k>`.
     pub missing: Vec<String>,
+    /// Runs recorded failed, as `sequence/mode/r<k>`.
     pub failed: Vec<String>,
     /// Whether tables were written (not for a shard).
     pub tables: bool,
@@ -91,9 +98,13 @@ pub struct BatchSummary {
 
 /// A batch's plan: the manifest, its sequences, the output folder and every run.
 pub struct BatchPlan {
+    /// The manifest.
     pub manifest: Manifest,
+    /// Its sequences, planned.
     pub planned: Vec<PlannedSequence>,
+    /// The output folder.
     pub out: PathBuf,
+    /// Every run.
     pub runs: Vec<RunJob>,
 }
 

@@ -239,15 +239,22 @@ pub fn ape_over_time(
 /// farthest samples within 1.5 IQR of the box, and the samples beyond them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BoxStats {
+    /// First quartile.
     pub q1: f64,
+    /// Median.
     pub median: f64,
+    /// Third quartile.
     pub q3: f64,
+    /// The lower whisker: the lowest value within 1.5 IQR of the box.
     pub low: f64,
+    /// The upper whisker.
     pub high: f64,
+    /// Values beyond the whiskers.
     pub outliers: Vec<f64>,
 }
 
 impl BoxStats {
+    /// The box of `values` (`None` when empty).
     pub fn of(values: &[f64]) -> Option<Self> {
         let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
         if v.is_empty() {

@@ -13,17 +13,22 @@ use crate::io::IoError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum RunStatus {
+    /// Finished.
     Ok,
+    /// Failed (see `error`).
     Failed,
 }
 
 /// `run.json`: written last and atomically, so its presence marks a finished run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunRecord {
+    /// The sequence's name.
     pub sequence: String,
+    /// The mode.
     pub mode: Mode,
     /// 1-based.
     pub repetition: usize,
+    /// Finished or failed.
     pub status: RunStatus,
     /// Why it failed (the run's own error message, or what was wrong with its outputs).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -31,6 +36,7 @@ pub struct RunRecord {
     /// Wall-clock seconds of the whole run (tracking, global pass, dense map).
     pub seconds: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The run's figures, when it finished.
     pub figures: Option<RunFigures>,
     /// What decided the result ([`super::fingerprint`]): a run whose inputs differ
     /// from the batch's is not taken for one of its runs.
@@ -44,18 +50,25 @@ pub struct RunRecord {
 /// The figures of a successful run.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct RunFigures {
+    /// Frames read.
     pub frames: usize,
+    /// Frames tracked.
     pub tracked: usize,
+    /// Tracked over read, %.
     pub coverage_percent: f64,
+    /// Keyframes at the end.
     pub keyframes: usize,
+    /// Map points at the end.
     pub map_points: usize,
     /// Tracking time per frame (ORB extraction + tracking), ms.
     pub median_tracking_ms: f64,
+    /// The mean of the same.
     pub mean_tracking_ms: f64,
     /// Keypoints removed as dynamic before pose estimation, per tracked frame.
     pub keypoints_removed_per_frame: f64,
     /// Map points removed as dynamic over the run.
     pub map_points_removed: usize,
+    /// Loops closed.
     pub loops: usize,
     /// ATE RMSE of `trajectory.txt` (m), when the sequence has ground truth.
     pub ate_rmse: Option<f64>,
@@ -63,6 +76,7 @@ pub struct RunFigures {
     pub ate_tracking_rmse: Option<f64>,
     /// RPE RMSE over the batch's delta, translation (m/s) and rotation (deg/s).
     pub rpe_translation: Option<f64>,
+    /// RPE RMSE, rotation (deg/s).
     pub rpe_rotation_deg: Option<f64>,
     /// The dense map against the static scene, where the sequence has one.
     pub map: Option<MapFigures>,
@@ -70,6 +84,7 @@ pub struct RunFigures {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kitti_translation_percent: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// KITTI's rotation error, degrees per 100 m.
     pub kitti_rotation_deg_per_100m: Option<f64>,
 }
 
@@ -80,6 +95,7 @@ pub struct MapFigures {
     pub accuracy_median: Option<f64>,
     /// Points left by moving objects (ghosts), and their share of the map.
     pub ghost_points: Option<usize>,
+    /// Their share of the map.
     pub ghost_fraction: Option<f64>,
     /// Depth pixels on movers kept out of the map (%), against the ground-truth masks.
     pub dynamic_removed_percent: Option<f64>,

@@ -15,8 +15,11 @@ use crate::io::IoError;
 /// Median, minimum and maximum of a figure over a group's runs.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Spread {
+    /// The median.
     pub median: f64,
+    /// The smallest.
     pub min: f64,
+    /// The largest.
     pub max: f64,
     /// How many runs had the figure.
     pub n: usize,
@@ -42,27 +45,45 @@ impl Spread {
 /// One sequence in one mode, over its repetitions.
 #[derive(Debug, Clone, Serialize)]
 pub struct GroupSummary {
+    /// The sequence.
     pub sequence: String,
+    /// The mode.
     pub mode: Mode,
+    /// Runs finished.
     pub runs: usize,
+    /// Runs failed.
     pub failed: usize,
+    /// ATE RMSE, m.
     pub ate_rmse: Option<Spread>,
+    /// ATE RMSE of the tracking pass alone, m.
     pub ate_tracking_rmse: Option<Spread>,
+    /// RPE RMSE, translation (m/s).
     pub rpe_translation: Option<Spread>,
+    /// RPE RMSE, rotation (deg/s).
     pub rpe_rotation_deg: Option<Spread>,
     /// KITTI's relative errors, where the path reaches 100 m.
     pub kitti_translation_percent: Option<Spread>,
+    /// KITTI's rotation error, degrees per 100 m.
     pub kitti_rotation_deg_per_100m: Option<Spread>,
+    /// Tracked frames, %.
     pub coverage_percent: Option<Spread>,
     /// Median of the runs' median tracking times, and mean of their means (ms).
     pub median_tracking_ms: Option<f64>,
+    /// Mean tracking time per frame, ms.
     pub mean_tracking_ms: Option<f64>,
+    /// Keyframes.
     pub keyframes: Option<Spread>,
+    /// Keypoints removed as dynamic per tracked frame.
     pub keypoints_removed_per_frame: Option<Spread>,
+    /// Map points removed as dynamic.
     pub map_points_removed: Option<Spread>,
+    /// Loops closed.
     pub loops: Option<Spread>,
+    /// Dense map accuracy (median), m.
     pub map_accuracy_median: Option<Spread>,
+    /// Ghost points in the dense map.
     pub ghost_points: Option<Spread>,
+    /// Mover pixels kept out of the dense map, %.
     pub dynamic_removed_percent: Option<Spread>,
     /// The improvement of this mode's median ATE over no-DOP's, in % (the paper's
     /// `(ORB-SLAM2 - ours) / ORB-SLAM2`).

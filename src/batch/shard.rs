@@ -21,7 +21,9 @@ use super::manifest::PlannedSequence;
 /// Part `index` (1-based) of `count`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Shard {
+    /// K, from 1.
     pub index: usize,
+    /// N.
     pub count: usize,
 }
 

@@ -19,6 +19,7 @@ use crate::io::atomic::write_atomic;
 /// What `--slurm` was asked for.
 #[derive(Debug, Clone, Default)]
 pub struct SlurmOptions {
+    /// `--partition`.
     pub partition: Option<String>,
     /// `--time` of each task, in Slurm's format (`2:00:00`, `1-0`).
     pub time: Option<String>,
@@ -35,8 +36,11 @@ pub struct SlurmOptions {
 /// The scripts written, and the shard count they use.
 #[derive(Debug, Clone)]
 pub struct SlurmScripts {
+    /// The array job's script.
     pub array: PathBuf,
+    /// The collection job's script.
     pub collect: PathBuf,
+    /// Array tasks.
     pub shards: usize,
 }
 
@@ -50,14 +54,28 @@ fn quote(text: &str) -> String {
 pub enum SlurmError {
     /// A value with blanks or `#`, which would end its `#SBATCH` line.
     #[error("--{option} {value:?}: not a Slurm value (no blanks or '#')")]
-    Value { option: &'static str, value: String },
+    Value {
+        /// The option.
+        option: &'static str,
+        /// Its value.
+        value: String,
+    },
     #[error("--shards and --max-parallel must be at least 1")]
+    /// `--shards` or `--max-parallel` is 0.
     Zero,
     #[error("cannot run sbatch ({0}): is Slurm installed and on the PATH? The scripts are written; submit them by hand")]
+    /// `sbatch` cannot be run.
     NoSbatch(std::io::Error),
     #[error("sbatch {arguments} failed: {stderr}")]
-    Refused { arguments: String, stderr: String },
+    /// `sbatch` refused a script.
+    Refused {
+        /// sbatch's arguments.
+        arguments: String,
+        /// What it printed.
+        stderr: String,
+    },
     #[error("sbatch printed no job id: {0:?}")]
+    /// `sbatch` printed no job id.
     NoJobId(String),
 }
 

@@ -34,7 +34,10 @@ pub enum DataOrigin {
     /// `DOPSLAM_DATA` names it.
     Environment,
     /// `tools/setup.sh` recorded it in this file.
-    Installed { record: PathBuf },
+    Installed {
+        /// The record file.
+        record: PathBuf,
+    },
     /// `./data` under the working directory.
     WorkingDirectory,
 }
@@ -54,7 +57,9 @@ impl std::fmt::Display for DataOrigin {
 /// The data directory in use.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DataDir {
+    /// The folder.
     pub path: PathBuf,
+    /// Why it was chosen.
     pub origin: DataOrigin,
 }
 

@@ -3,33 +3,63 @@
 use std::path::PathBuf;
 use thiserror::Error;
 
+/// Why a file cannot be read or written; each names the file, and the line where one applies.
 #[derive(Debug, Error)]
 pub enum IoError {
     #[error("cannot read {path}: {source}")]
+    /// The file cannot be read.
     Read {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
     #[error("cannot write {path}: {source}")]
+    /// The file cannot be written.
     Write {
+        /// The file.
         path: PathBuf,
+        /// Why.
         source: std::io::Error,
     },
     #[error("{path}:{line}: {message}")]
+    /// A line of the file cannot be parsed.
     Parse {
+        /// The file.
         path: PathBuf,
+        /// The line, from 1.
         line: usize,
+        /// What is wrong.
         message: String,
     },
     #[error("{path}: {message}")]
-    Invalid { path: PathBuf, message: String },
+    /// The file says something without meaning.
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     #[error("{path}: not found ({what})")]
-    Missing { path: PathBuf, what: String },
+    /// The file or folder does not exist.
+    Missing {
+        /// The file.
+        path: PathBuf,
+        /// What it should be.
+        what: String,
+    },
     #[error("cannot decode image {path}: {message}")]
-    Image { path: PathBuf, message: String },
+    /// The image cannot be decoded.
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// The decoder's message.
+        message: String,
+    },
 }
 
 impl IoError {
+    /// A parse error at `line` of `path`.
     pub fn parse(path: impl Into<PathBuf>, line: usize, message: impl Into<String>) -> Self {
         Self::Parse {
             path: path.into(),
@@ -38,6 +68,7 @@ impl IoError {
         }
     }
 
+    /// `path` says something without meaning.
     pub fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Self::Invalid {
             path: path.into(),

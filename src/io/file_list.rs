@@ -8,7 +8,9 @@ use super::errors::{read_text, IoError};
 /// One line of a file list: a timestamp (seconds) and the fields after it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ListEntry {
+    /// The line's first column, seconds.
     pub timestamp: f64,
+    /// The other columns.
     pub fields: Vec<String>,
     /// The line number in the file (1-based), for error messages.
     pub line: usize,

@@ -25,7 +25,9 @@ use crate::geometry::se3::{self, Se3};
 /// An edge as the file has it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct G2oEdge {
+    /// The first vertex's id.
     pub from: u64,
+    /// The second vertex's id.
     pub to: u64,
     /// \(T_{from}^{-1} T_{to}\).
     pub measurement: Se3,
@@ -38,7 +40,9 @@ pub struct G2oEdge {
 pub struct G2oGraph {
     /// `(id, world_from_vertex)` in file order.
     pub vertices: Vec<(u64, Se3)>,
+    /// The edges.
     pub edges: Vec<G2oEdge>,
+    /// The ids held fixed.
     pub fixed: Vec<u64>,
 }
 

@@ -9,12 +9,16 @@ use super::IoError;
 /// A depth map in metres, row-major; 0 marks a pixel without depth.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthImage {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// Depth per pixel, row-major, metres (0: none).
     pub metres: Vec<f32>,
 }
 
 impl DepthImage {
+    /// A depth map without depth.
     pub fn new(width: u32, height: u32) -> Self {
         Self {
             width,

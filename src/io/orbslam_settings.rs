@@ -13,6 +13,7 @@ use crate::geometry::camera::PinholeCamera;
 /// A camera calibration: intrinsics plus what RGB-D and stereo need.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Calibration {
+    /// The camera (`Camera.fx`, …).
     pub camera: PinholeCamera,
     /// Stereo baseline times fx, in pixel·metres (`Camera.bf`); for RGB-D the virtual baseline.
     pub bf: Option<f64>,
@@ -20,23 +21,31 @@ pub struct Calibration {
     pub depth_scale: Option<f64>,
     /// Close/far threshold in baselines (`ThDepth`).
     pub th_depth: Option<f64>,
+    /// `Camera.fps`.
     pub fps: Option<f64>,
 }
 
 /// The ORB extractor settings of an ORB-SLAM2 file (absent keys stay `None`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct OrbSettings {
+    /// `ORBextractor.nFeatures`.
     pub n_features: Option<usize>,
+    /// `ORBextractor.scaleFactor`.
     pub scale_factor: Option<f64>,
+    /// `ORBextractor.nLevels`.
     pub n_levels: Option<usize>,
+    /// `ORBextractor.iniThFAST`.
     pub ini_th_fast: Option<u8>,
+    /// `ORBextractor.minThFAST`.
     pub min_th_fast: Option<u8>,
 }
 
 /// Everything dopslam reads from an ORB-SLAM2 settings file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OrbSlamSettings {
+    /// The camera and depth values.
     pub calibration: Calibration,
+    /// The ORB values.
     pub orb: OrbSettings,
     /// Every scalar key of the file, in file order.
     pub keys: Vec<String>,

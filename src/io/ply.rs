@@ -145,7 +145,9 @@ struct Face(Vec<i32>);
 #[serde(rename_all = "snake_case")]
 pub enum PlyEncoding {
     #[default]
+    /// Binary, little-endian.
     Binary,
+    /// ASCII.
     Ascii,
 }
 

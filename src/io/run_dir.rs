@@ -63,9 +63,11 @@ pub mod names {
     pub const TRAJECTORY: &str = "trajectory.txt";
     /// The trajectory of the tracking pass, written before the global pass moves the map.
     pub const TRACKING_TRAJECTORY: &str = "trajectory_tracking.txt";
+    /// Each keyframe's pose (TUM format).
     pub const KEYFRAMES: &str = "keyframes.txt";
     /// The sparse map (binary PLY).
     pub const SPARSE_MAP: &str = "map.ply";
+    /// What the run did.
     pub const REPORT: &str = "report.json";
     /// Each tracked frame's timestamp and map segment after the loops' merges.
     pub const SEGMENTS: &str = "segments.txt";
@@ -75,21 +77,31 @@ pub mod names {
     pub const DETECTIONS: &str = "detections";
     /// Detections the dense pass added on frames between keyframes.
     pub const DENSE_DETECTIONS: &str = "detections_dense";
+    /// The TSDF mesh (PLY).
     pub const DENSE_MESH_PLY: &str = "dense_mesh.ply";
+    /// The TSDF mesh (OBJ).
     pub const DENSE_MESH_OBJ: &str = "dense_mesh.obj";
+    /// The dense point cloud (PLY).
     pub const DENSE_POINTS: &str = "dense_points.ply";
+    /// What the dense pass did.
     pub const DENSE_REPORT: &str = "dense.json";
+    /// The dense map seen in perspective.
     pub const DENSE_PERSPECTIVE: &str = "dense_perspective.png";
+    /// The dense map seen from above.
     pub const DENSE_TOP: &str = "dense_top.png";
     /// The dense pass's mask pictures (`[dense] mask_pictures_every`).
     pub const MASK_PICTURES: &str = "mask_pictures";
     /// What `dopslam eval --save-report` writes beside a run.
     pub const EVALUATION: &str = "evaluation.json";
+    /// `dopslam eval`'s plots.
     pub const PLOTS: &str = "plots";
     /// `--compare-no-dop`'s runs and comparison.
     pub const NO_DOP: &str = "no_dop";
+    /// `--compare-no-dop`: the keyframes fused again without masks (a point cloud).
     pub const NO_MASKS: &str = "no_masks";
+    /// The unmasked fusion's outputs.
     pub const UNMASKED: &str = "unmasked";
+    /// `--compare-no-dop`: the comparison of the maps.
     pub const COMPARE_NO_DOP: &str = "compare_no_dop";
     /// The run's Rerun recording (`[output] rerun`).
     pub const RERUN: &str = "run.rrd";
@@ -127,10 +139,12 @@ pub const RUN_OUTPUTS: [&str; 23] = [
 ];
 
 impl RunDir {
+    /// The run folder at `root`.
     pub fn new(root: impl Into<PathBuf>) -> Self {
         Self { root: root.into() }
     }
 
+    /// The folder.
     pub fn root(&self) -> &Path {
         &self.root
     }
@@ -140,46 +154,57 @@ impl RunDir {
         self.root.join(name)
     }
 
+    /// `trajectory.txt`.
     pub fn trajectory(&self) -> PathBuf {
         self.file(names::TRAJECTORY)
     }
 
+    /// `trajectory_tracking.txt`.
     pub fn tracking_trajectory(&self) -> PathBuf {
         self.file(names::TRACKING_TRAJECTORY)
     }
 
+    /// `keyframes.txt`.
     pub fn keyframes(&self) -> PathBuf {
         self.file(names::KEYFRAMES)
     }
 
+    /// `map.ply`.
     pub fn sparse_map(&self) -> PathBuf {
         self.file(names::SPARSE_MAP)
     }
 
+    /// `report.json`.
     pub fn report(&self) -> PathBuf {
         self.file(names::REPORT)
     }
 
+    /// `segments.txt`.
     pub fn segments(&self) -> PathBuf {
         self.file(names::SEGMENTS)
     }
 
+    /// `dynamic_keypoints.json`.
     pub fn dynamic_keypoints(&self) -> PathBuf {
         self.file(names::DYNAMIC_KEYPOINTS)
     }
 
+    /// `detections/`.
     pub fn detections(&self) -> PathBuf {
         self.file(names::DETECTIONS)
     }
 
+    /// `detections_dense/`.
     pub fn dense_detections(&self) -> PathBuf {
         self.file(names::DENSE_DETECTIONS)
     }
 
+    /// `run.rrd`.
     pub fn rerun(&self) -> PathBuf {
         self.file(names::RERUN)
     }
 
+    /// `dense.json`.
     pub fn dense_report(&self) -> PathBuf {
         self.file(names::DENSE_REPORT)
     }
@@ -212,6 +237,7 @@ impl RunDir {
 #[derive(Debug, Clone, Deserialize)]
 pub struct RunSummary {
     #[serde(default)]
+    /// The sequence's name.
     pub sequence: Option<String>,
     /// The sequence folder the run tracked, when known.
     #[serde(default)]
@@ -221,69 +247,93 @@ pub struct RunSummary {
     #[serde(default)]
     pub mode: String,
     #[serde(default)]
+    /// What the run was set up with.
     pub setup: Option<SetupSummary>,
     #[serde(default)]
     totals: Option<TotalsSummary>,
     #[serde(default)]
     detection: Option<DetectionSummary>,
     #[serde(default)]
+    /// Its frames.
     pub frames: Vec<FrameSummary>,
     #[serde(default)]
+    /// Its global pass.
     pub global: Option<GlobalSummary>,
 }
 
+/// The part of `report.json`'s setup that is read back.
 #[derive(Debug, Clone, Deserialize)]
 pub struct SetupSummary {
     #[serde(default)]
+    /// The first frame's hash (a run is fused with its own sequence).
     pub first_frame_hash: Option<String>,
     #[serde(default)]
+    /// The calibration.
     pub calibration: Option<CalibrationSummary>,
 }
 
 /// The camera a run used (`setup.calibration.camera`).
 #[derive(Debug, Clone, Deserialize)]
 pub struct CalibrationSummary {
+    /// The camera.
     pub camera: crate::geometry::camera::PinholeCamera,
 }
 
+/// The part of `report.json`'s totals that is read back.
 #[derive(Debug, Clone, Deserialize)]
 pub struct TotalsSummary {
+    /// Frames read.
     pub frames: usize,
+    /// Frames tracked.
     pub tracked: usize,
+    /// Tracked over read, %.
     pub coverage_percent: f64,
+    /// Keyframes.
     pub keyframes: usize,
+    /// Map points.
     pub map_points: usize,
+    /// Median tracking time, ms.
     pub median_tracking_ms: f64,
+    /// Mean tracking time, ms.
     pub mean_tracking_ms: f64,
 }
 
+/// The part of `report.json`'s detection totals that is read back.
 #[derive(Debug, Clone, Deserialize)]
 pub struct DetectionSummary {
+    /// Map points removed as dynamic.
     pub map_points_removed: usize,
 }
 
 /// One frame's line (what older reports may lack reads as zero, empty or false).
 #[derive(Debug, Clone, Deserialize)]
 pub struct FrameSummary {
+    /// Keypoints found dynamic.
     pub dynamic_keypoints: usize,
     #[serde(default)]
+    /// The frame's index.
     pub index: usize,
     #[serde(default)]
+    /// Seconds.
     pub timestamp: f64,
     /// `ok`, `lost` or `not_initialised`.
     #[serde(default)]
     pub state: String,
     #[serde(default)]
+    /// Whether it became a keyframe.
     pub keyframe: bool,
     #[serde(default)]
+    /// Keypoints extracted.
     pub keypoints: usize,
     /// Why a lost frame got no pose (`{"reason": ...}`).
     #[serde(default)]
     pub lost: Option<serde_json::Value>,
 }
 
+/// The part of `report.json`'s global pass that is read back.
 #[derive(Debug, Clone, Deserialize)]
 pub struct GlobalSummary {
+    /// The loops closed.
     pub loops: Vec<serde_json::Value>,
     /// Every loop candidate that reached consistency checking, with its outcome.
     #[serde(default)]

@@ -11,16 +11,29 @@ use super::{IoError, Trajectory};
 #[derive(Debug, Clone)]
 pub enum FrameImages {
     /// A colour image and a registered depth map in metres.
-    Rgbd { rgb: RgbImage, depth: DepthImage },
+    Rgbd {
+        /// The colour image.
+        rgb: RgbImage,
+        /// The depth map.
+        depth: DepthImage,
+    },
     /// A rectified stereo pair.
-    Stereo { left: GrayImage, right: GrayImage },
+    Stereo {
+        /// The left image.
+        left: GrayImage,
+        /// The right image.
+        right: GrayImage,
+    },
 }
 
 /// One frame of a sequence.
 #[derive(Debug, Clone)]
 pub struct Frame {
+    /// The frame's index.
     pub index: usize,
+    /// Seconds.
     pub timestamp: f64,
+    /// Its images.
     pub images: FrameImages,
 }
 
@@ -28,7 +41,9 @@ pub struct Frame {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SensorKind {
+    /// A colour camera with a registered depth map.
     Rgbd,
+    /// A rectified stereo pair.
     Stereo,
 }
 
@@ -36,9 +51,11 @@ pub enum SensorKind {
 pub trait Sequence: Send + Sync {
     /// A short name (the folder's name).
     fn name(&self) -> &str;
+    /// RGB-D or stereo.
     fn sensor(&self) -> SensorKind;
     /// The number of frames.
     fn len(&self) -> usize;
+    /// Whether it has no frame.
     fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -15,7 +15,9 @@ use crate::geometry::se3::{self, Se3};
 /// their line index (or the times from a `times.txt`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
+    /// Seconds, one per pose.
     pub timestamps: Vec<f64>,
+    /// `world_from_camera` poses.
     pub poses: Vec<Se3>,
 }
 
@@ -25,19 +27,24 @@ pub struct Trajectory {
 )]
 #[serde(rename_all = "lowercase")]
 pub enum TrajectoryFormat {
+    /// `timestamp tx ty tz qx qy qz qw` per line.
     Tum,
+    /// The 12 values of a 3x4 matrix per line.
     Kitti,
 }
 
 impl Trajectory {
+    /// The number of poses.
     pub fn len(&self) -> usize {
         self.poses.len()
     }
 
+    /// Whether there is no pose.
     pub fn is_empty(&self) -> bool {
         self.poses.is_empty()
     }
 
+    /// Appends a pose.
     pub fn push(&mut self, timestamp: f64, pose: Se3) {
         self.timestamps.push(timestamp);
         self.poses.push(pose);

@@ -39,9 +39,13 @@ impl Default for TumOptions {
 /// One paired RGB-D frame of the index.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RgbdEntry {
+    /// The colour image's time, seconds.
     pub rgb_timestamp: f64,
+    /// Its file.
     pub rgb_path: PathBuf,
+    /// The depth map's time, seconds.
     pub depth_timestamp: f64,
+    /// Its file.
     pub depth_path: PathBuf,
 }
 
@@ -163,14 +167,17 @@ impl TumSequence {
         })
     }
 
+    /// The paired frames.
     pub fn entries(&self) -> &[RgbdEntry] {
         &self.entries
     }
 
+    /// The sequence's folder.
     pub fn root(&self) -> &Path {
         &self.root
     }
 
+    /// Raw depth units per metre.
     pub fn depth_scale(&self) -> f64 {
         self.depth_scale
     }

@@ -22,9 +22,13 @@ use crate::io::IoError;
 /// One frame: its colour and depth messages and whether each is compressed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FramePair {
+    /// The colour message.
     pub colour: Entry,
+    /// The depth message.
     pub depth: Entry,
+    /// Whether the colour is compressed.
     pub colour_compressed: bool,
+    /// Whether the depth is compressed.
     pub depth_compressed: bool,
 }
 
@@ -62,8 +66,11 @@ pub fn pair(
 
 /// Decodes a frame's messages read back from the store.
 pub struct Reader<'a> {
+    /// The recording.
     pub path: &'a Path,
+    /// Its messages.
     pub store: &'a dyn Store,
+    /// How messages are encoded (ROS 1 or CDR).
     pub wire: Wire,
     /// Applied to each depth image when the depth is in its own camera.
     pub registration: Option<&'a Registration>,
@@ -293,12 +300,17 @@ fn compressed_depth(c: &messages::CompressedImage, depth_scale: f64) -> Result<D
 pub struct Description {
     /// Every topic: name, type, messages, rate in Hz.
     pub topics: Vec<(String, String, usize, f64)>,
+    /// The colour (or left) topic chosen.
     pub colour: String,
+    /// The depth (or right) topic chosen.
     pub depth: String,
+    /// The camera-info topic chosen.
     pub camera_info: Option<String>,
     /// A stereo pair: `colour` is the left image topic, `depth` the right one.
     pub stereo: bool,
+    /// Frames paired.
     pub frames: usize,
+    /// What may be wrong.
     pub warnings: Vec<String>,
     /// What the reader did beyond the plain topics (device clock stamps).
     pub notes: Vec<String>,
@@ -309,6 +321,7 @@ pub struct Description {
 }
 
 impl Description {
+    /// The description of `chosen` among `catalog`'s topics, with `frames` paired.
     pub fn new(catalog: &Catalog, chosen: &Chosen, frames: usize) -> Self {
         let topics = catalog
             .topics

@@ -151,8 +151,11 @@ pub fn string(data: &[u8], wire: Wire) -> Result<String, DecodeError> {
 /// \(p_{parent} = R(q)\, p_{child} + t\).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Transform {
+    /// The parent frame.
     pub parent: String,
+    /// The child frame.
     pub child: String,
+    /// The translation, metres.
     pub translation: [f64; 3],
     /// \((x, y, z, w)\).
     pub rotation: [f64; 4],
@@ -216,13 +219,19 @@ pub fn stamped_pose(data: &[u8], wire: Wire, msg_type: &str) -> Result<StampedPo
 /// A `sensor_msgs/Image`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawImage<'a> {
+    /// The header stamp, seconds.
     pub stamp: f64,
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// `rgb8`, `bgr8`, `mono8`, `16UC1`, `32FC1`, ….
     pub encoding: String,
+    /// Whether multi-byte values are big-endian.
     pub big_endian: bool,
     /// Bytes per row.
     pub step: u32,
+    /// The pixels.
     pub data: &'a [u8],
 }
 
@@ -256,9 +265,11 @@ pub fn image(data: &[u8], wire: Wire) -> Result<RawImage<'_>, DecodeError> {
 /// A `sensor_msgs/CompressedImage`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompressedImage<'a> {
+    /// The header stamp, seconds.
     pub stamp: f64,
     /// `jpeg`, `png`, or `16UC1; compressedDepth png` and the like.
     pub format: String,
+    /// The compressed bytes.
     pub data: &'a [u8],
 }
 
@@ -278,13 +289,17 @@ pub fn compressed(data: &[u8], wire: Wire) -> Result<CompressedImage<'_>, Decode
 /// A `sensor_msgs/CameraInfo` (the region of interest and binning are not used).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraInfo {
+    /// The header stamp, seconds.
     pub stamp: f64,
     /// The camera's frame (in `/tf_static`).
     pub frame: String,
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
     /// `plumb_bob`, `rational_polynomial`, `equidistant`, or empty.
     pub distortion_model: String,
+    /// The distortion coefficients.
     pub d: Vec<f64>,
     /// The intrinsic matrix, row-major: \(K = [f_x, 0, c_x; 0, f_y, c_y; 0, 0, 1]\).
     pub k: [f64; 9],

@@ -38,23 +38,29 @@ pub struct Location(pub u64, pub u64);
 /// recorded) and where it lies.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Entry {
+    /// The header stamp (else the receive time), seconds.
     pub stamp: f64,
+    /// Where the message lies.
     pub at: Location,
 }
 
 /// A topic of a recording with its messages in stamp order.
 #[derive(Debug, Clone)]
 pub struct Topic {
+    /// The topic's name.
     pub name: String,
     /// The message type in ROS 1 spelling (`sensor_msgs/Image`, also for ROS 2's
     /// `sensor_msgs/msg/Image`).
     pub msg_type: String,
+    /// Its messages, in time order.
     pub messages: Vec<Entry>,
 }
 
 /// The message types read for frames and calibration.
 pub const IMAGE: &str = "sensor_msgs/Image";
+/// `sensor_msgs/CompressedImage`.
 pub const COMPRESSED: &str = "sensor_msgs/CompressedImage";
+/// `sensor_msgs/CameraInfo`.
 pub const CAMERA_INFO: &str = "sensor_msgs/CameraInfo";
 
 fn has_header(msg_type: &str) -> bool {
@@ -64,7 +70,9 @@ fn has_header(msg_type: &str) -> bool {
 /// What a scan of a recording found.
 #[derive(Debug, Clone)]
 pub struct Catalog {
+    /// How its messages are encoded.
     pub wire: Wire,
+    /// Its topics.
     pub topics: Vec<Topic>,
     /// The store's topic or connection ids to indices into `topics` (ROS 1 bags may have
     /// several connections for one topic).
@@ -76,6 +84,7 @@ pub struct Catalog {
 }
 
 impl Catalog {
+    /// An empty catalog of `wire`-encoded messages.
     pub fn new(wire: Wire) -> Self {
         Self {
             wire,
@@ -151,6 +160,7 @@ impl Catalog {
         self
     }
 
+    /// The topic named `name`.
     pub fn topic(&self, name: &str) -> Option<&Topic> {
         self.topics.iter().find(|t| t.name == name)
     }
@@ -158,12 +168,14 @@ impl Catalog {
 
 /// Reads a message's bytes back from where the scan found it.
 pub trait Store: Send + Sync {
+    /// The bytes of the message at `at`.
     fn read(&self, at: Location) -> Result<Vec<u8>, IoError>;
 }
 
 /// How to read a recording (from `[dataset]` and the command line).
 #[derive(Debug, Clone, Default)]
 pub struct RecordingOptions {
+    /// The topics to read.
     pub topics: TopicChoice,
     /// Raw 16-bit depth units per metre; `None`: 1000 (millimetres, REP 118).
     pub depth_scale: Option<f64>,
@@ -305,6 +317,7 @@ impl RecordingSequence {
         }
     }
 
+    /// The recording's path.
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -24,8 +24,11 @@ use crate::io::Trajectory;
 /// `ground_truth_topic`, the same options of the command line and batch manifests).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TopicChoice {
+    /// The colour topic.
     pub rgb: Option<String>,
+    /// The depth topic.
     pub depth: Option<String>,
+    /// The camera-info topic.
     pub camera_info: Option<String>,
     /// A pose topic read as the ground truth; never chosen unnamed.
     pub ground_truth: Option<String>,
