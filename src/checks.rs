@@ -54,7 +54,10 @@ pub fn positive<T: Into<f64> + Copy>(key: &str, value: T) -> Result<(), BadValue
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
-        Err(BadValue::new(key, format!("must be a positive number, got {v}")))
+        Err(BadValue::new(
+            key,
+            format!("must be a positive number, got {v}"),
+        ))
     }
 }
 
@@ -73,7 +76,10 @@ pub fn at_least_one<T: Into<u64> + Copy + Display>(key: &str, value: T) -> Resul
     if value.into() >= 1 {
         Ok(())
     } else {
-        Err(BadValue::new(key, format!("must be at least 1, got {value}")))
+        Err(BadValue::new(
+            key,
+            format!("must be at least 1, got {value}"),
+        ))
     }
 }
 
@@ -83,9 +89,15 @@ mod tests {
 
     #[test]
     fn a_bad_value_names_its_key_from_the_outermost_section() {
-        let bad = positive("fx", -1.0).unwrap_err().within("camera").within("depth_camera");
+        let bad = positive("fx", -1.0)
+            .unwrap_err()
+            .within("camera")
+            .within("depth_camera");
         assert_eq!(bad.key, "depth_camera.camera.fx");
-        assert_eq!(bad.to_string(), "depth_camera.camera.fx must be a positive number, got -1");
+        assert_eq!(
+            bad.to_string(),
+            "depth_camera.camera.fx must be a positive number, got -1"
+        );
     }
 
     #[test]

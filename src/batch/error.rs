@@ -98,7 +98,10 @@ impl From<ManifestError> for BatchError {
 
 impl BatchError {
     /// The error of `action` (`"create"`, `"move"`, …) on `path`, for `map_err`.
-    pub fn file(action: &'static str, path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
+    pub fn file(
+        action: &'static str,
+        path: impl Into<PathBuf>,
+    ) -> impl FnOnce(std::io::Error) -> Self {
         let path = path.into();
         move |source| Self::File {
             action,

@@ -25,17 +25,17 @@ pub mod masks;
 pub mod more_detections;
 pub mod neighbours;
 pub mod outputs;
+pub mod report;
 pub mod render;
 pub mod segments;
 pub mod truth;
 pub mod tsdf;
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::Serialize;
 
 use crate::detect::FrameDetections;
 use crate::dop::Mode;
@@ -56,51 +56,8 @@ use tsdf::{FrameInput, TsdfVolume};
 pub use config::{DenseConfig, FrameChoice, Fusion};
 pub use inputs::{read_detections, read_keypoints, DenseInputs};
 pub use outputs::save_png;
+pub use report::DenseReport;
 pub use truth::FusedTruth;
-
-/// What the dense pass did.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct DenseReport {
-    /// How movers were masked (none without a dense pass).
-    pub masking: Option<Mode>,
-    /// Frames fused into the TSDF.
-    pub frames_fused: usize,
-    /// Tracked frames left out because they are in a map segment that no loop merged
-    /// with the largest one.
-    pub other_segment_frames: usize,
-    /// Keyframes in the point cloud.
-    pub keyframes_in_cloud: usize,
-    /// Share of pixels masked as dynamic over the fused frames, %.
-    pub masked_percent: f64,
-    /// TSDF blocks allocated.
-    pub tsdf_blocks: usize,
-    /// Their memory, MB.
-    pub tsdf_memory_mb: f64,
-    /// Mesh vertices.
-    pub mesh_vertices: usize,
-    /// Mesh triangles.
-    pub mesh_triangles: usize,
-    /// Cloud points.
-    pub cloud_points: usize,
-    /// Cloud voxels dropped as seen through (see `DenseConfig::cloud_free_space`).
-    pub cloud_seen_through: usize,
-    /// The dense pass's own detections (`detect_every`).
-    pub extra_detections: Option<more_detections::ExtraDetections>,
-    /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
-    pub median_integration_ms: f64,
-    /// Marching cubes, milliseconds.
-    pub marching_cubes_ms: f64,
-    /// The cloud, milliseconds.
-    pub cloud_ms: f64,
-    /// The whole pass, seconds.
-    pub total_s: f64,
-    /// The process's peak resident memory at the end of the pass (MiB, Linux).
-    pub peak_memory_mib: Option<f64>,
-    /// Against the synthetic truth masks.
-    pub truth: Option<FusedTruth>,
-    /// The files written.
-    pub outputs: Vec<PathBuf>,
-}
 
 /// A progress bar over `len` frames labelled `label` (hidden unless `shown`).
 pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {

@@ -91,7 +91,9 @@ pub fn ransac<E: Estimator>(
         if !sampler.draw(n, size, &mut sample) {
             continue;
         }
-        let Some(model) = estimator.fit(&sample) else { continue };
+        let Some(model) = estimator.fit(&sample) else {
+            continue;
+        };
         let inliers = estimator.inliers(&model);
         if best.as_ref().is_none_or(|(_, b)| inliers.len() > b.len()) {
             best = Some((model, inliers));
@@ -105,7 +107,9 @@ pub fn ransac<E: Estimator>(
         if inliers.len() < size {
             break;
         }
-        let Some(refit) = estimator.fit(&inliers) else { break };
+        let Some(refit) = estimator.fit(&inliers) else {
+            break;
+        };
         let again = estimator.inliers(&refit);
         if again.len() < inliers.len() {
             break;
@@ -134,14 +138,21 @@ mod tests {
         fn fit(&self, indices: &[usize]) -> Option<(f64, f64)> {
             // Least squares over the indices.
             let m = indices.len() as f64;
-            let (sx, sy) = indices.iter().fold((0.0, 0.0), |(x, y), &i| (x + self.0[i].0, y + self.0[i].1));
+            let (sx, sy) = indices
+                .iter()
+                .fold((0.0, 0.0), |(x, y), &i| (x + self.0[i].0, y + self.0[i].1));
             let (mx, my) = (sx / m, sy / m);
             let sxx: f64 = indices.iter().map(|&i| (self.0[i].0 - mx).powi(2)).sum();
-            let sxy: f64 = indices.iter().map(|&i| (self.0[i].0 - mx) * (self.0[i].1 - my)).sum();
+            let sxy: f64 = indices
+                .iter()
+                .map(|&i| (self.0[i].0 - mx) * (self.0[i].1 - my))
+                .sum();
             (sxx > 1e-12).then(|| (sxy / sxx, my - sxy / sxx * mx))
         }
         fn inliers(&self, (a, b): &(f64, f64)) -> Vec<usize> {
-            (0..self.0.len()).filter(|&i| (a * self.0[i].0 + b - self.0[i].1).abs() < 1e-9).collect()
+            (0..self.0.len())
+                .filter(|&i| (a * self.0[i].0 + b - self.0[i].1).abs() < 1e-9)
+                .collect()
         }
     }
 
@@ -192,7 +203,11 @@ mod tests {
     #[test]
     fn too_few_inliers_or_points_give_no_model() {
         let points = points(3, 15);
-        let rounds = Rounds { iterations: 60, min_inliers: 10, refits: 2 };
+        let rounds = Rounds {
+            iterations: 60,
+            min_inliers: 10,
+            refits: 2,
+        };
         assert!(ransac(&Line(&points), &mut Redraw(&mut Rng::new(3)), rounds).is_none());
         assert!(ransac(&Line(&points[..1]), &mut Redraw(&mut Rng::new(3)), rounds).is_none());
     }
