@@ -4,14 +4,23 @@
 # run with the detector and the DOP model, eval)
 # into outputs/demo.
 #
-#   bash tools/setup.sh            # everything
-#   bash tools/setup.sh --no-demo  # install and build only
+#   bash tools/setup.sh                       # everything
+#   bash tools/setup.sh --no-demo             # install and build only
+#   bash tools/setup.sh --no-demo --no-build  # install only (tools/test.sh: `cargo test`
+#                                             # builds the binary itself)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 run_demo=1
-[ "${1:-}" = "--no-demo" ] && run_demo=0
+build=1
+for arg in "$@"; do
+    case "$arg" in
+        --no-demo) run_demo=0 ;;
+        --no-build) build=0; run_demo=0 ;;
+        *) echo "tools/setup.sh: unknown option $arg (--no-demo, --no-build)" >&2; exit 2 ;;
+    esac
+done
 
 # 1. System packages (Debian) and the cargo features they allow: tools/system_packages.sh.
 source tools/system_packages.sh
@@ -107,8 +116,10 @@ done
 # 5. Build, record the data directory where the binary finds it from any folder
 #    ($XDG_DATA_HOME/dopslam/data-dir; `dopslam doctor` shows it), and put `dopslam`
 #    on the PATH (a link in cargo's bin folder, ~/.cargo/bin).
-say "building dopslam (release)"
-cargo build --release --quiet "${CARGO_FEATURES[@]}"
+if [ "$build" = 1 ]; then
+    say "building dopslam (release)"
+    cargo build --release --quiet "${CARGO_FEATURES[@]}"
+fi
 record_dir="${XDG_DATA_HOME:-$HOME/.local/share}/dopslam"
 mkdir -p "$record_dir" && printf '%s\n' "$PWD/data" > "$record_dir/data-dir"
 bin_dir="${CARGO_HOME:-$HOME/.cargo}/bin"

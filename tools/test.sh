@@ -5,8 +5,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Always the idempotent set-up: a machine with Rust but without the Debian packages,
-# ONNX Runtime or the detector gets them too (it skips what is there).
-bash tools/setup.sh --no-demo
+# ONNX Runtime or the detector gets them too (it skips what is there). It builds
+# nothing: `cargo test` below builds the binary the tests run, and a `cargo build`
+# before it would compile about 60 crates twice (the dev-dependencies turn on features
+# of crates the Rerun SDK shares, so the test build cannot reuse the plain one's).
+bash tools/setup.sh --no-demo --no-build
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
 # The independent writers the recording tests use (tests/recordings.rs: the Python
