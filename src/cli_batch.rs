@@ -88,8 +88,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
         shard: args.shard,
         collect: args.collect,
     };
-    let summary =
-        dopslam::batch::run_batch(&args.manifest, &options)?;
+    let summary = dopslam::batch::run_batch(&args.manifest, &options)?;
     if let Some(shard) = args.shard {
         return shard_done(&summary, shard);
     }
@@ -131,8 +130,7 @@ pub fn run_batch(args: BatchArgs) -> Result<()> {
 
 /// `--slurm`: the scripts, submitted with `--submit`.
 fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
-    let plan = dopslam::batch::BatchPlan::new(&args.manifest, args.out.as_deref())
-        ?;
+    let plan = dopslam::batch::BatchPlan::new(&args.manifest, args.out.as_deref())?;
     let options = dopslam::batch::slurm::SlurmOptions {
         partition: args.partition.clone(),
         time: args.time.clone(),
@@ -141,8 +139,8 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
         max_parallel: args.max_parallel,
         shards: args.shards,
     };
-    let scripts = dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)
-        ?;
+    let scripts =
+        dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)?;
     println!(
         "wrote {} ({} array tasks for {} runs) and {}",
         scripts.array.display(),
