@@ -38,6 +38,18 @@ impl BadValue {
     }
 }
 
+/// `check` on each `(name, value)` of `section`, in order: the first that fails
+/// names `section.name` (`dop` and `p_init`: `dop.p_init`).
+pub fn each<T: Copy>(
+    section: &str,
+    check: fn(&str, T) -> Result<(), BadValue>,
+    values: &[(&str, T)],
+) -> Result<(), BadValue> {
+    values
+        .iter()
+        .try_for_each(|&(name, value)| check(&format!("{section}.{name}"), value))
+}
+
 /// `Ok` when `value` is in `[0, 1]` (NaN is not).
 pub fn unit_interval<T: Into<f64> + Copy>(key: &str, value: T) -> Result<(), BadValue> {
     let v = value.into();

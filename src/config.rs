@@ -277,21 +277,17 @@ impl StereoConfig {
 
     fn validate(&self) -> Result<(), BadValue> {
         checks::at_least_one("stereo.n_features", self.n_features as u64)?;
-        for (key, value) in [
+        checks::each("stereo", checks::positive, &[
             ("th_depth", self.th_depth),
             ("voxel", self.voxel),
             ("truncation", self.truncation),
             ("max_depth", self.max_depth),
             ("cloud_voxel", self.cloud_voxel),
-        ] {
-            checks::positive(&format!("stereo.{key}"), value)?;
-        }
-        for (key, value) in [
+        ])?;
+        checks::each("stereo", checks::non_negative, &[
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("bearing_baselines", self.bearing_baselines),
-        ] {
-            checks::non_negative(&format!("stereo.{key}"), value)?;
-        }
+        ])?;
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(BadValue::new(
                 "stereo.sgbm_disparities",
@@ -311,14 +307,7 @@ impl StereoConfig {
 impl Config {
     /// Reads and validates a TOML config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let mut config = Self::from_toml(&text).map_err(|problem| ConfigError::Invalid {
-            path: path.to_path_buf(),
-            problem,
-        })?;
+        let mut config = read_checked(path, Self::validate)?;
         config.resolve_paths(path.parent().unwrap_or(Path::new("")));
         if let Some(settings) = config.dataset.settings.clone() {
             // The error names the config that named the settings file.
@@ -464,6 +453,25 @@ impl Config {
         })?;
         Ok(settings)
     }
+}
+
+/// The settings file at `path` (a config, a synth preset) read, parsed and checked with
+/// `validate`; the error names the file.
+pub fn read_checked<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    validate: impl FnOnce(&T) -> Result<(), BadValue>,
+) -> Result<T, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let parsed: Result<T, ConfigProblem> = toml::from_str(&text)
+        .map_err(ConfigProblem::from)
+        .and_then(|value| Ok(validate(&value).map(|()| value)?));
+    parsed.map_err(|problem| ConfigError::Invalid {
+        path: path.to_path_buf(),
+        problem,
+    })
 }
 
 /// Whether a key's number may be negative: `dense.cloud_free_space` and the lens

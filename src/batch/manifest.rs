@@ -24,7 +24,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::checks::{self, BadValue};
-use crate::config::{Config, ConfigError};
+use crate::config::{Config, ConfigError, ConfigProblem};
 use crate::detect::Source;
 use crate::dop::Mode;
 
@@ -53,12 +53,10 @@ pub enum ManifestError {
 /// What is wrong in a manifest.
 #[derive(Debug, Error)]
 pub enum ManifestProblem {
-    /// Not TOML, an unknown key or a value of the wrong type (toml's message).
-    #[error("{}", .0.to_string().trim_end())]
-    Syntax(#[from] toml::de::Error),
-    /// A `[batch]` value out of its range.
+    /// Not TOML, an unknown key, a value of the wrong type, or a `[batch]` value out
+    /// of its range (as a config's).
     #[error(transparent)]
-    Value(#[from] BadValue),
+    Text(#[from] ConfigProblem),
     #[error("no [[sequence]] entry")]
     /// The manifest names no sequence.
     NoSequence,
@@ -79,6 +77,12 @@ pub enum ManifestProblem {
     /// The batch's config file (`[batch] config`).
     #[error(transparent)]
     Config(#[from] ConfigError),
+}
+
+impl From<BadValue> for ManifestProblem {
+    fn from(bad: BadValue) -> Self {
+        Self::Text(bad.into())
+    }
 }
 
 /// What is wrong in one `[[sequence]]` entry.
@@ -307,7 +311,7 @@ impl Manifest {
             problem: Box::new(problem),
         };
         let mut manifest: Manifest =
-            toml::from_str(&text).map_err(|e| invalid(ManifestProblem::Syntax(e)))?;
+            toml::from_str(&text).map_err(|e| invalid(ConfigProblem::Syntax(e).into()))?;
         manifest.base = path.parent().map(Path::to_path_buf).unwrap_or_default();
         manifest.validate().map_err(invalid)?;
         Ok(manifest)

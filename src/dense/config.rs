@@ -231,30 +231,26 @@ impl Default for DenseConfig {
 impl DenseConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        for (name, value) in [
+        checks::each("dense", checks::positive, &[
             ("voxel", self.voxel),
             ("truncation", self.truncation),
             ("max_depth", self.max_depth),
             ("max_weight", self.max_weight as f64),
             ("cloud_voxel", self.cloud_voxel),
             ("outlier_std", self.outlier_std),
-        ] {
-            checks::positive(&format!("dense.{name}"), value)?;
-        }
+        ])?;
         if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
             return Err(BadValue::new(
                 "dense.cloud_free_space",
                 format!("must be a number above -1, got {}", self.cloud_free_space),
             ));
         }
-        for (name, value) in [
+        checks::each("dense", checks::non_negative, &[
             ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
             ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
-        ] {
-            checks::non_negative(&format!("dense.{name}"), value)?;
-        }
+        ])?;
         checks::unit_interval("dense.mask_segment_edge_share", self.mask_segment_edge_share)?;
         checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;
         if self.truncation < self.voxel {

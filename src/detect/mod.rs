@@ -18,7 +18,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::checks::{non_negative, unit_interval, BadValue};
+use crate::checks::{self, non_negative, unit_interval, BadValue};
 use crate::io::data_dir::{DataDir, INSTALL_HINT};
 use yolo::Layout;
 
@@ -240,9 +240,11 @@ impl Default for DetectorConfig {
 impl DetectorConfig {
     /// Checks thresholds and class names.
     pub fn validate(&self) -> Result<(), BadValue> {
-        unit_interval("detector.score_threshold", self.score_threshold)?;
-        unit_interval("detector.border_score_factor", self.border_score_factor)?;
-        unit_interval("detector.nms_threshold", self.nms_threshold)?;
+        checks::each("detector", unit_interval, &[
+            ("score_threshold", self.score_threshold),
+            ("border_score_factor", self.border_score_factor),
+            ("nms_threshold", self.nms_threshold),
+        ])?;
         non_negative("detector.simulated_latency_ms", self.simulated_latency_ms)?;
         tiles::check_grid("detector.tiles", self.tiles)?;
         if self.model_path.is_some() && !self.model_paths.is_empty() {

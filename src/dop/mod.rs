@@ -226,7 +226,7 @@ impl Default for DopConfig {
 impl DopConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        for (name, v) in [
+        checks::each("dop", checks::unit_interval, &[
             ("alpha_rgbd", self.alpha_rgbd),
             ("alpha_stereo", self.alpha_stereo),
             ("p_init", self.p_init),
@@ -236,10 +236,8 @@ impl DopConfig {
             ("alpha_geometric", self.alpha_geometric),
             ("geometric_max_outliers", self.geometric_max_outliers),
             ("rigidity_agreement", self.rigidity_agreement),
-        ] {
-            checks::unit_interval(&format!("dop.{name}"), v)?;
-        }
-        for (name, v) in [
+        ])?;
+        checks::each("dop", checks::non_negative, &[
             ("rigidity_sigmas", self.rigidity_sigmas),
             ("track_seconds", self.track_seconds),
             ("track_gate", self.track_gate),
@@ -247,9 +245,7 @@ impl DopConfig {
             ("track_moved_metres", self.track_moved_metres),
             ("static_seconds", self.static_seconds),
             ("gamma", self.gamma),
-        ] {
-            checks::non_negative(&format!("dop.{name}"), v)?;
-        }
+        ])?;
         checks::positive("dop.c", self.c)?;
         checks::positive("dop.delta_z", self.delta_z)?;
         checks::at_least_one("dop.geometric_frames", self.geometric_frames)?;

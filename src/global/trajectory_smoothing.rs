@@ -33,7 +33,7 @@ use std::time::Instant;
 use nalgebra::{Rotation3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::checks::{positive, BadValue};
+use crate::checks::{self, positive, BadValue};
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
@@ -81,8 +81,10 @@ impl Default for SmoothingConfig {
 impl SmoothingConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        positive("global.smoothing.acceleration", self.acceleration)?;
-        positive("global.smoothing.angular_acceleration", self.angular_acceleration)
+        checks::each("global.smoothing", positive, &[
+            ("acceleration", self.acceleration),
+            ("angular_acceleration", self.angular_acceleration),
+        ])
     }
 }
 

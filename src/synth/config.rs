@@ -10,7 +10,7 @@ use super::oracle::OracleConfig;
 use super::render::SensorConfig;
 use super::street::StreetConfig;
 use crate::checks::{self, BadValue};
-use crate::config::{ConfigError, ConfigProblem};
+use crate::config::{read_checked, ConfigError};
 use crate::geometry::camera::PinholeCamera;
 
 /// How many frames, how fast, from which seed.
@@ -151,17 +151,8 @@ pub struct SynthConfig {
 impl SynthConfig {
     /// Reads a preset; relative paths inside it are taken from the current folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let invalid = |problem: ConfigProblem| ConfigError::Invalid {
-            path: path.to_path_buf(),
-            problem,
-        };
-        let mut config: SynthConfig = toml::from_str(&text).map_err(|e| invalid(e.into()))?;
+        let mut config = read_checked(path, Self::validate)?;
         config.resolve_paths(path.parent().unwrap_or(Path::new("")));
-        config.validate().map_err(|bad| invalid(bad.into()))?;
         Ok(config)
     }
 

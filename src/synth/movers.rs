@@ -166,16 +166,12 @@ impl ObjectsConfig {
                 format!("must be positive, got {:?}", self.size),
             ));
         }
-        for (name, value) in [("speed", self.speed), ("span", self.span)] {
-            checks::positive(&format!("{key}.{name}"), value)?;
-        }
-        for (name, value) in [
+        checks::each(key, checks::positive, &[("speed", self.speed), ("span", self.span)])?;
+        checks::each(key, checks::non_negative, &[
             ("distance", self.distance),
             ("pause", self.pause),
             ("lift", self.lift),
-        ] {
-            checks::non_negative(&format!("{key}.{name}"), value)?;
-        }
+        ])?;
         Ok(())
     }
 }

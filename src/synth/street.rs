@@ -75,7 +75,7 @@ impl Default for StreetConfig {
 impl StreetConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        for (key, value) in [
+        checks::each("street", checks::positive, &[
             ("camera_height", self.camera_height),
             ("half_width", self.half_width),
             ("building_spacing", self.building_spacing),
@@ -84,9 +84,7 @@ impl StreetConfig {
             ("pedestrian_speed", self.pedestrian_speed),
             ("render_range", self.render_range),
             ("road_spacing", self.road_spacing),
-        ] {
-            checks::positive(&format!("street.{key}"), value)?;
-        }
+        ])?;
         checks::unit_interval("street.parked_share", self.parked_share)?;
         if self.parking_offset >= self.half_width {
             return Err(BadValue::new(
