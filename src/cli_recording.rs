@@ -57,9 +57,12 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
         );
     } else {
         let registration = if d.registered {
-            "recorded in the colour camera"
+            "recorded in the colour camera".to_owned()
         } else {
-            "in its own camera: registered into the colour camera (/tf_static)"
+            format!(
+                "in its own camera: registered into the colour camera by {}",
+                d.cameras_from.as_deref().unwrap_or("/tf_static")
+            )
         };
         println!(
             "colour: {}\ndepth: {} ({registration}), {} units per metre",
@@ -69,9 +72,12 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     for note in &d.notes {
         println!("  {note}");
     }
-    match &d.camera_info {
-        Some(topic) => println!("camera info: {topic}"),
-        None => println!("camera info: none (give the calibration with --settings or --camera)"),
+    match (&d.camera_info, &d.cameras_from) {
+        (Some(topic), _) => println!("camera info: {topic}"),
+        (None, Some(from)) => println!("cameras: from {from}"),
+        (None, None) => {
+            println!("camera info: none (give the calibration with --settings or --camera)")
+        }
     }
     println!(
         "frames: {} {} pairs (tolerance {} s)",
@@ -93,7 +99,7 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     if let Some(c) = recording.calibration() {
         let k = &c.camera;
         println!(
-            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}, {:.1} Hz{}",
+            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}{}, {:.1} Hz{}",
             k.fx,
             k.fy,
             k.cx,
@@ -101,6 +107,11 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
             k.width,
             k.height,
             k.distortion,
+            if k.rational.iter().any(|&v| v != 0.0) {
+                format!(" rational {:?}", k.rational)
+            } else {
+                String::new()
+            },
             c.fps.unwrap_or(0.0),
             c.bf.map_or(String::new(), |bf| format!(
                 ", bf {bf:.3} (baseline {:.4} m)",

@@ -478,7 +478,9 @@ pub fn read_checked<T: serde::de::DeserializeOwned>(
 /// distortion; every other number of a config is a size, a time, a weight, a
 /// threshold or a probability, and is never below 0.
 fn may_be_negative(key: &str) -> bool {
-    key == "dense.cloud_free_space" || key.starts_with("dataset.camera.distortion")
+    key == "dense.cloud_free_space"
+        || key.starts_with("dataset.camera.distortion")
+        || key.starts_with("dataset.camera.rational")
 }
 
 impl Config {

@@ -326,6 +326,7 @@ fn parse_camera(
         width,
         height,
         distortion: [0.0; 5],
+        rational: [0.0; 3],
     };
     camera
         .validate()

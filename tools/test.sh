@@ -14,12 +14,17 @@ command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
 # The independent writers the recording tests use (tests/recordings.rs: the Python
 # rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
-# venv setup.sh made; with them installed, a test that cannot find them fails instead
-# of skipping. pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of
+# venv setup.sh made, and Debian's ffmpeg Azure Kinect recordings; with them installed,
+# a test that cannot find them fails instead of skipping. pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of
 # the tests only. rerun-sdk (with its dataframe API) reads the runs' Rerun recordings
 # back (tests/rerun.rs): the same version as the `rerun` crate (Cargo.toml).
-if ! dpkg -s libusb-1.0-0 >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+# ffmpeg's libraries come with OpenCV's packages already.
+test_apt=()
+for pkg in libusb-1.0-0 ffmpeg; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || test_apt+=("$pkg")
+done
+if [ ${#test_apt[@]} -gt 0 ] && [ "$(id -u)" = 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${test_apt[@]}" >/dev/null
 fi
 { [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
 data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" "rerun-sdk[datafusion]==0.36.3" pillow numpy

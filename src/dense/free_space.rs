@@ -419,6 +419,7 @@ mod tests {
             width: 64,
             height: 48,
             distortion: [0.0; 5],
+            rational: [0.0; 3],
         }
     }
 

@@ -242,6 +242,7 @@ pub fn picture_camera() -> PinholeCamera {
         width: 640,
         height: 480,
         distortion: [0.0; 5],
+        rational: [0.0; 3],
     }
 }
 

@@ -692,6 +692,7 @@ pub(crate) mod tests {
             width: 160,
             height: 120,
             distortion: [0.0; 5],
+            rational: [0.0; 3],
         }
     }
 

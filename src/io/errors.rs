@@ -68,6 +68,14 @@ impl IoError {
         }
     }
 
+    /// `path` cannot be read.
+    pub fn read(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Read {
+            path: path.into(),
+            source,
+        }
+    }
+
     /// `path` says something without meaning.
     pub fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Self::Invalid {

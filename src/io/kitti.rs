@@ -67,6 +67,7 @@ pub fn read_kitti_calibration(
         width,
         height,
         distortion: [0.0; 5],
+        rational: [0.0; 3],
     };
     camera
         .validate()

@@ -192,6 +192,13 @@ impl OrbSlamSettings {
                 number("Camera.p2")?.unwrap_or(0.0),
                 number("Camera.k3")?.unwrap_or(0.0),
             ],
+            // Not ORB-SLAM2's: the rational model's denominator, which `dopslam convert`
+            // writes for a lens that has one (an Azure Kinect's).
+            rational: [
+                number("Camera.k4")?.unwrap_or(0.0),
+                number("Camera.k5")?.unwrap_or(0.0),
+                number("Camera.k6")?.unwrap_or(0.0),
+            ],
         };
         camera
             .validate()
@@ -271,6 +278,11 @@ impl OrbSlamSettings {
         .zip(c.distortion)
         {
             line(key, format!("{value:?}"));
+        }
+        if !c.rational.iter().all(|&k| k == 0.0) {
+            for (key, value) in ["Camera.k4", "Camera.k5", "Camera.k6"].iter().zip(c.rational) {
+                line(key, format!("{value:?}"));
+            }
         }
         line("Camera.width", c.width.to_string());
         line("Camera.height", c.height.to_string());

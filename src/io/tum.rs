@@ -77,6 +77,7 @@ pub fn tum_calibration_for_name(name: &str) -> Option<Calibration> {
             width: 640,
             height: 480,
             distortion: [0.262383, -0.953104, -0.005358, 0.002628, 1.163314],
+            rational: [0.0; 3],
         }
     } else if name.contains("freiburg2") || name.contains("fr2") {
         PinholeCamera {
@@ -87,6 +88,7 @@ pub fn tum_calibration_for_name(name: &str) -> Option<Calibration> {
             width: 640,
             height: 480,
             distortion: [0.231222, -0.784899, -0.003257, -0.000105, 0.917205],
+            rational: [0.0; 3],
         }
     } else if name.contains("freiburg3") || name.contains("fr3") {
         PinholeCamera::tum_fr3()

@@ -416,6 +416,7 @@ mod tests {
             width,
             height,
             distortion: [0.0; 5],
+            rational: [0.0; 3],
         }
     }
 

@@ -318,6 +318,8 @@ pub struct Description {
     pub registered: bool,
     /// Raw 16-bit depth units per metre in use.
     pub depth_scale: f64,
+    /// Where the cameras come from when not from topics (`calibration.json`).
+    pub cameras_from: Option<String>,
 }
 
 impl Description {
@@ -348,6 +350,7 @@ impl Description {
             notes: Vec::new(),
             registered: true,
             depth_scale: 1000.0,
+            cameras_from: None,
         }
     }
 }

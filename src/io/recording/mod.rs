@@ -1,15 +1,18 @@
 //! Recordings as sensors and `rosbag record` write them, read as a [`Sequence`]: ROS 1
 //! bags (`.bag`), ROS 2 bags (a folder with `metadata.yaml`, SQLite `.db3` or `.mcap`
-//! storage) and single `.db3` / `.mcap` files.
+//! storage), single `.db3` / `.mcap` files, and Azure Kinect `.mkv` recordings
+//! ([`kinect`]).
 //!
 //! Opening a recording scans it once into a [`Catalog`]: each topic's messages with
 //! their header stamps and where they lie ([`Location`]); no image is kept. Frames
 //! then load one at a time from the [`Store`], so a recording of any size streams.
 //! The topics are chosen as described in [`topics`], the calibration comes from the
-//! colour stream's `sensor_msgs/CameraInfo`.
+//! colour stream's `sensor_msgs/CameraInfo` (or the recording's own, [`RecordedCameras`]).
 
 pub mod convert;
 pub mod frames;
+pub mod kinect;
+pub mod matroska;
 pub mod messages;
 pub mod realsense;
 pub mod register;
@@ -25,6 +28,7 @@ pub use messages::Wire;
 pub use topics::TopicChoice;
 
 use super::orbslam_settings::Calibration;
+use crate::geometry::camera::PinholeCamera;
 use super::sequence::{Frame, FrameImages, SensorKind, Sequence};
 use super::{IoError, Trajectory};
 
@@ -67,6 +71,22 @@ fn has_header(msg_type: &str) -> bool {
     [IMAGE, COMPRESSED, CAMERA_INFO].contains(&msg_type)
 }
 
+/// The cameras a recording carries in its own format (an Azure Kinect's
+/// `calibration.json`), where a bag has `CameraInfo` topics and `/tf_static`.
+#[derive(Debug, Clone)]
+pub struct RecordedCameras {
+    /// Where in the recording they are (`the calibration.json attachment`).
+    pub from: String,
+    /// The colour camera, for the colour images' size.
+    pub colour: PinholeCamera,
+    /// The depth camera, for the depth images' size.
+    pub depth: PinholeCamera,
+    /// \(T_{colour,depth}\): a depth-camera point into the colour camera.
+    pub colour_from_depth: nalgebra::Isometry3<f64>,
+    /// What the reader found, for `dopslam info`.
+    pub notes: Vec<String>,
+}
+
 /// What a scan of a recording found.
 #[derive(Debug, Clone)]
 pub struct Catalog {
@@ -81,6 +101,8 @@ pub struct Catalog {
     pub warnings: Vec<String>,
     /// Messages of our types whose header could not be decoded, by topic.
     undecodable: HashMap<usize, usize>,
+    /// The recording's own cameras, when it carries them outside its topics.
+    pub recorded: Option<RecordedCameras>,
 }
 
 impl Catalog {
@@ -92,6 +114,7 @@ impl Catalog {
             ids: HashMap::new(),
             warnings: Vec::new(),
             undecodable: HashMap::new(),
+            recorded: None,
         }
     }
 
@@ -186,7 +209,7 @@ pub struct RecordingOptions {
 /// Whether `path` looks like a recording rather than a sequence folder.
 pub fn is_recording(path: &Path) -> bool {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    matches!(ext, "bag" | "mcap" | "db3") || (path.is_dir() && path.join("metadata.yaml").is_file())
+    matches!(ext, "bag" | "mcap" | "db3" | "mkv") || (path.is_dir() && path.join("metadata.yaml").is_file())
 }
 
 /// Opens the store of a recording by its kind.
@@ -203,9 +226,10 @@ fn open_store(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         }
         "mcap" => ros2::open_mcap(path),
         "db3" => ros2::open_sqlite(path),
+        "mkv" => kinect::open(path),
         _ => Err(IoError::invalid(
             path,
-            "not a recording (.bag, .mcap, .db3 or a ROS 2 bag folder)",
+            "not a recording (.bag, .mcap, .db3, .mkv or a ROS 2 bag folder)",
         )),
     }
 }
@@ -244,7 +268,10 @@ impl RecordingSequence {
         let mut catalog = catalog.finish();
         let device_stamps = realsense::device_stamps(&mut catalog, store.as_ref())?;
         let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
-        let registration = topics::registration(path, &catalog, store.as_ref(), &choice)?;
+        let registration = match &catalog.recorded {
+            Some(c) => Some(register::Registration::new(&c.depth, &c.colour, c.colour_from_depth)),
+            None => topics::registration(path, &catalog, store.as_ref(), &choice)?,
+        };
         let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
         let ground_truth = match &options.topics.ground_truth {
             Some(topic) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
@@ -258,15 +285,22 @@ impl RecordingSequence {
             ));
         }
         let frames = frames::pair(path, &catalog, &choice, options.max_difference)?;
-        let calibration = match &choice.camera_info {
-            Some(info) => Some(topics::calibration(
+        let calibration = match (&choice.camera_info, &catalog.recorded) {
+            (Some(info), _) => Some(topics::calibration(
                 path,
                 &catalog,
                 store.as_ref(),
                 info,
                 &choice.colour,
             )?),
-            None => None,
+            (None, Some(recorded)) => Some(Calibration {
+                camera: recorded.colour,
+                bf: None,
+                depth_scale: None,
+                th_depth: None,
+                fps: topics::rate(&catalog, &choice.colour),
+            }),
+            (None, None) => None,
         };
         let calibration = match (&choice.stereo, calibration) {
             (Some(right_info), Some(mut calibration)) => {
@@ -291,6 +325,10 @@ impl RecordingSequence {
             .unwrap_or_else(|| "recording".into());
         let mut description = frames::Description::new(&catalog, &choice, frames.len());
         description.notes = device_stamps;
+        if let Some(recorded) = &catalog.recorded {
+            description.notes.extend(recorded.notes.iter().cloned());
+            description.cameras_from = Some(recorded.from.clone());
+        }
         description.registered = registration.is_none();
         description.depth_scale = depth_scale;
         Ok(Self {

@@ -5,8 +5,12 @@
 //! \((u \pm \tfrac12, v \pm \tfrac12)\). Both corners are undistorted with the depth
 //! camera's Brown-Conrady model, lifted to depth \(z\), moved into the colour camera by
 //! \(T_{cd}\) (`colour_from_depth`), projected and distorted with the colour camera's
-//! model; the colour pixels between the two images of the corners get the depth of the
-//! pixel centre's point in the colour camera, \(z_c = (T_{cd}\, z\, \bar x)_z\). Where
+//! model; the colour pixels whose centres lie between the two images of the corners (a
+//! half-open box, so that neighbouring footprints, which share corners, cover each centre
+//! once) get the depth of the pixel centre's point in the colour camera,
+//! \(z_c = (T_{cd}\, z\, \bar x)_z\). (`rs2::align` rounds the corners instead, which
+//! gives a centre the nearest of up to four footprints' depths: on a slanted surface, a
+//! bias of up to one pixel's depth step.) Where
 //! several depth pixels land on one colour pixel the nearest wins (a z-buffer), so a
 //! foreground edge hides the background behind it.
 
@@ -94,9 +98,11 @@ impl Registration {
                 let stride = w as usize + 1;
                 let a = self.pixel(&self.to_colour(&self.corners[v * stride + u], z));
                 let b = self.pixel(&self.to_colour(&self.corners[(v + 1) * stride + u + 1], z));
-                let round = |x: f64| (x + 0.5).floor() as i64;
-                let (x0, x1) = (round(a.x.min(b.x)).max(0), round(a.x.max(b.x)).min(cw - 1));
-                let (y0, y1) = (round(a.y.min(b.y)).max(0), round(a.y.max(b.y)).min(ch - 1));
+                // The colour pixels whose centres lie in [min, max): footprints that
+                // share corners tile the image, so each centre is covered once.
+                let first = |x: f64| x.ceil() as i64;
+                let (x0, x1) = (first(a.x.min(b.x)).max(0), (first(a.x.max(b.x)) - 1).min(cw - 1));
+                let (y0, y1) = (first(a.y.min(b.y)).max(0), (first(a.y.max(b.y)) - 1).min(ch - 1));
                 let zc = centre.z as f32;
                 for y in y0..=y1 {
                     for x in x0..=x1 {
@@ -132,6 +138,7 @@ mod tests {
             width: w,
             height: h,
             distortion,
+            rational: [0.0; 3],
         }
     }
 

@@ -306,17 +306,11 @@ fn camera_of(
             info.k
         )));
     }
-    let mut distortion = [0.0; 5];
+    let (mut distortion, mut rational) = ([0.0; 5], [0.0; 3]);
     match info.distortion_model.as_str() {
         "plumb_bob" | "rational_polynomial" | "" => {
-            for (d, v) in distortion.iter_mut().zip(&info.d) {
+            for (d, v) in distortion.iter_mut().chain(&mut rational).zip(&info.d) {
                 *d = *v;
-            }
-            if info.d.iter().skip(5).any(|v| *v != 0.0) {
-                return Err(bad(
-                    "rational_polynomial with k4-k6 set is not supported (only k1, k2, p1, p2, k3)"
-                        .into(),
-                ));
             }
         }
         other => {
@@ -336,6 +330,7 @@ fn camera_of(
             width,
             height,
             distortion,
+            rational,
         },
     ))
 }
@@ -397,16 +392,20 @@ pub fn calibration(
     images: &str,
 ) -> Result<Calibration, IoError> {
     let (_, camera) = camera_of(path, catalog, store, info)?;
-    let t = catalog.topic(images).expect("a chosen topic exists");
-    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
-    let fps = (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span);
     Ok(Calibration {
         camera,
         bf: None,
         depth_scale: None,
         th_depth: None,
-        fps,
+        fps: rate(catalog, images),
     })
+}
+
+/// The frame rate of the `images` topic's stamps (a chosen topic, with messages).
+pub fn rate(catalog: &Catalog, images: &str) -> Option<f64> {
+    let t = catalog.topic(images).expect("a chosen topic exists");
+    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
+    (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span)
 }
 
 /// The ground truth from a pose topic (`PoseStamped`, `Odometry` or `TransformStamped`):
