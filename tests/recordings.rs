@@ -81,7 +81,7 @@ fn each_writer_s_recording_tracks_as_its_folder() {
     assert!(ok, "{err}");
     assert_eq!(folder.lines().filter(|l| !l.starts_with('#')).count(), 24);
     // (name, writer options, [dataset] keys): 16-bit depth keeps the folder's 5000 per metre.
-    let cases: [(&str, &[&str], &str); 5] = [
+    let cases: [(&str, &[&str], &str); 8] = [
         ("ros1.bag", &["--format", "ros1", "--shuffle"], ""),
         (
             "ros1-bz2.bag",
@@ -112,6 +112,18 @@ fn each_writer_s_recording_tracks_as_its_folder() {
             "depth_scale = 5000.0",
         ),
         ("ros2-sqlite", &["--format", "ros2-sqlite"], ""),
+        // rosbag2's compression modes, and a bag split into files.
+        (
+            "ros2-zstd-file",
+            &["--format", "ros2-sqlite", "--compression", "zstd-file"],
+            "",
+        ),
+        (
+            "ros2-mcap-zstd-message",
+            &["--format", "ros2-mcap", "--compression", "zstd-message"],
+            "",
+        ),
+        ("ros2-split", &["--format", "ros2-sqlite", "--split", "3"], ""),
         (
             "ros2-mcap",
             &[
@@ -324,6 +336,12 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
         !ok && err.contains("not.mcap") && !err.contains("panicked"),
         "{err}"
     );
+    // A split bag missing one of the files its metadata lists: named.
+    let split = dir.join("split");
+    write(&python, &seq, &split, &["--format", "ros2-sqlite", "--split", "2"]);
+    std::fs::remove_file(split.join("split_1.db3")).unwrap();
+    let (ok, _, err) = info(&split, &[]);
+    assert!(!ok && err.contains("split_1.db3") && !err.contains("panicked"), "{err}");
     let path = dir.join("not.db3");
     std::fs::write(&path, vec![7u8; 100]).unwrap();
     let (ok, _, err) = info(&path, &[]);

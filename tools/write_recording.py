@@ -108,7 +108,10 @@ def main():
     parser.add_argument('seq', type=Path)
     parser.add_argument('out', type=Path)
     parser.add_argument('--format', choices=['ros1', 'ros2-sqlite', 'ros2-mcap'], required=True)
-    parser.add_argument('--compression', choices=['none', 'bz2', 'lz4'], default='none')
+    parser.add_argument('--compression', choices=['none', 'bz2', 'lz4', 'zstd-file', 'zstd-message'], default='none',
+                        help='bz2, lz4: ROS 1 chunks; zstd-file, zstd-message: rosbag2 compression modes')
+    parser.add_argument('--split', type=int, default=1,
+                        help='ROS 2 SQLite: split the bag into N files, as rosbag2 --max-bag-size does')
     parser.add_argument('--rgb', choices=['rgb8', 'bgr8', 'png', 'jpeg', '8UC3'], default='rgb8')
     parser.add_argument('--depth', choices=['32FC1', '16UC1', 'compressedDepth'], default='32FC1')
     parser.add_argument('--frames', type=int, default=0)
@@ -227,6 +230,10 @@ def main():
         from rosbags.rosbag2 import StoragePlugin, Writer
         plugin = StoragePlugin.MCAP if args.format == 'ros2-mcap' else StoragePlugin.SQLITE3
         writer = Writer(args.out, version=9, storage_plugin=plugin)
+        if args.compression.startswith('zstd'):
+            from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
+            mode = CompressionMode.FILE if args.compression == 'zstd-file' else CompressionMode.MESSAGE
+            writer.set_compression(mode, CompressionFormat.ZSTD)
         serialise = store.serialize_cdr
         add = lambda topic, kind: writer.add_connection(topic, kind, typestore=store)  # noqa: E731
 
@@ -259,7 +266,45 @@ def main():
                 kind = dict(topics)[topic]
                 writer.write(conns[topic], ns, serialise(msg, kind))
                 written += 1
+    if args.split > 1:
+        split(args.out, args.split)
     print(f'wrote {written} messages to {args.out}', file=sys.stderr)
+
+
+def split(bag, parts):
+    """Splits a ROS 2 SQLite bag into `parts` files as rosbag2's size or duration
+    splitting leaves them: each file with every topic and a run of the messages in time
+    order, metadata.yaml listing the files in order."""
+    import shutil
+    import sqlite3
+    from ruamel.yaml import YAML
+    yaml = YAML()
+    meta_path = bag / 'metadata.yaml'
+    meta = yaml.load(meta_path.read_text())
+    info = meta['rosbag2_bagfile_information']
+    [whole] = info['relative_file_paths']
+    with sqlite3.connect(bag / whole) as db:
+        stamps = [row[0] for row in db.execute('SELECT timestamp FROM messages ORDER BY timestamp, id')]
+    bounds = [stamps[len(stamps) * k // parts] for k in range(parts)] + [stamps[-1] + 1]
+    names, files = [], []
+    for k in range(parts):
+        name = whole.replace('.db3', f'_{k}.db3')
+        shutil.copy(bag / whole, bag / name)
+        with sqlite3.connect(bag / name) as db:
+            db.execute('DELETE FROM messages WHERE timestamp < ? OR timestamp >= ?', (bounds[k], bounds[k + 1]))
+            count = db.execute('SELECT COUNT(*) FROM messages').fetchone()[0]
+            first, last = db.execute('SELECT MIN(timestamp), MAX(timestamp) FROM messages').fetchone()
+        db.close()
+        with sqlite3.connect(bag / name) as db:
+            db.execute('VACUUM')
+        names.append(name)
+        files.append({'path': name, 'starting_time': {'nanoseconds_since_epoch': first},
+                      'duration': {'nanoseconds': last - first}, 'message_count': count})
+    (bag / whole).unlink()
+    info['relative_file_paths'] = names
+    info['files'] = files
+    with open(meta_path, 'w') as out:
+        yaml.dump(meta, out)
 
 
 if __name__ == '__main__':

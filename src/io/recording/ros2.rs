@@ -1,36 +1,286 @@
-//! ROS 2 bags: a folder with `metadata.yaml` and one storage file, SQLite 3 (`.db3`:
+//! ROS 2 bags: a folder with `metadata.yaml` and its storage files, SQLite 3 (`.db3`:
 //! tables `topics` and `messages`, what `ros2 bag record` wrote until Iron and current
 //! librealsense writes) or MCAP (`.mcap`, read with the `mcap` crate); messages are
 //! CDR. A single `.db3` or `.mcap` file opens the same way.
+//!
+//! `metadata.yaml` lists the files (`relative_file_paths`: a bag split by size or
+//! duration has several, read as one) and the compression: `compression_mode: file`
+//! compresses each storage file whole (`.db3.zstd`: decompressed to a temporary file,
+//! removed when the recording is closed), `message` each message's bytes (decompressed
+//! as they are read; the scan decompresses only a message's first bytes, its header).
 
-use std::path::Path;
+use std::io::Read;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
 
-/// Opens a ROS 2 bag folder through its one storage file.
-pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
-    let listing = std::fs::read_dir(dir).map_err(|source| IoError::Read {
-        path: dir.to_path_buf(),
-        source,
-    })?;
+/// How rosbag2 compressed a bag (`compression_mode` with `compression_format: zstd`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Compression {
+    None,
+    File,
+    Message,
+}
+
+/// The storage files and compression `metadata.yaml` gives.
+fn metadata(dir: &Path) -> Result<(Vec<PathBuf>, Compression), IoError> {
+    let path = dir.join("metadata.yaml");
+    let text = std::fs::read_to_string(&path).map_err(|e| IoError::read(&path, e))?;
+    let bad = |m: String| IoError::invalid(&path, m);
+    let docs = yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let info = &docs.first().ok_or_else(|| bad("empty".into()))?["rosbag2_bagfile_information"];
+    if info.is_badvalue() {
+        return Err(bad(
+            "no rosbag2_bagfile_information: not a ROS 2 bag's metadata".into(),
+        ));
+    }
+    let format = info["compression_format"].as_str().unwrap_or("");
+    let mode = info["compression_mode"]
+        .as_str()
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let compression = match (format, mode.as_str()) {
+        ("", _) | (_, "" | "none") => Compression::None,
+        ("zstd", "file") => Compression::File,
+        ("zstd", "message") => Compression::Message,
+        _ => {
+            return Err(bad(format!(
+                "compression {format:?} by {mode:?} is not read (zstd by file or message)"
+            )))
+        }
+    };
+    let files = match info["relative_file_paths"].as_vec() {
+        Some(list) => list
+            .iter()
+            .map(|f| f.as_str().map(|f| dir.join(f)))
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(|| {
+                bad("relative_file_paths holds something other than file names".into())
+            })?,
+        None => Vec::new(),
+    };
+    Ok((files, compression))
+}
+
+/// The storage files of a bag folder whose metadata lists none: its `.db3` or `.mcap`.
+fn listed_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+    let listing = std::fs::read_dir(dir).map_err(|e| IoError::read(dir, e))?;
     let mut files: Vec<_> = listing
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| matches!(p.extension().and_then(|e| e.to_str()), Some("db3" | "mcap")))
         .collect();
     files.sort();
-    match files.as_slice() {
-        [] => Err(IoError::invalid(
-            dir,
-            "a ROS 2 bag folder without a .db3 or .mcap file (compressed bags, .zstd files, are not read: `ros2 bag decompress` them)",
+    Ok(files)
+}
+
+/// Opens a ROS 2 bag folder through its storage files (several: read as one).
+pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    let (mut files, compression) = metadata(dir)?;
+    if files.is_empty() {
+        files = listed_files(dir)?;
+    }
+    if files.is_empty() {
+        return Err(IoError::invalid(dir, "a ROS 2 bag folder without storage files (metadata.yaml lists none, and there is no .db3 or .mcap)"));
+    }
+    let mut parts = Vec::with_capacity(files.len());
+    for file in &files {
+        super::super::errors::check_exists(file, "storage file of the bag")?;
+        parts.push(open_part(file, compression)?);
+    }
+    if parts.len() == 1 {
+        return Ok(parts.pop().expect("one part"));
+    }
+    let mut stores = Vec::with_capacity(parts.len());
+    let mut catalog: Option<Catalog> = None;
+    for (index, (store, part)) in parts.into_iter().enumerate() {
+        stores.push(store);
+        match &mut catalog {
+            None => catalog = Some(part.in_part(index)),
+            Some(all) => all.absorb(part.in_part(index)),
+        }
+    }
+    let mut catalog = catalog.expect("several parts");
+    catalog.warnings.push(format!(
+        "the bag is split into {} files, read as one",
+        stores.len()
+    ));
+    Ok((Box::new(Parts(stores)), catalog))
+}
+
+/// Opens one storage file of a bag, decompressing it as the bag says.
+fn open_part(file: &Path, compression: Compression) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    match compression {
+        Compression::File => {
+            let copy = Unpacked::decompress(file)?;
+            let (store, mut catalog) = open_file(&copy.path, Compression::None)?;
+            catalog.warnings.push(format!(
+                "{} is compressed whole: decompressed to {} for reading (removed when done)",
+                file.display(),
+                copy.path.display()
+            ));
+            Ok((Box::new(WithCopy { store, _copy: copy }), catalog))
+        }
+        _ => open_file(file, compression),
+    }
+}
+
+fn open_file(file: &Path, compression: Compression) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    match file.extension().and_then(|e| e.to_str()) {
+        Some("db3") => open_sqlite_with(file, compression),
+        Some("mcap") => open_mcap_with(file, compression),
+        _ => Err(IoError::invalid(
+            file,
+            "a bag's storage file that is neither .db3 nor .mcap",
         )),
-        [one] if one.extension().is_some_and(|e| e == "db3") => open_sqlite(one),
-        [one] => open_mcap(one),
-        many => Err(IoError::invalid(
-            dir,
-            format!("a bag split into {} files: only single-file bags are read (`ros2 bag convert` merges them)", many.len()),
-        )),
+    }
+}
+
+/// The storage files of a split bag as one store: a message of file `k` lies at
+/// [`Location`] `(a, b | k << 48)`.
+struct Parts(Vec<Box<dyn Store>>);
+
+const PART_SHIFT: u32 = 48;
+
+impl Catalog {
+    /// The catalog of the `index`-th file of a split bag: its locations marked with it.
+    fn in_part(mut self, index: usize) -> Self {
+        for topic in &mut self.topics {
+            for m in &mut topic.messages {
+                m.at = Location(m.at.0, m.at.1 | ((index as u64) << PART_SHIFT));
+            }
+        }
+        self
+    }
+
+    /// Adds the topics and messages of another file of the same bag.
+    fn absorb(&mut self, other: Catalog) {
+        for (index, count) in other.undecodable {
+            let name = &other.topics[index].name;
+            let mine = match self.topics.iter().position(|t| t.name == *name) {
+                Some(i) => i,
+                None => {
+                    self.topics.push(super::Topic {
+                        messages: Vec::new(),
+                        ..other.topics[index].clone()
+                    });
+                    self.topics.len() - 1
+                }
+            };
+            *self.undecodable.entry(mine).or_default() += count;
+        }
+        for topic in other.topics {
+            match self.topics.iter_mut().find(|t| t.name == topic.name) {
+                Some(t) => t.messages.extend(topic.messages),
+                None => self.topics.push(topic),
+            }
+        }
+        self.warnings.extend(other.warnings);
+    }
+}
+
+impl Store for Parts {
+    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+        let part = (at.1 >> PART_SHIFT) as usize;
+        let inner = Location(at.0, at.1 & ((1u64 << PART_SHIFT) - 1));
+        self.0[part].read(inner)
+    }
+}
+
+/// A storage file compressed whole, decompressed into the temporary folder; removed
+/// when dropped.
+struct Unpacked {
+    path: PathBuf,
+}
+
+impl Unpacked {
+    fn decompress(file: &Path) -> Result<Self, IoError> {
+        let name = file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(inner) = name.strip_suffix(".zstd") else {
+            return Err(IoError::invalid(
+                file,
+                "the bag says its files are compressed, but this one does not end in .zstd",
+            ));
+        };
+        static COPIES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = COPIES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!("dopslam-{}-{n}-{inner}", std::process::id()));
+        let copy = Self { path };
+        let input = std::fs::File::open(file).map_err(|e| IoError::read(file, e))?;
+        let mut output = std::fs::File::create(&copy.path).map_err(|source| IoError::Write {
+            path: copy.path.clone(),
+            source,
+        })?;
+        zstd::stream::copy_decode(input, &mut output)
+            .map_err(|e| IoError::invalid(file, format!("not readable zstd data: {e}")))?;
+        Ok(copy)
+    }
+}
+
+impl Drop for Unpacked {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// A store read from a decompressed copy, which lives as long as it.
+struct WithCopy {
+    store: Box<dyn Store>,
+    _copy: Unpacked,
+}
+
+impl Store for WithCopy {
+    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+        self.store.read(at)
+    }
+}
+
+/// A store whose messages are each zstd-compressed.
+struct Decompressing {
+    path: PathBuf,
+    store: Box<dyn Store>,
+}
+
+impl Store for Decompressing {
+    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+        let data = self.store.read(at)?;
+        zstd::decode_all(data.as_slice()).map_err(|e| {
+            IoError::invalid(
+                &self.path,
+                format!("message {at:?}: not readable zstd data: {e}"),
+            )
+        })
+    }
+}
+
+/// The first bytes of a message (enough for its header), decompressed when the bag
+/// compresses messages; `None` when they do not decompress.
+fn head(data: &[u8], compression: Compression) -> Option<std::borrow::Cow<'_, [u8]>> {
+    if compression != Compression::Message {
+        return Some(std::borrow::Cow::Borrowed(data));
+    }
+    let mut out = Vec::with_capacity(512);
+    zstd::stream::read::Decoder::new(data)
+        .ok()?
+        .take(512)
+        .read_to_end(&mut out)
+        .ok()?;
+    Some(std::borrow::Cow::Owned(out))
+}
+
+/// `store` with its messages decompressed when the bag compresses them.
+fn decompressed(path: &Path, store: Box<dyn Store>, compression: Compression) -> Box<dyn Store> {
+    if compression == Compression::Message {
+        Box::new(Decompressing {
+            path: path.to_path_buf(),
+            store,
+        })
+    } else {
+        store
     }
 }
 
@@ -42,6 +292,13 @@ struct Sqlite {
 
 /// Opens a `.db3` file.
 pub fn open_sqlite(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    open_sqlite_with(path, Compression::None)
+}
+
+fn open_sqlite_with(
+    path: &Path,
+    compression: Compression,
+) -> Result<(Box<dyn Store>, Catalog), IoError> {
     let bad = |e: rusqlite::Error| {
         IoError::invalid(path, format!("not a readable ROS 2 SQLite bag: {e}"))
     };
@@ -84,10 +341,11 @@ pub fn open_sqlite(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
                 .map_err(bad)?
                 .as_blob()
                 .map_err(|e| bad(e.into()))?;
+            let data = head(data, compression).unwrap_or_default();
             catalog.add_message(
                 topic as u64,
                 Location(id as u64, 0),
-                data,
+                &data,
                 time as f64 / 1e9,
             );
         }
@@ -96,7 +354,7 @@ pub fn open_sqlite(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         path: path.to_path_buf(),
         connection: Mutex::new(connection),
     };
-    Ok((Box::new(store), catalog))
+    Ok((decompressed(path, Box::new(store), compression), catalog))
 }
 
 impl Store for Sqlite {
@@ -125,6 +383,13 @@ struct Mcap {
 
 /// Opens a `.mcap` file.
 pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
+    open_mcap_with(path, Compression::None)
+}
+
+fn open_mcap_with(
+    path: &Path,
+    compression: Compression,
+) -> Result<(Box<dyn Store>, Catalog), IoError> {
     let file = std::fs::File::open(path).map_err(|source| IoError::Read {
         path: path.to_path_buf(),
         source,
@@ -160,10 +425,11 @@ pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
     for (i, index) in summary.chunk_indexes.iter().enumerate() {
         for (n, message) in summary.stream_chunk(&map, index).map_err(bad)?.enumerate() {
             let message = message.map_err(bad)?;
+            let data = head(&message.data, compression).unwrap_or_default();
             catalog.add_message(
                 message.channel.id,
                 Location(i as u64, n as u64),
-                &message.data,
+                &data,
                 message.log_time as f64 / 1e9,
             );
         }
@@ -175,7 +441,7 @@ pub fn open_mcap(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         summary,
         cache: Mutex::new(None),
     };
-    Ok((Box::new(store), catalog))
+    Ok((decompressed(path, Box::new(store), compression), catalog))
 }
 
 /// Drops the pages of chunk `index` from the process's memory (they are read again
