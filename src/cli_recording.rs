@@ -61,7 +61,7 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
         } else {
             format!(
                 "in its own camera: registered into the colour camera by {}",
-                d.cameras_from.as_deref().unwrap_or("/tf_static")
+                d.registered_by.as_deref().unwrap_or("?")
             )
         };
         println!(

@@ -23,14 +23,26 @@ fn write(python: &Path, seq: &Path, out: &Path, options: &[&str]) {
 
 /// Runs the writer `tools/SCRIPT SEQ OUT OPTIONS...` and checks that it succeeded.
 fn run_writer(python: &Path, script: &str, seq: &Path, out: &Path, options: &[&str]) {
+    run_writer_with(python, script, seq, out, options, None);
+}
+
+/// [`run_writer`] with `pythonpath` first on the writer's `PYTHONPATH` (an older
+/// package installed beside the venv's).
+fn run_writer_with(
+    python: &Path,
+    script: &str,
+    seq: &Path,
+    out: &Path,
+    options: &[&str],
+    pythonpath: Option<&Path>,
+) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools").join(script);
-    let output = std::process::Command::new(python)
-        .arg(script)
-        .arg(seq)
-        .arg(out)
-        .args(options)
-        .output()
-        .unwrap();
+    let mut command = std::process::Command::new(python);
+    command.arg(script).arg(seq).arg(out).args(options);
+    if let Some(dir) = pythonpath {
+        command.env("PYTHONPATH", dir);
+    }
+    let output = command.output().unwrap();
     assert!(
         output.status.success(),
         "{}",
@@ -472,6 +484,27 @@ fn a_realsense_recording_is_registered_into_the_colour_camera() {
     assert!(share >= 0.99, "{share}");
     // The depth camera's narrower view ((535/570)^2 = 0.88 of the colour image) bounds it.
     assert!(coverage >= 0.85, "{coverage}");
+    // librealsense before 2.56 (pyrealsense2 2.55, which tools/test.sh installs beside
+    // the venv's) writes a ROS 1 bag: its own camera infos, Float32 depth unit, tf topics.
+    let old = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/pyrealsense2-2.55");
+    if !old.join("pyrealsense2").is_dir() {
+        assert!(
+            std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
+            "{test}: {} is missing (tools/test.sh installs pyrealsense2 2.55 there)",
+            old.display()
+        );
+        eprintln!("skipping the librealsense 2.55 bag: no {}", old.display());
+        return;
+    }
+    let bag = dir.join("realsense-2.55.bag");
+    run_writer_with(&python, "write_realsense.py", &seq, &bag, &[], Some(&old));
+    assert_eq!(&std::fs::read(&bag).unwrap()[..13], b"#ROSBAG V2.0\n", "a ROS 1 bag");
+    let (share, coverage) = registered_depth_against_truth(&bag, &seq, true);
+    assert!(share >= 0.99 && coverage >= 0.85, "{share} {coverage}");
+    let (ok, folder, err) = track(&seq, &dir.join("out-folder"), "");
+    assert!(ok, "{err}");
+    let (ok, trajectory, err) = track(&bag, &dir.join("out-bag"), "");
+    assert!(ok && trajectory.lines().count() == folder.lines().count(), "{err}");
 }
 
 /// [`DEPTH_CAMERA_PRESET`] with an Azure Kinect's depth camera: 640x576 (NFOV unbinned),

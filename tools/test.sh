@@ -28,6 +28,10 @@ if [ ${#test_apt[@]} -gt 0 ] && [ "$(id -u)" = 0 ]; then
 fi
 { [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
 data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" "rerun-sdk[datafusion]==0.36.3" pillow numpy
+# librealsense before 2.56 wrote ROS 1 bags: its Python package beside the venv's, for
+# the test that reads such a recording.
+[ -d data/pyrealsense2-2.55/pyrealsense2 ] \
+    || data/venv/bin/pip install -q --target data/pyrealsense2-2.55 "pyrealsense2==2.55.1.6486"
 export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 # The tests write their synthetic sequences under one temporary folder of this run,
 # removed when the run ends, however it ends (each test also removes its own).

@@ -5,8 +5,10 @@ RealSense recording, with librealsense's own recorder (`pyrealsense2`:
 rgb/, the depth stream (Z16, 1 mm units) from depth_camera/ in the depth camera's own
 geometry, both streams' intrinsics, and the depth-to-colour extrinsics.
 
-librealsense 2.56 and later write a ROS 2 SQLite file (OUT must end in .db3). The tests
-(tests/recordings.rs) make their fixtures with it; dopslam never runs it.
+librealsense 2.56 and later write a ROS 2 SQLite file (OUT must end in .db3); earlier
+versions write a ROS 1 bag (run it with pyrealsense2 2.55 first on PYTHONPATH, OUT.bag),
+as users' older recordings are. The tests (tests/recordings.rs) make their fixtures with
+it; dopslam never runs it.
 
     write_realsense.py SEQ OUT.db3 [--frames N]
 """

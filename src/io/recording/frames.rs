@@ -320,6 +320,8 @@ pub struct Description {
     pub depth_scale: f64,
     /// Where the cameras come from when not from topics (`calibration.json`).
     pub cameras_from: Option<String>,
+    /// Where the transform that registers the depth came from.
+    pub registered_by: Option<String>,
 }
 
 impl Description {
@@ -351,6 +353,7 @@ impl Description {
             registered: true,
             depth_scale: 1000.0,
             cameras_from: None,
+            registered_by: None,
         }
     }
 }

@@ -184,6 +184,19 @@ pub fn transforms(data: &[u8], wire: Wire) -> Result<Vec<Transform>, DecodeError
         .collect()
 }
 
+/// Decodes a `geometry_msgs/Transform`: the translation and the rotation \((x, y, z, w)\).
+pub fn transform(data: &[u8], wire: Wire) -> Result<([f64; 3], [f64; 4]), DecodeError> {
+    let mut c = Cursor::new(data, wire)?;
+    Ok((c.f64s::<3>("translation")?, c.f64s::<4>("rotation")?))
+}
+
+/// Decodes a `std_msgs/Float32`.
+pub fn float32(data: &[u8], wire: Wire) -> Result<f32, DecodeError> {
+    let mut c = Cursor::new(data, wire)?;
+    let bits = c.u32("data")?;
+    Ok(f32::from_bits(bits))
+}
+
 /// The pose types a ground-truth topic may carry.
 pub const POSE_TYPES: [&str; 3] = [
     "geometry_msgs/PoseStamped",

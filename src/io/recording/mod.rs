@@ -269,9 +269,13 @@ impl RecordingSequence {
         let device_stamps = realsense::device_stamps(&mut catalog, store.as_ref())?;
         let choice = topics::choose(path, &catalog, store.as_ref(), &options.topics)?;
         let registration = match &catalog.recorded {
-            Some(c) => Some(register::Registration::new(&c.depth, &c.colour, c.colour_from_depth)),
+            Some(c) => Some((
+                register::Registration::new(&c.depth, &c.colour, c.colour_from_depth),
+                c.from.clone(),
+            )),
             None => topics::registration(path, &catalog, store.as_ref(), &choice)?,
         };
+        let (registration, registered_by) = registration.unzip();
         let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
         let ground_truth = match &options.topics.ground_truth {
             Some(topic) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
@@ -330,6 +334,7 @@ impl RecordingSequence {
             description.cameras_from = Some(recorded.from.clone());
         }
         description.registered = registration.is_none();
+        description.registered_by = registered_by;
         description.depth_scale = depth_scale;
         Ok(Self {
             name,

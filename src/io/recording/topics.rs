@@ -12,7 +12,7 @@ use std::path::Path;
 use super::messages::{self, Wire};
 use super::register::Registration;
 use super::{tf, Catalog, Store, Topic, CAMERA_INFO, COMPRESSED, IMAGE};
-use nalgebra::{Quaternion, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -307,15 +307,19 @@ fn camera_of(
         )));
     }
     let (mut distortion, mut rational) = ([0.0; 5], [0.0; 3]);
+    // librealsense's own recordings name its models ("Brown Conrady", ...).
+    let none = info.d.iter().all(|&k| k == 0.0);
     match info.distortion_model.as_str() {
-        "plumb_bob" | "rational_polynomial" | "" => {
+        "plumb_bob" | "rational_polynomial" | "" | "Brown Conrady" | "None" => {
             for (d, v) in distortion.iter_mut().chain(&mut rational).zip(&info.d) {
                 *d = *v;
             }
         }
+        _ if none => {}
         other => {
             return Err(bad(format!(
-                "distortion model {other:?} is not supported (plumb_bob, rational_polynomial)"
+                "distortion model {other:?} with coefficients {:?} is not supported (plumb_bob, rational_polynomial, librealsense's Brown Conrady)",
+                info.d
             )))
         }
     }
@@ -338,13 +342,15 @@ fn camera_of(
 /// How the chosen depth reaches the colour camera: `None` when it is registered
 /// already (one camera info for both, one frame, or the same intrinsics and no
 /// transform or an identity between the frames, as TUM's bags); else the
-/// [`Registration`] by the `/tf_static` transform between the two cameras' frames.
+/// [`Registration`] by the `/tf_static` transform between the two cameras' frames (or,
+/// in librealsense's ROS 1 bags, the streams' `tf/<k>` topics), with where the
+/// transform came from.
 pub fn registration(
     path: &Path,
     catalog: &Catalog,
     store: &dyn Store,
     chosen: &Chosen,
-) -> Result<Option<Registration>, IoError> {
+) -> Result<Option<(Registration, String)>, IoError> {
     if chosen.stereo.is_some() {
         return Ok(None);
     }
@@ -358,19 +364,35 @@ pub fn registration(
     }
     let (c, colour) = camera_of(path, catalog, store, colour_info)?;
     let (d, depth) = camera_of(path, catalog, store, &depth_info)?;
-    if c.frame == d.frame {
-        return Ok(None);
-    }
     let same_intrinsics = (c.width, c.height) == (d.width, d.height)
         && c.k
             .iter()
             .zip(&d.k)
             .all(|(a, b)| (a - b).abs() <= 1e-6 * a.abs().max(1.0))
         && c.d == d.d;
+    let identity =
+        |t: &Isometry3<f64>| t.translation.vector.norm() < 1e-9 && t.rotation.angle() < 1e-9;
+    // librealsense before 2.56: camera infos without frames, extrinsics on tf/<k> topics.
+    if let Some(colour_from_depth) =
+        super::realsense::stream_extrinsics(catalog, store, &chosen.colour, &chosen.depth)?
+    {
+        return Ok(
+            (!(same_intrinsics && identity(&colour_from_depth))).then(|| {
+                let by = "the streams' tf topics (librealsense before 2.56)".to_owned();
+                (Registration::new(&depth, &colour, colour_from_depth), by)
+            }),
+        );
+    }
+    if c.frame == d.frame {
+        return Ok(None);
+    }
     let transforms = tf::static_transforms(path, catalog, store)?;
     match tf::between(&transforms, &c.frame, &d.frame) {
-        Some(t) if same_intrinsics && t.translation.vector.norm() < 1e-9 && t.rotation.angle() < 1e-9 => Ok(None),
-        Some(colour_from_depth) => Ok(Some(Registration::new(&depth, &colour, colour_from_depth))),
+        Some(t) if same_intrinsics && identity(&t) => Ok(None),
+        Some(colour_from_depth) => Ok(Some((
+            Registration::new(&depth, &colour, colour_from_depth),
+            "/tf_static".to_owned(),
+        ))),
         None if same_intrinsics => Ok(None),
         None => Err(IoError::invalid(
             path,
