@@ -27,6 +27,10 @@ pub struct TopicArgs {
     /// the trajectory against.
     #[arg(long)]
     pub ground_truth_topic: Option<String>,
+    /// A TUM trajectory file to evaluate a recording's run against (a recording without
+    /// a pose topic).
+    #[arg(long, value_name = "FILE")]
+    pub ground_truth: Option<std::path::PathBuf>,
 }
 
 impl TopicArgs {
@@ -38,6 +42,9 @@ impl TopicArgs {
             camera_info: self.camera_info_topic.clone(),
             ground_truth: self.ground_truth_topic.clone(),
         });
+        if self.ground_truth.is_some() {
+            config.dataset.ground_truth_file.clone_from(&self.ground_truth);
+        }
     }
 }
 

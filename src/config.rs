@@ -90,6 +90,9 @@ pub struct DatasetConfig {
     /// A recording's pose topic to read as the ground truth (`PoseStamped`,
     /// `Odometry`, `TransformStamped`); unset: none.
     pub ground_truth_topic: Option<String>,
+    /// A TUM trajectory file to evaluate a recording's run against, for a recording
+    /// that carries no pose topic (relative paths: from the config's folder).
+    pub ground_truth_file: Option<PathBuf>,
     /// What applying `settings` did (set by [`Config::apply_orbslam_settings`]).
     #[serde(skip)]
     pub settings_applied: Option<SettingsApplied>,
@@ -137,6 +140,7 @@ impl DatasetConfig {
             topics: self.topics(),
             depth_scale: self.depth_scale,
             max_difference: self.max_difference,
+            ground_truth_file: self.ground_truth_file.clone(),
         }
     }
 }
@@ -153,6 +157,7 @@ impl Default for DatasetConfig {
             depth_topic: None,
             camera_info_topic: None,
             ground_truth_topic: None,
+            ground_truth_file: None,
             settings_applied: None,
         }
     }
@@ -322,7 +327,8 @@ impl Config {
     }
 
     /// Takes the config's relative file paths from `base`, the folder of the config
-    /// file (as a synth preset's are): `[dataset] settings`, `[detector] model_path`,
+    /// file (as a synth preset's are): `[dataset] settings`, `ground_truth_file`,
+    /// `[detector] model_path`,
     /// `model_paths`, each pool entry's `path`, `ort_library`, `cache_dir` and
     /// `[global] vocabulary`. `[dataset] association_file` stays relative to the
     /// sequence folder, where such files live.
@@ -335,6 +341,7 @@ impl Config {
         let detector = &mut self.detector;
         let optional = [
             &mut self.dataset.settings,
+            &mut self.dataset.ground_truth_file,
             &mut detector.model_path,
             &mut detector.ort_library,
             &mut detector.cache_dir,

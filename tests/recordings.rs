@@ -551,8 +551,22 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
     // The run takes its cameras from the recording and tracks as the folder does.
     let (ok, folder, err) = track(&seq, &dir.join("out-folder"), "");
     assert!(ok, "{err}");
-    let (ok, trajectory, err) = track(&recording, &dir.join("out-mkv"), "");
+    // The ground truth from a TUM file (the recording has no pose topic).
+    let truth = format!("ground_truth_file = {:?}", seq.join("groundtruth.txt"));
+    let (ok, trajectory, err) = track(&recording, &dir.join("out-mkv"), &truth);
     assert!(ok, "{err}");
+    let ate = |out: &str| -> f64 {
+        let report = std::fs::read_to_string(dir.join(out).join("report.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&report).unwrap()["ate"]["ape"]["statistics"]
+            ["rmse"]
+            .as_f64()
+            .unwrap_or(f64::NAN)
+    };
+    let (a, b) = (ate("out-folder"), ate("out-mkv"));
+    assert!(a > 0.0 && (a - b).abs() < 0.002, "{a} {b}");
+    let both = format!("{truth}\nground_truth_topic = \"/mocap\"");
+    let (ok, _, err) = track(&recording, &dir.join("out-both"), &both);
+    assert!(!ok && err.contains("choose one"), "{err}");
     let positions = |t: &str| -> Vec<[f64; 3]> {
         t.lines()
             .filter(|l| !l.starts_with('#'))

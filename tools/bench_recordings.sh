@@ -5,9 +5,11 @@
 # `dopslam info --read-frames` (frames/s, peak memory), beside the TUM folder reader and
 # the Python rosbags reader (AnyReader, every colour and depth message deserialised
 # into a numpy image) on the same files; and the tracking rate of the same sequence
-# (`dopslam run --no-dense`, median tracking time per frame). Then a recording REPEAT
-# times as long (the frames written again with new stamps) read with the same peak
-# memory (streaming). Writes rows.jsonl and table.md under OUT.
+# (`dopslam run --no-dense`, median tracking time per frame). Also rosbag2's message
+# compression, a bag split in three, and Azure Kinect .mkv files (BGRA and MJPEG colour,
+# depth registered on reading) of the same room. Then a recording REPEAT times as long
+# (the frames written again with new stamps) read with the same peak memory
+# (streaming; --repeat 1 leaves it out). Writes rows.jsonl and table.md under OUT.
 #
 #   bash tools/bench_recordings.sh [--frames N] [--repeat K] [--out DIR]
 #   DOPSLAM_TEST_PYTHON=/path/to/python  (with rosbags, numpy, pillow; default data/venv)
@@ -69,7 +71,9 @@ EOF
 
 rate_of folder "$seq"
 for variant in "ros1:--format ros1" "ros1-lz4:--format ros1 --compression lz4" \
-               "ros2-mcap:--format ros2-mcap" "ros2-sqlite:--format ros2-sqlite"; do
+               "ros2-mcap:--format ros2-mcap" "ros2-sqlite:--format ros2-sqlite" \
+               "ros2-mcap-zstd-message:--format ros2-mcap --compression zstd-message" \
+               "ros2-sqlite-split-3:--format ros2-sqlite --split 3"; do
   label=${variant%%:*}
   target=$work/$label
   case $label in ros1*) target=$target.bag ;; esac
@@ -79,17 +83,36 @@ for variant in "ros1:--format ros1" "ros1-lz4:--format ros1 --compression lz4" \
   python_rate "$label" "$target"
 done
 
+# Azure Kinect recordings of the same room (depth rendered by its own 640x576 camera,
+# 32 mm beside the colour one, registered on reading; ffmpeg muxes them).
+if command -v ffmpeg >/dev/null 2>&1; then
+  { cat configs/synth/static_room.toml
+    printf '\n[depth_camera]\noffset = [0.032, 0.002, 0.004]\n[depth_camera.camera]\n'
+    printf 'fx = 504.0\nfy = 504.5\ncx = 321.5\ncy = 330.0\nwidth = 640\nheight = 576\n'; } > "$work/kinect.toml"
+  $dopslam synth --config "$work/kinect.toml" --frames "$frames" --out "$work/kinect-seq" >/dev/null
+  for colour in bgra mjpeg; do
+    "$py" tools/write_kinect.py "$work/kinect-seq" "$work/kinect-$colour.mkv" --colour "$colour" 2>/dev/null
+    rate_of "azure-kinect-$colour" "$work/kinect-$colour.mkv"
+  done
+  rm -rf "$work/kinect-seq"
+else
+  echo "no ffmpeg: the Azure Kinect rows are left out" >&2
+fi
+
 # The tracking rate of the same frames (no detector: the fastest the tracker goes).
 $dopslam run "$seq" --no-dense --no-global --detections none --out "$work/run" > "$work/run.log" 2>&1
 grep -o "median [0-9.]* ms" "$work/run.log" | head -1 | awk '{ print "{\"reader\": \"tracking\", \"ms\": " $2 ", \"fps\": " 1000 / $2 "}" }' \
   | tee -a "$out/rows.jsonl"
 
 # A recording REPEAT times as long: the same peak memory when reading streams.
+[ "$repeat" -gt 1 ] || { echo "--repeat 1: the long recordings are left out" >&2; skip_long=1; }
+[ -n "${skip_long:-}" ] || {
 "$py" tools/write_recording.py "$seq" "$work/long" --format ros2-mcap --repeat "$repeat" 2>/dev/null
 rate_of "ros2-mcap-x$repeat" "$work/long"
 rm -rf "$work/long"
 "$py" tools/write_recording.py "$seq" "$work/long.bag" --format ros1 --repeat "$repeat" 2>/dev/null
 rate_of "ros1-x$repeat" "$work/long.bag"
+}
 
 "$py" - "$out" <<'EOF'
 import json, sys

@@ -194,7 +194,7 @@ pub struct SequenceEntry {
     /// The name in tables (default: the folder's or the preset's name, with `-s<seed>`).
     pub name: Option<String>,
     /// A sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS 1
-    /// `.bag`, ROS 2 bag folder, `.mcap`, `.db3`).
+    /// `.bag`, ROS 2 bag folder, `.mcap`, `.db3`, `.mkv`).
     pub path: Option<PathBuf>,
     /// A glob of sequence folders or recordings (`*`, `?`, `[...]`; `lab/*.bag`), each
     /// its own sequence.
@@ -605,7 +605,7 @@ mod tests {
     fn a_glob_takes_recordings_and_their_topics() {
         let dir = std::env::temp_dir().join(format!("dopslam-glob-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("folder")).unwrap();
-        for file in ["a.bag", "b.mcap", "notes.txt"] {
+        for file in ["a.bag", "b.mcap", "c.mkv", "notes.txt"] {
             std::fs::write(dir.join(file), "x").unwrap();
         }
         let pattern = dir.join("*").to_string_lossy().into_owned();
@@ -615,7 +615,7 @@ mod tests {
         .unwrap();
         let planned = m.plan().unwrap();
         let names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
-        assert_eq!(names, ["a", "b", "folder"], "the text file is no sequence");
+        assert_eq!(names, ["a", "b", "c", "folder"], "the text file is no sequence");
         let dataset = &planned[0].config.dataset;
         assert_eq!(dataset.rgb_topic.as_deref(), Some("/cam/rgb"));
         assert_eq!(dataset.ground_truth_topic.as_deref(), Some("/mocap"));

@@ -204,6 +204,8 @@ pub struct RecordingOptions {
     pub depth_scale: Option<f64>,
     /// Tolerance in seconds for pairing colour and depth stamps.
     pub max_difference: f64,
+    /// A TUM trajectory file as the ground truth (for a recording without a pose topic).
+    pub ground_truth_file: Option<PathBuf>,
 }
 
 /// Whether `path` looks like a recording rather than a sequence folder.
@@ -277,9 +279,16 @@ impl RecordingSequence {
         };
         let (registration, registered_by) = registration.unzip();
         let recorded_scale = realsense::depth_scale(&catalog, store.as_ref())?;
-        let ground_truth = match &options.topics.ground_truth {
-            Some(topic) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
-            None => None,
+        let ground_truth = match (&options.topics.ground_truth, &options.ground_truth_file) {
+            (Some(topic), Some(file)) => {
+                return Err(IoError::invalid(
+                    file,
+                    format!("the ground truth is given twice, as this file and as topic {topic}: choose one"),
+                ))
+            }
+            (Some(topic), None) => Some(topics::ground_truth(path, &catalog, store.as_ref(), topic)?),
+            (None, Some(file)) => Some(Trajectory::read_tum(file)?),
+            (None, None) => None,
         };
         let depth_scale = options.depth_scale.or(recorded_scale).unwrap_or(1000.0);
         if !(depth_scale.is_finite() && depth_scale > 0.0) {
