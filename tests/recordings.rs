@@ -36,7 +36,9 @@ fn run_writer_with(
     options: &[&str],
     pythonpath: Option<&Path>,
 ) {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools").join(script);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tools")
+        .join(script);
     let mut command = std::process::Command::new(python);
     command.arg(script).arg(seq).arg(out).args(options);
     if let Some(dir) = pythonpath {
@@ -135,7 +137,11 @@ fn each_writer_s_recording_tracks_as_its_folder() {
             &["--format", "ros2-mcap", "--compression", "zstd-message"],
             "",
         ),
-        ("ros2-split", &["--format", "ros2-sqlite", "--split", "3"], ""),
+        (
+            "ros2-split",
+            &["--format", "ros2-sqlite", "--split", "3"],
+            "",
+        ),
         (
             "ros2-mcap",
             &[
@@ -350,10 +356,18 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
     );
     // A split bag missing one of the files its metadata lists: named.
     let split = dir.join("split");
-    write(&python, &seq, &split, &["--format", "ros2-sqlite", "--split", "2"]);
+    write(
+        &python,
+        &seq,
+        &split,
+        &["--format", "ros2-sqlite", "--split", "2"],
+    );
     std::fs::remove_file(split.join("split_1.db3")).unwrap();
     let (ok, _, err) = info(&split, &[]);
-    assert!(!ok && err.contains("split_1.db3") && !err.contains("panicked"), "{err}");
+    assert!(
+        !ok && err.contains("split_1.db3") && !err.contains("panicked"),
+        "{err}"
+    );
     let path = dir.join("not.db3");
     std::fs::write(&path, vec![7u8; 100]).unwrap();
     let (ok, _, err) = info(&path, &[]);
@@ -405,7 +419,10 @@ fn python_has(python: &Path, module: &str, test: &str) -> bool {
         std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
         "{test}: {module} is missing"
     );
-    eprintln!("skipping {test}: {} cannot import {module}", python.display());
+    eprintln!(
+        "skipping {test}: {} cannot import {module}",
+        python.display()
+    );
     false
 }
 
@@ -448,7 +465,10 @@ fn registered_depth_against_truth(recording: &Path, seq: &Path, exact_colour: bo
         );
         let colour = read_rgb(&seq.join(name)).unwrap();
         if exact_colour {
-            assert_eq!(rgb, colour, "frame {index}: the colour image, channels in order");
+            assert_eq!(
+                rgb, colour,
+                "frame {index}: the colour image, channels in order"
+            );
         }
         let truth = read_depth(&seq.join(name.replace("rgb/", "depth/")), 5000.0).unwrap();
         for (r, t) in depth.metres.iter().zip(&truth.metres) {
@@ -474,10 +494,7 @@ fn a_realsense_recording_is_registered_into_the_colour_camera() {
         return;
     }
     let dir = common::temp_dir("recordings-realsense");
-    let preset = dir.join("preset.toml");
-    std::fs::write(&preset, DEPTH_CAMERA_PRESET).unwrap();
-    let seq = dir.join("seq");
-    common::synth_preset(&preset, &seq, 6);
+    let seq = preset_sequence(&dir, DEPTH_CAMERA_PRESET);
     let recording = dir.join("realsense.db3");
     run_writer(&python, "write_realsense.py", &seq, &recording, &[]);
     let (share, coverage) = registered_depth_against_truth(&recording, &seq, true);
@@ -498,21 +515,43 @@ fn a_realsense_recording_is_registered_into_the_colour_camera() {
     }
     let bag = dir.join("realsense-2.55.bag");
     run_writer_with(&python, "write_realsense.py", &seq, &bag, &[], Some(&old));
-    assert_eq!(&std::fs::read(&bag).unwrap()[..13], b"#ROSBAG V2.0\n", "a ROS 1 bag");
+    assert_eq!(
+        &std::fs::read(&bag).unwrap()[..13],
+        b"#ROSBAG V2.0\n",
+        "a ROS 1 bag"
+    );
     let (share, coverage) = registered_depth_against_truth(&bag, &seq, true);
     assert!(share >= 0.99 && coverage >= 0.85, "{share} {coverage}");
     let (ok, folder, err) = track(&seq, &dir.join("out-folder"), "");
     assert!(ok, "{err}");
     let (ok, trajectory, err) = track(&bag, &dir.join("out-bag"), "");
-    assert!(ok && trajectory.lines().count() == folder.lines().count(), "{err}");
+    assert!(
+        ok && trajectory.lines().count() == folder.lines().count(),
+        "{err}"
+    );
+}
+
+/// The 6 frames of the synth preset `text`, written under `dir` (`seq`).
+fn preset_sequence(dir: &Path, text: &str) -> PathBuf {
+    let preset = dir.join("preset.toml");
+    std::fs::write(&preset, text).unwrap();
+    let seq = dir.join("seq");
+    common::synth_preset(&preset, &seq, 6);
+    seq
 }
 
 /// [`DEPTH_CAMERA_PRESET`] with an Azure Kinect's depth camera: 640x576 (NFOV unbinned),
 /// 32 mm beside the colour camera and a little behind it.
 fn kinect_preset() -> String {
     DEPTH_CAMERA_PRESET
-        .replace("offset = [0.025, 0.0, 0.0]", "offset = [0.032, 0.002, 0.004]")
-        .replace("fx = 570.0\nfy = 570.0\ncx = 318.5\ncy = 242.5", "fx = 504.0\nfy = 504.5\ncx = 321.5\ncy = 330.0")
+        .replace(
+            "offset = [0.025, 0.0, 0.0]",
+            "offset = [0.032, 0.002, 0.004]",
+        )
+        .replace(
+            "fx = 570.0\nfy = 570.0\ncx = 318.5\ncy = 242.5",
+            "fx = 504.0\nfy = 504.5\ncx = 321.5\ncy = 330.0",
+        )
         .replace("height = 480", "height = 576")
 }
 
@@ -522,7 +561,9 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
     let Some(python) = writer_python(test) else {
         return;
     };
-    let ffmpeg = std::process::Command::new("ffmpeg").arg("-version").output();
+    let ffmpeg = std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output();
     if !ffmpeg.is_ok_and(|o| o.status.success()) {
         assert!(
             std::env::var_os("DOPSLAM_REQUIRE_RECORDING_WRITERS").is_none(),
@@ -532,12 +573,9 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
         return;
     }
     let dir = common::temp_dir("recordings-kinect");
-    let preset = dir.join("preset.toml");
     let text = kinect_preset();
     assert!(text.contains("height = 576") && text.contains("fx = 504.0"));
-    std::fs::write(&preset, text).unwrap();
-    let seq = dir.join("seq");
-    common::synth_preset(&preset, &seq, 6);
+    let seq = preset_sequence(&dir, &text);
     let recording = dir.join("kinect.mkv");
     run_writer(&python, "write_kinect.py", &seq, &recording, &[]);
     let (share, coverage) = registered_depth_against_truth(&recording, &seq, true);
@@ -545,7 +583,13 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
     assert!(coverage >= 0.85, "{coverage}");
     // MJPEG colour reads too (lossy: the colour is not compared).
     let mjpeg = dir.join("kinect-mjpeg.mkv");
-    run_writer(&python, "write_kinect.py", &seq, &mjpeg, &["--colour", "mjpeg"]);
+    run_writer(
+        &python,
+        "write_kinect.py",
+        &seq,
+        &mjpeg,
+        &["--colour", "mjpeg"],
+    );
     let (share, _) = registered_depth_against_truth(&mjpeg, &seq, false);
     assert!(share >= 0.99, "{share}");
     // The run takes its cameras from the recording and tracks as the folder does.
@@ -583,7 +627,10 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
         .zip(&b)
         .map(|(p, q)| (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f64>().sqrt())
         .fold(0.0, f64::max);
-    eprintln!("Azure Kinect recording vs folder: positions differ by at most {:.2} mm", worst * 1e3);
+    eprintln!(
+        "Azure Kinect recording vs folder: positions differ by at most {:.2} mm",
+        worst * 1e3
+    );
     assert!(worst < 0.002, "{worst} m");
     // Cut in the middle of a frame: the frames before the cut are read, saying where.
     let bytes = std::fs::read(&recording).unwrap();
@@ -592,15 +639,24 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
     let (ok, out, err) = info(&cut, &[]);
     assert!(ok, "{err}");
     let text = format!("{out}{err}");
-    assert!(text.contains("cut short") && text.contains("byte"), "{text}");
+    assert!(
+        text.contains("cut short") && text.contains("byte"),
+        "{text}"
+    );
     // Without its calibration attachment: named, no work done.
     let mut renamed = bytes.clone();
-    let at = renamed.windows(16).position(|w| w == b"calibration.json").unwrap();
+    let at = renamed
+        .windows(16)
+        .position(|w| w == b"calibration.json")
+        .unwrap();
     renamed[at..at + 16].copy_from_slice(b"calibratiom.json");
     let no_calibration = dir.join("no-calibration.mkv");
     std::fs::write(&no_calibration, &renamed).unwrap();
     let (ok, _, err) = info(&no_calibration, &[]);
-    assert!(!ok && err.contains("calibration.json") && !err.contains("panicked"), "{err}");
+    assert!(
+        !ok && err.contains("calibration.json") && !err.contains("panicked"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -218,6 +218,8 @@ pub struct SequenceEntry {
     pub camera_info_topic: Option<String>,
     /// The recording's ground-truth pose topic.
     pub ground_truth_topic: Option<String>,
+    /// A TUM trajectory as the recording's ground truth (relative to the manifest).
+    pub ground_truth_file: Option<PathBuf>,
     /// A `dopslam` config for this sequence's runs (instead of `[batch] config`).
     pub config: Option<PathBuf>,
     /// Its modes (else the batch's).
@@ -413,6 +415,9 @@ impl Manifest {
             camera_info: entry.camera_info_topic.clone(),
             ground_truth: entry.ground_truth_topic.clone(),
         });
+        if let Some(file) = &entry.ground_truth_file {
+            config.dataset.ground_truth_file = Some(absolute(&self.resolve(file)));
+        }
         if let Some(source) = entry.detections.or(self.batch.detections) {
             config.detector.source = source;
         }
@@ -610,7 +615,7 @@ mod tests {
         }
         let pattern = dir.join("*").to_string_lossy().into_owned();
         let m = parse(&format!(
-            "[[sequence]]\nglob = {pattern:?}\nrgb_topic = \"/cam/rgb\"\nground_truth_topic = \"/mocap\"\n"
+            "[[sequence]]\nglob = {pattern:?}\nrgb_topic = \"/cam/rgb\"\nground_truth_topic = \"/mocap\"\nground_truth_file = \"gt.txt\"\n"
         ))
         .unwrap();
         let planned = m.plan().unwrap();
@@ -619,6 +624,8 @@ mod tests {
         let dataset = &planned[0].config.dataset;
         assert_eq!(dataset.rgb_topic.as_deref(), Some("/cam/rgb"));
         assert_eq!(dataset.ground_truth_topic.as_deref(), Some("/mocap"));
+        let file = dataset.ground_truth_file.as_ref().unwrap();
+        assert!(file.is_absolute() && file.ends_with("gt.txt"), "{file:?}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 }
