@@ -28,9 +28,9 @@ pub use messages::Wire;
 pub use topics::TopicChoice;
 
 use super::orbslam_settings::Calibration;
-use crate::geometry::camera::PinholeCamera;
 use super::sequence::{Frame, FrameImages, SensorKind, Sequence};
 use super::{IoError, Trajectory};
+use crate::geometry::camera::PinholeCamera;
 
 /// Where a message lies in its store: two numbers whose meaning is the store's (a ROS 1
 /// chunk's byte position and an offset in it; an MCAP chunk and a message's ordinal in
@@ -211,7 +211,8 @@ pub struct RecordingOptions {
 /// Whether `path` looks like a recording rather than a sequence folder.
 pub fn is_recording(path: &Path) -> bool {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    matches!(ext, "bag" | "mcap" | "db3" | "mkv") || (path.is_dir() && path.join("metadata.yaml").is_file())
+    matches!(ext, "bag" | "mcap" | "db3" | "mkv")
+        || (path.is_dir() && path.join("metadata.yaml").is_file())
 }
 
 /// Opens the store of a recording by its kind.
@@ -298,35 +299,7 @@ impl RecordingSequence {
             ));
         }
         let frames = frames::pair(path, &catalog, &choice, options.max_difference)?;
-        let calibration = match (&choice.camera_info, &catalog.recorded) {
-            (Some(info), _) => Some(topics::calibration(
-                path,
-                &catalog,
-                store.as_ref(),
-                info,
-                &choice.colour,
-            )?),
-            (None, Some(recorded)) => Some(Calibration {
-                camera: recorded.colour,
-                bf: None,
-                depth_scale: None,
-                th_depth: None,
-                fps: topics::rate(&catalog, &choice.colour),
-            }),
-            (None, None) => None,
-        };
-        let calibration = match (&choice.stereo, calibration) {
-            (Some(right_info), Some(mut calibration)) => {
-                calibration.bf = Some(topics::stereo_bf(
-                    path,
-                    &catalog,
-                    store.as_ref(),
-                    right_info.as_deref(),
-                )?);
-                Some(calibration)
-            }
-            (_, calibration) => calibration,
-        };
+        let calibration = calibration(path, &catalog, store.as_ref(), &choice)?;
         let sensor = if choice.stereo.is_some() {
             SensorKind::Stereo
         } else {
@@ -373,6 +346,45 @@ impl RecordingSequence {
     pub fn path(&self) -> &Path {
         &self.path
     }
+}
+
+/// The calibration of the chosen topics: the colour camera's info (or the recording's
+/// own cameras), with the stereo baseline of a pair.
+fn calibration(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    chosen: &topics::Chosen,
+) -> Result<Option<Calibration>, IoError> {
+    let calibration = match (&chosen.camera_info, &catalog.recorded) {
+        (Some(info), _) => Some(topics::calibration(
+            path,
+            catalog,
+            store,
+            info,
+            &chosen.colour,
+        )?),
+        (None, Some(recorded)) => Some(Calibration {
+            camera: recorded.colour,
+            bf: None,
+            depth_scale: None,
+            th_depth: None,
+            fps: topics::rate(catalog, &chosen.colour),
+        }),
+        (None, None) => None,
+    };
+    Ok(match (&chosen.stereo, calibration) {
+        (Some(right_info), Some(mut calibration)) => {
+            calibration.bf = Some(topics::stereo_bf(
+                path,
+                catalog,
+                store,
+                right_info.as_deref(),
+            )?);
+            Some(calibration)
+        }
+        (_, calibration) => calibration,
+    })
 }
 
 impl Sequence for RecordingSequence {

@@ -124,8 +124,14 @@ impl Registration {
                 // The colour pixels whose centres lie in [min, max): footprints that
                 // share corners tile the image, so each centre is covered once.
                 let first = ceil;
-                let (x0, x1) = (first(a.x.min(b.x)).max(0), (first(a.x.max(b.x)) - 1).min(cw - 1));
-                let (y0, y1) = (first(a.y.min(b.y)).max(0), (first(a.y.max(b.y)) - 1).min(ch - 1));
+                let (x0, x1) = (
+                    first(a.x.min(b.x)).max(0),
+                    (first(a.x.max(b.x)) - 1).min(cw - 1),
+                );
+                let (y0, y1) = (
+                    first(a.y.min(b.y)).max(0),
+                    (first(a.y.max(b.y)) - 1).min(ch - 1),
+                );
                 let zc = centre.z as f32;
                 for y in y0..=y1 {
                     for x in x0..=x1 {
