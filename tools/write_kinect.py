@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes a `dopslam synth` folder rendered with a 640x576 `[depth_camera]` as an Azure
 Kinect recording, as `k4arecorder` lays it out: a Matroska file muxed by ffmpeg (Debian's)
-with a `COLOR` track (BGRA or MJPEG) and a `DEPTH` track (16-bit big-endian millimetres,
+with a `COLOR` track (BGRA, NV12, YUY2 or MJPEG) and a `DEPTH` track (16-bit big-endian millimetres,
 in the depth camera's own geometry, NFOV unbinned), the device calibration as the
 `calibration.json` attachment (each camera normalised to its whole sensor, as the
 device stores it), and the `K4A_*` tags (`K4A_START_OFFSET_NS` puts the stamps on the
@@ -13,7 +13,7 @@ FOURCC at 0 (with a negative height for top-down rows); k4arecorder writes `BGRA
 and nothing else. The tests (tests/recordings.rs) make their fixtures with it; dopslam
 never runs it.
 
-    write_kinect.py SEQ OUT.mkv [--colour bgra|mjpeg] [--frames N]
+    write_kinect.py SEQ OUT.mkv [--colour bgra|mjpeg|nv12|yuy2] [--frames N]
 """
 import argparse
 import json
@@ -73,7 +73,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('seq', type=Path)
     parser.add_argument('out', type=Path)
-    parser.add_argument('--colour', choices=['bgra', 'mjpeg'], default='bgra')
+    parser.add_argument('--colour', choices=['bgra', 'mjpeg', 'nv12', 'yuy2'], default='bgra')
     parser.add_argument('--frames', type=int, default=0)
     args = parser.parse_args()
     colour_cal = read_settings(args.seq / 'calibration.yaml')
@@ -104,14 +104,17 @@ def main():
                 raw = np.asarray(Image.open(args.seq / 'depth_camera' / Path(path).name)).astype(np.float64)
                 depth.write(np.round(raw / 5.0).astype('>u2').tobytes())  # 5000 per metre -> mm
         (tmp / 'calibration.json').write_text(json.dumps(calibration, indent=1))
-        colour_codec = ['-c:v:0', 'rawvideo'] if args.colour == 'bgra' else ['-c:v:0', 'mjpeg', '-q:v:0', '2']
-        mode = 'BGRA' if args.colour == 'bgra' else 'MJPG'
+        # Colour as k4arecorder stores each mode: raw BGRA, NV12 or YUY2 (ffmpeg's BT.601
+        # limited range, as the device's), or JPEG.
+        pix_fmt = {'bgra': 'bgra', 'mjpeg': 'yuvj444p', 'nv12': 'nv12', 'yuy2': 'yuyv422'}[args.colour]
+        colour_codec = ['-c:v:0', 'mjpeg', '-q:v:0', '2'] if args.colour == 'mjpeg' else ['-c:v:0', 'rawvideo']
+        mode = {'bgra': 'BGRA', 'mjpeg': 'MJPG', 'nv12': 'NV12', 'yuy2': 'YUY2'}[args.colour]
         command = [
             'ffmpeg', '-loglevel', 'error', '-y',
             '-f', 'rawvideo', '-pix_fmt', 'bgra', '-s', f'{w}x{h}', '-r', str(fps), '-i', str(tmp / 'colour.raw'),
             '-f', 'rawvideo', '-pix_fmt', 'gray16be', '-s', f'{dw}x{dh}', '-r', str(fps), '-i', str(tmp / 'depth.raw'),
             '-map', '0', '-map', '1', *colour_codec, '-c:v:1', 'rawvideo', '-allow_raw_vfw', '1',
-            '-pix_fmt:v:0', 'bgra' if args.colour == 'bgra' else 'yuvj444p',
+            '-pix_fmt:v:0', pix_fmt,
             '-metadata:s:v:0', 'title=COLOR', '-metadata:s:v:0', f'K4A_COLOR_MODE={mode}_{h}P',
             '-metadata:s:v:1', 'title=DEPTH', '-metadata:s:v:1', 'K4A_DEPTH_MODE=NFOV_UNBINNED',
             '-attach', str(tmp / 'calibration.json'),
@@ -122,7 +125,9 @@ def main():
             str(args.out),
         ]
         subprocess.run(command, check=True)
-    set_fourccs(args.out, [b'BGRA', b'b16g'] if args.colour == 'bgra' else [b'b16g'])
+    # ffmpeg stores NV12 and YUY2 as V_UNCOMPRESSED with their FOURCC already.
+    raw_colour = [b'BGRA'] if args.colour == 'bgra' else []
+    set_fourccs(args.out, raw_colour + [b'b16g'])
     print(f'wrote {len(rows)} frames to {args.out}', file=sys.stderr)
 
 

@@ -37,6 +37,7 @@ const CODEC_PRIVATE: u32 = 0x63A2;
 const VIDEO: u32 = 0xE0;
 const PIXEL_WIDTH: u32 = 0xB0;
 const PIXEL_HEIGHT: u32 = 0xBA;
+const COLOUR_SPACE: u32 = 0x2E_B524;
 const CONTENT_ENCODINGS: u32 = 0x6D80;
 const CLUSTER: u32 = 0x1F43_B675;
 const CLUSTER_TIMESTAMP: u32 = 0xE7;
@@ -86,16 +87,21 @@ pub struct Track {
     pub height: u32,
     /// Whether its frames are stored with a content encoding (compression), not read.
     pub encoded: bool,
+    /// A `V_UNCOMPRESSED` track's pixel layout (`ColourSpace`: a FOURCC).
+    pub colour_space: Vec<u8>,
 }
 
 impl Track {
-    /// The `BITMAPINFOHEADER`'s compression code (`MJPG`, `NV12`, `YUY2`, `BGRA`,
-    /// `b16g`) of a `V_MS/VFW/FOURCC` track.
+    /// The pixel layout's code (`MJPG`, `NV12`, `YUY2`, `BGRA`, `b16g`): the
+    /// `BITMAPINFOHEADER`'s compression of a `V_MS/VFW/FOURCC` track (as k4arecorder
+    /// writes), or the `ColourSpace` of a `V_UNCOMPRESSED` one (as ffmpeg writes raw YUV).
     pub fn fourcc(&self) -> Option<[u8; 4]> {
-        (self.codec == "V_MS/VFW/FOURCC")
-            .then(|| self.codec_private.get(16..20))
-            .flatten()
-            .map(|b| [b[0], b[1], b[2], b[3]])
+        let code = match self.codec.as_str() {
+            "V_MS/VFW/FOURCC" => self.codec_private.get(16..20),
+            "V_UNCOMPRESSED" => self.colour_space.get(..4),
+            _ => None,
+        };
+        code.map(|b| [b[0], b[1], b[2], b[3]])
     }
 }
 
@@ -330,6 +336,7 @@ fn tracks(r: &mut Reader, h: &Header) -> std::io::Result<Vec<Track>> {
                         match v.id {
                             PIXEL_WIDTH => track.width = r.unsigned(&v)? as u32,
                             PIXEL_HEIGHT => track.height = r.unsigned(&v)? as u32,
+                            COLOUR_SPACE => track.colour_space = r.payload(&v)?,
                             _ => {}
                         }
                     }
