@@ -661,6 +661,27 @@ fn an_azure_kinect_recording_is_registered_and_tracks_as_its_folder() {
         text.contains("cut short") && text.contains("byte"),
         "{text}"
     );
+    // Damaged anywhere in its headers (tracks, tags, attachment, first cluster): read or
+    // refused, never a panic.
+    {
+        use dopslam::io::recording::{RecordingOptions, RecordingSequence};
+        use dopslam::io::sequence::Sequence;
+        let damaged = dir.join("damaged.mkv");
+        for at in (0..bytes.len().min(6000)).step_by(149) {
+            let mut copy = bytes.clone();
+            copy[at] ^= 0xA5;
+            std::fs::write(&damaged, &copy).unwrap();
+            let options = RecordingOptions {
+                max_difference: 0.02,
+                ..Default::default()
+            };
+            if let Ok(sequence) = RecordingSequence::open(&damaged, &options) {
+                if !sequence.is_empty() {
+                    let _ = sequence.load(0);
+                }
+            }
+        }
+    }
     // Without its calibration attachment: named, no work done.
     let mut renamed = bytes.clone();
     let at = renamed

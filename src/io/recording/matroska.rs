@@ -214,10 +214,22 @@ impl Reader {
         }))
     }
 
-    /// The payload of a known-size element (read whole: small elements only).
+    /// The payload of a known-size element (read whole: small elements only); an error
+    /// when it claims to reach past the file's end or more than 256 MiB (a damaged size
+    /// must not become an allocation).
     fn payload(&mut self, h: &Header) -> std::io::Result<Vec<u8>> {
+        let size = h.size.unwrap_or(0);
+        if size > self.len.saturating_sub(h.start) || size > 256 << 20 {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "the element at byte {} claims {size} bytes, past the end of the file or too large to be one",
+                    h.start
+                ),
+            ));
+        }
         self.at(h.start)?;
-        self.read(h.size.unwrap_or(0) as usize)
+        self.read(size as usize)
     }
 
     fn unsigned(&mut self, h: &Header) -> std::io::Result<u64> {
@@ -292,6 +304,10 @@ fn scan_file(r: &mut Reader, path: &Path) -> Result<Scan, IoError> {
     let mut pos = segment.start;
     while pos < end.min(r.len) {
         let Some(h) = r.header(pos).map_err(io)? else {
+            scan.warnings.push(format!(
+                "no readable element at byte {pos} of {}: what follows is not read",
+                r.len
+            ));
             break;
         };
         pos = top_level(r, &h, &mut scale, &mut scan).map_err(io)?;
