@@ -331,13 +331,7 @@ impl Description {
             .topics
             .iter()
             .map(|t| {
-                let span = t.messages.last().map_or(0.0, |m| m.stamp)
-                    - t.messages.first().map_or(0.0, |m| m.stamp);
-                let rate = if span > 0.0 {
-                    (t.messages.len() - 1) as f64 / span
-                } else {
-                    0.0
-                };
+                let rate = t.rate().unwrap_or(0.0);
                 (t.name.clone(), t.msg_type.clone(), t.messages.len(), rate)
             })
             .collect();

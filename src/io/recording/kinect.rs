@@ -30,7 +30,7 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vect
 use serde_json::Value;
 
 use super::matroska::{self, Block, Scan, Track};
-use super::{Catalog, Location, RecordedCameras, Store, Wire, COMPRESSED, IMAGE};
+use super::{Catalog, Entry, Location, RecordedCameras, Store, Wire, COMPRESSED, IMAGE};
 use crate::geometry::camera::PinholeCamera;
 use crate::io::IoError;
 
@@ -60,12 +60,22 @@ impl Format {
     }
 }
 
+/// How a read track's frames become messages: their layout and size.
+#[derive(Debug, Clone, Copy)]
+struct Layout {
+    format: Format,
+    width: u32,
+    height: u32,
+}
+
 /// The frames of an Azure Kinect recording, read one at a time.
 struct KinectStore {
     path: std::path::PathBuf,
     file: File,
-    /// Each frame's block and how it is turned into a message, with its stamp.
-    frames: Vec<(Block, Format, u32, u32, f64)>,
+    /// The tracks read.
+    layouts: Vec<Layout>,
+    /// Each frame's block, its track's index in `layouts`, and its stamp.
+    frames: Vec<(Block, usize, f64)>,
 }
 
 /// A ROS 1 `std_msgs/Header` with `stamp` (seconds) and an empty frame.
@@ -152,9 +162,14 @@ fn rgb_of_yuv(format: Format, w: usize, h: usize, data: &[u8]) -> Option<Vec<u8>
 
 impl Store for KinectStore {
     fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
-        let Some(&(block, format, w, h, stamp)) = self.frames.get(at.0 as usize) else {
+        let Some(&(block, track, stamp)) = self.frames.get(at.0 as usize) else {
             return Err(IoError::invalid(&self.path, format!("no frame {}", at.0)));
         };
+        let Layout {
+            format,
+            width: w,
+            height: h,
+        } = self.layouts[track];
         let data =
             matroska::read_block(&self.file, &block).map_err(|e| IoError::read(&self.path, e))?;
         Ok(match format {
@@ -195,8 +210,7 @@ pub fn open(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         .tag(0, "K4A_START_OFFSET_NS")
         .and_then(|v| v.trim().parse::<i64>().ok())
         .unwrap_or(0);
-    let mut frames = Vec::new();
-    let mut skipped = Vec::new();
+    let (mut layouts, mut frames, mut skipped) = (Vec::new(), Vec::new(), Vec::new());
     for track in &scan.tracks {
         let format = Format::of(track);
         let wanted = match (track.name.as_str(), format) {
@@ -219,20 +233,23 @@ pub fn open(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
             skipped.push(track.name.clone());
             continue;
         }
-        let msg_type = if format == Some(Format::Jpeg) {
+        let format = format.expect("wanted tracks have one");
+        let msg_type = if format == Format::Jpeg {
             COMPRESSED
         } else {
             IMAGE
         };
         catalog.add_topic(track.number, &track.name, msg_type);
+        layouts.push(Layout {
+            format,
+            width: track.width,
+            height: track.height,
+        });
         for block in scan.blocks.iter().filter(|b| b.track == track.number) {
             let stamp = (block.time_ns + offset_ns).max(0) as f64 * 1e-9;
             let at = Location(frames.len() as u64, 0);
-            let mut head = Vec::new();
-            header(&mut head, stamp);
-            catalog.add_message(track.number, at, &head, stamp);
-            let format = format.expect("wanted tracks have one");
-            frames.push((*block, format, track.width, track.height, stamp));
+            catalog.add_entry(track.number, Entry { stamp, at });
+            frames.push((*block, layouts.len() - 1, stamp));
         }
     }
     catalog.recorded = Some(cameras(path, &scan, &skipped)?);
@@ -241,6 +258,7 @@ pub fn open(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
         Box::new(KinectStore {
             path: path.to_path_buf(),
             file,
+            layouts,
             frames,
         }),
         catalog,

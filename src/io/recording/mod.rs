@@ -60,6 +60,16 @@ pub struct Topic {
     pub messages: Vec<Entry>,
 }
 
+impl Topic {
+    /// Messages per second over its stamps' span; `None` with fewer than two messages
+    /// or no span.
+    pub fn rate(&self) -> Option<f64> {
+        let (first, last) = (self.messages.first()?, self.messages.last()?);
+        let span = last.stamp - first.stamp;
+        (self.messages.len() > 1 && span > 0.0).then(|| (self.messages.len() - 1) as f64 / span)
+    }
+}
+
 /// The message types read for frames and calibration.
 pub const IMAGE: &str = "sensor_msgs/Image";
 /// `sensor_msgs/CompressedImage`.
@@ -133,6 +143,14 @@ impl Catalog {
             }
         };
         self.ids.insert(id.into(), index);
+    }
+
+    /// Adds a message of topic `id` whose stamp the store knows already (an Azure
+    /// Kinect block's time).
+    pub fn add_entry(&mut self, id: impl Into<u64>, entry: Entry) {
+        if let Some(&index) = self.ids.get(&id.into()) {
+            self.topics[index].messages.push(entry);
+        }
     }
 
     /// Adds a message of topic `id`; `received` (seconds) stands in for a missing or
@@ -369,7 +387,7 @@ fn calibration(
             bf: None,
             depth_scale: None,
             th_depth: None,
-            fps: topics::rate(catalog, &chosen.colour),
+            fps: catalog.topic(&chosen.colour).and_then(Topic::rate),
         }),
         (None, None) => None,
     };

@@ -86,7 +86,7 @@ pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError>
     }
     let mut parts = Vec::with_capacity(files.len());
     for file in &files {
-        super::super::errors::check_exists(file, "storage file of the bag")?;
+        crate::io::errors::check_exists(file, "storage file of the bag")?;
         parts.push(open_part(file, compression)?);
     }
     if parts.len() == 1 {
@@ -206,15 +206,24 @@ impl Unpacked {
                 "the bag says its files are compressed, but this one does not end in .zstd",
             ));
         };
-        static COPIES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let n = COPIES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let path = std::env::temp_dir().join(format!("dopslam-{}-{n}-{inner}", std::process::id()));
-        let copy = Self { path };
         let input = std::fs::File::open(file).map_err(|e| IoError::read(file, e))?;
-        let mut output = std::fs::File::create(&copy.path).map_err(|source| IoError::Write {
-            path: copy.path.clone(),
-            source,
-        })?;
+        // A name of our own, created new (a file already there is never written over);
+        // only once it is ours does dropping the copy remove it.
+        static COPIES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let (copy, mut output) = loop {
+            let n = COPIES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let path =
+                std::env::temp_dir().join(format!("dopslam-{}-{n}-{inner}", std::process::id()));
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+            {
+                Ok(output) => break (Self { path }, output),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(source) => return Err(IoError::Write { path, source }),
+            }
+        };
         zstd::stream::copy_decode(input, &mut output)
             .map_err(|e| IoError::invalid(file, format!("not readable zstd data: {e}")))?;
         Ok(copy)
@@ -390,15 +399,9 @@ fn open_mcap_with(
     path: &Path,
     compression: Compression,
 ) -> Result<(Box<dyn Store>, Catalog), IoError> {
-    let file = std::fs::File::open(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let file = std::fs::File::open(path).map_err(|e| IoError::read(path, e))?;
     // SAFETY: the file is opened read-only and is an input that the run never writes.
-    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::read(path, e))?;
     let bad = |e: mcap::McapError| IoError::invalid(path, format!("not a readable MCAP file: {e}"));
     let summary = mcap::read::Summary::read(&map).map_err(bad)?.ok_or_else(|| {
         IoError::invalid(path, "the MCAP file has no summary (cut short, or its writer died): `mcap recover` it first")

@@ -419,15 +419,8 @@ pub fn calibration(
         bf: None,
         depth_scale: None,
         th_depth: None,
-        fps: rate(catalog, images),
+        fps: catalog.topic(images).and_then(super::Topic::rate),
     })
-}
-
-/// The frame rate of the `images` topic's stamps (a chosen topic, with messages).
-pub fn rate(catalog: &Catalog, images: &str) -> Option<f64> {
-    let t = catalog.topic(images).expect("a chosen topic exists");
-    let span = t.messages.last().map_or(0.0, |m| m.stamp) - t.messages[0].stamp;
-    (t.messages.len() > 1 && span > 0.0).then(|| (t.messages.len() - 1) as f64 / span)
 }
 
 /// The ground truth from a pose topic (`PoseStamped`, `Odometry` or `TransformStamped`):
