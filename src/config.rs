@@ -387,6 +387,7 @@ impl Config {
         self.dop.validate()?;
         let never_static = &self.dop.never_static_classes;
         crate::detect::coco::check_class_names("dop.never_static_classes", never_static)?;
+        crate::detect::coco::check_class_names("dop.track_classes", &self.dop.track_classes)?;
         self.dense.validate()?;
         self.output.validate()?;
         self.global.smoothing.validate()?;
@@ -639,6 +640,7 @@ mod tests {
             ("[dataset]\ndepth_scale = -5000.0\n", "dataset.depth_scale"),
             ("[dataset.camera]\nfx = 0.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 2\nheight = 2\n", "dataset.camera.fx"),
             ("[dop]\nnever_static_classes = [\"ghost\"]\n", "dop.never_static_classes"),
+            ("[dop]\ntrack_classes = [\"lorry\"]\n", "dop.track_classes"),
         ] {
             let message = Config::from_toml(text).unwrap_err().to_string();
             assert!(message.starts_with(key), "{message}");

@@ -144,38 +144,27 @@ impl MaskSource {
         let mut tracks = ObjectTracks::default();
         let mut keyframes = Vec::with_capacity(detections.len());
         for frame in &detections {
-            let boxes: Vec<ObjectBox> = object_boxes(&frame.detections, dynamic_classes)
-                .into_iter()
-                .filter(|b| b.dynamic)
-                .collect();
+            let (boxes, followed): (Vec<ObjectBox>, Vec<bool>) =
+                object_boxes(&frame.detections, dynamic_classes)
+                    .into_iter()
+                    .zip(&frame.detections)
+                    .filter(|(b, _)| b.dynamic)
+                    .map(|(b, d)| (b, dop.follows(&d.class)))
+                    .unzip();
             let mut objects = Vec::new();
             if masking == Mode::Dop {
                 if let (Some(pose), Some(depth)) =
                     (pose_at(frame.timestamp), depth_at(frame.timestamp))
                 {
                     let samples = depth_samples(&depth, 4);
-                    let world_from_camera = pose.inverse();
-                    objects = boxes
-                        .iter()
-                        .filter_map(|b| {
-                            let z = match settings.foreground_share {
-                                share if share > 0.0 => {
-                                    let inside: Vec<f32> = samples
-                                        .iter()
-                                        .filter(|k| b.contains(k.x, k.y))
-                                        .map(|k| k.depth)
-                                        .collect();
-                                    foreground_depth(&inside, dop.delta_z / 2.0, share)?
-                                }
-                                _ => object_depth(dop, &samples, b)?,
-                            };
-                            Some(Object::from_box(b.bbox, z, &camera, &world_from_camera))
-                        })
-                        .collect();
-                    if dop.track_boxes {
-                        let missed = tracks.update(frame.timestamp, &mut objects, dop);
-                        objects.extend(missed);
-                    }
+                    let placed = place_objects(
+                        (&boxes, &followed),
+                        &samples,
+                        (&settings, dop),
+                        &camera,
+                        &pose.inverse(),
+                    );
+                    objects = follow_objects(&mut tracks, frame.timestamp, placed, dop);
                 }
             }
             keyframes.push(KeyframeObjects {
@@ -493,6 +482,53 @@ fn moving_seeds(evidence: &Evidence, w: usize, h: usize) -> Vec<(f32, f32)> {
         .filter(|&(u, v)| evidence.moving[v * w + u])
         .map(|(u, v)| (u as f32, v as f32))
         .collect()
+}
+
+/// The dynamic `boxes` of a detected frame placed in the world at their object depth
+/// (the foreground depth with `mask_foreground_share`, else the model's), each with
+/// whether its class is followed; boxes without depth are left out.
+fn place_objects(
+    (boxes, followed): (&[ObjectBox], &[bool]),
+    samples: &[Keypoint],
+    (settings, dop): (&MaskSettings, &DopConfig),
+    camera: &PinholeCamera,
+    world_from_camera: &Se3,
+) -> Vec<(Object, bool)> {
+    boxes
+        .iter()
+        .zip(followed)
+        .filter_map(|(b, &follow)| {
+            let z = if settings.foreground_share > 0.0 {
+                let inside: Vec<f32> = samples
+                    .iter()
+                    .filter(|k| b.contains(k.x, k.y))
+                    .map(|k| k.depth)
+                    .collect();
+                foreground_depth(&inside, dop.delta_z / 2.0, settings.foreground_share)?
+            } else {
+                object_depth(dop, samples, b)?
+            };
+            let object = Object::from_box(b.bbox, z, camera, world_from_camera);
+            Some((object, follow))
+        })
+        .collect()
+}
+
+/// A detected frame's objects at `t`: those of the followed classes go through
+/// `tracks` (which add the followed objects the detector missed), the others stay as
+/// detected.
+fn follow_objects(
+    tracks: &mut ObjectTracks,
+    t: f64,
+    placed: Vec<(Object, bool)>,
+    dop: &DopConfig,
+) -> Vec<Object> {
+    let (tracked, others): (Vec<_>, Vec<_>) = placed.into_iter().partition(|(_, f)| *f);
+    let mut objects: Vec<Object> = tracked.into_iter().map(|(o, _)| o).collect();
+    let missed = tracks.update(t, &mut objects, dop);
+    objects.extend(others.into_iter().map(|(o, _)| o));
+    objects.extend(missed);
+    objects
 }
 
 /// Every `step`-th pixel with depth, as keypoints for [`object_depth`].

@@ -138,6 +138,13 @@ pub struct DopConfig {
     /// the frames tracked since, and a person's new keypoints between keyframes are
     /// dynamic before any keyframe sees them.
     pub track_frames: bool,
+    /// The dynamic classes (COCO names) followed across keyframes: those whose speed
+    /// `track_max_speed` and `track_gate` bound (people). Objects of the other dynamic
+    /// classes act on the keyframe they were detected in only, as in the paper: a car
+    /// at 25 m/s leaves `track_gate` between two keyframes, so each detection started
+    /// a new track whose box, predicted at walking speed, stayed for `track_seconds`
+    /// on the road it had left (real KITTI 01; docs/design.md).
+    pub track_classes: Vec<String>,
     /// How long a followed object is predicted without a new detection, seconds.
     pub track_seconds: f32,
     /// Association distance of a predicted object and a detected one, metres.
@@ -206,6 +213,7 @@ impl Default for DopConfig {
             refine_boxes: true,
             track_boxes: true,
             track_frames: true,
+            track_classes: vec!["person".into()],
             track_seconds: 1.0,
             track_gate: 0.7,
             track_max_speed: 1.5,
@@ -268,6 +276,12 @@ impl DopConfig {
         } else {
             State::DynamicHigh
         }
+    }
+
+    /// Whether objects of `class` are followed across keyframes (`track_boxes` and
+    /// `track_classes`).
+    pub fn follows(&self, class: &str) -> bool {
+        self.track_boxes && self.track_classes.iter().any(|c| c == class)
     }
 
     /// Whether `p` is removed before pose estimation.

@@ -217,11 +217,12 @@ impl DynamicObjects {
         let (time, id) = (kf.frame.timestamp, kf.id);
         let world_from_camera = kf.world_from_camera();
         let camera_from_world = kf.camera_from_world;
-        // The detected dynamic objects, each with the index of its box.
+        // The detected dynamic objects of the followed classes, each with the index of
+        // its box.
         let (owners, mut objects): (Vec<usize>, Vec<Object>) = boxes
             .iter()
             .enumerate()
-            .filter(|(_, b)| b.dynamic)
+            .filter(|(i, b)| b.dynamic && config.follows(&detections[*i].class))
             .filter_map(|(i, b)| {
                 let z = object_depth(config, &keypoints, b)?;
                 let object = Object {
@@ -430,6 +431,40 @@ mod tests {
         assert!(fourth_points[..4]
             .iter()
             .all(|&p| map.points()[p].moving < 0.5));
+    }
+
+    /// A car is not followed by default (`track_classes`): its box acts on the
+    /// keyframe it was detected in, but reaches no later keyframe and leaves no
+    /// predicted box where it was missed; listed in `track_classes`, it is followed.
+    #[test]
+    fn only_the_followed_classes_reach_other_keyframes() {
+        let car: Vec<Detection> = person()
+            .into_iter()
+            .map(|d| Detection {
+                class: "car".into(),
+                class_id: 2,
+                ..d
+            })
+            .collect();
+        let classes = vec!["car".to_string()];
+        for (track_classes, followed) in [(vec![], false), (vec!["car".to_string()], true)] {
+            let (mut map, first, first_points) = map_with(&SCENE);
+            let (_, second_points) = add_keyframe_like(&mut map, 0.1);
+            let config = DopConfig {
+                track_classes,
+                ..DopConfig::default()
+            };
+            let camera = crate::geometry::camera::PinholeCamera::tum_fr3();
+            let mut objects = DynamicObjects::new(camera);
+            let done = objects.receive(&mut map, first, &car, &classes, &config, 0.3);
+            assert!((map.points()[first_points[0]].moving - 0.65).abs() < 1e-5);
+            assert_eq!(done.later_keyframes, usize::from(followed));
+            let raised = map.points()[second_points[0]].moving > 0.5;
+            assert_eq!(raised, followed);
+            let (third, _) = add_keyframe_like(&mut map, 0.5);
+            let done = objects.receive(&mut map, third, &[], &classes, &config, 0.3);
+            assert_eq!(done.predicted_boxes, usize::from(followed));
+        }
     }
 
     /// A point the geometric check verified static counts as S = 0 inside the box of
