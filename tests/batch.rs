@@ -10,14 +10,16 @@ use std::time::{Duration, Instant};
 
 use common::{dopslam, synth_static_room, temp_dir};
 
-/// A manifest of two generated presets and `extra` entries.
-fn manifest(dir: &Path, repetitions: usize, extra: &str) -> PathBuf {
+/// A manifest of two generated presets and `extra` entries; the second has dense maps
+/// when `dense` (only the test of the tables needs them: a dense pass is most of a
+/// run's time).
+fn manifest(dir: &Path, repetitions: usize, dense: bool, extra: &str) -> PathBuf {
     let path = dir.join("manifest.toml");
     let text = format!(
         "[batch]\nmodes = [\"dop\", \"no-dop\"]\nrepetitions = {repetitions}\ndeterministic = true\n\
          detections = \"oracle\"\njobs = 2\n\n\
          [[sequence]]\npreset = \"demo_walking\"\nsynth_frames = 40\nseeds = [3]\ndense = false\n\n\
-         [[sequence]]\npreset = \"static_room\"\nsynth_frames = 20\n{extra}"
+         [[sequence]]\npreset = \"static_room\"\nsynth_frames = 20\ndense = {dense}\n{extra}"
     );
     std::fs::write(&path, text).unwrap();
     path
@@ -86,7 +88,7 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
         "\n[[sequence]]\npath = \"{}\"\nmodes = [\"no-dop\"]\n",
         corrupt.display()
     );
-    let manifest = manifest(&dir, 2, &extra);
+    let manifest = manifest(&dir, 2, true, &extra);
     let out = dir.join("out");
     let (stdout, stderr) = batch(&manifest, &out);
     assert!(
@@ -200,7 +202,7 @@ fn a_batch_writes_its_tables_equal_to_eval_and_records_a_corrupt_sequence() {
 #[test]
 fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
     let dir = temp_dir("batch-resume");
-    let manifest = manifest(&dir, 3, "");
+    let manifest = manifest(&dir, 3, false, "");
     let out = dir.join("out");
     let mut child = Command::new(env!("CARGO_BIN_EXE_dopslam"))
         .args([
@@ -250,7 +252,7 @@ fn an_interrupted_batch_finishes_only_the_missing_runs_when_started_again() {
 #[test]
 fn shards_started_together_then_collected_equal_one_batch() {
     let base = temp_dir("batch-shards");
-    let manifest = manifest(&base, 1, "");
+    let manifest = manifest(&base, 1, false, "");
     let out = base.join("sharded");
     let children: Vec<_> = (1..=3)
         .map(|k| {
@@ -300,7 +302,7 @@ fn shards_started_together_then_collected_equal_one_batch() {
 #[test]
 fn slurm_scripts_name_the_shards_and_the_resources() {
     let base = temp_dir("batch-slurm-scripts");
-    let manifest = manifest(&base, 1, "");
+    let manifest = manifest(&base, 1, false, "");
     let out = base.join("out");
     let (ok, stdout, stderr) = dopslam(&[
         "batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(),
