@@ -6,13 +6,13 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use dopslam::config::Config;
-use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs, Comparison};
-use dopslam::dop::Mode;
+use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::{DenseReport, FrameChoice};
+use dopslam::dop::Mode;
+use dopslam::io::run_dir::{names, RunDir, RunSummary};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
-use dopslam::io::run_dir::{names, RunDir, RunSummary};
 use dopslam::run::{dense_pass, DenseSetup};
 
 #[derive(Args)]
@@ -64,7 +64,11 @@ pub fn print_settings_notes(config: &Config) {
 
 /// Refuses to fuse a run with a sequence it did not track: at least 90 % of the run's
 /// poses must have a frame of the sequence at their timestamp (1 µs).
-fn same_frames(run: &RunDir, sequence: &dyn dopslam::io::sequence::Sequence, dir: &Path) -> Result<()> {
+fn same_frames(
+    run: &RunDir,
+    sequence: &dyn dopslam::io::sequence::Sequence,
+    dir: &Path,
+) -> Result<()> {
     let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
     let frames: std::collections::HashSet<i64> = (0..sequence.len())
         .map(|i| (sequence.timestamp(i) * 1e6).round() as i64)
@@ -151,7 +155,13 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     }
     let dense = dense_pass(
         sequence.as_ref(),
-        &DenseSetup::resolve(sequence.as_ref(), &config)?,
+        &DenseSetup::resolve(sequence.as_ref(), &config)?.with_disparity_offset(
+            report
+                .global
+                .as_ref()
+                .and_then(|g| g.disparity_offset.as_ref())
+                .map_or(0.0, |o| o.offset_px),
+        ),
         (&args.run, &args.run),
         masking,
         Some(&sequence_dir),
@@ -360,7 +370,8 @@ pub fn compare_with_baseline(
     alignments.push(run_alignment(baseline));
     let static_scene = sequence_dir.join("static_scene.ply");
     let movers = sequence_dir.join("movers.ply");
-    let mut cameras = Trajectory::read(&RunDir::new(run).trajectory(), TrajectoryFormat::Tum)?.poses;
+    let mut cameras =
+        Trajectory::read(&RunDir::new(run).trajectory(), TrajectoryFormat::Tum)?.poses;
     if let Some(align) = &alignments[0] {
         cameras.iter_mut().for_each(|pose| *pose = align * *pose);
     }
@@ -392,7 +403,9 @@ pub fn print_summary(
     let ate = |r: &dopslam::run::RunReport| {
         r.ate
             .as_ref()
-            .map_or("- (no ground truth)".to_string(), |a| format!("{:.4} m", a.ape.statistics.rmse))
+            .map_or("- (no ground truth)".to_string(), |a| {
+                format!("{:.4} m", a.ape.statistics.rmse)
+            })
     };
     let movers: Vec<String> = comparison
         .names
@@ -403,12 +416,27 @@ pub fn print_summary(
             format!("{name} {count} of {}", m.points)
         })
         .collect();
-    let what = if comparison.movers.is_some() { "mover points" } else { "ghost points" };
+    let what = if comparison.movers.is_some() {
+        "mover points"
+    } else {
+        "ghost points"
+    };
     println!("summary:");
-    println!("  ATE RMSE with DOP {}, without DOP (ORB-SLAM2 behaviour) {}", ate(dop), ate(no_dop));
+    println!(
+        "  ATE RMSE with DOP {}, without DOP (ORB-SLAM2 behaviour) {}",
+        ate(dop),
+        ate(no_dop)
+    );
     println!("  {what} in each map: {}", movers.join(", "));
-    if let Some(picture) = comparison.outputs.iter().find(|p| p.ends_with("compare_perspective.png")) {
-        println!("  picture (left to right as listed, ghosts in red): {}", picture.display());
+    if let Some(picture) = comparison
+        .outputs
+        .iter()
+        .find(|p| p.ends_with("compare_perspective.png"))
+    {
+        println!(
+            "  picture (left to right as listed, ghosts in red): {}",
+            picture.display()
+        );
     }
     if let Some(table) = comparison.outputs.first().and_then(|p| p.parent()) {
         println!("  table: {}", table.join("compare.md").display());

@@ -42,7 +42,11 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     // A rendered rig is perfect: its far disparities are as exact as its near ones, so
     // they stay residuals here (the default makes them bearings, for real rigs).
     let perfect_rig = out.join("perfect_rig.toml");
-    std::fs::write(&perfect_rig, "[stereo]\nbearing_baselines = 0.0\n").unwrap();
+    std::fs::write(
+        &perfect_rig,
+        "[stereo]\nbearing_baselines = 0.0\n[global]\ndisparity_offset = true\n",
+    )
+    .unwrap();
     let run_dir = out.join("run");
     let (ok, stdout, err) = dopslam(&[
         "run",
@@ -62,6 +66,11 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     let ate = report["ate"]["ape"]["statistics"]["rmse"].as_f64().unwrap();
     // 40 frames at 8 m/s: 32 m driven.
     assert!(ate < 0.15, "ATE RMSE {ate} m");
+    // A perfect rig has no disparity offset to find.
+    let found = report["global"]["disparity_offset"]["rounds"][0]
+        .as_f64()
+        .unwrap();
+    assert!(found.abs() < 0.15, "offset {found} px on a perfect rig");
     assert!(report["detection"]["per_class"]["car"].as_u64().unwrap() > 0);
     // Parked cars are detected at every keyframe, yet they do not move: the static
     // check gives some of their points back as static.
@@ -76,6 +85,56 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     } else {
         eprintln!("built without the opencv feature: the dense map of stereo is not checked");
     }
+}
+
+#[test]
+fn a_rigs_disparity_offset_is_found_and_taken_out() {
+    // The same street through a rig whose right principal point sits 1 px off what
+    // calib.txt says: every disparity 1 px short, the path too long.
+    let dir = temp_dir("stereo-rig");
+    let preset = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth/street_demo.toml"),
+    )
+    .unwrap()
+    .replace(
+        "baseline = 0.5372",
+        "baseline = 0.5372\nrectification_error_px = 1.0",
+    );
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, preset).unwrap();
+    let (ok, _, err) = dopslam(&[
+        "synth",
+        "--config",
+        &config.to_string_lossy(),
+        "--out",
+        &dir.join("seq").to_string_lossy(),
+        "--frames",
+        "40",
+    ]);
+    assert!(ok, "{err}");
+    let offset = dir.join("offset.toml");
+    std::fs::write(&offset, "[global]\ndisparity_offset = true\n").unwrap();
+    let run_dir = dir.join("run");
+    let (ok, stdout, err) = dopslam(&[
+        "run",
+        &dir.join("seq/kitti/sequences/00").to_string_lossy(),
+        "--out",
+        &run_dir.to_string_lossy(),
+        "--no-dense",
+        "--no-dop",
+        "--deterministic",
+        "--config",
+        &offset.to_string_lossy(),
+    ]);
+    assert!(ok, "{stdout}\n{err}");
+    let report = json(&run_dir.join("report.json"));
+    let taken = report["global"]["disparity_offset"]["offset_px"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        (taken - 1.0).abs() < 0.15,
+        "took out {taken} px of a 1 px offset"
+    );
 }
 
 /// A three-frame copy of the street in the KITTI layout, to break.
@@ -167,7 +226,10 @@ fn times_going_backwards_are_refused() {
     lines.swap(1, 2);
     std::fs::write(sequence.join("times.txt"), lines.join("\n")).unwrap();
     let err = run_fails(&sequence);
-    assert!(err.contains("times.txt") && err.contains("on line 3"), "{err}");
+    assert!(
+        err.contains("times.txt") && err.contains("on line 3"),
+        "{err}"
+    );
 }
 
 #[test]

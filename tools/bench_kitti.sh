@@ -7,7 +7,8 @@
 # the table), ATE RMSE with Sim(3) alignment (what is left once the scale is
 # forgiven), estimated path length / true, median tracking time per frame.
 #
-#   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--out DIR]
+#   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--offset] [--out DIR]
+#     --offset  each mode also with [global] disparity_offset = true, interleaved
 #     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
 #               --mask-boxes, and --dop with [stereo] bearing_baselines = 0 (before)
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
@@ -17,12 +18,14 @@ cd "$(dirname "$0")/.."
 runs=3
 modes="dop no-dop"
 extra=0
+offset=0
 out=outputs/bench/kitti
 while [ $# -gt 0 ]; do
   case "$1" in
     --runs) runs=$2; shift 2 ;;
     --modes) modes=$2; shift 2 ;;
     --extra) extra=1; shift ;;
+    --offset) offset=1; shift ;;
     --out) out=$2; shift 2 ;;
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
@@ -37,6 +40,7 @@ bin=${DOPSLAM_BIN:-./target/release/dopslam}
 mkdir -p "$out/runs"
 settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
 printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
+printf '[global]\ndisparity_offset = true\n' > "$out/offset.toml"
 # One run: clip, label, repetition, then dopslam's arguments. Appends a line to runs.tsv.
 one() {
   local clip=$1 label=$2 rep=$3; shift 3
@@ -52,7 +56,10 @@ rm -f "$out/runs.tsv"
 echo "cores: $(nproc); $runs real-time run(s) of each mode, interleaved"
 for clip in 01 06; do
   for r in $(seq 1 "$runs"); do
-    for mode in $modes; do one "$clip" "$mode" "$r" "--$mode"; done
+    for mode in $modes; do
+      one "$clip" "$mode" "$r" "--$mode"
+      [ "$offset" = 0 ] || one "$clip" "$mode, disparity_offset" "$r" "--$mode" --config "$out/offset.toml"
+    done
   done
   if [ "$extra" = 1 ]; then
     one "$clip" "dop --deterministic" 1 --dop --deterministic

@@ -24,6 +24,9 @@ pub struct SgbmSettings {
 pub struct StereoDepth {
     /// Baseline times \(f_x\), pixel·metres.
     pub bf: f64,
+    /// Pixels added to every disparity: the rig's offset the global pass took out
+    /// (`crate::global::disparity_offset`), 0 when it did not.
+    pub offset: f64,
     /// The semi-global matcher's settings.
     pub sgbm: SgbmSettings,
 }
@@ -69,7 +72,11 @@ pub fn sgbm_disparity(
 
 /// What OpenCV's matcher needs of a pair, checked here: OpenCV reports a violation by
 /// a C++ exception inside its worker threads, which aborts the process.
-pub fn check_size(left: &GrayImage, right: &GrayImage, settings: &SgbmSettings) -> Result<(), String> {
+pub fn check_size(
+    left: &GrayImage,
+    right: &GrayImage,
+    settings: &SgbmSettings,
+) -> Result<(), String> {
     if left.dimensions() != right.dimensions() {
         return Err(format!(
             "the stereo pair's images differ in size: {}x{} and {}x{}",
@@ -101,7 +108,8 @@ pub fn sgbm_disparity(
     Err("this dopslam was built without OpenCV (cargo feature \"opencv\"), which the dense depth of stereo pairs needs: install libopencv-dev clang libclang-dev (tools/setup.sh does) and build again".into())
 }
 
-/// The depth of a stereo pair: \(z = bf / d\) where the disparity is positive.
+/// The depth of a stereo pair: \(z = bf / (d + \delta)\) where that is positive
+/// (\(\delta\): `stereo.offset`).
 pub fn stereo_depth(
     left: &GrayImage,
     right: &GrayImage,
@@ -114,8 +122,9 @@ pub fn stereo_depth(
         metres: disparity
             .iter()
             .map(|&d| {
+                let d = d as f64 + stereo.offset;
                 if d > 0.0 {
-                    (stereo.bf / d as f64) as f32
+                    (stereo.bf / d) as f32
                 } else {
                     0.0
                 }
@@ -152,6 +161,7 @@ mod tests {
             &right,
             &StereoDepth {
                 bf: 120.0,
+                offset: 0.0,
                 sgbm: settings,
             },
         )

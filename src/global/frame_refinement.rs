@@ -22,9 +22,9 @@ use serde::Serialize;
 use super::GlobalInputs;
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
+use crate::map::record::{FrameObservation, FrameRecord};
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
-use crate::map::record::{FrameObservation, FrameRecord};
 
 /// Fewest static points a frame needs to be estimated again.
 pub const MIN_POINTS: usize = 30;
@@ -123,8 +123,8 @@ mod tests {
     use super::*;
     use crate::features::ScalePyramid;
     use crate::geometry::camera::PinholeCamera;
-    use crate::map::MapPoint;
     use crate::geometry::stereo_camera::StereoCamera;
+    use crate::map::MapPoint;
     use crate::random::Rng;
     use nalgebra::{Rotation3, Translation3, Vector3};
 
@@ -165,6 +165,7 @@ mod tests {
         let inputs = GlobalInputs {
             camera: &camera,
             pyramid: &pyramid,
+            stereo: false,
             size: (640.0, 480.0),
             moving_threshold: 0.6,
             prediction_gate_share: 0.7,

@@ -10,6 +10,7 @@
 //! Entry point: [`run`] on the map the tracking pass left.
 
 pub mod candidates;
+pub mod disparity_offset;
 pub mod essential_graph;
 pub mod frame_refinement;
 pub mod loop_closing;
@@ -26,10 +27,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::bow::Vocabulary;
 use crate::features::ScalePyramid;
-use crate::map::Map;
-use crate::mapping::window_ba::Window;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::record::FrameRecord;
+use crate::map::Map;
+use crate::mapping::window_ba::Window;
 use candidates::Candidate;
 use loop_closing::{ClosedLoop, LoopCloser};
 use place_recognition::{LoopConfig, PlaceRecognition};
@@ -49,6 +50,10 @@ pub struct GlobalConfig {
     /// Full bundle adjustment at the end: iterations with the Huber kernel, then
     /// without it on the inliers.
     pub full_ba: bool,
+    /// Stereo: after full BA, estimate the rig's disparity offset from the map, take
+    /// it out of every disparity and run full BA again ([`disparity_offset`]; needs
+    /// `full_ba`).
+    pub disparity_offset: bool,
     /// Full BA iterations with the Huber kernel.
     pub full_ba_robust_iterations: usize,
     /// Full BA iterations without it, on the inliers.
@@ -67,6 +72,7 @@ impl Default for GlobalConfig {
             vocabulary: None,
             loops: LoopConfig::default(),
             full_ba: true,
+            disparity_offset: false,
             full_ba_robust_iterations: 10,
             full_ba_inlier_iterations: 5,
             refine_frames: true,
@@ -104,8 +110,11 @@ pub struct GlobalReport {
     pub loops: Vec<ClosedLoop>,
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
-    /// The full BA, when it ran.
+    /// The full BA, when it ran (the last one, after the disparity offset's rounds).
     pub full_ba: Option<FullBaReport>,
+    /// Stereo: the rig's disparity offset, when it was estimated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub disparity_offset: Option<disparity_offset::OffsetReport>,
     /// The frames estimated again on the final map.
     pub frames: Option<frame_refinement::RefinementReport>,
     /// The frames' poses smoothed with a motion prior.
@@ -128,6 +137,8 @@ pub struct GlobalInputs<'a> {
     pub camera: &'a StereoCamera,
     /// The scale pyramid.
     pub pyramid: &'a ScalePyramid,
+    /// A stereo sequence (its disparities may carry the rig's offset).
+    pub stereo: bool,
     /// The image size, pixels.
     pub size: (f32, f32),
     /// Points above this moving probability are dynamic and take no part.
@@ -167,15 +178,17 @@ pub enum NoLoops {
 /// the error names the file and the ways out.
 pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, NoLoops> {
     let path = config.vocabulary_file();
-    Vocabulary::read(&path).map(Arc::new).map_err(|e| NoLoops::NoVocabulary {
-        fix: if path.exists() {
-            "train one with `dopslam vocab train` or set [global] vocabulary"
-        } else {
-            crate::io::data_dir::INSTALL_HINT
-        },
-        problem: e.to_string(),
-        path,
-    })
+    Vocabulary::read(&path)
+        .map(Arc::new)
+        .map_err(|e| NoLoops::NoVocabulary {
+            fix: if path.exists() {
+                "train one with `dopslam vocab train` or set [global] vocabulary"
+            } else {
+                crate::io::data_dir::INSTALL_HINT
+            },
+            problem: e.to_string(),
+            path,
+        })
 }
 
 /// Runs the global pass on `map` in place: loops verified and corrected from what
@@ -199,10 +212,14 @@ pub fn run<'a>(
         Err(why) => report.note = Some(why.to_string()),
     }
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
+    let mut frames: Vec<&mut FrameRecord> = frames.collect();
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
+        if config.disparity_offset && inputs.stereo && report.full_ba.is_some() {
+            report.disparity_offset =
+                take_out_disparity_offset(map, inputs, config, &mut report, &mut frames);
+        }
     }
-    let mut frames: Vec<&mut FrameRecord> = frames.collect();
     if config.refine_frames {
         report.frames = Some(frame_refinement::refine_frames(
             map,
@@ -219,6 +236,40 @@ pub fn run<'a>(
     }
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
     report
+}
+
+/// At most this many rounds of estimate, correction and full BA.
+const OFFSET_ROUNDS: usize = 3;
+/// An estimate below this (pixels) ends the rounds uncorrected.
+const MIN_OFFSET_PX: f64 = 0.05;
+
+/// Rounds of [`disparity_offset::estimate`], [`disparity_offset::correct`] and full BA
+/// until the estimate falls below [`MIN_OFFSET_PX`]; `report.full_ba` becomes the last
+/// BA's. `None` when the map has too few points with parallax for an estimate.
+fn take_out_disparity_offset(
+    map: &mut Map,
+    inputs: &GlobalInputs,
+    config: &GlobalConfig,
+    report: &mut GlobalReport,
+    frames: &mut [&mut FrameRecord],
+) -> Option<disparity_offset::OffsetReport> {
+    let mut offset = disparity_offset::OffsetReport::default();
+    for _ in 0..OFFSET_ROUNDS {
+        let Some((delta, pairs, scale)) =
+            disparity_offset::estimate(map, inputs.camera, inputs.moving_threshold)
+        else {
+            break;
+        };
+        offset.rounds.push(delta);
+        (offset.pairs, offset.scale) = (pairs, scale);
+        if delta.abs() < MIN_OFFSET_PX {
+            break;
+        }
+        disparity_offset::correct(map, frames, inputs.camera.bf, delta);
+        offset.offset_px += delta;
+        report.full_ba = full_bundle_adjustment(map, inputs, config);
+    }
+    (!offset.rounds.is_empty()).then_some(offset)
 }
 
 /// Keyframes with fewer static observations are held in full BA.

@@ -338,6 +338,16 @@ pub struct GlobalSummary {
     /// Every loop candidate that reached consistency checking, with its outcome.
     #[serde(default)]
     pub candidates: Vec<serde_json::Value>,
+    /// Stereo: the rig's disparity offset the pass took out, when it did.
+    #[serde(default)]
+    pub disparity_offset: Option<OffsetSummary>,
+}
+
+/// The part of `global.disparity_offset` that is read back.
+#[derive(Debug, Clone, Deserialize)]
+pub struct OffsetSummary {
+    /// Pixels added to every disparity.
+    pub offset_px: f64,
 }
 
 impl RunSummary {
@@ -390,9 +400,16 @@ mod tests {
         // Any JSON object is not a report: one lists frames or totals.
         std::fs::write(run.report(), "{\"mode\": \"dop\"}").unwrap();
         let e = run.read_summary().unwrap_err().to_string();
-        assert!(e.contains("not a dopslam run report") && e.contains("no frames"), "{e}");
+        assert!(
+            e.contains("not a dopslam run report") && e.contains("no frames"),
+            "{e}"
+        );
         // What fuse needs may be all there is; the totals are asked for by name.
-        std::fs::write(run.report(), "{\"mode\": \"dop\", \"frames\": [{\"dynamic_keypoints\": 0}]}").unwrap();
+        std::fs::write(
+            run.report(),
+            "{\"mode\": \"dop\", \"frames\": [{\"dynamic_keypoints\": 0}]}",
+        )
+        .unwrap();
         let summary = run.read_summary().unwrap();
         assert_eq!(summary.mode, "dop");
         let e = summary.totals(&run.report()).unwrap_err().to_string();

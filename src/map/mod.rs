@@ -8,8 +8,8 @@ use nalgebra::Vector3;
 use slotmap::{new_key_type, SlotMap};
 
 use crate::features::Descriptor;
-use crate::geometry::se3::Se3;
 use crate::frame::Frame;
+use crate::geometry::se3::Se3;
 
 new_key_type! {
     /// A keyframe in the map.
@@ -214,10 +214,19 @@ impl Map {
 
 /// Writes other than observations and connections, grouped by what they change.
 impl Map {
+    /// Every keyframe's frame, to rewrite its measurements (the global pass's
+    /// disparity correction); poses, points and observations stay as they are.
+    pub fn keyframe_frames_mut(&mut self) -> impl Iterator<Item = &mut crate::frame::Frame> {
+        self.keyframes.values_mut().map(|k| &mut k.frame)
+    }
+
     /// Inserts a point that no keyframe observes yet ([`Map::add_observation`] adds
     /// them).
     pub fn insert_point(&mut self, point: MapPoint) -> MapPointKey {
-        debug_assert!(point.observations.is_empty(), "observations come through add_observation");
+        debug_assert!(
+            point.observations.is_empty(),
+            "observations come through add_observation"
+        );
         self.points.insert(point)
     }
 

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use super::setup::{resolve_calibration, stereo_bf, Setup};
 use super::error::RunError;
+use super::setup::{resolve_calibration, stereo_bf, Setup};
 use crate::config::Config;
 use crate::dense::disparity::StereoDepth;
 use crate::dense::{fuse_run, DenseInputs, DenseReport};
@@ -27,7 +27,12 @@ pub struct DenseSetup {
 impl DenseSetup {
     /// The dense pass of a run: from the run's set-up, nothing resolved again.
     pub fn of_run(setup: &Setup) -> Self {
-        Self::new(setup.config.clone(), setup.calibration.camera, setup.sensor, setup.camera.bf)
+        Self::new(
+            setup.config.clone(),
+            setup.calibration.camera,
+            setup.sensor,
+            setup.camera.bf,
+        )
     }
 
     /// For `dopslam fuse` (no tracking pass before it): the sensor's config and the
@@ -39,9 +44,19 @@ impl DenseSetup {
         Ok(Self::new(config, calibration.camera, sequence.sensor(), bf))
     }
 
+    /// The same with the rig's disparity offset `offset_px` (pixels) that the global
+    /// pass took out of the sparse disparities taken out of the dense ones too.
+    pub fn with_disparity_offset(mut self, offset_px: f64) -> Self {
+        if let Some(stereo) = &mut self.stereo {
+            stereo.offset = offset_px;
+        }
+        self
+    }
+
     fn new(config: Config, camera: PinholeCamera, sensor: SensorKind, bf: f64) -> Self {
         let stereo = (sensor == SensorKind::Stereo).then(|| StereoDepth {
             bf,
+            offset: 0.0,
             sgbm: config.stereo.sgbm(),
         });
         Self {

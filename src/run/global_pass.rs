@@ -2,10 +2,10 @@
 //! place recognition found, essential graph, full BA, frames refined
 //! ([`crate::global::run`]), on the map the system handed over unlocked.
 
+use super::error::RunError;
 use super::outputs::write_tracking_trajectory;
 use super::setup::Setup;
 use super::tracking_pass::TrackingPass;
-use super::error::RunError;
 use crate::global::{GlobalInputs, GlobalReport};
 use crate::io::run_dir::RunDir;
 use crate::io::Trajectory;
@@ -29,6 +29,7 @@ pub fn global_pass(
     let inputs = GlobalInputs {
         camera: &setup.camera,
         pyramid: &setup.extractor.pyramid,
+        stereo: setup.sensor == crate::io::sequence::SensorKind::Stereo,
         size: (camera.width as f32, camera.height as f32),
         moving_threshold: setup.mode.moving_threshold(&setup.config.dop),
         prediction_gate_share: if setup.mode == crate::dop::Mode::Dop {

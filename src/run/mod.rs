@@ -14,9 +14,9 @@
 
 pub mod dense_pass;
 pub mod error;
-pub mod options;
 pub mod global_pass;
 pub mod observers;
+pub mod options;
 pub mod outputs;
 pub mod report;
 pub mod rerun_log;
@@ -31,8 +31,8 @@ pub use error::{RunError, StopReason};
 pub use options::RunOptions;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
-    check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash, open_sequence,
-    resolve_calibration, RunSetup, Setup,
+    check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash,
+    open_sequence, resolve_calibration, RunSetup, Setup,
 };
 
 use crate::dop::Mode;
@@ -41,8 +41,8 @@ use crate::io::sequence::Sequence;
 use crate::view::{At, Entry, Logger, Target};
 use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
-use rerun_log::RerunLog;
 use outputs::Computed;
+use rerun_log::RerunLog;
 use tracking_pass::{tracking_pass, TrackingPass};
 use truth::TruthScorer;
 
@@ -82,7 +82,7 @@ pub fn run_sequence(
     if options.dense && dense_due && !crate::interrupt::requested() {
         let dense = dense_pass(
             sequence,
-            &DenseSetup::of_run(&setup),
+            &DenseSetup::of_run(&setup).with_disparity_offset(report.disparity_offset_px()),
             (out, out),
             setup.mode,
             options.sequence_dir.as_deref(),

@@ -172,3 +172,13 @@ pub struct RunReport {
     #[serde(skip)]
     pub recording: Option<crate::view::Logger>,
 }
+
+impl RunReport {
+    /// The rig's disparity offset the global pass took out, pixels (0 when it did not).
+    pub fn disparity_offset_px(&self) -> f64 {
+        self.global
+            .as_ref()
+            .and_then(|g| g.disparity_offset.as_ref())
+            .map_or(0.0, |o| o.offset_px)
+    }
+}
