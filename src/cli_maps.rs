@@ -155,13 +155,8 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     }
     let dense = dense_pass(
         sequence.as_ref(),
-        &DenseSetup::resolve(sequence.as_ref(), &config)?.with_disparity_offset(
-            report
-                .global
-                .as_ref()
-                .and_then(|g| g.disparity_offset.as_ref())
-                .map_or(0.0, |o| o.offset_px),
-        ),
+        &DenseSetup::resolve(sequence.as_ref(), &config)?
+            .with_disparity_offset(report.disparity_offset_px()),
         (&args.run, &args.run),
         masking,
         Some(&sequence_dir),

@@ -21,9 +21,11 @@
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
+use crate::eval::stats::median;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::record::FrameRecord;
 use crate::map::Map;
+use crate::optim::robust::huber_weight;
 
 /// A point's rays must span at least this angle (degrees) for its triangulated depth to
 /// be a measurement.
@@ -120,14 +122,15 @@ fn pairs(map: &Map, camera: &StereoCamera, moving_threshold: f32) -> Vec<Pair> {
 /// The robust line \(y = a x + b\) through `pairs` (Huber, iteratively reweighted
 /// least squares from \(a = 1\), \(b\) the median of \(y - x\)).
 fn fit_line(pairs: &[Pair]) -> Option<(f64, f64)> {
+    if pairs.is_empty() {
+        return None;
+    }
     let mut gaps: Vec<f64> = pairs.iter().map(|(x, y)| y - x).collect();
-    gaps.sort_by(f64::total_cmp);
-    let (mut a, mut b) = (1.0, *gaps.get(gaps.len() / 2)?);
+    let (mut a, mut b) = (1.0, median(&mut gaps));
     for _ in 0..20 {
         let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &(x, y) in pairs {
-            let r = (y - a * x - b).abs();
-            let w = if r <= HUBER_PX { 1.0 } else { HUBER_PX / r };
+            let w = huber_weight((y - a * x - b).powi(2), HUBER_PX);
             sw += w;
             sx += w * x;
             sy += w * y;
@@ -144,19 +147,29 @@ fn fit_line(pairs: &[Pair]) -> Option<(f64, f64)> {
     (a > 0.0).then_some((a, b))
 }
 
-/// The offset \(\delta\) the map shows, with the pairs used and the pose scale
-/// \(1/a\); `None` with fewer than [`MIN_PAIRS`] pairs.
-pub fn estimate(
-    map: &Map,
-    camera: &StereoCamera,
-    moving_threshold: f32,
-) -> Option<(f64, usize, f64)> {
+/// One estimate from the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// The offset \(\delta = b / a\), pixels.
+    pub offset_px: f64,
+    /// Pairs in the fit.
+    pub pairs: usize,
+    /// The pose scale the fit saw, \(1/a\).
+    pub scale: f64,
+}
+
+/// The offset \(\delta\) the map shows; `None` with fewer than [`MIN_PAIRS`] pairs.
+pub fn estimate(map: &Map, camera: &StereoCamera, moving_threshold: f32) -> Option<Estimate> {
     let pairs = pairs(map, camera, moving_threshold);
     if pairs.len() < MIN_PAIRS {
         return None;
     }
     let (a, b) = fit_line(&pairs)?;
-    Some((b / a, pairs.len(), 1.0 / a))
+    Some(Estimate {
+        offset_px: b / a,
+        pairs: pairs.len(),
+        scale: 1.0 / a,
+    })
 }
 
 /// The disparity `d` pixels corrected by `offset`, kept above 0.01 px (as stereo

@@ -255,18 +255,17 @@ fn take_out_disparity_offset(
 ) -> Option<disparity_offset::OffsetReport> {
     let mut offset = disparity_offset::OffsetReport::default();
     for _ in 0..OFFSET_ROUNDS {
-        let Some((delta, pairs, scale)) =
-            disparity_offset::estimate(map, inputs.camera, inputs.moving_threshold)
+        let Some(found) = disparity_offset::estimate(map, inputs.camera, inputs.moving_threshold)
         else {
             break;
         };
-        offset.rounds.push(delta);
-        (offset.pairs, offset.scale) = (pairs, scale);
-        if delta.abs() < MIN_OFFSET_PX {
+        offset.rounds.push(found.offset_px);
+        (offset.pairs, offset.scale) = (found.pairs, found.scale);
+        if found.offset_px.abs() < MIN_OFFSET_PX {
             break;
         }
-        disparity_offset::correct(map, frames, inputs.camera.bf, delta);
-        offset.offset_px += delta;
+        disparity_offset::correct(map, frames, inputs.camera.bf, found.offset_px);
+        offset.offset_px += found.offset_px;
         report.full_ba = full_bundle_adjustment(map, inputs, config);
     }
     (!offset.rounds.is_empty()).then_some(offset)

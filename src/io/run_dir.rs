@@ -356,6 +356,15 @@ impl RunSummary {
         Some(&self.setup.as_ref()?.calibration.as_ref()?.camera)
     }
 
+    /// The rig's disparity offset the run's global pass took out, pixels (0 when it did
+    /// not); `dopslam fuse` takes it out of the dense disparities too.
+    pub fn disparity_offset_px(&self) -> f64 {
+        self.global
+            .as_ref()
+            .and_then(|g| g.disparity_offset.as_ref())
+            .map_or(0.0, |o| o.offset_px)
+    }
+
     /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).
     pub fn first_frame_hash(&self) -> Option<&str> {
         self.setup.as_ref()?.first_frame_hash.as_deref()
