@@ -308,6 +308,9 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
             ba.keyframes, ba.points, ba.initial_cost, ba.final_cost, ba.outliers_removed, ba.milliseconds
         );
     }
+    if let Some(offset) = &global.disparity_offset {
+        println!("  {}", offset.summary());
+    }
     if let Some(note) = &global.note {
         println!("  {note}");
     }

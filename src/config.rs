@@ -391,6 +391,7 @@ impl Config {
         self.dense.validate()?;
         self.output.validate()?;
         self.global.smoothing.validate()?;
+        checks::non_negative("global.disparity_offset_min_px", self.global.disparity_offset_min_px)?;
         checks::unit_interval("tracking.prediction_gate_share", self.tracking.prediction_gate_share)?;
         checks::unit_interval("mapping.redundancy", self.mapping.redundancy)?;
         checks::at_least_one("mapping.local_ba_keyframes", self.mapping.local_ba_keyframes as u64)?;

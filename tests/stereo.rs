@@ -42,11 +42,7 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     // A rendered rig is perfect: its far disparities are as exact as its near ones, so
     // they stay residuals here (the default makes them bearings, for real rigs).
     let perfect_rig = out.join("perfect_rig.toml");
-    std::fs::write(
-        &perfect_rig,
-        "[stereo]\nbearing_baselines = 0.0\n[global]\ndisparity_offset = true\n",
-    )
-    .unwrap();
+    std::fs::write(&perfect_rig, "[stereo]\nbearing_baselines = 0.0\n").unwrap();
     let run_dir = out.join("run");
     let (ok, stdout, err) = dopslam(&[
         "run",
@@ -112,28 +108,53 @@ fn a_rigs_disparity_offset_is_found_and_taken_out() {
         "40",
     ]);
     assert!(ok, "{err}");
-    let offset = dir.join("offset.toml");
-    std::fs::write(&offset, "[global]\ndisparity_offset = true\n").unwrap();
-    let run_dir = dir.join("run");
-    let (ok, stdout, err) = dopslam(&[
-        "run",
-        &dir.join("seq/kitti/sequences/00").to_string_lossy(),
-        "--out",
-        &run_dir.to_string_lossy(),
-        "--no-dense",
-        "--no-dop",
-        "--deterministic",
-        "--config",
-        &offset.to_string_lossy(),
-    ]);
-    assert!(ok, "{stdout}\n{err}");
-    let report = json(&run_dir.join("report.json"));
-    let taken = report["global"]["disparity_offset"]["offset_px"]
-        .as_f64()
-        .unwrap();
+    let sequence = dir.join("seq/kitti/sequences/00");
+    // The default takes it out; a threshold above the estimate keeps it in.
+    let strict = dir.join("strict.toml");
+    std::fs::write(&strict, "[global]\ndisparity_offset_min_px = 2.0\n").unwrap();
+    let mut found = Vec::new();
+    for (name, extra) in [
+        ("run", vec![]),
+        ("strict", vec!["--config", strict.to_str().unwrap()]),
+    ] {
+        let run_dir = dir.join(name);
+        let mut args = vec![
+            "run",
+            sequence.to_str().unwrap(),
+            "--out",
+            run_dir.to_str().unwrap(),
+            "--no-dense",
+            "--no-dop",
+            "--deterministic",
+        ];
+        args.extend(extra);
+        let (ok, stdout, err) = dopslam(&args);
+        assert!(ok, "{stdout}\n{err}");
+        assert!(
+            stdout.contains("stereo disparity offset: estimates"),
+            "{stdout}"
+        );
+        let offset = json(&run_dir.join("report.json"))["global"]["disparity_offset"].clone();
+        found.push((
+            offset["offset_px"].as_f64().unwrap(),
+            offset["rounds"][0].as_f64().unwrap(),
+        ));
+    }
+    let [(taken, first), (strict_taken, strict_first)] = found[..] else {
+        unreachable!()
+    };
     assert!(
         (taken - 1.0).abs() < 0.15,
         "took out {taken} px of a 1 px offset"
+    );
+    assert!((first - 1.0).abs() < 0.15, "first estimate {first} px");
+    assert_eq!(
+        strict_taken, 0.0,
+        "took out {strict_taken} px below the threshold"
+    );
+    assert!(
+        (strict_first - first).abs() < 1e-9,
+        "{strict_first} != {first}"
     );
 }
 

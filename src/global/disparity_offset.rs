@@ -48,6 +48,26 @@ pub struct OffsetReport {
     pub scale: f64,
 }
 
+impl OffsetReport {
+    /// One line for the console: what was found and whether it was taken out.
+    pub fn summary(&self) -> String {
+        let rounds: Vec<String> = self.rounds.iter().map(|r| format!("{r:.3}")).collect();
+        let found = format!(
+            "stereo disparity offset: estimates {} px from {} pairs",
+            rounds.join(", "),
+            self.pairs
+        );
+        if self.offset_px == 0.0 {
+            format!("{found}; none taken out (below [global] disparity_offset_min_px)")
+        } else {
+            format!(
+                "{found}; {:.3} px taken out of every disparity",
+                self.offset_px
+            )
+        }
+    }
+}
+
 /// One observation's pair: the observed disparity and the one its triangulated point
 /// gives.
 type Pair = (f64, f64);
