@@ -250,6 +250,14 @@ pub struct StereoConfig {
     /// (0: every matched keypoint keeps its disparity residual). See
     /// [`crate::frame::stereo::bearings_beyond`].
     pub bearing_baselines: f64,
+    /// The rig's known disparity offset, pixels, added to every disparity (tracking's
+    /// matches and the dense pass's). Unset: estimated over the first
+    /// `disparity_offset_frames` frames ([`crate::run::rig_offset`]).
+    pub disparity_offset_px: Option<f64>,
+    /// With no known offset: the first this many frames are tracked once (deterministic,
+    /// no DOP) and the global pass's estimate of the offset taken from their map; 0:
+    /// no estimate before tracking.
+    pub disparity_offset_frames: usize,
 }
 
 impl Default for StereoConfig {
@@ -267,9 +275,15 @@ impl Default for StereoConfig {
             sgbm_disparities: 128,
             sgbm_block: 5,
             bearing_baselines: 22.0,
+            disparity_offset_px: None,
+            disparity_offset_frames: 150,
         }
     }
 }
+
+/// The largest rig disparity offset accepted, pixels: a rectification that far off is
+/// a wrong calibration, not an offset.
+const MAX_DISPARITY_OFFSET_PX: f64 = 20.0;
 
 impl StereoConfig {
     /// The semi-global matcher's settings for the dense depth of stereo pairs.
@@ -293,6 +307,14 @@ impl StereoConfig {
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("bearing_baselines", self.bearing_baselines),
         ])?;
+        if let Some(offset) = self.disparity_offset_px {
+            if offset.abs() > MAX_DISPARITY_OFFSET_PX {
+                return Err(BadValue::new(
+                    "stereo.disparity_offset_px",
+                    format!("must be within ±{MAX_DISPARITY_OFFSET_PX} pixels, got {offset}"),
+                ));
+            }
+        }
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(BadValue::new(
                 "stereo.sgbm_disparities",
@@ -600,6 +622,9 @@ mod tests {
             ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
             ("[stereo]\nbearing_baselines = -1.0\n", "stereo.bearing_baselines"),
             ("[stereo]\nbearing_baselines = inf\n", "stereo.bearing_baselines"),
+            ("[stereo]\ndisparity_offset_px = 40.0\n", "stereo.disparity_offset_px"),
+            ("[stereo]\ndisparity_offset_px = nan\n", "stereo.disparity_offset_px"),
+            ("[global]\ndisparity_offset_min_px = -1.0\n", "global.disparity_offset_min_px"),
         ] {
             match Config::from_toml(text) {
                 Err(ConfigProblem::Value(bad)) => assert_eq!(bad.key, key, "{text}: {bad}"),

@@ -800,6 +800,9 @@ fn print_run_summary(report: &dopslam::run::RunReport) {
         t.median_matching_ms,
         t.median_optimisation_ms
     );
+    if let Some(offset) = &report.setup.disparity_offset {
+        println!("{}", offset.summary());
+    }
     if let Some(global) = &report.global {
         cli_global::print_global(global);
     }

@@ -109,13 +109,17 @@ fn a_rigs_disparity_offset_is_found_and_taken_out() {
     ]);
     assert!(ok, "{err}");
     let sequence = dir.join("seq/kitti/sequences/00");
-    // The default takes it out; a threshold above the estimate keeps it in.
+    // The default estimates it over the first frames and tracks with it; a threshold
+    // above the estimate keeps it in; a known offset is taken as given.
     let strict = dir.join("strict.toml");
     std::fs::write(&strict, "[global]\ndisparity_offset_min_px = 2.0\n").unwrap();
-    let mut found = Vec::new();
-    for (name, extra) in [
-        ("run", vec![]),
-        ("strict", vec!["--config", strict.to_str().unwrap()]),
+    let known = dir.join("known.toml");
+    std::fs::write(&known, "[stereo]\ndisparity_offset_px = 1.0\n").unwrap();
+    let mut reports = Vec::new();
+    for (name, config) in [
+        ("run", None),
+        ("strict", Some(&strict)),
+        ("known", Some(&known)),
     ] {
         let run_dir = dir.join(name);
         let mut args = vec![
@@ -127,35 +131,48 @@ fn a_rigs_disparity_offset_is_found_and_taken_out() {
             "--no-dop",
             "--deterministic",
         ];
-        args.extend(extra);
+        if let Some(config) = config {
+            args.extend(["--config", config.to_str().unwrap()]);
+        }
         let (ok, stdout, err) = dopslam(&args);
         assert!(ok, "{stdout}\n{err}");
-        assert!(
-            stdout.contains("stereo disparity offset: estimates"),
-            "{stdout}"
-        );
-        let offset = json(&run_dir.join("report.json"))["global"]["disparity_offset"].clone();
-        found.push((
-            offset["offset_px"].as_f64().unwrap(),
-            offset["rounds"][0].as_f64().unwrap(),
-        ));
+        assert!(stdout.contains("stereo disparity offset"), "{stdout}");
+        reports.push(json(&run_dir.join("report.json")));
     }
-    let [(taken, first), (strict_taken, strict_first)] = found[..] else {
-        unreachable!()
-    };
+    let px = |v: &serde_json::Value| v.as_f64().unwrap();
+    let ate = |r: &serde_json::Value| px(&r["ate"]["ape"]["statistics"]["rmse"]);
+    // Estimated over the 40 frames, added to every match: the global pass finds none left.
+    let estimated = &reports[0]["setup"]["disparity_offset"];
+    assert_eq!(estimated["source"], "estimated", "{estimated}");
+    let added = px(&estimated["offset_px"]);
     assert!(
-        (taken - 1.0).abs() < 0.15,
-        "took out {taken} px of a 1 px offset"
+        (added - 1.0).abs() < 0.15,
+        "added {added} px for a 1 px offset"
     );
-    assert!((first - 1.0).abs() < 0.15, "first estimate {first} px");
-    assert_eq!(
-        strict_taken, 0.0,
-        "took out {strict_taken} px below the threshold"
-    );
+    let left = px(&reports[0]["global"]["disparity_offset"]["rounds"][0]);
+    assert!(left.abs() < 0.15, "{left} px left after adding {added}");
+    assert!(ate(&reports[0]) < 0.15, "ATE {} m", ate(&reports[0]));
+    // Below the threshold: estimated the same, added nowhere.
+    let strict = &reports[1];
+    assert_eq!(px(&strict["setup"]["disparity_offset"]["offset_px"]), 0.0);
+    let first =
+        |r: &serde_json::Value| px(&r["setup"]["disparity_offset"]["estimate"]["rounds"][0]);
     assert!(
-        (strict_first - first).abs() < 1e-9,
-        "{strict_first} != {first}"
+        (first(strict) - first(&reports[0])).abs() < 1e-9,
+        "the estimate changed"
     );
+    assert_eq!(px(&strict["global"]["disparity_offset"]["offset_px"]), 0.0);
+    assert!(
+        ate(strict) > 2.0 * ate(&reports[0]),
+        "ATE {} m with the offset kept",
+        ate(strict)
+    );
+    // Given: no estimate before tracking, and none left after it.
+    let given = &reports[2];
+    assert_eq!(given["setup"]["disparity_offset"]["source"], "config");
+    assert!(given["setup"]["disparity_offset"].get("estimate").is_none());
+    let left = px(&given["global"]["disparity_offset"]["rounds"][0]);
+    assert!(left.abs() < 0.15, "{left} px left after a known 1 px");
 }
 
 /// A three-frame copy of the street in the KITTI layout, to break.

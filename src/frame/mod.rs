@@ -13,7 +13,7 @@ use crate::geometry::camera::PinholeCamera;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::image_files::DepthImage;
 
-use stereo::{bearings_beyond, extract_and_match};
+use stereo::{add_disparity_offset, bearings_beyond, extract_and_match};
 
 pub mod matching;
 pub mod stereo;
@@ -116,18 +116,20 @@ impl Frame {
 
     /// Extracts features from both images of a rectified stereo pair (in parallel) and
     /// gives each left keypoint the depth of its row match in the right image
-    /// ([`extract_and_match`]); keypoints farther than `bearing_depth` metres keep their
-    /// depth but lose their right column ([`bearings_beyond`]; 0: none do).
+    /// ([`extract_and_match`]) with the rig's disparity offset added
+    /// ([`add_disparity_offset`]); keypoints farther than `bearing_depth` metres keep
+    /// their depth but lose their right column ([`bearings_beyond`]; 0: none do).
     pub fn from_stereo(
         index: usize,
         timestamp: f64,
         (left, right): (&GrayImage, &GrayImage),
         extractor: &OrbExtractor,
         camera: &StereoCamera,
-        bearing_depth: f32,
+        (bearing_depth, disparity_offset): (f32, f64),
     ) -> Self {
         let (left_features, mut matches) =
             extract_and_match((left, right), extractor, camera.bf, camera.fx);
+        add_disparity_offset(&mut matches, &left_features.keypoints, camera.bf, disparity_offset);
         bearings_beyond(&mut matches, bearing_depth);
         Self::from_parts(
             index,

@@ -15,7 +15,9 @@
 
 use image::GrayImage;
 
-use crate::features::{hamming, OrbExtractor, OrbFeatures, ScalePyramid, TH_HIGH, TH_LOW};
+use crate::features::{
+    hamming, KeyPoint, OrbExtractor, OrbFeatures, ScalePyramid, TH_HIGH, TH_LOW,
+};
 
 /// Half side of the SAD patch, and the half range of the SAD search.
 const PATCH: i32 = 5;
@@ -142,6 +144,31 @@ pub fn bearings_beyond(matches: &mut StereoMatches, depth: f32) {
     for (z, u) in matches.depth.iter().zip(matches.right_u.iter_mut()) {
         if *z > depth {
             *u = -1.0;
+        }
+    }
+}
+
+/// The disparity `d` pixels with the rig's offset added, kept above 0.01 px (as stereo
+/// matching keeps it).
+pub fn offset_disparity(d: f64, offset: f64) -> f64 {
+    (d + offset).max(0.01)
+}
+
+/// Adds the rig's disparity `offset` (pixels) to every match of the left `keypoints`:
+/// depth \(bf / (d + \delta)\), right column \(u - d - \delta\).
+pub fn add_disparity_offset(matches: &mut StereoMatches, keypoints: &[KeyPoint], bf: f64, offset: f64) {
+    if offset == 0.0 {
+        return;
+    }
+    for ((kp, z), u) in keypoints
+        .iter()
+        .zip(matches.depth.iter_mut())
+        .zip(matches.right_u.iter_mut())
+    {
+        if *u >= 0.0 {
+            let d = offset_disparity((kp.x - *u) as f64, offset);
+            *z = (bf / d) as f32;
+            *u = kp.x - d as f32;
         }
     }
 }
@@ -334,6 +361,28 @@ fn drop_outliers(matches: &mut StereoMatches, sads: &mut [(u32, usize)]) {
 mod tests {
     use super::*;
     use crate::features::{OrbConfig, OrbExtractor};
+
+    #[test]
+    fn the_rigs_offset_moves_every_match_and_only_matches() {
+        let keypoints: Vec<KeyPoint> = [100.0, 50.0, 20.0]
+            .iter()
+            .map(|&x| KeyPoint { x, ..KeyPoint::default() })
+            .collect();
+        // Disparities 10 and 0.5 px, and a keypoint without a match.
+        let mut matches = StereoMatches {
+            depth: vec![10.0, 200.0, 0.0],
+            right_u: vec![90.0, 49.5, -1.0],
+        };
+        add_disparity_offset(&mut matches, &keypoints, 100.0, 1.0);
+        assert!((matches.depth[0] - 100.0 / 11.0).abs() < 1e-4);
+        assert!((matches.right_u[0] - 89.0).abs() < 1e-4);
+        assert!((matches.depth[1] - 100.0 / 1.5).abs() < 1e-3);
+        assert_eq!((matches.depth[2], matches.right_u[2]), (0.0, -1.0));
+        // A negative offset larger than a disparity keeps it at 0.01 px.
+        add_disparity_offset(&mut matches, &keypoints, 100.0, -3.0);
+        assert!((matches.depth[1] - 100.0 / 0.01).abs() < 1.0);
+        assert!((matches.right_u[0] - 92.0).abs() < 1e-4);
+    }
 
     /// A textured image and the same shifted left by a disparity that falls with the
     /// row (a slanted plane): the right image of a pair whose depth is known.

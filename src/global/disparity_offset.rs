@@ -22,6 +22,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
 use crate::eval::stats::median;
+use crate::frame::stereo::offset_disparity;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::record::FrameRecord;
 use crate::map::Map;
@@ -51,12 +52,7 @@ pub struct OffsetReport {
 impl OffsetReport {
     /// One line for the console: what was found and whether it was taken out.
     pub fn summary(&self) -> String {
-        let rounds: Vec<String> = self.rounds.iter().map(|r| format!("{r:.3}")).collect();
-        let found = format!(
-            "stereo disparity offset: estimates {} px from {} pairs",
-            rounds.join(", "),
-            self.pairs
-        );
+        let found = format!("stereo disparity offset: {}", self.estimates());
         if self.offset_px == 0.0 {
             format!("{found}; none taken out (below [global] disparity_offset_min_px)")
         } else {
@@ -65,6 +61,14 @@ impl OffsetReport {
                 self.offset_px
             )
         }
+    }
+}
+
+impl OffsetReport {
+    /// The rounds' estimates and the pairs: "estimates 1.406, 0.042 px from 27152 pairs".
+    pub fn estimates(&self) -> String {
+        let rounds: Vec<String> = self.rounds.iter().map(|r| format!("{r:.3}")).collect();
+        format!("estimates {} px from {} pairs", rounds.join(", "), self.pairs)
     }
 }
 
@@ -192,12 +196,6 @@ pub fn estimate(map: &Map, camera: &StereoCamera, moving_threshold: f32) -> Opti
     })
 }
 
-/// The disparity `d` pixels corrected by `offset`, kept above 0.01 px (as stereo
-/// matching keeps it).
-fn corrected(d: f64, offset: f64) -> f64 {
-    (d + offset).max(0.01)
-}
-
 /// Adds `offset` to every stereo disparity of the map's keyframes and of the tracked
 /// `frames`' observations: depths \(bf / (d + \delta)\), right columns \(u - d - \delta\).
 pub fn correct(map: &mut Map, frames: &mut [&mut FrameRecord], bf: f64, offset: f64) {
@@ -206,7 +204,7 @@ pub fn correct(map: &mut Map, frames: &mut [&mut FrameRecord], bf: f64, offset: 
             if frame.depth[i] <= 0.0 {
                 continue;
             }
-            let d = corrected(bf / frame.depth[i] as f64, offset);
+            let d = offset_disparity(bf / frame.depth[i] as f64, offset);
             frame.depth[i] = (bf / d) as f32;
             if frame.right_u[i] >= 0.0 {
                 frame.right_u[i] = kp.x - d as f32;
@@ -216,7 +214,7 @@ pub fn correct(map: &mut Map, frames: &mut [&mut FrameRecord], bf: f64, offset: 
     for record in frames.iter_mut() {
         for o in &mut record.observations {
             if o.right_u >= 0.0 {
-                o.right_u = o.x - corrected((o.x - o.right_u) as f64, offset) as f32;
+                o.right_u = o.x - offset_disparity((o.x - o.right_u) as f64, offset) as f32;
             }
         }
     }

@@ -283,6 +283,22 @@ fn take_out_disparity_offset(
     (!offset.rounds.is_empty()).then_some(offset)
 }
 
+/// The rig's disparity offset of a map tracked only to find it (`dopslam run`'s first
+/// frames, [`crate::run::rig_offset`]): full BA, then the rounds of estimate,
+/// correction and full BA. `None` when full BA or the estimate could not run.
+pub fn disparity_offset_of(
+    map: &mut Map,
+    inputs: &GlobalInputs,
+    config: &GlobalConfig,
+) -> Option<disparity_offset::OffsetReport> {
+    let mut report = GlobalReport {
+        full_ba: full_bundle_adjustment(map, inputs, config),
+        ..GlobalReport::default()
+    };
+    report.full_ba.as_ref()?;
+    take_out_disparity_offset(map, inputs, config, &mut report, &mut [])
+}
+
 /// Keyframes with fewer static observations are held in full BA.
 pub const MIN_FULL_BA_OBSERVATIONS: usize = 50;
 

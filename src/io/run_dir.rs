@@ -270,6 +270,9 @@ pub struct SetupSummary {
     #[serde(default)]
     /// The calibration.
     pub calibration: Option<CalibrationSummary>,
+    #[serde(default)]
+    /// Stereo: the rig's disparity offset tracking added to every match.
+    pub disparity_offset: Option<OffsetSummary>,
 }
 
 /// The camera a run used (`setup.calibration.camera`).
@@ -343,7 +346,8 @@ pub struct GlobalSummary {
     pub disparity_offset: Option<OffsetSummary>,
 }
 
-/// The part of `global.disparity_offset` that is read back.
+/// The part of `setup.disparity_offset` and `global.disparity_offset` that is read
+/// back.
 #[derive(Debug, Clone, Deserialize)]
 pub struct OffsetSummary {
     /// Pixels added to every disparity.
@@ -356,13 +360,21 @@ impl RunSummary {
         Some(&self.setup.as_ref()?.calibration.as_ref()?.camera)
     }
 
-    /// The rig's disparity offset the run's global pass took out, pixels (0 when it did
-    /// not); `dopslam fuse` takes it out of the dense disparities too.
+    /// The rig's disparity offset in the run's disparities, pixels: what tracking added
+    /// and what the global pass took out after it (0 when neither); `dopslam fuse`
+    /// adds it to the dense disparities too.
     pub fn disparity_offset_px(&self) -> f64 {
-        self.global
+        let tracking = self
+            .setup
             .as_ref()
-            .and_then(|g| g.disparity_offset.as_ref())
-            .map_or(0.0, |o| o.offset_px)
+            .and_then(|s| s.disparity_offset.as_ref())
+            .map_or(0.0, |o| o.offset_px);
+        tracking
+            + self
+                .global
+                .as_ref()
+                .and_then(|g| g.disparity_offset.as_ref())
+                .map_or(0.0, |o| o.offset_px)
     }
 
     /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).

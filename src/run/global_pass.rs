@@ -25,8 +25,21 @@ pub fn global_pass(
         return Ok(None);
     };
     let tracking = write_tracking_trajectory(run, &pass.tracked.map, &pass.records)?;
+    let inputs = global_inputs(setup);
+    let report = crate::global::run(
+        &mut pass.tracked.map,
+        &inputs,
+        &setup.config.global,
+        recognised,
+        pass.records.iter_mut(),
+    );
+    Ok(Some((report, tracking)))
+}
+
+/// What the global pass of a run of `setup` works with.
+pub fn global_inputs(setup: &Setup) -> GlobalInputs<'_> {
     let camera = &setup.calibration.camera;
-    let inputs = GlobalInputs {
+    GlobalInputs {
         camera: &setup.camera,
         pyramid: &setup.extractor.pyramid,
         stereo: setup.sensor == crate::io::sequence::SensorKind::Stereo,
@@ -37,13 +50,5 @@ pub fn global_pass(
         } else {
             0.0
         },
-    };
-    let report = crate::global::run(
-        &mut pass.tracked.map,
-        &inputs,
-        &setup.config.global,
-        recognised,
-        pass.records.iter_mut(),
-    );
-    Ok(Some((report, tracking)))
+    }
 }

@@ -20,6 +20,7 @@ pub mod options;
 pub mod outputs;
 pub mod report;
 pub mod rerun_log;
+pub mod rig_offset;
 pub mod setup;
 pub mod tracking_pass;
 pub mod truth;
@@ -56,9 +57,12 @@ pub fn run_sequence(
     out: &Path,
     options: &RunOptions,
 ) -> Result<RunReport, RunError> {
-    let setup = Setup::resolve(sequence, config)?;
+    let mut setup = Setup::resolve(sequence, config)?;
     let _lock = outputs::prepare(out, options)?;
     let run = RunDir::new(out);
+    if let Some(found) = rig_offset::estimate(sequence, &setup, options, &run)? {
+        setup.disparity_offset = Some(found);
+    }
     let own_log = open_run_recording(config, &run, options)?;
     let options = &RunOptions {
         rerun: options
@@ -226,7 +230,7 @@ impl Watchers {
         let computed = Computed {
             sequence,
             sequence_path: options.sequence_dir.as_deref(),
-            setup: RunSetup::new(sequence, &setup.config, &setup.calibration),
+            setup: RunSetup::new(sequence, setup),
             mode: setup.mode,
             map: tracked.map,
             mapping: tracked.mapping,

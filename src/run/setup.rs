@@ -47,6 +47,9 @@ pub struct Setup {
     pub bearing_depth: f32,
     /// Loop closing's vocabulary ([`loop_vocabulary`]).
     pub vocabulary: LoopVocabulary,
+    /// Stereo: the rig's disparity offset added to every match, known
+    /// (`[stereo] disparity_offset_px`) or estimated ([`super::rig_offset`]).
+    pub disparity_offset: Option<RigOffset>,
 }
 
 impl Setup {
@@ -72,6 +75,7 @@ impl Setup {
         let extractor = OrbExtractor::new(&config.orb);
         warn_if_swapped(sequence.name(), first.as_ref(), &extractor, &camera);
         let sensor = sequence.sensor();
+        let disparity_offset = RigOffset::known(&config, sensor);
         Ok(Self {
             mode: effective_mode(&config),
             alpha: match sensor {
@@ -84,9 +88,37 @@ impl Setup {
             sensor,
             calibration,
             camera,
+            disparity_offset,
             extractor,
             vocabulary,
         })
+    }
+
+    /// The rig's disparity offset added to every stereo match, pixels (0: none).
+    pub fn disparity_offset_px(&self) -> f64 {
+        self.disparity_offset.as_ref().map_or(0.0, |o| o.offset_px)
+    }
+
+    /// The set-up of the pass over the first frames that finds the rig's offset
+    /// ([`super::rig_offset`]): no detector, no DOP, no loops, no offset.
+    pub fn for_offset_estimate(&self) -> Self {
+        let mut config = self.config.clone();
+        config.detector.source = crate::detect::Source::None;
+        config.dop.mode = Mode::Off;
+        config.global.loops.enabled = false;
+        Self {
+            mode: Mode::Off,
+            alpha: self.alpha,
+            close_depth: self.close_depth,
+            bearing_depth: self.bearing_depth,
+            extractor: OrbExtractor::new(&config.orb),
+            config,
+            sensor: self.sensor,
+            calibration: self.calibration.clone(),
+            camera: self.camera,
+            vocabulary: Some(Err(crate::global::NoLoops::TurnedOff)),
+            disparity_offset: None,
+        }
     }
 
     /// What the online system is built from, its helpers run as `execution` says and
@@ -297,6 +329,10 @@ pub struct RunSetup {
     /// sequence the run tracked.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub first_frame_hash: Option<String>,
+    /// Stereo: the rig's disparity offset added to every disparity, and where it came
+    /// from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub disparity_offset: Option<RigOffset>,
 }
 
 /// A fingerprint of a sequence: FNV-1a (64 bits, hex) of its first frame's colour (or
@@ -321,7 +357,8 @@ pub fn content_hash(bytes: &[u8]) -> String {
 
 impl RunSetup {
     /// What `sequence` runs with under `config` and `calibration`.
-    pub fn new(sequence: &dyn Sequence, config: &Config, calibration: &Calibration) -> Self {
+    pub fn new(sequence: &dyn Sequence, setup: &Setup) -> Self {
+        let (config, calibration) = (&setup.config, &setup.calibration);
         let data = crate::io::data_dir::DataDir::locate();
         let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
         Self {
@@ -344,6 +381,7 @@ impl RunSetup {
             vocabulary: (config.global.enabled && config.global.loops.enabled)
                 .then(|| absolute(config.global.vocabulary_file())),
             first_frame_hash: first_frame_hash(sequence),
+            disparity_offset: setup.disparity_offset.clone(),
         }
     }
 }
@@ -401,6 +439,54 @@ pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocab
     crate::global::load_vocabulary(config)
         .map(|v| Some(Ok(v)))
         .map_err(RunError::NoLoops)
+}
+
+/// The rig's disparity offset a run adds to every stereo match (`report.json`,
+/// `setup.disparity_offset`; estimated by [`super::rig_offset`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct RigOffset {
+    /// Pixels added to every disparity (0: the estimate was below the threshold).
+    pub offset_px: f64,
+    /// `"config"` (`[stereo] disparity_offset_px`) or `"estimated"`.
+    pub source: &'static str,
+    /// Estimated: the frames tracked to find it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frames: Option<usize>,
+    /// Estimated: the estimate's rounds, as the global pass reports them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimate: Option<crate::global::disparity_offset::OffsetReport>,
+}
+
+impl RigOffset {
+    /// The offset `config` gives a `sensor`'s run, when it gives one (stereo only).
+    pub fn known(config: &Config, sensor: SensorKind) -> Option<Self> {
+        let offset_px = config.stereo.disparity_offset_px?;
+        (sensor == SensorKind::Stereo).then_some(Self {
+            offset_px,
+            source: "config",
+            frames: None,
+            estimate: None,
+        })
+    }
+
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        match (&self.estimate, self.frames) {
+            (Some(estimate), Some(frames)) if self.offset_px != 0.0 => format!(
+                "stereo disparity offset over the first {frames} frames ({}): {:.3} px added to every disparity",
+                estimate.estimates(),
+                self.offset_px
+            ),
+            (Some(estimate), Some(frames)) => format!(
+                "stereo disparity offset over the first {frames} frames ({}): below [global] disparity_offset_min_px, none added",
+                estimate.estimates()
+            ),
+            _ => format!(
+                "stereo disparity offset: {:.3} px added to every disparity ([stereo] disparity_offset_px)",
+                self.offset_px
+            ),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -209,7 +209,7 @@ fn next_frame(
                 (&left, &right),
                 &budgeted,
                 &setup.camera,
-                setup.bearing_depth,
+                (setup.bearing_depth, setup.disparity_offset_px()),
             );
             (frame, Picture::Grey(left), started, None)
         }
