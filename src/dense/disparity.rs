@@ -24,8 +24,9 @@ pub struct SgbmSettings {
 pub struct StereoDepth {
     /// Baseline times \(f_x\), pixel·metres.
     pub bf: f64,
-    /// Pixels added to every disparity: the rig's offset the global pass took out
-    /// (`crate::global::disparity_offset`), 0 when it did not.
+    /// Pixels added to every disparity: the rig's offset that tracking added
+    /// (`crate::run::rig_offset`) and the global pass took out after it
+    /// (`crate::global::disparity_offset`), 0 when neither did.
     pub offset: f64,
     /// The semi-global matcher's settings.
     pub sgbm: SgbmSettings,

@@ -91,6 +91,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         masking: Some(inputs.masking),
         other_segment_frames: read.other_segment_frames,
         extra_detections,
+        disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         ..DenseReport::default()
     };
     let (maps, truth) = fuse(inputs, config, &chosen, (&mut mask_source, &read.poses), &mut report)?;

@@ -36,6 +36,9 @@ pub struct DenseReport {
     pub cloud_seen_through: usize,
     /// The dense pass's own detections (`detect_every`).
     pub extra_detections: Option<ExtraDetections>,
+    /// Stereo: pixels added to every SGBM disparity (the rig's offset the run found).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub disparity_offset_px: Option<f64>,
     /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
     pub median_integration_ms: f64,
     /// Marching cubes, milliseconds.

@@ -44,8 +44,9 @@ impl DenseSetup {
         Ok(Self::new(config, calibration.camera, sequence.sensor(), bf))
     }
 
-    /// The same with the rig's disparity offset `offset_px` (pixels) that the global
-    /// pass took out of the sparse disparities taken out of the dense ones too.
+    /// The same with the rig's disparity offset `offset_px` (pixels) that the sparse
+    /// disparities had added (tracking's and the global pass's,
+    /// [`super::RunReport::disparity_offset_px`]) added to the dense ones too.
     pub fn with_disparity_offset(mut self, offset_px: f64) -> Self {
         if let Some(stereo) = &mut self.stereo {
             stereo.offset = offset_px;
