@@ -8,7 +8,8 @@
 # forgiven), estimated path length / true, median tracking time per frame.
 #
 #   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--offset] [--out DIR]
-#     --offset  each mode also with [global] disparity_offset = true, interleaved
+#     --offset  each mode also without the rig's disparity offset ([global]
+#               disparity_offset = false: neither found before tracking nor after)
 #     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
 #               --mask-boxes, and --dop with [stereo] bearing_baselines = 0 (before)
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
@@ -40,7 +41,7 @@ bin=${DOPSLAM_BIN:-./target/release/dopslam}
 mkdir -p "$out/runs"
 settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
 printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
-printf '[global]\ndisparity_offset = true\n' > "$out/offset.toml"
+printf '[global]\ndisparity_offset = false\n' > "$out/no_offset.toml"
 # One run: clip, label, repetition, then dopslam's arguments. Appends a line to runs.tsv.
 one() {
   local clip=$1 label=$2 rep=$3; shift 3
@@ -58,7 +59,7 @@ for clip in 01 06; do
   for r in $(seq 1 "$runs"); do
     for mode in $modes; do
       one "$clip" "$mode" "$r" "--$mode"
-      [ "$offset" = 0 ] || one "$clip" "$mode, disparity_offset" "$r" "--$mode" --config "$out/offset.toml"
+      [ "$offset" = 0 ] || one "$clip" "$mode, no disparity offset" "$r" "--$mode" --config "$out/no_offset.toml"
     done
   done
   if [ "$extra" = 1 ]; then
