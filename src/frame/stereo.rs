@@ -156,7 +156,12 @@ pub fn offset_disparity(d: f64, offset: f64) -> f64 {
 
 /// Adds the rig's disparity `offset` (pixels) to every match of the left `keypoints`:
 /// depth \(bf / (d + \delta)\), right column \(u - d - \delta\).
-pub fn add_disparity_offset(matches: &mut StereoMatches, keypoints: &[KeyPoint], bf: f64, offset: f64) {
+pub fn add_disparity_offset(
+    matches: &mut StereoMatches,
+    keypoints: &[KeyPoint],
+    bf: f64,
+    offset: f64,
+) {
     if offset == 0.0 {
         return;
     }

@@ -55,7 +55,7 @@ pub struct GlobalConfig {
     /// `full_ba`).
     pub disparity_offset: bool,
     /// The smallest first estimate (pixels) that is taken out: the estimate reads
-    /// 0.3-0.4 px on a real rig whose disparities want none (KITTI 06), so smaller
+    /// about 0.3 px on a real rig whose disparities want none (KITTI 06), so smaller
     /// ones are not told apart from its own error (`docs/design.md`).
     pub disparity_offset_min_px: f64,
     /// Full BA iterations with the Huber kernel.

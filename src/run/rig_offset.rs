@@ -3,9 +3,8 @@
 //! The global pass can estimate the offset \(\delta\) of a rig's disparities from the
 //! map and correct the map ([`crate::global::disparity_offset`]), but a tracking pass
 //! that ran with the offset in its disparities has already made its data association
-//! with the wrong scale: on the real KITTI 01 clip, the DOP runs corrected afterwards
-//! kept 2-4 % of scale in about half of the real-time runs (ATE 0.28-0.62 m against
-//! 0.06-0.13 m). So unless the config gives the offset (`[stereo]
+//! with the wrong scale: on the real KITTI 01 clip, 8 of 14 real-time DOP runs
+//! corrected afterwards kept 2-4 % of scale (ATE 0.23-0.62 m against 0.08-0.13 m). So unless the config gives the offset (`[stereo]
 //! disparity_offset_px`), the first `[stereo] disparity_offset_frames` frames are
 //! tracked once, deterministic, without detector or DOP, their map bundle-adjusted and
 //! the offset estimated from it; when it reaches `[global] disparity_offset_min_px`,
@@ -71,11 +70,8 @@ pub fn estimate(
         return Ok(None);
     }
     let inputs = global_inputs(&prefix);
-    let found = crate::global::disparity_offset_of(
-        &mut pass.tracked.map,
-        &inputs,
-        &prefix.config.global,
-    );
+    let found =
+        crate::global::disparity_offset_of(&mut pass.tracked.map, &inputs, &prefix.config.global);
     Ok(found.map(|estimate| RigOffset {
         offset_px: estimate.offset_px,
         source: "estimated",
