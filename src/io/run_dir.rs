@@ -364,17 +364,18 @@ impl RunSummary {
     /// and what the global pass took out after it (0 when neither); `dopslam fuse`
     /// adds it to the dense disparities too.
     pub fn disparity_offset_px(&self) -> f64 {
-        let tracking = self
-            .setup
-            .as_ref()
-            .and_then(|s| s.disparity_offset.as_ref())
-            .map_or(0.0, |o| o.offset_px);
-        tracking
-            + self
-                .global
+        [
+            self.setup
                 .as_ref()
-                .and_then(|g| g.disparity_offset.as_ref())
-                .map_or(0.0, |o| o.offset_px)
+                .and_then(|s| s.disparity_offset.as_ref()),
+            self.global
+                .as_ref()
+                .and_then(|g| g.disparity_offset.as_ref()),
+        ]
+        .into_iter()
+        .flatten()
+        .map(|o| o.offset_px)
+        .sum()
     }
 
     /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).

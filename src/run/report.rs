@@ -177,16 +177,11 @@ impl RunReport {
     /// The rig's disparity offset in the run's disparities, pixels: what tracking added
     /// to its matches and what the global pass took out after it (0 when neither).
     pub fn disparity_offset_px(&self) -> f64 {
-        let tracking = self
-            .setup
-            .disparity_offset
+        let tracking = self.setup.disparity_offset.as_ref().map(|o| o.offset_px);
+        let global = self
+            .global
             .as_ref()
-            .map_or(0.0, |o| o.offset_px);
-        tracking
-            + self
-                .global
-                .as_ref()
-                .and_then(|g| g.disparity_offset.as_ref())
-                .map_or(0.0, |o| o.offset_px)
+            .and_then(|g| g.disparity_offset.as_ref());
+        tracking.unwrap_or(0.0) + global.map_or(0.0, |o| o.offset_px)
     }
 }
