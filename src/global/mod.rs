@@ -222,7 +222,7 @@ pub fn run<'a>(
         report.full_ba = full_bundle_adjustment(map, inputs, config);
         if config.disparity_offset && inputs.stereo && report.full_ba.is_some() {
             report.disparity_offset =
-                take_out_disparity_offset(map, inputs, config, &mut report, &mut frames);
+                take_out_disparity_offset(map, inputs, config, &mut report.full_ba, &mut frames);
         }
     }
     if config.refine_frames {
@@ -251,13 +251,13 @@ const MIN_OFFSET_PX: f64 = 0.05;
 /// Rounds of [`disparity_offset::estimate`], [`disparity_offset::correct`] and full BA:
 /// nothing is taken out when the first estimate is below
 /// `config.disparity_offset_min_px`, and the rounds end when one falls below
-/// [`MIN_OFFSET_PX`]; `report.full_ba` becomes the last BA's. `None` when the map has
+/// [`MIN_OFFSET_PX`]; `full_ba` becomes the last BA's report. `None` when the map has
 /// too few points with parallax for an estimate.
 fn take_out_disparity_offset(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
-    report: &mut GlobalReport,
+    full_ba: &mut Option<FullBaReport>,
     frames: &mut [&mut FrameRecord],
 ) -> Option<disparity_offset::OffsetReport> {
     let mut offset = disparity_offset::OffsetReport::default();
@@ -278,7 +278,7 @@ fn take_out_disparity_offset(
         }
         disparity_offset::correct(map, frames, inputs.camera.bf, found.offset_px);
         offset.offset_px += found.offset_px;
-        report.full_ba = full_bundle_adjustment(map, inputs, config);
+        *full_ba = full_bundle_adjustment(map, inputs, config);
     }
     (!offset.rounds.is_empty()).then_some(offset)
 }
@@ -291,12 +291,9 @@ pub fn disparity_offset_of(
     inputs: &GlobalInputs,
     config: &GlobalConfig,
 ) -> Option<disparity_offset::OffsetReport> {
-    let mut report = GlobalReport {
-        full_ba: full_bundle_adjustment(map, inputs, config),
-        ..GlobalReport::default()
-    };
-    report.full_ba.as_ref()?;
-    take_out_disparity_offset(map, inputs, config, &mut report, &mut [])
+    let mut full_ba = full_bundle_adjustment(map, inputs, config);
+    full_ba.as_ref()?;
+    take_out_disparity_offset(map, inputs, config, &mut full_ba, &mut [])
 }
 
 /// Keyframes with fewer static observations are held in full BA.
