@@ -44,6 +44,14 @@ pub fn estimate(
     if !wanted(setup) {
         return Ok(None);
     }
+    // A model that does not load stops the run before this pass, not after it.
+    drop(
+        setup
+            .config
+            .detector
+            .open(options.sequence_dir.as_deref())
+            .map_err(|e| RunError::Input(e.to_string()))?,
+    );
     let frames = setup
         .config
         .stereo
