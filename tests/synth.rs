@@ -101,6 +101,15 @@ fn bad_input_is_refused() {
         message.contains("framez") && message.contains("bad.toml"),
         "{message}"
     );
+    for (text, key) in [
+        ("[street]\nfollowing_cars = 2\n", "street.following_cars"),
+        ("[stereo]\nrectification_scale_error = 0.5\n", "stereo.rectification_scale_error"),
+        ("[motion]\nstart = -3.0\n", "motion.start"),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        let message = SynthConfig::load(&path).unwrap_err().to_string();
+        assert!(message.contains(key), "{text}: {message}");
+    }
     let mut config = small_config(50);
     config.sequence.timing = Some(base.join("short_rgb.txt"));
     std::fs::write(
@@ -229,6 +238,7 @@ fn every_preset_loads_and_validates() {
             "desk_far_people",
             "fr1_xyz_room",
             "fr2_desk_room",
+            "highway_kitti01",
             "loop_room",
             "loop_walking",
             "moving_chair",

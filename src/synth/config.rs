@@ -98,6 +98,11 @@ pub struct StereoConfig {
     /// \delta\) (depth too far by a share \(z\delta / bf\) that grows with the
     /// distance, as on the real KITTI 01 clip; `docs/design.md`). 0: a perfect rig.
     pub rectification_error_px: f64,
+    /// A real rig's focal-length error: the right camera is rendered with focal
+    /// lengths this share larger than `calib.txt` states, so a disparity is off by
+    /// \(\epsilon (u_R - c_x)\): an error of opposite signs at the image's two sides
+    /// that no single offset takes out (0.001 is 0.6 px at KITTI's sides). 0: none.
+    pub rectification_scale_error: f64,
 }
 
 /// A depth camera of its own beside the colour camera, as RealSense and Azure Kinect
@@ -191,6 +196,12 @@ impl SynthConfig {
             objects.validate("unknown", false)?;
         }
         self.street.validate()?;
+        if !(self.motion.start.is_finite() && self.motion.start >= 0.0) {
+            return Err(BadValue::new(
+                "motion.start",
+                format!("must be 0 or more, got {}", self.motion.start),
+            ));
+        }
         if let Some(table) = self.scene.table {
             if !table.iter().all(|s| s.is_finite() && *s > 0.0 && *s <= 10.0) {
                 return Err(BadValue::new(
@@ -204,6 +215,13 @@ impl SynthConfig {
             return Err(BadValue::new(
                 "stereo.rectification_error_px",
                 format!("must be -5 to 5 pixels, got {error_px}"),
+            ));
+        }
+        let scale = self.stereo.rectification_scale_error;
+        if !(scale.is_finite() && scale.abs() <= 0.05) {
+            return Err(BadValue::new(
+                "stereo.rectification_scale_error",
+                format!("must be -0.05 to 0.05, got {scale}"),
             ));
         }
         if !(0.0..=2.0).contains(&self.stereo.baseline) {

@@ -46,8 +46,12 @@ pub struct MotionConfig {
     pub file: Option<PathBuf>,
     /// The file's format.
     pub format: TrajectoryFormat,
-    /// Multiplies the speed of procedural motions.
+    /// Multiplies the speed of procedural motions; for `file`, the file's time units
+    /// per second of the sequence (10 for KITTI poses at 10 Hz: one pose a frame).
     pub speed: f64,
+    /// For `file`: where frame 0 starts, in the file's time units after its first
+    /// stamp (KITTI poses: a pose index; 200 starts at the 201st pose).
+    pub start: f64,
 }
 
 impl Default for MotionConfig {
@@ -57,6 +61,7 @@ impl Default for MotionConfig {
             file: None,
             format: TrajectoryFormat::Tum,
             speed: 1.0,
+            start: 0.0,
         }
     }
 }
@@ -167,16 +172,17 @@ pub fn poses_at(config: &MotionConfig, times: &[f64]) -> Result<Vec<Se3>, IoErro
     if trajectory.is_empty() {
         return Err(IoError::invalid(path, "the trajectory is empty"));
     }
-    let start = trajectory.timestamps[0];
-    let duration = trajectory.timestamps[trajectory.len() - 1] - start;
+    let start = trajectory.timestamps[0] + config.start;
+    let duration = trajectory.timestamps[trajectory.len() - 1] - trajectory.timestamps[0];
     if let Some(&last) = times.last() {
-        if last * config.speed > duration + 1e-9 {
+        let needed = config.start + last * config.speed;
+        if needed > duration + 1e-9 {
             return Err(IoError::invalid(
                 path,
                 format!(
-                    "covers {duration:.3} s but {} frames need {:.3} s; ask for fewer frames",
+                    "covers {duration:.3} s but motion.start {} and {} frames need {needed:.3} s; ask for fewer frames",
+                    config.start,
                     times.len(),
-                    last * config.speed
                 ),
             ));
         }
@@ -237,5 +243,33 @@ mod tests {
         let mid = interpolate(&trajectory, 0.5);
         assert!((mid.translation.vector.x - 0.5).abs() < 1e-12);
         assert_eq!(interpolate(&trajectory, 5.0), trajectory.poses[1]);
+    }
+
+    #[test]
+    fn a_file_motion_starts_where_motion_start_says_and_must_fit() {
+        let dir = std::env::temp_dir().join(format!("dopslam-motion-start-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("poses.txt");
+        // KITTI format: pose k at x = k metres.
+        let rows: String = (0..10)
+            .map(|k| format!("1 0 0 {k} 0 1 0 0 0 0 1 0\n"))
+            .collect();
+        std::fs::write(&file, rows).unwrap();
+        let config = MotionConfig {
+            kind: MotionKind::File,
+            file: Some(file),
+            format: TrajectoryFormat::Kitti,
+            speed: 10.0,
+            start: 4.0,
+        };
+        let poses = poses_at(&config, &[0.0, 0.1, 0.5]).unwrap();
+        let x: Vec<f64> = poses.iter().map(|p| p.translation.vector.x).collect();
+        assert!(
+            (x[0] - 4.0).abs() < 1e-9 && (x[1] - 5.0).abs() < 1e-9 && (x[2] - 9.0).abs() < 1e-9,
+            "{x:?}"
+        );
+        let message = poses_at(&config, &[0.0, 0.6]).unwrap_err().to_string();
+        assert!(message.contains("motion.start 4"), "{message}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -250,7 +250,11 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
                 let (colour, depth, instance) = match hit {
                     Some((hit, mover)) => {
                         let colour = hit.colour.unwrap_or_else(|| {
-                            let shade = 0.55 + 0.45 * hit.normal.dot(&light).abs();
+                            let shade = if scene.is_emissive(&hit) {
+                                1.0
+                            } else {
+                                0.55 + 0.45 * hit.normal.dot(&light).abs()
+                            };
                             // The pixel's footprint on the surface: its angular size
                             // 1/fx times the distance, stretched by the incidence.
                             let length = direction.norm();

@@ -46,8 +46,19 @@ pub struct Hit {
     pub colour: Option<[f64; 3]>,
 }
 
+impl Hit {
+    /// What a texture needs of the hit.
+    pub fn surface(&self) -> super::outdoor::Surface<'_> {
+        super::outdoor::Surface {
+            texture: self.texture,
+            normal: &self.normal,
+            uv: self.uv,
+        }
+    }
+}
+
 /// How the scene's surfaces look.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub enum Look {
     /// Every face its own multi-scale texture (noise and coloured blocks).
     #[default]
@@ -58,6 +69,9 @@ pub enum Look {
         /// The up axis and its sign.
         up: (usize, f64),
     },
+    /// A highway: sky, treelines, trees, asphalt with lane lines
+    /// ([`super::outdoor::HighwayLook`]).
+    Highway(std::sync::Arc<super::outdoor::HighwayLook>),
 }
 
 /// A room with furniture.
@@ -173,8 +187,12 @@ impl Scene {
     /// it in metres.
     pub fn colour(&self, hit: &Hit, footprint: f64) -> [f64; 3] {
         use super::texture::{room_texel, texel, Surface};
-        let Look::Room { up } = self.look else {
-            return texel(hit.texture, hit.uv.0, hit.uv.1, footprint);
+        let up = match &self.look {
+            Look::Room { up } => *up,
+            Look::Highway(look) => {
+                return look.colour(self.room.texture, &hit.surface(), footprint)
+            }
+            Look::Blocks => return texel(hit.texture, hit.uv.0, hit.uv.1, footprint),
         };
         let (cuboid, axis) = (hit.texture / 8, (hit.texture % 8 / 2) as usize);
         let surface = if cuboid != self.room.texture {
@@ -187,6 +205,11 @@ impl Scene {
             Surface::Ceiling
         };
         room_texel(surface, hit.uv.0, hit.uv.1, footprint)
+    }
+
+    /// Whether `hit` emits its colour (a highway's sky) rather than being lit.
+    pub fn is_emissive(&self, hit: &Hit) -> bool {
+        matches!(&self.look, Look::Highway(look) if look.is_sky(self.room.texture, &hit.surface()))
     }
 
     /// The nearest static surface along the ray `origin + t * direction`, `t > 0`.
@@ -283,7 +306,7 @@ impl Scene {
                 .filter(|c| c.distance_to(centre) <= range)
                 .copied()
                 .collect(),
-            look: self.look,
+            look: self.look.clone(),
         }
     }
 

@@ -31,7 +31,7 @@ fn lattice(id: u32, x: i64, y: i64) -> f64 {
 }
 
 /// Bilinear value noise in [0, 1] at (x, y) in lattice units.
-fn value_noise(id: u32, x: f64, y: f64) -> f64 {
+pub(super) fn value_noise(id: u32, x: f64, y: f64) -> f64 {
     let (x0, y0) = (floor(x), floor(y));
     let (fx, fy) = (x - x0, y - y0);
     let (xi, yi) = (x0 as i64, y0 as i64);
@@ -115,7 +115,7 @@ pub enum Surface {
 
 /// Coverage in [0, 1] of a pixel footprint `f` (in units of the pattern) by
 /// \([0, w)\) around coordinate `x`: a linear ramp at each edge, as in [`texel`].
-fn coverage(x: f64, w: f64, f: f64) -> f64 {
+pub(super) fn coverage(x: f64, w: f64, f: f64) -> f64 {
     let ramp = |x: f64| (x / f + 0.5).clamp(0.0, 1.0);
     ramp(x).min(ramp(w - x))
 }

@@ -401,9 +401,12 @@ impl World {
             gain: self.config.sensor.gain(t),
             noise_seed: self.frame_seed(index) ^ 0x5EC0_4D00,
         };
-        // The rig's rectification error: the right camera's true principal point.
+        // The rig's rectification error: the right camera's true principal point and
+        // focal lengths.
         let mut camera = self.camera;
         camera.cx += self.config.stereo.rectification_error_px;
+        camera.fx *= 1.0 + self.config.stereo.rectification_scale_error;
+        camera.fy *= 1.0 + self.config.stereo.rectification_scale_error;
         render_colour(
             &self.visible_scene(&self.poses[index]),
             &self.view(t, self.poses[index] * offset),
@@ -473,7 +476,7 @@ fn scene_and_movers(
             &config.street,
             poses,
             &appearance,
-            config.sequence.seed,
+            (config.sequence.seed, config.sequence.fps),
         ));
     }
     let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
