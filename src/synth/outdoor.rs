@@ -108,9 +108,9 @@ fn foliage(id: u32, u: f64, v: f64, footprint: f64) -> [f64; 3] {
     [0.30, 0.36, 0.20].map(|c| (c * light.max(0.05)).clamp(0.0, 1.0))
 }
 
-/// The road at (lateral, along) metres of the lane frame, (u, v) in the world: asphalt (grey with faint
-/// patches and grain, white lines) from the shoulder to the far edge, grass on the
-/// verges and the median.
+/// The road at (lateral, along) metres of the lane frame, (u, v) in the world:
+/// asphalt (grey with faint patches and grain, white lines) from the shoulder to the
+/// far edge, grass on the verges and the median.
 fn road((lateral, along): (f64, f64), (u, v): (f64, f64), footprint: f64) -> [f64; 3] {
     let on_asphalt = |(from, to): (f64, f64)| coverage(lateral - from, to - from, footprint);
     let paved = on_asphalt(CARRIAGEWAYS[0]).max(on_asphalt(CARRIAGEWAYS[1]));
@@ -166,26 +166,30 @@ impl HighwayLook {
         &self.lanes[best]
     }
 
+    /// A far wall's point at `uv` on a face across `axis`: its height above the road
+    /// and its coordinate along the wall.
+    fn on_wall(&self, axis: usize, uv: (f64, f64)) -> (f64, f64) {
+        let (up, sign) = self.up;
+        let (height, across) = if (axis + 1) % 3 == up {
+            uv
+        } else {
+            (uv.1, uv.0)
+        };
+        (height * sign - self.road_level, across)
+    }
+
     /// Whether `hit` is the sky, which emits its colour rather than reflecting the
     /// scene's light (the renderer leaves it unshaded); `room` is the room's texture.
     pub fn is_sky(&self, room: u32, hit: &Surface) -> bool {
         let axis = (hit.texture % 8 / 2) as usize;
-        hit.texture / 8 == room
-            && if axis == self.up.0 {
-                hit.normal[axis] * self.up.1 < 0.0
-            } else {
-                let coordinate = if (axis + 1) % 3 == self.up.0 {
-                    hit.uv.0
-                } else {
-                    hit.uv.1
-                };
-                let across = if (axis + 1) % 3 == self.up.0 {
-                    hit.uv.1
-                } else {
-                    hit.uv.0
-                };
-                coordinate * self.up.1 - self.road_level >= treeline(across)
-            }
+        if hit.texture / 8 != room {
+            return false;
+        }
+        if axis == self.up.0 {
+            return hit.normal[axis] * self.up.1 < 0.0;
+        }
+        let (height, across) = self.on_wall(axis, hit.uv);
+        height >= treeline(across)
     }
 
     /// The colour of `hit` (`Scene::colour` for this look); `room` is the room's
@@ -194,14 +198,6 @@ impl HighwayLook {
         let (cuboid, axis) = (hit.texture / 8, (hit.texture % 8 / 2) as usize);
         let (up, sign) = self.up;
         let facing_up = axis == up && hit.normal[axis] * sign > 0.0;
-        // The hit point's coordinates along the face: (axis + 1) % 3 and (axis + 2) % 3.
-        let coordinate = |k: usize| {
-            if (axis + 1) % 3 == k {
-                hit.uv.0
-            } else {
-                hit.uv.1
-            }
-        };
         if cuboid == room {
             if axis == up {
                 return if facing_up {
@@ -211,8 +207,7 @@ impl HighwayLook {
                 };
             }
             // A far wall: a treeline 8-20 m above the road, sky above it.
-            let height = coordinate(up) * sign - self.road_level;
-            let across = coordinate(3 - up - axis);
+            let (height, across) = self.on_wall(axis, hit.uv);
             return if height < treeline(across) {
                 foliage(53, across, height, footprint.max(0.3))
             } else {

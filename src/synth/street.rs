@@ -2,17 +2,19 @@
 //! a road `camera_height` below the cameras (slabs that follow the path's height),
 //! buildings on both sides set back from the path, cars parked at the kerbs (class "car", yet static: where masking every car
 //! hurts), cars driving along the road in the other lane, and pedestrians crossing
-//! ahead or walking on the pavements.
+//! ahead or walking on the pavements; or, with `layout = "highway"`, a highway
+//! ([`super::outdoor`]: sky, trees, lane lines, traffic both ways, some of it at the
+//! camera's own speed).
 //!
 //! Everything is an axis-aligned box (the scene's ray caster); the path's horizontal
 //! heading picks which axis a building's or car's length runs along.
+
+use std::sync::Arc;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::movers::{standing_corner, up_axis, Appearance, Behaviour, Mover};
-use std::sync::Arc;
-
 use super::outdoor::{HighwayLook, LaneFrame, FOLLOWING_LANE, ONCOMING_LANES, ROAD, TREES};
 use super::scene::{Cuboid, Look, Scene};
 use crate::checks::{self, BadValue};
@@ -27,10 +29,11 @@ pub enum StreetLayout {
     /// the other lane, pedestrians.
     #[default]
     Canyon,
-    /// A highway ([`super::outdoor`]): sky, belts of trees instead of buildings (set
-    /// back `half_width` on the right and 9 m more on the left, beyond the oncoming
-    /// carriageway), asphalt with lane lines, `moving_cars` oncoming at `car_speed`
-    /// and `following_cars` in the lane to the left.
+    /// A highway ([`super::outdoor`]): sky, clumps of trees instead of buildings (a
+    /// third of their size, set back `half_width` on the right and 9 m more on the
+    /// left, beyond the oncoming carriageway, and at least 0.6 `half_width` from every
+    /// camera), asphalt with lane lines, `moving_cars` oncoming at `car_speed` and
+    /// `following_cars` in the lane to the left.
     Highway,
 }
 
