@@ -44,7 +44,7 @@ use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
 use outputs::Computed;
 use rerun_log::RerunLog;
-use tracking_pass::{tracking_pass, TrackingPass};
+use tracking_pass::{open_detector, tracking_pass, TrackingPass};
 use truth::TruthScorer;
 
 /// Runs the passes over `sequence` and writes their outputs into `out`: tracking, the
@@ -60,6 +60,8 @@ pub fn run_sequence(
     let mut setup = Setup::resolve(sequence, config)?;
     let _lock = outputs::prepare(out, options)?;
     let run = RunDir::new(out);
+    // Loaded before any tracking (the rig offset's pass included) and only once.
+    let detector = open_detector(&setup, options)?;
     if let Some(found) = rig_offset::estimate(sequence, &setup, options, &run)? {
         setup.disparity_offset = Some(found);
     }
@@ -75,7 +77,13 @@ pub fn run_sequence(
         log_pinhole(log, &setup.calibration.camera);
     }
     let mut watch = Watchers::new(sequence, options);
-    let mut pass = tracking_pass(sequence, &setup, options, &run, &mut watch.observers())?;
+    let mut pass = tracking_pass(
+        sequence,
+        (&setup, detector),
+        options,
+        &run,
+        &mut watch.observers(),
+    )?;
     let global = global_pass(&mut pass, &setup, &run)?;
     let stop = pass.stop.clone();
     let mut report = outputs::write(

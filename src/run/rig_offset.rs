@@ -44,14 +44,6 @@ pub fn estimate(
     if !wanted(setup) {
         return Ok(None);
     }
-    // A model that does not load stops the run before this pass, not after it.
-    drop(
-        setup
-            .config
-            .detector
-            .open(options.sequence_dir.as_deref())
-            .map_err(|e| RunError::Input(e.to_string()))?,
-    );
     let frames = setup
         .config
         .stereo
@@ -73,7 +65,7 @@ pub fn estimate(
         ..options.clone()
     };
     let prefix = setup.for_offset_estimate();
-    let mut pass = tracking_pass(sequence, &prefix, &quiet, run, &mut [])?;
+    let mut pass = tracking_pass(sequence, (&prefix, None), &quiet, run, &mut [])?;
     if pass.stop.is_some() {
         return Ok(None);
     }

@@ -13,6 +13,7 @@ use super::setup::Setup;
 use super::error::{RunError, StopReason};
 use super::options::RunOptions;
 use crate::config::Config;
+use crate::detect::Detector;
 use crate::eval::stats::median;
 use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
@@ -40,17 +41,31 @@ pub struct TrackingPass {
     pub stop: Option<StopReason>,
 }
 
-/// Tracks the frames of `sequence` (up to `options.max_frames`).
+/// Opens the run's detector (`None` without detection): its model is loaded here,
+/// before any frame is tracked, so a model that does not load stops the run first.
+pub fn open_detector(
+    setup: &Setup,
+    options: &RunOptions,
+) -> Result<Option<Box<dyn Detector>>, RunError> {
+    setup
+        .config
+        .detector
+        .open(options.sequence_dir.as_deref())
+        .map_err(|e| RunError::Input(e.to_string()))
+}
+
+/// Tracks the frames of `sequence` (up to `options.max_frames`) with `detector`
+/// ([`open_detector`]) on its keyframes.
 pub fn tracking_pass(
     sequence: &dyn Sequence,
-    setup: &Setup,
+    (setup, detector): (&Setup, Option<Box<dyn Detector>>),
     options: &RunOptions,
     run: &RunDir,
     observers: &mut [&mut dyn FrameObserver],
 ) -> Result<TrackingPass, RunError> {
     let config = &setup.config;
     let execution = Execution::of(options.deterministic);
-    let mut system = start_system(setup, options, run, execution)?;
+    let mut system = start_system(setup, detector, run, execution);
     let total = options
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));
@@ -134,25 +149,18 @@ pub fn tracking_pass(
     })
 }
 
-/// The system of the run, with its helpers: the vocabulary and the detector (opened
-/// here: its model is loaded before the first frame).
+/// The system of the run, with its helpers: the vocabulary and the detector.
 fn start_system(
     setup: &Setup,
-    options: &RunOptions,
+    detector: Option<Box<dyn Detector>>,
     run: &RunDir,
     execution: Execution,
-) -> Result<System, RunError> {
-    let config = &setup.config;
-    let detector = config
-        .detector
-        .open(options.sequence_dir.as_deref())
-        .map_err(|e| RunError::Input(e.to_string()))?
-        .map(|d| (d, config.detector.latency()));
+) -> System {
     let helpers = Helpers {
         vocabulary: setup.vocabulary.clone(),
-        detector,
+        detector: detector.map(|d| (d, setup.config.detector.latency())),
     };
-    Ok(System::start(&setup.system(execution, run.detections()), helpers))
+    System::start(&setup.system(execution, run.detections()), helpers)
 }
 
 /// Frame `index` loaded, paced, checked and made ready for tracking, with the time
