@@ -378,7 +378,7 @@ fn check_detect_outputs(args: &DetectArgs) -> Result<()> {
 }
 
 fn run_detect(args: DetectArgs) -> Result<()> {
-    use dopslam::detect::{draw::draw_detections, FrameDetections, Model, Source};
+    use dopslam::detect::{Model, Source};
     let config = load_config(args.config.as_deref())?;
     check_detect_outputs(&args)?;
     let mut detector_config = config.detector.clone();
@@ -402,24 +402,27 @@ fn run_detect(args: DetectArgs) -> Result<()> {
     let mut detector = detector_config
         .open(args.input.is_dir().then_some(args.input.as_path()))?
         .expect("a source other than none");
-    let frames: Vec<(String, f64, image::RgbImage)> = if args.input.is_dir()
-        || dopslam::io::recording::is_recording(&args.input)
-    {
+    let mut all = Vec::new();
+    let mut detect_one = |name: String, timestamp: f64, image: image::RgbImage| -> Result<()> {
+        all.push(detect_and_write(detector.as_mut(), &args, (name, timestamp, image))?);
+        Ok(())
+    };
+    if args.input.is_dir() || dopslam::io::recording::is_recording(&args.input) {
         let mut config = config.clone();
         args.topics.apply(&mut config);
         let sequence = dopslam::run::open_sequence(&args.input, &config)?;
-        let mut frames = Vec::new();
+        // One frame at a time: a long sequence is never held whole.
         for index in (0..sequence.len()).step_by(args.every as usize) {
             let frame = sequence.load(index)?;
-            let dopslam::io::sequence::FrameImages::Rgbd { rgb, .. } = frame.images else {
-                anyhow::bail!(
-                    "{}: only RGB-D sequences are supported",
-                    args.input.display()
-                );
+            let image = match frame.images {
+                dopslam::io::sequence::FrameImages::Rgbd { rgb, .. } => rgb,
+                // The left image, in colour, as the tracking pass hands it to the detector.
+                dopslam::io::sequence::FrameImages::Stereo { left, .. } => {
+                    image::DynamicImage::ImageLuma8(left).to_rgb8()
+                }
             };
-            frames.push((format!("{:.6}", frame.timestamp), frame.timestamp, rgb));
+            detect_one(format!("{:.6}", frame.timestamp), frame.timestamp, image)?;
         }
-        frames
     } else {
         let image = image::open(&args.input)
             .with_context(|| format!("cannot read image {}", args.input.display()))?
@@ -428,45 +431,7 @@ fn run_detect(args: DetectArgs) -> Result<()> {
             .input
             .file_stem()
             .map_or("image".into(), |s| s.to_string_lossy().into_owned());
-        vec![(name, 0.0, image)]
-    };
-    let mut all = Vec::new();
-    for (name, timestamp, mut image) in frames {
-        let start = std::time::Instant::now();
-        let detections = detector.detect(timestamp, &image)?;
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        if !args.json {
-            println!("{name}: {} detections ({ms:.1} ms)", detections.len());
-            for d in &detections {
-                let [x1, y1, x2, y2] = d.bbox;
-                println!(
-                    "  {} {:.2} [{x1:.0},{y1:.0},{x2:.0},{y2:.0}]",
-                    d.class, d.score
-                );
-            }
-        }
-        draw_detections(&mut image, &detections);
-        let png = args.out.join(format!("{name}.png"));
-        image
-            .save(&png)
-            .with_context(|| format!("cannot write {}", png.display()))?;
-        let frame = FrameDetections {
-            timestamp,
-            detections,
-        };
-        if args.input.is_dir() {
-            dopslam::detect::write_cache(&args.out.join("detections"), &frame)?;
-        } else {
-            // The same per-frame JSON as a sequence's detection cache.
-            let json = serde_json::to_string_pretty(&frame)?;
-            write_atomic(&args.out.join(format!("{name}.json")), json.as_bytes())?;
-        }
-        all.push(serde_json::json!({
-            "name": name,
-            "timestamp": timestamp,
-            "milliseconds": ms,
-            "detections": frame.detections,
-        }));
+        detect_one(name, 0.0, image)?;
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&all)?);
@@ -475,6 +440,52 @@ fn run_detect(args: DetectArgs) -> Result<()> {
         println!("wrote {}", args.out.display());
     }
     Ok(())
+}
+
+/// Detects on one image of `dopslam detect`, prints its boxes (unless `--json`), writes
+/// the image with its boxes drawn and the detections (a sequence's into its detection
+/// cache), and returns the image's entry of the `--json` list.
+fn detect_and_write(
+    detector: &mut dyn dopslam::detect::Detector,
+    args: &DetectArgs,
+    (name, timestamp, mut image): (String, f64, image::RgbImage),
+) -> Result<serde_json::Value> {
+    use dopslam::detect::{draw::draw_detections, FrameDetections};
+    let start = std::time::Instant::now();
+    let detections = detector.detect(timestamp, &image)?;
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    if !args.json {
+        println!("{name}: {} detections ({ms:.1} ms)", detections.len());
+        for d in &detections {
+            let [x1, y1, x2, y2] = d.bbox;
+            println!(
+                "  {} {:.2} [{x1:.0},{y1:.0},{x2:.0},{y2:.0}]",
+                d.class, d.score
+            );
+        }
+    }
+    draw_detections(&mut image, &detections);
+    let png = args.out.join(format!("{name}.png"));
+    image
+        .save(&png)
+        .with_context(|| format!("cannot write {}", png.display()))?;
+    let frame = FrameDetections {
+        timestamp,
+        detections,
+    };
+    if args.input.is_dir() {
+        dopslam::detect::write_cache(&args.out.join("detections"), &frame)?;
+    } else {
+        // The same per-frame JSON as a sequence's detection cache.
+        let json = serde_json::to_string_pretty(&frame)?;
+        write_atomic(&args.out.join(format!("{name}.json")), json.as_bytes())?;
+    }
+    Ok(serde_json::json!({
+        "name": name,
+        "timestamp": timestamp,
+        "milliseconds": ms,
+        "detections": frame.detections,
+    }))
 }
 
 fn load_config(path: Option<&Path>) -> Result<Config> {

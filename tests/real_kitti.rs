@@ -131,3 +131,41 @@ fn a_swapped_real_pair_is_named() {
     ]);
     assert!(err.contains("looks swapped") && err.contains("negative disparity"), "{stdout}\n{err}");
 }
+
+/// `dopslam detect` on a stereo clip runs on its left images (in colour, as the
+/// tracking pass hands them to the detector) and writes the detection cache a run
+/// reads back (`[detector] source = "cache"`): one file per frame it detected on.
+#[test]
+fn detect_runs_on_the_left_images_of_a_stereo_clip() {
+    let test = "detect_runs_on_the_left_images_of_a_stereo_clip";
+    let Some(data) = common::shared_data(test) else {
+        return;
+    };
+    let clip = data.join("real/kitti/sequences/01");
+    if !clip.join("image_0").is_dir() {
+        eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
+        return;
+    }
+    let out = temp_dir("real-kitti-detect");
+    let (ok, stdout, err) = dopslam(&[
+        "detect",
+        &clip.to_string_lossy(),
+        "--every",
+        "10",
+        "--out",
+        &out.to_string_lossy(),
+        "--json",
+    ]);
+    assert!(ok, "{stdout}\n{err}");
+    let listed: Vec<serde_json::Value> = serde_json::from_str(&stdout).unwrap();
+    // Frames 0, 10, ..., 50, each with its drawing and its cache file.
+    assert_eq!(listed.len(), 6, "{stdout}");
+    assert_eq!(common::sorted_files(&out.join("detections")).len(), 6);
+    assert!(out.join("0.000000.png").is_file());
+    // Frame 0: the car ahead on the ramp, around columns 710-850 of the 1241.
+    let car_ahead = listed[0]["detections"].as_array().unwrap().iter().any(|d| {
+        let x = (d["box"][0].as_f64().unwrap() + d["box"][2].as_f64().unwrap()) / 2.0;
+        d["class"] == "car" && (700.0..860.0).contains(&x)
+    });
+    assert!(car_ahead, "{}", listed[0]);
+}

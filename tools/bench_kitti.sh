@@ -7,11 +7,22 @@
 # the issue's table), ATE RMSE with Sim(3) alignment (what is left once the scale is
 # forgiven), estimated path length / true, median tracking time per frame.
 #
-#   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--offset] [--out DIR]
+#   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--offset]
+#                             [--decompose] [--paced] [--out DIR]
 #     --offset  each mode also without the rig's disparity offset ([global]
 #               disparity_offset = false: neither found before tracking nor after)
 #     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
 #               --mask-boxes, and --dop with [stereo] bearing_baselines = 0 (before)
+#     --decompose what DOP's real-time runs owe to what: each repetition also runs --dop
+#               without a detector (--detections none: the model on geometry alone) and
+#               --dop with the boxes of every frame read from a cache that `dopslam
+#               detect` wrote once per clip (the same boxes at no CPU cost beside
+#               tracking, answered after the cache's simulated latency), and --no-dop
+#               with the detector running beside it ([detector] source = "onnx": its
+#               CPU time without its boxes)
+#     --paced   each mode also played at the recording's rate (--pace recording), as
+#               ORB-SLAM2's stereo_kitti example plays KITTI (it waits for each frame's
+#               time); the default plays frames as fast as the tracker goes
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
 #   DOPSLAM_BIN=/path/to/dopslam                (default: ./target/release/dopslam)
 set -euo pipefail
@@ -20,6 +31,8 @@ runs=3
 modes="dop no-dop"
 extra=0
 offset=0
+decompose=0
+paced=0
 out=outputs/bench/kitti
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -27,6 +40,8 @@ while [ $# -gt 0 ]; do
     --modes) modes=$2; shift 2 ;;
     --extra) extra=1; shift ;;
     --offset) offset=1; shift ;;
+    --decompose) decompose=1; shift ;;
+    --paced) paced=1; shift ;;
     --out) out=$2; shift 2 ;;
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
@@ -42,6 +57,7 @@ mkdir -p "$out/runs"
 settings_of() { case $1 in 01) echo configs/calibration/Stereo_KITTI00-02.yaml ;; *) echo configs/calibration/Stereo_KITTI04-12.yaml ;; esac; }
 printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
 printf '[global]\ndisparity_offset = false\n' > "$out/no_offset.toml"
+printf '[detector]\nsource = "onnx"\n' > "$out/detector_on.toml"
 # One run: clip, label, repetition, then dopslam's arguments. Appends a line to runs.tsv.
 one() {
   local clip=$1 label=$2 rep=$3; shift 3
@@ -56,11 +72,23 @@ one() {
 rm -f "$out/runs.tsv"
 echo "cores: $(nproc); $runs real-time run(s) of each mode, interleaved"
 for clip in 01 06; do
+  if [ "$decompose" = 1 ]; then
+    rm -rf "$out/detect-$clip"
+    "$bin" detect "$kitti/sequences/$clip" --out "$out/detect-$clip" > "$out/detect-$clip.log"
+    printf '[detector]\nsource = "cache"\ncache_dir = "%s"\n' \
+      "$(cd "$out" && pwd)/detect-$clip/detections" > "$out/cached_boxes-$clip.toml"
+  fi
   for r in $(seq 1 "$runs"); do
     for mode in $modes; do
       one "$clip" "$mode" "$r" "--$mode"
       [ "$offset" = 0 ] || one "$clip" "$mode, no disparity offset" "$r" "--$mode" --config "$out/no_offset.toml"
+      [ "$paced" = 0 ] || one "$clip" "$mode, paced as recorded" "$r" "--$mode" --pace recording
     done
+    if [ "$decompose" = 1 ]; then
+      one "$clip" "dop, no detector" "$r" --dop --detections none
+      one "$clip" "dop, cached boxes" "$r" --dop --config "$out/cached_boxes-$clip.toml"
+      one "$clip" "no-dop, detector running" "$r" --no-dop --config "$out/detector_on.toml"
+    fi
   done
   if [ "$extra" = 1 ]; then
     one "$clip" "dop --deterministic" 1 --dop --deterministic

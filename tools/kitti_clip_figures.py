@@ -61,23 +61,23 @@ def run_line(binary, kitti, clip, label, run_dir):
     ratio = path_length(estimate) / path_length(truth[: len(estimate)])
     totals = report["totals"]
     fields = [clip, label, report["ate"]["ape"]["statistics"]["rmse"], ate_sim3, ratio,
-              totals["median_tracking_ms"], totals["tracked"], totals["frames"]]
+              totals["median_tracking_ms"], totals["tracked"], totals["frames"], totals["keyframes"]]
     print("\t".join(str(f) for f in fields))
 
 
 def table(tsv):
     rows = [l.rstrip("\n").split("\t") for l in open(tsv) if l.strip()]
     groups = {}
-    for clip, label, ate, sim3, ratio, ms, tracked, frames in rows:
+    for clip, label, ate, sim3, ratio, ms, tracked, frames, keyframes in rows:
         groups.setdefault((clip, label), []).append(
-            (float(ate), float(sim3), float(ratio), float(ms), f"{tracked}/{frames}"))
-    print("| clip | mode | runs | ATE RMSE SE(3) (m): median [runs] | ATE Sim(3) (m) | path / true | tracking ms (median) | tracked |")
-    print("|---|---|---|---|---|---|---|---|")
+            (float(ate), float(sim3), float(ratio), float(ms), f"{tracked}/{frames}", int(keyframes)))
+    print("| clip | mode | runs | ATE RMSE SE(3) (m): median [runs] | ATE Sim(3) (m) | path / true | tracking ms (median) | keyframes (median) | tracked |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for (clip, label), runs in groups.items():
         med = lambda k: statistics.median(r[k] for r in runs)
         each = ", ".join(f"{r[0]:.3f}" for r in runs)
         print(f"| KITTI {clip} | {label} | {len(runs)} | {med(0):.3f} [{each}] | {med(1):.3f} | {med(2):.4f} | "
-              f"{med(3):.1f} | {', '.join(r[4] for r in runs)} |")
+              f"{med(3):.1f} | {med(5):g} | {', '.join(r[4] for r in runs)} |")
 
 
 if __name__ == "__main__":
