@@ -30,10 +30,14 @@ fn orb_finds_a_thousand_spread_keypoints_in_every_preset() {
             let Some(shared) = common::shared_data(&format!("orb on {}", config.name)) else {
                 continue;
             };
+            // The presets name the shared data beside the checkout, resolved against
+            // their own folder (`configs/synth/../../../shared/data/...`): what follows
+            // `shared/data` is taken from where the shared data is.
             let relocate = |p: &mut Option<std::path::PathBuf>| {
                 if let Some(path) = p {
-                    if let Ok(rest) = path.strip_prefix("../shared/data") {
-                        *path = shared.join(rest);
+                    let parts: Vec<_> = path.components().map(|c| c.as_os_str()).collect();
+                    if let Some(i) = parts.windows(2).position(|w| w == ["shared", "data"]) {
+                        *path = parts[i + 2..].iter().fold(shared.clone(), |p, c| p.join(c));
                     }
                 }
             };
