@@ -17,14 +17,20 @@ fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
-/// Runs clip `sequence` with ORB-SLAM2's `settings` file; the report and stderr.
-fn run_clip(test: &str, sequence: &str, settings: &str) -> Option<(serde_json::Value, String)> {
-    let data = common::shared_data(test)?;
-    let clip = data.join("real/kitti/sequences").join(sequence);
+/// The folder of real clip `sequence`; `None` (test `test` skips, saying why) without
+/// the shared data or the clip.
+fn real_clip(test: &str, sequence: &str) -> Option<std::path::PathBuf> {
+    let clip = common::shared_data(test)?.join("real/kitti/sequences").join(sequence);
     if !clip.join("image_0").is_dir() {
         eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
         return None;
     }
+    Some(clip)
+}
+
+/// Runs clip `sequence` with ORB-SLAM2's `settings` file; the report and stderr.
+fn run_clip(test: &str, sequence: &str, settings: &str) -> Option<(serde_json::Value, String)> {
+    let clip = real_clip(test, sequence)?;
     let settings = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration").join(settings);
     let out = temp_dir(&format!("real-kitti-{sequence}"));
     let (ok, stdout, err) = dopslam(&[
@@ -97,14 +103,9 @@ fn real_kitti_06_runs_with_orbslam2s_settings_of_another_image_size() {
 #[test]
 fn a_swapped_real_pair_is_named() {
     let test = "a_swapped_real_pair_is_named";
-    let Some(data) = common::shared_data(test) else {
+    let Some(clip) = real_clip(test, "06") else {
         return;
     };
-    let clip = data.join("real/kitti/sequences/06");
-    if !clip.join("image_0").is_dir() {
-        eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
-        return;
-    }
     let dir = temp_dir("real-kitti-swapped");
     let swapped = dir.join("06");
     std::fs::create_dir_all(&swapped).unwrap();
@@ -138,14 +139,9 @@ fn a_swapped_real_pair_is_named() {
 #[test]
 fn detect_runs_on_the_left_images_of_a_stereo_clip() {
     let test = "detect_runs_on_the_left_images_of_a_stereo_clip";
-    let Some(data) = common::shared_data(test) else {
+    let Some(clip) = real_clip(test, "01") else {
         return;
     };
-    let clip = data.join("real/kitti/sequences/01");
-    if !clip.join("image_0").is_dir() {
-        eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
-        return;
-    }
     let out = temp_dir("real-kitti-detect");
     let (ok, stdout, err) = dopslam(&[
         "detect",

@@ -199,20 +199,15 @@ impl HighwayLook {
         let (up, sign) = self.up;
         let facing_up = axis == up && hit.normal[axis] * sign > 0.0;
         if cuboid == room {
-            if axis == up {
-                return if facing_up {
-                    grass(hit.uv.0, hit.uv.1, footprint)
-                } else {
-                    SKY
-                };
+            if self.is_sky(room, hit) {
+                return SKY;
             }
-            // A far wall: a treeline 8-20 m above the road, sky above it.
+            if facing_up {
+                return grass(hit.uv.0, hit.uv.1, footprint);
+            }
+            // A far wall below its treeline (8-20 m above the road).
             let (height, across) = self.on_wall(axis, hit.uv);
-            return if height < treeline(across) {
-                foliage(53, across, height, footprint.max(0.3))
-            } else {
-                SKY
-            };
+            return foliage(53, across, height, footprint.max(0.3));
         }
         if (ROAD..TREES).contains(&cuboid) {
             if !facing_up {
