@@ -135,6 +135,10 @@ pub struct DenseConfig {
     /// this share of its box's pixels (the mover stands in front of what it hides);
     /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
     pub mask_foreground_share: f32,
+    /// How far behind its depth an object's mask reaches, metres (in front it reaches
+    /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
+    /// behind the front of their body.
+    pub mask_depth_behind: f32,
     /// Discs also around dynamic keypoints inside a detected mover's box but behind
     /// it (false: none there; more static pixels fused, but a second mover behind the
     /// first loses its discs).
@@ -212,6 +216,7 @@ impl Default for DenseConfig {
             mask_border: 6,
             keypoint_radius: 10,
             mask_foreground_share: 0.10,
+            mask_depth_behind: 0.6,
             mask_discs_behind_objects: true,
             mask_disc_neighbours: 6,
             mask_segments: true,
@@ -253,6 +258,7 @@ impl DenseConfig {
         ])?;
         checks::unit_interval("dense.mask_segment_edge_share", self.mask_segment_edge_share)?;
         checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;
+        checks::non_negative("dense.mask_depth_behind", self.mask_depth_behind)?;
         if self.truncation < self.voxel {
             return Err(BadValue::new(
                 "dense.truncation",
@@ -294,6 +300,7 @@ impl DenseConfig {
             border: self.mask_border,
             keypoint_radius: self.keypoint_radius,
             foreground_share: self.mask_foreground_share,
+            depth_behind: self.mask_depth_behind,
             skip_behind_objects: !self.mask_discs_behind_objects,
             disc_neighbours: self.mask_disc_neighbours,
             segments: self.mask_segments.then(|| {
