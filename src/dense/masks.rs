@@ -8,7 +8,7 @@
 //!    default, the nearest depth mode holding that share of the whole box: the mover
 //!    in front of what it hides, also when it fills little of its box; a person
 //!    behind another takes its depth from what the front one's box leaves, see
-//!    [`box_depths`]), the object is placed in the
+//!    `box_depths`), the object is placed in the
 //!    world with the keyframe's final pose, projected into the frame with the frame's
 //!    pose, and a pixel inside the projected box belongs to it when
 //!    \(z_{obj} - \delta_z \le d \le z_{obj} + \delta_{behind}\) (`mask_depth_behind`:
