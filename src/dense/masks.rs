@@ -570,7 +570,7 @@ fn box_depths(
         .collect();
     let mut order: Vec<usize> = (0..boxes.len()).collect();
     order.sort_by(|&a, &b| held[b].total_cmp(&held[a]).then(a.cmp(&b)));
-    let mut depths = first.clone();
+    let mut depths = first;
     for (n, &i) in order.iter().enumerate() {
         let earlier: Vec<(&ObjectBox, f32)> = order[..n]
             .iter()
@@ -619,13 +619,8 @@ fn nested(a: &[f32; 4], b: &[f32; 4]) -> bool {
 
 /// The share of box `a`'s area that lies inside box `b`.
 fn overlap_share(a: &[f32; 4], b: &[f32; 4]) -> f32 {
-    let inside = [
-        a[0].max(b[0]),
-        a[1].max(b[1]),
-        a[2].min(b[2]),
-        a[3].min(b[3]),
-    ];
-    crate::detect::yolo::area(&inside) / crate::detect::yolo::area(a).max(f32::MIN_POSITIVE)
+    use crate::detect::yolo::{area, intersection};
+    area(&intersection(a, b)) / area(a).max(f32::MIN_POSITIVE)
 }
 
 /// A detected frame's objects at `t`: those of the followed classes go through

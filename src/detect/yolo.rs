@@ -262,7 +262,7 @@ pub fn area(b: &[f32; 4]) -> f32 {
 }
 
 /// The intersection of two boxes (empty: `area` 0).
-fn intersection(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
+pub fn intersection(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
     [
         a[0].max(b[0]),
         a[1].max(b[1]),
