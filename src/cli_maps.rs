@@ -180,6 +180,12 @@ pub fn print_dense(dense: &DenseReport) {
         dense.cloud_points,
         dense.keyframes_in_cloud
     );
+    if dense.mesh_pieces_dropped > 0 {
+        println!(
+            "dense map: {} small pieces of the mesh dropped ({} vertices; [dense] mesh_min_piece_area)",
+            dense.mesh_pieces_dropped, dense.mesh_vertices_dropped
+        );
+    }
     if dense.other_segment_frames > 0 {
         println!(
             "dense map: {} tracked frames left out, in map segments that no loop merged with the largest",

@@ -11,7 +11,8 @@ use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
-use dopslam::io::ply::read_ply;
+use dopslam::dense::DenseConfig;
+use dopslam::io::ply::{read_ply, write_ply, PlyEncoding};
 use dopslam::io::sequence::Sequence;
 use dopslam::run::{dense_pass, open_sequence, run_sequence, DenseSetup, RunOptions, RunReport};
 use dopslam::synth::{generate, SynthConfig};
@@ -64,6 +65,8 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     config.dense.truncation = 0.06;
     config.dense.cloud_stride = 4;
     config.dense.normal_neighbours = 8;
+    // The masks alone: no piece of either mesh dropped (that filter is judged below).
+    config.dense.mesh_min_piece_area = 0.0;
     let run_dir = base.join("run");
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
     let dense = report.dense.expect("the dense pass ran");
@@ -159,13 +162,23 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         align.is_some(),
         "the run was evaluated against its ground truth"
     );
+    // The unmasked mesh without its small pieces (the default filter): the walkers'
+    // fragments that float apart from the room go.
+    let (pruned, dropped) = read_ply(&unmasked_dir.join("dense_mesh.ply"))
+        .unwrap()
+        .without_small_pieces(DenseConfig::default().mesh_min_piece_area);
+    assert!(dropped.pieces > 0, "{dropped:?}");
+    let pruned_path = base.join("unmasked_pruned.ply");
+    write_ply(&pruned_path, &pruned, None, PlyEncoding::Binary, "pruned").unwrap();
     let maps = [
         ("dop".to_string(), run_dir.join("dense_mesh.ply")),
+        ("pruned".to_string(), pruned_path),
+        // The last map is the baseline of the others' static accuracy.
         ("unmasked".to_string(), unmasked_dir.join("dense_mesh.ply")),
     ];
     let comparison = compare_maps(&CompareInputs {
         maps: &maps,
-        alignments: &[align, align],
+        alignments: &[align, align, align],
         reference: &seq.join("static_scene.ply"),
         movers: Some(&seq.join("movers.ply")),
         cameras: None,
@@ -174,7 +187,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     })
     .unwrap();
     eprintln!("{}", comparison.table);
-    let (dop, all) = (&comparison.maps[0], &comparison.maps[1]);
+    let (dop, all) = (&comparison.maps[0], &comparison.maps[2]);
     let (dop_movers, all_movers) = (dop.mover_points.unwrap(), all.mover_points.unwrap());
     // Carving, blocks allocated first and the image margin keep most of them out even
     // unmasked (169 on this sequence when the margin came).
@@ -187,6 +200,19 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         "DOP keeps {dop_movers} mover points, unmasked {all_movers}"
     );
     assert!(dop.dynamic_accuracy.unwrap() > all.dynamic_accuracy.unwrap());
+    // Without masks the walkers' ghosts are mostly fragments apart from the room:
+    // dropping the small pieces takes most of them and keeps the static surfaces.
+    let pruned = &comparison.maps[1];
+    assert!(
+        pruned.mover_points.unwrap() * 2 < all_movers,
+        "small pieces dropped: {:?} mover points, unmasked {all_movers}",
+        pruned.mover_points
+    );
+    assert!(
+        pruned.static_accuracy.unwrap() > 0.98,
+        "SA {:?} of the unmasked map's static surfaces",
+        pruned.static_accuracy
+    );
     assert!(
         dop.static_accuracy.unwrap() > 0.9,
         "SA {:?}",

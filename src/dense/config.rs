@@ -98,6 +98,10 @@ pub struct DenseConfig {
     pub mesh: bool,
     /// The mesh as OBJ too.
     pub obj: bool,
+    /// Pieces of the mesh (triangles connected to each other) with less surface than
+    /// this, m², are dropped: a mover's fragment fused where no mask caught it floats
+    /// apart from the scene, as do specks of depth noise. 0: keep every piece.
+    pub mesh_min_piece_area: f64,
     /// The point cloud.
     pub cloud: bool,
     /// Pictures of the map.
@@ -202,6 +206,7 @@ impl Default for DenseConfig {
             frame_step: 1,
             mesh: true,
             obj: true,
+            mesh_min_piece_area: 0.05,
             cloud: true,
             pictures: true,
             cloud_voxel: 0.01,
@@ -255,6 +260,7 @@ impl DenseConfig {
             ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
             ("mask_free_space_seconds", self.mask_free_space_seconds),
             ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
+            ("mesh_min_piece_area", self.mesh_min_piece_area),
         ])?;
         checks::unit_interval("dense.mask_segment_edge_share", self.mask_segment_edge_share)?;
         checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;

@@ -38,8 +38,11 @@ pub(super) fn write_maps(
     // leaves the earlier dense map as it was.
     let mesh = config.fuses_tsdf().then(|| {
         let start = Instant::now();
-        let mesh = marching_cubes::extract(&volume);
+        let (mesh, dropped) =
+            marching_cubes::extract(&volume).without_small_pieces(config.mesh_min_piece_area);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.mesh_pieces_dropped = dropped.pieces;
+        report.mesh_vertices_dropped = dropped.vertices;
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
         mesh

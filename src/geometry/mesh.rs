@@ -98,6 +98,74 @@ impl Mesh {
     }
 }
 
+/// What [`Mesh::without_small_pieces`] took away.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Pruned {
+    /// Pieces (connected sets of triangles) removed.
+    pub pieces: usize,
+    /// Vertices removed with them.
+    pub vertices: usize,
+}
+
+impl Mesh {
+    /// The mesh without its small pieces: triangles that share a vertex belong to one
+    /// piece, and a piece whose area \(\sum_t \tfrac12 \lVert (b - a) \times (c - a)
+    /// \rVert\) over its triangles is below `min_area` (m²) is dropped with its
+    /// vertices, as Open3D's `cluster_connected_triangles` and a size filter do. The
+    /// vertices kept keep their order, colours and normals. A point cloud (no
+    /// triangles) and `min_area <= 0` keep everything.
+    pub fn without_small_pieces(self, min_area: f64) -> (Mesh, Pruned) {
+        if self.triangles.is_empty() || min_area <= 0.0 {
+            return (self, Pruned::default());
+        }
+        let mut pieces = petgraph::unionfind::UnionFind::<u32>::new(self.vertices.len());
+        for &[a, b, c] in &self.triangles {
+            pieces.union(a, b);
+            pieces.union(a, c);
+        }
+        let mut area = vec![0.0; self.vertices.len()];
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.vertex(i as usize));
+            area[pieces.find(t[0]) as usize] += (b - a).cross(&(c - a)).norm() / 2.0;
+        }
+        let dropped = |root: u32| area[root as usize] < min_area;
+        // Vertices in no triangle go too.
+        let mut used = vec![false; self.vertices.len()];
+        for t in &self.triangles {
+            t.iter().for_each(|&i| used[i as usize] = true);
+        }
+        let mut pruned = Pruned {
+            pieces: (0..self.vertices.len() as u32)
+                .filter(|&v| used[v as usize] && pieces.find(v) == v && dropped(v))
+                .count(),
+            vertices: 0,
+        };
+        let mut index = vec![u32::MAX; self.vertices.len()];
+        let mut mesh = Mesh::default();
+        for (v, vertex) in self.vertices.iter().enumerate() {
+            if !used[v] || dropped(pieces.find(v as u32)) {
+                pruned.vertices += 1;
+                continue;
+            }
+            index[v] = mesh.vertices.len() as u32;
+            mesh.vertices.push(*vertex);
+            if let Some(colour) = self.colours.get(v) {
+                mesh.colours.push(*colour);
+            }
+            if let Some(normal) = self.normals.get(v) {
+                mesh.normals.push(*normal);
+            }
+        }
+        mesh.triangles = self
+            .triangles
+            .iter()
+            .filter(|t| index[t[0] as usize] != u32::MAX)
+            .map(|t| t.map(|i| index[i as usize]))
+            .collect();
+        (mesh, pruned)
+    }
+}
+
 /// A unit square at z = 0, two triangles (for tests).
 #[cfg(test)]
 pub fn unit_square() -> Mesh {
@@ -132,5 +200,41 @@ mod tests {
             ..mesh
         };
         assert!(broken.validate().is_err());
+    }
+
+    #[test]
+    fn small_pieces_go_and_the_rest_keeps_its_colours() {
+        let mut mesh = unit_square();
+        mesh.colours = vec![[1, 1, 1]; 4];
+        // A separate triangle of 0.005 m², and a vertex in no triangle.
+        mesh.vertices.extend([
+            [5.0, 0.0, 0.0],
+            [5.1, 0.0, 0.0],
+            [5.0, 0.1, 0.0],
+            [9.0, 9.0, 9.0],
+        ]);
+        mesh.colours.extend([[2, 2, 2]; 4]);
+        mesh.triangles.push([4, 5, 6]);
+        // The square's triangles after the small one: indices must be renumbered.
+        mesh.triangles.rotate_right(1);
+        let (kept, pruned) = mesh.clone().without_small_pieces(0.01);
+        assert_eq!(
+            pruned,
+            Pruned {
+                pieces: 1,
+                vertices: 4
+            }
+        );
+        assert_eq!(kept.vertices, unit_square().vertices);
+        assert_eq!(kept.colours, vec![[1, 1, 1]; 4]);
+        assert_eq!(kept.triangles, unit_square().triangles);
+        assert!(kept.validate().is_ok());
+        // Below the small piece's area everything in a triangle stays.
+        let (kept, pruned) = mesh.clone().without_small_pieces(0.004);
+        assert_eq!(
+            (kept.triangles.len(), pruned.pieces, pruned.vertices),
+            (3, 0, 1)
+        );
+        assert_eq!(mesh.clone().without_small_pieces(0.0).0, mesh);
     }
 }
