@@ -139,10 +139,9 @@ pub struct DenseConfig {
     /// this share of its box's pixels (the mover stands in front of what it hides);
     /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
     pub mask_foreground_share: f32,
-    /// How far behind its depth an object's mask reaches in the lower half of its box
-    /// (all of a box cut by the image's top, where only legs are seen), metres; above,
-    /// at most the DOP model's `delta_z`, as in front: a walker's far leg and feet lie
-    /// up to half a metre behind the front of their body.
+    /// How far behind its depth an object's mask reaches, metres (in front it reaches
+    /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
+    /// behind the front of their body.
     pub mask_depth_behind: f32,
     /// Discs also around dynamic keypoints inside a detected mover's box but behind
     /// it (false: none there; more static pixels fused, but a second mover behind the

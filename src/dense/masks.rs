@@ -11,9 +11,8 @@
 //!    `box_depths`), the object is placed in the
 //!    world with the keyframe's final pose, projected into the frame with the frame's
 //!    pose, and a pixel inside the projected box belongs to it when
-//!    \(z_{obj} - \delta_z \le d \le z_{obj} + \delta_{behind}\) (`mask_depth_behind`
-//!    in the box's lower half, where the far leg is; \(\min(\delta_z,
-//!    \delta_{behind})\) above) (objects the detector missed on a keyframe are
+//!    \(z_{obj} - \delta_z \le d \le z_{obj} + \delta_{behind}\) (`mask_depth_behind`:
+//!    the far leg) (objects the detector missed on a keyframe are
 //!    predicted there by [`ObjectTracks`], as in the tracking pass);
 //! 2. discs of `keypoint_radius` pixels around the frame's keypoints in a removed
 //!    (dynamic) state, with depth within \(\delta_z / 2\) of the keypoint's;
@@ -52,8 +51,7 @@ pub struct MaskSettings {
     /// The objects' depth: [`foreground_depth`] of the box's pixels with this share;
     /// 0: [`object_depth`] (the dominant depth of its centre).
     pub foreground_share: f32,
-    /// How far behind its depth an object's mask reaches in the lower half of its box,
-    /// metres (above: at most `delta_z`; in front: `delta_z`).
+    /// How far behind its depth an object's mask reaches, metres (in front: `delta_z`).
     pub depth_behind: f32,
     /// No disc around a dynamic keypoint inside an object's box but behind it.
     pub skip_behind_objects: bool,
@@ -350,23 +348,17 @@ impl MaskSource {
         !segments.is_empty()
     }
 
-    /// Each object's box, cut at its depth: the pixels from `delta_z` in front of it
-    /// to `depth_behind` behind it in the box's lower half (the far leg and the feet;
-    /// the whole box when it touches the image's top, where only the legs are seen) and
-    /// at most `delta_z` behind it above, and those without depth.
+    /// Each object's box, cut at its depth: the pixels within `delta_z` of it, and
+    /// those without depth.
     fn object_masks(&self, mask: &mut [bool], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
         let (w, h) = (depth.width as usize, depth.height as usize);
         let mut any = false;
         for b in objects {
             let z = b.depth.unwrap_or(0.0);
-            let [_, top, _, bottom] = b.bbox;
-            let legs = if top <= 1.0 { top } else { (top + bottom) / 2.0 };
-            let front = self.dop.delta_z;
-            let far = self.settings.depth_behind;
-            let behind = |v: usize| if v as f32 >= legs { far } else { far.min(front) };
+            let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
             any |= fill_box(mask, w, h, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
-                d == 0.0 || (d >= z - front && d <= z + behind(v))
+                d == 0.0 || (d >= z - front && d <= z + behind)
             });
         }
         any
@@ -1051,20 +1043,13 @@ mod tests {
         assert!(close(depths[3], 2.0), "a box around all: {:?}", depths[3]);
     }
 
-    /// An object's mask reaches `delta_z` in front of its depth and `depth_behind` behind
-    /// it where its legs are (the lower half of its box, all of a box cut by the top).
+    /// An object's mask reaches `depth_behind` behind its depth and `delta_z` in front.
     #[test]
     fn an_object_mask_reaches_its_far_leg_behind_it() {
         let (camera, mut depth) = scene();
-        // The far leg, 0.5 m behind the body, in the slab's lower left; a chair's back
-        // 0.5 m behind the body beside its shoulder, in the box's upper half.
+        // The far leg, 0.5 m behind the body, in the slab's lower left.
         for v in 300..460 {
             for u in 250..300 {
-                depth.metres[(v * camera.width + u) as usize] = 2.0;
-            }
-        }
-        for v in 120..200 {
-            for u in 390..400 {
                 depth.metres[(v * camera.width + u) as usize] = 2.0;
             }
         }
@@ -1072,7 +1057,7 @@ mod tests {
             depth: Some(1.5),
             ..person_box([240.0, 90.0, 400.0, 470.0])
         };
-        let mask_of = |object: ObjectBox, depth_behind| {
+        let mask_with = |depth_behind| {
             let settings = MaskSettings {
                 border: 0,
                 keypoint_radius: 0,
@@ -1087,17 +1072,10 @@ mod tests {
             source.object_masks(&mut mask, &depth, &[object]);
             mask
         };
-        let (narrow, wide) = (mask_of(object, 0.4), mask_of(object, 0.6));
+        let (narrow, wide) = (mask_with(0.4), mask_with(0.6));
         assert!(at(&narrow, 300, 200) && at(&wide, 300, 200), "the body");
         assert!(!at(&narrow, 260, 400) && at(&wide, 260, 400), "the far leg");
         assert!(!at(&wide, 245, 200), "the wall in the box");
-        assert!(!at(&wide, 395, 150), "the chair behind the upper body");
-        // A box cut by the image's top is legs only: the band reaches behind all of it.
-        let legs = ObjectBox {
-            bbox: [240.0, 0.0, 400.0, 470.0],
-            ..object
-        };
-        assert!(at(&mask_of(legs, 0.6), 395, 150), "legs to the top border");
     }
 
     /// A box of a close person's legs (1 m) before a wall (3 m), beside the person's
