@@ -30,10 +30,9 @@ pub struct DenseReport {
     pub mesh_vertices: usize,
     /// Mesh triangles.
     pub mesh_triangles: usize,
-    /// Pieces of the mesh dropped as smaller than `mesh_min_piece_area`, and their
-    /// vertices (not in `mesh_vertices`).
+    /// Pieces of the mesh dropped as smaller than `mesh_min_piece_area`.
     pub mesh_pieces_dropped: usize,
-    /// Their vertices.
+    /// Their vertices (not in `mesh_vertices`).
     pub mesh_vertices_dropped: usize,
     /// Cloud points.
     pub cloud_points: usize,

@@ -119,9 +119,14 @@ impl Mesh {
             return (self, Pruned::default());
         }
         let mut pieces = petgraph::unionfind::UnionFind::<u32>::new(self.vertices.len());
+        // Vertices in no triangle go too.
+        let mut used = vec![false; self.vertices.len()];
         for &[a, b, c] in &self.triangles {
             pieces.union(a, b);
             pieces.union(a, c);
+            for i in [a, b, c] {
+                used[i as usize] = true;
+            }
         }
         let mut area = vec![0.0; self.vertices.len()];
         for t in &self.triangles {
@@ -129,11 +134,6 @@ impl Mesh {
             area[pieces.find(t[0]) as usize] += (b - a).cross(&(c - a)).norm() / 2.0;
         }
         let dropped = |root: u32| area[root as usize] < min_area;
-        // Vertices in no triangle go too.
-        let mut used = vec![false; self.vertices.len()];
-        for t in &self.triangles {
-            t.iter().for_each(|&i| used[i as usize] = true);
-        }
         let mut pruned = Pruned {
             pieces: (0..self.vertices.len() as u32)
                 .filter(|&v| used[v as usize] && pieces.find(v) == v && dropped(v))
