@@ -202,6 +202,12 @@ pub fn print_dense(dense: &DenseReport) {
             100.0 * t.dynamic_removed,
             100.0 * t.static_kept
         );
+        if let Some(l) = t.leaks.first() {
+            println!(
+                "largest leak: mover {} at {:.3}-{:.3} s, {} frames, {} of its {} pixels fused (dense.json lists the {} largest)",
+                l.instance, l.first, l.last, l.frames, l.pixels_fused, l.pixels, t.leaks.len()
+            );
+        }
     }
     for path in &dense.outputs {
         println!("wrote {}", path.display());

@@ -301,7 +301,7 @@ fn fuse_frames(
                 crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
             });
             if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
-                count_truth(truth, ids.as_raw(), &unknown, &input, config.max_depth);
+                count_truth(truth, (timestamp, ids.as_raw()), &unknown, &input, config.max_depth);
             }
             if let Some(dir) = pictures
                 .as_ref()

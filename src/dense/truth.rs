@@ -8,8 +8,11 @@ use serde::Serialize;
 use super::tsdf::FrameInput;
 use crate::io::IoError;
 
+/// How many of the leaks [`FusedTruth::leaks`] keeps (the largest).
+const LEAKS_KEPT: usize = 20;
+
 /// Pixels fused against a synthetic sequence's ground-truth masks.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct FusedTruth {
     /// Frames counted.
     pub frames: usize,
@@ -33,6 +36,29 @@ pub struct FusedTruth {
     pub unknown_mover_pixels_fused: u64,
     /// The share kept out.
     pub unknown_removed: Option<f64>,
+    /// Where movers got in: runs of consecutive fused frames in which one mover had
+    /// pixels fused, the largest first (at most 20), to find the frames to look at.
+    pub leaks: Vec<Leak>,
+    /// The leaks still open at the last frame counted (one per instance).
+    #[serde(skip)]
+    open: Vec<Leak>,
+}
+
+/// A run of consecutive fused frames in which one mover had pixels fused.
+#[derive(Debug, Clone, Serialize)]
+pub struct Leak {
+    /// The mover's instance id in the truth masks.
+    pub instance: u16,
+    /// The first and the last frame's timestamp.
+    pub first: f64,
+    /// The last frame's timestamp.
+    pub last: f64,
+    /// Frames in the run.
+    pub frames: usize,
+    /// The mover's pixels with depth in these frames, and those fused.
+    pub pixels: u64,
+    /// Those fused.
+    pub pixels_fused: u64,
 }
 
 impl FusedTruth {
@@ -43,7 +69,46 @@ impl FusedTruth {
         self.static_kept = share(self.static_pixels_fused, self.static_pixels);
         self.unknown_removed = (self.unknown_mover_pixels > 0)
             .then(|| 1.0 - share(self.unknown_mover_pixels_fused, self.unknown_mover_pixels));
+        self.leaks.append(&mut self.open);
+        self.leaks.sort_by(|a, b| {
+            b.pixels_fused
+                .cmp(&a.pixels_fused)
+                .then(a.first.total_cmp(&b.first))
+        });
+        self.leaks.truncate(LEAKS_KEPT);
         self
+    }
+
+    /// Extends the open leaks with one frame's mover pixels, `(instance, pixels,
+    /// fused)`: a mover with none fused closes its leak.
+    fn count_leaks(&mut self, timestamp: f64, movers: &[(u16, u64, u64)]) {
+        let mut still_open = Vec::with_capacity(self.open.len());
+        for &(instance, pixels, pixels_fused) in movers.iter().filter(|m| m.2 > 0) {
+            let mut leak = match self.open.iter().position(|l| l.instance == instance) {
+                Some(i) => self.open.swap_remove(i),
+                None => Leak {
+                    instance,
+                    first: timestamp,
+                    last: timestamp,
+                    frames: 0,
+                    pixels: 0,
+                    pixels_fused: 0,
+                },
+            };
+            leak.last = timestamp;
+            leak.frames += 1;
+            leak.pixels += pixels;
+            leak.pixels_fused += pixels_fused;
+            still_open.push(leak);
+        }
+        self.leaks.append(&mut self.open);
+        self.open = still_open;
+        // Keep the closed list short as it grows: only the largest can be reported.
+        if self.leaks.len() > 8 * LEAKS_KEPT {
+            self.leaks
+                .sort_by(|a, b| b.pixels_fused.cmp(&a.pixels_fused));
+            self.leaks.truncate(LEAKS_KEPT);
+        }
     }
 }
 
@@ -61,16 +126,18 @@ pub(super) fn unknown_instances(masks: &Path) -> Result<Vec<bool>, IoError> {
     Ok(unknown)
 }
 
-/// Counts fused and masked pixels against instance ids (0: static; `unknown[id]`: a
-/// mover no detector knows).
+/// Counts the fused and masked pixels of the frame at `timestamp` against its instance
+/// ids (0: static; `unknown[id]`: a mover no detector knows).
 pub(super) fn count_truth(
     truth: &mut FusedTruth,
-    ids: &[u16],
+    (timestamp, ids): (f64, &[u16]),
     unknown: &[bool],
     input: &FrameInput,
     max_depth: f64,
 ) {
     truth.frames += 1;
+    // (instance, pixels, fused) of this frame's movers.
+    let mut movers: Vec<(u16, u64, u64)> = Vec::new();
     for (i, &id) in ids.iter().enumerate() {
         let d = input.depth.metres.get(i).copied().unwrap_or(0.0) as f64;
         if d <= 0.0 || d > max_depth {
@@ -80,6 +147,13 @@ pub(super) fn count_truth(
         if id > 0 {
             truth.mover_pixels += 1;
             truth.mover_pixels_fused += fused as u64;
+            match movers.iter_mut().find(|m| m.0 == id) {
+                Some(m) => {
+                    m.1 += 1;
+                    m.2 += fused as u64;
+                }
+                None => movers.push((id, 1, fused as u64)),
+            }
             if unknown.get(id as usize).copied().unwrap_or(false) {
                 truth.unknown_mover_pixels += 1;
                 truth.unknown_mover_pixels_fused += fused as u64;
@@ -88,5 +162,43 @@ pub(super) fn count_truth(
             truth.static_pixels += 1;
             truth.static_pixels_fused += fused as u64;
         }
+    }
+    truth.count_leaks(timestamp, &movers);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn leaks_are_runs_of_frames_per_mover_largest_first() {
+        let mut truth = FusedTruth::default();
+        // Mover 1 leaks in frames 0-1, not in 2, again in 3; mover 2 only in frame 1.
+        truth.count_leaks(0.0, &[(1, 10, 2)]);
+        truth.count_leaks(0.1, &[(1, 10, 3), (2, 50, 40)]);
+        truth.count_leaks(0.2, &[(1, 10, 0), (2, 50, 0)]);
+        truth.count_leaks(0.3, &[(1, 10, 1)]);
+        let leaks = truth.finish().leaks;
+        let got: Vec<_> = leaks
+            .iter()
+            .map(|l| {
+                (
+                    l.instance,
+                    l.first,
+                    l.last,
+                    l.frames,
+                    l.pixels,
+                    l.pixels_fused,
+                )
+            })
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                (2, 0.1, 0.1, 1, 50, 40),
+                (1, 0.0, 0.1, 2, 20, 5),
+                (1, 0.3, 0.3, 1, 10, 1)
+            ]
+        );
     }
 }
