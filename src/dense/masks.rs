@@ -9,8 +9,10 @@
 //!    in front of what it hides, also when it fills little of its box; a person
 //!    behind another takes its depth from what the front one's box leaves, see
 //!    `box_depths`), the object is placed in the
-//!    world with the keyframe's final pose, projected into the frame with the frame's
-//!    pose, and a pixel inside the projected box belongs to it when
+//!    world with the keyframe's final pose (a box whose centre stands behind its
+//!    foreground, a second time at the centre's depth: `centre_behind`; box edges
+//!    near the image's border on it: `snap_to_border`), projected into the frame
+//!    with the frame's pose, and a pixel inside the projected box belongs to it when
 //!    \(z_{obj} - \delta_z \le d \le z_{obj} + \delta_{behind}\) (`mask_depth_behind`:
 //!    the far leg) (objects the detector missed on a keyframe are
 //!    predicted there by [`ObjectTracks`], as in the tracking pass);
@@ -153,7 +155,7 @@ impl MaskSource {
                     .into_iter()
                     .zip(&frame.detections)
                     .filter(|(b, _)| b.dynamic)
-                    .map(|(b, d)| (b, dop.follows(&d.class)))
+                    .map(|(b, d)| (snap_to_border(b, &camera), dop.follows(&d.class)))
                     .unzip();
             let mut objects = Vec::new();
             if masking == Mode::Dop {
@@ -450,6 +452,28 @@ fn disc_keep<'a>(
     }
 }
 
+/// A box edge this share of the image's height or less from the image's border is
+/// taken to the border (16 px of 480).
+const BORDER_SNAP: f32 = 1.0 / 30.0;
+
+/// `b` with its edges near the image's border ([`BORDER_SNAP`]) on it: a detector
+/// draws the box of an object cut by the border a few pixels short of it, and those
+/// rows of the object would be fused.
+fn snap_to_border(mut b: ObjectBox, camera: &PinholeCamera) -> ObjectBox {
+    let (w, h) = (camera.width as f32, camera.height as f32);
+    let snap = BORDER_SNAP * h;
+    let [x1, y1, x2, y2] = &mut b.bbox;
+    for (low, high, size) in [(x1, x2, w), (y1, y2, h)] {
+        if *low <= snap {
+            *low = 0.0;
+        }
+        if *high >= size - snap {
+            *high = size;
+        }
+    }
+    b
+}
+
 /// What lies behind a box's object: the 90th percentile of the depths in the box
 /// (every 4th pixel each way; 0 without any).
 fn box_background(depth: &DepthImage, b: &ObjectBox) -> f32 {
@@ -486,7 +510,9 @@ fn moving_seeds(evidence: &Evidence, w: usize, h: usize) -> Vec<(f32, f32)> {
 
 /// The dynamic `boxes` of a detected frame placed in the world at their object depth
 /// ([`box_depths`] with `mask_foreground_share`, else the model's), each with whether
-/// its class is followed; boxes without depth are left out.
+/// its class is followed; boxes without depth are left out. A box whose centre lies
+/// behind its foreground ([`centre_behind`]) is placed a second time, at its centre's
+/// depth (not followed: only the frames around this one see it).
 fn place_objects(
     (boxes, followed): (&[ObjectBox], &[bool]),
     samples: &[Keypoint],
@@ -506,11 +532,59 @@ fn place_objects(
         .iter()
         .zip(followed)
         .zip(depths)
-        .filter_map(|((b, &follow), z)| {
-            let object = Object::from_box(b.bbox, z?, camera, world_from_camera);
-            Some((object, follow))
+        .flat_map(|((b, &follow), z)| {
+            let behind = z.and_then(|z| centre_behind(b, z, samples, (dop, camera)));
+            let place = |z: f32| Object::from_box(b.bbox, z, camera, world_from_camera);
+            [
+                z.map(|z| (place(z), follow)),
+                behind.map(|c| (place(c), false)),
+            ]
         })
+        .flatten()
         .collect()
+}
+
+/// The largest share of the image a box placed at its centre's depth too
+/// ([`centre_behind`]) may cover: a box around most of the image (a person close to the
+/// camera, a false alarm) is centred on whatever lies behind.
+const CENTRE_MAX_AREA: f32 = 0.25;
+
+/// The depth \(z_c\) of a box's centre ([`object_depth`]) where it lies behind the
+/// box's object depth \(z\), holds more of the box than \(z\) does (samples within
+/// \(\delta_z\) of each), and lies in front of what the box leaves behind:
+/// \(z + \delta_z / 2 < z_c \le z_{90} - \delta_z / 2\), \(z_{90}\) the 90th percentile
+/// of the samples in the box. Then the foreground is something small in front of the
+/// mover (a box on the floor, a desk's edge, the floor a loose box reaches down to) and
+/// the mover is what the box is centred on and mostly made of; its mask must reach
+/// both depths. A box of legs centred on the wall between them fails the last test
+/// (the wall is what lies behind); a close person in front of a desk fails the second.
+fn centre_behind(
+    b: &ObjectBox,
+    z: f32,
+    samples: &[Keypoint],
+    (dop, camera): (&DopConfig, &PinholeCamera),
+) -> Option<f32> {
+    let [x1, y1, x2, y2] = b.bbox;
+    if (x2 - x1) * (y2 - y1) > CENTRE_MAX_AREA * (camera.width * camera.height) as f32 {
+        return None;
+    }
+    let half = dop.delta_z / 2.0;
+    let centre = object_depth(dop, samples, b).filter(|&c| c > z + half)?;
+    let mut inside: Vec<f32> = samples
+        .iter()
+        .filter(|k| b.contains(k.x, k.y))
+        .map(|k| k.depth)
+        .collect();
+    let held = |at: f32| {
+        inside
+            .iter()
+            .filter(|&&d| (d - at).abs() <= dop.delta_z)
+            .count()
+    };
+    if held(centre) <= held(z) {
+        return None;
+    }
+    (centre <= far_depth(&mut inside) - half).then_some(centre)
 }
 
 /// A box lying at least this share of its area inside another box is taken for a part
@@ -1041,6 +1115,53 @@ mod tests {
         assert!(close(depths[1], 2.0), "A: {:?}", depths[1]);
         assert!(close(depths[2], 2.0), "part of A: {:?}", depths[2]);
         assert!(close(depths[3], 2.0), "a box around all: {:?}", depths[3]);
+    }
+
+    /// A person (3 m) before a wall (5 m) whose box reaches down over a crate on the
+    /// floor in front of it (2 m): the crate is the box's foreground, the person its
+    /// centre, and the box is placed at both. A box of two legs (2 m) centred on the
+    /// wall between them is placed at the legs only.
+    #[test]
+    fn a_box_centred_behind_its_foreground_is_placed_at_its_centre_too() {
+        let camera = PinholeCamera::tum_fr3();
+        let dop = DopConfig {
+            delta_z: 0.4,
+            ..DopConfig::default()
+        };
+        let b = person_box([100.0, 0.0, 300.0, 300.0]);
+        let crate_before_person = grid_samples(|x, y| match (x, y) {
+            (_, y) if y >= 240.0 && (100.0..300.0).contains(&x) => 2.0,
+            (x, _) if (150.0..250.0).contains(&x) => 3.0,
+            _ => 5.0,
+        });
+        let z = box_depths(&[b], &crate_before_person, &dop, 0.1)[0].expect("a depth");
+        assert!((z - 2.0).abs() < 1e-3, "the crate is the foreground: {z}");
+        let centre = centre_behind(&b, z, &crate_before_person, (&dop, &camera));
+        assert!(centre.is_some_and(|c| (c - 3.0).abs() < 1e-3), "{centre:?}");
+        let legs = grid_samples(|x, _| match x {
+            x if (100.0..140.0).contains(&x) || (260.0..300.0).contains(&x) => 2.0,
+            _ => 5.0,
+        });
+        assert_eq!(centre_behind(&b, 2.0, &legs, (&dop, &camera)), None);
+        // The same box around most of the image is not placed at its centre.
+        let whole = person_box([50.0, 0.0, 350.0, 300.0]);
+        let z = box_depths(&[whole], &crate_before_person, &dop, 0.1)[0].expect("a depth");
+        assert_eq!(
+            centre_behind(&whole, z, &crate_before_person, (&dop, &camera)),
+            None
+        );
+    }
+
+    /// Edges within 16 px of the border of a 640 x 480 image go to it; the others stay.
+    #[test]
+    fn box_edges_near_the_border_go_to_it() {
+        let camera = PinholeCamera::tum_fr3();
+        let snapped = |bbox| snap_to_border(person_box(bbox), &camera).bbox;
+        assert_eq!(snapped([9.0, 15.0, 630.0, 470.0]), [0.0, 0.0, 640.0, 480.0]);
+        assert_eq!(
+            snapped([17.0, 20.0, 620.0, 460.0]),
+            [17.0, 20.0, 620.0, 460.0]
+        );
     }
 
     /// An object's mask reaches `depth_behind` behind its depth and `delta_z` in front.

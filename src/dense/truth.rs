@@ -106,7 +106,7 @@ impl FusedTruth {
         // Keep the closed list short as it grows: only the largest can be reported.
         if self.leaks.len() > 8 * LEAKS_KEPT {
             self.leaks
-                .sort_by(|a, b| b.pixels_fused.cmp(&a.pixels_fused));
+                .sort_by_key(|l| std::cmp::Reverse(l.pixels_fused));
             self.leaks.truncate(LEAKS_KEPT);
         }
     }
