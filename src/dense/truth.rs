@@ -49,13 +49,13 @@ pub struct FusedTruth {
 pub struct Leak {
     /// The mover's instance id in the truth masks.
     pub instance: u16,
-    /// The first and the last frame's timestamp.
+    /// The first frame's timestamp.
     pub first: f64,
     /// The last frame's timestamp.
     pub last: f64,
     /// Frames in the run.
     pub frames: usize,
-    /// The mover's pixels with depth in these frames, and those fused.
+    /// The mover's pixels with depth in these frames.
     pub pixels: u64,
     /// Those fused.
     pub pixels_fused: u64,
