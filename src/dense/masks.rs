@@ -575,16 +575,16 @@ fn centre_behind(
         .filter(|k| b.contains(k.x, k.y))
         .map(|k| k.depth)
         .collect();
-    let held = |at: f32| {
-        inside
-            .iter()
-            .filter(|&&d| (d - at).abs() <= dop.delta_z)
-            .count()
-    };
+    let held = |at: f32| held_near(inside.iter().copied(), at, dop.delta_z);
     if held(centre) <= held(z) {
         return None;
     }
     (centre <= far_depth(&mut inside) - half).then_some(centre)
+}
+
+/// How many of `depths` lie within `tolerance` of `z`.
+fn held_near(depths: impl Iterator<Item = f32>, z: f32, tolerance: f32) -> usize {
+    depths.filter(|d| (d - z).abs() <= tolerance).count()
 }
 
 /// A box lying at least this share of its area inside another box is taken for a part
@@ -633,12 +633,7 @@ fn box_depths(
         .collect();
     let held: Vec<f32> = (0..boxes.len())
         .map(|i| {
-            let near = |z: f32| {
-                inside[i]
-                    .iter()
-                    .filter(|k| (k.depth - z).abs() <= delta_z)
-                    .count()
-            };
+            let near = |z: f32| held_near(inside[i].iter().map(|k| k.depth), z, delta_z);
             first[i].map_or(0, near) as f32 / inside[i].len().max(1) as f32
         })
         .collect();

@@ -103,12 +103,6 @@ impl FusedTruth {
         }
         self.leaks.append(&mut self.open);
         self.open = still_open;
-        // Keep the closed list short as it grows: only the largest can be reported.
-        if self.leaks.len() > 8 * LEAKS_KEPT {
-            self.leaks
-                .sort_by_key(|l| std::cmp::Reverse(l.pixels_fused));
-            self.leaks.truncate(LEAKS_KEPT);
-        }
     }
 }
 
