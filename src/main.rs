@@ -882,6 +882,7 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    dopslam::memory::keep_freed_memory();
     let cli = Cli::parse();
     if matches!(
         cli.command,

@@ -13,6 +13,8 @@
 #
 #   bash tools/bench_recordings.sh [--frames N] [--repeat K] [--out DIR]
 #   DOPSLAM_TEST_PYTHON=/path/to/python  (with rosbags, numpy, pillow; default data/venv)
+#   DOPSLAM_BIN=/path/to/dopslam  (another build, for a before/after pair; default
+#   ./target/release/dopslam)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 frames=300
@@ -27,8 +29,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 py=${DOPSLAM_TEST_PYTHON:-data/venv/bin/python}
-dopslam=./target/release/dopslam
-[ -x "$dopslam" ] || { echo "build first: bash tools/setup.sh" >&2; exit 1; }
+dopslam=${DOPSLAM_BIN:-./target/release/dopslam}
+[ -x "$dopslam" ] || { echo "no $dopslam: build first (bash tools/setup.sh)" >&2; exit 1; }
 mkdir -p "$out"
 work=$(mktemp -d "${TMPDIR:-/tmp}/bench-recordings.XXXXXX")
 trap 'rm -rf "$work"' EXIT
@@ -69,7 +71,32 @@ print(json.dumps({"reader": "rosbags", "input": label, "frames": images // 2, "s
 EOF
 }
 
+# bytes_rate LABEL PATH FRAMES: the file's bytes alone (every file under PATH read from the
+# page cache into one reused 1 MiB buffer, nothing decoded), in frames/s: the bound for
+# any reader that reads the recording's bytes.
+bytes_rate() {
+  "$py" - "$1" "$2" "$3" <<'EOF' | tee -a "$out/rows.jsonl"
+import json, sys, time
+from pathlib import Path
+label, path, frames = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
+files = sorted(p for p in ([path] if path.is_file() else path.rglob('*')) if p.is_file())
+buf = bytearray(1 << 20)
+for p in files:  # into the page cache first, as the readers find them
+    with open(p, 'rb') as f:
+        while f.readinto(buf):
+            pass
+start = time.perf_counter()
+for p in files:
+    with open(p, 'rb') as f:
+        while f.readinto(buf):
+            pass
+seconds = time.perf_counter() - start
+print(json.dumps({"reader": "bytes", "input": label, "fps": round(frames / seconds, 1)}))
+EOF
+}
+
 rate_of folder "$seq"
+bytes_rate folder "$seq" "$frames"
 for variant in "ros1:--format ros1" "ros1-lz4:--format ros1 --compression lz4" \
                "ros2-mcap:--format ros2-mcap" "ros2-sqlite:--format ros2-sqlite" \
                "ros2-mcap-zstd-message:--format ros2-mcap --compression zstd-message" \
@@ -80,6 +107,7 @@ for variant in "ros1:--format ros1" "ros1-lz4:--format ros1 --compression lz4" \
   # shellcheck disable=SC2086
   "$py" tools/write_recording.py "$seq" "$target" ${variant#*:} 2>/dev/null
   rate_of "$label" "$target"
+  bytes_rate "$label" "$target" "$frames"
   python_rate "$label" "$target"
 done
 
@@ -93,6 +121,7 @@ if command -v ffmpeg >/dev/null 2>&1; then
   for colour in bgra mjpeg; do
     "$py" tools/write_kinect.py "$work/kinect-seq" "$work/kinect-$colour.mkv" --colour "$colour" 2>/dev/null
     rate_of "azure-kinect-$colour" "$work/kinect-$colour.mkv"
+    bytes_rate "azure-kinect-$colour" "$work/kinect-$colour.mkv" "$frames"
   done
   rm -rf "$work/kinect-seq"
 else
@@ -120,16 +149,17 @@ from pathlib import Path
 out = Path(sys.argv[1])
 rows = [json.loads(l) for l in (out / 'rows.jsonl').read_text().splitlines() if l.strip()]
 track = next((r for r in rows if r['reader'] == 'tracking'), None)
-lines = ['| input | MiB | frames | dopslam frames/s | peak MiB | rosbags frames/s | dopslam / rosbags | dopslam / tracking |',
-         '|---|---|---|---|---|---|---|---|']
+lines = ['| input | MiB | frames | dopslam frames/s | peak MiB | rosbags frames/s | dopslam / rosbags | dopslam / tracking | file bytes alone frames/s |',
+         '|---|---|---|---|---|---|---|---|---|']
 for r in rows:
     if r['reader'] != 'dopslam':
         continue
     py = next((p for p in rows if p['reader'] == 'rosbags' and p['input'] == r['input']), None)
-    lines.append('| {} | {} | {} | {:.0f} | {} | {} | {} | {} |'.format(
+    raw = next((p for p in rows if p['reader'] == 'bytes' and p['input'] == r['input']), None)
+    lines.append('| {} | {} | {} | {:.0f} | {} | {} | {} | {} | {} |'.format(
         r['input'], r['mib'], r['frames'], r['fps'], r['peak_mib'],
         f"{py['fps']:.0f}" if py else '', f"{r['fps'] / py['fps']:.1f}x" if py else '',
-        f"{r['fps'] / track['fps']:.1f}x" if track else ''))
+        f"{r['fps'] / track['fps']:.1f}x" if track else '', f"{raw['fps']:.0f}" if raw else ''))
 if track:
     lines.append(f"\nTracking (no detector, --no-dense): median {track['ms']} ms a frame, {track['fps']:.0f} frames/s.")
 (out / 'table.md').write_text('\n'.join(lines) + '\n')

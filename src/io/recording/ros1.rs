@@ -230,7 +230,7 @@ impl Ros1Bag {
                     index_pos = Some(header.u64("index_pos").map_err(|e| self.invalid(e))?)
                 }
                 OP_CHUNK => {
-                    let chunk = self.decompress(&header, &data.expect("chunk data read"), pos)?;
+                    let chunk = self.decompress(&header, data.expect("chunk data read"), pos)?;
                     self.scan_chunk(&chunk, pos, &mut catalog)?;
                 }
                 _ => {}
@@ -281,22 +281,22 @@ impl Ros1Bag {
         Ok(())
     }
 
-    fn decompress(&self, header: &Header, data: &[u8], pos: u64) -> Result<Vec<u8>, IoError> {
+    fn decompress(&self, header: &Header, data: Vec<u8>, pos: u64) -> Result<Vec<u8>, IoError> {
         let at = |e: String| self.invalid(format!("chunk at byte {pos}: {e}"));
         let compression = header.string("compression").map_err(at)?;
         let size = header.u32("size").map_err(at)? as usize;
         let out = match compression.as_str() {
-            "none" => data.to_vec(),
+            "none" => data,
             "bz2" => {
                 let mut out = Vec::with_capacity(size);
-                bzip2::read::BzDecoder::new(data)
+                bzip2::read::BzDecoder::new(data.as_slice())
                     .read_to_end(&mut out)
                     .map_err(|e| at(format!("bz2: {e}")))?;
                 out
             }
             "lz4" => {
                 let mut out = Vec::with_capacity(size);
-                lz4_flex::frame::FrameDecoder::new(data)
+                lz4_flex::frame::FrameDecoder::new(data.as_slice())
                     .read_to_end(&mut out)
                     .map_err(|e| at(format!("lz4: {e}")))?;
                 out
@@ -333,7 +333,7 @@ impl Ros1Bag {
                 "no chunk at byte {pos} any more (was the bag changed?)"
             )));
         };
-        let chunk = Arc::new(self.decompress(&header, &data, pos)?);
+        let chunk = Arc::new(self.decompress(&header, data, pos)?);
         *cache = Some((pos, chunk.clone()));
         Ok(chunk)
     }

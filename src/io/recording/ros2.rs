@@ -266,16 +266,47 @@ impl Store for Decompressing {
     }
 }
 
+/// How many bytes of a message the scan looks at: its header, for the stamp.
+const HEAD_BYTES: usize = 512;
+
+/// The `data` of the `messages` row `rowid`, as an incremental blob: SQLite reads the
+/// pages of the part read only (a query for the column reads all of an image's pages,
+/// then copies it once more into the result).
+fn open_blob(connection: &rusqlite::Connection, rowid: i64) -> rusqlite::Result<rusqlite::blob::Blob<'_>> {
+    connection.blob_open(rusqlite::MAIN_DB, c"messages", c"data", rowid, true)
+}
+
+/// The first [`HEAD_BYTES`] of message `rowid` (all of it with `whole`: a compressed
+/// message's first block may be long), `blob` reopened on each row.
+fn first_bytes<'c>(
+    connection: &'c rusqlite::Connection,
+    blob: &mut Option<rusqlite::blob::Blob<'c>>,
+    rowid: i64,
+    whole: bool,
+) -> rusqlite::Result<Vec<u8>> {
+    let blob = match blob {
+        Some(open) => {
+            open.reopen(rowid)?;
+            open
+        }
+        None => blob.insert(open_blob(connection, rowid)?),
+    };
+    let length = if whole { blob.len() } else { blob.len().min(HEAD_BYTES) };
+    let mut data = vec![0; length];
+    blob.read_at_exact(&mut data, 0)?;
+    Ok(data)
+}
+
 /// The first bytes of a message (enough for its header), decompressed when the bag
 /// compresses messages; `None` when they do not decompress.
 fn head(data: &[u8], compression: Compression) -> Option<std::borrow::Cow<'_, [u8]>> {
     if compression != Compression::Message {
         return Some(std::borrow::Cow::Borrowed(data));
     }
-    let mut out = Vec::with_capacity(512);
+    let mut out = Vec::with_capacity(HEAD_BYTES);
     zstd::stream::read::Decoder::new(data)
         .ok()?
-        .take(512)
+        .take(HEAD_BYTES as u64)
         .read_to_end(&mut out)
         .ok()?;
     Some(std::borrow::Cow::Owned(out))
@@ -336,24 +367,22 @@ fn open_sqlite_with(
             catalog.add_topic(id as u64, &name, &msg_type);
         }
         let mut messages = connection
-            .prepare("SELECT id, topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
+            .prepare("SELECT rowid, topic_id, timestamp FROM messages ORDER BY timestamp, id")
             .map_err(bad)?;
         let mut rows = messages.query([]).map_err(bad)?;
+        let mut blob = None;
         while let Some(row) = rows.next().map_err(bad)? {
-            let (id, topic, time): (i64, i64, i64) = (
+            let (rowid, topic, time): (i64, i64, i64) = (
                 row.get(0).map_err(bad)?,
                 row.get(1).map_err(bad)?,
                 row.get(2).map_err(bad)?,
             );
-            let data = row
-                .get_ref(3)
-                .map_err(bad)?
-                .as_blob()
-                .map_err(|e| bad(e.into()))?;
-            let data = head(data, compression).unwrap_or_default();
+            let whole = compression == Compression::Message;
+            let data = first_bytes(&connection, &mut blob, rowid, whole).map_err(bad)?;
+            let data = head(&data, compression).unwrap_or_default();
             catalog.add_message(
                 topic as u64,
-                Location(id as u64, 0),
+                Location(rowid as u64, 0),
                 &data,
                 time as f64 / 1e9,
             );
@@ -371,13 +400,10 @@ impl Store for Sqlite {
         let connection = self.connection.lock().unwrap_or_else(|p| p.into_inner());
         let bad =
             |e: rusqlite::Error| IoError::invalid(&self.path, format!("message {}: {e}", at.0));
-        // One prepared statement for every frame (cached by the connection).
-        let mut statement = connection
-            .prepare_cached("SELECT data FROM messages WHERE id = ?1")
-            .map_err(bad)?;
-        statement
-            .query_row([at.0 as i64], |row| row.get(0))
-            .map_err(bad)
+        let blob = open_blob(&connection, at.0 as i64).map_err(bad)?;
+        let mut data = vec![0; blob.len()];
+        blob.read_at_exact(&mut data, 0).map_err(bad)?;
+        Ok(data)
     }
 }
 
