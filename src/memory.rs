@@ -85,7 +85,10 @@ mod tests {
         drop(frame());
         let faults = minor_faults() - before;
         let pages = (bytes / 4096) as i64;
-        assert!(faults < pages / 4, "{faults} page faults for a {pages}-page frame");
+        assert!(
+            faults < pages / 4,
+            "{faults} page faults for a {pages}-page frame"
+        );
     }
 
     #[test]
