@@ -296,9 +296,10 @@ fn open_blob(
     connection.blob_open(rusqlite::MAIN_DB, c"messages", c"data", rowid, true)
 }
 
-/// The first [`HEAD_BYTES`] of message `rowid` (all of it with `whole`: a compressed
-/// message's first block may be long), `blob` reopened on each row.
-fn first_bytes<'c>(
+/// The first [`HEAD_BYTES`] of message `rowid`, or all of it with `whole` (a frame
+/// read, or a compressed message, whose first block may be long); `blob`, once open,
+/// is reopened on the row.
+fn message_bytes<'c>(
     connection: &'c rusqlite::Connection,
     blob: &mut Option<rusqlite::blob::Blob<'c>>,
     rowid: i64,
@@ -395,14 +396,14 @@ fn open_sqlite_with(
             .map_err(bad)?;
         let mut rows = messages.query([]).map_err(bad)?;
         let mut blob = None;
+        let whole = compression == Compression::Message;
         while let Some(row) = rows.next().map_err(bad)? {
             let (rowid, topic, time): (i64, i64, i64) = (
                 row.get(0).map_err(bad)?,
                 row.get(1).map_err(bad)?,
                 row.get(2).map_err(bad)?,
             );
-            let whole = compression == Compression::Message;
-            let data = first_bytes(&connection, &mut blob, rowid, whole).map_err(bad)?;
+            let data = message_bytes(&connection, &mut blob, rowid, whole).map_err(bad)?;
             let data = head(&data, compression).unwrap_or_default();
             catalog.add_message(
                 topic as u64,
@@ -424,10 +425,8 @@ impl Store for Sqlite {
         let connection = self.connection.lock().unwrap_or_else(|p| p.into_inner());
         let bad =
             |e: rusqlite::Error| IoError::invalid(&self.path, format!("message {}: {e}", at.0));
-        let blob = open_blob(&connection, at.0 as i64).map_err(bad)?;
-        let mut data = vec![0; blob.len()];
-        blob.read_at_exact(&mut data, 0).map_err(bad)?;
-        Ok(data)
+        let data = message_bytes(&connection, &mut None, at.0 as i64, true);
+        data.map_err(bad)
     }
 }
 
