@@ -182,20 +182,39 @@ impl Reader<'_> {
             )));
         }
         let scale = (1.0 / depth_scale) as f32;
-        let valid = |z: f32| if z.is_finite() && z > 0.0 { z } else { 0.0 };
-        let mut metres = Vec::with_capacity(w * h);
-        for row in raw.data.chunks(step).take(h) {
-            let px = row[..w * bytes].chunks_exact(bytes);
+        // Comparisons only (NaN fails both), so that the loops below vectorise.
+        let valid = |z: f32| if z > 0.0 && z < f32::INFINITY { z } else { 0.0 };
+        // Written into a buffer of the image's size, row by row, pixel by pixel: loops
+        // the compiler vectorises (`extend` over the pixels did not).
+        let mut metres = vec![0.0f32; w * h];
+        for (out, row) in metres
+            .chunks_exact_mut(w)
+            .zip(raw.data.chunks(step).take(h))
+        {
+            let row = &row[..w * bytes];
+            let convert = |z: &mut f32, value: f32| *z = valid(value);
             match (bytes, raw.big_endian) {
-                (2, false) => metres
-                    .extend(px.map(|p| valid(u16::from_le_bytes([p[0], p[1]]) as f32 * scale))),
-                (2, true) => metres
-                    .extend(px.map(|p| valid(u16::from_be_bytes([p[0], p[1]]) as f32 * scale))),
-                (_, false) => {
-                    metres.extend(px.map(|p| valid(f32::from_le_bytes([p[0], p[1], p[2], p[3]]))))
+                (2, big_endian) => {
+                    let px = row.as_chunks::<2>().0;
+                    for (z, p) in out.iter_mut().zip(px) {
+                        let raw = if big_endian {
+                            u16::from_be_bytes(*p)
+                        } else {
+                            u16::from_le_bytes(*p)
+                        };
+                        convert(z, raw as f32 * scale);
+                    }
                 }
-                (_, true) => {
-                    metres.extend(px.map(|p| valid(f32::from_be_bytes([p[0], p[1], p[2], p[3]]))))
+                (_, big_endian) => {
+                    let px = row.as_chunks::<4>().0;
+                    for (z, p) in out.iter_mut().zip(px) {
+                        let raw = if big_endian {
+                            f32::from_be_bytes(*p)
+                        } else {
+                            f32::from_le_bytes(*p)
+                        };
+                        convert(z, raw);
+                    }
                 }
             }
         }

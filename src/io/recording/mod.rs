@@ -13,6 +13,7 @@ pub mod convert;
 pub mod frames;
 pub mod kinect;
 pub mod matroska;
+mod mcap_chunks;
 pub mod messages;
 pub mod realsense;
 pub mod register;

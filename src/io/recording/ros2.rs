@@ -13,6 +13,7 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
+use super::mcap_chunks::uncompressed_messages;
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
 
@@ -436,7 +437,14 @@ struct Mcap {
     map: memmap2::Mmap,
     summary: mcap::read::Summary,
     /// The messages of the chunk read last (colour and depth usually share one).
-    cache: Mutex<Option<(u64, Vec<Vec<u8>>)>>,
+    cache: Mutex<Option<(u64, ChunkMessages)>>,
+}
+
+/// One chunk's messages: where they lie in the file when the chunk is stored
+/// uncompressed ([`super::mcap_chunks`]), else decompressed by the `mcap` crate.
+enum ChunkMessages {
+    InPlace(Vec<std::ops::Range<usize>>),
+    Decompressed(Vec<Vec<u8>>),
 }
 
 /// Opens a `.mcap` file.
@@ -475,15 +483,20 @@ fn open_mcap_with(
         catalog.add_topic(channel.id, &channel.topic, msg_type);
     }
     for (i, index) in summary.chunk_indexes.iter().enumerate() {
-        for (n, message) in summary.stream_chunk(&map, index).map_err(bad)?.enumerate() {
-            let message = message.map_err(bad)?;
-            let data = head(&message.data, compression).unwrap_or_default();
-            catalog.add_message(
-                message.channel.id,
-                Location(i as u64, n as u64),
-                &data,
-                message.log_time as f64 / 1e9,
-            );
+        let mut add = |n: usize, channel: u16, data: &[u8], log_time: u64| {
+            let data = head(data, compression).unwrap_or_default();
+            let at = Location(i as u64, n as u64);
+            catalog.add_message(channel, at, &data, log_time as f64 / 1e9);
+        };
+        if let Some(spans) = uncompressed_messages(&map, index) {
+            for (n, span) in spans.map_err(bad)?.into_iter().enumerate() {
+                add(n, span.channel, &map[span.data], span.log_time);
+            }
+        } else {
+            for (n, message) in summary.stream_chunk(&map, index).map_err(bad)?.enumerate() {
+                let message = message.map_err(bad)?;
+                add(n, message.channel.id, &message.data, message.log_time);
+            }
         }
         release(&map, index);
     }
@@ -517,33 +530,50 @@ fn release(map: &memmap2::Mmap, index: &mcap::records::ChunkIndex) {
     }
 }
 
+impl Mcap {
+    /// The messages of chunk `index` (see [`ChunkMessages`]).
+    fn chunk(&self, index: &mcap::records::ChunkIndex) -> Result<ChunkMessages, String> {
+        if let Some(spans) = uncompressed_messages(&self.map, index) {
+            let spans = spans.map_err(|e| e.to_string())?;
+            return Ok(ChunkMessages::InPlace(
+                spans.into_iter().map(|s| s.data).collect(),
+            ));
+        }
+        let messages = self
+            .summary
+            .stream_chunk(&self.map, index)
+            .map_err(|e| e.to_string())?
+            .map(|m| m.map(|m| m.data.into_owned()))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| e.to_string())?;
+        release(&self.map, index);
+        Ok(ChunkMessages::Decompressed(messages))
+    }
+}
+
 impl Store for Mcap {
     fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
         let bad = |e: String| {
             IoError::invalid(&self.path, format!("chunk {} message {}: {e}", at.0, at.1))
         };
+        let index_of = |chunk: u64| self.summary.chunk_indexes.get(chunk as usize);
         let mut cache = self.cache.lock().unwrap_or_else(|p| p.into_inner());
         if cache.as_ref().is_none_or(|(chunk, _)| *chunk != at.0) {
-            let index = self
-                .summary
-                .chunk_indexes
-                .get(at.0 as usize)
-                .ok_or_else(|| bad("no such chunk".into()))?;
-            let messages = self
-                .summary
-                .stream_chunk(&self.map, index)
-                .map_err(|e| bad(e.to_string()))?
-                .map(|m| m.map(|m| m.data.into_owned()))
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(|e| bad(e.to_string()))?;
-            release(&self.map, index);
+            let index = index_of(at.0).ok_or_else(|| bad("no such chunk".into()))?;
+            let messages = self.chunk(index).map_err(bad)?;
+            // The pages of the chunk read before are not needed again.
+            if let Some((before, ChunkMessages::InPlace(_))) = cache.as_ref() {
+                release(&self.map, index_of(*before).expect("read before"));
+            }
             *cache = Some((at.0, messages));
         }
         let (_, messages) = cache.as_ref().expect("filled above");
-        messages
-            .get(at.1 as usize)
-            .cloned()
-            .ok_or_else(|| bad("no such message".into()))
+        let n = at.1 as usize;
+        let message = match messages {
+            ChunkMessages::InPlace(spans) => spans.get(n).map(|r| self.map[r.clone()].to_vec()),
+            ChunkMessages::Decompressed(all) => all.get(n).cloned(),
+        };
+        message.ok_or_else(|| bad("no such message".into()))
     }
 }
 
