@@ -440,32 +440,47 @@ impl Config {
     /// `[dataset] settings`; what it did is kept in `dataset.settings_applied`.
     pub fn apply_orbslam_settings(&mut self, path: &Path) -> Result<OrbSlamSettings, ConfigError> {
         let settings = OrbSlamSettings::read(path)?;
-        let orb = &settings.orb;
+        let (orb, calibration) = (&settings.orb, &settings.calibration);
+        let d = Config::default();
+        let mut over = Vec::new();
         if let Some(v) = orb.n_features {
-            self.orb.n_features = v;
-            self.stereo.n_features = v;
+            let key = "ORBextractor.nFeatures";
+            settle(&mut self.orb.n_features, d.orb.n_features, v, ("orb.n_features", key), &mut over);
+            let stereo = &mut self.stereo.n_features;
+            settle(stereo, d.stereo.n_features, v, ("stereo.n_features", key), &mut over);
         }
         if let Some(v) = orb.scale_factor {
-            self.orb.scale_factor = v;
+            let names = ("orb.scale_factor", "ORBextractor.scaleFactor");
+            settle(&mut self.orb.scale_factor, d.orb.scale_factor, v, names, &mut over);
         }
         if let Some(v) = orb.n_levels {
-            self.orb.n_levels = v;
+            let names = ("orb.n_levels", "ORBextractor.nLevels");
+            settle(&mut self.orb.n_levels, d.orb.n_levels, v, names, &mut over);
         }
         if let Some(v) = orb.ini_th_fast {
-            self.orb.ini_th_fast = v;
+            let names = ("orb.ini_th_fast", "ORBextractor.iniThFAST");
+            settle(&mut self.orb.ini_th_fast, d.orb.ini_th_fast, v, names, &mut over);
         }
         if let Some(v) = orb.min_th_fast {
-            self.orb.min_th_fast = v;
+            let names = ("orb.min_th_fast", "ORBextractor.minThFAST");
+            settle(&mut self.orb.min_th_fast, d.orb.min_th_fast, v, names, &mut over);
         }
-        let calibration = &settings.calibration;
         if let Some(v) = calibration.th_depth {
-            self.tracking.th_depth = v;
-            self.stereo.th_depth = v;
+            let tracking = &mut self.tracking.th_depth;
+            settle(tracking, d.tracking.th_depth, v, ("tracking.th_depth", "ThDepth"), &mut over);
+            let stereo = &mut self.stereo.th_depth;
+            settle(stereo, d.stereo.th_depth, v, ("stereo.th_depth", "ThDepth"), &mut over);
         }
         if let Some(fps) = calibration.fps {
-            let frames = fps.round().max(1.0) as usize;
-            self.tracking.max_frames_between_keyframes = frames;
-            self.stereo.max_frames_between_keyframes = frames;
+            // ORB-SLAM2's most frames between keyframes is the frame rate.
+            let v = fps.round().max(1.0) as usize;
+            let (tracking, stereo) = (&mut self.tracking, &mut self.stereo);
+            let names = ("tracking.max_frames_between_keyframes", "Camera.fps");
+            let default = d.tracking.max_frames_between_keyframes;
+            settle(&mut tracking.max_frames_between_keyframes, default, v, names, &mut over);
+            let names = ("stereo.max_frames_between_keyframes", "Camera.fps");
+            let default = d.stereo.max_frames_between_keyframes;
+            settle(&mut stereo.max_frames_between_keyframes, default, v, names, &mut over);
         }
         if self.dataset.depth_scale.is_none() {
             self.dataset.depth_scale = calibration.depth_scale;
@@ -477,6 +492,7 @@ impl Config {
             applied,
             no_meaning,
             unknown,
+            replaced: over,
         });
         self.validate().map_err(|bad| ConfigError::Invalid {
             path: path.to_path_buf(),
@@ -563,6 +579,26 @@ pub struct SettingsApplied {
     pub no_meaning: Vec<String>,
     /// Keys this tool does not know (a typo, or another system's).
     pub unknown: Vec<String>,
+    /// Config values the file replaced: set (not to their defaults) by the config
+    /// before the settings file was applied, each with the two values and the file's key.
+    #[serde(default)]
+    pub replaced: Vec<String>,
+}
+
+/// Sets `slot` to `value`, the settings file's, noting in `over` the config key `name`
+/// when the config had set it (to another value than its `default`) and the file
+/// changes it: the file's values come last and win, and a run says so.
+fn settle<T: PartialEq + std::fmt::Display + Copy>(
+    slot: &mut T,
+    default: T,
+    value: T,
+    (name, key): (&str, &str),
+    over: &mut Vec<String>,
+) {
+    if *slot != default && *slot != value {
+        over.push(format!("{name} {} -> {value} ({key})", *slot));
+    }
+    *slot = value;
 }
 
 impl SettingsApplied {
@@ -581,6 +617,13 @@ impl SettingsApplied {
                 "warning: settings {}: unknown keys, ignored: {}",
                 self.file.display(),
                 self.unknown.join(", ")
+            ));
+        }
+        if !self.replaced.is_empty() {
+            notes.push(format!(
+                "warning: settings {} replaces what the config set: {}",
+                self.file.display(),
+                self.replaced.join(", ")
             ));
         }
         notes
@@ -656,6 +699,32 @@ mod tests {
         std::fs::write(dir.join("missing.toml"), "[dataset]\nsettings = \"nope.yaml\"\n").unwrap();
         let e = Config::load(&dir.join("missing.toml")).unwrap_err().to_string();
         assert!(e.contains("missing.toml") && e.contains("[dataset] settings") && e.contains("nope.yaml"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A settings file's values come after the config's and win; each config value it
+    /// replaces (set, and to another value) is named with both values.
+    #[test]
+    fn a_settings_file_names_the_config_values_it_replaces() {
+        let dir = std::env::temp_dir().join(format!("dopslam-config-over-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let settings = dir.join("cam.yaml");
+        let yaml = "%YAML:1.0\nCamera.fx: 500.0\nCamera.fy: 500.0\nCamera.cx: 320.0\nCamera.cy: 240.0\nCamera.fps: 10.0\nORBextractor.nFeatures: 1000\n";
+        std::fs::write(&settings, yaml).unwrap();
+        let text = "[stereo]\nmax_frames_between_keyframes = 1\n[orb]\nn_features = 1000\nscale_factor = 1.3\n";
+        let mut config = Config::from_toml(text).unwrap();
+        config.apply_orbslam_settings(&settings).unwrap();
+        assert_eq!(config.stereo.max_frames_between_keyframes, 10);
+        let applied = config.dataset.settings_applied.clone().unwrap();
+        // The same value (n_features), a key the file lacks (scale_factor) and the
+        // defaults the file changes are not replacements.
+        assert_eq!(applied.replaced, ["stereo.max_frames_between_keyframes 1 -> 10 (Camera.fps)"]);
+        let notes = applied.notes();
+        assert!(notes.iter().any(|n| n.contains("replaces") && n.contains("1 -> 10")), "{notes:?}");
+        assert_eq!(config.orb.scale_factor, 1.3);
+        let mut plain = Config::default();
+        plain.apply_orbslam_settings(&settings).unwrap();
+        assert!(plain.dataset.settings_applied.unwrap().replaced.is_empty());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
