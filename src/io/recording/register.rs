@@ -33,8 +33,10 @@ pub struct Registration {
     /// over \((w + 1) \times (h + 1)\): the corner at depth \(z\) is \(z\, R_{cd}\bar x +
     /// t_{cd}\) in the colour camera.
     corners: Vec<Vector3<f64>>,
-    /// The same for the pixels' centres, row-major over \(w \times h\).
-    centres: Vec<Vector3<f64>>,
+    /// The depth (z) component of the same for the pixels' centres, row-major over
+    /// \(w \times h\): a centre at depth \(z\) lies at depth \(z\,(R_{cd}\bar x)_z +
+    /// t_{cd,z}\) in the colour camera.
+    centre_z: Vec<f64>,
 }
 
 /// \(\lceil x \rceil\) without a call into libm (which `f64::ceil` is on a baseline
@@ -70,9 +72,9 @@ impl Registration {
             .flat_map(|v| (0..=w).map(move |u| Vector2::new(u as f64 - 0.5, v as f64 - 0.5)))
             .map(turned)
             .collect();
-        let centres = (0..h)
+        let centre_z = (0..h)
             .flat_map(|v| (0..w).map(move |u| Vector2::new(u as f64, v as f64)))
-            .map(turned)
+            .map(|p| turned(p).z)
             .collect();
         Self {
             colour: *colour,
@@ -80,7 +82,7 @@ impl Registration {
             translation: colour_from_depth.translation.vector,
             depth_size: (w, h),
             corners,
-            centres,
+            centre_z,
         }
     }
 
@@ -102,43 +104,31 @@ impl Registration {
     /// `depth` (in the depth camera, of the size given to [`Registration::new`])
     /// resampled into the colour camera; `None` when its size is another.
     pub fn apply(&self, depth: &DepthImage) -> Option<DepthImage> {
-        let (w, h) = self.depth_size;
-        if (depth.width, depth.height) != (w, h) {
+        let (w, h) = (self.depth_size.0 as usize, self.depth_size.1 as usize);
+        if (depth.width as usize, depth.height as usize) != (w, h) {
             return None;
         }
-        let (cw, ch) = (self.colour.width as i64, self.colour.height as i64);
-        let mut out = vec![f32::INFINITY; (cw * ch) as usize];
-        for v in 0..h as usize {
-            for u in 0..w as usize {
-                let z = depth.metres[v * w as usize + u] as f64;
-                if z <= 0.0 {
+        let (cw, ch) = (self.colour.width as usize, self.colour.height as usize);
+        let mut out = vec![f32::INFINITY; cw * ch];
+        let stride = w + 1;
+        for v in 0..h {
+            let row = &depth.metres[v * w..(v + 1) * w];
+            let centre_z = &self.centre_z[v * w..(v + 1) * w];
+            let top = &self.corners[v * stride..(v + 1) * stride];
+            let bottom = &self.corners[(v + 1) * stride..(v + 2) * stride];
+            for u in 0..w {
+                let z = row[u] as f64;
+                // Also false for NaN.
+                if !(z > 0.0) {
                     continue;
                 }
-                let centre = self.to_colour(&self.centres[v * w as usize + u], z);
-                if centre.z <= 0.0 {
+                let zc = z * centre_z[u] + self.translation.z;
+                if zc <= 0.0 {
                     continue;
                 }
-                let stride = w as usize + 1;
-                let a = self.pixel(&self.to_colour(&self.corners[v * stride + u], z));
-                let b = self.pixel(&self.to_colour(&self.corners[(v + 1) * stride + u + 1], z));
-                // The colour pixels whose centres lie in [min, max): footprints that
-                // share corners tile the image, so each centre is covered once.
-                let first = ceil;
-                let (x0, x1) = (
-                    first(a.x.min(b.x)).max(0),
-                    (first(a.x.max(b.x)) - 1).min(cw - 1),
-                );
-                let (y0, y1) = (
-                    first(a.y.min(b.y)).max(0),
-                    (first(a.y.max(b.y)) - 1).min(ch - 1),
-                );
-                let zc = centre.z as f32;
-                for y in y0..=y1 {
-                    for x in x0..=x1 {
-                        let cell = &mut out[(y * cw + x) as usize];
-                        *cell = cell.min(zc);
-                    }
-                }
+                let a = self.pixel(&self.to_colour(&top[u], z));
+                let b = self.pixel(&self.to_colour(&bottom[u + 1], z));
+                fill(&mut out, (cw, ch), (a, b), zc as f32);
             }
         }
         let metres = out
@@ -150,6 +140,30 @@ impl Registration {
             height: ch as u32,
             metres,
         })
+    }
+}
+
+/// Gives the colour pixels whose centres lie in `[min, max)` of the corners' images
+/// `a`, `b` the depth `z` where it is nearer than theirs (footprints that share corners
+/// tile the image, so each centre is covered once).
+fn fill(out: &mut [f32], (cw, ch): (usize, usize), (a, b): (Vector2<f64>, Vector2<f64>), z: f32) {
+    let (cw, ch) = (cw as i64, ch as i64);
+    let (x0, x1) = (
+        ceil(a.x.min(b.x)).max(0),
+        (ceil(a.x.max(b.x)) - 1).min(cw - 1),
+    );
+    let (y0, y1) = (
+        ceil(a.y.min(b.y)).max(0),
+        (ceil(a.y.max(b.y)) - 1).min(ch - 1),
+    );
+    if x0 > x1 {
+        return;
+    }
+    for y in y0..=y1 {
+        let row = (y * cw) as usize;
+        for cell in &mut out[row + x0 as usize..=row + x1 as usize] {
+            *cell = cell.min(z);
+        }
     }
 }
 
