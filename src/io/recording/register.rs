@@ -118,8 +118,7 @@ impl Registration {
             let bottom = &self.corners[(v + 1) * stride..(v + 2) * stride];
             for u in 0..w {
                 let z = row[u] as f64;
-                // Also false for NaN.
-                if !(z > 0.0) {
+                if z.is_nan() || z <= 0.0 {
                     continue;
                 }
                 let zc = z * centre_z[u] + self.translation.z;
