@@ -182,40 +182,18 @@ impl Reader<'_> {
             )));
         }
         let scale = (1.0 / depth_scale) as f32;
-        // Comparisons only (NaN fails both), so that the loops below vectorise.
-        let valid = |z: f32| if z > 0.0 && z < f32::INFINITY { z } else { 0.0 };
-        // Written into a buffer of the image's size, row by row, pixel by pixel: loops
-        // the compiler vectorises (`extend` over the pixels did not).
+        // Written into a buffer of the image's size, row by row ([`depth_row`]).
         let mut metres = vec![0.0f32; w * h];
         for (out, row) in metres
             .chunks_exact_mut(w)
             .zip(raw.data.chunks(step).take(h))
         {
             let row = &row[..w * bytes];
-            let convert = |z: &mut f32, value: f32| *z = valid(value);
             match (bytes, raw.big_endian) {
-                (2, big_endian) => {
-                    let px = row.as_chunks::<2>().0;
-                    for (z, p) in out.iter_mut().zip(px) {
-                        let raw = if big_endian {
-                            u16::from_be_bytes(*p)
-                        } else {
-                            u16::from_le_bytes(*p)
-                        };
-                        convert(z, raw as f32 * scale);
-                    }
-                }
-                (_, big_endian) => {
-                    let px = row.as_chunks::<4>().0;
-                    for (z, p) in out.iter_mut().zip(px) {
-                        let raw = if big_endian {
-                            f32::from_be_bytes(*p)
-                        } else {
-                            f32::from_le_bytes(*p)
-                        };
-                        convert(z, raw);
-                    }
-                }
+                (2, false) => depth_row(out, row, |p| u16::from_le_bytes(p) as f32 * scale),
+                (2, true) => depth_row(out, row, |p| u16::from_be_bytes(p) as f32 * scale),
+                (_, false) => depth_row(out, row, f32::from_le_bytes),
+                (_, true) => depth_row(out, row, f32::from_be_bytes),
             }
         }
         Ok(DepthImage {
@@ -223,6 +201,17 @@ impl Reader<'_> {
             height: raw.height,
             metres,
         })
+    }
+}
+
+/// Writes each `N`-byte pixel of `row`, decoded to metres by `metres`, into `out`; 0
+/// where it is not a positive finite depth. Comparisons only (NaN fails both) and one
+/// decoding per call: a loop the compiler vectorises (`extend` over the pixels, with
+/// `is_finite`, did not: 56 % of reading an MCAP bag went there).
+fn depth_row<const N: usize>(out: &mut [f32], row: &[u8], metres: impl Fn([u8; N]) -> f32) {
+    for (z, p) in out.iter_mut().zip(row.as_chunks::<N>().0) {
+        let m = metres(*p);
+        *z = if m > 0.0 && m < f32::INFINITY { m } else { 0.0 };
     }
 }
 
