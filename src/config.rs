@@ -445,7 +445,8 @@ impl Config {
         let mut over = Vec::new();
         if let Some(v) = orb.n_features {
             let key = "ORBextractor.nFeatures";
-            settle(&mut self.orb.n_features, d.orb.n_features, v, ("orb.n_features", key), &mut over);
+            let orb_slot = &mut self.orb.n_features;
+            settle(orb_slot, d.orb.n_features, v, ("orb.n_features", key), &mut over);
             let stereo = &mut self.stereo.n_features;
             settle(stereo, d.stereo.n_features, v, ("stereo.n_features", key), &mut over);
         }
