@@ -58,6 +58,8 @@ fn records<'a>(file: &'a [u8], index: &ChunkIndex) -> McapResult<&'a [u8]> {
     }
 }
 
+/// Walks the records' frames of an uncompressed chunk; a frame that runs past the
+/// chunk's end is an error.
 fn walk(file: &[u8], index: &ChunkIndex) -> McapResult<Vec<Span>> {
     let records = records(file, index)?;
     // The records' offset in the file (a sub-slice of it).
