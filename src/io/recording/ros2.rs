@@ -13,7 +13,7 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use super::mcap_chunks::uncompressed_messages;
+use super::mcap_chunks::{uncompressed_messages, Span};
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
 
@@ -440,11 +440,50 @@ struct Mcap {
     cache: Mutex<Option<(u64, ChunkMessages)>>,
 }
 
-/// One chunk's messages: where they lie in the file when the chunk is stored
-/// uncompressed ([`super::mcap_chunks`]), else decompressed by the `mcap` crate.
+/// One chunk's messages, in their order in the chunk: where they lie in the file when
+/// the chunk is stored uncompressed ([`super::mcap_chunks`]), else decompressed by the
+/// `mcap` crate (each with its channel and recording time).
 enum ChunkMessages {
-    InPlace(Vec<std::ops::Range<usize>>),
-    Decompressed(Vec<Vec<u8>>),
+    InPlace(Vec<Span>),
+    Decompressed(Vec<(u16, u64, Vec<u8>)>),
+}
+
+impl ChunkMessages {
+    /// The messages of chunk `index` of the mapped file `map`.
+    fn read(
+        summary: &mcap::read::Summary,
+        map: &[u8],
+        index: &mcap::records::ChunkIndex,
+    ) -> Result<Self, mcap::McapError> {
+        if let Some(spans) = uncompressed_messages(map, index) {
+            return Ok(Self::InPlace(spans?));
+        }
+        let messages = summary
+            .stream_chunk(map, index)?
+            .map(|m| m.map(|m| (m.channel.id, m.log_time, m.data.into_owned())))
+            .collect::<Result<_, _>>()?;
+        Ok(Self::Decompressed(messages))
+    }
+
+    /// Each message's channel, recording time (nanoseconds) and data.
+    fn each<'a>(&'a self, map: &'a [u8]) -> Box<dyn Iterator<Item = (u16, u64, &'a [u8])> + 'a> {
+        match self {
+            Self::InPlace(spans) => Box::new(
+                spans
+                    .iter()
+                    .map(|s| (s.channel, s.log_time, &map[s.data.clone()])),
+            ),
+            Self::Decompressed(all) => Box::new(all.iter().map(|(c, t, d)| (*c, *t, &d[..]))),
+        }
+    }
+
+    /// The data of message `n`.
+    fn data<'a>(&'a self, map: &'a [u8], n: usize) -> Option<&'a [u8]> {
+        match self {
+            Self::InPlace(spans) => spans.get(n).map(|s| &map[s.data.clone()]),
+            Self::Decompressed(all) => all.get(n).map(|(_, _, d)| &d[..]),
+        }
+    }
 }
 
 /// Opens a `.mcap` file.
@@ -483,20 +522,11 @@ fn open_mcap_with(
         catalog.add_topic(channel.id, &channel.topic, msg_type);
     }
     for (i, index) in summary.chunk_indexes.iter().enumerate() {
-        let mut add = |n: usize, channel: u16, data: &[u8], log_time: u64| {
+        let messages = ChunkMessages::read(&summary, &map, index).map_err(bad)?;
+        for (n, (channel, log_time, data)) in messages.each(&map).enumerate() {
             let data = head(data, compression).unwrap_or_default();
             let at = Location(i as u64, n as u64);
             catalog.add_message(channel, at, &data, log_time as f64 / 1e9);
-        };
-        if let Some(spans) = uncompressed_messages(&map, index) {
-            for (n, span) in spans.map_err(bad)?.into_iter().enumerate() {
-                add(n, span.channel, &map[span.data], span.log_time);
-            }
-        } else {
-            for (n, message) in summary.stream_chunk(&map, index).map_err(bad)?.enumerate() {
-                let message = message.map_err(bad)?;
-                add(n, message.channel.id, &message.data, message.log_time);
-            }
         }
         release(&map, index);
     }
@@ -530,27 +560,6 @@ fn release(map: &memmap2::Mmap, index: &mcap::records::ChunkIndex) {
     }
 }
 
-impl Mcap {
-    /// The messages of chunk `index` (see [`ChunkMessages`]).
-    fn chunk(&self, index: &mcap::records::ChunkIndex) -> Result<ChunkMessages, String> {
-        if let Some(spans) = uncompressed_messages(&self.map, index) {
-            let spans = spans.map_err(|e| e.to_string())?;
-            return Ok(ChunkMessages::InPlace(
-                spans.into_iter().map(|s| s.data).collect(),
-            ));
-        }
-        let messages = self
-            .summary
-            .stream_chunk(&self.map, index)
-            .map_err(|e| e.to_string())?
-            .map(|m| m.map(|m| m.data.into_owned()))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| e.to_string())?;
-        release(&self.map, index);
-        Ok(ChunkMessages::Decompressed(messages))
-    }
-}
-
 impl Store for Mcap {
     fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
         let bad = |e: String| {
@@ -560,20 +569,18 @@ impl Store for Mcap {
         let mut cache = self.cache.lock().unwrap_or_else(|p| p.into_inner());
         if cache.as_ref().is_none_or(|(chunk, _)| *chunk != at.0) {
             let index = index_of(at.0).ok_or_else(|| bad("no such chunk".into()))?;
-            let messages = self.chunk(index).map_err(bad)?;
+            let messages = ChunkMessages::read(&self.summary, &self.map, index)
+                .map_err(|e| bad(e.to_string()))?;
             // The pages of the chunk read before are not needed again.
-            if let Some((before, ChunkMessages::InPlace(_))) = cache.as_ref() {
+            if let Some((before, _)) = cache.as_ref() {
                 release(&self.map, index_of(*before).expect("read before"));
             }
             *cache = Some((at.0, messages));
         }
         let (_, messages) = cache.as_ref().expect("filled above");
-        let n = at.1 as usize;
-        let message = match messages {
-            ChunkMessages::InPlace(spans) => spans.get(n).map(|r| self.map[r.clone()].to_vec()),
-            ChunkMessages::Decompressed(all) => all.get(n).cloned(),
-        };
-        message.ok_or_else(|| bad("no such message".into()))
+        let data = messages.data(&self.map, at.1 as usize);
+        data.map(<[u8]>::to_vec)
+            .ok_or_else(|| bad("no such message".into()))
     }
 }
 
