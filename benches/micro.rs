@@ -1,7 +1,8 @@
 //! `cargo bench --bench micro`: the per-frame building blocks, timed on seeded
 //! synthetic frames (not a test; `tools/bench.sh` puts the figures in its report):
 //! ORB extraction at 640x480 (TUM) and 1241x376 (KITTI), TSDF integration of a
-//! 640x480 depth frame, and trajectory evaluation (ATE + RPE) of a 30 s trajectory.
+//! 640x480 depth frame, the registration of an Azure Kinect depth frame (640x576) into
+//! the colour camera, and trajectory evaluation (ATE + RPE) of a 30 s trajectory.
 //! Prints one `name: median ms (...)` line each. `RAYON_NUM_THREADS` sets the threads.
 
 use std::time::Instant;
@@ -82,6 +83,8 @@ fn main() {
         volume.blocks.len()
     );
 
+    registration(&rendered);
+
     let (reference, estimate) = dopslam::demo::demo_trajectories(1, 30.0, 0.004);
     let options = EvalOptions {
         rpe: vec![RpeSpec {
@@ -103,4 +106,54 @@ fn main() {
         estimate.len(),
         reference.len()
     );
+}
+
+/// The rendered depths seen by an Azure Kinect's depth camera (640x576, rows repeated to
+/// its height), registered into a 640x480 colour camera 32 mm beside it, both lenses
+/// with the rational model's distortion of a real unit.
+fn registration(rendered: &[dopslam::synth::render::Rendered]) {
+    use dopslam::geometry::camera::PinholeCamera;
+    use dopslam::io::image_files::DepthImage;
+    use dopslam::io::recording::register::Registration;
+    let lens = |f: f64, (w, h): (u32, u32), distortion, rational| PinholeCamera {
+        fx: f,
+        fy: f,
+        cx: w as f64 / 2.0 - 0.5,
+        cy: h as f64 / 2.0 - 0.5,
+        width: w,
+        height: h,
+        distortion,
+        rational,
+    };
+    let depth_camera = lens(
+        504.0,
+        (640, 576),
+        [0.6, 0.1, 0.0, 0.0, 0.002],
+        [0.9, 0.25, 0.01],
+    );
+    let colour = lens(
+        525.0,
+        (640, 480),
+        [0.5, -2.6, 0.0006, -0.0002, 1.5],
+        [0.4, -2.4, 1.4],
+    );
+    let offset = nalgebra::Isometry3::translation(-0.032, 0.002, 0.004);
+    let registration = Registration::new(&depth_camera, &colour, offset);
+    let depths: Vec<DepthImage> = rendered
+        .iter()
+        .map(|r| DepthImage {
+            width: 640,
+            height: 576,
+            metres: (0..576)
+                .flat_map(|v| &r.depth.metres[v * 480 / 576 * 640..][..640])
+                .copied()
+                .collect(),
+        })
+        .collect();
+    let mut valid = 0;
+    let ms = time(&depths, 3, |d| {
+        let out = registration.apply(d).expect("the depth camera's size");
+        valid = out.metres.iter().filter(|&&z| z > 0.0).count();
+    });
+    println!("depth registration 640x576 into 640x480 (rational lenses): {ms:.2} ms median ({valid} colour pixels with depth)");
 }
