@@ -215,17 +215,10 @@ fn depth_row<const N: usize>(out: &mut [f32], row: &[u8], metres: impl Fn([u8; N
     }
 }
 
-/// Writes a row of `N`-byte pixels as RGB (into a row of the image's size: one loop the
-/// compiler can unroll, where pushing three bytes a pixel tested the capacity each time).
-fn rgb_row<const N: usize>(out: &mut [u8], row: &[u8], rgb: impl Fn([u8; N]) -> [u8; 3]) {
-    for (o, p) in out
-        .as_chunks_mut::<3>()
-        .0
-        .iter_mut()
-        .zip(row.as_chunks::<N>().0)
-    {
-        *o = rgb(*p);
-    }
+/// Appends a row of `N`-byte pixels as RGB (an `extend` of known length: no test of the
+/// capacity per byte, and no zeroing of the image first).
+fn rgb_row<const N: usize>(out: &mut Vec<[u8; 3]>, row: &[u8], rgb: impl Fn([u8; N]) -> [u8; 3]) {
+    out.extend(row.as_chunks::<N>().0.iter().map(|&p| rgb(p)));
 }
 
 /// An RGB image of a raw colour or grey `sensor_msgs/Image` (`rgb8`, `bgr8`, `rgba8`,
@@ -249,21 +242,18 @@ fn rgb_from_raw(raw: &messages::RawImage) -> Result<RgbImage, String> {
         ));
     }
     let swap = raw.encoding.starts_with("bgr");
-    let mut rgb = vec![0; w * h * 3];
-    // (`max(1)`: no rows to fill where the image has no columns.)
-    for (out, row) in rgb
-        .chunks_exact_mut((w * 3).max(1))
-        .zip(raw.data.chunks(step))
-    {
+    let mut rgb = Vec::with_capacity(w * h);
+    for row in raw.data.chunks(step).take(h) {
         let row = &row[..w * channels];
         match (channels, swap) {
-            (3, false) => out.copy_from_slice(row),
-            (1, _) => rgb_row(out, row, |[g]: [u8; 1]| [g; 3]),
-            (3, true) => rgb_row(out, row, |[b, g, r]: [u8; 3]| [r, g, b]),
-            (_, false) => rgb_row(out, row, |[r, g, b, _]: [u8; 4]| [r, g, b]),
-            (_, true) => rgb_row(out, row, |[b, g, r, _]: [u8; 4]| [r, g, b]),
+            (3, false) => rgb.extend_from_slice(row.as_chunks::<3>().0),
+            (1, _) => rgb_row(&mut rgb, row, |[g]: [u8; 1]| [g; 3]),
+            (3, true) => rgb_row(&mut rgb, row, |[b, g, r]: [u8; 3]| [r, g, b]),
+            (_, false) => rgb_row(&mut rgb, row, |[r, g, b, _]: [u8; 4]| [r, g, b]),
+            (_, true) => rgb_row(&mut rgb, row, |[b, g, r, _]: [u8; 4]| [r, g, b]),
         }
     }
+    let rgb = rgb.into_flattened();
     Ok(RgbImage::from_raw(raw.width, raw.height, rgb).expect("rows of the announced size"))
 }
 

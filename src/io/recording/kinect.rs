@@ -92,23 +92,24 @@ fn string(out: &mut Vec<u8>, s: &[u8]) {
     out.extend(s);
 }
 
-/// A ROS 1 `sensor_msgs/Image`.
-fn image(
+/// A ROS 1 `sensor_msgs/Image` up to its data, whose length is `len` (the data is to
+/// be appended; the capacity is there).
+fn image_header(
     stamp: f64,
     (w, h): (u32, u32),
     encoding: &str,
     big: bool,
     step: u32,
-    data: &[u8],
+    len: usize,
 ) -> Vec<u8> {
-    let mut out = Vec::with_capacity(data.len() + 64);
+    let mut out = Vec::with_capacity(len + 64);
     header(&mut out, stamp);
     out.extend(h.to_le_bytes());
     out.extend(w.to_le_bytes());
     string(&mut out, encoding.as_bytes());
     out.push(u8::from(big));
     out.extend(step.to_le_bytes());
-    string(&mut out, data);
+    out.extend((len as u32).to_le_bytes());
     out
 }
 
@@ -170,21 +171,30 @@ impl Store for KinectStore {
             width: w,
             height: h,
         } = self.layouts[track];
-        let data =
-            matroska::read_block(&self.file, &block).map_err(|e| IoError::read(&self.path, e))?;
-        Ok(match format {
-            Format::Depth16 => image(stamp, (w, h), "16UC1", true, w * 2, &data),
-            Format::Bgra => image(stamp, (w, h), "bgra8", false, w * 4, &data),
+        let read_error = |e| IoError::read(&self.path, e);
+        let raw = |encoding, big, step| {
+            // Read straight into the message (a frame is megabytes: no second copy).
+            let mut out = image_header(stamp, (w, h), encoding, big, step, block.len as usize);
+            let start = out.len();
+            out.resize(start + block.len as usize, 0);
+            matroska::read_block_into(&self.file, &block, &mut out[start..]).map_err(read_error)?;
+            Ok(out)
+        };
+        let data = || matroska::read_block(&self.file, &block).map_err(read_error);
+        match format {
+            Format::Depth16 => raw("16UC1", true, w * 2),
+            Format::Bgra => raw("bgra8", false, w * 4),
             Format::Jpeg => {
+                let data = data()?;
                 let mut out = Vec::with_capacity(data.len() + 32);
                 header(&mut out, stamp);
                 string(&mut out, b"jpeg");
                 string(&mut out, &data);
-                out
+                Ok(out)
             }
             Format::Nv12 | Format::Yuy2 => {
                 let pixels =
-                    rgb_of_yuv(format, w as usize, h as usize, &data).ok_or_else(|| {
+                    rgb_of_yuv(format, w as usize, h as usize, &data()?).ok_or_else(|| {
                         IoError::Image {
                             path: self.path.clone(),
                             message: format!(
@@ -193,9 +203,11 @@ impl Store for KinectStore {
                             ),
                         }
                     })?;
-                image(stamp, (w, h), "rgb8", false, w * 3, &pixels)
+                let mut out = image_header(stamp, (w, h), "rgb8", false, w * 3, pixels.len());
+                out.extend_from_slice(&pixels);
+                Ok(out)
             }
-        })
+        }
     }
 }
 

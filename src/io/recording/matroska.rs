@@ -486,12 +486,17 @@ fn block(
     Ok(())
 }
 
-/// Reads the bytes of `block` from the file at `path`.
+/// Reads the bytes of `block` from `file`.
 pub fn read_block(file: &File, block: &Block) -> std::io::Result<Vec<u8>> {
-    use std::os::unix::fs::FileExt;
     let mut buf = vec![0; block.len as usize];
-    file.read_exact_at(&mut buf, block.offset)?;
+    read_block_into(file, block, &mut buf)?;
     Ok(buf)
+}
+
+/// Reads the bytes of `block` from `file` into `buf`, which has its length.
+pub fn read_block_into(file: &File, block: &Block, buf: &mut [u8]) -> std::io::Result<()> {
+    use std::os::unix::fs::FileExt;
+    file.read_exact_at(buf, block.offset)
 }
 
 #[cfg(test)]

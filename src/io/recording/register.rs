@@ -253,7 +253,6 @@ impl Registration {
         let (zs, cell) = (&mut out.z[..w], &mut out.cell[..w]);
         let (right, down) = (&mut out.right[..w], &mut out.down[..w]);
         let [cw, ch] = self.lens.size;
-        let stride = cw + 1;
         let mut large = 0;
         for u in 0..w {
             let z = row[u];
@@ -267,11 +266,11 @@ impl Registration {
             large += i32::from(covers && (last_x - first_x > 1 || last_y - first_y > 1));
             zs[u] = if covers { zc } else { f32::INFINITY };
             // The block's corner, clamped into the image (that moves only an empty
-            // footprint's, which writes infinity).
-            let corner = first_y.min(ch - 1) * stride + first_x.min(cw - 1);
-            cell[u] = corner as u32;
+            // footprint's, which writes infinity); a step only to a centre inside the
+            // footprint, so that the block never leaves the image.
+            cell[u] = (first_y.min(ch - 1) * cw + first_x.min(cw - 1)) as u32;
             right[u] = u32::from(first_x < last_x);
-            down[u] = if first_y < last_y { stride as u32 } else { 0 };
+            down[u] = if first_y < last_y { cw as u32 } else { 0 };
         }
         out.large = large > 0;
     }
@@ -289,18 +288,16 @@ impl Footprints {
     }
 }
 
-/// The colour image's nearest depths so far (infinity where none), with one column and
-/// one row beyond its edges, so that a footprint's 2x2 block is written without a test.
+/// The colour image's nearest depths so far (infinity where none), row-major.
 struct ZBuffer {
     width: usize,
     height: usize,
-    /// Row-major with a stride of `width + 1`, `height + 1` rows.
     z: Vec<f32>,
 }
 
 impl ZBuffer {
     fn new(width: usize, height: usize) -> Self {
-        let z = vec![f32::INFINITY; (width + 1) * (height + 1)];
+        let z = vec![f32::INFINITY; width * height];
         Self { width, height, z }
     }
 
@@ -327,7 +324,7 @@ impl ZBuffer {
 
     /// Every footprint of more than 2x2 centres, whole.
     fn fill_large(&mut self, footprints: &Footprints) {
-        let stride = self.width + 1;
+        let stride = self.width;
         let ([x0s, x1s], [y0s, y1s]) = (&footprints.x, &footprints.y);
         let all = x0s
             .iter()
@@ -349,10 +346,9 @@ impl ZBuffer {
 
     /// The depth image, 0 where no footprint landed.
     fn into_depth(self) -> DepthImage {
-        let mut metres = Vec::with_capacity(self.width * self.height);
-        for row in self.z.chunks_exact(self.width + 1).take(self.height) {
-            let depths = row[..self.width].iter();
-            metres.extend(depths.map(|&z| if z < f32::INFINITY { z } else { 0.0 }));
+        let mut metres = self.z;
+        for z in &mut metres {
+            *z = if *z < f32::INFINITY { *z } else { 0.0 };
         }
         DepthImage {
             width: self.width as u32,
