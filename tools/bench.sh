@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The project's benchmark (not a test): the micro-benchmarks (ORB extraction, TSDF
-# integration, evaluation: `cargo bench --bench micro`; pose graph, full BA, vocabulary:
+# integration, depth registration, evaluation: `cargo bench --bench micro`; pose graph, full BA, vocabulary:
 # `cargo bench --bench global`) and the synthetic suite through `dopslam batch`
 # (every preset, the three modes, five seeds: configs/batch/suite.toml; tracking time per
 # frame, ATE, RPE, coverage per sequence and mode), checked against `dopslam eval` and
