@@ -115,15 +115,12 @@ fn registration(rendered: &[dopslam::synth::render::Rendered]) {
     use dopslam::geometry::camera::PinholeCamera;
     use dopslam::io::image_files::DepthImage;
     use dopslam::io::recording::register::Registration;
-    let lens = |f: f64, (w, h): (u32, u32), distortion, rational| PinholeCamera {
-        fx: f,
-        fy: f,
-        cx: w as f64 / 2.0 - 0.5,
-        cy: h as f64 / 2.0 - 0.5,
-        width: w,
-        height: h,
-        distortion,
-        rational,
+    let lens = |f: f64, (w, h): (u32, u32), distortion, rational| {
+        let mut lens = PinholeCamera::tum_fr3();
+        (lens.fx, lens.fy, lens.width, lens.height) = (f, f, w, h);
+        (lens.cx, lens.cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        (lens.distortion, lens.rational) = (distortion, rational);
+        lens
     };
     let depth_camera = lens(
         504.0,
