@@ -30,7 +30,6 @@ use crate::io::image_files::DepthImage;
 #[derive(Debug, Clone)]
 pub struct Registration {
     lens: Lens,
-    colour_size: (usize, usize),
     depth_size: (u32, u32),
     /// The depth pixels' corners as rays turned into the colour camera,
     /// \(R_{cd}\,(x, y, 1)^\top\) with \((x, y)\) undistorted and normalised, row-major
@@ -118,14 +117,13 @@ impl Lens {
     fn new(colour: &PinholeCamera, translation: Vector3<f64>) -> Self {
         let [k1, k2, p1, p2, k3] = colour.distortion;
         let [k4, k5, k6] = colour.rational;
-        let f32s = |values: &[f64]| values.iter().map(|&x| x as f32).collect::<Vec<_>>();
         Self {
             distorted: !colour.is_undistorted(),
             f: [colour.fx as f32, colour.fy as f32],
             c: [colour.cx as f32, colour.cy as f32],
-            k: f32s(&[k1, k2, k3, k4, k5, k6]).try_into().expect("six"),
+            k: [k1, k2, k3, k4, k5, k6].map(|k| k as f32),
             p: [p1 as f32, p2 as f32],
-            t: f32s(translation.as_slice()).try_into().expect("three"),
+            t: translation.cast::<f32>().into(),
             size: [colour.width as i32, colour.height as i32],
         }
     }
@@ -183,7 +181,6 @@ impl Registration {
             .collect();
         Self {
             lens: Lens::new(colour, colour_from_depth.translation.vector),
-            colour_size: (colour.width as usize, colour.height as usize),
             depth_size: (w, h),
             corners,
             centre_z,
@@ -217,7 +214,8 @@ impl Registration {
     #[inline(always)]
     fn rows(&self, depth: &DepthImage) -> DepthImage {
         let w = self.depth_size.0 as usize;
-        let mut out = ZBuffer::new(self.colour_size.0, self.colour_size.1);
+        let [cw, ch] = self.lens.size;
+        let mut out = ZBuffer::new(cw as usize, ch as usize);
         let mut footprints = Footprints::default();
         for (v, row) in depth.metres.chunks_exact(w).enumerate() {
             if self.lens.distorted {
