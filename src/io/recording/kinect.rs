@@ -23,6 +23,7 @@
 //! Brown-Conrady model, OpenCV's rational model (see
 //! [`crate::geometry::camera::PinholeCamera::distort`]).
 
+use std::borrow::Cow;
 use std::fs::File;
 use std::path::Path;
 
@@ -162,7 +163,14 @@ fn rgb_of_yuv(format: Format, w: usize, h: usize, data: &[u8]) -> Option<Vec<u8>
 }
 
 impl Store for KinectStore {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
+        self.message(at).map(Cow::Owned)
+    }
+}
+
+impl KinectStore {
+    /// The message of frame `at.0`, made from its block.
+    fn message(&self, at: Location) -> Result<Vec<u8>, IoError> {
         let Some(&(block, track, stamp)) = self.frames.get(at.0 as usize) else {
             return Err(IoError::invalid(&self.path, format!("no frame {}", at.0)));
         };

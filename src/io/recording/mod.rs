@@ -13,6 +13,7 @@ pub mod convert;
 pub mod frames;
 pub mod kinect;
 pub mod matroska;
+mod mapped;
 mod mcap_chunks;
 pub mod messages;
 pub mod realsense;
@@ -22,6 +23,7 @@ pub mod ros2;
 pub mod tf;
 pub mod topics;
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -210,8 +212,10 @@ impl Catalog {
 
 /// Reads a message's bytes back from where the scan found it.
 pub trait Store: Send + Sync {
-    /// The bytes of the message at `at`.
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError>;
+    /// The bytes of the message at `at`: borrowed where the store holds them as they
+    /// are (a message stored uncompressed in a memory-mapped file, [`mapped`]), else
+    /// its own copy.
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError>;
 }
 
 /// How to read a recording (from `[dataset]` and the command line).

@@ -9,16 +9,24 @@
 //! before writing its index, and stops at a record cut by the end of the file (a
 //! truncated bag), with a warning naming the offset.
 //!
+//! The file is memory-mapped ([`super::mapped`]): a message in an uncompressed chunk is
+//! handed to its decoder where it lies in the file (no read into a buffer, no copy out
+//! of it), and the scan touches only the records' headers.
+//!
 //! The `rosbag` crate reads the same records, but slices its memory map with the
 //! header's `index_pos` unchecked: a bag without an index or cut short makes it panic,
 //! and it does not expose where a chunk starts, which random access needs.
 
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::Read;
-use std::os::unix::fs::FileExt;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 
+use memmap2::Mmap;
+
+use super::mapped::{self, release};
 use super::{Catalog, Location, Store};
 use crate::io::IoError;
 
@@ -28,21 +36,35 @@ const OP_BAG_HEADER: u8 = 0x03;
 const OP_CHUNK: u8 = 0x05;
 const OP_CONNECTION: u8 = 0x07;
 
-/// An opened ROS 1 bag: its file and its catalogue of messages.
+/// An opened ROS 1 bag: its file, mapped, and the chunk read last.
 pub struct Ros1Bag {
     path: PathBuf,
-    file: File,
-    /// The file's length when it was opened: records past it are cut off.
-    len: u64,
-    /// The chunk last decompressed (the next frame is almost always in it).
-    cache: Mutex<Option<(u64, Arc<Vec<u8>>)>>,
+    /// The file as it was when opened: records past its end are cut off.
+    map: Mmap,
+    /// The chunk read last (the next frame is almost always in it).
+    cache: Mutex<Option<Chunk>>,
 }
 
-/// A record read from the file: its header, its data when asked for, and the
-/// position after it.
-struct FileRecord {
+/// A chunk read: where its record lies in the file, and its records.
+struct Chunk {
+    /// Its byte position in the file (what a [`Location`] names).
+    pos: u64,
+    /// Its record's bytes in the file.
+    span: Range<usize>,
+    records: Records,
+}
+
+/// A chunk's records: where they lie in the file (stored uncompressed: read in place),
+/// or decompressed.
+enum Records {
+    InPlace(Range<usize>),
+    Decompressed(Vec<u8>),
+}
+
+/// A record of the file: its header, its data and the position after it.
+struct FileRecord<'a> {
     header: Header,
-    data: Option<Vec<u8>>,
+    data: &'a [u8],
     end: u64,
 }
 
@@ -112,15 +134,22 @@ fn split_u32(bytes: &[u8]) -> Option<(u32, &[u8])> {
     Some((u32::from_le_bytes(*head), tail))
 }
 
-/// One record inside a decompressed chunk: its header, its data and where it ends.
-fn record_at(chunk: &[u8], offset: usize) -> Result<(Header, &[u8], usize), String> {
-    let cut = || format!("a record at offset {offset} of a chunk runs past the chunk's end");
-    let rest = chunk.get(offset..).ok_or_else(cut)?;
-    let (header_len, rest) = split_u32(rest).ok_or_else(cut)?;
-    let header = rest.get(..header_len as usize).ok_or_else(cut)?;
-    let (data_len, rest) = split_u32(&rest[header_len as usize..]).ok_or_else(cut)?;
-    let data = rest.get(..data_len as usize).ok_or_else(cut)?;
+/// The record at `offset` of `bytes`: its header's bytes, its data and where it ends;
+/// `None` when it runs past the end of `bytes`.
+fn split_record(bytes: &[u8], offset: usize) -> Option<(&[u8], &[u8], usize)> {
+    let (header_len, rest) = split_u32(bytes.get(offset..)?)?;
+    let header = rest.get(..header_len as usize)?;
+    let (data_len, rest) = split_u32(&rest[header_len as usize..])?;
+    let data = rest.get(..data_len as usize)?;
     let end = offset + 8 + header_len as usize + data_len as usize;
+    Some((header, data, end))
+}
+
+/// One record inside a chunk: its header, its data and where it ends.
+fn record_at(chunk: &[u8], offset: usize) -> Result<(Header, &[u8], usize), String> {
+    let (header, data, end) = split_record(chunk, offset).ok_or_else(|| {
+        format!("a record at offset {offset} of a chunk runs past the chunk's end")
+    })?;
     Ok((Header::parse(header)?, data, end))
 }
 
@@ -148,11 +177,9 @@ impl Ros1Bag {
                 format!("{version}: only format 2.0 (\"#ROSBAG V2.0\") is read; `rosbag fix` converts older bags"),
             ));
         }
-        let len = file.metadata().map_err(read_error)?.len();
         let bag = Self {
             path: path.to_path_buf(),
-            file,
-            len,
+            map: mapped::map(path)?,
             cache: Mutex::new(None),
         };
         let catalog = bag.scan()?;
@@ -163,61 +190,28 @@ impl Ros1Bag {
         IoError::invalid(&self.path, message)
     }
 
-    /// Reads the record at `pos` of the file: its header, and its data (when the
-    /// header's op is in `want_data`), and the position after it. `None` when the
-    /// record is cut by the end of the file.
-    fn file_record(&self, pos: u64, want_data: &[u8]) -> Result<Option<FileRecord>, IoError> {
-        let len = self.len;
-        let read = |at: u64, n: usize| -> Result<Option<Vec<u8>>, IoError> {
-            if at + n as u64 > len {
-                return Ok(None);
-            }
-            let mut buf = vec![0u8; n];
-            self.file
-                .read_exact_at(&mut buf, at)
-                .map_err(|source| IoError::Read {
-                    path: self.path.clone(),
-                    source,
-                })?;
-            Ok(Some(buf))
-        };
-        let Some(n) = read(pos, 4)? else {
-            return Ok(None);
-        };
-        let header_len = u32::from_le_bytes(n.try_into().expect("4 bytes")) as usize;
-        let Some(header) = read(pos + 4, header_len)? else {
+    /// The record at `pos` of the file, `None` when it is cut by the end of the file.
+    fn file_record(&self, pos: u64) -> Result<Option<FileRecord<'_>>, IoError> {
+        let split = usize::try_from(pos)
+            .ok()
+            .and_then(|at| split_record(&self.map, at));
+        let Some((header, data, end)) = split else {
             return Ok(None);
         };
         let header =
-            Header::parse(&header).map_err(|e| self.invalid(format!("offset {pos}: {e}")))?;
-        let data_at = pos + 4 + header_len as u64;
-        let Some(n) = read(data_at, 4)? else {
-            return Ok(None);
-        };
-        let data_len = u32::from_le_bytes(n.try_into().expect("4 bytes")) as usize;
-        let end = data_at + 4 + data_len as u64;
-        if end > len {
-            return Ok(None);
-        }
-        let op = header
-            .op()
-            .map_err(|e| self.invalid(format!("offset {pos}: {e}")))?;
-        let data = if want_data.contains(&op) {
-            read(data_at + 4, data_len)?
-        } else {
-            None
-        };
+            Header::parse(header).map_err(|e| self.invalid(format!("offset {pos}: {e}")))?;
+        let end = end as u64;
         Ok(Some(FileRecord { header, data, end }))
     }
 
     /// Scans every chunk once: the connections, and each message's place and stamp.
     fn scan(&self) -> Result<Catalog, IoError> {
-        let len = self.len;
+        let len = self.map.len() as u64;
         let mut catalog = Catalog::new(super::Wire::Ros1);
         let mut pos = MAGIC.len() as u64;
         let mut index_pos = None;
         while pos < len {
-            let Some(FileRecord { header, data, end }) = self.file_record(pos, &[OP_CHUNK])? else {
+            let Some(FileRecord { header, data, end }) = self.file_record(pos)? else {
                 catalog.warnings.push(format!(
                     "{}: the bag is cut short: the record at byte {pos} runs past its end ({len} bytes); the messages before it are read",
                     self.path.display()
@@ -230,8 +224,9 @@ impl Ros1Bag {
                     index_pos = Some(header.u64("index_pos").map_err(|e| self.invalid(e))?)
                 }
                 OP_CHUNK => {
-                    let chunk = self.decompress(&header, data.expect("chunk data read"), pos)?;
+                    let chunk = self.decompress(&header, data, pos)?;
                     self.scan_chunk(&chunk, pos, &mut catalog)?;
+                    release(&self.map, pos as usize..end as usize);
                 }
                 _ => {}
             }
@@ -281,25 +276,31 @@ impl Ros1Bag {
         Ok(())
     }
 
-    fn decompress(&self, header: &Header, data: Vec<u8>, pos: u64) -> Result<Vec<u8>, IoError> {
+    /// A chunk's records: its data as it is when stored uncompressed, else decompressed.
+    fn decompress<'a>(
+        &self,
+        header: &Header,
+        data: &'a [u8],
+        pos: u64,
+    ) -> Result<Cow<'a, [u8]>, IoError> {
         let at = |e: String| self.invalid(format!("chunk at byte {pos}: {e}"));
         let compression = header.string("compression").map_err(at)?;
         let size = header.u32("size").map_err(at)? as usize;
         let out = match compression.as_str() {
-            "none" => data,
+            "none" => Cow::Borrowed(data),
             "bz2" => {
                 let mut out = Vec::with_capacity(size);
-                bzip2::read::BzDecoder::new(data.as_slice())
+                bzip2::read::BzDecoder::new(data)
                     .read_to_end(&mut out)
                     .map_err(|e| at(format!("bz2: {e}")))?;
-                out
+                Cow::Owned(out)
             }
             "lz4" => {
                 let mut out = Vec::with_capacity(size);
-                lz4_flex::frame::FrameDecoder::new(data.as_slice())
+                lz4_flex::frame::FrameDecoder::new(data)
                     .read_to_end(&mut out)
                     .map_err(|e| at(format!("lz4: {e}")))?;
-                out
+                Cow::Owned(out)
             }
             other => {
                 return Err(at(format!(
@@ -316,35 +317,54 @@ impl Ros1Bag {
         Ok(out)
     }
 
-    fn chunk(&self, pos: u64) -> Result<Arc<Vec<u8>>, IoError> {
-        let mut cache = self.cache.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some((at, chunk)) = cache.as_ref() {
-            if *at == pos {
-                return Ok(chunk.clone());
-            }
-        }
-        let Some(FileRecord {
-            header,
-            data: Some(data),
-            ..
-        }) = self.file_record(pos, &[OP_CHUNK])?
+    /// Reads the chunk at `pos` (decompressing it when it is compressed).
+    fn chunk(&self, pos: u64) -> Result<Chunk, IoError> {
+        let record = self.file_record(pos)?;
+        let Some(FileRecord { header, data, end }) =
+            record.filter(|r| r.header.op().ok() == Some(OP_CHUNK))
         else {
             return Err(self.invalid(format!(
                 "no chunk at byte {pos} any more (was the bag changed?)"
             )));
         };
-        let chunk = Arc::new(self.decompress(&header, data, pos)?);
-        *cache = Some((pos, chunk.clone()));
-        Ok(chunk)
+        let records = match self.decompress(&header, data, pos)? {
+            Cow::Borrowed(data) => {
+                let start = data.as_ptr() as usize - self.map.as_ptr() as usize;
+                Records::InPlace(start..start + data.len())
+            }
+            Cow::Owned(data) => Records::Decompressed(data),
+        };
+        Ok(Chunk {
+            pos,
+            span: pos as usize..end as usize,
+            records,
+        })
     }
 }
 
 impl Store for Ros1Bag {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
-        let chunk = self.chunk(at.0)?;
-        let (_, data, _) = record_at(&chunk, at.1 as usize)
-            .map_err(|e| self.invalid(format!("chunk at byte {}: {e}", at.0)))?;
-        Ok(data.to_vec())
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
+        let mut cache = self.cache.lock().unwrap_or_else(|p| p.into_inner());
+        if cache.as_ref().is_none_or(|c| c.pos != at.0) {
+            let chunk = self.chunk(at.0)?;
+            // The pages of the chunk read before are not needed again.
+            if let Some(before) = cache.replace(chunk) {
+                release(&self.map, before.span);
+            }
+        }
+        let chunk = cache.as_ref().expect("filled above");
+        let in_chunk = |e: String| self.invalid(format!("chunk at byte {}: {e}", at.0));
+        match &chunk.records {
+            Records::InPlace(range) => {
+                let (_, data, _) =
+                    record_at(&self.map[range.clone()], at.1 as usize).map_err(in_chunk)?;
+                Ok(Cow::Borrowed(data))
+            }
+            Records::Decompressed(records) => {
+                let (_, data, _) = record_at(records, at.1 as usize).map_err(in_chunk)?;
+                Ok(Cow::Owned(data.to_vec()))
+            }
+        }
     }
 }
 
@@ -437,6 +457,8 @@ mod tests {
         assert!(catalog.warnings.iter().any(|w| w.contains("no index")));
         let third = store.read(topic.messages[2].at).unwrap();
         assert_eq!(&third[4..8], &102u32.to_le_bytes());
+        assert!(matches!(third, Cow::Borrowed(_)), "read in place");
+        drop(store); // its map, before the file is written again
         // Cut in the middle of the only chunk: nothing whole is left, and it says where.
         let full = bag(3);
         std::fs::write(&path, &full[..full.len() - 5]).unwrap();

@@ -9,10 +9,12 @@
 //! removed when the recording is closed), `message` each message's bytes (decompressed
 //! as they are read; the scan decompresses only a message's first bytes, its header).
 
+use std::borrow::Cow;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
+use super::mapped::{self, release};
 use super::mcap_chunks::{uncompressed_messages, Span};
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
@@ -182,7 +184,7 @@ impl Catalog {
 }
 
 impl Store for Parts {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
         let part = (at.1 >> PART_SHIFT) as usize;
         let inner = Location(at.0, at.1 & ((1u64 << PART_SHIFT) - 1));
         self.0[part].read(inner)
@@ -244,7 +246,7 @@ struct WithCopy {
 }
 
 impl Store for WithCopy {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
         self.store.read(at)
     }
 }
@@ -256,9 +258,9 @@ struct Decompressing {
 }
 
 impl Store for Decompressing {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
         let data = self.store.read(at)?;
-        decompress_message(&data).map_err(|e| {
+        decompress_message(&data).map(Cow::Owned).map_err(|e| {
             IoError::invalid(
                 &self.path,
                 format!("message {at:?}: not readable zstd data: {e}"),
@@ -422,12 +424,12 @@ fn open_sqlite_with(
 }
 
 impl Store for Sqlite {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
         let connection = self.connection.lock().unwrap_or_else(|p| p.into_inner());
         let bad =
             |e: rusqlite::Error| IoError::invalid(&self.path, format!("message {}: {e}", at.0));
         let data = message_bytes(&connection, &mut None, at.0 as i64, true);
-        data.map_err(bad)
+        data.map(Cow::Owned).map_err(bad)
     }
 }
 
@@ -477,11 +479,12 @@ impl ChunkMessages {
         }
     }
 
-    /// The data of message `n`.
-    fn data<'a>(&'a self, map: &'a [u8], n: usize) -> Option<&'a [u8]> {
+    /// The data of message `n`: where it lies in `map` for a chunk stored uncompressed
+    /// (no copy), else a copy of the decompressed message.
+    fn data<'m>(&self, map: &'m [u8], n: usize) -> Option<Cow<'m, [u8]>> {
         match self {
-            Self::InPlace(spans) => spans.get(n).map(|s| &map[s.data.clone()]),
-            Self::Decompressed(all) => all.get(n).map(|(_, _, d)| &d[..]),
+            Self::InPlace(spans) => spans.get(n).map(|s| Cow::Borrowed(&map[s.data.clone()])),
+            Self::Decompressed(all) => all.get(n).map(|(_, _, d)| Cow::Owned(d.clone())),
         }
     }
 }
@@ -495,9 +498,7 @@ fn open_mcap_with(
     path: &Path,
     compression: Compression,
 ) -> Result<(Box<dyn Store>, Catalog), IoError> {
-    let file = std::fs::File::open(path).map_err(|e| IoError::read(path, e))?;
-    // SAFETY: the file is opened read-only and is an input that the run never writes.
-    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::read(path, e))?;
+    let map = mapped::map(path)?;
     let bad = |e: mcap::McapError| IoError::invalid(path, format!("not a readable MCAP file: {e}"));
     let summary = mcap::read::Summary::read(&map).map_err(bad)?.ok_or_else(|| {
         IoError::invalid(path, "the MCAP file has no summary (cut short, or its writer died): `mcap recover` it first")
@@ -528,7 +529,7 @@ fn open_mcap_with(
             let at = Location(i as u64, n as u64);
             catalog.add_message(channel, at, &data, log_time as f64 / 1e9);
         }
-        release(&map, index);
+        release(&map, chunk_range(index));
     }
     let store = Mcap {
         path: path.to_path_buf(),
@@ -539,29 +540,14 @@ fn open_mcap_with(
     Ok((decompressed(path, Box::new(store), compression), catalog))
 }
 
-/// Drops the pages of chunk `index` from the process's memory (they are read again
-/// from the file when needed), so that reading a recording of any size keeps the
-/// memory of a few chunks, not of the file. The range reaches 64 KiB beyond the chunk
-/// on both sides: the kernel maps pages around each one touched ("fault-around"), so
-/// reading a chunk also maps the end of the one before it.
-fn release(map: &memmap2::Mmap, index: &mcap::records::ChunkIndex) {
-    const AROUND: usize = 64 * 1024;
-    let start = (index.chunk_start_offset as usize).saturating_sub(AROUND);
-    let end = (index.chunk_start_offset as usize)
-        .saturating_add(index.chunk_length as usize)
-        .saturating_add(AROUND)
-        .min(map.len());
-    if start < end {
-        // SAFETY: a read-only mapping of a file: MADV_DONTNEED only drops pages, which
-        // the next access reads again from the file; no borrow of them is alive here.
-        let _ = unsafe {
-            map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, start, end - start)
-        };
-    }
+/// Where chunk `index` lies in the file.
+fn chunk_range(index: &mcap::records::ChunkIndex) -> std::ops::Range<usize> {
+    let start = index.chunk_start_offset as usize;
+    start..start.saturating_add(index.chunk_length as usize)
 }
 
 impl Store for Mcap {
-    fn read(&self, at: Location) -> Result<Vec<u8>, IoError> {
+    fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
         let bad = |e: String| {
             IoError::invalid(&self.path, format!("chunk {} message {}: {e}", at.0, at.1))
         };
@@ -573,14 +559,16 @@ impl Store for Mcap {
                 .map_err(|e| bad(e.to_string()))?;
             // The pages of the chunk read before are not needed again.
             if let Some((before, _)) = cache.as_ref() {
-                release(&self.map, index_of(*before).expect("read before"));
+                release(
+                    &self.map,
+                    chunk_range(index_of(*before).expect("read before")),
+                );
             }
             *cache = Some((at.0, messages));
         }
         let (_, messages) = cache.as_ref().expect("filled above");
         let data = messages.data(&self.map, at.1 as usize);
-        data.map(<[u8]>::to_vec)
-            .ok_or_else(|| bad("no such message".into()))
+        data.ok_or_else(|| bad("no such message".into()))
     }
 }
 
