@@ -308,11 +308,17 @@ impl ZBuffer {
     /// are completed by a loop.
     fn fill(&mut self, footprints: &Footprints) {
         let f = footprints;
+        let zs = &mut self.z[..];
         for (((&c, &r), &d), &z) in f.cell.iter().zip(&f.right).zip(&f.down).zip(&f.z) {
-            let cells = [c, c + r, c + d, c + d + r];
-            let nearest = cells.map(|i| self.z[i as usize]);
-            for (i, nearest) in cells.iter().zip(nearest) {
-                self.z[*i as usize] = if z < nearest { z } else { nearest };
+            let cells = [c, c + r, c + d, c + d + r].map(|i| i as usize);
+            debug_assert!(cells.iter().all(|&i| i < zs.len()));
+            // SAFETY: the block lies inside the image: `cell` is clamped into it, and a
+            // step is taken only towards a centre inside the footprint, whose ends are
+            // clamped into it ([`Registration::footprints`]).
+            let nearest = cells.map(|i| unsafe { *zs.get_unchecked(i) });
+            for (i, nearest) in cells.into_iter().zip(nearest) {
+                // SAFETY: as above.
+                unsafe { *zs.get_unchecked_mut(i) = if z < nearest { z } else { nearest } };
             }
         }
         if footprints.large {
@@ -440,6 +446,7 @@ mod tests {
             let fast = Registration::new(&depth_camera, &colour, colour_from_depth)
                 .apply(&depth)
                 .unwrap();
+            prop_assert!(blocks_inside(&Registration::new(&depth_camera, &colour, colour_from_depth), &depth));
             let defined = definition(&depth_camera, &colour, &colour_from_depth, &depth);
             let same = fast
                 .metres
@@ -451,6 +458,24 @@ mod tests {
             prop_assert!(covered > 300, "{covered} pixels with depth");
             prop_assert!(same as f64 >= 0.998 * defined.len() as f64, "{same} of {}", defined.len());
         }
+    }
+
+    /// Whether every footprint's 2x2 block names cells inside the colour image (what
+    /// [`ZBuffer::fill`]'s unchecked writes rely on).
+    fn blocks_inside(registration: &Registration, depth: &DepthImage) -> bool {
+        let [cw, ch] = registration.lens.size;
+        let mut f = Footprints::default();
+        depth
+            .metres
+            .chunks_exact(registration.depth_size.0 as usize)
+            .enumerate()
+            .all(|(v, row)| {
+                registration.footprints::<true>(v, row, &mut f);
+                let cells = f.cell.iter().zip(&f.right).zip(&f.down);
+                cells
+                    .map(|((&c, &r), &d)| c + d + r)
+                    .all(|last| last < (cw * ch) as u32)
+            })
     }
 
     fn camera(f: f64, w: u32, h: u32, distortion: [f64; 5]) -> PinholeCamera {
