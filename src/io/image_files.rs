@@ -54,7 +54,7 @@ fn open_as(path: &Path, what: &str) -> Result<image::DynamicImage, IoError> {
 
 /// Reads a colour image (any 8-bit layout; grey is expanded to RGB).
 pub fn read_rgb(path: &Path) -> Result<RgbImage, IoError> {
-    Ok(open(path)?.to_rgb8())
+    Ok(open(path)?.into_rgb8())
 }
 
 /// Reads an 8-bit image with an alpha channel (a cut-out); `what` names its use in
@@ -122,7 +122,7 @@ pub fn read_instance_classes(masks: &Path) -> Result<Option<Vec<(u16, String)>>,
 
 /// Reads an image as 8-bit grey.
 pub fn read_gray(path: &Path) -> Result<GrayImage, IoError> {
-    Ok(open(path)?.to_luma8())
+    Ok(open(path)?.into_luma8())
 }
 
 /// The grey image of a colour image with the sRGB luma weights, rounded,

@@ -93,7 +93,7 @@ impl Reader<'_> {
             let c = messages::compressed(&data, self.wire).map_err(bad)?;
             let image = image::load_from_memory(c.data)
                 .map_err(|e| bad(format!("{} data: {e}", c.format)))?;
-            return Ok(image.to_luma8());
+            return Ok(image.into_luma8());
         }
         let raw = messages::image(&data, self.wire).map_err(bad)?;
         if raw.encoding == "mono8" {
@@ -124,7 +124,7 @@ impl Reader<'_> {
             let c = messages::compressed(&data, self.wire).map_err(bad)?;
             let image = image::load_from_memory(c.data)
                 .map_err(|e| bad(format!("{} data: {e}", c.format)))?;
-            return Ok(image.to_rgb8());
+            return Ok(image.into_rgb8());
         }
         let raw = messages::image(&data, self.wire).map_err(bad)?;
         rgb_from_raw(&raw).map_err(bad)
