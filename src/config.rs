@@ -241,6 +241,9 @@ pub struct StereoConfig {
     /// `dense.mask_free_space_seconds`: off by default, since each fused pair would
     /// need two more pairs matched, and the depth tolerance is a depth sensor's.
     pub mask_free_space_seconds: f64,
+    /// `tracking.wait_near_boxes_only`: on by default, since at street speed a
+    /// keyframe's new points are the ones that matter.
+    pub wait_near_boxes_only: bool,
     /// OpenCV StereoSGBM: disparities searched (a multiple of 16) and block size (odd).
     pub sgbm_disparities: i32,
     /// The SGBM block size (odd).
@@ -272,6 +275,7 @@ impl Default for StereoConfig {
             cloud_voxel: 0.1,
             allocate_first: false,
             mask_free_space_seconds: 0.0,
+            wait_near_boxes_only: true,
             sgbm_disparities: 128,
             sgbm_block: 5,
             bearing_baselines: 22.0,
@@ -396,6 +400,7 @@ impl Config {
             config.dense.cloud_voxel = stereo.cloud_voxel;
             config.dense.allocate_first = stereo.allocate_first;
             config.dense.mask_free_space_seconds = stereo.mask_free_space_seconds;
+            config.tracking.wait_near_boxes_only = stereo.wait_near_boxes_only;
         }
         config
     }

@@ -6,6 +6,7 @@
 //! steps on one frame. The tracker receives a `Participation` with each frame from
 //! [`super::Dynamics`].
 
+use crate::dop::boxes::ObjectBox;
 use crate::dop::consistency::Verdict;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
@@ -22,7 +23,18 @@ pub struct Participation<'a> {
     pub followed: Option<&'a FollowedObjects>,
     /// The newest keyframe's points on probation (DOP only).
     pub probation: Option<Probation>,
+    /// The latest detection's dynamic boxes, when only the new points near them wait
+    /// (`[tracking] wait_near_boxes_only`; DOP only).
+    pub clear_of: Option<&'a [ObjectBox]>,
 }
+
+/// How far around a dynamic box a new point still waits
+/// ([`Participation::clear_of`]), as a share of the box's width and height on each
+/// side: the box is the latest detection's, a keyframe or two old, and its mover has
+/// moved since.
+pub const NEAR_BOX_SHARE: f32 = 0.5;
+/// The same, pixels added on each side.
+pub const NEAR_BOX_PX: f32 = 16.0;
 
 /// The points of keyframe `keyframe_id` (the newest) stay out of the pose for
 /// `frames` frames after it (`[tracking] probation_frames`); `frames_since` have passed.
@@ -45,10 +57,35 @@ impl Participation<'_> {
     /// Whether a map point waits: for the detection of the keyframe that created it, or
     /// out its probation.
     pub fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
+        if self.clear_of_boxes(map, point) {
+            return false;
+        }
         map.awaits_detection(point)
             || self.probation.is_some_and(|p| {
                 point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames
             })
+    }
+
+    /// Whether `point`'s keypoint in its first keyframe lies clear of every box of
+    /// [`Participation::clear_of`], each widened by [`NEAR_BOX_SHARE`] of its size and
+    /// [`NEAR_BOX_PX`] on every side (false when there are no boxes to be clear of: no
+    /// detection came back yet, or every new point waits).
+    fn clear_of_boxes(&self, map: &Map, point: &MapPoint) -> bool {
+        let Some(boxes) = self.clear_of else {
+            return false;
+        };
+        let keypoint = point.observations.first().and_then(|&(key, i)| {
+            let kf = map.keyframes().get(key)?;
+            kf.frame.keypoints.get(i).map(|k| (k.x, k.y))
+        });
+        keypoint.is_some_and(|(x, y)| {
+            !boxes.iter().any(|b| {
+                let [x1, y1, x2, y2] = b.bbox;
+                let wide = NEAR_BOX_SHARE * (x2 - x1) + NEAR_BOX_PX;
+                let high = NEAR_BOX_SHARE * (y2 - y1) + NEAR_BOX_PX;
+                (x1 - wide..x2 + wide).contains(&x) && (y1 - high..y2 + high).contains(&y)
+            })
+        })
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
@@ -182,8 +219,8 @@ mod tests {
         };
         let gate = Participation {
             dop: Some(&dop),
-            followed: None,
             probation: Some(probation),
+            ..Participation::default()
         };
         assert!(gate.excluded(&point(1, dop.removal_threshold + 0.01)));
         assert!(!gate.excluded(&point(1, dop.removal_threshold)));
@@ -194,5 +231,52 @@ mod tests {
         // A keyframe waiting for its detection holds its points back.
         map.await_detection(6);
         assert!(gate.awaiting(&map, &point(6, 0.0)));
+    }
+
+    #[test]
+    fn only_new_points_near_the_latest_boxes_wait_when_asked() {
+        let dop = DopConfig::default();
+        let mut map = Map::default();
+        let mut frame = Frame::blank(4, (640, 480));
+        // On the box, beside it within the widening (100 - 0.5 * 100 - 16 = 34 px),
+        // beyond the widening, far from it.
+        for (k, (x, y)) in [(110.0, 110.0), (40.0, 150.0), (30.0, 150.0), (500.0, 400.0)]
+            .into_iter()
+            .enumerate()
+        {
+            (frame.keypoints[k].x, frame.keypoints[k].y) = (x, y);
+        }
+        let key = map.add_keyframe(crate::map::KeyFrame::new(frame, Se3::identity()));
+        let id = map.keyframes()[key].id;
+        map.await_detection(id);
+        let on = |i: usize| {
+            let mut p = point(id, 0.0);
+            p.observations.push((key, i));
+            p
+        };
+        let boxes = [ObjectBox {
+            bbox: [100.0, 100.0, 200.0, 300.0],
+            dynamic: true,
+            depth: None,
+            moved: false,
+        }];
+        let gate = Participation {
+            dop: Some(&dop),
+            probation: Some(Probation {
+                keyframe_id: id,
+                frames_since: 0,
+                frames: 2,
+            }),
+            clear_of: Some(&boxes),
+            ..Participation::default()
+        };
+        let waits: Vec<bool> = (0..4).map(|i| gate.awaiting(&map, &on(i))).collect();
+        assert_eq!(waits, [true, true, false, false]);
+        // Before any detection came back there is nothing to be clear of: all wait.
+        let before = Participation {
+            clear_of: None,
+            ..gate
+        };
+        assert!((0..4).all(|i| before.awaiting(&map, &on(i))));
     }
 }

@@ -20,7 +20,7 @@ use serde::Serialize;
 
 use crate::detect::job::Outcome;
 use crate::detect::{write_cache, FrameDetections};
-use crate::dop::boxes::in_dynamic_box;
+use crate::dop::boxes::{in_dynamic_box, ObjectBox};
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::truth::{Classification, Recall};
@@ -118,6 +118,9 @@ pub struct DynamicsConfig {
     /// Frames a keyframe's new points stay out of the pose (`[tracking]
     /// probation_frames`; DOP mode only).
     pub probation_frames: usize,
+    /// Only new points near the latest detection's dynamic boxes wait (`[tracking]
+    /// wait_near_boxes_only`; DOP mode only).
+    pub wait_near_boxes_only: bool,
 }
 
 /// The DOP state of a run (see the module doc).
@@ -134,6 +137,8 @@ pub struct Dynamics {
     applied: Vec<Applied>,
     /// The followed objects as of the latest detection (DOP mode).
     followed: Option<FollowedObjects>,
+    /// The dynamic boxes of the latest detection (DOP mode).
+    latest_boxes: Option<Vec<ObjectBox>>,
 }
 
 impl Dynamics {
@@ -149,6 +154,7 @@ impl Dynamics {
             awaited: Waiting::default(),
             applied: Vec::new(),
             followed: None,
+            latest_boxes: None,
         }
     }
 
@@ -165,6 +171,10 @@ impl Dynamics {
         Participation {
             dop,
             followed: self.followed.as_ref(),
+            clear_of: self
+                .latest_boxes
+                .as_deref()
+                .filter(|_| dop.is_some() && self.config.wait_near_boxes_only),
             probation: clock
                 .filter(|_| dop.is_some())
                 .map(|(keyframe_id, frames_since)| Probation {
@@ -285,6 +295,8 @@ impl Dynamics {
             }
         }
         if let Some(objects) = self.objects.as_mut() {
+            let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
+            self.latest_boxes = Some(boxes.into_iter().filter(|b| b.dynamic).collect());
             let done = objects.receive(
                 map,
                 key,
@@ -382,6 +394,7 @@ mod tests {
             dynamic_classes: vec!["person".into()],
             cache: PathBuf::from("unused"),
             probation_frames: 2,
+            wait_near_boxes_only: false,
         };
         Dynamics::new(config, PinholeCamera::tum_fr3())
     }

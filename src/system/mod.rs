@@ -172,6 +172,7 @@ impl System {
                 dynamic_classes: config.detector.dynamic_classes.clone(),
                 cache: setup.detection_cache.clone(),
                 probation_frames: config.tracking.probation_frames,
+                wait_near_boxes_only: config.tracking.wait_near_boxes_only,
             },
             setup.pinhole,
         );

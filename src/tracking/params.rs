@@ -99,6 +99,15 @@ pub struct TrackerConfig {
     /// gap between deterministic and real-time runs (README), also with the geometric
     /// check off. 0 turns it off.
     pub probation_frames: usize,
+    /// Only the new points near a mover wait (DOP model only): a new point whose
+    /// keypoint lies clear of every dynamic box of the latest detection that came back
+    /// (each widened by half its size and 16 pixels on every side: the dynamics'
+    /// `Participation::awaiting`) takes part at once, skipping both its detection wait and its
+    /// probation; points near a box, and all of them before the first detection comes
+    /// back, wait. On for stereo (`[stereo]`; real KITTI 01 at 25 m/s: a keyframe's
+    /// points are the ones that matter, docs/design.md), off for RGB-D (a person who
+    /// walks in from the edge has no box yet).
+    pub wait_near_boxes_only: bool,
     /// The prediction gate of the pose ([`crate::optim::pose_only`]; DOP model only):
     /// when at least this share of a frame's matches lie within half the inlier gate of
     /// the predicted pose, the pose is optimised from those alone and the rest are
@@ -121,6 +130,7 @@ impl Default for TrackerConfig {
             new_map_after_seconds: 3.0,
             held_out_min_points: 60,
             probation_frames: 2,
+            wait_near_boxes_only: false,
             prediction_gate_share: 0.7,
         }
     }
