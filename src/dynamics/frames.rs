@@ -55,7 +55,8 @@ impl Participation<'_> {
     }
 
     /// Whether a map point waits: for the detection of the keyframe that created it, or
-    /// out its probation.
+    /// out its probation; neither when it lies clear of the latest detection's boxes
+    /// ([`Participation::clear_of`]).
     pub fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
         if self.clear_of_boxes(map, point) {
             return false;
