@@ -58,13 +58,12 @@ impl Participation<'_> {
     /// out its probation; neither when it lies clear of the latest detection's boxes
     /// ([`Participation::clear_of`]).
     pub fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
-        if self.clear_of_boxes(map, point) {
-            return false;
-        }
-        map.awaits_detection(point)
+        let waits = map.awaits_detection(point)
             || self.probation.is_some_and(|p| {
                 point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames
-            })
+            });
+        // Only a point that waits is looked up in its keyframe (most points do not).
+        waits && !self.clear_of_boxes(map, point)
     }
 
     /// Whether `point`'s keypoint in its first keyframe lies clear of every box of

@@ -443,10 +443,9 @@ mod tests {
             for (z, &d) in depth.metres.iter_mut().zip(&depths) {
                 *z = if d < 0.3 { 0.0 } else { d };
             }
-            let fast = Registration::new(&depth_camera, &colour, colour_from_depth)
-                .apply(&depth)
-                .unwrap();
-            prop_assert!(blocks_inside(&Registration::new(&depth_camera, &colour, colour_from_depth), &depth));
+            let registration = Registration::new(&depth_camera, &colour, colour_from_depth);
+            let fast = registration.apply(&depth).unwrap();
+            prop_assert!(blocks_inside(&registration, &depth));
             let defined = definition(&depth_camera, &colour, &colour_from_depth, &depth);
             let same = fast
                 .metres

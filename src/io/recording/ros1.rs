@@ -18,7 +18,6 @@
 //! and it does not expose where a chunk starts, which random access needs.
 
 use std::borrow::Cow;
-use std::fs::File;
 use std::io::Read;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -156,18 +155,13 @@ fn record_at(chunk: &[u8], offset: usize) -> Result<(Header, &[u8], usize), Stri
 impl Ros1Bag {
     /// Opens a bag and scans its chunks into a catalogue.
     pub fn open(path: &Path) -> Result<(Self, Catalog), IoError> {
-        let read_error = |source| IoError::Read {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = File::open(path).map_err(read_error)?;
-        let mut magic = [0u8; 13];
-        let n = file.read(&mut magic).map_err(read_error)?;
-        if &magic[..n] != MAGIC {
+        let map = mapped::map(path)?;
+        let magic = &map[..map.len().min(MAGIC.len())];
+        if magic != MAGIC {
             let version = if magic.starts_with(b"#ROSBAG V") {
                 format!(
                     "a ROS bag of version {}",
-                    String::from_utf8_lossy(&magic[9..n]).trim()
+                    String::from_utf8_lossy(&magic[9..]).trim()
                 )
             } else {
                 "not a ROS bag".to_owned()
@@ -179,7 +173,7 @@ impl Ros1Bag {
         }
         let bag = Self {
             path: path.to_path_buf(),
-            map: mapped::map(path)?,
+            map,
             cache: Mutex::new(None),
         };
         let catalog = bag.scan()?;
@@ -459,7 +453,7 @@ mod tests {
         assert_eq!(&third[4..8], &102u32.to_le_bytes());
         assert!(matches!(third, Cow::Borrowed(_)), "read in place");
         drop(store); // its map, before the file is written again
-        // Cut in the middle of the only chunk: nothing whole is left, and it says where.
+                     // Cut in the middle of the only chunk: nothing whole is left, and it says where.
         let full = bag(3);
         std::fs::write(&path, &full[..full.len() - 5]).unwrap();
         let (_, catalog) = Ros1Bag::open(&path).unwrap();
