@@ -23,6 +23,9 @@
 #     --paced   each mode also played at the recording's rate (--pace recording), as
 #               ORB-SLAM2's stereo_kitti example plays KITTI (it waits for each frame's
 #               time); the default plays frames as fast as the tracker goes
+# Runs of several script runs pool into one table (the spread between real-time runs is
+# as large as the differences between modes: pool before you compare):
+#   python3 tools/kitti_clip_figures.py table OUT1/runs.tsv OUT2/runs.tsv ...
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
 #   DOPSLAM_BIN=/path/to/dopslam                (default: ./target/release/dopslam)
 set -euo pipefail

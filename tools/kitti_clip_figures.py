@@ -2,7 +2,8 @@
 """Figures of tools/bench_kitti.sh (standard library only).
 
   kitti_clip_figures.py run BIN KITTI CLIP LABEL RUN_DIR   -> one tab-separated line
-  kitti_clip_figures.py table RUNS_TSV                      -> the markdown table
+  kitti_clip_figures.py table RUNS_TSV...                   -> the markdown table (runs
+                                                              of several files pooled)
 """
 import json
 import math
@@ -65,8 +66,8 @@ def run_line(binary, kitti, clip, label, run_dir):
     print("\t".join(str(f) for f in fields))
 
 
-def table(tsv):
-    rows = [l.rstrip("\n").split("\t") for l in open(tsv) if l.strip()]
+def table(tsvs):
+    rows = [l.rstrip("\n").split("\t") for tsv in tsvs for l in open(tsv) if l.strip()]
     groups = {}
     for clip, label, ate, sim3, ratio, ms, tracked, frames, keyframes in rows:
         groups.setdefault((clip, label), []).append(
@@ -84,6 +85,6 @@ if __name__ == "__main__":
     if sys.argv[1] == "run":
         run_line(*sys.argv[2:7])
     elif sys.argv[1] == "table":
-        table(sys.argv[2])
+        table(sys.argv[2:])
     else:
         sys.exit(__doc__)
