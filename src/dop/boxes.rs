@@ -34,6 +34,17 @@ impl ObjectBox {
         x >= x1 && x < x2 && y >= y1 && y < y2
     }
 
+    /// The box grown on every side by `share` of its width (left and right) and height
+    /// (top and bottom), plus `px` pixels.
+    pub fn widened(&self, share: f32, px: f32) -> Self {
+        let [x1, y1, x2, y2] = self.bbox;
+        let (wide, high) = (share * (x2 - x1) + px, share * (y2 - y1) + px);
+        Self {
+            bbox: [x1 - wide, y1 - high, x2 + wide, y2 + high],
+            ..*self
+        }
+    }
+
     /// Whether `(x, y)` lies in the central `fraction` of the box (each side).
     pub fn central(&self, x: f32, y: f32, fraction: f32) -> bool {
         let [x1, y1, x2, y2] = self.bbox;

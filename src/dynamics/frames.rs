@@ -6,7 +6,7 @@
 //! steps on one frame. The tracker receives a `Participation` with each frame from
 //! [`super::Dynamics`].
 
-use crate::dop::boxes::ObjectBox;
+use crate::dop::boxes::{in_dynamic_box, ObjectBox};
 use crate::dop::consistency::Verdict;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
@@ -23,8 +23,9 @@ pub struct Participation<'a> {
     pub followed: Option<&'a FollowedObjects>,
     /// The newest keyframe's points on probation (DOP only).
     pub probation: Option<Probation>,
-    /// The latest detection's dynamic boxes, when only the new points near them wait
-    /// (`[tracking] wait_near_boxes_only`; DOP only).
+    /// The latest detection's dynamic boxes, each widened by [`NEAR_BOX_SHARE`] of its
+    /// size and [`NEAR_BOX_PX`] on every side ([`ObjectBox::widened`]), when only the
+    /// new points near them wait (`[tracking] wait_near_boxes_only`; DOP only).
     pub clear_of: Option<&'a [ObjectBox]>,
 }
 
@@ -66,10 +67,9 @@ impl Participation<'_> {
         waits && !self.clear_of_boxes(map, point)
     }
 
-    /// Whether `point`'s keypoint in its first keyframe lies clear of every box of
-    /// [`Participation::clear_of`], each widened by [`NEAR_BOX_SHARE`] of its size and
-    /// [`NEAR_BOX_PX`] on every side (false when there are no boxes to be clear of: no
-    /// detection came back yet, or every new point waits).
+    /// Whether `point`'s keypoint in its first keyframe lies clear of every (widened)
+    /// box of [`Participation::clear_of`] (false when there are no boxes to be clear
+    /// of: no detection came back yet, or every new point waits).
     fn clear_of_boxes(&self, map: &Map, point: &MapPoint) -> bool {
         let Some(boxes) = self.clear_of else {
             return false;
@@ -78,14 +78,7 @@ impl Participation<'_> {
             let kf = map.keyframes().get(key)?;
             kf.frame.keypoints.get(i).map(|k| (k.x, k.y))
         });
-        keypoint.is_some_and(|(x, y)| {
-            !boxes.iter().any(|b| {
-                let [x1, y1, x2, y2] = b.bbox;
-                let wide = NEAR_BOX_SHARE * (x2 - x1) + NEAR_BOX_PX;
-                let high = NEAR_BOX_SHARE * (y2 - y1) + NEAR_BOX_PX;
-                (x1 - wide..x2 + wide).contains(&x) && (y1 - high..y2 + high).contains(&y)
-            })
-        })
+        keypoint.is_some_and(|(x, y)| !in_dynamic_box(boxes, x, y))
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
@@ -259,7 +252,8 @@ mod tests {
             dynamic: true,
             depth: None,
             moved: false,
-        }];
+        }
+        .widened(NEAR_BOX_SHARE, NEAR_BOX_PX)];
         let gate = Participation {
             dop: Some(&dop),
             probation: Some(Probation {

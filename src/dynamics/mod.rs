@@ -26,7 +26,7 @@ use crate::dop::{DopConfig, Mode};
 use crate::eval::truth::{Classification, Recall};
 use crate::geometry::camera::PinholeCamera;
 use crate::map::{KeyFrameKey, Map};
-use frames::{Participation, Probation};
+use frames::{Participation, Probation, NEAR_BOX_PX, NEAR_BOX_SHARE};
 use keyframes::{apply_detections, object_boxes, DynamicObjects};
 
 /// What the keyframe detector did over a run.
@@ -137,7 +137,8 @@ pub struct Dynamics {
     applied: Vec<Applied>,
     /// The followed objects as of the latest detection (DOP mode).
     followed: Option<FollowedObjects>,
-    /// The dynamic boxes of the latest detection (DOP mode).
+    /// The dynamic boxes of the latest detection, widened
+    /// ([`Participation::clear_of`]; DOP mode with `wait_near_boxes_only`).
     latest_boxes: Option<Vec<ObjectBox>>,
 }
 
@@ -171,10 +172,8 @@ impl Dynamics {
         Participation {
             dop,
             followed: self.followed.as_ref(),
-            clear_of: self
-                .latest_boxes
-                .as_deref()
-                .filter(|_| dop.is_some() && self.config.wait_near_boxes_only),
+            // Kept only with `wait_near_boxes_only` on (`receive`).
+            clear_of: self.latest_boxes.as_deref().filter(|_| dop.is_some()),
             probation: clock
                 .filter(|_| dop.is_some())
                 .map(|(keyframe_id, frames_since)| Probation {
@@ -295,8 +294,12 @@ impl Dynamics {
             }
         }
         if let Some(objects) = self.objects.as_mut() {
-            let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
-            self.latest_boxes = Some(boxes.into_iter().filter(|b| b.dynamic).collect());
+            if config.wait_near_boxes_only {
+                let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
+                let near = boxes.iter().filter(|b| b.dynamic);
+                let widened = near.map(|b| b.widened(NEAR_BOX_SHARE, NEAR_BOX_PX));
+                self.latest_boxes = Some(widened.collect());
+            }
             let done = objects.receive(
                 map,
                 key,

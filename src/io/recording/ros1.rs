@@ -452,8 +452,9 @@ mod tests {
         let third = store.read(topic.messages[2].at).unwrap();
         assert_eq!(&third[4..8], &102u32.to_le_bytes());
         assert!(matches!(third, Cow::Borrowed(_)), "read in place");
-        drop(store); // its map, before the file is written again
-                     // Cut in the middle of the only chunk: nothing whole is left, and it says where.
+        // Its map goes before the file is written again.
+        drop(store);
+        // Cut in the middle of the only chunk: nothing whole is left, and it says where.
         let full = bag(3);
         std::fs::write(&path, &full[..full.len() - 5]).unwrap();
         let (_, catalog) = Ros1Bag::open(&path).unwrap();
