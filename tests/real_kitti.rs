@@ -5,7 +5,8 @@
 //! repeatable. Every frame must be tracked and the ATE stay under a loose regression
 //! bound, and the rig's disparity offset be found where there is one (01) and not
 //! where there is none (06); the tight goals live in `tools/bench_kitti.sh`. Skips,
-//! saying why, without the shared data.
+//! saying why, without the shared data. The benchmark's comparison of each mode against
+//! no-DOP is tested on runs made up here (it needs no shared data).
 
 mod common;
 
@@ -164,4 +165,61 @@ fn detect_runs_on_the_left_images_of_a_stereo_clip() {
         d["class"] == "car" && (700.0..860.0).contains(&x)
     });
     assert!(car_ahead, "{}", listed[0]);
+}
+
+/// The benchmark's table (`tools/kitti_clip_figures.py table`) puts each mode against
+/// no-DOP: runs that all lie 0.02 m above no-DOP's are a difference the test resolves,
+/// the same runs in both modes none.
+#[test]
+fn the_benchmark_table_tells_a_difference_from_the_spread() {
+    let test = "the_benchmark_table_tells_a_difference_from_the_spread";
+    let Some(python) = common::test_python(test, "random, statistics") else {
+        return;
+    };
+    let dir = temp_dir("kitti-table");
+    let line = |clip: &str, mode: &str, ate: f64| {
+        format!("{clip}\t{mode}\t{ate}\t{ate}\t1.0\t60.0\t51\t51\t30\n")
+    };
+    let mut runs = String::new();
+    for i in 0..5 {
+        let ate = 0.060 + 0.002 * i as f64;
+        runs += &line("01", "no-dop", ate);
+        runs += &line("01", "dop", ate + 0.020);
+        runs += &line("06", "no-dop", ate);
+        runs += &line("06", "dop", ate);
+    }
+    let tsv = dir.join("runs.tsv");
+    std::fs::write(&tsv, runs).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/kitti_clip_figures.py");
+    let out = std::process::Command::new(python)
+        .arg(script)
+        .arg("table")
+        .arg(&tsv)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // | clip | mode | runs | difference [interval] | share | p |
+    let cells = |prefix: &str| -> Vec<String> {
+        let row = stdout.lines().find(|l| l.starts_with(prefix));
+        let row = row.unwrap_or_else(|| panic!("no row {prefix} in\n{stdout}"));
+        row.split('|').map(|c| c.trim().to_string()).collect()
+    };
+    let apart = cells("| KITTI 01 | dop | 5 / 5 |");
+    assert!(apart[4].starts_with("+0.020 ["), "{apart:?}");
+    assert_eq!(apart[5], "1.00");
+    assert!(apart[6].parse::<f64>().unwrap() <= 0.02, "{apart:?}");
+    let same = cells("| KITTI 06 | dop | 5 / 5 |");
+    // The interval of no difference holds zero.
+    let interval: Vec<f64> = same[4]
+        .split(|c| "[], ".contains(c))
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    assert!(interval.len() == 3 && interval[0] == 0.0, "{same:?}");
+    assert!(interval[1] < 0.0 && interval[2] > 0.0, "{same:?}");
+    assert_eq!((same[5].as_str(), same[6].as_str()), ("0.50", "1.00"));
 }

@@ -26,6 +26,8 @@
 # Runs of several script runs pool into one table (the spread between real-time runs is
 # as large as the differences between modes: pool before you compare):
 #   python3 tools/kitti_clip_figures.py table OUT1/runs.tsv OUT2/runs.tsv ...
+# Under the table each mode stands against no-dop: the median difference with its 95 %
+# bootstrap interval and the Mann-Whitney p; an interval that holds zero is no result.
 #   DOPSLAM_SHARED_DATA=/path/to/shared/data   (default: ../shared/data)
 #   DOPSLAM_BIN=/path/to/dopslam                (default: ./target/release/dopslam)
 set -euo pipefail

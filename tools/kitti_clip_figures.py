@@ -3,11 +3,18 @@
 
   kitti_clip_figures.py run BIN KITTI CLIP LABEL RUN_DIR   -> one tab-separated line
   kitti_clip_figures.py table RUNS_TSV...                   -> the markdown table (runs
-                                                              of several files pooled)
+                                                              of several files pooled),
+                                                              then each mode against no-dop
+
+Each mode against no-dop on the same clip: the difference of the ATE medians with a
+95 % bootstrap interval, and the Mann-Whitney test of the two sets of runs (the share
+of pairs where the mode's ATE is the larger, and its two-sided p by permutation). Both
+are seeded, so the same runs give the same figures.
 """
 import json
 import math
 import os
+import random
 import statistics
 import subprocess
 import sys
@@ -79,6 +86,68 @@ def table(tsvs):
         each = ", ".join(f"{r[0]:.3f}" for r in runs)
         print(f"| KITTI {clip} | {label} | {len(runs)} | {med(0):.3f} [{each}] | {med(1):.3f} | {med(2):.4f} | "
               f"{med(3):.1f} | {med(5):g} | {', '.join(r[4] for r in runs)} |")
+    against_no_dop(groups)
+
+
+def midranks(values):
+    """Ranks 1..n of `values`, ties sharing their mean rank."""
+    order = sorted(range(len(values)), key=lambda i: values[i])
+    ranks = [0.0] * len(values)
+    i = 0
+    while i < len(order):
+        j = i
+        while j + 1 < len(order) and values[order[j + 1]] == values[order[i]]:
+            j += 1
+        for k in range(i, j + 1):
+            ranks[order[k]] = (i + j) / 2 + 1
+        i = j + 1
+    return ranks
+
+
+def mann_whitney(a, b, permutations=20000, seed=0):
+    """Share of pairs (x in a, y in b) with x > y (ties count a half), and the
+    two-sided p of that share by random relabelling of the pooled runs."""
+    ranks = midranks(a + b)
+    na, nb = len(a), len(b)
+    offset = na * (na + 1) / 2
+    u = sum(ranks[:na]) - offset
+    rng = random.Random(seed)
+    indices = list(range(na + nb))
+    extreme = 0
+    for _ in range(permutations):
+        picked = rng.sample(indices, na)
+        extreme += abs(sum(ranks[i] for i in picked) - offset - na * nb / 2) >= abs(u - na * nb / 2) - 1e-9
+    return u / (na * nb), extreme / permutations
+
+
+def median_difference(a, b, resamples=5000, seed=0):
+    """median(a) - median(b) and its 95 % bootstrap interval (each set resampled)."""
+    rng = random.Random(seed)
+    diffs = sorted(
+        statistics.median(rng.choices(a, k=len(a))) - statistics.median(rng.choices(b, k=len(b)))
+        for _ in range(resamples))
+    low, high = diffs[int(0.025 * resamples)], diffs[int(0.975 * resamples) - 1]
+    return statistics.median(a) - statistics.median(b), low, high
+
+
+def against_no_dop(groups):
+    """Each mode's ATE against no-dop's on the same clip (none when a set is too small)."""
+    lines = []
+    for (clip, label), runs in groups.items():
+        base = groups.get((clip, "no-dop"))
+        if label == "no-dop" or not base or len(runs) < 3 or len(base) < 3:
+            continue
+        a, b = [r[0] for r in runs], [r[0] for r in base]
+        diff, low, high = median_difference(a, b)
+        share, p = mann_whitney(a, b)
+        lines.append(f"| KITTI {clip} | {label} | {len(a)} / {len(b)} | {diff:+.3f} [{low:+.3f}, {high:+.3f}] | "
+                     f"{share:.2f} | {p:.2f} |")
+    if lines:
+        print()
+        print("| clip | mode against no-dop | runs | ATE median difference (m) [95 % bootstrap] | "
+              "P(mode's ATE > no-dop's) | Mann-Whitney p (two-sided) |")
+        print("|---|---|---|---|---|---|")
+        print("\n".join(lines))
 
 
 if __name__ == "__main__":
