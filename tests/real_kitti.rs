@@ -169,7 +169,7 @@ fn detect_runs_on_the_left_images_of_a_stereo_clip() {
 
 /// The benchmark's table (`tools/kitti_clip_figures.py table`) puts each mode against
 /// no-DOP: runs that all lie 0.02 m above no-DOP's are a difference the test resolves,
-/// the same runs in both modes none.
+/// the same runs in both modes none, and 3 runs a mode get no bootstrap interval.
 #[test]
 fn the_benchmark_table_tells_a_difference_from_the_spread() {
     let test = "the_benchmark_table_tells_a_difference_from_the_spread";
@@ -177,43 +177,50 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
         return;
     };
     let dir = temp_dir("kitti-table");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/kitti_clip_figures.py");
+    // The table of `runs` (lines of runs.tsv), as printed.
+    let table = |runs: &str| -> String {
+        let tsv = dir.join("runs.tsv");
+        std::fs::write(&tsv, runs).unwrap();
+        let out = std::process::Command::new(&python)
+            .arg(&script)
+            .arg("table")
+            .arg(&tsv)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        stdout
+    };
+    // | clip | mode | runs | difference [interval] | share | p |
+    let cells = |table: &str, prefix: &str| -> Vec<String> {
+        let row = table.lines().find(|l| l.starts_with(prefix));
+        let row = row.unwrap_or_else(|| panic!("no row {prefix} in\n{table}"));
+        row.split('|').map(|c| c.trim().to_string()).collect()
+    };
     let line = |clip: &str, mode: &str, ate: f64| {
         format!("{clip}\t{mode}\t{ate}\t{ate}\t1.0\t60.0\t51\t51\t30\n")
     };
-    let mut runs = String::new();
-    for i in 0..5 {
+    let (mut runs, mut few) = (String::new(), String::new());
+    for i in 0..8 {
         let ate = 0.060 + 0.002 * i as f64;
-        runs += &line("01", "no-dop", ate);
-        runs += &line("01", "dop", ate + 0.020);
-        runs += &line("06", "no-dop", ate);
-        runs += &line("06", "dop", ate);
+        let apart = line("01", "no-dop", ate) + &line("01", "dop", ate + 0.020);
+        if i < 3 {
+            few += &apart;
+        }
+        runs += &apart;
+        runs += &(line("06", "no-dop", ate) + &line("06", "dop", ate));
     }
-    let tsv = dir.join("runs.tsv");
-    std::fs::write(&tsv, runs).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/kitti_clip_figures.py");
-    let out = std::process::Command::new(python)
-        .arg(script)
-        .arg("table")
-        .arg(&tsv)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    // | clip | mode | runs | difference [interval] | share | p |
-    let cells = |prefix: &str| -> Vec<String> {
-        let row = stdout.lines().find(|l| l.starts_with(prefix));
-        let row = row.unwrap_or_else(|| panic!("no row {prefix} in\n{stdout}"));
-        row.split('|').map(|c| c.trim().to_string()).collect()
-    };
-    let apart = cells("| KITTI 01 | dop | 5 / 5 |");
+    let eight = table(&runs);
+    let apart = cells(&eight, "| KITTI 01 | dop | 8 / 8 |");
     assert!(apart[4].starts_with("+0.020 ["), "{apart:?}");
     assert_eq!(apart[5], "1.00");
     assert!(apart[6].parse::<f64>().unwrap() <= 0.02, "{apart:?}");
-    let same = cells("| KITTI 06 | dop | 5 / 5 |");
+    let same = cells(&eight, "| KITTI 06 | dop | 8 / 8 |");
     // The interval of no difference holds zero.
     let interval: Vec<f64> = same[4]
         .split(|c| "[], ".contains(c))
@@ -222,4 +229,8 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
     assert!(interval.len() == 3 && interval[0] == 0.0, "{same:?}");
     assert!(interval[1] < 0.0 && interval[2] > 0.0, "{same:?}");
     assert_eq!((same[5].as_str(), same[6].as_str()), ("0.50", "1.00"));
+    // Three runs a mode: all apart, yet no interval, and p no lower than 0.1.
+    let three = cells(&table(&few), "| KITTI 01 | dop | 3 / 3 |");
+    assert!(!three[4].contains('['), "{three:?}");
+    assert_eq!((three[5].as_str(), three[6].as_str()), ("1.00", "0.10"));
 }
