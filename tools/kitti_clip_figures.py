@@ -125,18 +125,18 @@ def mann_whitney(a, b, permutations=20000, seed=0):
     return u / (na * nb), extreme / len(labellings)
 
 
-def median_difference(a, b, resamples=5000, seed=0):
-    """median(a) - median(b) and its 95 % bootstrap interval (each set resampled)."""
+# Runs a mode below which no bootstrap interval is given: a bootstrap of a handful of
+# runs resamples the same few values, and its interval is too narrow to mean anything.
+BOOTSTRAP_RUNS = 8
+
+
+def bootstrap_interval(a, b, resamples=5000, seed=0):
+    """The 95 % bootstrap interval of median(a) - median(b) (each set resampled)."""
     rng = random.Random(seed)
     diffs = sorted(
         statistics.median(rng.choices(a, k=len(a))) - statistics.median(rng.choices(b, k=len(b)))
         for _ in range(resamples))
-    low, high = diffs[int(0.025 * resamples)], diffs[int(0.975 * resamples) - 1]
-    return statistics.median(a) - statistics.median(b), low, high
-
-
-# Runs a mode below which no bootstrap interval is given.
-BOOTSTRAP_RUNS = 8
+    return diffs[int(0.025 * resamples)], diffs[int(0.975 * resamples) - 1]
 
 
 def against_no_dop(groups):
@@ -147,12 +147,12 @@ def against_no_dop(groups):
         if label == "no-dop" or not base or len(runs) < 3 or len(base) < 3:
             continue
         a, b = [r[0] for r in runs], [r[0] for r in base]
-        diff, low, high = median_difference(a, b)
+        diff = statistics.median(a) - statistics.median(b)
         share, p = mann_whitney(a, b)
-        # A bootstrap of a handful of runs resamples the same few values: its interval
-        # is too narrow to mean anything.
-        interval = (f"[{low:+.3f}, {high:+.3f}]" if min(len(a), len(b)) >= BOOTSTRAP_RUNS
-                    else f"(an interval needs {BOOTSTRAP_RUNS} runs a mode)")
+        if min(len(a), len(b)) >= BOOTSTRAP_RUNS:
+            interval = "[{:+.3f}, {:+.3f}]".format(*bootstrap_interval(a, b))
+        else:
+            interval = f"(an interval needs {BOOTSTRAP_RUNS} runs a mode)"
         lines.append(f"| KITTI {clip} | {label} | {len(a)} / {len(b)} | {diff:+.3f} {interval} | "
                      f"{share:.2f} | {p:.2f} |")
     if lines:

@@ -172,8 +172,8 @@ impl Dynamics {
         Participation {
             dop,
             followed: self.followed.as_ref(),
-            // Kept only with `wait_near_boxes_only` on (`receive`).
-            clear_of: self.latest_boxes.as_deref().filter(|_| dop.is_some()),
+            // Kept only in DOP mode with `wait_near_boxes_only` on (`apply`).
+            clear_of: self.latest_boxes.as_deref(),
             probation: clock
                 .filter(|_| dop.is_some())
                 .map(|(keyframe_id, frames_since)| Probation {
