@@ -6,7 +6,6 @@
 //! steps on one frame. The tracker receives a `Participation` with each frame from
 //! [`super::Dynamics`].
 
-use crate::dop::boxes::{in_dynamic_box, ObjectBox};
 use crate::dop::consistency::Verdict;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
@@ -23,16 +22,13 @@ pub struct Participation<'a> {
     pub followed: Option<&'a FollowedObjects>,
     /// The newest keyframe's points on probation (DOP only).
     pub probation: Option<Probation>,
-    /// The latest detection's dynamic boxes, each widened by [`NEAR_BOX_SHARE`] of its
-    /// size and [`NEAR_BOX_PX`] on every side ([`ObjectBox::widened`]), when only the
-    /// new points near them wait (`[tracking] wait_near_boxes_only`; DOP only).
-    pub clear_of: Option<&'a [ObjectBox]>,
 }
 
-/// How far around a dynamic box a new point still waits
-/// ([`Participation::clear_of`]), as a share of the box's width and height on each
-/// side: the box is the latest detection's, a keyframe or two old, and its mover has
-/// moved since.
+/// How far around a dynamic box a new point still waits, as a share of the box's
+/// width and height on each side (the map's wait zones, [`Map::set_wait_zones`], are
+/// the latest detection's dynamic boxes, each widened by this and [`NEAR_BOX_PX`]:
+/// [`crate::dop::boxes::ObjectBox::widened`]): the box is the latest detection's, a
+/// keyframe or two old, and its mover has moved since.
 pub const NEAR_BOX_SHARE: f32 = 0.5;
 /// The same, pixels added on each side.
 pub const NEAR_BOX_PX: f32 = 16.0;
@@ -56,29 +52,14 @@ impl Participation<'_> {
     }
 
     /// Whether a map point waits: for the detection of the keyframe that created it, or
-    /// out its probation; neither when it lies clear of the latest detection's boxes
-    /// ([`Participation::clear_of`]).
+    /// out its probation; neither when it lies clear of the map's wait zones
+    /// ([`Map::set_wait_zones`]).
     pub fn awaiting(&self, map: &Map, point: &MapPoint) -> bool {
-        let waits = map.awaits_detection(point)
-            || self.probation.is_some_and(|p| {
-                point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames
-            });
+        let on_probation = self
+            .probation
+            .is_some_and(|p| point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames);
         // Only a point that waits is looked up in its keyframe (most points do not).
-        waits && !self.clear_of_boxes(map, point)
-    }
-
-    /// Whether `point`'s keypoint in its first keyframe lies clear of every (widened)
-    /// box of [`Participation::clear_of`] (false when there are no boxes to be clear
-    /// of: no detection came back yet, or every new point waits).
-    fn clear_of_boxes(&self, map: &Map, point: &MapPoint) -> bool {
-        let Some(boxes) = self.clear_of else {
-            return false;
-        };
-        let keypoint = point.observations.first().and_then(|&(key, i)| {
-            let kf = map.keyframes().get(key)?;
-            kf.frame.keypoints.get(i).map(|k| (k.x, k.y))
-        });
-        keypoint.is_some_and(|(x, y)| !in_dynamic_box(boxes, x, y))
+        map.awaits_detection(point) || (on_probation && !map.clear_of_wait_zones(point))
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.
@@ -179,6 +160,7 @@ pub fn geometric_check(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dop::boxes::ObjectBox;
     use nalgebra::Vector3;
 
     fn point(keyframe_id: usize, moving: f32) -> MapPoint {
@@ -261,16 +243,23 @@ mod tests {
                 frames_since: 0,
                 frames: 2,
             }),
-            clear_of: Some(&boxes),
             ..Participation::default()
         };
+        // Before any detection came back there is nothing to be clear of: all wait.
+        assert!((0..4).all(|i| gate.awaiting(&map, &on(i))));
+        assert!((0..4).all(|i| map.awaits_detection(&on(i))));
+        map.set_wait_zones(Some(boxes.to_vec()));
         let waits: Vec<bool> = (0..4).map(|i| gate.awaiting(&map, &on(i))).collect();
         assert_eq!(waits, [true, true, false, false]);
-        // Before any detection came back there is nothing to be clear of: all wait.
-        let before = Participation {
-            clear_of: None,
-            ..gate
-        };
-        assert!((0..4).all(|i| before.awaiting(&map, &on(i))));
+        // Local BA reads the same wait from the map.
+        let in_ba: Vec<bool> = (0..4).map(|i| map.awaits_detection(&on(i))).collect();
+        assert_eq!(in_ba, waits);
+        // Out of probation, after the detection came back, none waits.
+        map.detection_came_back(id);
+        let later = gate.counting_this_frame().counting_this_frame();
+        assert!((0..4).all(|i| !later.awaiting(&map, &on(i))));
+        // On probation alone, the zones still decide.
+        let on_probation: Vec<bool> = (0..4).map(|i| gate.awaiting(&map, &on(i))).collect();
+        assert_eq!(on_probation, [true, true, false, false]);
     }
 }

@@ -20,7 +20,7 @@ use serde::Serialize;
 
 use crate::detect::job::Outcome;
 use crate::detect::{write_cache, FrameDetections};
-use crate::dop::boxes::{in_dynamic_box, ObjectBox};
+use crate::dop::boxes::in_dynamic_box;
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::{DopConfig, Mode};
 use crate::eval::truth::{Classification, Recall};
@@ -137,9 +137,6 @@ pub struct Dynamics {
     applied: Vec<Applied>,
     /// The followed objects as of the latest detection (DOP mode).
     followed: Option<FollowedObjects>,
-    /// The dynamic boxes of the latest detection, widened
-    /// ([`Participation::clear_of`]; DOP mode with `wait_near_boxes_only`).
-    latest_boxes: Option<Vec<ObjectBox>>,
 }
 
 impl Dynamics {
@@ -155,7 +152,6 @@ impl Dynamics {
             awaited: Waiting::default(),
             applied: Vec::new(),
             followed: None,
-            latest_boxes: None,
         }
     }
 
@@ -172,8 +168,6 @@ impl Dynamics {
         Participation {
             dop,
             followed: self.followed.as_ref(),
-            // Kept only in DOP mode with `wait_near_boxes_only` on (`apply`).
-            clear_of: self.latest_boxes.as_deref(),
             probation: clock
                 .filter(|_| dop.is_some())
                 .map(|(keyframe_id, frames_since)| Probation {
@@ -298,7 +292,7 @@ impl Dynamics {
                 let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
                 let near = boxes.iter().filter(|b| b.dynamic);
                 let widened = near.map(|b| b.widened(NEAR_BOX_SHARE, NEAR_BOX_PX));
-                self.latest_boxes = Some(widened.collect());
+                map.set_wait_zones(Some(widened.collect()));
             }
             let done = objects.receive(
                 map,

@@ -173,8 +173,13 @@ pub struct Map {
     culled: std::collections::HashMap<KeyFrameKey, (KeyFrameKey, Se3)>,
     /// Keyframes (ids) whose detection has not come back (real-time mode). The points
     /// they made may sit on a person the detector is about to report: tracking keeps
-    /// them out of the pose while enough others remain, and local BA leaves them out.
+    /// them out of the pose while enough others remain, and local BA leaves them out
+    /// (both only those within the wait zones, when there are any).
     awaiting_detection: std::collections::HashSet<usize>,
+    /// The latest detection's dynamic boxes, widened, when only the new points near
+    /// them wait (DOP with `[tracking] wait_near_boxes_only`); `None`: every new point
+    /// waits (the rule is off, or no detection came back yet).
+    wait_zones: Option<Vec<crate::dop::boxes::ObjectBox>>,
 }
 
 /// Reads.
@@ -263,6 +268,13 @@ impl Map {
         self.awaiting_detection.remove(&keyframe_id);
     }
 
+    /// Detection waits: from now on only the new points within `zones` (image boxes
+    /// of the keyframe that made them) wait, in tracking and in local BA alike;
+    /// `None`: all of them.
+    pub fn set_wait_zones(&mut self, zones: Option<Vec<crate::dop::boxes::ObjectBox>>) {
+        self.wait_zones = zones;
+    }
+
     /// Detections: what the detector found in keyframe `key`.
     pub fn set_detections(&mut self, key: KeyFrameKey, detections: Vec<crate::detect::Detection>) {
         if let Some(kf) = self.keyframes.get_mut(key) {
@@ -299,9 +311,24 @@ impl Map {
         }
     }
 
-    /// Whether `point` was made by a keyframe whose detection has not come back.
+    /// Whether `point` was made by a keyframe whose detection has not come back, and
+    /// does not lie clear of the wait zones ([`Map::set_wait_zones`]).
     pub fn awaits_detection(&self, point: &MapPoint) -> bool {
         self.awaiting_detection.contains(&point.first_keyframe_id)
+            && !self.clear_of_wait_zones(point)
+    }
+
+    /// Whether `point`'s keypoint in its first keyframe lies clear of every wait zone
+    /// (false when there are none: every new point waits).
+    pub fn clear_of_wait_zones(&self, point: &MapPoint) -> bool {
+        let Some(zones) = self.wait_zones.as_deref() else {
+            return false;
+        };
+        let keypoint = point.observations.first().and_then(|&(key, i)| {
+            let kf = self.keyframes.get(key)?;
+            kf.frame.keypoints.get(i).map(|k| (k.x, k.y))
+        });
+        keypoint.is_some_and(|(x, y)| !crate::dop::boxes::in_dynamic_box(zones, x, y))
     }
 
     /// Inserts a keyframe, giving it the next id.

@@ -12,9 +12,9 @@ use std::collections::HashMap;
 use nalgebra::Vector3;
 
 use crate::features::ScalePyramid;
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::optim::local_ba::{bundle_adjust, BaObservation, BaProblem, BaReport};
-use crate::geometry::stereo_camera::StereoCamera;
 
 /// A copied-out window: the problem and where each of its parts came from.
 pub struct Window {
@@ -29,8 +29,9 @@ pub struct Window {
 impl Window {
     /// The window around `key` with at most `size` free keyframes; points whose moving
     /// probability is above `moving_threshold` stay out, and so do points whose
-    /// keyframe's detection has not come back (real time: they may be on a person).
-    /// `None` when there is nothing to hold the gauge.
+    /// keyframe's detection has not come back (real time: they may be on a person)
+    /// unless they lie clear of the map's wait zones, as in tracking
+    /// ([`Map::awaits_detection`]). `None` when there is nothing to hold the gauge.
     pub fn build(
         map: &Map,
         key: KeyFrameKey,
@@ -185,16 +186,19 @@ impl Window {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::Frame;
     use crate::geometry::se3::Se3;
     use crate::map::{KeyFrame, MapPoint};
-    use crate::frame::Frame;
 
     /// Real time: the points a keyframe made before its detection came back may be on
-    /// a person, and stay out of local BA until it does.
+    /// a person, and stay out of local BA until it does; with wait zones, only those
+    /// within them (as in tracking).
     #[test]
     fn points_waiting_for_their_detection_stay_out_of_the_window() {
         let n = 5;
-        let frame = Frame::blank(n, (640, 480));
+        let mut frame = Frame::blank(n, (640, 480));
+        (frame.keypoints[3].x, frame.keypoints[3].y) = (50.0, 60.0);
+        (frame.keypoints[4].x, frame.keypoints[4].y) = (500.0, 400.0);
         let mut map = Map::default();
         let first = map.add_keyframe(KeyFrame::new(frame.clone(), Se3::identity()));
         let second = map.add_keyframe(KeyFrame::new(frame, Se3::identity()));
@@ -223,5 +227,19 @@ mod tests {
         assert_eq!(points(&map), 5);
         map.await_detection(1);
         assert_eq!(points(&map), 3);
+        // A zone around the second keyframe's keypoint 3: keypoint 4 lies clear of it.
+        let zone = crate::dop::boxes::ObjectBox {
+            bbox: [20.0, 20.0, 100.0, 100.0],
+            dynamic: true,
+            depth: None,
+            moved: false,
+        };
+        map.set_wait_zones(Some(vec![zone]));
+        assert_eq!(points(&map), 4);
+        map.set_wait_zones(Some(Vec::new()));
+        assert_eq!(points(&map), 5);
+        map.detection_came_back(1);
+        map.set_wait_zones(None);
+        assert_eq!(points(&map), 5);
     }
 }

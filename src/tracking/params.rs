@@ -102,9 +102,9 @@ pub struct TrackerConfig {
     /// Only the new points near a mover wait (DOP model only): a new point whose
     /// keypoint lies clear of every dynamic box of the latest detection that came back
     /// (each widened by half its size and 16 pixels on every side: the dynamics'
-    /// `Participation::awaiting`) takes part at once, skipping both its detection wait
-    /// and its probation; points near a box, and all of them before the first detection
-    /// comes back, wait. On for stereo (`[stereo]`; real KITTI 01 at 25 m/s: a keyframe's
+    /// `Participation::awaiting`; the map's wait zones) takes part at once, in the pose
+    /// and in local BA, skipping both its detection wait and its probation; points
+    /// near a box, and all of them before the first detection comes back, wait. On for stereo (`[stereo]`; real KITTI 01 at 25 m/s: a keyframe's
     /// points are the ones that matter, docs/design.md), off for RGB-D (a person who
     /// walks in from the edge has no box yet).
     pub wait_near_boxes_only: bool,
