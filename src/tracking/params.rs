@@ -104,9 +104,10 @@ pub struct TrackerConfig {
     /// (each widened by half its size and 16 pixels on every side: the dynamics'
     /// `Participation::awaiting`; the map's wait zones) takes part at once, in the pose
     /// and in local BA, skipping both its detection wait and its probation; points
-    /// near a box, and all of them before the first detection comes back, wait. On for stereo (`[stereo]`; real KITTI 01 at 25 m/s: a keyframe's
-    /// points are the ones that matter, docs/design.md), off for RGB-D (a person who
-    /// walks in from the edge has no box yet).
+    /// near a box, and all of them before the first detection comes back, wait. On for
+    /// stereo (`[stereo]`; real KITTI 01 at 25 m/s: a keyframe's points are the ones
+    /// that matter, docs/design.md), off for RGB-D (a person who walks in from the edge
+    /// has no box yet).
     pub wait_near_boxes_only: bool,
     /// The prediction gate of the pose ([`crate::optim::pose_only`]; DOP model only):
     /// when at least this share of a frame's matches lie within half the inlier gate of
