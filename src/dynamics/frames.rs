@@ -58,8 +58,9 @@ impl Participation<'_> {
         let on_probation = self
             .probation
             .is_some_and(|p| point.first_keyframe_id == p.keyframe_id && p.frames_since < p.frames);
-        // Only a point that waits is looked up in its keyframe (most points do not).
-        map.awaits_detection(point) || (on_probation && !map.clear_of_wait_zones(point))
+        // Only a point that waits is looked up in its keyframe (most points do not),
+        // and only once: [`Map::awaits_detection`] with the probation beside it.
+        (map.keyframe_awaits_detection(point) || on_probation) && !map.clear_of_wait_zones(point)
     }
 
     /// Whether keypoint `i` of `frame` is in a removed (dynamic) state.

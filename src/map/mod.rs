@@ -314,8 +314,13 @@ impl Map {
     /// Whether `point` was made by a keyframe whose detection has not come back, and
     /// does not lie clear of the wait zones ([`Map::set_wait_zones`]).
     pub fn awaits_detection(&self, point: &MapPoint) -> bool {
+        self.keyframe_awaits_detection(point) && !self.clear_of_wait_zones(point)
+    }
+
+    /// Whether `point` was made by a keyframe whose detection has not come back,
+    /// wherever it lies.
+    pub fn keyframe_awaits_detection(&self, point: &MapPoint) -> bool {
         self.awaiting_detection.contains(&point.first_keyframe_id)
-            && !self.clear_of_wait_zones(point)
     }
 
     /// Whether `point`'s keypoint in its first keyframe lies clear of every wait zone
