@@ -38,6 +38,8 @@ pub struct Consistency {
     pub until: f64,
     /// The latest keyframe that saw the point put it on an object followed moving.
     pub on_moving_object: bool,
+    /// Trusted frames in which the point was judged, consistent or not.
+    pub tested: u32,
 }
 
 /// What one observation did to \(P\).
@@ -70,6 +72,7 @@ impl Consistency {
         moving: &mut f32,
         config: &DopConfig,
     ) -> Verdict {
+        self.tested = self.tested.saturating_add(1);
         if !consistent {
             self.inlier_run = 0;
             if dynamic {

@@ -17,6 +17,7 @@
 pub mod boxes;
 pub mod consistency;
 pub mod rigidity;
+pub mod standing;
 pub mod tracks;
 
 use serde::{Deserialize, Serialize};
@@ -192,6 +193,17 @@ pub struct DopConfig {
     pub static_check: bool,
     /// How long a box must stay still to count as static, seconds.
     pub static_seconds: f32,
+    /// Standing objects ([`standing`]): a detected box of a dynamic class that may stand
+    /// (not `never_static_classes`) whose points the geometric check finds consistent
+    /// counts as a static object on that keyframe: its points take \(S_t = 0\) and it is
+    /// no wait zone. A parked car is judged by the frames that saw it, not only by its
+    /// class.
+    pub standing_boxes: bool,
+    /// The consistent points (judged in the last `geometric_frames` frames, consistent
+    /// in each) a box needs before it can stand.
+    pub standing_min_points: u32,
+    /// The share of its judged points that must be consistent.
+    pub standing_share: f32,
 }
 
 impl Default for DopConfig {
@@ -227,6 +239,9 @@ impl Default for DopConfig {
             rigidity_agreement: 0.5,
             static_check: true,
             static_seconds: 1.0,
+            standing_boxes: true,
+            standing_min_points: 10,
+            standing_share: 0.8,
         }
     }
 }
@@ -244,6 +259,7 @@ impl DopConfig {
             ("alpha_geometric", self.alpha_geometric),
             ("geometric_max_outliers", self.geometric_max_outliers),
             ("rigidity_agreement", self.rigidity_agreement),
+            ("standing_share", self.standing_share),
         ])?;
         checks::each("dop", checks::non_negative, &[
             ("rigidity_sigmas", self.rigidity_sigmas),

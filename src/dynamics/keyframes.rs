@@ -19,6 +19,7 @@ use crate::detect::Detection;
 use crate::dop::boxes::{
     in_dynamic_box, in_moved_box, object_depth, verdicts, Keypoint, ObjectBox,
 };
+use crate::dop::standing::mark_standing;
 use crate::dop::tracks::{FollowedObjects, Object, ObjectTracks};
 use crate::dop::{update, DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
@@ -34,6 +35,9 @@ pub struct DetectionEffect {
     /// Points on a detected dynamic object that the geometric check had verified
     /// static: their update counts as \(S_t = 0\).
     pub verified_static: usize,
+    /// Detected boxes of a dynamic class that stood: static on their keyframe
+    /// ([`crate::dop::standing`]).
+    pub standing_boxes: usize,
 }
 
 impl std::ops::AddAssign for DetectionEffect {
@@ -41,6 +45,7 @@ impl std::ops::AddAssign for DetectionEffect {
         self.updated += other.updated;
         self.removed += other.removed;
         self.verified_static += other.verified_static;
+        self.standing_boxes += other.standing_boxes;
     }
 }
 
@@ -70,6 +75,20 @@ fn model_boxes(
     boxes
 }
 
+/// Marks the boxes that stand on keyframe `key` static ([`mark_standing`]) and returns
+/// how many did.
+fn stand(map: &Map, key: KeyFrameKey, boxes: &mut [ObjectBox], config: &DopConfig) -> usize {
+    let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes().get(key)) else {
+        return 0;
+    };
+    let judged: Vec<_> = kf
+        .map_points
+        .iter()
+        .map(|p| p.and_then(|p| map.points().get(p)).map(|p| p.consistency))
+        .collect();
+    mark_standing(config, &keypoints, &judged, boxes)
+}
+
 /// Applies `detections` of keyframe `key`; `dynamic_classes` are COCO names.
 pub fn apply_detections(
     map: &mut Map,
@@ -79,8 +98,12 @@ pub fn apply_detections(
     config: &DopConfig,
     alpha: f32,
 ) -> DetectionEffect {
-    let boxes = model_boxes(detections, dynamic_classes, config);
-    apply_boxes(map, key, &boxes, config, alpha)
+    let mut boxes = model_boxes(detections, dynamic_classes, config);
+    let standing_boxes = stand(map, key, &mut boxes, config);
+    DetectionEffect {
+        standing_boxes,
+        ..apply_boxes(map, key, &boxes, config, alpha)
+    }
 }
 
 /// The keypoints of keyframe `key` as the DOP model sees them.
@@ -156,6 +179,9 @@ pub struct ObjectsEffect {
     /// Dynamic boxes used on the keyframe: detected, then predicted for followed
     /// objects the detector missed.
     pub boxes: Vec<[f32; 4]>,
+    /// The detection's own dynamic boxes once the standing ones are static (where new
+    /// points wait, [`crate::map::Map::set_wait_zones`]).
+    pub zones: Vec<ObjectBox>,
     /// Boxes predicted for followed objects the detector missed.
     pub predicted_boxes: usize,
     /// Later keyframes that got this keyframe's objects (a late detection).
@@ -203,14 +229,23 @@ impl DynamicObjects {
         config: &DopConfig,
         alpha: f32,
     ) -> ObjectsEffect {
-        let mut result = ObjectsEffect::default();
+        let mut boxes = model_boxes(detections, dynamic_classes, config);
+        // A keyframe culled meanwhile: its boxes still mark where the movers are.
+        let mut result = ObjectsEffect {
+            zones: boxes.iter().filter(|b| b.dynamic).copied().collect(),
+            ..ObjectsEffect::default()
+        };
         let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes().get(key)) else {
             return result;
         };
         self.detected.insert(key);
-        let mut boxes = model_boxes(detections, dynamic_classes, config);
         if !config.track_boxes {
-            result.effect = apply_boxes(map, key, &boxes, config, alpha);
+            let standing_boxes = stand(map, key, &mut boxes, config);
+            result.zones = boxes.iter().filter(|b| b.dynamic).copied().collect();
+            result.effect = DetectionEffect {
+                standing_boxes,
+                ..apply_boxes(map, key, &boxes, config, alpha)
+            };
             result.boxes = dynamic_boxes(&boxes);
             return result;
         }
@@ -237,6 +272,8 @@ impl DynamicObjects {
         for (i, object) in owners.into_iter().zip(&objects) {
             boxes[i].moved = object.moved;
         }
+        let standing_boxes = stand(map, key, &mut boxes, config);
+        result.zones = boxes.iter().filter(|b| b.dynamic).copied().collect();
         let predicted: Vec<ObjectBox> = missed
             .iter()
             .filter_map(|o| o.to_box(&self.camera, &camera_from_world))
@@ -244,7 +281,10 @@ impl DynamicObjects {
         result.predicted_boxes = predicted.len();
         boxes.extend(predicted);
         result.boxes = dynamic_boxes(&boxes);
-        result.effect = apply_boxes(map, key, &boxes, config, alpha);
+        result.effect = DetectionEffect {
+            standing_boxes,
+            ..apply_boxes(map, key, &boxes, config, alpha)
+        };
         // Keyframes made after this one whose own detections have not come back.
         let later: Vec<(KeyFrameKey, f64)> = map
             .keyframes()
@@ -335,6 +375,14 @@ mod tests {
             score: 0.9,
             bbox: [80.0, 80.0, 160.0, 240.0],
             instance: None,
+        }]
+    }
+
+    /// A car where [`person`] has its box.
+    fn car() -> Vec<Detection> {
+        vec![Detection {
+            class: "car".into(),
+            ..person()[0].clone()
         }]
     }
 
@@ -515,10 +563,7 @@ mod tests {
     #[test]
     fn people_are_never_verified_static_but_parked_cars_are() {
         let classes = vec!["person".to_string(), "car".to_string()];
-        let car = vec![Detection {
-            class: "car".into(),
-            ..person()[0].clone()
-        }];
+        let car = car();
         let nobody = DopConfig {
             never_static_classes: Vec::new(),
             ..DopConfig::default()
@@ -545,6 +590,51 @@ mod tests {
                 assert_eq!(point.consistency.verified_static(&config), verified);
                 assert_eq!(point.moving > 0.5, !verified, "{class}");
             }
+        }
+    }
+
+    /// A car 8 m away: 12 points in its box (the first keyframe's), judged as given.
+    fn car_scene(tested: u32, inlier_run: u32) -> (Map, KeyFrameKey, Vec<crate::map::MapPointKey>) {
+        let car: Vec<(f32, f32, f32)> = (0..12)
+            .map(|i| {
+                (
+                    105.0 + (i % 4) as f32 * 10.0,
+                    130.0 + (i / 4) as f32 * 30.0,
+                    8.0,
+                )
+            })
+            .collect();
+        let (mut map, key, points) = map_with(&car);
+        for &p in &points {
+            let c = &mut map.point_mut(p).consistency;
+            (c.tested, c.inlier_run) = (tested, inlier_run);
+        }
+        (map, key, points)
+    }
+
+    /// A parked car whose points held still in the frames since they were made stands:
+    /// its points go down and it is no wait zone; a car whose points did not hold
+    /// still is raised and stays one.
+    #[test]
+    fn a_car_whose_points_hold_still_stands_on_its_keyframe() {
+        let classes = vec!["person".to_string(), "car".to_string()];
+        let car = car();
+        let config = DopConfig::default();
+        for (inlier_run, stands) in [(3, true), (0, false)] {
+            let (mut map, key, points) = car_scene(4, inlier_run);
+            let mut objects =
+                DynamicObjects::new(crate::geometry::camera::PinholeCamera::tum_fr3());
+            let done = objects.receive(&mut map, key, &car, &classes, &config, 0.5);
+            assert_eq!(done.effect.standing_boxes, usize::from(stands));
+            assert_eq!(done.zones.len(), usize::from(!stands));
+            assert_eq!(done.boxes.is_empty(), stands);
+            for &p in &points {
+                assert_eq!(map.points()[p].moving < 0.5, stands, "stands: {stands}");
+            }
+            // The same without the followed objects.
+            let (mut map, key, _) = car_scene(4, inlier_run);
+            let effect = apply_detections(&mut map, key, &car, &classes, &config, 0.5);
+            assert_eq!(effect.standing_boxes, usize::from(stands));
         }
     }
 

@@ -64,6 +64,9 @@ pub struct DetectionTotals {
     /// Updates where a point on a detected dynamic object counted as static because
     /// the geometric check had verified it (`[dop] static_check`).
     pub map_points_verified_static: usize,
+    /// Detected boxes of a dynamic class whose points the geometric check found
+    /// standing still: static on their keyframe (`[dop] standing_boxes`).
+    pub standing_boxes: usize,
     /// Keypoints called dynamic against the synthetic ground-truth masks (`masks/` of
     /// a `dopslam synth` sequence): every tracked frame with --dop, the detected
     /// keyframes with --mask-boxes (filled by the run's scorer).
@@ -288,12 +291,6 @@ impl Dynamics {
             }
         }
         if let Some(objects) = self.objects.as_mut() {
-            if config.wait_near_boxes_only {
-                let boxes = object_boxes(&frame.detections, &config.dynamic_classes);
-                let near = boxes.iter().filter(|b| b.dynamic);
-                let widened = near.map(|b| b.widened(NEAR_BOX_SHARE, NEAR_BOX_PX));
-                map.set_wait_zones(Some(widened.collect()));
-            }
             let done = objects.receive(
                 map,
                 key,
@@ -305,6 +302,14 @@ impl Dynamics {
             totals.map_points_updated += done.effect.updated;
             totals.map_points_removed += done.effect.removed;
             totals.map_points_verified_static += done.effect.verified_static;
+            totals.standing_boxes += done.effect.standing_boxes;
+            if config.wait_near_boxes_only {
+                let widened = done
+                    .zones
+                    .iter()
+                    .map(|b| b.widened(NEAR_BOX_SHARE, NEAR_BOX_PX));
+                map.set_wait_zones(Some(widened.collect()));
+            }
             totals.predicted_boxes += done.predicted_boxes;
             totals.later_keyframes_reached += done.later_keyframes;
             self.applied.push(Applied::Boxes {
@@ -326,6 +331,7 @@ impl Dynamics {
             totals.map_points_updated += done.updated;
             totals.map_points_removed += done.removed;
             totals.map_points_verified_static += done.verified_static;
+            totals.standing_boxes += done.standing_boxes;
         }
         map.set_detections(key, frame.detections);
     }
