@@ -273,6 +273,8 @@ impl DopConfig {
         checks::positive("dop.c", self.c)?;
         checks::positive("dop.delta_z", self.delta_z)?;
         checks::at_least_one("dop.geometric_frames", self.geometric_frames)?;
+        // 0 would let a box with no judged point stand: every car static.
+        checks::at_least_one("dop.standing_min_points", self.standing_min_points)?;
         let t = self.thresholds;
         if !(t[0] <= t[1] && t[1] <= t[2]) {
             return Err(BadValue::new("dop.thresholds", format!("must increase, got {t:?}")));
@@ -585,5 +587,17 @@ mod tests {
         }
         .validate()
         .is_err());
+        let none_needed = DopConfig {
+            standing_min_points: 0,
+            ..DopConfig::default()
+        };
+        let error = none_needed.validate().unwrap_err().to_string();
+        assert!(error.contains("dop.standing_min_points"), "{error}");
+        let share = DopConfig {
+            standing_share: 1.5,
+            ..DopConfig::default()
+        };
+        let error = share.validate().unwrap_err().to_string();
+        assert!(error.contains("standing_share"), "{error}");
     }
 }
