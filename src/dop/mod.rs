@@ -197,7 +197,7 @@ pub struct DopConfig {
     /// (not `never_static_classes`) whose points the geometric check finds consistent
     /// counts as a static object on that keyframe: its points take \(S_t = 0\) and it is
     /// no wait zone. A parked car is judged by the frames that saw it, not only by its
-    /// class.
+    /// class. Off without the geometric check (`geometric`), which does the judging.
     pub standing_boxes: bool,
     /// The consistent points (judged in the last `geometric_frames` frames, consistent
     /// in each) a box needs before it can stand.
