@@ -75,10 +75,16 @@ fn model_boxes(
     boxes
 }
 
-/// Marks the boxes that stand on keyframe `key` static ([`mark_standing`]) and returns
-/// how many did.
-fn stand(map: &Map, key: KeyFrameKey, boxes: &mut [ObjectBox], config: &DopConfig) -> usize {
-    let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes().get(key)) else {
+/// Marks the boxes that stand on keyframe `key` (whose DOP keypoints are `keypoints`)
+/// static ([`mark_standing`]) and returns how many did.
+fn stand(
+    map: &Map,
+    key: KeyFrameKey,
+    keypoints: &[Keypoint],
+    boxes: &mut [ObjectBox],
+    config: &DopConfig,
+) -> usize {
+    let Some(kf) = map.keyframes().get(key) else {
         return 0;
     };
     let judged: Vec<_> = kf
@@ -86,7 +92,12 @@ fn stand(map: &Map, key: KeyFrameKey, boxes: &mut [ObjectBox], config: &DopConfi
         .iter()
         .map(|p| p.and_then(|p| map.points().get(p)).map(|p| p.consistency))
         .collect();
-    mark_standing(config, &keypoints, &judged, boxes)
+    mark_standing(config, keypoints, &judged, boxes)
+}
+
+/// The dynamic ones of `boxes`: where new points wait ([`ObjectsEffect::zones`]).
+fn zones_of(boxes: &[ObjectBox]) -> Vec<ObjectBox> {
+    boxes.iter().filter(|b| b.dynamic).copied().collect()
 }
 
 /// Applies `detections` of keyframe `key`; `dynamic_classes` are COCO names.
@@ -99,7 +110,8 @@ pub fn apply_detections(
     alpha: f32,
 ) -> DetectionEffect {
     let mut boxes = model_boxes(detections, dynamic_classes, config);
-    let standing_boxes = stand(map, key, &mut boxes, config);
+    let keypoints = keypoints_of(map, key).unwrap_or_default();
+    let standing_boxes = stand(map, key, &keypoints, &mut boxes, config);
     DetectionEffect {
         standing_boxes,
         ..apply_boxes(map, key, &boxes, config, alpha)
@@ -232,7 +244,7 @@ impl DynamicObjects {
         let mut boxes = model_boxes(detections, dynamic_classes, config);
         // A keyframe culled meanwhile: its boxes still mark where the movers are.
         let mut result = ObjectsEffect {
-            zones: boxes.iter().filter(|b| b.dynamic).copied().collect(),
+            zones: zones_of(&boxes),
             ..ObjectsEffect::default()
         };
         let (Some(keypoints), Some(kf)) = (keypoints_of(map, key), map.keyframes().get(key)) else {
@@ -240,8 +252,8 @@ impl DynamicObjects {
         };
         self.detected.insert(key);
         if !config.track_boxes {
-            let standing_boxes = stand(map, key, &mut boxes, config);
-            result.zones = boxes.iter().filter(|b| b.dynamic).copied().collect();
+            let standing_boxes = stand(map, key, &keypoints, &mut boxes, config);
+            result.zones = zones_of(&boxes);
             result.effect = DetectionEffect {
                 standing_boxes,
                 ..apply_boxes(map, key, &boxes, config, alpha)
@@ -272,8 +284,8 @@ impl DynamicObjects {
         for (i, object) in owners.into_iter().zip(&objects) {
             boxes[i].moved = object.moved;
         }
-        let standing_boxes = stand(map, key, &mut boxes, config);
-        result.zones = boxes.iter().filter(|b| b.dynamic).copied().collect();
+        let standing_boxes = stand(map, key, &keypoints, &mut boxes, config);
+        result.zones = zones_of(&boxes);
         let predicted: Vec<ObjectBox> = missed
             .iter()
             .filter_map(|o| o.to_box(&self.camera, &camera_from_world))
