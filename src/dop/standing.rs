@@ -7,7 +7,9 @@
 //! detection comes back, the points the model would put on a box \(b\) (the verdicts
 //! of [`super::boxes::verdicts`]: inside the box, at the object's depth) are counted:
 //! \(n_j\) of them were judged in at least `geometric_frames` frames, and \(n_c\) of
-//! those were consistent in each of their last `geometric_frames`. The box *stands* when
+//! those held still in each of their last `geometric_frames`: consistent, or unclear
+//! (outside the pose's gate but within `geometric_gate` times it: on real images a
+//! static point whose stereo depth is a little off is often there). The box *stands* when
 //!
 //! \[ n_c \ge n_{\min} \quad\text{and}\quad n_c \ge s\, n_j \]
 //!
@@ -45,7 +47,7 @@ pub fn mark_standing(
             };
             if *v == Some(true) && b.contains(k.x, k.y) {
                 tested += 1;
-                consistent += u32::from(c.inlier_run >= frames);
+                consistent += u32::from(c.steady_run >= frames);
             }
         }
         if consistent >= config.standing_min_points
@@ -80,7 +82,7 @@ mod tests {
         }
         let wall = Consistency {
             tested: 5,
-            inlier_run: 5,
+            steady_run: 5,
             ..Consistency::default()
         };
         for i in 0..background {
@@ -103,10 +105,10 @@ mod tests {
         }
     }
 
-    fn record(tested: u32, inlier_run: u32) -> Consistency {
+    fn record(tested: u32, steady_run: u32) -> Consistency {
         Consistency {
             tested,
-            inlier_run,
+            steady_run,
             ..Consistency::default()
         }
     }

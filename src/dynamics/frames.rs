@@ -6,7 +6,7 @@
 //! steps on one frame. The tracker receives a `Participation` with each frame from
 //! [`super::Dynamics`].
 
-use crate::dop::consistency::Verdict;
+use crate::dop::consistency::{Judgement, Verdict};
 use crate::dop::tracks::FollowedObjects;
 use crate::dop::DopConfig;
 use crate::frame::Frame;
@@ -118,38 +118,38 @@ pub fn propagate_and_expand(
 }
 
 /// The DOP model's geometric check ([`crate::dop::consistency`]) on one frame's
-/// verdicts `checks` (map point, consistent), made at `time`. Frames where more than
-/// `geometric_max_outliers` of the matches that took part in the pose are inconsistent
-/// are skipped: there the pose itself is in doubt. Returns the number of points raised
-/// and lowered.
+/// verdicts `checks` (map point, judgement), made at `time`. Frames where more than
+/// `geometric_max_outliers` of the matches that took part in the pose are not
+/// consistent are skipped: there the pose itself is in doubt. Returns the number of
+/// points raised and lowered.
 pub fn geometric_check(
     dop: &DopConfig,
     map: &mut Map,
-    checks: &[(MapPointKey, bool)],
+    checks: &[(MapPointKey, Judgement)],
     time: f64,
 ) -> (usize, usize) {
     let mut judged = Vec::with_capacity(checks.len());
     let (mut total, mut outliers) = (0, 0);
-    for &(key, consistent) in checks {
+    for &(key, judgement) in checks {
         let Some(point) = map.points().get(key) else {
             continue;
         };
         let dynamic = dop.removed(point.moving);
         if !dynamic {
             total += 1;
-            outliers += usize::from(!consistent);
+            outliers += usize::from(judgement != Judgement::Consistent);
         }
-        judged.push((key, consistent, dynamic));
+        judged.push((key, judgement, dynamic));
     }
     if total == 0 || outliers as f32 > dop.geometric_max_outliers * total as f32 {
         return (0, 0);
     }
     let (mut raised, mut lowered) = (0, 0);
-    for (key, consistent, dynamic) in judged {
+    for (key, judgement, dynamic) in judged {
         let Some((moving, consistency)) = map.point_dop_mut(key) else {
             continue;
         };
-        match consistency.observe(consistent, time, dynamic, moving, dop) {
+        match consistency.judge(judgement, time, dynamic, moving, dop) {
             Verdict::Raised => raised += 1,
             Verdict::Lowered => lowered += 1,
             Verdict::Unchanged => {}

@@ -606,7 +606,7 @@ mod tests {
     }
 
     /// A car 8 m away: 12 points in its box (the first keyframe's), judged as given.
-    fn car_scene(tested: u32, inlier_run: u32) -> (Map, KeyFrameKey, Vec<crate::map::MapPointKey>) {
+    fn car_scene(tested: u32, steady_run: u32) -> (Map, KeyFrameKey, Vec<crate::map::MapPointKey>) {
         let car: Vec<(f32, f32, f32)> = (0..12)
             .map(|i| {
                 (
@@ -619,7 +619,7 @@ mod tests {
         let (mut map, key, points) = map_with(&car);
         for &p in &points {
             let c = &mut map.point_mut(p).consistency;
-            (c.tested, c.inlier_run) = (tested, inlier_run);
+            (c.tested, c.steady_run) = (tested, steady_run);
         }
         (map, key, points)
     }
@@ -632,8 +632,8 @@ mod tests {
         let classes = vec!["person".to_string(), "car".to_string()];
         let car = car();
         let config = DopConfig::default();
-        for (inlier_run, stands) in [(3, true), (0, false)] {
-            let (mut map, key, points) = car_scene(4, inlier_run);
+        for (steady_run, stands) in [(3, true), (0, false)] {
+            let (mut map, key, points) = car_scene(4, steady_run);
             let mut objects =
                 DynamicObjects::new(crate::geometry::camera::PinholeCamera::tum_fr3());
             let done = objects.receive(&mut map, key, &car, &classes, &config, 0.5);
@@ -644,7 +644,7 @@ mod tests {
                 assert_eq!(map.points()[p].moving < 0.5, stands, "stands: {stands}");
             }
             // The same without the followed objects.
-            let (mut map, key, _) = car_scene(4, inlier_run);
+            let (mut map, key, _) = car_scene(4, steady_run);
             let effect = apply_detections(&mut map, key, &car, &classes, &config, 0.5);
             assert_eq!(effect.standing_boxes, usize::from(stands));
         }

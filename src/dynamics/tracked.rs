@@ -13,6 +13,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use super::frames::{geometric_check, propagate_and_expand, Participation};
+use crate::dop::consistency::Judgement;
 use crate::dop::rigidity::{agreement, Matched};
 use crate::dop::DopConfig;
 use crate::features::{hamming, ScalePyramid, TH_LOW};
@@ -21,7 +22,7 @@ use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::Se3;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{Map, MapPoint, MapPointKey};
-use crate::optim::pose_only::{within_gate, PoseObservation};
+use crate::optim::pose_only::{within_share_of_gate, PoseObservation};
 
 /// Matches with depth a point is compared with before the rigidity test gives a
 /// verdict on it (see `crate::dop::rigidity`).
@@ -132,24 +133,25 @@ struct Judged {
     key: MapPointKey,
     /// The map point's position (world).
     position: Vector3<f64>,
-    /// Within the pose's gate.
-    consistent: bool,
+    /// Within the pose's gate, just outside it, or far outside.
+    judgement: Judgement,
     /// Left out of the pose as dynamic.
     excluded: bool,
 }
 
 /// The geometric check's verdicts on the frame's final matches: the optimisation's
 /// inliers are consistent; points that took no part (dynamic, waiting) are tested
-/// against the final pose with the same gate. A point the rigidity test finds moved
-/// ([`moved`]) is inconsistent whatever the pose says. Also returns how many the
-/// rigidity test found moved.
+/// against the final pose with the same gate. A point outside the gate is unclear
+/// within `geometric_gate` times it, else inconsistent. A point the rigidity test
+/// finds moved ([`moved`]) is inconsistent whatever the pose says. Also returns how
+/// many the rigidity test found moved.
 fn judge_matches(
     gate: &Participation,
     (map, frame): (&Map, &Frame),
     dop: &DopConfig,
     pose: &TrackedPose,
     sensor: &Sensor,
-) -> (Vec<(MapPointKey, bool)>, usize) {
+) -> (Vec<(MapPointKey, Judgement)>, usize) {
     let judged: Vec<Judged> = pose
         .candidates
         .iter()
@@ -159,17 +161,32 @@ fn judge_matches(
             let key = (*candidate)?;
             let point = map.points().get(key)?;
             let excluded = gate.excluded(point);
+            let observation = sensor.observation(frame, i, point);
+            let within = |share: f32| {
+                within_share_of_gate(
+                    sensor.camera,
+                    pose.camera_from_world,
+                    &observation,
+                    f64::from(share),
+                )
+            };
             let consistent = if excluded || gate.awaiting(map, point) {
-                let observation = sensor.observation(frame, i, point);
-                within_gate(sensor.camera, pose.camera_from_world, &observation)
+                within(1.0)
             } else {
                 inlier.is_some()
+            };
+            let judgement = if consistent {
+                Judgement::Consistent
+            } else if within(dop.geometric_gate) {
+                Judgement::Unclear
+            } else {
+                Judgement::Inconsistent
             };
             Some(Judged {
                 keypoint: i,
                 key,
                 position: point.position,
-                consistent,
+                judgement,
                 excluded,
             })
         })
@@ -178,7 +195,16 @@ fn judge_matches(
     let checks = judged
         .iter()
         .zip(&moved)
-        .map(|(j, moved)| (j.key, j.consistent && !moved))
+        .map(|(j, moved)| {
+            (
+                j.key,
+                if *moved {
+                    Judgement::Inconsistent
+                } else {
+                    j.judgement
+                },
+            )
+        })
         .collect();
     (checks, moved.iter().filter(|m| **m).count())
 }

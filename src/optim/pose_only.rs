@@ -113,7 +113,7 @@ pub fn within_gate(camera: &StereoCamera, pose: &Se3, observation: &PoseObservat
 }
 
 /// Whether `observation` reprojects within `share` of its gate from `pose`.
-fn within_share_of_gate(
+pub fn within_share_of_gate(
     camera: &StereoCamera,
     pose: &Se3,
     observation: &PoseObservation,
