@@ -22,7 +22,8 @@
 //!   `geometric_frames` consistent frames give \(P \leftarrow (1 - \alpha_g) P\), and a
 //!   keyframe's detection that puts it on a dynamic object counts as \(S_t = 0\) (a
 //!   parked car: a dynamic class that does not move; people are never verified static,
-//!   `never_static_classes`). One inconsistent frame ends the run.
+//!   `never_static_classes`). One frame that is not consistent (unclear or
+//!   inconsistent) ends the run.
 //! - **Never on a moving object**: while the latest keyframe that saw the point put it
 //!   on an object followed moving (`track_moved_metres`, [`super::tracks`]) or of a
 //!   class that moves on its own (`never_static_classes`), it is not
