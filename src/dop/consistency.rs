@@ -9,7 +9,7 @@
 //! no part in that pose, so for them the test is independent evidence.
 //!
 //! The unclear band exists for real images: a static point whose stereo depth is a
-//! little off (at 20-40 m a disparity error of half a pixel is metres) leaves the
+//! little off (at 20-40 m a disparity error of half a pixel is 0.5-2 m) leaves the
 //! \(\chi^2_{0.95}\) gate of later frames for frames in a row, on KITTI 15-19 % of the
 //! static matches, but only 2-3 % leave four times the gate. A mover leaves it by far:
 //! its map point stays where it was seen while it goes on.
