@@ -161,8 +161,9 @@ fn judge_matches(
             let key = (*candidate)?;
             let point = map.points().get(key)?;
             let excluded = gate.excluded(point);
-            let observation = sensor.observation(frame, i, point);
+            // Projected only where needed: most matches are the pose's inliers.
             let within = |share: f32| {
+                let observation = sensor.observation(frame, i, point);
                 within_share_of_gate(
                     sensor.camera,
                     pose.camera_from_world,
@@ -175,9 +176,10 @@ fn judge_matches(
             } else {
                 inlier.is_some()
             };
+            // A gate of 1 has no band: the check as before, with no second projection.
             let judgement = if consistent {
                 Judgement::Consistent
-            } else if within(dop.geometric_gate) {
+            } else if dop.geometric_gate > 1.0 && within(dop.geometric_gate) {
                 Judgement::Unclear
             } else {
                 Judgement::Inconsistent
