@@ -164,9 +164,12 @@ def against_no_dop(groups):
 
 
 if __name__ == "__main__":
-    if sys.argv[1] == "run":
-        run_line(*sys.argv[2:7])
-    elif sys.argv[1] == "table":
-        table(sys.argv[2:])
+    command, rest = (sys.argv[1], sys.argv[2:]) if len(sys.argv) > 1 else ("", [])
+    if command in ("-h", "--help"):
+        print(__doc__)
+    elif command == "run" and len(rest) == 5:
+        run_line(*rest)
+    elif command == "table" and rest and not rest[0].startswith("-"):
+        table(rest)
     else:
         sys.exit(__doc__)
