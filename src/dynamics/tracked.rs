@@ -22,7 +22,7 @@ use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::Se3;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{Map, MapPoint, MapPointKey};
-use crate::optim::pose_only::{within_share_of_gate, PoseObservation};
+use crate::optim::pose_only::{gated_error, PoseObservation};
 
 /// Matches with depth a point is compared with before the rigidity test gives a
 /// verdict on it (see `crate::dop::rigidity`).
@@ -161,25 +161,27 @@ fn judge_matches(
             let key = (*candidate)?;
             let point = map.points().get(key)?;
             let excluded = gate.excluded(point);
-            // Projected only where needed: most matches are the pose's inliers.
-            let within = |share: f32| {
+            // Projected only where needed (most matches are the pose's inliers), and
+            // once: the error against the gate answers both the gate and the band.
+            let project = || {
                 let observation = sensor.observation(frame, i, point);
-                within_share_of_gate(
-                    sensor.camera,
-                    pose.camera_from_world,
-                    &observation,
-                    f64::from(share),
-                )
+                gated_error(sensor.camera, pose.camera_from_world, &observation)
             };
-            let consistent = if excluded || gate.awaiting(map, point) {
-                within(1.0)
+            let within = |error: Option<(f64, f64)>, share: f32| {
+                error.is_some_and(|(e, g)| e <= f64::from(share) * g)
+            };
+            let (consistent, measured) = if excluded || gate.awaiting(map, point) {
+                let error = project();
+                (within(error, 1.0), Some(error))
             } else {
-                inlier.is_some()
+                (inlier.is_some(), None)
             };
             // A gate of 1 has no band: the check as before, with no second projection.
             let judgement = if consistent {
                 Judgement::Consistent
-            } else if dop.geometric_gate > 1.0 && within(dop.geometric_gate) {
+            } else if dop.geometric_gate > 1.0
+                && within(measured.unwrap_or_else(project), dop.geometric_gate)
+            {
                 Judgement::Unclear
             } else {
                 Judgement::Inconsistent

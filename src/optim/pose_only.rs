@@ -113,14 +113,28 @@ pub fn within_gate(camera: &StereoCamera, pose: &Se3, observation: &PoseObservat
 }
 
 /// Whether `observation` reprojects within `share` of its gate from `pose`.
-pub fn within_share_of_gate(
+fn within_share_of_gate(
     camera: &StereoCamera,
     pose: &Se3,
     observation: &PoseObservation,
     share: f64,
 ) -> bool {
-    error(camera, pose, observation).is_some_and(|(e, _)| {
-        squared(&e, observation.stereo, observation.information) <= share * gate(observation)
+    gated_error(camera, pose, observation).is_some_and(|(e, g)| e <= share * g)
+}
+
+/// The error \(e^\top \Omega e\) of `observation` from `pose` and its gate
+/// \(\chi^2_{0.95}\), so that one projection answers several shares of the gate;
+/// `None` where the point is behind the camera.
+pub fn gated_error(
+    camera: &StereoCamera,
+    pose: &Se3,
+    observation: &PoseObservation,
+) -> Option<(f64, f64)> {
+    error(camera, pose, observation).map(|(e, _)| {
+        (
+            squared(&e, observation.stereo, observation.information),
+            gate(observation),
+        )
     })
 }
 
