@@ -22,7 +22,7 @@ use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::Se3;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{Map, MapPoint, MapPointKey};
-use crate::optim::pose_only::{gated_error, PoseObservation};
+use crate::optim::pose_only::{error_within, gated_error, PoseObservation};
 
 /// Matches with depth a point is compared with before the rigidity test gives a
 /// verdict on it (see `crate::dop::rigidity`).
@@ -162,25 +162,24 @@ fn judge_matches(
             let point = map.points().get(key)?;
             let excluded = gate.excluded(point);
             // Projected only where needed (most matches are the pose's inliers), and
-            // once: the error against the gate answers both the gate and the band.
-            let project = || {
-                let observation = sensor.observation(frame, i, point);
-                gated_error(sensor.camera, pose.camera_from_world, &observation)
+            // at most once: the error against the gate answers both the gate and the band.
+            let projected = std::cell::OnceCell::new();
+            let error = || {
+                *projected.get_or_init(|| {
+                    let observation = sensor.observation(frame, i, point);
+                    gated_error(sensor.camera, pose.camera_from_world, &observation)
+                })
             };
-            let within = |error: Option<(f64, f64)>, share: f32| {
-                error.is_some_and(|(e, g)| e <= f64::from(share) * g)
-            };
-            let (consistent, measured) = if excluded || gate.awaiting(map, point) {
-                let error = project();
-                (within(error, 1.0), Some(error))
+            let consistent = if excluded || gate.awaiting(map, point) {
+                error_within(error(), 1.0)
             } else {
-                (inlier.is_some(), None)
+                inlier.is_some()
             };
             // A gate of 1 has no band: the check as before, with no second projection.
             let judgement = if consistent {
                 Judgement::Consistent
             } else if dop.geometric_gate > 1.0
-                && within(measured.unwrap_or_else(project), dop.geometric_gate)
+                && error_within(error(), f64::from(dop.geometric_gate))
             {
                 Judgement::Unclear
             } else {

@@ -119,7 +119,12 @@ fn within_share_of_gate(
     observation: &PoseObservation,
     share: f64,
 ) -> bool {
-    gated_error(camera, pose, observation).is_some_and(|(e, g)| e <= share * g)
+    error_within(gated_error(camera, pose, observation), share)
+}
+
+/// Whether a [`gated_error`] lies within `share` of its gate (behind the camera: no).
+pub fn error_within(error: Option<(f64, f64)>, share: f64) -> bool {
+    error.is_some_and(|(e, g)| e <= share * g)
 }
 
 /// The error \(e^\top \Omega e\) of `observation` from `pose` and its gate
