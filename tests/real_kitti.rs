@@ -169,7 +169,9 @@ fn detect_runs_on_the_left_images_of_a_stereo_clip() {
 
 /// The benchmark's table (`tools/kitti_clip_figures.py table`) puts each mode against
 /// no-DOP: runs that all lie 0.02 m above no-DOP's are a difference the test resolves,
-/// the same runs in both modes none, and 3 runs a mode get no bootstrap interval.
+/// the same runs in both modes none, and 3 runs a mode get no bootstrap interval. A
+/// variant stands against no-DOP run alike where there is such a set, else against
+/// no-DOP.
 #[test]
 fn the_benchmark_table_tells_a_difference_from_the_spread() {
     let test = "the_benchmark_table_tells_a_difference_from_the_spread";
@@ -196,7 +198,7 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
         );
         stdout
     };
-    // | clip | mode | runs | difference [interval] | share | p |
+    // | clip | mode | against | runs | difference [interval] | share | p |
     let cells = |table: &str, prefix: &str| -> Vec<String> {
         let row = table.lines().find(|l| l.starts_with(prefix));
         let row = row.unwrap_or_else(|| panic!("no row {prefix} in\n{table}"));
@@ -214,23 +216,32 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
         }
         runs += &apart;
         runs += &(line("06", "no-dop", ate) + &line("06", "dop", ate));
+        // A variant run in both modes, 0.02 m above plain no-DOP; one run in DOP only.
+        let above = ate + 0.020;
+        runs += &(line("06", "no-dop, varied", above) + &line("06", "dop, varied", above));
+        runs += &line("06", "dop, no detector", above);
     }
     let eight = table(&runs);
-    let apart = cells(&eight, "| KITTI 01 | dop | 8 / 8 |");
-    assert!(apart[4].starts_with("+0.020 ["), "{apart:?}");
-    assert_eq!(apart[5], "1.00");
-    assert!(apart[6].parse::<f64>().unwrap() <= 0.02, "{apart:?}");
-    let same = cells(&eight, "| KITTI 06 | dop | 8 / 8 |");
+    let apart = cells(&eight, "| KITTI 01 | dop | no-dop | 8 / 8 |");
+    assert!(apart[5].starts_with("+0.020 ["), "{apart:?}");
+    assert_eq!(apart[6], "1.00");
+    assert!(apart[7].parse::<f64>().unwrap() <= 0.02, "{apart:?}");
+    let varied = "| KITTI 06 | dop, varied | no-dop, varied | 8 / 8 |";
+    let alike = cells(&eight, varied);
+    assert_eq!((alike[6].as_str(), alike[7].as_str()), ("0.50", "1.00"));
+    let alone = cells(&eight, "| KITTI 06 | dop, no detector | no-dop | 8 / 8 |");
+    assert_eq!(alone[6], "1.00");
+    let same = cells(&eight, "| KITTI 06 | dop | no-dop | 8 / 8 |");
     // The interval of no difference holds zero.
-    let interval: Vec<f64> = same[4]
+    let interval: Vec<f64> = same[5]
         .split(|c| "[], ".contains(c))
         .filter_map(|v| v.parse().ok())
         .collect();
     assert!(interval.len() == 3 && interval[0] == 0.0, "{same:?}");
     assert!(interval[1] < 0.0 && interval[2] > 0.0, "{same:?}");
-    assert_eq!((same[5].as_str(), same[6].as_str()), ("0.50", "1.00"));
+    assert_eq!((same[6].as_str(), same[7].as_str()), ("0.50", "1.00"));
     // Three runs a mode: all apart, yet no interval, and p no lower than 0.1.
-    let three = cells(&table(&few), "| KITTI 01 | dop | 3 / 3 |");
-    assert!(!three[4].contains('['), "{three:?}");
-    assert_eq!((three[5].as_str(), three[6].as_str()), ("1.00", "0.10"));
+    let three = cells(&table(&few), "| KITTI 01 | dop | no-dop | 3 / 3 |");
+    assert!(!three[5].contains('['), "{three:?}");
+    assert_eq!((three[6].as_str(), three[7].as_str()), ("1.00", "0.10"));
 }

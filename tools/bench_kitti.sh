@@ -8,7 +8,7 @@
 # forgiven), estimated path length / true, median tracking time per frame.
 #
 #   bash tools/bench_kitti.sh [--runs N] [--modes "dop no-dop"] [--extra] [--offset]
-#                             [--decompose] [--paced] [--out DIR]
+#                             [--decompose] [--paced] [--perturbed] [--out DIR]
 #     --offset  each mode also without the rig's disparity offset ([global]
 #               disparity_offset = false: neither found before tracking nor after)
 #     --extra   also single runs of --dop --deterministic, --no-dop --deterministic,
@@ -23,6 +23,10 @@
 #     --paced   each mode also played at the recording's rate (--pace recording), as
 #               ORB-SLAM2's stereo_kitti example plays KITTI (it waits for each frame's
 #               time); the default plays frames as fast as the tracker goes
+#     --perturbed each mode also --deterministic under 9 variants of the clip's settings
+#               file (ORBextractor.nFeatures 1900/2000/2100 x iniThFAST 19/20/21): a
+#               spread of runs without the threads' timing, each variant run by every
+#               mode; such a mode stands against no-dop varied alike
 # Runs of several script runs pool into one table (the spread between real-time runs is
 # as large as the differences between modes: pool before you compare):
 #   python3 tools/kitti_clip_figures.py table OUT1/runs.tsv OUT2/runs.tsv ...
@@ -38,6 +42,7 @@ extra=0
 offset=0
 decompose=0
 paced=0
+perturbed=0
 out=outputs/bench/kitti
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -47,6 +52,7 @@ while [ $# -gt 0 ]; do
     --offset) offset=1; shift ;;
     --decompose) decompose=1; shift ;;
     --paced) paced=1; shift ;;
+    --perturbed) perturbed=1; shift ;;
     --out) out=$2; shift 2 ;;
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
@@ -64,12 +70,14 @@ printf '[stereo]\nbearing_baselines = 0.0\n' > "$out/bearings_off.toml"
 printf '[global]\ndisparity_offset = false\n' > "$out/no_offset.toml"
 printf '[detector]\nsource = "onnx"\n' > "$out/detector_on.toml"
 # One run: clip, label, repetition, then dopslam's arguments. Appends a line to runs.tsv.
+# The settings file: $orb_settings when set, else the clip's.
 one() {
   local clip=$1 label=$2 rep=$3; shift 3
+  local settings=${orb_settings:-$(settings_of "$clip")}
   local slug=${label//[^a-z0-9-]/_}
   local dir="$out/runs/$clip-$slug-r$rep"
   rm -rf "$dir"
-  if ! "$bin" run "$kitti/sequences/$clip" --settings "$(settings_of "$clip")" --out "$dir" --no-dense "$@" >"$dir.log" 2>&1; then
+  if ! "$bin" run "$kitti/sequences/$clip" --settings "$settings" --out "$dir" --no-dense "$@" >"$dir.log" 2>&1; then
     echo "$clip $label: dopslam run failed (see $dir.log)" >&2; return
   fi
   python3 tools/kitti_clip_figures.py run "$bin" "$kitti" "$clip" "$label" "$dir" >> "$out/runs.tsv"
@@ -100,6 +108,20 @@ for clip in 01 06; do
     one "$clip" "no-dop --deterministic" 1 --no-dop --deterministic
     one "$clip" "mask-boxes" 1 --mask-boxes
     one "$clip" "dop, bearing_baselines = 0 (before)" 1 --dop --config "$out/bearings_off.toml"
+  fi
+  if [ "$perturbed" = 1 ]; then
+    for features in 1900 2000 2100; do
+      for fast in 19 20 21; do
+        varied="$out/settings-$clip-$features-$fast.yaml"
+        sed -e "s/^ORBextractor.nFeatures:.*/ORBextractor.nFeatures: $features/" \
+            -e "s/^ORBextractor.iniThFAST:.*/ORBextractor.iniThFAST: $fast/" \
+            "$(settings_of "$clip")" > "$varied"
+        for mode in $modes; do
+          orb_settings=$varied one "$clip" "$mode, deterministic, settings varied" \
+            "$features-$fast" "--$mode" --deterministic
+        done
+      done
+    done
   fi
 done
 python3 tools/kitti_clip_figures.py table "$out/runs.tsv" | tee "$out/results.md"
