@@ -198,7 +198,7 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
         );
         stdout
     };
-    // | clip | mode | against | runs | difference [interval] | share | p |
+    // | clip | mode | against | runs | difference [interval] | share | p | paired |
     let cells = |table: &str, prefix: &str| -> Vec<String> {
         let row = table.lines().find(|l| l.starts_with(prefix));
         let row = row.unwrap_or_else(|| panic!("no row {prefix} in\n{table}"));
@@ -218,7 +218,8 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
         runs += &(line("06", "no-dop", ate) + &line("06", "dop", ate));
         // A variant run in both modes, 0.02 m above plain no-DOP; one run in DOP only.
         let above = ate + 0.020;
-        runs += &(line("06", "no-dop, varied", above) + &line("06", "dop, varied", above));
+        runs += &line("06", "no-dop, settings varied", above);
+        runs += &line("06", "dop, settings varied", above);
         runs += &line("06", "dop, no detector", above);
     }
     let eight = table(&runs);
@@ -226,9 +227,12 @@ fn the_benchmark_table_tells_a_difference_from_the_spread() {
     assert!(apart[5].starts_with("+0.020 ["), "{apart:?}");
     assert_eq!(apart[6], "1.00");
     assert!(apart[7].parse::<f64>().unwrap() <= 0.02, "{apart:?}");
-    let varied = "| KITTI 06 | dop, varied | no-dop, varied | 8 / 8 |";
+    let varied = "| KITTI 06 | dop, settings varied | no-dop, settings varied | 8 / 8 |";
     let alike = cells(&eight, varied);
     assert_eq!((alike[6].as_str(), alike[7].as_str()), ("0.50", "1.00"));
+    // Settings variants pair in order: the same runs, larger in none.
+    assert_eq!(alike[8], "0 of 8, +0.0000");
+    assert_eq!(apart[8], "-");
     let alone = cells(&eight, "| KITTI 06 | dop, no detector | no-dop | 8 / 8 |");
     assert_eq!(alone[6], "1.00");
     let same = cells(&eight, "| KITTI 06 | dop | no-dop | 8 / 8 |");
