@@ -116,6 +116,8 @@ for clip in 01 06; do
         sed -e "s/^ORBextractor.nFeatures:.*/ORBextractor.nFeatures: $features/" \
             -e "s/^ORBextractor.iniThFAST:.*/ORBextractor.iniThFAST: $fast/" \
             "$(settings_of "$clip")" > "$varied"
+        grep -q "^ORBextractor.iniThFAST: $fast\$" "$varied" && grep -q "^ORBextractor.nFeatures: $features\$" "$varied" \
+          || { echo "$(settings_of "$clip"): no ORBextractor.nFeatures/iniThFAST line to vary" >&2; exit 1; }
         for mode in $modes; do
           orb_settings=$varied one "$clip" "$mode, deterministic, settings varied" \
             "$features-$fast" "--$mode" --deterministic
