@@ -121,23 +121,43 @@ fn print_search_order(cwd: &Path) {
     println!("looked for, in this order:");
     println!("  1. explicit paths in the config: [detector] model_path / ort_library, [global] vocabulary; ORT_DYLIB_PATH for the runtime");
     match std::env::var_os(data_dir::ENV) {
-        Some(v) => println!("  2. {}={} (when set, the only place looked at)", data_dir::ENV, v.to_string_lossy()),
+        Some(v) => {
+            let path = Path::new(&v);
+            let problem = match () {
+                _ if path.is_dir() => "",
+                _ if path.exists() => " (it names a file, not a folder: nothing is found there)",
+                _ => " (no such folder: nothing is found there)",
+            };
+            println!("  2. {}={} (when set, the only place looked at){problem}", data_dir::ENV, v.to_string_lossy())
+        }
         None => println!("  2. {} (unset)", data_dir::ENV),
     }
     match data_dir::install_record() {
-        Some(record) if record.is_file() => {
-            let named = std::fs::read_to_string(&record).unwrap_or_default().trim().to_string();
-            let skipped = match Path::new(&named) {
-                p if !p.is_absolute() => " (skipped: not an absolute path)",
-                p if !p.is_dir() => " (skipped: no such directory; run tools/setup.sh again)",
-                _ => "",
-            };
-            println!("  3. the install record {} -> {named}{skipped}", record.display())
-        }
-        Some(record) => println!("  3. the install record {} (none: tools/setup.sh writes it)", record.display()),
+        Some(record) => println!("  3. the install record {}", record_line(&record)),
         None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
     }
     println!("  4. ./data under the working directory ({})", cwd.join("data").display());
+}
+
+/// The install record and what it says: the folder it names, or why it is skipped.
+fn record_line(record: &Path) -> String {
+    let shown = record.display();
+    if record.is_dir() {
+        return format!("{shown} (skipped: a folder, not the file tools/setup.sh writes)");
+    }
+    if !record.exists() {
+        return format!("{shown} (none: tools/setup.sh writes it)");
+    }
+    let named = match std::fs::read_to_string(record) {
+        Ok(text) => text.trim().to_string(),
+        Err(e) => return format!("{shown} (skipped: it cannot be read: {e})"),
+    };
+    let skipped = match Path::new(&named) {
+        p if !p.is_absolute() => " (skipped: not an absolute path)",
+        p if !p.is_dir() => " (skipped: no such directory; run tools/setup.sh again)",
+        _ => "",
+    };
+    format!("{shown} -> {named}{skipped}")
 }
 
 /// The files a run with `config` loads (the optional detector models besides), with

@@ -74,15 +74,23 @@ enum GraphCommand {
     },
 }
 
+/// The PNG and JPEG images below `inputs` (depth maps and masks left out). Each folder
+/// is listed once, by its real path: a symbolic link back to a folder above (a loop)
+/// adds nothing; a link that leads nowhere inside a folder is skipped with a warning.
 fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
-    let mut stack: Vec<PathBuf> = inputs.to_vec();
-    while let Some(path) = stack.pop() {
+    let mut listed = std::collections::HashSet::new();
+    let mut stack: Vec<(PathBuf, bool)> = inputs.iter().map(|p| (p.clone(), true)).collect();
+    while let Some((path, given)) = stack.pop() {
         if path.is_dir() {
+            let real = path.canonicalize().unwrap_or_else(|_| path.clone());
+            if !listed.insert(real) {
+                continue;
+            }
             for entry in std::fs::read_dir(&path)
                 .with_context(|| format!("cannot list {}", path.display()))?
             {
-                stack.push(entry?.path());
+                stack.push((entry?.path(), false));
             }
         } else if path.is_file() {
             let ext = path
@@ -101,8 +109,13 @@ fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
             if matches!(ext.as_str(), "png" | "jpg" | "jpeg") && !skip {
                 files.push(path);
             }
-        } else {
+        } else if given {
             bail!("{}: no such file or folder", path.display());
+        } else {
+            eprintln!(
+                "warning: {}: a symbolic link that leads to no file or folder (a loop, or its target is gone): skipped",
+                path.display()
+            );
         }
     }
     files.sort();

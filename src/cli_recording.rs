@@ -177,6 +177,13 @@ pub fn run_convert(args: ConvertArgs, mut config: Config) -> Result<()> {
         LayoutArg::Kitti => Layout::Kitti,
     };
     // The output is checked before the recording is scanned (which can take a while).
+    if dopslam::io::output::is_within(&args.out, &args.input) {
+        anyhow::bail!(
+            "{}: the output folder is inside the input {}: dopslam never writes into its inputs; choose a folder elsewhere",
+            args.out.display(),
+            args.input.display()
+        );
+    }
     let partial = convert::prepare(&args.out, layout)?;
     std::fs::remove_dir_all(&partial)?;
     let sequence = dopslam::run::open_sequence(&args.input, &config)?;

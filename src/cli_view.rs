@@ -150,21 +150,22 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
             Logger::open(Target::File(path), &config.output, "dopslam")?
         }
     };
-    let log = logger.waiting_handle();
-    if let Some(camera) = summary.camera() {
-        dopslam::run::log_pinhole(&log, camera);
-    }
-    let sequence = open_reported_sequence(summary.sequence_path.as_deref(), &config);
-    let replayed =
-        dopslam::view::results::replay_frames(&log, &run, &summary, sequence.as_deref())?;
-    let truth = sequence.as_deref().and_then(|s| s.ground_truth());
-    dopslam::view::results::log_results(&log, &run, "", truth)?;
-    let baseline = run.sub_run(dopslam::io::run_dir::names::NO_DOP);
-    if baseline.report().exists() {
-        dopslam::view::results::log_results(&log, &baseline, "no_dop", None)?;
-    }
-    drop(log);
     let target = logger.target.clone();
+    let replayed = match replay(&logger, &run, &summary, &config) {
+        Ok(replayed) => replayed,
+        Err(e) => {
+            // The recording was made new by this command: a partial one goes.
+            drop(logger);
+            if let Target::File(path) = &target {
+                let _ = std::fs::remove_file(path);
+                bail!(
+                    "{e:#} (the partial recording {} was removed)",
+                    path.display()
+                );
+            }
+            return Err(e);
+        }
+    };
     dopslam::run::finish_recording(logger, false)?;
     println!(
         "{} frames ({} poses, {} images, {} keyframes' boxes) into {}",
@@ -172,12 +173,32 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         replayed.poses,
         replayed.images,
         replayed.keyframe_boxes,
-        match target {
-            Target::File(path) => path.display().to_string(),
-            Target::Connect(address) => address,
-        }
+        target.name()
     );
     Ok(())
+}
+
+/// Logs the run folder `run` (its frames, then its results and its baseline's) into
+/// `logger`'s recording.
+fn replay(
+    logger: &Logger,
+    run: &RunDir,
+    summary: &dopslam::io::run_dir::RunSummary,
+    config: &Config,
+) -> Result<dopslam::view::results::Replayed> {
+    let log = logger.waiting_handle();
+    if let Some(camera) = summary.camera() {
+        dopslam::run::log_pinhole(&log, camera);
+    }
+    let sequence = open_reported_sequence(summary.sequence_path.as_deref(), config);
+    let replayed = dopslam::view::results::replay_frames(&log, run, summary, sequence.as_deref())?;
+    let truth = sequence.as_deref().and_then(|s| s.ground_truth());
+    dopslam::view::results::log_results(&log, run, "", truth)?;
+    let baseline = run.sub_run(dopslam::io::run_dir::names::NO_DOP);
+    if baseline.report().exists() {
+        dopslam::view::results::log_results(&log, &baseline, "no_dop", None)?;
+    }
+    Ok(replayed)
 }
 
 /// `NAME.rrd` in the working folder for the run folder `NAME`.

@@ -370,8 +370,21 @@ fn runs_made_with_other_settings_are_run_again_or_kept_marked_stale() {
     assert_eq!(frames_of(&run), 20, "kept");
     let rows = csv_rows(&out.join("runs.csv"));
     assert_eq!(rows[0][3], "stale", "{rows:?}");
+    let text = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|c| *c == "stale_runs").unwrap();
+    assert_eq!(csv_rows(&out.join("results.csv"))[0][column], "1", "{text}");
     let results = std::fs::read_to_string(out.join("results.md")).unwrap();
     assert!(results.contains("Stale runs") && results.contains("frames 20 -> 15"), "{results}");
+    // The sequence's own calibration counts by its content.
+    let calibration = out.join("sequences/static_room/calibration.yaml");
+    let mut text = std::fs::read_to_string(&calibration).unwrap();
+    text.push_str("# edited\n");
+    std::fs::write(&calibration, text).unwrap();
+    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--keep-stale"]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let results = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(results.contains("sequence calibration changed"), "{results}");
     // --collect with another manifest than the folder's own.
     let other = dir.join("other.toml");
     std::fs::write(&other, "[batch]\nmodes = [\"dop\"]\n\n[[sequence]]\npreset = \"static_room\"\n").unwrap();

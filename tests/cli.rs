@@ -357,6 +357,29 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
     let text = String::from_utf8_lossy(&doctor.stdout);
     assert!(!doctor.status.success());
     assert!(text.contains("MISSING") && text.contains("DOPSLAM_DATA"), "{text}");
+    // DOPSLAM_DATA naming a file; an install record that is a folder, or unreadable.
+    let xdg = base.join("xdg");
+    let record = xdg.join("dopslam/data-dir");
+    std::fs::create_dir_all(&record).unwrap();
+    let doctor_says = |data: &Path| {
+        let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+            .current_dir(&base)
+            .env("DOPSLAM_DATA", data)
+            .env("XDG_DATA_HOME", &xdg)
+            .arg("doctor")
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&output.stdout).into_owned()
+    };
+    let file = base.join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let text = doctor_says(&file);
+    assert!(text.contains("it names a file, not a folder"), "{text}");
+    assert!(text.contains("skipped: a folder, not the file"), "{text}");
+    std::fs::remove_dir(&record).unwrap();
+    std::fs::write(&record, [0xff, 0xfe, 0x00]).unwrap();
+    let text = doctor_says(&empty);
+    assert!(text.contains("skipped: it cannot be read"), "{text}");
     // The checkout's data directory, when setup installed the detector into it.
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     if !data.join("ort/libonnxruntime.so").exists()

@@ -172,6 +172,12 @@ fn vocabularies() {
     case("vocab train on black images", &["vocab", "train", &s(&black), "-o", &s(&vocab)], false, &["no ORB keypoints"]);
     assert!(!vocab.exists(), "no vocabulary is written");
     case("vocab train -o unwritable", &["vocab", "train", &s(&black), "-o", "/proc/dopslam/v.dbow"], false, &["cannot"]);
+    // Symbolic-link loops inside the folder: listed once, a link to itself skipped.
+    std::os::unix::fs::symlink(&black, black.join("up")).unwrap();
+    std::os::unix::fs::symlink(black.join("self"), black.join("self")).unwrap();
+    case("vocab train on link loops", &["vocab", "train", &s(&black), "-o", &s(&vocab)], false, &["self", "skipped", "no ORB keypoints"]);
+    std::fs::remove_file(black.join("up")).unwrap();
+    std::fs::remove_file(black.join("self")).unwrap();
     // A vocabulary whose header says k = 0, L = 0.
     let shipped = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/vocabulary.dbow")).unwrap();
     let mut edited = shipped.clone();

@@ -272,6 +272,17 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
         .parse()
         .unwrap();
     assert!((1..12).contains(&frames), "{out}");
+    // A run of it keeps the cut in report.json.
+    let run = dir.join("out-cut");
+    let (ok, _, err) = track(&path, &run, "");
+    assert!(ok, "{err}");
+    let report = std::fs::read_to_string(run.join("report.json")).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+    let warnings = report["setup"]["input_warnings"].to_string();
+    assert!(
+        warnings.contains("cut short") && warnings.contains("byte"),
+        "{warnings}"
+    );
 
     // A topic that is not there: the error lists the topics present with their types.
     let (ok, _, err) = info(
@@ -743,4 +754,175 @@ fn a_stereo_bag_tracks_as_its_kitti_folder_and_converts_back() {
         &dir.join("tum").to_string_lossy(),
     ]);
     assert!(!ok && err.contains("--to kitti"), "{err}");
+}
+
+/// The files in `dir`, by name.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// A recording with colour alone (no depth, no second camera) is monocular: refused as
+/// such by `info` and `run`, also with a colour topic named and a camera given, never
+/// taken for a stereo pair of one topic with itself.
+#[test]
+fn a_recording_without_depth_or_a_pair_is_refused_as_monocular() {
+    let Some(python) = writer_python("a_recording_without_depth_or_a_pair_is_refused_as_monocular")
+    else {
+        return;
+    };
+    let dir = common::temp_dir("recordings-mono");
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, 4);
+    let bag = dir.join("mono.bag");
+    write(&python, &seq, &bag, &["--format", "ros1", "--no-depth"]);
+    for extra in [&[][..], &["--rgb-topic", "/camera/rgb/image_color"][..]] {
+        let (ok, out, err) = info(&bag, extra);
+        assert!(
+            !ok && err.contains("monocular input is not supported"),
+            "{out}{err}"
+        );
+        assert!(
+            !out.contains("stereo pair") && !err.contains("panicked"),
+            "{out}{err}"
+        );
+    }
+    let (ok, out, err) = common::dopslam(&[
+        "run",
+        &bag.to_string_lossy(),
+        "--rgb-topic",
+        "/camera/rgb/image_color",
+        "--camera",
+        "525,525,319.5,239.5",
+        "--out",
+        &dir.join("out").to_string_lossy(),
+        "--no-dense",
+        "--detections",
+        "none",
+    ]);
+    assert!(
+        !ok && err.contains("monocular input is not supported"),
+        "{out}{err}"
+    );
+    assert!(!out.contains("tracked"), "{out}");
+    // Its colour topic named as depth: refused by `info` already, not at frame 0.
+    let (ok, _, err) = info(&bag, &["--depth-topic", "/camera/rgb/image_color"]);
+    assert!(
+        !ok && err.contains("carries colour or grey images, not depth"),
+        "{err}"
+    );
+}
+
+/// A ROS 2 SQLite bag in WAL mode (rosbag2's `resilient` preset) is read without any
+/// file appearing beside it; a journal its recorder left there is named as unread.
+#[test]
+fn a_wal_mode_sqlite_bag_is_read_without_writing_beside_it() {
+    let Some(python) = writer_python("a_wal_mode_sqlite_bag_is_read_without_writing_beside_it")
+    else {
+        return;
+    };
+    let dir = common::temp_dir("recordings-wal");
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, 4);
+    // A folder whose name SQLite's URIs would misread unless encoded (the writer
+    // itself cannot write there: it is renamed after).
+    let bag = dir.join("wal bag?#%");
+    write(
+        &python,
+        &seq,
+        &dir.join("wal"),
+        &["--format", "ros2-sqlite"],
+    );
+    std::fs::rename(dir.join("wal"), &bag).unwrap();
+    let db3 = common::sorted_files(&bag)
+        .into_iter()
+        .find(|p| p.extension().is_some_and(|e| e == "db3"))
+        .unwrap();
+    {
+        let connection = rusqlite::Connection::open(&db3).unwrap();
+        let mode: String = connection
+            .query_row("PRAGMA journal_mode=WAL", [], |row| row.get(0))
+            .unwrap();
+        assert_eq!(mode, "wal");
+    }
+    let before = names_in(&bag);
+    for path in [bag.clone(), db3.clone()] {
+        let (ok, out, err) = info(&path, &[]);
+        assert!(ok && out.contains("frames: 4 "), "{out}{err}");
+        assert_eq!(names_in(&bag), before, "nothing written beside the bag");
+    }
+    // Nor converted into it.
+    let inside = bag.join("tum");
+    let (ok, _, err) = common::dopslam(&[
+        "convert",
+        &bag.to_string_lossy(),
+        "--to",
+        "tum",
+        &inside.to_string_lossy(),
+    ]);
+    assert!(!ok && err.contains("never writes into its inputs"), "{err}");
+    assert_eq!(names_in(&bag), before, "nothing written into the bag");
+    let mut journal = db3.clone().into_os_string();
+    journal.push("-wal");
+    std::fs::write(&journal, [1u8; 64]).unwrap();
+    let (ok, out, err) = info(&db3, &[]);
+    assert!(ok && (out + &err).contains("-wal (64 bytes) lies beside the bag"));
+}
+
+/// An MCAP file whose summary lies about a chunk (shorter than a record's frame, or at
+/// an offset near 2^64) is refused with the index and the byte named, never a panic; a
+/// cut one says how to recover it.
+#[test]
+fn a_lying_or_cut_mcap_is_named_not_panicked_on() {
+    let Some(python) = writer_python("a_lying_or_cut_mcap_is_named_not_panicked_on") else {
+        return;
+    };
+    let dir = common::temp_dir("recordings-mcap");
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, 4);
+    let bag = dir.join("bag");
+    write(&python, &seq, &bag, &["--format", "ros2-mcap"]);
+    let file = common::sorted_files(&bag)
+        .into_iter()
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .unwrap();
+    let bytes = std::fs::read(&file).unwrap();
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+    let index = &summary.chunk_indexes[0];
+    // The chunk index record holds the chunk's offset then its length.
+    let key = [
+        index.chunk_start_offset.to_le_bytes(),
+        index.chunk_length.to_le_bytes(),
+    ]
+    .concat();
+    let at = bytes.windows(16).rposition(|w| w == &key[..]).unwrap();
+    let crc_at = bytes.len() - mcap::MAGIC.len() - 4;
+    for (name, offset, length) in [
+        ("short.mcap", index.chunk_start_offset, 5u64),
+        ("far.mcap", u64::MAX - 255, index.chunk_length),
+    ] {
+        let mut lying = bytes.clone();
+        lying[at..at + 8].copy_from_slice(&offset.to_le_bytes());
+        lying[at + 8..at + 16].copy_from_slice(&length.to_le_bytes());
+        lying[crc_at..crc_at + 4].copy_from_slice(&[0; 4]); // no summary CRC to check
+        let path = dir.join(name);
+        std::fs::write(&path, &lying).unwrap();
+        let (ok, out, err) = info(&path, &[]);
+        assert!(!ok && !err.contains("panicked"), "{out}{err}");
+        assert!(
+            err.contains(name) && err.contains("chunk index 0") && err.contains("byte"),
+            "{err}"
+        );
+    }
+    let path = dir.join("cut.mcap");
+    std::fs::write(&path, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let (ok, _, err) = info(&path, &[]);
+    assert!(
+        !ok && err.contains("cut short") && err.contains("mcap recover"),
+        "{err}"
+    );
 }

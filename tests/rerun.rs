@@ -301,6 +301,38 @@ fn unwritable_recordings_fail_first_and_a_missing_viewer_warns() {
         "{err}"
     );
     assert!(out.join("report.json").exists());
+    // A viewer that accepts and never reads: the run and `view --connect` end after a
+    // bounded wait, saying what was not delivered.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = format!("127.0.0.1:{}", listener.local_addr().unwrap().port());
+    std::thread::spawn(move || {
+        let held: Vec<_> = listener.incoming().collect();
+        drop(held);
+    });
+    let (seq_arg, out_arg) = (seq.to_string_lossy(), out.to_string_lossy());
+    let limit = std::time::Duration::from_secs(120);
+    let mut args = vec!["run", &seq_arg, "--out", &out_arg, "--detections", "none"];
+    args.extend(["--no-dense", "--no-global", "--rerun-connect", &address]);
+    let (ok, _, err) = common::dopslam_within(&args, limit);
+    assert!(ok && err.contains("stopped taking the recording"), "{err}");
+    assert!(err.contains("the run's files are complete"), "{err}");
+    assert!(out.join("report.json").exists());
+    let view = ["view", &out_arg, "--connect", &address];
+    let (ok, _, err) = common::dopslam_within(&view, limit);
+    assert!(ok && err.contains("stopped taking the recording"), "{err}");
+    // `view` of a run folder whose trajectory is damaged leaves no partial recording.
+    for name in ["trajectory.txt", "trajectory_tracking.txt"] {
+        if out.join(name).exists() {
+            std::fs::write(out.join(name), "1.0 not a pose\n").unwrap();
+        }
+    }
+    let partial = dir.join("partial.rrd");
+    let (ok, _, err) = common::dopslam(&["view", &out_arg, "-o", &partial.to_string_lossy()]);
+    assert!(
+        !ok && err.contains("partial recording") && err.contains("removed"),
+        "{err}"
+    );
+    assert!(!partial.exists());
     // `view` of what is not a finished run folder names it.
     let missing = dir.join("missing");
     for (folder, says) in [

@@ -5,6 +5,13 @@
 # (git-ignored). A crash stops the script with libFuzzer's report and the input under
 # tools/fuzz/artifacts/TARGET/: add it to tests/bad_input.rs as a regression test.
 #
+# No single allocation may exceed 1100 MB (-malloc_limit_mb: a chunk may announce
+# up to 1 GiB decompressed, see docs/recordings.md); one larger is a crash, as a panic is.
+# The container readers (ros1_bag, mcap, ros2_sqlite, matroska) read inputs up to
+# 256 KiB; their seeds come from tools/fuzz/make_recording_seeds.py. A minute each:
+#
+#   bash tools/fuzz.sh 60 ros1_bag mcap ros2_sqlite matroska
+#
 #   bash tools/fuzz.sh [SECONDS] [TARGET...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,7 +31,11 @@ bin=tools/fuzz/target/$(rustc -vV | sed -n 's/^host: //p')/release
 for target in "${targets[@]}"; do
     echo "== $target: ${seconds} s"
     mkdir -p "outputs/fuzz/$target" "tools/fuzz/artifacts/$target"
+    case "$target" in
+        ros1_bag|mcap|ros2_sqlite|matroska) max_len=262144 ;;
+        *) max_len=65536 ;;
+    esac
     "$bin/$target" "outputs/fuzz/$target" "tools/fuzz/corpus/$target" \
-        -max_total_time="$seconds" -rss_limit_mb=2048 -max_len=65536 \
+        -max_total_time="$seconds" -rss_limit_mb=2048 -malloc_limit_mb=1100 -max_len=$max_len \
         -artifact_prefix="tools/fuzz/artifacts/$target/" 2>&1 | tail -n 3
 done

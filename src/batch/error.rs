@@ -45,6 +45,14 @@ pub enum BatchError {
     /// Another batch holds the output folder's lock.
     #[error("another dopslam batch is writing into {}: wait for it to end or choose another --out", .0.display())]
     Busy(PathBuf),
+    /// The same shard already runs on the output folder.
+    #[error("shard {shard} of the batch in {} is already running: a shard runs once at a time (wait for it, or cancel it)", out.display())]
+    ShardBusy {
+        /// The output folder.
+        out: PathBuf,
+        /// The shard, `K/N`.
+        shard: String,
+    },
     /// `--collect` with another manifest than the one the batch ran with.
     #[error(
         "{} is the batch of another manifest (its copy {} differs from {}): collect with that manifest, or run this one into another --out",

@@ -5,6 +5,12 @@
 //! settings file it names, the detector's files and the `dopslam` binary. Each is a
 //! value or an FNV-1a hash of the content ([`crate::run::content_hash`]), under a name, so that a
 //! difference can be said by name ("frames 10 -> 30", "config changed").
+//!
+//! The sequence counts by what it holds ([`sequence_files`]): the content of its text
+//! files (its own calibration, the association and timestamp lists, the ground truth),
+//! and each other file's name, size and modification time (the frames; a recording
+//! file likewise). Not checked: a frame rewritten in place with the same size and its
+//! old modification time restored, which only a hash of every image would see.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -22,9 +28,86 @@ fn file_hash(path: &Path) -> String {
     std::fs::read(path).map_or_else(|_| "missing".into(), |bytes| content_hash(&bytes))
 }
 
+/// Text files up to this size count by their content; larger ones as frames do.
+const TEXT_BYTES: u64 = 8 << 20;
+
+/// How deep below a sequence folder its files are looked for (TUM's `rgb/`, KITTI's
+/// `image_0/`, a ROS 2 bag folder's storage files).
+const DEPTH: usize = 3;
+
+/// The sequence's files by kind: `sequence calibration` (its own calibration:
+/// `calibration.yaml`, KITTI's `calib.txt`, the recorder's YAML files), `sequence
+/// lists` (the other text files: association and timestamp lists, ground truth), each a
+/// hash of the content; and `sequence frames`, a hash of every other file's relative
+/// path, size and modification time. A single file (a recording) is a `sequence
+/// frames` of its own size and time.
+pub fn sequence_files(path: &Path) -> Vec<(&'static str, String)> {
+    let mut kinds: [(&'static str, Vec<String>); 3] = [
+        ("sequence calibration", Vec::new()),
+        ("sequence lists", Vec::new()),
+        ("sequence frames", Vec::new()),
+    ];
+    let mut files = Vec::new();
+    if path.is_dir() {
+        collect_files(path, path, DEPTH, &mut files);
+    } else {
+        files.push((path.to_path_buf(), PathBuf::new()));
+    }
+    files.sort();
+    for (file, relative) in files {
+        let Ok(meta) = std::fs::metadata(&file) else {
+            continue;
+        };
+        let name = relative.to_string_lossy().into_owned();
+        let extension = file.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let text = ["txt", "yaml", "yml", "json", "csv", "toml"].contains(&extension)
+            && meta.len() <= TEXT_BYTES;
+        let (kind, value) = if text {
+            let calibration = extension.starts_with("y") || name.ends_with("calib.txt");
+            (usize::from(!calibration), file_hash(&file))
+        } else {
+            let time = meta
+                .modified()
+                .ok()
+                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok());
+            (
+                2,
+                format!("{} {}", meta.len(), time.map_or(0, |t| t.as_nanos())),
+            )
+        };
+        kinds[kind].1.push(format!("{name}\t{value}"));
+    }
+    kinds
+        .into_iter()
+        .filter(|(_, lines)| !lines.is_empty())
+        .map(|(key, lines)| (key, content_hash(lines.join("\n").as_bytes())))
+        .collect()
+}
+
+/// The regular files below `dir` (down to `depth` folders), each with its path
+/// relative to `root`; symbolic links to folders are not followed.
+fn collect_files(root: &Path, dir: &Path, depth: usize, out: &mut Vec<(PathBuf, PathBuf)>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        if kind.is_dir() && depth > 0 {
+            collect_files(root, &path, depth - 1, out);
+        } else if path.is_file() {
+            let relative = path.strip_prefix(root).unwrap_or(&path).to_path_buf();
+            out.push((path, relative));
+        }
+    }
+}
+
 /// Makes the inputs of runs, hashing each file it reads once.
 pub struct Fingerprinter {
     files: Mutex<HashMap<PathBuf, String>>,
+    sequences: Mutex<HashMap<PathBuf, Vec<(&'static str, String)>>>,
     program: String,
 }
 
@@ -42,6 +125,7 @@ impl Fingerprinter {
     pub fn new(program: &Path) -> Self {
         Self {
             files: Mutex::new(HashMap::new()),
+            sequences: Mutex::new(HashMap::new()),
             program: format!("{} {}", env!("CARGO_PKG_VERSION"), file_hash(program)),
         }
     }
@@ -52,6 +136,15 @@ impl Fingerprinter {
         files
             .entry(path.to_path_buf())
             .or_insert_with(|| file_hash(path))
+            .clone()
+    }
+
+    /// [`sequence_files`], each sequence read once.
+    fn sequence(&self, path: &Path) -> Vec<(&'static str, String)> {
+        let mut sequences = self.sequences.lock().expect("fingerprint cache poisoned");
+        sequences
+            .entry(path.to_path_buf())
+            .or_insert_with(|| sequence_files(path))
             .clone()
     }
 
@@ -70,6 +163,9 @@ impl Fingerprinter {
         };
         put("dopslam", self.program.clone());
         put("sequence", sequence_dir.display().to_string());
+        for (key, value) in self.sequence(sequence_dir) {
+            put(key, value);
+        }
         put("frames", frames.map_or("all".into(), |f| f.to_string()));
         put("mode", mode_flag.to_string());
         put(
@@ -140,10 +236,16 @@ mod tests {
         let config = Config::default();
         let before = inputs_of(Some(10), &config);
         assert!(differences(&before, &inputs_of(Some(10), &config)).is_empty());
-        assert_eq!(differences(&before, &inputs_of(Some(30), &config)), ["frames 10 -> 30"]);
+        assert_eq!(
+            differences(&before, &inputs_of(Some(30), &config)),
+            ["frames 10 -> 30"]
+        );
         let mut other = config.clone();
         other.orb.n_features = 1500;
-        assert_eq!(differences(&before, &inputs_of(Some(10), &other)), ["config changed"]);
+        assert_eq!(
+            differences(&before, &inputs_of(Some(10), &other)),
+            ["config changed"]
+        );
         assert_eq!(
             differences(&RunInputs::new(), &before),
             ["inputs not recorded (an older dopslam made it)"]
@@ -163,6 +265,47 @@ mod tests {
         // A new fingerprinter reads the file again (one batch reads each file once).
         let after = inputs_of(None, &config);
         assert_eq!(differences(&before, &after), ["settings file changed"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The sequence's own calibration, its lists and its frames each count, by name.
+    #[test]
+    fn a_sequence_s_calibration_lists_and_frames_count() {
+        let dir =
+            std::env::temp_dir().join(format!("dopslam-fingerprint-seq-{}", std::process::id()));
+        let rgb = dir.join("rgb");
+        std::fs::create_dir_all(&rgb).unwrap();
+        std::fs::write(dir.join("calibration.yaml"), "Camera.fx: 500\n").unwrap();
+        std::fs::write(dir.join("rgb.txt"), "1.0 rgb/1.png\n").unwrap();
+        std::fs::write(rgb.join("1.png"), [1u8; 10]).unwrap();
+        let inputs = |seq: &Path| {
+            let program = std::env::current_exe().unwrap();
+            let execution = Execution {
+                deterministic: false,
+                pace: Pace::Free,
+            };
+            Fingerprinter::new(&program).inputs((seq, None), "--dop", &Config::default(), execution)
+        };
+        let mut before = inputs(&dir);
+        for (change, named) in [
+            (dir.join("calibration.yaml"), "sequence calibration changed"),
+            (dir.join("rgb.txt"), "sequence lists changed"),
+            (rgb.join("1.png"), "sequence frames changed"),
+        ] {
+            std::fs::write(&change, [2u8; 11]).unwrap();
+            let after = inputs(&dir);
+            assert_eq!(differences(&before, &after), [named]);
+            before = after;
+        }
+        // A recording file counts by its size and time.
+        let bag = dir.join("a.bag");
+        std::fs::write(&bag, [0u8; 10]).unwrap();
+        let before = inputs(&bag);
+        std::fs::write(&bag, [0u8; 12]).unwrap();
+        assert_eq!(
+            differences(&before, &inputs(&bag)),
+            ["sequence frames changed"]
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

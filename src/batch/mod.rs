@@ -32,10 +32,10 @@ pub mod slurm;
 
 use std::path::{Path, PathBuf};
 
+use crate::dop::Mode;
 pub use error::BatchError;
 use execute::{Executed, Executor, RunJob};
 use machine::{budget_jobs, machine_description};
-use crate::dop::Mode;
 use manifest::{absolute, Manifest, ManifestError, PlannedSequence, SequenceSource};
 use record::{RunRecord, RunStatus};
 use results::GroupSummary;
@@ -154,6 +154,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     check_not_an_input(&plan)?;
     std::fs::create_dir_all(out).map_err(BatchError::file("create", out))?;
     let _lock = batch_lock(out, options.shard.is_some())?;
+    let _shard_lock = options.shard.map(|s| shard_lock(out, s)).transpose()?;
     let text = std::fs::read(path).map_err(BatchError::file("read", path))?;
     let own = out.join("manifest.toml");
     if options.collect {
@@ -179,12 +180,15 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     } else {
         prepare_sequences(&plan, &mine, options.progress)
     };
-    let jobs = options.jobs.or(plan.manifest.batch.jobs).unwrap_or_else(|| {
-        budget_jobs(
-            plan.manifest.batch.cores_per_run,
-            plan.manifest.batch.memory_per_run_gib,
-        )
-    });
+    let jobs = options
+        .jobs
+        .or(plan.manifest.batch.jobs)
+        .unwrap_or_else(|| {
+            budget_jobs(
+                plan.manifest.batch.cores_per_run,
+                plan.manifest.batch.memory_per_run_gib,
+            )
+        });
     // One for the whole invocation: the binary and the detector files are hashed once.
     let fingerprinter = fingerprint::Fingerprinter::new(&options.program);
     let (executed, skipped) = if options.collect {
@@ -242,6 +246,25 @@ fn check_not_an_input(plan: &BatchPlan) -> Result<(), BatchError> {
     Ok(())
 }
 
+/// A shard's own lock (`OUT/.dopslam-shard-K-of-N.lock`): the same shard started twice
+/// (a Slurm array task resubmitted while it still runs) is refused, not run twice into
+/// the same run folders.
+fn shard_lock(out: &Path, shard: shard::Shard) -> Result<std::fs::File, BatchError> {
+    use crate::io::output::{lock_file, LockMode};
+    let path = out.join(format!(
+        ".dopslam-shard-{}-of-{}.lock",
+        shard.index, shard.count
+    ));
+    match lock_file(&path, LockMode::Try) {
+        Ok(Some(file)) => Ok(file),
+        Ok(None) => Err(BatchError::ShardBusy {
+            out: out.to_path_buf(),
+            shard: shard.to_string(),
+        }),
+        Err(e) => Err(BatchError::file("lock", path)(e)),
+    }
+}
+
 /// The batch's lock on its output folder (`OUT/.dopslam-batch.lock`, held while it
 /// runs): a whole batch or a collection holds it alone; the shards of one batch share
 /// it (they run together by design), so neither a second batch nor a collection runs
@@ -249,7 +272,11 @@ fn check_not_an_input(plan: &BatchPlan) -> Result<(), BatchError> {
 fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, BatchError> {
     use crate::io::output::{lock_file, LockMode};
     let path = out.join(".dopslam-batch.lock");
-    let mode = if shard { LockMode::TryShared } else { LockMode::Try };
+    let mode = if shard {
+        LockMode::TryShared
+    } else {
+        LockMode::Try
+    };
     match lock_file(&path, mode) {
         Ok(Some(file)) => Ok(file),
         Ok(None) => Err(BatchError::Busy(out.to_path_buf())),
@@ -261,7 +288,11 @@ fn batch_lock(out: &Path, shard: bool) -> Result<std::fs::File, BatchError> {
 /// with other inputs ([`fingerprint`]) than `program` would run with now.
 pub fn runs_to_do(plan: &BatchPlan, program: &Path) -> usize {
     let fingerprinter = fingerprint::Fingerprinter::new(program);
-    let dirs: Vec<PathBuf> = plan.planned.iter().map(|p| sequence_dir(p, &plan.out)).collect();
+    let dirs: Vec<PathBuf> = plan
+        .planned
+        .iter()
+        .map(|p| sequence_dir(p, &plan.out))
+        .collect();
     plan.runs
         .iter()
         .filter(|job| match RunRecord::read(&job.dir) {
@@ -307,6 +338,9 @@ fn execute(
     for job in mine {
         let mut job = job.clone();
         job.inputs = run_inputs(fingerprinter, plan, &job, sequence_dirs);
+        if let Some(why) = RunRecord::unreadable(&job.dir) {
+            eprintln!("warning: {why}: the run is made again");
+        }
         let record = match RunRecord::read(&job.dir) {
             Some(r) if r.inputs != job.inputs && !options.keep_stale => {
                 set_aside_stale(plan, &job, &r)?;
@@ -329,7 +363,10 @@ fn execute(
         eprintln!(
             "batch {}{}: {} runs ({} finished before), {} to do, {jobs} at a time",
             plan.out.display(),
-            options.shard.map(|s| format!(", shard {s}")).unwrap_or_default(),
+            options
+                .shard
+                .map(|s| format!(", shard {s}"))
+                .unwrap_or_default(),
             mine.len(),
             skipped,
             todo.len()
@@ -422,7 +459,15 @@ fn write_tables(
         .collect();
     let stale: Vec<String> = records
         .iter()
-        .filter_map(|r| Some(format!("{}/{}/r{} ({})", r.sequence, r.mode.name(), r.repetition, r.stale.as_ref()?)))
+        .filter_map(|r| {
+            Some(format!(
+                "{}/{}/r{} ({})",
+                r.sequence,
+                r.mode.name(),
+                r.repetition,
+                r.stale.as_ref()?
+            ))
+        })
         .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
     let mut modes: Vec<Mode> = manifest.batch.modes.clone();
@@ -531,7 +576,8 @@ fn prepare_sequence(
 ) -> (PathBuf, Option<String>) {
     match &sequence.source {
         SequenceSource::Folder(path) => {
-            let readable = path.is_dir() || (crate::io::recording::is_recording(path) && path.exists());
+            let readable =
+                path.is_dir() || (crate::io::recording::is_recording(path) && path.exists());
             let problem = (!readable)
                 .then(|| format!("{}: no such sequence folder or recording", path.display()));
             (path.clone(), problem)
@@ -555,9 +601,9 @@ fn prepare_sequence(
                 Ok(config) => config,
                 Err(problem) => return (dir, Some(problem.to_string())),
             };
-            let part = out
-                .join("sequences")
-                .join(format!("{}.part{}", sequence.name, std::process::id()));
+            let part =
+                out.join("sequences")
+                    .join(format!("{}.part{}", sequence.name, std::process::id()));
             let generated = shard::once_per_folder(&dir, || {
                 if progress {
                     eprintln!("generating {} from {}", sequence.name, preset.display());
@@ -626,4 +672,28 @@ fn header_lines(
             b.rpe_seconds
         ),
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A shard already running holds its lock: the same shard again is refused by name,
+    /// another shard of the batch is not.
+    #[test]
+    fn the_same_shard_twice_is_refused() {
+        let out = std::env::temp_dir().join(format!("dopslam-shard-lock-{}", std::process::id()));
+        std::fs::create_dir_all(&out).unwrap();
+        let first = shard::Shard { index: 1, count: 2 };
+        let held = shard_lock(&out, first).unwrap();
+        let error = shard_lock(&out, first).unwrap_err().to_string();
+        assert!(
+            error.contains("shard 1/2") && error.contains("already running"),
+            "{error}"
+        );
+        assert!(shard_lock(&out, shard::Shard { index: 2, count: 2 }).is_ok());
+        drop(held);
+        assert!(shard_lock(&out, first).is_ok());
+        std::fs::remove_dir_all(&out).unwrap();
+    }
 }

@@ -189,4 +189,37 @@ impl RunRecord {
         let text = std::fs::read_to_string(dir.join("run.json")).ok()?;
         serde_json::from_str(&text).ok()
     }
+
+    /// Why the `run.json` in `dir` cannot be read, when it is there but [`Self::read`]
+    /// cannot take it (cut short, edited by hand); `None` when it reads or is absent.
+    pub fn unreadable(dir: &Path) -> Option<String> {
+        let path = dir.join("run.json");
+        let why = match std::fs::read_to_string(&path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+            Err(e) => e.to_string(),
+            Ok(text) => serde_json::from_str::<Self>(&text).err()?.to_string(),
+        };
+        Some(format!("{} cannot be read ({why})", path.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `run.json` cut short is said, with its path; an absent one is not.
+    #[test]
+    fn a_cut_run_record_is_named() {
+        let dir = std::env::temp_dir().join(format!("dopslam-run-record-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(RunRecord::unreadable(&dir), None);
+        std::fs::write(dir.join("run.json"), "{\"sequence\": \"a\", \"mo").unwrap();
+        let why = RunRecord::unreadable(&dir).unwrap();
+        assert!(
+            why.contains("run.json cannot be read") && why.contains("EOF"),
+            "{why}"
+        );
+        assert!(RunRecord::read(&dir).is_none());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

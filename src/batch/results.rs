@@ -88,6 +88,9 @@ pub struct GroupSummary {
     /// The improvement of this mode's median ATE over no-DOP's, in % (the paper's
     /// `(ORB-SLAM2 - ours) / ORB-SLAM2`).
     pub improvement_percent: Option<f64>,
+    /// Runs kept with `--keep-stale` although made with other settings (their figures
+    /// count; `runs.csv` and `results.md` say why each is stale).
+    pub stale: usize,
     /// The failed runs' errors.
     pub errors: Vec<String>,
 }
@@ -163,6 +166,7 @@ fn summarise_group(sequence: &str, mode: Mode, runs: &[&RunRecord]) -> GroupSumm
         ghost_points: map(&|m| m.ghost_points.map(|g| g as f64)),
         dynamic_removed_percent: map(&|m| m.dynamic_removed_percent),
         improvement_percent: None,
+        stale: runs.iter().filter(|r| r.stale.is_some()).count(),
         errors: runs.iter().filter_map(|r| r.error.clone()).collect(),
     }
 }
@@ -173,7 +177,7 @@ fn number(value: Option<f64>, digits: usize) -> String {
 }
 
 /// The columns of `results.csv`.
-const RESULTS_CSV_COLUMNS: [&str; 23] = [
+const RESULTS_CSV_COLUMNS: [&str; 24] = [
     "sequence",
     "mode",
     "runs",
@@ -197,10 +201,11 @@ const RESULTS_CSV_COLUMNS: [&str; 23] = [
     "improvement_percent",
     "kitti_translation_percent_median",
     "kitti_rotation_deg_per_100m_median",
+    "stale_runs",
 ];
 
 /// A group's cells under [`RESULTS_CSV_COLUMNS`].
-fn results_csv_row(g: &GroupSummary) -> [String; 23] {
+fn results_csv_row(g: &GroupSummary) -> [String; 24] {
     let m = |s: Option<Spread>, d| number(s.map(|s| s.median), d);
     [
         g.sequence.clone(),
@@ -226,6 +231,7 @@ fn results_csv_row(g: &GroupSummary) -> [String; 23] {
         number(g.improvement_percent, 1),
         m(g.kitti_translation_percent, 4),
         m(g.kitti_rotation_deg_per_100m, 4),
+        g.stale.to_string(),
     ]
 }
 

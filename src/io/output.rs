@@ -46,7 +46,10 @@ fn invalid(path: &Path, message: impl Into<String>) -> IoError {
 /// it; writes and removes a probe file to prove it can be written.
 pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
     if dir.to_str().is_none() {
-        return Err(invalid(dir, format!("the {what} path is not valid UTF-8; choose a folder whose name is")));
+        return Err(invalid(
+            dir,
+            format!("the {what} path is not valid UTF-8; choose a folder whose name is"),
+        ));
     }
     for input in inputs {
         if is_within(dir, input) {
@@ -58,10 +61,16 @@ pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoErr
     }
     match std::fs::metadata(dir) {
         Ok(meta) if !meta.is_dir() => {
-            return Err(invalid(dir, format!("the {what} path is a file, not a folder")))
+            return Err(invalid(
+                dir,
+                format!("the {what} path is a file, not a folder"),
+            ))
         }
         Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
-            return Err(invalid(dir, format!("the {what} path is a loop of symbolic links")))
+            return Err(invalid(
+                dir,
+                format!("the {what} path is a loop of symbolic links"),
+            ))
         }
         _ => {}
     }
@@ -83,12 +92,18 @@ pub fn prepare_dir(dir: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoErr
 /// made and written, and it is none of `inputs`.
 pub fn check_file(path: &Path, what: &str, inputs: &[&Path]) -> Result<(), IoError> {
     if inputs.iter().any(|input| resolved(path) == resolved(input)) {
-        return Err(invalid(path, format!("the {what} would replace an input file")));
+        return Err(invalid(
+            path,
+            format!("the {what} would replace an input file"),
+        ));
     }
     if path.is_dir() {
         return Err(invalid(path, format!("the {what} path is a folder")));
     }
-    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let parent = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     prepare_dir(parent, &format!("{what}'s"), &[])
 }
 
@@ -150,6 +165,23 @@ pub fn lock_file(path: &Path, mode: LockMode) -> std::io::Result<Option<std::fs:
 
 pub use super::run_dir::RUN_OUTPUTS;
 
+/// Refuses an output folder `dir` where one of `inputs` lies at the name of a run's
+/// output or of `previous/` (a sequence at `OUT/detections` would be moved aside, or
+/// written into, as if it were an output).
+pub fn check_inputs_clear(dir: &Path, inputs: &[&Path]) -> Result<(), IoError> {
+    let names = RUN_OUTPUTS.iter().chain([&super::run_dir::names::PREVIOUS]);
+    for name in names {
+        let place = dir.join(name);
+        if let Some(input) = inputs.iter().find(|input| is_within(input, &place)) {
+            return Err(invalid(
+                input,
+                format!("the input lies at {} in the output folder, where a run writes or moves its outputs; move it, or choose another output folder", place.display()),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Moves an earlier run's outputs in `dir` into a folder of their own under
 /// `dir/previous/`, named by when that run last wrote ([`utc_stamp`] of the newest
 /// modification time among them; `-2`, `-3` … added when that name is taken). Nothing
@@ -168,12 +200,21 @@ pub fn move_previous_outputs(
     if present.is_empty() {
         return Ok((Vec::new(), None));
     }
+    let previous = dir.join(super::run_dir::names::PREVIOUS);
+    if previous
+        .symlink_metadata()
+        .is_ok_and(|m| m.file_type().is_symlink())
+    {
+        return Err(invalid(
+            &previous,
+            "a symbolic link: earlier outputs are moved only into a real folder of the output folder (it could point into an input); make it a folder or move it",
+        ));
+    }
     let written = present
         .iter()
         .filter_map(|name| dir.join(name).symlink_metadata().ok()?.modified().ok())
         .max()
         .unwrap_or_else(std::time::SystemTime::now);
-    let previous = dir.join(super::run_dir::names::PREVIOUS);
     let stamp = utc_stamp(written);
     let target = (1..)
         .map(|n| match n {
@@ -185,10 +226,16 @@ pub fn move_previous_outputs(
     std::fs::create_dir_all(&target).map_err(|e| invalid(&target, e.to_string()))?;
     for name in &present {
         std::fs::rename(dir.join(name), target.join(name)).map_err(|e| {
-            invalid(&dir.join(name), format!("cannot move into {}: {e}", target.display()))
+            invalid(
+                &dir.join(name),
+                format!("cannot move into {}: {e}", target.display()),
+            )
         })?;
     }
-    Ok((present.iter().map(|s| s.to_string()).collect(), Some(target)))
+    Ok((
+        present.iter().map(|s| s.to_string()).collect(),
+        Some(target),
+    ))
 }
 
 /// A time as UTC `YYYY-MM-DDTHH-MM-SSZ` (dashes for colons: a valid folder name
@@ -239,20 +286,48 @@ mod tests {
         let error = check_file(&input.join("rgb"), "picture", &[]).unwrap_err();
         assert!(error.to_string().contains("folder"), "{error}");
         std::fs::write(input.join("a.png"), b"x").unwrap();
-        let error = check_file(&input.join("./a.png"), "picture", &[&input.join("a.png")]).unwrap_err();
+        let error =
+            check_file(&input.join("./a.png"), "picture", &[&input.join("a.png")]).unwrap_err();
         assert!(error.to_string().contains("replace an input"), "{error}");
         let lock = DirLock::take(&base.join("out")).unwrap();
-        assert!(DirLock::take(&base.join("out")).is_err(), "a second lock is refused");
+        assert!(
+            DirLock::take(&base.join("out")).is_err(),
+            "a second lock is refused"
+        );
         drop(lock);
         assert!(DirLock::take(&base.join("out")).is_ok());
         std::fs::write(base.join("out/trajectory.txt"), b"old").unwrap();
         std::fs::create_dir_all(base.join("out/plots")).unwrap();
         let (moved, to) = move_previous_outputs(&base.join("out"), &[]).unwrap();
-        assert_eq!(moved, vec!["trajectory.txt".to_string(), "plots".to_string()]);
+        assert_eq!(
+            moved,
+            vec!["trajectory.txt".to_string(), "plots".to_string()]
+        );
         let to = to.unwrap();
         assert_eq!(to.parent().unwrap(), base.join("out/previous"));
         assert_eq!(std::fs::read(to.join("trajectory.txt")).unwrap(), b"old");
         assert!(!base.join("out/trajectory.txt").exists());
+        // A `previous` that links elsewhere (into an input, say) is refused, and an
+        // input at the name of an output is named.
+        std::fs::write(base.join("out/trajectory.txt"), b"old").unwrap();
+        std::fs::rename(base.join("out/previous"), base.join("kept")).unwrap();
+        std::os::unix::fs::symlink(&input, base.join("out/previous")).unwrap();
+        let error = move_previous_outputs(&base.join("out"), &[]).unwrap_err();
+        assert!(error.to_string().contains("a symbolic link"), "{error}");
+        assert_eq!(
+            std::fs::read_dir(&input).unwrap().count(),
+            2,
+            "nothing moved into it"
+        );
+        let seq = base.join("out/detections");
+        std::fs::create_dir_all(&seq).unwrap();
+        let error = check_inputs_clear(&base.join("out"), &[&seq]).unwrap_err();
+        assert!(error.to_string().contains("the input lies at"), "{error}");
+        // The link into the input is refused by that check too.
+        let error = check_inputs_clear(&base.join("out"), &[&input]).unwrap_err();
+        assert!(error.to_string().contains("out/previous"), "{error}");
+        std::fs::remove_file(base.join("out/previous")).unwrap();
+        check_inputs_clear(&base.join("out"), &[&input]).unwrap();
         std::fs::remove_dir_all(&base).unwrap();
     }
 
@@ -274,11 +349,23 @@ mod tests {
         assert_eq!(kept.len(), 2, "{kept:?}");
         assert_ne!(kept[0], kept[1]);
         for (folder, run) in kept.iter().zip(["first", "second"]) {
-            assert_eq!(std::fs::read_to_string(folder.join("trajectory.txt")).unwrap(), run);
-            assert_eq!(std::fs::read_to_string(folder.join("report.json")).unwrap(), run);
+            assert_eq!(
+                std::fs::read_to_string(folder.join("trajectory.txt")).unwrap(),
+                run
+            );
+            assert_eq!(
+                std::fs::read_to_string(folder.join("report.json")).unwrap(),
+                run
+            );
         }
-        assert_eq!(std::fs::read(base.join("previous/notes.txt")).unwrap(), b"mine");
-        assert_eq!(std::fs::read_to_string(base.join("trajectory.txt")).unwrap(), "third");
+        assert_eq!(
+            std::fs::read(base.join("previous/notes.txt")).unwrap(),
+            b"mine"
+        );
+        assert_eq!(
+            std::fs::read_to_string(base.join("trajectory.txt")).unwrap(),
+            "third"
+        );
         std::fs::remove_dir_all(&base).unwrap();
     }
 

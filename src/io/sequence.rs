@@ -76,6 +76,11 @@ pub trait Sequence: Send + Sync {
     fn ground_truth(&self) -> Option<&Trajectory>;
     /// The calibration the sequence carries, when it has one.
     fn calibration(&self) -> Option<&Calibration>;
+    /// What the reader found wrong with the input and read past (a recording cut
+    /// short, without index, with stamps out of order): `report.json` keeps it.
+    fn warnings(&self) -> &[String] {
+        &[]
+    }
 }
 
 /// Iterates over all frames, loading each one lazily.

@@ -157,17 +157,14 @@ pub fn log_pinhole(log: &crate::view::LogHandle, camera: &crate::geometry::camer
 pub fn finish_recording(logger: Logger, progress: bool) -> Result<(), RunError> {
     let target = logger.target.clone();
     let summary = logger.finish()?;
-    let name = match &target {
-        Target::File(path) => path.display().to_string(),
-        Target::Connect(address) => address.clone(),
-    };
-    if summary.dropped_images > 0 {
-        eprintln!(
-            "warning: the Rerun recording fell behind the run and dropped {} image(s) ({name}); poses and everything else are complete",
-            summary.dropped_images
-        );
+    if let Some(warning) = summary.warning(&target) {
+        eprintln!("warning: {warning}");
     } else if progress {
-        eprintln!("Rerun recording: {} entries to {name}", summary.logged);
+        eprintln!(
+            "Rerun recording: {} entries to {}",
+            summary.logged,
+            target.name()
+        );
     }
     Ok(())
 }
@@ -232,10 +229,13 @@ impl Watchers {
         let mut detection = tracked.detection;
         detection.classification = self.truth.classification;
         detection.person_recall = self.truth.person_recall;
+        // The set of outputs starts here: a second Ctrl-C from now on waits for all of it.
+        let writing = crate::interrupt::Writing::start();
         if setup.mode == Mode::Dop {
             outputs::write_dynamic_keypoints(run, &self.keypoints.frames)?;
         }
         let computed = Computed {
+            writing,
             sequence,
             sequence_path: options.sequence_dir.as_deref(),
             setup: RunSetup::new(sequence, setup),

@@ -45,6 +45,7 @@ pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::Di
     if let Some(debug) = &options.debug_frames {
         output::prepare_dir(debug, "debug frames", &inputs)?;
     }
+    output::check_inputs_clear(out, &inputs)?;
     let lock = output::DirLock::take(out)?;
     let (moved, to) = output::move_previous_outputs(out, &[])?;
     if let (Some(to), true) = (to, options.progress) {
@@ -89,6 +90,9 @@ pub fn write_dynamic_keypoints(run: &RunDir, keypoints: &[FrameKeypoints]) -> Re
 
 /// What the passes computed, for [`write`].
 pub struct Computed<'a> {
+    /// Held from the set's first file (`dynamic_keypoints.json`) to its last: a second
+    /// Ctrl-C between them waits for the whole set.
+    pub writing: crate::interrupt::Writing,
     /// The sequence.
     pub sequence: &'a dyn Sequence,
     /// Its folder or recording.
@@ -116,9 +120,10 @@ pub struct Computed<'a> {
 /// Writes trajectory, keyframes, map, segments and report; evaluates against ground
 /// truth (also the tracking pass's trajectory, when the global pass ran after it).
 pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
-    // A second Ctrl-C waits until the set is written.
-    let _writing = crate::interrupt::Writing::start();
+    // A second Ctrl-C waits until the set is written (the guard came with `computed`,
+    // from before its first file).
     let Computed {
+        writing: _writing,
         sequence,
         sequence_path,
         setup,

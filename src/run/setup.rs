@@ -251,6 +251,12 @@ fn calibration_and_warning(
         calibration.camera = camera;
     }
     if calibration.bf.is_none() {
+        if sequence.sensor() == SensorKind::Stereo {
+            return Err(RunError::Input(format!(
+                "stereo sequence {}: no baseline in its calibration (a stereo pair needs the right camera's CameraInfo in the recording, or Camera.bf in an ORB-SLAM2 settings file given with --settings)",
+                sequence.name()
+            )));
+        }
         calibration.bf = Some(40.0);
     }
     if let Some(size) = first.map(image_size) {
@@ -333,6 +339,10 @@ pub struct RunSetup {
     /// from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub disparity_offset: Option<RigOffset>,
+    /// What the reader found wrong with the input and read past (a recording cut short
+    /// at a byte, without index): the run is of what could be read.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub input_warnings: Vec<String>,
 }
 
 /// A fingerprint of a sequence: FNV-1a (64 bits, hex) of its first frame's colour (or
@@ -382,6 +392,7 @@ impl RunSetup {
                 .then(|| absolute(config.global.vocabulary_file())),
             first_frame_hash: first_frame_hash(sequence),
             disparity_offset: setup.disparity_offset.clone(),
+            input_warnings: sequence.warnings().to_vec(),
         }
     }
 }

@@ -99,8 +99,8 @@ mod without_rerun {
             Err(ViewError::NotBuilt)
         }
 
-        pub fn close(self) -> Result<(), ViewError> {
-            Ok(())
+        pub fn close(self) -> Result<bool, ViewError> {
+            Ok(true)
         }
     }
 }
@@ -118,6 +118,8 @@ mod with_rerun {
     /// A Rerun recording stream.
     pub struct Stream {
         stream: RecordingStream,
+        /// Whether it streams to a viewer (not a file).
+        viewer: bool,
     }
 
     /// Opens the stream to `target` under the application id `name`.
@@ -137,7 +139,8 @@ mod with_rerun {
                     })?
             }
         };
-        Ok(Stream { stream })
+        let viewer = matches!(target, Target::Connect(_));
+        Ok(Stream { stream, viewer })
     }
 
     fn colours(list: &[[u8; 3]]) -> Vec<Color> {
@@ -406,14 +409,26 @@ mod with_rerun {
             }
         }
 
-        /// Writes what is buffered and closes the stream.
-        pub fn close(self) -> Result<(), ViewError> {
-            self.stream.flush_blocking().map_err(|e| ViewError::Sdk {
-                stage: "finish",
-                message: e.to_string(),
-            })?;
+        /// Writes what is buffered and closes the stream; whether all was delivered. A
+        /// viewer gets [`crate::view::log::VIEWER_PATIENCE`] to take the rest; one that
+        /// takes nothing is left (the SDK's own close would wait for it for ever).
+        pub fn close(self) -> Result<bool, ViewError> {
+            if self.viewer {
+                let flushed = self
+                    .stream
+                    .flush_with_timeout(crate::view::log::VIEWER_PATIENCE);
+                if flushed.is_err() {
+                    std::mem::forget(self.stream);
+                    return Ok(false);
+                }
+            } else {
+                self.stream.flush_blocking().map_err(|e| ViewError::Sdk {
+                    stage: "finish",
+                    message: e.to_string(),
+                })?;
+            }
             self.stream.disconnect();
-            Ok(())
+            Ok(true)
         }
     }
 

@@ -152,6 +152,16 @@ pub enum Target {
     Connect(String),
 }
 
+impl Target {
+    /// The file's path or the viewer's address, as a user names it.
+    pub fn name(&self) -> String {
+        match self {
+            Self::File(path) => path.display().to_string(),
+            Self::Connect(address) => address.clone(),
+        }
+    }
+}
+
 /// Camera centres of poses.
 pub fn centres<'a>(poses: impl IntoIterator<Item = &'a Se3>) -> Vec<Vector3<f64>> {
     poses.into_iter().map(|p| p.translation.vector).collect()

@@ -5,10 +5,11 @@
 //! room.
 
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use super::entry::{At, Entry, Message, Target};
 use super::{OutputConfig, ViewError};
@@ -25,6 +26,52 @@ pub struct LogSummary {
     pub logged: usize,
     /// Images dropped because the logging thread fell behind.
     pub dropped_images: usize,
+    /// Whether a viewer stopped taking the recording, so that its end (what the queue
+    /// and the SDK still held) was not delivered: given up after [`VIEWER_PATIENCE`],
+    /// so that a stalled viewer never holds the run.
+    pub viewer_stalled: bool,
+    /// Entries given up on before they were queued, once the viewer had stalled.
+    pub undelivered: usize,
+}
+
+impl LogSummary {
+    /// What a user must be told of the recording to `target`: a viewer that stopped
+    /// taking it, or images dropped when logging fell behind.
+    pub fn warning(&self, target: &Target) -> Option<String> {
+        let name = target.name();
+        if self.viewer_stalled {
+            Some(format!(
+                "the Rerun viewer at {name} stopped taking the recording (given up after {} s): the end of the recording was not delivered ({} entries given up on, and what was queued); the run's files are complete",
+                VIEWER_PATIENCE.as_secs(),
+                self.undelivered,
+            ))
+        } else if self.dropped_images > 0 {
+            Some(format!(
+                "the Rerun recording fell behind the run and dropped {} image(s) ({name}); poses and everything else are complete",
+                self.dropped_images
+            ))
+        } else {
+            None
+        }
+    }
+}
+
+/// How long a streamed recording waits for a viewer that takes nothing before it gives
+/// up on it: for room in the queue, and for the last entries and the flush at the end.
+pub const VIEWER_PATIENCE: Duration = Duration::from_secs(5);
+
+/// Whether a streamed recording gave up on its viewer, and how many entries that cost.
+#[derive(Default)]
+struct Stall {
+    stalled: AtomicBool,
+    undelivered: AtomicUsize,
+}
+
+impl Stall {
+    fn give_up(&self) {
+        self.stalled.store(true, Ordering::Relaxed);
+        self.undelivered.fetch_add(1, Ordering::Relaxed);
+    }
 }
 
 /// A cloneable way to log into a [`Logger`]'s recording.
@@ -34,6 +81,10 @@ pub struct LogHandle {
     dropped: Arc<AtomicUsize>,
     /// Images are dropped when the queue is full (a run), or wait (`dopslam view`).
     drops_images: bool,
+    /// For a viewer ([`Target::Connect`]), how long anything waits for room before the
+    /// viewer is given up on; a file waits as long as it takes.
+    patience: Option<Duration>,
+    stall: Arc<Stall>,
     /// The `[output]` settings.
     pub config: Arc<OutputConfig>,
 }
@@ -57,7 +108,33 @@ impl LogHandle {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
             }
         } else {
+            self.send_waiting(command);
+        }
+    }
+
+    /// Sends `command`, waiting for room: as long as it takes for a file, at most
+    /// [`VIEWER_PATIENCE`] for a viewer, which is then given up on (this and all later
+    /// entries counted as undelivered).
+    fn send_waiting(&self, command: Command) {
+        let Some(patience) = self.patience else {
             let _ = self.sender.send(command);
+            return;
+        };
+        if self.stall.stalled.load(Ordering::Relaxed) {
+            self.stall.undelivered.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        let start = Instant::now();
+        let mut command = command;
+        loop {
+            match self.sender.try_send(command) {
+                Err(TrySendError::Full(back)) if start.elapsed() < patience => {
+                    command = back;
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                Err(TrySendError::Full(_)) => return self.stall.give_up(),
+                _ => return,
+            }
         }
     }
 }
@@ -66,7 +143,7 @@ impl LogHandle {
 /// that stopped on an error), it still writes what was queued and closes the file.
 pub struct Logger {
     handle: LogHandle,
-    thread: Option<JoinHandle<Result<usize, ViewError>>>,
+    thread: Option<JoinHandle<Result<(usize, bool), ViewError>>>,
     /// Where the recording goes.
     pub target: Target,
 }
@@ -84,11 +161,11 @@ impl Drop for Logger {
         }
         match self.close() {
             Err(e) => eprintln!("warning: {e}"),
-            Ok(summary) if summary.dropped_images > 0 => eprintln!(
-                "warning: the Rerun recording fell behind the run and dropped {} image(s) ({:?})",
-                summary.dropped_images, self.target
-            ),
-            Ok(_) => {}
+            Ok(summary) => {
+                if let Some(warning) = summary.warning(&self.target) {
+                    eprintln!("warning: {warning}");
+                }
+            }
         }
     }
 }
@@ -111,6 +188,7 @@ impl Logger {
         let stream = super::entities::open_stream(&target, name)?;
         let (sender, receiver) = sync_channel(config.rerun_queue);
         let settings = config.clone();
+        let patience = matches!(target, Target::Connect(_)).then_some(VIEWER_PATIENCE);
         let thread = std::thread::Builder::new()
             .name("rerun-log".into())
             .spawn(move || write_all(stream, receiver, &settings))
@@ -120,6 +198,8 @@ impl Logger {
                 sender,
                 dropped: Arc::new(AtomicUsize::new(0)),
                 drops_images: true,
+                patience,
+                stall: Arc::new(Stall::default()),
                 config: Arc::new(config.clone()),
             },
             thread: Some(thread),
@@ -150,13 +230,33 @@ impl Logger {
         let Some(thread) = self.thread.take() else {
             return Err(ViewError::Closed);
         };
-        let _ = self.handle.sender.send(Command::Stop);
-        let logged = thread
+        self.handle.send_waiting(Command::Stop);
+        let dropped_images = self.handle.dropped.load(Ordering::Relaxed);
+        let undelivered = || self.handle.stall.undelivered.load(Ordering::Relaxed);
+        if let Some(patience) = self.handle.patience {
+            // A viewer that takes nothing holds the logging thread in its send: it is
+            // left behind (the process ends it), with what it still held counted.
+            let start = Instant::now();
+            while !thread.is_finished() && start.elapsed() < patience {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            if !thread.is_finished() {
+                return Ok(LogSummary {
+                    logged: 0,
+                    dropped_images,
+                    viewer_stalled: true,
+                    undelivered: undelivered(),
+                });
+            }
+        }
+        let (logged, delivered) = thread
             .join()
             .map_err(|_| ViewError::Thread("panicked".into()))??;
         Ok(LogSummary {
             logged,
-            dropped_images: self.handle.dropped.load(Ordering::Relaxed),
+            dropped_images,
+            viewer_stalled: !delivered || self.handle.stall.stalled.load(Ordering::Relaxed),
+            undelivered: undelivered(),
         })
     }
 }
@@ -186,19 +286,20 @@ fn check_new_file(path: &Path) -> Result<(), ViewError> {
 }
 
 /// The logging thread: logs each message until told to stop (or every sender is
-/// gone), then flushes. Returns how many entries it logged.
+/// gone), then flushes. Returns how many entries it logged, and whether the flush
+/// delivered them (a viewer may stop taking them).
 fn write_all(
     stream: super::entities::Stream,
     receiver: Receiver<Command>,
     config: &OutputConfig,
-) -> Result<usize, ViewError> {
+) -> Result<(usize, bool), ViewError> {
     let mut logged = 0;
     while let Ok(Command::Log(message)) = receiver.recv() {
         stream.log(&message, config)?;
         logged += 1;
     }
-    stream.close()?;
-    Ok(logged)
+    let delivered = stream.close()?;
+    Ok((logged, delivered))
 }
 
 #[cfg(all(test, feature = "rerun"))]

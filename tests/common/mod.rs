@@ -122,6 +122,38 @@ pub fn dopslam(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// Runs the dopslam binary as [`dopslam`] does, killed (and the test failed) when it has
+/// not ended after `limit`: for what must not hang.
+pub fn dopslam_within(args: &[&str], limit: std::time::Duration) -> (bool, String, String) {
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = temp_dir(&format!("within-{call}"));
+    let (out, err) = (dir.join("stdout"), dir.join("stderr"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .args(args)
+        .stdout(std::fs::File::create(&out).unwrap())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!(
+                "dopslam {args:?} still ran after {limit:?}: {}",
+                std::fs::read_to_string(&err).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    let read = |path: &std::path::Path| std::fs::read_to_string(path).unwrap_or_default();
+    (status.success(), read(&out), read(&err))
+}
+
 /// A static room of `frames` frames written by `dopslam synth` into `seq`.
 pub fn synth_static_room(seq: &std::path::Path, frames: usize) {
     let preset =

@@ -243,7 +243,7 @@ pub fn open(path: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
                         "track {}: codec {} ({}) is not read (MJPG, NV12, YUY2, BGRA colour; b16g depth)",
                         track.name,
                         track.codec,
-                        track.fourcc().map_or_else(|| "no FOURCC".into(), |f| String::from_utf8_lossy(&f).into_owned())
+                        track.fourcc().map_or_else(|| "no FOURCC".into(), |f| printable(&f))
                     ),
                 ))
             }
@@ -476,9 +476,29 @@ fn colour_mode(mut c: SensorCamera, size: (u32, u32)) -> Result<PinholeCamera, S
     Ok(mode(&c, (w, binned_h), (0.0, (binned_h - h) / 2.0), size))
 }
 
+/// A FourCC as text: printable ASCII as it is, any other byte as `\xNN` (a FourCC of
+/// zeros would print raw NUL bytes).
+fn printable(code: &[u8]) -> String {
+    code.iter()
+        .map(|&b| {
+            if b.is_ascii_graphic() || b == b' ' {
+                (b as char).to_string()
+            } else {
+                format!("\\x{b:02x}")
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_fourcc_of_zeros_prints_as_escapes() {
+        assert_eq!(printable(b"MJPG"), "MJPG");
+        assert_eq!(printable(&[0, 0, 0, 0]), "\\x00\\x00\\x00\\x00");
+    }
 
     #[test]
     fn grey_yuv_is_grey_in_both_layouts() {

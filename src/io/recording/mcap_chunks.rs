@@ -58,6 +58,49 @@ fn records<'a>(file: &'a [u8], index: &ChunkIndex) -> McapResult<&'a [u8]> {
     }
 }
 
+/// The most bytes a compressed chunk may announce decompressed: the `mcap` crate sizes
+/// its buffer from the chunk's header, so a larger claim is refused before it reads.
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Checks chunk index `n` against `file` before the `mcap` crate is handed it (the crate
+/// slices the file at the offsets the index gives, unchecked, and sizes its buffer from
+/// the chunk's header): the chunk lies inside the file, starts with a chunk record of
+/// the index's length, and announces at most [`MAX_CHUNK_BYTES`] decompressed. The error
+/// names the index and the byte.
+pub fn check_chunk_index(file: &[u8], n: usize, index: &ChunkIndex) -> Result<(), String> {
+    let start = index.chunk_start_offset;
+    let claim = || {
+        format!(
+            "chunk index {n} (a chunk at byte {start}, {} bytes long)",
+            index.chunk_length
+        )
+    };
+    let end = start
+        .checked_add(index.chunk_length)
+        .filter(|&end| end <= file.len() as u64 && start >= 8)
+        .ok_or_else(|| format!("{} lies outside the file's {} bytes", claim(), file.len()))?;
+    let frame = &file[start as usize..end as usize];
+    let length = frame
+        .get(1..FRAME)
+        .map(|l| u64::from_le_bytes(l.try_into().expect("8 bytes")));
+    if frame.first() != Some(&op::CHUNK) || length != Some(index.chunk_length - FRAME as u64) {
+        return Err(format!("{}: no chunk record of that length there", claim()));
+    }
+    let header = match parse_record(op::CHUNK, &frame[FRAME..]) {
+        Ok(Record::Chunk { header, .. }) => header,
+        Ok(_) => return Err(format!("{}: no chunk record there", claim())),
+        Err(e) => return Err(format!("{}: {e}", claim())),
+    };
+    let announced = header.uncompressed_size.max(index.uncompressed_size);
+    if !header.compression.is_empty() && announced > MAX_CHUNK_BYTES {
+        return Err(format!(
+            "{} announces {announced} bytes decompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold here",
+            claim()
+        ));
+    }
+    Ok(())
+}
+
 /// Walks the records' frames of an uncompressed chunk; a frame that runs past the
 /// chunk's end is an error.
 fn walk(file: &[u8], index: &ChunkIndex) -> McapResult<Vec<Span>> {
@@ -184,5 +227,38 @@ mod tests {
         assert!(uncompressed_messages(cut, &summary.chunk_indexes[0])
             .unwrap()
             .is_err());
+    }
+
+    /// An index that lies (a chunk shorter than its frame, an offset near 2^64, one
+    /// past the file's end, a huge decompressed size) is named, never handed on.
+    #[test]
+    fn a_lying_chunk_index_is_refused_by_name_and_byte() {
+        for compression in [None, Some(mcap::Compression::Zstd)] {
+            let (file, summary) = written(&messages(), compression);
+            for (n, index) in summary.chunk_indexes.iter().enumerate() {
+                check_chunk_index(&file, n, index).unwrap();
+            }
+            let honest = summary.chunk_indexes[1].clone();
+            let lie = |change: &dyn Fn(&mut ChunkIndex)| {
+                let mut index = honest.clone();
+                change(&mut index);
+                check_chunk_index(&file, 1, &index).unwrap_err()
+            };
+            let error = lie(&|i| i.chunk_length = 5);
+            assert!(
+                error.contains("chunk index 1") && error.contains("5 bytes long"),
+                "{error}"
+            );
+            let error = lie(&|i| i.chunk_start_offset = u64::MAX - 255);
+            assert!(error.contains("outside the file"), "{error}");
+            let error = lie(&|i| i.chunk_start_offset = file.len() as u64 - 3);
+            assert!(error.contains("outside the file"), "{error}");
+            let error = lie(&|i| i.chunk_start_offset += 1);
+            assert!(error.contains("no chunk record"), "{error}");
+            if compression.is_some() {
+                let error = lie(&|i| i.uncompressed_size = u64::MAX);
+                assert!(error.contains("announces"), "{error}");
+            }
+        }
     }
 }

@@ -12,8 +12,8 @@
 pub mod convert;
 pub mod frames;
 pub mod kinect;
-pub mod matroska;
 mod mapped;
+pub mod matroska;
 mod mcap_chunks;
 pub mod messages;
 pub mod realsense;
@@ -233,9 +233,15 @@ pub struct RecordingOptions {
 
 /// Whether `path` looks like a recording rather than a sequence folder.
 pub fn is_recording(path: &Path) -> bool {
+    if path.is_dir() {
+        // A folder is a ROS 2 bag by what it holds, whatever its name (a TUM folder
+        // may be called `x.bag`): its metadata, or storage files and no image lists.
+        let lists = ["rgb.txt", "associations.txt", "image_0"];
+        return path.join("metadata.yaml").is_file()
+            || (!lists.iter().any(|l| path.join(l).exists()) && ros2::has_storage_files(path));
+    }
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     matches!(ext, "bag" | "mcap" | "db3" | "mkv")
-        || (path.is_dir() && path.join("metadata.yaml").is_file())
 }
 
 /// Opens the store of a recording by its kind.
@@ -413,6 +419,10 @@ fn calibration(
 impl Sequence for RecordingSequence {
     fn name(&self) -> &str {
         &self.name
+    }
+
+    fn warnings(&self) -> &[String] {
+        &self.description.warnings
     }
 
     fn sensor(&self) -> SensorKind {

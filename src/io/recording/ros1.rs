@@ -280,22 +280,21 @@ impl Ros1Bag {
         let at = |e: String| self.invalid(format!("chunk at byte {pos}: {e}"));
         let compression = header.string("compression").map_err(at)?;
         let size = header.u32("size").map_err(at)? as usize;
+        if compression != "none" && size > MAX_CHUNK_BYTES {
+            return Err(at(format!(
+                "it announces {size} bytes decompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold here"
+            )));
+        }
         let out = match compression.as_str() {
             "none" => Cow::Borrowed(data),
-            "bz2" => {
-                let mut out = Vec::with_capacity(size);
-                bzip2::read::BzDecoder::new(data)
-                    .read_to_end(&mut out)
-                    .map_err(|e| at(format!("bz2: {e}")))?;
-                Cow::Owned(out)
-            }
-            "lz4" => {
-                let mut out = Vec::with_capacity(size);
-                lz4_flex::frame::FrameDecoder::new(data)
-                    .read_to_end(&mut out)
-                    .map_err(|e| at(format!("lz4: {e}")))?;
-                Cow::Owned(out)
-            }
+            "bz2" => Cow::Owned(
+                inflate(bzip2::read::BzDecoder::new(data), data.len(), size)
+                    .map_err(|e| at(format!("bz2: {e}")))?,
+            ),
+            "lz4" => Cow::Owned(
+                inflate(lz4_flex::frame::FrameDecoder::new(data), data.len(), size)
+                    .map_err(|e| at(format!("lz4: {e}")))?,
+            ),
             other => {
                 return Err(at(format!(
                     "compression {other:?} is not one of none, bz2, lz4"
@@ -362,6 +361,24 @@ impl Store for Ros1Bag {
     }
 }
 
+/// The most bytes a compressed chunk may announce: rosbag's chunks hold 768 KiB by
+/// default, and a chunk is at least one message (a 4K 32-bit depth image is 33 MB).
+const MAX_CHUNK_BYTES: usize = 1 << 30;
+
+/// How many times its compressed size a chunk's first buffer may be: the header's size
+/// is taken for the buffer only where the data could hold it, so a lying header cannot
+/// make a large allocation from a small file.
+const MAX_RATIO: usize = 64;
+
+/// Decompresses `decoder` (over `packed` compressed bytes) into at most `size` + 1
+/// bytes: a stream that inflates past what its chunk announced stops there (the caller
+/// then names the difference) rather than filling memory.
+fn inflate(decoder: impl Read, packed: usize, size: usize) -> std::io::Result<Vec<u8>> {
+    let mut out = Vec::with_capacity(size.min(packed.saturating_mul(MAX_RATIO)));
+    decoder.take(size as u64 + 1).read_to_end(&mut out)?;
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -388,6 +405,12 @@ mod tests {
     /// A bag with one uncompressed chunk of a connection and `n` `std_msgs/Header`-led
     /// messages, and no index (index_pos 0, as a recorder that died leaves it).
     fn bag(n: u32) -> Vec<u8> {
+        let chunk = chunk_records(n);
+        with_chunk(b"none", chunk.len() as u32, &chunk)
+    }
+
+    /// The records of [`bag`]'s chunk.
+    fn chunk_records(n: u32) -> Vec<u8> {
         let mut chunk = record(
             &[
                 field("op", &[OP_CONNECTION]),
@@ -415,6 +438,12 @@ mod tests {
                 &msg,
             ));
         }
+        chunk
+    }
+
+    /// A bag without index holding one chunk of `data`, stored with `compression` and
+    /// announcing `size` bytes.
+    fn with_chunk(compression: &[u8], size: u32, data: &[u8]) -> Vec<u8> {
         let mut out = MAGIC.to_vec();
         out.extend(record(
             &[
@@ -426,10 +455,10 @@ mod tests {
         out.extend(record(
             &[
                 field("op", &[OP_CHUNK]),
-                field("compression", b"none"),
-                field("size", &(chunk.len() as u32).to_le_bytes()),
+                field("compression", compression),
+                field("size", &size.to_le_bytes()),
             ],
-            &chunk,
+            data,
         ));
         out
     }
@@ -473,6 +502,40 @@ mod tests {
             error.contains("version 1.2") && error.contains("2.0"),
             "{error}"
         );
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// [`bag`]'s chunk lz4-compressed, announcing `size` bytes.
+    fn lz4_bag(size: u32) -> Vec<u8> {
+        let mut encoder = lz4_flex::frame::FrameEncoder::new(Vec::new());
+        std::io::Write::write_all(&mut encoder, &chunk_records(3)).unwrap();
+        with_chunk(b"lz4", size, &encoder.finish().unwrap())
+    }
+
+    #[test]
+    fn a_chunk_header_that_lies_about_its_size_is_refused_before_any_allocation() {
+        let dir = std::env::temp_dir().join(format!("dopslam-ros1-lz4-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.bag");
+        // The honest bag reads.
+        let real = chunk_records(3).len() as u32;
+        std::fs::write(&path, lz4_bag(real)).unwrap();
+        assert_eq!(Ros1Bag::open(&path).unwrap().1.topics[0].messages.len(), 3);
+        std::fs::write(&path, lz4_bag(u32::MAX)).unwrap();
+        let error = Ros1Bag::open(&path).err().unwrap().to_string();
+        assert!(error.contains("announces 4294967295 bytes"), "{error}");
+        // A size under the cap but far past what the data holds: refused by what
+        // decompressed, and the buffer was sized from the data, not the header.
+        std::fs::write(&path, lz4_bag(500 << 20)).unwrap();
+        let error = Ros1Bag::open(&path).err().unwrap().to_string();
+        assert!(
+            error.contains(&format!("{real} bytes decompressed, 524288000 announced")),
+            "{error}"
+        );
+        let out = inflate(&b"abc"[..], 3, 500 << 20).unwrap();
+        assert_eq!(out.capacity(), 3 * MAX_RATIO);
+        // A stream that inflates past its announced size stops one byte after it.
+        assert_eq!(inflate(&[7u8; 100][..], 100, 10).unwrap().len(), 11);
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -6,7 +6,7 @@
 //! `metadata.yaml` lists the files (`relative_file_paths`: a bag split by size or
 //! duration has several, read as one) and the compression: `compression_mode: file`
 //! compresses each storage file whole (`.db3.zstd`: decompressed to a temporary file,
-//! removed when the recording is closed), `message` each message's bytes (decompressed
+//! removed as soon as it is open), `message` each message's bytes (decompressed
 //! as they are read; the scan decompresses only a message's first bytes, its header).
 
 use std::borrow::Cow;
@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use super::mapped::{self, release};
-use super::mcap_chunks::{uncompressed_messages, Span};
+use super::mcap_chunks::{check_chunk_index, uncompressed_messages, Span};
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
 
@@ -67,6 +67,11 @@ fn metadata(dir: &Path) -> Result<(Vec<PathBuf>, Compression), IoError> {
     Ok((files, compression))
 }
 
+/// Whether `dir` holds a `.db3` or `.mcap` file.
+pub fn has_storage_files(dir: &Path) -> bool {
+    listed_files(dir).is_ok_and(|files| !files.is_empty())
+}
+
 /// The storage files of a bag folder whose metadata lists none: its `.db3` or `.mcap`.
 fn listed_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
     let listing = std::fs::read_dir(dir).map_err(|e| IoError::read(dir, e))?;
@@ -80,7 +85,11 @@ fn listed_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
 
 /// Opens a ROS 2 bag folder through its storage files (several: read as one).
 pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
-    let (mut files, compression) = metadata(dir)?;
+    let described = dir.join("metadata.yaml").is_file();
+    let (mut files, compression) = match described {
+        true => metadata(dir)?,
+        false => (Vec::new(), Compression::None),
+    };
     if files.is_empty() {
         files = listed_files(dir)?;
     }
@@ -91,6 +100,12 @@ pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError>
     for file in &files {
         crate::io::errors::check_exists(file, "storage file of the bag")?;
         parts.push(open_part(file, compression)?);
+    }
+    if !described {
+        parts[0].1.warnings.push(format!(
+            "{}: no metadata.yaml; its storage files are read as the bag, uncompressed",
+            dir.display()
+        ));
     }
     if parts.len() == 1 {
         return Ok(parts.pop().expect("one part"));
@@ -117,13 +132,22 @@ fn open_part(file: &Path, compression: Compression) -> Result<(Box<dyn Store>, C
     match compression {
         Compression::File => {
             let copy = Unpacked::decompress(file)?;
-            let (store, mut catalog) = open_file(&copy.path, Compression::None)?;
+            let opened = open_file(&copy.path, Compression::None);
+            let copy_path = copy.path.clone();
+            // Removed as soon as it is open (the store reads the open file: SQLite's
+            // connection, the MCAP map), so that a run killed later leaves nothing.
+            drop(copy);
+            let (store, mut catalog) = opened.map_err(|e| as_original(e, &copy_path, file))?;
             catalog.warnings.push(format!(
-                "{} is compressed whole: decompressed to {} for reading (removed when done)",
+                "{} is compressed whole: decompressed into the temporary folder for reading (that copy is removed once open)",
                 file.display(),
-                copy.path.display()
             ));
-            Ok((Box::new(WithCopy { store, _copy: copy }), catalog))
+            let store = WithCopy {
+                store,
+                copy: copy_path,
+                file: file.to_path_buf(),
+            };
+            Ok((Box::new(store), catalog))
         }
         _ => open_file(file, compression),
     }
@@ -192,7 +216,7 @@ impl Store for Parts {
 }
 
 /// A storage file compressed whole, decompressed into the temporary folder; removed
-/// when dropped.
+/// when dropped (a store opened on it reads on from the open file).
 struct Unpacked {
     path: PathBuf,
 }
@@ -239,15 +263,35 @@ impl Drop for Unpacked {
     }
 }
 
-/// A store read from a decompressed copy, which lives as long as it.
+/// A store read from a decompressed copy of `file` (removed from its folder once open,
+/// at `copy`): its errors name the user's file.
 struct WithCopy {
     store: Box<dyn Store>,
-    _copy: Unpacked,
+    copy: PathBuf,
+    file: PathBuf,
 }
 
 impl Store for WithCopy {
     fn read(&self, at: Location) -> Result<Cow<'_, [u8]>, IoError> {
-        self.store.read(at)
+        self.store
+            .read(at)
+            .map_err(|e| as_original(e, &self.copy, &self.file))
+    }
+}
+
+/// An error about the decompressed `copy` of `file`, as one about `file` (the copy's
+/// temporary name means nothing to the user).
+fn as_original(error: IoError, copy: &Path, file: &Path) -> IoError {
+    match error {
+        IoError::Invalid { path, message } if path == copy => IoError::Invalid {
+            path: file.to_path_buf(),
+            message: format!("{message} (in its decompressed content)"),
+        },
+        IoError::Read { path, source } if path == copy => IoError::Read {
+            path: file.to_path_buf(),
+            source,
+        },
+        other => other,
     }
 }
 
@@ -352,6 +396,51 @@ fn decompressed(path: &Path, store: Box<dyn Store>, compression: Compression) ->
     }
 }
 
+/// Opens `path` read-only and immutable (SQLite's `immutable=1` URI): SQLite then takes
+/// no lock and never creates the `-shm` and `-wal` files beside a bag in WAL mode
+/// (rosbag2's old default, its `resilient` preset today), which a plain read-only open
+/// of such a bag does, and which fails in a folder the user cannot write.
+fn open_immutable(path: &Path) -> rusqlite::Result<rusqlite::Connection> {
+    let flags = rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY
+        | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX
+        | rusqlite::OpenFlags::SQLITE_OPEN_URI;
+    rusqlite::Connection::open_with_flags(sqlite_uri(path), flags)
+}
+
+/// The `file:` URI of `path` with `immutable=1`; every byte but the unreserved ones and
+/// `/` percent-encoded (a `?`, `#` or `%` in a name would otherwise end or change it).
+fn sqlite_uri(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut uri = String::from("file:");
+    for &b in path.as_os_str().as_bytes() {
+        match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'/' | b'.' | b'_' | b'-' | b'~' => {
+                uri.push(b as char)
+            }
+            _ => uri.push_str(&format!("%{b:02X}")),
+        }
+    }
+    uri.push_str("?immutable=1");
+    uri
+}
+
+/// A warning when a `-wal` journal with content lies beside `path`: its writer did not
+/// close the bag, and the messages only the journal holds are not read (an immutable
+/// open reads the database file alone, and folding the journal in would write beside
+/// the input).
+fn unread_journal(path: &Path) -> Option<String> {
+    let mut name = path.as_os_str().to_owned();
+    name.push("-wal");
+    let journal = PathBuf::from(name);
+    let size = std::fs::metadata(&journal).ok()?.len();
+    (size > 0).then(|| {
+        format!(
+            "{} ({size} bytes) lies beside the bag: its recorder did not close it, and the messages only that journal holds are not read (open a copy of both files once with `sqlite3 COPY.db3 'PRAGMA wal_checkpoint'` to fold them in)",
+            journal.display()
+        )
+    })
+}
+
 /// A ROS 2 SQLite bag, opened read-only.
 struct Sqlite {
     path: std::path::PathBuf,
@@ -370,10 +459,11 @@ fn open_sqlite_with(
     let bad = |e: rusqlite::Error| {
         IoError::invalid(path, format!("not a readable ROS 2 SQLite bag: {e}"))
     };
-    let flags =
-        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX;
-    let connection = rusqlite::Connection::open_with_flags(path, flags).map_err(bad)?;
+    let connection = open_immutable(path).map_err(bad)?;
     let mut catalog = Catalog::new(Wire::Cdr);
+    if let Some(note) = unread_journal(path) {
+        catalog.warnings.push(note);
+    }
     {
         let mut topics = connection
             .prepare("SELECT id, name, type, serialization_format FROM topics")
@@ -500,6 +590,12 @@ fn open_mcap_with(
 ) -> Result<(Box<dyn Store>, Catalog), IoError> {
     let map = mapped::map(path)?;
     let bad = |e: mcap::McapError| IoError::invalid(path, format!("not a readable MCAP file: {e}"));
+    if map.starts_with(mcap::MAGIC) && !map.ends_with(mcap::MAGIC) {
+        return Err(IoError::invalid(path, format!(
+            "the MCAP file is cut short: its {} bytes do not end with MCAP's closing magic (its writer died, or the copy is partial); `mcap recover` rewrites what is whole into a new file",
+            map.len()
+        )));
+    }
     let summary = mcap::read::Summary::read(&map).map_err(bad)?.ok_or_else(|| {
         IoError::invalid(path, "the MCAP file has no summary (cut short, or its writer died): `mcap recover` it first")
     })?;
@@ -521,6 +617,14 @@ fn open_mcap_with(
     for channel in channels {
         let msg_type = channel.schema.as_ref().map_or("", |s| s.name.as_str());
         catalog.add_topic(channel.id, &channel.topic, msg_type);
+    }
+    for (i, index) in summary.chunk_indexes.iter().enumerate() {
+        check_chunk_index(&map, i, index).map_err(|e| {
+            IoError::invalid(
+                path,
+                format!("its summary lies: {e}; `mcap recover` rewrites the file from its records"),
+            )
+        })?;
     }
     for (i, index) in summary.chunk_indexes.iter().enumerate() {
         let messages = ChunkMessages::read(&summary, &map, index).map_err(bad)?;

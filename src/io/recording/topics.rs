@@ -83,10 +83,16 @@ pub fn listing(catalog: &Catalog) -> String {
         .map(|t| format!("{} ({}, {} messages)", t.name, t.msg_type, t.messages.len()))
         .collect();
     lines.sort();
-    if lines.is_empty() {
-        return "it has no messages".into();
+    let listed = match lines.is_empty() {
+        true => "it has no messages it can read".to_owned(),
+        false => format!("its topics: {}", lines.join(", ")),
+    };
+    // What the reader read past says why a topic may be missing (cut short, a
+    // serialisation not read).
+    match catalog.warnings.is_empty() {
+        true => listed,
+        false => format!("{listed}; and {}", catalog.warnings.join("; ")),
     }
-    format!("its topics: {}", lines.join(", "))
 }
 
 /// A topic named by the user: it must exist and have one of `types`.
@@ -199,9 +205,20 @@ pub fn choose(
         )?,
     };
     let depth = match &choice.depth {
-        Some(name) => named(path, catalog, name, &images, "depth_topic")?
-            .name
-            .clone(),
+        Some(name) => {
+            let topic = named(path, catalog, name, &images, "depth_topic")?;
+            if matches!(
+                content(topic, store, catalog.wire)?,
+                Content::Colour | Content::Grey
+            ) {
+                return Err(IoError::invalid(
+                    path,
+                    format!("depth_topic {name} carries colour or grey images, not depth (16UC1, 32FC1, mono16 or compressedDepth)"),
+                ));
+            }
+            topic.name.clone()
+        }
+        None if depth.is_empty() => return Err(monocular(path, catalog)),
         None => best(
             path,
             catalog,
@@ -226,6 +243,17 @@ pub fn choose(
     })
 }
 
+/// The error for a recording with neither a depth topic nor a stereo pair.
+fn monocular(path: &Path, catalog: &Catalog) -> IoError {
+    IoError::invalid(
+        path,
+        format!(
+            "no depth image topic found, and no stereo pair (two image topics named .../left/... and .../right/...): monocular input is not supported, dopslam needs RGB-D or a rectified stereo pair; {}",
+            listing(catalog)
+        ),
+    )
+}
+
 /// A rectified stereo pair among the image topics: one whose name has `left` (or the
 /// one named by `rgb_topic`) and the same name with `right`.
 fn stereo_pair(catalog: &Catalog, images: &[(u8, &Topic)], choice: &TopicChoice) -> Option<Chosen> {
@@ -240,7 +268,9 @@ fn stereo_pair(catalog: &Catalog, images: &[(u8, &Topic)], choice: &TopicChoice)
     lefts.sort();
     lefts.into_iter().find_map(|left| {
         let right = left.replacen("left", "right", 1);
-        images.iter().any(|(_, t)| t.name == right).then(|| Chosen {
+        // Two distinct topics: a name without `left` maps onto itself.
+        let found = right != left && images.iter().any(|(_, t)| t.name == right);
+        found.then(|| Chosen {
             colour: left.to_owned(),
             camera_info: choice
                 .camera_info

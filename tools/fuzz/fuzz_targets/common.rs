@@ -10,3 +10,15 @@ pub fn scratch(name: &str, data: &[u8]) -> PathBuf {
     std::fs::write(&path, data).expect("the scratch file is writable");
     path
 }
+
+/// Opens the recording at `path` as a run does and decodes its first frames: every
+/// container reader's path from the file's bytes to a frame.
+pub fn open_recording(path: &std::path::Path) {
+    use dopslam::io::sequence::Sequence;
+    let options = dopslam::io::recording::RecordingOptions::default();
+    if let Ok(recording) = dopslam::io::recording::RecordingSequence::open(path, &options) {
+        for index in 0..recording.len().min(3) {
+            let _ = recording.load(index);
+        }
+    }
+}
