@@ -206,6 +206,15 @@ impl Ros1Bag {
         let mut index_pos = None;
         while pos < len {
             let Some(FileRecord { header, data, end }) = self.file_record(pos)? else {
+                if let Some(next) = self.next_chunk(pos) {
+                    catalog.warnings.push(format!(
+                        "{}: the record at byte {pos} is damaged (its length runs past the file's end, {len} bytes): {} bytes skipped to the next chunk, at byte {next}",
+                        self.path.display(),
+                        next - pos
+                    ));
+                    pos = next;
+                    continue;
+                }
                 catalog.warnings.push(format!(
                     "{}: the bag is cut short: the record at byte {pos} runs past its end ({len} bytes); the messages before it are read",
                     self.path.display()
@@ -236,6 +245,31 @@ impl Ros1Bag {
             ));
         }
         Ok(catalog)
+    }
+
+    /// The first whole chunk record after `pos`, found by its header's `op` field: where
+    /// a damaged length hides the records after it, the scan goes on from there.
+    fn next_chunk(&self, pos: u64) -> Option<u64> {
+        const OP_FIELD: [u8; 8] = [4, 0, 0, 0, b'o', b'p', b'=', OP_CHUNK];
+        /// How far before its `op` field a chunk record may start (its header_len, and
+        /// the `compression` and `size` fields).
+        const BEFORE: usize = 64;
+        let from = usize::try_from(pos).ok()? + 1;
+        let tail = self.map.get(from..)?;
+        tail.windows(OP_FIELD.len())
+            .enumerate()
+            .filter(|(_, w)| *w == OP_FIELD)
+            .find_map(|(at, _)| {
+                let field = from + at;
+                (field.saturating_sub(BEFORE).max(from)..field).find(|&start| {
+                    split_record(&self.map, start).is_some_and(|(header, _, _)| {
+                        let header_at = start + 4;
+                        (header_at..header_at + header.len()).contains(&field)
+                            && Header::parse(header).is_ok_and(|h| h.op() == Ok(OP_CHUNK))
+                    })
+                })
+            })
+            .map(|start| start as u64)
     }
 
     fn scan_chunk(
@@ -510,6 +544,42 @@ mod tests {
         let mut encoder = lz4_flex::frame::FrameEncoder::new(Vec::new());
         std::io::Write::write_all(&mut encoder, &chunk_records(3)).unwrap();
         with_chunk(b"lz4", size, &encoder.finish().unwrap())
+    }
+
+    /// A damaged length in the first of two chunks: the scan skips to the second, and
+    /// says how much it skipped; a bag cut inside its last chunk is still "cut short".
+    #[test]
+    fn a_damaged_record_length_skips_to_the_next_chunk() {
+        let mut bytes = bag(3);
+        let first = split_record(&bytes, MAGIC.len()).unwrap().2;
+        let second = chunk_records(2);
+        bytes.extend(record(
+            &[
+                field("op", &[OP_CHUNK]),
+                field("compression", b"none"),
+                field("size", &(second.len() as u32).to_le_bytes()),
+            ],
+            &second,
+        ));
+        let header_len = u32::from_le_bytes(bytes[first..first + 4].try_into().unwrap()) as usize;
+        let data_len_at = first + 4 + header_len;
+        bytes[data_len_at..data_len_at + 4].copy_from_slice(&0x7fff_ffffu32.to_le_bytes());
+        let dir = std::env::temp_dir().join(format!("dopslam-ros1-skip-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.bag");
+        std::fs::write(&path, &bytes).unwrap();
+        let (_, catalog) = Ros1Bag::open(&path).unwrap();
+        assert_eq!(catalog.topics[0].messages.len(), 2, "the second chunk's");
+        let warnings = catalog.warnings.join("\n");
+        assert!(
+            warnings.contains(&format!("record at byte {first} is damaged"))
+                && warnings.contains("skipped to the next chunk"),
+            "{warnings}"
+        );
+        std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
+        let (_, catalog) = Ros1Bag::open(&path).unwrap();
+        assert!(catalog.warnings.iter().any(|w| w.contains("cut short")));
+        std::fs::remove_dir_all(dir).unwrap();
     }
 
     #[test]
