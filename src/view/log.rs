@@ -57,20 +57,41 @@ impl LogSummary {
 }
 
 /// How long a streamed recording waits for a viewer that takes nothing before it gives
-/// up on it: for room in the queue, and for the last entries and the flush at the end.
+/// up on it: without progress, for room in the queue and for the last entries; and for
+/// the SDK's flush at the end.
 pub const VIEWER_PATIENCE: Duration = Duration::from_secs(5);
 
-/// Whether a streamed recording gave up on its viewer, and how many entries that cost.
+/// Whether a streamed recording gave up on its viewer, how many entries that cost, and
+/// how many the logging thread has handed to the SDK (its progress: a slow viewer that
+/// takes entries is waited for, one that takes nothing is not).
 #[derive(Default)]
 struct Stall {
     stalled: AtomicBool,
     undelivered: AtomicUsize,
+    handed: AtomicUsize,
 }
 
 impl Stall {
     fn give_up(&self) {
         self.stalled.store(true, Ordering::Relaxed);
         self.undelivered.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Waits while `pending()` holds, until [`VIEWER_PATIENCE`] passes without
+    /// progress; whether it still holds then.
+    fn wait_while(&self, mut pending: impl FnMut() -> bool) -> bool {
+        let mut seen = self.handed.load(Ordering::Relaxed);
+        let mut since = Instant::now();
+        while pending() {
+            let now = self.handed.load(Ordering::Relaxed);
+            if now != seen {
+                (seen, since) = (now, Instant::now());
+            } else if since.elapsed() >= VIEWER_PATIENCE {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        false
     }
 }
 
@@ -81,9 +102,10 @@ pub struct LogHandle {
     dropped: Arc<AtomicUsize>,
     /// Images are dropped when the queue is full (a run), or wait (`dopslam view`).
     drops_images: bool,
-    /// For a viewer ([`Target::Connect`]), how long anything waits for room before the
-    /// viewer is given up on; a file waits as long as it takes.
-    patience: Option<Duration>,
+    /// For a viewer ([`Target::Connect`]): anything waits for room at most
+    /// [`VIEWER_PATIENCE`] without progress before the viewer is given up on; for a
+    /// file, as long as it takes.
+    viewer: bool,
     stall: Arc<Stall>,
     /// The `[output]` settings.
     pub config: Arc<OutputConfig>,
@@ -112,29 +134,31 @@ impl LogHandle {
         }
     }
 
-    /// Sends `command`, waiting for room: as long as it takes for a file, at most
-    /// [`VIEWER_PATIENCE`] for a viewer, which is then given up on (this and all later
-    /// entries counted as undelivered).
+    /// Sends `command`, waiting for room: as long as it takes for a file; for a viewer,
+    /// until [`VIEWER_PATIENCE`] passes without progress, then the viewer is given up on
+    /// (this and all later entries counted as undelivered).
     fn send_waiting(&self, command: Command) {
-        let Some(patience) = self.patience else {
+        if !self.viewer {
             let _ = self.sender.send(command);
             return;
-        };
+        }
         if self.stall.stalled.load(Ordering::Relaxed) {
             self.stall.undelivered.fetch_add(1, Ordering::Relaxed);
             return;
         }
-        let start = Instant::now();
-        let mut command = command;
-        loop {
-            match self.sender.try_send(command) {
-                Err(TrySendError::Full(back)) if start.elapsed() < patience => {
-                    command = back;
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                Err(TrySendError::Full(_)) => return self.stall.give_up(),
-                _ => return,
-            }
+        let mut command = Some(command);
+        let full =
+            self.stall.wait_while(
+                || match self.sender.try_send(command.take().expect("held")) {
+                    Err(TrySendError::Full(back)) => {
+                        command = Some(back);
+                        true
+                    }
+                    _ => false,
+                },
+            );
+        if full {
+            self.stall.give_up();
         }
     }
 }
@@ -188,18 +212,20 @@ impl Logger {
         let stream = super::entities::open_stream(&target, name)?;
         let (sender, receiver) = sync_channel(config.rerun_queue);
         let settings = config.clone();
-        let patience = matches!(target, Target::Connect(_)).then_some(VIEWER_PATIENCE);
+        let viewer = matches!(target, Target::Connect(_));
+        let stall = Arc::new(Stall::default());
+        let progress = Arc::clone(&stall);
         let thread = std::thread::Builder::new()
             .name("rerun-log".into())
-            .spawn(move || write_all(stream, receiver, &settings))
+            .spawn(move || write_all(stream, receiver, &settings, &progress.handed))
             .map_err(|e| ViewError::Thread(format!("cannot start: {e}")))?;
         Ok(Self {
             handle: LogHandle {
                 sender,
                 dropped: Arc::new(AtomicUsize::new(0)),
                 drops_images: true,
-                patience,
-                stall: Arc::new(Stall::default()),
+                viewer,
+                stall,
                 config: Arc::new(config.clone()),
             },
             thread: Some(thread),
@@ -233,21 +259,15 @@ impl Logger {
         self.handle.send_waiting(Command::Stop);
         let dropped_images = self.handle.dropped.load(Ordering::Relaxed);
         let undelivered = || self.handle.stall.undelivered.load(Ordering::Relaxed);
-        if let Some(patience) = self.handle.patience {
-            // A viewer that takes nothing holds the logging thread in its send: it is
-            // left behind (the process ends it), with what it still held counted.
-            let start = Instant::now();
-            while !thread.is_finished() && start.elapsed() < patience {
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            if !thread.is_finished() {
-                return Ok(LogSummary {
-                    logged: 0,
-                    dropped_images,
-                    viewer_stalled: true,
-                    undelivered: undelivered(),
-                });
-            }
+        // A viewer that takes nothing holds the logging thread in its send: it is left
+        // behind (the process ends it), and what it still held is not delivered.
+        if self.handle.viewer && self.handle.stall.wait_while(|| !thread.is_finished()) {
+            return Ok(LogSummary {
+                logged: 0,
+                dropped_images,
+                viewer_stalled: true,
+                undelivered: undelivered(),
+            });
         }
         let (logged, delivered) = thread
             .join()
@@ -292,11 +312,13 @@ fn write_all(
     stream: super::entities::Stream,
     receiver: Receiver<Command>,
     config: &OutputConfig,
+    handed: &AtomicUsize,
 ) -> Result<(usize, bool), ViewError> {
     let mut logged = 0;
     while let Ok(Command::Log(message)) = receiver.recv() {
         stream.log(&message, config)?;
         logged += 1;
+        handed.fetch_add(1, Ordering::Relaxed);
     }
     let delivered = stream.close()?;
     Ok((logged, delivered))
