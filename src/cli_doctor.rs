@@ -123,10 +123,12 @@ fn print_search_order(cwd: &Path) {
     match std::env::var_os(data_dir::ENV) {
         Some(v) => {
             let path = Path::new(&v);
-            let problem = match () {
-                _ if path.is_dir() => "",
-                _ if path.exists() => " (it names a file, not a folder: nothing is found there)",
-                _ => " (no such folder: nothing is found there)",
+            let problem = if path.is_dir() {
+                ""
+            } else if path.exists() {
+                " (it names a file, not a folder: nothing is found there)"
+            } else {
+                " (no such folder: nothing is found there)"
             };
             println!("  2. {}={} (when set, the only place looked at){problem}", data_dir::ENV, v.to_string_lossy())
         }

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 use dopslam::config::Config;
 use dopslam::io::recording::convert::{self, Layout};
@@ -189,6 +189,17 @@ pub fn run_convert(args: ConvertArgs, mut config: Config) -> Result<()> {
     let sequence = dopslam::run::open_sequence(&args.input, &config)?;
     let frames = args.frames.unwrap_or(usize::MAX).min(sequence.len());
     let written = convert::convert(sequence.as_ref(), &args.out, frames, layout, true)?;
+    // What the reader found wrong and read past (a recording cut short, no index) stays
+    // with the converted folder.
+    if !sequence.warnings().is_empty() {
+        let path = args.out.join("conversion_warnings.txt");
+        std::fs::write(&path, sequence.warnings().join("\n") + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!(
+            "what the reader found wrong with the recording is kept in {}",
+            path.display()
+        );
+    }
     println!(
         "wrote {written} frames to {} ({layout:?} layout)",
         args.out.display()

@@ -272,7 +272,18 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
         .parse()
         .unwrap();
     assert!((1..12).contains(&frames), "{out}");
-    // A run of it keeps the cut in report.json.
+    // Converted, its folder keeps the cut; a run of it keeps it in report.json.
+    let converted = dir.join("cut-tum");
+    let (ok, _, err) = common::dopslam(&[
+        "convert",
+        &path.to_string_lossy(),
+        "--to",
+        "tum",
+        &converted.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let kept = std::fs::read_to_string(converted.join("conversion_warnings.txt")).unwrap();
+    assert!(kept.contains("cut short") && kept.contains("byte"), "{kept}");
     let run = dir.join("out-cut");
     let (ok, _, err) = track(&path, &run, "");
     assert!(ok, "{err}");
@@ -756,6 +767,20 @@ fn a_stereo_bag_tracks_as_its_kitti_folder_and_converts_back() {
     assert!(!ok && err.contains("--to kitti"), "{err}");
 }
 
+/// The writer's Python, a test folder `name` and a static room of `frames` frames in
+/// it, or `None` (the test skips) when the writer is missing.
+fn writer_and_room(
+    test: &str,
+    name: &str,
+    frames: usize,
+) -> Option<(PathBuf, common::TestDir, PathBuf)> {
+    let python = writer_python(test)?;
+    let dir = common::temp_dir(name);
+    let seq = dir.join("seq");
+    common::synth_static_room(&seq, frames);
+    Some((python, dir, seq))
+}
+
 /// The files in `dir`, by name.
 fn names_in(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = std::fs::read_dir(dir)
@@ -771,13 +796,13 @@ fn names_in(dir: &Path) -> Vec<String> {
 /// taken for a stereo pair of one topic with itself.
 #[test]
 fn a_recording_without_depth_or_a_pair_is_refused_as_monocular() {
-    let Some(python) = writer_python("a_recording_without_depth_or_a_pair_is_refused_as_monocular")
-    else {
+    let Some((python, dir, seq)) = writer_and_room(
+        "a_recording_without_depth_or_a_pair_is_refused_as_monocular",
+        "recordings-mono",
+        4,
+    ) else {
         return;
     };
-    let dir = common::temp_dir("recordings-mono");
-    let seq = dir.join("seq");
-    common::synth_static_room(&seq, 4);
     let bag = dir.join("mono.bag");
     write(&python, &seq, &bag, &["--format", "ros1", "--no-depth"]);
     for extra in [&[][..], &["--rgb-topic", "/camera/rgb/image_color"][..]] {
@@ -821,13 +846,13 @@ fn a_recording_without_depth_or_a_pair_is_refused_as_monocular() {
 /// file appearing beside it; a journal its recorder left there is named as unread.
 #[test]
 fn a_wal_mode_sqlite_bag_is_read_without_writing_beside_it() {
-    let Some(python) = writer_python("a_wal_mode_sqlite_bag_is_read_without_writing_beside_it")
-    else {
+    let Some((python, dir, seq)) = writer_and_room(
+        "a_wal_mode_sqlite_bag_is_read_without_writing_beside_it",
+        "recordings-wal",
+        4,
+    ) else {
         return;
     };
-    let dir = common::temp_dir("recordings-wal");
-    let seq = dir.join("seq");
-    common::synth_static_room(&seq, 4);
     // A folder whose name SQLite's URIs would misread unless encoded (the writer
     // itself cannot write there: it is renamed after).
     let bag = dir.join("wal bag?#%");
@@ -871,6 +896,23 @@ fn a_wal_mode_sqlite_bag_is_read_without_writing_beside_it() {
     std::fs::write(&journal, [1u8; 64]).unwrap();
     let (ok, out, err) = info(&db3, &[]);
     assert!(ok && (out + &err).contains("-wal (64 bytes) lies beside the bag"));
+    // A bag folder without its metadata.yaml is still a bag, not a TUM folder.
+    std::fs::remove_file(&journal).unwrap();
+    std::fs::remove_file(bag.join("metadata.yaml")).unwrap();
+    let (ok, out, err) = info(&bag, &[]);
+    let said = out + &err;
+    assert!(
+        ok && said.contains("frames: 4 ") && said.contains("no metadata.yaml"),
+        "{said}"
+    );
+    // And a TUM folder named like a bag is a TUM folder.
+    let named = dir.join("seq.bag");
+    std::fs::rename(&seq, &named).unwrap();
+    let (ok, out, err) = info(&named, &[]);
+    assert!(
+        ok && out.contains("sequence seq.bag (Rgbd): 4 frames"),
+        "{out}{err}"
+    );
 }
 
 /// An MCAP file whose summary lies about a chunk (shorter than a record's frame, or at
@@ -878,12 +920,13 @@ fn a_wal_mode_sqlite_bag_is_read_without_writing_beside_it() {
 /// cut one says how to recover it.
 #[test]
 fn a_lying_or_cut_mcap_is_named_not_panicked_on() {
-    let Some(python) = writer_python("a_lying_or_cut_mcap_is_named_not_panicked_on") else {
+    let Some((python, dir, seq)) = writer_and_room(
+        "a_lying_or_cut_mcap_is_named_not_panicked_on",
+        "recordings-mcap",
+        4,
+    ) else {
         return;
     };
-    let dir = common::temp_dir("recordings-mcap");
-    let seq = dir.join("seq");
-    common::synth_static_room(&seq, 4);
     let bag = dir.join("bag");
     write(&python, &seq, &bag, &["--format", "ros2-mcap"]);
     let file = common::sorted_files(&bag)

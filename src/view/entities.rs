@@ -90,15 +90,18 @@ mod without_rerun {
     /// Stands where the recording would be: never made (see [`super::super::Logger::open`]).
     pub struct Stream;
 
+    /// Without the `rerun` feature: an error saying so.
     pub fn open_stream(_target: &Target, _name: &'static str) -> Result<Stream, ViewError> {
         Err(ViewError::NotBuilt)
     }
 
     impl Stream {
+        /// Never reached (no stream is made): an error saying so.
         pub fn log(&self, _message: &Message, _config: &OutputConfig) -> Result<(), ViewError> {
             Err(ViewError::NotBuilt)
         }
 
+        /// Nothing to close.
         pub fn close(self) -> Result<bool, ViewError> {
             Ok(true)
         }

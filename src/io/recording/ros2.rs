@@ -86,9 +86,10 @@ fn listed_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
 /// Opens a ROS 2 bag folder through its storage files (several: read as one).
 pub fn open_bag_folder(dir: &Path) -> Result<(Box<dyn Store>, Catalog), IoError> {
     let described = dir.join("metadata.yaml").is_file();
-    let (mut files, compression) = match described {
-        true => metadata(dir)?,
-        false => (Vec::new(), Compression::None),
+    let (mut files, compression) = if described {
+        metadata(dir)?
+    } else {
+        (Vec::new(), Compression::None)
     };
     if files.is_empty() {
         files = listed_files(dir)?;

@@ -83,15 +83,17 @@ pub fn listing(catalog: &Catalog) -> String {
         .map(|t| format!("{} ({}, {} messages)", t.name, t.msg_type, t.messages.len()))
         .collect();
     lines.sort();
-    let listed = match lines.is_empty() {
-        true => "it has no messages it can read".to_owned(),
-        false => format!("its topics: {}", lines.join(", ")),
+    let listed = if lines.is_empty() {
+        "it has no messages it can read".to_owned()
+    } else {
+        format!("its topics: {}", lines.join(", "))
     };
     // What the reader read past says why a topic may be missing (cut short, a
     // serialisation not read).
-    match catalog.warnings.is_empty() {
-        true => listed,
-        false => format!("{listed}; and {}", catalog.warnings.join("; ")),
+    if catalog.warnings.is_empty() {
+        listed
+    } else {
+        format!("{listed}; and {}", catalog.warnings.join("; "))
     }
 }
 
