@@ -413,13 +413,13 @@ mod with_rerun {
         }
 
         /// Writes what is buffered and closes the stream; whether all was delivered. A
-        /// viewer gets [`crate::view::log::VIEWER_PATIENCE`] to take the rest; one that
+        /// viewer gets [`crate::view::entry::VIEWER_PATIENCE`] to take the rest; one that
         /// takes nothing is left (the SDK's own close would wait for it for ever).
         pub fn close(self) -> Result<bool, ViewError> {
             if self.viewer {
                 let flushed = self
                     .stream
-                    .flush_with_timeout(crate::view::log::VIEWER_PATIENCE);
+                    .flush_with_timeout(crate::view::entry::VIEWER_PATIENCE);
                 if flushed.is_err() {
                     std::mem::forget(self.stream);
                     return Ok(false);

@@ -152,6 +152,11 @@ pub enum Target {
     Connect(String),
 }
 
+/// How long a streamed recording waits for a viewer that takes nothing before it gives
+/// up on it: without progress, for room in the queue and for the last entries; and for
+/// the SDK's flush at the end.
+pub const VIEWER_PATIENCE: std::time::Duration = std::time::Duration::from_secs(5);
+
 impl Target {
     /// The file's path or the viewer's address, as a user names it.
     pub fn name(&self) -> String {

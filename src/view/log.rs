@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+pub use super::entry::VIEWER_PATIENCE;
 use super::entry::{At, Entry, Message, Target};
 use super::{OutputConfig, ViewError};
 
@@ -55,11 +56,6 @@ impl LogSummary {
         }
     }
 }
-
-/// How long a streamed recording waits for a viewer that takes nothing before it gives
-/// up on it: without progress, for room in the queue and for the last entries; and for
-/// the SDK's flush at the end.
-pub const VIEWER_PATIENCE: Duration = Duration::from_secs(5);
 
 /// Whether a streamed recording gave up on its viewer, how many entries that cost, and
 /// how many the logging thread has handed to the SDK (its progress: a slow viewer that

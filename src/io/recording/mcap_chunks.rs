@@ -86,6 +86,14 @@ pub fn check_chunk_index(file: &[u8], n: usize, index: &ChunkIndex) -> Result<()
     if frame.first() != Some(&op::CHUNK) || length != Some(index.chunk_length - FRAME as u64) {
         return Err(format!("{}: no chunk record of that length there", claim()));
     }
+    // The chunk's header: three u64, a u32 CRC, then the compression's name (its length
+    // taken unchecked by the crate, as in the summary).
+    if !fields_fit(&frame[FRAME..], &[Field::Fixed(28), Field::Sized]) {
+        return Err(format!(
+            "{}: its compression's name runs past the chunk",
+            claim()
+        ));
+    }
     let header = match parse_record(op::CHUNK, &frame[FRAME..]) {
         Ok(Record::Chunk { header, .. }) => header,
         Ok(_) => return Err(format!("{}: no chunk record there", claim())),
@@ -97,6 +105,111 @@ pub fn check_chunk_index(file: &[u8], n: usize, index: &ChunkIndex) -> Result<()
             "{} announces {announced} bytes decompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold here",
             claim()
         ));
+    }
+    Ok(())
+}
+
+/// One field of a summary record, for [`check_summary`].
+#[derive(Clone, Copy)]
+enum Field {
+    /// A fixed number of bytes.
+    Fixed(usize),
+    /// A string or byte array: a u32 length, then that many bytes.
+    Sized,
+    /// A map of strings to strings: a u32 byte length, then pairs of [`Field::Sized`].
+    StringMap,
+}
+
+/// The fields of the summary records whose lengths the `mcap` crate takes unchecked.
+fn layout(opcode: u8) -> &'static [Field] {
+    use Field::{Fixed, Sized, StringMap};
+    match opcode {
+        op::SCHEMA => &[Fixed(2), Sized, Sized, Sized],
+        op::CHANNEL => &[Fixed(4), Sized, Sized, StringMap],
+        op::CHUNK_INDEX => &[Fixed(32), Sized, Fixed(8), Sized, Fixed(16)],
+        op::ATTACHMENT_INDEX => &[Fixed(40), Sized, Sized],
+        op::METADATA_INDEX => &[Fixed(16), Sized],
+        op::STATISTICS => &[Fixed(42), Sized],
+        _ => &[],
+    }
+}
+
+/// The u32 length at the start of `body`, when the bytes it names follow in `body`;
+/// the rest after them.
+fn sized(body: &[u8]) -> Option<&[u8]> {
+    let (length, rest) = body.split_first_chunk::<4>()?;
+    rest.get(u32::from_le_bytes(*length) as usize..)
+}
+
+/// Whether every length-prefixed field of a summary record's `body` lies inside it.
+fn fields_fit(mut body: &[u8], fields: &[Field]) -> bool {
+    for field in fields {
+        let rest = match field {
+            Field::Fixed(n) => body.get(*n..),
+            Field::Sized => sized(body),
+            Field::StringMap => body.split_first_chunk::<4>().and_then(|(length, rest)| {
+                let mut pairs = rest.get(..u32::from_le_bytes(*length) as usize)?;
+                while !pairs.is_empty() {
+                    pairs = sized(sized(pairs)?)?;
+                }
+                rest.get(u32::from_le_bytes(*length) as usize..)
+            }),
+        };
+        let Some(rest) = rest else {
+            return false;
+        };
+        body = rest;
+    }
+    true
+}
+
+/// Checks the summary section of `file` before the `mcap` crate reads it: each record
+/// lies inside the section, and each string, byte array and map of a schema, channel
+/// or index record inside its record. The crate sizes a buffer from a string's length
+/// before it reads the string, so a lying length (up to 4 GiB) would be allocated.
+/// A file without a footer or summary is left to the crate, which says so.
+pub fn check_summary(file: &[u8]) -> Result<(), String> {
+    const FOOTER: usize = 9 + 20;
+    let Some(footer_at) = file.len().checked_sub(mcap::MAGIC.len() + FOOTER) else {
+        return Ok(());
+    };
+    let footer = &file[footer_at..footer_at + FOOTER];
+    if footer[0] != op::FOOTER {
+        return Ok(());
+    }
+    let start = u64::from_le_bytes(footer[9..17].try_into().expect("8 bytes"));
+    if start == 0 {
+        return Ok(());
+    }
+    let mut at = usize::try_from(start)
+        .ok()
+        .filter(|&s| s >= mcap::MAGIC.len() && s <= footer_at)
+        .ok_or_else(|| format!("the footer puts the summary at byte {start}, outside the file"))?;
+    while at < footer_at {
+        let record = &file[at..footer_at];
+        let (opcode, length) = match record.get(..FRAME) {
+            Some(frame) => (
+                frame[0],
+                u64::from_le_bytes(frame[1..].try_into().expect("8 bytes")),
+            ),
+            None => {
+                return Err(format!(
+                    "the summary record at byte {at} is cut by the footer"
+                ))
+            }
+        };
+        let body = usize::try_from(length)
+            .ok()
+            .and_then(|length| record.get(FRAME..FRAME.checked_add(length)?))
+            .ok_or_else(|| {
+                format!("the summary record at byte {at} ({length} bytes) runs past the summary")
+            })?;
+        if !fields_fit(body, layout(opcode)) {
+            return Err(format!(
+                "the summary record at byte {at} (opcode {opcode:#04x}) has a field longer than the record"
+            ));
+        }
+        at += FRAME + body.len();
     }
     Ok(())
 }
@@ -227,6 +340,28 @@ mod tests {
         assert!(uncompressed_messages(cut, &summary.chunk_indexes[0])
             .unwrap()
             .is_err());
+    }
+
+    /// A summary record whose string claims more bytes than its record holds is named
+    /// before the crate would size a buffer from it; an honest summary passes.
+    #[test]
+    fn a_summary_string_longer_than_its_record_is_refused() {
+        let (mut file, _) = written(&messages(), None);
+        check_summary(&file).unwrap();
+        let footer = file.len() - mcap::MAGIC.len() - 29;
+        let mut at = u64::from_le_bytes(file[footer + 9..footer + 17].try_into().unwrap()) as usize;
+        while file[at] != op::CHANNEL {
+            at += FRAME + u64::from_le_bytes(file[at + 1..at + 9].try_into().unwrap()) as usize;
+        }
+        // The channel's topic: after its frame and its two u16 ids.
+        let topic = at + FRAME + 4;
+        file[topic..topic + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        let error = check_summary(&file).unwrap_err();
+        assert!(
+            error.contains(&format!("record at byte {at}"))
+                && error.contains("longer than the record"),
+            "{error}"
+        );
     }
 
     /// An index that lies (a chunk shorter than its frame, an offset near 2^64, one

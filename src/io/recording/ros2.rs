@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use super::mapped::{self, release};
-use super::mcap_chunks::{check_chunk_index, uncompressed_messages, Span};
+use super::mcap_chunks::{check_chunk_index, check_summary, uncompressed_messages, Span};
 use super::{Catalog, Location, Store, Wire};
 use crate::io::IoError;
 
@@ -597,6 +597,12 @@ fn open_mcap_with(
             map.len()
         )));
     }
+    check_summary(&map).map_err(|e| {
+        IoError::invalid(
+            path,
+            format!("{e}; `mcap recover` rewrites the file from its records"),
+        )
+    })?;
     let summary = mcap::read::Summary::read(&map).map_err(bad)?.ok_or_else(|| {
         IoError::invalid(path, "the MCAP file has no summary (cut short, or its writer died): `mcap recover` it first")
     })?;
