@@ -118,13 +118,22 @@ enum Field {
     Sized,
     /// A map of strings to strings: a u32 byte length, then pairs of [`Field::Sized`].
     StringMap,
+    /// A byte array with a u64 length.
+    Sized64,
 }
 
-/// The fields of the summary records whose lengths the `mcap` crate takes unchecked.
+/// The fields of the records whose lengths the `mcap` crate takes unchecked (a summary
+/// section may hold any record; the message and statistics records' other fields are
+/// fixed).
 fn layout(opcode: u8) -> &'static [Field] {
-    use Field::{Fixed, Sized, StringMap};
+    use Field::{Fixed, Sized, Sized64, StringMap};
     match opcode {
+        op::HEADER => &[Sized, Sized],
         op::SCHEMA => &[Fixed(2), Sized, Sized, Sized],
+        op::CHUNK => &[Fixed(28), Sized, Sized64],
+        op::MESSAGE_INDEX => &[Fixed(2), Sized],
+        op::ATTACHMENT => &[Fixed(16), Sized, Sized, Sized64],
+        op::METADATA => &[Sized, StringMap],
         op::CHANNEL => &[Fixed(4), Sized, Sized, StringMap],
         op::CHUNK_INDEX => &[Fixed(32), Sized, Fixed(8), Sized, Fixed(16)],
         op::ATTACHMENT_INDEX => &[Fixed(40), Sized, Sized],
@@ -147,6 +156,9 @@ fn fields_fit(mut body: &[u8], fields: &[Field]) -> bool {
         let rest = match field {
             Field::Fixed(n) => body.get(*n..),
             Field::Sized => sized(body),
+            Field::Sized64 => body.split_first_chunk::<8>().and_then(|(length, rest)| {
+                rest.get(usize::try_from(u64::from_le_bytes(*length)).ok()?..)
+            }),
             Field::StringMap => body.split_first_chunk::<4>().and_then(|(length, rest)| {
                 let mut pairs = rest.get(..u32::from_le_bytes(*length) as usize)?;
                 while !pairs.is_empty() {
