@@ -283,7 +283,10 @@ fn damaged_and_unusual_recordings_are_read_or_refused_with_reasons() {
     ]);
     assert!(ok, "{err}");
     let kept = std::fs::read_to_string(converted.join("conversion_warnings.txt")).unwrap();
-    assert!(kept.contains("cut short") && kept.contains("byte"), "{kept}");
+    assert!(
+        kept.contains("cut short") && kept.contains("byte"),
+        "{kept}"
+    );
     let run = dir.join("out-cut");
     let (ok, _, err) = track(&path, &run, "");
     assert!(ok, "{err}");
