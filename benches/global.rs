@@ -7,9 +7,9 @@
 use std::time::Instant;
 
 use dopslam::bow::Vocabulary;
+use dopslam::geometry::stereo_camera::StereoCamera;
 use dopslam::optim::local_ba::bundle_adjust;
 use dopslam::optim::pose_graph::GraphOptions;
-use dopslam::geometry::stereo_camera::StereoCamera;
 use dopslam::synth::ba_problems::{centre_rmse, room_problem, BaSpec};
 use dopslam::synth::pose_graphs::{position_rmse, sphere, SphereSpec};
 

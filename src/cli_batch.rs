@@ -139,8 +139,7 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
         max_parallel: args.max_parallel,
         shards: args.shards,
     };
-    let scripts =
-        dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)?;
+    let scripts = dopslam::batch::slurm::write_scripts(&plan, &args.manifest, program, &options)?;
     println!(
         "wrote {} ({} array tasks for {} runs) and {}",
         scripts.array.display(),
@@ -176,7 +175,10 @@ fn slurm(args: &BatchArgs, program: &std::path::Path) -> Result<()> {
 }
 
 /// What a shard did.
-fn shard_done(summary: &dopslam::batch::BatchSummary, shard: dopslam::batch::shard::Shard) -> Result<()> {
+fn shard_done(
+    summary: &dopslam::batch::BatchSummary,
+    shard: dopslam::batch::shard::Shard,
+) -> Result<()> {
     let e = &summary.executed;
     for note in &summary.notes {
         eprintln!("note: {note}");
@@ -190,7 +192,10 @@ fn shard_done(summary: &dopslam::batch::BatchSummary, shard: dopslam::batch::sha
         e.interrupted
     );
     if dopslam::interrupt::requested() || e.interrupted > 0 {
-        bail!("interrupted: {} runs not done; run the same shard again to finish them", e.interrupted);
+        bail!(
+            "interrupted: {} runs not done; run the same shard again to finish them",
+            e.interrupted
+        );
     }
     Ok(())
 }

@@ -43,13 +43,20 @@ fn load_check(needed: &Needed, library: &Path) -> Option<Result<(), String>> {
         return None;
     }
     Some(match needed.load {
-        Load::Runtime => dopslam::detect::onnx::check_runtime(&needed.path).map_err(|e| e.to_string()),
-        Load::Model(layout) => dopslam::detect::onnx::OnnxDetector::load(&needed.path, layout, library, 1)
-            .map(|_| ())
-            .map_err(|e| e.to_string()),
+        Load::Runtime => {
+            dopslam::detect::onnx::check_runtime(&needed.path).map_err(|e| e.to_string())
+        }
+        Load::Model(layout) => {
+            dopslam::detect::onnx::OnnxDetector::load(&needed.path, layout, library, 1)
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        }
         Load::Vocabulary => dopslam::bow::vocabulary::Vocabulary::read(&needed.path)
             .and_then(|v| match v.is_empty() {
-                true => Err(dopslam::io::IoError::invalid(&needed.path, "holds no words")),
+                true => Err(dopslam::io::IoError::invalid(
+                    &needed.path,
+                    "holds no words",
+                )),
                 false => Ok(()),
             })
             .map_err(|e| e.to_string()),
@@ -66,7 +73,11 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     let data = DataDir::locate();
     let cwd = std::env::current_dir().unwrap_or_default();
     let shown = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    println!("data directory: {} ({})", shown(&data.path).display(), data.origin);
+    println!(
+        "data directory: {} ({})",
+        shown(&data.path).display(),
+        data.origin
+    );
     print_search_order(&cwd);
     let (needed, library) = needed_files(&config);
     println!("files (each loaded as a run loads it):");
@@ -78,7 +89,12 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
             Some(Ok(())) => "ok",
             Some(Err(_)) => "BROKEN",
         };
-        println!("  {:<8} {:<44} {}", status, n.what, shown(&n.path).display());
+        println!(
+            "  {:<8} {:<44} {}",
+            status,
+            n.what,
+            shown(&n.path).display()
+        );
         match checked {
             None if n.required => missing.push(shown(&n.path).display().to_string()),
             Some(Err(why)) => {
@@ -92,7 +108,11 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     }
     println!(
         "stereo dense map (OpenCV SGBM): {}",
-        if cfg!(feature = "opencv") { "built in" } else { "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)" }
+        if cfg!(feature = "opencv") {
+            "built in"
+        } else {
+            "not built (no opencv feature: install libopencv-dev clang libclang-dev and rebuild)"
+        }
     );
     if missing.is_empty() && broken.is_empty() {
         println!("everything a default run needs is in place and loads");
@@ -101,17 +121,28 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     if missing.is_empty() {
         anyhow::bail!(
             "{} cannot be loaded: {}; {}",
-            if broken.len() == 1 { "one file" } else { "files" },
+            if broken.len() == 1 {
+                "one file"
+            } else {
+                "files"
+            },
             broken.join("; "),
             data_dir::INSTALL_HINT
         );
     }
     if data.origin == DataOrigin::WorkingDirectory && !data.path.is_dir() {
-        println!("no data directory was found: dopslam looked at ./data of {}", cwd.display());
+        println!(
+            "no data directory was found: dopslam looked at ./data of {}",
+            cwd.display()
+        );
     }
     anyhow::bail!(
         "{} missing ({}): {}",
-        if missing.len() == 1 { "one file is" } else { "files are" },
+        if missing.len() == 1 {
+            "one file is"
+        } else {
+            "files are"
+        },
         missing.join(", "),
         data_dir::INSTALL_HINT
     )
@@ -130,7 +161,11 @@ fn print_search_order(cwd: &Path) {
             } else {
                 " (no such folder: nothing is found there)"
             };
-            println!("  2. {}={} (when set, the only place looked at){problem}", data_dir::ENV, v.to_string_lossy())
+            println!(
+                "  2. {}={} (when set, the only place looked at){problem}",
+                data_dir::ENV,
+                v.to_string_lossy()
+            )
         }
         None => println!("  2. {} (unset)", data_dir::ENV),
     }
@@ -138,7 +173,10 @@ fn print_search_order(cwd: &Path) {
         Some(record) => println!("  3. the install record {}", record_line(&record)),
         None => println!("  3. the install record (no XDG_DATA_HOME or HOME)"),
     }
-    println!("  4. ./data under the working directory ({})", cwd.join("data").display());
+    println!(
+        "  4. ./data under the working directory ({})",
+        cwd.join("data").display()
+    );
 }
 
 /// The install record and what it says: the folder it names, or why it is skipped.
@@ -172,12 +210,18 @@ fn needed_files(config: &Config) -> (Vec<Needed>, std::path::PathBuf) {
         required: true,
         load: Load::Runtime,
     }];
-    needed.extend(config.detector.model_files().into_iter().map(|path| Needed {
-        what: "detector model (the config's)",
-        path,
-        required: true,
-        load: Load::Model(config.detector.model.layout()),
-    }));
+    needed.extend(
+        config
+            .detector
+            .model_files()
+            .into_iter()
+            .map(|path| Needed {
+                what: "detector model (the config's)",
+                path,
+                required: true,
+                load: Load::Model(config.detector.model.layout()),
+            }),
+    );
     for (model, what) in [
         (Model::YoloxNano, "detector model yolox-nano (optional)"),
         (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
@@ -199,4 +243,3 @@ fn needed_files(config: &Config) -> (Vec<Needed>, std::path::PathBuf) {
     });
     (needed, library)
 }
-

@@ -43,7 +43,10 @@ impl TopicArgs {
             ground_truth: self.ground_truth_topic.clone(),
         });
         if self.ground_truth.is_some() {
-            config.dataset.ground_truth_file.clone_from(&self.ground_truth);
+            config
+                .dataset
+                .ground_truth_file
+                .clone_from(&self.ground_truth);
         }
     }
 }

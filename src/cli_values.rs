@@ -77,7 +77,10 @@ mod tests {
         assert!(fraction("nan").is_err() && fraction("1.5").is_err());
         assert_eq!(fraction("0.25"), Ok(0.25));
         assert!(at_least_one("0").is_err());
-        assert_eq!(at_least_two("1"), Err(BadArgument::TooSmall { least: 2, got: 1 }));
+        assert_eq!(
+            at_least_two("1"),
+            Err(BadArgument::TooSmall { least: 2, got: 1 })
+        );
         assert_eq!(at_least_two("2"), Ok(2));
     }
 }

@@ -17,8 +17,8 @@ use crate::eval::report::AlignMode;
 pub use crate::features::orb::OrbConfig;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::orbslam_settings::OrbSlamSettings;
-use crate::io::tum::TumOptions;
 use crate::io::recording::{RecordingOptions, TopicChoice};
+use crate::io::tum::TumOptions;
 pub use crate::mapping::MappingConfig;
 pub use crate::tracking::TrackerConfig;
 
@@ -300,17 +300,25 @@ impl StereoConfig {
 
     fn validate(&self) -> Result<(), BadValue> {
         checks::at_least_one("stereo.n_features", self.n_features as u64)?;
-        checks::each("stereo", checks::positive, &[
-            ("th_depth", self.th_depth),
-            ("voxel", self.voxel),
-            ("truncation", self.truncation),
-            ("max_depth", self.max_depth),
-            ("cloud_voxel", self.cloud_voxel),
-        ])?;
-        checks::each("stereo", checks::non_negative, &[
-            ("mask_free_space_seconds", self.mask_free_space_seconds),
-            ("bearing_baselines", self.bearing_baselines),
-        ])?;
+        checks::each(
+            "stereo",
+            checks::positive,
+            &[
+                ("th_depth", self.th_depth),
+                ("voxel", self.voxel),
+                ("truncation", self.truncation),
+                ("max_depth", self.max_depth),
+                ("cloud_voxel", self.cloud_voxel),
+            ],
+        )?;
+        checks::each(
+            "stereo",
+            checks::non_negative,
+            &[
+                ("mask_free_space_seconds", self.mask_free_space_seconds),
+                ("bearing_baselines", self.bearing_baselines),
+            ],
+        )?;
         if let Some(offset) = self.disparity_offset_px {
             if offset.abs() > MAX_DISPARITY_OFFSET_PX {
                 return Err(BadValue::new(
@@ -322,7 +330,10 @@ impl StereoConfig {
         if !(16..=1024).contains(&self.sgbm_disparities) || self.sgbm_disparities % 16 != 0 {
             return Err(BadValue::new(
                 "stereo.sgbm_disparities",
-                format!("must be a multiple of 16 from 16 to 1024, got {}", self.sgbm_disparities),
+                format!(
+                    "must be a multiple of 16 from 16 to 1024, got {}",
+                    self.sgbm_disparities
+                ),
             ));
         }
         if self.sgbm_block < 1 || self.sgbm_block % 2 == 0 || self.sgbm_block > 21 {
@@ -375,7 +386,11 @@ impl Config {
         ];
         optional.into_iter().flatten().for_each(from);
         detector.model_paths.iter_mut().for_each(from);
-        detector.pool.iter_mut().filter_map(|e| e.path.as_mut()).for_each(from);
+        detector
+            .pool
+            .iter_mut()
+            .filter_map(|e| e.path.as_mut())
+            .for_each(from);
     }
 
     /// Parses and validates TOML text; the message names the offending key.
@@ -418,10 +433,19 @@ impl Config {
         self.dense.validate()?;
         self.output.validate()?;
         self.global.smoothing.validate()?;
-        checks::non_negative("global.disparity_offset_min_px", self.global.disparity_offset_min_px)?;
-        checks::unit_interval("tracking.prediction_gate_share", self.tracking.prediction_gate_share)?;
+        checks::non_negative(
+            "global.disparity_offset_min_px",
+            self.global.disparity_offset_min_px,
+        )?;
+        checks::unit_interval(
+            "tracking.prediction_gate_share",
+            self.tracking.prediction_gate_share,
+        )?;
         checks::unit_interval("mapping.redundancy", self.mapping.redundancy)?;
-        checks::at_least_one("mapping.local_ba_keyframes", self.mapping.local_ba_keyframes as u64)?;
+        checks::at_least_one(
+            "mapping.local_ba_keyframes",
+            self.mapping.local_ba_keyframes as u64,
+        )?;
         if let Some(scale) = self.dataset.depth_scale {
             checks::positive("dataset.depth_scale", scale)?;
         }
@@ -451,13 +475,31 @@ impl Config {
         if let Some(v) = orb.n_features {
             let key = "ORBextractor.nFeatures";
             let orb_slot = &mut self.orb.n_features;
-            settle(orb_slot, d.orb.n_features, v, ("orb.n_features", key), &mut over);
+            settle(
+                orb_slot,
+                d.orb.n_features,
+                v,
+                ("orb.n_features", key),
+                &mut over,
+            );
             let stereo = &mut self.stereo.n_features;
-            settle(stereo, d.stereo.n_features, v, ("stereo.n_features", key), &mut over);
+            settle(
+                stereo,
+                d.stereo.n_features,
+                v,
+                ("stereo.n_features", key),
+                &mut over,
+            );
         }
         if let Some(v) = orb.scale_factor {
             let names = ("orb.scale_factor", "ORBextractor.scaleFactor");
-            settle(&mut self.orb.scale_factor, d.orb.scale_factor, v, names, &mut over);
+            settle(
+                &mut self.orb.scale_factor,
+                d.orb.scale_factor,
+                v,
+                names,
+                &mut over,
+            );
         }
         if let Some(v) = orb.n_levels {
             let names = ("orb.n_levels", "ORBextractor.nLevels");
@@ -465,17 +507,41 @@ impl Config {
         }
         if let Some(v) = orb.ini_th_fast {
             let names = ("orb.ini_th_fast", "ORBextractor.iniThFAST");
-            settle(&mut self.orb.ini_th_fast, d.orb.ini_th_fast, v, names, &mut over);
+            settle(
+                &mut self.orb.ini_th_fast,
+                d.orb.ini_th_fast,
+                v,
+                names,
+                &mut over,
+            );
         }
         if let Some(v) = orb.min_th_fast {
             let names = ("orb.min_th_fast", "ORBextractor.minThFAST");
-            settle(&mut self.orb.min_th_fast, d.orb.min_th_fast, v, names, &mut over);
+            settle(
+                &mut self.orb.min_th_fast,
+                d.orb.min_th_fast,
+                v,
+                names,
+                &mut over,
+            );
         }
         if let Some(v) = calibration.th_depth {
             let tracking = &mut self.tracking.th_depth;
-            settle(tracking, d.tracking.th_depth, v, ("tracking.th_depth", "ThDepth"), &mut over);
+            settle(
+                tracking,
+                d.tracking.th_depth,
+                v,
+                ("tracking.th_depth", "ThDepth"),
+                &mut over,
+            );
             let stereo = &mut self.stereo.th_depth;
-            settle(stereo, d.stereo.th_depth, v, ("stereo.th_depth", "ThDepth"), &mut over);
+            settle(
+                stereo,
+                d.stereo.th_depth,
+                v,
+                ("stereo.th_depth", "ThDepth"),
+                &mut over,
+            );
         }
         if let Some(fps) = calibration.fps {
             // ORB-SLAM2's most frames between keyframes is the frame rate.
@@ -483,10 +549,22 @@ impl Config {
             let (tracking, stereo) = (&mut self.tracking, &mut self.stereo);
             let names = ("tracking.max_frames_between_keyframes", "Camera.fps");
             let default = d.tracking.max_frames_between_keyframes;
-            settle(&mut tracking.max_frames_between_keyframes, default, v, names, &mut over);
+            settle(
+                &mut tracking.max_frames_between_keyframes,
+                default,
+                v,
+                names,
+                &mut over,
+            );
             let names = ("stereo.max_frames_between_keyframes", "Camera.fps");
             let default = d.stereo.max_frames_between_keyframes;
-            settle(&mut stereo.max_frames_between_keyframes, default, v, names, &mut over);
+            settle(
+                &mut stereo.max_frames_between_keyframes,
+                default,
+                v,
+                names,
+                &mut over,
+            );
         }
         if self.dataset.depth_scale.is_none() {
             self.dataset.depth_scale = calibration.depth_scale;
@@ -556,16 +634,19 @@ fn check_value(value: &toml::Value, key: &str) -> Result<(), BadValue> {
         }
     };
     match value {
-        toml::Value::Float(x) if !x.is_finite() => {
-            Err(BadValue::new(key, format!("must be a finite number, got {x}")))
-        }
+        toml::Value::Float(x) if !x.is_finite() => Err(BadValue::new(
+            key,
+            format!("must be a finite number, got {x}"),
+        )),
         toml::Value::Float(x) if *x < 0.0 && !may_be_negative(key) => {
             Err(BadValue::new(key, format!("must not be negative, got {x}")))
         }
         toml::Value::Integer(x) if *x < 0 && !may_be_negative(key) => {
             Err(BadValue::new(key, format!("must not be negative, got {x}")))
         }
-        toml::Value::Table(table) => table.iter().try_for_each(|(k, v)| check_value(v, &child(k))),
+        toml::Value::Table(table) => table
+            .iter()
+            .try_for_each(|(k, v)| check_value(v, &child(k))),
         toml::Value::Array(items) => items
             .iter()
             .enumerate()
@@ -650,7 +731,9 @@ mod tests {
 
     #[test]
     fn unknown_keys_are_named() {
-        let message = Config::from_toml("[orb]\nn_featurez = 1500\n").unwrap_err().to_string();
+        let message = Config::from_toml("[orb]\nn_featurez = 1500\n")
+            .unwrap_err()
+            .to_string();
         assert!(message.contains("n_featurez"), "{message}");
         let message = Config::from_toml("[nonsense]\n").unwrap_err().to_string();
         assert!(message.contains("nonsense"), "{message}");
@@ -660,20 +743,56 @@ mod tests {
     fn every_number_is_finite_and_sizes_are_not_negative() {
         for (text, key) in [
             ("[tracking]\nth_depth = nan\n", "tracking.th_depth"),
-            ("[tracking]\nmotion_search_radius = -1.0\n", "tracking.motion_search_radius"),
-            ("[tracking]\nprediction_gate_share = 1.5\n", "tracking.prediction_gate_share"),
-            ("[tracking]\nprediction_gate_share = nan\n", "tracking.prediction_gate_share"),
+            (
+                "[tracking]\nmotion_search_radius = -1.0\n",
+                "tracking.motion_search_radius",
+            ),
+            (
+                "[tracking]\nprediction_gate_share = 1.5\n",
+                "tracking.prediction_gate_share",
+            ),
+            (
+                "[tracking]\nprediction_gate_share = nan\n",
+                "tracking.prediction_gate_share",
+            ),
             ("[dop]\ngamma = inf\n", "dop.gamma"),
             ("[dense]\nvoxel = nan\n", "dense.voxel"),
-            ("[dense]\nmask_segment_radius_metres = -0.6\n", "dense.mask_segment_radius_metres"),
-            ("[dense]\nmask_segment_radius_metres = inf\n", "dense.mask_segment_radius_metres"),
-            ("[global.smoothing]\nacceleration = -1.0\n", "global.smoothing.acceleration"),
-            ("[stereo]\nsgbm_disparities = -16\n", "stereo.sgbm_disparities"),
-            ("[stereo]\nbearing_baselines = -1.0\n", "stereo.bearing_baselines"),
-            ("[stereo]\nbearing_baselines = inf\n", "stereo.bearing_baselines"),
-            ("[stereo]\ndisparity_offset_px = 40.0\n", "stereo.disparity_offset_px"),
-            ("[stereo]\ndisparity_offset_px = nan\n", "stereo.disparity_offset_px"),
-            ("[global]\ndisparity_offset_min_px = -1.0\n", "global.disparity_offset_min_px"),
+            (
+                "[dense]\nmask_segment_radius_metres = -0.6\n",
+                "dense.mask_segment_radius_metres",
+            ),
+            (
+                "[dense]\nmask_segment_radius_metres = inf\n",
+                "dense.mask_segment_radius_metres",
+            ),
+            (
+                "[global.smoothing]\nacceleration = -1.0\n",
+                "global.smoothing.acceleration",
+            ),
+            (
+                "[stereo]\nsgbm_disparities = -16\n",
+                "stereo.sgbm_disparities",
+            ),
+            (
+                "[stereo]\nbearing_baselines = -1.0\n",
+                "stereo.bearing_baselines",
+            ),
+            (
+                "[stereo]\nbearing_baselines = inf\n",
+                "stereo.bearing_baselines",
+            ),
+            (
+                "[stereo]\ndisparity_offset_px = 40.0\n",
+                "stereo.disparity_offset_px",
+            ),
+            (
+                "[stereo]\ndisparity_offset_px = nan\n",
+                "stereo.disparity_offset_px",
+            ),
+            (
+                "[global]\ndisparity_offset_min_px = -1.0\n",
+                "global.disparity_offset_min_px",
+            ),
         ] {
             match Config::from_toml(text) {
                 Err(ConfigProblem::Value(bad)) => assert_eq!(bad.key, key, "{text}: {bad}"),
@@ -682,7 +801,11 @@ mod tests {
         }
         assert!(Config::from_toml("[dense]\ncloud_free_space = -0.5\n").is_ok());
         let distorted = "[dataset.camera]\nfx = 517.3\nfy = 516.5\ncx = 318.6\ncy = 255.3\nwidth = 640\nheight = 480\ndistortion = [0.26, -0.95, -0.005, 0.003, 1.16]\n";
-        assert!(Config::from_toml(distorted).is_ok(), "{:?}", Config::from_toml(distorted));
+        assert!(
+            Config::from_toml(distorted).is_ok(),
+            "{:?}",
+            Config::from_toml(distorted)
+        );
     }
 
     /// Relative paths are the config file's, wherever the command runs.
@@ -699,12 +822,29 @@ mod tests {
         std::fs::write(dir.join("my.toml"), text).unwrap();
         let config = Config::load(&dir.join("my.toml")).unwrap();
         assert_eq!(config.dataset.settings, Some(dir.join("cams/cam.yaml")));
-        assert_eq!(config.detector.model_paths, [dir.join("m/a.onnx"), PathBuf::from("/abs/b.onnx")]);
+        assert_eq!(
+            config.detector.model_paths,
+            [dir.join("m/a.onnx"), PathBuf::from("/abs/b.onnx")]
+        );
         assert_eq!(config.global.vocabulary, Some(dir.join("voc.dbow")));
-        assert!(config.dataset.settings_applied.is_some(), "the settings file was read");
-        std::fs::write(dir.join("missing.toml"), "[dataset]\nsettings = \"nope.yaml\"\n").unwrap();
-        let e = Config::load(&dir.join("missing.toml")).unwrap_err().to_string();
-        assert!(e.contains("missing.toml") && e.contains("[dataset] settings") && e.contains("nope.yaml"), "{e}");
+        assert!(
+            config.dataset.settings_applied.is_some(),
+            "the settings file was read"
+        );
+        std::fs::write(
+            dir.join("missing.toml"),
+            "[dataset]\nsettings = \"nope.yaml\"\n",
+        )
+        .unwrap();
+        let e = Config::load(&dir.join("missing.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("missing.toml")
+                && e.contains("[dataset] settings")
+                && e.contains("nope.yaml"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -724,9 +864,17 @@ mod tests {
         let applied = config.dataset.settings_applied.clone().unwrap();
         // The same value (n_features), a key the file lacks (scale_factor) and the
         // defaults the file changes are not replacements.
-        assert_eq!(applied.replaced, ["stereo.max_frames_between_keyframes 1 -> 10 (Camera.fps)"]);
+        assert_eq!(
+            applied.replaced,
+            ["stereo.max_frames_between_keyframes 1 -> 10 (Camera.fps)"]
+        );
         let notes = applied.notes();
-        assert!(notes.iter().any(|n| n.contains("replaces") && n.contains("1 -> 10")), "{notes:?}");
+        assert!(
+            notes
+                .iter()
+                .any(|n| n.contains("replaces") && n.contains("1 -> 10")),
+            "{notes:?}"
+        );
         assert_eq!(config.orb.scale_factor, 1.3);
         let mut plain = Config::default();
         plain.apply_orbslam_settings(&settings).unwrap();
@@ -739,8 +887,14 @@ mod tests {
         for (text, key) in [
             ("[orb]\nscale_factor = 0.5\n", "orb.scale_factor"),
             ("[dataset]\ndepth_scale = -5000.0\n", "dataset.depth_scale"),
-            ("[dataset.camera]\nfx = 0.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 2\nheight = 2\n", "dataset.camera.fx"),
-            ("[dop]\nnever_static_classes = [\"ghost\"]\n", "dop.never_static_classes"),
+            (
+                "[dataset.camera]\nfx = 0.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 2\nheight = 2\n",
+                "dataset.camera.fx",
+            ),
+            (
+                "[dop]\nnever_static_classes = [\"ghost\"]\n",
+                "dop.never_static_classes",
+            ),
             ("[dop]\ntrack_classes = [\"lorry\"]\n", "dop.track_classes"),
         ] {
             let message = Config::from_toml(text).unwrap_err().to_string();

@@ -40,7 +40,8 @@ impl Writing {
 
 impl Drop for Writing {
     fn drop(&mut self) {
-        if WRITING.fetch_sub(1, Ordering::SeqCst) == 1 && EXIT_AFTER_WRITING.load(Ordering::SeqCst) {
+        if WRITING.fetch_sub(1, Ordering::SeqCst) == 1 && EXIT_AFTER_WRITING.load(Ordering::SeqCst)
+        {
             // SAFETY: as in the handler; the outputs are complete.
             unsafe { libc::_exit(130) }
         }

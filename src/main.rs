@@ -21,13 +21,13 @@ use dopslam::io::tum::TumSequence;
 use dopslam::io::Trajectory;
 
 mod cli_batch;
-mod cli_values;
-mod cli_view;
 mod cli_doctor;
 mod cli_global;
 mod cli_maps;
 mod cli_recording;
 mod cli_stereo;
+mod cli_values;
+mod cli_view;
 
 #[derive(Parser)]
 #[command(
@@ -371,7 +371,11 @@ fn check_detect_outputs(args: &DetectArgs) -> Result<()> {
         .file_stem()
         .map_or("image".into(), |s| s.to_string_lossy().into_owned());
     for ext in ["png", "json"] {
-        check_file(&args.out.join(format!("{name}.{ext}")), "detection output", &[&args.input])?;
+        check_file(
+            &args.out.join(format!("{name}.{ext}")),
+            "detection output",
+            &[&args.input],
+        )?;
     }
     prepare_dir(&args.out, "output", &[])?;
     Ok(())
@@ -404,7 +408,11 @@ fn run_detect(args: DetectArgs) -> Result<()> {
         .expect("a source other than none");
     let mut all = Vec::new();
     let mut detect_one = |name: String, timestamp: f64, image: image::RgbImage| -> Result<()> {
-        all.push(detect_and_write(detector.as_mut(), &args, (name, timestamp, image))?);
+        all.push(detect_and_write(
+            detector.as_mut(),
+            &args,
+            (name, timestamp, image),
+        )?);
         Ok(())
     };
     if args.input.is_dir() || dopslam::io::recording::is_recording(&args.input) {
@@ -895,9 +903,8 @@ fn main() -> ExitCode {
         Command::Demo(args) => run_demo(args),
         Command::Synth(args) => run_synth(args),
         Command::Info(args) => run_info(args),
-        Command::Convert(args) => {
-            load_config(args.config.as_deref()).and_then(|config| cli_recording::run_convert(args, config))
-        }
+        Command::Convert(args) => load_config(args.config.as_deref())
+            .and_then(|config| cli_recording::run_convert(args, config)),
         Command::Run(args) => run_run(args),
         Command::Fuse(args) => cli_maps::run_fuse(args),
         Command::CompareMaps(args) => cli_maps::run_compare(args),

@@ -19,7 +19,11 @@ fn manifest(dir: &Path, repetitions: usize, dense: bool, extra: &str) -> PathBuf
     let mut coarse = String::new();
     if dense {
         let config = dir.join("coarse_dense.toml");
-        std::fs::write(&config, "[dense]\nvoxel = 0.02\ntruncation = 0.06\ncloud_voxel = 0.02\n").unwrap();
+        std::fs::write(
+            &config,
+            "[dense]\nvoxel = 0.02\ntruncation = 0.06\ncloud_voxel = 0.02\n",
+        )
+        .unwrap();
         coarse = format!("config = \"{}\"\n", config.display());
     }
     let text = format!(
@@ -264,7 +268,12 @@ fn shards_started_together_then_collected_equal_one_batch() {
     let children: Vec<_> = (1..=3)
         .map(|k| {
             Command::new(env!("CARGO_BIN_EXE_dopslam"))
-                .args(["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy()])
+                .args([
+                    "batch",
+                    &manifest.to_string_lossy(),
+                    "--out",
+                    &out.to_string_lossy(),
+                ])
                 .args(["--shard", &format!("{k}/3"), "--jobs", "1"])
                 .stdout(std::process::Stdio::piped())
                 .stderr(std::process::Stdio::piped())
@@ -281,17 +290,36 @@ fn shards_started_together_then_collected_equal_one_batch() {
         assert!(String::from_utf8_lossy(&output.stdout).contains("shard "));
     }
     assert_eq!(generated, 2, "each of the two sequences is generated once");
-    assert!(!out.join("results.csv").exists(), "a shard writes no tables");
+    assert!(
+        !out.join("results.csv").exists(),
+        "a shard writes no tables"
+    );
     assert_eq!(finished_runs(&out), 4);
-    let (ok, stdout, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect", "--strict"]);
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &manifest.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--collect",
+        "--strict",
+    ]);
     assert!(ok, "{stdout}{stderr}");
-    assert!(stdout.contains("4 of 4 runs finished (0 failed), 0 missing"), "{stdout}");
+    assert!(
+        stdout.contains("4 of 4 runs finished (0 failed), 0 missing"),
+        "{stdout}"
+    );
     let single = base.join("single");
     batch(&manifest, &single);
     // Every column but the tracking times (which real clocks give).
     let deterministic = |rows: Vec<Vec<String>>| -> Vec<Vec<String>> {
         rows.into_iter()
-            .map(|r| r.iter().enumerate().filter(|(i, _)| *i != 11 && *i != 12).map(|(_, c)| c.clone()).collect())
+            .map(|r| {
+                r.iter()
+                    .enumerate()
+                    .filter(|(i, _)| *i != 11 && *i != 12)
+                    .map(|(_, c)| c.clone())
+                    .collect()
+            })
             .collect()
     };
     assert_eq!(
@@ -301,8 +329,18 @@ fn shards_started_together_then_collected_equal_one_batch() {
     // A run gone missing: --collect says which, and --strict fails.
     let gone = out.join("runs/static_room/no-dop/r1/run.json");
     std::fs::remove_file(&gone).unwrap();
-    let (ok, stdout, _) = dopslam(&["batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect", "--strict"]);
-    assert!(!ok && stdout.contains("missing: static_room/no-dop/r1"), "{stdout}");
+    let (ok, stdout, _) = dopslam(&[
+        "batch",
+        &manifest.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--collect",
+        "--strict",
+    ]);
+    assert!(
+        !ok && stdout.contains("missing: static_room/no-dop/r1"),
+        "{stdout}"
+    );
 }
 
 /// `--slurm` writes the array and collection scripts with the manifest's resources.
@@ -312,19 +350,41 @@ fn slurm_scripts_name_the_shards_and_the_resources() {
     let manifest = manifest(&base, 1, false, "");
     let out = base.join("out");
     let (ok, stdout, stderr) = dopslam(&[
-        "batch", &manifest.to_string_lossy(), "--out", &out.to_string_lossy(),
-        "--slurm", "--partition", "short", "--time", "1:00:00", "--max-parallel", "2",
+        "batch",
+        &manifest.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--slurm",
+        "--partition",
+        "short",
+        "--time",
+        "1:00:00",
+        "--max-parallel",
+        "2",
     ]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("4 array tasks for 4 runs"), "{stdout}");
     let array = std::fs::read_to_string(out.join("slurm/array.sbatch")).unwrap();
-    for line in ["#SBATCH --array=1-4%2", "#SBATCH --partition=short", "#SBATCH --time=1:00:00", "#SBATCH --cpus-per-task=2", "#SBATCH --mem=3072M", "--shard \"$SLURM_ARRAY_TASK_ID/4\""] {
+    for line in [
+        "#SBATCH --array=1-4%2",
+        "#SBATCH --partition=short",
+        "#SBATCH --time=1:00:00",
+        "#SBATCH --cpus-per-task=2",
+        "#SBATCH --mem=3072M",
+        "--shard \"$SLURM_ARRAY_TASK_ID/4\"",
+    ] {
         assert!(array.contains(line), "{line} not in\n{array}");
     }
     let collect = std::fs::read_to_string(out.join("slurm/collect.sbatch")).unwrap();
     assert!(collect.contains("--collect"), "{collect}");
     assert!(!out.join("runs").exists(), "--slurm runs nothing");
-    let (ok, _, stderr) = dopslam(&["batch", &manifest.to_string_lossy(), "--slurm", "--partition", "a b"]);
+    let (ok, _, stderr) = dopslam(&[
+        "batch",
+        &manifest.to_string_lossy(),
+        "--slurm",
+        "--partition",
+        "a b",
+    ]);
     assert!(!ok && stderr.contains("--partition"), "{stderr}");
 }
 
@@ -365,7 +425,14 @@ fn runs_made_with_other_settings_are_run_again_or_kept_marked_stale() {
     assert_eq!(frames_of(&aside[0]), 10);
     // --keep-stale: the 20-frame run stays, marked stale in the tables.
     write(15);
-    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--keep-stale"]);
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &path.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--quiet",
+        "--keep-stale",
+    ]);
     assert!(ok, "{stdout}\n{stderr}");
     assert_eq!(frames_of(&run), 20, "kept");
     let rows = csv_rows(&out.join("runs.csv"));
@@ -375,24 +442,55 @@ fn runs_made_with_other_settings_are_run_again_or_kept_marked_stale() {
     let column = header.iter().position(|c| *c == "stale_runs").unwrap();
     assert_eq!(csv_rows(&out.join("results.csv"))[0][column], "1", "{text}");
     let results = std::fs::read_to_string(out.join("results.md")).unwrap();
-    assert!(results.contains("Stale runs") && results.contains("frames 20 -> 15"), "{results}");
+    assert!(
+        results.contains("Stale runs") && results.contains("frames 20 -> 15"),
+        "{results}"
+    );
     // The sequence's own calibration counts by its content.
     let calibration = out.join("sequences/static_room/calibration.yaml");
     let mut text = std::fs::read_to_string(&calibration).unwrap();
     text.push_str("# edited\n");
     std::fs::write(&calibration, text).unwrap();
-    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet", "--keep-stale"]);
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &path.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--quiet",
+        "--keep-stale",
+    ]);
     assert!(ok, "{stdout}\n{stderr}");
     let results = std::fs::read_to_string(out.join("results.md")).unwrap();
-    assert!(results.contains("sequence calibration changed"), "{results}");
+    assert!(
+        results.contains("sequence calibration changed"),
+        "{results}"
+    );
     // --collect with another manifest than the folder's own.
     let other = dir.join("other.toml");
-    std::fs::write(&other, "[batch]\nmodes = [\"dop\"]\n\n[[sequence]]\npreset = \"static_room\"\n").unwrap();
-    let (ok, _, stderr) = dopslam(&["batch", &other.to_string_lossy(), "--out", &out.to_string_lossy(), "--collect"]);
+    std::fs::write(
+        &other,
+        "[batch]\nmodes = [\"dop\"]\n\n[[sequence]]\npreset = \"static_room\"\n",
+    )
+    .unwrap();
+    let (ok, _, stderr) = dopslam(&[
+        "batch",
+        &other.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--collect",
+    ]);
     assert!(!ok);
-    assert!(stderr.contains("another manifest") && stderr.contains("other.toml") && stderr.contains("manifest.toml"), "{stderr}");
+    assert!(
+        stderr.contains("another manifest")
+            && stderr.contains("other.toml")
+            && stderr.contains("manifest.toml"),
+        "{stderr}"
+    );
     let copy = std::fs::read_to_string(out.join("manifest.toml")).unwrap();
-    assert!(copy.contains("frames = 15"), "the folder's manifest stays: {copy}");
+    assert!(
+        copy.contains("frames = 15"),
+        "the folder's manifest stays: {copy}"
+    );
 }
 
 /// At the batch level: a second batch on the same folder waits for no one and is
@@ -409,17 +507,44 @@ fn a_batch_is_alone_on_its_folder_never_in_its_inputs_and_submits_no_empty_array
         seq.display()
     );
     std::fs::write(&path, text).unwrap();
-    let (ok, _, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &seq.join("results").to_string_lossy()]);
-    assert!(!ok && stderr.contains("inside the input sequence"), "{stderr}");
-    assert!(!seq.join("results").exists(), "nothing written into the input");
+    let (ok, _, stderr) = dopslam(&[
+        "batch",
+        &path.to_string_lossy(),
+        "--out",
+        &seq.join("results").to_string_lossy(),
+    ]);
+    assert!(
+        !ok && stderr.contains("inside the input sequence"),
+        "{stderr}"
+    );
+    assert!(
+        !seq.join("results").exists(),
+        "nothing written into the input"
+    );
     let out = dir.join("out");
     std::fs::create_dir_all(&out).unwrap();
     let held = std::fs::File::create(out.join(".dopslam-batch.lock")).unwrap();
     held.lock().unwrap();
-    let (ok, _, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--quiet"]);
+    let (ok, _, stderr) = dopslam(&[
+        "batch",
+        &path.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--quiet",
+    ]);
     assert!(!ok && stderr.contains("another dopslam batch"), "{stderr}");
     drop(held);
     batch(&path, &out);
-    let (ok, stdout, stderr) = dopslam(&["batch", &path.to_string_lossy(), "--out", &out.to_string_lossy(), "--slurm", "--submit"]);
-    assert!(ok && stdout.contains("nothing to submit"), "{stdout}\n{stderr}");
+    let (ok, stdout, stderr) = dopslam(&[
+        "batch",
+        &path.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--slurm",
+        "--submit",
+    ]);
+    assert!(
+        ok && stdout.contains("nothing to submit"),
+        "{stdout}\n{stderr}"
+    );
 }

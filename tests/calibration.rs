@@ -104,7 +104,9 @@ fn settings_files_set_the_orb_parameters_and_the_report_shows_them() {
     assert_eq!(config.tracking.max_frames_between_keyframes, 20);
     let applied = config.dataset.settings_applied.clone().unwrap();
     assert_eq!(applied.unknown, vec!["MyLab.exposure".to_string()]);
-    assert!(applied.no_meaning.contains(&"Viewer.KeyFrameSize".to_string()));
+    assert!(applied
+        .no_meaning
+        .contains(&"Viewer.KeyFrameSize".to_string()));
     // The command line: `run --settings`.
     let seq = base.join("seq");
     common::synth_static_room(&seq, 10);
@@ -123,7 +125,10 @@ fn settings_files_set_the_orb_parameters_and_the_report_shows_them() {
         "--deterministic",
     ]);
     assert!(ok, "{err}");
-    assert!(err.contains("MyLab.exposure") && err.contains("Viewer.KeyFrameSize"), "{err}");
+    assert!(
+        err.contains("MyLab.exposure") && err.contains("Viewer.KeyFrameSize"),
+        "{err}"
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let setup = &report["setup"];
@@ -140,5 +145,8 @@ fn settings_files_set_the_orb_parameters_and_the_report_shows_them() {
     )
     .unwrap();
     let error = OrbSlamSettings::read(&twice).unwrap_err().to_string();
-    assert!(error.contains("Camera.fx") && error.contains("line 2"), "{error}");
+    assert!(
+        error.contains("Camera.fx") && error.contains("line 2"),
+        "{error}"
+    );
 }

@@ -178,7 +178,10 @@ fn dense_commands_report_bad_input_clearly() {
     // Any JSON is not a run report.
     write(&dir.join("report.json"), "{\"mode\": \"dop\"}");
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
-    assert!(!ok && err.contains("not a dopslam run report") && err.contains("report.json"), "{err}");
+    assert!(
+        !ok && err.contains("not a dopslam run report") && err.contains("report.json"),
+        "{err}"
+    );
     write(
         &dir.join("report.json"),
         "{\"mode\": \"dop\", \"totals\": {\"frames\": 1, \"tracked\": 1, \"coverage_percent\": 100.0, \"keyframes\": 1, \"map_points\": 1, \"median_tracking_ms\": 1.0, \"mean_tracking_ms\": 1.0}}",
@@ -322,7 +325,15 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
             .current_dir(&base)
             .env("DOPSLAM_DATA", data)
-            .args(["run", "seq", "--frames", "10", "--no-dense", "--deterministic", "--out"])
+            .args([
+                "run",
+                "seq",
+                "--frames",
+                "10",
+                "--no-dense",
+                "--deterministic",
+                "--out",
+            ])
             .arg(out)
             .args(extra)
             .output()
@@ -343,7 +354,10 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
     );
     assert!(!out.exists(), "nothing is written before the check");
     let (ok, err) = run(&empty, &out, &["--detections", "none"]);
-    assert!(!ok && err.contains("vocabulary.dbow") && err.contains("--no-loops"), "{err}");
+    assert!(
+        !ok && err.contains("vocabulary.dbow") && err.contains("--no-loops"),
+        "{err}"
+    );
     assert!(!out.exists(), "nothing is written before the check");
     let (ok, err) = run(&empty, &out, &["--detections", "none", "--no-loops"]);
     assert!(ok, "{err}");
@@ -356,7 +370,10 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         .unwrap();
     let text = String::from_utf8_lossy(&doctor.stdout);
     assert!(!doctor.status.success());
-    assert!(text.contains("MISSING") && text.contains("DOPSLAM_DATA"), "{text}");
+    assert!(
+        text.contains("MISSING") && text.contains("DOPSLAM_DATA"),
+        "{text}"
+    );
     // DOPSLAM_DATA naming a file; an install record that is a folder, or unreadable.
     let xdg = base.join("xdg");
     let record = xdg.join("dopslam/data-dir");
@@ -385,7 +402,10 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
     if !data.join("ort/libonnxruntime.so").exists()
         || !data.join("models/yolov4-tiny-320x256.onnx").exists()
     {
-        eprintln!("skipping the detector half: bash tools/setup.sh has not installed it into {}", data.display());
+        eprintln!(
+            "skipping the detector half: bash tools/setup.sh has not installed it into {}",
+            data.display()
+        );
         return;
     }
     let out = base.join("out-installed");
@@ -395,9 +415,24 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let setup = &report["setup"];
     assert_eq!(setup["detections"], "onnx", "{setup}");
-    assert!(setup["detector_files"][0].as_str().unwrap().ends_with("models/yolov4-tiny-320x256.onnx"), "{setup}");
-    assert!(setup["vocabulary"].as_str().unwrap().ends_with("vocabulary.dbow"), "{setup}");
-    assert!(setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"), "{setup}");
+    assert!(
+        setup["detector_files"][0]
+            .as_str()
+            .unwrap()
+            .ends_with("models/yolov4-tiny-320x256.onnx"),
+        "{setup}"
+    );
+    assert!(
+        setup["vocabulary"]
+            .as_str()
+            .unwrap()
+            .ends_with("vocabulary.dbow"),
+        "{setup}"
+    );
+    assert!(
+        setup["data_dir"].as_str().unwrap().contains("DOPSLAM_DATA"),
+        "{setup}"
+    );
 }
 
 /// `dopslam doctor` loads each file as a run would: a truncated model, a truncated
@@ -408,16 +443,30 @@ fn runs_from_any_folder_and_never_downgrades_silently() {
 fn the_doctor_finds_corrupt_files() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     let model = data.join("models/yolov4-tiny-320x256.onnx");
-    if !data.join("ort/libonnxruntime.so").exists() || !model.exists() || !data.join("vocabulary.dbow").exists() {
+    if !data.join("ort/libonnxruntime.so").exists()
+        || !model.exists()
+        || !data.join("vocabulary.dbow").exists()
+    {
         eprintln!("skipping the_doctor_finds_corrupt_files: bash tools/setup.sh has not installed the data into {}", data.display());
         return;
     }
     let doctor = |dir: &Path| {
-        let output = Command::new(env!("CARGO_BIN_EXE_dopslam")).env("DOPSLAM_DATA", dir).arg("doctor").output().unwrap();
-        (output.status.success(), String::from_utf8_lossy(&output.stdout).into_owned(), String::from_utf8_lossy(&output.stderr).into_owned())
+        let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+            .env("DOPSLAM_DATA", dir)
+            .arg("doctor")
+            .output()
+            .unwrap();
+        (
+            output.status.success(),
+            String::from_utf8_lossy(&output.stdout).into_owned(),
+            String::from_utf8_lossy(&output.stderr).into_owned(),
+        )
     };
     let (ok, stdout, stderr) = doctor(&data);
-    assert!(ok && stdout.contains("in place and loads"), "{stdout}{stderr}");
+    assert!(
+        ok && stdout.contains("in place and loads"),
+        "{stdout}{stderr}"
+    );
     let base = common::temp_dir("cli-doctor");
     std::fs::create_dir_all(base.join("models")).unwrap();
     std::fs::create_dir_all(base.join("ort")).unwrap();
@@ -425,18 +474,37 @@ fn the_doctor_finds_corrupt_files() {
         let all = std::fs::read(from).unwrap();
         std::fs::write(to, &all[..bytes.min(all.len())]).unwrap();
     };
-    head(&model, &base.join("models/yolov4-tiny-320x256.onnx"), 100_000);
-    head(&data.join("vocabulary.dbow"), &base.join("vocabulary.dbow"), 1000);
+    head(
+        &model,
+        &base.join("models/yolov4-tiny-320x256.onnx"),
+        100_000,
+    );
+    head(
+        &data.join("vocabulary.dbow"),
+        &base.join("vocabulary.dbow"),
+        1000,
+    );
     std::fs::write(base.join("ort/libonnxruntime.so"), b"not a shared library").unwrap();
     let (ok, stdout, stderr) = doctor(&base);
     assert!(!ok, "{stdout}");
     assert_eq!(stdout.matches("BROKEN").count(), 3, "{stdout}");
-    assert!(stdout.contains("truncated") && stderr.contains("cannot be loaded"), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("truncated") && stderr.contains("cannot be loaded"),
+        "{stdout}{stderr}"
+    );
     // The install record that was skipped says why.
     let home = base.join("home");
     std::fs::create_dir_all(home.join("dopslam")).unwrap();
     std::fs::write(home.join("dopslam/data-dir"), "/nowhere/data\n").unwrap();
-    let output = Command::new(env!("CARGO_BIN_EXE_dopslam")).env_remove("DOPSLAM_DATA").env("XDG_DATA_HOME", &home).arg("doctor").output().unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_dopslam"))
+        .env_remove("DOPSLAM_DATA")
+        .env("XDG_DATA_HOME", &home)
+        .arg("doctor")
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
-    assert!(text.contains("/nowhere/data (skipped: no such directory"), "{text}");
+    assert!(
+        text.contains("/nowhere/data (skipped: no such directory"),
+        "{text}"
+    );
 }

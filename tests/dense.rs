@@ -7,11 +7,11 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use dopslam::config::Config;
-use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
+use dopslam::dense::map_figures::CompareSettings;
+use dopslam::dense::DenseConfig;
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
-use dopslam::dense::DenseConfig;
 use dopslam::io::ply::{read_ply, write_ply, PlyEncoding};
 use dopslam::io::sequence::Sequence;
 use dopslam::run::{dense_pass, open_sequence, run_sequence, DenseSetup, RunOptions, RunReport};

@@ -223,10 +223,15 @@ fn auto_with_a_missing_model_is_an_error_that_names_it_and_the_fix() {
     assert_eq!(config.source, Source::Auto);
     let error = config.resolved_source().unwrap_err().to_string();
     assert!(
-        error.contains("absent.onnx") && error.contains("tools/setup.sh") && error.contains("doctor"),
+        error.contains("absent.onnx")
+            && error.contains("tools/setup.sh")
+            && error.contains("doctor"),
         "{error}"
     );
-    assert!(config.open(None).is_err(), "never a silent run without detections");
+    assert!(
+        config.open(None).is_err(),
+        "never a silent run without detections"
+    );
     // An explicit source is taken as it is.
     let explicit = DetectorConfig {
         source: Source::Oracle,
@@ -421,8 +426,14 @@ fn deimv2_finds_the_people_of_bus_jpg_and_pools_with_yolo() {
     let (yolo_alone, _) = pooled(&[(yolo.clone(), Layout::Yolov4, 0.1)]);
     let (both, times) = pooled(&[(yolo, Layout::Yolov4, 0.1), (deim, Layout::Deimv2, 0.3)]);
     assert_eq!(times.len(), 2);
-    assert!(times.iter().all(|(name, ms)| name.ends_with(".onnx") && *ms > 0.0));
-    for person in alone.iter().chain(&yolo_alone).filter(|d| d.class == "person") {
+    assert!(times
+        .iter()
+        .all(|(name, ms)| name.ends_with(".onnx") && *ms > 0.0));
+    for person in alone
+        .iter()
+        .chain(&yolo_alone)
+        .filter(|d| d.class == "person")
+    {
         let kept = both.iter().any(|b| {
             b.class == "person" && dopslam::detect::yolo::iou(&b.bbox, &person.bbox) > 0.45
         });

@@ -79,8 +79,7 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
     let sequence = dopslam::run::open_sequence(&seq, &config).unwrap();
     let out = seq.parent().unwrap().join("run");
     let options = dopslam::run::RunOptions::default();
-    let report =
-        dopslam::run::run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+    let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
     let global = report.global.expect("the global pass ran");
     assert!(global.loop_detection_ms > 0.0);
     let closed = &global.loops;

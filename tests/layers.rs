@@ -11,7 +11,14 @@ use std::path::{Path, PathBuf};
 /// The floors of the crate, bottom first: a module may import its own floor and the
 /// ones below.
 const FLOORS: &[&[&str]] = &[
-    &["random", "checks", "interrupt", "memory", "threads", "pacing"],
+    &[
+        "random",
+        "checks",
+        "interrupt",
+        "memory",
+        "threads",
+        "pacing",
+    ],
     &["geometry"],
     &["io", "features"],
     &["optim", "dop"],
@@ -58,7 +65,9 @@ fn code(text: &str) -> String {
     let mut lines = text.lines().peekable();
     while let Some(line) = lines.next() {
         let test_module = line.trim() == "#[cfg(test)]"
-            && lines.peek().is_some_and(|next| next.trim_end().ends_with("mod tests {"));
+            && lines
+                .peek()
+                .is_some_and(|next| next.trim_end().ends_with("mod tests {"));
         if test_module {
             break;
         }
@@ -230,7 +239,11 @@ fn there_are_no_import_circles() {
     let edges = references(&src());
     // A sanity check that references are found at all.
     let pass: Module = vec!["run".into(), "tracking_pass".into()];
-    assert!(edges[&pass].contains(&vec!["system".to_string()]), "{:?}", edges[&pass]);
+    assert!(
+        edges[&pass].contains(&vec!["system".to_string()]),
+        "{:?}",
+        edges[&pass]
+    );
     let mut found = Vec::new();
     for (folder, graph) in sibling_graphs(&edges) {
         for circle in circles(&graph) {
@@ -298,5 +311,9 @@ fn modules_of_one_floor_keep_apart_where_they_must() {
             }
         }
     }
-    assert!(found.is_empty(), "imports the layers forbid:\n{}", found.join("\n"));
+    assert!(
+        found.is_empty(),
+        "imports the layers forbid:\n{}",
+        found.join("\n")
+    );
 }

@@ -21,7 +21,9 @@ fn json(path: &Path) -> serde_json::Value {
 /// The folder of real clip `sequence`; `None` (test `test` skips, saying why) without
 /// the shared data or the clip.
 fn real_clip(test: &str, sequence: &str) -> Option<std::path::PathBuf> {
-    let clip = common::shared_data(test)?.join("real/kitti/sequences").join(sequence);
+    let clip = common::shared_data(test)?
+        .join("real/kitti/sequences")
+        .join(sequence);
     if !clip.join("image_0").is_dir() {
         eprintln!("skipping {test}: no real KITTI clip at {}", clip.display());
         return None;
@@ -32,7 +34,9 @@ fn real_clip(test: &str, sequence: &str) -> Option<std::path::PathBuf> {
 /// Runs clip `sequence` with ORB-SLAM2's `settings` file; the report and stderr.
 fn run_clip(test: &str, sequence: &str, settings: &str) -> Option<(serde_json::Value, String)> {
     let clip = real_clip(test, sequence)?;
-    let settings = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration").join(settings);
+    let settings = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs/calibration")
+        .join(settings);
     let out = temp_dir(&format!("real-kitti-{sequence}"));
     let (ok, stdout, err) = dopslam(&[
         "run",
@@ -115,7 +119,8 @@ fn a_swapped_real_pair_is_named() {
     for file in ["calib.txt", "times.txt"] {
         std::fs::copy(clip.join(file), swapped.join(file)).unwrap();
     }
-    let settings = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI04-12.yaml");
+    let settings =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI04-12.yaml");
     let (_, stdout, err) = dopslam(&[
         "run",
         &swapped.to_string_lossy(),
@@ -131,7 +136,10 @@ fn a_swapped_real_pair_is_named() {
         "--no-loops",
         "--deterministic",
     ]);
-    assert!(err.contains("looks swapped") && err.contains("negative disparity"), "{stdout}\n{err}");
+    assert!(
+        err.contains("looks swapped") && err.contains("negative disparity"),
+        "{stdout}\n{err}"
+    );
 }
 
 /// `dopslam detect` on a stereo clip runs on its left images (in colour, as the

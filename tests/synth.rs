@@ -103,7 +103,10 @@ fn bad_input_is_refused() {
     );
     for (text, key) in [
         ("[street]\nfollowing_cars = 2\n", "street.following_cars"),
-        ("[stereo]\nrectification_scale_error = 0.5\n", "stereo.rectification_scale_error"),
+        (
+            "[stereo]\nrectification_scale_error = 0.5\n",
+            "stereo.rectification_scale_error",
+        ),
         ("[motion]\nstart = -3.0\n", "motion.start"),
     ] {
         std::fs::write(&path, text).unwrap();

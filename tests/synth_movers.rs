@@ -106,7 +106,10 @@ fn pushed_objects_carry_their_class() {
     let mut bad = preset("moving_chair", 3);
     bad.objects.class = "spaceship".into();
     let bad = bad.validate().unwrap_err();
-    assert!(bad.key == "objects.class" && bad.problem.contains("spaceship"), "{bad}");
+    assert!(
+        bad.key == "objects.class" && bad.problem.contains("spaceship"),
+        "{bad}"
+    );
 }
 
 /// Movers of no COCO class are in the masks and named in `masks/instances.txt`, but

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Benchmark helper (not a test): the safety net of a refactor. Runs dopslam
 # --deterministic on the demo and five presets, a stereo street among them (150
-# frames, real detector, dense pass) and prints one hash per output file; JSON reports are hashed without their
+# frames, real detector, dense pass), and on the real KITTI clips of
+# $DOPSLAM_SHARED_DATA/real/kitti (default ../shared/data; said when absent) with
+# ORB-SLAM2's settings files, and prints one hash per output file; JSON reports are hashed without their
 # timing and memory fields and with the output folder's path replaced, so two builds
 # that compute the same thing print the same lines.
 #
@@ -22,6 +24,20 @@ for preset in demo demo_walking cutout_xyz cutout_halfsphere loop_room street_de
   [ "$preset" = demo ] && extra=(--config configs/run/demo.toml)
   "$bin" run "$seq" "${extra[@]}" --deterministic --out "$out" >"$work/$preset.log" 2>&1 || echo "run $preset failed (see $work/$preset.log)" >&2
 done
+kitti=${DOPSLAM_SHARED_DATA:-../shared/data}/real/kitti
+if [ -d "$kitti/sequences" ]; then
+  for clip in 01 06; do
+    [ -d "$kitti/sequences/$clip" ] || continue
+    settings=configs/calibration/Stereo_KITTI04-12.yaml
+    [ "$clip" = 01 ] && settings=configs/calibration/Stereo_KITTI00-02.yaml
+    out=$work/run-kitti-$clip
+    rm -rf "$out"
+    "$bin" run "$kitti/sequences/$clip" --settings "$settings" --deterministic --out "$out" \
+      >"$work/kitti-$clip.log" 2>&1 || echo "run kitti $clip failed (see $work/kitti-$clip.log)" >&2
+  done
+else
+  echo "no real KITTI clips at $kitti: only the presets are hashed" >&2
+fi
 python3 - "$work" <<'PY'
 import hashlib, json, os, re, sys
 root = sys.argv[1]

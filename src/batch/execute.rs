@@ -12,12 +12,12 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::manifest::PlannedSequence;
-use super::BatchError;
-use crate::dop::Mode;
 use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
+use super::BatchError;
 use crate::config::Config;
-use crate::dense::map_figures::CompareSettings;
 use crate::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
+use crate::dense::map_figures::CompareSettings;
+use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
 use crate::eval::report::{evaluate, EvalOptions, EvalReport, RpeSpec};
 use crate::eval::rpe::DeltaUnit;
@@ -199,8 +199,11 @@ impl Executor<'_> {
         let text = toml::to_string(&config)?;
         write_atomic(&config_path, text.as_bytes())?;
         let log_path = job.dir.join("log.txt");
-        let log = std::fs::File::create(&log_path).map_err(BatchError::file("create", &log_path))?;
-        let log_err = log.try_clone().map_err(BatchError::file("open", &log_path))?;
+        let log =
+            std::fs::File::create(&log_path).map_err(BatchError::file("create", &log_path))?;
+        let log_err = log
+            .try_clone()
+            .map_err(BatchError::file("open", &log_path))?;
         let mut command = Command::new(self.program);
         command
             .arg("run")
@@ -269,7 +272,8 @@ impl Executor<'_> {
                 ("eval.json", &translation),
                 ("eval_rotation.json", &rotation),
             ] {
-                let json = serde_json::to_string_pretty(report).expect("an evaluation report is JSON");
+                let json =
+                    serde_json::to_string_pretty(report).expect("an evaluation report is JSON");
                 write_atomic(&job.dir.join(name), json.as_bytes())?;
             }
             figures.ate_rmse = Some(translation.ape.statistics.rmse);

@@ -6,14 +6,14 @@ use std::path::Path;
 
 use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
-use super::BatchError;
 use super::manifest::PlannedSequence;
-use crate::dop::Mode;
 use super::plots;
 use super::record::{RunRecord, RunStatus};
+use super::BatchError;
+use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
-use crate::io::run_dir::RunDir;
 use crate::eval::report::{EvalReport, RpeSpec};
+use crate::io::run_dir::RunDir;
 
 /// The run whose ATE is the median of the mode's runs (the lower one of an even count).
 fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {

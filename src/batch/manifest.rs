@@ -127,7 +127,6 @@ pub enum EntryProblem {
     },
 }
 
-
 /// The `[batch]` table: what every sequence gets unless it says otherwise.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -236,7 +235,11 @@ pub struct SequenceEntry {
 
 impl SequenceEntry {
     fn validate(&self) -> Result<(), EntryProblem> {
-        let sources = [self.path.is_some(), self.glob.is_some(), self.preset.is_some()];
+        let sources = [
+            self.path.is_some(),
+            self.glob.is_some(),
+            self.preset.is_some(),
+        ];
         if sources.iter().filter(|&&x| x).count() != 1 {
             return Err(EntryProblem::Source);
         }
@@ -397,7 +400,11 @@ impl Manifest {
 
     /// The config of one `[[sequence]]` entry: its own file or the batch's, then its
     /// ORB-SLAM2 settings and options.
-    fn entry_config(&self, entry: &SequenceEntry, base_config: &Config) -> Result<Config, EntryProblem> {
+    fn entry_config(
+        &self,
+        entry: &SequenceEntry,
+        base_config: &Config,
+    ) -> Result<Config, EntryProblem> {
         let mut config = match &entry.config {
             Some(path) => self.load_config(Some(path))?,
             None => base_config.clone(),
@@ -409,12 +416,14 @@ impl Manifest {
         if entry.depth_scale.is_some() {
             config.dataset.depth_scale = entry.depth_scale;
         }
-        config.dataset.override_topics(&crate::io::recording::TopicChoice {
-            rgb: entry.rgb_topic.clone(),
-            depth: entry.depth_topic.clone(),
-            camera_info: entry.camera_info_topic.clone(),
-            ground_truth: entry.ground_truth_topic.clone(),
-        });
+        config
+            .dataset
+            .override_topics(&crate::io::recording::TopicChoice {
+                rgb: entry.rgb_topic.clone(),
+                depth: entry.depth_topic.clone(),
+                camera_info: entry.camera_info_topic.clone(),
+                ground_truth: entry.ground_truth_topic.clone(),
+            });
         if let Some(file) = &entry.ground_truth_file {
             config.dataset.ground_truth_file = Some(absolute(&self.resolve(file)));
         }
@@ -593,7 +602,10 @@ mod tests {
             .unwrap()
             .plan()
             .unwrap_err();
-        assert!(matches!(&twice, ManifestProblem::SameName(name) if name == "tmp"), "{twice}");
+        assert!(
+            matches!(&twice, ManifestProblem::SameName(name) if name == "tmp"),
+            "{twice}"
+        );
     }
 
     #[test]
@@ -620,7 +632,11 @@ mod tests {
         .unwrap();
         let planned = m.plan().unwrap();
         let names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
-        assert_eq!(names, ["a", "b", "c", "folder"], "the text file is no sequence");
+        assert_eq!(
+            names,
+            ["a", "b", "c", "folder"],
+            "the text file is no sequence"
+        );
         let dataset = &planned[0].config.dataset;
         assert_eq!(dataset.rgb_topic.as_deref(), Some("/cam/rgb"));
         assert_eq!(dataset.ground_truth_topic.as_deref(), Some("/mocap"));

@@ -6,8 +6,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::dop::Mode;
 use super::record::{RunFigures, RunRecord, RunStatus};
+use crate::dop::Mode;
 use crate::eval::stats::median_of_sorted;
 use crate::io::atomic::write_atomic;
 use crate::io::IoError;
@@ -96,11 +96,7 @@ pub struct GroupSummary {
 }
 
 /// Summaries of `records` per sequence and mode, in the order given.
-pub fn summarise(
-    records: &[RunRecord],
-    sequences: &[String],
-    modes: &[Mode],
-) -> Vec<GroupSummary> {
+pub fn summarise(records: &[RunRecord], sequences: &[String], modes: &[Mode]) -> Vec<GroupSummary> {
     let mut groups = Vec::new();
     for sequence in sequences {
         for &mode in modes {

@@ -14,9 +14,9 @@
 
 use std::path::Path;
 
-use super::BatchError;
 use super::execute::RunJob;
 use super::manifest::PlannedSequence;
+use super::BatchError;
 
 /// Part `index` (1-based) of `count`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -37,9 +37,12 @@ impl std::str::FromStr for Shard {
 
     /// `K/N` with 1 <= K <= N.
     fn from_str(text: &str) -> Result<Self, BadShard> {
-        let parsed = text
-            .split_once('/')
-            .and_then(|(k, n)| Some((k.trim().parse::<usize>().ok()?, n.trim().parse::<usize>().ok()?)));
+        let parsed = text.split_once('/').and_then(|(k, n)| {
+            Some((
+                k.trim().parse::<usize>().ok()?,
+                n.trim().parse::<usize>().ok()?,
+            ))
+        });
         match parsed {
             Some((index, count)) if count >= 1 && (1..=count).contains(&index) => {
                 Ok(Self { index, count })
@@ -57,7 +60,11 @@ impl std::fmt::Display for Shard {
 
 /// The key that orders runs for the partition.
 fn key(job: &RunJob, planned: &[PlannedSequence]) -> (String, &'static str, usize) {
-    (planned[job.sequence].name.clone(), job.mode.name(), job.repetition)
+    (
+        planned[job.sequence].name.clone(),
+        job.mode.name(),
+        job.repetition,
+    )
 }
 
 /// The runs of `shard` among `runs` (see the module doc), in the batch's own order.
@@ -140,7 +147,10 @@ mod tests {
 
     #[test]
     fn shards_parse_and_refuse_nonsense() {
-        assert_eq!("2/5".parse::<Shard>().unwrap(), Shard { index: 2, count: 5 });
+        assert_eq!(
+            "2/5".parse::<Shard>().unwrap(),
+            Shard { index: 2, count: 5 }
+        );
         for bad in ["0/3", "4/3", "1/0", "x/2", "2", "1/2/3", "-1/2"] {
             assert!(bad.parse::<Shard>().is_err(), "{bad}");
         }

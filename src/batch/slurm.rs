@@ -135,7 +135,10 @@ pub fn write_scripts(
         quote(&manifest.to_string_lossy()),
         quote(&plan.out.to_string_lossy())
     );
-    let throttle = options.max_parallel.map(|k| format!("%{k}")).unwrap_or_default();
+    let throttle = options
+        .max_parallel
+        .map(|k| format!("%{k}"))
+        .unwrap_or_default();
     let array_text = format!(
         "{}\n#SBATCH --array=1-{shards}{throttle}\n#SBATCH --cpus-per-task={cpus}\n#SBATCH --mem={mem}\n#SBATCH --output={}\n\
          # One shard of the batch per array task (dopslam batch --shard K/{shards}); written by dopslam batch --slurm.\n\

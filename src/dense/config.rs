@@ -241,40 +241,66 @@ impl Default for DenseConfig {
 impl DenseConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        checks::each("dense", checks::positive, &[
-            ("voxel", self.voxel),
-            ("truncation", self.truncation),
-            ("max_depth", self.max_depth),
-            ("max_weight", self.max_weight as f64),
-            ("cloud_voxel", self.cloud_voxel),
-            ("outlier_std", self.outlier_std),
-        ])?;
+        checks::each(
+            "dense",
+            checks::positive,
+            &[
+                ("voxel", self.voxel),
+                ("truncation", self.truncation),
+                ("max_depth", self.max_depth),
+                ("max_weight", self.max_weight as f64),
+                ("cloud_voxel", self.cloud_voxel),
+                ("outlier_std", self.outlier_std),
+            ],
+        )?;
         if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
             return Err(BadValue::new(
                 "dense.cloud_free_space",
                 format!("must be a number above -1, got {}", self.cloud_free_space),
             ));
         }
-        checks::each("dense", checks::non_negative, &[
-            ("mask_segment_follow_seconds", self.mask_segment_follow_seconds),
-            ("mask_segment_radius_metres", self.mask_segment_radius_metres.into()),
-            ("mask_free_space_seconds", self.mask_free_space_seconds),
-            ("mask_free_space_far_seconds", self.mask_free_space_far_seconds),
-            ("mesh_min_piece_area", self.mesh_min_piece_area),
-        ])?;
-        checks::unit_interval("dense.mask_segment_edge_share", self.mask_segment_edge_share)?;
+        checks::each(
+            "dense",
+            checks::non_negative,
+            &[
+                (
+                    "mask_segment_follow_seconds",
+                    self.mask_segment_follow_seconds,
+                ),
+                (
+                    "mask_segment_radius_metres",
+                    self.mask_segment_radius_metres.into(),
+                ),
+                ("mask_free_space_seconds", self.mask_free_space_seconds),
+                (
+                    "mask_free_space_far_seconds",
+                    self.mask_free_space_far_seconds,
+                ),
+                ("mesh_min_piece_area", self.mesh_min_piece_area),
+            ],
+        )?;
+        checks::unit_interval(
+            "dense.mask_segment_edge_share",
+            self.mask_segment_edge_share,
+        )?;
         checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;
         checks::non_negative("dense.mask_depth_behind", self.mask_depth_behind)?;
         if self.truncation < self.voxel {
             return Err(BadValue::new(
                 "dense.truncation",
-                format!("({}) must be at least one voxel ({})", self.truncation, self.voxel),
+                format!(
+                    "({}) must be at least one voxel ({})",
+                    self.truncation, self.voxel
+                ),
             ));
         }
         if self.voxel < 0.002 {
             return Err(BadValue::new(
                 "dense.voxel",
-                format!("{} m is below 2 mm: no depth sensor resolves that", self.voxel),
+                format!(
+                    "{} m is below 2 mm: no depth sensor resolves that",
+                    self.voxel
+                ),
             ));
         }
         crate::detect::tiles::check_grid("dense.detect_tiles", self.detect_tiles)?;

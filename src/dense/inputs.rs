@@ -64,8 +64,7 @@ pub(super) struct RunInputs {
 /// Reads the run folder `run` for a dense pass masking with `masking`.
 pub(super) fn read_run(run: &RunDir, masking: Mode) -> Result<RunInputs, IoError> {
     let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
-    let keyframes =
-        Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
+    let keyframes = Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
     let mut poses = poses_by_time(&trajectory);
     let mut other_segment_frames = 0;
     if let Some(keep) = largest_segment(run)? {
@@ -239,7 +238,10 @@ mod tests {
         assert_eq!(keep, expected);
         // One segment (or no file): every frame.
         assert_eq!(with("1.0 0\n1.1 0\n").unwrap(), None);
-        assert_eq!(largest_segment(&RunDir::new(dir.join("absent"))).unwrap(), None);
+        assert_eq!(
+            largest_segment(&RunDir::new(dir.join("absent"))).unwrap(),
+            None
+        );
         let error = with("1.0 0\n1.1 zero\n").unwrap_err().to_string();
         assert!(
             error.contains("line 2") && error.contains(names::SEGMENTS),

@@ -25,8 +25,8 @@ pub mod masks;
 pub mod more_detections;
 pub mod neighbours;
 pub mod outputs;
-pub mod report;
 pub mod render;
+pub mod report;
 pub mod segments;
 pub mod truth;
 pub mod tsdf;
@@ -94,8 +94,21 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         ..DenseReport::default()
     };
-    let (maps, truth) = fuse(inputs, config, &chosen, (&mut mask_source, &read.poses), &mut report)?;
-    write_maps(&out, inputs.masking, config, maps, &read.trajectory, &mut report)?;
+    let (maps, truth) = fuse(
+        inputs,
+        config,
+        &chosen,
+        (&mut mask_source, &read.poses),
+        &mut report,
+    )?;
+    write_maps(
+        &out,
+        inputs.masking,
+        config,
+        maps,
+        &read.trajectory,
+        &mut report,
+    )?;
     report.truth = truth.map(FusedTruth::finish);
     report.total_s = started.elapsed().as_secs_f64();
     report.peak_memory_mib = crate::memory::peak_resident_mib();
@@ -103,7 +116,10 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     write_atomic(&out.dense_report(), json.as_bytes())?;
     // A request that came while the files were written: they were finished whole, and
     // the command still ends as interrupted.
-    interrupted(out.root(), "asked while the dense map was written: it was finished whole")?;
+    interrupted(
+        out.root(),
+        "asked while the dense map was written: it was finished whole",
+    )?;
     Ok(report)
 }
 
@@ -173,7 +189,10 @@ fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs)
             dynamic_classes: inputs.dynamic_classes,
         },
         config.mask_settings(),
-        (std::mem::take(&mut read.detections), std::mem::take(&mut read.keypoints)),
+        (
+            std::mem::take(&mut read.detections),
+            std::mem::take(&mut read.keypoints),
+        ),
         (&|t| poses.get(&key(t)).copied(), &load_depth),
     )
 }
@@ -198,8 +217,8 @@ fn fuse(
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
-    let mut window = (inputs.masking == Mode::Dop && config.mask_free_space_seconds > 0.0)
-        .then(|| {
+    let mut window =
+        (inputs.masking == Mode::Dop && config.mask_free_space_seconds > 0.0).then(|| {
             let posed = (0..sequence.len())
                 .filter_map(|i| {
                     let t = sequence.timestamp(i);
@@ -213,7 +232,10 @@ fn fuse(
         config,
         chosen,
         (mask_source, window.as_mut()),
-        (fuse_tsdf.then_some(&mut volume), cloud_on.then_some(&mut cloud)),
+        (
+            fuse_tsdf.then_some(&mut volume),
+            cloud_on.then_some(&mut cloud),
+        ),
         &mut truth,
     )?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
@@ -301,7 +323,13 @@ fn fuse_frames(
                 crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
             });
             if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
-                count_truth(truth, (timestamp, ids.as_raw()), &unknown, &input, config.max_depth);
+                count_truth(
+                    truth,
+                    (timestamp, ids.as_raw()),
+                    &unknown,
+                    &input,
+                    config.max_depth,
+                );
             }
             if let Some(dir) = pictures
                 .as_ref()
@@ -315,7 +343,9 @@ fn fuse_frames(
             if let Some(volume) = volume.as_deref_mut() {
                 volume.integrate(&input);
             }
-            fused.integration_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            fused
+                .integration_ms
+                .push(start.elapsed().as_secs_f64() * 1e3);
             if let (Some(cloud), true) = (cloud.as_deref_mut(), is_keyframe) {
                 cloud.add(&input);
                 fused.keyframes_in_cloud += 1;

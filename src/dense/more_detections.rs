@@ -118,9 +118,9 @@ fn merge(detections: &mut Vec<FrameDetections>, more: impl Iterator<Item = Frame
         };
         let known = &mut detections[i].detections;
         for d in frame.detections {
-            let duplicate = known
-                .iter()
-                .any(|k| k.class_id == d.class_id && crate::detect::yolo::iou(&k.bbox, &d.bbox) > 0.45);
+            let duplicate = known.iter().any(|k| {
+                k.class_id == d.class_id && crate::detect::yolo::iou(&k.bbox, &d.bbox) > 0.45
+            });
             if !duplicate {
                 known.push(d);
             }
@@ -225,7 +225,10 @@ mod tests {
         merge(&mut detections, more.into_iter());
         assert_eq!(detections.len(), 2);
         assert_eq!(detections[0].detections.len(), 2);
-        assert_eq!(detections[0].detections[1].bbox, [100.0, 100.0, 110.0, 120.0]);
+        assert_eq!(
+            detections[0].detections[1].bbox,
+            [100.0, 100.0, 110.0, 120.0]
+        );
         assert_eq!(detections[1].timestamp, 2.0);
     }
 
@@ -235,7 +238,10 @@ mod tests {
         let cache = dir.join("detections_dense");
         std::fs::create_dir_all(&cache).unwrap();
         crate::detect::write_cache(&cache, &frame(1.0, &[[0.0, 0.0, 5.0, 5.0]])).unwrap();
-        assert!(cached_by(&cache, "model a").unwrap().is_empty(), "no name: not used");
+        assert!(
+            cached_by(&cache, "model a").unwrap().is_empty(),
+            "no name: not used"
+        );
         crate::detect::write_cache(&cache, &frame(1.0, &[[0.0, 0.0, 5.0, 5.0]])).unwrap();
         assert_eq!(cached_by(&cache, "model a").unwrap().len(), 1);
         assert!(cached_by(&cache, "model b").unwrap().is_empty());

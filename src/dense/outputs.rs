@@ -57,7 +57,10 @@ pub(super) fn write_maps(
         points
     });
     drop(volume);
-    interrupted(out.root(), "the dense map was not written; the earlier one is as it was")?;
+    interrupted(
+        out.root(),
+        "the dense map was not written; the earlier one is as it was",
+    )?;
     if let Some(mesh) = &mesh {
         let path = out.file(names::DENSE_MESH_PLY);
         write_ply(&path, mesh, None, config.ply_encoding, &comment)?;

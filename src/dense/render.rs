@@ -262,7 +262,11 @@ mod tests {
         assert_eq!(at(1, 0), [220, 0, 0], "static masked");
         assert_eq!(at(0, 1), [255, 230, 0], "mover fused");
         assert_eq!(at(1, 1), [0, 0, 0], "static fused");
-        assert_eq!(picture.get_pixel(0, 0).0, [9, 9, 9], "the frame on the left");
+        assert_eq!(
+            picture.get_pixel(0, 0).0,
+            [9, 9, 9],
+            "the frame on the left"
+        );
         let plain = mask_picture(&colour, Some(&mask), None);
         assert_eq!(plain.get_pixel(10, 0).0, [255, 255, 255]);
     }

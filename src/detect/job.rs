@@ -64,4 +64,3 @@ pub fn skipped(job: &Job) -> Outcome {
         skipped: true,
     }
 }
-

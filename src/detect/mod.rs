@@ -7,9 +7,9 @@
 
 pub mod coco;
 pub mod draw;
+pub mod job;
 pub mod onnx;
 pub mod tiles;
-pub mod job;
 pub mod yolo;
 
 use std::path::{Path, PathBuf};
@@ -240,11 +240,15 @@ impl Default for DetectorConfig {
 impl DetectorConfig {
     /// Checks thresholds and class names.
     pub fn validate(&self) -> Result<(), BadValue> {
-        checks::each("detector", unit_interval, &[
-            ("score_threshold", self.score_threshold),
-            ("border_score_factor", self.border_score_factor),
-            ("nms_threshold", self.nms_threshold),
-        ])?;
+        checks::each(
+            "detector",
+            unit_interval,
+            &[
+                ("score_threshold", self.score_threshold),
+                ("border_score_factor", self.border_score_factor),
+                ("nms_threshold", self.nms_threshold),
+            ],
+        )?;
         non_negative("detector.simulated_latency_ms", self.simulated_latency_ms)?;
         tiles::check_grid("detector.tiles", self.tiles)?;
         if self.model_path.is_some() && !self.model_paths.is_empty() {
@@ -291,7 +295,10 @@ impl DetectorConfig {
         self.model_files()
             .into_iter()
             .map(|path| (path, "detector model"))
-            .chain([(onnx::runtime_library(self.ort_library.as_deref()), "ONNX Runtime library")])
+            .chain([(
+                onnx::runtime_library(self.ort_library.as_deref()),
+                "ONNX Runtime library",
+            )])
             .collect()
     }
 
@@ -325,7 +332,14 @@ impl DetectorConfig {
                 let models: Vec<String> = self
                     .pool_models()
                     .iter()
-                    .map(|m| format!("{} ({:?}, threshold {:?})", m.path.display(), m.layout, m.score_threshold))
+                    .map(|m| {
+                        format!(
+                            "{} ({:?}, threshold {:?})",
+                            m.path.display(),
+                            m.layout,
+                            m.score_threshold
+                        )
+                    })
                     .collect();
                 format!(
                     "onnx: {}; tiles {}; score_threshold {}; border_score_factor {}; nms_threshold {}",

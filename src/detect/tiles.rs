@@ -56,11 +56,11 @@ pub fn tiles(width: u32, height: u32, grid: u32, overlap: f32) -> Vec<(u32, u32,
     if grid <= 1 {
         return Vec::new();
     }
-    let side = |size: u32| {
-        ((size as f32 * (1.0 + overlap) / grid as f32).ceil() as u32).clamp(1, size)
-    };
+    let side =
+        |size: u32| ((size as f32 * (1.0 + overlap) / grid as f32).ceil() as u32).clamp(1, size);
     let (tile_w, tile_h) = (side(width), side(height));
-    let start = |i: u32, size: u32, tile: u32| (i as u64 * (size - tile) as u64 / (grid - 1) as u64) as u32;
+    let start =
+        |i: u32, size: u32, tile: u32| (i as u64 * (size - tile) as u64 / (grid - 1) as u64) as u32;
     let mut out = Vec::with_capacity((grid * grid) as usize);
     for row in 0..grid {
         for column in 0..grid {
@@ -135,7 +135,10 @@ impl Detector for Tiled {
     }
 
     fn model_times(&self) -> Vec<(String, f64)> {
-        vec![(format!("tiled {}x{} and the whole image", self.grid, self.grid), self.last_ms)]
+        vec![(
+            format!("tiled {}x{} and the whole image", self.grid, self.grid),
+            self.last_ms,
+        )]
     }
 }
 
@@ -189,13 +192,25 @@ mod tests {
     fn boxes_cut_by_a_seam_inside_the_image_are_dropped() {
         // The top-left tile of 640 x 480: its right and bottom sides are seams.
         let seams = Seams::of((0, 0, 400, 300), (640, 480));
-        assert!(seams.touched_by(&[300.0, 100.0, 399.5, 200.0]), "cut on the right");
-        assert!(seams.touched_by(&[100.0, 250.0, 150.0, 299.0]), "cut at the bottom");
-        assert!(!seams.touched_by(&[0.0, 0.0, 50.0, 120.0]), "the image's own corner");
+        assert!(
+            seams.touched_by(&[300.0, 100.0, 399.5, 200.0]),
+            "cut on the right"
+        );
+        assert!(
+            seams.touched_by(&[100.0, 250.0, 150.0, 299.0]),
+            "cut at the bottom"
+        );
+        assert!(
+            !seams.touched_by(&[0.0, 0.0, 50.0, 120.0]),
+            "the image's own corner"
+        );
         // The bottom-right tile: its left and top sides are seams.
         let seams = Seams::of((240, 180, 400, 300), (640, 480));
         assert!(seams.touched_by(&[1.0, 50.0, 60.0, 120.0]));
-        assert!(!seams.touched_by(&[300.0, 200.0, 400.0, 300.0]), "the image's corner");
+        assert!(
+            !seams.touched_by(&[300.0, 200.0, 400.0, 300.0]),
+            "the image's corner"
+        );
     }
 
     #[test]

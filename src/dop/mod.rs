@@ -261,41 +261,55 @@ impl Default for DopConfig {
 impl DopConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        checks::each("dop", checks::unit_interval, &[
-            ("alpha_rgbd", self.alpha_rgbd),
-            ("alpha_stereo", self.alpha_stereo),
-            ("p_init", self.p_init),
-            ("removal_threshold", self.removal_threshold),
-            ("cull_threshold", self.cull_threshold),
-            ("central_fraction", self.central_fraction),
-            ("alpha_geometric", self.alpha_geometric),
-            ("geometric_max_outliers", self.geometric_max_outliers),
-            ("rigidity_agreement", self.rigidity_agreement),
-            ("standing_share", self.standing_share),
-        ])?;
-        checks::each("dop", checks::non_negative, &[
-            ("rigidity_sigmas", self.rigidity_sigmas),
-            ("track_seconds", self.track_seconds),
-            ("track_gate", self.track_gate),
-            ("track_max_speed", self.track_max_speed),
-            ("track_moved_metres", self.track_moved_metres),
-            ("static_seconds", self.static_seconds),
-            ("gamma", self.gamma),
-        ])?;
+        checks::each(
+            "dop",
+            checks::unit_interval,
+            &[
+                ("alpha_rgbd", self.alpha_rgbd),
+                ("alpha_stereo", self.alpha_stereo),
+                ("p_init", self.p_init),
+                ("removal_threshold", self.removal_threshold),
+                ("cull_threshold", self.cull_threshold),
+                ("central_fraction", self.central_fraction),
+                ("alpha_geometric", self.alpha_geometric),
+                ("geometric_max_outliers", self.geometric_max_outliers),
+                ("rigidity_agreement", self.rigidity_agreement),
+                ("standing_share", self.standing_share),
+            ],
+        )?;
+        checks::each(
+            "dop",
+            checks::non_negative,
+            &[
+                ("rigidity_sigmas", self.rigidity_sigmas),
+                ("track_seconds", self.track_seconds),
+                ("track_gate", self.track_gate),
+                ("track_max_speed", self.track_max_speed),
+                ("track_moved_metres", self.track_moved_metres),
+                ("static_seconds", self.static_seconds),
+                ("gamma", self.gamma),
+            ],
+        )?;
         checks::positive("dop.c", self.c)?;
         checks::positive("dop.delta_z", self.delta_z)?;
         checks::at_least_one("dop.geometric_frames", self.geometric_frames)?;
         if self.geometric_gate.is_nan() || self.geometric_gate < 1.0 {
             return Err(BadValue::new(
                 "dop.geometric_gate",
-                format!("must be at least 1 (the pose's own gate), got {}", self.geometric_gate),
+                format!(
+                    "must be at least 1 (the pose's own gate), got {}",
+                    self.geometric_gate
+                ),
             ));
         }
         // 0 would let a box with no judged point stand: every car static.
         checks::at_least_one("dop.standing_min_points", self.standing_min_points)?;
         let t = self.thresholds;
         if !(t[0] <= t[1] && t[1] <= t[2]) {
-            return Err(BadValue::new("dop.thresholds", format!("must increase, got {t:?}")));
+            return Err(BadValue::new(
+                "dop.thresholds",
+                format!("must increase, got {t:?}"),
+            ));
         }
         Ok(())
     }

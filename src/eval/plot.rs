@@ -269,7 +269,10 @@ pub fn ensure_font() -> Result<(), PlotError> {
             .into_iter()
             .chain(FONT_FILES.iter().map(PathBuf::from))
             .collect();
-        let path = candidates.iter().find(|p| p.is_file()).ok_or(PlotError::NoFont)?;
+        let path = candidates
+            .iter()
+            .find(|p| p.is_file())
+            .ok_or(PlotError::NoFont)?;
         let bytes = std::fs::read(path).map_err(|e| PlotError::Font {
             path: path.clone(),
             problem: e.to_string(),
@@ -308,4 +311,3 @@ pub enum PlotError {
         problem: String,
     },
 }
-

@@ -129,7 +129,12 @@ impl Frame {
     ) -> Self {
         let (left_features, mut matches) =
             extract_and_match((left, right), extractor, camera.bf, camera.fx);
-        add_disparity_offset(&mut matches, &left_features.keypoints, camera.bf, disparity_offset);
+        add_disparity_offset(
+            &mut matches,
+            &left_features.keypoints,
+            camera.bf,
+            disparity_offset,
+        );
         bearings_beyond(&mut matches, bearing_depth);
         Self::from_parts(
             index,

@@ -240,8 +240,15 @@ fn disparity_signs(
         let best = row
             .iter()
             .map(|&j| (j as usize, &right.keypoints[j as usize]))
-            .filter(|(_, r)| (r.level as i32 - l.level as i32).abs() <= 1 && (l.x - r.x).abs() as f64 <= fx)
-            .map(|(j, r)| (hamming(&left.descriptors[i], &right.descriptors[j]), l.x - r.x))
+            .filter(|(_, r)| {
+                (r.level as i32 - l.level as i32).abs() <= 1 && (l.x - r.x).abs() as f64 <= fx
+            })
+            .map(|(j, r)| {
+                (
+                    hamming(&left.descriptors[i], &right.descriptors[j]),
+                    l.x - r.x,
+                )
+            })
             .min_by_key(|&(distance, _)| distance);
         match best {
             Some((distance, d)) if distance < threshold && d > 1.0 => positive += 1,
@@ -371,7 +378,10 @@ mod tests {
     fn the_rigs_offset_moves_every_match_and_only_matches() {
         let keypoints: Vec<KeyPoint> = [100.0, 50.0, 20.0]
             .iter()
-            .map(|&x| KeyPoint { x, ..KeyPoint::default() })
+            .map(|&x| KeyPoint {
+                x,
+                ..KeyPoint::default()
+            })
             .collect();
         // Disparities 10 and 0.5 px, and a keypoint without a match.
         let mut matches = StereoMatches {

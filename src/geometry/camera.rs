@@ -130,7 +130,10 @@ impl PinholeCamera {
         if self.width == 0 || self.height == 0 {
             return Err(BadValue::new(
                 "camera.width",
-                format!("and height must be positive, got {}x{}", self.width, self.height),
+                format!(
+                    "and height must be positive, got {}x{}",
+                    self.width, self.height
+                ),
             ));
         }
         Ok(())

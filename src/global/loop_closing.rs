@@ -490,7 +490,10 @@ fn merge_segments(
     corrected: &Se3,
     scale_factors: &[f64],
 ) -> Option<SegmentMerge> {
-    let (segment, into) = (map.keyframes()[key].segment, map.keyframes()[candidate].segment);
+    let (segment, into) = (
+        map.keyframes()[key].segment,
+        map.keyframes()[candidate].segment,
+    );
     if segment == into {
         return None;
     }
@@ -519,8 +522,8 @@ fn merge_segments(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{KeyFrame, MapPoint};
     use crate::frame::Frame;
+    use crate::map::{KeyFrame, MapPoint};
     use nalgebra::Vector3;
     use nalgebra::{Rotation3, Translation3};
 
@@ -600,10 +603,12 @@ mod tests {
             assert_eq!(map.keyframes()[kf].camera_from_world, before[index]);
         }
         assert!(
-            se3::log(&(map.keyframes()[k[4]].camera_from_world * corrected.inverse())).norm() < 1e-9
+            se3::log(&(map.keyframes()[k[4]].camera_from_world * corrected.inverse())).norm()
+                < 1e-9
         );
         // The later part keeps its shape and its points stay put in its cameras.
-        let after = map.keyframes()[k[4]].camera_from_world * map.keyframes()[k[7]].world_from_camera();
+        let after =
+            map.keyframes()[k[4]].camera_from_world * map.keyframes()[k[7]].world_from_camera();
         assert!(se3::log(&(after * four_from_seven.inverse())).norm() < 1e-9);
         let late_after =
             map.keyframes()[k[7]].camera_from_world * Point3::from(map.points()[late].position);
@@ -687,10 +692,12 @@ mod tests {
         let c = map.add_keyframe(keyframe(1, pose([0.5, -0.2, 0.0], [0.1, 0.5, 0.0])));
         let p = observed_point(&mut map, c, [0.2, 0.1, 2.0]);
         let q = observed_point(&mut map, a, [-0.4, 0.0, 3.0]);
-        let in_c =
-            |map: &Map| map.keyframes()[c].camera_from_world * Point3::from(map.points()[p].position);
+        let in_c = |map: &Map| {
+            map.keyframes()[c].camera_from_world * Point3::from(map.points()[p].position)
+        };
         let (before_c, before_q) = (in_c(&map), map.points()[q].position);
-        let b_from_c = map.keyframes()[b].camera_from_world * map.keyframes()[c].world_from_camera();
+        let b_from_c =
+            map.keyframes()[b].camera_from_world * map.keyframes()[c].world_from_camera();
         let corrected = pose([-1.0, 0.2, 0.3], [0.0, -1.2, 0.1]);
 
         let merge = merge_segments(&mut map, (b, a), &corrected, &[1.0; 8]);

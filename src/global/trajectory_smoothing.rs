@@ -37,9 +37,9 @@ use crate::checks::{self, positive, BadValue};
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
+use crate::map::record::FrameRecord;
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
-use crate::map::record::FrameRecord;
 
 /// A longer gap between frames (in median frame intervals) starts a new run.
 pub const MAX_GAP: f64 = 2.5;
@@ -81,10 +81,14 @@ impl Default for SmoothingConfig {
 impl SmoothingConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        checks::each("global.smoothing", positive, &[
-            ("acceleration", self.acceleration),
-            ("angular_acceleration", self.angular_acceleration),
-        ])
+        checks::each(
+            "global.smoothing",
+            positive,
+            &[
+                ("acceleration", self.acceleration),
+                ("angular_acceleration", self.angular_acceleration),
+            ],
+        )
     }
 }
 

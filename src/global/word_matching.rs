@@ -5,8 +5,8 @@
 
 use crate::bow::FeatureVector;
 use crate::features::hamming;
-use crate::map::{KeyFrame, Map, MapPointKey};
 use crate::features::TH_LOW;
+use crate::map::{KeyFrame, Map, MapPointKey};
 
 /// The static map point a keypoint observes, if any.
 pub fn static_point(

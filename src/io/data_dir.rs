@@ -47,7 +47,11 @@ impl std::fmt::Display for DataOrigin {
         match self {
             DataOrigin::Environment => write!(f, "{ENV}"),
             DataOrigin::Installed { record } => {
-                write!(f, "installed by tools/setup.sh (recorded in {})", record.display())
+                write!(
+                    f,
+                    "installed by tools/setup.sh (recorded in {})",
+                    record.display()
+                )
             }
             DataOrigin::WorkingDirectory => write!(f, "./data of the working directory"),
         }

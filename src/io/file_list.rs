@@ -250,7 +250,10 @@ mod tests {
         assert_eq!(entries[1].fields, vec!["rgb/2.png"]);
         std::fs::write(&path, "2.0 rgb/2.png\n1.0 rgb/1.png\n2.0 rgb/2b.png\n").unwrap();
         let message = read_file_list(&path, 1).unwrap_err().to_string();
-        assert!(message.contains("rgb.txt:3") && message.contains("line 1"), "{message}");
+        assert!(
+            message.contains("rgb.txt:3") && message.contains("line 1"),
+            "{message}"
+        );
         std::fs::write(&path, "1.0 a.png\nabc b.png\n").unwrap();
         let message = read_file_list(&path, 1).unwrap_err().to_string();
         assert!(message.contains("rgb.txt:2"), "{message}");

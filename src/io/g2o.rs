@@ -136,7 +136,10 @@ impl G2oGraph {
             }
         }
         if graph.vertices.is_empty() {
-            return Err(IoError::invalid(path, "no VERTEX_SE3:QUAT line: not a 3-D pose graph"));
+            return Err(IoError::invalid(
+                path,
+                "no VERTEX_SE3:QUAT line: not a 3-D pose graph",
+            ));
         }
         for e in &graph.edges {
             for v in [e.from, e.to] {

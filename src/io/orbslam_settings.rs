@@ -280,7 +280,10 @@ impl OrbSlamSettings {
             line(key, format!("{value:?}"));
         }
         if !c.rational.iter().all(|&k| k == 0.0) {
-            for (key, value) in ["Camera.k4", "Camera.k5", "Camera.k6"].iter().zip(c.rational) {
+            for (key, value) in ["Camera.k4", "Camera.k5", "Camera.k6"]
+                .iter()
+                .zip(c.rational)
+            {
                 line(key, format!("{value:?}"));
             }
         }

@@ -120,7 +120,6 @@ impl Trajectory {
                         format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
                     ));
                 }
-
             }
             previous = Some((timestamp, line_number));
             trajectory.push(
@@ -144,7 +143,9 @@ impl Trajectory {
                 "KITTI: a 3x4 matrix, row-major",
             )?;
             let rotation = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
-            let off = (rotation.transpose() * rotation - Matrix3::identity()).abs().max();
+            let off = (rotation.transpose() * rotation - Matrix3::identity())
+                .abs()
+                .max();
             if off > 1e-3 || rotation.determinant() < 0.0 {
                 return Err(IoError::parse(
                     path,

@@ -71,8 +71,8 @@ pub fn is_redundant(map: &Map, keyframe: KeyFrameKey, close_depth: f32, redundan
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{KeyFrame, MapPoint};
     use crate::frame::Frame;
+    use crate::map::{KeyFrame, MapPoint};
     use nalgebra::Vector3;
 
     fn keyframe(n: usize, depth: f32) -> KeyFrame {

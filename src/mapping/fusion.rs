@@ -5,12 +5,12 @@
 //! stays). This is what lets independent keyframes share points, so that the
 //! covisibility graph and bundle adjustment connect them.
 
+use crate::features::TH_LOW;
 use crate::features::{hamming, ScalePyramid};
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::visibility::predict_view;
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::optim::robust::{CHI2_MONO, CHI2_STEREO};
-use crate::geometry::stereo_camera::StereoCamera;
-use crate::features::TH_LOW;
 
 /// One change found by a fusion search, applied later under the write lock.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -23,8 +23,8 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::features::ScalePyramid;
-use crate::map::{KeyFrameKey, MapPoint, MapPointKey, SharedMap};
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::map::{KeyFrameKey, MapPoint, MapPointKey, SharedMap};
 
 /// Local mapping parameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -206,7 +206,10 @@ impl LocalMapper {
                 .collect();
             for k in neighbours {
                 // Keyframes newer than this one may be in use by tracking.
-                let older = m.keyframes().get(k).is_some_and(|kf| kf.id > 0 && kf.id < id);
+                let older = m
+                    .keyframes()
+                    .get(k)
+                    .is_some_and(|kf| kf.id > 0 && kf.id < id);
                 if older && culling::is_redundant(&m, k, self.close_depth, self.config.redundancy) {
                     m.remove_keyframe(k);
                     self.stats.keyframes_culled += 1;

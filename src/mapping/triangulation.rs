@@ -12,11 +12,11 @@
 
 use nalgebra::{Matrix3, Matrix3x4, Matrix4, Point3, Vector2, Vector3};
 
+use crate::features::TH_LOW;
 use crate::features::{hamming, ScalePyramid};
+use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::KeyFrame;
 use crate::optim::robust::{CHI2_MONO, CHI2_STEREO};
-use crate::geometry::stereo_camera::StereoCamera;
-use crate::features::TH_LOW;
 
 /// Linear (DLT) triangulation of one point from two views: \(P_1, P_2\) map world
 /// points to normalised image coordinates \(x_1, x_2\); the point is the null vector of

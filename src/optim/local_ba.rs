@@ -20,8 +20,8 @@ use rayon::prelude::*;
 use super::block_sparse::BlockPattern;
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::point_jacobian_wrt_pose;
-use crate::geometry::stereo_camera::StereoCamera;
 use crate::geometry::se3::{self, Se3};
+use crate::geometry::stereo_camera::StereoCamera;
 
 /// One observation of point `point` by camera `camera`.
 #[derive(Debug, Clone, Copy, PartialEq)]

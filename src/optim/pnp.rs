@@ -15,9 +15,9 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SymmetricEigen, Vector2, Vector3};
 
+use super::ransac::{ransac, Estimator, Redraw, Rounds};
 use crate::geometry::alignment::{umeyama, AlignmentKind};
 use crate::geometry::se3::{self, Se3};
-use super::ransac::{ransac, Estimator, Redraw, Rounds};
 use crate::random::Rng;
 
 /// One correspondence: a world point and its normalised image coordinates

@@ -10,10 +10,10 @@ use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
 use crate::frame::Frame;
-use crate::io::IoError;
 use crate::io::image_files::DepthImage;
-use crate::tracking::input::Picture;
+use crate::io::IoError;
 use crate::map::record::FrameRecord;
+use crate::tracking::input::Picture;
 use crate::tracking::{FrameStats, TrackingState};
 
 /// One frame as the system left it.
@@ -43,8 +43,7 @@ pub struct FrameView<'a> {
 impl FrameView<'_> {
     /// The frame, when it was tracked (state Ok).
     pub fn tracked(&self) -> Option<&Frame> {
-        self.frame
-            .filter(|_| self.stats.state == TrackingState::Ok)
+        self.frame.filter(|_| self.stats.state == TrackingState::Ok)
     }
 }
 

@@ -7,10 +7,10 @@
 
 use std::path::Path;
 
-use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
-use super::setup::RunSetup;
 use super::error::{RunError, StopReason};
 use super::options::RunOptions;
+use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
+use super::setup::RunSetup;
 use crate::dense::masks::FrameKeypoints;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;
@@ -202,9 +202,17 @@ fn write_segments(
     let frames: Vec<(f64, usize)> = lines
         .iter()
         .filter(|l| l.tracking.state == TrackingState::Ok)
-        .map(|l| (l.tracking.timestamp, final_segment(merges, l.tracking.segment)))
+        .map(|l| {
+            (
+                l.tracking.timestamp,
+                final_segment(merges, l.tracking.segment),
+            )
+        })
         .collect();
-    Ok(crate::io::run_dir::write_segments(&run.segments(), &frames)?)
+    Ok(crate::io::run_dir::write_segments(
+        &run.segments(),
+        &frames,
+    )?)
 }
 
 /// The run's totals.

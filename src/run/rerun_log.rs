@@ -6,8 +6,8 @@
 use nalgebra::Vector3;
 
 use super::observers::{FrameObserver, FrameView};
-use crate::io::IoError;
 use crate::dynamics::Applied;
+use crate::io::IoError;
 use crate::view::results::{events_entry, frame_events, FrameFacts, TRAJECTORY_EVERY};
 use crate::view::{At, Entry, LogHandle};
 

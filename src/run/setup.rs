@@ -67,7 +67,8 @@ impl Setup {
         config.detector.source = detection_source(&config)?;
         // The first frame, read once: it decides the image size and shows a swapped pair.
         let first = sequence.load(0).ok();
-        let (calibration, size_warning) = calibration_and_warning(sequence, &config, first.as_ref())?;
+        let (calibration, size_warning) =
+            calibration_and_warning(sequence, &config, first.as_ref())?;
         if let Some(warning) = size_warning {
             eprintln!("warning: {warning}");
         }
@@ -155,7 +156,9 @@ fn warn_if_swapped(
         return;
     };
     let pair = (left, right);
-    if let Some((positive, negative)) = crate::frame::stereo::looks_swapped(pair, extractor, camera.fx) {
+    if let Some((positive, negative)) =
+        crate::frame::stereo::looks_swapped(pair, extractor, camera.fx)
+    {
         eprintln!(
             "warning: the stereo pair of {name} looks swapped: {negative} keypoints match at a negative disparity and {positive} at a positive one (image_0 must be the left camera, image_1 the right)"
         );
@@ -172,7 +175,10 @@ pub fn check_sequence_folder(root: &Path) -> Result<(), IoError> {
             "a file, not a sequence folder (TUM/Bonn: the folder holding rgb.txt and depth.txt; KITTI: sequences/NN)",
         ));
     }
-    if root.join("sequences").is_dir() && !root.join("image_0").is_dir() && !root.join("rgb.txt").exists() {
+    if root.join("sequences").is_dir()
+        && !root.join("image_0").is_dir()
+        && !root.join("rgb.txt").exists()
+    {
         return Err(IoError::invalid(
             root,
             format!(

@@ -7,11 +7,11 @@
 
 use std::time::Instant;
 
+use super::error::{RunError, StopReason};
 use super::observers::{FrameObserver, FrameView};
+use super::options::RunOptions;
 use super::report::FrameLine;
 use super::setup::Setup;
-use super::error::{RunError, StopReason};
-use super::options::RunOptions;
 use crate::config::Config;
 use crate::detect::Detector;
 use crate::eval::stats::median;
@@ -19,11 +19,11 @@ use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
+use crate::map::record::FrameRecord;
 use crate::pacing::{Pace, Pacer};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
-use crate::map::record::FrameRecord;
 use crate::tracking::{TrackedFrame, TrackingState};
 
 /// The Rerun recording's local map: the points of this many recent keyframes.
@@ -135,7 +135,11 @@ pub fn tracking_pass(
     }
     observers.iter_mut().for_each(|o| o.finish());
     if stop.is_none() && system.state() == TrackingState::NotInitialised {
-        stop = Some(StopReason::NeverStarted(never_started(&lines, config, setup.sensor)));
+        stop = Some(StopReason::NeverStarted(never_started(
+            &lines,
+            config,
+            setup.sensor,
+        )));
     }
     let tracked = system.finish();
     observers
@@ -207,7 +211,12 @@ fn next_frame(
                 &setup.camera,
                 &calibration.camera,
             );
-            (frame, Picture::Colour(rgb), started, keep_depth.then_some(depth))
+            (
+                frame,
+                Picture::Colour(rgb),
+                started,
+                keep_depth.then_some(depth),
+            )
         }
         FrameImages::Stereo { left, right } => {
             let started = Instant::now();

@@ -8,10 +8,10 @@ use std::path::PathBuf;
 
 use super::observers::{FrameObserver, FrameView};
 use crate::dynamics::Applied;
-use crate::io::IoError;
 use crate::eval::truth::{
     ground_truth_mask, ground_truth_people, Classification, Recall, TruthCounts,
 };
+use crate::io::IoError;
 
 /// Scores a run against the ground truth of its sequence folder.
 #[derive(Default)]

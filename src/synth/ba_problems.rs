@@ -7,8 +7,8 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::geometry::se3::{self, Se3};
-use crate::optim::local_ba::{BaObservation, BaProblem};
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::optim::local_ba::{BaObservation, BaProblem};
 use crate::random::Rng;
 
 /// The shape of a problem.

@@ -203,7 +203,10 @@ impl SynthConfig {
             ));
         }
         if let Some(table) = self.scene.table {
-            if !table.iter().all(|s| s.is_finite() && *s > 0.0 && *s <= 10.0) {
+            if !table
+                .iter()
+                .all(|s| s.is_finite() && *s > 0.0 && *s <= 10.0)
+            {
                 return Err(BadValue::new(
                     "scene.table",
                     format!("must be [length, width, height], each above 0 and at most 10 m, got {table:?}"),
@@ -231,14 +234,21 @@ impl SynthConfig {
             ));
         }
         if let Some(depth) = &self.depth_camera {
-            depth.camera.validate().map_err(|bad| bad.within("depth_camera"))?;
+            depth
+                .camera
+                .validate()
+                .map_err(|bad| bad.within("depth_camera"))?;
             if !depth.camera.is_undistorted() {
                 return Err(BadValue::new(
                     "depth_camera.camera.distortion",
                     "must be zeros (a pinhole is rendered)",
                 ));
             }
-            if depth.offset.iter().any(|v| !(v.is_finite() && v.abs() <= 0.5)) {
+            if depth
+                .offset
+                .iter()
+                .any(|v| !(v.is_finite() && v.abs() <= 0.5))
+            {
                 return Err(BadValue::new(
                     "depth_camera.offset",
                     format!("must be within 0.5 m, got {:?}", depth.offset),

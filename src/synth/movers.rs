@@ -166,12 +166,20 @@ impl ObjectsConfig {
                 format!("must be positive, got {:?}", self.size),
             ));
         }
-        checks::each(key, checks::positive, &[("speed", self.speed), ("span", self.span)])?;
-        checks::each(key, checks::non_negative, &[
-            ("distance", self.distance),
-            ("pause", self.pause),
-            ("lift", self.lift),
-        ])?;
+        checks::each(
+            key,
+            checks::positive,
+            &[("speed", self.speed), ("span", self.span)],
+        )?;
+        checks::each(
+            key,
+            checks::non_negative,
+            &[
+                ("distance", self.distance),
+                ("pause", self.pause),
+                ("lift", self.lift),
+            ],
+        )?;
         Ok(())
     }
 }

@@ -330,8 +330,18 @@ pub fn render(
 }
 
 /// Renders only the sensor depth seen from `view` (a depth camera of its own).
-pub fn render_depth(scene: &Scene, view: &View, camera: &PinholeCamera, sensor: &SensorConfig, noise_seed: u64) -> DepthImage {
-    let exact = DepthImage { width: camera.width, height: camera.height, metres: trace(scene, view, camera, true).depth };
+pub fn render_depth(
+    scene: &Scene,
+    view: &View,
+    camera: &PinholeCamera,
+    sensor: &SensorConfig,
+    noise_seed: u64,
+) -> DepthImage {
+    let exact = DepthImage {
+        width: camera.width,
+        height: camera.height,
+        metres: trace(scene, view, camera, true).depth,
+    };
     sensor_depth(&exact, sensor, noise_seed)
 }
 

@@ -104,16 +104,20 @@ impl Default for StreetConfig {
 impl StreetConfig {
     /// Checks each value's range; the error names the key.
     pub fn validate(&self) -> Result<(), BadValue> {
-        checks::each("street", checks::positive, &[
-            ("camera_height", self.camera_height),
-            ("half_width", self.half_width),
-            ("building_spacing", self.building_spacing),
-            ("parking_spacing", self.parking_spacing),
-            ("car_speed", self.car_speed),
-            ("pedestrian_speed", self.pedestrian_speed),
-            ("render_range", self.render_range),
-            ("road_spacing", self.road_spacing),
-        ])?;
+        checks::each(
+            "street",
+            checks::positive,
+            &[
+                ("camera_height", self.camera_height),
+                ("half_width", self.half_width),
+                ("building_spacing", self.building_spacing),
+                ("parking_spacing", self.parking_spacing),
+                ("car_speed", self.car_speed),
+                ("pedestrian_speed", self.pedestrian_speed),
+                ("render_range", self.render_range),
+                ("road_spacing", self.road_spacing),
+            ],
+        )?;
         checks::unit_interval("street.parked_share", self.parked_share)?;
         if self.following_cars > 0 && self.layout != StreetLayout::Highway {
             return Err(BadValue::new(
@@ -260,7 +264,11 @@ pub fn build_street(
     }
     let lanes = street.add_road(&mut scene);
     if highway {
-        let level = street.cameras.iter().map(|c| c[street.up.0] * street.up.1).sum::<f64>()
+        let level = street
+            .cameras
+            .iter()
+            .map(|c| c[street.up.0] * street.up.1)
+            .sum::<f64>()
             / street.cameras.len().max(1) as f64
             - config.camera_height;
         scene.look = Look::Highway(Arc::new(HighwayLook {
@@ -576,7 +584,9 @@ impl Street<'_> {
         let window = 8.0;
         for i in 0..config.moving_cars {
             let meet = duration * (i as f64 + 0.5) / config.moving_cars as f64;
-            let Some(point) = at_frame(meet) else { continue };
+            let Some(point) = at_frame(meet) else {
+                continue;
+            };
             let reach = config.car_speed * window;
             let lane = ONCOMING_LANES[i % 2];
             // At `start` when t + phase = 0, i.e. at t = meet - window.
@@ -587,7 +597,12 @@ impl Street<'_> {
         for j in 0..config.following_cars {
             let speed = camera_speed * (1.0 + 0.08 * (j % 3) as f64);
             let ahead = 10.0 + 15.0 * j as f64;
-            let drive = (FOLLOWING_LANE, (ahead, ahead + speed * duration + 20.0), speed, 0.0);
+            let drive = (
+                FOLLOWING_LANE,
+                (ahead, ahead + speed * duration + 20.0),
+                speed,
+                0.0,
+            );
             self.push_car(movers, &first, drive);
         }
     }
@@ -604,7 +619,10 @@ impl Street<'_> {
         let floor = self.floor_under(&point.position);
         let centre = point.position + point.left * lateral;
         let (corner, size) = standing_box(centre, &point.heading, (4.3, 1.8, 1.5), self.up, floor);
-        let (start, end) = (corner + point.heading * along.0, corner + point.heading * along.1);
+        let (start, end) = (
+            corner + point.heading * along.0,
+            corner + point.heading * along.1,
+        );
         let clear = (0..=100).all(|k| {
             let at = start.lerp(&end, k as f64 / 100.0);
             clear_of(&self.cameras, at, size, 1.2)
@@ -710,13 +728,19 @@ mod tests {
             let at = centre(car, meet);
             let frame = (meet * 10.0).round();
             let z = at.z;
-            assert!((z - frame).abs() < 1.0, "car {i} at z {z}, the camera at {frame}");
+            assert!(
+                (z - frame).abs() < 1.0,
+                "car {i} at z {z}, the camera at {frame}"
+            );
             assert!((-at.x - ONCOMING_LANES[i % 2]).abs() < 0.1, "{at:?}");
             assert!(centre(car, meet + 0.5).z < at.z - 10.0, "oncoming");
         }
         let follower = &movers[4];
         let speed = follower.speed;
-        assert!((speed - 10.0).abs() < 1e-9, "the camera's 99 m in 9.9 s: {speed}");
+        assert!(
+            (speed - 10.0).abs() < 1e-9,
+            "the camera's 99 m in 9.9 s: {speed}"
+        );
         for t in [0.0, 5.0, 9.9] {
             let ahead = centre(follower, t).z - 10.0 * t;
             assert!((ahead - 10.0).abs() < 0.5, "t {t}: {ahead} m ahead");

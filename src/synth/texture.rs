@@ -140,7 +140,11 @@ pub fn room_texel(surface: Surface, u: f64, v: f64, footprint: f64) -> [f64; 3] 
             let seam = 0.012 / tile;
             let inside = coverage(fu - seam, 1.0 - seam, f) * coverage(fv - seam, 1.0 - seam, f);
             let grain = 0.04 * value_noise(901, u * 12.0, v * 12.0);
-            mix([0.55, 0.55, 0.56], [0.86 + grain, 0.86 + grain, 0.84 + grain], inside)
+            mix(
+                [0.55, 0.55, 0.56],
+                [0.86 + grain, 0.86 + grain, 0.84 + grain],
+                inside,
+            )
         }
     }
 }
@@ -155,17 +159,23 @@ fn floor_texel(u: f64, v: f64, footprint: f64) -> [f64; 3] {
     let tone = 0.8 + 0.3 * (h & 0xFF) as f64 / 255.0;
     let grain = value_noise(79 + (h >> 8) % 7, u * 3.0, v * 60.0);
     let knots = value_noise(80, u * 9.0, v * 9.0).powi(6);
-    let wood = [0.56, 0.38, 0.22].map(|c| (c * tone * (0.85 + 0.3 * grain) * (1.0 - 0.5 * knots)).clamp(0.0, 1.0));
+    let wood = [0.56, 0.38, 0.22]
+        .map(|c| (c * tone * (0.85 + 0.3 * grain) * (1.0 - 0.5 * knots)).clamp(0.0, 1.0));
     let (fu, fv) = ((u + shift) / length - column, v / width - row);
-    let inside = coverage(fu - 0.004, 1.0 - 0.008, footprint / length)
-        .min(coverage(fv - 0.02, 1.0 - 0.04, footprint / width));
+    let inside = coverage(fu - 0.004, 1.0 - 0.008, footprint / length).min(coverage(
+        fv - 0.02,
+        1.0 - 0.04,
+        footprint / width,
+    ));
     mix([0.16, 0.10, 0.06], wood, inside)
 }
 
 /// Plaster with framed pictures, posters and notes on a 0.8 m x 0.7 m grid (most
 /// cells): a lab's wall, with enough corners for tracking.
 fn wall_texel(u: f64, v: f64, footprint: f64) -> [f64; 3] {
-    let tone = 0.88 + 0.12 * value_noise(501, u * 1.5, v * 1.5) + 0.06 * value_noise(502, u * 25.0, v * 25.0);
+    let tone = 0.88
+        + 0.12 * value_noise(501, u * 1.5, v * 1.5)
+        + 0.06 * value_noise(502, u * 25.0, v * 25.0);
     let plaster = [0.80, 0.76, 0.68].map(|c| (c * tone).clamp(0.0, 1.0));
     let (cell_u, cell_v) = (0.8, 0.7);
     let (cu, cv) = (floor(u / cell_u), floor(v / cell_v));
@@ -174,14 +184,21 @@ fn wall_texel(u: f64, v: f64, footprint: f64) -> [f64; 3] {
         return plaster;
     }
     // The picture: size and place in its cell, a frame 3-5 cm wide.
-    let (w, hgt) = (0.3 + 0.4 * (h >> 8 & 0xFF) as f64 / 255.0, 0.25 + 0.35 * (h >> 16 & 0xFF) as f64 / 255.0);
-    let (x, y) = (u - cu * cell_u - 0.5 * (cell_u - w), v - cv * cell_v - 0.5 * (cell_v - hgt));
+    let (w, hgt) = (
+        0.3 + 0.4 * (h >> 8 & 0xFF) as f64 / 255.0,
+        0.25 + 0.35 * (h >> 16 & 0xFF) as f64 / 255.0,
+    );
+    let (x, y) = (
+        u - cu * cell_u - 0.5 * (cell_u - w),
+        v - cv * cell_v - 0.5 * (cell_v - hgt),
+    );
     let frame = 0.03 + 0.02 * (h >> 24 & 0x3) as f64 / 3.0;
     let outer = coverage(x, w, footprint) * coverage(y, hgt, footprint);
     if outer <= 0.0 {
         return plaster;
     }
-    let inner = coverage(x - frame, w - 2.0 * frame, footprint) * coverage(y - frame, hgt - 2.0 * frame, footprint);
+    let inner = coverage(x - frame, w - 2.0 * frame, footprint)
+        * coverage(y - frame, hgt - 2.0 * frame, footprint);
     let wood = [0.22, 0.15, 0.09].map(|c| c * (0.8 + 0.4 * value_noise(504, u * 30.0, v * 30.0)));
     let painting = texel(600 + h % 50, u * 2.0, v * 2.0, footprint * 2.0);
     let framed = mix(wood, painting, inner);
@@ -208,8 +225,13 @@ mod tests {
         let mut differ = 0;
         for i in 0..400 {
             let (u, v) = (i as f64 * 0.093, i as f64 * -0.071);
-            let colours = [Surface::Floor, Surface::Wall, Surface::Ceiling, Surface::Furniture(17)]
-                .map(|s| room_texel(s, u, v, 0.002));
+            let colours = [
+                Surface::Floor,
+                Surface::Wall,
+                Surface::Ceiling,
+                Surface::Furniture(17),
+            ]
+            .map(|s| room_texel(s, u, v, 0.002));
             for c in colours {
                 assert!(c.iter().all(|x| (0.0..=1.0).contains(x)), "{c:?}");
             }

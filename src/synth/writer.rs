@@ -422,24 +422,44 @@ impl World {
     pub fn render_depth_camera(&self, index: usize) -> Option<DepthImage> {
         let depth = self.config.depth_camera.as_ref()?;
         let [x, y, z] = depth.offset;
-        let offset = Se3::from_parts(nalgebra::Translation3::new(x, y, z), nalgebra::Rotation3::identity());
+        let offset = Se3::from_parts(
+            nalgebra::Translation3::new(x, y, z),
+            nalgebra::Rotation3::identity(),
+        );
         let pose = self.poses[index] * offset;
         let seed = self.frame_seed(index) ^ 0xDE_D7_CA;
         let view = self.view(self.times[index], pose);
-        Some(render_depth(&self.visible_scene(&pose), &view, &depth.camera, &self.config.sensor, seed))
+        Some(render_depth(
+            &self.visible_scene(&pose),
+            &view,
+            &depth.camera,
+            &self.config.sensor,
+            seed,
+        ))
     }
 }
 
 /// Writes `depth_camera.yaml`: the depth camera's intrinsics as an ORB-SLAM2 settings
 /// file, and its offset as `ColourFromDepth.tx/ty/tz`.
 fn write_depth_camera_file(config: &SynthConfig, out: &Path) -> Result<(), SynthError> {
-    let Some(depth) = &config.depth_camera else { return Ok(()) };
-    let calibration = Calibration { camera: depth.camera, bf: None, depth_scale: Some(5000.0), th_depth: None, fps: Some(config.sequence.fps) };
+    let Some(depth) = &config.depth_camera else {
+        return Ok(());
+    };
+    let calibration = Calibration {
+        camera: depth.camera,
+        bf: None,
+        depth_scale: Some(5000.0),
+        th_depth: None,
+        fps: Some(config.sequence.fps),
+    };
     let mut text = OrbSlamSettings::to_yaml(&calibration, &Default::default());
     for (axis, value) in ["tx", "ty", "tz"].iter().zip(depth.offset) {
         text += &format!("ColourFromDepth.{axis}: {value:?}\n");
     }
-    Ok(write_atomic(&out.join("depth_camera.yaml"), text.as_bytes())?)
+    Ok(write_atomic(
+        &out.join("depth_camera.yaml"),
+        text.as_bytes(),
+    )?)
 }
 
 /// Loads a cut-out named by the config, if any.
@@ -559,7 +579,12 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
             .expect("valid template"),
     );
     // The frames first; the index files afterwards.
-    let mover_voxels = render_frames((&world, config), out, stereo.then_some(kitti.as_path()), &progress)?;
+    let mover_voxels = render_frames(
+        (&world, config),
+        out,
+        stereo.then_some(kitti.as_path()),
+        &progress,
+    )?;
     progress.finish_and_clear();
     write_index_files(&world, out)?;
     let calibration = Calibration {
@@ -624,7 +649,9 @@ fn render_frames(
             write_images(out, world.stamp(index), &rendered)?;
             if let Some(depth) = world.render_depth_camera(index) {
                 let name = format!("depth_camera/{:.6}.png", world.stamp(index));
-                depth_to_png16(&depth, 5000.0).save(out.join(&name)).map_err(save_error(out, &name))?;
+                depth_to_png16(&depth, 5000.0)
+                    .save(out.join(&name))
+                    .map_err(save_error(out, &name))?;
             }
             let tum = (out, world.stamp(index));
             let targets: &[(&Path, f64)] = if stereo {

@@ -26,6 +26,7 @@ use crate::config::Config;
 use crate::detect::job::{Job, Outcome};
 use crate::detect::Detector;
 use crate::dop::{DopConfig, Mode};
+use crate::dynamics::tracked::{after_pose, feature_budget, refresh_last, DopFigures};
 use crate::dynamics::{Applied, DetectionTotals, Dynamics, DynamicsConfig};
 use crate::features::ScalePyramid;
 use crate::frame::Frame;
@@ -37,7 +38,6 @@ use crate::global::NoLoops;
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;
-use crate::dynamics::tracked::{after_pose, feature_budget, refresh_last, DopFigures};
 use crate::tracking::tracker::Located;
 use crate::tracking::{TrackedFrame, Tracker, TrackingState};
 use stages::{Detection, LocalMapping, Recognition};
@@ -219,7 +219,11 @@ impl System {
                 continue;
             };
             for point_key in keyframe.map_points.iter().flatten() {
-                let Some(point) = map.points().get(*point_key).filter(|_| seen.insert(*point_key)) else {
+                let Some(point) = map
+                    .points()
+                    .get(*point_key)
+                    .filter(|_| seen.insert(*point_key))
+                else {
                     continue;
                 };
                 if dop.is_some_and(|d| d.removed(point.moving)) {
@@ -254,9 +258,16 @@ impl System {
                 let sensor = self.tracker.sensor();
                 let (frame, pose) = search.parts();
                 let dop = pose.map_or_else(DopFigures::default, |pose| {
-                    after_pose(&gate, (&mut map, frame), pose, &sensor, self.tracker.last_frame())
+                    after_pose(
+                        &gate,
+                        (&mut map, frame),
+                        pose,
+                        &sensor,
+                        self.tracker.last_frame(),
+                    )
                 });
-                self.tracker.settle((&mut map, &gate), *search, dop, mapping_idle)
+                self.tracker
+                    .settle((&mut map, &gate), *search, dop, mapping_idle)
             }
         };
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;

@@ -174,7 +174,11 @@ mod tests {
 
     #[test]
     fn state_names_are_the_reports() {
-        for state in [TrackingState::NotInitialised, TrackingState::Ok, TrackingState::Lost] {
+        for state in [
+            TrackingState::NotInitialised,
+            TrackingState::Ok,
+            TrackingState::Lost,
+        ] {
             assert_eq!(serde_json::to_value(state).unwrap(), state.as_str());
         }
     }

@@ -28,9 +28,9 @@ use crate::frame::Frame;
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::{self, Se3};
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::map::record::FrameObservation;
 use crate::map::{KeyFrameKey, Map, MapPointKey, SharedMap};
 use crate::tracking::params::TrackerConfig;
-use crate::map::record::FrameObservation;
 use crate::tracking::report::{PoseEstimate, Reject, TrackedFrame, TrackingState};
 use projection::Projector;
 use search::LocalSearch;
@@ -155,7 +155,8 @@ impl Tracker {
     /// The keyframe this tracker made last (its id) and the frames tracked since: the
     /// DOP model keeps that keyframe's new points on probation.
     pub fn keyframe_clock(&self) -> Option<(usize, usize)> {
-        self.newest_keyframe_id.map(|id| (id, self.frames_since_keyframe))
+        self.newest_keyframe_id
+            .map(|id| (id, self.frames_since_keyframe))
     }
 
     /// The last tracked frame (with its moving probabilities).
@@ -189,7 +190,10 @@ impl Tracker {
         }
         let map = shared.read().expect("map lock poisoned");
         // Local mapping may have culled the reference keyframe: take the segment's newest.
-        if self.reference.is_some_and(|k| !map.keyframes().contains_key(k)) {
+        if self
+            .reference
+            .is_some_and(|k| !map.keyframes().contains_key(k))
+        {
             self.reference = map.newest_of_segment(self.segment);
         }
         let input = TrackInput {
@@ -340,13 +344,7 @@ impl Tracker {
             frame: &frame,
             gate: &counted,
         };
-        let need = self.need_keyframe(
-            input,
-            &pose,
-            &points,
-            inliers,
-            mapping_idle,
-        );
+        let need = self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
         let (pose, points) = if need {
             self.insert_keyframe((map, &frame, gate), pose, points, false);
             let key = self.reference.expect("just inserted");

@@ -119,9 +119,7 @@ fn admit_waiting(
 ) {
     let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
         .then(|| optimise_pose_predicted(sensor.camera, initial, observations, share))
-        .filter(|estimate| {
-            estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS
-        });
+        .filter(|estimate| estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS);
     for (i, point) in awaiting {
         let observation = sensor.observation(frame, i, point);
         let agrees = trusted.as_ref().is_none_or(|estimate| {

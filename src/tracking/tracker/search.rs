@@ -7,7 +7,6 @@
 use std::collections::HashSet;
 use std::time::Instant;
 
-
 use super::{Timing, TrackInput, Tracker};
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
