@@ -7,14 +7,13 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use serde::Serialize;
-
 use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
 use dopslam::frame::stereo::extract_and_match;
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
+use serde::Serialize;
 
 #[derive(Args)]
 pub struct StereoArgs {
@@ -26,7 +25,7 @@ pub struct StereoArgs {
     #[arg(long)]
     pub settings: PathBuf,
     /// Keypoints per image (default: the settings' ORBextractor.nFeatures, else 2000).
-    #[arg(long, value_parser = crate::cli_values::at_least_one)]
+    #[arg(long, value_parser = super::values::at_least_one)]
     pub features: Option<usize>,
     /// Also write the figures as JSON here.
     #[arg(long)]

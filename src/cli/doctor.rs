@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::Args;
-
 use dopslam::config::Config;
 use dopslam::detect::Model;
 use dopslam::io::data_dir::{self, DataDir, DataOrigin};

@@ -8,7 +8,6 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-
 use dopslam::config::Config;
 use dopslam::io::run_dir::RunDir;
 use dopslam::io::sequence::Sequence;

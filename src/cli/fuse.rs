@@ -1,0 +1,198 @@
+//! `dopslam fuse`: a finished run's frames fused again into a dense map, with other
+//! settings, without tracking again.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use dopslam::config::Config;
+use dopslam::dense::{DenseReport, FrameChoice};
+use dopslam::dop::Mode;
+use dopslam::io::run_dir::{RunDir, RunSummary};
+use dopslam::io::trajectory::TrajectoryFormat;
+use dopslam::io::Trajectory;
+use dopslam::run::{dense_pass, DenseSetup};
+
+use super::settings::apply_settings;
+
+#[derive(Args)]
+pub struct FuseArgs {
+    /// A finished run's folder (written by `dopslam run`).
+    pub run: PathBuf,
+    /// The sequence folder (default: the one the run names in report.json).
+    #[arg(long)]
+    pub sequence: Option<PathBuf>,
+    /// A TOML config whose [dense] section sets the fusion (default: built-in defaults).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Fuse everything (the baseline), whatever the run did.
+    #[arg(long, conflicts_with_all = ["mask_boxes", "dop"])]
+    pub no_dop: bool,
+    /// Mask whole dynamic boxes of the nearest keyframe.
+    #[arg(long, conflicts_with = "dop")]
+    pub mask_boxes: bool,
+    /// Mask the DOP model's objects and dynamic keypoints (default: as the run did).
+    #[arg(long)]
+    pub dop: bool,
+    /// TSDF voxel edge in metres (overrides the config).
+    #[arg(long)]
+    pub voxel: Option<f64>,
+    /// Fuse keyframes only into the TSDF.
+    #[arg(long)]
+    pub keyframes_only: bool,
+    /// The ORB-SLAM2 settings file the run used (`run --settings`), if any.
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+}
+
+/// Refuses to fuse a run with a sequence it did not track: at least 90 % of the run's
+/// poses must have a frame of the sequence at their timestamp (1 µs).
+pub fn same_frames(
+    run: &RunDir,
+    sequence: &dyn dopslam::io::sequence::Sequence,
+    dir: &Path,
+) -> Result<()> {
+    let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
+    let frames: std::collections::HashSet<i64> = (0..sequence.len())
+        .map(|i| (sequence.timestamp(i) * 1e6).round() as i64)
+        .collect();
+    let found = trajectory
+        .timestamps
+        .iter()
+        .filter(|t| frames.contains(&((**t * 1e6).round() as i64)))
+        .count();
+    if trajectory.is_empty() || (found as f64) < 0.9 * trajectory.len() as f64 {
+        bail!(
+            "{} is not the sequence {} tracked: {found} of its {} poses have a frame there; the dense map was left as it was (pass the sequence the run tracked, or none: report.json names it)",
+            dir.display(),
+            run.root().display(),
+            trajectory.len()
+        );
+    }
+    Ok(())
+}
+
+/// The masking a run used, from its report.json.
+/// How the run in `run` treated movers, as its report says: the dense pass masks
+/// the same way unless told otherwise.
+pub fn run_masking(run: &RunDir, report: &RunSummary) -> Result<Mode> {
+    match Mode::from_name(&report.mode) {
+        Some(mode) => Ok(mode),
+        None if report.mode.is_empty() => bail!(
+            "{} does not say how the run treated moving objects: pass --dop, --mask-boxes or --no-dop",
+            run.report().display()
+        ),
+        None => bail!(
+            "{} says mode {:?}, which is none of off, mask-boxes and dop: pass --dop, --mask-boxes or --no-dop",
+            run.report().display(),
+            report.mode
+        ),
+    }
+}
+
+pub fn run_fuse(args: FuseArgs) -> Result<()> {
+    let mut config = match &args.config {
+        Some(path) => Config::load(path)?,
+        None => Config::default(),
+    };
+    if let Some(voxel) = args.voxel {
+        config.dense.voxel = voxel;
+        config.dense.truncation = config.dense.truncation.max(4.0 * voxel);
+    }
+    if args.keyframes_only {
+        config.dense.frames = FrameChoice::Keyframes;
+    }
+    if let Some(path) = &args.settings {
+        apply_settings(&mut config, path)?;
+    }
+    let run = RunDir::new(&args.run);
+    let report = run
+        .read_summary()
+        .with_context(|| format!("{} is not a finished run", args.run.display()))?;
+    let sequence_dir = match (&args.sequence, &report.sequence_path) {
+        (Some(dir), _) | (None, Some(dir)) => dir.clone(),
+        (None, None) => bail!(
+            "{} does not say which sequence it tracked: pass --sequence",
+            run.report().display()
+        ),
+    };
+    let masking = if args.no_dop {
+        Mode::Off
+    } else if args.mask_boxes {
+        Mode::MaskBoxes
+    } else if args.dop {
+        Mode::Dop
+    } else {
+        run_masking(&run, &report)?
+    };
+    let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
+    same_frames(&run, sequence.as_ref(), &sequence_dir)?;
+    if let Some(recorded) = report.first_frame_hash() {
+        if dopslam::run::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
+            bail!(
+                "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
+                sequence_dir.display(),
+                args.run.display()
+            );
+        }
+    }
+    let dense = dense_pass(
+        sequence.as_ref(),
+        &DenseSetup::resolve(sequence.as_ref(), &config)?
+            .with_disparity_offset(report.disparity_offset_px()),
+        (&args.run, &args.run),
+        masking,
+        Some(&sequence_dir),
+        true,
+    )?;
+    print_dense(&dense);
+    Ok(())
+}
+
+/// Prints what the dense pass did.
+pub fn print_dense(dense: &DenseReport) {
+    println!(
+        "dense map ({:?} masks, {:.1} % of pixels masked): {} frames fused, {} TSDF blocks ({:.0} MB), mesh {} vertices / {} triangles, cloud {} points from {} keyframes",
+        dense.masking.unwrap_or(Mode::Off),
+        dense.masked_percent,
+        dense.frames_fused,
+        dense.tsdf_blocks,
+        dense.tsdf_memory_mb,
+        dense.mesh_vertices,
+        dense.mesh_triangles,
+        dense.cloud_points,
+        dense.keyframes_in_cloud
+    );
+    if dense.mesh_pieces_dropped > 0 {
+        println!(
+            "dense map: {} small pieces of the mesh dropped ({} vertices; [dense] mesh_min_piece_area)",
+            dense.mesh_pieces_dropped, dense.mesh_vertices_dropped
+        );
+    }
+    if dense.other_segment_frames > 0 {
+        println!(
+            "dense map: {} tracked frames left out, in map segments that no loop merged with the largest",
+            dense.other_segment_frames
+        );
+    }
+    println!(
+        "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s",
+        dense.median_integration_ms, dense.marching_cubes_ms, dense.cloud_ms, dense.total_s
+    );
+    if let Some(t) = &dense.truth {
+        println!(
+            "against the ground-truth masks: {:.2} % of mover pixels kept out, {:.2} % of static pixels fused",
+            100.0 * t.dynamic_removed,
+            100.0 * t.static_kept
+        );
+        if let Some(l) = t.leaks.first() {
+            println!(
+                "largest leak: mover {} at {:.3}-{:.3} s, {} frames, {} of its {} pixels fused (dense.json lists the {} largest)",
+                l.instance, l.first, l.last, l.frames, l.pixels_fused, l.pixels, t.leaks.len()
+            );
+        }
+    }
+    for path in &dense.outputs {
+        println!("wrote {}", path.display());
+    }
+}
