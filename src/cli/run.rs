@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use dopslam::config::Config;
+use dopslam::run::RunPlan;
 use dopslam::io::sequence::Sequence;
 
 use super::load_config;
@@ -126,8 +126,13 @@ pub fn parse_camera(
 }
 
 pub fn run_run(args: RunArgs) -> Result<()> {
-    use clap::ValueEnum;
     let mut config = run_config(&args)?;
+    let sequence = dopslam::run::open_sequence(&args.sequence, &config)?;
+    if let Some(text) = &args.camera {
+        config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
+    }
+    // --rerun's file or --rerun-connect's viewer, opened before any work.
+    let given = super::view::open_for_run(&args.rerun, &config, &args.sequence)?;
     let options = dopslam::run::RunOptions {
         max_frames: args.frames,
         progress: true,
@@ -136,35 +141,12 @@ pub fn run_run(args: RunArgs) -> Result<()> {
         debug_frames: args.debug_frames.clone(),
         dense: !args.no_dense && config.dense.enabled,
         pace: args.pace,
-        rerun: None,
+        rerun: given.as_ref().map(|l| l.handle()),
     };
-    // A missing detector fails here, a missing vocabulary when the run starts: both
-    // before any work.
-    let source = dopslam::run::detection_source(&config)?;
-    config.detector.source = source;
-    let sequence = dopslam::run::open_sequence(&args.sequence, &config)?;
-    if let Some(text) = &args.camera {
-        config.dataset.camera = Some(parse_camera(text, sequence.as_ref())?);
-    }
-    let mode = dopslam::run::effective_mode(&config);
-    eprintln!(
-        "detections: {}; moving objects: {}",
-        source
-            .to_possible_value()
-            .map_or("?".into(), |v| v.get_name().to_string()),
-        mode.to_possible_value()
-            .map_or("?".into(), |v| v.get_name().to_string())
-    );
-    let logger = super::view::open_for_run(&args.rerun, &config, &args.sequence)?;
-    let options = dopslam::run::RunOptions {
-        rerun: logger.as_ref().map(|l| l.handle()),
-        ..options
-    };
-    let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &args.out, &options);
-    // On an error the recording closes as it drops: what was logged stays readable.
-    let mut report = report?;
-    // --rerun's, or the run's own run.rrd ([output] rerun).
-    let recording = logger.or(report.recording.take());
+    let plan = RunPlan::resolve(sequence.as_ref(), &config, &args.out, options)?;
+    print_plan(&plan);
+    // On an error the recordings close as they drop: what was logged stays readable.
+    let report = dopslam::run::execute(&plan)?;
     print_run_summary(&report);
     println!("wrote {}", args.out.display());
     let errors = &report.detection.errors;
@@ -176,13 +158,25 @@ pub fn run_run(args: RunArgs) -> Result<()> {
         );
     }
     if args.compare_no_dop {
-        let log = recording.as_ref().map(|l| l.handle());
-        compare_no_dop(&args, &config, sequence.as_ref(), &options, (&report, log))?;
+        compare_no_dop(&args, &plan, &report)?;
     }
-    if let Some(logger) = recording {
+    plan.finish()?;
+    if let Some(logger) = given {
         dopslam::run::finish_recording(logger, true)?;
     }
     Ok(())
+}
+
+/// What the plan resolved that a user checks first: the detection source and how
+/// moving objects are treated.
+fn print_plan(plan: &RunPlan) {
+    use clap::ValueEnum;
+    let name = |v: Option<clap::builder::PossibleValue>| v.map_or("?".into(), |v| v.get_name().to_string());
+    eprintln!(
+        "detections: {}; moving objects: {}",
+        name(plan.setup.config.detector.source.to_possible_value()),
+        name(plan.setup.mode.to_possible_value())
+    );
 }
 
 /// The configuration of `dopslam run`: the file, then ORB-SLAM2's settings, then the
@@ -274,13 +268,8 @@ pub fn print_run_summary(report: &dopslam::run::RunReport) {
 
 /// `run --compare-no-dop`: the same run with --no-dop into OUT/no_dop, the two dense
 /// maps compared, and the baseline's trajectory and dense map in the run's recording.
-pub fn compare_no_dop(
-    args: &RunArgs,
-    config: &Config,
-    sequence: &dyn Sequence,
-    options: &dopslam::run::RunOptions,
-    (report, log): (&dopslam::run::RunReport, Option<dopslam::view::LogHandle>),
-) -> Result<()> {
+fn compare_no_dop(args: &RunArgs, plan: &RunPlan, report: &dopslam::run::RunReport) -> Result<()> {
+    let config = &plan.setup.config;
     let baseline_dir = args.out.join(dopslam::io::run_dir::names::NO_DOP);
     let mut baseline = config.clone();
     baseline.dop.mode = dopslam::dop::Mode::Off;
@@ -294,18 +283,18 @@ pub fn compare_no_dop(
     );
     let baseline_options = dopslam::run::RunOptions {
         rerun: None,
-        ..options.clone()
+        ..plan.options.clone()
     };
     let baseline_report =
-        dopslam::run::run_sequence(sequence, &baseline, &baseline_dir, &baseline_options)?;
+        dopslam::run::run_sequence(plan.sequence, &baseline, &baseline_dir, &baseline_options)?;
     let comparison = super::compare_no_dop::compare_with_baseline(
         (&args.out, &baseline_dir),
-        sequence,
+        plan.sequence,
         &args.sequence,
         config,
     )?;
     super::compare_no_dop::print_summary(report, &baseline_report, &comparison);
-    if let Some(log) = &log {
+    if let Some(log) = plan.log() {
         let run = dopslam::io::run_dir::RunDir::new(&baseline_dir);
         dopslam::view::results::log_results(log, &run, "no_dop", None)?;
     }

@@ -68,17 +68,36 @@ impl DenseSetup {
     }
 }
 
-/// The dense pass over the run in `run_dir`, outputs into `out_dir` (see
-/// [`crate::dense`]); with `sequence_dir`'s ground-truth `masks/`, when it has them,
-/// the fused pixels are counted against them.
-pub fn dense_pass(
-    sequence: &dyn Sequence,
-    setup: &DenseSetup,
-    (run_dir, out_dir): (&Path, &Path),
-    masking: Mode,
-    sequence_dir: Option<&Path>,
-    progress: bool,
-) -> Result<DenseReport, RunError> {
+/// A dense pass over a finished run: what it reads, where it writes, how it masks.
+pub struct DensePass<'a> {
+    /// The sequence the run tracked.
+    pub sequence: &'a dyn Sequence,
+    /// The dense set-up.
+    pub setup: &'a DenseSetup,
+    /// The run folder read (poses, keypoints, detections).
+    pub run_dir: &'a Path,
+    /// Where the dense map goes.
+    pub out_dir: &'a Path,
+    /// How movers are masked.
+    pub masking: Mode,
+    /// The sequence's folder: its ground-truth `masks/`, when it has them, count the
+    /// fused pixels; the oracle detections.
+    pub sequence_dir: Option<&'a Path>,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// The dense pass of `pass` (see [`crate::dense`]).
+pub fn dense_pass(pass: &DensePass) -> Result<DenseReport, RunError> {
+    let DensePass {
+        sequence,
+        setup,
+        run_dir,
+        out_dir,
+        masking,
+        sequence_dir,
+        progress,
+    } = *pass;
     let config = &setup.config;
     let dense_detector = config.dense.detector(&config.detector);
     let detector = match masking {

@@ -18,6 +18,7 @@ pub mod global_pass;
 pub mod observers;
 pub mod options;
 pub mod outputs;
+pub mod plan;
 pub mod report;
 pub mod rerun_log;
 pub mod rig_offset;
@@ -25,11 +26,13 @@ pub mod setup;
 pub mod tracking_pass;
 pub mod truth;
 
+use std::borrow::Cow;
 use std::path::Path;
 
-pub use dense_pass::{dense_pass, DenseSetup};
+pub use dense_pass::{dense_pass, DensePass, DenseSetup};
 pub use error::{RunError, StopReason};
 pub use options::RunOptions;
+pub use plan::RunPlan;
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use setup::{
     check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash,
@@ -37,106 +40,92 @@ pub use setup::{
 };
 
 use crate::dop::Mode;
-use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
-use crate::view::{At, Entry, Logger, Target};
+use crate::view::{At, Entry, Logger};
 use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
 use outputs::Computed;
 use rerun_log::RerunLog;
-use tracking_pass::{open_detector, tracking_pass, TrackingPass};
+use tracking_pass::{open_detector, tracking_pass, TrackingInputs, TrackingPass};
 use truth::TruthScorer;
 
-/// Runs the passes over `sequence` and writes their outputs into `out`: tracking, the
-/// global pass (on a complete run), the outputs, then (when `options.dense`) the dense
-/// map, also after tracking stopped early. A run that stopped early is an error after
-/// everything was written.
+/// Runs the passes over `sequence` and writes their outputs into `out`: the plan
+/// resolved ([`RunPlan::resolve`]), executed ([`execute`]) and its own recording
+/// closed. A run that stopped early is an error after everything was written.
 pub fn run_sequence(
     sequence: &dyn Sequence,
     config: &crate::config::Config,
     out: &Path,
     options: &RunOptions,
 ) -> Result<RunReport, RunError> {
-    let mut setup = Setup::resolve(sequence, config)?;
-    let _lock = outputs::prepare(out, options)?;
-    let run = RunDir::new(out);
+    let plan = RunPlan::resolve(sequence, config, out, options.clone())?;
+    let report = execute(&plan);
+    // On an error the recording closes too (what was logged stays readable), and the
+    // run's error is the one to report.
+    let finished = plan.finish();
+    let report = report?;
+    finished?;
+    Ok(report)
+}
+
+/// Runs a plan: tracking, the global pass (on a complete run), the outputs, then (when
+/// the plan has a dense set-up) the dense map, also after tracking stopped early. A
+/// run that stopped early is an error after everything was written.
+pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     // Loaded before any tracking (the rig offset's pass included) and only once.
-    let detector = open_detector(&setup, options)?;
-    if let Some(found) = rig_offset::estimate(sequence, &setup, options, &run)? {
-        setup.disparity_offset = Some(found);
-    }
-    let own_log = open_run_recording(config, &run, options)?;
-    let options = &RunOptions {
-        rerun: options
-            .rerun
-            .clone()
-            .or_else(|| own_log.as_ref().map(|l| l.handle())),
-        ..options.clone()
+    let detector = open_detector(&plan.setup, &plan.options)?;
+    let found = rig_offset::estimate(plan)?;
+    let setup = match found {
+        Some(found) => Cow::Owned(plan.setup.with_disparity_offset(found)),
+        None => Cow::Borrowed(&plan.setup),
     };
-    if let Some(log) = &options.rerun {
+    if let Some(log) = plan.log() {
         log_pinhole(log, &setup.calibration.camera);
     }
-    let mut watch = Watchers::new(sequence, options);
-    let mut pass = tracking_pass(
-        sequence,
-        (&setup, detector),
-        options,
-        &run,
-        &mut watch.observers(),
-    )?;
-    let global = global_pass(&mut pass, &setup, &run)?;
+    let mut watch = Watchers::new(plan.sequence, &plan.options);
+    let inputs = TrackingInputs {
+        sequence: plan.sequence,
+        setup: &setup,
+        detector,
+        options: &plan.options,
+        run: &plan.run,
+    };
+    let mut pass = tracking_pass(inputs, &mut watch.observers())?;
+    let global = global_pass(&mut pass, &setup, &plan.run)?;
     let stop = pass.stop.clone();
-    let mut report = outputs::write(
-        &run,
-        watch.computed(sequence, &setup, options, pass, global, &run)?,
-    )?;
+    let computed = watch.computed(plan, &setup, pass, global)?;
+    let mut report = outputs::write(&plan.run, computed)?;
     let dense_due = stop.is_some() || report.totals.tracked > 0;
-    if options.dense && dense_due && !crate::interrupt::requested() {
-        let dense = dense_pass(
-            sequence,
-            &DenseSetup::of_run(&setup).with_disparity_offset(report.disparity_offset_px()),
-            (out, out),
-            setup.mode,
-            options.sequence_dir.as_deref(),
-            options.progress,
-        );
+    if let (Some(dense), true) = (&plan.dense, dense_due && !crate::interrupt::requested()) {
+        let dense = dense.clone().with_disparity_offset(report.disparity_offset_px());
         // After a tracking failure the dense map of what was tracked is a bonus: the
         // tracking error is the one to report.
-        match (&stop, dense) {
+        let pass = DensePass {
+            sequence: plan.sequence,
+            setup: &dense,
+            run_dir: plan.run.root(),
+            out_dir: plan.run.root(),
+            masking: setup.mode,
+            sequence_dir: plan.options.sequence_dir.as_deref(),
+            progress: plan.options.progress,
+        };
+        match (&stop, dense_pass(&pass)) {
             (None, Ok(dense)) => report.dense = Some(dense),
             (None, Err(e)) => return Err(e),
             (Some(_), _) => {}
         }
     }
-    if let Some(log) = &options.rerun {
-        crate::view::results::log_results(log, &run, "", sequence.ground_truth())?;
+    if let Some(log) = plan.log() {
+        crate::view::results::log_results(log, &plan.run, "", plan.sequence.ground_truth())?;
     }
-    report.recording = own_log;
     match stop {
         Some(reason) => Err(RunError::Stopped {
             reason,
             done: report.frames.len(),
-            out: out.to_path_buf(),
+            out: plan.run.root().to_path_buf(),
         }),
         None => Ok(report),
     }
-}
-
-/// `run.rrd` in the run folder when `[output] rerun` asks for it and no recording was
-/// handed in; opened before any work (a build without the feature says so here). The
-/// run hands it back open in [`RunReport::recording`].
-fn open_run_recording(
-    config: &crate::config::Config,
-    run: &RunDir,
-    options: &RunOptions,
-) -> Result<Option<Logger>, RunError> {
-    if !config.output.rerun || options.rerun.is_some() {
-        return Ok(None);
-    }
-    let target = Target::File(run.rerun());
-    Logger::open(target, &config.output, "dopslam")
-        .map(Some)
-        .map_err(|e| RunError::Input(format!("[output] rerun: {e}")))
 }
 
 /// The camera's pinhole, logged once.
@@ -210,12 +199,10 @@ impl Watchers {
     /// (DOP) are written here.
     fn computed<'a>(
         self,
-        sequence: &'a dyn Sequence,
+        plan: &'a RunPlan,
         setup: &Setup,
-        options: &'a RunOptions,
         pass: TrackingPass,
         global: Option<(crate::global::GlobalReport, crate::io::Trajectory)>,
-        run: &RunDir,
     ) -> Result<Computed<'a>, RunError> {
         let TrackingPass {
             tracked,
@@ -232,13 +219,13 @@ impl Watchers {
         // The set of outputs starts here: a second Ctrl-C from now on waits for all of it.
         let writing = crate::interrupt::Writing::start();
         if setup.mode == Mode::Dop {
-            outputs::write_dynamic_keypoints(run, &self.keypoints.frames)?;
+            outputs::write_dynamic_keypoints(&plan.run, &self.keypoints.frames)?;
         }
         let computed = Computed {
             writing,
-            sequence,
-            sequence_path: options.sequence_dir.as_deref(),
-            setup: RunSetup::new(sequence, setup),
+            sequence: plan.sequence,
+            sequence_path: plan.options.sequence_dir.as_deref(),
+            setup: RunSetup::new(plan.sequence, setup),
             mode: setup.mode,
             map: tracked.map,
             mapping: tracked.mapping,

@@ -167,7 +167,6 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         frames: lines,
         stopped,
         dense: None,
-        recording: None,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;
     write_atomic(&run.report(), json.as_bytes())?;

@@ -167,10 +167,6 @@ pub struct RunReport {
     /// The dense pass, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,
-    /// The run's own Rerun recording (`[output] rerun`), still open so that the caller
-    /// can add to it (`--compare-no-dop`'s baseline); dropped, it closes.
-    #[serde(skip)]
-    pub recording: Option<crate::view::Logger>,
 }
 
 impl RunReport {

@@ -15,9 +15,9 @@ use super::error::RunError;
 use super::global_pass::global_inputs;
 use super::options::RunOptions;
 use super::setup::{RigOffset, Setup};
-use super::tracking_pass::tracking_pass;
-use crate::io::run_dir::RunDir;
-use crate::io::sequence::{SensorKind, Sequence};
+use super::plan::RunPlan;
+use super::tracking_pass::{tracking_pass, TrackingInputs};
+use crate::io::sequence::SensorKind;
 
 /// Whether a run of `setup` estimates the offset before tracking: stereo, no offset
 /// given, frames to estimate from, and the global pass's estimate turned on.
@@ -32,15 +32,11 @@ fn wanted(setup: &Setup) -> bool {
 }
 
 /// Tracks the first frames of `sequence` once and estimates the rig's offset from
-/// their map ([`crate::global::disparity_offset_of`]); `None` when the run does not
+/// their map ([`crate::global::disparity_offset_of`]); `None` when the plan does not
 /// want it, or the frames did not track to the end, or their map had too few points
-/// with parallax. Nothing is written into `run`.
-pub fn estimate(
-    sequence: &dyn Sequence,
-    setup: &Setup,
-    options: &RunOptions,
-    run: &RunDir,
-) -> Result<Option<RigOffset>, RunError> {
+/// with parallax. Nothing is written into the run folder.
+pub fn estimate(plan: &RunPlan) -> Result<Option<RigOffset>, RunError> {
+    let (sequence, setup, options) = (plan.sequence, &plan.setup, &plan.options);
     if !wanted(setup) {
         return Ok(None);
     }
@@ -65,7 +61,14 @@ pub fn estimate(
         ..options.clone()
     };
     let prefix = setup.for_offset_estimate();
-    let mut pass = tracking_pass(sequence, (&prefix, None), &quiet, run, &mut [])?;
+    let inputs = TrackingInputs {
+        sequence,
+        setup: &prefix,
+        detector: None,
+        options: &quiet,
+        run: &plan.run,
+    };
+    let mut pass = tracking_pass(inputs, &mut [])?;
     if pass.stop.is_some() {
         return Ok(None);
     }

@@ -25,6 +25,7 @@ use crate::system::worker::Execution;
 use crate::system::SystemSetup;
 
 /// Everything a run is set up with (see the module doc).
+#[derive(Clone)]
 pub struct Setup {
     /// The config for the sequence's sensor, with the detection source resolved.
     pub config: Config,
@@ -93,6 +94,14 @@ impl Setup {
             extractor,
             vocabulary,
         })
+    }
+
+    /// The same set-up with the rig's disparity offset `found` before tracking.
+    pub fn with_disparity_offset(&self, found: RigOffset) -> Self {
+        Self {
+            disparity_offset: Some(found),
+            ..self.clone()
+        }
     }
 
     /// The rig's disparity offset added to every stereo match, pixels (0: none).

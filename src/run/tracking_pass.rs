@@ -54,15 +54,33 @@ pub fn open_detector(
         .map_err(|e| RunError::Input(e.to_string()))
 }
 
-/// Tracks the frames of `sequence` (up to `options.max_frames`) with `detector`
-/// ([`open_detector`]) on its keyframes.
+/// What a tracking pass reads and runs with.
+pub struct TrackingInputs<'a> {
+    /// The frames.
+    pub sequence: &'a dyn Sequence,
+    /// The set-up.
+    pub setup: &'a Setup,
+    /// The keyframe detector ([`open_detector`]), when there is one.
+    pub detector: Option<Box<dyn Detector>>,
+    /// Frames, pace, determinism, the Rerun recording.
+    pub options: &'a RunOptions,
+    /// The run folder (the detection cache).
+    pub run: &'a RunDir,
+}
+
+/// Tracks the frames of `inputs.sequence` (up to `options.max_frames`) with its
+/// detector on the keyframes.
 pub fn tracking_pass(
-    sequence: &dyn Sequence,
-    (setup, detector): (&Setup, Option<Box<dyn Detector>>),
-    options: &RunOptions,
-    run: &RunDir,
+    inputs: TrackingInputs,
     observers: &mut [&mut dyn FrameObserver],
 ) -> Result<TrackingPass, RunError> {
+    let TrackingInputs {
+        sequence,
+        setup,
+        detector,
+        options,
+        run,
+    } = inputs;
     let config = &setup.config;
     let execution = Execution::of(options.deterministic);
     let mut system = start_system(setup, detector, run, execution);
