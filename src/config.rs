@@ -469,103 +469,10 @@ impl Config {
     /// `[dataset] settings`; what it did is kept in `dataset.settings_applied`.
     pub fn apply_orbslam_settings(&mut self, path: &Path) -> Result<OrbSlamSettings, ConfigError> {
         let settings = OrbSlamSettings::read(path)?;
-        let (orb, calibration) = (&settings.orb, &settings.calibration);
-        let d = Config::default();
-        let mut over = Vec::new();
-        if let Some(v) = orb.n_features {
-            let key = "ORBextractor.nFeatures";
-            let orb_slot = &mut self.orb.n_features;
-            settle(
-                orb_slot,
-                d.orb.n_features,
-                v,
-                ("orb.n_features", key),
-                &mut over,
-            );
-            let stereo = &mut self.stereo.n_features;
-            settle(
-                stereo,
-                d.stereo.n_features,
-                v,
-                ("stereo.n_features", key),
-                &mut over,
-            );
-        }
-        if let Some(v) = orb.scale_factor {
-            let names = ("orb.scale_factor", "ORBextractor.scaleFactor");
-            settle(
-                &mut self.orb.scale_factor,
-                d.orb.scale_factor,
-                v,
-                names,
-                &mut over,
-            );
-        }
-        if let Some(v) = orb.n_levels {
-            let names = ("orb.n_levels", "ORBextractor.nLevels");
-            settle(&mut self.orb.n_levels, d.orb.n_levels, v, names, &mut over);
-        }
-        if let Some(v) = orb.ini_th_fast {
-            let names = ("orb.ini_th_fast", "ORBextractor.iniThFAST");
-            settle(
-                &mut self.orb.ini_th_fast,
-                d.orb.ini_th_fast,
-                v,
-                names,
-                &mut over,
-            );
-        }
-        if let Some(v) = orb.min_th_fast {
-            let names = ("orb.min_th_fast", "ORBextractor.minThFAST");
-            settle(
-                &mut self.orb.min_th_fast,
-                d.orb.min_th_fast,
-                v,
-                names,
-                &mut over,
-            );
-        }
-        if let Some(v) = calibration.th_depth {
-            let tracking = &mut self.tracking.th_depth;
-            settle(
-                tracking,
-                d.tracking.th_depth,
-                v,
-                ("tracking.th_depth", "ThDepth"),
-                &mut over,
-            );
-            let stereo = &mut self.stereo.th_depth;
-            settle(
-                stereo,
-                d.stereo.th_depth,
-                v,
-                ("stereo.th_depth", "ThDepth"),
-                &mut over,
-            );
-        }
-        if let Some(fps) = calibration.fps {
-            // ORB-SLAM2's most frames between keyframes is the frame rate.
-            let v = fps.round().max(1.0) as usize;
-            let (tracking, stereo) = (&mut self.tracking, &mut self.stereo);
-            let names = ("tracking.max_frames_between_keyframes", "Camera.fps");
-            let default = d.tracking.max_frames_between_keyframes;
-            settle(
-                &mut tracking.max_frames_between_keyframes,
-                default,
-                v,
-                names,
-                &mut over,
-            );
-            let names = ("stereo.max_frames_between_keyframes", "Camera.fps");
-            let default = d.stereo.max_frames_between_keyframes;
-            settle(
-                &mut stereo.max_frames_between_keyframes,
-                default,
-                v,
-                names,
-                &mut over,
-            );
-        }
+        let mut replaced = Replaced::default();
+        self.settle_orb(&settings.orb, &mut replaced);
+        self.settle_calibration(&settings.calibration, &mut replaced);
+        let calibration = &settings.calibration;
         if self.dataset.depth_scale.is_none() {
             self.dataset.depth_scale = calibration.depth_scale;
         }
@@ -576,13 +483,123 @@ impl Config {
             applied,
             no_meaning,
             unknown,
-            replaced: over,
+            replaced: replaced.0,
         });
         self.validate().map_err(|bad| ConfigError::Invalid {
             path: path.to_path_buf(),
             problem: bad.into(),
         })?;
         Ok(settings)
+    }
+
+    /// The settings file's ORB extractor over the config's `[orb]` (and `[stereo]`'s
+    /// feature count).
+    fn settle_orb(
+        &mut self,
+        orb: &crate::io::orbslam_settings::OrbSettings,
+        replaced: &mut Replaced,
+    ) {
+        let d = Config::default();
+        if let Some(v) = orb.n_features {
+            let key = "ORBextractor.nFeatures";
+            replaced.settle(
+                &mut self.orb.n_features,
+                d.orb.n_features,
+                v,
+                "orb.n_features",
+                key,
+            );
+            replaced.settle(
+                &mut self.stereo.n_features,
+                d.stereo.n_features,
+                v,
+                "stereo.n_features",
+                key,
+            );
+        }
+        if let Some(v) = orb.scale_factor {
+            let key = "ORBextractor.scaleFactor";
+            replaced.settle(
+                &mut self.orb.scale_factor,
+                d.orb.scale_factor,
+                v,
+                "orb.scale_factor",
+                key,
+            );
+        }
+        if let Some(v) = orb.n_levels {
+            replaced.settle(
+                &mut self.orb.n_levels,
+                d.orb.n_levels,
+                v,
+                "orb.n_levels",
+                "ORBextractor.nLevels",
+            );
+        }
+        if let Some(v) = orb.ini_th_fast {
+            let key = "ORBextractor.iniThFAST";
+            replaced.settle(
+                &mut self.orb.ini_th_fast,
+                d.orb.ini_th_fast,
+                v,
+                "orb.ini_th_fast",
+                key,
+            );
+        }
+        if let Some(v) = orb.min_th_fast {
+            let key = "ORBextractor.minThFAST";
+            replaced.settle(
+                &mut self.orb.min_th_fast,
+                d.orb.min_th_fast,
+                v,
+                "orb.min_th_fast",
+                key,
+            );
+        }
+    }
+
+    /// The settings file's `ThDepth` and `Camera.fps` over `[tracking]` and `[stereo]`.
+    fn settle_calibration(
+        &mut self,
+        calibration: &crate::io::orbslam_settings::Calibration,
+        replaced: &mut Replaced,
+    ) {
+        let d = Config::default();
+        if let Some(v) = calibration.th_depth {
+            replaced.settle(
+                &mut self.tracking.th_depth,
+                d.tracking.th_depth,
+                v,
+                "tracking.th_depth",
+                "ThDepth",
+            );
+            replaced.settle(
+                &mut self.stereo.th_depth,
+                d.stereo.th_depth,
+                v,
+                "stereo.th_depth",
+                "ThDepth",
+            );
+        }
+        if let Some(fps) = calibration.fps {
+            // ORB-SLAM2's most frames between keyframes is the frame rate.
+            let v = fps.round().max(1.0) as usize;
+            let (tracking, stereo) = (&mut self.tracking, &mut self.stereo);
+            replaced.settle(
+                &mut tracking.max_frames_between_keyframes,
+                d.tracking.max_frames_between_keyframes,
+                v,
+                "tracking.max_frames_between_keyframes",
+                "Camera.fps",
+            );
+            replaced.settle(
+                &mut stereo.max_frames_between_keyframes,
+                d.stereo.max_frames_between_keyframes,
+                v,
+                "stereo.max_frames_between_keyframes",
+                "Camera.fps",
+            );
+        }
     }
 }
 
@@ -672,20 +689,27 @@ pub struct SettingsApplied {
     pub replaced: Vec<String>,
 }
 
-/// Sets `slot` to `value`, the settings file's, noting in `over` the config key `name`
-/// when the config had set it (to another value than its `default`) and the file
-/// changes it: the file's values come last and win, and a run says so.
-fn settle<T: PartialEq + std::fmt::Display + Copy>(
-    slot: &mut T,
-    default: T,
-    value: T,
-    (name, key): (&str, &str),
-    over: &mut Vec<String>,
-) {
-    if *slot != default && *slot != value {
-        over.push(format!("{name} {} -> {value} ({key})", *slot));
+/// The config keys a settings file replaced, as a run says them.
+#[derive(Default)]
+struct Replaced(Vec<String>);
+
+impl Replaced {
+    /// Sets `slot` to `value`, the settings file's (its `key`), noting the config key
+    /// `name` when the config had set it (to another value than its `default`) and
+    /// the file changes it: the file's values come last and win, and a run says so.
+    fn settle<T: PartialEq + std::fmt::Display + Copy>(
+        &mut self,
+        slot: &mut T,
+        default: T,
+        value: T,
+        name: &str,
+        key: &str,
+    ) {
+        if *slot != default && *slot != value {
+            self.0.push(format!("{name} {} -> {value} ({key})", *slot));
+        }
+        *slot = value;
     }
-    *slot = value;
 }
 
 impl SettingsApplied {

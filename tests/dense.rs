@@ -113,11 +113,27 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         .build()
         .unwrap()
         .install(|| {
-            dense_pass(&dopslam::run::DensePass { sequence: sequence.as_ref(), setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(), run_dir: &run_dir, out_dir: &one_dir, masking: Mode::Dop, sequence_dir: Some(&seq), progress: false })
+            dense_pass(&dopslam::run::DensePass {
+                sequence: sequence.as_ref(),
+                setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
+                run_dir: &run_dir,
+                out_dir: &one_dir,
+                masking: Mode::Dop,
+                sequence_dir: Some(&seq),
+                progress: false,
+            })
         })
         .unwrap();
     // Fused again into the run's folder: the detections come from its cache.
-    let again = dense_pass(&dopslam::run::DensePass { sequence: sequence.as_ref(), setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(), run_dir: &run_dir, out_dir: &run_dir, masking: Mode::Dop, sequence_dir: Some(&seq), progress: false })
+    let again = dense_pass(&dopslam::run::DensePass {
+        sequence: sequence.as_ref(),
+        setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
+        run_dir: &run_dir,
+        out_dir: &run_dir,
+        masking: Mode::Dop,
+        sequence_dir: Some(&seq),
+        progress: false,
+    })
     .unwrap()
     .extra_detections
     .unwrap();
@@ -132,7 +148,15 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
-    let unmasked = dense_pass(&dopslam::run::DensePass { sequence: sequence.as_ref(), setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(), run_dir: &run_dir, out_dir: &unmasked_dir, masking: Mode::Off, sequence_dir: Some(&seq), progress: false })
+    let unmasked = dense_pass(&dopslam::run::DensePass {
+        sequence: sequence.as_ref(),
+        setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
+        run_dir: &run_dir,
+        out_dir: &unmasked_dir,
+        masking: Mode::Off,
+        sequence_dir: Some(&seq),
+        progress: false,
+    })
     .unwrap();
     assert_eq!(unmasked.truth.unwrap().dynamic_removed, 0.0);
 
@@ -233,7 +257,15 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         config.dense.mask_free_space_seconds = seconds;
         config.dense.mask_free_space_far_seconds = far_seconds;
         let out = base.join(name);
-        let report = dense_pass(&dopslam::run::DensePass { sequence: sequence.as_ref(), setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(), run_dir: &run_dir, out_dir: &out, masking: Mode::Dop, sequence_dir: Some(&seq), progress: false })
+        let report = dense_pass(&dopslam::run::DensePass {
+            sequence: sequence.as_ref(),
+            setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
+            run_dir: &run_dir,
+            out_dir: &out,
+            masking: Mode::Dop,
+            sequence_dir: Some(&seq),
+            progress: false,
+        })
         .unwrap();
         report.truth.expect("ground-truth masks were counted")
     };

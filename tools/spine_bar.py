@@ -66,6 +66,22 @@ def count(pattern, where=SRC):
     )
 
 
+def tuple_parameters():
+    """Parameters destructured from a tuple in a function's signature (`(a, b): (A, B)`)."""
+    pattern = re.compile(r"[(,]\s*(?:mut\s+)?\((?:[^()]|\([^()]*\))*\)\s*:\s*[&(]")
+    found = 0
+    for path in rust_files():
+        text = "\n".join(code_lines(path))
+        for m in re.finditer(r"\bfn\s+\w+\s*(<[^{;]*?>)?\s*\(", text):
+            depth, i = 0, m.end() - 1
+            for i in range(m.end() - 1, len(text)):
+                depth += {"(": 1, ")": -1}.get(text[i], 0)
+                if depth == 0:
+                    break
+            found += len(pattern.findall(text[m.end() - 1:i + 1]))
+    return found
+
+
 def main():
     every = [(p, *f) for p in rust_files() for f in functions(p)]
     longest = max(every, key=lambda f: f[3])
@@ -76,7 +92,16 @@ def main():
     map_struct = re.search(r"pub struct Map \{(.*?)\n\}", map_text, re.S)
     map_pub = len(re.findall(r"^\s*pub\s+\w+\s*:", map_struct.group(1), re.M)) if map_struct else 0
     global_tracking = count(r"crate::tracking", SRC / "global")
+    over_80 = [f for f in every if f[3] > 80]
+    run_sequence = [f[3] for f in every if f[1] == "run_sequence" and f[0].parent.name == "run"]
     rows = [
+        ("main.rs lines", len((SRC / "main.rs").read_text().splitlines()), 299, ""),
+        ("run::run_sequence lines", max(run_sequence, default=0), 44, ""),
+        # Issue 81's goal is 0; the bar comes down as functions are split.
+        ("functions over 80 lines", len(over_80), 22, ""),
+        # Issue 81's goal is under 15; the bar comes down as bundles get names.
+        ("destructured tuple parameters", tuple_parameters(), 83, ""),
+        ("#[serde(skip)] fields", count(r"#\[serde\(skip\)\]"), 10, ""),
         ("functions over 100 lines", len(over), 0,
          ", ".join(f"{p.relative_to(SRC)}:{n} ({l})" for p, n, _, l in over)),
         ("longest function", longest[3], 100, f"{longest[0].relative_to(SRC)}:{longest[1]}"),

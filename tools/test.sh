@@ -42,6 +42,16 @@ free_mib=$(df -Pm "$TMPDIR" | awk 'NR == 2 { print $4 }')
 if [ "${free_mib:-0}" -lt 2048 ]; then
   echo "warning: ${free_mib} MiB free under $TMPDIR; the tests write up to about 0.5 GiB there at a time" >&2
 fi
+# The code's shape first (seconds): rustfmt, the structure bars of tools/spine_bar.py,
+# then clippy with warnings as errors (the library denies `unwrap`; see src/lib.rs).
+for component in rustfmt clippy; do
+  tool=${component/rustfmt/fmt}
+  cargo "$tool" --version >/dev/null 2>&1 || rustup component add "$component" \
+    || { echo "cargo $tool is missing and rustup could not add $component" >&2; exit 1; }
+done
+cargo fmt --check || { echo "the code is not rustfmt-clean: run cargo fmt" >&2; exit 1; }
+python3 tools/spine_bar.py
+cargo clippy --release --all-targets "${CARGO_FEATURES[@]}" -- -D warnings
 cargo test --release "${CARGO_FEATURES[@]}"
 # The batch on a real one-node Slurm cluster (DOPSLAM_SKIP_SLURM=1 skips it, saying so).
 bash tools/test_slurm.sh ./target/release/dopslam

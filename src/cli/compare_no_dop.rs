@@ -35,7 +35,15 @@ pub fn compare_with_baseline(
     points_only.dense.frames = FrameChoice::Keyframes;
     points_only.dense.pictures = false;
     let setup = DenseSetup::resolve(sequence, &points_only)?;
-    dense_pass(&dopslam::run::DensePass { sequence: sequence, setup: &setup, run_dir: run, out_dir: &no_masks, masking: Mode::Off, sequence_dir: None, progress: true })?;
+    dense_pass(&dopslam::run::DensePass {
+        sequence,
+        setup: &setup,
+        run_dir: run,
+        out_dir: &no_masks,
+        masking: Mode::Off,
+        sequence_dir: None,
+        progress: true,
+    })?;
     let baseline_map = if baseline.join(cloud).exists() {
         ("no_dop_cloud", baseline.join(cloud))
     } else {

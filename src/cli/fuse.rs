@@ -136,8 +136,16 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
             );
         }
     }
-    let dense = dense_pass(&dopslam::run::DensePass { sequence: sequence.as_ref(), setup: &DenseSetup::resolve(sequence.as_ref(), &config)?
-            .with_disparity_offset(report.disparity_offset_px()), run_dir: &args.run, out_dir: &args.run, masking: masking, sequence_dir: Some(&sequence_dir), progress: true })?;
+    let dense = dense_pass(&dopslam::run::DensePass {
+        sequence: sequence.as_ref(),
+        setup: &DenseSetup::resolve(sequence.as_ref(), &config)?
+            .with_disparity_offset(report.disparity_offset_px()),
+        run_dir: &args.run,
+        out_dir: &args.run,
+        masking,
+        sequence_dir: Some(&sequence_dir),
+        progress: true,
+    })?;
     print_dense(&dense);
     Ok(())
 }

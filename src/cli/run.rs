@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use dopslam::run::RunPlan;
 use dopslam::io::sequence::Sequence;
+use dopslam::run::RunPlan;
 
 use super::load_config;
 
@@ -171,7 +171,9 @@ pub fn run_run(args: RunArgs) -> Result<()> {
 /// moving objects are treated.
 fn print_plan(plan: &RunPlan) {
     use clap::ValueEnum;
-    let name = |v: Option<clap::builder::PossibleValue>| v.map_or("?".into(), |v| v.get_name().to_string());
+    let name = |v: Option<clap::builder::PossibleValue>| {
+        v.map_or("?".into(), |v| v.get_name().to_string())
+    };
     eprintln!(
         "detections: {}; moving objects: {}",
         name(plan.setup.config.detector.source.to_possible_value()),

@@ -100,14 +100,14 @@ impl OrbSlamSettings {
     }
 }
 
-/// The scalar `key: value` lines of an OpenCV YAML file (value and line number), and
-/// every top-level key in file order.
-type Scalars = (BTreeMap<String, (String, usize)>, Vec<String>);
+/// The scalar `key: value` lines of an OpenCV YAML file: value and line number by key.
+type ScalarMap = BTreeMap<String, (String, usize)>;
 
-/// Reads the scalar `key: value` lines of an OpenCV YAML file. Matrices
+/// Reads the scalar `key: value` lines of an OpenCV YAML file, and every top-level
+/// key in file order. Matrices
 /// (`!!opencv-matrix` blocks) and nested maps are skipped; a key given twice is an
 /// error naming both lines.
-fn read_scalars(path: &Path) -> Result<Scalars, IoError> {
+fn read_scalars(path: &Path) -> Result<(ScalarMap, Vec<String>), IoError> {
     let text = read_text(path)?;
     let mut scalars: BTreeMap<String, (String, usize)> = BTreeMap::new();
     let mut keys = Vec::new();
@@ -151,100 +151,22 @@ impl OrbSlamSettings {
     /// the image size defaults to 640x480 when absent.
     pub fn read(path: &Path) -> Result<Self, IoError> {
         let (scalars, keys) = read_scalars(path)?;
-        let number = |key: &str| -> Result<Option<f64>, IoError> {
-            match scalars.get(key) {
-                None => Ok(None),
-                Some((value, line)) => value
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .map(Some)
-                    .ok_or_else(|| {
-                        IoError::parse(
-                            path,
-                            *line,
-                            format!("{key} must be a number, found {value:?}"),
-                        )
-                    }),
-            }
-        };
-        let required = |key: &str| -> Result<f64, IoError> {
-            number(key)?.ok_or_else(|| {
-                IoError::invalid(
-                    path,
-                    format!(
-                        "missing {key} (an ORB-SLAM2 settings file needs Camera.fx, fy, cx, cy)"
-                    ),
-                )
-            })
-        };
-        let camera = PinholeCamera {
-            fx: required("Camera.fx")?,
-            fy: required("Camera.fy")?,
-            cx: required("Camera.cx")?,
-            cy: required("Camera.cy")?,
-            width: number("Camera.width")?.unwrap_or(640.0) as u32,
-            height: number("Camera.height")?.unwrap_or(480.0) as u32,
-            distortion: [
-                number("Camera.k1")?.unwrap_or(0.0),
-                number("Camera.k2")?.unwrap_or(0.0),
-                number("Camera.p1")?.unwrap_or(0.0),
-                number("Camera.p2")?.unwrap_or(0.0),
-                number("Camera.k3")?.unwrap_or(0.0),
-            ],
-            // Not ORB-SLAM2's: the rational model's denominator, which `dopslam convert`
-            // writes for a lens that has one (an Azure Kinect's).
-            rational: [
-                number("Camera.k4")?.unwrap_or(0.0),
-                number("Camera.k5")?.unwrap_or(0.0),
-                number("Camera.k6")?.unwrap_or(0.0),
-            ],
-        };
-        camera
-            .validate()
-            .map_err(|message| IoError::invalid(path, message.to_string()))?;
-        let calibration = Calibration {
-            camera,
-            bf: number("Camera.bf")?,
-            depth_scale: number("DepthMapFactor")?,
-            th_depth: number("ThDepth")?,
-            fps: number("Camera.fps")?,
-        };
-        if let Some(scale) = calibration.depth_scale {
-            if scale <= 0.0 {
-                return Err(IoError::invalid(
-                    path,
-                    format!("DepthMapFactor must be positive, got {scale}"),
-                ));
-            }
-        }
-        for (key, value, valid) in [
-            ("Camera.bf", calibration.bf, "positive"),
-            ("ThDepth", calibration.th_depth, "positive"),
-            ("Camera.fps", calibration.fps, "positive"),
-        ] {
-            if value.is_some_and(|v| v <= 0.0) {
-                return Err(IoError::invalid(
-                    path,
-                    format!("{key} must be {valid}, got {}", value.unwrap_or_default()),
-                ));
-            }
-        }
-        let count = |key: &str, max: f64| -> Result<Option<f64>, IoError> {
-            match number(key)? {
-                Some(v) if v.fract() != 0.0 || v < 0.0 || v > max => Err(IoError::invalid(
-                    path,
-                    format!("{key} must be a whole number from 0 to {max}, got {v}"),
-                )),
-                other => Ok(other),
-            }
-        };
+        let file = Scalars { path, scalars };
+        let calibration = file.calibration()?;
         let orb = OrbSettings {
-            n_features: count("ORBextractor.nFeatures", 1e6)?.map(|v| v as usize),
-            scale_factor: number("ORBextractor.scaleFactor")?,
-            n_levels: count("ORBextractor.nLevels", 32.0)?.map(|v| v as usize),
-            ini_th_fast: count("ORBextractor.iniThFAST", 255.0)?.map(|v| v as u8),
-            min_th_fast: count("ORBextractor.minThFAST", 255.0)?.map(|v| v as u8),
+            n_features: file
+                .count("ORBextractor.nFeatures", 1e6)?
+                .map(|v| v as usize),
+            scale_factor: file.number("ORBextractor.scaleFactor")?,
+            n_levels: file
+                .count("ORBextractor.nLevels", 32.0)?
+                .map(|v| v as usize),
+            ini_th_fast: file
+                .count("ORBextractor.iniThFAST", 255.0)?
+                .map(|v| v as u8),
+            min_th_fast: file
+                .count("ORBextractor.minThFAST", 255.0)?
+                .map(|v| v as u8),
         };
         Ok(Self {
             calibration,
@@ -324,6 +246,118 @@ impl OrbSlamSettings {
             orb.min_th_fast.unwrap_or(7).to_string(),
         );
         out
+    }
+}
+
+/// A settings file's scalar keys (value and line), read as numbers with errors that
+/// name the file, the key and the line.
+struct Scalars<'a> {
+    path: &'a Path,
+    scalars: ScalarMap,
+}
+
+impl Scalars<'_> {
+    /// The number at `key`, when the file has it.
+    fn number(&self, key: &str) -> Result<Option<f64>, IoError> {
+        match self.scalars.get(key) {
+            None => Ok(None),
+            Some((value, line)) => value
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .map(Some)
+                .ok_or_else(|| {
+                    IoError::parse(
+                        self.path,
+                        *line,
+                        format!("{key} must be a number, found {value:?}"),
+                    )
+                }),
+        }
+    }
+
+    /// The number at `key`, which the file must have.
+    fn required(&self, key: &str) -> Result<f64, IoError> {
+        self.number(key)?.ok_or_else(|| {
+            IoError::invalid(
+                self.path,
+                format!("missing {key} (an ORB-SLAM2 settings file needs Camera.fx, fy, cx, cy)"),
+            )
+        })
+    }
+
+    /// A whole number from 0 to `max` at `key`, when the file has it.
+    fn count(&self, key: &str, max: f64) -> Result<Option<f64>, IoError> {
+        match self.number(key)? {
+            Some(v) if v.fract() != 0.0 || v < 0.0 || v > max => Err(IoError::invalid(
+                self.path,
+                format!("{key} must be a whole number from 0 to {max}, got {v}"),
+            )),
+            other => Ok(other),
+        }
+    }
+
+    /// The camera: ORB-SLAM2's `Camera.*` keys.
+    fn camera(&self) -> Result<PinholeCamera, IoError> {
+        let or_zero = |key: &str| -> Result<f64, IoError> { Ok(self.number(key)?.unwrap_or(0.0)) };
+        let camera = PinholeCamera {
+            fx: self.required("Camera.fx")?,
+            fy: self.required("Camera.fy")?,
+            cx: self.required("Camera.cx")?,
+            cy: self.required("Camera.cy")?,
+            width: self.number("Camera.width")?.unwrap_or(640.0) as u32,
+            height: self.number("Camera.height")?.unwrap_or(480.0) as u32,
+            distortion: [
+                or_zero("Camera.k1")?,
+                or_zero("Camera.k2")?,
+                or_zero("Camera.p1")?,
+                or_zero("Camera.p2")?,
+                or_zero("Camera.k3")?,
+            ],
+            // Not ORB-SLAM2's: the rational model's denominator, which `dopslam convert`
+            // writes for a lens that has one (an Azure Kinect's).
+            rational: [
+                or_zero("Camera.k4")?,
+                or_zero("Camera.k5")?,
+                or_zero("Camera.k6")?,
+            ],
+        };
+        camera
+            .validate()
+            .map_err(|message| IoError::invalid(self.path, message.to_string()))?;
+        Ok(camera)
+    }
+
+    /// The camera, its baseline, depth scale, `ThDepth` and frame rate, checked.
+    fn calibration(&self) -> Result<Calibration, IoError> {
+        let calibration = Calibration {
+            camera: self.camera()?,
+            bf: self.number("Camera.bf")?,
+            depth_scale: self.number("DepthMapFactor")?,
+            th_depth: self.number("ThDepth")?,
+            fps: self.number("Camera.fps")?,
+        };
+        if let Some(scale) = calibration.depth_scale {
+            if scale <= 0.0 {
+                return Err(IoError::invalid(
+                    self.path,
+                    format!("DepthMapFactor must be positive, got {scale}"),
+                ));
+            }
+        }
+        for (key, value, valid) in [
+            ("Camera.bf", calibration.bf, "positive"),
+            ("ThDepth", calibration.th_depth, "positive"),
+            ("Camera.fps", calibration.fps, "positive"),
+        ] {
+            if value.is_some_and(|v| v <= 0.0) {
+                return Err(IoError::invalid(
+                    self.path,
+                    format!("{key} must be {valid}, got {}", value.unwrap_or_default()),
+                ));
+            }
+        }
+        Ok(calibration)
     }
 }
 

@@ -97,7 +97,9 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     let mut report = outputs::write(&plan.run, computed)?;
     let dense_due = stop.is_some() || report.totals.tracked > 0;
     if let (Some(dense), true) = (&plan.dense, dense_due && !crate::interrupt::requested()) {
-        let dense = dense.clone().with_disparity_offset(report.disparity_offset_px());
+        let dense = dense
+            .clone()
+            .with_disparity_offset(report.disparity_offset_px());
         // After a tracking failure the dense map of what was tracked is a bonus: the
         // tracking error is the one to report.
         let pass = DensePass {

@@ -14,8 +14,8 @@
 use super::error::RunError;
 use super::global_pass::global_inputs;
 use super::options::RunOptions;
-use super::setup::{RigOffset, Setup};
 use super::plan::RunPlan;
+use super::setup::{RigOffset, Setup};
 use super::tracking_pass::{tracking_pass, TrackingInputs};
 use crate::io::sequence::SensorKind;
 

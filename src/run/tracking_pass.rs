@@ -74,16 +74,10 @@ pub fn tracking_pass(
     inputs: TrackingInputs,
     observers: &mut [&mut dyn FrameObserver],
 ) -> Result<TrackingPass, RunError> {
-    let TrackingInputs {
-        sequence,
-        setup,
-        detector,
-        options,
-        run,
-    } = inputs;
+    let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let config = &setup.config;
     let execution = Execution::of(options.deterministic);
-    let mut system = start_system(setup, detector, run, execution);
+    let mut system = start_system(setup, inputs.detector, inputs.run, execution);
     let total = options
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));
