@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::checks::{self, BadValue};
+use crate::records::SettingsApplied;
 
 pub use crate::dense::DenseConfig;
 pub use crate::detect::DetectorConfig;
@@ -672,23 +673,6 @@ fn check_value(value: &toml::Value, key: &str) -> Result<(), BadValue> {
     }
 }
 
-/// What applying an ORB-SLAM2 settings file did (in `report.json`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct SettingsApplied {
-    /// The settings file.
-    pub file: PathBuf,
-    /// Keys that set something here.
-    pub applied: Vec<String>,
-    /// ORB-SLAM2 keys known to have no meaning here (`Viewer.*`, `Camera.RGB`).
-    pub no_meaning: Vec<String>,
-    /// Keys this tool does not know (a typo, or another system's).
-    pub unknown: Vec<String>,
-    /// Config values the file replaced: set (not to their defaults) by the config
-    /// before the settings file was applied, each with the two values and the file's key.
-    #[serde(default)]
-    pub replaced: Vec<String>,
-}
-
 /// The config keys a settings file replaced, as a run says them.
 #[derive(Default)]
 struct Replaced(Vec<String>);
@@ -709,35 +693,6 @@ impl Replaced {
             self.0.push(format!("{name} {} -> {value} ({key})", *slot));
         }
         *slot = value;
-    }
-}
-
-impl SettingsApplied {
-    /// The lines to print once about the keys not applied.
-    pub fn notes(&self) -> Vec<String> {
-        let mut notes = Vec::new();
-        if !self.no_meaning.is_empty() {
-            notes.push(format!(
-                "settings {}: no meaning here, ignored: {}",
-                self.file.display(),
-                self.no_meaning.join(", ")
-            ));
-        }
-        if !self.unknown.is_empty() {
-            notes.push(format!(
-                "warning: settings {}: unknown keys, ignored: {}",
-                self.file.display(),
-                self.unknown.join(", ")
-            ));
-        }
-        if !self.replaced.is_empty() {
-            notes.push(format!(
-                "warning: settings {} replaces what the config set: {}",
-                self.file.display(),
-                self.replaced.join(", ")
-            ));
-        }
-        notes
     }
 }
 

@@ -28,7 +28,7 @@
 //! | 4 | [`frame`], [`detect`], [`eval`] | frames ready for tracking; detectors (ONNX Runtime); ATE/RPE as evo defines them |
 //! | 5 | [`map`], [`bow`], [`dynamics`] | keyframes and map points; the vocabulary; the DOP state over a run |
 //! | 6 | [`mapping`], [`tracking`] | local mapping; the tracker |
-//! | 7 | [`global`], [`dense`], [`view`] | the global and dense passes; the Rerun recording |
+//! | 7 | [`global`], [`dense`], [`records`], [`view`] | the global and dense passes; the files a run writes, typed; the Rerun recording |
 //! | 8 | [`config`] | the typed TOML config, ORB-SLAM2 settings applied |
 //! | 9 | [`system`] | the online system: the map, the tracker and its helper workers |
 //! | 10 | [`run`], [`synth`], [`demo`] | the spine of a run; the synthetic test bed; the demo |
@@ -67,6 +67,7 @@ pub mod memory;
 pub mod optim;
 pub mod pacing;
 pub mod random;
+pub mod records;
 pub mod run;
 pub mod synth;
 pub mod system;

@@ -7,13 +7,14 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use dopslam::config::Config;
-use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
+use dopslam::dense::compare_maps::{compare_maps, CompareInputs};
 use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::DenseConfig;
 use dopslam::detect::Source;
 use dopslam::dop::Mode;
 use dopslam::io::ply::{read_ply, write_ply, PlyEncoding};
 use dopslam::io::sequence::Sequence;
+use dopslam::records::run_alignment;
 use dopslam::run::{dense_pass, open_sequence, run_sequence, DenseSetup, RunOptions, RunReport};
 use dopslam::synth::{generate, SynthConfig};
 
@@ -71,6 +72,14 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
     let dense = report.dense.expect("the dense pass ran");
     assert_eq!(dense.frames_fused, report.totals.tracked);
+    // dense.json reads back whole as the type it was written from.
+    let read = dopslam::records::read_dense(&dopslam::io::run_dir::RunDir::new(&run_dir))
+        .unwrap()
+        .expect("dense.json");
+    assert_eq!(
+        serde_json::to_value(&read).unwrap(),
+        serde_json::to_value(&dense).unwrap()
+    );
     // Every 5th frame detected for the masks, beside the keyframes.
     let extra = dense.extra_detections.clone().expect("detect_every is on");
     assert!(

@@ -25,7 +25,7 @@ const FLOORS: &[&[&str]] = &[
     &["frame", "detect", "eval"],
     &["map", "bow", "dynamics"],
     &["mapping", "tracking"],
-    &["global", "dense", "view"],
+    &["global", "dense", "records", "view"],
     &["config"],
     &["system"],
     &["run", "synth", "demo"],
@@ -214,7 +214,8 @@ fn lower_floors_never_import_higher_ones() {
     let edges = references(&src());
     let mut upward = Vec::new();
     for (from, targets) in &edges {
-        if from[0].starts_with("cli_") {
+        // The binary's command modules stand on top of the library.
+        if from[0] == "cli" {
             continue;
         }
         let own = *floor_of

@@ -66,6 +66,12 @@ fn tracks_a_static_room_within_a_centimetre() {
     ] {
         assert!(out.join(file).is_file(), "{file}");
     }
+    // report.json reads back whole as the type it was written from.
+    let read = dopslam::records::read_report(&dopslam::io::run_dir::RunDir::new(&out)).unwrap();
+    assert_eq!(
+        serde_json::to_value(&read).unwrap(),
+        serde_json::to_value(&report).unwrap()
+    );
     // The global pass ran: no loop on a still camera, full BA over every keyframe.
     let global = report
         .global

@@ -15,7 +15,7 @@ use super::manifest::PlannedSequence;
 use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
 use super::BatchError;
 use crate::config::Config;
-use crate::dense::compare_maps::{compare_maps, run_alignment, CompareInputs};
+use crate::dense::compare_maps::{compare_maps, CompareInputs};
 use crate::dense::map_figures::CompareSettings;
 use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
@@ -25,6 +25,7 @@ use crate::io::atomic::write_atomic;
 use crate::io::run_dir::{names, RunDir};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
+use crate::records::run_alignment;
 
 /// One run to do.
 #[derive(Debug, Clone)]

@@ -101,34 +101,19 @@ pub struct MapFigures {
     pub dynamic_removed_percent: Option<f64>,
 }
 
-/// The parts of `dense.json` the batch reads.
-#[derive(Deserialize)]
-struct DenseFile {
-    truth: Option<TruthFile>,
-}
-
-#[derive(Deserialize)]
-struct TruthFile {
-    dynamic_removed: f64,
-}
-
 impl RunFigures {
     /// The figures a run folder's `report.json` and `dense.json` (when the dense pass
     /// ran) hold; the evaluation and the map comparison are added by the caller.
     pub fn from_run(dir: &Path) -> Result<Self, IoError> {
         let run = RunDir::new(dir);
-        let report = run.read_summary()?;
-        let dense_path = run.dense_report();
-        let dense: Option<DenseFile> = match dense_path.exists() {
-            true => Some(
-                serde_json::from_str(&crate::io::errors::read_text(&dense_path)?).map_err(|e| {
-                    IoError::invalid(&dense_path, format!("not a dense report: {e}"))
-                })?,
-            ),
-            false => None,
-        };
-        let (t, detection) = report.totals(&run.report())?;
-        let removed: usize = report.frames.iter().map(|f| f.dynamic_keypoints).sum();
+        let report = crate::records::read_report(&run)?;
+        let dense = crate::records::read_dense(&run)?;
+        let (t, detection) = (&report.totals, &report.detection);
+        let removed: usize = report
+            .frames
+            .iter()
+            .map(|f| f.tracking.dynamic_keypoints)
+            .sum();
         Ok(Self {
             frames: t.frames,
             tracked: t.tracked,

@@ -4,10 +4,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
-use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs, Comparison};
+use dopslam::dense::compare_maps::{compare_maps, CompareInputs, Comparison};
 use dopslam::dense::map_figures::CompareSettings;
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
+use dopslam::records::run_alignment;
 
 #[derive(Args)]
 pub struct CompareArgs {

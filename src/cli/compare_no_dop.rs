@@ -4,13 +4,14 @@ use std::path::Path;
 
 use anyhow::Result;
 use dopslam::config::Config;
-use dopslam::dense::compare_maps::{compare_maps, run_alignment, CompareInputs, Comparison};
+use dopslam::dense::compare_maps::{compare_maps, CompareInputs, Comparison};
 use dopslam::dense::map_figures::CompareSettings;
 use dopslam::dense::FrameChoice;
 use dopslam::dop::Mode;
 use dopslam::io::run_dir::{names, RunDir};
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
+use dopslam::records::run_alignment;
 use dopslam::run::{dense_pass, DenseSetup};
 
 use super::compare_maps::print_comparison;

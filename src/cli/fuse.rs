@@ -8,7 +8,7 @@ use clap::Args;
 use dopslam::config::Config;
 use dopslam::dense::{DenseReport, FrameChoice};
 use dopslam::dop::Mode;
-use dopslam::io::run_dir::{RunDir, RunSummary};
+use dopslam::io::run_dir::RunDir;
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
 use dopslam::run::{dense_pass, DenseSetup};
@@ -72,24 +72,6 @@ pub fn same_frames(
     Ok(())
 }
 
-/// The masking a run used, from its report.json.
-/// How the run in `run` treated movers, as its report says: the dense pass masks
-/// the same way unless told otherwise.
-pub fn run_masking(run: &RunDir, report: &RunSummary) -> Result<Mode> {
-    match Mode::from_name(&report.mode) {
-        Some(mode) => Ok(mode),
-        None if report.mode.is_empty() => bail!(
-            "{} does not say how the run treated moving objects: pass --dop, --mask-boxes or --no-dop",
-            run.report().display()
-        ),
-        None => bail!(
-            "{} says mode {:?}, which is none of off, mask-boxes and dop: pass --dop, --mask-boxes or --no-dop",
-            run.report().display(),
-            report.mode
-        ),
-    }
-}
-
 pub fn run_fuse(args: FuseArgs) -> Result<()> {
     let mut config = match &args.config {
         Some(path) => Config::load(path)?,
@@ -106,8 +88,7 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         apply_settings(&mut config, path)?;
     }
     let run = RunDir::new(&args.run);
-    let report = run
-        .read_summary()
+    let report = dopslam::records::read_report(&run)
         .with_context(|| format!("{} is not a finished run", args.run.display()))?;
     let sequence_dir = match (&args.sequence, &report.sequence_path) {
         (Some(dir), _) | (None, Some(dir)) => dir.clone(),
@@ -123,7 +104,8 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     } else if args.dop {
         Mode::Dop
     } else {
-        run_masking(&run, &report)?
+        // How the run treated movers, as its report says.
+        report.mode
     };
     let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
     same_frames(&run, sequence.as_ref(), &sequence_dir)?;

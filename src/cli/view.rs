@@ -137,7 +137,7 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
             args.run.display()
         );
     }
-    let summary = run.read_summary()?;
+    let report = dopslam::records::read_report(&run)?;
     let logger = match (&args.connect, &args.out) {
         (Some(address), _) => match connect(address, &config)? {
             Some(logger) => logger,
@@ -150,7 +150,7 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         }
     };
     let target = logger.target.clone();
-    let replayed = match replay(&logger, &run, &summary, &config) {
+    let replayed = match replay(&logger, &run, &report, &config) {
         Ok(replayed) => replayed,
         Err(e) => {
             // The recording was made new by this command: a partial one goes.
@@ -182,15 +182,13 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
 fn replay(
     logger: &Logger,
     run: &RunDir,
-    summary: &dopslam::io::run_dir::RunSummary,
+    report: &dopslam::records::RunReport,
     config: &Config,
 ) -> Result<dopslam::view::results::Replayed> {
     let log = logger.waiting_handle();
-    if let Some(camera) = summary.camera() {
-        dopslam::run::log_pinhole(&log, camera);
-    }
-    let sequence = open_reported_sequence(summary.sequence_path.as_deref(), config);
-    let replayed = dopslam::view::results::replay_frames(&log, run, summary, sequence.as_deref())?;
+    dopslam::run::log_pinhole(&log, &report.setup.calibration.camera);
+    let sequence = open_reported_sequence(report.sequence_path.as_deref(), config);
+    let replayed = dopslam::view::results::replay_frames(&log, run, report, sequence.as_deref())?;
     let truth = sequence.as_deref().and_then(|s| s.ground_truth());
     dopslam::view::results::log_results(&log, run, "", truth)?;
     let baseline = run.sub_run(dopslam::io::run_dir::names::NO_DOP);

@@ -17,7 +17,6 @@ use crate::geometry::mesh::Mesh;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::ply::{read_ply, write_ply, PlyEncoding};
-use crate::io::trajectory::TrajectoryFormat;
 use crate::io::IoError;
 use crate::io::Trajectory;
 use nalgebra::{Matrix3, Vector3};
@@ -274,17 +273,6 @@ pub fn pose_alignment(estimate: &Trajectory, reference: &Trajectory) -> Option<S
         .sum::<Vector3<f64>>()
         / pairs.len() as f64;
     Some(crate::geometry::se3::from_parts(translation, rotation))
-}
-
-/// The alignment of a run's trajectory to its sequence's ground truth
-/// ([`pose_alignment`]; the run's `report.json` names the sequence), if both exist.
-pub fn run_alignment(run_dir: &Path) -> Option<Se3> {
-    let run = crate::io::run_dir::RunDir::new(run_dir);
-    let sequence = run.read_summary().ok()?.sequence_path?;
-    let reference =
-        Trajectory::read(&sequence.join("groundtruth.txt"), TrajectoryFormat::Tum).ok()?;
-    let estimate = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum).ok()?;
-    pose_alignment(&estimate, &reference)
 }
 
 /// A name safe as a file stem.

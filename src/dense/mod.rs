@@ -112,6 +112,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     report.truth = truth.map(FusedTruth::finish);
     report.total_s = started.elapsed().as_secs_f64();
     report.peak_memory_mib = crate::memory::peak_resident_mib();
+    report.schema = crate::io::run_dir::SCHEMA;
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
     write_atomic(&out.dense_report(), json.as_bytes())?;
     // A request that came while the files were written: they were finished whole, and

@@ -23,7 +23,7 @@ use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::IoError;
 
 /// What the extra detections cost.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ExtraDetections {
     /// Frames detected now, and frames whose detections came from the cache.
     pub detected: usize,

@@ -2,15 +2,17 @@
 
 use std::path::PathBuf;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::more_detections::ExtraDetections;
 use super::truth::FusedTruth;
 use crate::dop::Mode;
 
 /// What the dense pass did.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct DenseReport {
+    /// The layout version (`crate::io::run_dir::SCHEMA`; 0 until written).
+    pub schema: u32,
     /// How movers were masked (none without a dense pass).
     pub masking: Option<Mode>,
     /// Frames fused into the TSDF.

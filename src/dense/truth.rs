@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::tsdf::FrameInput;
 use crate::io::IoError;
@@ -12,7 +12,7 @@ use crate::io::IoError;
 const LEAKS_KEPT: usize = 20;
 
 /// Pixels fused against a synthetic sequence's ground-truth masks.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct FusedTruth {
     /// Frames counted.
     pub frames: usize,
@@ -45,7 +45,7 @@ pub struct FusedTruth {
 }
 
 /// A run of consecutive fused frames in which one mover had pixels fused.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Leak {
     /// The mover's instance id in the truth masks.
     pub instance: u16,

@@ -16,7 +16,7 @@ pub mod tracked;
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::detect::job::Outcome;
 use crate::detect::{write_cache, FrameDetections};
@@ -30,7 +30,7 @@ use frames::{Participation, Probation, NEAR_BOX_PX, NEAR_BOX_SHARE};
 use keyframes::{apply_detections, object_boxes, DynamicObjects};
 
 /// What the keyframe detector did over a run.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct DetectionTotals {
     /// Keyframes handed to the detector, those whose detections came back, and those
     /// skipped because a newer keyframe was waiting (real-time mode).

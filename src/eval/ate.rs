@@ -6,13 +6,13 @@
 //! - otherwise \(E_i = P_i^{-1} Q_i\) and \(e_i\) is \(\|R(E_i) - I\|_F\) (rotation part),
 //!   \(\|E_i - I\|_F\) (full), or the angle of \(R(E_i)\) in radians or degrees.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::se3::{self, Se3};
 use crate::geometry::so3;
 
 /// Which part of the pose an error compares (evo's `PoseRelation`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum PoseRelation {
     /// Translation in metres.

@@ -12,7 +12,7 @@
 //! The sequence's figures are the means over all segments: translation in % (\(100\,
 //! \bar t_{err}\)) and rotation in deg/100 m (\(100 \cdot 180/\pi \cdot \bar r_{err}\)).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::se3::Se3;
 
@@ -22,7 +22,7 @@ pub const LENGTHS: [f64; 8] = [100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 
 pub const STEP: usize = 10;
 
 /// The errors of one length.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LengthErrors {
     /// The segment length, metres.
     pub length_m: f64,
@@ -35,7 +35,7 @@ pub struct LengthErrors {
 }
 
 /// KITTI's relative errors of a trajectory.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KittiErrors {
     /// Segments over all lengths (0: the path is shorter than 100 m).
     pub segments: usize,

@@ -3,7 +3,7 @@
 
 use std::fmt::Write as _;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use super::associate::{associate, Association, AssociationRule};
@@ -36,7 +36,7 @@ pub enum AlignMode {
 }
 
 /// One RPE to compute: a delta and its unit.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RpeSpec {
     /// The distance between the two poses of a pair.
     pub delta: f64,
@@ -147,10 +147,10 @@ pub enum EvalError {
 }
 
 /// The result of one metric.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MetricResult {
     /// "APE" or "RPE".
-    pub metric: &'static str,
+    pub metric: String,
     /// What the errors measure.
     pub relation: PoseRelation,
     /// The errors' unit.
@@ -168,7 +168,7 @@ pub struct MetricResult {
 }
 
 /// The alignment that was applied, as \(p_{ref} = sRp_{est} + t\).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct AlignmentUsed {
     /// SE(3), Sim(3) or none.
     pub mode: AlignMode,
@@ -183,7 +183,7 @@ pub struct AlignmentUsed {
 }
 
 /// Everything `dopslam eval` reports.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct EvalReport {
     /// Poses of the reference.
     pub reference_poses: usize,
@@ -273,7 +273,7 @@ pub fn evaluate(
 
     let ape_errors = absolute_errors(&reference_sync.poses, &aligned.poses, options.ape_relation);
     let ape = MetricResult {
-        metric: "APE",
+        metric: "APE".into(),
         relation: options.ape_relation,
         unit: options.ape_relation.unit().to_string(),
         delta: None,
@@ -435,7 +435,7 @@ fn rpe_metric(
         unit: spec.unit.symbol(),
     })?;
     Ok(MetricResult {
-        metric: "RPE",
+        metric: "RPE".into(),
         relation: options.rpe_relation,
         unit,
         delta: Some(*spec),

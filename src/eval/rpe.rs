@@ -13,7 +13,7 @@
 //! interval, with \(E = ((P_j^{-1}P_i)^{-1}(Q_j^{-1}Q_i))\) as the script writes it; the
 //! errors are divided by \(\delta\) so they read as rates (m/s, deg/s).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::se3::{self, Se3};
 use crate::geometry::so3;
@@ -23,7 +23,7 @@ use super::ate::PoseRelation;
 use super::stats::median_of_sorted;
 
 /// The unit of the RPE delta.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum DeltaUnit {
     /// Frames (evo's `f`).

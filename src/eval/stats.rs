@@ -1,13 +1,13 @@
 //! Error statistics as evo reports them (numpy's definitions).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// rmse, mean, median, std, min, max and sse of a list of errors.
 ///
 /// \( \mathrm{rmse} = \sqrt{\tfrac1n\sum e_i^2} \), \( \mathrm{sse} = \sum e_i^2 \),
 /// std is the population standard deviation (numpy's `np.std`, ddof 0), the median of
 /// an even count is the mean of the two middle values.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Statistics {
     /// Root mean square.
     pub rmse: f64,

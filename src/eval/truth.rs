@@ -6,12 +6,12 @@
 
 use std::path::Path;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::detect::FrameDetections;
 
 /// Keypoints called dynamic (removed) against the ground-truth masks.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 pub struct Classification {
     /// Frames counted.
     pub frames: usize,
@@ -44,7 +44,7 @@ impl Classification {
 /// the static scene and on movers, how many of each were called dynamic (removed), and
 /// how many of each took part in the pose as inliers. Keypoints outside the mask (an
 /// undistorted position off the image) are not counted.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 pub struct TruthCounts {
     /// Keypoints on the static scene.
     pub static_keypoints: usize,
@@ -133,7 +133,7 @@ pub fn ground_truth_mask(
 }
 
 /// People found on keyframes against the ground truth.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct Recall {
     /// Keyframes with people.
     pub keyframes: usize,
@@ -150,7 +150,7 @@ pub struct Recall {
 }
 
 /// A person on a keyframe that no dynamic box found with IoU >= 0.5.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct Miss {
     /// The keyframe's time.
     pub timestamp: f64,

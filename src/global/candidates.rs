@@ -1,13 +1,13 @@
 //! Loop candidates and what became of them ([`LoopOutcome`]): written by place
 //! recognition (stage 2) and loop closing (stages 3 and 4), reported in `report.json`.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::map::{KeyFrameKey, Map};
 
 /// The keyframe that looks for a loop and the one it matched: ids (insertion numbers)
 /// and timestamps.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct LoopPair {
     /// The keyframe's id.
     pub keyframe: usize,
@@ -32,7 +32,7 @@ impl LoopPair {
 }
 
 /// A candidate and what became of it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
     #[serde(flatten)]
     /// The two keyframes.
@@ -41,9 +41,8 @@ pub struct Candidate {
     pub score: f64,
     /// Whether the loop was closed.
     pub accepted: bool,
-    /// Why it was accepted or where it stopped (in `report.json` as its sentence).
-    #[serde(serialize_with = "as_sentence")]
-    pub outcome: LoopOutcome,
+    /// Why it was accepted or where it stopped, as a sentence ([`LoopOutcome`]'s).
+    pub outcome: String,
 }
 
 impl Candidate {
@@ -53,7 +52,7 @@ impl Candidate {
             pair,
             score,
             accepted: matches!(outcome, LoopOutcome::Accepted { .. }),
-            outcome,
+            outcome: outcome.to_string(),
         }
     }
 }
@@ -159,13 +158,6 @@ impl std::fmt::Display for LoopReject {
             ),
         }
     }
-}
-
-fn as_sentence<S: serde::Serializer>(
-    outcome: &LoopOutcome,
-    serializer: S,
-) -> Result<S::Ok, S::Error> {
-    serializer.collect_str(outcome)
 }
 
 #[cfg(test)]

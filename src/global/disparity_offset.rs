@@ -19,7 +19,7 @@
 //! full BA and the frames' refinement that follow fit poses and points to them.
 
 use nalgebra::{Matrix3, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::eval::stats::median;
 use crate::frame::stereo::offset_disparity;
@@ -41,7 +41,7 @@ pub const MAX_LEVEL: u8 = 2;
 const HUBER_PX: f64 = 0.5;
 
 /// What the estimate found (in `report.json`, `global.disparity_offset`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct OffsetReport {
     /// The offset \(\delta\) taken out, pixels (added to every observed disparity).
     pub offset_px: f64,

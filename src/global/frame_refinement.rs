@@ -17,7 +17,7 @@
 use std::time::Instant;
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::GlobalInputs;
 use crate::eval::stats::median;
@@ -30,7 +30,7 @@ use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
 pub const MIN_POINTS: usize = 30;
 
 /// What the refinement did (in `report.json`, under `global`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct RefinementReport {
     /// Tracked frames that are not keyframes (keyframes have their BA poses).
     pub frames: usize,

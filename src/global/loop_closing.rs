@@ -28,7 +28,7 @@
 use std::collections::{HashMap, HashSet};
 
 use nalgebra::Point3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
@@ -58,7 +58,7 @@ struct Verified {
 }
 
 /// A loop that was closed.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ClosedLoop {
     #[serde(flatten)]
     /// The two keyframes.
@@ -82,7 +82,7 @@ pub struct ClosedLoop {
 }
 
 /// A map segment merged into another by a loop.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SegmentMerge {
     /// The segment moved.
     pub segment: usize,

@@ -87,7 +87,7 @@ impl Default for GlobalConfig {
 }
 
 /// What the full bundle adjustment did.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct FullBaReport {
     /// Keyframes in the full BA.
     pub keyframes: usize,
@@ -109,7 +109,7 @@ pub struct FullBaReport {
 }
 
 /// What the global pass did (in `report.json`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct GlobalReport {
     /// The loops closed.
     pub loops: Vec<ClosedLoop>,

@@ -93,7 +93,7 @@ impl SmoothingConfig {
 }
 
 /// What the smoothing did (in `report.json`, under `global`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct SmoothingReport {
     /// Frames smoothed.
     pub frames: usize,

@@ -1,12 +1,10 @@
 //! A run folder: the name of every file a run writes, once. The writer (`run::outputs`,
 //! the dense pass) and the readers (`dopslam fuse`, `compare-maps`, the batch) all go
 //! through [`RunDir`], so a file cannot be renamed in one place and read under its old
-//! name in another. `report.json` reads back typed as a [`RunSummary`] (the parts the
-//! readers need; the whole report is `run::RunReport`).
+//! name in another. What the files hold, and reading them back, is
+//! `crate::records`'.
 
 use std::path::{Path, PathBuf};
-
-use serde::Deserialize;
 
 use super::IoError;
 
@@ -50,6 +48,10 @@ pub fn read_segments(path: &Path) -> Result<Option<Vec<(f64, usize)>>, IoError> 
     }
     Ok(Some(frames))
 }
+
+/// The layout version of `report.json` and `dense.json` this build writes and reads
+/// (their `schema` field; see `crate::records`).
+pub const SCHEMA: u32 = 1;
 
 /// A run's output folder.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -213,187 +215,6 @@ impl RunDir {
     pub fn sub_run(&self, name: &str) -> RunDir {
         RunDir::new(self.file(name))
     }
-
-    /// `report.json`, read back typed: an error names the file and what is wrong
-    /// (missing: not a finished run).
-    pub fn read_summary(&self) -> Result<RunSummary, IoError> {
-        let path = self.report();
-        let text = super::errors::read_text(&path)?;
-        let summary: RunSummary = serde_json::from_str(&text)
-            .map_err(|e| IoError::invalid(&path, format!("not a dopslam run report: {e}")))?;
-        if summary.frames.is_empty() && summary.totals.is_none() {
-            return Err(IoError::invalid(
-                &path,
-                "not a dopslam run report: it lists no frames and no totals (every run's report.json has both)",
-            ));
-        }
-        Ok(summary)
-    }
-}
-
-/// The parts of a run's `report.json` that other commands read: what `dopslam fuse`
-/// needs may be all a report has (an older run's); the totals the batch reads are
-/// there in every finished run ([`RunSummary::totals`]).
-#[derive(Debug, Clone, Deserialize)]
-pub struct RunSummary {
-    #[serde(default)]
-    /// The sequence's name.
-    pub sequence: Option<String>,
-    /// The sequence folder the run tracked, when known.
-    #[serde(default)]
-    pub sequence_path: Option<PathBuf>,
-    /// How moving objects were treated: `off`, `mask-boxes` or `dop` (empty when the
-    /// report does not say).
-    #[serde(default)]
-    pub mode: String,
-    #[serde(default)]
-    /// What the run was set up with.
-    pub setup: Option<SetupSummary>,
-    #[serde(default)]
-    totals: Option<TotalsSummary>,
-    #[serde(default)]
-    detection: Option<DetectionSummary>,
-    #[serde(default)]
-    /// Its frames.
-    pub frames: Vec<FrameSummary>,
-    #[serde(default)]
-    /// Its global pass.
-    pub global: Option<GlobalSummary>,
-}
-
-/// The part of `report.json`'s setup that is read back.
-#[derive(Debug, Clone, Deserialize)]
-pub struct SetupSummary {
-    #[serde(default)]
-    /// The first frame's hash (a run is fused with its own sequence).
-    pub first_frame_hash: Option<String>,
-    #[serde(default)]
-    /// The calibration.
-    pub calibration: Option<CalibrationSummary>,
-    #[serde(default)]
-    /// Stereo: the rig's disparity offset tracking added to every match.
-    pub disparity_offset: Option<OffsetSummary>,
-}
-
-/// The camera a run used (`setup.calibration.camera`).
-#[derive(Debug, Clone, Deserialize)]
-pub struct CalibrationSummary {
-    /// The camera.
-    pub camera: crate::geometry::camera::PinholeCamera,
-}
-
-/// The part of `report.json`'s totals that is read back.
-#[derive(Debug, Clone, Deserialize)]
-pub struct TotalsSummary {
-    /// Frames read.
-    pub frames: usize,
-    /// Frames tracked.
-    pub tracked: usize,
-    /// Tracked over read, %.
-    pub coverage_percent: f64,
-    /// Keyframes.
-    pub keyframes: usize,
-    /// Map points.
-    pub map_points: usize,
-    /// Median tracking time, ms.
-    pub median_tracking_ms: f64,
-    /// Mean tracking time, ms.
-    pub mean_tracking_ms: f64,
-}
-
-/// The part of `report.json`'s detection totals that is read back.
-#[derive(Debug, Clone, Deserialize)]
-pub struct DetectionSummary {
-    /// Map points removed as dynamic.
-    pub map_points_removed: usize,
-}
-
-/// One frame's line (what older reports may lack reads as zero, empty or false).
-#[derive(Debug, Clone, Deserialize)]
-pub struct FrameSummary {
-    /// Keypoints found dynamic.
-    pub dynamic_keypoints: usize,
-    #[serde(default)]
-    /// The frame's index.
-    pub index: usize,
-    #[serde(default)]
-    /// Seconds.
-    pub timestamp: f64,
-    /// `ok`, `lost` or `not_initialised`.
-    #[serde(default)]
-    pub state: String,
-    #[serde(default)]
-    /// Whether it became a keyframe.
-    pub keyframe: bool,
-    #[serde(default)]
-    /// Keypoints extracted.
-    pub keypoints: usize,
-    /// Why a lost frame got no pose (`{"reason": ...}`).
-    #[serde(default)]
-    pub lost: Option<serde_json::Value>,
-}
-
-/// The part of `report.json`'s global pass that is read back.
-#[derive(Debug, Clone, Deserialize)]
-pub struct GlobalSummary {
-    /// The loops closed.
-    pub loops: Vec<serde_json::Value>,
-    /// Every loop candidate that reached consistency checking, with its outcome.
-    #[serde(default)]
-    pub candidates: Vec<serde_json::Value>,
-    /// Stereo: the rig's disparity offset the pass took out, when it did.
-    #[serde(default)]
-    pub disparity_offset: Option<OffsetSummary>,
-}
-
-/// The part of `setup.disparity_offset` and `global.disparity_offset` that is read
-/// back.
-#[derive(Debug, Clone, Deserialize)]
-pub struct OffsetSummary {
-    /// Pixels added to every disparity.
-    pub offset_px: f64,
-}
-
-impl RunSummary {
-    /// The camera the run used, when its report says.
-    pub fn camera(&self) -> Option<&crate::geometry::camera::PinholeCamera> {
-        Some(&self.setup.as_ref()?.calibration.as_ref()?.camera)
-    }
-
-    /// The rig's disparity offset in the run's disparities, pixels: what tracking added
-    /// and what the global pass took out after it (0 when neither); `dopslam fuse`
-    /// adds it to the dense disparities too.
-    pub fn disparity_offset_px(&self) -> f64 {
-        [
-            self.setup
-                .as_ref()
-                .and_then(|s| s.disparity_offset.as_ref()),
-            self.global
-                .as_ref()
-                .and_then(|g| g.disparity_offset.as_ref()),
-        ]
-        .into_iter()
-        .flatten()
-        .map(|o| o.offset_px)
-        .sum()
-    }
-
-    /// The first frame's fingerprint the run recorded (`dopslam fuse` checks it).
-    pub fn first_frame_hash(&self) -> Option<&str> {
-        self.setup.as_ref()?.first_frame_hash.as_deref()
-    }
-
-    /// The run's totals and detection totals; an error naming `report` when the report
-    /// has none (not a finished dopslam run).
-    pub fn totals(&self, report: &Path) -> Result<(&TotalsSummary, &DetectionSummary), IoError> {
-        match (&self.totals, &self.detection) {
-            (Some(totals), Some(detection)) => Ok((totals, detection)),
-            _ => Err(IoError::invalid(
-                report,
-                "not a dopslam run report: no totals (an unfinished or foreign run)",
-            )),
-        }
-    }
 }
 
 #[cfg(test)]
@@ -407,35 +228,5 @@ mod tests {
         sorted.dedup();
         assert_eq!(sorted.len(), RUN_OUTPUTS.len());
         assert!(!RUN_OUTPUTS.contains(&names::PREVIOUS));
-    }
-
-    #[test]
-    fn a_missing_or_foreign_report_is_an_error_naming_the_file() {
-        let dir = std::env::temp_dir().join(format!("dopslam-run-dir-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let run = RunDir::new(&dir);
-        let e = run.read_summary().unwrap_err().to_string();
-        assert!(e.contains("report.json"), "{e}");
-        std::fs::write(run.report(), "[1, 2]").unwrap();
-        let e = run.read_summary().unwrap_err().to_string();
-        assert!(e.contains("not a dopslam run report"), "{e}");
-        // Any JSON object is not a report: one lists frames or totals.
-        std::fs::write(run.report(), "{\"mode\": \"dop\"}").unwrap();
-        let e = run.read_summary().unwrap_err().to_string();
-        assert!(
-            e.contains("not a dopslam run report") && e.contains("no frames"),
-            "{e}"
-        );
-        // What fuse needs may be all there is; the totals are asked for by name.
-        std::fs::write(
-            run.report(),
-            "{\"mode\": \"dop\", \"frames\": [{\"dynamic_keypoints\": 0}]}",
-        )
-        .unwrap();
-        let summary = run.read_summary().unwrap();
-        assert_eq!(summary.mode, "dop");
-        let e = summary.totals(&run.report()).unwrap_err().to_string();
-        assert!(e.contains("report.json") && e.contains("no totals"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

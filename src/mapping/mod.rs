@@ -64,7 +64,7 @@ impl Default for MappingConfig {
 }
 
 /// What local mapping did over a run.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct MappingStats {
     /// Keyframes processed.
     pub keyframes_processed: usize,

@@ -18,7 +18,7 @@
 
 use nalgebra::{DVector, Matrix6, Vector6};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::block_sparse::BlockPattern;
 use crate::geometry::se3::{self, Se3};
@@ -68,7 +68,7 @@ impl Default for GraphOptions {
 }
 
 /// What an optimisation did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct GraphReport {
     /// Iterations done.
     pub iterations: usize,

@@ -19,7 +19,6 @@ pub mod observers;
 pub mod options;
 pub mod outputs;
 pub mod plan;
-pub mod report;
 pub mod rerun_log;
 pub mod rig_offset;
 pub mod setup;
@@ -29,19 +28,19 @@ pub mod truth;
 use std::borrow::Cow;
 use std::path::Path;
 
+pub use crate::records::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use dense_pass::{dense_pass, DensePass, DenseSetup};
 pub use error::{RunError, StopReason};
 pub use options::RunOptions;
-pub use plan::RunPlan;
-pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
+pub use plan::{finish_recording, RunPlan};
 pub use setup::{
     check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash,
-    open_sequence, resolve_calibration, RunSetup, Setup,
+    open_sequence, resolve_calibration, Setup,
 };
 
 use crate::dop::Mode;
 use crate::io::sequence::Sequence;
-use crate::view::{At, Entry, Logger};
+use crate::view::{At, Entry};
 use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
 use outputs::Computed;
@@ -143,23 +142,6 @@ pub fn log_pinhole(log: &crate::view::LogHandle, camera: &crate::geometry::camer
     log.log("", At::Always, entry);
 }
 
-/// Closes a recording and says what it held (images dropped when logging fell
-/// behind are always said).
-pub fn finish_recording(logger: Logger, progress: bool) -> Result<(), RunError> {
-    let target = logger.target.clone();
-    let summary = logger.finish()?;
-    if let Some(warning) = summary.warning(&target) {
-        eprintln!("warning: {warning}");
-    } else if progress {
-        eprintln!(
-            "Rerun recording: {} entries to {}",
-            summary.logged,
-            target.name()
-        );
-    }
-    Ok(())
-}
-
 /// The observers of a run's tracking pass.
 struct Watchers {
     progress: Progress,
@@ -227,7 +209,7 @@ impl Watchers {
             writing,
             sequence: plan.sequence,
             sequence_path: plan.options.sequence_dir.as_deref(),
-            setup: RunSetup::new(plan.sequence, setup),
+            setup: crate::records::RunSetup::new(plan.sequence, setup),
             mode: setup.mode,
             map: tracked.map,
             mapping: tracked.mapping,

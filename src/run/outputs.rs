@@ -9,8 +9,6 @@ use std::path::Path;
 
 use super::error::{RunError, StopReason};
 use super::options::RunOptions;
-use super::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
-use super::setup::RunSetup;
 use crate::dense::masks::FrameKeypoints;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;
@@ -25,6 +23,8 @@ use crate::io::Trajectory;
 use crate::map::record::FrameRecord;
 use crate::map::Map;
 use crate::mapping::MappingStats;
+use crate::records::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
+use crate::records::RunSetup;
 use crate::tracking::TrackingState;
 
 /// Before any work (after the set-up): the paths are UTF-8 (the report names them),
@@ -154,6 +154,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         None => (None, None),
     };
     let report = RunReport {
+        schema: crate::records::SCHEMA,
         sequence: sequence.name().to_string(),
         setup,
         sequence_path: sequence_path.map(|p| p.canonicalize().unwrap_or_else(|_| p.to_path_buf())),
@@ -165,7 +166,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         detection,
         global,
         frames: lines,
-        stopped,
+        stopped: stopped.map(|reason| reason.to_string()),
         dense: None,
     };
     let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;

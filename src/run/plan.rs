@@ -77,7 +77,7 @@ impl<'a> RunPlan<'a> {
     /// recording is its owner's to close).
     pub fn finish(self) -> Result<(), RunError> {
         match self.own_recording {
-            Some(logger) => super::finish_recording(logger, self.options.progress),
+            Some(logger) => finish_recording(logger, self.options.progress),
             None => Ok(()),
         }
     }
@@ -92,4 +92,21 @@ fn open_run_recording(config: &Config, run: &RunDir) -> Result<Option<Logger>, R
     Logger::open(Target::File(run.rerun()), &config.output, "dopslam")
         .map(Some)
         .map_err(|e| RunError::Input(format!("[output] rerun: {e}")))
+}
+
+/// Closes a recording and says what it held (images dropped when logging fell
+/// behind are always said).
+pub fn finish_recording(logger: Logger, progress: bool) -> Result<(), RunError> {
+    let target = logger.target.clone();
+    let summary = logger.finish()?;
+    if let Some(warning) = summary.warning(&target) {
+        eprintln!("warning: {warning}");
+    } else if progress {
+        eprintln!(
+            "Rerun recording: {} entries to {}",
+            summary.logged,
+            target.name()
+        );
+    }
+    Ok(())
 }

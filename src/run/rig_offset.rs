@@ -15,9 +15,10 @@ use super::error::RunError;
 use super::global_pass::global_inputs;
 use super::options::RunOptions;
 use super::plan::RunPlan;
-use super::setup::{RigOffset, Setup};
+use super::setup::Setup;
 use super::tracking_pass::{tracking_pass, TrackingInputs};
 use crate::io::sequence::SensorKind;
+use crate::records::RigOffset;
 
 /// Whether a run of `setup` estimates the offset before tracking: stereo, no offset
 /// given, frames to estimate from, and the global pass's estimate turned on.
@@ -77,7 +78,7 @@ pub fn estimate(plan: &RunPlan) -> Result<Option<RigOffset>, RunError> {
         crate::global::disparity_offset_of(&mut pass.tracked.map, &inputs, &prefix.config.global);
     Ok(found.map(|estimate| RigOffset {
         offset_px: estimate.offset_px,
-        source: "estimated",
+        source: "estimated".into(),
         frames: Some(frames),
         estimate: Some(estimate),
     }))

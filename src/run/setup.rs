@@ -6,8 +6,6 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
-
 use super::error::RunError;
 use crate::config::Config;
 use crate::dop::Mode;
@@ -21,6 +19,7 @@ use crate::io::recording::RecordingSequence;
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
+use crate::records::{RigOffset, RunSetup};
 use crate::system::worker::Execution;
 use crate::system::SystemSetup;
 
@@ -63,9 +62,11 @@ impl Setup {
                 sequence.name()
             )));
         }
-        let vocabulary = loop_vocabulary(&config.global)?;
+        // The detector's files first, then the vocabulary: a fresh install misses both,
+        // and the detector is what a user sets up first.
         let mut config = config.for_sensor(sequence.sensor());
         config.detector.source = detection_source(&config)?;
+        let vocabulary = loop_vocabulary(&config.global)?;
         // The first frame, read once: it decides the image size and shows a swapped pair.
         let first = sequence.load(0).ok();
         let (calibration, size_warning) =
@@ -323,43 +324,6 @@ pub fn fit_to_images(
     Ok(Some(warning))
 }
 
-/// config, the settings file and `--camera`, and the runtime files it loaded.
-#[derive(Debug, Clone, Serialize)]
-pub struct RunSetup {
-    /// The camera, its baseline and depth scale.
-    pub calibration: Calibration,
-    /// The ORB settings.
-    pub orb: crate::features::orb::OrbConfig,
-    /// `ThDepth` and ORB-SLAM2's most frames between keyframes (`Camera.fps`).
-    pub th_depth: f64,
-    /// The most frames between keyframes.
-    pub max_frames_between_keyframes: usize,
-    /// The ORB-SLAM2 settings file and which of its keys were applied.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub settings: Option<crate::config::SettingsApplied>,
-    /// The runtime data directory and why it was chosen (`dopslam doctor`).
-    pub data_dir: String,
-    /// Where detections came from.
-    pub detections: crate::detect::Source,
-    /// The detector's files (models, then the ONNX Runtime library) when it is ONNX.
-    pub detector_files: Vec<PathBuf>,
-    /// The vocabulary file, when loop closing ran.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub vocabulary: Option<PathBuf>,
-    /// [`first_frame_hash`] of the sequence: `dopslam fuse` checks that it fuses the
-    /// sequence the run tracked.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub first_frame_hash: Option<String>,
-    /// Stereo: the rig's disparity offset added to every disparity, and where it came
-    /// from.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub disparity_offset: Option<RigOffset>,
-    /// What the reader found wrong with the input and read past (a recording cut short
-    /// at a byte, without index): the run is of what could be read.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub input_warnings: Vec<String>,
-}
-
 /// A fingerprint of a sequence: FNV-1a (64 bits, hex) of its first frame's colour (or
 /// left) pixels; `None` when the frame cannot be read.
 pub fn first_frame_hash(sequence: &dyn Sequence) -> Option<String> {
@@ -467,51 +431,16 @@ pub fn loop_vocabulary(config: &crate::global::GlobalConfig) -> Result<LoopVocab
         .map_err(RunError::NoLoops)
 }
 
-/// The rig's disparity offset a run adds to every stereo match (`report.json`,
-/// `setup.disparity_offset`; estimated by [`super::rig_offset`]).
-#[derive(Debug, Clone, Serialize)]
-pub struct RigOffset {
-    /// Pixels added to every disparity (0: the estimate was below the threshold).
-    pub offset_px: f64,
-    /// `"config"` (`[stereo] disparity_offset_px`) or `"estimated"`.
-    pub source: &'static str,
-    /// Estimated: the frames tracked to find it.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub frames: Option<usize>,
-    /// Estimated: the estimate's rounds, as the global pass reports them.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub estimate: Option<crate::global::disparity_offset::OffsetReport>,
-}
-
 impl RigOffset {
     /// The offset `config` gives a `sensor`'s run, when it gives one (stereo only).
     pub fn known(config: &Config, sensor: SensorKind) -> Option<Self> {
         let offset_px = config.stereo.disparity_offset_px?;
         (sensor == SensorKind::Stereo).then_some(Self {
             offset_px,
-            source: "config",
+            source: "config".into(),
             frames: None,
             estimate: None,
         })
-    }
-
-    /// One line for the console.
-    pub fn summary(&self) -> String {
-        match (&self.estimate, self.frames) {
-            (Some(estimate), Some(frames)) if self.offset_px != 0.0 => format!(
-                "stereo disparity offset over the first {frames} frames ({}): {:.3} px added to every disparity",
-                estimate.estimates(),
-                self.offset_px
-            ),
-            (Some(estimate), Some(frames)) => format!(
-                "stereo disparity offset over the first {frames} frames ({}): below [global] disparity_offset_min_px, none added",
-                estimate.estimates()
-            ),
-            _ => format!(
-                "stereo disparity offset: {:.3} px added to every disparity ([stereo] disparity_offset_px)",
-                self.offset_px
-            ),
-        }
     }
 }
 

@@ -63,7 +63,7 @@ impl TrackedFrame {
 }
 
 /// What tracking one frame did, for the report (one line of `report.json`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FrameStats {
     /// The frame's index.
     pub index: usize,
@@ -131,7 +131,7 @@ impl FrameStats {
 }
 
 /// Why a search gave no pose.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "reason")]
 pub enum Reject {
     /// No motion model yet (just initialised or relocalised) or no last frame.

@@ -15,9 +15,11 @@ use crate::detect::{cache_file, read_cache_file};
 use crate::eval::associate::{associate, AssociationRule};
 use crate::geometry::alignment::{umeyama, AlignmentKind};
 use crate::geometry::se3::Se3;
-use crate::io::run_dir::{FrameSummary, RunDir, RunSummary};
+use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::Trajectory;
+use crate::records::{FrameLine, RunReport};
+use crate::tracking::FrameStats;
 
 /// The tracking pass's trajectory is drawn again every this many frames.
 pub const TRAJECTORY_EVERY: usize = 10;
@@ -114,8 +116,8 @@ pub fn log_results(
     }
     // The loops of the run itself (a baseline's would fill the run's events).
     if run.report().exists() && prefix.is_empty() {
-        let summary = run.read_summary()?;
-        log_loops(log, &summary, estimate.as_ref());
+        let report = crate::records::read_report(run)?;
+        log_loops(log, &report, estimate.as_ref());
     }
     log_dense(log, run, prefix)
 }
@@ -148,44 +150,32 @@ fn aligned_truth(truth: &Trajectory, estimate: &Trajectory) -> Option<Vec<Vector
 /// The loops: an event at each candidate's keyframe (detected, with the outcome of
 /// its checks) and at each closed loop's, joined per frame; and the edges between the
 /// two keyframes' final centres of the closed ones.
-fn log_loops(log: &LogHandle, summary: &RunSummary, estimate: Option<&Trajectory>) {
-    let (loops, candidates) = summary
-        .global
-        .as_ref()
-        .map_or((&[][..], &[][..]), |g| (&g.loops[..], &g.candidates[..]));
-    let number = |value: &serde_json::Value, key: &str| value.get(key).and_then(|v| v.as_f64());
-    let times = |value: &serde_json::Value| {
-        Some((
-            number(value, "keyframe_time")?,
-            number(value, "matched_time")?,
-        ))
+fn log_loops(log: &LogHandle, report: &RunReport, estimate: Option<&Trajectory>) {
+    let Some(global) = &report.global else {
+        return;
     };
+    let frames = frame_times(&report.frames);
     let mut texts: BTreeMap<usize, (f64, Vec<String>)> = BTreeMap::new();
     let mut say = |at: f64, text: String| {
-        let index = nearest_frame(&summary.frames, at);
+        let index = nearest_frame(&frames, at);
         texts.entry(index).or_insert((at, Vec::new())).1.push(text);
     };
-    for candidate in candidates {
-        let Some((at, matched)) = times(candidate) else {
-            continue;
-        };
-        let outcome = candidate
-            .get("outcome")
-            .and_then(|o| o.as_str())
-            .unwrap_or("?");
-        let frame = nearest_frame(&summary.frames, matched);
+    for candidate in &global.candidates {
+        let (at, matched) = (candidate.pair.keyframe_time, candidate.pair.matched_time);
+        let frame = nearest_frame(&frames, matched);
         say(
             at,
-            format!("loop candidate with the keyframe of frame {frame}: {outcome}"),
+            format!(
+                "loop candidate with the keyframe of frame {frame}: {}",
+                candidate.outcome
+            ),
         );
     }
     let mut edges = Vec::new();
-    for found in loops {
-        let Some((at, matched)) = times(found) else {
-            continue;
-        };
-        let correction = number(found, "correction_m").unwrap_or(f64::NAN);
-        let frame = nearest_frame(&summary.frames, matched);
+    for found in &global.loops {
+        let (at, matched) = (found.pair.keyframe_time, found.pair.matched_time);
+        let correction = found.correction_m;
+        let frame = nearest_frame(&frames, matched);
         say(
             at,
             format!(
@@ -211,16 +201,20 @@ fn log_loops(log: &LogHandle, summary: &RunSummary, estimate: Option<&Trajectory
     }
 }
 
-/// The index of the report's frame nearest `seconds` (0 without frames).
-fn nearest_frame(frames: &[FrameSummary], seconds: f64) -> usize {
+/// Each report frame's index and time.
+fn frame_times(frames: &[FrameLine]) -> Vec<(usize, f64)> {
     frames
         .iter()
-        .min_by(|a, b| {
-            (a.timestamp - seconds)
-                .abs()
-                .total_cmp(&(b.timestamp - seconds).abs())
-        })
-        .map_or(0, |f| f.index)
+        .map(|f| (f.tracking.index, f.tracking.timestamp))
+        .collect()
+}
+
+/// The index of the frame (index, time) nearest `seconds` (0 without frames).
+fn nearest_frame(frames: &[(usize, f64)], seconds: f64) -> usize {
+    frames
+        .iter()
+        .min_by(|a, b| (a.1 - seconds).abs().total_cmp(&(b.1 - seconds).abs()))
+        .map_or(0, |f| f.0)
 }
 
 /// The centre of the pose nearest `seconds` (within 20 ms).
@@ -313,7 +307,7 @@ pub struct Replayed {
 pub fn replay_frames(
     log: &LogHandle,
     run: &RunDir,
-    summary: &RunSummary,
+    report: &RunReport,
     sequence: Option<&dyn Sequence>,
 ) -> Result<Replayed, ViewError> {
     let tracking_path = run.tracking_trajectory();
@@ -336,8 +330,8 @@ pub fn replay_frames(
         path: Vec::new(),
         keyframes: Vec::new(),
     };
-    let last = summary.frames.last().map(|f| f.index);
-    for frame in &summary.frames {
+    let last = report.frames.last().map(|f| f.tracking.index);
+    for frame in report.frames.iter().map(|f| &f.tracking) {
         let at = At::Frame {
             index: frame.index,
             seconds: frame.timestamp,
@@ -375,7 +369,7 @@ struct Replay<'a> {
 impl Replay<'_> {
     /// A frame's pose (when tracked), keyframes, trajectory so far (every
     /// [`TRAJECTORY_EVERY`] frames and at the `last`) and events.
-    fn pose_and_events(&mut self, frame: &FrameSummary, at: At, pose: Option<Se3>, last: bool) {
+    fn pose_and_events(&mut self, frame: &FrameStats, at: At, pose: Option<Se3>, last: bool) {
         let log = self.log;
         self.replayed.frames += 1;
         if let Some(pose) = pose {
@@ -406,10 +400,11 @@ impl Replay<'_> {
         }
         let facts = FrameFacts {
             index: frame.index,
-            state: &frame.state,
+            state: frame.state.as_str(),
             keyframe: frame.keyframe,
-            lost: frame.lost.as_ref().map(|v| {
-                let reason = v.get("reason").and_then(|r| r.as_str());
+            lost: frame.lost.map(|reject| {
+                let value = serde_json::to_value(reject).unwrap_or_default();
+                let reason = value.get("reason").and_then(|r| r.as_str());
                 reason.unwrap_or("?").to_string()
             }),
         };
@@ -418,7 +413,7 @@ impl Replay<'_> {
         {
             log.log("", at, entry);
         }
-        self.previous = Some(frame.state.clone());
+        self.previous = Some(frame.state.as_str().to_string());
     }
 }
 
@@ -446,7 +441,7 @@ fn read_removed(run: &RunDir) -> Result<BTreeMap<u64, Vec<[f32; 2]>>, ViewError>
 fn log_cached_boxes(
     log: &LogHandle,
     run: &RunDir,
-    frame: &FrameSummary,
+    frame: &FrameStats,
     at: At,
 ) -> Result<usize, ViewError> {
     let file = cache_file(&run.detections(), frame.timestamp);
@@ -542,16 +537,7 @@ mod tests {
 
     #[test]
     fn nearest_frame_by_time() {
-        let frame = |index, timestamp| FrameSummary {
-            dynamic_keypoints: 0,
-            index,
-            timestamp,
-            state: "ok".into(),
-            keyframe: false,
-            keypoints: 0,
-            lost: None,
-        };
-        let frames = [frame(0, 1.0), frame(1, 1.1), frame(2, 1.2)];
+        let frames = [(0, 1.0), (1, 1.1), (2, 1.2)];
         assert_eq!(nearest_frame(&frames, 1.14), 1);
         assert_eq!(nearest_frame(&frames, 9.0), 2);
         assert_eq!(nearest_frame(&[], 9.0), 0);

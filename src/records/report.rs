@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::setup::RunSetup;
 use crate::dense::DenseReport;
@@ -15,7 +15,7 @@ use crate::mapping::MappingStats;
 use crate::tracking::{FrameStats, TrackingState};
 
 /// Totals of a run.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunTotals {
     /// Frames read.
     pub frames: usize,
@@ -57,7 +57,7 @@ pub struct RunTotals {
 }
 
 /// A map segment of a run.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SegmentSpan {
     /// The segment's number.
     pub segment: usize,
@@ -119,7 +119,7 @@ pub fn final_segment(merges: &[(usize, usize)], mut segment: usize) -> usize {
 }
 
 /// One frame's line in the report.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FrameLine {
     #[serde(flatten)]
     /// The tracker's line.
@@ -133,10 +133,11 @@ pub struct FrameLine {
     pub truth: Option<TruthCounts>,
 }
 
-/// What a run was set up with: the effective camera and ORB parameters after the
 /// What `report.json` holds.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct RunReport {
+    /// The layout version ([`super::SCHEMA`]).
+    pub schema: u32,
     /// The sequence's name.
     pub sequence: String,
     /// What the run was set up with.
@@ -161,15 +162,21 @@ pub struct RunReport {
     pub global: Option<GlobalReport>,
     /// One line per frame.
     pub frames: Vec<FrameLine>,
-    /// Why the run stopped before the last frame, if it did.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub stopped: Option<super::error::StopReason>,
+    /// Why the run stopped before the last frame, if it did: the error's sentence.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<String>,
     /// The dense pass, when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,
 }
 
 impl RunReport {
+    /// The fingerprint of the sequence's first frame (`dopslam fuse` checks that it
+    /// fuses the sequence the run tracked).
+    pub fn first_frame_hash(&self) -> Option<&str> {
+        self.setup.first_frame_hash.as_deref()
+    }
+
     /// The rig's disparity offset in the run's disparities, pixels: what tracking added
     /// to its matches and what the global pass took out after it (0 when neither).
     pub fn disparity_offset_px(&self) -> f64 {

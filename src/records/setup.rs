@@ -1,0 +1,128 @@
+//! `report.json`'s `setup` section: what a run was set up with.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::io::orbslam_settings::Calibration;
+
+/// What a run was set up with: the effective camera and ORB parameters after the
+/// config, the settings file and `--camera`, and the runtime files it loaded.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunSetup {
+    /// The camera, its baseline and depth scale.
+    pub calibration: Calibration,
+    /// The ORB settings.
+    pub orb: crate::features::orb::OrbConfig,
+    /// `ThDepth` and ORB-SLAM2's most frames between keyframes (`Camera.fps`).
+    pub th_depth: f64,
+    /// The most frames between keyframes.
+    pub max_frames_between_keyframes: usize,
+    /// The ORB-SLAM2 settings file and which of its keys were applied.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings: Option<SettingsApplied>,
+    /// The runtime data directory and why it was chosen (`dopslam doctor`).
+    pub data_dir: String,
+    /// Where detections came from.
+    pub detections: crate::detect::Source,
+    /// The detector's files (models, then the ONNX Runtime library) when it is ONNX.
+    pub detector_files: Vec<PathBuf>,
+    /// The vocabulary file, when loop closing ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vocabulary: Option<PathBuf>,
+    /// `run::first_frame_hash` of the sequence: `dopslam fuse` checks that it fuses the
+    /// sequence the run tracked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_frame_hash: Option<String>,
+    /// Stereo: the rig's disparity offset added to every disparity, and where it came
+    /// from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub disparity_offset: Option<RigOffset>,
+    /// What the reader found wrong with the input and read past (a recording cut short
+    /// at a byte, without index): the run is of what could be read.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub input_warnings: Vec<String>,
+}
+
+/// The rig's disparity offset a run adds to every stereo match (`report.json`,
+/// `setup.disparity_offset`; estimated by `run::rig_offset`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RigOffset {
+    /// Pixels added to every disparity (0: the estimate was below the threshold).
+    pub offset_px: f64,
+    /// `"config"` (`[stereo] disparity_offset_px`) or `"estimated"`.
+    pub source: String,
+    /// Estimated: the frames tracked to find it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frames: Option<usize>,
+    /// Estimated: the estimate's rounds, as the global pass reports them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimate: Option<crate::global::disparity_offset::OffsetReport>,
+}
+
+impl RigOffset {
+    /// One line for the console.
+    pub fn summary(&self) -> String {
+        match (&self.estimate, self.frames) {
+            (Some(estimate), Some(frames)) if self.offset_px != 0.0 => format!(
+                "stereo disparity offset over the first {frames} frames ({}): {:.3} px added to every disparity",
+                estimate.estimates(),
+                self.offset_px
+            ),
+            (Some(estimate), Some(frames)) => format!(
+                "stereo disparity offset over the first {frames} frames ({}): below [global] disparity_offset_min_px, none added",
+                estimate.estimates()
+            ),
+            _ => format!(
+                "stereo disparity offset: {:.3} px added to every disparity ([stereo] disparity_offset_px)",
+                self.offset_px
+            ),
+        }
+    }
+}
+
+/// What applying an ORB-SLAM2 settings file did (in `report.json`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SettingsApplied {
+    /// The settings file.
+    pub file: PathBuf,
+    /// Keys that set something here.
+    pub applied: Vec<String>,
+    /// ORB-SLAM2 keys known to have no meaning here (`Viewer.*`, `Camera.RGB`).
+    pub no_meaning: Vec<String>,
+    /// Keys this tool does not know (a typo, or another system's).
+    pub unknown: Vec<String>,
+    /// Config values the file replaced: set (not to their defaults) by the config
+    /// before the settings file was applied, each with the two values and the file's key.
+    #[serde(default)]
+    pub replaced: Vec<String>,
+}
+
+impl SettingsApplied {
+    /// The lines to print once about the keys not applied.
+    pub fn notes(&self) -> Vec<String> {
+        let mut notes = Vec::new();
+        if !self.no_meaning.is_empty() {
+            notes.push(format!(
+                "settings {}: no meaning here, ignored: {}",
+                self.file.display(),
+                self.no_meaning.join(", ")
+            ));
+        }
+        if !self.unknown.is_empty() {
+            notes.push(format!(
+                "warning: settings {}: unknown keys, ignored: {}",
+                self.file.display(),
+                self.unknown.join(", ")
+            ));
+        }
+        if !self.replaced.is_empty() {
+            notes.push(format!(
+                "warning: settings {} replaces what the config set: {}",
+                self.file.display(),
+                self.replaced.join(", ")
+            ));
+        }
+        notes
+    }
+}
