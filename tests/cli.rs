@@ -182,12 +182,20 @@ fn dense_commands_report_bad_input_clearly() {
         !ok && err.contains("not a dopslam run report") && err.contains("report.json"),
         "{err}"
     );
+    // A report of this layout version with parts missing: the first one is named.
     write(
         &dir.join("report.json"),
-        "{\"mode\": \"dop\", \"totals\": {\"frames\": 1, \"tracked\": 1, \"coverage_percent\": 100.0, \"keyframes\": 1, \"map_points\": 1, \"median_tracking_ms\": 1.0, \"mean_tracking_ms\": 1.0}}",
+        "{\"schema\": 1, \"mode\": \"dop\", \"totals\": {\"frames\": 1, \"tracked\": 1, \"coverage_percent\": 100.0, \"keyframes\": 1, \"map_points\": 1, \"median_tracking_ms\": 1.0, \"mean_tracking_ms\": 1.0}}",
     );
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
-    assert!(!ok && err.contains("--sequence"), "{err}");
+    assert!(
+        !ok && err.contains("not a dopslam run report") && err.contains("missing field"),
+        "{err}"
+    );
+    // Another layout version: named, with what to do.
+    write(&dir.join("report.json"), "{\"schema\": 7}");
+    let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy()]);
+    assert!(!ok && err.contains("layout version 7"), "{err}");
     // A [dense] section with an impossible voxel, named by key.
     let config = write(&dir.join("bad.toml"), "[dense]\nvoxel = 0.0\n");
     let (ok, _, err) = dopslam(&["fuse", &dir.to_string_lossy(), "--config", &config]);

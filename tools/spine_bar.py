@@ -101,7 +101,8 @@ def main():
         ("functions over 80 lines", len(over_80), 22, ""),
         # Issue 81's goal is under 15; the bar comes down as bundles get names.
         ("destructured tuple parameters", tuple_parameters(), 83, ""),
-        ("#[serde(skip)] fields", count(r"#\[serde\(skip\)\]"), 10, ""),
+        ("#[serde(skip)] fields (none on a report type; the two left: config, manifest)",
+         count(r"#\[serde\(skip\)\]"), 2, ""),
         ("functions over 100 lines", len(over), 0,
          ", ".join(f"{p.relative_to(SRC)}:{n} ({l})" for p, n, _, l in over)),
         ("longest function", longest[3], 100, f"{longest[0].relative_to(SRC)}:{longest[1]}"),

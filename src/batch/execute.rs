@@ -19,7 +19,7 @@ use crate::dense::compare_maps::{compare_maps, CompareInputs};
 use crate::dense::map_figures::CompareSettings;
 use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
-use crate::eval::report::{evaluate, EvalOptions, EvalReport, RpeSpec};
+use crate::eval::report::{evaluate_with_series, EvalOptions, Evaluation, RpeSpec};
 use crate::eval::rpe::DeltaUnit;
 use crate::io::atomic::write_atomic;
 use crate::io::run_dir::{names, RunDir};
@@ -266,6 +266,7 @@ impl Executor<'_> {
                     rpe,
                     relation,
                 )
+                .map(|e| e.report)
             };
             let translation = evaluate_file(names::TRAJECTORY, PoseRelation::TransPart)?;
             let rotation = evaluate_file(names::TRAJECTORY, PoseRelation::AngleDeg)?;
@@ -382,7 +383,7 @@ pub fn evaluate_run(
     config: &Config,
     rpe: RpeSpec,
     rpe_relation: PoseRelation,
-) -> Result<EvalReport, BatchError> {
+) -> Result<Evaluation, BatchError> {
     let mut options = EvalOptions {
         association: config.eval.association,
         max_diff: config.eval.max_diff,
@@ -394,10 +395,10 @@ pub fn evaluate_run(
         rpe_relation,
         min_coverage: 0.0,
     };
-    evaluate(reference, estimate, &options)
+    evaluate_with_series(reference, estimate, &options)
         .or_else(|_| {
             options.rpe.clear();
-            evaluate(reference, estimate, &options)
+            evaluate_with_series(reference, estimate, &options)
         })
         .map_err(BatchError::Evaluation)
 }
@@ -409,7 +410,7 @@ pub fn evaluate_trajectory(
     config: &Config,
     rpe: RpeSpec,
     rpe_relation: PoseRelation,
-) -> Result<EvalReport, BatchError> {
+) -> Result<Evaluation, BatchError> {
     let estimate = Trajectory::read(path, TrajectoryFormat::Tum)?;
     evaluate_run(reference, &estimate, config, rpe, rpe_relation)
 }

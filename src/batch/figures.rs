@@ -12,7 +12,7 @@ use super::record::{RunRecord, RunStatus};
 use super::BatchError;
 use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
-use crate::eval::report::{EvalReport, RpeSpec};
+use crate::eval::report::{Evaluation, RpeSpec};
 use crate::io::run_dir::RunDir;
 
 /// The run whose ATE is the median of the mode's runs (the lower one of an even count).
@@ -70,7 +70,7 @@ pub fn sequence_section(
             else {
                 continue;
             };
-            errors.extend_from_slice(&report.ape.errors);
+            errors.extend_from_slice(&report.series.ape.errors);
             if median.is_some_and(|m| std::ptr::eq(m, run)) {
                 medians.push((mode, report));
             }
@@ -91,7 +91,7 @@ pub fn sequence_section(
     }
     let dir = out.join("plots").join(&sequence.name);
     std::fs::create_dir_all(&dir).map_err(BatchError::file("create", &dir))?;
-    let by_mode: Vec<(Mode, &EvalReport)> = medians.iter().map(|(m, r)| (*m, r)).collect();
+    let by_mode: Vec<(Mode, &Evaluation)> = medians.iter().map(|(m, r)| (*m, r)).collect();
     let name = &sequence.name;
     let paths = [
         dir.join("trajectories.png"),

@@ -11,7 +11,7 @@ use plotters::prelude::*;
 
 use crate::dop::Mode;
 use crate::eval::plot::view_axes;
-use crate::eval::report::EvalReport;
+use crate::eval::report::Evaluation;
 
 const SIZE: (u32, u32) = (900, 640);
 
@@ -79,12 +79,12 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
 pub fn trajectories(
     path: &Path,
     title: &str,
-    runs: &[(Mode, &EvalReport)],
+    runs: &[(Mode, &Evaluation)],
 ) -> Result<(), PlotError> {
     // The ground truth as far as the most complete run matched it.
     let Some(fullest) = runs
         .iter()
-        .map(|(_, r)| &r.reference)
+        .map(|(_, r)| &r.series.reference)
         .max_by_key(|r| r.len())
     else {
         return Ok(());
@@ -93,7 +93,7 @@ pub fn trajectories(
     let (a, b) = view_axes(&reference);
     let all = runs
         .iter()
-        .flat_map(|(_, r)| r.aligned_estimate.positions())
+        .flat_map(|(_, r)| r.series.aligned_estimate.positions())
         .chain(reference.iter().copied());
     let (mut x0, mut x1) = padded(all.clone().map(|p| p[a]));
     let (mut y0, mut y1) = padded(all.map(|p| p[b]));
@@ -145,8 +145,12 @@ pub fn trajectories(
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey.stroke_width(2)));
     for (mode, report) in runs {
         let colour = mode_colour(*mode);
-        let label = format!("{} (ATE {:.4} m)", mode.name(), report.ape.statistics.rmse);
-        let estimate = &report.aligned_estimate;
+        let label = format!(
+            "{} (ATE {:.4} m)",
+            mode.name(),
+            report.report.ape.statistics.rmse
+        );
+        let estimate = &report.series.aligned_estimate;
         chart
             .draw_series(pieces(
                 &estimate.timestamps,
@@ -178,22 +182,22 @@ fn legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
 pub fn ape_over_time(
     path: &Path,
     title: &str,
-    runs: &[(Mode, &EvalReport)],
+    runs: &[(Mode, &Evaluation)],
 ) -> Result<(), PlotError> {
     let Some(t0) = runs
         .iter()
-        .filter_map(|(_, r)| r.ape.timestamps.first().copied())
+        .filter_map(|(_, r)| r.series.ape.timestamps.first().copied())
         .reduce(f64::min)
     else {
         return Ok(());
     };
     let (x0, x1) = padded(
         runs.iter()
-            .flat_map(|(_, r)| r.ape.timestamps.iter().map(|t| t - t0)),
+            .flat_map(|(_, r)| r.series.ape.timestamps.iter().map(|t| t - t0)),
     );
     let y1 = runs
         .iter()
-        .flat_map(|(_, r)| r.ape.errors.iter().copied())
+        .flat_map(|(_, r)| r.series.ape.errors.iter().copied())
         .fold(0.0f64, f64::max)
         .max(1e-6)
         * 1.05;
@@ -214,7 +218,7 @@ pub fn ape_over_time(
         .map_err(&err)?;
     for (mode, report) in runs {
         let colour = mode_colour(*mode);
-        let (times, errors) = (&report.ape.timestamps, &report.ape.errors);
+        let (times, errors) = (&report.series.ape.timestamps, &report.series.ape.errors);
         let pieces = unbroken(times).into_iter().map(|r| {
             let points: Vec<(f64, f64)> = r.map(|i| (times[i] - t0, errors[i])).collect();
             PathElement::new(points, colour.stroke_width(1))
@@ -225,7 +229,7 @@ pub fn ape_over_time(
             .label(format!(
                 "{} (RMSE {:.4} m)",
                 mode.name(),
-                report.ape.statistics.rmse
+                report.report.ape.statistics.rmse
             ))
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))

@@ -110,7 +110,7 @@ pub fn print_comparison(comparison: &Comparison, json: bool) -> Result<()> {
     if json {
         println!("{}", serde_json::to_string_pretty(comparison)?);
     } else {
-        print!("{}", comparison.table);
+        print!("{}", comparison.table());
         for path in &comparison.outputs {
             eprintln!("wrote {}", path.display());
         }

@@ -10,7 +10,7 @@ use dopslam::eval::ate::PoseRelation;
 use dopslam::eval::plot::write_plots;
 use dopslam::eval::report::{AlignMode, RpeSpec};
 use dopslam::eval::rpe::DeltaUnit;
-use dopslam::eval::{evaluate, EvalOptions};
+use dopslam::eval::{evaluate_with_series, EvalOptions};
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::trajectory::TrajectoryFormat;
 use dopslam::io::Trajectory;
@@ -136,13 +136,14 @@ pub fn run_eval(args: EvalArgs) -> Result<()> {
         rpe_relation: args.rpe_relation,
         min_coverage: args.min_coverage.unwrap_or(config.eval.min_coverage),
     };
-    let report = evaluate(&reference, &estimate, &options).with_context(|| {
-        format!(
-            "evaluating {} against {}",
-            args.estimate.display(),
-            args.reference.display()
-        )
-    })?;
+    let dopslam::eval::Evaluation { report, series } =
+        evaluate_with_series(&reference, &estimate, &options).with_context(|| {
+            format!(
+                "evaluating {} against {}",
+                args.estimate.display(),
+                args.reference.display()
+            )
+        })?;
     let json = serde_json::to_string_pretty(&report)?;
     if args.json {
         println!("{json}");
@@ -153,7 +154,7 @@ pub fn run_eval(args: EvalArgs) -> Result<()> {
         write_atomic(path, json.as_bytes())?;
     }
     if let Some(dir) = &args.plot {
-        for path in write_plots(&report, dir)? {
+        for path in write_plots(&report, &series, dir)? {
             eprintln!("wrote {}", path.display());
         }
     }

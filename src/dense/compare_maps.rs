@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::map_figures::{
-    distance_colour, judge, static_accuracy, table, CompareSettings, MapFigures, StaticReference,
+    distance_colour, judge, static_accuracy, table, CompareSettings, Judged, MapFigures,
+    StaticReference,
 };
 use super::render::{self, Viewpoint};
 use super::save_png;
@@ -34,11 +35,16 @@ pub struct Comparison {
     pub settings: CompareSettings,
     /// The figures, one per map.
     pub maps: Vec<MapFigures>,
-    #[serde(skip)]
-    /// The figures as a Markdown table.
-    pub table: String,
     /// The files written.
     pub outputs: Vec<PathBuf>,
+}
+
+impl Comparison {
+    /// The figures as a Markdown table.
+    pub fn table(&self) -> String {
+        let figures: Vec<&MapFigures> = self.maps.iter().collect();
+        table(&self.names, &figures)
+    }
 }
 
 /// What to compare.
@@ -75,7 +81,7 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         Some(path) => Some(read_ply(path)?.vertices),
         None => None,
     };
-    let mut maps = Vec::new();
+    let mut judged = Vec::new();
     let mut meshes = Vec::new();
     for (k, (name, path)) in inputs.maps.iter().enumerate() {
         let mut mesh = read_ply(path)?;
@@ -85,7 +91,7 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         if mesh.is_empty() {
             return Err(IoError::invalid(path, "the map has no vertices"));
         }
-        maps.push(judge(
+        judged.push(judge(
             &mesh,
             &reference,
             movers.as_deref(),
@@ -93,25 +99,22 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         ));
         meshes.push((name.clone(), mesh));
     }
-    if maps.len() >= 2 {
-        let baseline = maps.len() - 1;
+    if judged.len() >= 2 {
+        let baseline = judged.len() - 1;
         for i in 0..baseline {
-            let sa = static_accuracy(&maps[i], &maps[baseline]);
-            maps[i].static_accuracy = Some(sa);
+            let sa = static_accuracy(&judged[i].samples, &judged[baseline].samples);
+            judged[i].figures.static_accuracy = Some(sa);
         }
     }
     let names: Vec<String> = meshes.iter().map(|(n, _)| n.clone()).collect();
-    let figures: Vec<&MapFigures> = maps.iter().collect();
-    let table = table(&names, &figures);
-    let mut outputs = write_distance_maps(inputs, &meshes, &maps)?;
-    outputs.extend(write_pictures(inputs, &reference_mesh, &meshes, &maps)?);
+    let mut outputs = write_distance_maps(inputs, &meshes, &judged)?;
+    outputs.extend(write_pictures(inputs, &reference_mesh, &meshes, &judged)?);
     let comparison = Comparison {
         names,
         reference: inputs.reference.to_path_buf(),
         movers: inputs.movers.map(Path::to_path_buf),
         settings: inputs.settings,
-        maps,
-        table,
+        maps: judged.into_iter().map(|j| j.figures).collect(),
         outputs,
     };
     let json = serde_json::to_string_pretty(&comparison).expect("comparison serialises");
@@ -123,7 +126,7 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
             .movers
             .map(|m| format!("; movers' ground truth: `{}`", m.display()))
             .unwrap_or_default(),
-        comparison.table,
+        comparison.table(),
         inputs.settings.ghost_distance
     );
     write_atomic(&inputs.out.join("compare.md"), md.as_bytes())?;
@@ -135,13 +138,14 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
 fn write_distance_maps(
     inputs: &CompareInputs,
     meshes: &[(String, Mesh)],
-    maps: &[MapFigures],
+    maps: &[Judged],
 ) -> Result<Vec<PathBuf>, IoError> {
     let mut outputs = Vec::new();
     let full = (inputs.settings.ghost_distance * 2.0) as f32;
     for ((name, mesh), figures) in meshes.iter().zip(maps) {
         let coloured = Mesh {
             colours: figures
+                .samples
                 .distances
                 .iter()
                 .map(|&d| distance_colour(d, full))
@@ -152,7 +156,7 @@ fn write_distance_maps(
         write_ply(
             &path,
             &coloured,
-            Some(&figures.distances),
+            Some(&figures.samples.distances),
             PlyEncoding::Binary,
             "dopslam compare-maps: colour = distance to the reference (blue 0, red >= 2x ghost distance); scalar = distance in metres",
         )?;
@@ -168,7 +172,7 @@ fn write_pictures(
     inputs: &CompareInputs,
     reference_mesh: &Mesh,
     meshes: &[(String, Mesh)],
-    maps: &[MapFigures],
+    maps: &[Judged],
 ) -> Result<Vec<PathBuf>, IoError> {
     let mut outputs = Vec::new();
     let view = match inputs.cameras {
@@ -176,8 +180,9 @@ fn write_pictures(
         None => Viewpoint::from_points(&reference_mesh.vertices),
     };
     if let Some(view) = view {
-        let ghost = |(mesh, figures): (&Mesh, &MapFigures)| -> Vec<[u8; 3]> {
-            let flags: Vec<bool> = figures
+        let ghost = |(mesh, judged): (&Mesh, &Judged)| -> Vec<[u8; 3]> {
+            let flags: Vec<bool> = judged
+                .samples
                 .distances
                 .iter()
                 .map(|&d| d as f64 > inputs.settings.ghost_distance)
@@ -189,7 +194,8 @@ fn write_pictures(
         let camera = render::picture_camera();
         let mut top = None::<image::RgbImage>;
         let mut perspective = None::<image::RgbImage>;
-        for (((name, mesh), colours), figures) in meshes.iter().zip(&coloured).zip(maps) {
+        for (((name, mesh), colours), judged) in meshes.iter().zip(&coloured).zip(maps) {
+            let figures = &judged.figures;
             let caption = match figures.mover_points {
                 Some(movers) => format!("{name}: {movers} mover points"),
                 None => format!("{name}: {} ghost points", figures.ghost_points),

@@ -137,12 +137,24 @@ pub struct MapFigures {
     pub dynamic_accuracy: Option<f64>,
     /// Against the baseline map.
     pub static_accuracy: Option<f64>,
-    /// Per map point, its distance to the reference (for the coloured PLY).
-    #[serde(skip)]
+}
+
+/// What a map's figures were counted from, for its coloured PLY, its picture and SA.
+#[derive(Debug, Clone, Default)]
+pub struct MapSamples {
+    /// Per map point, its distance to the reference.
     pub distances: Vec<f32>,
     /// Per reference sample, whether this map covers it.
-    #[serde(skip)]
     pub covers: Vec<bool>,
+}
+
+/// A map judged: its figures and what they were counted from.
+#[derive(Debug, Clone, Default)]
+pub struct Judged {
+    /// The figures (`compare.json`).
+    pub figures: MapFigures,
+    /// The distances and coverage behind them.
+    pub samples: MapSamples,
 }
 
 fn share(count: usize, total: usize) -> f64 {
@@ -159,7 +171,7 @@ pub fn judge(
     reference: &StaticReference,
     movers: Option<&[[f32; 3]]>,
     settings: &CompareSettings,
-) -> MapFigures {
+) -> Judged {
     let distances = reference.distances(&map.vertices);
     let n = distances.len();
     let mut sorted: Vec<f32> = distances.clone();
@@ -210,8 +222,6 @@ pub fn judge(
         },
         ghost_points,
         ghost_fraction: share(ghost_points, n),
-        distances,
-        covers,
         ..MapFigures::default()
     };
     if let Some(movers) = movers {
@@ -229,7 +239,7 @@ pub fn judge(
         figures.mover_points = Some(
             near_truth
                 .iter()
-                .zip(&figures.distances)
+                .zip(&distances)
                 .filter(|(&t, &s)| t <= r && s > r)
                 .count(),
         );
@@ -237,12 +247,15 @@ pub fn judge(
         figures.dynamic_accuracy =
             Some(share(kept.iter().filter(|&&d| d > r).count(), truth.len()));
     }
-    figures
+    Judged {
+        figures,
+        samples: MapSamples { distances, covers },
+    }
 }
 
 /// SA of `map` against `baseline`: of the samples the baseline covers, the share the
 /// map covers too.
-pub fn static_accuracy(map: &MapFigures, baseline: &MapFigures) -> f64 {
+pub fn static_accuracy(map: &MapSamples, baseline: &MapSamples) -> f64 {
     let covered = baseline.covers.iter().filter(|&&c| c).count();
     let both = map
         .covers
@@ -318,12 +331,13 @@ mod tests {
         let reference = StaticReference::new(&crate::geometry::mesh::unit_square(), 0.02).unwrap();
         let mut points = grid(0.0, 0.01);
         let perfect = judge(&Mesh::points(points.clone()), &reference, None, &settings);
+        let (perfect, perfect_samples) = (perfect.figures, perfect.samples);
         assert!(perfect.accuracy_mean < 1e-6 && perfect.precision == 1.0);
         assert!(perfect.completion_ratio == 1.0 && perfect.recall > 0.99);
         // A "person" standing 0.5 m above the floor: ghosts, mover points, DA 0.
         let person: Vec<[f32; 3]> = grid(0.5, 0.05).into_iter().filter(|p| p[0] < 0.3).collect();
         points.extend(&person);
-        let haunted = judge(&Mesh::points(points), &reference, Some(&person), &settings);
+        let haunted = judge(&Mesh::points(points), &reference, Some(&person), &settings).figures;
         assert_eq!(haunted.ghost_points, person.len());
         assert_eq!(haunted.mover_points, Some(person.len()));
         assert_eq!(haunted.dynamic_accuracy, Some(0.0));
@@ -334,8 +348,9 @@ mod tests {
             .filter(|p| p[0] <= 0.5)
             .collect();
         let half = judge(&Mesh::points(half), &reference, Some(&person), &settings);
-        assert_eq!(half.dynamic_accuracy, Some(1.0));
-        let sa = static_accuracy(&half, &perfect);
+        assert_eq!(half.figures.dynamic_accuracy, Some(1.0));
+        let sa = static_accuracy(&half.samples, &perfect_samples);
+        let half = half.figures;
         assert!((0.5..0.6).contains(&sa), "{sa}");
         assert!(table(&["a".into()], &[&half]).contains("| ghost points | 0 (0.00 %) |"));
     }

@@ -57,7 +57,7 @@ pub use config::{DenseConfig, FrameChoice, Fusion};
 pub use inputs::{read_detections, read_keypoints, DenseInputs};
 pub use outputs::save_png;
 pub use report::DenseReport;
-pub use truth::FusedTruth;
+pub use truth::{FusedTruth, TruthCounter};
 
 /// A progress bar over `len` frames labelled `label` (hidden unless `shown`).
 pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
@@ -109,7 +109,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &read.trajectory,
         &mut report,
     )?;
-    report.truth = truth.map(FusedTruth::finish);
+    report.truth = truth.map(TruthCounter::finish);
     report.total_s = started.elapsed().as_secs_f64();
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     report.schema = crate::io::run_dir::SCHEMA;
@@ -208,7 +208,7 @@ fn fuse(
     chosen: &[Chosen],
     (mask_source, poses): (&mut MaskSource, &HashMap<i64, Se3>),
     report: &mut DenseReport,
-) -> Result<(Maps, Option<FusedTruth>), IoError> {
+) -> Result<(Maps, Option<TruthCounter>), IoError> {
     let sequence = inputs.sequence;
     let fuse_tsdf = config.fuses_tsdf();
     let cloud_on = config.cloud || config.fusion != Fusion::Tsdf;
@@ -217,7 +217,7 @@ fn fuse(
         allocate_blocks(&mut volume, inputs, chosen)?;
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
-    let mut truth = inputs.truth_masks.as_ref().map(|_| FusedTruth::default());
+    let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
     let mut window =
         (inputs.masking == Mode::Dop && config.mask_free_space_seconds > 0.0).then(|| {
             let posed = (0..sequence.len())
@@ -270,7 +270,7 @@ fn fuse_frames(
     chosen: &[Chosen],
     (mask_source, mut window): (&mut MaskSource, Option<&mut NeighbourWindow>),
     (mut volume, mut cloud): (Option<&mut TsdfVolume>, Option<&mut CloudBuilder>),
-    truth: &mut Option<FusedTruth>,
+    truth: &mut Option<TruthCounter>,
 ) -> Result<Fused, IoError> {
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     // The mask pictures' folder, when they are asked for.

@@ -39,8 +39,13 @@ pub struct FusedTruth {
     /// Where movers got in: runs of consecutive fused frames in which one mover had
     /// pixels fused, the largest first (at most 20), to find the frames to look at.
     pub leaks: Vec<Leak>,
-    /// The leaks still open at the last frame counted (one per instance).
-    #[serde(skip)]
+}
+
+/// The count of a dense pass against the truth masks as it goes: the figures so far
+/// and the leaks still open at the last frame counted (one per instance).
+#[derive(Debug, Default)]
+pub struct TruthCounter {
+    figures: FusedTruth,
     open: Vec<Leak>,
 }
 
@@ -61,22 +66,26 @@ pub struct Leak {
     pub pixels_fused: u64,
 }
 
-impl FusedTruth {
-    /// The shares, once every frame is counted.
-    pub(super) fn finish(mut self) -> Self {
+impl TruthCounter {
+    /// The figures with their shares, once every frame is counted.
+    pub(super) fn finish(self) -> FusedTruth {
+        let Self {
+            figures: mut truth,
+            mut open,
+        } = self;
         let share = |part: u64, whole: u64| part as f64 / whole.max(1) as f64;
-        self.dynamic_removed = 1.0 - share(self.mover_pixels_fused, self.mover_pixels);
-        self.static_kept = share(self.static_pixels_fused, self.static_pixels);
-        self.unknown_removed = (self.unknown_mover_pixels > 0)
-            .then(|| 1.0 - share(self.unknown_mover_pixels_fused, self.unknown_mover_pixels));
-        self.leaks.append(&mut self.open);
-        self.leaks.sort_by(|a, b| {
+        truth.dynamic_removed = 1.0 - share(truth.mover_pixels_fused, truth.mover_pixels);
+        truth.static_kept = share(truth.static_pixels_fused, truth.static_pixels);
+        truth.unknown_removed = (truth.unknown_mover_pixels > 0)
+            .then(|| 1.0 - share(truth.unknown_mover_pixels_fused, truth.unknown_mover_pixels));
+        truth.leaks.append(&mut open);
+        truth.leaks.sort_by(|a, b| {
             b.pixels_fused
                 .cmp(&a.pixels_fused)
                 .then(a.first.total_cmp(&b.first))
         });
-        self.leaks.truncate(LEAKS_KEPT);
-        self
+        truth.leaks.truncate(LEAKS_KEPT);
+        truth
     }
 
     /// Extends the open leaks with one frame's mover pixels, `(instance, pixels,
@@ -101,7 +110,7 @@ impl FusedTruth {
             leak.pixels_fused += pixels_fused;
             still_open.push(leak);
         }
-        self.leaks.append(&mut self.open);
+        self.figures.leaks.append(&mut self.open);
         self.open = still_open;
     }
 }
@@ -123,12 +132,13 @@ pub(super) fn unknown_instances(masks: &Path) -> Result<Vec<bool>, IoError> {
 /// Counts the fused and masked pixels of the frame at `timestamp` against its instance
 /// ids (0: static; `unknown[id]`: a mover no detector knows).
 pub(super) fn count_truth(
-    truth: &mut FusedTruth,
+    counter: &mut TruthCounter,
     (timestamp, ids): (f64, &[u16]),
     unknown: &[bool],
     input: &FrameInput,
     max_depth: f64,
 ) {
+    let truth = &mut counter.figures;
     truth.frames += 1;
     // (instance, pixels, fused) of this frame's movers.
     let mut movers: Vec<(u16, u64, u64)> = Vec::new();
@@ -157,7 +167,7 @@ pub(super) fn count_truth(
             truth.static_pixels_fused += fused as u64;
         }
     }
-    truth.count_leaks(timestamp, &movers);
+    counter.count_leaks(timestamp, &movers);
 }
 
 #[cfg(test)]
@@ -166,7 +176,7 @@ mod tests {
 
     #[test]
     fn leaks_are_runs_of_frames_per_mover_largest_first() {
-        let mut truth = FusedTruth::default();
+        let mut truth = TruthCounter::default();
         // Mover 1 leaks in frames 0-1, not in 2, again in 3; mover 2 only in frame 1.
         truth.count_leaks(0.0, &[(1, 10, 2)]);
         truth.count_leaks(0.1, &[(1, 10, 3), (2, 50, 40)]);

@@ -54,7 +54,7 @@ pub struct DetectionTotals {
     /// Detector time per keyframe (in its own thread), milliseconds.
     pub median_ms: f64,
     /// Each model's median time per keyframe, when several run (a pool).
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub per_model_median_ms: BTreeMap<String, f64>,
     /// Map points whose moving probability a keyframe's detections updated, and those
     /// removed as dynamic (by the DOP model or, with --mask-boxes, inside a box).

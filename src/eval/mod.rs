@@ -11,4 +11,6 @@ pub mod rpe;
 pub mod stats;
 pub mod truth;
 
-pub use report::{evaluate, EvalError, EvalOptions, EvalReport};
+pub use report::{
+    evaluate, evaluate_with_series, EvalError, EvalOptions, EvalReport, EvalSeries, Evaluation,
+};

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 
-use super::report::{EvalReport, MetricResult};
+use super::report::{EvalReport, EvalSeries, MetricResult, MetricSeries};
 use crate::io::atomic::write_atomic;
 use crate::io::IoError;
 
@@ -172,9 +172,9 @@ pub fn view_axes(points: &[Vector3<f64>]) -> (usize, usize) {
 
 /// The trajectory plot: the reference (grey) and the aligned estimate (blue), seen along
 /// the axis of least motion.
-pub fn trajectory_svg(report: &EvalReport) -> String {
-    let reference = report.reference.positions();
-    let estimate = report.aligned_estimate.positions();
+pub fn trajectory_svg(report: &EvalReport, series: &EvalSeries) -> String {
+    let reference = series.reference.positions();
+    let estimate = series.aligned_estimate.positions();
     let (a, b) = view_axes(&reference);
     let all = reference.iter().chain(&estimate);
     let frame = Frame::new(all.clone().map(|p| p[a]), all.map(|p| p[b])).equal_aspect();
@@ -200,13 +200,13 @@ pub fn trajectory_svg(report: &EvalReport) -> String {
 }
 
 /// Errors of one metric over time, with its RMSE as a horizontal line.
-pub fn errors_svg(metric: &MetricResult) -> String {
-    let t0 = metric.timestamps.first().copied().unwrap_or(0.0);
-    let points: Vec<(f64, f64)> = metric
+pub fn errors_svg(metric: &MetricResult, series: &MetricSeries) -> String {
+    let t0 = series.timestamps.first().copied().unwrap_or(0.0);
+    let points: Vec<(f64, f64)> = series
         .timestamps
         .iter()
         .map(|t| t - t0)
-        .zip(metric.errors.iter().copied())
+        .zip(series.errors.iter().copied())
         .collect();
     let frame = Frame::new(
         points.iter().map(|p| p.0),
@@ -234,7 +234,11 @@ pub fn errors_svg(metric: &MetricResult) -> String {
 }
 
 /// Writes `trajectory.svg`, `ape.svg` and `rpe_<n>.svg` into `dir`; returns the paths.
-pub fn write_plots(report: &EvalReport, dir: &Path) -> Result<Vec<std::path::PathBuf>, IoError> {
+pub fn write_plots(
+    report: &EvalReport,
+    series: &EvalSeries,
+    dir: &Path,
+) -> Result<Vec<std::path::PathBuf>, IoError> {
     let mut written = Vec::new();
     let mut put = |name: String, text: String| -> Result<(), IoError> {
         let path = dir.join(name);
@@ -242,10 +246,10 @@ pub fn write_plots(report: &EvalReport, dir: &Path) -> Result<Vec<std::path::Pat
         written.push(path);
         Ok(())
     };
-    put("trajectory.svg".into(), trajectory_svg(report))?;
-    put("ape.svg".into(), errors_svg(&report.ape))?;
-    for (i, metric) in report.rpe.iter().enumerate() {
-        put(format!("rpe_{i}.svg"), errors_svg(metric))?;
+    put("trajectory.svg".into(), trajectory_svg(report, series))?;
+    put("ape.svg".into(), errors_svg(&report.ape, &series.ape))?;
+    for (i, (metric, errors)) in report.rpe.iter().zip(&series.rpe).enumerate() {
+        put(format!("rpe_{i}.svg"), errors_svg(metric, errors))?;
     }
     Ok(written)
 }

@@ -159,12 +159,6 @@ pub struct MetricResult {
     pub delta: Option<RpeSpec>,
     /// RMSE, mean, median, … of the errors.
     pub statistics: Statistics,
-    /// The error of each pair, in order, and the estimate timestamp it belongs to.
-    #[serde(skip)]
-    pub errors: Vec<f64>,
-    #[serde(skip)]
-    /// Their timestamps.
-    pub timestamps: Vec<f64>,
 }
 
 /// The alignment that was applied, as \(p_{ref} = sRp_{est} + t\).
@@ -180,6 +174,39 @@ pub struct AlignmentUsed {
     pub scale: f64,
     /// How many poses it was estimated from.
     pub poses_used: usize,
+}
+
+/// A metric's errors in order, for its plot: each pair's error and the estimate
+/// timestamp it belongs to.
+#[derive(Debug, Clone, Default)]
+pub struct MetricSeries {
+    /// The error of each pair.
+    pub errors: Vec<f64>,
+    /// Their timestamps.
+    pub timestamps: Vec<f64>,
+}
+
+/// What the plots of an evaluation draw, beside its report: the associated
+/// reference, the associated and aligned estimate, and each metric's errors.
+#[derive(Debug, Clone)]
+pub struct EvalSeries {
+    /// The associated reference.
+    pub reference: Trajectory,
+    /// The associated estimate, aligned.
+    pub aligned_estimate: Trajectory,
+    /// The APE's errors.
+    pub ape: MetricSeries,
+    /// Each RPE's errors, in the report's order.
+    pub rpe: Vec<MetricSeries>,
+}
+
+/// An evaluation: its report and what its plots draw.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    /// The figures (`dopslam eval`'s JSON).
+    pub report: EvalReport,
+    /// The associated trajectories and the errors in order.
+    pub series: EvalSeries,
 }
 
 /// Everything `dopslam eval` reports.
@@ -211,12 +238,6 @@ pub struct EvalReport {
     /// (unaligned), when the reference path is at least 100 m long.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub kitti: Option<KittiErrors>,
-    /// The associated reference and the associated, aligned estimate (for plots).
-    #[serde(skip)]
-    pub reference: Trajectory,
-    #[serde(skip)]
-    /// The aligned estimate.
-    pub aligned_estimate: Trajectory,
 }
 
 fn check_not_empty(trajectory: &Trajectory, which: &'static str) -> Result<(), EvalError> {
@@ -258,6 +279,15 @@ pub fn evaluate(
     estimate: &Trajectory,
     options: &EvalOptions,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_with_series(reference, estimate, options).map(|e| e.report)
+}
+
+/// [`evaluate`], with what its plots draw ([`EvalSeries`]).
+pub fn evaluate_with_series(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    options: &EvalOptions,
+) -> Result<Evaluation, EvalError> {
     let (association, max_diff) = associate_checked(reference, estimate, options)?;
     let matched = association.pairs.len();
     let coverage = matched as f64 / association.max_pairs as f64;
@@ -278,6 +308,8 @@ pub fn evaluate(
         unit: options.ape_relation.unit().to_string(),
         delta: None,
         statistics: Statistics::of(&ape_errors).expect("matched > 0"),
+    };
+    let ape_series = MetricSeries {
         errors: ape_errors,
         timestamps: aligned.timestamps.clone(),
     };
@@ -295,9 +327,10 @@ pub fn evaluate(
             )
         })
         .collect::<Result<Vec<_>, _>>()?;
+    let (rpe, rpe_series): (Vec<_>, Vec<_>) = rpe.into_iter().unzip();
 
     let r = transform.rotation.matrix();
-    Ok(EvalReport {
+    let report = EvalReport {
         reference_poses: reference.len(),
         estimate_poses: estimate.len(),
         matched_poses: matched,
@@ -320,9 +353,14 @@ pub fn evaluate(
         ape,
         rpe,
         kitti,
+    };
+    let series = EvalSeries {
         reference: reference_sync,
         aligned_estimate: aligned,
-    })
+        ape: ape_series,
+        rpe: rpe_series,
+    };
+    Ok(Evaluation { report, series })
 }
 
 /// The pose pairs of `reference` and `estimate` under `options`' association rule,
@@ -396,7 +434,7 @@ fn rpe_metric(
     (reference_sync, aligned): (&Trajectory, &Trajectory),
     transform: &Sim3,
     options: &EvalOptions,
-) -> Result<MetricResult, EvalError> {
+) -> Result<(MetricResult, MetricSeries), EvalError> {
     let (errors, timestamps, unit) = match spec.unit {
         DeltaUnit::Seconds => {
             let (stamps, errors) = relative_errors_seconds(
@@ -434,15 +472,14 @@ fn rpe_metric(
         delta: spec.delta,
         unit: spec.unit.symbol(),
     })?;
-    Ok(MetricResult {
+    let result = MetricResult {
         metric: "RPE".into(),
         relation: options.rpe_relation,
         unit,
         delta: Some(*spec),
         statistics,
-        errors,
-        timestamps,
-    })
+    };
+    Ok((result, MetricSeries { errors, timestamps }))
 }
 
 impl EvalReport {

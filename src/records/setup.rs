@@ -40,7 +40,7 @@ pub struct RunSetup {
     pub disparity_offset: Option<RigOffset>,
     /// What the reader found wrong with the input and read past (a recording cut short
     /// at a byte, without index): the run is of what could be read.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub input_warnings: Vec<String>,
 }
 
