@@ -98,7 +98,7 @@ def main():
         ("main.rs lines", len((SRC / "main.rs").read_text().splitlines()), 299, ""),
         ("run::run_sequence lines", max(run_sequence, default=0), 44, ""),
         # Issue 81's goal is 0; the bar comes down as functions are split.
-        ("functions over 80 lines", len(over_80), 22, ""),
+        ("functions over 80 lines", len(over_80), 18, ""),
         # Issue 81's goal is under 15; the bar comes down as bundles get names.
         ("destructured tuple parameters", tuple_parameters(), 83, ""),
         ("#[serde(skip)] fields (none on a report type; the two left: config, manifest)",

@@ -71,7 +71,6 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     };
     let data = DataDir::locate();
     let cwd = std::env::current_dir().unwrap_or_default();
-    let shown = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
     println!(
         "data directory: {} ({})",
         shown(&data.path).display(),
@@ -79,32 +78,7 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
     );
     print_search_order(&cwd);
     let (needed, library) = needed_files(&config);
-    println!("files (each loaded as a run loads it):");
-    let (mut missing, mut broken) = (Vec::new(), Vec::new());
-    for n in &needed {
-        let checked = load_check(n, &library);
-        let status = match &checked {
-            None => "MISSING",
-            Some(Ok(())) => "ok",
-            Some(Err(_)) => "BROKEN",
-        };
-        println!(
-            "  {:<8} {:<44} {}",
-            status,
-            n.what,
-            shown(&n.path).display()
-        );
-        match checked {
-            None if n.required => missing.push(shown(&n.path).display().to_string()),
-            Some(Err(why)) => {
-                println!("           {why}");
-                if n.required {
-                    broken.push(format!("{} ({why})", shown(&n.path).display()));
-                }
-            }
-            _ => {}
-        }
-    }
+    let (missing, broken) = check_files(&needed, &library);
     println!(
         "stereo dense map (OpenCV SGBM): {}",
         if cfg!(feature = "opencv") {
@@ -146,6 +120,43 @@ pub fn run_doctor(args: DoctorArgs) -> Result<()> {
         data_dir::INSTALL_HINT
     )
 }
+/// `path` made absolute, as the doctor shows it.
+fn shown(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+/// Loads each needed file as a run loads it and prints its line; returns the required
+/// files missing, and those broken with why.
+fn check_files(needed: &[Needed], library: &Path) -> (Vec<String>, Vec<String>) {
+    println!("files (each loaded as a run loads it):");
+    let (mut missing, mut broken) = (Vec::new(), Vec::new());
+    for n in needed {
+        let checked = load_check(n, library);
+        let status = match &checked {
+            None => "MISSING",
+            Some(Ok(())) => "ok",
+            Some(Err(_)) => "BROKEN",
+        };
+        println!(
+            "  {:<8} {:<44} {}",
+            status,
+            n.what,
+            shown(&n.path).display()
+        );
+        match checked {
+            None if n.required => missing.push(shown(&n.path).display().to_string()),
+            Some(Err(why)) => {
+                println!("           {why}");
+                if n.required {
+                    broken.push(format!("{} ({why})", shown(&n.path).display()));
+                }
+            }
+            _ => {}
+        }
+    }
+    (missing, broken)
+}
+
 /// The places runtime files are looked for, in order, as `run` looks.
 fn print_search_order(cwd: &Path) {
     println!("looked for, in this order:");

@@ -99,6 +99,42 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
     let recording = RecordingSequence::open(path, &config.dataset.recording_options())?;
     let d = &recording.description;
     println!("recording {}: {} topics", path.display(), d.topics.len());
+    print_streams(d);
+    println!(
+        "frames: {} {} pairs (tolerance {} s)",
+        d.frames,
+        if d.stereo {
+            "left/right"
+        } else {
+            "colour/depth"
+        },
+        config.dataset.max_difference
+    );
+    if !recording.is_empty() {
+        let (first, last) = (
+            recording.timestamp(0),
+            recording.timestamp(recording.len() - 1),
+        );
+        println!("time span {:.3} s ({first:.6} .. {last:.6})", last - first);
+    }
+    if let Some(c) = recording.calibration() {
+        print_calibration(c);
+    }
+    if let Some(truth) = recording.ground_truth() {
+        println!(
+            "ground truth: {} poses, path length {:.3} m",
+            truth.len(),
+            truth.path_length()
+        );
+    }
+    for warning in &d.warnings {
+        println!("warning: {warning}");
+    }
+    Ok(())
+}
+
+/// The topics of a recording's description, the streams chosen and the camera info.
+fn print_streams(d: &dopslam::io::recording::frames::Description) {
     for (name, msg_type, count, rate) in &d.topics {
         println!("  {name:<40} {msg_type:<28} {count:>7} messages  {rate:>6.1} Hz");
     }
@@ -131,57 +167,31 @@ pub fn print_recording_info(path: &Path, config: &Config) -> Result<()> {
             println!("camera info: none (give the calibration with --settings or --camera)")
         }
     }
+}
+
+/// A recording's calibration, one line.
+fn print_calibration(c: &dopslam::io::orbslam_settings::Calibration) {
+    let k = &c.camera;
     println!(
-        "frames: {} {} pairs (tolerance {} s)",
-        d.frames,
-        if d.stereo {
-            "left/right"
+        "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}{}, {:.1} Hz{}",
+        k.fx,
+        k.fy,
+        k.cx,
+        k.cy,
+        k.width,
+        k.height,
+        k.distortion,
+        if k.rational.iter().any(|&v| v != 0.0) {
+            format!(" rational {:?}", k.rational)
         } else {
-            "colour/depth"
+            String::new()
         },
-        config.dataset.max_difference
+        c.fps.unwrap_or(0.0),
+        c.bf.map_or(String::new(), |bf| format!(
+            ", bf {bf:.3} (baseline {:.4} m)",
+            bf / k.fx
+        ))
     );
-    if !recording.is_empty() {
-        let (first, last) = (
-            recording.timestamp(0),
-            recording.timestamp(recording.len() - 1),
-        );
-        println!("time span {:.3} s ({first:.6} .. {last:.6})", last - first);
-    }
-    if let Some(c) = recording.calibration() {
-        let k = &c.camera;
-        println!(
-            "calibration: fx {:.3} fy {:.3} cx {:.3} cy {:.3}, {}x{}, distortion {:?}{}, {:.1} Hz{}",
-            k.fx,
-            k.fy,
-            k.cx,
-            k.cy,
-            k.width,
-            k.height,
-            k.distortion,
-            if k.rational.iter().any(|&v| v != 0.0) {
-                format!(" rational {:?}", k.rational)
-            } else {
-                String::new()
-            },
-            c.fps.unwrap_or(0.0),
-            c.bf.map_or(String::new(), |bf| format!(
-                ", bf {bf:.3} (baseline {:.4} m)",
-                bf / k.fx
-            ))
-        );
-    }
-    if let Some(truth) = recording.ground_truth() {
-        println!(
-            "ground truth: {} poses, path length {:.3} m",
-            truth.len(),
-            truth.path_length()
-        );
-    }
-    for warning in &d.warnings {
-        println!("warning: {warning}");
-    }
-    Ok(())
 }
 
 /// `dopslam info --read-frames`: decodes every frame on this thread and prints the rate

@@ -112,6 +112,15 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         orb_and_matching_ms,
         sgbm_ms,
     };
+    print_figures(&figures);
+    if let Some(path) = &args.json {
+        write_atomic(path, serde_json::to_string_pretty(&figures)?.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// What `dopslam stereo` prints.
+fn print_figures(figures: &StereoFigures) {
     println!(
         "{} of {} left keypoints matched ({:.1} %); against SGBM ({:.1} % of pixels valid) on {} of them: median difference {:.3} px (signed {:+.3}), {:.1} % within 1 px",
         figures.matched,
@@ -124,10 +133,7 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         figures.within_1px_percent
     );
     println!(
-        "time: ORB on both images and row matching {orb_and_matching_ms:.1} ms, SGBM {sgbm_ms:.1} ms"
+        "time: ORB on both images and row matching {:.1} ms, SGBM {:.1} ms",
+        figures.orb_and_matching_ms, figures.sgbm_ms
     );
-    if let Some(path) = &args.json {
-        write_atomic(path, serde_json::to_string_pretty(&figures)?.as_bytes())?;
-    }
-    Ok(())
 }

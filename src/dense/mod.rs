@@ -98,7 +98,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         inputs,
         config,
         &chosen,
-        (&mut mask_source, &read.poses),
+        &mut mask_source,
+        &read.poses,
         &mut report,
     )?;
     write_maps(
@@ -206,7 +207,8 @@ fn fuse(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[Chosen],
-    (mask_source, poses): (&mut MaskSource, &HashMap<i64, Se3>),
+    mask_source: &mut MaskSource,
+    poses: &HashMap<i64, Se3>,
     report: &mut DenseReport,
 ) -> Result<(Maps, Option<TruthCounter>), IoError> {
     let sequence = inputs.sequence;
@@ -228,17 +230,14 @@ fn fuse(
                 .collect();
             NeighbourWindow::new(config.free_space_settings(), posed)
         });
-    let fused = fuse_frames(
-        inputs,
-        config,
-        chosen,
-        (mask_source, window.as_mut()),
-        (
-            fuse_tsdf.then_some(&mut volume),
-            cloud_on.then_some(&mut cloud),
-        ),
-        &mut truth,
-    )?;
+    let sinks = FrameSinks {
+        mask_source,
+        window: window.as_mut(),
+        volume: fuse_tsdf.then_some(&mut volume),
+        cloud: cloud_on.then_some(&mut cloud),
+        truth: &mut truth,
+    };
+    let fused = fuse_frames(inputs, config, chosen, sinks)?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
@@ -261,6 +260,20 @@ struct Fused {
     integration_ms: Vec<f64>,
 }
 
+/// Where [`fuse_frames`] takes its masks from and puts the frames.
+struct FrameSinks<'a> {
+    /// The masks of each frame.
+    mask_source: &'a mut MaskSource,
+    /// The free-space evidence of the frames around it, when on.
+    window: Option<&'a mut NeighbourWindow>,
+    /// The TSDF, when it fuses.
+    volume: Option<&'a mut TsdfVolume>,
+    /// The keyframes' cloud, when it is made.
+    cloud: Option<&'a mut CloudBuilder>,
+    /// The count against the truth masks, when the sequence has them.
+    truth: &'a mut Option<TruthCounter>,
+}
+
 /// Fuses the `chosen` frames in order, masked: into the volume (when given) and, the
 /// keyframes, into the cloud (when given); counts the fused pixels against the truth
 /// masks.
@@ -268,10 +281,15 @@ fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[Chosen],
-    (mask_source, mut window): (&mut MaskSource, Option<&mut NeighbourWindow>),
-    (mut volume, mut cloud): (Option<&mut TsdfVolume>, Option<&mut CloudBuilder>),
-    truth: &mut Option<TruthCounter>,
+    sinks: FrameSinks,
 ) -> Result<Fused, IoError> {
+    let FrameSinks {
+        mask_source,
+        mut window,
+        mut volume,
+        mut cloud,
+        truth,
+    } = sinks;
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     // The mask pictures' folder, when they are asked for.
     let pictures = match config.mask_pictures_every {

@@ -153,9 +153,7 @@ struct Watchers {
 
 impl Watchers {
     fn new(sequence: &dyn Sequence, options: &RunOptions) -> Self {
-        let total = options
-            .max_frames
-            .map_or(sequence.len(), |m| m.min(sequence.len()));
+        let total = options.frames_of(sequence.len());
         Self {
             progress: Progress::new(total, options.progress),
             debug: options.debug_frames.clone().map(|dir| DebugFrames { dir }),

@@ -29,3 +29,10 @@ pub struct RunOptions {
     /// one, `[output] rerun` makes `run.rrd` in the run folder.
     pub rerun: Option<crate::view::LogHandle>,
 }
+
+impl RunOptions {
+    /// How many of a sequence's `len` frames the run tracks (`max_frames` at most).
+    pub fn frames_of(&self, len: usize) -> usize {
+        self.max_frames.map_or(len, |m| m.min(len))
+    }
+}

@@ -75,12 +75,9 @@ pub fn tracking_pass(
     observers: &mut [&mut dyn FrameObserver],
 ) -> Result<TrackingPass, RunError> {
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
-    let config = &setup.config;
     let execution = Execution::of(options.deterministic);
     let mut system = start_system(setup, inputs.detector, inputs.run, execution);
-    let total = options
-        .max_frames
-        .map_or(sequence.len(), |m| m.min(sequence.len()));
+    let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
     let mut records = Vec::with_capacity(total);
     let mut depth_check = DepthCheck::default();
@@ -145,24 +142,51 @@ pub fn tracking_pass(
             truth: None,
         });
     }
+    let log = FrameLog {
+        lines,
+        records,
+        stop,
+    };
+    Ok(end_pass(system, setup, log, observers))
+}
+
+/// What the frame loop wrote down: a line and a record per frame, and why it stopped
+/// early, if it did.
+struct FrameLog {
+    lines: Vec<FrameLine>,
+    records: Vec<FrameRecord>,
+    stop: Option<StopReason>,
+}
+
+/// The end of a pass: the observers finish, a map that never started is the reason
+/// to stop, and the system hands its map over (the detections that came back at its
+/// end shown to the observers).
+fn end_pass(
+    system: System,
+    setup: &Setup,
+    log: FrameLog,
+    observers: &mut [&mut dyn FrameObserver],
+) -> TrackingPass {
+    let FrameLog {
+        lines,
+        records,
+        mut stop,
+    } = log;
     observers.iter_mut().for_each(|o| o.finish());
     if stop.is_none() && system.state() == TrackingState::NotInitialised {
-        stop = Some(StopReason::NeverStarted(never_started(
-            &lines,
-            config,
-            setup.sensor,
-        )));
+        let why = never_started(&lines, &setup.config, setup.sensor);
+        stop = Some(StopReason::NeverStarted(why));
     }
     let tracked = system.finish();
     observers
         .iter_mut()
         .for_each(|o| o.on_applied(&tracked.applied));
-    Ok(TrackingPass {
+    TrackingPass {
         tracked,
         lines,
         records,
         stop,
-    })
+    }
 }
 
 /// The system of the run, with its helpers: the vocabulary and the detector.
