@@ -24,7 +24,8 @@ use super::compare_maps::print_comparison;
 /// against the sequence's `static_scene.ply` (else the baseline map) and its
 /// `movers.ply` when it has them. Pictures: side by side, ghosts in red.
 pub fn compare_with_baseline(
-    (run, baseline): (&Path, &Path),
+    run: &Path,
+    baseline: &Path,
     sequence: &dyn dopslam::io::sequence::Sequence,
     sequence_dir: &Path,
     config: &Config,

@@ -97,11 +97,12 @@ pub fn run_detect(args: DetectArgs) -> Result<()> {
         .expect("a source other than none");
     let mut all = Vec::new();
     let mut detect_one = |name: String, timestamp: f64, image: image::RgbImage| -> Result<()> {
-        all.push(detect_and_write(
-            detector.as_mut(),
-            &args,
-            (name, timestamp, image),
-        )?);
+        let named = NamedImage {
+            name,
+            timestamp,
+            image,
+        };
+        all.push(detect_and_write(detector.as_mut(), &args, named)?);
         Ok(())
     };
     if args.input.is_dir() || dopslam::io::recording::is_recording(&args.input) {
@@ -139,14 +140,27 @@ pub fn run_detect(args: DetectArgs) -> Result<()> {
     Ok(())
 }
 
+/// An image `dopslam detect` reads: its name in the outputs and its timestamp (0 for a
+/// single image).
+pub struct NamedImage {
+    name: String,
+    timestamp: f64,
+    image: image::RgbImage,
+}
+
 /// Detects on one image of `dopslam detect`, prints its boxes (unless `--json`), writes
 /// the image with its boxes drawn and the detections (a sequence's into its detection
 /// cache), and returns the image's entry of the `--json` list.
 pub fn detect_and_write(
     detector: &mut dyn dopslam::detect::Detector,
     args: &DetectArgs,
-    (name, timestamp, mut image): (String, f64, image::RgbImage),
+    named: NamedImage,
 ) -> Result<serde_json::Value> {
+    let NamedImage {
+        name,
+        timestamp,
+        mut image,
+    } = named;
     use dopslam::detect::{draw::draw_detections, FrameDetections};
     let start = std::time::Instant::now();
     let detections = detector.detect(timestamp, &image)?;

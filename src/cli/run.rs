@@ -290,7 +290,8 @@ fn compare_no_dop(args: &RunArgs, plan: &RunPlan, report: &dopslam::run::RunRepo
     let baseline_report =
         dopslam::run::run_sequence(plan.sequence, &baseline, &baseline_dir, &baseline_options)?;
     let comparison = super::compare_no_dop::compare_with_baseline(
-        (&args.out, &baseline_dir),
+        &args.out,
+        &baseline_dir,
         plan.sequence,
         &args.sequence,
         config,

@@ -260,17 +260,12 @@ struct Fused {
     integration_ms: Vec<f64>,
 }
 
-/// Where [`fuse_frames`] takes its masks from and puts the frames.
+/// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
 struct FrameSinks<'a> {
-    /// The masks of each frame.
     mask_source: &'a mut MaskSource,
-    /// The free-space evidence of the frames around it, when on.
     window: Option<&'a mut NeighbourWindow>,
-    /// The TSDF, when it fuses.
     volume: Option<&'a mut TsdfVolume>,
-    /// The keyframes' cloud, when it is made.
     cloud: Option<&'a mut CloudBuilder>,
-    /// The count against the truth masks, when the sequence has them.
     truth: &'a mut Option<TruthCounter>,
 }
 
@@ -281,15 +276,8 @@ fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[Chosen],
-    sinks: FrameSinks,
+    mut sinks: FrameSinks,
 ) -> Result<Fused, IoError> {
-    let FrameSinks {
-        mask_source,
-        mut window,
-        mut volume,
-        mut cloud,
-        truth,
-    } = sinks;
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     // The mask pictures' folder, when they are asked for.
     let pictures = match config.mask_pictures_every {
@@ -319,7 +307,7 @@ fn fuse_frames(
         let loaded = load_group(inputs, group, sequence_frame)?;
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
-            let evidence = match window.as_deref_mut() {
+            let evidence = match sinks.window.as_deref_mut() {
                 Some(window) => Some(window.evidence(
                     &inputs.camera,
                     (timestamp, &depth, &pose),
@@ -327,7 +315,9 @@ fn fuse_frames(
                 )?),
                 None => None,
             };
-            let mask = mask_source.mask(timestamp, &depth, &pose, evidence.as_ref());
+            let mask = sinks
+                .mask_source
+                .mask(timestamp, &depth, &pose, evidence.as_ref());
             if let Some(m) = &mask {
                 fused.masked += m.iter().filter(|&&x| x).count() as u64;
             }
@@ -341,10 +331,11 @@ fn fuse_frames(
             let ids = inputs.truth_masks.as_ref().and_then(|dir| {
                 crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
             });
-            if let (Some(truth), Some(ids)) = (truth.as_mut(), &ids) {
+            if let (Some(truth), Some(ids)) = (sinks.truth.as_mut(), &ids) {
                 count_truth(
                     truth,
-                    (timestamp, ids.as_raw()),
+                    timestamp,
+                    ids.as_raw(),
                     &unknown,
                     &input,
                     config.max_depth,
@@ -359,13 +350,13 @@ fn fuse_frames(
                 save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
             }
             let start = Instant::now();
-            if let Some(volume) = volume.as_deref_mut() {
+            if let Some(volume) = sinks.volume.as_deref_mut() {
                 volume.integrate(&input);
             }
             fused
                 .integration_ms
                 .push(start.elapsed().as_secs_f64() * 1e3);
-            if let (Some(cloud), true) = (cloud.as_deref_mut(), is_keyframe) {
+            if let (Some(cloud), true) = (sinks.cloud.as_deref_mut(), is_keyframe) {
                 cloud.add(&input);
                 fused.keyframes_in_cloud += 1;
             }

@@ -133,7 +133,8 @@ pub(super) fn unknown_instances(masks: &Path) -> Result<Vec<bool>, IoError> {
 /// ids (0: static; `unknown[id]`: a mover no detector knows).
 pub(super) fn count_truth(
     counter: &mut TruthCounter,
-    (timestamp, ids): (f64, &[u16]),
+    timestamp: f64,
+    ids: &[u16],
     unknown: &[bool],
     input: &FrameInput,
     max_depth: f64,

@@ -95,7 +95,8 @@ pub fn tracking_pass(
         }
         let ready = next_frame(
             sequence,
-            (index, keep_depth),
+            index,
+            keep_depth,
             setup,
             &system,
             &mut pacer,
@@ -208,7 +209,8 @@ fn start_system(
 /// pass must stop.
 fn next_frame(
     sequence: &dyn Sequence,
-    (index, keep_depth): (usize, bool),
+    index: usize,
+    keep_depth: bool,
     setup: &Setup,
     system: &System,
     pacer: &mut Pacer,
