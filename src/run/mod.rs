@@ -99,8 +99,6 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
         let dense = dense
             .clone()
             .with_disparity_offset(report.disparity_offset_px());
-        // After a tracking failure the dense map of what was tracked is a bonus: the
-        // tracking error is the one to report.
         let pass = DensePass {
             sequence: plan.sequence,
             setup: &dense,
@@ -110,6 +108,8 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
             sequence_dir: plan.options.sequence_dir.as_deref(),
             progress: plan.options.progress,
         };
+        // After a tracking failure the dense map of what was tracked is a bonus: the
+        // tracking error is the one to report.
         match (&stop, dense_pass(&pass)) {
             (None, Ok(dense)) => report.dense = Some(dense),
             (None, Err(e)) => return Err(e),

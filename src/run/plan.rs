@@ -38,8 +38,9 @@ pub struct RunPlan<'a> {
 
 impl<'a> RunPlan<'a> {
     /// Resolves a run of `config` over `sequence` into `out`: every error about the
-    /// inputs, the settings, the detector's files, the vocabulary or the outputs comes
-    /// here, before any work.
+    /// inputs, the settings, missing detector files, the vocabulary or the outputs
+    /// comes here, before any work (the detector loads when [`super::execute`] starts,
+    /// before the first frame).
     pub fn resolve(
         sequence: &'a dyn Sequence,
         config: &Config,
