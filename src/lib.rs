@@ -5,14 +5,16 @@
 //!
 //! # A run
 //!
-//! [`run::run_sequence`] is the tool in five calls: set-up ([`run::setup`]: the
-//! sequence, its calibration and config resolved once), the tracking pass
+//! [`run::run_sequence`] is the tool: a [`run::RunPlan`] resolved once (the set-up of
+//! [`run::setup`]: the sequence, its calibration and config; the run folder; the
+//! Rerun recording), then [`run::execute`] in four calls: the tracking pass
 //! ([`run::tracking_pass`] drives [`system::System`]: the tracker, local mapping,
 //! place recognition and the keyframe detector beside it, the DOP state between
 //! them), the global pass ([`global::run`]: loops, essential graph, full BA, the frames
 //! refined), the outputs ([`run::outputs`]) and the dense pass ([`dense::fuse_run`]:
 //! masks, TSDF, mesh and cloud of the static depth only). `docs/design.md` draws the
-//! hand-offs between them.
+//! hand-offs between them. What the run writes, and every reader reads back, is typed
+//! in [`records`].
 //!
 //! # Modules, bottom floor first
 //!
