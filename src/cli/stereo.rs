@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
-use dopslam::frame::stereo::extract_and_match;
+use dopslam::frame::stereo::{extract_and_match, StereoPair};
 use dopslam::io::atomic::write_atomic;
 use dopslam::io::kitti::read_pair;
 use dopslam::io::orbslam_settings::OrbSlamSettings;
@@ -65,7 +65,15 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
         ..OrbConfig::default()
     });
     let start = Instant::now();
-    let (lf, matches) = extract_and_match((&left, &right), &extractor, bf, fx);
+    let (lf, matches) = extract_and_match(
+        StereoPair {
+            left: &left,
+            right: &right,
+        },
+        &extractor,
+        bf,
+        fx,
+    );
     let orb_and_matching_ms = start.elapsed().as_secs_f64() * 1e3;
     let start = Instant::now();
     let sgbm = sgbm_disparity(

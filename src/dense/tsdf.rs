@@ -80,7 +80,7 @@ pub struct TsdfSettings {
 }
 
 /// Whether pixel `(u, v)` of a `w` x `h` image lies within `margin` of its border.
-fn in_margin(u: usize, v: usize, (w, h): (usize, usize), margin: usize) -> bool {
+fn in_margin(u: usize, v: usize, w: usize, h: usize, margin: usize) -> bool {
     u < margin || v < margin || u + margin >= w || v + margin >= h
 }
 
@@ -337,7 +337,7 @@ impl TsdfVolume {
                     if d <= 0.0
                         || d > max_depth
                         || dynamic.is_some_and(|m| m[i])
-                        || in_margin(u, v, (w, h), margin)
+                        || in_margin(u, v, w, h, margin)
                     {
                         continue;
                     }

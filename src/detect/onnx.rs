@@ -12,6 +12,7 @@ use ort::value::Tensor;
 
 use super::yolo::{decode_end_to_end, keep_confident, non_maximum_suppression, Layout};
 use super::{DetectError, Detection, Detector};
+use crate::geometry::camera::ImageSize;
 
 /// Where the ONNX Runtime library is: `configured`, else `ORT_DYLIB_PATH`, else
 /// `ort/libonnxruntime.so` in the runtime data directory.
@@ -210,7 +211,7 @@ impl OnnxDetector {
                 ),
             });
         }
-        let found = layout.decode(data, dims[1] as usize, size, &input, lowest);
+        let found = layout.decode(data, dims[1] as usize, size.0, size.1, &input, lowest);
         Ok(keep(found))
     }
 
@@ -234,11 +235,12 @@ impl OnnxDetector {
 /// `threshold`, boxes in image pixels.
 fn end_to_end(
     session: &mut Session,
-    (width, height): (u32, u32),
+    size: impl Into<ImageSize>,
     model: &Path,
     image: &RgbImage,
     threshold: f32,
 ) -> Result<Vec<Detection>, DetectError> {
+    let ImageSize { width, height } = size.into();
     let runtime = |e: ort::Error| DetectError::Runtime(format!("{}: {e}", model.display()));
     let input = Layout::Deimv2.prepare(image, width, height);
     let pixels = Tensor::from_array(([1usize, 3, height as usize, width as usize], input.data))

@@ -88,7 +88,8 @@ struct Seams {
 }
 
 impl Seams {
-    fn of((x, y, w, h): (u32, u32, u32, u32), (width, height): (u32, u32)) -> Self {
+    /// The seams of the tile at `(x, y)`, `w` by `h`, of an image `width` by `height`.
+    fn of(x: u32, y: u32, w: u32, h: u32, width: u32, height: u32) -> Self {
         Self {
             left: x > 0,
             top: y > 0,
@@ -113,7 +114,7 @@ impl Detector for Tiled {
         let (width, height) = (image.width(), image.height());
         for (x, y, w, h) in tiles(width, height, self.grid, self.overlap) {
             let tile = image::imageops::crop_imm(image, x, y, w, h).to_image();
-            let seams = Seams::of((x, y, w, h), (width, height));
+            let seams = Seams::of(x, y, w, h, width, height);
             found.extend(
                 self.inner
                     .detect(timestamp, &tile)?
@@ -191,7 +192,7 @@ mod tests {
     #[test]
     fn boxes_cut_by_a_seam_inside_the_image_are_dropped() {
         // The top-left tile of 640 x 480: its right and bottom sides are seams.
-        let seams = Seams::of((0, 0, 400, 300), (640, 480));
+        let seams = Seams::of(0, 0, 400, 300, 640, 480);
         assert!(
             seams.touched_by(&[300.0, 100.0, 399.5, 200.0]),
             "cut on the right"
@@ -205,7 +206,7 @@ mod tests {
             "the image's own corner"
         );
         // The bottom-right tile: its left and top sides are seams.
-        let seams = Seams::of((240, 180, 400, 300), (640, 480));
+        let seams = Seams::of(240, 180, 400, 300, 640, 480);
         assert!(seams.touched_by(&[1.0, 50.0, 60.0, 120.0]));
         assert!(
             !seams.touched_by(&[300.0, 200.0, 400.0, 300.0]),

@@ -16,6 +16,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use super::{coco, Detection};
+use crate::geometry::camera::ImageSize;
 
 /// Which model family (and so which pre-processing and decoder).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -99,7 +100,8 @@ impl Layout {
         self,
         output: &[f32],
         rows: usize,
-        (width, height): (usize, usize),
+        width: usize,
+        height: usize,
         input: &Input,
         threshold: f32,
     ) -> Vec<Detection> {
@@ -351,8 +353,9 @@ const BORDER_WIDTH_SHARE: f32 = 0.3;
 pub fn non_maximum_suppression(
     mut detections: Vec<Detection>,
     threshold: f32,
-    (width, height): (u32, u32),
+    size: impl Into<ImageSize>,
 ) -> Vec<Detection> {
+    let ImageSize { width, height } = size.into();
     detections.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut kept: Vec<Detection> = Vec::new();
     for mut d in detections {
@@ -473,7 +476,7 @@ mod tests {
             scale_x: 2.0,
             scale_y: 2.0,
         };
-        let found = Layout::Yolox.decode(&output, rows, (w, h), &input, 0.3);
+        let found = Layout::Yolox.decode(&output, rows, w, h, &input, 0.3);
         assert_eq!(found.len(), 1);
         // cx = (0.5 + 1) * 8 = 12, w = 2 * 8 = 16: [4, 4, 20, 20] x 2.
         assert_eq!(found[0].bbox, [8.0, 8.0, 40.0, 40.0]);

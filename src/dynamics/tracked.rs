@@ -99,7 +99,8 @@ pub struct DopFigures {
 /// without the model. `last` is the last tracked frame, with its probabilities.
 pub fn after_pose(
     gate: &Participation,
-    (map, frame): (&mut Map, &mut Frame),
+    map: &mut Map,
+    frame: &mut Frame,
     pose: TrackedPose,
     sensor: &Sensor,
     last: Option<&Frame>,
@@ -109,19 +110,13 @@ pub fn after_pose(
     };
     let mut figures = DopFigures::default();
     if dop.geometric {
-        let (checks, moved) = judge_matches(gate, (map, frame), dop, &pose, sensor);
+        let (checks, moved) = judge_matches(gate, map, frame, dop, &pose, sensor);
         figures.rigidity_outliers = moved;
         (figures.geometric_raised, figures.geometric_lowered) =
             geometric_check(dop, map, &checks, frame.timestamp);
     }
     let start = Instant::now();
-    frame.moving = moving_probabilities(
-        gate,
-        dop,
-        (map, frame),
-        (pose.camera_from_world, pose.matches),
-        last,
-    );
+    frame.moving = moving_probabilities(gate, dop, map, frame, &pose, last);
     figures.dynamic_keypoints = frame.moving.iter().filter(|p| dop.removed(**p)).count();
     figures.dop_ms = start.elapsed().as_secs_f64() * 1e3;
     figures
@@ -147,7 +142,8 @@ struct Judged {
 /// many the rigidity test found moved.
 fn judge_matches(
     gate: &Participation,
-    (map, frame): (&Map, &Frame),
+    map: &Map,
+    frame: &Frame,
     dop: &DopConfig,
     pose: &TrackedPose,
     sensor: &Sensor,
@@ -257,11 +253,13 @@ fn moved(frame: &Frame, dop: &DopConfig, sensor: &Sensor, judged: &[Judged]) -> 
 fn moving_probabilities(
     gate: &Participation,
     dop: &DopConfig,
-    (map, frame): (&Map, &Frame),
-    (camera_from_world, points): (&Se3, &[Option<MapPointKey>]),
+    map: &Map,
+    frame: &Frame,
+    pose: &TrackedPose,
     last: Option<&Frame>,
 ) -> Vec<f32> {
-    let from_map: Vec<Option<f32>> = points
+    let from_map: Vec<Option<f32>> = pose
+        .matches
         .iter()
         .map(|k| k.and_then(|k| map.points().get(k)).map(|p| p.moving))
         .collect();
@@ -289,7 +287,7 @@ fn moving_probabilities(
             .collect(),
         _ => vec![None; frame.len()],
     };
-    let followed = gate.followed.map(|f| (f, camera_from_world));
+    let followed = gate.followed.map(|f| (f, pose.camera_from_world));
     propagate_and_expand(dop, frame, &from_map, &from_last, followed)
 }
 

@@ -9,11 +9,11 @@ use image::GrayImage;
 use nalgebra::Vector2;
 
 use crate::features::{Descriptor, KeyPoint, OrbExtractor};
-use crate::geometry::camera::PinholeCamera;
+use crate::geometry::camera::{ImageSize, PinholeCamera};
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::image_files::DepthImage;
 
-use stereo::{add_disparity_offset, bearings_beyond, extract_and_match};
+use stereo::{add_disparity_offset, bearings_beyond, extract_and_match, DepthSettings, StereoPair};
 
 pub mod matching;
 pub mod stereo;
@@ -122,20 +122,19 @@ impl Frame {
     pub fn from_stereo(
         index: usize,
         timestamp: f64,
-        (left, right): (&GrayImage, &GrayImage),
+        pair: StereoPair,
         extractor: &OrbExtractor,
         camera: &StereoCamera,
-        (bearing_depth, disparity_offset): (f32, f64),
+        settings: DepthSettings,
     ) -> Self {
-        let (left_features, mut matches) =
-            extract_and_match((left, right), extractor, camera.bf, camera.fx);
+        let (left_features, mut matches) = extract_and_match(pair, extractor, camera.bf, camera.fx);
         add_disparity_offset(
             &mut matches,
             &left_features.keypoints,
             camera.bf,
-            disparity_offset,
+            settings.disparity_offset,
         );
-        bearings_beyond(&mut matches, bearing_depth);
+        bearings_beyond(&mut matches, settings.bearing_depth);
         Self::from_parts(
             index,
             timestamp,
@@ -143,7 +142,7 @@ impl Frame {
             left_features.descriptors,
             matches.depth,
             matches.right_u,
-            (left.width(), left.height()),
+            pair.left.dimensions(),
         )
     }
 
@@ -155,8 +154,9 @@ impl Frame {
         descriptors: Vec<Descriptor>,
         depth: Vec<f32>,
         right_u: Vec<f32>,
-        (width, height): (u32, u32),
+        size: impl Into<ImageSize>,
     ) -> Self {
+        let ImageSize { width, height } = size.into();
         let n = keypoints.len();
         let mut frame = Self {
             index,

@@ -178,17 +178,36 @@ pub fn add_disparity_offset(
     }
 }
 
+/// A rectified stereo pair: the left camera's image and the right camera's.
+#[derive(Clone, Copy)]
+pub struct StereoPair<'a> {
+    /// The left camera's image.
+    pub left: &'a GrayImage,
+    /// The right camera's image.
+    pub right: &'a GrayImage,
+}
+
+/// How a stereo frame's keypoint depths are finished: the rig's disparity offset added,
+/// and the depth beyond which keypoints are bearings only.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthSettings {
+    /// Keypoints farther than this many metres lose their right column (0: none do).
+    pub bearing_depth: f32,
+    /// Pixels added to every disparity.
+    pub disparity_offset: f64,
+}
+
 /// Extracts ORB from both images of a rectified pair (in parallel) and matches the
 /// left keypoints into the right image: the left features and their stereo depths.
 pub fn extract_and_match(
-    (left, right): (&GrayImage, &GrayImage),
+    pair: StereoPair,
     extractor: &OrbExtractor,
     bf: f64,
     fx: f64,
 ) -> (OrbFeatures, StereoMatches) {
     let ((left_features, left_levels), (right_features, right_levels)) = rayon::join(
-        || extractor.extract_with_levels(left),
-        || extractor.extract_with_levels(right),
+        || extractor.extract_with_levels(pair.left),
+        || extractor.extract_with_levels(pair.right),
     );
     let stereo = StereoFeatures {
         left: &left_features,
@@ -209,15 +228,16 @@ pub fn extract_and_match(
 /// 697 swapped against 1060 as given: no warning). The counts `(positive, negative)`
 /// when it looks swapped.
 pub fn looks_swapped(
-    (left, right): (&GrayImage, &GrayImage),
+    pair: StereoPair,
     extractor: &OrbExtractor,
     fx: f64,
 ) -> Option<(usize, usize)> {
     let ((lf, _), (rf, _)) = rayon::join(
-        || extractor.extract_with_levels(left),
-        || extractor.extract_with_levels(right),
+        || extractor.extract_with_levels(pair.left),
+        || extractor.extract_with_levels(pair.right),
     );
-    let (positive, negative) = disparity_signs(&lf, &rf, &extractor.pyramid, left.height(), fx);
+    let height = pair.left.height();
+    let (positive, negative) = disparity_signs(&lf, &rf, &extractor.pyramid, height, fx);
     (negative >= 100 && negative >= 2 * positive).then_some((positive, negative))
 }
 

@@ -6,6 +6,25 @@ use serde::{Deserialize, Serialize};
 
 use crate::checks::{positive, BadValue};
 
+/// An image's size in pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageSize {
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+}
+
+impl From<(u32, u32)> for ImageSize {
+    /// From `(width, height)`, as `image`'s `dimensions()` gives them.
+    fn from(dimensions: (u32, u32)) -> Self {
+        Self {
+            width: dimensions.0,
+            height: dimensions.1,
+        }
+    }
+}
+
 /// Intrinsics of a pinhole camera, in pixels; distortion as OpenCV's
 /// `(k1, k2, p1, p2, k3)`, with the rational model's `(k4, k5, k6)` beside it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

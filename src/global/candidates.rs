@@ -19,9 +19,21 @@ pub struct LoopPair {
     pub matched_time: f64,
 }
 
+/// The keyframe that looks for a loop and the keyframe it matched, as map keys.
+#[derive(Debug, Clone, Copy)]
+pub struct LoopKeys {
+    /// The keyframe that looks for a loop.
+    pub keyframe: KeyFrameKey,
+    /// The keyframe it matched.
+    pub matched: KeyFrameKey,
+}
+
 impl LoopPair {
-    pub(super) fn of(map: &Map, (key, matched): (KeyFrameKey, KeyFrameKey)) -> Self {
-        let (a, b) = (&map.keyframes()[key], &map.keyframes()[matched]);
+    pub(super) fn of(map: &Map, keys: LoopKeys) -> Self {
+        let (a, b) = (
+            &map.keyframes()[keys.keyframe],
+            &map.keyframes()[keys.matched],
+        );
         Self {
             keyframe: a.id,
             matched: b.id,

@@ -30,11 +30,11 @@ use std::collections::{HashMap, HashSet};
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
+use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
 use super::place_recognition::PlaceRecognition;
 use super::rigid_motion::RigidMotion;
-use super::word_matching::{match_by_words, static_point};
+use super::word_matching::{match_by_words, static_point, Worded};
 use super::GlobalInputs;
 use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrameKey, Map, MapPointKey};
@@ -139,7 +139,11 @@ impl<'a> LoopCloser<'a> {
                     if map.keyframes().contains_key(c) {
                         let gap = self.recognition.config.gap;
                         let reject = LoopReject::TooSoon { gap };
-                        self.record(map, (key, c), score, LoopOutcome::Rejected(reject));
+                        let keys = LoopKeys {
+                            keyframe: key,
+                            matched: c,
+                        };
+                        self.record(map, keys, score, LoopOutcome::Rejected(reject));
                     }
                 }
                 continue;
@@ -154,7 +158,12 @@ impl<'a> LoopCloser<'a> {
             if !map.keyframes().contains_key(candidate.0) {
                 continue;
             }
-            if self.verify_and_correct(map, key, candidate) {
+            let (matched, score) = candidate;
+            let keys = LoopKeys {
+                keyframe: key,
+                matched,
+            };
+            if self.verify_and_correct(map, keys, score) {
                 break;
             }
         }
@@ -168,28 +177,17 @@ impl<'a> LoopCloser<'a> {
         (self.closed, candidates, self.recognition.milliseconds)
     }
 
-    fn record(
-        &mut self,
-        map: &Map,
-        (key, candidate): (KeyFrameKey, KeyFrameKey),
-        score: f64,
-        outcome: LoopOutcome,
-    ) {
-        let pair = LoopPair::of(map, (key, candidate));
+    fn record(&mut self, map: &Map, keys: LoopKeys, score: f64, outcome: LoopOutcome) {
+        let pair = LoopPair::of(map, keys);
         self.candidates.push(Candidate::new(pair, score, outcome));
     }
 
     /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
-    fn verify_and_correct(
-        &mut self,
-        map: &mut Map,
-        key: KeyFrameKey,
-        (candidate, score): (KeyFrameKey, f64),
-    ) -> bool {
-        let verified = match self.verify_geometry(map, key, candidate) {
+    fn verify_and_correct(&mut self, map: &mut Map, keys: LoopKeys, score: f64) -> bool {
+        let verified = match self.verify_geometry(map, keys.keyframe, keys.matched) {
             Ok(verified) => verified,
             Err(reject) => {
-                self.record(map, (key, candidate), score, LoopOutcome::Rejected(reject));
+                self.record(map, keys, score, LoopOutcome::Rejected(reject));
                 return false;
             }
         };
@@ -197,8 +195,8 @@ impl<'a> LoopCloser<'a> {
             inliers: verified.inliers,
             guided_matches: verified.guided_matches,
         };
-        self.record(map, (key, candidate), score, outcome);
-        self.correct_loop(map, (key, candidate), verified);
+        self.record(map, keys, score, outcome);
+        self.correct_loop(map, keys, verified);
         true
     }
 
@@ -216,8 +214,14 @@ impl<'a> LoopCloser<'a> {
             let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
             match_by_words(
                 map,
-                (a, &self.recognition.words[&key].1),
-                (b, &self.recognition.words[&candidate].1),
+                Worded {
+                    keyframe: a,
+                    words: &self.recognition.words[&key].1,
+                },
+                Worded {
+                    keyframe: b,
+                    words: &self.recognition.words[&candidate].1,
+                },
                 config.ratio,
                 self.inputs.moving_threshold,
             )
@@ -246,7 +250,8 @@ impl<'a> LoopCloser<'a> {
         let loop_points = self.static_points(map, &loop_group);
         let guided = fusion::search_from(
             map,
-            (key, &corrected),
+            key,
+            &corrected,
             &loop_points,
             self.inputs.camera,
             self.inputs.pyramid,
@@ -270,12 +275,11 @@ impl<'a> LoopCloser<'a> {
 
     /// Stage 4 for a verified loop: segments merged when the loop joins two, the
     /// correction carried, the loop recorded.
-    fn correct_loop(
-        &mut self,
-        map: &mut Map,
-        (key, candidate): (KeyFrameKey, KeyFrameKey),
-        verified: Verified,
-    ) {
+    fn correct_loop(&mut self, map: &mut Map, keys: LoopKeys, verified: Verified) {
+        let LoopKeys {
+            keyframe: key,
+            matched: candidate,
+        } = keys;
         let Verified {
             corrected,
             inliers,
@@ -285,15 +289,10 @@ impl<'a> LoopCloser<'a> {
         } = verified;
         let original = map.keyframes()[key].camera_from_world;
         let moved = se3::log(&(corrected * original.inverse()));
-        let merged = merge_segments(
-            map,
-            (key, candidate),
-            &corrected,
-            &self.inputs.pyramid.factors,
-        );
+        let merged = merge_segments(map, keys, &corrected, &self.inputs.pyramid.factors);
         let (fused, report) =
             self.correct(map, key, candidate, corrected, &loop_group, &loop_points);
-        let pair = LoopPair::of(map, (key, candidate));
+        let pair = LoopPair::of(map, keys);
         self.closed.push(ClosedLoop {
             pair,
             inliers,
@@ -335,7 +334,15 @@ impl<'a> LoopCloser<'a> {
         candidate: KeyFrameKey,
         matches: &[(usize, usize)],
     ) -> Option<(Se3, usize)> {
-        let estimator = RigidMotion::new(map, (key, candidate), matches, self.inputs);
+        let estimator = RigidMotion::new(
+            map,
+            LoopKeys {
+                keyframe: key,
+                matched: candidate,
+            },
+            matches,
+            self.inputs,
+        );
         let rounds = Rounds {
             iterations: self.recognition.config.ransac_iterations,
             min_inliers: 0,
@@ -486,10 +493,14 @@ fn move_rigidly(
 /// within one segment.
 fn merge_segments(
     map: &mut Map,
-    (key, candidate): (KeyFrameKey, KeyFrameKey),
+    keys: LoopKeys,
     corrected: &Se3,
     scale_factors: &[f64],
 ) -> Option<SegmentMerge> {
+    let LoopKeys {
+        keyframe: key,
+        matched: candidate,
+    } = keys;
     let (segment, into) = (
         map.keyframes()[key].segment,
         map.keyframes()[candidate].segment,
@@ -540,6 +551,10 @@ mod tests {
         let mut kf = KeyFrame::new(frame, camera_from_world);
         kf.segment = segment;
         kf
+    }
+
+    fn keys(keyframe: KeyFrameKey, matched: KeyFrameKey) -> LoopKeys {
+        LoopKeys { keyframe, matched }
     }
 
     fn pose(t: [f64; 3], axis_angle: [f64; 3]) -> Se3 {
@@ -700,7 +715,7 @@ mod tests {
             map.keyframes()[b].camera_from_world * map.keyframes()[c].world_from_camera();
         let corrected = pose([-1.0, 0.2, 0.3], [0.0, -1.2, 0.1]);
 
-        let merge = merge_segments(&mut map, (b, a), &corrected, &[1.0; 8]);
+        let merge = merge_segments(&mut map, keys(b, a), &corrected, &[1.0; 8]);
 
         assert_eq!(
             merge,
@@ -724,7 +739,7 @@ mod tests {
         );
         // Within one segment there is nothing to merge.
         assert_eq!(
-            merge_segments(&mut map, (c, a), &corrected, &[1.0; 8]),
+            merge_segments(&mut map, keys(c, a), &corrected, &[1.0; 8]),
             None
         );
     }

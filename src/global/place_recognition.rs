@@ -7,7 +7,7 @@ use std::collections::{HashMap, HashSet};
 
 use serde::Serialize;
 
-use super::candidates::{Candidate, LoopOutcome, LoopPair, LoopReject};
+use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
 use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
 use crate::map::{KeyFrameKey, Map};
 
@@ -186,7 +186,13 @@ impl PlaceRecognition {
                     needed: self.config.min_consistency,
                 };
                 self.rejected.push(Candidate::new(
-                    LoopPair::of(map, (key, c)),
+                    LoopPair::of(
+                        map,
+                        LoopKeys {
+                            keyframe: key,
+                            matched: c,
+                        },
+                    ),
                     score,
                     LoopOutcome::Rejected(reject),
                 ));

@@ -6,9 +6,10 @@
 
 use nalgebra::{Point3, Vector3};
 
+use super::candidates::LoopKeys;
 use super::GlobalInputs;
 use crate::geometry::se3::Se3;
-use crate::map::{KeyFrame, KeyFrameKey, Map};
+use crate::map::{KeyFrame, Map};
 use crate::optim::ransac::Estimator;
 
 /// The matched points of two keyframes `a` (the keyframe, \(k\)) and `b` (the
@@ -28,11 +29,14 @@ impl<'a> RigidMotion<'a> {
     /// The matches `(keypoint of key, keypoint of candidate)`, each observing a point.
     pub fn new(
         map: &'a Map,
-        (key, candidate): (KeyFrameKey, KeyFrameKey),
+        keys: LoopKeys,
         matches: &'a [(usize, usize)],
         inputs: &'a GlobalInputs<'a>,
     ) -> Self {
-        let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
+        let (a, b) = (
+            &map.keyframes()[keys.keyframe],
+            &map.keyframes()[keys.matched],
+        );
         let in_camera = |kf: &KeyFrame, i: usize| -> Vector3<f64> {
             let p =
                 map.points()[kf.map_points[i].expect("matched keypoints observe points")].position;

@@ -22,14 +22,32 @@ pub fn static_point(
     })
 }
 
+/// A keyframe with its vocabulary words (the feature vector's node to keypoints).
+pub struct Worded<'a> {
+    /// The keyframe.
+    pub keyframe: &'a KeyFrame,
+    /// Its feature vector.
+    pub words: &'a FeatureVector,
+}
+
 /// Pairs `(index in a, index in b)` of keypoints that both observe static map points.
 pub fn match_by_words(
     map: &Map,
-    (a, words_a): (&KeyFrame, &FeatureVector),
-    (b, words_b): (&KeyFrame, &FeatureVector),
+    a: Worded,
+    b: Worded,
     ratio: f32,
     moving_threshold: f32,
 ) -> Vec<(usize, usize)> {
+    let (
+        Worded {
+            keyframe: a,
+            words: words_a,
+        },
+        Worded {
+            keyframe: b,
+            words: words_b,
+        },
+    ) = (a, b);
     // Keypoints of b already used, or without a static point: never candidates.
     let mut taken: Vec<bool> = (0..b.frame.len())
         .map(|i| static_point(map, b, i, moving_threshold).is_none())

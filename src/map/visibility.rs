@@ -32,7 +32,8 @@ pub fn predict_view(
     point: &MapPoint,
     camera_from_world: &Se3,
     camera: &StereoCamera,
-    (width, height): (f32, f32),
+    width: f32,
+    height: f32,
     pyramid: &ScalePyramid,
 ) -> Option<View> {
     let p = camera_from_world * Point3::from(point.position);
@@ -87,19 +88,27 @@ mod tests {
         );
         let at = |z: f64| Se3::translation(0.0, 0.0, z - 2.0);
         assert_eq!(
-            predict_view(&point, &at(2.0), &camera, size, &pyramid)
+            predict_view(&point, &at(2.0), &camera, size.0, size.1, &pyramid)
                 .unwrap()
                 .level,
             0
         );
         // 2 / 1.44 m away: two levels up (1.2^2 = 1.44).
-        let near = predict_view(&point, &at(2.0 / 1.44 + 1e-9), &camera, size, &pyramid).unwrap();
+        let near = predict_view(
+            &point,
+            &at(2.0 / 1.44 + 1e-9),
+            &camera,
+            size.0,
+            size.1,
+            &pyramid,
+        )
+        .unwrap();
         assert_eq!(near.level, 2);
         assert!((near.u - camera.cx as f32).abs() < 1e-3);
         // Beyond 1.2 d_max, behind the camera, or outside the image: not visible.
-        assert!(predict_view(&point, &at(2.5), &camera, size, &pyramid).is_none());
-        assert!(predict_view(&point, &at(-1.0), &camera, size, &pyramid).is_none());
+        assert!(predict_view(&point, &at(2.5), &camera, size.0, size.1, &pyramid).is_none());
+        assert!(predict_view(&point, &at(-1.0), &camera, size.0, size.1, &pyramid).is_none());
         let aside = Se3::translation(-3.0, 0.0, 0.0);
-        assert!(predict_view(&point, &aside, &camera, size, &pyramid).is_none());
+        assert!(predict_view(&point, &aside, &camera, size.0, size.1, &pyramid).is_none());
     }
 }

@@ -47,7 +47,8 @@ pub fn search(
     };
     search_from(
         map,
-        (keyframe, &kf.camera_from_world),
+        keyframe,
+        &kf.camera_from_world,
         points,
         camera,
         pyramid,
@@ -59,7 +60,8 @@ pub fn search(
 /// (loop closing's guided search, before the correction is applied).
 pub fn search_from(
     map: &Map,
-    (keyframe, camera_from_world): (KeyFrameKey, &crate::geometry::se3::Se3),
+    keyframe: KeyFrameKey,
+    camera_from_world: &crate::geometry::se3::Se3,
     points: &[MapPointKey],
     camera: &StereoCamera,
     pyramid: &ScalePyramid,
@@ -77,7 +79,8 @@ pub fn search_from(
         if point.observations.iter().any(|(k, _)| *k == keyframe) {
             continue;
         }
-        let Some(view) = predict_view(point, camera_from_world, camera, size, pyramid) else {
+        let Some(view) = predict_view(point, camera_from_world, camera, size.0, size.1, pyramid)
+        else {
             continue;
         };
         let radius = 3.0 * pyramid.factors[view.level as usize] as f32;

@@ -23,6 +23,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::features::ScalePyramid;
+use crate::geometry::camera::ImageSize;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::{KeyFrameKey, MapPoint, MapPointKey, SharedMap};
 
@@ -116,9 +117,10 @@ impl LocalMapper {
         config: MappingConfig,
         camera: StereoCamera,
         pyramid: ScalePyramid,
-        (width, height): (u32, u32),
+        size: impl Into<ImageSize>,
         close_depth: f32,
     ) -> Self {
+        let ImageSize { width, height } = size.into();
         Self {
             config,
             camera,

@@ -10,7 +10,7 @@ use super::error::RunError;
 use crate::config::Config;
 use crate::dop::Mode;
 use crate::features::OrbExtractor;
-use crate::geometry::camera::PinholeCamera;
+use crate::geometry::camera::{ImageSize, PinholeCamera};
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::kitti::KittiSequence;
@@ -165,7 +165,7 @@ fn warn_if_swapped(
     else {
         return;
     };
-    let pair = (left, right);
+    let pair = crate::frame::stereo::StereoPair { left, right };
     if let Some((positive, negative)) =
         crate::frame::stereo::looks_swapped(pair, extractor, camera.fx)
     {
@@ -302,9 +302,10 @@ fn image_size(frame: &crate::io::sequence::Frame) -> (u32, u32) {
 /// such intrinsics belong to other images.
 pub fn fit_to_images(
     camera: &mut PinholeCamera,
-    (width, height): (u32, u32),
+    size: impl Into<ImageSize>,
     from: &str,
 ) -> Result<Option<String>, RunError> {
+    let ImageSize { width, height } = size.into();
     let inside = |c: f64, size: u32| c >= 0.0 && c < size as f64;
     if !inside(camera.cx, width) || !inside(camera.cy, height) {
         return Err(RunError::Input(format!(

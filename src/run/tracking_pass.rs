@@ -14,6 +14,7 @@ use super::setup::Setup;
 use crate::config::Config;
 use crate::detect::Detector;
 use crate::eval::stats::median;
+use crate::frame::stereo::{DepthSettings, StereoPair};
 use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
@@ -261,10 +262,16 @@ fn next_frame(
             let frame = Frame::from_stereo(
                 index,
                 loaded.timestamp,
-                (&left, &right),
+                StereoPair {
+                    left: &left,
+                    right: &right,
+                },
                 &budgeted,
                 &setup.camera,
-                (setup.bearing_depth, setup.disparity_offset_px()),
+                DepthSettings {
+                    bearing_depth: setup.bearing_depth,
+                    disparity_offset: setup.disparity_offset_px(),
+                },
             );
             (frame, Picture::Grey(left), started, None)
         }

@@ -260,14 +260,15 @@ impl System {
                 let dop = pose.map_or_else(DopFigures::default, |pose| {
                     after_pose(
                         &gate,
-                        (&mut map, frame),
+                        &mut map,
+                        frame,
                         pose,
                         &sensor,
                         self.tracker.last_frame(),
                     )
                 });
                 self.tracker
-                    .settle((&mut map, &gate), *search, dop, mapping_idle)
+                    .settle(&mut map, &gate, *search, dop, mapping_idle)
             }
         };
         let tracking_ms = started.elapsed().as_secs_f64() * 1e3;

@@ -265,7 +265,7 @@ mod with_rerun {
                     width,
                     height,
                 } => {
-                    let (data, size) = scale_depth(metres, (*width, *height), scale);
+                    let (data, size) = scale_depth(metres, *width, *height, scale);
                     let bytes: Vec<u8> = data.iter().flat_map(|d| d.to_le_bytes()).collect();
                     let depth = DepthImage::from_data_type_and_bytes(
                         bytes,
@@ -460,7 +460,7 @@ mod with_rerun {
     }
 
     /// Depth scaled by `scale` (nearest sample: depths are not blended).
-    fn scale_depth(metres: &[f32], (w, h): (u32, u32), scale: f32) -> (Vec<f32>, (u32, u32)) {
+    fn scale_depth(metres: &[f32], w: u32, h: u32, scale: f32) -> (Vec<f32>, (u32, u32)) {
         let size = (
             ((w as f32 * scale).round() as u32).max(1),
             ((h as f32 * scale).round() as u32).max(1),

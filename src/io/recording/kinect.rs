@@ -32,6 +32,7 @@ use serde_json::Value;
 
 use super::matroska::{self, Block, Scan, Track};
 use super::{Catalog, Entry, Location, RecordedCameras, Store, Wire, COMPRESSED, IMAGE};
+use crate::geometry::camera::ImageSize;
 use crate::geometry::camera::PinholeCamera;
 use crate::io::IoError;
 
@@ -97,12 +98,16 @@ fn string(out: &mut Vec<u8>, s: &[u8]) {
 /// be appended; the capacity is there).
 fn image_header(
     stamp: f64,
-    (w, h): (u32, u32),
+    size: impl Into<ImageSize>,
     encoding: &str,
     big: bool,
     step: u32,
     len: usize,
 ) -> Vec<u8> {
+    let ImageSize {
+        width: w,
+        height: h,
+    } = size.into();
     let mut out = Vec::with_capacity(len + 64);
     header(&mut out, stamp);
     out.extend(h.to_le_bytes());

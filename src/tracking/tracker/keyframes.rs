@@ -106,7 +106,9 @@ impl Tracker {
     /// [`NEW_POINTS_AT_LEAST`] are made; all of them for a segment's first keyframe).
     pub(super) fn insert_keyframe(
         &mut self,
-        (map, frame, gate): (&mut Map, &Frame, &Participation),
+        map: &mut Map,
+        frame: &Frame,
+        gate: &Participation,
         camera_from_world: Se3,
         points: Vec<Option<MapPointKey>>,
         first: bool,
@@ -128,7 +130,7 @@ impl Tracker {
             close,
             first,
         };
-        points_from_depth(map, (frame, gate), &points, new, &self.sensor());
+        points_from_depth(map, frame, gate, &points, new, &self.sensor());
         self.reference = Some(key);
         self.frames_since_keyframe = 0;
         self.newest_keyframe_id = Some(id);
@@ -150,7 +152,8 @@ struct NewPoints<'a> {
 /// all of them for a segment's first keyframe.
 fn points_from_depth(
     map: &mut Map,
-    (frame, gate): (&Frame, &Participation),
+    frame: &Frame,
+    gate: &Participation,
     points: &[Option<MapPointKey>],
     new: NewPoints,
     sensor: &Sensor,

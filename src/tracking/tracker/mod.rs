@@ -185,7 +185,7 @@ impl Tracker {
         let mut report = TrackedFrame::start(&frame, self.state, self.segment);
         if self.state == TrackingState::NotInitialised {
             let mut map = shared.write().expect("map lock poisoned");
-            self.start_segment((&mut map, gate), frame, Se3::identity(), &mut report);
+            self.start_segment(&mut map, gate, frame, Se3::identity(), &mut report);
             return Located::Started(Box::new(report));
         }
         let map = shared.read().expect("map lock poisoned");
@@ -228,7 +228,8 @@ impl Tracker {
     /// gets weak. A new keyframe is in the record, for local mapping.
     pub fn settle(
         &mut self,
-        (map, gate): (&mut Map, &Participation),
+        map: &mut Map,
+        gate: &Participation,
         search: Search,
         dop: DopFigures,
         mapping_idle: bool,
@@ -248,10 +249,10 @@ impl Tracker {
             (dop.rigidity_outliers, dop.dynamic_keypoints);
         stats.dop_ms = dop.dop_ms;
         match tracked {
-            Err(reject) => self.lose((map, gate), frame, reject, &mut report),
+            Err(reject) => self.lose(map, gate, frame, reject, &mut report),
             Ok(estimate) => {
                 report.stats.dynamic_map_points = seen.dynamic;
-                self.accept((map, gate), frame, estimate, mapping_idle, &mut report);
+                self.accept(map, gate, frame, estimate, mapping_idle, &mut report);
             }
         }
         report
@@ -279,7 +280,8 @@ impl Tracker {
     /// segment starts at the last tracked pose.
     fn lose(
         &mut self,
-        (map, gate): (&mut Map, &Participation),
+        map: &mut Map,
+        gate: &Participation,
         frame: Frame,
         reject: Reject,
         report: &mut TrackedFrame,
@@ -291,7 +293,7 @@ impl Tracker {
         let since = *self.lost_since.get_or_insert(frame.timestamp);
         if frame.timestamp - since >= self.config.new_map_after_seconds {
             if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
-                self.start_segment((map, gate), frame, last, report);
+                self.start_segment(map, gate, frame, last, report);
             }
         }
     }
@@ -300,7 +302,8 @@ impl Tracker {
     /// motion model, the keyframe decision; the frame becomes the last frame.
     fn accept(
         &mut self,
-        (map, gate): (&mut Map, &Participation),
+        map: &mut Map,
+        gate: &Participation,
         frame: Frame,
         estimate: PoseEstimate,
         mapping_idle: bool,
@@ -346,7 +349,7 @@ impl Tracker {
         };
         let need = self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
         let (pose, points) = if need {
-            self.insert_keyframe((map, &frame, gate), pose, points, false);
+            self.insert_keyframe(map, &frame, gate, pose, points, false);
             let key = self.reference.expect("just inserted");
             report.made_keyframe(Some(key));
             let keyframe = &map.keyframes()[key];
@@ -371,7 +374,8 @@ impl Tracker {
     /// keypoints with depth.
     fn start_segment(
         &mut self,
-        (map, gate): (&mut Map, &Participation),
+        map: &mut Map,
+        gate: &Participation,
         frame: Frame,
         camera_from_world: Se3,
         report: &mut TrackedFrame,
@@ -383,7 +387,9 @@ impl Tracker {
         self.segment = self.segments;
         self.segments += 1;
         self.insert_keyframe(
-            (map, &frame, gate),
+            map,
+            &frame,
+            gate,
             camera_from_world,
             vec![None; frame.len()],
             true,

@@ -31,40 +31,41 @@ impl Tracker {
     ) -> PoseEstimate {
         let TrackInput { map, frame, gate } = input;
         let (start, sensor) = (Instant::now(), self.sensor());
-        let mut indices = Vec::new();
-        let mut observations = Vec::new();
-        let mut kept = vec![None; points.len()];
+        let mut taken = Taken {
+            observations: Vec::new(),
+            indices: Vec::new(),
+            kept: vec![None; points.len()],
+        };
         let mut awaiting = Vec::new();
         for (i, key) in points.iter().enumerate() {
             let Some(point) = key.and_then(|k| map.points().get(k)) else {
                 continue;
             };
             if gate.excluded(point) {
-                kept[i] = points[i];
+                taken.kept[i] = points[i];
                 continue;
             }
             if gate.awaiting(map, point) {
                 awaiting.push((i, point));
                 continue;
             }
-            observations.push(sensor.observation(frame, i, point));
-            indices.push(i);
+            taken.observations.push(sensor.observation(frame, i, point));
+            taken.indices.push(i);
         }
-        if observations.len() >= self.config.held_out_min_points {
+        if taken.observations.len() >= self.config.held_out_min_points {
             // Kept like dynamic matches until the detection says what they are.
             for (i, _) in awaiting {
-                kept[i] = points[i];
+                taken.kept[i] = points[i];
             }
         } else {
-            admit_waiting(
-                &sensor,
-                frame,
-                (initial, self.prediction_gate_share(gate)),
-                awaiting,
-                (&mut observations, &mut indices),
-                (points, &mut kept),
-            );
+            let share = self.prediction_gate_share(gate);
+            admit_waiting(&sensor, frame, initial, share, awaiting, points, &mut taken);
         }
+        let Taken {
+            observations,
+            indices,
+            mut kept,
+        } = taken;
         if observations.len() < MIN_POSE_OBSERVATIONS {
             timing.optimisation += start.elapsed().as_secs_f64() * 1e3;
             return PoseEstimate {
@@ -105,6 +106,14 @@ impl Tracker {
     }
 }
 
+/// The observations a pose is optimised from, the keypoint index of each, and the
+/// matches kept beside them (dynamic and waiting points keep their match).
+struct Taken {
+    observations: Vec<PoseObservation>,
+    indices: Vec<usize>,
+    kept: Vec<Option<MapPointKey>>,
+}
+
 /// Too few others to go without them: the waiting points join the pose, but when
 /// the others can give a pose of their own, only those that agree with it (a person
 /// the detector has not reported yet moved away from it, and would outnumber the
@@ -112,11 +121,17 @@ impl Tracker {
 fn admit_waiting(
     sensor: &Sensor,
     frame: &Frame,
-    (initial, share): (&Se3, f64),
+    initial: &Se3,
+    share: f64,
     awaiting: Vec<(usize, &MapPoint)>,
-    (observations, indices): (&mut Vec<PoseObservation>, &mut Vec<usize>),
-    (points, kept): (&[Option<MapPointKey>], &mut [Option<MapPointKey>]),
+    points: &[Option<MapPointKey>],
+    taken: &mut Taken,
 ) {
+    let Taken {
+        observations,
+        indices,
+        kept,
+    } = taken;
     let trusted = (observations.len() >= MIN_TRUSTED_POINTS)
         .then(|| optimise_pose_predicted(sensor.camera, initial, observations, share))
         .filter(|estimate| estimate.inliers.iter().filter(|i| **i).count() >= MIN_TRUSTED_POINTS);

@@ -45,7 +45,8 @@ impl Projector<'_> {
     /// counts the points left out as dynamic.
     pub fn local_queries(
         &self,
-        (map, gate): (&Map, &Participation),
+        map: &Map,
+        gate: &Participation,
         local: &[KeyFrameKey],
         matched: &HashSet<MapPointKey>,
         pose: &Se3,
@@ -65,8 +66,14 @@ impl Projector<'_> {
                 if gate.excluded(point) {
                     *dynamic += 1;
                 }
-                let Some(view) = predict_view(point, pose, self.camera, self.size, self.pyramid)
-                else {
+                let Some(view) = predict_view(
+                    point,
+                    pose,
+                    self.camera,
+                    self.size.0,
+                    self.size.1,
+                    self.pyramid,
+                ) else {
                     continue;
                 };
                 let level = view.level;

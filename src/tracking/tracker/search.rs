@@ -178,7 +178,7 @@ impl Tracker {
         let matched: HashSet<MapPointKey> = points.iter().flatten().copied().collect();
         let (keys, queries) =
             self.projector()
-                .local_queries((map, gate), &local, &matched, &pose, &mut seen.dynamic);
+                .local_queries(map, gate, &local, &matched, &pose, &mut seen.dynamic);
         let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
         let matches =
             search_by_projection(frame, &queries, &mut taken, LOCAL_MAP_MATCH_RATIO, false);

@@ -366,7 +366,7 @@ fn track_fixture(tracker: &mut Tracker, map: &SharedMap, frame: Frame) -> Tracke
         Located::Started(done) => *done,
         Located::Searched(search) => {
             let mut map = map.write().unwrap();
-            tracker.settle((&mut map, &gate), *search, DopFigures::default(), true)
+            tracker.settle(&mut map, &gate, *search, DopFigures::default(), true)
         }
     }
 }
