@@ -99,8 +99,8 @@ def main():
         ("run::run_sequence lines", max(run_sequence, default=0), 44, ""),
         # Issue 81's goal is 0; the bar comes down as functions are split.
         ("functions over 80 lines", len(over_80), 18, ""),
-        # Issue 81's goal is under 15; the bar comes down as bundles get names.
-        ("destructured tuple parameters", tuple_parameters(), 76, ""),
+        # Issue 81's goal is under 15: those left are pixel coordinates and offsets, a distance range and a car's route.
+        ("destructured tuple parameters", tuple_parameters(), 14, ""),
         ("#[serde(skip)] fields (none on a report type; the two left: config, manifest)",
          count(r"#\[serde\(skip\)\]"), 2, ""),
         ("functions over 100 lines", len(over), 0,

@@ -152,7 +152,8 @@ impl Fingerprinter {
     /// (`mode_flag`) with `config`, the config as its `config.toml` holds it.
     pub fn inputs(
         &self,
-        (sequence_dir, frames): (&Path, Option<usize>),
+        sequence_dir: &Path,
+        frames: Option<usize>,
         mode_flag: &str,
         config: &Config,
         execution: Execution,
@@ -228,7 +229,7 @@ mod tests {
             deterministic: false,
             pace: Pace::Free,
         };
-        Fingerprinter::new(&program).inputs((Path::new("/seq"), frames), "--dop", config, execution)
+        Fingerprinter::new(&program).inputs(Path::new("/seq"), frames, "--dop", config, execution)
     }
 
     #[test]
@@ -284,7 +285,7 @@ mod tests {
                 deterministic: false,
                 pace: Pace::Free,
             };
-            Fingerprinter::new(&program).inputs((seq, None), "--dop", &Config::default(), execution)
+            Fingerprinter::new(&program).inputs(seq, None, "--dop", &Config::default(), execution)
         };
         let mut before = inputs(&dir);
         for (change, named) in [

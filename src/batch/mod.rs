@@ -194,8 +194,15 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     let (executed, skipped) = if options.collect {
         (Executed::default(), 0)
     } else {
-        let dirs = (&sequence_dirs[..], &unavailable[..]);
-        execute(&plan, (&mine, options), dirs, (jobs, &fingerprinter))?
+        let work = Work {
+            mine: &mine,
+            options,
+            sequence_dirs: &sequence_dirs,
+            unavailable: &unavailable,
+            jobs,
+            fingerprinter: &fingerprinter,
+        };
+        execute(&plan, work)?
     };
     let mut summary = BatchSummary {
         out: out.clone(),
@@ -223,7 +230,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
         }
     }
     if summary.tables {
-        summary.groups = write_tables(&plan, (path, &fingerprinter), &sequence_dirs, &mut notes)?;
+        summary.groups = write_tables(&plan, path, &fingerprinter, &sequence_dirs, &mut notes)?;
     }
     summary.notes = notes;
     Ok(summary)
@@ -324,14 +331,29 @@ fn prepare_sequences(
         .unzip()
 }
 
-/// Runs what is left of `mine` (the batch's runs, or a shard's): `(executed, runs
-/// finished before)`.
-fn execute(
-    plan: &BatchPlan,
-    (mine, options): (&[RunJob], &BatchOptions),
-    (sequence_dirs, unavailable): (&[PathBuf], &[Option<String>]),
-    (jobs, fingerprinter): (usize, &fingerprint::Fingerprinter),
-) -> Result<(Executed, usize), BatchError> {
+/// What running a batch's jobs needs beside its plan.
+struct Work<'a> {
+    /// The batch's runs, or a shard's.
+    mine: &'a [RunJob],
+    options: &'a BatchOptions,
+    /// Each planned sequence's folder, and why it cannot be run (if so).
+    sequence_dirs: &'a [PathBuf],
+    unavailable: &'a [Option<String>],
+    /// Runs at once.
+    jobs: usize,
+    fingerprinter: &'a fingerprint::Fingerprinter,
+}
+
+/// Runs what is left of `work.mine`: `(executed, runs finished before)`.
+fn execute(plan: &BatchPlan, work: Work) -> Result<(Executed, usize), BatchError> {
+    let Work {
+        mine,
+        options,
+        sequence_dirs,
+        unavailable,
+        jobs,
+        fingerprinter,
+    } = work;
     let mut todo = Vec::new();
     let mut skipped = 0;
     let mut unavailable_runs = 0;
@@ -409,7 +431,8 @@ fn run_inputs(
         pace: plan.manifest.batch.pace,
     };
     fingerprinter.inputs(
-        (&sequence_dirs[job.sequence], sequence.frames),
+        &sequence_dirs[job.sequence],
+        sequence.frames,
         job.mode.flag(),
         &execute::run_config(sequence, job.mode),
         execution,
@@ -441,7 +464,8 @@ fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result
 /// The tables, plots and report from the finished runs; the groups' summaries.
 fn write_tables(
     plan: &BatchPlan,
-    (path, fingerprinter): (&Path, &fingerprint::Fingerprinter),
+    path: &Path,
+    fingerprinter: &fingerprint::Fingerprinter,
     sequence_dirs: &[PathBuf],
     notes: &mut Vec<String>,
 ) -> Result<Vec<GroupSummary>, BatchError> {
@@ -481,7 +505,7 @@ fn write_tables(
     let groups = results::summarise(&records, &names, &modes);
     let finished = records.iter().filter(|r| r.status == RunStatus::Ok).count();
     let failed = records.len() - finished;
-    let mut header = header_lines(manifest, planned, path, (finished, failed, plan.runs.len()));
+    let mut header = header_lines(manifest, planned, path, finished, failed, plan.runs.len());
     if !stale.is_empty() {
         header.push(format!(
             "**Stale runs** (kept with --keep-stale, made with other settings than this manifest's): {}",
@@ -647,7 +671,9 @@ fn header_lines(
     manifest: &Manifest,
     planned: &[PlannedSequence],
     path: &Path,
-    (finished, failed, runs): (usize, usize, usize),
+    finished: usize,
+    failed: usize,
+    runs: usize,
 ) -> Vec<String> {
     let b = &manifest.batch;
     vec![

@@ -113,6 +113,18 @@ pub struct Target {
     pub far: bool,
 }
 
+/// A fused frame as the free-space test and the masks see it: its time, its depth and
+/// its final pose.
+#[derive(Clone, Copy)]
+pub struct PosedDepth<'a> {
+    /// Seconds.
+    pub timestamp: f64,
+    /// The frame's depth.
+    pub depth: &'a DepthImage,
+    /// Its pose.
+    pub camera_from_world: &'a Se3,
+}
+
 /// A neighbour frame: its pose, depth, and the nearest valid depth around each pixel.
 pub struct Neighbour {
     timestamp: f64,
@@ -159,16 +171,21 @@ impl NeighbourWindow {
         }
     }
 
-    /// The evidence on the frame at `timestamp` (`depth`, `camera_from_world`), from
+    /// The evidence on `frame`, from
     /// the posed frames nearest its neighbour times (see
     /// [`FreeSpaceSettings::neighbour_times`]), loaded by `load` (a sequence index to
     /// its depth) when first needed, those new to the window in parallel.
     pub fn evidence<E: Send>(
         &mut self,
         camera: &PinholeCamera,
-        (timestamp, depth, camera_from_world): (f64, &DepthImage, &Se3),
+        frame: PosedDepth,
         load: impl Fn(usize) -> Result<DepthImage, E> + Sync,
     ) -> Result<Evidence, E> {
+        let PosedDepth {
+            timestamp,
+            depth,
+            camera_from_world,
+        } = frame;
         let settings = self.settings;
         self.loaded
             .retain(|_, n| n.timestamp >= timestamp - settings.kept_back(n.far) - 1e-6);
@@ -513,7 +530,15 @@ mod tests {
             };
             let mut window = NeighbourWindow::new(settings, posed.clone());
             window
-                .evidence(&camera(), (5.0, &now, &Se3::identity()), load)
+                .evidence(
+                    &camera(),
+                    PosedDepth {
+                        timestamp: 5.0,
+                        depth: &now,
+                        camera_from_world: &Se3::identity(),
+                    },
+                    load,
+                )
                 .unwrap()
         };
         let near = judged(0.0);

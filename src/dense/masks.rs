@@ -32,7 +32,7 @@
 //! in place). `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
-use super::free_space::Evidence;
+use super::free_space::{Evidence, PosedDepth};
 use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
@@ -136,8 +136,10 @@ impl MaskSource {
     pub fn new(
         context: MaskContext,
         settings: MaskSettings,
-        (mut detections, mut keypoints): (Vec<FrameDetections>, Vec<FrameKeypoints>),
-        (pose_at, depth_at): (PoseAt, DepthAt),
+        mut detections: Vec<FrameDetections>,
+        mut keypoints: Vec<FrameKeypoints>,
+        pose_at: PoseAt,
+        depth_at: DepthAt,
     ) -> Self {
         let MaskContext {
             masking,
@@ -164,9 +166,11 @@ impl MaskSource {
                 {
                     let samples = depth_samples(&depth, 4);
                     let placed = place_objects(
-                        (&boxes, &followed),
+                        &boxes,
+                        &followed,
                         &samples,
-                        (&settings, dop),
+                        &settings,
+                        dop,
                         &camera,
                         &pose.inverse(),
                     );
@@ -264,9 +268,13 @@ impl MaskSource {
                         .collect();
                     any |= self.segment_masks(
                         &mut mask,
-                        depth,
-                        (timestamp, camera_from_world),
-                        (seeds, evidence.map(|e| e.moving.as_slice())),
+                        PosedDepth {
+                            timestamp,
+                            depth,
+                            camera_from_world,
+                        },
+                        seeds,
+                        evidence.map(|e| e.moving.as_slice()),
                         &objects,
                     );
                 }
@@ -290,11 +298,16 @@ impl MaskSource {
     fn segment_masks(
         &mut self,
         mask: &mut [bool],
-        depth: &DepthImage,
-        (timestamp, camera_from_world): (f64, &Se3),
-        (mut seeds, moving): (Vec<Seed>, Option<&[bool]>),
+        frame: PosedDepth,
+        mut seeds: Vec<Seed>,
+        moving: Option<&[bool]>,
         objects: &[ObjectBox],
     ) -> bool {
+        let PosedDepth {
+            timestamp,
+            depth,
+            camera_from_world,
+        } = frame;
         let Some((settings, follow_seconds)) = self.settings.segments else {
             return false;
         };
@@ -514,9 +527,11 @@ fn moving_seeds(evidence: &Evidence, w: usize, h: usize) -> Vec<(f32, f32)> {
 /// behind its foreground ([`centre_behind`]) is placed a second time, at its centre's
 /// depth (not followed: only the frames around this one see it).
 fn place_objects(
-    (boxes, followed): (&[ObjectBox], &[bool]),
+    boxes: &[ObjectBox],
+    followed: &[bool],
     samples: &[Keypoint],
-    (settings, dop): (&MaskSettings, &DopConfig),
+    settings: &MaskSettings,
+    dop: &DopConfig,
     camera: &PinholeCamera,
     world_from_camera: &Se3,
 ) -> Vec<(Object, bool)> {
@@ -533,7 +548,7 @@ fn place_objects(
         .zip(followed)
         .zip(depths)
         .flat_map(|((b, &follow), z)| {
-            let behind = z.and_then(|z| centre_behind(b, z, samples, (dop, camera)));
+            let behind = z.and_then(|z| centre_behind(b, z, samples, dop, camera));
             let place = |z: f32| Object::from_box(b.bbox, z, camera, world_from_camera);
             [
                 z.map(|z| (place(z), follow)),
@@ -562,7 +577,8 @@ fn centre_behind(
     b: &ObjectBox,
     z: f32,
     samples: &[Keypoint],
-    (dop, camera): (&DopConfig, &PinholeCamera),
+    dop: &DopConfig,
+    camera: &PinholeCamera,
 ) -> Option<f32> {
     let [x1, y1, x2, y2] = b.bbox;
     if (x2 - x1) * (y2 - y1) > CENTRE_MAX_AREA * (camera.width * camera.height) as f32 {
@@ -852,8 +868,10 @@ mod tests {
                 dynamic_classes: &["person".to_string()],
             },
             settings,
-            (frames, keypoints),
-            (&|_| Some(Se3::identity()), &|_| Some(depth.clone())),
+            frames,
+            keypoints,
+            &|_| Some(Se3::identity()),
+            &|_| Some(depth.clone()),
         )
     }
 
@@ -1044,8 +1062,10 @@ mod tests {
                 dynamic_classes: &["person".to_string()],
             },
             settings,
-            (frames, vec![]),
-            (&|_| None, &|_| None),
+            frames,
+            vec![],
+            &|_| None,
+            &|_| None,
         );
         let mask = boxes.mask(1.0, &depth, &identity, None).expect("a mask");
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
@@ -1131,18 +1151,18 @@ mod tests {
         });
         let z = box_depths(&[b], &crate_before_person, &dop, 0.1)[0].expect("a depth");
         assert!((z - 2.0).abs() < 1e-3, "the crate is the foreground: {z}");
-        let centre = centre_behind(&b, z, &crate_before_person, (&dop, &camera));
+        let centre = centre_behind(&b, z, &crate_before_person, &dop, &camera);
         assert!(centre.is_some_and(|c| (c - 3.0).abs() < 1e-3), "{centre:?}");
         let legs = grid_samples(|x, _| match x {
             x if (100.0..140.0).contains(&x) || (260.0..300.0).contains(&x) => 2.0,
             _ => 5.0,
         });
-        assert_eq!(centre_behind(&b, 2.0, &legs, (&dop, &camera)), None);
+        assert_eq!(centre_behind(&b, 2.0, &legs, &dop, &camera), None);
         // The same box around most of the image is not placed at its centre.
         let whole = person_box([50.0, 0.0, 350.0, 300.0]);
         let z = box_depths(&[whole], &crate_before_person, &dop, 0.1)[0].expect("a depth");
         assert_eq!(
-            centre_behind(&whole, z, &crate_before_person, (&dop, &camera)),
+            centre_behind(&whole, z, &crate_before_person, &dop, &camera),
             None
         );
     }

@@ -46,7 +46,7 @@ use crate::io::run_dir::{names, RunDir};
 use crate::io::sequence::Sequence;
 use crate::io::IoError;
 use cloud::CloudBuilder;
-use free_space::NeighbourWindow;
+use free_space::{NeighbourWindow, PosedDepth};
 use inputs::{frame_depth, groups, key, load_group, sequence_frame, RunInputs};
 use masks::{MaskContext, MaskSource};
 use outputs::{write_maps, Maps};
@@ -164,8 +164,12 @@ fn dense_detections(
     let mut detector = detector.lock().expect("detector lock poisoned");
     more_detections::add(
         inputs.sequence,
-        (detector.as_mut(), describe),
-        (&fused, config.detect_every),
+        more_detections::Described {
+            detector: detector.as_mut(),
+            describe,
+        },
+        &fused,
+        config.detect_every,
         &out.dense_detections(),
         detections,
         inputs.progress,
@@ -191,11 +195,10 @@ fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs)
             dynamic_classes: inputs.dynamic_classes,
         },
         config.mask_settings(),
-        (
-            std::mem::take(&mut read.detections),
-            std::mem::take(&mut read.keypoints),
-        ),
-        (&|t| poses.get(&key(t)).copied(), &load_depth),
+        std::mem::take(&mut read.detections),
+        std::mem::take(&mut read.keypoints),
+        &|t| poses.get(&key(t)).copied(),
+        &load_depth,
     )
 }
 
@@ -310,7 +313,11 @@ fn fuse_frames(
             let evidence = match sinks.window.as_deref_mut() {
                 Some(window) => Some(window.evidence(
                     &inputs.camera,
-                    (timestamp, &depth, &pose),
+                    PosedDepth {
+                        timestamp,
+                        depth: &depth,
+                        camera_from_world: &pose,
+                    },
                     |i| frame_depth(inputs, i),
                 )?),
                 None => None,

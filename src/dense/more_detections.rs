@@ -38,6 +38,15 @@ pub struct ExtraDetections {
     pub first_error: Option<String>,
 }
 
+/// The detector the dense pass runs, and how it describes itself (kept in a cache's
+/// `detector.txt`).
+pub struct Described<'a> {
+    /// The detector.
+    pub detector: &'a mut dyn Detector,
+    /// Its description.
+    pub describe: &'a str,
+}
+
 /// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
 /// in `cache` by the same detector (`describe`, kept in `cache/detector.txt`), then
 /// every `every`-th of the `fused` frames that has none yet, detected now and cached.
@@ -46,12 +55,14 @@ pub struct ExtraDetections {
 /// warning.
 pub fn add(
     sequence: &dyn Sequence,
-    (detector, describe): (&mut dyn Detector, &str),
-    (fused, every): (&[usize], usize),
+    detector: Described,
+    fused: &[usize],
+    every: usize,
     cache: &Path,
     detections: &mut Vec<FrameDetections>,
     progress: bool,
 ) -> Result<ExtraDetections, IoError> {
+    let Described { detector, describe } = detector;
     let cached = cached_by(cache, describe)?;
     let known: HashSet<i64> = cached.iter().map(|f| super::key(f.timestamp)).collect();
     let todo = frames_to_detect(fused, every, |i| sequence.timestamp(i), &known);

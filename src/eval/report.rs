@@ -320,8 +320,10 @@ pub fn evaluate_with_series(
         .map(|spec| {
             rpe_metric(
                 spec,
-                (reference, estimate),
-                (&reference_sync, &aligned),
+                reference,
+                estimate,
+                &reference_sync,
+                &aligned,
                 &transform,
                 options,
             )
@@ -430,8 +432,10 @@ fn aligned_by(transform: &Sim3, trajectory: &Trajectory) -> Trajectory {
 /// apart on the full trajectories, as TUM's `evaluate_rpe.py` does).
 fn rpe_metric(
     spec: &RpeSpec,
-    (reference, estimate): (&Trajectory, &Trajectory),
-    (reference_sync, aligned): (&Trajectory, &Trajectory),
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    reference_sync: &Trajectory,
+    aligned: &Trajectory,
     transform: &Sim3,
     options: &EvalOptions,
 ) -> Result<(MetricResult, MetricSeries), EvalError> {

@@ -149,7 +149,7 @@ pub fn triangulate_pair(
         if j == usize::MAX {
             continue;
         }
-        if let Some(position) = place(kf1, kf2, i, j, (&p1, &p2), camera, pyramid) {
+        if let Some(position) = place(kf1, kf2, i, j, [&p1, &p2], camera, pyramid) {
             taken2[j] = true;
             found.push(NewPoint {
                 position,
@@ -167,10 +167,11 @@ fn place(
     kf2: &KeyFrame,
     i: usize,
     j: usize,
-    (p1, p2): (&Matrix3x4<f64>, &Matrix3x4<f64>),
+    projections: [&Matrix3x4<f64>; 2],
     camera: &StereoCamera,
     pyramid: &ScalePyramid,
 ) -> Option<Vector3<f64>> {
+    let [p1, p2] = projections;
     let (f1, f2) = (&kf1.frame, &kf2.frame);
     let (kp1, kp2) = (&f1.keypoints[i], &f2.keypoints[j]);
     let normalised = |x: f32, y: f32| {

@@ -7,6 +7,15 @@
 use faer::linalg::solvers::Solve;
 use faer::Side;
 use nalgebra::DVector;
+/// Where a block goes in the values ([`BlockPattern::slot`]): its slot, and whether
+/// it goes there transposed (a block below the diagonal stored above it).
+#[derive(Debug, Clone, Copy)]
+pub struct Slot {
+    /// The slot's index.
+    pub index: usize,
+    /// Whether the block is stored transposed.
+    pub transposed: bool,
+}
 
 /// A block sparsity pattern fixed once (the edges of a pose graph, the covisibility of
 /// a bundle adjustment), with its compressed-column layout and its symbolic Cholesky
@@ -110,17 +119,23 @@ impl BlockPattern {
     }
 
     /// The slot of block \((i, j)\) and whether `m` must be transposed to go there.
-    pub fn slot(&self, i: usize, j: usize) -> Option<(usize, bool)> {
+    pub fn slot(&self, i: usize, j: usize) -> Option<Slot> {
         let (key, transposed) = if i >= j {
             ((i, j), false)
         } else {
             ((j, i), true)
         };
-        self.slots.get(&key).map(|&s| (s, transposed))
+        self.slots
+            .get(&key)
+            .map(|&index| Slot { index, transposed })
     }
 
     /// [`BlockPattern::add`] at a slot found once by [`BlockPattern::slot`].
-    pub fn add_at(&self, values: &mut [f64], (slot, transposed): (usize, bool), m: &[f64]) {
+    pub fn add_at(&self, values: &mut [f64], slot: Slot, m: &[f64]) {
+        let Slot {
+            index: slot,
+            transposed,
+        } = slot;
         let b = self.block;
         let diagonal = self.diagonal[slot];
         for (c, &start) in self.entries[slot * b..(slot + 1) * b].iter().enumerate() {

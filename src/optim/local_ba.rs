@@ -17,7 +17,7 @@
 use nalgebra::{DVector, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
 use rayon::prelude::*;
 
-use super::block_sparse::BlockPattern;
+use super::block_sparse::{BlockPattern, Slot};
 use super::robust::{huber_weight, CHI2_MONO, CHI2_STEREO};
 use super::stereo_projection::point_jacobian_wrt_pose;
 use crate::geometry::se3::{self, Se3};
@@ -318,7 +318,7 @@ struct SchurLayout {
     free: usize,
     pattern: BlockPattern,
     observations_of: Vec<Vec<usize>>,
-    slots: Vec<Vec<(usize, bool)>>,
+    slots: Vec<Vec<Slot>>,
 }
 
 impl SchurLayout {

@@ -229,7 +229,8 @@ pub fn build_street(
     config: &StreetConfig,
     poses: &[Se3],
     appearance: &Appearance,
-    (seed, fps): (u64, f64),
+    seed: u64,
+    fps: f64,
 ) -> (Scene, Vec<Mover>) {
     let street = Street {
         config,
@@ -377,7 +378,8 @@ impl Street<'_> {
     /// moves, so that masks and oracle boxes call it a car).
     fn car(
         &self,
-        (start, end): (Vector3<f64>, Vector3<f64>),
+        start: Vector3<f64>,
+        end: Vector3<f64>,
         size: Vector3<f64>,
         speed: f64,
         phase: f64,
@@ -417,7 +419,7 @@ impl Street<'_> {
                     continue;
                 }
                 let instance = movers.len() as u16 + 1;
-                movers.push(self.car((min, min), size, 1.0, 0.0, instance));
+                movers.push(self.car(min, min, size, 1.0, 0.0, instance));
             }
         }
         movers
@@ -442,13 +444,7 @@ impl Street<'_> {
                 if clear {
                     let instance = movers.len() as u16 + 1;
                     let phase = 2.9 * i as f64;
-                    movers.push(self.car(
-                        (start, end),
-                        size,
-                        self.config.car_speed,
-                        phase,
-                        instance,
-                    ));
+                    movers.push(self.car(start, end, size, self.config.car_speed, phase, instance));
                     break;
                 }
             }
@@ -629,7 +625,7 @@ impl Street<'_> {
         });
         if clear {
             let instance = movers.len() as u16 + 1;
-            movers.push(self.car((start, end), size, speed, phase, instance));
+            movers.push(self.car(start, end, size, speed, phase, instance));
         }
     }
 }
@@ -661,7 +657,7 @@ mod tests {
             enabled: true,
             ..StreetConfig::default()
         };
-        let (scene, movers) = build_street(&config, &poses, &Appearance::Box, (1, 10.0));
+        let (scene, movers) = build_street(&config, &poses, &Appearance::Box, 1, 10.0);
         assert!(!movers.is_empty());
         let down = Vector3::y();
         for pose in poses.iter().step_by(7) {
@@ -697,7 +693,7 @@ mod tests {
             pedestrians: 0,
             ..StreetConfig::default()
         };
-        let (scene, movers) = build_street(&config, &poses, &Appearance::Box, (1, 10.0));
+        let (scene, movers) = build_street(&config, &poses, &Appearance::Box, 1, 10.0);
         assert!(matches!(scene.look, Look::Highway(_)));
         let camera = poses[50].translation.vector;
         let sky = scene.cast(&camera, &-Vector3::y()).expect("the sky above");

@@ -496,7 +496,8 @@ fn scene_and_movers(
             &config.street,
             poses,
             &appearance,
-            (config.sequence.seed, config.sequence.fps),
+            config.sequence.seed,
+            config.sequence.fps,
         ));
     }
     let positions: Vec<Vector3<f64>> = poses.iter().map(|p| p.translation.vector).collect();
@@ -580,7 +581,8 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
     );
     // The frames first; the index files afterwards.
     let mover_voxels = render_frames(
-        (&world, config),
+        &world,
+        config,
         out,
         stereo.then_some(kitti.as_path()),
         &progress,
@@ -627,7 +629,8 @@ pub fn generate(config: &SynthConfig, out: &Path, force: bool) -> Result<SynthSu
 /// frame's noise has its own seed, so the files do not depend on the order); returns
 /// each frame's mover voxels.
 fn render_frames(
-    (world, config): (&World, &SynthConfig),
+    world: &World,
+    config: &SynthConfig,
     out: &Path,
     kitti: Option<&Path>,
     progress: &ProgressBar,
