@@ -18,6 +18,7 @@ pub mod compare_maps;
 pub mod config;
 pub mod disparity;
 pub mod free_space;
+mod fusion;
 pub mod inputs;
 pub mod map_figures;
 pub mod marching_cubes;
@@ -42,16 +43,16 @@ use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::image_files::DepthImage;
-use crate::io::run_dir::{names, RunDir};
+use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::IoError;
 use cloud::CloudBuilder;
-use free_space::{NeighbourWindow, PosedDepth};
-use inputs::{frame_depth, groups, key, load_group, sequence_frame, RunInputs};
+use free_space::NeighbourWindow;
+use fusion::{fuse_frames, FrameSinks};
+use inputs::{frame_depth, groups, key, load_group, RunInputs};
 use masks::{MaskContext, MaskSource};
 use outputs::{write_maps, Maps};
-use truth::{count_truth, unknown_instances};
-use tsdf::{FrameInput, TsdfVolume};
+use tsdf::TsdfVolume;
 
 pub use config::{DenseConfig, FrameChoice, Fusion};
 pub use inputs::{read_detections, read_keypoints, DenseInputs};
@@ -252,127 +253,6 @@ fn fuse(
         cloud: cloud_on.then_some(cloud),
     };
     Ok((maps, truth))
-}
-
-/// What [`fuse_frames`] did.
-struct Fused {
-    frames: usize,
-    keyframes_in_cloud: usize,
-    masked: u64,
-    pixels: u64,
-    integration_ms: Vec<f64>,
-}
-
-/// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
-struct FrameSinks<'a> {
-    mask_source: &'a mut MaskSource,
-    window: Option<&'a mut NeighbourWindow>,
-    volume: Option<&'a mut TsdfVolume>,
-    cloud: Option<&'a mut CloudBuilder>,
-    truth: &'a mut Option<TruthCounter>,
-}
-
-/// Fuses the `chosen` frames in order, masked: into the volume (when given) and, the
-/// keyframes, into the cloud (when given); counts the fused pixels against the truth
-/// masks.
-fn fuse_frames(
-    inputs: &DenseInputs,
-    config: &DenseConfig,
-    chosen: &[Chosen],
-    mut sinks: FrameSinks,
-) -> Result<Fused, IoError> {
-    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
-    // The mask pictures' folder, when they are asked for.
-    let pictures = match config.mask_pictures_every {
-        0 => None,
-        _ => {
-            let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
-            std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
-                path: dir.clone(),
-                source,
-            })?;
-            Some(dir)
-        }
-    };
-    let unknown = match &inputs.truth_masks {
-        Some(dir) => unknown_instances(dir)?,
-        None => Vec::new(),
-    };
-    let mut fused = Fused {
-        frames: 0,
-        keyframes_in_cloud: 0,
-        masked: 0,
-        pixels: 0,
-        integration_ms: Vec::with_capacity(chosen.len()),
-    };
-    for group in groups(chosen) {
-        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
-        let loaded = load_group(inputs, group, sequence_frame)?;
-        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
-            let (timestamp, depth, rgb) = frame?;
-            let evidence = match sinks.window.as_deref_mut() {
-                Some(window) => Some(window.evidence(
-                    &inputs.camera,
-                    PosedDepth {
-                        timestamp,
-                        depth: &depth,
-                        camera_from_world: &pose,
-                    },
-                    |i| frame_depth(inputs, i),
-                )?),
-                None => None,
-            };
-            let mask = sinks
-                .mask_source
-                .mask(timestamp, &depth, &pose, evidence.as_ref());
-            if let Some(m) = &mask {
-                fused.masked += m.iter().filter(|&&x| x).count() as u64;
-            }
-            fused.pixels += depth.metres.len() as u64;
-            let input = FrameInput {
-                depth: &depth,
-                colour: &rgb,
-                dynamic: mask.as_deref(),
-                camera_from_world: &pose,
-            };
-            let ids = inputs.truth_masks.as_ref().and_then(|dir| {
-                crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
-            });
-            if let (Some(truth), Some(ids)) = (sinks.truth.as_mut(), &ids) {
-                count_truth(
-                    truth,
-                    timestamp,
-                    ids.as_raw(),
-                    &unknown,
-                    &input,
-                    config.max_depth,
-                );
-            }
-            if let Some(dir) = pictures
-                .as_ref()
-                .filter(|_| fused.frames.is_multiple_of(config.mask_pictures_every))
-            {
-                let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
-                let picture = render::mask_picture(&rgb, mask.as_deref(), truth);
-                save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
-            }
-            let start = Instant::now();
-            if let Some(volume) = sinks.volume.as_deref_mut() {
-                volume.integrate(&input);
-            }
-            fused
-                .integration_ms
-                .push(start.elapsed().as_secs_f64() * 1e3);
-            if let (Some(cloud), true) = (sinks.cloud.as_deref_mut(), is_keyframe) {
-                cloud.add(&input);
-                fused.keyframes_in_cloud += 1;
-            }
-            fused.frames += 1;
-            progress.inc(1);
-        }
-    }
-    progress.finish_and_clear();
-    Ok(fused)
 }
 
 /// The first pass of `allocate_first`: every chosen frame's blocks, without masks

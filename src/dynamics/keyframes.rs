@@ -297,7 +297,20 @@ impl DynamicObjects {
             standing_boxes,
             ..apply_boxes(map, key, &boxes, config, alpha)
         };
-        // Keyframes made after this one whose own detections have not come back.
+        self.reach_later(map, id, config, alpha, &mut result);
+        result
+    }
+
+    /// Gives the keyframes made after keyframe `id` whose own detections have not come
+    /// back the followed objects' predicted boxes (once each).
+    fn reach_later(
+        &mut self,
+        map: &mut Map,
+        id: usize,
+        config: &DopConfig,
+        alpha: f32,
+        result: &mut ObjectsEffect,
+    ) {
         let later: Vec<(KeyFrameKey, f64)> = map
             .keyframes()
             .iter()
@@ -321,7 +334,6 @@ impl DynamicObjects {
             result.later_keyframes += 1;
             result.effect += apply_boxes(map, later_key, &boxes, config, alpha);
         }
-        result
     }
 }
 

@@ -95,6 +95,17 @@ pub fn optimise(
         .enumerate()
         .map(|(i, k)| (*k, graph.poses[i] * old[i]))
         .collect();
+    move_points(map, placed_by, &moves);
+    report
+}
+
+/// Each point follows the keyframe that placed it (`placed_by`, else its first observer
+/// that moved): \(X' = M X\) with that keyframe's move \(M\) in `moves`.
+fn move_points(
+    map: &mut Map,
+    placed_by: &HashMap<MapPointKey, KeyFrameKey>,
+    moves: &HashMap<KeyFrameKey, Se3>,
+) {
     let mut moved = Vec::new();
     for (key, point) in map.points() {
         let reference = placed_by
@@ -115,5 +126,4 @@ pub fn optimise(
     for (key, position) in moved {
         map.set_point_position(key, position);
     }
-    report
 }

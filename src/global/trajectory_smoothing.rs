@@ -128,28 +128,7 @@ pub fn smooth_frames<'a>(
             Some((f, pose.inverse(), reference_from_world))
         })
         .collect();
-    let mut intervals: Vec<f64> = frames
-        .windows(2)
-        .map(|w| w[1].0.timestamp - w[0].0.timestamp)
-        .filter(|&dt| dt > 0.0)
-        .collect();
-    let typical = median(&mut intervals);
-    // Runs: [start, end) ranges of consecutive frames.
-    let mut runs = Vec::new();
-    let mut first = 0;
-    for i in 1..=frames.len() {
-        let breaks = i == frames.len() || {
-            let (a, b) = (&frames[i - 1].0, &frames[i].0);
-            let dt = b.timestamp - a.timestamp;
-            a.segment != b.segment || !(dt > 0.0 && dt <= MAX_GAP * typical)
-        };
-        if breaks {
-            if i - first >= 3 {
-                runs.push(first..i);
-            }
-            first = i;
-        }
-    }
+    let runs = runs_of(&frames);
     let times: Vec<f64> = frames.iter().map(|f| f.0.timestamp).collect();
     let anchors: Vec<bool> = frames.iter().map(|f| f.0.is_keyframe()).collect();
     let centres: Vec<Vector3<f64>> = frames.iter().map(|f| f.1.translation.vector).collect();
@@ -207,6 +186,33 @@ pub fn smooth_frames<'a>(
     report.median_shift_mm = median(&mut shifts);
     report.milliseconds = start.elapsed().as_secs_f64() * 1e3;
     report
+}
+
+/// The runs of consecutive frames, as `[start, end)` ranges of at least 3 frames: a run
+/// breaks at a new map segment or a gap over [`MAX_GAP`] typical intervals.
+fn runs_of(frames: &[(&mut FrameRecord, Se3, Se3)]) -> Vec<std::ops::Range<usize>> {
+    let mut intervals: Vec<f64> = frames
+        .windows(2)
+        .map(|w| w[1].0.timestamp - w[0].0.timestamp)
+        .filter(|&dt| dt > 0.0)
+        .collect();
+    let typical = median(&mut intervals);
+    let mut runs = Vec::new();
+    let mut first = 0;
+    for i in 1..=frames.len() {
+        let breaks = i == frames.len() || {
+            let (a, b) = (&frames[i - 1].0, &frames[i].0);
+            let dt = b.timestamp - a.timestamp;
+            a.segment != b.segment || !(dt > 0.0 && dt <= MAX_GAP * typical)
+        };
+        if breaks {
+            if i - first >= 3 {
+                runs.push(first..i);
+            }
+            first = i;
+        }
+    }
+    runs
 }
 
 /// \(\sigma_m\) of white noise from the second differences `second(k)` at the inner

@@ -65,6 +65,28 @@ fn intrinsics(camera: &StereoCamera) -> Matrix3<f64> {
     )
 }
 
+/// The fundamental matrix \(F_{12} = K^{-\top} [t_{12}]_\times R_{12} K^{-1}\) of the
+/// pair and the epipole in image 2 (camera 1's centre seen from camera 2; `None`
+/// behind it).
+fn epipolar(
+    kf1: &KeyFrame,
+    kf2: &KeyFrame,
+    camera: &StereoCamera,
+) -> (Matrix3<f64>, Option<Vector2<f64>>) {
+    let t12 = kf1.camera_from_world * kf2.world_from_camera();
+    let k = intrinsics(camera);
+    let k_inv = k.try_inverse().expect("invertible intrinsics");
+    let f12 = k_inv.transpose() * skew(&t12.translation.vector) * t12.rotation.matrix() * k_inv;
+    let e2 = kf2.camera_from_world * Point3::from(kf1.centre());
+    let epipole2 = (e2.z > 0.0).then(|| {
+        Vector2::new(
+            camera.fx * e2.x / e2.z + camera.cx,
+            camera.fy * e2.y / e2.z + camera.cy,
+        )
+    });
+    (f12, epipole2)
+}
+
 /// Matches the unmatched keypoints of `kf1` and `kf2` under the epipolar constraint and
 /// triangulates them. `close_depth` is the RGB-D close/far limit in metres; keypoints
 /// with a moving probability above `moving_threshold` are left out.
@@ -81,18 +103,7 @@ pub fn triangulate_pair(
     if (c2 - c1).norm() < baseline {
         return Vec::new();
     }
-    let t12 = kf1.camera_from_world * kf2.world_from_camera();
-    let k = intrinsics(camera);
-    let k_inv = k.try_inverse().expect("invertible intrinsics");
-    let f12 = k_inv.transpose() * skew(&t12.translation.vector) * t12.rotation.matrix() * k_inv;
-    // The epipole in image 2: camera 1's centre seen from camera 2.
-    let e2 = kf2.camera_from_world * Point3::from(c1);
-    let epipole2 = (e2.z > 0.0).then(|| {
-        Vector2::new(
-            camera.fx * e2.x / e2.z + camera.cx,
-            camera.fy * e2.y / e2.z + camera.cy,
-        )
-    });
+    let (f12, epipole2) = epipolar(kf1, kf2, camera);
     let (f1, f2) = (&kf1.frame, &kf2.frame);
     // Keypoints the DOP model calls dynamic make no new points.
     let free2: Vec<usize> = (0..f2.len())
@@ -100,13 +111,7 @@ pub fn triangulate_pair(
         .collect();
     let mut taken2 = vec![false; f2.len()];
     let mut found = Vec::new();
-    let to_matrix = |t: &crate::geometry::se3::Se3| -> Matrix3x4<f64> {
-        t.to_homogeneous().fixed_view::<3, 4>(0, 0).into_owned()
-    };
-    let (p1, p2) = (
-        to_matrix(&kf1.camera_from_world),
-        to_matrix(&kf2.camera_from_world),
-    );
+    let (p1, p2) = (projection(kf1), projection(kf2));
     for i in 0..f1.len() {
         if kf1.map_points[i].is_some() || f1.moving[i] > moving_threshold {
             continue;
@@ -161,6 +166,14 @@ pub fn triangulate_pair(
     found
 }
 
+/// The keyframe's \([R \mid t]\) (camera from world) as a 3x4 matrix.
+fn projection(kf: &KeyFrame) -> Matrix3x4<f64> {
+    kf.camera_from_world
+        .to_homogeneous()
+        .fixed_view::<3, 4>(0, 0)
+        .into_owned()
+}
+
 /// Places the point of match `(i, j)` and checks it in both views.
 fn place(
     kf1: &KeyFrame,
@@ -207,25 +220,8 @@ fn place(
         } else {
             return None;
         };
-    for (kf, index) in [(kf1, i), (kf2, j)] {
-        let p = kf.camera_from_world * Point3::from(position);
-        if p.z <= 0.0 {
-            return None;
-        }
-        let kp = &kf.frame.keypoints[index];
-        let predicted = camera.project(&p.coords);
-        let right = kf.frame.right_u[index];
-        let (ex, ey) = (predicted.x - kp.x as f64, predicted.y - kp.y as f64);
-        let information = pyramid.inverse_sigma2[kp.level as usize];
-        let error = if right > 0.0 {
-            let er = predicted.z - right as f64;
-            (ex * ex + ey * ey + er * er) * information > CHI2_STEREO
-        } else {
-            (ex * ex + ey * ey) * information > CHI2_MONO
-        };
-        if error {
-            return None;
-        }
+    if misses(kf1, i, &position, camera, pyramid) || misses(kf2, j, &position, camera, pyramid) {
+        return None;
     }
     // Scale consistency: the distance ratio must agree with the level ratio.
     let (d1, d2) = (
@@ -242,6 +238,32 @@ fn place(
         return None;
     }
     Some(position)
+}
+
+/// Whether `position` lies behind `kf` or reprojects off its keypoint `index`, beyond
+/// the \(\chi^2\) gate (stereo with a right column, else mono).
+fn misses(
+    kf: &KeyFrame,
+    index: usize,
+    position: &Vector3<f64>,
+    camera: &StereoCamera,
+    pyramid: &ScalePyramid,
+) -> bool {
+    let p = kf.camera_from_world * Point3::from(*position);
+    if p.z <= 0.0 {
+        return true;
+    }
+    let kp = &kf.frame.keypoints[index];
+    let predicted = camera.project(&p.coords);
+    let right = kf.frame.right_u[index];
+    let (ex, ey) = (predicted.x - kp.x as f64, predicted.y - kp.y as f64);
+    let information = pyramid.inverse_sigma2[kp.level as usize];
+    if right > 0.0 {
+        let er = predicted.z - right as f64;
+        (ex * ex + ey * ey + er * er) * information > CHI2_STEREO
+    } else {
+        (ex * ex + ey * ey) * information > CHI2_MONO
+    }
 }
 
 #[cfg(test)]

@@ -154,6 +154,9 @@ struct NormalBlocks {
     coupling: Vec<Vec<(usize, Matrix6x3<f64>)>>,
 }
 
+/// One point's \(V\), \(b_X\) and coupling blocks (free pose index, \(W\)).
+type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
+
 /// The normal equations' blocks, from the active observations (the layout's
 /// `observations_of`, per point): per free pose \(U\) and \(b_T\), per point \(V\) and \(b_X\), and per
 /// point its coupling blocks \(W\) with the free poses (index in the reduced system).
@@ -167,7 +170,6 @@ fn linearise(
 ) -> NormalBlocks {
     let (observations_of, free_index, free) =
         (&layout.observations_of, &layout.free_index, layout.free);
-    type PointBlocks = (Matrix3<f64>, Vector3<f64>, Vec<(usize, Matrix6x3<f64>)>);
     type ChunkBlocks = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>, Vec<PointBlocks>);
     let chunks: Vec<ChunkBlocks> = observations_of
         .par_chunks(observations_of.len().div_ceil(LINEARISE_CHUNKS).max(1))
@@ -177,55 +179,11 @@ fn linearise(
             let blocks = points
                 .iter()
                 .map(|indices| {
-                    let mut v = Matrix3::<f64>::zeros();
-                    let mut b_point = Vector3::<f64>::zeros();
-                    let mut coupling = Vec::with_capacity(indices.len());
-                    for &i in indices {
-                        let o = &problem.observations[i];
-                        let pose = &problem.poses[o.camera];
-                        let c = free_index[o.camera];
-                        let Some((e, p)) = residual(camera, pose, &problem.points[o.point], o)
-                        else {
-                            // Behind the camera: no terms, but the block keeps its place.
-                            if c != usize::MAX {
-                                coupling.push((c, Matrix6x3::zeros()));
-                            }
-                            continue;
-                        };
-                        let s = whitened(&e, o);
-                        let w = o.information
-                            * if robust {
-                                huber_weight(s, gate(o.stereo).sqrt())
-                            } else {
-                                1.0
-                            };
-                        let projection = camera.jacobian(&p);
-                        let a_pose: Matrix3x6<f64> = projection * point_jacobian_wrt_pose(&p);
-                        let a_point: Matrix3<f64> = projection * pose.rotation.matrix();
-                        let rows = if o.stereo { 3 } else { 2 };
-                        let (mut upose, mut bp, mut wcp) = (
-                            Matrix6::<f64>::zeros(),
-                            Vector6::<f64>::zeros(),
-                            Matrix6x3::<f64>::zeros(),
-                        );
-                        for r in 0..rows {
-                            let jp = a_pose.row(r).transpose();
-                            let jx = a_point.row(r).transpose();
-                            v += w * jx * jx.transpose();
-                            b_point += w * jx * e[r];
-                            if c != usize::MAX {
-                                upose += w * jp * jp.transpose();
-                                bp += w * jp * e[r];
-                                wcp += w * jp * jx.transpose();
-                            }
-                        }
-                        if c != usize::MAX {
-                            u[c] += upose;
-                            b_pose[c] += bp;
-                            coupling.push((c, wcp));
-                        }
-                    }
-                    (v, b_point, coupling)
+                    let pose_blocks = PoseBlocks {
+                        u: &mut u,
+                        b_pose: &mut b_pose,
+                    };
+                    point_blocks(problem, camera, free_index, robust, indices, pose_blocks)
                 })
                 .collect();
             (u, b_pose, blocks)
@@ -257,6 +215,74 @@ fn linearise(
         b_point,
         coupling,
     }
+}
+
+/// The free poses' blocks one point's observations add to: \(U\) and \(b_T\).
+struct PoseBlocks<'a> {
+    u: &'a mut [Matrix6<f64>],
+    b_pose: &'a mut [Vector6<f64>],
+}
+
+/// One point's blocks from its active observations (`indices`): \(V\), \(b_X\) and its
+/// coupling blocks \(W\) with the free poses; each observation of a free pose adds to
+/// that pose's \(U\) and \(b_T\) in `poses`.
+fn point_blocks(
+    problem: &BaProblem,
+    camera: &StereoCamera,
+    free_index: &[usize],
+    robust: bool,
+    indices: &[usize],
+    poses: PoseBlocks,
+) -> PointBlocks {
+    let PoseBlocks { u, b_pose } = poses;
+    let mut v = Matrix3::<f64>::zeros();
+    let mut b_point = Vector3::<f64>::zeros();
+    let mut coupling = Vec::with_capacity(indices.len());
+    for &i in indices {
+        let o = &problem.observations[i];
+        let pose = &problem.poses[o.camera];
+        let c = free_index[o.camera];
+        let Some((e, p)) = residual(camera, pose, &problem.points[o.point], o) else {
+            // Behind the camera: no terms, but the block keeps its place.
+            if c != usize::MAX {
+                coupling.push((c, Matrix6x3::zeros()));
+            }
+            continue;
+        };
+        let s = whitened(&e, o);
+        let w = o.information
+            * if robust {
+                huber_weight(s, gate(o.stereo).sqrt())
+            } else {
+                1.0
+            };
+        let projection = camera.jacobian(&p);
+        let a_pose: Matrix3x6<f64> = projection * point_jacobian_wrt_pose(&p);
+        let a_point: Matrix3<f64> = projection * pose.rotation.matrix();
+        let rows = if o.stereo { 3 } else { 2 };
+        let (mut upose, mut bp, mut wcp) = (
+            Matrix6::<f64>::zeros(),
+            Vector6::<f64>::zeros(),
+            Matrix6x3::<f64>::zeros(),
+        );
+        for r in 0..rows {
+            let jp = a_pose.row(r).transpose();
+            let jx = a_point.row(r).transpose();
+            v += w * jx * jx.transpose();
+            b_point += w * jx * e[r];
+            if c != usize::MAX {
+                upose += w * jp * jp.transpose();
+                bp += w * jp * e[r];
+                wcp += w * jp * jx.transpose();
+            }
+        }
+        if c != usize::MAX {
+            u[c] += upose;
+            b_pose[c] += bp;
+            coupling.push((c, wcp));
+        }
+    }
+    (v, b_point, coupling)
 }
 
 /// Runs LM iterations with the given active observations; returns the final cost.

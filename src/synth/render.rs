@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::scene::Shape;
-use super::scene::{Cuboid, Scene};
+use super::scene::{Cuboid, Hit, Scene};
 use crate::checks::{self, BadValue};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::kinect_depth_sigma;
@@ -249,19 +249,9 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
                 );
                 let (colour, depth, instance) = match hit {
                     Some((hit, mover)) => {
-                        let colour = hit.colour.unwrap_or_else(|| {
-                            let shade = if scene.is_emissive(&hit) {
-                                1.0
-                            } else {
-                                0.55 + 0.45 * hit.normal.dot(&light).abs()
-                            };
-                            // The pixel's footprint on the surface: its angular size
-                            // 1/fx times the distance, stretched by the incidence.
-                            let length = direction.norm();
-                            let incidence = (hit.normal.dot(&direction).abs() / length).max(0.2);
-                            let footprint = hit.t * length / camera.fx / incidence;
-                            scene.colour(&hit, footprint).map(|c| c * shade)
-                        });
+                        let colour = hit
+                            .colour
+                            .unwrap_or_else(|| shaded(scene, &hit, &direction, &light, camera.fx));
                         (colour, hit.t, mover.map_or(0, |i| view.movers[i].1))
                     }
                     None => ([0.0; 3], 0.0, 0),
@@ -275,17 +265,45 @@ fn trace(scene: &Scene, view: &View, camera: &PinholeCamera, with_depth: bool) -
             row
         })
         .collect();
-    let mut traced = Traced {
-        colour: Vec::with_capacity(width * height),
-        depth: Vec::with_capacity(width * height),
-        mask: Vec::with_capacity(width * height),
-    };
-    for row in rows {
-        traced.colour.extend(row.colour);
-        traced.depth.extend(row.depth);
-        traced.mask.extend(row.mask);
+    Traced::joined(rows, width * height)
+}
+
+impl Traced {
+    /// The image whose rows are `rows`, in order (`pixels` in all).
+    fn joined(rows: Vec<Traced>, pixels: usize) -> Traced {
+        let mut traced = Traced {
+            colour: Vec::with_capacity(pixels),
+            depth: Vec::with_capacity(pixels),
+            mask: Vec::with_capacity(pixels),
+        };
+        for row in rows {
+            traced.colour.extend(row.colour);
+            traced.depth.extend(row.depth);
+            traced.mask.extend(row.mask);
+        }
+        traced
     }
-    traced
+}
+
+/// The colour of a surface without its own: the scene's colour at the pixel's
+/// footprint (its angular size \(1/f_x\) times the distance, stretched by the
+/// incidence), shaded by `light` unless the surface is emissive.
+fn shaded(
+    scene: &Scene,
+    hit: &Hit,
+    direction: &Vector3<f64>,
+    light: &Vector3<f64>,
+    fx: f64,
+) -> [f64; 3] {
+    let shade = if scene.is_emissive(hit) {
+        1.0
+    } else {
+        0.55 + 0.45 * hit.normal.dot(light).abs()
+    };
+    let length = direction.norm();
+    let incidence = (hit.normal.dot(direction).abs() / length).max(0.2);
+    let footprint = hit.t * length / fx / incidence;
+    scene.colour(hit, footprint).map(|c| c * shade)
 }
 
 /// How a frame is exposed: the views sampled during the exposure (empty: just the

@@ -1,0 +1,191 @@
+//! The dense pass's fusion loop: each chosen frame loaded, masked, counted against the
+//! truth masks, pictured, and fused into the volume and the keyframe cloud.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::cloud::CloudBuilder;
+use super::free_space::{NeighbourWindow, PosedDepth};
+use super::inputs::{frame_depth, groups, load_group, sequence_frame};
+use super::masks::MaskSource;
+use super::outputs::save_png;
+use super::truth::{count_truth, unknown_instances, TruthCounter};
+use super::tsdf::{FrameInput, TsdfVolume};
+use super::{frames_bar, render, Chosen, DenseConfig, DenseInputs};
+use crate::geometry::se3::Se3;
+use crate::io::image_files::DepthImage;
+use crate::io::run_dir::{names, RunDir};
+use crate::io::IoError;
+
+/// What [`fuse_frames`] did.
+pub(super) struct Fused {
+    pub frames: usize,
+    pub keyframes_in_cloud: usize,
+    pub masked: u64,
+    pub pixels: u64,
+    pub integration_ms: Vec<f64>,
+}
+
+/// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
+pub(super) struct FrameSinks<'a> {
+    pub mask_source: &'a mut MaskSource,
+    pub window: Option<&'a mut NeighbourWindow>,
+    pub volume: Option<&'a mut TsdfVolume>,
+    pub cloud: Option<&'a mut CloudBuilder>,
+    pub truth: &'a mut Option<TruthCounter>,
+}
+
+/// What each frame's side outputs need: the mask pictures' folder (when asked for)
+/// and the truth masks' instances of unknown class.
+struct Extras {
+    pictures: Option<PathBuf>,
+    unknown: Vec<bool>,
+}
+
+/// One loaded frame to fuse: its time, pose, whether it is a keyframe, depth and
+/// colour.
+struct Loaded {
+    timestamp: f64,
+    pose: Se3,
+    is_keyframe: bool,
+    depth: DepthImage,
+    rgb: image::RgbImage,
+}
+
+/// Fuses the `chosen` frames in order, masked: into the volume (when given) and, the
+/// keyframes, into the cloud (when given); counts the fused pixels against the truth
+/// masks.
+pub(super) fn fuse_frames(
+    inputs: &DenseInputs,
+    config: &DenseConfig,
+    chosen: &[Chosen],
+    mut sinks: FrameSinks,
+) -> Result<Fused, IoError> {
+    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
+    let extras = extras(inputs, config)?;
+    let mut fused = Fused {
+        frames: 0,
+        keyframes_in_cloud: 0,
+        masked: 0,
+        pixels: 0,
+        integration_ms: Vec::with_capacity(chosen.len()),
+    };
+    for group in groups(chosen) {
+        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
+        let loaded = load_group(inputs, group, sequence_frame)?;
+        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
+            let (timestamp, depth, rgb) = frame?;
+            let frame = Loaded {
+                timestamp,
+                pose,
+                is_keyframe,
+                depth,
+                rgb,
+            };
+            fuse_frame(inputs, config, &extras, &mut sinks, frame, &mut fused)?;
+            progress.inc(1);
+        }
+    }
+    progress.finish_and_clear();
+    Ok(fused)
+}
+
+/// The mask pictures' folder, made when pictures are asked for, and the truth masks'
+/// unknown instances.
+fn extras(inputs: &DenseInputs, config: &DenseConfig) -> Result<Extras, IoError> {
+    let pictures = match config.mask_pictures_every {
+        0 => None,
+        _ => {
+            let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
+            std::fs::create_dir_all(&dir).map_err(|source| IoError::Write {
+                path: dir.clone(),
+                source,
+            })?;
+            Some(dir)
+        }
+    };
+    let unknown = match &inputs.truth_masks {
+        Some(dir) => unknown_instances(dir)?,
+        None => Vec::new(),
+    };
+    Ok(Extras { pictures, unknown })
+}
+
+/// One frame: its mask (with the free-space evidence), the truth count, the mask
+/// picture, then the volume and (a keyframe) the cloud.
+fn fuse_frame(
+    inputs: &DenseInputs,
+    config: &DenseConfig,
+    extras: &Extras,
+    sinks: &mut FrameSinks,
+    frame: Loaded,
+    fused: &mut Fused,
+) -> Result<(), IoError> {
+    let Loaded {
+        timestamp,
+        pose,
+        is_keyframe,
+        depth,
+        rgb,
+    } = frame;
+    let evidence = match sinks.window.as_deref_mut() {
+        Some(window) => Some(window.evidence(
+            &inputs.camera,
+            PosedDepth {
+                timestamp,
+                depth: &depth,
+                camera_from_world: &pose,
+            },
+            |i| frame_depth(inputs, i),
+        )?),
+        None => None,
+    };
+    let mask = sinks
+        .mask_source
+        .mask(timestamp, &depth, &pose, evidence.as_ref());
+    if let Some(m) = &mask {
+        fused.masked += m.iter().filter(|&&x| x).count() as u64;
+    }
+    fused.pixels += depth.metres.len() as u64;
+    let input = FrameInput {
+        depth: &depth,
+        colour: &rgb,
+        dynamic: mask.as_deref(),
+        camera_from_world: &pose,
+    };
+    let ids = inputs.truth_masks.as_ref().and_then(|dir| {
+        crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
+    });
+    if let (Some(truth), Some(ids)) = (sinks.truth.as_mut(), &ids) {
+        count_truth(
+            truth,
+            timestamp,
+            ids.as_raw(),
+            &extras.unknown,
+            &input,
+            config.max_depth,
+        );
+    }
+    if let Some(dir) = extras
+        .pictures
+        .as_ref()
+        .filter(|_| fused.frames.is_multiple_of(config.mask_pictures_every))
+    {
+        let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
+        let picture = render::mask_picture(&rgb, mask.as_deref(), truth);
+        save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
+    }
+    let start = Instant::now();
+    if let Some(volume) = sinks.volume.as_deref_mut() {
+        volume.integrate(&input);
+    }
+    fused
+        .integration_ms
+        .push(start.elapsed().as_secs_f64() * 1e3);
+    if let (Some(cloud), true) = (sinks.cloud.as_deref_mut(), is_keyframe) {
+        cloud.add(&input);
+        fused.keyframes_in_cloud += 1;
+    }
+    fused.frames += 1;
+    Ok(())
+}
