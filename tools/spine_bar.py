@@ -97,16 +97,16 @@ def main():
     rows = [
         ("main.rs lines", len((SRC / "main.rs").read_text().splitlines()), 299, ""),
         ("run::run_sequence lines", max(run_sequence, default=0), 44, ""),
-        # Issue 81's goal is 0; the bar comes down as functions are split.
-        ("functions over 80 lines", len(over_80), 18, ""),
+        ("functions over 80 lines", len(over_80), 0,
+         ", ".join(f"{p.relative_to(SRC)}:{n} ({l})" for p, n, _, l in over_80)),
         # Issue 81's goal is under 15: those left are pixel coordinates and offsets, a distance range and a car's route.
         ("destructured tuple parameters", tuple_parameters(), 14, ""),
         ("#[serde(skip)] fields (none on a report type; the two left: config, manifest)",
          count(r"#\[serde\(skip\)\]"), 2, ""),
         ("functions over 100 lines", len(over), 0,
          ", ".join(f"{p.relative_to(SRC)}:{n} ({l})" for p, n, _, l in over)),
-        ("longest function", longest[3], 100, f"{longest[0].relative_to(SRC)}:{longest[1]}"),
-        ("dense/mod.rs lines", len((SRC / "dense" / "mod.rs").read_text().splitlines()), 399, ""),
+        ("longest function", longest[3], 80, f"{longest[0].relative_to(SRC)}:{longest[1]}"),
+        ("dense/mod.rs lines", len((SRC / "dense" / "mod.rs").read_text().splitlines()), 299, ""),
         ("impl Tracker lines", impl_lines("Tracker"), 699, ""),
         ("Tracker::track lines (its steps)", max((f[3] for f in steps), default=0), 49,
          ", ".join(f"{n} ({l})" for _, n, _, l in steps)),

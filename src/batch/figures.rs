@@ -2,7 +2,7 @@
 //! each mode's median-ATE run evaluated again from its files, the APE of all its runs
 //! pooled, the dense-map previews.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
@@ -89,10 +89,21 @@ pub fn sequence_section(
     if medians.is_empty() {
         return Ok(section);
     }
-    let dir = out.join("plots").join(&sequence.name);
+    section.figures = plot_sequence(out, &sequence.name, &medians, &pooled)?;
+    Ok(section)
+}
+
+/// The sequence's plots under `OUT/plots/NAME/`: the median runs' trajectories and APE
+/// over time, and each mode's pooled APE; their paths.
+fn plot_sequence(
+    out: &Path,
+    name: &str,
+    medians: &[(Mode, Evaluation)],
+    pooled: &[(Mode, Vec<f64>)],
+) -> Result<Vec<PathBuf>, BatchError> {
+    let dir = out.join("plots").join(name);
     std::fs::create_dir_all(&dir).map_err(BatchError::file("create", &dir))?;
     let by_mode: Vec<(Mode, &Evaluation)> = medians.iter().map(|(m, r)| (*m, r)).collect();
-    let name = &sequence.name;
     let paths = [
         dir.join("trajectories.png"),
         dir.join("ape_time.png"),
@@ -111,8 +122,7 @@ pub fn sequence_section(
     plots::ape_boxes(
         &paths[2],
         &format!("{name}: APE per mode, all repetitions"),
-        &pooled,
+        pooled,
     )?;
-    section.figures = paths.to_vec();
-    Ok(section)
+    Ok(paths.to_vec())
 }

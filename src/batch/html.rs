@@ -46,6 +46,28 @@ fn cell(s: Option<Spread>, digits: usize) -> String {
     spread_text(s, digits, "<small>[", "]</small>")
 }
 
+/// A sequence's section: its figures, its dense-map previews and links to its runs.
+fn section_html(out: &mut String, section: &SequenceSection) {
+    let _ = writeln!(out, "<h2 id=\"{n}\">{n}</h2>", n = escape(&section.name));
+    for figure in &section.figures {
+        *out += &image(figure, &section.name);
+    }
+    if !section.previews.is_empty() {
+        *out += "<h3>Dense maps (ghosts in red)</h3>\n";
+        for (caption, path) in &section.previews {
+            let _ = write!(out, "<figure style=\"display:inline-block;max-width:48%\">{}<figcaption>{}</figcaption></figure>", image(path, caption), escape(caption));
+        }
+    }
+    *out += "<p>Runs: ";
+    let links: Vec<String> = section
+        .runs
+        .iter()
+        .map(|(label, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(label)))
+        .collect();
+    *out += &links.join(" · ");
+    *out += "</p>\n";
+}
+
 /// The page.
 pub fn report_html(
     title: &str,
@@ -95,24 +117,7 @@ th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}figure
         out += "</table>\n";
     }
     for section in sections {
-        let _ = writeln!(out, "<h2 id=\"{n}\">{n}</h2>", n = escape(&section.name));
-        for figure in &section.figures {
-            out += &image(figure, &section.name);
-        }
-        if !section.previews.is_empty() {
-            out += "<h3>Dense maps (ghosts in red)</h3>\n";
-            for (caption, path) in &section.previews {
-                let _ = write!(out, "<figure style=\"display:inline-block;max-width:48%\">{}<figcaption>{}</figcaption></figure>", image(path, caption), escape(caption));
-            }
-        }
-        out += "<p>Runs: ";
-        let links: Vec<String> = section
-            .runs
-            .iter()
-            .map(|(label, href)| format!("<a href=\"{}\">{}</a>", escape(href), escape(label)))
-            .collect();
-        out += &links.join(" · ");
-        out += "</p>\n";
+        section_html(&mut out, section);
     }
     let errors: Vec<String> = groups
         .iter()

@@ -155,19 +155,7 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     std::fs::create_dir_all(out).map_err(BatchError::file("create", out))?;
     let _lock = batch_lock(out, options.shard.is_some())?;
     let _shard_lock = options.shard.map(|s| shard_lock(out, s)).transpose()?;
-    let text = std::fs::read(path).map_err(BatchError::file("read", path))?;
-    let own = out.join("manifest.toml");
-    if options.collect {
-        if std::fs::read(&own).is_ok_and(|copy| copy != text) {
-            return Err(BatchError::OtherManifest {
-                out: out.clone(),
-                copy: own,
-                manifest: path.to_path_buf(),
-            });
-        }
-    } else {
-        write_atomic(&own, &text)?;
-    }
+    keep_manifest(path, out, options.collect)?;
     let mut notes = Vec::new();
     // The runs this invocation is for: a shard's, or all.
     let mine = match options.shard {
@@ -180,15 +168,9 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     } else {
         prepare_sequences(&plan, &mine, options.progress)
     };
-    let jobs = options
-        .jobs
-        .or(plan.manifest.batch.jobs)
-        .unwrap_or_else(|| {
-            budget_jobs(
-                plan.manifest.batch.cores_per_run,
-                plan.manifest.batch.memory_per_run_gib,
-            )
-        });
+    let batch = &plan.manifest.batch;
+    let jobs = (options.jobs.or(batch.jobs))
+        .unwrap_or_else(|| budget_jobs(batch.cores_per_run, batch.memory_per_run_gib));
     // One for the whole invocation: the binary and the detector files are hashed once.
     let fingerprinter = fingerprint::Fingerprinter::new(&options.program);
     let (executed, skipped) = if options.collect {
@@ -234,6 +216,24 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
     }
     summary.notes = notes;
     Ok(summary)
+}
+
+/// Keeps a copy of the manifest at `path` as `OUT/manifest.toml`; with `collect`
+/// (tables only), refuses an output folder whose copy is another manifest's.
+fn keep_manifest(path: &Path, out: &Path, collect: bool) -> Result<(), BatchError> {
+    let text = std::fs::read(path).map_err(BatchError::file("read", path))?;
+    let own = out.join("manifest.toml");
+    if !collect {
+        return Ok(write_atomic(&own, &text)?);
+    }
+    if std::fs::read(&own).is_ok_and(|copy| copy != text) {
+        return Err(BatchError::OtherManifest {
+            out: out.to_path_buf(),
+            copy: own,
+            manifest: path.to_path_buf(),
+        });
+    }
+    Ok(())
 }
 
 /// Refuses an output folder that is, or lies inside, one of the batch's recorded

@@ -74,6 +74,19 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+/// The ranges `x` and `y` widened to equal metres per pixel in the plotting area
+/// (about 800 x 540 pixels), about their centres: `[x0, x1, y0, y1]`.
+fn equal_aspect(x: (f64, f64), y: (f64, f64)) -> [f64; 4] {
+    let per_pixel = ((x.1 - x.0) / 800.0).max((y.1 - y.0) / 540.0);
+    let (cx, cy) = (0.5 * (x.0 + x.1), 0.5 * (y.0 + y.1));
+    [
+        cx - 400.0 * per_pixel,
+        cx + 400.0 * per_pixel,
+        cy - 270.0 * per_pixel,
+        cy + 270.0 * per_pixel,
+    ]
+}
+
 /// The trajectories of each mode's median run (aligned) over the ground truth, seen
 /// along the axis of least motion, with equal metres per pixel on both axes.
 pub fn trajectories(
@@ -95,20 +108,10 @@ pub fn trajectories(
         .iter()
         .flat_map(|(_, r)| r.series.aligned_estimate.positions())
         .chain(reference.iter().copied());
-    let (mut x0, mut x1) = padded(all.clone().map(|p| p[a]));
-    let (mut y0, mut y1) = padded(all.map(|p| p[b]));
-    // Equal aspect in the plotting area (about 800 x 540 pixels).
-    let per_pixel = ((x1 - x0) / 800.0).max((y1 - y0) / 540.0);
-    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    (x0, x1, y0, y1) = (
-        cx - 400.0 * per_pixel,
-        cx + 400.0 * per_pixel,
-        cy - 270.0 * per_pixel,
-        cy + 270.0 * per_pixel,
-    );
+    let [x0, x1, y0, y1] =
+        equal_aspect(padded(all.clone().map(|p| p[a])), padded(all.map(|p| p[b])));
     let root = canvas(path)?;
     let err = error_text(path);
-    let names = ["x", "y", "z"];
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 22))
         .margin(12)
@@ -118,8 +121,8 @@ pub fn trajectories(
         .map_err(&err)?;
     chart
         .configure_mesh()
-        .x_desc(format!("{} (m)", names[a]))
-        .y_desc(format!("{} (m)", names[b]))
+        .x_desc(format!("{} (m)", ["x", "y", "z"][a]))
+        .y_desc(format!("{} (m)", ["x", "y", "z"][b]))
         .draw()
         .map_err(&err)?;
     let grey = RGBColor(90, 90, 90);

@@ -225,32 +225,53 @@ pub fn judge(
         ..MapFigures::default()
     };
     if let Some(movers) = movers {
-        // Mover ground truth away from the static scene (feet on the floor are static).
-        let away = reference.distances(movers);
-        let truth: Vec<[f32; 3]> = movers
-            .iter()
-            .zip(&away)
-            .filter(|(_, &d)| d as f64 > settings.ghost_distance)
-            .map(|(p, _)| *p)
-            .collect();
-        let truth_index = PointIndex::new(&truth);
-        let r = settings.mover_radius as f32;
-        let near_truth = truth_index.nearest_distances(&map.vertices);
-        figures.mover_points = Some(
-            near_truth
-                .iter()
-                .zip(&distances)
-                .filter(|(&t, &s)| t <= r && s > r)
-                .count(),
+        judge_movers(
+            &mut figures,
+            map,
+            &index,
+            reference,
+            movers,
+            &distances,
+            settings,
         );
-        let kept = index.nearest_distances(&truth);
-        figures.dynamic_accuracy =
-            Some(share(kept.iter().filter(|&&d| d > r).count(), truth.len()));
     }
     Judged {
         figures,
         samples: MapSamples { distances, covers },
     }
+}
+
+/// The mover figures of `map`: its points near the movers' ground truth (`movers`
+/// away from the static scene: feet on the floor are static) and off the static
+/// scene, and the share of the movers' truth it leaves empty.
+fn judge_movers(
+    figures: &mut MapFigures,
+    map: &Mesh,
+    index: &PointIndex,
+    reference: &StaticReference,
+    movers: &[[f32; 3]],
+    distances: &[f32],
+    settings: &CompareSettings,
+) {
+    let away = reference.distances(movers);
+    let truth: Vec<[f32; 3]> = movers
+        .iter()
+        .zip(&away)
+        .filter(|(_, &d)| d as f64 > settings.ghost_distance)
+        .map(|(p, _)| *p)
+        .collect();
+    let truth_index = PointIndex::new(&truth);
+    let r = settings.mover_radius as f32;
+    let near_truth = truth_index.nearest_distances(&map.vertices);
+    figures.mover_points = Some(
+        near_truth
+            .iter()
+            .zip(distances)
+            .filter(|(&t, &s)| t <= r && s > r)
+            .count(),
+    );
+    let kept = index.nearest_distances(&truth);
+    figures.dynamic_accuracy = Some(share(kept.iter().filter(|&&d| d > r).count(), truth.len()));
 }
 
 /// SA of `map` against `baseline`: of the samples the baseline covers, the share the

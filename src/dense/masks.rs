@@ -251,21 +251,7 @@ impl MaskSource {
                     }
                 }
                 if self.settings.segments.is_some() {
-                    let outside = keypoints
-                        .iter()
-                        .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
-                        .map(|p| (p[0], p[1]));
-                    // Seeds seen moving count inside a box too: a second mover partly
-                    // hidden behind a detected one.
-                    let seeds: Vec<Seed> = outside
-                        .chain(evidence.map_or(Vec::new(), |e| moving_seeds(e, w, h)))
-                        .map(|(x, y)| Seed {
-                            x,
-                            y,
-                            followed: false,
-                            since: timestamp,
-                        })
-                        .collect();
+                    let seeds = seeds_of(keypoints, &objects, evidence, (w, h), timestamp);
                     any |= self.segment_masks(
                         &mut mask,
                         PosedDepth {
@@ -518,6 +504,31 @@ fn moving_seeds(evidence: &Evidence, w: usize, h: usize) -> Vec<(f32, f32)> {
         .flat_map(|v| (0..w).step_by(MOVING_SEED_STEP).map(move |u| (u, v)))
         .filter(|&(u, v)| evidence.moving[v * w + u])
         .map(|(u, v)| (u as f32, v as f32))
+        .collect()
+}
+
+/// The segments' seeds at `timestamp`: the frame's dynamic keypoints outside the
+/// boxes, and the pixels seen moving (inside a box too: a second mover partly hidden
+/// behind a detected one).
+fn seeds_of(
+    keypoints: &[[f32; 3]],
+    objects: &[ObjectBox],
+    evidence: Option<&Evidence>,
+    size: (usize, usize),
+    timestamp: f64,
+) -> Vec<Seed> {
+    let outside = keypoints
+        .iter()
+        .filter(|p| !objects.iter().any(|b| b.contains(p[0], p[1])))
+        .map(|p| (p[0], p[1]));
+    outside
+        .chain(evidence.map_or(Vec::new(), |e| moving_seeds(e, size.0, size.1)))
+        .map(|(x, y)| Seed {
+            x,
+            y,
+            followed: false,
+            since: timestamp,
+        })
         .collect()
 }
 

@@ -282,6 +282,24 @@ pub fn evaluate(
     evaluate_with_series(reference, estimate, options).map(|e| e.report)
 }
 
+impl AlignmentUsed {
+    /// The alignment `transform` found in `mode` from `poses_used` pose pairs.
+    fn of(mode: AlignMode, transform: &Sim3, poses_used: usize) -> Self {
+        let r = transform.rotation.matrix();
+        Self {
+            mode,
+            rotation: [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
+            translation: transform.translation.into(),
+            scale: transform.scale,
+            poses_used,
+        }
+    }
+}
+
 /// [`evaluate`], with what its plots draw ([`EvalSeries`]).
 pub fn evaluate_with_series(
     reference: &Trajectory,
@@ -331,7 +349,6 @@ pub fn evaluate_with_series(
         .collect::<Result<Vec<_>, _>>()?;
     let (rpe, rpe_series): (Vec<_>, Vec<_>) = rpe.into_iter().unzip();
 
-    let r = transform.rotation.matrix();
     let report = EvalReport {
         reference_poses: reference.len(),
         estimate_poses: estimate.len(),
@@ -341,17 +358,7 @@ pub fn evaluate_with_series(
         association: options.association,
         max_diff,
         offset: options.offset,
-        alignment: AlignmentUsed {
-            mode: options.align,
-            rotation: [
-                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
-                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
-                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
-            ],
-            translation: transform.translation.into(),
-            scale: transform.scale,
-            poses_used,
-        },
+        alignment: AlignmentUsed::of(options.align, &transform, poses_used),
         ape,
         rpe,
         kitti,

@@ -8,7 +8,7 @@ use std::collections::{HashMap, HashSet};
 use serde::Serialize;
 
 use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
-use crate::bow::{BowVector, Database, FeatureVector, Vocabulary};
+use crate::bow::{BowVector, Database, FeatureVector, Hit, Vocabulary};
 use crate::map::{KeyFrameKey, Map};
 
 /// Loop-closing parameters (ORB-SLAM2's values by default).
@@ -140,28 +140,7 @@ impl PlaceRecognition {
             .into_iter()
             .filter(|h| h.score >= min_score && h.common as f64 >= 0.8 * max_common as f64)
             .collect();
-        let scores: HashMap<KeyFrameKey, f64> = hits.iter().map(|h| (h.id, h.score)).collect();
-        // Accumulate each hit's score with its covisible hits; keep the best of each group.
-        let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
-        for h in &hits {
-            let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
-            for n in map.keyframes()[h.id].best_covisible(10) {
-                if let Some(&s) = scores.get(&n) {
-                    total += s;
-                    if s > best_score {
-                        (best, best_score) = (n, s);
-                    }
-                }
-            }
-            grouped.push((best, best_score, total));
-        }
-        let best_total = grouped.iter().map(|g| g.2).fold(0.0, f64::max);
-        let mut candidates: Vec<(KeyFrameKey, f64)> = Vec::new();
-        for (k, s, total) in grouped {
-            if total >= 0.75 * best_total && !candidates.iter().any(|(c, _)| *c == k) {
-                candidates.push((k, s));
-            }
-        }
+        let candidates = best_of_groups(map, &hits);
         // Consistency with the previous keyframes' groups.
         let mut next_groups: Vec<(HashSet<KeyFrameKey>, usize)> = Vec::new();
         let mut enough = Vec::new();
@@ -202,4 +181,31 @@ impl PlaceRecognition {
         self.groups = next_groups;
         enough
     }
+}
+
+/// Each hit's score accumulated with its covisible hits' (its 10 best), the best
+/// keyframe of each group kept where the group's total reaches 75 % of the best total.
+fn best_of_groups(map: &Map, hits: &[Hit<KeyFrameKey>]) -> Vec<(KeyFrameKey, f64)> {
+    let scores: HashMap<KeyFrameKey, f64> = hits.iter().map(|h| (h.id, h.score)).collect();
+    let mut grouped: Vec<(KeyFrameKey, f64, f64)> = Vec::new();
+    for h in hits {
+        let (mut best, mut best_score, mut total) = (h.id, h.score, h.score);
+        for n in map.keyframes()[h.id].best_covisible(10) {
+            if let Some(&s) = scores.get(&n) {
+                total += s;
+                if s > best_score {
+                    (best, best_score) = (n, s);
+                }
+            }
+        }
+        grouped.push((best, best_score, total));
+    }
+    let best_total = grouped.iter().map(|g| g.2).fold(0.0, f64::max);
+    let mut candidates: Vec<(KeyFrameKey, f64)> = Vec::new();
+    for (k, s, total) in grouped {
+        if total >= 0.75 * best_total && !candidates.iter().any(|(c, _)| *c == k) {
+            candidates.push((k, s));
+        }
+    }
+    candidates
 }

@@ -120,6 +120,43 @@ fn count_pngs(dir: &Path) -> Result<usize, IoError> {
         .count())
 }
 
+/// The frame times in `times.txt` at `times_path`: at least one, in time order.
+fn ordered_times(times_path: &Path) -> Result<Vec<f64>, IoError> {
+    let times = read_times(times_path)?;
+    if times.is_empty() {
+        return Err(IoError::invalid(times_path, "lists no frame times"));
+    }
+    if let Some(k) = (1..times.len()).find(|&k| times[k] < times[k - 1]) {
+        return Err(IoError::invalid(
+            times_path,
+            format!(
+                "time {} on line {} comes before {} on the line above: KITTI frames are numbered in time order (line k is image k-1), so the order decides which image is which",
+                times[k],
+                k + 1,
+                times[k - 1]
+            ),
+        ));
+    }
+    Ok(times)
+}
+
+/// The KITTI poses at `path`, one per frame, timed by `times`.
+fn ground_truth_for(path: &Path, times: &[f64]) -> Result<Trajectory, IoError> {
+    let mut gt = Trajectory::read_kitti(path)?;
+    if gt.len() != times.len() {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "holds {} poses but times.txt has {} frames",
+                gt.len(),
+                times.len()
+            ),
+        ));
+    }
+    gt.timestamps = times.to_vec();
+    Ok(gt)
+}
+
 impl KittiSequence {
     /// Opens a KITTI odometry sequence folder. Ground truth comes from `ground_truth`
     /// when given, else from `../../poses/<name>.txt` when that file exists.
@@ -136,21 +173,7 @@ impl KittiSequence {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "sequence".into());
         let times_path = root.join("times.txt");
-        let times = read_times(&times_path)?;
-        if times.is_empty() {
-            return Err(IoError::invalid(&times_path, "lists no frame times"));
-        }
-        if let Some(k) = (1..times.len()).find(|&k| times[k] < times[k - 1]) {
-            return Err(IoError::invalid(
-                &times_path,
-                format!(
-                    "time {} on line {} comes before {} on the line above: KITTI frames are numbered in time order (line k is image k-1), so the order decides which image is which",
-                    times[k],
-                    k + 1,
-                    times[k - 1]
-                ),
-            ));
-        }
+        let times = ordered_times(&times_path)?;
         let (left, right) = (
             count_pngs(&root.join("image_0"))?,
             count_pngs(&root.join("image_1"))?,
@@ -184,24 +207,9 @@ impl KittiSequence {
                 .join(format!("{name}.txt"));
             candidate.exists().then_some(candidate)
         });
-        let ground_truth = match gt_path {
-            Some(path) => {
-                let mut gt = Trajectory::read_kitti(&path)?;
-                if gt.len() != times.len() {
-                    return Err(IoError::invalid(
-                        &path,
-                        format!(
-                            "holds {} poses but times.txt has {} frames",
-                            gt.len(),
-                            times.len()
-                        ),
-                    ));
-                }
-                gt.timestamps.clone_from(&times);
-                Some(gt)
-            }
-            None => None,
-        };
+        let ground_truth = gt_path
+            .map(|path| ground_truth_for(&path, &times))
+            .transpose()?;
         Ok(Self {
             name,
             root: root.to_path_buf(),

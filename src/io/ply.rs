@@ -151,15 +151,9 @@ pub enum PlyEncoding {
     Ascii,
 }
 
-/// Writes `mesh` (and an optional per-vertex `scalar` field) to `path` atomically.
-pub fn write_ply(
-    path: &Path,
-    mesh: &Mesh,
-    scalar: Option<&[f32]>,
-    encoding: PlyEncoding,
-    comment: &str,
-) -> Result<(), IoError> {
-    mesh.validate().map_err(|m| IoError::invalid(path, m))?;
+/// The vertex element's properties: position, then normals, colours and the scalar
+/// field when the mesh has them.
+fn vertex_element(mesh: &Mesh, with_scalar: bool) -> ElementDef {
     let float = PropertyType::Scalar(ScalarType::Float);
     let uchar = PropertyType::Scalar(ScalarType::UChar);
     let mut vertex = ElementDef::new("vertex".to_string());
@@ -182,11 +176,24 @@ pub fn write_ply(
                 .add(PropertyDef::new(name.into(), uchar.clone()));
         }
     }
-    if scalar.is_some() {
+    if with_scalar {
         vertex
             .properties
             .add(PropertyDef::new("scalar".into(), float.clone()));
     }
+    vertex
+}
+
+/// Writes `mesh` (and an optional per-vertex `scalar` field) to `path` atomically.
+pub fn write_ply(
+    path: &Path,
+    mesh: &Mesh,
+    scalar: Option<&[f32]>,
+    encoding: PlyEncoding,
+    comment: &str,
+) -> Result<(), IoError> {
+    mesh.validate().map_err(|m| IoError::invalid(path, m))?;
+    let mut vertex = vertex_element(mesh, scalar.is_some());
     let mut vertices: Ply<Record> = Ply::new();
     vertices.header.encoding = match encoding {
         PlyEncoding::Binary => Encoding::BinaryLittleEndian,

@@ -187,8 +187,9 @@ impl PoseGraph {
         terms.iter().sum()
     }
 
-    /// Optimises the free poses in place.
-    pub fn optimise(&mut self, options: &GraphOptions) -> GraphReport {
+    /// Each pose's index among the free ones (`usize::MAX`: fixed), and how many are
+    /// free. With none fixed, the first pose is.
+    fn free_indices(&self) -> (Vec<usize>, usize) {
         let n = self.poses.len();
         let mut fixed = self.fixed.clone();
         fixed.resize(n, false);
@@ -203,6 +204,23 @@ impl PoseGraph {
                 free += 1;
             }
         }
+        (free_index, free)
+    }
+
+    /// Moves each free pose by its part of `delta`: \(T \leftarrow T \exp(-\delta)\).
+    fn step(&mut self, delta: &nalgebra::DVector<f64>, free_index: &[usize]) {
+        for (i, pose) in self.poses.iter_mut().enumerate() {
+            let c = free_index[i];
+            if c != usize::MAX {
+                let d: Vector6<f64> = -delta.fixed_rows::<6>(6 * c).into_owned();
+                *pose = se3::normalised(&(*pose * se3::exp(&d)));
+            }
+        }
+    }
+
+    /// Optimises the free poses in place.
+    pub fn optimise(&mut self, options: &GraphOptions) -> GraphReport {
+        let (free_index, free) = self.free_indices();
         let initial_cost = self.cost();
         let mut report = GraphReport {
             initial_cost,
@@ -242,13 +260,7 @@ impl PoseGraph {
                     continue;
                 };
                 let previous = self.poses.clone();
-                for (i, pose) in self.poses.iter_mut().enumerate() {
-                    let c = free_index[i];
-                    if c != usize::MAX {
-                        let d: Vector6<f64> = -delta.fixed_rows::<6>(6 * c).into_owned();
-                        *pose = se3::normalised(&(*pose * se3::exp(&d)));
-                    }
-                }
+                self.step(&delta, &free_index);
                 let candidate = self.cost();
                 if candidate < current {
                     let gain = (current - candidate) / current.max(1e-300);

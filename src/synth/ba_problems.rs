@@ -44,15 +44,9 @@ impl BaSpec {
     }
 }
 
-/// The problem (first pose fixed), the true poses (camera-from-world) and points.
-pub fn room_problem(
-    spec: &BaSpec,
-    camera: &StereoCamera,
-    seed: u64,
-) -> (BaProblem, Vec<Se3>, Vec<Vector3<f64>>) {
-    let mut rng = Rng::new(seed);
-    // Points on the walls of a 8 x 3 x 8 m room and on boxes inside it.
-    let points: Vec<Vector3<f64>> = (0..spec.points)
+/// `n` points on the walls of a 8 x 3 x 8 m room and on boxes inside it.
+fn room_points(n: usize, rng: &mut Rng) -> Vec<Vector3<f64>> {
+    (0..n)
         .map(|_| {
             let (a, b) = (rng.range(-4.0, 4.0), rng.range(-1.5, 1.5));
             match rng.next_u64() % 5 {
@@ -67,11 +61,15 @@ pub fn room_problem(
                 ),
             }
         })
-        .collect();
-    // A slow loop around the room's centre, looking outwards and sideways.
-    let poses: Vec<Se3> = (0..spec.keyframes)
+        .collect()
+}
+
+/// `n` poses (camera-from-world) along a slow loop around the room's centre, looking
+/// outwards and sideways.
+fn loop_poses(n: usize) -> Vec<Se3> {
+    (0..n)
         .map(|i| {
-            let t = i as f64 / spec.keyframes as f64;
+            let t = i as f64 / n as f64;
             let angle = std::f64::consts::TAU * 1.5 * t;
             let centre = Vector3::new(
                 1.2 * (2.0 * angle).cos(),
@@ -84,7 +82,18 @@ pub fn room_problem(
             );
             world_from_camera.inverse()
         })
-        .collect();
+        .collect()
+}
+
+/// The problem (first pose fixed), the true poses (camera-from-world) and points.
+pub fn room_problem(
+    spec: &BaSpec,
+    camera: &StereoCamera,
+    seed: u64,
+) -> (BaProblem, Vec<Se3>, Vec<Vector3<f64>>) {
+    let mut rng = Rng::new(seed);
+    let points = room_points(spec.points, &mut rng);
+    let poses = loop_poses(spec.keyframes);
     let mut observations = Vec::new();
     for (c, pose) in poses.iter().enumerate() {
         let visible: Vec<(usize, Vector3<f64>)> = points

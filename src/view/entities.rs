@@ -350,14 +350,7 @@ mod with_rerun {
                     self.send(at, at_path(KEYFRAMES), &points)
                 }
                 Entry::Trajectory { name, centres } => {
-                    // A baseline's (`no_dop`) in red, the run's green (final) and
-                    // blue (tracking), the ground truth grey.
-                    let colour = match (*name, prefix.is_empty()) {
-                        ("truth", _) => Color::from_rgb(120, 120, 120),
-                        (_, false) => Color::from_rgb(230, 60, 60),
-                        ("final", true) => Color::from_rgb(40, 200, 80),
-                        _ => Color::from_rgb(60, 120, 255),
-                    };
+                    let colour = trajectory_colour(name, !prefix.is_empty());
                     let strip = LineStrips3D::new([centres.iter().map(vec3).collect::<Vec<_>>()])
                         .with_colors([colour]);
                     self.send(at, at_path(&format!("{TRAJECTORY}/{name}")), &strip)
@@ -457,6 +450,17 @@ mod with_rerun {
             .encode_image(image)
             .expect("encoding an RGB image into memory cannot fail");
         bytes
+    }
+
+    /// A trajectory's colour: the ground truth grey, a baseline's (`no_dop`) red, the
+    /// run's green (final) and blue (tracking).
+    fn trajectory_colour(name: &str, baseline: bool) -> Color {
+        match (name, baseline) {
+            ("truth", _) => Color::from_rgb(120, 120, 120),
+            (_, true) => Color::from_rgb(230, 60, 60),
+            ("final", false) => Color::from_rgb(40, 200, 80),
+            _ => Color::from_rgb(60, 120, 255),
+        }
     }
 
     /// Depth scaled by `scale` (nearest sample: depths are not blended).

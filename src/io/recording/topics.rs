@@ -161,13 +161,15 @@ fn contains_any(name: &str, words: &[&str]) -> bool {
     words.iter().any(|w| lower.contains(w))
 }
 
-/// Chooses the colour, depth and camera-info topics.
-pub fn choose(
-    path: &Path,
-    catalog: &Catalog,
+/// Topics with their rank (lowest first).
+type Ranked<'a> = Vec<(u8, &'a Topic)>;
+
+/// The recording's image topics with messages, by content: colour (and grey) and
+/// depth, each ranked (0 first: a name that says what it carries; grey last).
+fn image_topics<'a>(
+    catalog: &'a Catalog,
     store: &dyn Store,
-    choice: &TopicChoice,
-) -> Result<Chosen, IoError> {
+) -> Result<(Ranked<'a>, Ranked<'a>), IoError> {
     let images = [IMAGE, COMPRESSED];
     let mut colour = Vec::new();
     let mut depth = Vec::new();
@@ -189,6 +191,18 @@ pub fn choose(
             Content::Other => {}
         }
     }
+    Ok((colour, depth))
+}
+
+/// Chooses the colour, depth and camera-info topics.
+pub fn choose(
+    path: &Path,
+    catalog: &Catalog,
+    store: &dyn Store,
+    choice: &TopicChoice,
+) -> Result<Chosen, IoError> {
+    let images = [IMAGE, COMPRESSED];
+    let (colour, depth) = image_topics(catalog, store)?;
     if choice.depth.is_none() && depth.is_empty() {
         if let Some(pair) = stereo_pair(catalog, &colour, choice) {
             return Ok(pair);

@@ -320,22 +320,7 @@ impl Tracker {
         report.in_segment(self.segment);
         report.stats.inliers = inliers;
         report.stats.matches = points.iter().filter(|p| p.is_some()).count();
-        report.record.observations = points
-            .iter()
-            .enumerate()
-            .filter_map(|(i, k)| {
-                let key = k.filter(|&k| map.points().get(k).is_some_and(|p| !gate.excluded(p)))?;
-                let keypoint = &frame.keypoints[i];
-                Some(FrameObservation {
-                    point: key,
-                    keypoint: i as u32,
-                    x: keypoint.x,
-                    y: keypoint.y,
-                    right_u: frame.right_u[i],
-                    level: keypoint.level,
-                })
-            })
-            .collect();
+        report.record.observations = observations(map, gate, &frame, &points);
         if let Some(last) = &self.last {
             self.velocity = Some(se3::normalised(&(pose * last.camera_from_world.inverse())));
         }
@@ -414,4 +399,29 @@ impl Tracker {
             points,
         });
     }
+}
+
+/// The frame's matches to points that take part (`gate`), as the report records them.
+fn observations(
+    map: &Map,
+    gate: &Participation,
+    frame: &Frame,
+    points: &[Option<MapPointKey>],
+) -> Vec<FrameObservation> {
+    points
+        .iter()
+        .enumerate()
+        .filter_map(|(i, k)| {
+            let key = k.filter(|&k| map.points().get(k).is_some_and(|p| !gate.excluded(p)))?;
+            let keypoint = &frame.keypoints[i];
+            Some(FrameObservation {
+                point: key,
+                keypoint: i as u32,
+                x: keypoint.x,
+                y: keypoint.y,
+                right_u: frame.right_u[i],
+                level: keypoint.level,
+            })
+        })
+        .collect()
 }
