@@ -71,7 +71,7 @@ impl Mode {
     /// The moving probability above which a map point is dynamic and takes no part
     /// in new points, local BA or the global pass: the model's removal threshold with
     /// the DOP model, else 1 (none is).
-    pub fn moving_threshold(self, dop: &DopConfig) -> f32 {
+    pub fn removal_threshold(self, dop: &DopConfig) -> f32 {
         match self {
             Mode::Dop => dop.removal_threshold,
             Mode::Off | Mode::MaskBoxes => 1.0,

@@ -109,11 +109,11 @@ fn parallax(rays: &[Vector3<f64>]) -> f64 {
 /// The pairs \((x, y)\) of every static point seen by keyframes whose rays span at
 /// least [`MIN_PARALLAX_DEG`], one per observation with a stereo depth at a level up to
 /// [`MAX_LEVEL`] (every observation's ray enters the triangulation).
-fn pairs(map: &Map, camera: &StereoCamera, moving_threshold: f32) -> Vec<Pair> {
+fn pairs(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Vec<Pair> {
     let mut out = Vec::new();
     let min_parallax = MIN_PARALLAX_DEG.to_radians();
     for point in map.points().values() {
-        if point.moving > moving_threshold || point.observations.len() < 2 {
+        if point.moving > removal_threshold || point.observations.len() < 2 {
             continue;
         }
         let seen: Vec<_> = point
@@ -193,8 +193,8 @@ pub struct Estimate {
 }
 
 /// The offset \(\delta\) the map shows; `None` with fewer than [`MIN_PAIRS`] pairs.
-pub fn estimate(map: &Map, camera: &StereoCamera, moving_threshold: f32) -> Option<Estimate> {
-    let pairs = pairs(map, camera, moving_threshold);
+pub fn estimate(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Option<Estimate> {
+    let pairs = pairs(map, camera, removal_threshold);
     if pairs.len() < MIN_PAIRS {
         return None;
     }

@@ -97,7 +97,7 @@ fn refined_pose(
         .iter()
         .filter_map(|o| {
             let point = map.points().get(o.point)?;
-            (point.moving <= inputs.moving_threshold).then(|| {
+            (point.moving <= inputs.removal_threshold).then(|| {
                 PoseObservation::of_keypoint(
                     point.position,
                     (o.x, o.y, o.right_u),
@@ -167,7 +167,7 @@ mod tests {
             pyramid: &pyramid,
             stereo: false,
             size: (640.0, 480.0),
-            moving_threshold: 0.6,
+            removal_threshold: 0.6,
             prediction_gate_share: 0.7,
         };
         let truth = Se3::from_parts(

@@ -223,7 +223,7 @@ impl<'a> LoopCloser<'a> {
                     words: &self.recognition.words[&candidate].1,
                 },
                 config.ratio,
-                self.inputs.moving_threshold,
+                self.inputs.removal_threshold,
             )
         };
         if matches.len() < min_inliers {
@@ -314,7 +314,7 @@ impl<'a> LoopCloser<'a> {
         for k in keyframes {
             let kf = &map.keyframes()[*k];
             for i in 0..kf.map_points.len() {
-                if let Some(p) = static_point(map, kf, i, self.inputs.moving_threshold) {
+                if let Some(p) = static_point(map, kf, i, self.inputs.removal_threshold) {
                     if seen.insert(p) {
                         points.push(p);
                     }

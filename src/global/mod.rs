@@ -147,7 +147,7 @@ pub struct GlobalInputs<'a> {
     /// The image size, pixels.
     pub size: (f32, f32),
     /// Points above this moving probability are dynamic and take no part.
-    pub moving_threshold: f32,
+    pub removal_threshold: f32,
     /// The frames' refinement starts from the points its initial pose explains when
     /// they are this share of all (`[tracking] prediction_gate_share`; 0: off).
     pub prediction_gate_share: f64,
@@ -262,7 +262,7 @@ fn take_out_disparity_offset(
 ) -> Option<disparity_offset::OffsetReport> {
     let mut offset = disparity_offset::OffsetReport::default();
     for _ in 0..OFFSET_ROUNDS {
-        let Some(found) = disparity_offset::estimate(map, inputs.camera, inputs.moving_threshold)
+        let Some(found) = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
         else {
             break;
         };
@@ -306,7 +306,7 @@ pub fn full_bundle_adjustment(
     config: &GlobalConfig,
 ) -> Option<FullBaReport> {
     let start = Instant::now();
-    let mut window = Window::whole_map(map, inputs.pyramid, inputs.moving_threshold)?;
+    let mut window = Window::whole_map(map, inputs.pyramid, inputs.removal_threshold)?;
     // A keyframe with few static observations (the DOP model called most of its points
     // dynamic) is held: BA would fit its pose to a handful of points, where tracking
     // had hundreds.

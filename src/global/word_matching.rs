@@ -13,12 +13,12 @@ pub fn static_point(
     map: &Map,
     kf: &KeyFrame,
     index: usize,
-    moving_threshold: f32,
+    removal_threshold: f32,
 ) -> Option<MapPointKey> {
     kf.map_points[index].filter(|p| {
         map.points()
             .get(*p)
-            .is_some_and(|x| x.moving <= moving_threshold)
+            .is_some_and(|x| x.moving <= removal_threshold)
     })
 }
 
@@ -36,7 +36,7 @@ pub fn match_by_words(
     a: Worded,
     b: Worded,
     ratio: f32,
-    moving_threshold: f32,
+    removal_threshold: f32,
 ) -> Vec<(usize, usize)> {
     let (
         Worded {
@@ -50,7 +50,7 @@ pub fn match_by_words(
     ) = (a, b);
     // Keypoints of b already used, or without a static point: never candidates.
     let mut taken: Vec<bool> = (0..b.frame.len())
-        .map(|i| static_point(map, b, i, moving_threshold).is_none())
+        .map(|i| static_point(map, b, i, removal_threshold).is_none())
         .collect();
     let mut matches = Vec::new();
     let (mut i, mut j) = (0, 0);
@@ -61,7 +61,7 @@ pub fn match_by_words(
             std::cmp::Ordering::Equal => {
                 for &ia in &words_a[i].1 {
                     let ia = ia as usize;
-                    if static_point(map, a, ia, moving_threshold).is_none() {
+                    if static_point(map, a, ia, removal_threshold).is_none() {
                         continue;
                     }
                     let d = &a.frame.descriptors[ia];

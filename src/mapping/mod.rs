@@ -103,7 +103,7 @@ pub struct LocalMapper {
     pending: Option<Arc<AtomicUsize>>,
     /// Keypoints with a moving probability above this make no new points (1: none
     /// excluded; the DOP model sets its removal threshold).
-    pub moving_threshold: f32,
+    pub removal_threshold: f32,
     /// What it did so far.
     pub stats: MappingStats,
     /// Called with each keyframe once it is processed (loop detection takes it from
@@ -129,7 +129,7 @@ impl LocalMapper {
             close_depth,
             recent: Vec::new(),
             pending: None,
-            moving_threshold: 1.0,
+            removal_threshold: 1.0,
             stats: MappingStats::default(),
             then: None,
         }
@@ -189,7 +189,7 @@ impl LocalMapper {
                     key,
                     self.config.local_ba_keyframes,
                     &self.pyramid,
-                    self.moving_threshold,
+                    self.removal_threshold,
                 )
             };
             if let Some(mut window) = window {
@@ -240,7 +240,7 @@ impl LocalMapper {
                         &self.camera,
                         &self.pyramid,
                         self.close_depth,
-                        self.moving_threshold,
+                        self.removal_threshold,
                     );
                     Some((other, points))
                 })

@@ -89,14 +89,14 @@ fn epipolar(
 
 /// Matches the unmatched keypoints of `kf1` and `kf2` under the epipolar constraint and
 /// triangulates them. `close_depth` is the RGB-D close/far limit in metres; keypoints
-/// with a moving probability above `moving_threshold` are left out.
+/// with a moving probability above `removal_threshold` are left out.
 pub fn triangulate_pair(
     kf1: &KeyFrame,
     kf2: &KeyFrame,
     camera: &StereoCamera,
     pyramid: &ScalePyramid,
     close_depth: f32,
-    moving_threshold: f32,
+    removal_threshold: f32,
 ) -> Vec<NewPoint> {
     let baseline = camera.bf / camera.fx;
     let (c1, c2) = (kf1.centre(), kf2.centre());
@@ -107,13 +107,13 @@ pub fn triangulate_pair(
     let (f1, f2) = (&kf1.frame, &kf2.frame);
     // Keypoints the DOP model calls dynamic make no new points.
     let free2: Vec<usize> = (0..f2.len())
-        .filter(|&j| kf2.map_points[j].is_none() && f2.moving[j] <= moving_threshold)
+        .filter(|&j| kf2.map_points[j].is_none() && f2.moving[j] <= removal_threshold)
         .collect();
     let mut taken2 = vec![false; f2.len()];
     let mut found = Vec::new();
     let (p1, p2) = (projection(kf1), projection(kf2));
     for i in 0..f1.len() {
-        if kf1.map_points[i].is_some() || f1.moving[i] > moving_threshold {
+        if kf1.map_points[i].is_some() || f1.moving[i] > removal_threshold {
             continue;
         }
         // Close points with depth were already made from depth at insertion.

@@ -28,7 +28,7 @@ pub struct Window {
 
 impl Window {
     /// The window around `key` with at most `size` free keyframes; points whose moving
-    /// probability is above `moving_threshold` stay out, and so do points whose
+    /// probability is above `removal_threshold` stay out, and so do points whose
     /// keyframe's detection has not come back (real time: they may be on a person)
     /// unless they lie clear of the map's wait zones, as in tracking
     /// ([`Map::awaits_detection`]). `None` when there is nothing to hold the gauge.
@@ -37,7 +37,7 @@ impl Window {
         key: KeyFrameKey,
         size: usize,
         pyramid: &ScalePyramid,
-        moving_threshold: f32,
+        removal_threshold: f32,
     ) -> Option<Self> {
         let kf = map.keyframes().get(key)?;
         let mut local = vec![key];
@@ -46,20 +46,20 @@ impl Window {
                 .into_iter()
                 .filter(|k| map.keyframes().contains_key(*k)),
         );
-        Self::over(map, local, pyramid, moving_threshold)
+        Self::over(map, local, pyramid, removal_threshold)
     }
 
     /// Every keyframe of the map and every point they see whose moving probability is
-    /// at most `moving_threshold` (the global pass's full BA); the oldest keyframe of
+    /// at most `removal_threshold` (the global pass's full BA); the oldest keyframe of
     /// each map segment holds its gauge.
-    pub fn whole_map(map: &Map, pyramid: &ScalePyramid, moving_threshold: f32) -> Option<Self> {
+    pub fn whole_map(map: &Map, pyramid: &ScalePyramid, removal_threshold: f32) -> Option<Self> {
         let keyframes = map
             .keyframe_order()
             .iter()
             .copied()
             .filter(|k| map.keyframes().contains_key(*k))
             .collect();
-        Self::over(map, keyframes, pyramid, moving_threshold)
+        Self::over(map, keyframes, pyramid, removal_threshold)
     }
 
     /// `local` free (but the oldest keyframe of each map segment), the other keyframes
@@ -68,7 +68,7 @@ impl Window {
         map: &Map,
         local: Vec<KeyFrameKey>,
         pyramid: &ScalePyramid,
-        moving_threshold: f32,
+        removal_threshold: f32,
     ) -> Option<Self> {
         // The oldest keyframe of each map segment holds the gauge.
         let anchors = map.segment_anchors();
@@ -76,7 +76,7 @@ impl Window {
         let mut points = Vec::new();
         let mut positions = Vec::new();
         let usable =
-            |x: &&crate::map::MapPoint| x.moving <= moving_threshold && !map.awaits_detection(x);
+            |x: &&crate::map::MapPoint| x.moving <= removal_threshold && !map.awaits_detection(x);
         for k in &local {
             for p in map.keyframes()[*k].map_points.iter().flatten() {
                 if let Some(point) = map.points().get(*p).filter(usable) {

@@ -44,7 +44,7 @@ pub fn global_inputs(setup: &Setup) -> GlobalInputs<'_> {
         pyramid: &setup.extractor.pyramid,
         stereo: setup.sensor == crate::io::sequence::SensorKind::Stereo,
         size: (camera.width as f32, camera.height as f32),
-        moving_threshold: setup.mode.moving_threshold(&setup.config.dop),
+        removal_threshold: setup.mode.removal_threshold(&setup.config.dop),
         prediction_gate_share: if setup.mode == crate::dop::Mode::Dop {
             setup.config.tracking.prediction_gate_share
         } else {

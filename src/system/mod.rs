@@ -135,7 +135,7 @@ impl System {
             size,
             setup.close_depth,
         );
-        mapper.moving_threshold = setup.mode.moving_threshold(&config.dop);
+        mapper.removal_threshold = setup.mode.removal_threshold(&config.dop);
         let recognition = helpers.vocabulary.map(|vocabulary| {
             vocabulary.map(|vocabulary| {
                 let stage = Recognition {
