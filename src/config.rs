@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::checks::{self, BadValue};
-use crate::records::SettingsApplied;
+use crate::records::{ProfileApplied, SettingsApplied};
 
 pub use crate::dense::DenseConfig;
 pub use crate::detect::DetectorConfig;
@@ -401,24 +401,84 @@ impl Config {
         Ok(config)
     }
 
-    /// The config a sequence of `sensor` runs with: for stereo, `[stereo]`'s values
-    /// take the place of the RGB-D ones they name.
-    pub fn for_sensor(&self, sensor: crate::io::sequence::SensorKind) -> Self {
+    /// The config a sequence of `sensor` runs with, and the sensor profile applied:
+    /// for stereo, `[stereo]`'s values take the place of the RGB-D ones they name, and
+    /// the profile says which (and which values the config had set there).
+    pub fn for_sensor(
+        &self,
+        sensor: crate::io::sequence::SensorKind,
+    ) -> (Self, Option<ProfileApplied>) {
         let mut config = self.clone();
-        if sensor == crate::io::sequence::SensorKind::Stereo {
-            let stereo = &self.stereo;
-            config.orb.n_features = stereo.n_features;
-            config.tracking.th_depth = stereo.th_depth;
-            config.tracking.max_frames_between_keyframes = stereo.max_frames_between_keyframes;
-            config.dense.voxel = stereo.voxel;
-            config.dense.truncation = stereo.truncation;
-            config.dense.max_depth = stereo.max_depth;
-            config.dense.cloud_voxel = stereo.cloud_voxel;
-            config.dense.allocate_first = stereo.allocate_first;
-            config.dense.mask_free_space_seconds = stereo.mask_free_space_seconds;
-            config.tracking.wait_near_boxes_only = stereo.wait_near_boxes_only;
+        if sensor != crate::io::sequence::SensorKind::Stereo {
+            return (config, None);
         }
-        config
+        let (s, default) = (&self.stereo, Config::default());
+        let (orb, tracking, dense) = (&mut config.orb, &mut config.tracking, &mut config.dense);
+        let (d_orb, d_tracking, d_dense) = (&default.orb, &default.tracking, &default.dense);
+        let mut p = ProfileApplied::new("stereo");
+        p.set(
+            "orb.n_features",
+            &mut orb.n_features,
+            s.n_features,
+            d_orb.n_features,
+        );
+        p.set(
+            "tracking.th_depth",
+            &mut tracking.th_depth,
+            s.th_depth,
+            d_tracking.th_depth,
+        );
+        let most = d_tracking.max_frames_between_keyframes;
+        let slot = &mut tracking.max_frames_between_keyframes;
+        p.set(
+            "tracking.max_frames_between_keyframes",
+            slot,
+            s.max_frames_between_keyframes,
+            most,
+        );
+        let wait = d_tracking.wait_near_boxes_only;
+        let slot = &mut tracking.wait_near_boxes_only;
+        p.set(
+            "tracking.wait_near_boxes_only",
+            slot,
+            s.wait_near_boxes_only,
+            wait,
+        );
+        p.set("dense.voxel", &mut dense.voxel, s.voxel, d_dense.voxel);
+        p.set(
+            "dense.truncation",
+            &mut dense.truncation,
+            s.truncation,
+            d_dense.truncation,
+        );
+        p.set(
+            "dense.max_depth",
+            &mut dense.max_depth,
+            s.max_depth,
+            d_dense.max_depth,
+        );
+        p.set(
+            "dense.cloud_voxel",
+            &mut dense.cloud_voxel,
+            s.cloud_voxel,
+            d_dense.cloud_voxel,
+        );
+        let first = d_dense.allocate_first;
+        p.set(
+            "dense.allocate_first",
+            &mut dense.allocate_first,
+            s.allocate_first,
+            first,
+        );
+        let seconds = d_dense.mask_free_space_seconds;
+        let slot = &mut dense.mask_free_space_seconds;
+        p.set(
+            "dense.mask_free_space_seconds",
+            slot,
+            s.mask_free_space_seconds,
+            seconds,
+        );
+        (config, Some(p))
     }
 
     /// Checks every value's range; the error names the key.
@@ -879,5 +939,26 @@ mod tests {
             let message = Config::from_toml(text).unwrap_err().to_string();
             assert!(message.starts_with(key), "{message}");
         }
+    }
+
+    #[test]
+    fn the_stereo_profile_states_what_it_sets_and_what_it_replaced() {
+        use crate::io::sequence::SensorKind;
+        let config = Config::from_toml("[dense]\nvoxel = 0.02\n[stereo]\nvoxel = 0.2\n").unwrap();
+        let (rgbd, none) = config.for_sensor(SensorKind::Rgbd);
+        assert!(none.is_none());
+        assert_eq!(rgbd.dense.voxel, 0.02);
+        let (stereo, profile) = config.for_sensor(SensorKind::Stereo);
+        let profile = profile.expect("a stereo profile");
+        assert_eq!(stereo.dense.voxel, 0.2);
+        assert_eq!(stereo.orb.n_features, config.stereo.n_features);
+        assert_eq!(profile.set.len(), 10, "{:?}", profile.set);
+        assert!(profile.set.contains(&"dense.voxel = 0.2".to_string()));
+        // The config's own [dense] voxel is named; the defaults it never set are not.
+        assert_eq!(
+            profile.replaced,
+            ["dense.voxel = 0.02 replaced by stereo.voxel = 0.2"]
+        );
+        assert!(profile.warnings()[0].contains("[stereo] applies"));
     }
 }

@@ -8,7 +8,7 @@ pub mod report;
 pub mod setup;
 
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
-pub use setup::{RigOffset, RunSetup, SettingsApplied};
+pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied};
 
 use crate::dense::DenseReport;
 use crate::io::errors::read_text;

@@ -21,6 +21,9 @@ pub struct RunSetup {
     /// The ORB-SLAM2 settings file and which of its keys were applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub settings: Option<SettingsApplied>,
+    /// The sensor profile (`[stereo]`) and the keys it set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor_profile: Option<ProfileApplied>,
     /// The runtime data directory and why it was chosen (`dopslam doctor`).
     pub data_dir: String,
     /// Where detections came from.
@@ -78,6 +81,58 @@ impl RigOffset {
                 self.offset_px
             ),
         }
+    }
+}
+
+/// What a sensor profile (`[stereo]` for a stereo sequence) set in place of other
+/// sections' keys (`report.json`, `setup.sensor_profile`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ProfileApplied {
+    /// The profile's section: `stereo`.
+    pub profile: String,
+    /// Each key it set and its value: `dense.voxel = 0.1`.
+    pub set: Vec<String>,
+    /// Keys the config had set (away from their defaults) to another value, which the
+    /// profile replaced: `dense.voxel = 0.05 replaced by stereo.voxel = 0.1`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub replaced: Vec<String>,
+}
+
+impl ProfileApplied {
+    /// A profile of section `profile` that has set nothing yet.
+    pub fn new(profile: &str) -> Self {
+        Self {
+            profile: profile.to_string(),
+            ..Self::default()
+        }
+    }
+
+    /// Sets `slot` (key `key`, whose default is `default`) to the profile's `value`,
+    /// noting a value the config had set there.
+    pub fn set<T: PartialEq + std::fmt::Display>(
+        &mut self,
+        key: &str,
+        slot: &mut T,
+        value: T,
+        default: T,
+    ) {
+        let name = key.rsplit('.').next().unwrap_or(key);
+        if *slot != default && *slot != value {
+            self.replaced.push(format!(
+                "{key} = {slot} replaced by {}.{name} = {value}",
+                self.profile
+            ));
+        }
+        self.set.push(format!("{key} = {value}"));
+        *slot = value;
+    }
+
+    /// The warnings to print once: the config's values the profile replaced.
+    pub fn warnings(&self) -> Vec<String> {
+        self.replaced
+            .iter()
+            .map(|r| format!("warning: [{}] applies to this sequence: {r} (set the [{}] key to change it here)", self.profile, self.profile))
+            .collect()
     }
 }
 

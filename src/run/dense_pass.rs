@@ -38,7 +38,7 @@ impl DenseSetup {
     /// For `dopslam fuse` (no tracking pass before it): the sensor's config and the
     /// calibration of `sequence` under `config`.
     pub fn resolve(sequence: &dyn Sequence, config: &Config) -> Result<Self, RunError> {
-        let config = config.for_sensor(sequence.sensor());
+        let (config, _) = config.for_sensor(sequence.sensor());
         let calibration = resolve_calibration(sequence, &config)?;
         let bf = stereo_bf(&calibration);
         Ok(Self::new(config, calibration.camera, sequence.sensor(), bf))

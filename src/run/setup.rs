@@ -19,7 +19,7 @@ use crate::io::recording::RecordingSequence;
 use crate::io::sequence::{SensorKind, Sequence};
 use crate::io::tum::TumSequence;
 use crate::io::IoError;
-use crate::records::{RigOffset, RunSetup};
+use crate::records::{ProfileApplied, RigOffset, RunSetup};
 use crate::system::worker::Execution;
 use crate::system::SystemSetup;
 
@@ -50,6 +50,8 @@ pub struct Setup {
     /// Stereo: the rig's disparity offset added to every match, known
     /// (`[stereo] disparity_offset_px`) or estimated ([`super::rig_offset`]).
     pub disparity_offset: Option<RigOffset>,
+    /// The sensor profile applied to the config (`[stereo]`), if any.
+    pub profile: Option<ProfileApplied>,
 }
 
 impl Setup {
@@ -64,7 +66,7 @@ impl Setup {
         }
         // The detector's files first, then the vocabulary: a fresh install misses both,
         // and the detector is what a user sets up first.
-        let mut config = config.for_sensor(sequence.sensor());
+        let (mut config, profile) = config.for_sensor(sequence.sensor());
         config.detector.source = detection_source(&config)?;
         let vocabulary = loop_vocabulary(&config.global)?;
         // The first frame, read once: it decides the image size and shows a swapped pair.
@@ -79,6 +81,9 @@ impl Setup {
         warn_if_swapped(sequence.name(), first.as_ref(), &extractor, &camera);
         let sensor = sequence.sensor();
         let disparity_offset = RigOffset::known(&config, sensor);
+        for warning in profile.iter().flat_map(ProfileApplied::warnings) {
+            eprintln!("{warning}");
+        }
         Ok(Self {
             mode: effective_mode(&config),
             alpha: match sensor {
@@ -94,6 +99,7 @@ impl Setup {
             disparity_offset,
             extractor,
             vocabulary,
+            profile,
         })
     }
 
@@ -129,6 +135,7 @@ impl Setup {
             camera: self.camera,
             vocabulary: Some(Err(crate::global::NoLoops::TurnedOff)),
             disparity_offset: None,
+            profile: self.profile.clone(),
         }
     }
 
@@ -357,6 +364,7 @@ impl RunSetup {
             th_depth: config.tracking.th_depth,
             max_frames_between_keyframes: config.tracking.max_frames_between_keyframes,
             settings: config.dataset.settings_applied.clone(),
+            sensor_profile: setup.profile.clone(),
             data_dir: format!("{} ({})", absolute(data.path).display(), data.origin),
             detections: config.detector.source,
             detector_files: match config.detector.source {
