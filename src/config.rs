@@ -380,18 +380,12 @@ impl Config {
         let optional = [
             &mut self.dataset.settings,
             &mut self.dataset.ground_truth_file,
-            &mut detector.model_path,
             &mut detector.ort_library,
             &mut detector.cache_dir,
             &mut self.global.vocabulary,
         ];
         optional.into_iter().flatten().for_each(from);
-        detector.model_paths.iter_mut().for_each(from);
-        detector
-            .pool
-            .iter_mut()
-            .filter_map(|e| e.path.as_mut())
-            .for_each(from);
+        detector.models.named_paths_mut().into_iter().for_each(from);
     }
 
     /// Parses and validates TOML text; the message names the offending key.
@@ -862,7 +856,7 @@ mod tests {
         let config = Config::load(&dir.join("my.toml")).unwrap();
         assert_eq!(config.dataset.settings, Some(dir.join("cams/cam.yaml")));
         assert_eq!(
-            config.detector.model_paths,
+            config.detector.model_files(),
             [dir.join("m/a.onnx"), PathBuf::from("/abs/b.onnx")]
         );
         assert_eq!(config.global.vocabulary, Some(dir.join("voc.dbow")));

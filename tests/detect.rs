@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use dopslam::detect::onnx::{runtime_library, OnnxDetector, PoolModel};
 use dopslam::detect::yolo::Layout;
-use dopslam::detect::{DetectError, Detection, Detector, DetectorConfig, Model, Source};
+use dopslam::detect::{DetectError, Detection, Detector, DetectorConfig, Model, Models, Source};
 
 fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
@@ -203,8 +203,10 @@ fn missing_model_and_cache_errors_name_the_path() {
     if library().is_some() {
         let config = DetectorConfig {
             source: Source::Onnx,
-            model: Model::Yolov4Tiny,
-            model_path: Some(dir.join("absent.onnx")),
+            models: Models::One {
+                model: Model::Yolov4Tiny,
+                path: Some(dir.join("absent.onnx")),
+            },
             ort_library: Some(repo("data/ort/libonnxruntime.so")),
             ..DetectorConfig::default()
         };
@@ -217,7 +219,10 @@ fn missing_model_and_cache_errors_name_the_path() {
 fn auto_with_a_missing_model_is_an_error_that_names_it_and_the_fix() {
     let dir = common::temp_dir("detect-auto");
     let config = DetectorConfig {
-        model_path: Some(dir.join("absent.onnx")),
+        models: Models::One {
+            model: Model::Yolov4Tiny,
+            path: Some(dir.join("absent.onnx")),
+        },
         ..DetectorConfig::default()
     };
     assert_eq!(config.source, Source::Auto);
@@ -355,20 +360,29 @@ fn several_networks_pool_their_boxes_before_one_nms() {
 #[test]
 fn model_path_and_model_paths_exclude_each_other_and_missing_files_are_named() {
     let dir = common::temp_dir("detect-paths");
-    let both = DetectorConfig {
-        model_path: Some(dir.join("a.onnx")),
-        model_paths: vec![dir.join("b.onnx")],
-        ..DetectorConfig::default()
-    };
-    let error = both.validate().unwrap_err();
+    // The file's keys are read into one of the models, or refused.
+    let error =
+        toml::from_str::<DetectorConfig>("model_path = \"a.onnx\"\nmodel_paths = [\"b.onnx\"]\n")
+            .unwrap_err()
+            .to_string();
     assert!(
-        error.key == "detector.model_path" && error.problem.contains("model_paths"),
+        error.contains("detector.model_path") && error.contains("model_paths"),
         "{error}"
     );
+    let sizes: DetectorConfig = toml::from_str("model_paths = [\"a.onnx\", \"b.onnx\"]\n").unwrap();
+    assert!(
+        matches!(sizes.models, Models::Sizes { model: Model::Yolov4Tiny, ref paths } if paths.len() == 2)
+    );
+    // Written back as the same keys.
+    let written = toml::to_string(&sizes).unwrap();
+    assert_eq!(toml::from_str::<DetectorConfig>(&written).unwrap(), sizes);
     let present = dir.join("present.onnx");
     std::fs::write(&present, b"x").unwrap();
     let several = DetectorConfig {
-        model_paths: vec![present.clone(), dir.join("second-absent.onnx")],
+        models: Models::Sizes {
+            model: Model::Yolov4Tiny,
+            paths: vec![present.clone(), dir.join("second-absent.onnx")],
+        },
         ort_library: Some(present.clone()),
         ..DetectorConfig::default()
     };
@@ -459,14 +473,19 @@ fn a_pool_config_names_its_files_and_is_checked() {
     assert_eq!(models[1].score_threshold, Some(0.3));
     assert_eq!(models[1].layout, Layout::Deimv2);
     let mut bad = config.clone();
-    bad.pool[0].score_threshold = Some(1.5);
+    if let Models::Pool(pool) = &mut bad.models {
+        pool[0].score_threshold = Some(1.5);
+    }
     assert!(bad.validate().unwrap_err().key == "detector.pool[0].score_threshold");
     let mut factor = config.clone();
     factor.border_score_factor = -0.5;
     assert!(factor.validate().unwrap_err().key == "detector.border_score_factor");
-    let mut both = config.clone();
-    both.model_path = Some("/x.onnx".into());
-    assert!(both.validate().unwrap_err().key == "detector.pool");
+    let both = toml::from_str::<DetectorConfig>(
+        "model_path = \"/x.onnx\"\n[[pool]]\nmodel = \"yolov4-tiny\"\n",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(both.contains("detector.pool is set beside"), "{both}");
     let mut onnx = config;
     onnx.source = Source::Onnx;
     let error = onnx.resolved_source().unwrap_err().to_string();

@@ -5,7 +5,8 @@
 # $DOPSLAM_SHARED_DATA/real/kitti (default ../shared/data; said when absent) with
 # ORB-SLAM2's settings files, and prints one hash per output file; JSON reports are hashed without their
 # timing and memory fields and with the output folder's path replaced, so two builds
-# that compute the same thing print the same lines.
+# that compute the same thing print the same lines (from any checkout: its path is
+# replaced too).
 #
 #   bash tools/determinism_hashes.sh [BIN] > hashes.txt   # BIN default ./target/release/dopslam
 #   diff before.txt after.txt                              # empty: byte-identical outputs
@@ -41,6 +42,8 @@ fi
 python3 - "$work" <<'PY'
 import hashlib, json, os, re, sys
 root = sys.argv[1]
+# The checkout's own paths (its data folder: the detector's files) are not the run's.
+repo = os.path.abspath(".")
 timing = re.compile(r"(_ms$|^ms$|_s$|milliseconds|memory|seconds|^time|_time|elapsed|mib)")
 def strip(v):
     if isinstance(v, dict):
@@ -48,7 +51,7 @@ def strip(v):
     if isinstance(v, list):
         return [strip(x) for x in v]
     if isinstance(v, str):
-        return v.replace(os.path.abspath(root), "ROOT").replace(root, "ROOT")
+        return v.replace(os.path.abspath(root), "ROOT").replace(root, "ROOT").replace(repo, "REPO")
     return v
 for folder in sorted(d for d in os.listdir(root) if d.startswith("run-")):
     for dirpath, dirs, files in sorted(os.walk(os.path.join(root, folder))):
@@ -60,5 +63,7 @@ for folder in sorted(d for d in os.listdir(root) if d.startswith("run-")):
             data = open(path, "rb").read()
             if name.endswith(".json"):
                 data = json.dumps(strip(json.loads(data)), sort_keys=True).encode()
+            elif name == "detector.txt":
+                data = data.replace(repo.encode(), b"REPO")
             print(hashlib.sha256(data).hexdigest()[:16], os.path.relpath(path, root))
 PY

@@ -15,7 +15,8 @@ pub struct DetectArgs {
     /// A TOML config whose [detector] section picks the model (default: YOLOv4-tiny ONNX).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// The model: yolov4-tiny or yolox-nano (overrides the config).
+    /// The model: yolov4-tiny, yolox-nano or deimv2-femto, from its installed file
+    /// unless --model-path names one (overrides the config's models).
     #[arg(long, value_enum)]
     model: Option<DetectModelArg>,
     /// The model file (overrides the config); repeat it to run several files of the
@@ -71,23 +72,31 @@ pub fn check_detect_outputs(args: &DetectArgs) -> Result<()> {
 }
 
 pub fn run_detect(args: DetectArgs) -> Result<()> {
-    use dopslam::detect::{Model, Source};
+    use dopslam::detect::{Model, Models, Source};
     let config = load_config(args.config.as_deref())?;
     check_detect_outputs(&args)?;
     let mut detector_config = config.detector.clone();
     if matches!(detector_config.source, Source::None | Source::Auto) {
         detector_config.source = Source::Onnx;
     }
-    if let Some(model) = args.model {
-        detector_config.model = match model {
-            DetectModelArg::Yolov4Tiny => Model::Yolov4Tiny,
-            DetectModelArg::YoloxNano => Model::YoloxNano,
-            DetectModelArg::Deimv2Femto => Model::Deimv2Femto,
+    if args.model.is_some() || !args.model_path.is_empty() {
+        let model = match args.model {
+            Some(DetectModelArg::Yolov4Tiny) => Model::Yolov4Tiny,
+            Some(DetectModelArg::YoloxNano) => Model::YoloxNano,
+            Some(DetectModelArg::Deimv2Femto) => Model::Deimv2Femto,
+            None => detector_config.models.model().unwrap_or(Model::Yolov4Tiny),
         };
-    }
-    if !args.model_path.is_empty() {
-        detector_config.model_path = None;
-        detector_config.model_paths = args.model_path.clone();
+        detector_config.models = match args.model_path.len() {
+            0 => Models::One { model, path: None },
+            1 => Models::One {
+                model,
+                path: Some(args.model_path[0].clone()),
+            },
+            _ => Models::Sizes {
+                model,
+                paths: args.model_path.clone(),
+            },
+        };
     }
     if let Some(tiles) = args.tiles {
         detector_config.tiles = tiles;

@@ -223,20 +223,20 @@ fn needed_files(config: &Config) -> (Vec<Needed>, std::path::PathBuf) {
     needed.extend(
         config
             .detector
-            .model_files()
+            .pool_models()
             .into_iter()
-            .map(|path| Needed {
+            .map(|model| Needed {
                 what: "detector model (the config's)",
-                path,
+                path: model.path,
                 required: true,
-                load: Load::Model(config.detector.model.layout()),
+                load: Load::Model(model.layout),
             }),
     );
     for (model, what) in [
         (Model::YoloxNano, "detector model yolox-nano (optional)"),
         (Model::Deimv2Femto, "detector model deimv2-femto (optional)"),
     ] {
-        if config.detector.model != model && config.detector.pool.is_empty() {
+        if config.detector.models.model().is_some_and(|m| m != model) {
             needed.extend(model.default_paths().into_iter().map(|path| Needed {
                 what,
                 path,

@@ -9,7 +9,7 @@ use super::masks::MaskSettings;
 use super::segments::SegmentSettings;
 use super::tsdf::TsdfSettings;
 use crate::checks::{self, BadValue};
-use crate::detect::{DetectorConfig, Model, Source};
+use crate::detect::{DetectorConfig, Model, Models, Source};
 use crate::io::ply::PlyEncoding;
 
 /// `[dense] detect_model`: the model of the dense pass's own detections.
@@ -317,10 +317,7 @@ impl DenseConfig {
             return detector;
         }
         if let Some(model) = self.detect_model.model() {
-            detector.model = model;
-            detector.model_path = None;
-            detector.model_paths.clear();
-            detector.pool.clear();
+            detector.models = Models::One { model, path: None };
         }
         detector.tiles = self.detect_tiles;
         detector

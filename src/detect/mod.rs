@@ -8,6 +8,7 @@
 pub mod coco;
 pub mod draw;
 pub mod job;
+pub mod models;
 pub mod onnx;
 pub mod tiles;
 pub mod yolo;
@@ -20,6 +21,7 @@ use thiserror::Error;
 
 use crate::checks::{self, non_negative, unit_interval, BadValue};
 use crate::io::data_dir::{DataDir, INSTALL_HINT};
+pub use models::{Models, PoolEntry};
 use yolo::Layout;
 
 /// What can go wrong when detecting.
@@ -140,49 +142,15 @@ impl Model {
     }
 }
 
-/// One model of a pool (`[[detector.pool]]`): the model, its file (default: the
-/// model's own), and its score threshold (default: the model's own, else the
-/// detector's).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PoolEntry {
-    /// The model.
-    pub model: Model,
-    #[serde(default)]
-    /// Its file; unset: the installed one.
-    pub path: Option<PathBuf>,
-    #[serde(default)]
-    /// Its score threshold; unset: the detector's.
-    pub score_threshold: Option<f32>,
-}
-
-impl PoolEntry {
-    /// The file of this entry.
-    pub fn file(&self) -> PathBuf {
-        self.path
-            .clone()
-            .unwrap_or_else(|| self.model.default_paths().remove(0))
-    }
-}
-
 /// The `[detector]` section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(try_from = "models::DetectorFile", into = "models::DetectorFile")]
 pub struct DetectorConfig {
     /// Where detections come from (a model, a cache, the oracle, none).
     pub source: Source,
-    /// The model used when `source` is ONNX.
-    pub model: Model,
-    /// The model file (default: the model's own default files).
-    pub model_path: Option<PathBuf>,
-    /// Several files of the model (the same weights at several input sizes, say): each
-    /// keyframe runs them all and their boxes are merged by one NMS. Not with
-    /// `model_path`.
-    pub model_paths: Vec<PathBuf>,
-    /// Several models, of any families, each with its threshold: each keyframe runs
-    /// them all (one after the other) and their boxes go through one class-wise NMS.
-    /// When set, `model`, `model_path` and `model_paths` are not used.
-    pub pool: Vec<PoolEntry>,
+    /// The models an ONNX source runs (the file's `model`, `model_path`,
+    /// `model_paths` and `[[detector.pool]]` keys, [`models::DetectorFile`]).
+    pub models: Models,
     /// The ONNX Runtime library (default: `ORT_DYLIB_PATH`, else `ort/libonnxruntime.so`
     /// in the data directory).
     pub ort_library: Option<PathBuf>,
@@ -217,10 +185,10 @@ impl Default for DetectorConfig {
     fn default() -> Self {
         Self {
             source: Source::Auto,
-            model: Model::Yolov4Tiny,
-            model_path: None,
-            model_paths: Vec::new(),
-            pool: Vec::new(),
+            models: Models::One {
+                model: Model::Yolov4Tiny,
+                path: None,
+            },
             ort_library: None,
             threads: 1,
             score_threshold: 0.15,
@@ -251,23 +219,7 @@ impl DetectorConfig {
         )?;
         non_negative("detector.simulated_latency_ms", self.simulated_latency_ms)?;
         tiles::check_grid("detector.tiles", self.tiles)?;
-        if self.model_path.is_some() && !self.model_paths.is_empty() {
-            return Err(BadValue::new(
-                "detector.model_path",
-                "is set beside detector.model_paths: set one file or several, not both",
-            ));
-        }
-        if !self.pool.is_empty() && (self.model_path.is_some() || !self.model_paths.is_empty()) {
-            return Err(BadValue::new(
-                "detector.pool",
-                "is set beside detector.model_path / model_paths: set several models or a path, not both",
-            ));
-        }
-        for (i, entry) in self.pool.iter().enumerate() {
-            if let Some(t) = entry.score_threshold {
-                unit_interval(&format!("detector.pool[{i}].score_threshold"), t)?;
-            }
-        }
+        self.models.validate()?;
         for (key, classes) in [
             ("detector.dynamic_classes", &self.dynamic_classes),
             ("detector.static_classes", &self.static_classes),
@@ -279,14 +231,7 @@ impl DetectorConfig {
 
     /// The model files this config uses.
     pub fn model_files(&self) -> Vec<PathBuf> {
-        if !self.pool.is_empty() {
-            return self.pool.iter().map(PoolEntry::file).collect();
-        }
-        match (&self.model_path, self.model_paths.is_empty()) {
-            (Some(path), _) => vec![path.clone()],
-            (None, false) => self.model_paths.clone(),
-            (None, true) => self.model.default_paths(),
-        }
+        self.pool_models().into_iter().map(|m| m.path).collect()
     }
 
     /// The files an ONNX source needs (the models, then the runtime library), each
@@ -356,27 +301,9 @@ impl DetectorConfig {
         }
     }
 
-    /// The models an ONNX source runs: the pool, else the model's files.
+    /// The models an ONNX source runs, each file with its layout and threshold.
     pub fn pool_models(&self) -> Vec<onnx::PoolModel> {
-        if self.pool.is_empty() {
-            return self
-                .model_files()
-                .into_iter()
-                .map(|path| onnx::PoolModel {
-                    path,
-                    layout: self.model.layout(),
-                    score_threshold: self.model.own_threshold(),
-                })
-                .collect();
-        }
-        self.pool
-            .iter()
-            .map(|entry| onnx::PoolModel {
-                path: entry.file(),
-                layout: entry.model.layout(),
-                score_threshold: entry.score_threshold.or(entry.model.own_threshold()),
-            })
-            .collect()
+        self.models.files()
     }
 
     /// The latency added to the source's answers in real-time mode.
