@@ -79,7 +79,7 @@ fn main() {
     });
     println!(
         "TSDF integration 640x480 (voxel {} m): {ms:.2} ms median per frame ({} blocks)",
-        config.dense.voxel,
+        config.dense.tsdf.voxel,
         volume.blocks.len()
     );
 

@@ -438,34 +438,39 @@ impl Config {
             s.wait_near_boxes_only,
             wait,
         );
-        p.set("dense.voxel", &mut dense.voxel, s.voxel, d_dense.voxel);
+        p.set(
+            "dense.voxel",
+            &mut dense.tsdf.voxel,
+            s.voxel,
+            d_dense.tsdf.voxel,
+        );
         p.set(
             "dense.truncation",
-            &mut dense.truncation,
+            &mut dense.tsdf.truncation,
             s.truncation,
-            d_dense.truncation,
+            d_dense.tsdf.truncation,
         );
         p.set(
             "dense.max_depth",
-            &mut dense.max_depth,
+            &mut dense.tsdf.max_depth,
             s.max_depth,
-            d_dense.max_depth,
+            d_dense.tsdf.max_depth,
         );
         p.set(
             "dense.cloud_voxel",
-            &mut dense.cloud_voxel,
+            &mut dense.cloud.voxel,
             s.cloud_voxel,
-            d_dense.cloud_voxel,
+            d_dense.cloud.voxel,
         );
-        let first = d_dense.allocate_first;
+        let first = d_dense.tsdf.allocate_first;
         p.set(
             "dense.allocate_first",
-            &mut dense.allocate_first,
+            &mut dense.tsdf.allocate_first,
             s.allocate_first,
             first,
         );
-        let seconds = d_dense.mask_free_space_seconds;
-        let slot = &mut dense.mask_free_space_seconds;
+        let seconds = d_dense.masks.free_space_seconds;
+        let slot = &mut dense.masks.free_space_seconds;
         p.set(
             "dense.mask_free_space_seconds",
             slot,
@@ -941,10 +946,10 @@ mod tests {
         let config = Config::from_toml("[dense]\nvoxel = 0.02\n[stereo]\nvoxel = 0.2\n").unwrap();
         let (rgbd, none) = config.for_sensor(SensorKind::Rgbd);
         assert!(none.is_none());
-        assert_eq!(rgbd.dense.voxel, 0.02);
+        assert_eq!(rgbd.dense.tsdf.voxel, 0.02);
         let (stereo, profile) = config.for_sensor(SensorKind::Stereo);
         let profile = profile.expect("a stereo profile");
-        assert_eq!(stereo.dense.voxel, 0.2);
+        assert_eq!(stereo.dense.tsdf.voxel, 0.2);
         assert_eq!(stereo.orb.n_features, config.stereo.n_features);
         assert_eq!(profile.set.len(), 10, "{:?}", profile.set);
         assert!(profile.set.contains(&"dense.voxel = 0.2".to_string()));

@@ -62,12 +62,12 @@ fn oracle_config() -> Config {
 fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let (base, seq) = preset_sequence("walking_xyz", 150, "dense-walking");
     let mut config = oracle_config();
-    config.dense.voxel = 0.02;
-    config.dense.truncation = 0.06;
-    config.dense.cloud_stride = 4;
-    config.dense.normal_neighbours = 8;
+    config.dense.tsdf.voxel = 0.02;
+    config.dense.tsdf.truncation = 0.06;
+    config.dense.cloud.stride = 4;
+    config.dense.cloud.normal_neighbours = 8;
     // The masks alone: no piece of either mesh dropped (that filter is judged below).
-    config.dense.mesh_min_piece_area = 0.0;
+    config.dense.outputs.mesh_min_piece_area = 0.0;
     let run_dir = base.join("run");
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
     let dense = report.dense.expect("the dense pass ran");
@@ -180,7 +180,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     // fragments that float apart from the room go.
     let (pruned, dropped) = read_ply(&unmasked_dir.join("dense_mesh.ply"))
         .unwrap()
-        .without_small_pieces(DenseConfig::default().mesh_min_piece_area);
+        .without_small_pieces(DenseConfig::default().outputs.mesh_min_piece_area);
     assert!(dropped.pieces > 0, "{dropped:?}");
     let pruned_path = base.join("unmasked_pruned.ply");
     write_ply(&pruned_path, &pruned, None, PlyEncoding::Binary, "pruned").unwrap();
@@ -256,17 +256,17 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
     let (base, seq) = preset_sequence("unknown_movers", 150, "dense-free-space");
     let mut config = oracle_config();
-    config.dense.voxel = 0.03;
-    config.dense.truncation = 0.09;
-    config.dense.cloud = false;
-    config.dense.pictures = false;
-    config.dense.detect_every = 0;
+    config.dense.tsdf.voxel = 0.03;
+    config.dense.tsdf.truncation = 0.09;
+    config.dense.outputs.cloud = false;
+    config.dense.outputs.pictures = false;
+    config.dense.detections.every = 0;
     let run_dir = base.join("run");
     let (sequence, _) = deterministic_run(&seq, &config, &run_dir, false);
     let fuse = |(seconds, far_seconds): (f64, f64), name: &str| {
         let mut config = config.clone();
-        config.dense.mask_free_space_seconds = seconds;
-        config.dense.mask_free_space_far_seconds = far_seconds;
+        config.dense.masks.free_space_seconds = seconds;
+        config.dense.masks.free_space_far_seconds = far_seconds;
         let out = base.join(name);
         let report = dense_pass(&dopslam::run::DensePass {
             sequence: sequence.as_ref(),

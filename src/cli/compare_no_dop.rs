@@ -34,8 +34,8 @@ pub fn compare_with_baseline(
     let no_masks = run.join(names::NO_MASKS);
     let mut points_only = config.clone();
     points_only.dense.fusion = dopslam::dense::Fusion::Points;
-    points_only.dense.frames = FrameChoice::Keyframes;
-    points_only.dense.pictures = false;
+    points_only.dense.frames.which = FrameChoice::Keyframes;
+    points_only.dense.outputs.pictures = false;
     let setup = DenseSetup::resolve(sequence, &points_only)?;
     dense_pass(&dopslam::run::DensePass {
         sequence,

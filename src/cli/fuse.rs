@@ -78,11 +78,11 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         None => Config::default(),
     };
     if let Some(voxel) = args.voxel {
-        config.dense.voxel = voxel;
-        config.dense.truncation = config.dense.truncation.max(4.0 * voxel);
+        config.dense.tsdf.voxel = voxel;
+        config.dense.tsdf.truncation = config.dense.tsdf.truncation.max(4.0 * voxel);
     }
     if args.keyframes_only {
-        config.dense.frames = FrameChoice::Keyframes;
+        config.dense.frames.which = FrameChoice::Keyframes;
     }
     if let Some(path) = &args.settings {
         apply_settings(&mut config, path)?;

@@ -64,15 +64,43 @@ pub enum Fusion {
     Both,
 }
 
-/// `[dense]`: the dense map.
+/// `[dense]`: the dense map, in its parts. The file spells the keys flat (`voxel`,
+/// `mask_border`, ...; [`DenseFile`]); each part here is what one step of the pass
+/// reads.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(from = "DenseFile", into = "DenseFile")]
 pub struct DenseConfig {
     /// Run the dense pass after tracking (`dopslam run`).
     pub enabled: bool,
     /// TSDF mesh (default), ORB-SLAM2-style point cloud without carving, or both.
     pub fusion: Fusion,
-    /// TSDF voxel edge and truncation, metres.
+    /// Which frames are fused.
+    pub frames: DenseFrames,
+    /// The TSDF volume.
+    pub tsdf: DenseTsdf,
+    /// The keyframes' point cloud.
+    pub cloud: DenseCloud,
+    /// The dense pass's own detections.
+    pub detections: DenseDetections,
+    /// How the movers are masked.
+    pub masks: DenseMasks,
+    /// What the dense pass writes.
+    pub outputs: DenseOutputs,
+}
+
+/// Which frames are fused (`[dense]` keys `frames`, `frame_step`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseFrames {
+    /// Frames fused into the TSDF: all tracked frames or keyframes only.
+    pub which: FrameChoice,
+    /// Fuse every n-th chosen frame.
+    pub step: usize,
+}
+
+/// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `image_margin`, `allocate_first`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseTsdf {
+    /// Voxel edge, metres.
     pub voxel: f64,
     /// TSDF truncation, metres.
     pub truncation: f64,
@@ -90,11 +118,99 @@ pub struct DenseConfig {
     /// also counts the free space seen before a mover came (see
     /// [`TsdfVolume::allocate`]).
     pub allocate_first: bool,
-    /// Frames fused into the TSDF: all tracked frames or keyframes only.
-    pub frames: FrameChoice,
-    /// Fuse every n-th chosen frame.
-    pub frame_step: usize,
-    /// Outputs: the mesh (PLY), the mesh as OBJ too, the point cloud, pictures.
+}
+
+/// The keyframes' point cloud (`[dense]` keys `cloud_voxel`, `cloud_stride`, `outlier_neighbours`, `outlier_std`, `normal_neighbours`, `cloud_free_space`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseCloud {
+    /// Voxel edge, metres.
+    pub voxel: f64,
+    /// The cloud's pixel stride.
+    pub stride: usize,
+    /// Neighbours for outlier removal (0: off).
+    pub outlier_neighbours: usize,
+    /// The outlier threshold, standard deviations.
+    pub outlier_std: f64,
+    /// Neighbours for normals (0: none).
+    pub normal_neighbours: usize,
+    /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
+    /// missed by the masks that later left): \(F\) above this, in truncation units
+    /// (1 or more: off; needs the mesh).
+    pub free_space: f32,
+}
+
+/// The dense pass's own detections (`[dense]` keys `detect_every`, `detect_model`, `detect_tiles`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseDetections {
+    /// With the DOP model, also detect on every n-th fused frame for the masks (0: the
+    /// keyframes' detections only; see [`super::more_detections`]).
+    pub every: usize,
+    /// The model of those detections, when the run's detector is ONNX: the dense
+    /// pass is offline and can afford a better one than the tracking pass's.
+    pub model: DenseModel,
+    /// ... run on the whole image and on `detect_tiles` x `detect_tiles` overlapping
+    /// tiles of it ([`crate::detect::tiles`]); 1: the whole image only.
+    pub tiles: u32,
+}
+
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseMasks {
+    /// Mask dilation, pixels.
+    pub border: u32,
+    /// The disc radius around a dynamic keypoint, pixels.
+    pub keypoint_radius: u32,
+    /// The depth an object's mask is cut at: the nearest depth mode holding at least
+    /// this share of its box's pixels (the mover stands in front of what it hides);
+    /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
+    pub foreground_share: f32,
+    /// How far behind its depth an object's mask reaches, metres (in front it reaches
+    /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
+    /// behind the front of their body.
+    pub depth_behind: f32,
+    /// Discs also around dynamic keypoints inside a detected mover's box but behind
+    /// it (false: none there; more static pixels fused, but a second mover behind the
+    /// first loses its discs).
+    pub discs_behind_objects: bool,
+    /// A disc only around a dynamic keypoint with at least this many other dynamic
+    /// keypoints within four disc radii (0: around every one): the geometric check's
+    /// lone false alarms on the static scene get none, a mover's keypoints come in
+    /// groups.
+    pub disc_neighbours: usize,
+    /// Grow a depth segment from the dynamic keypoints outside every detected mover's
+    /// box (movers no detector knows, see [`segments`]): a region is kept when at least
+    /// `mask_segment_edge_share` of its border is a depth edge to something farther,
+    /// it holds `mask_segment_support` keypoints or more, and it grows at most
+    /// `mask_segment_radius` pixels from its seed, or as far as
+    /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
+    pub segments: bool,
+    /// The segment's reach from its seed, pixels.
+    pub segment_radius: u32,
+    /// The segment's reach at the seed's depth, metres.
+    pub segment_radius_metres: f32,
+    /// The share of its border that must be a depth edge.
+    pub segment_edge_share: f32,
+    /// The keypoints a segment needs.
+    pub segment_support: usize,
+    /// A kept segment seeds the next frames' growth for this many seconds after a
+    /// dynamic keypoint last supported it (0: no following).
+    pub segment_follow_seconds: f64,
+    /// Free-space evidence ([`free_space`]): each fused frame's pixels are checked
+    /// against the frames this many seconds (and half as many) before and after it;
+    /// pixels those frames saw through are masked (movers, also those no detector
+    /// found), and discs and dilation leave out pixels they saw still. 0: off.
+    pub free_space_seconds: f64,
+    /// Far neighbours added to the free-space evidence (when it is on): the frames
+    /// this many seconds (and half as many) before and after each fused frame. A mover
+    /// that stands still longer than the near window (a box set down, a person who
+    /// waits) was seen elsewhere then, and its place seen through. 0: none.
+    pub free_space_far_seconds: f64,
+}
+
+/// What the dense pass writes (`[dense]` keys `mesh`, `obj`, `mesh_min_piece_area`, `cloud`, `pictures`, `mask_pictures_every`, `ply_encoding`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseOutputs {
+    /// The mesh (PLY).
     pub mesh: bool,
     /// The mesh as OBJ too.
     pub obj: bool,
@@ -106,80 +222,6 @@ pub struct DenseConfig {
     pub cloud: bool,
     /// Pictures of the map.
     pub pictures: bool,
-    /// Point cloud (from keyframes): voxel edge, pixel stride, outlier removal
-    /// (neighbours, 0 off; threshold in standard deviations), neighbours for normals
-    /// (0: none).
-    pub cloud_voxel: f64,
-    /// The cloud's pixel stride.
-    pub cloud_stride: usize,
-    /// Neighbours for outlier removal (0: off).
-    pub outlier_neighbours: usize,
-    /// The outlier threshold, standard deviations.
-    pub outlier_std: f64,
-    /// Neighbours for normals (0: none).
-    pub normal_neighbours: usize,
-    /// Cloud points the fused TSDF has since seen as free space are dropped (a mover
-    /// missed by the masks that later left): \(F\) above this, in truncation units
-    /// (1 or more: off; needs the mesh).
-    pub cloud_free_space: f32,
-    /// With the DOP model, also detect on every n-th fused frame for the masks (0: the
-    /// keyframes' detections only; see [`super::more_detections`]).
-    pub detect_every: usize,
-    /// The model of those detections, when the run's detector is ONNX: the dense
-    /// pass is offline and can afford a better one than the tracking pass's.
-    pub detect_model: DenseModel,
-    /// ... run on the whole image and on `detect_tiles` x `detect_tiles` overlapping
-    /// tiles of it ([`crate::detect::tiles`]); 1: the whole image only.
-    pub detect_tiles: u32,
-    /// Mask dilation in pixels, and the disc radius around a dynamic keypoint.
-    pub mask_border: u32,
-    /// The disc radius around a dynamic keypoint, pixels.
-    pub keypoint_radius: u32,
-    /// The depth an object's mask is cut at: the nearest depth mode holding at least
-    /// this share of its box's pixels (the mover stands in front of what it hides);
-    /// 0: the dominant depth of the box's centre, as the tracking pass refines boxes.
-    pub mask_foreground_share: f32,
-    /// How far behind its depth an object's mask reaches, metres (in front it reaches
-    /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
-    /// behind the front of their body.
-    pub mask_depth_behind: f32,
-    /// Discs also around dynamic keypoints inside a detected mover's box but behind
-    /// it (false: none there; more static pixels fused, but a second mover behind the
-    /// first loses its discs).
-    pub mask_discs_behind_objects: bool,
-    /// A disc only around a dynamic keypoint with at least this many other dynamic
-    /// keypoints within four disc radii (0: around every one): the geometric check's
-    /// lone false alarms on the static scene get none, a mover's keypoints come in
-    /// groups.
-    pub mask_disc_neighbours: usize,
-    /// Grow a depth segment from the dynamic keypoints outside every detected mover's
-    /// box (movers no detector knows, see [`segments`]): a region is kept when at least
-    /// `mask_segment_edge_share` of its border is a depth edge to something farther,
-    /// it holds `mask_segment_support` keypoints or more, and it grows at most
-    /// `mask_segment_radius` pixels from its seed, or as far as
-    /// `mask_segment_radius_metres` reaches at the seed's depth where that is farther.
-    pub mask_segments: bool,
-    /// The segment's reach from its seed, pixels.
-    pub mask_segment_radius: u32,
-    /// The segment's reach at the seed's depth, metres.
-    pub mask_segment_radius_metres: f32,
-    /// The share of its border that must be a depth edge.
-    pub mask_segment_edge_share: f32,
-    /// The keypoints a segment needs.
-    pub mask_segment_support: usize,
-    /// A kept segment seeds the next frames' growth for this many seconds after a
-    /// dynamic keypoint last supported it (0: no following).
-    pub mask_segment_follow_seconds: f64,
-    /// Free-space evidence ([`free_space`]): each fused frame's pixels are checked
-    /// against the frames this many seconds (and half as many) before and after it;
-    /// pixels those frames saw through are masked (movers, also those no detector
-    /// found), and discs and dilation leave out pixels they saw still. 0: off.
-    pub mask_free_space_seconds: f64,
-    /// Far neighbours added to the free-space evidence (when it is on): the frames
-    /// this many seconds (and half as many) before and after each fused frame. A mover
-    /// that stands still longer than the near window (a box set down, a person who
-    /// waits) was seen elsewhere then, and its place seen through. 0: none.
-    pub mask_free_space_far_seconds: f64,
     /// Every n-th fused frame's mask as a picture in `mask_pictures/` (0: none): the
     /// colour frame beside its mask, against the ground truth of a synthetic sequence
     /// (green: mover masked, red: static masked, yellow: mover fused).
@@ -188,52 +230,237 @@ pub struct DenseConfig {
     pub ply_encoding: PlyEncoding,
 }
 
-impl Default for DenseConfig {
+/// The `[dense]` section as the file spells it: flat keys, read into [`DenseConfig`]'s
+/// parts.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DenseFile {
+    enabled: bool,
+    fusion: Fusion,
+    voxel: f64,
+    truncation: f64,
+    max_depth: f64,
+    max_weight: f32,
+    carve: bool,
+    image_margin: u32,
+    allocate_first: bool,
+    frames: FrameChoice,
+    frame_step: usize,
+    mesh: bool,
+    obj: bool,
+    mesh_min_piece_area: f64,
+    cloud: bool,
+    pictures: bool,
+    cloud_voxel: f64,
+    cloud_stride: usize,
+    outlier_neighbours: usize,
+    outlier_std: f64,
+    normal_neighbours: usize,
+    cloud_free_space: f32,
+    detect_every: usize,
+    detect_model: DenseModel,
+    detect_tiles: u32,
+    mask_border: u32,
+    keypoint_radius: u32,
+    mask_foreground_share: f32,
+    mask_depth_behind: f32,
+    mask_discs_behind_objects: bool,
+    mask_disc_neighbours: usize,
+    mask_segments: bool,
+    mask_segment_radius: u32,
+    mask_segment_radius_metres: f32,
+    mask_segment_edge_share: f32,
+    mask_segment_support: usize,
+    mask_segment_follow_seconds: f64,
+    mask_free_space_seconds: f64,
+    mask_free_space_far_seconds: f64,
+    mask_pictures_every: usize,
+    ply_encoding: PlyEncoding,
+}
+
+impl Default for DenseFile {
     fn default() -> Self {
-        let tsdf = TsdfSettings::default();
-        let segments = SegmentSettings::default();
+        DenseConfig::default().into()
+    }
+}
+
+impl From<DenseFile> for DenseConfig {
+    fn from(file: DenseFile) -> Self {
         Self {
-            enabled: true,
-            fusion: Fusion::Tsdf,
+            enabled: file.enabled,
+            fusion: file.fusion,
+            frames: DenseFrames {
+                which: file.frames,
+                step: file.frame_step,
+            },
+            tsdf: DenseTsdf {
+                voxel: file.voxel,
+                truncation: file.truncation,
+                max_depth: file.max_depth,
+                max_weight: file.max_weight,
+                carve: file.carve,
+                image_margin: file.image_margin,
+                allocate_first: file.allocate_first,
+            },
+            cloud: DenseCloud {
+                voxel: file.cloud_voxel,
+                stride: file.cloud_stride,
+                outlier_neighbours: file.outlier_neighbours,
+                outlier_std: file.outlier_std,
+                normal_neighbours: file.normal_neighbours,
+                free_space: file.cloud_free_space,
+            },
+            detections: DenseDetections {
+                every: file.detect_every,
+                model: file.detect_model,
+                tiles: file.detect_tiles,
+            },
+            masks: DenseMasks {
+                border: file.mask_border,
+                keypoint_radius: file.keypoint_radius,
+                foreground_share: file.mask_foreground_share,
+                depth_behind: file.mask_depth_behind,
+                discs_behind_objects: file.mask_discs_behind_objects,
+                disc_neighbours: file.mask_disc_neighbours,
+                segments: file.mask_segments,
+                segment_radius: file.mask_segment_radius,
+                segment_radius_metres: file.mask_segment_radius_metres,
+                segment_edge_share: file.mask_segment_edge_share,
+                segment_support: file.mask_segment_support,
+                segment_follow_seconds: file.mask_segment_follow_seconds,
+                free_space_seconds: file.mask_free_space_seconds,
+                free_space_far_seconds: file.mask_free_space_far_seconds,
+            },
+            outputs: DenseOutputs {
+                mesh: file.mesh,
+                obj: file.obj,
+                mesh_min_piece_area: file.mesh_min_piece_area,
+                cloud: file.cloud,
+                pictures: file.pictures,
+                mask_pictures_every: file.mask_pictures_every,
+                ply_encoding: file.ply_encoding,
+            },
+        }
+    }
+}
+
+impl From<DenseConfig> for DenseFile {
+    fn from(config: DenseConfig) -> Self {
+        let DenseConfig {
+            enabled,
+            fusion,
+            frames,
+            tsdf,
+            cloud,
+            detections,
+            masks,
+            outputs,
+        } = config;
+        Self {
+            enabled,
+            fusion,
+            frames: frames.which,
+            frame_step: frames.step,
             voxel: tsdf.voxel,
             truncation: tsdf.truncation,
             max_depth: tsdf.max_depth,
             max_weight: tsdf.max_weight,
             carve: tsdf.carve,
-            image_margin: tsdf.margin,
-            allocate_first: true,
-            frames: FrameChoice::All,
-            frame_step: 1,
-            mesh: true,
-            obj: true,
-            mesh_min_piece_area: 0.05,
-            cloud: true,
-            pictures: true,
-            cloud_voxel: 0.01,
-            cloud_stride: 2,
-            outlier_neighbours: 16,
-            outlier_std: 2.0,
-            normal_neighbours: 16,
-            cloud_free_space: 0.5,
-            detect_every: 5,
-            detect_model: DenseModel::Tracking,
-            detect_tiles: 2,
-            mask_border: 6,
-            keypoint_radius: 10,
-            mask_foreground_share: 0.10,
-            mask_depth_behind: 0.6,
-            mask_discs_behind_objects: true,
-            mask_disc_neighbours: 6,
-            mask_segments: true,
-            mask_segment_radius: segments.radius,
-            mask_segment_radius_metres: segments.radius_metres,
-            mask_segment_edge_share: segments.edge_share,
-            mask_segment_support: segments.support,
-            mask_segment_follow_seconds: 3.0,
-            mask_free_space_seconds: FreeSpaceSettings::default().seconds,
-            mask_free_space_far_seconds: FreeSpaceSettings::default().far_seconds,
-            mask_pictures_every: 0,
-            ply_encoding: PlyEncoding::Binary,
+            image_margin: tsdf.image_margin,
+            allocate_first: tsdf.allocate_first,
+            cloud_voxel: cloud.voxel,
+            cloud_stride: cloud.stride,
+            outlier_neighbours: cloud.outlier_neighbours,
+            outlier_std: cloud.outlier_std,
+            normal_neighbours: cloud.normal_neighbours,
+            cloud_free_space: cloud.free_space,
+            detect_every: detections.every,
+            detect_model: detections.model,
+            detect_tiles: detections.tiles,
+            mask_border: masks.border,
+            keypoint_radius: masks.keypoint_radius,
+            mask_foreground_share: masks.foreground_share,
+            mask_depth_behind: masks.depth_behind,
+            mask_discs_behind_objects: masks.discs_behind_objects,
+            mask_disc_neighbours: masks.disc_neighbours,
+            mask_segments: masks.segments,
+            mask_segment_radius: masks.segment_radius,
+            mask_segment_radius_metres: masks.segment_radius_metres,
+            mask_segment_edge_share: masks.segment_edge_share,
+            mask_segment_support: masks.segment_support,
+            mask_segment_follow_seconds: masks.segment_follow_seconds,
+            mask_free_space_seconds: masks.free_space_seconds,
+            mask_free_space_far_seconds: masks.free_space_far_seconds,
+            mesh: outputs.mesh,
+            obj: outputs.obj,
+            mesh_min_piece_area: outputs.mesh_min_piece_area,
+            cloud: outputs.cloud,
+            pictures: outputs.pictures,
+            mask_pictures_every: outputs.mask_pictures_every,
+            ply_encoding: outputs.ply_encoding,
+        }
+    }
+}
+
+impl Default for DenseConfig {
+    fn default() -> Self {
+        let tsdf = TsdfSettings::default();
+        let segments = SegmentSettings::default();
+        let free_space = FreeSpaceSettings::default();
+        Self {
+            enabled: true,
+            fusion: Fusion::Tsdf,
+            frames: DenseFrames {
+                which: FrameChoice::All,
+                step: 1,
+            },
+            tsdf: DenseTsdf {
+                voxel: tsdf.voxel,
+                truncation: tsdf.truncation,
+                max_depth: tsdf.max_depth,
+                max_weight: tsdf.max_weight,
+                carve: tsdf.carve,
+                image_margin: tsdf.margin,
+                allocate_first: true,
+            },
+            cloud: DenseCloud {
+                voxel: 0.01,
+                stride: 2,
+                outlier_neighbours: 16,
+                outlier_std: 2.0,
+                normal_neighbours: 16,
+                free_space: 0.5,
+            },
+            detections: DenseDetections {
+                every: 5,
+                model: DenseModel::Tracking,
+                tiles: 2,
+            },
+            masks: DenseMasks {
+                border: 6,
+                keypoint_radius: 10,
+                foreground_share: 0.10,
+                depth_behind: 0.6,
+                discs_behind_objects: true,
+                disc_neighbours: 6,
+                segments: true,
+                segment_radius: segments.radius,
+                segment_radius_metres: segments.radius_metres,
+                segment_edge_share: segments.edge_share,
+                segment_support: segments.support,
+                segment_follow_seconds: 3.0,
+                free_space_seconds: free_space.seconds,
+                free_space_far_seconds: free_space.far_seconds,
+            },
+            outputs: DenseOutputs {
+                mesh: true,
+                obj: true,
+                mesh_min_piece_area: 0.05,
+                cloud: true,
+                pictures: true,
+                mask_pictures_every: 0,
+                ply_encoding: PlyEncoding::Binary,
+            },
         }
     }
 }
@@ -245,18 +472,18 @@ impl DenseConfig {
             "dense",
             checks::positive,
             &[
-                ("voxel", self.voxel),
-                ("truncation", self.truncation),
-                ("max_depth", self.max_depth),
-                ("max_weight", self.max_weight as f64),
-                ("cloud_voxel", self.cloud_voxel),
-                ("outlier_std", self.outlier_std),
+                ("voxel", self.tsdf.voxel),
+                ("truncation", self.tsdf.truncation),
+                ("max_depth", self.tsdf.max_depth),
+                ("max_weight", self.tsdf.max_weight as f64),
+                ("cloud_voxel", self.cloud.voxel),
+                ("outlier_std", self.cloud.outlier_std),
             ],
         )?;
-        if !(self.cloud_free_space.is_finite() && self.cloud_free_space > -1.0) {
+        if !(self.cloud.free_space.is_finite() && self.cloud.free_space > -1.0) {
             return Err(BadValue::new(
                 "dense.cloud_free_space",
-                format!("must be a number above -1, got {}", self.cloud_free_space),
+                format!("must be a number above -1, got {}", self.cloud.free_space),
             ));
         }
         checks::each(
@@ -265,47 +492,47 @@ impl DenseConfig {
             &[
                 (
                     "mask_segment_follow_seconds",
-                    self.mask_segment_follow_seconds,
+                    self.masks.segment_follow_seconds,
                 ),
                 (
                     "mask_segment_radius_metres",
-                    self.mask_segment_radius_metres.into(),
+                    self.masks.segment_radius_metres.into(),
                 ),
-                ("mask_free_space_seconds", self.mask_free_space_seconds),
+                ("mask_free_space_seconds", self.masks.free_space_seconds),
                 (
                     "mask_free_space_far_seconds",
-                    self.mask_free_space_far_seconds,
+                    self.masks.free_space_far_seconds,
                 ),
-                ("mesh_min_piece_area", self.mesh_min_piece_area),
+                ("mesh_min_piece_area", self.outputs.mesh_min_piece_area),
             ],
         )?;
         checks::unit_interval(
             "dense.mask_segment_edge_share",
-            self.mask_segment_edge_share,
+            self.masks.segment_edge_share,
         )?;
-        checks::unit_interval("dense.mask_foreground_share", self.mask_foreground_share)?;
-        checks::non_negative("dense.mask_depth_behind", self.mask_depth_behind)?;
-        if self.truncation < self.voxel {
+        checks::unit_interval("dense.mask_foreground_share", self.masks.foreground_share)?;
+        checks::non_negative("dense.mask_depth_behind", self.masks.depth_behind)?;
+        if self.tsdf.truncation < self.tsdf.voxel {
             return Err(BadValue::new(
                 "dense.truncation",
                 format!(
                     "({}) must be at least one voxel ({})",
-                    self.truncation, self.voxel
+                    self.tsdf.truncation, self.tsdf.voxel
                 ),
             ));
         }
-        if self.voxel < 0.002 {
+        if self.tsdf.voxel < 0.002 {
             return Err(BadValue::new(
                 "dense.voxel",
                 format!(
                     "{} m is below 2 mm: no depth sensor resolves that",
-                    self.voxel
+                    self.tsdf.voxel
                 ),
             ));
         }
-        crate::detect::tiles::check_grid("dense.detect_tiles", self.detect_tiles)?;
-        checks::at_least_one("dense.frame_step", self.frame_step as u64)?;
-        checks::at_least_one("dense.cloud_stride", self.cloud_stride as u64)
+        crate::detect::tiles::check_grid("dense.detect_tiles", self.detections.tiles)?;
+        checks::at_least_one("dense.frame_step", self.frames.step as u64)?;
+        checks::at_least_one("dense.cloud_stride", self.cloud.stride as u64)
     }
 
     /// The detector of the dense pass's own detections: the run's `tracking` one, with
@@ -316,31 +543,31 @@ impl DenseConfig {
         if !matches!(tracking.source, Source::Onnx | Source::Auto) {
             return detector;
         }
-        if let Some(model) = self.detect_model.model() {
+        if let Some(model) = self.detections.model.model() {
             detector.models = Models::One { model, path: None };
         }
-        detector.tiles = self.detect_tiles;
+        detector.tiles = self.detections.tiles;
         detector
     }
 
     /// The masks' settings.
     pub fn mask_settings(&self) -> MaskSettings {
         MaskSettings {
-            border: self.mask_border,
-            keypoint_radius: self.keypoint_radius,
-            foreground_share: self.mask_foreground_share,
-            depth_behind: self.mask_depth_behind,
-            skip_behind_objects: !self.mask_discs_behind_objects,
-            disc_neighbours: self.mask_disc_neighbours,
-            segments: self.mask_segments.then(|| {
+            border: self.masks.border,
+            keypoint_radius: self.masks.keypoint_radius,
+            foreground_share: self.masks.foreground_share,
+            depth_behind: self.masks.depth_behind,
+            skip_behind_objects: !self.masks.discs_behind_objects,
+            disc_neighbours: self.masks.disc_neighbours,
+            segments: self.masks.segments.then(|| {
                 let settings = SegmentSettings {
-                    radius: self.mask_segment_radius,
-                    radius_metres: self.mask_segment_radius_metres,
-                    edge_share: self.mask_segment_edge_share,
-                    support: self.mask_segment_support,
+                    radius: self.masks.segment_radius,
+                    radius_metres: self.masks.segment_radius_metres,
+                    edge_share: self.masks.segment_edge_share,
+                    support: self.masks.segment_support,
                     ..SegmentSettings::default()
                 };
-                (settings, self.mask_segment_follow_seconds)
+                (settings, self.masks.segment_follow_seconds)
             }),
         }
     }
@@ -348,44 +575,44 @@ impl DenseConfig {
     /// The TSDF volume's settings.
     pub fn tsdf(&self) -> TsdfSettings {
         TsdfSettings {
-            voxel: self.voxel,
-            truncation: self.truncation,
-            max_depth: self.max_depth,
-            max_weight: self.max_weight,
-            carve: self.carve,
-            margin: self.image_margin,
+            voxel: self.tsdf.voxel,
+            truncation: self.tsdf.truncation,
+            max_depth: self.tsdf.max_depth,
+            max_weight: self.tsdf.max_weight,
+            carve: self.tsdf.carve,
+            margin: self.tsdf.image_margin,
         }
     }
 
     /// The free-space evidence's settings.
     pub fn free_space_settings(&self) -> FreeSpaceSettings {
         FreeSpaceSettings {
-            seconds: self.mask_free_space_seconds,
-            far_seconds: self.mask_free_space_far_seconds,
+            seconds: self.masks.free_space_seconds,
+            far_seconds: self.masks.free_space_far_seconds,
             ..FreeSpaceSettings::default()
         }
     }
 
     /// Whether the TSDF (and its mesh) is fused.
     pub fn fuses_tsdf(&self) -> bool {
-        self.mesh && self.fusion != Fusion::Points
+        self.outputs.mesh && self.fusion != Fusion::Points
     }
 
     /// Whether the cloud is written, and whether it loses what the TSDF saw through.
     pub(super) fn cloud_carved(&self) -> bool {
-        self.fusion == Fusion::Tsdf && self.cloud_free_space < 1.0
+        self.fusion == Fusion::Tsdf && self.cloud.free_space < 1.0
     }
 
     /// The point cloud's settings.
     pub fn cloud_settings(&self) -> CloudSettings {
         CloudSettings {
-            voxel: self.cloud_voxel,
-            stride: self.cloud_stride,
-            max_depth: self.max_depth,
-            outlier_neighbours: self.outlier_neighbours,
-            outlier_std: self.outlier_std,
-            normal_neighbours: self.normal_neighbours,
-            margin: self.image_margin,
+            voxel: self.cloud.voxel,
+            stride: self.cloud.stride,
+            max_depth: self.tsdf.max_depth,
+            outlier_neighbours: self.cloud.outlier_neighbours,
+            outlier_std: self.cloud.outlier_std,
+            normal_neighbours: self.cloud.normal_neighbours,
+            margin: self.tsdf.image_margin,
         }
     }
 }

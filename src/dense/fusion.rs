@@ -93,7 +93,7 @@ pub(super) fn fuse_frames(
 /// The mask pictures' folder, made when pictures are asked for, and the truth masks'
 /// unknown instances.
 fn extras(inputs: &DenseInputs, config: &DenseConfig) -> Result<Extras, IoError> {
-    let pictures = match config.mask_pictures_every {
+    let pictures = match config.outputs.mask_pictures_every {
         0 => None,
         _ => {
             let dir = RunDir::new(inputs.out_dir).file(names::MASK_PICTURES);
@@ -163,14 +163,14 @@ fn fuse_frame(
             ids.as_raw(),
             &extras.unknown,
             &input,
-            config.max_depth,
+            config.tsdf.max_depth,
         );
     }
-    if let Some(dir) = extras
-        .pictures
-        .as_ref()
-        .filter(|_| fused.frames.is_multiple_of(config.mask_pictures_every))
-    {
+    if let Some(dir) = extras.pictures.as_ref().filter(|_| {
+        fused
+            .frames
+            .is_multiple_of(config.outputs.mask_pictures_every)
+    }) {
         let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
         let picture = render::mask_picture(&rgb, mask.as_deref(), truth);
         save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;

@@ -134,7 +134,7 @@ pub(super) type Chosen = (usize, Se3, bool);
 /// (keyframes only for a point cloud alone, or with `frames = "keyframes"`), every
 /// `frame_step`-th of them.
 fn choose_frames(sequence: &dyn Sequence, read: &RunInputs, config: &DenseConfig) -> Vec<Chosen> {
-    let every_frame = config.frames == FrameChoice::All && config.fusion != Fusion::Points;
+    let every_frame = config.frames.which == FrameChoice::All && config.fusion != Fusion::Points;
     (0..sequence.len())
         .filter_map(|i| {
             let k = key(sequence.timestamp(i));
@@ -142,7 +142,7 @@ fn choose_frames(sequence: &dyn Sequence, read: &RunInputs, config: &DenseConfig
             let is_keyframe = read.keyframe_times.contains(&k);
             (every_frame || is_keyframe).then_some((i, pose, is_keyframe))
         })
-        .step_by(config.frame_step)
+        .step_by(config.frames.step)
         .collect()
 }
 
@@ -158,7 +158,7 @@ fn dense_detections(
     let (Some((detector, describe)), Mode::Dop) = (&inputs.detector, inputs.masking) else {
         return Ok(None);
     };
-    if config.detect_every == 0 {
+    if config.detections.every == 0 {
         return Ok(None);
     }
     let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
@@ -170,7 +170,7 @@ fn dense_detections(
             describe,
         },
         &fused,
-        config.detect_every,
+        config.detections.every,
         &out.dense_detections(),
         detections,
         inputs.progress,
@@ -217,15 +217,15 @@ fn fuse(
 ) -> Result<(Maps, Option<TruthCounter>), IoError> {
     let sequence = inputs.sequence;
     let fuse_tsdf = config.fuses_tsdf();
-    let cloud_on = config.cloud || config.fusion != Fusion::Tsdf;
+    let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
-    if fuse_tsdf && config.carve && config.allocate_first {
+    if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
         allocate_blocks(&mut volume, inputs, chosen)?;
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
     let mut window =
-        (inputs.masking == Mode::Dop && config.mask_free_space_seconds > 0.0).then(|| {
+        (inputs.masking == Mode::Dop && config.masks.free_space_seconds > 0.0).then(|| {
             let posed = (0..sequence.len())
                 .filter_map(|i| {
                     let t = sequence.timestamp(i);

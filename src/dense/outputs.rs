@@ -31,15 +31,15 @@ pub(super) fn write_maps(
 ) -> Result<(), IoError> {
     let comment = format!(
         "dopslam dense map, masking {:?}, voxel {} m",
-        masking, config.voxel
+        masking, config.tsdf.voxel
     );
     let Maps { volume, cloud } = maps;
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.
     let mesh = config.fuses_tsdf().then(|| {
         let start = Instant::now();
-        let (mesh, dropped) =
-            marching_cubes::extract(&volume).without_small_pieces(config.mesh_min_piece_area);
+        let (mesh, dropped) = marching_cubes::extract(&volume)
+            .without_small_pieces(config.outputs.mesh_min_piece_area);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
         report.mesh_pieces_dropped = dropped.pieces;
         report.mesh_vertices_dropped = dropped.vertices;
@@ -49,7 +49,7 @@ pub(super) fn write_maps(
     });
     let points = cloud.map(|cloud| {
         let start = Instant::now();
-        let (carved, limit) = (config.cloud_carved(), config.cloud_free_space);
+        let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
         let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.cloud_points = points.len();
@@ -63,9 +63,9 @@ pub(super) fn write_maps(
     )?;
     if let Some(mesh) = &mesh {
         let path = out.file(names::DENSE_MESH_PLY);
-        write_ply(&path, mesh, None, config.ply_encoding, &comment)?;
+        write_ply(&path, mesh, None, config.outputs.ply_encoding, &comment)?;
         report.outputs.push(path);
-        if config.obj {
+        if config.outputs.obj {
             let path = out.file(names::DENSE_MESH_OBJ);
             write_obj(&path, mesh, &comment)?;
             report.outputs.push(path);
@@ -73,10 +73,10 @@ pub(super) fn write_maps(
     }
     if let Some(points) = &points {
         let path = out.file(names::DENSE_POINTS);
-        write_ply(&path, points, None, config.ply_encoding, &comment)?;
+        write_ply(&path, points, None, config.outputs.ply_encoding, &comment)?;
         report.outputs.push(path);
     }
-    if let (true, Some(map)) = (config.pictures, mesh.as_ref().or(points.as_ref())) {
+    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(points.as_ref())) {
         write_pictures(out, map, trajectory, report)?;
     }
     Ok(())

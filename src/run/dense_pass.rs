@@ -101,7 +101,7 @@ pub fn dense_pass(pass: &DensePass) -> Result<DenseReport, RunError> {
     let config = &setup.config;
     let dense_detector = config.dense.detector(&config.detector);
     let detector = match masking {
-        Mode::Dop if config.dense.detect_every > 0 => dense_detector
+        Mode::Dop if config.dense.detections.every > 0 => dense_detector
             .open(sequence_dir)
             .map_err(|e| RunError::Input(e.to_string()))?,
         _ => None,

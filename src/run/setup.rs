@@ -411,7 +411,7 @@ pub fn detection_source(config: &Config) -> Result<crate::detect::Source, RunErr
         ))
     })?;
     let dense = &config.dense;
-    if dense.enabled && config.dop.mode == Mode::Dop && dense.detect_every > 0 {
+    if dense.enabled && config.dop.mode == Mode::Dop && dense.detections.every > 0 {
         dense.detector(&config.detector).resolved_source().map_err(|e| {
             RunError::Input(format!(
                 "the dense pass's detector ([dense] detect_model): {e}; or use the tracking pass's: [dense] detect_model = \"tracking\""
