@@ -299,6 +299,75 @@ impl StereoConfig {
         }
     }
 
+    /// Sets the keys of other sections this profile names in `config`: what it set, and
+    /// which of the config's own values it replaced.
+    fn apply(&self, config: &mut Config) -> ProfileApplied {
+        let default = Config::default();
+        let mut p = ProfileApplied::new("stereo");
+        let (orb, d_orb) = (&mut config.orb, &default.orb);
+        p.set(
+            "orb.n_features",
+            &mut orb.n_features,
+            self.n_features,
+            d_orb.n_features,
+        );
+        let (t, dt) = (&mut config.tracking, &default.tracking);
+        p.set(
+            "tracking.th_depth",
+            &mut t.th_depth,
+            self.th_depth,
+            dt.th_depth,
+        );
+        p.set(
+            "tracking.max_frames_between_keyframes",
+            &mut t.max_frames_between_keyframes,
+            self.max_frames_between_keyframes,
+            dt.max_frames_between_keyframes,
+        );
+        p.set(
+            "tracking.wait_near_boxes_only",
+            &mut t.wait_near_boxes_only,
+            self.wait_near_boxes_only,
+            dt.wait_near_boxes_only,
+        );
+        let (tsdf, d_tsdf) = (&mut config.dense.tsdf, &default.dense.tsdf);
+        p.set("dense.voxel", &mut tsdf.voxel, self.voxel, d_tsdf.voxel);
+        p.set(
+            "dense.truncation",
+            &mut tsdf.truncation,
+            self.truncation,
+            d_tsdf.truncation,
+        );
+        p.set(
+            "dense.max_depth",
+            &mut tsdf.max_depth,
+            self.max_depth,
+            d_tsdf.max_depth,
+        );
+        let first = (self.allocate_first, d_tsdf.allocate_first);
+        p.set(
+            "dense.allocate_first",
+            &mut tsdf.allocate_first,
+            first.0,
+            first.1,
+        );
+        let (cloud, d_cloud) = (&mut config.dense.cloud, &default.dense.cloud);
+        p.set(
+            "dense.cloud_voxel",
+            &mut cloud.voxel,
+            self.cloud_voxel,
+            d_cloud.voxel,
+        );
+        let (masks, d_masks) = (&mut config.dense.masks, &default.dense.masks);
+        p.set(
+            "dense.mask_free_space_seconds",
+            &mut masks.free_space_seconds,
+            self.mask_free_space_seconds,
+            d_masks.free_space_seconds,
+        );
+        p
+    }
+
     fn validate(&self) -> Result<(), BadValue> {
         checks::at_least_one("stereo.n_features", self.n_features as u64)?;
         checks::each(
@@ -406,78 +475,8 @@ impl Config {
         if sensor != crate::io::sequence::SensorKind::Stereo {
             return (config, None);
         }
-        let (s, default) = (&self.stereo, Config::default());
-        let (orb, tracking, dense) = (&mut config.orb, &mut config.tracking, &mut config.dense);
-        let (d_orb, d_tracking, d_dense) = (&default.orb, &default.tracking, &default.dense);
-        let mut p = ProfileApplied::new("stereo");
-        p.set(
-            "orb.n_features",
-            &mut orb.n_features,
-            s.n_features,
-            d_orb.n_features,
-        );
-        p.set(
-            "tracking.th_depth",
-            &mut tracking.th_depth,
-            s.th_depth,
-            d_tracking.th_depth,
-        );
-        let most = d_tracking.max_frames_between_keyframes;
-        let slot = &mut tracking.max_frames_between_keyframes;
-        p.set(
-            "tracking.max_frames_between_keyframes",
-            slot,
-            s.max_frames_between_keyframes,
-            most,
-        );
-        let wait = d_tracking.wait_near_boxes_only;
-        let slot = &mut tracking.wait_near_boxes_only;
-        p.set(
-            "tracking.wait_near_boxes_only",
-            slot,
-            s.wait_near_boxes_only,
-            wait,
-        );
-        p.set(
-            "dense.voxel",
-            &mut dense.tsdf.voxel,
-            s.voxel,
-            d_dense.tsdf.voxel,
-        );
-        p.set(
-            "dense.truncation",
-            &mut dense.tsdf.truncation,
-            s.truncation,
-            d_dense.tsdf.truncation,
-        );
-        p.set(
-            "dense.max_depth",
-            &mut dense.tsdf.max_depth,
-            s.max_depth,
-            d_dense.tsdf.max_depth,
-        );
-        p.set(
-            "dense.cloud_voxel",
-            &mut dense.cloud.voxel,
-            s.cloud_voxel,
-            d_dense.cloud.voxel,
-        );
-        let first = d_dense.tsdf.allocate_first;
-        p.set(
-            "dense.allocate_first",
-            &mut dense.tsdf.allocate_first,
-            s.allocate_first,
-            first,
-        );
-        let seconds = d_dense.masks.free_space_seconds;
-        let slot = &mut dense.masks.free_space_seconds;
-        p.set(
-            "dense.mask_free_space_seconds",
-            slot,
-            s.mask_free_space_seconds,
-            seconds,
-        );
-        (config, Some(p))
+        let profile = self.stereo.apply(&mut config);
+        (config, Some(profile))
     }
 
     /// Checks every value's range; the error names the key.

@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::manifest::PlannedSequence;
-use super::record::{MapFigures, RunFigures, RunRecord, RunStatus};
 use super::BatchError;
 use crate::config::Config;
 use crate::dense::compare_maps::{compare_maps, CompareInputs};
@@ -26,6 +25,7 @@ use crate::io::run_dir::{names, RunDir};
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::{IoError, Trajectory};
 use crate::records::run_alignment;
+use crate::records::{MapFigures, RunFigures, RunRecord, RunStatus};
 
 /// One run to do.
 #[derive(Debug, Clone)]

@@ -8,12 +8,12 @@ use super::execute::{evaluate_trajectory, ground_truth};
 use super::html;
 use super::manifest::PlannedSequence;
 use super::plots;
-use super::record::{RunRecord, RunStatus};
 use super::BatchError;
 use crate::dop::Mode;
 use crate::eval::ate::PoseRelation;
 use crate::eval::report::{Evaluation, RpeSpec};
 use crate::io::run_dir::RunDir;
+use crate::records::{RunRecord, RunStatus};
 
 /// The run whose ATE is the median of the mode's runs (the lower one of an even count).
 fn median_run<'a>(runs: &[&'a RunRecord]) -> Option<&'a RunRecord> {

@@ -12,7 +12,7 @@
 //! file likewise). Not checked: a frame rewritten in place with the same size and its
 //! old modification time restored, which only a hash of every image would see.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -20,8 +20,7 @@ use crate::config::Config;
 use crate::pacing::Pace;
 use crate::run::content_hash;
 
-/// The named inputs of one run (see the module doc).
-pub type RunInputs = BTreeMap<String, String>;
+pub use crate::records::RunInputs;
 
 /// The hash of a file's content, `missing` when it cannot be read.
 fn file_hash(path: &Path) -> String {

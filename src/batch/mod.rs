@@ -25,7 +25,7 @@ pub mod html;
 pub mod machine;
 pub mod manifest;
 pub mod plots;
-pub mod record;
+
 pub mod results;
 pub mod shard;
 pub mod slurm;
@@ -33,11 +33,11 @@ pub mod slurm;
 use std::path::{Path, PathBuf};
 
 use crate::dop::Mode;
+use crate::records::{RunRecord, RunStatus};
 pub use error::BatchError;
 use execute::{Executed, Executor, RunJob};
 use machine::{budget_jobs, machine_description};
 use manifest::{absolute, Manifest, ManifestError, PlannedSequence, SequenceSource};
-use record::{RunRecord, RunStatus};
 use results::GroupSummary;
 
 use crate::eval::report::RpeSpec;
@@ -553,7 +553,7 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
                     sequence: k,
                     mode,
                     repetition,
-                    dir: record::run_dir(out, &sequence.name, mode, repetition),
+                    dir: crate::records::run::run_dir(out, &sequence.name, mode, repetition),
                     inputs: Default::default(),
                 });
             }

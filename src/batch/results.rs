@@ -6,11 +6,11 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::record::{RunFigures, RunRecord, RunStatus};
 use crate::dop::Mode;
 use crate::eval::stats::median_of_sorted;
 use crate::io::atomic::write_atomic;
 use crate::io::IoError;
+use crate::records::{RunFigures, RunRecord, RunStatus};
 
 /// Median, minimum and maximum of a figure over a group's runs.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -136,7 +136,7 @@ fn summarise_group(sequence: &str, mode: Mode, runs: &[&RunRecord]) -> GroupSumm
         .collect();
     let spread =
         |f: &dyn Fn(&RunFigures) -> Option<f64>| Spread::of(ok.iter().filter_map(|r| f(r)));
-    let map = |f: &dyn Fn(&super::record::MapFigures) -> Option<f64>| {
+    let map = |f: &dyn Fn(&crate::records::MapFigures) -> Option<f64>| {
         Spread::of(ok.iter().filter_map(|r| r.map.as_ref().and_then(f)))
     };
     GroupSummary {
@@ -459,6 +459,7 @@ mod tests {
 
     fn record(mode: Mode, repetition: usize, ate: Option<f64>) -> RunRecord {
         RunRecord {
+            schema: crate::records::SCHEMA,
             sequence: "s".into(),
             mode,
             repetition,

@@ -1,13 +1,16 @@
 //! The files a run writes, one Rust type per section, read back by every reader (the
 //! run folder's commands, the Rerun replay, the batch): `report.json`
-//! ([`RunReport`]) and `dense.json` ([`crate::dense::DenseReport`]). Each file carries
+//! ([`RunReport`]), `dense.json` ([`crate::dense::DenseReport`]) and, in a batch,
+//! `run.json` ([`RunRecord`]). Each file carries
 //! the version of its layout ([`SCHEMA`]); a reader refuses another version by name
 //! instead of misreading it.
 
 pub mod report;
+pub mod run;
 pub mod setup;
 
 pub use report::{FrameLine, RunReport, RunTotals, SegmentSpan};
+pub use run::{MapFigures, RunFigures, RunInputs, RunRecord, RunStatus};
 pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied};
 
 use crate::dense::DenseReport;

@@ -1,6 +1,9 @@
 //! What one finished batch run leaves behind (`run.json`), read from the run's own
-//! `report.json` and its evaluation.
+//! `report.json` and its evaluation. Versioned like the run's other files
+//! ([`super::SCHEMA`]); a `run.json` without a version is of the layout before
+//! versioning, the same as version 1.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -19,9 +22,17 @@ pub enum RunStatus {
     Failed,
 }
 
+/// What decided a batch run's result, key by key (`run.json`'s `inputs`; the batch's
+/// fingerprint).
+pub type RunInputs = BTreeMap<String, String>;
+
 /// `run.json`: written last and atomically, so its presence marks a finished run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunRecord {
+    /// The layout version ([`super::SCHEMA`]; absent in files from before versioning,
+    /// whose layout is version 1's).
+    #[serde(default = "first_layout")]
+    pub schema: u32,
     /// The sequence's name.
     pub sequence: String,
     /// The mode.
@@ -40,11 +51,16 @@ pub struct RunRecord {
     pub figures: Option<RunFigures>,
     /// What decided the result ([`super::fingerprint`]): a run whose inputs differ
     /// from the batch's is not taken for one of its runs.
-    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
-    pub inputs: super::fingerprint::RunInputs,
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub inputs: RunInputs,
     /// Set on a run kept with `--keep-stale` although its inputs differ: what differs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stale: Option<String>,
+}
+
+/// The layout of a `run.json` that names none.
+fn first_layout() -> u32 {
+    1
 }
 
 /// The figures of a successful run.
@@ -146,6 +162,7 @@ impl RunRecord {
     /// A failed record with no figures (the caller fills in what happened).
     pub fn new(sequence: &str, mode: Mode, repetition: usize) -> Self {
         Self {
+            schema: super::SCHEMA,
             sequence: sequence.to_string(),
             mode,
             repetition,
@@ -169,10 +186,23 @@ impl RunRecord {
         crate::io::atomic::write_atomic(&dir.join("run.json"), json.as_bytes())
     }
 
-    /// Reads `run.json` in `dir`, if the run finished.
+    /// Reads `run.json` in `dir`, if the run finished (and its layout is this build's).
     pub fn read(dir: &Path) -> Option<Self> {
         let text = std::fs::read_to_string(dir.join("run.json")).ok()?;
-        serde_json::from_str(&text).ok()
+        Self::parse(&text).ok()
+    }
+
+    /// A `run.json`'s text, of this build's layout version.
+    fn parse(text: &str) -> Result<Self, String> {
+        let record: Self = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if record.schema != super::SCHEMA {
+            return Err(format!(
+                "a run record of layout version {}, and this dopslam reads version {}",
+                record.schema,
+                super::SCHEMA
+            ));
+        }
+        Ok(record)
     }
 
     /// Why the `run.json` in `dir` cannot be read, when it is there but [`Self::read`]
@@ -182,7 +212,7 @@ impl RunRecord {
         let why = match std::fs::read_to_string(&path) {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
             Err(e) => e.to_string(),
-            Ok(text) => serde_json::from_str::<Self>(&text).err()?.to_string(),
+            Ok(text) => Self::parse(&text).err()?,
         };
         Some(format!("{} cannot be read ({why})", path.display()))
     }
@@ -206,5 +236,20 @@ mod tests {
         );
         assert!(RunRecord::read(&dir).is_none());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// `run.json` carries its layout version: another version is named and not taken;
+    /// a file from before versioning (no `schema`) reads as version 1.
+    #[test]
+    fn a_run_record_of_another_layout_is_not_taken() {
+        let record = RunRecord::new("seq", Mode::Dop, 1);
+        let text = serde_json::to_string(&record).unwrap();
+        assert!(text.starts_with("{\"schema\":1,"), "{text}");
+        assert_eq!(RunRecord::parse(&text).unwrap().sequence, "seq");
+        let later = text.replace("\"schema\":1", "\"schema\":7");
+        let why = RunRecord::parse(&later).unwrap_err();
+        assert!(why.contains("layout version 7"), "{why}");
+        let before = text.replace("\"schema\":1,", "");
+        assert_eq!(RunRecord::parse(&before).unwrap().schema, 1);
     }
 }
