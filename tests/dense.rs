@@ -70,8 +70,32 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     config.dense.outputs.mesh_min_piece_area = 0.0;
     let run_dir = base.join("run");
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
-    let dense = report.dense.expect("the dense pass ran");
+    let dense = report.dense.clone().expect("the dense pass ran");
     assert_eq!(dense.frames_fused, report.totals.tracked);
+    // report.json ends with the dense pass and each stage's time against the
+    // recording's (150 frames at 30 fps: 5 s).
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("report.json")).unwrap())
+            .unwrap();
+    assert_eq!(written["dense"]["frames_fused"], dense.frames_fused);
+    let times = report.times.as_ref().expect("the run's times");
+    assert!((times.recording_s.unwrap() - 5.0).abs() < 0.01, "{times:?}");
+    let stages: Vec<&str> = times.stages.iter().map(|s| s.stage.as_str()).collect();
+    assert_eq!(stages, ["tracking", "global", "outputs", "dense"]);
+    let dense_time = &times.stages[3];
+    assert!(dense_time.seconds >= dense.total_s, "{times:?}");
+    assert!(
+        (dense_time.real_time_factor.unwrap() - dense_time.seconds / 5.0).abs() < 0.01,
+        "{times:?}"
+    );
+    assert!(written["times"]["real_time_factor"].as_f64().unwrap() > 0.0);
+    // Each mask source is counted against the truth; the free-space evidence is
+    // nearly always right, and the static map's check lets in next to no mover.
+    let sources = &dense.truth.as_ref().expect("truth").sources;
+    let source = |name: &str| sources.iter().find(|s| s.source == name).unwrap();
+    assert!(source("objects").pixels > 0);
+    assert!(source("map_agrees").precision < 0.05, "{sources:?}");
+    assert!(dense.masked_fusable_percent > 0.0);
     // dense.json reads back whole as the type it was written from: nothing lost,
     // nothing added.
     let read = dopslam::records::read_dense(&dopslam::io::run_dir::RunDir::new(&run_dir))

@@ -135,9 +135,10 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
 /// Prints what the dense pass did.
 pub fn print_dense(dense: &DenseReport) {
     println!(
-        "dense map ({:?} masks, {:.1} % of pixels masked): {} frames fused, {} TSDF blocks ({:.0} MB), mesh {} vertices / {} triangles, cloud {} points from {} keyframes",
+        "dense map ({:?} masks, {:.1} % of pixels masked, {:.1} % of those with depth to fuse): {} frames fused, {} TSDF blocks ({:.0} MB), mesh {} vertices / {} triangles, cloud {} points from {} keyframes",
         dense.masking.unwrap_or(Mode::Off),
         dense.masked_percent,
+        dense.masked_fusable_percent,
         dense.frames_fused,
         dense.tsdf_blocks,
         dense.tsdf_memory_mb,
@@ -159,9 +160,29 @@ pub fn print_dense(dense: &DenseReport) {
         );
     }
     println!(
-        "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s",
-        dense.median_integration_ms, dense.marching_cubes_ms, dense.cloud_ms, dense.total_s
+        "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s{}",
+        dense.median_integration_ms,
+        dense.marching_cubes_ms,
+        dense.cloud_ms,
+        dense.total_s,
+        dense
+            .real_time_factor
+            .map_or(String::new(), |f| format!(" ({f:.2} x the recording)"))
     );
+    let stages: Vec<String> = dense
+        .stages
+        .named()
+        .iter()
+        .filter(|(_, s)| *s >= 0.05)
+        .map(|(name, s)| format!("{name} {s:.1}"))
+        .collect();
+    println!("dense stages (s): {}", stages.join(", "));
+    if dense.released_on_map > 0 {
+        println!(
+            "dense masks: {} masked pixels lay on the static map fused so far and were fused ([dense] mask_map_min_weight)",
+            dense.released_on_map
+        );
+    }
     if let Some(t) = &dense.truth {
         println!(
             "against the ground-truth masks: {:.2} % of mover pixels kept out, {:.2} % of static pixels fused",

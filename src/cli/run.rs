@@ -266,6 +266,9 @@ pub fn print_run_summary(report: &dopslam::run::RunReport) {
     if let Some(dense) = &report.dense {
         super::fuse::print_dense(dense);
     }
+    if let Some(times) = &report.times {
+        println!("{}", times.summary());
+    }
 }
 
 /// `run --compare-no-dop`: the same run with --no-dop into OUT/no_dop, the two dense

@@ -153,7 +153,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_map_min_weight`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -205,6 +205,11 @@ pub struct DenseMasks {
     /// that stands still longer than the near window (a box set down, a person who
     /// waits) was seen elsewhere then, and its place seen through. 0: none.
     pub free_space_far_seconds: f64,
+    /// A masked pixel whose depth lies on the static map fused so far, where the map
+    /// has at least this weight (frames), is fused after all (`dense.json`'s
+    /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
+    /// stands in front of the map, or where the map has nothing yet. 0: off.
+    pub map_min_weight: f32,
 }
 
 /// What the dense pass writes (`[dense]` keys `mesh`, `obj`, `mesh_min_piece_area`, `cloud`, `pictures`, `mask_pictures_every`, `ply_encoding`).
@@ -274,6 +279,7 @@ pub struct DenseFile {
     mask_segment_follow_seconds: f64,
     mask_free_space_seconds: f64,
     mask_free_space_far_seconds: f64,
+    mask_map_min_weight: f32,
     mask_pictures_every: usize,
     ply_encoding: PlyEncoding,
 }
@@ -330,6 +336,7 @@ impl From<DenseFile> for DenseConfig {
                 segment_follow_seconds: file.mask_segment_follow_seconds,
                 free_space_seconds: file.mask_free_space_seconds,
                 free_space_far_seconds: file.mask_free_space_far_seconds,
+                map_min_weight: file.mask_map_min_weight,
             },
             outputs: DenseOutputs {
                 mesh: file.mesh,
@@ -391,6 +398,7 @@ impl From<DenseConfig> for DenseFile {
             mask_segment_follow_seconds: masks.segment_follow_seconds,
             mask_free_space_seconds: masks.free_space_seconds,
             mask_free_space_far_seconds: masks.free_space_far_seconds,
+            mask_map_min_weight: masks.map_min_weight,
             mesh: outputs.mesh,
             obj: outputs.obj,
             mesh_min_piece_area: outputs.mesh_min_piece_area,
@@ -451,6 +459,7 @@ impl Default for DenseConfig {
                 segment_follow_seconds: 3.0,
                 free_space_seconds: free_space.seconds,
                 free_space_far_seconds: free_space.far_seconds,
+                map_min_weight: 0.0,
             },
             outputs: DenseOutputs {
                 mesh: true,
@@ -504,6 +513,7 @@ impl DenseConfig {
                     self.masks.free_space_far_seconds,
                 ),
                 ("mesh_min_piece_area", self.outputs.mesh_min_piece_area),
+                ("mask_map_min_weight", self.masks.map_min_weight.into()),
             ],
         )?;
         checks::unit_interval(
@@ -537,12 +547,16 @@ impl DenseConfig {
 
     /// The detector of the dense pass's own detections: the run's `tracking` one, with
     /// [`Self::detect_model`] and [`Self::detect_tiles`] when it is ONNX (an oracle or
-    /// a cache stays what it is).
+    /// a cache stays what it is), on every core: nothing else runs while it detects
+    /// (the tracking pass's detector shares the cores with tracking, `[detector]
+    /// threads`).
     pub fn detector(&self, tracking: &DetectorConfig) -> DetectorConfig {
         let mut detector = tracking.clone();
         if !matches!(tracking.source, Source::Onnx | Source::Auto) {
             return detector;
         }
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        detector.threads = detector.threads.max(cores);
         if let Some(model) = self.detections.model.model() {
             detector.models = Models::One { model, path: None };
         }

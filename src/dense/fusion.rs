@@ -7,9 +7,11 @@ use std::time::Instant;
 use super::cloud::CloudBuilder;
 use super::free_space::{NeighbourWindow, PosedDepth};
 use super::inputs::{frame_depth, groups, load_group, sequence_frame};
+use super::mask_layers::MaskLayers;
 use super::masks::MaskSource;
 use super::outputs::save_png;
-use super::truth::{count_truth, unknown_instances, TruthCounter};
+use super::report::DenseStages;
+use super::truth::{count_truth, unknown_instances, TruthCounter, TruthFrame};
 use super::tsdf::{FrameInput, TsdfVolume};
 use super::{frames_bar, render, Chosen, DenseConfig, DenseInputs};
 use crate::geometry::se3::Se3;
@@ -23,7 +25,19 @@ pub(super) struct Fused {
     pub keyframes_in_cloud: usize,
     pub masked: u64,
     pub pixels: u64,
+    /// Pixels with depth within `max_depth`, and those masked.
+    pub fusable: u64,
+    pub fusable_masked: u64,
     pub integration_ms: Vec<f64>,
+    /// Masked pixels the static map explained, fused after all.
+    pub released: u64,
+    /// The per-frame stages' times (loading to cloud frames).
+    pub stages: DenseStages,
+}
+
+/// Seconds since `start`, added to `total`.
+fn add_since(total: &mut f64, start: Instant) {
+    *total += start.elapsed().as_secs_f64();
 }
 
 /// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
@@ -69,10 +83,16 @@ pub(super) fn fuse_frames(
         masked: 0,
         pixels: 0,
         integration_ms: Vec::with_capacity(chosen.len()),
+        released: 0,
+        fusable: 0,
+        fusable_masked: 0,
+        stages: DenseStages::default(),
     };
     for group in groups(chosen) {
         // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
+        let start = Instant::now();
         let loaded = load_group(inputs, group, sequence_frame)?;
+        add_since(&mut fused.stages.loading_s, start);
         for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
             let (timestamp, depth, rgb) = frame?;
             let frame = Loaded {
@@ -121,6 +141,7 @@ fn fuse_frame(
     frame: Loaded,
     fused: &mut Fused,
 ) -> Result<(), IoError> {
+    let layers = frame_mask(inputs, config, sinks, &frame, fused)?;
     let Loaded {
         timestamp,
         pose,
@@ -128,53 +149,31 @@ fn fuse_frame(
         depth,
         rgb,
     } = frame;
-    let evidence = match sinks.window.as_deref_mut() {
-        Some(window) => Some(window.evidence(
-            &inputs.camera,
-            PosedDepth {
-                timestamp,
-                depth: &depth,
-                camera_from_world: &pose,
-            },
-            |i| frame_depth(inputs, i),
-        )?),
-        None => None,
-    };
-    let mask = sinks
-        .mask_source
-        .mask(timestamp, &depth, &pose, evidence.as_ref());
-    if let Some(m) = &mask {
-        fused.masked += m.iter().filter(|&&x| x).count() as u64;
+    let max_depth = config.tsdf.max_depth as f32;
+    let fusable = |i: usize| depth.metres[i] > 0.0 && depth.metres[i] <= max_depth;
+    if let Some(m) = &layers {
+        fused.masked += m.masked();
+        fused.fusable_masked += (0..m.dynamic.len())
+            .filter(|&i| m.dynamic[i] && fusable(i))
+            .count() as u64;
     }
     fused.pixels += depth.metres.len() as u64;
+    fused.fusable += (0..depth.metres.len()).filter(|&i| fusable(i)).count() as u64;
     let input = FrameInput {
         depth: &depth,
         colour: &rgb,
-        dynamic: mask.as_deref(),
+        dynamic: layers.as_ref().map(|m| m.dynamic.as_slice()),
         camera_from_world: &pose,
     };
-    let ids = inputs.truth_masks.as_ref().and_then(|dir| {
-        crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
-    });
-    if let (Some(truth), Some(ids)) = (sinks.truth.as_mut(), &ids) {
-        count_truth(
-            truth,
-            timestamp,
-            ids.as_raw(),
-            &extras.unknown,
-            &input,
-            config.tsdf.max_depth,
-        );
-    }
-    if let Some(dir) = extras.pictures.as_ref().filter(|_| {
-        fused
-            .frames
-            .is_multiple_of(config.outputs.mask_pictures_every)
-    }) {
-        let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
-        let picture = render::mask_picture(&rgb, mask.as_deref(), truth);
-        save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
-    }
+    let start = Instant::now();
+    let sources = layers.as_ref().map(|m| m.sources.as_slice());
+    let fusing = Fusing {
+        timestamp,
+        sources,
+        input: &input,
+    };
+    side_outputs(inputs, config, extras, sinks, fusing, fused.frames)?;
+    add_since(&mut fused.stages.truth_s, start);
     let start = Instant::now();
     if let Some(volume) = sinks.volume.as_deref_mut() {
         volume.integrate(&input);
@@ -182,10 +181,96 @@ fn fuse_frame(
     fused
         .integration_ms
         .push(start.elapsed().as_secs_f64() * 1e3);
+    add_since(&mut fused.stages.integration_s, start);
     if let (Some(cloud), true) = (sinks.cloud.as_deref_mut(), is_keyframe) {
+        let start = Instant::now();
         cloud.add(&input);
         fused.keyframes_in_cloud += 1;
+        add_since(&mut fused.stages.cloud_frames_s, start);
     }
     fused.frames += 1;
+    Ok(())
+}
+
+/// The frame's mask: the free-space evidence of the frames around, the mask source's
+/// layers, and the masked pixels the static map fused so far explains released.
+fn frame_mask(
+    inputs: &DenseInputs,
+    config: &DenseConfig,
+    sinks: &mut FrameSinks,
+    frame: &Loaded,
+    fused: &mut Fused,
+) -> Result<Option<MaskLayers>, IoError> {
+    let posed = PosedDepth {
+        timestamp: frame.timestamp,
+        depth: &frame.depth,
+        camera_from_world: &frame.pose,
+    };
+    let start = Instant::now();
+    let evidence = match sinks.window.as_deref_mut() {
+        Some(window) => Some(window.evidence(&inputs.camera, posed, |i| {
+            frame_depth(inputs, i)
+        })?),
+        None => None,
+    };
+    add_since(&mut fused.stages.free_space_s, start);
+    let start = Instant::now();
+    let mut layers = sinks.mask_source.layers(
+        frame.timestamp,
+        &frame.depth,
+        &frame.pose,
+        evidence.as_ref(),
+    );
+    let min_weight = config.masks.map_min_weight;
+    if let (Some(m), Some(volume), true) = (&mut layers, sinks.volume.as_deref(), min_weight > 0.0)
+    {
+        fused.released += m.release_on_map(posed, &inputs.camera, volume, min_weight);
+    }
+    add_since(&mut fused.stages.masks_s, start);
+    Ok(layers)
+}
+
+/// A frame being fused: its time, its mask's sources and what the volume takes.
+struct Fusing<'a> {
+    timestamp: f64,
+    sources: Option<&'a [u8]>,
+    input: &'a FrameInput<'a>,
+}
+
+/// The frame's count against the truth masks and its mask picture, when asked for
+/// (every `mask_pictures_every`-th of the frames, `fused_before` fused before it).
+fn side_outputs(
+    inputs: &DenseInputs,
+    config: &DenseConfig,
+    extras: &Extras,
+    sinks: &mut FrameSinks,
+    frame: Fusing,
+    fused_before: usize,
+) -> Result<(), IoError> {
+    let Fusing {
+        timestamp,
+        sources,
+        input,
+    } = frame;
+    let ids = inputs.truth_masks.as_ref().and_then(|dir| {
+        crate::io::image_files::read_instance_mask(&dir.join(format!("{timestamp:.6}.png")))
+    });
+    if let (Some(truth), Some(ids)) = (sinks.truth.as_mut(), &ids) {
+        let frame = TruthFrame {
+            timestamp,
+            ids: ids.as_raw(),
+            sources,
+        };
+        count_truth(truth, frame, &extras.unknown, input, config.tsdf.max_depth);
+    }
+    if let Some(dir) = extras
+        .pictures
+        .as_ref()
+        .filter(|_| fused_before.is_multiple_of(config.outputs.mask_pictures_every))
+    {
+        let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
+        let picture = render::mask_picture(input.colour, input.dynamic, truth);
+        save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
+    }
     Ok(())
 }

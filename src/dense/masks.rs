@@ -33,6 +33,7 @@
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use super::free_space::{Evidence, PosedDepth};
+pub use super::mask_layers::{MaskLayer, MaskLayers};
 use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
@@ -195,12 +196,7 @@ impl MaskSource {
     }
 
     /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
-    /// nothing in it is dynamic. Frames come in time order (segments are followed from
-    /// one to the next).
-    ///
-    /// With `evidence` ([`super::free_space`], DOP only), pixels seen through by the
-    /// neighbour frames are masked too, and the discs and the dilation leave out the
-    /// pixels seen still.
+    /// nothing in it is dynamic: [`Self::layers`] without the sources.
     pub fn mask(
         &mut self,
         timestamp: f64,
@@ -208,74 +204,107 @@ impl MaskSource {
         camera_from_world: &Se3,
         evidence: Option<&Evidence>,
     ) -> Option<Vec<bool>> {
+        self.layers(timestamp, depth, camera_from_world, evidence)
+            .map(|layers| layers.dynamic)
+    }
+
+    /// The mask of the frame at `timestamp` with the source of each masked pixel, or
+    /// `None` when nothing in it is dynamic. Frames come in time order (segments are
+    /// followed from one to the next).
+    ///
+    /// With `evidence` ([`super::free_space`], DOP only), pixels seen through by the
+    /// neighbour frames are masked too, and the discs and the dilation leave out the
+    /// pixels seen still.
+    pub fn layers(
+        &mut self,
+        timestamp: f64,
+        depth: &DepthImage,
+        camera_from_world: &Se3,
+        evidence: Option<&Evidence>,
+    ) -> Option<MaskLayers> {
         if self.masking == Mode::Off {
             return None;
         }
         let (w, h) = (depth.width as usize, depth.height as usize);
-        let mut mask = vec![false; w * h];
-        let mut any = false;
+        let mut sources = vec![0u8; w * h];
         let evidence = evidence.filter(|_| self.masking == Mode::Dop);
-        let after = self.keyframes.partition_point(|k| k.timestamp < timestamp);
-        let near: Vec<&KeyframeObjects> = [after.checked_sub(1), Some(after)]
-            .into_iter()
-            .flatten()
-            .filter_map(|i| self.keyframes.get(i))
-            .filter(|k| (k.timestamp - timestamp).abs() <= self.dop.track_seconds as f64)
-            .collect();
-        match self.masking {
-            Mode::Off => {}
+        let near = self.near_keyframes(timestamp);
+        let any = match self.masking {
+            Mode::Off => false,
             Mode::MaskBoxes => {
                 let nearest = near.iter().min_by(|a, b| {
                     (a.timestamp - timestamp)
                         .abs()
                         .total_cmp(&(b.timestamp - timestamp).abs())
                 });
+                let mut any = false;
                 for b in nearest.iter().flat_map(|k| &k.boxes) {
-                    any |= fill_box(&mut mask, w, h, b.bbox, |_, _| true);
+                    any |= fill_box(&mut sources, MaskLayer::Objects, (w, h), b.bbox, |_, _| true);
                 }
+                any
             }
             Mode::Dop => {
-                let objects: Vec<ObjectBox> = near
-                    .iter()
-                    .flat_map(|k| &k.objects)
-                    .filter_map(|object| object.to_box(&self.camera, camera_from_world))
-                    .collect();
-                any |= self.object_masks(&mut mask, depth, &objects);
-                let keypoints = self.frame_keypoints(timestamp);
-                let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
-                any |= self.keypoint_discs(&mut mask, depth, keypoints, &objects, &keep);
-                if let Some(e) = evidence {
-                    for (m, &moving) in mask.iter_mut().zip(&e.moving) {
-                        *m |= moving;
-                        any |= moving;
-                    }
-                }
-                if self.settings.segments.is_some() {
-                    let seeds = seeds_of(keypoints, &objects, evidence, (w, h), timestamp);
-                    any |= self.segment_masks(
-                        &mut mask,
-                        PosedDepth {
-                            timestamp,
-                            depth,
-                            camera_from_world,
-                        },
-                        seeds,
-                        evidence.map(|e| e.moving.as_slice()),
-                        &objects,
-                    );
-                }
+                let frame = PosedDepth {
+                    timestamp,
+                    depth,
+                    camera_from_world,
+                };
+                self.dop_layers(&mut sources, frame, &near, evidence)
+            }
+        };
+        any.then(|| MaskLayers::dilated(sources, (w, h), self.settings.border, evidence))
+    }
+
+    /// The detected keyframes nearest before and after `timestamp`, within
+    /// `track_seconds`.
+    fn near_keyframes(&self, timestamp: f64) -> Vec<KeyframeObjects> {
+        let after = self.keyframes.partition_point(|k| k.timestamp < timestamp);
+        [after.checked_sub(1), Some(after)]
+            .into_iter()
+            .flatten()
+            .filter_map(|i| self.keyframes.get(i))
+            .filter(|k| (k.timestamp - timestamp).abs() <= self.dop.track_seconds as f64)
+            .cloned()
+            .collect()
+    }
+
+    /// The DOP mask's sources in `sources`: the near keyframes' objects, the discs
+    /// around dynamic keypoints, the pixels seen moving and the segments; whether any
+    /// pixel was masked.
+    fn dop_layers(
+        &mut self,
+        sources: &mut [u8],
+        frame: PosedDepth,
+        near: &[KeyframeObjects],
+        evidence: Option<&Evidence>,
+    ) -> bool {
+        let PosedDepth {
+            timestamp,
+            depth,
+            camera_from_world,
+        } = frame;
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        let objects: Vec<ObjectBox> = near
+            .iter()
+            .flat_map(|k| &k.objects)
+            .filter_map(|object| object.to_box(&self.camera, camera_from_world))
+            .collect();
+        let mut any = self.object_masks(sources, depth, &objects);
+        let keypoints = self.frame_keypoints(timestamp);
+        let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
+        any |= self.keypoint_discs(sources, depth, keypoints, &objects, &keep);
+        if let Some(e) = evidence {
+            for (m, &moving) in sources.iter_mut().zip(&e.moving) {
+                *m |= MaskLayer::FreeSpace.bit() * moving as u8;
+                any |= moving;
             }
         }
-        any.then(|| {
-            let mut grown = dilate(&mask, w, h, self.settings.border as usize);
-            if let Some(e) = evidence {
-                // The ring the dilation adds keeps none of the pixels seen still.
-                for ((g, &m), &still) in grown.iter_mut().zip(&mask).zip(&e.still) {
-                    *g &= m || !still;
-                }
-            }
-            grown
-        })
+        if self.settings.segments.is_some() {
+            let seeds = seeds_of(keypoints, &objects, evidence, (w, h), timestamp);
+            let moving = evidence.map(|e| e.moving.as_slice());
+            any |= self.segment_masks(sources, frame, seeds, moving, &objects);
+        }
+        any
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
@@ -283,7 +312,7 @@ impl MaskSource {
     /// those mostly inside a detected mover's box (the detector follows those).
     fn segment_masks(
         &mut self,
-        mask: &mut [bool],
+        sources: &mut [u8],
         frame: PosedDepth,
         mut seeds: Vec<Seed>,
         moving: Option<&[bool]>,
@@ -343,7 +372,7 @@ impl MaskSource {
             .collect();
         for segment in &segments {
             for &i in &segment.pixels {
-                mask[i] = true;
+                sources[i] |= MaskLayer::Segments.bit();
             }
         }
         !segments.is_empty()
@@ -351,15 +380,19 @@ impl MaskSource {
 
     /// Each object's box, cut at its depth: the pixels within `delta_z` of it, and
     /// those without depth.
-    fn object_masks(&self, mask: &mut [bool], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
-        let (w, h) = (depth.width as usize, depth.height as usize);
+    fn object_masks(&self, sources: &mut [u8], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
+        let size = (depth.width as usize, depth.height as usize);
         let mut any = false;
         for b in objects {
             let z = b.depth.unwrap_or(0.0);
             let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
-            any |= fill_box(mask, w, h, b.bbox, |u, v| {
+            any |= fill_box(sources, MaskLayer::Objects, size, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
-                d == 0.0 || (d >= z - front && d <= z + behind)
+                d == 0.0 || (d >= z - front && d <= z + front)
+            });
+            any |= fill_box(sources, MaskLayer::ObjectBand, size, b.bbox, |u, v| {
+                let d = depth.at(u as u32, v as u32);
+                d > z + front && d <= z + behind
             });
         }
         any
@@ -372,7 +405,7 @@ impl MaskSource {
     /// `keep(u, v)` allows.
     fn keypoint_discs(
         &self,
-        mask: &mut [bool],
+        sources: &mut [u8],
         depth: &DepthImage,
         keypoints: &[[f32; 3]],
         objects: &[ObjectBox],
@@ -403,7 +436,7 @@ impl MaskSource {
             .filter(|p| !behind(p[0], p[1], p[2]) && supported(p))
         {
             let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
-            any |= fill_box(mask, w, h, bbox, |u, v| {
+            any |= fill_box(sources, MaskLayer::Discs, (w, h), bbox, |u, v| {
                 let (du, dv) = (u as f32 - x, v as f32 - y);
                 let d = depth.at(u as u32, v as u32);
                 du * du + dv * dv <= r * r
@@ -755,11 +788,12 @@ fn depth_samples(depth: &DepthImage, step: usize) -> Vec<Keypoint> {
     samples
 }
 
-/// Sets the pixels of `bbox` (clipped) for which `keep(u, v)`; whether any was set.
+/// Marks the pixels of `bbox` (clipped) for which `keep(u, v)` as masked by `layer`
+/// in `sources` (a `w` x `h` image); whether any was.
 fn fill_box(
-    mask: &mut [bool],
-    w: usize,
-    h: usize,
+    sources: &mut [u8],
+    layer: MaskLayer,
+    (w, h): (usize, usize),
     bbox: [f32; 4],
     keep: impl Fn(usize, usize) -> bool,
 ) -> bool {
@@ -770,7 +804,7 @@ fn fill_box(
     for v in y1..y2 {
         for u in x1..x2 {
             if keep(u, v) {
-                mask[v * w + u] = true;
+                sources[v * w + u] |= layer.bit();
                 any = true;
             }
         }

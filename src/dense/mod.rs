@@ -22,6 +22,7 @@ mod fusion;
 pub mod inputs;
 pub mod map_figures;
 pub mod marching_cubes;
+pub mod mask_layers;
 pub mod masks;
 pub mod more_detections;
 pub mod neighbours;
@@ -86,7 +87,10 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let mut read = inputs::read_run(&run, inputs.masking)?;
     let chosen = choose_frames(inputs.sequence, &read, config);
+    let inputs_s = started.elapsed().as_secs_f64();
     let extra_detections = dense_detections(inputs, config, &chosen, &out, &mut read.detections)?;
+    let detections_s = started.elapsed().as_secs_f64() - inputs_s;
+    let start = Instant::now();
     let mut mask_source = mask_source(inputs, config, &mut read);
     let mut report = DenseReport {
         masking: Some(inputs.masking),
@@ -95,6 +99,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         ..DenseReport::default()
     };
+    report.stages.inputs_s = inputs_s + start.elapsed().as_secs_f64();
+    report.stages.detections_s = detections_s;
     let (maps, truth) = fuse(
         inputs,
         config,
@@ -113,6 +119,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     )?;
     report.truth = truth.map(TruthCounter::finish);
     report.total_s = started.elapsed().as_secs_f64();
+    report.real_time_factor = recording_seconds(inputs.sequence, &chosen)
+        .map(|recording| report.total_s / recording);
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     report.schema = crate::io::run_dir::SCHEMA;
     let json = serde_json::to_string_pretty(&report).expect("report serialises");
@@ -124,6 +132,13 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         "asked while the dense map was written: it was finished whole",
     )?;
     Ok(report)
+}
+
+/// The seconds the `chosen` frames of `sequence` span, one frame interval included
+/// (`None` for fewer than two frames).
+fn recording_seconds(sequence: &dyn Sequence, chosen: &[Chosen]) -> Option<f64> {
+    let (first, last) = (chosen.first()?.0, chosen.last()?.0);
+    crate::io::sequence::duration_of(sequence, first, last)
 }
 
 /// A frame to fuse: its index in the sequence, final `camera_from_world`, and whether
@@ -220,7 +235,9 @@ fn fuse(
     let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
     if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
+        let start = Instant::now();
         allocate_blocks(&mut volume, inputs, chosen)?;
+        report.stages.allocation_s = start.elapsed().as_secs_f64();
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
@@ -243,8 +260,18 @@ fn fuse(
     };
     let fused = fuse_frames(inputs, config, chosen, sinks)?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
+    report.released_on_map = fused.released;
+    let stages = &mut report.stages;
+    stages.loading_s = fused.stages.loading_s;
+    stages.free_space_s = fused.stages.free_space_s;
+    stages.masks_s = fused.stages.masks_s;
+    stages.truth_s = fused.stages.truth_s;
+    stages.integration_s = fused.stages.integration_s;
+    stages.cloud_frames_s = fused.stages.cloud_frames_s;
     let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
+    report.masked_fusable_percent =
+        100.0 * fused.fusable_masked as f64 / fused.fusable.max(1) as f64;
     report.median_integration_ms = crate::eval::stats::median(&mut integration_ms);
     report.tsdf_blocks = volume.blocks.len();
     report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;

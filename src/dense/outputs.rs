@@ -8,6 +8,7 @@ use super::cloud::CloudBuilder;
 use super::tsdf::TsdfVolume;
 use super::{interrupted, marching_cubes, render, DenseConfig, DenseReport};
 use crate::dop::Mode;
+use crate::geometry::mesh::Mesh;
 use crate::io::atomic::write_atomic;
 use crate::io::ply::{write_obj, write_ply};
 use crate::io::run_dir::{names, RunDir};
@@ -41,6 +42,7 @@ pub(super) fn write_maps(
         let (mesh, dropped) = marching_cubes::extract(&volume)
             .without_small_pieces(config.outputs.mesh_min_piece_area);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.stages.mesh_s = report.marching_cubes_ms / 1e3;
         report.mesh_pieces_dropped = dropped.pieces;
         report.mesh_vertices_dropped = dropped.vertices;
         report.mesh_vertices = mesh.len();
@@ -52,6 +54,7 @@ pub(super) fn write_maps(
         let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
         let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
+        report.stages.cloud_s = report.cloud_ms / 1e3;
         report.cloud_points = points.len();
         report.cloud_seen_through = dropped;
         points
@@ -61,23 +64,38 @@ pub(super) fn write_maps(
         out.root(),
         "the dense map was not written; the earlier one is as it was",
     )?;
-    if let Some(mesh) = &mesh {
+    let start = Instant::now();
+    write_files(out, config, mesh.as_ref(), points.as_ref(), &comment, report)?;
+    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(points.as_ref())) {
+        write_pictures(out, map, trajectory, report)?;
+    }
+    report.stages.writing_s = start.elapsed().as_secs_f64();
+    Ok(())
+}
+
+/// The `mesh` (PLY, and OBJ when asked) and the cloud `points` (PLY) into `out`.
+fn write_files(
+    out: &RunDir,
+    config: &DenseConfig,
+    mesh: Option<&Mesh>,
+    points: Option<&Mesh>,
+    comment: &str,
+    report: &mut DenseReport,
+) -> Result<(), IoError> {
+    if let Some(mesh) = mesh {
         let path = out.file(names::DENSE_MESH_PLY);
-        write_ply(&path, mesh, None, config.outputs.ply_encoding, &comment)?;
+        write_ply(&path, mesh, None, config.outputs.ply_encoding, comment)?;
         report.outputs.push(path);
         if config.outputs.obj {
             let path = out.file(names::DENSE_MESH_OBJ);
-            write_obj(&path, mesh, &comment)?;
+            write_obj(&path, mesh, comment)?;
             report.outputs.push(path);
         }
     }
-    if let Some(points) = &points {
+    if let Some(points) = points {
         let path = out.file(names::DENSE_POINTS);
-        write_ply(&path, points, None, config.outputs.ply_encoding, &comment)?;
+        write_ply(&path, points, None, config.outputs.ply_encoding, comment)?;
         report.outputs.push(path);
-    }
-    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(points.as_ref())) {
-        write_pictures(out, map, trajectory, report)?;
     }
     Ok(())
 }

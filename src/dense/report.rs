@@ -24,6 +24,11 @@ pub struct DenseReport {
     pub keyframes_in_cloud: usize,
     /// Share of pixels masked as dynamic over the fused frames, %.
     pub masked_percent: f64,
+    /// Share of the pixels the map could take (depth within `max_depth`) masked, %:
+    /// what the masks cost the static scene and the movers, not counting pixels no
+    /// depth would fuse anyway.
+    #[serde(default)]
+    pub masked_fusable_percent: f64,
     /// TSDF blocks allocated.
     pub tsdf_blocks: usize,
     /// Their memory, MB.
@@ -53,10 +58,72 @@ pub struct DenseReport {
     pub cloud_ms: f64,
     /// The whole pass, seconds.
     pub total_s: f64,
+    /// Where that time went.
+    #[serde(default)]
+    pub stages: DenseStages,
+    /// The pass's wall time over the recording's duration (frames fused, first to
+    /// last): below 1 keeps up with the recording.
+    #[serde(default)]
+    pub real_time_factor: Option<f64>,
+    /// Masked pixels the static map fused so far explained, fused after all
+    /// (`[dense] mask_map_min_weight`).
+    #[serde(default)]
+    pub released_on_map: u64,
     /// The process's peak resident memory at the end of the pass (MiB, Linux).
     pub peak_memory_mib: Option<f64>,
     /// Against the synthetic truth masks.
     pub truth: Option<FusedTruth>,
     /// The files written.
     pub outputs: Vec<PathBuf>,
+}
+
+/// Where the dense pass's time went, seconds of wall time (the stages run one after
+/// another; within each, rayon uses every core).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DenseStages {
+    /// Reading the run folder, choosing the frames, placing the detected objects.
+    pub inputs_s: f64,
+    /// The dense pass's own detections ([`super::more_detections`]).
+    pub detections_s: f64,
+    /// The first pass of `allocate_first` (every frame's depth read once more).
+    pub allocation_s: f64,
+    /// Reading the fused frames (colour and depth; stereo: matching).
+    pub loading_s: f64,
+    /// The free-space evidence: the frames around read and every pixel projected.
+    pub free_space_s: f64,
+    /// The masks, the static map's check included.
+    pub masks_s: f64,
+    /// Counting against the truth masks and the mask pictures.
+    pub truth_s: f64,
+    /// TSDF integration.
+    pub integration_s: f64,
+    /// Keyframes into the point cloud.
+    pub cloud_frames_s: f64,
+    /// Marching cubes and the small pieces dropped.
+    pub mesh_s: f64,
+    /// The cloud: voxels, outliers, normals, carving.
+    pub cloud_s: f64,
+    /// The files and pictures.
+    pub writing_s: f64,
+}
+
+impl DenseStages {
+    /// The stages by name, in order.
+    pub fn named(&self) -> [(&'static str, f64); 12] {
+        [
+            ("inputs", self.inputs_s),
+            ("detections", self.detections_s),
+            ("allocation", self.allocation_s),
+            ("loading", self.loading_s),
+            ("free space", self.free_space_s),
+            ("masks", self.masks_s),
+            ("truth", self.truth_s),
+            ("integration", self.integration_s),
+            ("cloud frames", self.cloud_frames_s),
+            ("mesh", self.mesh_s),
+            ("cloud", self.cloud_s),
+            ("writing", self.writing_s),
+        ]
+    }
 }

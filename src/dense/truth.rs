@@ -5,6 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::mask_layers::MaskLayer;
 use super::tsdf::FrameInput;
 use crate::io::IoError;
 
@@ -39,6 +40,74 @@ pub struct FusedTruth {
     /// Where movers got in: runs of consecutive fused frames in which one mover had
     /// pixels fused, the largest first (at most 20), to find the frames to look at.
     pub leaks: Vec<Leak>,
+    /// Each mask source's pixels against the truth: how many of them lie on movers
+    /// (its precision), and what it masked alone.
+    #[serde(default)]
+    pub sources: Vec<SourceFigures>,
+}
+
+/// One mask source ([`MaskLayer`]) against the truth masks, over the pixels with depth
+/// of the fused frames.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct SourceFigures {
+    /// The source's name (`objects`, `discs`, `free_space`, `segments`, `dilation`,
+    /// `map_agrees`: marked by a source, then fused because the static map explained
+    /// its depth).
+    pub source: String,
+    /// Pixels it marked.
+    pub pixels: u64,
+    /// Those on movers.
+    pub mover_pixels: u64,
+    /// The share of its pixels on movers (for `map_agrees`: the share it let in).
+    pub precision: f64,
+    /// Its pixels over all pixels with depth, %.
+    pub percent_of_pixels: f64,
+    /// Pixels it marked and no other source did (all of its pixels for `map_agrees`).
+    pub only_pixels: u64,
+    /// Those on movers.
+    pub only_mover_pixels: u64,
+}
+
+/// Per source ([`MaskLayer::ALL`]'s order): pixels, on movers, alone, alone on movers.
+#[derive(Debug, Default)]
+struct SourceCounts {
+    counts: [[u64; 4]; MaskLayer::ALL.len()],
+    pixels: u64,
+}
+
+impl SourceCounts {
+    fn add(&mut self, sources: u8, mover: bool) {
+        self.pixels += 1;
+        let masked = sources & !MaskLayer::MapAgrees.bit();
+        for (k, layer) in MaskLayer::ALL.iter().enumerate() {
+            let bit = layer.bit();
+            if sources & bit == 0 {
+                continue;
+            }
+            let alone = masked == bit || *layer == MaskLayer::MapAgrees;
+            let c = &mut self.counts[k];
+            c[0] += 1;
+            c[1] += mover as u64;
+            c[2] += alone as u64;
+            c[3] += (alone && mover) as u64;
+        }
+    }
+
+    fn figures(&self) -> Vec<SourceFigures> {
+        MaskLayer::ALL
+            .iter()
+            .zip(&self.counts)
+            .map(|(layer, c)| SourceFigures {
+                source: layer.name().into(),
+                pixels: c[0],
+                mover_pixels: c[1],
+                precision: c[1] as f64 / c[0].max(1) as f64,
+                percent_of_pixels: 100.0 * c[0] as f64 / self.pixels.max(1) as f64,
+                only_pixels: c[2],
+                only_mover_pixels: c[3],
+            })
+            .collect()
+    }
 }
 
 /// The count of a dense pass against the truth masks as it goes: the figures so far
@@ -47,6 +116,7 @@ pub struct FusedTruth {
 pub struct TruthCounter {
     figures: FusedTruth,
     open: Vec<Leak>,
+    sources: SourceCounts,
 }
 
 /// A run of consecutive fused frames in which one mover had pixels fused.
@@ -72,7 +142,9 @@ impl TruthCounter {
         let Self {
             figures: mut truth,
             mut open,
+            sources,
         } = self;
+        truth.sources = sources.figures();
         let share = |part: u64, whole: u64| part as f64 / whole.max(1) as f64;
         truth.dynamic_removed = 1.0 - share(truth.mover_pixels_fused, truth.mover_pixels);
         truth.static_kept = share(truth.static_pixels_fused, truth.static_pixels);
@@ -129,16 +201,28 @@ pub(super) fn unknown_instances(masks: &Path) -> Result<Vec<bool>, IoError> {
     Ok(unknown)
 }
 
-/// Counts the fused and masked pixels of the frame at `timestamp` against its instance
-/// ids (0: static; `unknown[id]`: a mover no detector knows).
+/// A frame's instance ids in the truth masks (0: static) and, per pixel, the sources
+/// of its mask ([`MaskLayer`] bits; none without masks).
+pub(super) struct TruthFrame<'a> {
+    pub timestamp: f64,
+    pub ids: &'a [u16],
+    pub sources: Option<&'a [u8]>,
+}
+
+/// Counts the fused and masked pixels of `frame` against its instance ids
+/// (`unknown[id]`: a mover no detector knows), and each mask source's pixels.
 pub(super) fn count_truth(
     counter: &mut TruthCounter,
-    timestamp: f64,
-    ids: &[u16],
+    frame: TruthFrame,
     unknown: &[bool],
     input: &FrameInput,
     max_depth: f64,
 ) {
+    let TruthFrame {
+        timestamp,
+        ids,
+        sources,
+    } = frame;
     let truth = &mut counter.figures;
     truth.frames += 1;
     // (instance, pixels, fused) of this frame's movers.
@@ -149,6 +233,7 @@ pub(super) fn count_truth(
             continue;
         }
         let fused = !input.dynamic.is_some_and(|m| m[i]);
+        counter.sources.add(sources.map_or(0, |s| s[i]), id > 0);
         if id > 0 {
             truth.mover_pixels += 1;
             truth.mover_pixels_fused += fused as u64;

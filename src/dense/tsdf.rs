@@ -229,19 +229,33 @@ impl TsdfVolume {
     /// front of every surface seen there). A point the depth once put there belonged to
     /// something that has since been seen through, a mover that left.
     pub fn seen_through(&self, p: &Vector3<f64>, limit: f32) -> bool {
+        self.voxel_at(p)
+            .is_some_and(|(block, k)| block.weight[k] > 0.0 && block.sdf[k] > limit)
+    }
+
+    /// Whether world point `p` lies on a surface fused with at least `min_weight`: the
+    /// voxel nearest to it has that weight and \(F \le\) `band` (truncation units; a
+    /// point more than `band` truncations in front of every surface seen there is in
+    /// free space).
+    pub fn on_surface(&self, p: &Vector3<f64>, min_weight: f32, band: f32) -> bool {
+        self.voxel_at(p)
+            .is_some_and(|(block, k)| block.weight[k] >= min_weight && block.sdf[k] <= band)
+    }
+
+    /// The block holding the voxel nearest to world point `p` and the voxel's index in
+    /// it, when the block is allocated.
+    fn voxel_at(&self, p: &Vector3<f64>) -> Option<(&Block, usize)> {
         // Voxel centres lie at integer multiples of the voxel edge.
         let v = |x: f64| floor(x / self.settings.voxel + 0.5);
         let (x, y, z) = (v(p.x), v(p.y), v(p.z));
         let b = BLOCK as i32;
-        let Some(block) = self.block([x.div_euclid(b), y.div_euclid(b), z.div_euclid(b)]) else {
-            return false;
-        };
+        let block = self.block([x.div_euclid(b), y.div_euclid(b), z.div_euclid(b)])?;
         let k = voxel_index(
             x.rem_euclid(b) as usize,
             y.rem_euclid(b) as usize,
             z.rem_euclid(b) as usize,
         );
-        block.weight[k] > 0.0 && block.sdf[k] > limit
+        Some((block, k))
     }
 
     /// Bytes held by the voxel data.

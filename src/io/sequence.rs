@@ -83,6 +83,18 @@ pub trait Sequence: Send + Sync {
     }
 }
 
+/// The seconds frames `first` to `last` of `sequence` span, one mean frame interval
+/// included (each frame stands for its interval): the recording's duration.
+/// `None` for fewer than two frames or times out of order.
+pub fn duration_of(sequence: &dyn Sequence, first: usize, last: usize) -> Option<f64> {
+    if last <= first || last >= sequence.len() {
+        return None;
+    }
+    let span = sequence.timestamp(last) - sequence.timestamp(first);
+    let frames = (last - first) as f64;
+    (span > 0.0 && span.is_finite()).then(|| span * (frames + 1.0) / frames)
+}
+
 /// Iterates over all frames, loading each one lazily.
 pub fn frames(sequence: &dyn Sequence) -> impl Iterator<Item = Result<Frame, IoError>> + '_ {
     (0..sequence.len()).map(move |i| sequence.load(i))

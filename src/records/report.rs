@@ -165,9 +165,77 @@ pub struct RunReport {
     /// Why the run stopped before the last frame, if it did: the error's sentence.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped: Option<String>,
-    /// The dense pass, when it ran.
+    /// The dense pass, when it ran (written once it has).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dense: Option<DenseReport>,
+    /// Where the run's time went, against the recording's duration (written at the
+    /// run's end).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub times: Option<RunTimes>,
+}
+
+/// The wall time of a run's stages against the recording's duration.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct RunTimes {
+    /// The recording's duration over the frames read, seconds (`None` when their
+    /// timestamps span no time).
+    pub recording_s: Option<f64>,
+    /// Each stage that ran, in order.
+    pub stages: Vec<StageTime>,
+    /// The whole run (the stages and what lies between them), seconds.
+    pub total_s: f64,
+    /// `total_s` over `recording_s`: below 1 the run keeps up with the recording.
+    pub real_time_factor: Option<f64>,
+}
+
+/// One stage's wall time.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StageTime {
+    /// `rig offset`, `tracking`, `global`, `outputs` or `dense`.
+    pub stage: String,
+    /// Wall time, seconds.
+    pub seconds: f64,
+    /// `seconds` over the recording's duration.
+    pub real_time_factor: Option<f64>,
+}
+
+impl RunTimes {
+    /// The times of `stages` (name, seconds) and of the whole run, `total_s`, against
+    /// a recording of `recording_s`.
+    pub fn new(recording_s: Option<f64>, stages: &[(&str, f64)], total_s: f64) -> Self {
+        let factor = |seconds: f64| recording_s.map(|r| seconds / r);
+        Self {
+            recording_s,
+            stages: stages
+                .iter()
+                .map(|&(stage, seconds)| StageTime {
+                    stage: stage.into(),
+                    seconds,
+                    real_time_factor: factor(seconds),
+                })
+                .collect(),
+            total_s,
+            real_time_factor: factor(total_s),
+        }
+    }
+
+    /// One line for the console: each stage's seconds and the run's factor.
+    pub fn summary(&self) -> String {
+        let stages: Vec<String> = self
+            .stages
+            .iter()
+            .map(|s| format!("{} {:.1} s", s.stage, s.seconds))
+            .collect();
+        let factor = match (self.real_time_factor, self.recording_s) {
+            (Some(f), Some(r)) => format!(": {f:.2} x the recording's {r:.1} s"),
+            _ => String::new(),
+        };
+        format!(
+            "wall time: {}; the run {:.1} s{factor}",
+            stages.join(", "),
+            self.total_s
+        )
+    }
 }
 
 impl RunReport {
@@ -186,5 +254,25 @@ impl RunReport {
             .as_ref()
             .and_then(|g| g.disparity_offset.as_ref());
         tracking.unwrap_or(0.0) + global.map_or(0.0, |o| o.offset_px)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_times_give_each_stage_and_the_run_against_the_recording() {
+        let times = RunTimes::new(Some(30.0), &[("tracking", 45.0), ("dense", 15.0)], 63.0);
+        let factors: Vec<Option<f64>> = times.stages.iter().map(|s| s.real_time_factor).collect();
+        assert_eq!(factors, vec![Some(1.5), Some(0.5)]);
+        assert_eq!(times.real_time_factor, Some(2.1));
+        assert_eq!(
+            times.summary(),
+            "wall time: tracking 45.0 s, dense 15.0 s; the run 63.0 s: 2.10 x the recording's 30.0 s"
+        );
+        let unknown = RunTimes::new(None, &[("tracking", 1.0)], 1.0);
+        assert_eq!(unknown.real_time_factor, None);
+        assert_eq!(unknown.summary(), "wall time: tracking 1.0 s; the run 1.0 s");
     }
 }

@@ -71,9 +71,13 @@ pub fn run_sequence(
 /// the plan has a dense set-up) the dense map, also after tracking stopped early. A
 /// run that stopped early is an error after everything was written.
 pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
+    let mut clock = Stopwatch::start();
     // Loaded before any tracking (the rig offset's pass included) and only once.
     let detector = open_detector(&plan.setup, &plan.options)?;
     let found = rig_offset::estimate(plan)?;
+    if found.is_some() {
+        clock.lap("rig offset");
+    }
     let setup = match found {
         Some(found) => Cow::Owned(plan.setup.with_disparity_offset(found)),
         None => Cow::Borrowed(&plan.setup),
@@ -90,42 +94,100 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
         run: &plan.run,
     };
     let mut pass = tracking_pass(inputs, &mut watch.observers())?;
+    clock.lap("tracking");
     let global = global_pass(&mut pass, &setup, &plan.run)?;
+    if global.is_some() {
+        clock.lap("global");
+    }
     let stop = pass.stop.clone();
     let computed = watch.computed(plan, &setup, pass, global)?;
     let mut report = outputs::write(&plan.run, computed)?;
+    clock.lap("outputs");
     let dense_due = stop.is_some() || report.totals.tracked > 0;
-    if let (Some(dense), true) = (&plan.dense, dense_due && !crate::interrupt::requested()) {
-        let dense = dense
-            .clone()
-            .with_disparity_offset(report.disparity_offset_px());
-        let pass = DensePass {
-            sequence: plan.sequence,
-            setup: &dense,
-            run_dir: plan.run.root(),
-            out_dir: plan.run.root(),
-            masking: setup.mode,
-            sequence_dir: plan.options.sequence_dir.as_deref(),
-            progress: plan.options.progress,
-        };
+    let dense = match dense_due && !crate::interrupt::requested() {
+        true => dense_of(plan, setup.mode, &report),
+        false => None,
+    };
+    if let Some(dense) = dense {
+        clock.lap("dense");
         // After a tracking failure the dense map of what was tracked is a bonus: the
         // tracking error is the one to report.
-        match (&stop, dense_pass(&pass)) {
+        match (&stop, dense) {
             (None, Ok(dense)) => report.dense = Some(dense),
             (None, Err(e)) => return Err(e),
             (Some(_), _) => {}
         }
     }
+    let frames = report.frames.len();
+    let recording = frames
+        .checked_sub(1)
+        .and_then(|last| crate::io::sequence::duration_of(plan.sequence, 0, last));
+    report.times = Some(clock.times(recording));
+    outputs::write_report(&plan.run, &report)?;
     if let Some(log) = plan.log() {
         crate::view::results::log_results(log, &plan.run, "", plan.sequence.ground_truth())?;
     }
     match stop {
         Some(reason) => Err(RunError::Stopped {
             reason,
-            done: report.frames.len(),
+            done: frames,
             out: plan.run.root().to_path_buf(),
         }),
         None => Ok(report),
+    }
+}
+
+/// The dense pass of a run that wrote `report`, when the plan has one, with the
+/// run's masking `mode`.
+fn dense_of(
+    plan: &RunPlan,
+    mode: Mode,
+    report: &RunReport,
+) -> Option<Result<crate::dense::DenseReport, RunError>> {
+    let dense = plan
+        .dense
+        .clone()?
+        .with_disparity_offset(report.disparity_offset_px());
+    let pass = DensePass {
+        sequence: plan.sequence,
+        setup: &dense,
+        run_dir: plan.run.root(),
+        out_dir: plan.run.root(),
+        masking: mode,
+        sequence_dir: plan.options.sequence_dir.as_deref(),
+        progress: plan.options.progress,
+    };
+    Some(dense_pass(&pass))
+}
+
+/// The wall time of a run's stages, one lap each.
+struct Stopwatch {
+    start: std::time::Instant,
+    last: std::time::Instant,
+    laps: Vec<(&'static str, f64)>,
+}
+
+impl Stopwatch {
+    fn start() -> Self {
+        let now = std::time::Instant::now();
+        Self {
+            start: now,
+            last: now,
+            laps: Vec::new(),
+        }
+    }
+
+    /// The time since the last lap (or the start) as stage `name`.
+    fn lap(&mut self, name: &'static str) {
+        let now = std::time::Instant::now();
+        self.laps.push((name, (now - self.last).as_secs_f64()));
+        self.last = now;
+    }
+
+    /// The laps and the whole, against a recording of `recording_s` seconds.
+    fn times(&self, recording_s: Option<f64>) -> crate::records::RunTimes {
+        let total = self.start.elapsed().as_secs_f64();
+        crate::records::RunTimes::new(recording_s, &self.laps, total)
     }
 }
 

@@ -168,10 +168,17 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         frames: lines,
         stopped: stopped.map(|reason| reason.to_string()),
         dense: None,
+        times: None,
     };
-    let json = serde_json::to_string_pretty(&report).map_err(|e| RunError::Input(e.to_string()))?;
-    write_atomic(&run.report(), json.as_bytes())?;
+    write_report(run, &report)?;
     Ok(report)
+}
+
+/// `report.json` (again at the run's end, with the dense pass and the times).
+pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
+    let json = serde_json::to_string_pretty(report).map_err(|e| RunError::Input(e.to_string()))?;
+    write_atomic(&run.report(), json.as_bytes())?;
+    Ok(())
 }
 
 /// `keyframes.txt` and `map.ply`.

@@ -1,0 +1,235 @@
+//! A frame's dense mask with where each masked pixel's mask came from: the detected
+//! objects, the discs around dynamic keypoints, the pixels the frames around saw
+//! through, the depth segments, the dilation's ring; and the pixels a mask source
+//! marked that the static map built so far explained ([`MaskLayer::MapAgrees`]), which
+//! are fused.
+//!
+//! `dense.json`'s `truth.sources` counts each source's pixels against a synthetic
+//! sequence's truth masks (its precision), so a source that masks much of the static
+//! scene shows by name.
+
+use rayon::prelude::*;
+
+use super::free_space::{Evidence, PosedDepth};
+use super::masks::dilate;
+use super::tsdf::TsdfVolume;
+use crate::geometry::camera::PinholeCamera;
+
+/// One source of a dense mask, a bit of [`MaskLayers::sources`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MaskLayer {
+    /// A detected (or followed) object's box, the pixels within `delta_z` of its
+    /// depth (its body) and those without depth.
+    Objects,
+    /// The same box's pixels behind its body, up to `mask_depth_behind` (the far leg,
+    /// the feet; and whatever static lies there).
+    ObjectBand,
+    /// A disc around a dynamic keypoint.
+    Discs,
+    /// A pixel the frames around saw through.
+    FreeSpace,
+    /// A depth segment grown from a dynamic keypoint, a moving pixel or a followed
+    /// segment.
+    Segments,
+    /// The ring the dilation added.
+    Dilation,
+    /// Marked by a source, but its depth lies on the static map fused so far: fused
+    /// (not part of the mask).
+    MapAgrees,
+}
+
+impl MaskLayer {
+    /// Every source, in the order `dense.json` lists them.
+    pub const ALL: [MaskLayer; 7] = [
+        MaskLayer::Objects,
+        MaskLayer::ObjectBand,
+        MaskLayer::Discs,
+        MaskLayer::FreeSpace,
+        MaskLayer::Segments,
+        MaskLayer::Dilation,
+        MaskLayer::MapAgrees,
+    ];
+
+    /// Its bit in [`MaskLayers::sources`].
+    pub fn bit(self) -> u8 {
+        match self {
+            MaskLayer::Objects => 1,
+            MaskLayer::Discs => 2,
+            MaskLayer::FreeSpace => 4,
+            MaskLayer::Segments => 8,
+            MaskLayer::Dilation => 16,
+            MaskLayer::MapAgrees => 32,
+            MaskLayer::ObjectBand => 64,
+        }
+    }
+
+    /// Its name in `dense.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            MaskLayer::Objects => "objects",
+            MaskLayer::ObjectBand => "object_band",
+            MaskLayer::Discs => "discs",
+            MaskLayer::FreeSpace => "free_space",
+            MaskLayer::Segments => "segments",
+            MaskLayer::Dilation => "dilation",
+            MaskLayer::MapAgrees => "map_agrees",
+        }
+    }
+}
+
+/// A frame's mask and the sources of its pixels.
+#[derive(Debug, Clone)]
+pub struct MaskLayers {
+    /// Per pixel: dynamic (not fused).
+    pub dynamic: Vec<bool>,
+    /// Per pixel: the [`MaskLayer`] bits that marked it (a pixel with
+    /// [`MaskLayer::MapAgrees`] is not dynamic).
+    pub sources: Vec<u8>,
+}
+
+impl MaskLayers {
+    /// The mask of the marked `sources` of a `w` x `h` frame, dilated by `border`
+    /// pixels; the ring the dilation adds leaves out the pixels `evidence` saw still.
+    pub fn dilated(
+        mut sources: Vec<u8>,
+        (w, h): (usize, usize),
+        border: u32,
+        evidence: Option<&Evidence>,
+    ) -> Self {
+        let core: Vec<bool> = sources.iter().map(|&s| s != 0).collect();
+        let mut dynamic = dilate(&core, w, h, border as usize);
+        for (i, (d, &c)) in dynamic.iter_mut().zip(&core).enumerate() {
+            // The ring the dilation adds keeps none of the pixels seen still.
+            let still = evidence.is_some_and(|e| e.still[i]);
+            *d &= c || !still;
+            if *d && !c {
+                sources[i] |= MaskLayer::Dilation.bit();
+            }
+        }
+        Self { dynamic, sources }
+    }
+
+    /// Fuses pixel `i` after all: its depth lies on the static map
+    /// ([`MaskLayer::MapAgrees`]).
+    pub fn release(&mut self, i: usize) {
+        self.dynamic[i] = false;
+        self.sources[i] |= MaskLayer::MapAgrees.bit();
+    }
+
+    /// Fuses the masked pixels of `frame` whose depth lies on the static map
+    /// `volume` holds with at least `min_weight` (up to half a truncation in front of
+    /// its surface, [`TsdfVolume::on_surface`]); how many. A mover stands in front of
+    /// the static scene, or where the map holds nothing yet. Pixels on a detected
+    /// object's body or seen moving by the frames around stay masked whatever the map
+    /// says: a mover the map let in once (a leak) would otherwise let itself in again.
+    pub fn release_on_map(
+        &mut self,
+        frame: PosedDepth,
+        camera: &PinholeCamera,
+        volume: &TsdfVolume,
+        min_weight: f32,
+    ) -> u64 {
+        let depth = frame.depth;
+        let w = depth.width as usize;
+        let world_from_camera = frame.camera_from_world.inverse();
+        let max_depth = volume.settings.max_depth as f32;
+        let kept = MaskLayer::Objects.bit() | MaskLayer::FreeSpace.bit();
+        let sources = &self.sources;
+        let released: Vec<usize> = self
+            .dynamic
+            .par_chunks(w)
+            .enumerate()
+            .flat_map_iter(|(v, row)| {
+                let world_from_camera = &world_from_camera;
+                row.iter().enumerate().filter_map(move |(u, &masked)| {
+                    let i = v * w + u;
+                    let d = depth.metres[i];
+                    if !masked || d <= 0.0 || d > max_depth || sources[i] & kept != 0 {
+                        return None;
+                    }
+                    let d = f64::from(d);
+                    let x = (u as f64 - camera.cx) / camera.fx * d;
+                    let y = (v as f64 - camera.cy) / camera.fy * d;
+                    let p = world_from_camera * nalgebra::Point3::new(x, y, d);
+                    volume
+                        .on_surface(&p.coords, min_weight, 0.5)
+                        .then_some(i)
+                })
+            })
+            .collect();
+        for &i in &released {
+            self.release(i);
+        }
+        released.len() as u64
+    }
+
+    /// Masked pixels.
+    pub fn masked(&self) -> u64 {
+        self.dynamic.iter().filter(|&&d| d).count() as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_ring_of_the_dilation_is_its_own_source() {
+        let (w, h) = (7, 5);
+        let mut sources = vec![0u8; w * h];
+        sources[2 * w + 3] = MaskLayer::Objects.bit();
+        let layers = MaskLayers::dilated(sources, (w, h), 1, None);
+        assert_eq!(layers.masked(), 9);
+        assert_eq!(layers.sources[2 * w + 3], MaskLayer::Objects.bit());
+        assert_eq!(layers.sources[w + 2], MaskLayer::Dilation.bit());
+        assert_eq!(layers.sources[0], 0);
+        let bits: Vec<u8> = MaskLayer::ALL.iter().map(|l| l.bit()).collect();
+        assert_eq!(bits, vec![1, 64, 2, 4, 8, 16, 32]);
+    }
+
+    /// A wall 2 m away fused from a few frames; then a frame with a ball in front of
+    /// it and the whole image masked: the wall's pixels lie on the map and are
+    /// released, the ball's are not; with too high a weight nothing is.
+    #[test]
+    fn masked_pixels_on_the_static_map_are_fused() {
+        use crate::dense::tsdf::tests::{looking_at, render_depth, small_camera};
+        use crate::dense::tsdf::{FrameInput, TsdfSettings};
+        use nalgebra::Vector3;
+        let camera = small_camera();
+        let mut volume = TsdfVolume::new(TsdfSettings::default(), camera);
+        let pose = looking_at(Vector3::new(0.0, 0.0, 0.0), Vector3::new(0.0, 0.0, 1.0));
+        let colour = image::RgbImage::new(camera.width, camera.height);
+        let wall = render_depth(&camera, &pose, &[], Some(2.0));
+        for _ in 0..4 {
+            volume.integrate(&FrameInput {
+                depth: &wall,
+                colour: &colour,
+                dynamic: None,
+                camera_from_world: &pose,
+            });
+        }
+        let ball = [(Vector3::new(0.0, 0.0, 1.2), 0.3)];
+        let depth = render_depth(&camera, &pose, &ball, Some(2.0));
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let masked = || MaskLayers::dilated(vec![MaskLayer::Objects.bit(); w * h], (w, h), 0, None);
+        let frame = PosedDepth {
+            timestamp: 0.0,
+            depth: &depth,
+            camera_from_world: &pose,
+        };
+        let mut strict = masked();
+        assert_eq!(strict.release_on_map(frame, &camera, &volume, 5.0), 0);
+        let mut layers = masked();
+        let released = layers.release_on_map(frame, &camera, &volume, 3.0);
+        let centre = 60 * w + 80;
+        let corner = 10 * w + 10;
+        assert!(layers.dynamic[centre], "the ball stays masked");
+        assert!(!layers.dynamic[corner], "the wall is fused");
+        assert_ne!(layers.sources[corner] & MaskLayer::MapAgrees.bit(), 0);
+        let on_ball = (0..w * h).filter(|&i| depth.metres[i] < 1.9).count();
+        assert!(on_ball > 1000);
+        // The image's outermost pixels fall outside the margin the volume keeps free.
+        assert!(released as usize > (w * h - on_ball) * 6 / 10, "{released}");
+        assert_eq!(layers.masked() as usize, w * h - released as usize);
+    }
+}

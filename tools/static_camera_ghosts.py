@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Ghosts of movers in a dense map made from a static camera (issue 80's real-people
+goal; `../shared/data/real/ist/confusao`): the camera stands still, so the far end of
+each pixel's depths over the sequence is the static background, and a map vertex
+clearly in front of it (more than MARGIN metres, against the farthest background in a
+WINDOW x WINDOW pixel window, so that object edges do not count) stands where a mover
+stood. Also the share of the background's pixels the map covers (a vertex within
+MARGIN of the background at that pixel).
+
+    data/venv/bin/python tools/static_camera_ghosts.py SEQUENCE RUN_DIR [MESH.ply ...]
+        [--settings S.yaml] [--margin 0.15] [--window 5] [--json]
+
+SEQUENCE: a TUM-layout folder (depth.txt, depth PNGs at 5000 per metre unless the
+settings' DepthMapFactor says otherwise); RUN_DIR: a run on it (its trajectory's first
+pose is the camera's, the world frame); the meshes (default RUN_DIR/dense_mesh.ply)
+are binary PLY files as dopslam writes them. The camera's fx, fy, cx, cy come from
+--settings (an ORB-SLAM2 settings file). Needs numpy and Pillow (data/venv:
+`data/venv/bin/pip install pillow`).
+"""
+import argparse
+import json
+import os
+import re
+import struct
+import sys
+
+try:
+    import numpy as np
+    from PIL import Image
+except ImportError as e:
+    sys.exit(f"static_camera_ghosts.py needs numpy and Pillow ({e}): data/venv/bin/pip install pillow")
+
+
+def settings(path):
+    text = open(path).read()
+    value = lambda key, default=None: float(re.search(rf"^{key}:\s*([-0-9.eE+]+)", text, re.M).group(1)) \
+        if re.search(rf"^{key}:", text, re.M) else default
+    return (value("Camera.fx"), value("Camera.fy"), value("Camera.cx"), value("Camera.cy"),
+            value("DepthMapFactor", 5000.0))
+
+
+def background(sequence, factor):
+    depth_list = [line.split() for line in open(os.path.join(sequence, "depth.txt"))
+                  if line.strip() and not line.startswith("#")]
+    far = None
+    for _, name in depth_list:
+        d = np.asarray(Image.open(os.path.join(sequence, name)), dtype=np.float32) / factor
+        far = d if far is None else np.maximum(far, d)
+    return far
+
+
+def read_ply_vertices(path):
+    with open(path, "rb") as f:
+        header = b""
+        while not header.endswith(b"end_header\n"):
+            header += f.readline()
+        text = header.decode("ascii")
+        count = int(re.search(r"element vertex (\d+)", text).group(1))
+        props = re.findall(r"property (\w+) (\w+)\n", text.split("element vertex")[1].split("element")[0])
+        sizes = {"float": 4, "uchar": 1, "double": 8, "int": 4}
+        stride = sum(sizes[t] for t, _ in props)
+        data = np.frombuffer(f.read(count * stride), dtype=np.uint8).reshape(count, stride)
+        xyz = np.frombuffer(data[:, :12].tobytes(), dtype="<f4").reshape(count, 3)
+    return xyz.astype(np.float64)
+
+
+def first_pose(run_dir):
+    for line in open(os.path.join(run_dir, "trajectory.txt")):
+        if line.strip() and not line.startswith("#"):
+            v = [float(x) for x in line.split()]
+            tx, ty, tz, qx, qy, qz, qw = v[1:8]
+            r = np.array([
+                [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+                [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+                [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+            ])
+            return r, np.array([tx, ty, tz])
+    raise SystemExit(f"{run_dir}/trajectory.txt holds no pose")
+
+
+def judge(mesh, far, camera, pose, margin, window):
+    fx, fy, cx, cy = camera
+    r, t = pose
+    p = (mesh - t) @ r  # world -> camera (camera_from_world = R^T (x - t))
+    h, w = far.shape
+    z = p[:, 2]
+    ok = z > 0.05
+    u = np.round(fx * p[:, 0] / np.where(ok, z, 1) + cx).astype(int)
+    v = np.round(fy * p[:, 1] / np.where(ok, z, 1) + cy).astype(int)
+    inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    k = window // 2
+    padded = np.pad(far, k, mode="edge")
+    widest = np.max([padded[dy:dy + h, dx:dx + w] for dy in range(window) for dx in range(window)], axis=0)
+    bg = np.where(inside, widest[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
+    valid = inside & (bg > 0)
+    ghost = valid & (z < bg - margin)
+    covered = np.zeros_like(far, dtype=bool)
+    near_bg = inside & (np.abs(z - far[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)]) <= margin)
+    covered[v[near_bg], u[near_bg]] = True
+    return dict(vertices=int(len(mesh)), judged=int(valid.sum()), in_front=int(ghost.sum()),
+                in_front_percent=100.0 * ghost.sum() / max(valid.sum(), 1),
+                background_covered_percent=100.0 * covered.sum() / max((far > 0).sum(), 1))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequence")
+    parser.add_argument("run_dir")
+    parser.add_argument("meshes", nargs="*")
+    parser.add_argument("--settings", required=True)
+    parser.add_argument("--margin", type=float, default=0.15)
+    parser.add_argument("--window", type=int, default=5)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    fx, fy, cx, cy, factor = settings(args.settings)
+    far = background(args.sequence, factor)
+    pose = first_pose(args.run_dir)
+    meshes = args.meshes or [os.path.join(args.run_dir, "dense_mesh.ply")]
+    rows = {m: judge(read_ply_vertices(m), far, (fx, fy, cx, cy), pose, args.margin, args.window)
+            for m in meshes}
+    if args.json:
+        print(json.dumps(rows))
+        return
+    for m, r in rows.items():
+        print(f"{m}: {r['in_front']} of {r['judged']} vertices ({r['in_front_percent']:.2f} %) more than "
+              f"{args.margin} m in front of the background; the map covers {r['background_covered_percent']:.1f} % "
+              f"of the background's pixels")
+
+
+if __name__ == "__main__":
+    main()
