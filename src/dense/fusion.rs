@@ -208,9 +208,7 @@ fn frame_mask(
     };
     let start = Instant::now();
     let evidence = match sinks.window.as_deref_mut() {
-        Some(window) => Some(window.evidence(&inputs.camera, posed, |i| {
-            frame_depth(inputs, i)
-        })?),
+        Some(window) => Some(window.evidence(&inputs.camera, posed, |i| frame_depth(inputs, i))?),
         None => None,
     };
     add_since(&mut fused.stages.free_space_s, start);

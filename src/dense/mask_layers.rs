@@ -11,9 +11,8 @@
 use rayon::prelude::*;
 
 use super::free_space::{Evidence, PosedDepth};
-use super::masks::dilate;
 use super::tsdf::TsdfVolume;
-use crate::geometry::camera::PinholeCamera;
+use crate::geometry::camera::{ImageSize, PinholeCamera};
 
 /// One source of a dense mask, a bit of [`MaskLayers::sources`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,14 +87,15 @@ pub struct MaskLayers {
 }
 
 impl MaskLayers {
-    /// The mask of the marked `sources` of a `w` x `h` frame, dilated by `border`
+    /// The mask of the marked `sources` of a frame of `size`, dilated by `border`
     /// pixels; the ring the dilation adds leaves out the pixels `evidence` saw still.
     pub fn dilated(
         mut sources: Vec<u8>,
-        (w, h): (usize, usize),
+        size: ImageSize,
         border: u32,
         evidence: Option<&Evidence>,
     ) -> Self {
+        let (w, h) = (size.width as usize, size.height as usize);
         let core: Vec<bool> = sources.iter().map(|&s| s != 0).collect();
         let mut dynamic = dilate(&core, w, h, border as usize);
         for (i, (d, &c)) in dynamic.iter_mut().zip(&core).enumerate() {
@@ -151,9 +151,7 @@ impl MaskLayers {
                     let x = (u as f64 - camera.cx) / camera.fx * d;
                     let y = (v as f64 - camera.cy) / camera.fy * d;
                     let p = world_from_camera * nalgebra::Point3::new(x, y, d);
-                    volume
-                        .on_surface(&p.coords, min_weight, 0.5)
-                        .then_some(i)
+                    volume.on_surface(&p.coords, min_weight, 0.5).then_some(i)
                 })
             })
             .collect();
@@ -169,16 +167,68 @@ impl MaskLayers {
     }
 }
 
+/// Dilation by a square of side `2r + 1` (separable: rows, then columns), with
+/// running counts so the cost does not grow with `r`.
+pub fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    if r == 0 {
+        return mask.to_vec();
+    }
+    let rows = dilate_lines(mask, w, h, r, |line, k| line * w + k);
+    dilate_lines(&rows, h, w, r, |line, k| k * w + line)
+}
+
+/// One pass of [`dilate`] along `lines` lines of `len` pixels; `at(line, k)` is the
+/// index of pixel `k` of a line (generic, so the per-pixel call is inlined).
+fn dilate_lines(
+    input: &[bool],
+    len: usize,
+    lines: usize,
+    r: usize,
+    at: impl Fn(usize, usize) -> usize,
+) -> Vec<bool> {
+    let mut output = vec![false; input.len()];
+    for line in 0..lines {
+        let mut count = 0usize;
+        for k in 0..len.min(r) {
+            count += input[at(line, k)] as usize;
+        }
+        for k in 0..len {
+            if k + r < len {
+                count += input[at(line, k + r)] as usize;
+            }
+            if k > r {
+                count -= input[at(line, k - r - 1)] as usize;
+            }
+            output[at(line, k)] = count > 0;
+        }
+    }
+    output
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dilation_grows_a_pixel_into_a_square() {
+        let (w, h) = (9, 7);
+        let mut mask = vec![false; w * h];
+        mask[3 * w + 4] = true;
+        let grown = dilate(&mask, w, h, 2);
+        for v in 0..h {
+            for u in 0..w {
+                let inside = (2..=6).contains(&u) && (1..=5).contains(&v);
+                assert_eq!(grown[v * w + u], inside, "({u}, {v})");
+            }
+        }
+    }
 
     #[test]
     fn the_ring_of_the_dilation_is_its_own_source() {
         let (w, h) = (7, 5);
         let mut sources = vec![0u8; w * h];
         sources[2 * w + 3] = MaskLayer::Objects.bit();
-        let layers = MaskLayers::dilated(sources, (w, h), 1, None);
+        let layers = MaskLayers::dilated(sources, ImageSize::from((w as u32, h as u32)), 1, None);
         assert_eq!(layers.masked(), 9);
         assert_eq!(layers.sources[2 * w + 3], MaskLayer::Objects.bit());
         assert_eq!(layers.sources[w + 2], MaskLayer::Dilation.bit());
@@ -188,8 +238,9 @@ mod tests {
     }
 
     /// A wall 2 m away fused from a few frames; then a frame with a ball in front of
-    /// it and the whole image masked: the wall's pixels lie on the map and are
-    /// released, the ball's are not; with too high a weight nothing is.
+    /// it and the whole image masked by discs: the wall's pixels lie on the map and
+    /// are released, the ball's are not; with too high a weight nothing is, and a
+    /// detected body never is.
     #[test]
     fn masked_pixels_on_the_static_map_are_fused() {
         use crate::dense::tsdf::tests::{looking_at, render_depth, small_camera};
@@ -211,7 +262,10 @@ mod tests {
         let ball = [(Vector3::new(0.0, 0.0, 1.2), 0.3)];
         let depth = render_depth(&camera, &pose, &ball, Some(2.0));
         let (w, h) = (camera.width as usize, camera.height as usize);
-        let masked = || MaskLayers::dilated(vec![MaskLayer::Objects.bit(); w * h], (w, h), 0, None);
+        let size = ImageSize::from((camera.width, camera.height));
+        // Discs over the whole image (a detected body would stay masked whatever the map
+        // says).
+        let masked = || MaskLayers::dilated(vec![MaskLayer::Discs.bit(); w * h], size, 0, None);
         let frame = PosedDepth {
             timestamp: 0.0,
             depth: &depth,
@@ -231,5 +285,7 @@ mod tests {
         // The image's outermost pixels fall outside the margin the volume keeps free.
         assert!(released as usize > (w * h - on_ball) * 6 / 10, "{released}");
         assert_eq!(layers.masked() as usize, w * h - released as usize);
+        let mut body = MaskLayers::dilated(vec![MaskLayer::Objects.bit(); w * h], size, 0, None);
+        assert_eq!(body.release_on_map(frame, &camera, &volume, 3.0), 0);
     }
 }

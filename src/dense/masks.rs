@@ -33,14 +33,14 @@
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use super::free_space::{Evidence, PosedDepth};
-pub use super::mask_layers::{MaskLayer, MaskLayers};
+pub use super::mask_layers::{dilate, MaskLayer, MaskLayers};
 use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;
 use crate::dop::boxes::{foreground_depth, object_depth, Keypoint, ObjectBox};
 use crate::dop::tracks::{Object, ObjectTracks};
 use crate::dop::{DopConfig, Mode};
 use crate::dynamics::keyframes::object_boxes;
-use crate::geometry::camera::PinholeCamera;
+use crate::geometry::camera::{ImageSize, PinholeCamera};
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 
@@ -225,8 +225,8 @@ impl MaskSource {
         if self.masking == Mode::Off {
             return None;
         }
-        let (w, h) = (depth.width as usize, depth.height as usize);
-        let mut sources = vec![0u8; w * h];
+        let size = ImageSize::from((depth.width, depth.height));
+        let mut sources = vec![0u8; depth.metres.len()];
         let evidence = evidence.filter(|_| self.masking == Mode::Dop);
         let near = self.near_keyframes(timestamp);
         let any = match self.masking {
@@ -239,7 +239,7 @@ impl MaskSource {
                 });
                 let mut any = false;
                 for b in nearest.iter().flat_map(|k| &k.boxes) {
-                    any |= fill_box(&mut sources, MaskLayer::Objects, (w, h), b.bbox, |_, _| true);
+                    any |= fill_box(&mut sources, MaskLayer::Objects, size, b.bbox, |_, _| true);
                 }
                 any
             }
@@ -252,7 +252,7 @@ impl MaskSource {
                 self.dop_layers(&mut sources, frame, &near, evidence)
             }
         };
-        any.then(|| MaskLayers::dilated(sources, (w, h), self.settings.border, evidence))
+        any.then(|| MaskLayers::dilated(sources, size, self.settings.border, evidence))
     }
 
     /// The detected keyframes nearest before and after `timestamp`, within
@@ -378,21 +378,25 @@ impl MaskSource {
         !segments.is_empty()
     }
 
-    /// Each object's box, cut at its depth: the pixels within `delta_z` of it, and
-    /// those without depth.
+    /// Each object's box, cut at its depth: the pixels from `delta_z` in front of it to
+    /// `mask_depth_behind` behind it, and those without depth; within `delta_z` of it
+    /// (and without depth) as [`MaskLayer::Objects`], farther behind as
+    /// [`MaskLayer::ObjectBand`].
     fn object_masks(&self, sources: &mut [u8], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
-        let size = (depth.width as usize, depth.height as usize);
+        let size = ImageSize::from((depth.width, depth.height));
         let mut any = false;
         for b in objects {
             let z = b.depth.unwrap_or(0.0);
             let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
+            // The body reaches `delta_z` behind the depth too, or less when the band does.
+            let body = front.min(behind);
             any |= fill_box(sources, MaskLayer::Objects, size, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
-                d == 0.0 || (d >= z - front && d <= z + front)
+                d == 0.0 || (d >= z - front && d <= z + body)
             });
             any |= fill_box(sources, MaskLayer::ObjectBand, size, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
-                d > z + front && d <= z + behind
+                d > z + body && d <= z + behind
             });
         }
         any
@@ -411,7 +415,7 @@ impl MaskSource {
         objects: &[ObjectBox],
         keep: &dyn Fn(usize, usize) -> bool,
     ) -> bool {
-        let (w, h) = (depth.width as usize, depth.height as usize);
+        let size = ImageSize::from((depth.width, depth.height));
         let behind = |x: f32, y: f32, z: f32| {
             self.settings.skip_behind_objects
                 && z > 0.0
@@ -436,7 +440,7 @@ impl MaskSource {
             .filter(|p| !behind(p[0], p[1], p[2]) && supported(p))
         {
             let bbox = [x - r, y - r, x + r + 1.0, y + r + 1.0];
-            any |= fill_box(sources, MaskLayer::Discs, (w, h), bbox, |u, v| {
+            any |= fill_box(sources, MaskLayer::Discs, size, bbox, |u, v| {
                 let (du, dv) = (u as f32 - x, v as f32 - y);
                 let d = depth.at(u as u32, v as u32);
                 du * du + dv * dv <= r * r
@@ -789,14 +793,15 @@ fn depth_samples(depth: &DepthImage, step: usize) -> Vec<Keypoint> {
 }
 
 /// Marks the pixels of `bbox` (clipped) for which `keep(u, v)` as masked by `layer`
-/// in `sources` (a `w` x `h` image); whether any was.
+/// in `sources` (an image of `size`); whether any was.
 fn fill_box(
     sources: &mut [u8],
     layer: MaskLayer,
-    (w, h): (usize, usize),
+    size: ImageSize,
     bbox: [f32; 4],
     keep: impl Fn(usize, usize) -> bool,
 ) -> bool {
+    let (w, h) = (size.width as usize, size.height as usize);
     let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
     let (x1, y1) = (clip(bbox[0].floor(), w), clip(bbox[1].floor(), h));
     let (x2, y2) = (clip(bbox[2].ceil(), w), clip(bbox[3].ceil(), h));
@@ -810,44 +815,6 @@ fn fill_box(
         }
     }
     any
-}
-
-/// Dilation by a square of side `2r + 1` (separable: rows, then columns), with
-/// running counts so the cost does not grow with `r`.
-pub fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    if r == 0 {
-        return mask.to_vec();
-    }
-    let rows = dilate_lines(mask, w, h, r, |line, k| line * w + k);
-    dilate_lines(&rows, h, w, r, |line, k| k * w + line)
-}
-
-/// One pass of [`dilate`] along `lines` lines of `len` pixels; `at(line, k)` is the
-/// index of pixel `k` of a line (generic, so the per-pixel call is inlined).
-fn dilate_lines(
-    input: &[bool],
-    len: usize,
-    lines: usize,
-    r: usize,
-    at: impl Fn(usize, usize) -> usize,
-) -> Vec<bool> {
-    let mut output = vec![false; input.len()];
-    for line in 0..lines {
-        let mut count = 0usize;
-        for k in 0..len.min(r) {
-            count += input[at(line, k)] as usize;
-        }
-        for k in 0..len {
-            if k + r < len {
-                count += input[at(line, k + r)] as usize;
-            }
-            if k > r {
-                count -= input[at(line, k - r - 1)] as usize;
-            }
-            output[at(line, k)] = count > 0;
-        }
-    }
-    output
 }
 
 /// The keypoints of a tracked frame in a removed (dynamic) state, `(x, y, depth)`.
@@ -870,20 +837,6 @@ mod tests {
     use super::*;
     use crate::detect::Detection;
     use nalgebra::Vector3;
-
-    #[test]
-    fn dilation_grows_a_pixel_into_a_square() {
-        let (w, h) = (9, 7);
-        let mut mask = vec![false; w * h];
-        mask[3 * w + 4] = true;
-        let grown = dilate(&mask, w, h, 2);
-        for v in 0..h {
-            for u in 0..w {
-                let inside = (2..=6).contains(&u) && (1..=5).contains(&v);
-                assert_eq!(grown[v * w + u], inside, "({u}, {v})");
-            }
-        }
-    }
 
     /// A wall at 3 m with a person-sized slab at 1.5 m in the middle.
     fn scene() -> (PinholeCamera, DepthImage) {
@@ -1249,14 +1202,25 @@ mod tests {
                 segments: None,
             };
             let source = scene_source(settings, Vec::new(), Vec::new());
-            let mut mask = vec![false; depth.metres.len()];
-            source.object_masks(&mut mask, &depth, &[object]);
-            mask
+            let mut sources = vec![0u8; depth.metres.len()];
+            source.object_masks(&mut sources, &depth, &[object]);
+            sources
         };
         let (narrow, wide) = (mask_with(0.4), mask_with(0.6));
-        assert!(at(&narrow, 300, 200) && at(&wide, 300, 200), "the body");
-        assert!(!at(&narrow, 260, 400) && at(&wide, 260, 400), "the far leg");
-        assert!(!at(&wide, 245, 200), "the wall in the box");
+        let layer = |sources: &[u8], u: u32, v: u32| {
+            sources[(v * PinholeCamera::tum_fr3().width + u) as usize]
+        };
+        let body = MaskLayer::Objects.bit();
+        let band = MaskLayer::ObjectBand.bit();
+        assert!(
+            layer(&narrow, 300, 200) == body && layer(&wide, 300, 200) == body,
+            "the body"
+        );
+        assert!(
+            layer(&narrow, 260, 400) == 0 && layer(&wide, 260, 400) == band,
+            "the far leg, in the band"
+        );
+        assert_eq!(layer(&wide, 245, 200), 0, "the wall in the box");
     }
 
     /// A box of a close person's legs (1 m) before a wall (3 m), beside the person's

@@ -34,7 +34,6 @@ pub mod truth;
 pub mod tsdf;
 
 use std::collections::HashMap;
-use std::path::Path;
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -52,7 +51,7 @@ use free_space::NeighbourWindow;
 use fusion::{fuse_frames, FrameSinks};
 use inputs::{frame_depth, groups, key, load_group, RunInputs};
 use masks::{MaskContext, MaskSource};
-use outputs::{write_maps, Maps};
+use outputs::{interrupted, write_maps, Maps};
 use tsdf::TsdfVolume;
 
 pub use config::{DenseConfig, FrameChoice, Fusion};
@@ -119,7 +118,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     )?;
     report.truth = truth.map(TruthCounter::finish);
     report.total_s = started.elapsed().as_secs_f64();
-    report.real_time_factor = recording_seconds(inputs.sequence, &chosen)
+    let (first, last) = (
+        chosen.first().map_or(0, |c| c.0),
+        chosen.last().map_or(0, |c| c.0),
+    );
+    report.real_time_factor = crate::io::sequence::duration_of(inputs.sequence, first, last)
         .map(|recording| report.total_s / recording);
     report.peak_memory_mib = crate::memory::peak_resident_mib();
     report.schema = crate::io::run_dir::SCHEMA;
@@ -132,13 +135,6 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         "asked while the dense map was written: it was finished whole",
     )?;
     Ok(report)
-}
-
-/// The seconds the `chosen` frames of `sequence` span, one frame interval included
-/// (`None` for fewer than two frames).
-fn recording_seconds(sequence: &dyn Sequence, chosen: &[Chosen]) -> Option<f64> {
-    let (first, last) = (chosen.first()?.0, chosen.last()?.0);
-    crate::io::sequence::duration_of(sequence, first, last)
 }
 
 /// A frame to fuse: its index in the sequence, final `camera_from_world`, and whether
@@ -261,13 +257,7 @@ fn fuse(
     let fused = fuse_frames(inputs, config, chosen, sinks)?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     report.released_on_map = fused.released;
-    let stages = &mut report.stages;
-    stages.loading_s = fused.stages.loading_s;
-    stages.free_space_s = fused.stages.free_space_s;
-    stages.masks_s = fused.stages.masks_s;
-    stages.truth_s = fused.stages.truth_s;
-    stages.integration_s = fused.stages.integration_s;
-    stages.cloud_frames_s = fused.stages.cloud_frames_s;
+    report.stages.frames_from(&fused.stages);
     let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
     report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
     report.masked_fusable_percent =
@@ -298,16 +288,5 @@ fn allocate_blocks(
         }
     }
     progress.finish_and_clear();
-    Ok(())
-}
-
-/// `Err` naming `dir` and saying `what` once an interrupt was asked for.
-pub(super) fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
-    if crate::interrupt::requested() {
-        return Err(IoError::invalid(
-            dir,
-            format!("{}: {what}", crate::interrupt::MESSAGE),
-        ));
-    }
     Ok(())
 }

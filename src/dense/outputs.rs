@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::cloud::CloudBuilder;
 use super::tsdf::TsdfVolume;
-use super::{interrupted, marching_cubes, render, DenseConfig, DenseReport};
+use super::{marching_cubes, render, DenseConfig, DenseReport};
 use crate::dop::Mode;
 use crate::geometry::mesh::Mesh;
 use crate::io::atomic::write_atomic;
@@ -65,7 +65,14 @@ pub(super) fn write_maps(
         "the dense map was not written; the earlier one is as it was",
     )?;
     let start = Instant::now();
-    write_files(out, config, mesh.as_ref(), points.as_ref(), &comment, report)?;
+    write_files(
+        out,
+        config,
+        mesh.as_ref(),
+        points.as_ref(),
+        &comment,
+        report,
+    )?;
     if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(points.as_ref())) {
         write_pictures(out, map, trajectory, report)?;
     }
@@ -147,4 +154,15 @@ pub fn save_png(path: &Path, picture: &image::RgbImage) -> Result<(), IoError> {
             source: std::io::Error::other(e),
         })?;
     write_atomic(path, &bytes)
+}
+
+/// `Err` naming `dir` and saying `what` once an interrupt was asked for.
+pub(super) fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
+    if crate::interrupt::requested() {
+        return Err(IoError::invalid(
+            dir,
+            format!("{}: {what}", crate::interrupt::MESSAGE),
+        ));
+    }
+    Ok(())
 }

@@ -109,6 +109,16 @@ pub struct DenseStages {
 }
 
 impl DenseStages {
+    /// The per-frame stages (loading to cloud frames) taken from `frames`.
+    pub fn frames_from(&mut self, frames: &DenseStages) {
+        self.loading_s = frames.loading_s;
+        self.free_space_s = frames.free_space_s;
+        self.masks_s = frames.masks_s;
+        self.truth_s = frames.truth_s;
+        self.integration_s = frames.integration_s;
+        self.cloud_frames_s = frames.cloud_frames_s;
+    }
+
     /// The stages by name, in order.
     pub fn named(&self) -> [(&'static str, f64); 12] {
         [

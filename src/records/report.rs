@@ -273,6 +273,9 @@ mod tests {
         );
         let unknown = RunTimes::new(None, &[("tracking", 1.0)], 1.0);
         assert_eq!(unknown.real_time_factor, None);
-        assert_eq!(unknown.summary(), "wall time: tracking 1.0 s; the run 1.0 s");
+        assert_eq!(
+            unknown.summary(),
+            "wall time: tracking 1.0 s; the run 1.0 s"
+        );
     }
 }
