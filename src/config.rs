@@ -258,9 +258,10 @@ pub struct StereoConfig {
     /// matches and the dense pass's). Unset: estimated over the first
     /// `disparity_offset_frames` frames ([`crate::run::rig_offset`]).
     pub disparity_offset_px: Option<f64>,
-    /// With no known offset: the first this many frames are tracked once (deterministic,
-    /// no DOP) and the global pass's estimate of the offset taken from their map; 0:
-    /// no estimate before tracking.
+    /// With no known offset: tracking looks for it within its first this many frames
+    /// and, once an estimate passes the confidence test, takes it out of the map and
+    /// adds it to every later frame's matches ([`crate::run::rig_offset`]); 0: only the
+    /// global pass's estimate.
     pub disparity_offset_frames: usize,
 }
 

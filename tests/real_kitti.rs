@@ -67,8 +67,8 @@ fn real_kitti_01_is_tracked_through_the_highway_traffic() {
         return;
     };
     assert_eq!(report["totals"]["tracked"], 51);
-    // This rig's disparities are about 1.3 px short: found over the first frames and
-    // added to every match.
+    // This rig's disparities are about 1.3-1.5 px short: found while tracking (within
+    // the first frames) and added to every later match.
     let offset = &report["setup"]["disparity_offset"];
     let added = offset["offset_px"].as_f64().unwrap();
     assert!((1.0..1.8).contains(&added), "{offset}");

@@ -23,10 +23,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::eval::stats::median;
 use crate::frame::stereo::offset_disparity;
+use crate::frame::Frame;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::map::record::FrameRecord;
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
+use crate::random::Rng;
 
 /// A point's rays must span at least this angle (degrees) for its triangulated depth to
 /// be a measurement.
@@ -39,8 +41,23 @@ pub const MIN_PAIRS: usize = 200;
 pub const MAX_LEVEL: u8 = 2;
 /// The Huber threshold of the line fit, pixels of disparity.
 const HUBER_PX: f64 = 0.5;
+/// An offset is taken out only when it is at least this many times its spread over
+/// resamples of the points ([`Estimate::verdict`]).
+pub const MIN_SIGMAS: f64 = 3.0;
+/// An offset is taken out only when its spread is at most this share of
+/// `[global] disparity_offset_min_px`.
+pub const MAX_SIGMA_SHARE: f64 = 0.2;
+/// Fewest points an estimate that is acted on comes from.
+pub const MIN_POINTS: usize = 100;
+/// The least spread of the observed disparities (90th less 10th percentile, pixels)
+/// for an estimate that is acted on.
+pub const MIN_SPAN_PX: f64 = 5.0;
+/// Resamples of the points for an estimate's spread, and their seed.
+const BOOTSTRAP_ROUNDS: usize = 32;
+const BOOTSTRAP_SEED: u64 = 0x0ff5e7;
 
-/// What the estimate found (in `report.json`, `global.disparity_offset`).
+/// What the estimate found (in `report.json`, `global.disparity_offset`, and
+/// `setup.disparity_offset.estimate` for the tracking pass's own).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct OffsetReport {
     /// The offset \(\delta\) taken out, pixels (added to every observed disparity).
@@ -51,6 +68,19 @@ pub struct OffsetReport {
     pub pairs: usize,
     /// The pose scale the last fit saw, \(1/a\).
     pub scale: f64,
+    /// The first round's spread over resamples of the points, pixels.
+    #[serde(default)]
+    pub sigma_px: f64,
+    /// The first round's points.
+    #[serde(default)]
+    pub points: usize,
+    /// The first round's disparity span (90th less 10th percentile), pixels.
+    #[serde(default)]
+    pub span_px: f64,
+    /// The confidence test's word on the first round ([`Estimate::verdict`]): why the
+    /// offset was or was not taken out.
+    #[serde(default)]
+    pub verdict: String,
 }
 
 impl OffsetReport {
@@ -58,7 +88,7 @@ impl OffsetReport {
     pub fn summary(&self) -> String {
         let found = format!("stereo disparity offset: {}", self.estimates());
         if self.offset_px == 0.0 {
-            format!("{found}; none taken out (below [global] disparity_offset_min_px)")
+            format!("{found}; none taken out ({})", self.verdict)
         } else {
             format!(
                 "{found}; {:.3} px taken out of every disparity",
@@ -75,6 +105,26 @@ impl OffsetReport {
             rounds.join(", "),
             self.pairs
         )
+    }
+
+    /// A report of a first estimate `found` and the test's word on it.
+    pub fn first(found: &Estimate, verdict: &Verdict) -> Self {
+        Self {
+            offset_px: 0.0,
+            rounds: vec![found.offset_px],
+            pairs: found.pairs,
+            scale: found.scale,
+            sigma_px: found.sigma_px,
+            points: found.points,
+            span_px: found.span_px,
+            verdict: match verdict {
+                Verdict::Apply => format!(
+                    "{:.3} ± {:.3} px from {} points: taken out",
+                    found.offset_px, found.sigma_px, found.points
+                ),
+                Verdict::Needless(why) | Verdict::Unsure(why) => why.clone(),
+            },
+        }
     }
 }
 
@@ -108,9 +158,9 @@ fn parallax(rays: &[Vector3<f64>]) -> f64 {
 
 /// The pairs \((x, y)\) of every static point seen by keyframes whose rays span at
 /// least [`MIN_PARALLAX_DEG`], one per observation with a stereo depth at a level up to
-/// [`MAX_LEVEL`] (every observation's ray enters the triangulation).
-fn pairs(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Vec<Pair> {
-    let mut out = Vec::new();
+/// [`MAX_LEVEL`] (every observation's ray enters the triangulation), grouped by point.
+fn pairs(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Pairs {
+    let mut out = Pairs::default();
     let min_parallax = MIN_PARALLAX_DEG.to_radians();
     for point in map.points().values() {
         if point.moving > removal_threshold || point.observations.len() < 2 {
@@ -139,6 +189,7 @@ fn pairs(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Vec<Pair> 
         let Some(x_world) = triangulate(&centres, &rays) else {
             continue;
         };
+        let start = out.pairs.len();
         for (kf, i) in seen {
             if kf.frame.keypoints[i].level > MAX_LEVEL {
                 continue;
@@ -146,11 +197,69 @@ fn pairs(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Vec<Pair> 
             let depth = kf.frame.depth[i];
             let z = (kf.camera_from_world * nalgebra::Point3::from(x_world)).z;
             if depth > 0.0 && z > 0.0 {
-                out.push((camera.bf / depth as f64, camera.bf / z));
+                out.pairs.push((camera.bf / depth as f64, camera.bf / z));
             }
+        }
+        if out.pairs.len() > start {
+            out.starts.push(start);
         }
     }
     out
+}
+
+/// The pairs of [`pairs`], each point's together: point `i`'s are
+/// `pairs[starts[i]..starts[i + 1]]`.
+#[derive(Default)]
+struct Pairs {
+    pairs: Vec<Pair>,
+    starts: Vec<usize>,
+}
+
+impl Pairs {
+    /// Point `i`'s pairs.
+    fn of_point(&self, i: usize) -> &[Pair] {
+        let end = self.starts.get(i + 1).copied().unwrap_or(self.pairs.len());
+        &self.pairs[self.starts[i]..end]
+    }
+
+    /// The spread of the offset over [`BOOTSTRAP_ROUNDS`] resamples of the points
+    /// (with replacement, seeded: a point's observations are not independent of each
+    /// other, so points are drawn, not pairs): the standard deviation of \(b / a\).
+    fn bootstrap_sigma(&self) -> f64 {
+        let mut rng = Rng::new(BOOTSTRAP_SEED);
+        let points = self.starts.len();
+        let mut offsets = Vec::with_capacity(BOOTSTRAP_ROUNDS);
+        let mut drawn = Vec::with_capacity(self.pairs.len());
+        for _ in 0..BOOTSTRAP_ROUNDS {
+            drawn.clear();
+            for _ in 0..points {
+                let i = (rng.next_u64() % points as u64) as usize;
+                drawn.extend_from_slice(self.of_point(i));
+            }
+            if let Some((a, b)) = fit_line(&drawn) {
+                offsets.push(b / a);
+            }
+        }
+        if offsets.len() < 2 {
+            return f64::INFINITY;
+        }
+        let mean = offsets.iter().sum::<f64>() / offsets.len() as f64;
+        let var =
+            offsets.iter().map(|o| (o - mean).powi(2)).sum::<f64>() / (offsets.len() - 1) as f64;
+        var.sqrt()
+    }
+
+    /// The spread of the observed disparities, pixels: their 90th percentile less their
+    /// 10th (a line's intercept needs near and far points).
+    fn span_px(&self) -> f64 {
+        let mut x: Vec<f64> = self.pairs.iter().map(|p| p.0).collect();
+        if x.is_empty() {
+            return 0.0;
+        }
+        x.sort_by(f64::total_cmp);
+        let at = |q: f64| x[((x.len() - 1) as f64 * q).round() as usize];
+        at(0.9) - at(0.1)
+    }
 }
 
 /// The robust line \(y = a x + b\) through `pairs` (Huber, iteratively reweighted
@@ -181,51 +290,121 @@ fn fit_line(pairs: &[Pair]) -> Option<(f64, f64)> {
     (a > 0.0).then_some((a, b))
 }
 
-/// One estimate from the map.
+/// One estimate from the map, with its evidence.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Estimate {
     /// The offset \(\delta = b / a\), pixels.
     pub offset_px: f64,
+    /// The offset's standard deviation over resamples of the points, pixels.
+    pub sigma_px: f64,
     /// Pairs in the fit.
     pub pairs: usize,
+    /// Points the pairs come from.
+    pub points: usize,
+    /// The observed disparities' spread (90th less 10th percentile), pixels.
+    pub span_px: f64,
+    /// Keyframes in the map.
+    pub keyframes: usize,
     /// The pose scale the fit saw, \(1/a\).
     pub scale: f64,
 }
 
-/// The offset \(\delta\) the map shows; `None` with fewer than [`MIN_PAIRS`] pairs.
+/// The offset \(\delta\) the map shows with its spread; `None` with fewer than
+/// [`MIN_PAIRS`] pairs.
 pub fn estimate(map: &Map, camera: &StereoCamera, removal_threshold: f32) -> Option<Estimate> {
     let pairs = pairs(map, camera, removal_threshold);
-    if pairs.len() < MIN_PAIRS {
+    if pairs.pairs.len() < MIN_PAIRS {
         return None;
     }
-    let (a, b) = fit_line(&pairs)?;
+    let (a, b) = fit_line(&pairs.pairs)?;
     Some(Estimate {
         offset_px: b / a,
-        pairs: pairs.len(),
+        sigma_px: pairs.bootstrap_sigma(),
+        pairs: pairs.pairs.len(),
+        points: pairs.starts.len(),
+        span_px: pairs.span_px(),
+        keyframes: map.keyframes().len(),
         scale: 1.0 / a,
     })
+}
+
+/// What an estimate says to do ([`Estimate::verdict`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// The offset is measured: take it out.
+    Apply,
+    /// The offset is measured and below the threshold: nothing to take out.
+    Needless(String),
+    /// The evidence is too weak to say: nothing taken out (yet).
+    Unsure(String),
+}
+
+impl Estimate {
+    /// The confidence test: an offset is taken out only when at least `min_px` and
+    /// [`MIN_SIGMAS`] times its spread over resamples of the points, from at least
+    /// [`MIN_POINTS`] points whose disparities span [`MIN_SPAN_PX`]; it is called
+    /// needless when even its upper bound (plus [`MIN_SIGMAS`] spreads) stays below
+    /// `min_px`.
+    pub fn verdict(&self, min_px: f64) -> Verdict {
+        let size = self.offset_px.abs();
+        let evidence = format!(
+            "{:.3} ± {:.3} px from {} points, disparities spanning {:.1} px",
+            self.offset_px, self.sigma_px, self.points, self.span_px
+        );
+        if self.points < MIN_POINTS || self.span_px < MIN_SPAN_PX {
+            return Verdict::Unsure(format!(
+                "{evidence}: too few points or too narrow a span ({MIN_POINTS} points and {MIN_SPAN_PX} px needed)"
+            ));
+        }
+        if size + MIN_SIGMAS * self.sigma_px < min_px {
+            return Verdict::Needless(format!(
+                "{evidence}: below [global] disparity_offset_min_px ({min_px} px)"
+            ));
+        }
+        if size < min_px {
+            return Verdict::Unsure(format!(
+                "{evidence}: below [global] disparity_offset_min_px ({min_px} px), not surely"
+            ));
+        }
+        if size < MIN_SIGMAS * self.sigma_px || self.sigma_px > MAX_SIGMA_SHARE * min_px {
+            return Verdict::Unsure(format!(
+                "{evidence}: under {MIN_SIGMAS} times its spread, or a spread over {MAX_SIGMA_SHARE} of the threshold"
+            ));
+        }
+        Verdict::Apply
+    }
 }
 
 /// Adds `offset` to every stereo disparity of the map's keyframes and of the tracked
 /// `frames`' observations: depths \(bf / (d + \delta)\), right columns \(u - d - \delta\).
 pub fn correct(map: &mut Map, frames: &mut [&mut FrameRecord], bf: f64, offset: f64) {
     for frame in map.keyframe_frames_mut() {
-        for (i, kp) in frame.keypoints.iter().enumerate() {
-            if frame.depth[i] <= 0.0 {
-                continue;
-            }
-            let d = offset_disparity(bf / frame.depth[i] as f64, offset);
-            frame.depth[i] = (bf / d) as f32;
-            if frame.right_u[i] >= 0.0 {
-                frame.right_u[i] = kp.x - d as f32;
-            }
-        }
+        offset_frame(frame, bf, offset);
     }
     for record in frames.iter_mut() {
-        for o in &mut record.observations {
-            if o.right_u >= 0.0 {
-                o.right_u = o.x - offset_disparity((o.x - o.right_u) as f64, offset) as f32;
-            }
+        offset_record(record, offset);
+    }
+}
+
+/// Adds `offset` to the disparity of every keypoint of `frame` with a stereo depth.
+pub fn offset_frame(frame: &mut Frame, bf: f64, offset: f64) {
+    for (i, kp) in frame.keypoints.iter().enumerate() {
+        if frame.depth[i] <= 0.0 {
+            continue;
+        }
+        let d = offset_disparity(bf / frame.depth[i] as f64, offset);
+        frame.depth[i] = (bf / d) as f32;
+        if frame.right_u[i] >= 0.0 {
+            frame.right_u[i] = kp.x - d as f32;
+        }
+    }
+}
+
+/// Adds `offset` to the disparity of every observation of `record` with a right column.
+pub fn offset_record(record: &mut FrameRecord, offset: f64) {
+    for o in &mut record.observations {
+        if o.right_u >= 0.0 {
+            o.right_u = o.x - offset_disparity((o.x - o.right_u) as f64, offset) as f32;
         }
     }
 }
@@ -253,6 +432,74 @@ mod tests {
         let (a, b) = fit_line(&pairs).unwrap();
         assert!((b / a - delta).abs() < 0.05, "{}", b / a);
         assert!((1.0 / a - scale).abs() < 0.005, "{}", 1.0 / a);
+    }
+
+    fn estimate_of(offset_px: f64, sigma_px: f64, points: usize) -> Estimate {
+        Estimate {
+            offset_px,
+            sigma_px,
+            pairs: 2 * points,
+            points,
+            span_px: 30.0,
+            keyframes: 10,
+            scale: 1.0,
+        }
+    }
+
+    #[test]
+    fn an_offset_is_taken_out_only_when_its_evidence_is_strong() {
+        let min_px = 0.75;
+        // Real KITTI 01 after 12 frames: 1.47 +- 0.11 px from 498 points.
+        assert_eq!(estimate_of(1.47, 0.11, 498).verdict(min_px), Verdict::Apply);
+        // The same value from 8 frames' map, too spread to act on.
+        assert!(matches!(
+            estimate_of(2.10, 0.35, 276).verdict(min_px),
+            Verdict::Unsure(_)
+        ));
+        // Too few points, however tight.
+        assert!(matches!(
+            estimate_of(1.5, 0.01, 50).verdict(min_px),
+            Verdict::Unsure(_)
+        ));
+        // A narrow span of disparities cannot place the line's intercept.
+        let narrow = Estimate {
+            span_px: 2.0,
+            ..estimate_of(1.5, 0.05, 500)
+        };
+        assert!(matches!(narrow.verdict(min_px), Verdict::Unsure(_)));
+        // Surely below the threshold (real KITTI 06: 0.35 +- 0.09 px): needless.
+        assert!(matches!(
+            estimate_of(0.35, 0.09, 388).verdict(min_px),
+            Verdict::Needless(_)
+        ));
+        // Below the threshold, but not surely: no decision yet.
+        assert!(matches!(
+            estimate_of(0.6, 0.1, 388).verdict(min_px),
+            Verdict::Unsure(_)
+        ));
+        // Negative offsets alike.
+        assert_eq!(estimate_of(-1.2, 0.1, 400).verdict(min_px), Verdict::Apply);
+    }
+
+    #[test]
+    fn the_spread_grows_with_the_noise_and_shrinks_with_the_points() {
+        let spread = |points: usize, noise: f64| {
+            let mut rng = Rng::new(11);
+            let mut out = Pairs::default();
+            for _ in 0..points {
+                out.starts.push(out.pairs.len());
+                let x = rng.range(1.0, 60.0);
+                for _ in 0..2 {
+                    out.pairs
+                        .push((x, (x + 1.0) / 1.02 + rng.range(-noise, noise)));
+                }
+            }
+            out.bootstrap_sigma()
+        };
+        let (few, many, noisy) = (spread(200, 0.3), spread(3000, 0.3), spread(3000, 0.6));
+        assert!(many < few, "{many} >= {few}");
+        assert!(noisy > many, "{noisy} <= {many}");
+        assert!(few < 0.2, "{few}");
     }
 
     #[test]

@@ -249,51 +249,44 @@ const OFFSET_ROUNDS: usize = 3;
 const MIN_OFFSET_PX: f64 = 0.05;
 
 /// Rounds of [`disparity_offset::estimate`], [`disparity_offset::correct`] and full BA:
-/// nothing is taken out when the first estimate is below
-/// `config.disparity_offset_min_px`, and the rounds end when one falls below
-/// [`MIN_OFFSET_PX`]; `full_ba` becomes the last BA's report. `None` when the map has
-/// too few points with parallax for an estimate.
-fn take_out_disparity_offset(
+/// nothing is taken out unless the first estimate passes the confidence test
+/// ([`disparity_offset::Estimate::verdict`] at `config.disparity_offset_min_px`), and
+/// the rounds end when one falls below [`MIN_OFFSET_PX`]; `full_ba` becomes the last
+/// BA's report. `None` when the map has too few points with parallax for an estimate.
+pub fn take_out_disparity_offset(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
     full_ba: &mut Option<FullBaReport>,
     frames: &mut [&mut FrameRecord],
 ) -> Option<disparity_offset::OffsetReport> {
-    let mut offset = disparity_offset::OffsetReport::default();
-    for _ in 0..OFFSET_ROUNDS {
-        let Some(found) = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
-        else {
-            break;
-        };
-        offset.rounds.push(found.offset_px);
-        (offset.pairs, offset.scale) = (found.pairs, found.scale);
-        let least = if offset.rounds.len() == 1 {
-            config.disparity_offset_min_px.max(MIN_OFFSET_PX)
-        } else {
-            MIN_OFFSET_PX
-        };
-        if found.offset_px.abs() < least {
-            break;
+    let first = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)?;
+    let verdict = first.verdict(config.disparity_offset_min_px.max(MIN_OFFSET_PX));
+    let mut offset = disparity_offset::OffsetReport::first(&first, &verdict);
+    if verdict != disparity_offset::Verdict::Apply {
+        return Some(offset);
+    }
+    let mut found = first.offset_px;
+    for round in 0..OFFSET_ROUNDS {
+        if round > 0 {
+            let Some(next) =
+                disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
+            else {
+                break;
+            };
+            offset.rounds.push(next.offset_px);
+            offset.pairs = next.pairs;
+            offset.scale = next.scale;
+            if next.offset_px.abs() < MIN_OFFSET_PX {
+                break;
+            }
+            found = next.offset_px;
         }
-        disparity_offset::correct(map, frames, inputs.camera.bf, found.offset_px);
-        offset.offset_px += found.offset_px;
+        disparity_offset::correct(map, frames, inputs.camera.bf, found);
+        offset.offset_px += found;
         *full_ba = full_bundle_adjustment(map, inputs, config);
     }
-    (!offset.rounds.is_empty()).then_some(offset)
-}
-
-/// The rig's disparity offset of a map tracked only to find it (`dopslam run`'s first
-/// frames, [`crate::run::rig_offset`]): full BA, then the rounds of estimate,
-/// correction and full BA. `None` when full BA or the estimate could not run.
-pub fn disparity_offset_of(
-    map: &mut Map,
-    inputs: &GlobalInputs,
-    config: &GlobalConfig,
-) -> Option<disparity_offset::OffsetReport> {
-    let mut full_ba = full_bundle_adjustment(map, inputs, config);
-    full_ba.as_ref()?;
-    take_out_disparity_offset(map, inputs, config, &mut full_ba, &mut [])
+    Some(offset)
 }
 
 /// Keyframes with fewer static observations are held in full BA.

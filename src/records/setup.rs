@@ -51,11 +51,12 @@ pub struct RunSetup {
 /// `setup.disparity_offset`; estimated by `run::rig_offset`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RigOffset {
-    /// Pixels added to every disparity (0: the estimate was below the threshold).
+    /// Pixels added to every disparity (0: the estimate did not pass its confidence
+    /// test).
     pub offset_px: f64,
     /// `"config"` (`[stereo] disparity_offset_px`) or `"estimated"`.
     pub source: String,
-    /// Estimated: the frames tracked to find it.
+    /// Estimated: the frames tracked when the tracking pass made its last estimate.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frames: Option<usize>,
     /// Estimated: the estimate's rounds, as the global pass reports them.
@@ -68,13 +69,18 @@ impl RigOffset {
     pub fn summary(&self) -> String {
         match (&self.estimate, self.frames) {
             (Some(estimate), Some(frames)) if self.offset_px != 0.0 => format!(
-                "stereo disparity offset over the first {frames} frames ({}): {:.3} px added to every disparity",
+                "stereo disparity offset: {:.3} px, found by tracking at frame {frames} ({}; {}), taken out of the map and added to every later match",
+                self.offset_px,
                 estimate.estimates(),
-                self.offset_px
+                estimate.verdict
+            ),
+            (Some(estimate), _) if estimate.rounds.is_empty() => format!(
+                "stereo disparity offset: none taken out by tracking ({})",
+                estimate.verdict
             ),
             (Some(estimate), Some(frames)) => format!(
-                "stereo disparity offset over the first {frames} frames ({}): below [global] disparity_offset_min_px, none added",
-                estimate.estimates()
+                "stereo disparity offset: none taken out by tracking (last estimate at frame {frames}: {})",
+                estimate.verdict
             ),
             _ => format!(
                 "stereo disparity offset: {:.3} px added to every disparity ([stereo] disparity_offset_px)",

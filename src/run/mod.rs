@@ -74,14 +74,7 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     let mut clock = Stopwatch::start();
     // Loaded before any tracking (the rig offset's pass included) and only once.
     let detector = open_detector(&plan.setup, &plan.options)?;
-    let found = rig_offset::estimate(plan)?;
-    if found.is_some() {
-        clock.lap("rig offset");
-    }
-    let setup = match found {
-        Some(found) => Cow::Owned(plan.setup.with_disparity_offset(found)),
-        None => Cow::Borrowed(&plan.setup),
-    };
+    let setup = Cow::Borrowed(&plan.setup);
     if let Some(log) = plan.log() {
         log_pinhole(log, &setup.calibration.camera);
     }
@@ -95,6 +88,11 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     };
     let mut pass = tracking_pass(inputs, &mut watch.observers())?;
     clock.lap("tracking");
+    // The rig's offset the tracking pass found is the run's from here on.
+    let setup = match pass.offset.take() {
+        Some(found) => Cow::Owned(setup.with_disparity_offset(found)),
+        None => setup,
+    };
     let global = global_pass(&mut pass, &setup, &plan.run)?;
     if global.is_some() {
         clock.lap("global");
@@ -253,6 +251,7 @@ impl Watchers {
             mut lines,
             records,
             stop,
+            offset: _,
         } = pass;
         for (line, truth) in lines.iter_mut().zip(self.truth.per_frame) {
             line.truth = truth;

@@ -1,85 +1,164 @@
-//! The stereo rig's disparity offset, known or found before tracking.
+//! The stereo rig's disparity offset, found by the tracking pass itself.
 //!
 //! The global pass can estimate the offset \(\delta\) of a rig's disparities from the
 //! map and correct the map ([`crate::global::disparity_offset`]), but a tracking pass
-//! that ran with the offset in its disparities has already made its data association
-//! with the wrong scale: on the real KITTI 01 clip, 8 of 14 real-time DOP runs
-//! corrected afterwards kept 2-4 % of scale (ATE 0.23-0.62 m against 0.08-0.13 m). So unless the config gives the offset (`[stereo]
-//! disparity_offset_px`), the first `[stereo] disparity_offset_frames` frames are
-//! tracked once, deterministic, without detector or DOP, their map bundle-adjusted and
-//! the offset estimated from it; when it reaches `[global] disparity_offset_min_px`,
-//! the run's tracking pass adds it to every stereo match (`docs/design.md`, "The rig's
-//! disparity offset").
+//! that ran all its frames with the offset in its disparities has made its data
+//! association at the wrong scale: on the real KITTI 01 clip, about half the real-time
+//! DOP runs corrected afterwards kept 2-4 % of scale. So unless the config gives the
+//! offset (`[stereo] disparity_offset_px`), the tracking pass looks for it while it
+//! runs, within its first `[stereo] disparity_offset_frames` frames: after each
+//! keyframe it estimates the offset from the map as local mapping left it (a probe,
+//! under the read lock); once the probe passes the confidence test
+//! ([`crate::global::disparity_offset::Estimate::verdict`]), local mapping is let
+//! catch up, full BA runs, the estimate is tested again on its map, and when it passes
+//! the offset is taken out of the map, the frames tracked so far and the tracker's last
+//! frame, and added to every later frame's matches. No frame is tracked twice
+//! (`docs/design.md`, "The rig's disparity offset").
 
-use super::error::RunError;
 use super::global_pass::global_inputs;
-use super::options::RunOptions;
-use super::plan::RunPlan;
 use super::setup::Setup;
-use super::tracking_pass::{tracking_pass, TrackingInputs};
+use crate::global::disparity_offset::{
+    offset_frame, OffsetReport, Verdict, MIN_PAIRS, MIN_PARALLAX_DEG,
+};
+use crate::global::{full_bundle_adjustment, take_out_disparity_offset};
 use crate::io::sequence::SensorKind;
+use crate::map::record::FrameRecord;
 use crate::records::RigOffset;
+use crate::system::System;
 
-/// Whether a run of `setup` estimates the offset before tracking: stereo, no offset
-/// given, frames to estimate from, and the global pass's estimate turned on.
-fn wanted(setup: &Setup) -> bool {
-    let config = &setup.config;
-    setup.sensor == SensorKind::Stereo
-        && setup.disparity_offset.is_none()
-        && config.stereo.disparity_offset_frames > 0
-        && config.global.enabled
-        && config.global.full_ba
-        && config.global.disparity_offset
+/// Probes start once the map has this many keyframes.
+const FIRST_PROBE_KEYFRAMES: usize = 5;
+/// After a probe that could not decide, the next waits for this many more keyframes.
+const PROBE_EVERY_KEYFRAMES: usize = 2;
+
+/// The tracking pass's search for the rig's offset (see the module doc).
+pub struct OffsetSearch {
+    /// Frames (from the first) within which the offset may be taken out.
+    frames: usize,
+    /// The threshold of the confidence test, pixels.
+    min_px: f64,
+    /// The next probe waits for the map to have this many keyframes.
+    next_probe: usize,
+    /// What the last probe or correction found.
+    last: Option<OffsetReport>,
+    /// Frames tracked when the last estimate was made.
+    at_frame: usize,
+    /// Whether the search has ended (the offset taken out, or called needless).
+    done: bool,
 }
 
-/// Tracks the first frames of `sequence` once and estimates the rig's offset from
-/// their map ([`crate::global::disparity_offset_of`]); `None` when the plan does not
-/// want it, or the frames did not track to the end, or their map had too few points
-/// with parallax. Nothing is written into the run folder.
-pub fn estimate(plan: &RunPlan) -> Result<Option<RigOffset>, RunError> {
-    let (sequence, setup, options) = (plan.sequence, &plan.setup, &plan.options);
-    if !wanted(setup) {
-        return Ok(None);
+impl OffsetSearch {
+    /// The search of a run of `setup`: stereo, no offset given, frames to look in, and
+    /// the global pass's full BA and estimate turned on; `None` otherwise.
+    pub fn of(setup: &Setup) -> Option<Self> {
+        let config = &setup.config;
+        let wanted = setup.sensor == SensorKind::Stereo
+            && setup.disparity_offset.is_none()
+            && config.stereo.disparity_offset_frames > 0
+            && config.global.enabled
+            && config.global.full_ba
+            && config.global.disparity_offset;
+        wanted.then_some(Self {
+            frames: config.stereo.disparity_offset_frames,
+            min_px: config.global.disparity_offset_min_px,
+            next_probe: FIRST_PROBE_KEYFRAMES,
+            last: None,
+            at_frame: 0,
+            done: false,
+        })
     }
-    let frames = setup
-        .config
-        .stereo
-        .disparity_offset_frames
-        .min(options.max_frames.unwrap_or(usize::MAX))
-        .min(sequence.len());
-    if options.progress {
-        eprintln!(
-            "the rig's disparity offset: tracking the first {frames} frames once to estimate it ([stereo] disparity_offset_px skips this)"
-        );
+
+    /// After frame `index` was tracked and its record pushed onto `records`: when it
+    /// made a keyframe, a probe, and when the probe and the estimate after full BA pass
+    /// the confidence test, the offset taken out of the map and of `records`. Returns
+    /// the offset to add to every later frame's matches, pixels, when it was taken out.
+    pub fn after_frame(
+        &mut self,
+        system: &mut System,
+        records: &mut [FrameRecord],
+        setup: &Setup,
+        index: usize,
+    ) -> Option<f64> {
+        if self.done || index >= self.frames {
+            return None;
+        }
+        let is_keyframe = records.last().is_some_and(|r| r.is_keyframe());
+        let keyframes = last_keyframes(system);
+        if !is_keyframe || keyframes < self.next_probe {
+            return None;
+        }
+        self.next_probe = keyframes + PROBE_EVERY_KEYFRAMES;
+        let inputs = global_inputs(setup);
+        let probe = system.with_map(|map| {
+            crate::global::disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
+        })?;
+        let verdict = probe.verdict(self.min_px);
+        self.at_frame = index + 1;
+        self.last = Some(OffsetReport::first(&probe, &verdict));
+        match verdict {
+            Verdict::Unsure(_) => None,
+            Verdict::Needless(_) => {
+                self.done = true;
+                None
+            }
+            Verdict::Apply => self.take_out(system, records, setup),
+        }
     }
-    let quiet = RunOptions {
-        max_frames: Some(frames),
-        progress: false,
-        deterministic: true,
-        debug_frames: None,
-        dense: false,
-        rerun: None,
-        ..options.clone()
-    };
-    let prefix = setup.for_offset_estimate();
-    let inputs = TrackingInputs {
-        sequence,
-        setup: &prefix,
-        detector: None,
-        options: &quiet,
-        run: &plan.run,
-    };
-    let mut pass = tracking_pass(inputs, &mut [])?;
-    if pass.stop.is_some() {
-        return Ok(None);
+
+    /// Local mapping let catch up, full BA, then the rounds of estimate, test and
+    /// correction on the map ([`take_out_disparity_offset`]); the frames tracked so far
+    /// and the tracker's last frame take what was taken out.
+    fn take_out(
+        &mut self,
+        system: &mut System,
+        records: &mut [FrameRecord],
+        setup: &Setup,
+    ) -> Option<f64> {
+        let inputs = global_inputs(setup);
+        let config = &setup.config.global;
+        let bf = inputs.camera.bf;
+        let last = records.last().cloned().unwrap_or_default();
+        let found = system.edit_map(
+            |map| {
+                let mut ba = full_bundle_adjustment(map, &inputs, config);
+                ba.as_ref()?;
+                let mut frames: Vec<&mut FrameRecord> = records.iter_mut().collect();
+                take_out_disparity_offset(map, &inputs, config, &mut ba, &mut frames)
+            },
+            &last,
+            |found, frame| offset_frame(frame, bf, found.as_ref().map_or(0.0, |f| f.offset_px)),
+        )?;
+        let taken = found.offset_px;
+        self.last = Some(found);
+        if taken == 0.0 {
+            // Full BA's map did not bear the probe out: wait longer before the next.
+            self.next_probe = self.next_probe.max(last_keyframes(system) * 3 / 2);
+            return None;
+        }
+        self.done = true;
+        Some(taken)
     }
-    let inputs = global_inputs(&prefix);
-    let found =
-        crate::global::disparity_offset_of(&mut pass.tracked.map, &inputs, &prefix.config.global);
-    Ok(found.map(|estimate| RigOffset {
-        offset_px: estimate.offset_px,
-        source: "estimated".into(),
-        frames: Some(frames),
-        estimate: Some(estimate),
-    }))
+
+    /// The offset the tracking pass took out, with its evidence: its last estimate and
+    /// the confidence test's word on it, or why there was none.
+    pub fn finish(self) -> RigOffset {
+        let estimate = self.last.unwrap_or_else(|| OffsetReport {
+            verdict: format!(
+                "no estimate within the first {} frames: the map never had {FIRST_PROBE_KEYFRAMES} keyframes and {MIN_PAIRS} observations of points seen at {MIN_PARALLAX_DEG} degrees of parallax",
+                self.frames
+            ),
+            ..OffsetReport::default()
+        });
+        RigOffset {
+            offset_px: estimate.offset_px,
+            source: "estimated".into(),
+            frames: Some(self.at_frame),
+            estimate: Some(estimate),
+        }
+    }
+}
+
+/// Keyframes in the system's map.
+fn last_keyframes(system: &System) -> usize {
+    system.with_map(|map| map.keyframes().len())
 }

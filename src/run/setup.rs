@@ -116,29 +116,6 @@ impl Setup {
         self.disparity_offset.as_ref().map_or(0.0, |o| o.offset_px)
     }
 
-    /// The set-up of the pass over the first frames that finds the rig's offset
-    /// ([`super::rig_offset`]): no detector, no DOP, no loops, no offset.
-    pub fn for_offset_estimate(&self) -> Self {
-        let mut config = self.config.clone();
-        config.detector.source = crate::detect::Source::None;
-        config.dop.mode = Mode::Off;
-        config.global.loops.enabled = false;
-        Self {
-            mode: Mode::Off,
-            alpha: self.alpha,
-            close_depth: self.close_depth,
-            bearing_depth: self.bearing_depth,
-            extractor: OrbExtractor::new(&config.orb),
-            config,
-            sensor: self.sensor,
-            calibration: self.calibration.clone(),
-            camera: self.camera,
-            vocabulary: Some(Err(crate::global::NoLoops::TurnedOff)),
-            disparity_offset: None,
-            profile: self.profile.clone(),
-        }
-    }
-
     /// What the online system is built from, its helpers run as `execution` says and
     /// its detections cached in `detection_cache`.
     pub fn system(&self, execution: Execution, detection_cache: PathBuf) -> SystemSetup<'_> {

@@ -10,6 +10,7 @@ use std::time::Instant;
 use super::error::{RunError, StopReason};
 use super::observers::{FrameObserver, FrameView};
 use super::options::RunOptions;
+use super::rig_offset::OffsetSearch;
 use super::setup::Setup;
 use crate::config::Config;
 use crate::detect::Detector;
@@ -21,7 +22,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::map::record::FrameRecord;
 use crate::pacing::{Pace, Pacer};
-use crate::records::FrameLine;
+use crate::records::{FrameLine, RigOffset};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
@@ -40,6 +41,9 @@ pub struct TrackingPass {
     pub records: Vec<FrameRecord>,
     /// Why the pass stopped before the last frame, if it did.
     pub stop: Option<StopReason>,
+    /// Stereo: the rig's disparity offset the pass found and took out
+    /// ([`OffsetSearch`]), or its last estimate when none was taken out.
+    pub offset: Option<RigOffset>,
 }
 
 /// Opens the run's detector (`None` without detection): its model is loaded here,
@@ -81,29 +85,29 @@ pub fn tracking_pass(
     let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
     let mut records = Vec::with_capacity(total);
-    let mut depth_check = DepthCheck::default();
-    let mut pacer = Pacer::new(match execution {
-        Execution::Inline => Pace::Free,
-        Execution::Threads => options.pace,
-    });
+    let mut loader = Loader {
+        sequence,
+        setup,
+        keep_depth: options
+            .rerun
+            .as_ref()
+            .is_some_and(|log| log.config.rerun_depth),
+        pacer: Pacer::new(match execution {
+            Execution::Inline => Pace::Free,
+            Execution::Threads => options.pace,
+        }),
+        depth_check: DepthCheck::default(),
+        offset: setup.disparity_offset_px(),
+    };
+    let mut offset_search = OffsetSearch::of(setup);
     let mut stop = None;
     let logged = options.rerun.as_ref();
-    let keep_depth = logged.is_some_and(|log| log.config.rerun_depth);
     for index in 0..total {
         if crate::interrupt::requested() {
             stop = Some(StopReason::Interrupted { frame: index });
             break;
         }
-        let ready = next_frame(
-            sequence,
-            index,
-            keep_depth,
-            setup,
-            &system,
-            &mut pacer,
-            &mut depth_check,
-        );
-        let (frame, picture, started, depth) = match ready {
+        let (frame, picture, started, depth) = match loader.next(index, &system) {
             Ok(ready) => ready,
             Err(message) => {
                 stop = Some(StopReason::BadFrame(message));
@@ -143,13 +147,20 @@ pub fn tracking_pass(
             tracking_ms,
             truth: None,
         });
+        if let Some(search) = offset_search.as_mut() {
+            loader.offset += search
+                .after_frame(&mut system, &mut records, setup, index)
+                .unwrap_or(0.0);
+        }
     }
     let log = FrameLog {
         lines,
         records,
         stop,
     };
-    Ok(end_pass(system, setup, log, observers))
+    let mut pass = end_pass(system, setup, log, observers);
+    pass.offset = offset_search.map(OffsetSearch::finish);
+    Ok(pass)
 }
 
 /// What the frame loop wrote down: a line and a record per frame, and why it stopped
@@ -188,6 +199,7 @@ fn end_pass(
         lines,
         records,
         stop,
+        offset: None,
     }
 }
 
@@ -205,77 +217,102 @@ fn start_system(
     System::start(&setup.system(execution, run.detections()), helpers)
 }
 
-/// Frame `index` loaded, paced, checked and made ready for tracking, with the time
-/// its extraction started and (when `keep_depth`) its depth; an error says why the
-/// pass must stop.
-fn next_frame(
-    sequence: &dyn Sequence,
-    index: usize,
+/// Where the pass's frames come from, and how each is made ready.
+struct Loader<'a> {
+    sequence: &'a dyn Sequence,
+    setup: &'a Setup,
+    /// Whether each frame's depth is kept (for the Rerun recording).
     keep_depth: bool,
-    setup: &Setup,
-    system: &System,
-    pacer: &mut Pacer,
-    depth_check: &mut DepthCheck,
-) -> Result<(Frame, Picture, Instant, Option<DepthImage>), String> {
-    let loaded = sequence
-        .load(index)
-        .map_err(|e| format!("frame {index}: {e}"))?;
-    pacer.wait_for(loaded.timestamp);
-    let size = match &loaded.images {
-        FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
-        FrameImages::Stereo { left, .. } => left.dimensions(),
-    };
-    let calibration = &setup.calibration;
-    let expected = (calibration.camera.width, calibration.camera.height);
-    if size != expected {
-        return Err(format!(
-            "frame {index}: the image is {}x{} but the first frame is {}x{}: every frame of a sequence must have one size",
-            size.0, size.1, expected.0, expected.1
-        ));
+    pacer: Pacer,
+    depth_check: DepthCheck,
+    /// Pixels added to every stereo disparity: the rig's offset, as known so far.
+    offset: f64,
+}
+
+impl Loader<'_> {
+    /// Frame `index` loaded, paced, checked and made ready for tracking, with the time
+    /// its extraction started and (when `keep_depth`) its depth; an error says why the
+    /// pass must stop.
+    fn next(
+        &mut self,
+        index: usize,
+        system: &System,
+    ) -> Result<(Frame, Picture, Instant, Option<DepthImage>), String> {
+        let setup = self.setup;
+        let loaded = self
+            .sequence
+            .load(index)
+            .map_err(|e| format!("frame {index}: {e}"))?;
+        self.pacer.wait_for(loaded.timestamp);
+        let size = match &loaded.images {
+            FrameImages::Rgbd { rgb, .. } => rgb.dimensions(),
+            FrameImages::Stereo { left, .. } => left.dimensions(),
+        };
+        let calibration = &setup.calibration;
+        let expected = (calibration.camera.width, calibration.camera.height);
+        if size != expected {
+            return Err(format!(
+                "frame {index}: the image is {}x{} but the first frame is {}x{}: every frame of a sequence must have one size",
+                size.0, size.1, expected.0, expected.1
+            ));
+        }
+        self.ready(index, loaded, system)
     }
-    let budgeted = setup
-        .extractor
-        .with_budget(system.feature_budget(setup.config.orb.n_features));
-    Ok(match loaded.images {
-        FrameImages::Rgbd { rgb, depth } => {
-            depth_check.check(index, &depth, system.state(), calibration)?;
-            let started = Instant::now();
-            let grey = crate::io::image_files::grey_from_rgb(&rgb);
-            let frame = Frame::from_rgbd(
-                index,
-                loaded.timestamp,
-                &grey,
-                &depth,
-                &budgeted,
-                &setup.camera,
-                &calibration.camera,
-            );
-            (
-                frame,
-                Picture::Colour(rgb),
-                started,
-                keep_depth.then_some(depth),
-            )
-        }
-        FrameImages::Stereo { left, right } => {
-            let started = Instant::now();
-            let frame = Frame::from_stereo(
-                index,
-                loaded.timestamp,
-                StereoPair {
-                    left: &left,
-                    right: &right,
-                },
-                &budgeted,
-                &setup.camera,
-                DepthSettings {
-                    bearing_depth: setup.bearing_depth,
-                    disparity_offset: setup.disparity_offset_px(),
-                },
-            );
-            (frame, Picture::Grey(left), started, None)
-        }
-    })
+
+    /// A loaded frame made ready for tracking (ORB, depth or stereo matching).
+    fn ready(
+        &mut self,
+        index: usize,
+        loaded: crate::io::sequence::Frame,
+        system: &System,
+    ) -> Result<(Frame, Picture, Instant, Option<DepthImage>), String> {
+        let setup = self.setup;
+        let calibration = &setup.calibration;
+        let budgeted = setup
+            .extractor
+            .with_budget(system.feature_budget(setup.config.orb.n_features));
+        Ok(match loaded.images {
+            FrameImages::Rgbd { rgb, depth } => {
+                self.depth_check
+                    .check(index, &depth, system.state(), calibration)?;
+                let started = Instant::now();
+                let grey = crate::io::image_files::grey_from_rgb(&rgb);
+                let frame = Frame::from_rgbd(
+                    index,
+                    loaded.timestamp,
+                    &grey,
+                    &depth,
+                    &budgeted,
+                    &setup.camera,
+                    &calibration.camera,
+                );
+                (
+                    frame,
+                    Picture::Colour(rgb),
+                    started,
+                    self.keep_depth.then_some(depth),
+                )
+            }
+            FrameImages::Stereo { left, right } => {
+                let started = Instant::now();
+                let frame = Frame::from_stereo(
+                    index,
+                    loaded.timestamp,
+                    StereoPair {
+                        left: &left,
+                        right: &right,
+                    },
+                    &budgeted,
+                    &setup.camera,
+                    DepthSettings {
+                        bearing_depth: setup.bearing_depth,
+                        disparity_offset: self.offset,
+                    },
+                );
+                (frame, Picture::Grey(left), started, None)
+            }
+        })
+    }
 }
 
 /// Why tracking never started, from what the frames showed: no keypoints (blank

@@ -300,6 +300,32 @@ impl System {
         (report, tracking_ms)
     }
 
+    /// `f` on the map as it stands (under its read lock).
+    pub fn with_map<R>(&self, f: impl FnOnce(&Map) -> R) -> R {
+        f(&self.map.read().expect("map lock poisoned"))
+    }
+
+    /// Waits until local mapping has processed every keyframe handed to it, then lets
+    /// `f` change the map (under its write lock: the rig's disparity offset taken out
+    /// of it, [`crate::run`]). The tracker's last frame follows what `f` did:
+    /// `adjust_last` corrects it, and it is placed on the pose its `record`'s
+    /// reference keyframe has after `f`.
+    pub fn edit_map<R>(
+        &mut self,
+        f: impl FnOnce(&mut Map) -> R,
+        record: &crate::map::record::FrameRecord,
+        adjust_last: impl FnOnce(&R, &mut Frame),
+    ) -> R {
+        self.mapping.wait_idle();
+        let mut map = self.map.write().expect("map lock poisoned");
+        let out = f(&mut map);
+        let placed = record
+            .camera_from_world_on(|key| map.keyframes().get(key).map(|k| k.camera_from_world));
+        self.tracker
+            .adjust_last(placed, |frame| adjust_last(&out, frame));
+        out
+    }
+
     /// Applies the detections that came back since the last call.
     pub fn receive_detections(&mut self) {
         if let Some(worker) = self.detection.as_mut() {

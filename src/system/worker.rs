@@ -203,6 +203,13 @@ impl<S: Stage> Worker<S> {
         self.pending.load(Ordering::SeqCst) == 0
     }
 
+    /// Blocks until [`Worker::is_idle`] (at once when inline).
+    pub fn wait_idle(&self) {
+        while !self.is_idle() {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
     /// The outputs finished so far, without waiting.
     pub fn poll(&mut self) -> Vec<S::Output> {
         match &self.inner {

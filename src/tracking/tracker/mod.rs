@@ -164,6 +164,18 @@ impl Tracker {
         self.last.as_ref().map(|l| &l.frame)
     }
 
+    /// The last tracked frame after the map under it changed (the rig's disparity
+    /// offset taken out): `adjust` corrects the frame, and it takes `camera_from_world`
+    /// (its pose on its reference keyframe's new pose) when there is one.
+    pub fn adjust_last(&mut self, camera_from_world: Option<Se3>, adjust: impl FnOnce(&mut Frame)) {
+        if let Some(last) = self.last.as_mut() {
+            adjust(&mut last.frame);
+            if let Some(pose) = camera_from_world {
+                last.camera_from_world = pose;
+            }
+        }
+    }
+
     /// The last tracked frame with its map points and pose, for the DOP model's
     /// refresh after a detection ([`crate::dynamics::tracked::refresh_last`]).
     pub fn last_tracked(&mut self) -> Option<LastTracked<'_>> {
