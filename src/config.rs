@@ -255,7 +255,7 @@ pub struct StereoConfig {
     /// [`crate::frame::stereo::bearings_beyond`].
     pub bearing_baselines: f64,
     /// The rig's known disparity offset, pixels, added to every disparity (tracking's
-    /// matches and the dense pass's). Unset: estimated over the first
+    /// matches and the dense pass's). Unset: estimated while tracking the first
     /// `disparity_offset_frames` frames ([`crate::run::rig_offset`]).
     pub disparity_offset_px: Option<f64>,
     /// With no known offset: tracking looks for it within its first this many frames

@@ -168,7 +168,7 @@ fn a_rigs_disparity_offset_is_found_and_taken_out() {
     let first = px(&kept["estimate"]["rounds"][0]);
     assert!((first - 1.0).abs() < 0.3, "{kept}");
     let why = kept["estimate"]["verdict"].as_str().unwrap();
-    assert!(why.contains("disparity_offset_min_px"), "{why}");
+    assert!(why.contains("below the threshold (2 px)"), "{why}");
     assert_eq!(px(&strict["global"]["disparity_offset"]["offset_px"]), 0.0);
     assert!(
         ate(strict) > 2.0 * ate(&reports[0]),

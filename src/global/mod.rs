@@ -221,8 +221,14 @@ pub fn run<'a>(
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
         if config.disparity_offset && inputs.stereo && report.full_ba.is_some() {
-            report.disparity_offset =
-                take_out_disparity_offset(map, inputs, config, &mut report.full_ba, &mut frames);
+            report.disparity_offset = take_out_disparity_offset(
+                map,
+                inputs,
+                config,
+                config.disparity_offset_min_px,
+                &mut report.full_ba,
+                &mut frames,
+            );
         }
     }
     if config.refine_frames {
@@ -250,18 +256,19 @@ const MIN_OFFSET_PX: f64 = 0.05;
 
 /// Rounds of [`disparity_offset::estimate`], [`disparity_offset::correct`] and full BA:
 /// nothing is taken out unless the first estimate passes the confidence test
-/// ([`disparity_offset::Estimate::verdict`] at `config.disparity_offset_min_px`), and
+/// ([`disparity_offset::Estimate::verdict`] at `min_px`), and
 /// the rounds end when one falls below [`MIN_OFFSET_PX`]; `full_ba` becomes the last
 /// BA's report. `None` when the map has too few points with parallax for an estimate.
 pub fn take_out_disparity_offset(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
+    min_px: f64,
     full_ba: &mut Option<FullBaReport>,
     frames: &mut [&mut FrameRecord],
 ) -> Option<disparity_offset::OffsetReport> {
     let first = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)?;
-    let verdict = first.verdict(config.disparity_offset_min_px.max(MIN_OFFSET_PX));
+    let verdict = first.verdict(min_px.max(MIN_OFFSET_PX));
     let mut offset = disparity_offset::OffsetReport::first(&first, &verdict);
     if verdict != disparity_offset::Verdict::Apply {
         return Some(offset);

@@ -11,7 +11,7 @@ pub mod setup;
 
 pub use report::{FrameLine, RunReport, RunTimes, RunTotals, SegmentSpan, StageTime};
 pub use run::{MapFigures, RunFigures, RunInputs, RunRecord, RunStatus};
-pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied};
+pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied, TakenOut};
 
 use crate::dense::DenseReport;
 use crate::io::errors::read_text;

@@ -191,7 +191,7 @@ pub struct RunTimes {
 /// One stage's wall time.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StageTime {
-    /// `rig offset`, `tracking`, `global`, `outputs` or `dense`.
+    /// `tracking`, `global`, `outputs` or `dense`.
     pub stage: String,
     /// Wall time, seconds.
     pub seconds: f64,

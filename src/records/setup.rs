@@ -59,21 +59,42 @@ pub struct RigOffset {
     /// Estimated: the frames tracked when the tracking pass made its last estimate.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frames: Option<usize>,
-    /// Estimated: the estimate's rounds, as the global pass reports them.
+    /// Estimated: the last estimate (its rounds, as the global pass reports them) and
+    /// the confidence test's verdict on it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimate: Option<crate::global::disparity_offset::OffsetReport>,
+    /// Estimated: each correction the tracking pass made (the first, then what it
+    /// left); `offset_px` is their sum.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub taken: Vec<TakenOut>,
+}
+
+/// One correction of the rig's offset by the tracking pass.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TakenOut {
+    /// Frames tracked when it was made.
+    pub frames: usize,
+    /// Pixels taken out of every disparity then.
+    pub offset_px: f64,
 }
 
 impl RigOffset {
     /// One line for the console.
     pub fn summary(&self) -> String {
         match (&self.estimate, self.frames) {
-            (Some(estimate), Some(frames)) if self.offset_px != 0.0 => format!(
-                "stereo disparity offset: {:.3} px, found by tracking at frame {frames} ({}; {}), taken out of the map and added to every later match",
-                self.offset_px,
-                estimate.estimates(),
-                estimate.verdict
-            ),
+            (Some(estimate), Some(frames)) if self.offset_px != 0.0 => {
+                let taken: Vec<String> = self
+                    .taken
+                    .iter()
+                    .map(|t| format!("{:.3} px at frame {}", t.offset_px, t.frames))
+                    .collect();
+                format!(
+                    "stereo disparity offset: {:.3} px, taken out of the map by tracking ({}) and added to every later match; last estimate at frame {frames}: {}",
+                    self.offset_px,
+                    taken.join(", then "),
+                    estimate.verdict
+                )
+            }
             (Some(estimate), _) if estimate.rounds.is_empty() => format!(
                 "stereo disparity offset: none taken out by tracking ({})",
                 estimate.verdict

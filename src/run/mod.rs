@@ -72,7 +72,7 @@ pub fn run_sequence(
 /// run that stopped early is an error after everything was written.
 pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     let mut clock = Stopwatch::start();
-    // Loaded before any tracking (the rig offset's pass included) and only once.
+    // Loaded before any tracking, and only once.
     let detector = open_detector(&plan.setup, &plan.options)?;
     let setup = Cow::Borrowed(&plan.setup);
     if let Some(log) = plan.log() {

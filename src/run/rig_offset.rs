@@ -23,13 +23,20 @@ use crate::global::disparity_offset::{
 use crate::global::{full_bundle_adjustment, take_out_disparity_offset};
 use crate::io::sequence::SensorKind;
 use crate::map::record::FrameRecord;
-use crate::records::RigOffset;
+use crate::records::{RigOffset, TakenOut};
 use crate::system::System;
 
 /// Probes start once the map has this many keyframes.
 const FIRST_PROBE_KEYFRAMES: usize = 5;
-/// After a probe that could not decide, the next waits for this many more keyframes.
+/// After a probe, the next waits for this many more keyframes, or for a quarter more
+/// keyframes than the map has, whichever is more (a probe reads the whole map).
 const PROBE_EVERY_KEYFRAMES: usize = 2;
+/// Once an offset was taken out, later probes take out what is left when it passes the
+/// confidence test at this threshold, pixels: a first estimate from a few keyframes
+/// may fall short (the highway preset's 1.2 px rig: 0.95 px at frame 5).
+pub const RESIDUAL_MIN_PX: f64 = 0.1;
+/// At most this many corrections in one tracking pass.
+const MAX_CORRECTIONS: usize = 3;
 
 /// The tracking pass's search for the rig's offset (see the module doc).
 pub struct OffsetSearch {
@@ -43,8 +50,10 @@ pub struct OffsetSearch {
     last: Option<OffsetReport>,
     /// Frames tracked when the last estimate was made.
     at_frame: usize,
-    /// Whether the search has ended (the offset taken out, or called needless).
+    /// Whether the search has ended (called needless, or corrected enough).
     done: bool,
+    /// Each correction: the frames tracked then, and the pixels taken out.
+    taken: Vec<TakenOut>,
 }
 
 impl OffsetSearch {
@@ -65,6 +74,7 @@ impl OffsetSearch {
             last: None,
             at_frame: 0,
             done: false,
+            taken: Vec::new(),
         })
     }
 
@@ -87,12 +97,13 @@ impl OffsetSearch {
         if !is_keyframe || keyframes < self.next_probe {
             return None;
         }
-        self.next_probe = keyframes + PROBE_EVERY_KEYFRAMES;
+        self.next_probe = (keyframes + PROBE_EVERY_KEYFRAMES).max(keyframes * 5 / 4);
         let inputs = global_inputs(setup);
         let probe = system.with_map(|map| {
             crate::global::disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
         })?;
-        let verdict = probe.verdict(self.min_px);
+        let min_px = self.threshold();
+        let verdict = probe.verdict(min_px);
         self.at_frame = index + 1;
         self.last = Some(OffsetReport::first(&probe, &verdict));
         match verdict {
@@ -101,7 +112,16 @@ impl OffsetSearch {
                 self.done = true;
                 None
             }
-            Verdict::Apply => self.take_out(system, records, setup),
+            Verdict::Apply => self.take_out(system, records, setup, min_px),
+        }
+    }
+
+    /// The confidence test's threshold: `[global] disparity_offset_min_px` for the
+    /// first correction, [`RESIDUAL_MIN_PX`] for what a correction left.
+    fn threshold(&self) -> f64 {
+        match self.taken.is_empty() {
+            true => self.min_px,
+            false => RESIDUAL_MIN_PX,
         }
     }
 
@@ -113,6 +133,7 @@ impl OffsetSearch {
         system: &mut System,
         records: &mut [FrameRecord],
         setup: &Setup,
+        min_px: f64,
     ) -> Option<f64> {
         let inputs = global_inputs(setup);
         let config = &setup.config.global;
@@ -123,7 +144,7 @@ impl OffsetSearch {
                 let mut ba = full_bundle_adjustment(map, &inputs, config);
                 ba.as_ref()?;
                 let mut frames: Vec<&mut FrameRecord> = records.iter_mut().collect();
-                take_out_disparity_offset(map, &inputs, config, &mut ba, &mut frames)
+                take_out_disparity_offset(map, &inputs, config, min_px, &mut ba, &mut frames)
             },
             &last,
             |found, frame| offset_frame(frame, bf, found.as_ref().map_or(0.0, |f| f.offset_px)),
@@ -135,7 +156,11 @@ impl OffsetSearch {
             self.next_probe = self.next_probe.max(last_keyframes(system) * 3 / 2);
             return None;
         }
-        self.done = true;
+        self.taken.push(TakenOut {
+            frames: self.at_frame,
+            offset_px: taken,
+        });
+        self.done = self.taken.len() >= MAX_CORRECTIONS;
         Some(taken)
     }
 
@@ -150,10 +175,11 @@ impl OffsetSearch {
             ..OffsetReport::default()
         });
         RigOffset {
-            offset_px: estimate.offset_px,
+            offset_px: self.taken.iter().map(|t| t.offset_px).sum(),
             source: "estimated".into(),
             frames: Some(self.at_frame),
             estimate: Some(estimate),
+            taken: self.taken,
         }
     }
 }

@@ -103,7 +103,8 @@ impl Setup {
         })
     }
 
-    /// The same set-up with the rig's disparity offset `found` before tracking.
+    /// The same set-up with the rig's disparity offset `found` (given, or found by the
+    /// tracking pass).
     pub fn with_disparity_offset(&self, found: RigOffset) -> Self {
         Self {
             disparity_offset: Some(found),
@@ -426,6 +427,7 @@ impl RigOffset {
             source: "config".into(),
             frames: None,
             estimate: None,
+            taken: Vec::new(),
         })
     }
 }

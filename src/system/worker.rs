@@ -203,9 +203,15 @@ impl<S: Stage> Worker<S> {
         self.pending.load(Ordering::SeqCst) == 0
     }
 
-    /// Blocks until [`Worker::is_idle`] (at once when inline).
+    /// Blocks until [`Worker::is_idle`] (at once when inline), or until its thread
+    /// has ended (a panic, which [`Worker::finish`] reports).
     pub fn wait_idle(&self) {
         while !self.is_idle() {
+            if let Inner::Thread { handle, .. } = &self.inner {
+                if handle.is_finished() {
+                    return;
+                }
+            }
             std::thread::sleep(Duration::from_millis(1));
         }
     }
@@ -348,5 +354,25 @@ mod tests {
         assert!(!worker.is_idle());
         let (_, outputs) = worker.finish();
         assert_eq!(outputs, vec![2, -2, -3, 8]);
+    }
+
+    #[test]
+    fn waiting_for_idle_returns_once_every_job_is_done() {
+        let mut worker = Worker::start(doubler(false), Execution::Threads);
+        for job in 0..4 {
+            worker.submit(job);
+        }
+        assert!(
+            !worker.is_idle(),
+            "four jobs of 15 ms each cannot be done yet"
+        );
+        worker.wait_idle();
+        assert!(worker.is_idle());
+        // Every job was processed before the wait returned: the stage saw each counted.
+        let mut outputs = worker.poll();
+        let (stage, rest) = worker.finish();
+        outputs.extend(rest);
+        assert_eq!(outputs, vec![0, 2, 4, 6]);
+        assert_eq!(stage.seen_pending.len(), 4);
     }
 }
