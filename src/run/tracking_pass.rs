@@ -85,20 +85,7 @@ pub fn tracking_pass(
     let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
     let mut records = Vec::with_capacity(total);
-    let mut loader = Loader {
-        sequence,
-        setup,
-        keep_depth: options
-            .rerun
-            .as_ref()
-            .is_some_and(|log| log.config.rerun_depth),
-        pacer: Pacer::new(match execution {
-            Execution::Inline => Pace::Free,
-            Execution::Threads => options.pace,
-        }),
-        depth_check: DepthCheck::default(),
-        offset: setup.disparity_offset_px(),
-    };
+    let mut loader = Loader::new(sequence, setup, options, execution);
     let mut offset_search = OffsetSearch::of(setup);
     let mut stop = None;
     let logged = options.rerun.as_ref();
@@ -229,7 +216,31 @@ struct Loader<'a> {
     offset: f64,
 }
 
-impl Loader<'_> {
+impl<'a> Loader<'a> {
+    /// The loader of `sequence` for a pass with `options`, its helpers run as
+    /// `execution` says (inline: no pacing).
+    fn new(
+        sequence: &'a dyn Sequence,
+        setup: &'a Setup,
+        options: &RunOptions,
+        execution: Execution,
+    ) -> Self {
+        Self {
+            sequence,
+            setup,
+            keep_depth: options
+                .rerun
+                .as_ref()
+                .is_some_and(|log| log.config.rerun_depth),
+            pacer: Pacer::new(match execution {
+                Execution::Inline => Pace::Free,
+                Execution::Threads => options.pace,
+            }),
+            depth_check: DepthCheck::default(),
+            offset: setup.disparity_offset_px(),
+        }
+    }
+
     /// Frame `index` loaded, paced, checked and made ready for tracking, with the time
     /// its extraction started and (when `keep_depth`) its depth; an error says why the
     /// pass must stop.
