@@ -6,7 +6,7 @@ use super::error::RunError;
 use super::outputs::write_tracking_trajectory;
 use super::setup::Setup;
 use super::tracking_pass::TrackingPass;
-use crate::global::{GlobalInputs, GlobalReport};
+use crate::global::GlobalReport;
 use crate::io::run_dir::RunDir;
 use crate::io::Trajectory;
 
@@ -25,7 +25,7 @@ pub fn global_pass(
         return Ok(None);
     };
     let tracking = write_tracking_trajectory(run, &pass.tracked.map, &pass.records)?;
-    let inputs = global_inputs(setup);
+    let inputs = setup.global_inputs();
     let report = crate::global::run(
         &mut pass.tracked.map,
         &inputs,
@@ -34,21 +34,4 @@ pub fn global_pass(
         pass.records.iter_mut(),
     );
     Ok(Some((report, tracking)))
-}
-
-/// What the global pass of a run of `setup` works with.
-pub fn global_inputs(setup: &Setup) -> GlobalInputs<'_> {
-    let camera = &setup.calibration.camera;
-    GlobalInputs {
-        camera: &setup.camera,
-        pyramid: &setup.extractor.pyramid,
-        stereo: setup.sensor == crate::io::sequence::SensorKind::Stereo,
-        size: (camera.width as f32, camera.height as f32),
-        removal_threshold: setup.mode.removal_threshold(&setup.config.dop),
-        prediction_gate_share: if setup.mode == crate::dop::Mode::Dop {
-            setup.config.tracking.prediction_gate_share
-        } else {
-            0.0
-        },
-    }
 }

@@ -15,7 +15,6 @@
 //! frame, and added to every later frame's matches. No frame is tracked twice
 //! (`docs/design.md`, "The rig's disparity offset").
 
-use super::global_pass::global_inputs;
 use super::setup::Setup;
 use crate::global::disparity_offset::{
     offset_frame, OffsetReport, Verdict, MIN_PAIRS, MIN_PARALLAX_DEG,
@@ -98,7 +97,7 @@ impl OffsetSearch {
             return None;
         }
         self.next_probe = (keyframes + PROBE_EVERY_KEYFRAMES).max(keyframes * 5 / 4);
-        let inputs = global_inputs(setup);
+        let inputs = setup.global_inputs();
         let probe = system.with_map(|map| {
             crate::global::disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
         })?;
@@ -135,7 +134,7 @@ impl OffsetSearch {
         setup: &Setup,
         min_px: f64,
     ) -> Option<f64> {
-        let inputs = global_inputs(setup);
+        let inputs = setup.global_inputs();
         let config = &setup.config.global;
         let bf = inputs.camera.bf;
         let last = records.last().cloned().unwrap_or_default();

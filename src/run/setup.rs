@@ -112,6 +112,24 @@ impl Setup {
         }
     }
 
+    /// What the global pass of a run of this set-up works with (also the tracking
+    /// pass's search for the rig's offset, [`super::rig_offset`]).
+    pub fn global_inputs(&self) -> crate::global::GlobalInputs<'_> {
+        let camera = &self.calibration.camera;
+        crate::global::GlobalInputs {
+            camera: &self.camera,
+            pyramid: &self.extractor.pyramid,
+            stereo: self.sensor == SensorKind::Stereo,
+            size: (camera.width as f32, camera.height as f32),
+            removal_threshold: self.mode.removal_threshold(&self.config.dop),
+            prediction_gate_share: if self.mode == Mode::Dop {
+                self.config.tracking.prediction_gate_share
+            } else {
+                0.0
+            },
+        }
+    }
+
     /// The rig's disparity offset added to every stereo match, pixels (0: none).
     pub fn disparity_offset_px(&self) -> f64 {
         self.disparity_offset.as_ref().map_or(0.0, |o| o.offset_px)
