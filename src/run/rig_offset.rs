@@ -6,14 +6,16 @@
 //! association at the wrong scale: on the real KITTI 01 clip, about half the real-time
 //! DOP runs corrected afterwards kept 2-4 % of scale. So unless the config gives the
 //! offset (`[stereo] disparity_offset_px`), the tracking pass looks for it while it
-//! runs, within its first `[stereo] disparity_offset_frames` frames: after each
-//! keyframe it estimates the offset from the map as local mapping left it (a probe,
-//! under the read lock); once the probe passes the confidence test
+//! runs, within its first `[stereo] disparity_offset_frames` frames: from the 5th
+//! keyframe on (then after 2 more, or a quarter more) it estimates the offset from the
+//! map as local mapping left it (a probe, under the read lock); once the probe passes
+//! the confidence test
 //! ([`crate::global::disparity_offset::Estimate::verdict`]), local mapping is let
 //! catch up, full BA runs, the estimate is tested again on its map, and when it passes
 //! the offset is taken out of the map, the frames tracked so far and the tracker's last
-//! frame, and added to every later frame's matches. No frame is tracked twice
-//! (`docs/design.md`, "The rig's disparity offset").
+//! frame, and added to every later frame's matches; later probes take out what is
+//! left ([`RESIDUAL_MIN_PX`]). No frame is tracked twice (`docs/design.md`, "The
+//! rig's disparity offset").
 
 use super::setup::Setup;
 use crate::global::disparity_offset::{
