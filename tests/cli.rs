@@ -258,6 +258,10 @@ fn a_sequence_without_calibration_takes_settings_or_a_camera() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/RGB-D_TUM3.yaml");
     let (ok, out, err) = run(&["--settings", &settings.to_string_lossy()]);
     assert!(ok && out.contains("tracked 8 of 8"), "{out}{err}");
+    // `fuse` takes the settings file the run names.
+    let fused = base.join("out2");
+    let (ok, out, err) = dopslam(&["fuse", fused.to_str().unwrap()]);
+    assert!(ok && out.contains("frames fused"), "{out}{err}");
     let (ok, out, err) = run(&["--camera", "535.4,539.2,320.1,247.6", "--deterministic"]);
     assert!(ok && out.contains("tracked 8 of 8"), "{out}{err}");
     let (ok, _, err) = run(&["--camera", "535.4,539.2,320.1"]);

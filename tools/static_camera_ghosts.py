@@ -2,8 +2,9 @@
 """Ghosts of movers in a dense map made from a static camera (issue 80's real-people
 goal; `../shared/data/real/ist/confusao`): the camera stands still, so the far end of
 each pixel's depths over the sequence is the static background, and a map vertex
-clearly in front of it (more than MARGIN metres, against the farthest background in a
-WINDOW x WINDOW pixel window, so that object edges do not count) stands where a mover
+clearly in front of it (more than MARGIN metres in front of the nearest background in
+a WINDOW x WINDOW pixel window, so that a static object's edge, whose vertex may
+project a pixel off onto the wall behind it, does not count) stands where a mover
 stood. Also the share of the background's pixels the map covers (a vertex within
 MARGIN of the background at that pixel).
 
@@ -89,10 +90,11 @@ def judge(mesh, far, camera, pose, margin, window):
     v = np.round(fy * p[:, 1] / np.where(ok, z, 1) + cy).astype(int)
     inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     k = window // 2
-    padded = np.pad(far, k, mode="edge")
-    widest = np.max([padded[dy:dy + h, dx:dx + w] for dy in range(window) for dx in range(window)], axis=0)
-    bg = np.where(inside, widest[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
-    valid = inside & (bg > 0)
+    # Pixels that never had depth are no background.
+    padded = np.pad(np.where(far > 0, far, np.inf), k, mode="edge")
+    nearest = np.min([padded[dy:dy + h, dx:dx + w] for dy in range(window) for dx in range(window)], axis=0)
+    bg = np.where(inside, nearest[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
+    valid = inside & np.isfinite(bg) & (bg > 0)
     ghost = valid & (z < bg - margin)
     covered = np.zeros_like(far, dtype=bool)
     near_bg = inside & (np.abs(z - far[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)]) <= margin)

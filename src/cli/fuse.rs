@@ -40,7 +40,8 @@ pub struct FuseArgs {
     /// Fuse keyframes only into the TSDF.
     #[arg(long)]
     pub keyframes_only: bool,
-    /// The ORB-SLAM2 settings file the run used (`run --settings`), if any.
+    /// An ORB-SLAM2 settings file (default: the one the run used, `run --settings`,
+    /// as its report.json names it).
     #[arg(long)]
     pub settings: Option<PathBuf>,
 }
@@ -84,12 +85,21 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     if args.keyframes_only {
         config.dense.frames.which = FrameChoice::Keyframes;
     }
-    if let Some(path) = &args.settings {
-        apply_settings(&mut config, path)?;
-    }
     let run = RunDir::new(&args.run);
     let report = dopslam::records::read_report(&run)
         .with_context(|| format!("{} is not a finished run", args.run.display()))?;
+    // The settings file the run used unless another is named: the camera it tracked
+    // with is the one its frames are fused with.
+    let recorded = report.setup.settings.as_ref().map(|s| &s.file);
+    if let Some(path) = args.settings.as_ref().or(recorded) {
+        apply_settings(&mut config, path).with_context(|| match &args.settings {
+            Some(_) => format!("--settings {}", path.display()),
+            None => format!(
+                "the settings file {} names (pass --settings to use another)",
+                run.report().display()
+            ),
+        })?;
+    }
     let sequence_dir = match (&args.sequence, &report.sequence_path) {
         (Some(dir), _) | (None, Some(dir)) => dir.clone(),
         (None, None) => bail!(
@@ -151,6 +161,12 @@ pub fn print_dense(dense: &DenseReport) {
         println!(
             "dense map: {} small pieces of the mesh dropped ({} vertices; [dense] mesh_min_piece_area)",
             dense.mesh_pieces_dropped, dense.mesh_vertices_dropped
+        );
+    }
+    if dense.frames_left_still > 0 {
+        println!(
+            "dense map: {} tracked frames not fused, taken from nearly where the last fused frame was ([dense] frame_min_translation, frame_min_rotation, frame_max_gap)",
+            dense.frames_left_still
         );
     }
     if dense.other_segment_frames > 0 {

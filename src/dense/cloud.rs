@@ -224,6 +224,7 @@ mod tests {
             colour: &colour,
             dynamic: Some(&mask),
             camera_from_world: &pose,
+            weight: 1.0,
         });
         let (cloud, _) = builder.finish(|_| false);
         assert!(cloud.len() > 1000);

@@ -88,13 +88,23 @@ pub struct DenseConfig {
     pub outputs: DenseOutputs,
 }
 
-/// Which frames are fused (`[dense]` keys `frames`, `frame_step`).
+/// Which frames are fused (`[dense]` keys `frames`, `frame_step`,
+/// `frame_min_translation`, `frame_min_rotation`, `frame_max_gap`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseFrames {
     /// Frames fused into the TSDF: all tracked frames or keyframes only.
     pub which: FrameChoice,
     /// Fuse every n-th chosen frame.
     pub step: usize,
+    /// Of those, a frame is fused when the camera moved at least this far since the
+    /// last fused frame (metres), or turned at least [`Self::min_rotation`], or
+    /// [`Self::max_gap`] frames have passed; keyframes always are. A frame from
+    /// nearly the same place adds little the last one did not (0 and 0: every frame).
+    pub min_translation: f64,
+    /// Degrees (see [`Self::min_translation`]).
+    pub min_rotation: f64,
+    /// At most this many of the chosen frames from one fused frame to the next.
+    pub max_gap: usize,
 }
 
 /// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `image_margin`, `allocate_first`).
@@ -153,7 +163,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_map_min_weight`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -205,6 +215,11 @@ pub struct DenseMasks {
     /// that stands still longer than the near window (a box set down, a person who
     /// waits) was seen elsewhere then, and its place seen through. 0: none.
     pub free_space_far_seconds: f64,
+    /// The free-space evidence judges every `free_space_stride`-th pixel of every
+    /// such row against the neighbours; the pixels between copy those around them
+    /// where they lie at the same depth and agree, and are judged themselves where
+    /// they do not (1: every pixel judged).
+    pub free_space_stride: usize,
     /// A masked pixel whose depth lies on the static map fused so far, where the map
     /// has at least this weight (frames), is fused after all (`dense.json`'s
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
@@ -251,6 +266,9 @@ pub struct DenseFile {
     allocate_first: bool,
     frames: FrameChoice,
     frame_step: usize,
+    frame_min_translation: f64,
+    frame_min_rotation: f64,
+    frame_max_gap: usize,
     mesh: bool,
     obj: bool,
     mesh_min_piece_area: f64,
@@ -279,6 +297,7 @@ pub struct DenseFile {
     mask_segment_follow_seconds: f64,
     mask_free_space_seconds: f64,
     mask_free_space_far_seconds: f64,
+    mask_free_space_stride: usize,
     mask_map_min_weight: f32,
     mask_pictures_every: usize,
     ply_encoding: PlyEncoding,
@@ -298,6 +317,9 @@ impl From<DenseFile> for DenseConfig {
             frames: DenseFrames {
                 which: file.frames,
                 step: file.frame_step,
+                min_translation: file.frame_min_translation,
+                min_rotation: file.frame_min_rotation,
+                max_gap: file.frame_max_gap,
             },
             tsdf: DenseTsdf {
                 voxel: file.voxel,
@@ -336,6 +358,7 @@ impl From<DenseFile> for DenseConfig {
                 segment_follow_seconds: file.mask_segment_follow_seconds,
                 free_space_seconds: file.mask_free_space_seconds,
                 free_space_far_seconds: file.mask_free_space_far_seconds,
+                free_space_stride: file.mask_free_space_stride,
                 map_min_weight: file.mask_map_min_weight,
             },
             outputs: DenseOutputs {
@@ -368,6 +391,9 @@ impl From<DenseConfig> for DenseFile {
             fusion,
             frames: frames.which,
             frame_step: frames.step,
+            frame_min_translation: frames.min_translation,
+            frame_min_rotation: frames.min_rotation,
+            frame_max_gap: frames.max_gap,
             voxel: tsdf.voxel,
             truncation: tsdf.truncation,
             max_depth: tsdf.max_depth,
@@ -398,6 +424,7 @@ impl From<DenseConfig> for DenseFile {
             mask_segment_follow_seconds: masks.segment_follow_seconds,
             mask_free_space_seconds: masks.free_space_seconds,
             mask_free_space_far_seconds: masks.free_space_far_seconds,
+            mask_free_space_stride: masks.free_space_stride,
             mask_map_min_weight: masks.map_min_weight,
             mesh: outputs.mesh,
             obj: outputs.obj,
@@ -421,6 +448,9 @@ impl Default for DenseConfig {
             frames: DenseFrames {
                 which: FrameChoice::All,
                 step: 1,
+                min_translation: 0.0,
+                min_rotation: 0.0,
+                max_gap: 3,
             },
             tsdf: DenseTsdf {
                 voxel: tsdf.voxel,
@@ -459,6 +489,7 @@ impl Default for DenseConfig {
                 segment_follow_seconds: 3.0,
                 free_space_seconds: free_space.seconds,
                 free_space_far_seconds: free_space.far_seconds,
+                free_space_stride: free_space.stride,
                 map_min_weight: 0.0,
             },
             outputs: DenseOutputs {
@@ -513,6 +544,8 @@ impl DenseConfig {
                     self.masks.free_space_far_seconds,
                 ),
                 ("mesh_min_piece_area", self.outputs.mesh_min_piece_area),
+                ("frame_min_translation", self.frames.min_translation),
+                ("frame_min_rotation", self.frames.min_rotation),
                 ("mask_map_min_weight", self.masks.map_min_weight.into()),
             ],
         )?;
@@ -542,6 +575,11 @@ impl DenseConfig {
         }
         crate::detect::tiles::check_grid("dense.detect_tiles", self.detections.tiles)?;
         checks::at_least_one("dense.frame_step", self.frames.step as u64)?;
+        checks::at_least_one("dense.frame_max_gap", self.frames.max_gap as u64)?;
+        checks::at_least_one(
+            "dense.mask_free_space_stride",
+            self.masks.free_space_stride as u64,
+        )?;
         checks::at_least_one("dense.cloud_stride", self.cloud.stride as u64)
     }
 
@@ -603,6 +641,7 @@ impl DenseConfig {
         FreeSpaceSettings {
             seconds: self.masks.free_space_seconds,
             far_seconds: self.masks.free_space_far_seconds,
+            stride: self.masks.free_space_stride,
             ..FreeSpaceSettings::default()
         }
     }

@@ -50,6 +50,10 @@ pub struct FreeSpaceSettings {
     pub reach: usize,
     /// Share of the 9x9 window around a moving pixel that must be moving too.
     pub density: f32,
+    /// Every `stride`-th pixel of every `stride`-th row is judged by the neighbours;
+    /// the pixels between take the verdict of those around them where they lie at the
+    /// same depth and agree, and are judged themselves elsewhere (1: every pixel).
+    pub stride: usize,
 }
 
 impl Default for FreeSpaceSettings {
@@ -60,6 +64,7 @@ impl Default for FreeSpaceSettings {
             tolerance: (0.03, 0.015),
             reach: 2,
             density: 0.3,
+            stride: 2,
         }
     }
 }
@@ -338,33 +343,154 @@ pub fn evidence(
         .iter()
         .map(|n| Ray::new(camera, &(n.camera_from_world * world_from_camera)))
         .collect();
-    let mut verdicts = vec![(0u8, 0u8); w * h];
-    verdicts.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-        let row_depth = &depth.metres[v * w..(v + 1) * w];
-        // One neighbour at a time along the row: its depth is read row by row.
-        for (n, ray) in neighbours.iter().zip(&rays) {
-            for (u, (verdict, &z)) in row.iter_mut().zip(row_depth).enumerate() {
-                if z <= 0.0 {
-                    continue;
+    let verdicts = Judge {
+        camera,
+        depth,
+        neighbours,
+        rays: &rays,
+        settings,
+    }
+    .verdicts();
+    let (raw, still): (Vec<bool>, Vec<bool>) = verdicts.into_iter().map(class).unzip();
+    Evidence {
+        moving: keep_dense(&raw, w, h, 4, settings.density),
+        still,
+    }
+}
+
+/// What the verdicts of one frame's pixels need: the frame, its neighbours and the
+/// rays from the frame into each.
+struct Judge<'a> {
+    camera: &'a PinholeCamera,
+    depth: &'a DepthImage,
+    neighbours: &'a [&'a Neighbour],
+    rays: &'a [Ray],
+    settings: &'a FreeSpaceSettings,
+}
+
+/// A pixel's counts (seen through, seen still) as the pixel tests read them: (moving,
+/// still).
+fn class(counts: (u8, u8)) -> (bool, bool) {
+    let (through, still) = counts;
+    (
+        through >= 2 || (through == 1 && still == 0),
+        through == 0 && still >= 2,
+    )
+}
+
+impl Judge<'_> {
+    /// Each pixel's counts: the neighbours that saw through it and those that saw it
+    /// still. The pixels on the grid of `stride` are judged by every neighbour; each
+    /// other pixel takes the counts of the grid pixels around it where they lie at its
+    /// depth (within the tolerance) and agree, and is judged itself where they do not
+    /// (a depth edge, a mover's outline).
+    fn verdicts(&self) -> Vec<(u8, u8)> {
+        let (w, h) = (self.depth.width as usize, self.depth.height as usize);
+        let s = self.settings.stride.max(1);
+        let mut grid = vec![(0u8, 0u8); w * h];
+        grid.par_chunks_mut(w)
+            .enumerate()
+            .filter(|(v, _)| v % s == 0)
+            .for_each(|(v, row)| self.judge_row(v, row, s));
+        if s == 1 {
+            return grid;
+        }
+        let mut out = grid.clone();
+        out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            let rows = around(v, s, h);
+            for u in (0..w).filter(|u| u % s != 0 || v % s != 0) {
+                let z = self.depth.metres[v * w + u];
+                if z > 0.0 {
+                    row[u] = self
+                        .copied(&grid, z, rows, around(u, s, w))
+                        .unwrap_or_else(|| self.judge_pixel(u, v, z));
                 }
-                match judge(camera, n, ray.point(u as f32, v as f32, z), settings) {
-                    Some(true) => verdict.0 += 1,
-                    Some(false) => verdict.1 += 1,
-                    None => {}
+            }
+        });
+        out
+    }
+
+    /// The counts of the grid pixels at `rows` x `columns` when each lies within the
+    /// tolerance of depth `z` and all agree.
+    fn copied(
+        &self,
+        grid: &[(u8, u8)],
+        z: f32,
+        rows: [usize; 2],
+        columns: [usize; 2],
+    ) -> Option<(u8, u8)> {
+        let w = self.depth.width as usize;
+        let tau = self.settings.tau(z);
+        let first = grid[rows[0] * w + columns[0]];
+        let corners = [(0, 0), (0, 1), (1, 0), (1, 1)].map(|(a, b)| rows[a] * w + columns[b]);
+        corners
+            .iter()
+            .all(|&i| {
+                let zc = self.depth.metres[i];
+                zc > 0.0 && (zc - z).abs() <= tau && class(grid[i]) == class(first)
+            })
+            .then_some(first)
+    }
+
+    /// Row `v`'s pixels every `step` columns, one neighbour at a time along the row
+    /// (its depth is read row by row).
+    fn judge_row(&self, v: usize, row: &mut [(u8, u8)], step: usize) {
+        let w = row.len();
+        let row_depth = &self.depth.metres[v * w..(v + 1) * w];
+        for (n, ray) in self.neighbours.iter().zip(self.rays) {
+            for u in (0..w).step_by(step) {
+                let z = row_depth[u];
+                if z > 0.0 {
+                    count(
+                        &mut row[u],
+                        judge(
+                            self.camera,
+                            n,
+                            ray.point(u as f32, v as f32, z),
+                            self.settings,
+                        ),
+                    );
                 }
             }
         }
-    });
-    let raw: Vec<bool> = verdicts
-        .iter()
-        .map(|&(through, still)| through >= 2 || (through == 1 && still == 0))
-        .collect();
-    Evidence {
-        moving: keep_dense(&raw, w, h, 4, settings.density),
-        still: verdicts
-            .iter()
-            .map(|&(through, still)| through == 0 && still >= 2)
-            .collect(),
+    }
+
+    /// Pixel `(u, v)` at depth `z`, judged by every neighbour.
+    fn judge_pixel(&self, u: usize, v: usize, z: f32) -> (u8, u8) {
+        let mut verdict = (0, 0);
+        for (n, ray) in self.neighbours.iter().zip(self.rays) {
+            count(
+                &mut verdict,
+                judge(
+                    self.camera,
+                    n,
+                    ray.point(u as f32, v as f32, z),
+                    self.settings,
+                ),
+            );
+        }
+        verdict
+    }
+}
+
+/// Adds one neighbour's verdict to a pixel's counts.
+fn count(verdict: &mut (u8, u8), judged: Option<bool>) {
+    match judged {
+        Some(true) => verdict.0 += 1,
+        Some(false) => verdict.1 += 1,
+        None => {}
+    }
+}
+
+/// The grid lines (multiples of `s` below `n`) around `x`: `x` itself when it lies on
+/// one, else the one before and the one after (where it exists); the second repeats the
+/// first when there is one line.
+fn around(x: usize, s: usize, n: usize) -> [usize; 2] {
+    let before = x - x % s;
+    match x % s {
+        0 => [x, x],
+        _ if before + s < n => [before, before + s],
+        _ => [before, before],
     }
 }
 
@@ -579,6 +705,39 @@ mod tests {
             ..settings
         };
         assert!(off.neighbour_times(10.0).iter().all(|x| !x.far));
+    }
+
+    /// The pixels between the grid take their neighbours' verdict only where those
+    /// agree at the same depth: on a block that moved, seen from a camera that moved
+    /// too, every pixel's verdict is the one judging every pixel gives.
+    #[test]
+    fn judging_every_second_pixel_gives_every_pixel_s_verdict() {
+        let exact = FreeSpaceSettings {
+            stride: 1,
+            ..FreeSpaceSettings::default()
+        };
+        let moved = crate::geometry::se3::from_parts(
+            nalgebra::Vector3::new(-0.03, 0.01, 0.0),
+            nalgebra::Matrix3::identity(),
+        );
+        let now = scene(Some((21, 37)));
+        let before = Neighbour::new(0.0, moved, scene(Some((5, 19))), exact.reach);
+        let after = Neighbour::new(1.0, Se3::identity(), scene(Some((39, 55))), exact.reach);
+        let judged = |stride: usize| {
+            let settings = FreeSpaceSettings { stride, ..exact };
+            evidence(
+                &camera(),
+                &now,
+                &Se3::identity(),
+                &[&before, &after],
+                &settings,
+            )
+        };
+        let (every, second, third) = (judged(1), judged(2), judged(3));
+        assert!(every.moving.iter().any(|&m| m), "the block is seen moving");
+        assert!(every.still.iter().any(|&s| s), "the wall is seen still");
+        assert_eq!(second, every);
+        assert_eq!(third, every);
     }
 
     #[test]

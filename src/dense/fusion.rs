@@ -42,6 +42,9 @@ fn add_since(total: &mut f64, start: Instant) {
 
 /// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
 pub(super) struct FrameSinks<'a> {
+    /// The frames each fused frame stands for ([`super::tsdf::FrameInput::weight`]),
+    /// in the order fused.
+    pub weights: &'a [f32],
     pub mask_source: &'a mut MaskSource,
     pub window: Option<&'a mut NeighbourWindow>,
     pub volume: Option<&'a mut TsdfVolume>,
@@ -164,6 +167,7 @@ fn fuse_frame(
         colour: &rgb,
         dynamic: layers.as_ref().map(|m| m.dynamic.as_slice()),
         camera_from_world: &pose,
+        weight: sinks.weights.get(fused.frames).copied().unwrap_or(1.0),
     };
     let start = Instant::now();
     let sources = layers.as_ref().map(|m| m.sources.as_slice());

@@ -257,6 +257,7 @@ mod tests {
                 colour: &colour,
                 dynamic: None,
                 camera_from_world: &pose,
+                weight: 1.0,
             });
         }
         let ball = [(Vector3::new(0.0, 0.0, 1.2), 0.3)];

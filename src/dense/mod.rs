@@ -17,6 +17,7 @@ pub mod cloud;
 pub mod compare_maps;
 pub mod config;
 pub mod disparity;
+mod frame_choice;
 pub mod free_space;
 mod fusion;
 pub mod inputs;
@@ -44,7 +45,6 @@ use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
-use crate::io::sequence::Sequence;
 use crate::io::IoError;
 use cloud::CloudBuilder;
 use free_space::NeighbourWindow;
@@ -85,9 +85,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let started = Instant::now();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let mut read = inputs::read_run(&run, inputs.masking)?;
-    let chosen = choose_frames(inputs.sequence, &read, config);
+    let frames = frame_choice::choose_frames(inputs.sequence, &read, config);
+    let chosen = &frames.fused;
     let inputs_s = started.elapsed().as_secs_f64();
-    let extra_detections = dense_detections(inputs, config, &chosen, &out, &mut read.detections)?;
+    let candidates = &frames.candidates;
+    let extra_detections =
+        dense_detections(inputs, config, candidates, &out, &mut read.detections)?;
     let detections_s = started.elapsed().as_secs_f64() - inputs_s;
     let start = Instant::now();
     let mut mask_source = mask_source(inputs, config, &mut read);
@@ -95,6 +98,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         masking: Some(inputs.masking),
         other_segment_frames: read.other_segment_frames,
         extra_detections,
+        frames_left_still: candidates.len() - chosen.len(),
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         ..DenseReport::default()
     };
@@ -103,7 +107,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let (maps, truth) = fuse(
         inputs,
         config,
-        &chosen,
+        &frames,
         &mut mask_source,
         &read.poses,
         &mut report,
@@ -119,8 +123,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     report.truth = truth.map(TruthCounter::finish);
     report.total_s = started.elapsed().as_secs_f64();
     let (first, last) = (
-        chosen.first().map_or(0, |c| c.0),
-        chosen.last().map_or(0, |c| c.0),
+        candidates.first().map_or(0, |c| c.0),
+        candidates.last().map_or(0, |c| c.0),
     );
     report.real_time_factor = crate::io::sequence::duration_of(inputs.sequence, first, last)
         .map(|recording| report.total_s / recording);
@@ -140,22 +144,6 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
 /// A frame to fuse: its index in the sequence, final `camera_from_world`, and whether
 /// it is a keyframe (the cloud takes keyframes only).
 pub(super) type Chosen = (usize, Se3, bool);
-
-/// The frames to fuse, in sequence order: every tracked frame of the largest segment
-/// (keyframes only for a point cloud alone, or with `frames = "keyframes"`), every
-/// `frame_step`-th of them.
-fn choose_frames(sequence: &dyn Sequence, read: &RunInputs, config: &DenseConfig) -> Vec<Chosen> {
-    let every_frame = config.frames.which == FrameChoice::All && config.fusion != Fusion::Points;
-    (0..sequence.len())
-        .filter_map(|i| {
-            let k = key(sequence.timestamp(i));
-            let pose = *read.poses.get(&k)?;
-            let is_keyframe = read.keyframe_times.contains(&k);
-            (every_frame || is_keyframe).then_some((i, pose, is_keyframe))
-        })
-        .step_by(config.frames.step)
-        .collect()
-}
 
 /// The dense pass's own detections ([`more_detections`]) added to `detections`, with
 /// the DOP masks and a detector.
@@ -214,18 +202,19 @@ fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs)
     )
 }
 
-/// Fuses the `chosen` frames, masked by `mask_source` (with the free-space evidence
+/// Fuses the chosen `frames` (each weighted by the frames it stands for), masked by `mask_source` (with the free-space evidence
 /// of the frames around, posed by `poses`): the TSDF volume and the keyframe cloud as
 /// `config` asks, the fused pixels counted against the truth masks; the per-frame
 /// figures go into `report`.
 fn fuse(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    chosen: &[Chosen],
+    frames: &frame_choice::ChosenFrames,
     mask_source: &mut MaskSource,
     poses: &HashMap<i64, Se3>,
     report: &mut DenseReport,
 ) -> Result<(Maps, Option<TruthCounter>), IoError> {
+    let (chosen, weights) = (frames.fused.as_slice(), frames.weights.as_slice());
     let sequence = inputs.sequence;
     let fuse_tsdf = config.fuses_tsdf();
     let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
@@ -248,6 +237,7 @@ fn fuse(
             NeighbourWindow::new(config.free_space_settings(), posed)
         });
     let sinks = FrameSinks {
+        weights,
         mask_source,
         window: window.as_mut(),
         volume: fuse_tsdf.then_some(&mut volume),

@@ -17,6 +17,10 @@ pub struct DenseReport {
     pub masking: Option<Mode>,
     /// Frames fused into the TSDF.
     pub frames_fused: usize,
+    /// Tracked frames not fused because the camera had hardly moved since the last
+    /// fused one (`[dense] frame_min_translation`, `frame_min_rotation`).
+    #[serde(default)]
+    pub frames_left_still: usize,
     /// Tracked frames left out because they are in a map segment that no loop merged
     /// with the largest one.
     pub other_segment_frames: usize,

@@ -169,6 +169,11 @@ pub struct FrameInput<'a> {
     pub dynamic: Option<&'a [bool]>,
     /// \(T_{cw}\).
     pub camera_from_world: &'a Se3,
+    /// The frames this one stands for (1; more when the frames just before it were
+    /// left out, [`super::config::DenseFrames::min_translation`]): its observations
+    /// count that many times, so that what those frames would have carved or fused
+    /// keeps its share against the frames fused in full.
+    pub weight: f32,
 }
 
 /// A sparse TSDF volume.
@@ -481,6 +486,7 @@ fn integrate_block(
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
     // behind it, but the free space in front of it still carves).
     let max_weight = settings.max_weight;
+    let k = frame.weight;
     let sdf = &mut block.sdf[..BLOCK_VOXELS];
     let weight = &mut block.weight[..BLOCK_VOXELS];
     for ((((f, w), d), &z), &moving) in sdf
@@ -494,9 +500,9 @@ fn integrate_block(
         let update = (*d > 0.0) & (eta >= -tau) & (!moving | (eta > tau));
         // Blends with 0/1 factors, not branches, so that this loop vectorises.
         let m = f32::from(u8::from(update));
-        let fused = (*f * *w + (eta * inv_tau).min(1.0)) / (*w + 1.0);
+        let fused = (*f * *w + k * (eta * inv_tau).min(1.0)) / (*w + k);
         *f += m * (fused - *f);
-        *w += m * ((*w + 1.0).min(max_weight) - *w);
+        *w += m * ((*w + k).min(max_weight) - *w);
         // Colour only within the band; `measured` becomes that flag.
         *d = m * f32::from(u8::from(eta <= tau));
     }
@@ -796,6 +802,7 @@ pub(crate) mod tests {
                 colour: &colour,
                 dynamic: None,
                 camera_from_world: pose,
+                weight: 1.0,
             });
         }
     }
@@ -892,6 +899,7 @@ pub(crate) mod tests {
                     colour: &colour,
                     dynamic: None,
                     camera_from_world: pose,
+                    weight: 1.0,
                 };
                 if fuse {
                     volume.integrate(&input);
@@ -984,6 +992,7 @@ pub(crate) mod tests {
                 colour: &colour,
                 dynamic: Some(&mask),
                 camera_from_world: pose,
+                weight: 1.0,
             });
         }
         assert_eq!(near_ball(&clean), 0);

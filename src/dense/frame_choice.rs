@@ -1,0 +1,154 @@
+//! Which frames the dense pass fuses: every tracked frame of the largest map segment
+//! (or its keyframes), every `frame_step`-th of them, and of those the ones that add
+//! something: the camera moved or turned enough since the last fused frame, or a
+//! keyframe, or `frame_max_gap` frames have passed ([`super::config::DenseFrames`]).
+
+use super::config::{DenseConfig, DenseFrames};
+use super::inputs::{key, RunInputs};
+use super::{Chosen, FrameChoice, Fusion};
+use crate::geometry::se3::Se3;
+use crate::io::sequence::Sequence;
+
+/// The frames the dense pass takes, in sequence order.
+pub(super) struct ChosenFrames {
+    /// Every candidate: the frames the masks' own detections are spaced over, so a
+    /// frame left out of the fusion can still lend its boxes to the fused frames
+    /// around it.
+    pub candidates: Vec<Chosen>,
+    /// The frames fused.
+    pub fused: Vec<Chosen>,
+    /// For each fused frame, the candidates it stands for: itself and those left out
+    /// since the last fused one.
+    pub weights: Vec<f32>,
+}
+
+/// The candidates (see [`ChosenFrames`]) and those of them fused.
+pub(super) fn choose_frames(
+    sequence: &dyn Sequence,
+    read: &RunInputs,
+    config: &DenseConfig,
+) -> ChosenFrames {
+    let every_frame = config.frames.which == FrameChoice::All && config.fusion != Fusion::Points;
+    let candidates: Vec<Chosen> = (0..sequence.len())
+        .filter_map(|i| {
+            let k = key(sequence.timestamp(i));
+            let pose = *read.poses.get(&k)?;
+            let is_keyframe = read.keyframe_times.contains(&k);
+            (every_frame || is_keyframe).then_some((i, pose, is_keyframe))
+        })
+        .step_by(config.frames.step)
+        .collect();
+    let (fused, weights) = adding(&candidates, &config.frames);
+    ChosenFrames {
+        candidates,
+        fused,
+        weights,
+    }
+}
+
+/// The `candidates` that add something to the last one taken (see
+/// [`DenseFrames::min_translation`]; the first always), each with the candidates it
+/// stands for (itself and those left out just before it).
+fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>) {
+    let mut taken: Vec<Chosen> = Vec::with_capacity(candidates.len());
+    let mut weights = Vec::with_capacity(candidates.len());
+    let mut since = 0;
+    for &candidate in candidates {
+        since += 1;
+        let adds = match taken.last() {
+            None => true,
+            Some(last) => {
+                candidate.2 || since >= frames.max_gap || moved(&last.1, &candidate.1, frames)
+            }
+        };
+        if adds {
+            taken.push(candidate);
+            weights.push(since.max(1) as f32);
+            since = 0;
+        }
+    }
+    (taken, weights)
+}
+
+/// Whether the camera at `b` lies at least `min_translation` from `a` or is turned
+/// at least `min_rotation` from it (both `camera_from_world`).
+fn moved(a: &Se3, b: &Se3, frames: &DenseFrames) -> bool {
+    let (centre_a, centre_b) = (
+        a.inverse().translation.vector,
+        b.inverse().translation.vector,
+    );
+    let turned = (a.rotation * b.rotation.inverse()).angle().to_degrees();
+    (centre_a - centre_b).norm() >= frames.min_translation || turned >= frames.min_rotation
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+
+    /// A camera that moves `metres` along x and turns `degrees` about y per frame.
+    fn path(n: usize, metres: f64, degrees: f64) -> Vec<Chosen> {
+        (0..n)
+            .map(|i| {
+                let rotation = Rotation3::from_axis_angle(
+                    &Vector3::y_axis(),
+                    (degrees * i as f64).to_radians(),
+                );
+                let pose = crate::geometry::se3::from_parts(
+                    Vector3::new(metres * i as f64, 0.0, 0.0),
+                    *rotation.matrix(),
+                );
+                (i, pose, false)
+            })
+            .collect()
+    }
+
+    fn settings(min_translation: f64, min_rotation: f64, max_gap: usize) -> DenseFrames {
+        DenseFrames {
+            which: FrameChoice::All,
+            step: 1,
+            min_translation,
+            min_rotation,
+            max_gap,
+        }
+    }
+
+    /// The sequence indices of what [`adding`] took (as many as its weights).
+    fn indices(taken: (Vec<Chosen>, Vec<f32>)) -> Vec<usize> {
+        assert_eq!(taken.0.len(), taken.1.len());
+        taken.0.iter().map(|c| c.0).collect()
+    }
+
+    #[test]
+    fn a_still_camera_is_fused_every_max_gap_frames_and_keyframes_always() {
+        let mut still = path(10, 0.0, 0.0);
+        still[4].2 = true;
+        assert_eq!(
+            indices(adding(&still, &settings(0.01, 0.5, 3))),
+            [0, 3, 4, 7]
+        );
+        // Each stands for itself and the frames left out before it.
+        assert_eq!(
+            adding(&still, &settings(0.01, 0.5, 3)).1,
+            [1.0, 3.0, 1.0, 3.0]
+        );
+    }
+
+    #[test]
+    fn a_moving_camera_is_fused_once_it_moved_or_turned_enough() {
+        // 4 mm a frame: every third frame passes 1 cm.
+        let slow = path(10, 0.004, 0.0);
+        assert_eq!(
+            indices(adding(&slow, &settings(0.01, 0.5, 5))),
+            [0, 3, 6, 9]
+        );
+        // 0.3 degrees a frame: every second frame passes 0.5 degrees.
+        let turning = path(7, 0.0, 0.3);
+        assert_eq!(
+            indices(adding(&turning, &settings(0.01, 0.5, 5))),
+            [0, 2, 4, 6]
+        );
+        // Both thresholds at 0: every frame.
+        assert_eq!(indices(adding(&slow, &settings(0.0, 0.0, 5))).len(), 10);
+    }
+}
