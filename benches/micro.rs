@@ -75,6 +75,7 @@ fn main() {
             colour: &rendered[i].rgb,
             dynamic: None,
             camera_from_world: &camera_from_world,
+            weight: 1.0,
         });
     });
     println!(

@@ -6,9 +6,11 @@
 //! projects to pixel \(\pi(T_{cw} p_w)\) with depth \(z\); with measured depth \(d\)
 //! there, its projective signed distance is \(\eta = d - z\) (positive in front of
 //! the surface). Where \(\eta \ge -\tau\) (\(\tau\): truncation) the voxel takes
-//! \(\phi = \min(1, \eta/\tau)\) into its running weighted mean:
-//! \[ F \leftarrow \frac{W F + \phi}{W + 1}, \qquad W \leftarrow \min(W + 1, W_{max}) \]
-//! and the colour likewise. Capping \(W\) lets newer observations win: a surface
+//! \(\phi = \min(1, \eta/\tau)\) into its running weighted mean, \(k\) times for a
+//! frame that stands for \(k\) frames ([`FrameInput::weight`], 1 unless frames were
+//! left out):
+//! \[ F \leftarrow \frac{W F + k\phi}{W + k}, \qquad W \leftarrow \min(W + k, W_{max}) \]
+//! and the colour likewise (once a frame). Capping \(W\) lets newer observations win: a surface
 //! that later proves to be free space (a person who sat and then left) is carved
 //! away by the \(\phi = 1\) observations of the rays that now pass through it.
 //! A pixel a mask marks dynamic fuses nothing at or behind its depth (\(\eta \le \tau\)),
