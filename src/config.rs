@@ -239,6 +239,10 @@ pub struct StereoConfig {
     /// `dense.allocate_first`: off by default, since its first pass would match every
     /// stereo pair twice.
     pub allocate_first: bool,
+    /// `dense.far_carves`: off by default, since a disparity below the one of
+    /// `max_depth` is a pixel or two, where a mismatch on a blank wall would carve the
+    /// wall.
+    pub far_carves: bool,
     /// `dense.mask_free_space_seconds`: off by default, since each fused pair would
     /// need two more pairs matched, and the depth tolerance is a depth sensor's.
     pub mask_free_space_seconds: f64,
@@ -276,6 +280,7 @@ impl Default for StereoConfig {
             max_depth: 25.0,
             cloud_voxel: 0.1,
             allocate_first: false,
+            far_carves: false,
             mask_free_space_seconds: 0.0,
             wait_near_boxes_only: true,
             sgbm_disparities: 128,
@@ -351,6 +356,12 @@ impl StereoConfig {
             &mut tsdf.allocate_first,
             first.0,
             first.1,
+        );
+        p.set(
+            "dense.far_carves",
+            &mut tsdf.far_carves,
+            self.far_carves,
+            d_tsdf.far_carves,
         );
         let (cloud, d_cloud) = (&mut config.dense.cloud, &default.dense.cloud);
         p.set(

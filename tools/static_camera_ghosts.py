@@ -8,6 +8,12 @@ project a pixel off onto the wall behind it, does not count) stands where a move
 stood. Also the share of the background's pixels the map covers (a vertex within
 MARGIN of the background at that pixel).
 
+The far end of a pixel's depths also catches a static surface's noise and mixed pixels
+(an edge that flickers between a desk and the wall behind it). So each vertex in front
+is also checked against its pixel's depths: `in_front_rare` counts those seen at their
+own depth (within MARGIN / 2) in under half of the frames with depth there, which is
+what a mover's ghost is; a surface seen there in most frames is static.
+
     data/venv/bin/python tools/static_camera_ghosts.py SEQUENCE RUN_DIR [MESH.ply ...]
         [--settings S.yaml] [--margin 0.15] [--window 5] [--json]
 
@@ -40,14 +46,11 @@ def settings(path):
             value("DepthMapFactor", 5000.0))
 
 
-def background(sequence, factor):
+def depths(sequence, factor):
     depth_list = [line.split() for line in open(os.path.join(sequence, "depth.txt"))
                   if line.strip() and not line.startswith("#")]
-    far = None
-    for _, name in depth_list:
-        d = np.asarray(Image.open(os.path.join(sequence, name)), dtype=np.float32) / factor
-        far = d if far is None else np.maximum(far, d)
-    return far
+    return np.stack([np.asarray(Image.open(os.path.join(sequence, name)), dtype=np.float32) / factor
+                     for _, name in depth_list])
 
 
 def read_ply_vertices(path):
@@ -79,7 +82,8 @@ def first_pose(run_dir):
     raise SystemExit(f"{run_dir}/trajectory.txt holds no pose")
 
 
-def judge(mesh, far, camera, pose, margin, window):
+def judge(mesh, stack, camera, pose, margin, window):
+    far = stack.max(axis=0)
     fx, fy, cx, cy = camera
     r, t = pose
     p = (mesh - t) @ r  # world -> camera (camera_from_world = R^T (x - t))
@@ -99,8 +103,12 @@ def judge(mesh, far, camera, pose, margin, window):
     covered = np.zeros_like(far, dtype=bool)
     near_bg = inside & (np.abs(z - far[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)]) <= margin)
     covered[v[near_bg], u[near_bg]] = True
+    history = stack[:, v[ghost], u[ghost]]
+    seen_there = (np.abs(history - z[ghost][None]) <= margin / 2).sum(axis=0)
+    rare = int((seen_there < 0.5 * (history > 0).sum(axis=0)).sum())
     return dict(vertices=int(len(mesh)), judged=int(valid.sum()), in_front=int(ghost.sum()),
                 in_front_percent=100.0 * ghost.sum() / max(valid.sum(), 1),
+                in_front_rare=rare, in_front_rare_percent=100.0 * rare / max(valid.sum(), 1),
                 background_covered_percent=100.0 * covered.sum() / max((far > 0).sum(), 1))
 
 
@@ -115,18 +123,19 @@ def main():
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     fx, fy, cx, cy, factor = settings(args.settings)
-    far = background(args.sequence, factor)
+    stack = depths(args.sequence, factor)
     pose = first_pose(args.run_dir)
     meshes = args.meshes or [os.path.join(args.run_dir, "dense_mesh.ply")]
-    rows = {m: judge(read_ply_vertices(m), far, (fx, fy, cx, cy), pose, args.margin, args.window)
+    rows = {m: judge(read_ply_vertices(m), stack, (fx, fy, cx, cy), pose, args.margin, args.window)
             for m in meshes}
     if args.json:
         print(json.dumps(rows))
         return
     for m, r in rows.items():
         print(f"{m}: {r['in_front']} of {r['judged']} vertices ({r['in_front_percent']:.2f} %) more than "
-              f"{args.margin} m in front of the background; the map covers {r['background_covered_percent']:.1f} % "
-              f"of the background's pixels")
+              f"{args.margin} m in front of the background ({r['in_front_rare']}, {r['in_front_rare_percent']:.2f} %, "
+              f"seen there in under half of the frames); the map covers "
+              f"{r['background_covered_percent']:.1f} % of the background's pixels")
 
 
 if __name__ == "__main__":

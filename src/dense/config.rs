@@ -107,7 +107,7 @@ pub struct DenseFrames {
     pub max_gap: usize,
 }
 
-/// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `image_margin`, `allocate_first`).
+/// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `far_carves`, `image_margin`, `allocate_first`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseTsdf {
     /// Voxel edge, metres.
@@ -120,6 +120,8 @@ pub struct DenseTsdf {
     pub max_weight: f32,
     /// Carve free space along rays (erases surfaces that later proved empty).
     pub carve: bool,
+    /// A depth beyond `max_depth` still carves its ray up to `max_depth`.
+    pub far_carves: bool,
     /// Pixels this close to the image border fuse no surface into the TSDF (they still
     /// carve): a person cut by the border to a sliver is found by no detector.
     pub image_margin: u32,
@@ -163,7 +165,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -187,6 +189,11 @@ pub struct DenseMasks {
     /// lone false alarms on the static scene get none, a mover's keypoints come in
     /// groups.
     pub disc_neighbours: usize,
+    /// With free-space evidence: discs and segments only around the dynamic keypoints
+    /// with a pixel seen moving within the disc's radius. The tracking pass's dynamic
+    /// keypoints include static ones (a box's or a propagated probability); the
+    /// neighbours' free space tells them apart where it can see.
+    pub keypoints_seen_moving: bool,
     /// Grow a depth segment from the dynamic keypoints outside every detected mover's
     /// box (movers no detector knows, see [`segments`]): a region is kept when at least
     /// `mask_segment_edge_share` of its border is a depth edge to something farther,
@@ -225,6 +232,10 @@ pub struct DenseMasks {
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
     /// stands in front of the map, or where the map has nothing yet. 0: off.
     pub map_min_weight: f32,
+    /// The map also releases a detected object's body pixels (the floor at a
+    /// walker's feet, a desk beside them at their depth); a body in front of the map
+    /// stays masked.
+    pub map_release_bodies: bool,
 }
 
 /// What the dense pass writes (`[dense]` keys `mesh`, `obj`, `mesh_min_piece_area`, `cloud`, `pictures`, `mask_pictures_every`, `ply_encoding`).
@@ -262,6 +273,7 @@ pub struct DenseFile {
     max_depth: f64,
     max_weight: f32,
     carve: bool,
+    far_carves: bool,
     image_margin: u32,
     allocate_first: bool,
     frames: FrameChoice,
@@ -289,6 +301,7 @@ pub struct DenseFile {
     mask_depth_behind: f32,
     mask_discs_behind_objects: bool,
     mask_disc_neighbours: usize,
+    mask_keypoints_seen_moving: bool,
     mask_segments: bool,
     mask_segment_radius: u32,
     mask_segment_radius_metres: f32,
@@ -299,6 +312,7 @@ pub struct DenseFile {
     mask_free_space_far_seconds: f64,
     mask_free_space_stride: usize,
     mask_map_min_weight: f32,
+    mask_map_release_bodies: bool,
     mask_pictures_every: usize,
     ply_encoding: PlyEncoding,
 }
@@ -327,6 +341,7 @@ impl From<DenseFile> for DenseConfig {
                 max_depth: file.max_depth,
                 max_weight: file.max_weight,
                 carve: file.carve,
+                far_carves: file.far_carves,
                 image_margin: file.image_margin,
                 allocate_first: file.allocate_first,
             },
@@ -350,6 +365,7 @@ impl From<DenseFile> for DenseConfig {
                 depth_behind: file.mask_depth_behind,
                 discs_behind_objects: file.mask_discs_behind_objects,
                 disc_neighbours: file.mask_disc_neighbours,
+                keypoints_seen_moving: file.mask_keypoints_seen_moving,
                 segments: file.mask_segments,
                 segment_radius: file.mask_segment_radius,
                 segment_radius_metres: file.mask_segment_radius_metres,
@@ -360,6 +376,7 @@ impl From<DenseFile> for DenseConfig {
                 free_space_far_seconds: file.mask_free_space_far_seconds,
                 free_space_stride: file.mask_free_space_stride,
                 map_min_weight: file.mask_map_min_weight,
+                map_release_bodies: file.mask_map_release_bodies,
             },
             outputs: DenseOutputs {
                 mesh: file.mesh,
@@ -399,6 +416,7 @@ impl From<DenseConfig> for DenseFile {
             max_depth: tsdf.max_depth,
             max_weight: tsdf.max_weight,
             carve: tsdf.carve,
+            far_carves: tsdf.far_carves,
             image_margin: tsdf.image_margin,
             allocate_first: tsdf.allocate_first,
             cloud_voxel: cloud.voxel,
@@ -416,6 +434,7 @@ impl From<DenseConfig> for DenseFile {
             mask_depth_behind: masks.depth_behind,
             mask_discs_behind_objects: masks.discs_behind_objects,
             mask_disc_neighbours: masks.disc_neighbours,
+            mask_keypoints_seen_moving: masks.keypoints_seen_moving,
             mask_segments: masks.segments,
             mask_segment_radius: masks.segment_radius,
             mask_segment_radius_metres: masks.segment_radius_metres,
@@ -426,6 +445,7 @@ impl From<DenseConfig> for DenseFile {
             mask_free_space_far_seconds: masks.free_space_far_seconds,
             mask_free_space_stride: masks.free_space_stride,
             mask_map_min_weight: masks.map_min_weight,
+            mask_map_release_bodies: masks.map_release_bodies,
             mesh: outputs.mesh,
             obj: outputs.obj,
             mesh_min_piece_area: outputs.mesh_min_piece_area,
@@ -458,6 +478,7 @@ impl Default for DenseConfig {
                 max_depth: tsdf.max_depth,
                 max_weight: tsdf.max_weight,
                 carve: tsdf.carve,
+                far_carves: tsdf.far_carves,
                 image_margin: tsdf.margin,
                 allocate_first: true,
             },
@@ -481,6 +502,7 @@ impl Default for DenseConfig {
                 depth_behind: 0.6,
                 discs_behind_objects: true,
                 disc_neighbours: 6,
+                keypoints_seen_moving: false,
                 segments: true,
                 segment_radius: segments.radius,
                 segment_radius_metres: segments.radius_metres,
@@ -491,6 +513,7 @@ impl Default for DenseConfig {
                 free_space_far_seconds: free_space.far_seconds,
                 free_space_stride: free_space.stride,
                 map_min_weight: 0.0,
+                map_release_bodies: false,
             },
             outputs: DenseOutputs {
                 mesh: true,
@@ -611,6 +634,7 @@ impl DenseConfig {
             depth_behind: self.masks.depth_behind,
             skip_behind_objects: !self.masks.discs_behind_objects,
             disc_neighbours: self.masks.disc_neighbours,
+            keypoints_seen_moving: self.masks.keypoints_seen_moving,
             segments: self.masks.segments.then(|| {
                 let settings = SegmentSettings {
                     radius: self.masks.segment_radius,
@@ -632,6 +656,7 @@ impl DenseConfig {
             max_depth: self.tsdf.max_depth,
             max_weight: self.tsdf.max_weight,
             carve: self.tsdf.carve,
+            far_carves: self.tsdf.far_carves,
             margin: self.tsdf.image_margin,
         }
     }

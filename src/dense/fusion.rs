@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::cloud::CloudBuilder;
 use super::free_space::{NeighbourWindow, PosedDepth};
 use super::inputs::{frame_depth, groups, load_group, sequence_frame};
-use super::mask_layers::MaskLayers;
+use super::mask_layers::{MapRelease, MaskLayers};
 use super::masks::MaskSource;
 use super::outputs::save_png;
 use super::report::DenseStages;
@@ -223,10 +223,13 @@ fn frame_mask(
         &frame.pose,
         evidence.as_ref(),
     );
-    let min_weight = config.masks.map_min_weight;
-    if let (Some(m), Some(volume), true) = (&mut layers, sinks.volume.as_deref(), min_weight > 0.0)
-    {
-        fused.released += m.release_on_map(posed, &inputs.camera, volume, min_weight);
+    let release = MapRelease {
+        min_weight: config.masks.map_min_weight,
+        bodies: config.masks.map_release_bodies,
+    };
+    let on = release.min_weight > 0.0;
+    if let (Some(m), Some(volume), true) = (&mut layers, sinks.volume.as_deref(), on) {
+        fused.released += m.release_on_map(posed, &inputs.camera, volume, release);
     }
     add_since(&mut fused.stages.masks_s, start);
     Ok(layers)
@@ -271,7 +274,12 @@ fn side_outputs(
         .filter(|_| fused_before.is_multiple_of(config.outputs.mask_pictures_every))
     {
         let truth = ids.as_ref().map(|i| i.as_raw().as_slice());
-        let picture = render::mask_picture(input.colour, input.dynamic, truth);
+        let picture = render::mask_picture(render::MaskPicture {
+            colour: input.colour,
+            mask: input.dynamic,
+            truth,
+            sources,
+        });
         save_png(&dir.join(format!("{timestamp:.6}.png")), &picture)?;
     }
     Ok(())

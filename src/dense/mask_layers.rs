@@ -62,6 +62,24 @@ impl MaskLayer {
         }
     }
 
+    /// Its colour in a mask picture without truth ([`super::render::mask_picture`]).
+    pub fn colour(self) -> [u8; 3] {
+        match self {
+            MaskLayer::Objects => [255, 255, 255],
+            MaskLayer::ObjectBand => [120, 170, 255],
+            MaskLayer::Discs => [230, 60, 230],
+            MaskLayer::FreeSpace => [0, 220, 220],
+            MaskLayer::Segments => [255, 150, 0],
+            MaskLayer::Dilation => [130, 130, 130],
+            MaskLayer::MapAgrees => [40, 90, 40],
+        }
+    }
+
+    /// The first source (in [`MaskLayer::ALL`]'s order) among a pixel's `bits`.
+    pub fn first_of(bits: u8) -> Option<MaskLayer> {
+        MaskLayer::ALL.into_iter().find(|l| bits & l.bit() != 0)
+    }
+
     /// Its name in `dense.json`.
     pub fn name(self) -> &'static str {
         match self {
@@ -74,6 +92,16 @@ impl MaskLayer {
             MaskLayer::MapAgrees => "map_agrees",
         }
     }
+}
+
+/// Which masked pixels the static map releases ([`MaskLayers::release_on_map`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapRelease {
+    /// The map's weight (frames) a pixel's depth must meet on its surface.
+    pub min_weight: f32,
+    /// A detected object's body pixels too (the floor at a walker's feet, a desk
+    /// beside them at the same depth), not only the other sources'.
+    pub bodies: bool,
 }
 
 /// A frame's mask and the sources of its pixels.
@@ -117,23 +145,28 @@ impl MaskLayers {
     }
 
     /// Fuses the masked pixels of `frame` whose depth lies on the static map
-    /// `volume` holds with at least `min_weight` (up to half a truncation in front of
-    /// its surface, [`TsdfVolume::on_surface`]); how many. A mover stands in front of
-    /// the static scene, or where the map holds nothing yet. Pixels on a detected
-    /// object's body or seen moving by the frames around stay masked whatever the map
-    /// says: a mover the map let in once (a leak) would otherwise let itself in again.
+    /// `volume` holds with at least `release.min_weight` (up to half a truncation in
+    /// front of its surface, [`TsdfVolume::on_surface`]); how many. A mover stands in
+    /// front of the static scene, or where the map holds nothing yet. Pixels seen
+    /// moving by the frames around stay masked whatever the map says, and so do those
+    /// of a detected object's body unless `release.bodies`: a mover the map let in
+    /// once (a leak) would otherwise let itself in again.
     pub fn release_on_map(
         &mut self,
         frame: PosedDepth,
         camera: &PinholeCamera,
         volume: &TsdfVolume,
-        min_weight: f32,
+        release: MapRelease,
     ) -> u64 {
         let depth = frame.depth;
         let w = depth.width as usize;
         let world_from_camera = frame.camera_from_world.inverse();
         let max_depth = volume.settings.max_depth as f32;
-        let kept = MaskLayer::Objects.bit() | MaskLayer::FreeSpace.bit();
+        let min_weight = release.min_weight;
+        let kept = match release.bodies {
+            true => MaskLayer::FreeSpace.bit(),
+            false => MaskLayer::Objects.bit() | MaskLayer::FreeSpace.bit(),
+        };
         let sources = &self.sources;
         let released: Vec<usize> = self
             .dynamic
@@ -240,7 +273,7 @@ mod tests {
     /// A wall 2 m away fused from a few frames; then a frame with a ball in front of
     /// it and the whole image masked by discs: the wall's pixels lie on the map and
     /// are released, the ball's are not; with too high a weight nothing is, and a
-    /// detected body never is.
+    /// detected body's pixels only with `bodies`.
     #[test]
     fn masked_pixels_on_the_static_map_are_fused() {
         use crate::dense::tsdf::tests::{looking_at, render_depth, small_camera};
@@ -273,9 +306,13 @@ mod tests {
             camera_from_world: &pose,
         };
         let mut strict = masked();
-        assert_eq!(strict.release_on_map(frame, &camera, &volume, 5.0), 0);
+        let release = |min_weight, bodies| MapRelease { min_weight, bodies };
+        assert_eq!(
+            strict.release_on_map(frame, &camera, &volume, release(5.0, false)),
+            0
+        );
         let mut layers = masked();
-        let released = layers.release_on_map(frame, &camera, &volume, 3.0);
+        let released = layers.release_on_map(frame, &camera, &volume, release(3.0, false));
         let centre = 60 * w + 80;
         let corner = 10 * w + 10;
         assert!(layers.dynamic[centre], "the ball stays masked");
@@ -286,7 +323,15 @@ mod tests {
         // The image's outermost pixels fall outside the margin the volume keeps free.
         assert!(released as usize > (w * h - on_ball) * 6 / 10, "{released}");
         assert_eq!(layers.masked() as usize, w * h - released as usize);
-        let mut body = MaskLayers::dilated(vec![MaskLayer::Objects.bit(); w * h], size, 0, None);
-        assert_eq!(body.release_on_map(frame, &camera, &volume, 3.0), 0);
+        let body = || MaskLayers::dilated(vec![MaskLayer::Objects.bit(); w * h], size, 0, None);
+        assert_eq!(
+            body().release_on_map(frame, &camera, &volume, release(3.0, false)),
+            0
+        );
+        let mut bodies = body();
+        let released = bodies.release_on_map(frame, &camera, &volume, release(3.0, true));
+        assert!(bodies.dynamic[centre], "the ball stays masked as a body");
+        assert!(!bodies.dynamic[corner], "the wall in its box is fused");
+        assert!(released as usize > (w * h - on_ball) * 6 / 10, "{released}");
     }
 }

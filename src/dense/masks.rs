@@ -61,6 +61,9 @@ pub struct MaskSettings {
     /// A disc only around a dynamic keypoint with at least this many other dynamic
     /// keypoints within `4 * keypoint_radius` pixels (0: every one).
     pub disc_neighbours: usize,
+    /// With free-space evidence, discs and segments only around the dynamic keypoints
+    /// with a pixel seen moving within `keypoint_radius` of them.
+    pub keypoints_seen_moving: bool,
     /// Grow depth segments from the dynamic keypoints outside every object's box, and
     /// follow them for this many seconds after a keypoint last supported them.
     pub segments: Option<(SegmentSettings, f64)>,
@@ -292,6 +295,17 @@ impl MaskSource {
         let mut any = self.object_masks(sources, depth, &objects);
         let keypoints = self.frame_keypoints(timestamp);
         let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
+        let gate = self.settings.keypoints_seen_moving;
+        let radius = self.settings.keypoint_radius as f32;
+        let shown: Vec<[f32; 3]> = match evidence.filter(|_| gate) {
+            Some(e) => keypoints
+                .iter()
+                .filter(|p| moving_within(e, (w, h), p, radius))
+                .copied()
+                .collect(),
+            None => keypoints.to_vec(),
+        };
+        let keypoints = shown.as_slice();
         any |= self.keypoint_discs(sources, depth, keypoints, &objects, &keep);
         if let Some(e) = evidence {
             for (m, &moving) in sources.iter_mut().zip(&e.moving) {
@@ -461,6 +475,26 @@ impl MaskSource {
             .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
             .map_or(&[], |k| &k.points)
     }
+}
+
+/// Whether a pixel within `radius` of keypoint `p` was seen moving.
+fn moving_within(evidence: &Evidence, size: (usize, usize), p: &[f32; 3], radius: f32) -> bool {
+    let (w, h) = size;
+    let (x, y) = (p[0].round() as i64, p[1].round() as i64);
+    let r = radius.ceil() as i64;
+    let r2 = radius * radius;
+    (-r..=r).any(|dv| {
+        let v = y + dv;
+        v >= 0
+            && (v as usize) < h
+            && (-r..=r).any(|du| {
+                let u = x + du;
+                u >= 0
+                    && (u as usize) < w
+                    && (du * du + dv * dv) as f32 <= r2
+                    && evidence.moving[v as usize * w + u as usize]
+            })
+    })
 }
 
 /// Which disc pixels `(u, v)` to mask: all without `evidence`; with it, none that the
@@ -915,6 +949,7 @@ mod tests {
                 depth_behind: 0.4,
                 skip_behind_objects: false,
                 disc_neighbours: 0,
+                keypoints_seen_moving: false,
                 segments: None,
             };
             person_mask([250.0, 80.0, 640.0, 480.0], &[], settings)
@@ -945,6 +980,7 @@ mod tests {
                 depth_behind: 0.4,
                 skip_behind_objects,
                 disc_neighbours: 0,
+                keypoints_seen_moving: false,
                 segments: None,
             };
             let keypoints = [[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]];
@@ -972,6 +1008,7 @@ mod tests {
             depth_behind: 0.4,
             skip_behind_objects: true,
             disc_neighbours: 2,
+            keypoints_seen_moving: false,
             // The slab is 360 pixels tall.
             segments: Some((
                 SegmentSettings {
@@ -1034,6 +1071,7 @@ mod tests {
             depth_behind: 0.4,
             skip_behind_objects: false,
             disc_neighbours: 0,
+            keypoints_seen_moving: false,
             segments: None,
         };
         let identity = Se3::identity();
@@ -1199,6 +1237,7 @@ mod tests {
                 depth_behind,
                 skip_behind_objects: false,
                 disc_neighbours: 0,
+                keypoints_seen_moving: false,
                 segments: None,
             };
             let source = scene_source(settings, Vec::new(), Vec::new());

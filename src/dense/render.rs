@@ -5,6 +5,7 @@
 use image::{Rgb, RgbImage};
 use nalgebra::{Matrix3, Point3, Vector3};
 
+use super::mask_layers::MaskLayer;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::mesh::Mesh;
 use crate::geometry::se3::{self, Se3};
@@ -199,24 +200,48 @@ pub fn label(picture: &mut RgbImage, text: &str) {
     let _ = root.present();
 }
 
-/// A fused frame's mask beside the frame: against the ground-truth instance ids of a
-/// synthetic frame (0: static), green where a mover is masked, red where the static
-/// scene is masked, yellow where a mover is fused, black elsewhere; without the truth,
-/// white where masked.
-pub fn mask_picture(colour: &RgbImage, mask: Option<&[bool]>, truth: Option<&[u16]>) -> RgbImage {
+/// A fused frame's mask beside the frame. Against the ground-truth instance ids of a
+/// synthetic frame (0: static): green where a mover is masked, red where the static
+/// scene is masked, yellow where a mover is fused, black elsewhere. Without the truth,
+/// each masked pixel in its first source's colour ([`MaskLayer::colour`]; white
+/// without `sources`) and a pixel the static map released in dark green.
+pub fn mask_picture(picture: MaskPicture) -> RgbImage {
+    let MaskPicture {
+        colour,
+        mask,
+        truth,
+        sources,
+    } = picture;
     let (w, h) = colour.dimensions();
     let masked = |i: usize| mask.is_some_and(|m| m[i]);
+    let source = |i: usize| sources.and_then(|s| MaskLayer::first_of(s[i]));
     let picture = RgbImage::from_fn(w, h, |u, v| {
         let i = (v * w + u) as usize;
         match (masked(i), truth.map(|t| t[i] != 0)) {
             (true, Some(true)) => Rgb([0, 200, 0]),
             (true, Some(false)) => Rgb([220, 0, 0]),
             (false, Some(true)) => Rgb([255, 230, 0]),
-            (true, None) => Rgb([255, 255, 255]),
+            (true, None) => Rgb(source(i).map_or([255, 255, 255], MaskLayer::colour)),
+            (false, None) if source(i) == Some(MaskLayer::MapAgrees) => {
+                Rgb(MaskLayer::MapAgrees.colour())
+            }
             (false, _) => Rgb([0, 0, 0]),
         }
     });
     side_by_side(colour, &picture)
+}
+
+/// What [`mask_picture`] draws: the frame, its mask, and optionally the truth's
+/// instance ids and the mask's sources ([`MaskLayer::bit`]s), a value per pixel.
+pub struct MaskPicture<'a> {
+    /// The frame.
+    pub colour: &'a RgbImage,
+    /// Its mask (true: masked).
+    pub mask: Option<&'a [bool]>,
+    /// A synthetic frame's instance ids (0: static).
+    pub truth: Option<&'a [u16]>,
+    /// Each pixel's [`MaskLayer::bit`]s.
+    pub sources: Option<&'a [u8]>,
 }
 
 /// A map's colours with the flagged points (ghosts) in red.
@@ -255,7 +280,12 @@ mod tests {
         let colour = RgbImage::from_pixel(2, 2, Rgb([9, 9, 9]));
         let mask = [true, true, false, false];
         let truth = [3u16, 0, 3, 0];
-        let picture = mask_picture(&colour, Some(&mask), Some(&truth));
+        let picture = mask_picture(MaskPicture {
+            colour: &colour,
+            mask: Some(&mask),
+            truth: Some(&truth),
+            sources: None,
+        });
         assert_eq!(picture.dimensions(), (2 + 8 + 2, 2));
         let at = |u: u32, v: u32| picture.get_pixel(10 + u, v).0;
         assert_eq!(at(0, 0), [0, 200, 0], "mover masked");
@@ -267,8 +297,26 @@ mod tests {
             [9, 9, 9],
             "the frame on the left"
         );
-        let plain = mask_picture(&colour, Some(&mask), None);
+        let plain = mask_picture(MaskPicture {
+            colour: &colour,
+            mask: Some(&mask),
+            truth: None,
+            sources: None,
+        });
         assert_eq!(plain.get_pixel(10, 0).0, [255, 255, 255]);
+        let (discs, band) = (MaskLayer::Discs.bit(), MaskLayer::ObjectBand.bit());
+        let map = MaskLayer::MapAgrees.bit();
+        let by_source = mask_picture(MaskPicture {
+            colour: &colour,
+            mask: Some(&mask),
+            truth: None,
+            sources: Some(&[discs | band, 0, map, 0]),
+        });
+        let at = |u: u32, v: u32| by_source.get_pixel(10 + u, v).0;
+        assert_eq!(at(0, 0), MaskLayer::ObjectBand.colour(), "the first source");
+        assert_eq!(at(1, 0), [255, 255, 255], "masked, no source known");
+        assert_eq!(at(0, 1), MaskLayer::MapAgrees.colour(), "released");
+        assert_eq!(at(1, 1), [0, 0, 0], "fused");
     }
 
     #[test]

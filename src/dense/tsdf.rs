@@ -73,6 +73,12 @@ pub struct TsdfSettings {
     pub max_weight: f32,
     /// Walk rays through free space to carve existing blocks in front of the surface.
     pub carve: bool,
+    /// A depth beyond `max_depth` fuses no surface but carves its ray up to
+    /// `max_depth` (voxblox's `allow_clear`). Without it, a pixel that flickers
+    /// between a surface just within `max_depth` and one beyond it keeps only the near
+    /// one: the real IST recording kept 2556 mesh vertices at 3-4 m in front of the
+    /// background, 383 with it (docs/design.md).
+    pub far_carves: bool,
     /// Pixels this close to the image border (pixels) fuse no surface, as masked
     /// pixels do; their free space still carves. A person cut by the border to a sliver
     /// a few pixels wide is found by no detector, and what no later frame sees through
@@ -94,6 +100,7 @@ impl Default for TsdfSettings {
             max_depth: 4.0,
             max_weight: 64.0,
             carve: true,
+            far_carves: true,
             margin: 8,
         }
     }
@@ -399,11 +406,12 @@ impl TsdfVolume {
         let block_size = self.block_size();
         let radius = 0.5 * block_size * 3f64.sqrt();
         let (tau, max_depth) = (self.settings.truncation, self.settings.max_depth);
+        let far_carves = self.settings.far_carves;
         let pose = frame.camera_from_world;
         let depth_at = |u: f64, v: f64| {
             let (u, v) = (u.clamp(0.0, w - 1.0), v.clamp(0.0, h - 1.0));
             let d = frame.depth.metres[v as usize * w as usize + u as usize] as f64;
-            if d > 0.0 && d <= max_depth {
+            if d > 0.0 && (d <= max_depth || far_carves) {
                 d
             } else {
                 0.0
@@ -465,6 +473,7 @@ fn integrate_block(
     let tau = settings.truncation as f32;
     let inv_tau = 1.0 / tau;
     let max_depth = settings.max_depth as f32;
+    let far_carves = settings.far_carves;
     let Projected { pixels, zs, rims } = project_block(coord, block_size, settings, camera, frame);
     // The measured depth at each voxel's pixel (0: none), and whether a mask marks
     // that pixel dynamic (or it lies in the border margin, which fuses no surface).
@@ -477,12 +486,15 @@ fn integrate_block(
     {
         let i = (pixel as usize).min(last);
         let value = depth[i];
-        *d = if pixel == NONE || value > max_depth {
+        // Beyond `max_depth` a pixel fuses no surface; with `far_carves` the ray to it
+        // still carves (as a masked pixel's does).
+        let far = value > max_depth;
+        *d = if pixel == NONE || (far && !far_carves) {
             0.0
         } else {
             value
         };
-        *moving = rim || frame.dynamic.is_some_and(|m| m[i]);
+        *moving = rim || far || frame.dynamic.is_some_and(|m| m[i]);
     }
     // \(\eta = d - z\) updates a voxel where \(d > 0\) and \(\eta \ge -\tau\); at a
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
@@ -696,6 +708,31 @@ pub(crate) mod tests {
             !volume.seen_through(&Vector3::new(5.0, 5.0, 5.0), 0.5),
             "never seen"
         );
+    }
+
+    #[test]
+    fn depth_beyond_max_depth_carves_only_with_far_carves() {
+        let (settings, ball, views) = ball_before_a_wall();
+        let front = Vector3::new(0.0, 0.0, 1.0);
+        for far_carves in [true, false] {
+            // The wall at 2 m lies beyond max_depth: it fuses nothing either way.
+            let settings = TsdfSettings {
+                max_depth: 1.5,
+                far_carves,
+                ..settings
+            };
+            let mut volume = TsdfVolume::new(settings, small_camera());
+            fuse_views(&mut volume, &views, &[ball], Some(2.0));
+            assert!(!volume.seen_through(&front, 0.5), "the ball is there");
+            for _ in 0..3 {
+                fuse_views(&mut volume, &views, &[], Some(2.0));
+            }
+            assert_eq!(
+                volume.seen_through(&front, 0.5),
+                far_carves,
+                "far_carves = {far_carves}: rays to the far wall carve the ball"
+            );
+        }
     }
 
     #[test]
