@@ -232,9 +232,9 @@ pub struct DenseMasks {
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
     /// stands in front of the map, or where the map has nothing yet. 0: off.
     pub map_min_weight: f32,
-    /// The map also releases a detected object's body pixels (the floor at a
-    /// walker's feet, a desk beside them at their depth); a body in front of the map
-    /// stays masked.
+    /// The map also releases a detected object's body pixels that the free-space
+    /// evidence saw still (the floor at a walker's feet, a desk beside them at their
+    /// depth); a body in front of the map, or seen moving, stays masked.
     pub map_release_bodies: bool,
 }
 
@@ -502,7 +502,7 @@ impl Default for DenseConfig {
                 depth_behind: 0.6,
                 discs_behind_objects: true,
                 disc_neighbours: 6,
-                keypoints_seen_moving: false,
+                keypoints_seen_moving: true,
                 segments: true,
                 segment_radius: segments.radius,
                 segment_radius_metres: segments.radius_metres,
@@ -512,7 +512,7 @@ impl Default for DenseConfig {
                 free_space_seconds: free_space.seconds,
                 free_space_far_seconds: free_space.far_seconds,
                 free_space_stride: free_space.stride,
-                map_min_weight: 0.0,
+                map_min_weight: 10.0,
                 map_release_bodies: false,
             },
             outputs: DenseOutputs {

@@ -223,9 +223,10 @@ fn frame_mask(
         &frame.pose,
         evidence.as_ref(),
     );
+    let still = evidence.as_ref().map(|e| e.still.as_slice());
     let release = MapRelease {
         min_weight: config.masks.map_min_weight,
-        bodies: config.masks.map_release_bodies,
+        bodies_still: still.filter(|_| config.masks.map_release_bodies),
     };
     let on = release.min_weight > 0.0;
     if let (Some(m), Some(volume), true) = (&mut layers, sinks.volume.as_deref(), on) {

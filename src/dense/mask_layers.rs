@@ -96,12 +96,13 @@ impl MaskLayer {
 
 /// Which masked pixels the static map releases ([`MaskLayers::release_on_map`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MapRelease {
+pub struct MapRelease<'a> {
     /// The map's weight (frames) a pixel's depth must meet on its surface.
     pub min_weight: f32,
-    /// A detected object's body pixels too (the floor at a walker's feet, a desk
-    /// beside them at the same depth), not only the other sources'.
-    pub bodies: bool,
+    /// Per pixel, whether the frames around saw it still ([`Evidence::still`]): a
+    /// detected object's body pixels seen still are released too (the floor at a
+    /// walker's feet, a desk beside them at the same depth). `None`: no body pixel.
+    pub bodies_still: Option<&'a [bool]>,
 }
 
 /// A frame's mask and the sources of its pixels.
@@ -149,8 +150,8 @@ impl MaskLayers {
     /// front of its surface, [`TsdfVolume::on_surface`]); how many. A mover stands in
     /// front of the static scene, or where the map holds nothing yet. Pixels seen
     /// moving by the frames around stay masked whatever the map says, and so do those
-    /// of a detected object's body unless `release.bodies`: a mover the map let in
-    /// once (a leak) would otherwise let itself in again.
+    /// of a detected object's body unless `release.bodies_still` says they were seen
+    /// still: a mover the map let in once (a leak) would otherwise let itself in again.
     pub fn release_on_map(
         &mut self,
         frame: PosedDepth,
@@ -163,9 +164,10 @@ impl MaskLayers {
         let world_from_camera = frame.camera_from_world.inverse();
         let max_depth = volume.settings.max_depth as f32;
         let min_weight = release.min_weight;
-        let kept = match release.bodies {
-            true => MaskLayer::FreeSpace.bit(),
-            false => MaskLayer::Objects.bit() | MaskLayer::FreeSpace.bit(),
+        let body = MaskLayer::Objects.bit();
+        let kept = |i: usize, bits: u8| {
+            bits & MaskLayer::FreeSpace.bit() != 0
+                || (bits & body != 0 && !release.bodies_still.is_some_and(|s| s[i]))
         };
         let sources = &self.sources;
         let released: Vec<usize> = self
@@ -177,7 +179,7 @@ impl MaskLayers {
                 row.iter().enumerate().filter_map(move |(u, &masked)| {
                     let i = v * w + u;
                     let d = depth.metres[i];
-                    if !masked || d <= 0.0 || d > max_depth || sources[i] & kept != 0 {
+                    if !masked || d <= 0.0 || d > max_depth || kept(i, sources[i]) {
                         return None;
                     }
                     let d = f64::from(d);
@@ -273,7 +275,7 @@ mod tests {
     /// A wall 2 m away fused from a few frames; then a frame with a ball in front of
     /// it and the whole image masked by discs: the wall's pixels lie on the map and
     /// are released, the ball's are not; with too high a weight nothing is, and a
-    /// detected body's pixels only with `bodies`.
+    /// detected body's pixels only where seen still.
     #[test]
     fn masked_pixels_on_the_static_map_are_fused() {
         use crate::dense::tsdf::tests::{looking_at, render_depth, small_camera};
@@ -306,7 +308,11 @@ mod tests {
             camera_from_world: &pose,
         };
         let mut strict = masked();
-        let release = |min_weight, bodies| MapRelease { min_weight, bodies };
+        let still = vec![true; w * h];
+        let release = |min_weight, bodies: bool| MapRelease {
+            min_weight,
+            bodies_still: bodies.then_some(still.as_slice()),
+        };
         assert_eq!(
             strict.release_on_map(frame, &camera, &volume, release(5.0, false)),
             0

@@ -62,7 +62,8 @@ pub struct MaskSettings {
     /// keypoints within `4 * keypoint_radius` pixels (0: every one).
     pub disc_neighbours: usize,
     /// With free-space evidence, discs and segments only around the dynamic keypoints
-    /// with a pixel seen moving within `keypoint_radius` of them.
+    /// with a pixel seen moving within `keypoint_radius` of them (and only those count
+    /// as a disc's neighbours).
     pub keypoints_seen_moving: bool,
     /// Grow depth segments from the dynamic keypoints outside every object's box, and
     /// follow them for this many seconds after a keypoint last supported them.
@@ -992,6 +993,51 @@ mod tests {
         assert!(!at(&skipped, 240, 300), "behind the person");
         assert!(at(&skipped, 100, 300), "outside any box");
         assert!(at(&skipped, 320, 300), "the person");
+    }
+
+    /// With `keypoints_seen_moving`, a dynamic keypoint draws its disc only where the
+    /// free-space evidence saw a pixel move within the disc's radius: the one on the
+    /// slab (a few pixels beside it seen moving) keeps its disc, the one on the wall
+    /// (seen moving nowhere) loses it.
+    #[test]
+    fn discs_only_around_keypoints_seen_moving() {
+        let (camera, depth) = scene();
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let mut moving = vec![false; w * h];
+        for (u, v) in [(303, 262), (304, 262), (303, 263)] {
+            moving[v * w + u] = true;
+        }
+        let evidence = Evidence {
+            moving,
+            still: vec![false; w * h],
+        };
+        let mask_with = |keypoints_seen_moving| {
+            let settings = MaskSettings {
+                border: 0,
+                keypoint_radius: 5,
+                foreground_share: 0.1,
+                depth_behind: 0.4,
+                skip_behind_objects: true,
+                disc_neighbours: 0,
+                keypoints_seen_moving,
+                segments: None,
+            };
+            let keypoints = vec![FrameKeypoints {
+                timestamp: 1.0,
+                points: vec![[300.0, 260.0, 1.5], [60.0, 60.0, 3.0]],
+            }];
+            let mut source = scene_source(settings, vec![], keypoints);
+            let identity = Se3::identity();
+            source
+                .mask(1.0, &depth, &identity, Some(&evidence))
+                .expect("a mask")
+        };
+        let every = mask_with(false);
+        assert!(at(&every, 300, 256) && at(&every, 60, 60), "both discs");
+        let gated = mask_with(true);
+        assert!(at(&gated, 300, 256), "the slab's disc");
+        assert!(!at(&gated, 60, 60), "no disc on the wall");
+        assert!(at(&gated, 303, 262), "the pixel seen moving");
     }
 
     /// A mover no detector knows (the slab of [`scene`], no detection): two dynamic
