@@ -243,6 +243,9 @@ pub struct StereoConfig {
     /// `max_depth` is a pixel or two, where a mismatch on a blank wall would carve the
     /// wall.
     pub far_carves: bool,
+    /// `dense.mask_map_min_weight`: 0 (off) by default, since it was measured on
+    /// RGB-D only.
+    pub mask_map_min_weight: f32,
     /// `dense.mask_free_space_seconds`: off by default, since each fused pair would
     /// need two more pairs matched, and the depth tolerance is a depth sensor's.
     pub mask_free_space_seconds: f64,
@@ -281,6 +284,7 @@ impl Default for StereoConfig {
             cloud_voxel: 0.1,
             allocate_first: false,
             far_carves: false,
+            mask_map_min_weight: 0.0,
             mask_free_space_seconds: 0.0,
             wait_near_boxes_only: true,
             sgbm_disparities: 128,
@@ -377,6 +381,12 @@ impl StereoConfig {
             self.mask_free_space_seconds,
             d_masks.free_space_seconds,
         );
+        p.set(
+            "dense.mask_map_min_weight",
+            &mut masks.map_min_weight,
+            self.mask_map_min_weight,
+            d_masks.map_min_weight,
+        );
         p
     }
 
@@ -398,6 +408,7 @@ impl StereoConfig {
             checks::non_negative,
             &[
                 ("mask_free_space_seconds", self.mask_free_space_seconds),
+                ("mask_map_min_weight", self.mask_map_min_weight.into()),
                 ("bearing_baselines", self.bearing_baselines),
             ],
         )?;
