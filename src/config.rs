@@ -973,7 +973,10 @@ mod tests {
         let profile = profile.expect("a stereo profile");
         assert_eq!(stereo.dense.tsdf.voxel, 0.2);
         assert_eq!(stereo.orb.n_features, config.stereo.n_features);
-        assert_eq!(profile.set.len(), 10, "{:?}", profile.set);
+        assert_eq!(profile.set.len(), 12, "{:?}", profile.set);
+        assert!(profile
+            .set
+            .contains(&"dense.far_carves = false".to_string()));
         assert!(profile.set.contains(&"dense.voxel = 0.2".to_string()));
         // The config's own [dense] voxel is named; the defaults it never set are not.
         assert_eq!(

@@ -968,6 +968,20 @@ mod tests {
         );
     }
 
+    /// Discs of radius 5 around every dynamic keypoint, no border, no segments.
+    fn disc_settings() -> MaskSettings {
+        MaskSettings {
+            border: 0,
+            keypoint_radius: 5,
+            foreground_share: 0.1,
+            depth_behind: 0.4,
+            skip_behind_objects: true,
+            disc_neighbours: 0,
+            keypoints_seen_moving: false,
+            segments: None,
+        }
+    }
+
     /// A dynamic keypoint on the wall inside a detected person's box, behind the
     /// person: its disc is drawn unless discs behind objects are off; one outside any
     /// box keeps its disc either way.
@@ -975,14 +989,8 @@ mod tests {
     fn discs_behind_a_detected_mover_can_be_left_out() {
         let mask_with = |skip_behind_objects| {
             let settings = MaskSettings {
-                border: 0,
-                keypoint_radius: 5,
-                foreground_share: 0.1,
-                depth_behind: 0.4,
                 skip_behind_objects,
-                disc_neighbours: 0,
-                keypoints_seen_moving: false,
-                segments: None,
+                ..disc_settings()
             };
             let keypoints = [[240.0, 300.0, 3.0], [100.0, 300.0, 3.0]];
             person_mask([230.0, 80.0, 410.0, 470.0], &keypoints, settings)
@@ -1013,14 +1021,8 @@ mod tests {
         };
         let mask_with = |keypoints_seen_moving| {
             let settings = MaskSettings {
-                border: 0,
-                keypoint_radius: 5,
-                foreground_share: 0.1,
-                depth_behind: 0.4,
-                skip_behind_objects: true,
-                disc_neighbours: 0,
                 keypoints_seen_moving,
-                segments: None,
+                ..disc_settings()
             };
             let keypoints = vec![FrameKeypoints {
                 timestamp: 1.0,
