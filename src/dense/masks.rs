@@ -294,19 +294,9 @@ impl MaskSource {
             .filter_map(|object| object.to_box(&self.camera, camera_from_world))
             .collect();
         let mut any = self.object_masks(sources, depth, &objects);
-        let keypoints = self.frame_keypoints(timestamp);
+        let keypoints = self.shown_keypoints(timestamp, evidence, (w, h));
+        let keypoints = keypoints.as_slice();
         let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
-        let gate = self.settings.keypoints_seen_moving;
-        let radius = self.settings.keypoint_radius as f32;
-        let shown: Vec<[f32; 3]> = match evidence.filter(|_| gate) {
-            Some(e) => keypoints
-                .iter()
-                .filter(|p| moving_within(e, (w, h), p, radius))
-                .copied()
-                .collect(),
-            None => keypoints.to_vec(),
-        };
-        let keypoints = shown.as_slice();
         any |= self.keypoint_discs(sources, depth, keypoints, &objects, &keep);
         if let Some(e) = evidence {
             for (m, &moving) in sources.iter_mut().zip(&e.moving) {
@@ -464,6 +454,27 @@ impl MaskSource {
             });
         }
         any
+    }
+
+    /// The dynamic keypoints of the frame at `timestamp` that draw discs and seed
+    /// segments: with `keypoints_seen_moving` and `evidence`, those with a pixel seen
+    /// moving within `keypoint_radius`; otherwise all.
+    fn shown_keypoints(
+        &self,
+        timestamp: f64,
+        evidence: Option<&Evidence>,
+        size: (usize, usize),
+    ) -> Vec<[f32; 3]> {
+        let keypoints = self.frame_keypoints(timestamp);
+        let radius = self.settings.keypoint_radius as f32;
+        match evidence.filter(|_| self.settings.keypoints_seen_moving) {
+            Some(e) => keypoints
+                .iter()
+                .filter(|p| moving_within(e, size, p, radius))
+                .copied()
+                .collect(),
+            None => keypoints.to_vec(),
+        }
     }
 
     /// The dynamic keypoints of the frame at `timestamp` (none if it has no entry).
