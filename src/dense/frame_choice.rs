@@ -63,7 +63,7 @@ fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>
         };
         if adds {
             taken.push(candidate);
-            weights.push(since.max(1) as f32);
+            weights.push(since as f32);
             since = 0;
         }
     }

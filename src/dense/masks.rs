@@ -295,7 +295,7 @@ impl MaskSource {
             .collect();
         let mut any = self.object_masks(sources, depth, &objects);
         let keypoints = self.shown_keypoints(timestamp, evidence, (w, h));
-        let keypoints = keypoints.as_slice();
+        let keypoints = keypoints.as_ref();
         let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
         any |= self.keypoint_discs(sources, depth, keypoints, &objects, &keep);
         if let Some(e) = evidence {
@@ -464,7 +464,7 @@ impl MaskSource {
         timestamp: f64,
         evidence: Option<&Evidence>,
         size: (usize, usize),
-    ) -> Vec<[f32; 3]> {
+    ) -> std::borrow::Cow<'_, [[f32; 3]]> {
         let keypoints = self.frame_keypoints(timestamp);
         let radius = self.settings.keypoint_radius as f32;
         match evidence.filter(|_| self.settings.keypoints_seen_moving) {
@@ -473,7 +473,7 @@ impl MaskSource {
                 .filter(|p| moving_within(e, size, p, radius))
                 .copied()
                 .collect(),
-            None => keypoints.to_vec(),
+            None => keypoints.into(),
         }
     }
 
