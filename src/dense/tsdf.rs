@@ -144,6 +144,10 @@ pub struct Block {
     /// Allocated ahead of integration by [`TsdfVolume::allocate`]: carving reaches it
     /// before it holds a surface, so that free space seen before a mover came counts.
     ahead: bool,
+    /// Every voxel is free space at the weight cap (\(F = 1\), \(W = W_{max}\)), as
+    /// integration left it: a reading that sees the whole block as free space (or does
+    /// not see it) changes nothing, and integration skips it without reading its voxels.
+    free: bool,
     /// The last integration that touched this block.
     stamp: u32,
 }
@@ -157,6 +161,7 @@ impl Block {
             colour_weight: vec![0; BLOCK_VOXELS],
             surface: false,
             ahead: false,
+            free: false,
             stamp: 0,
         }
     }
@@ -454,6 +459,7 @@ fn floor(x: f64) -> i32 {
 /// The pixel nearest to image coordinate `x` in `[0, size)`, clamped: the float
 /// "magic number" rounding (adding \(2^{23}\) leaves the rounded integer in the low
 /// mantissa bits), which unlike `as` has no branches and so vectorises.
+#[inline(always)]
 fn nearest(x: f32, size: f32) -> i32 {
     const MAGIC: f32 = 8_388_608.0;
     ((x.max(0.0).min(size - 1.0) + MAGIC).to_bits() - MAGIC.to_bits()) as i32
@@ -461,6 +467,9 @@ fn nearest(x: f32, size: f32) -> i32 {
 
 /// Fuses one frame into one block. First every voxel's pixel and depth, in a loop
 /// without branches that the compiler vectorises; then the updates, voxel by voxel.
+/// Compiled for AVX2 as well, taken when the CPU has it (the same arithmetic, so the
+/// same result: no fused multiply-add).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
 fn integrate_block(
     block: &mut Block,
     coord: &[i32; 3],
@@ -498,22 +507,39 @@ fn integrate_block(
     }
     // \(\eta = d - z\) updates a voxel where \(d > 0\) and \(\eta \ge -\tau\); at a
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
-    // behind it, but the free space in front of it still carves).
+    // behind it, but the free space in front of it still carves). First on the stack
+    // alone: a block no voxel of which changes is not read (see [`Block::free`]).
+    let mut etas = [0f32; BLOCK_VOXELS];
+    let mut updates = [0f32; BLOCK_VOXELS];
+    let (mut any, mut within) = (false, false);
+    for (((eta, m), &d), (&z, &moving)) in etas
+        .iter_mut()
+        .zip(&mut updates)
+        .zip(&measured)
+        .zip(zs.iter().zip(&moving))
+    {
+        *eta = d - z;
+        let update = (d > 0.0) & (*eta >= -tau) & (!moving | (*eta > tau));
+        any |= update;
+        // A voxel of a free block changes only where this reading is not free space.
+        within |= update & ((*eta <= tau) | (*eta * inv_tau < 1.0));
+        *m = f32::from(u8::from(update));
+    }
+    if !any || (block.free && !within) {
+        return;
+    }
     let max_weight = settings.max_weight;
     let k = frame.weight;
     let sdf = &mut block.sdf[..BLOCK_VOXELS];
     let weight = &mut block.weight[..BLOCK_VOXELS];
-    for ((((f, w), d), &z), &moving) in sdf
+    for ((((f, w), d), &eta), &m) in sdf
         .iter_mut()
         .zip(weight.iter_mut())
         .zip(measured.iter_mut())
-        .zip(&zs)
-        .zip(&moving)
+        .zip(&etas)
+        .zip(&updates)
     {
-        let eta = *d - z;
-        let update = (*d > 0.0) & (eta >= -tau) & (!moving | (eta > tau));
         // Blends with 0/1 factors, not branches, so that this loop vectorises.
-        let m = f32::from(u8::from(update));
         let fused = (*f * *w + k * (eta * inv_tau).min(1.0)) / (*w + k);
         *f += m * (fused - *f);
         *w += m * ((*w + k).min(max_weight) - *w);
@@ -521,11 +547,12 @@ fn integrate_block(
         *d = m * f32::from(u8::from(eta <= tau));
     }
     fuse_colour(block, &pixels, &measured, reciprocals, frame);
-    block.surface = block
-        .sdf
-        .iter()
-        .zip(&block.weight)
-        .any(|(&f, &w)| f < 0.0 && w > 0.0);
+    let (mut surface, mut free) = (false, true);
+    for (&f, &w) in block.sdf.iter().zip(&block.weight) {
+        surface |= (f < 0.0) & (w > 0.0);
+        free &= (f == 1.0) & (w >= max_weight);
+    }
+    (block.surface, block.free) = (surface, free);
 }
 
 /// Where a block's voxels fall in a frame ([`project_block`]).
@@ -541,7 +568,7 @@ const NONE: i32 = -1;
 /// Each voxel of the block at `coord`: the index of its pixel in `frame` (`NONE`
 /// where the camera does not see it), its depth in the camera, and whether its pixel
 /// lies in the border margin. In a loop without branches that the compiler vectorises.
-#[inline]
+#[inline(always)]
 fn project_block(
     coord: &[i32; 3],
     block_size: f64,
@@ -610,7 +637,7 @@ fn project_block(
 }
 
 /// Colour of the voxels whose `flags` are set: the running mean, from their pixels.
-#[inline]
+#[inline(always)]
 fn fuse_colour(
     block: &mut Block,
     pixels: &[i32; BLOCK_VOXELS],
@@ -708,6 +735,44 @@ pub(crate) mod tests {
             !volume.seen_through(&Vector3::new(5.0, 5.0, 5.0), 0.5),
             "never seen"
         );
+    }
+
+    #[test]
+    fn a_free_block_is_skipped_only_while_nothing_in_it_would_change() {
+        let (settings, ball, views) = ball_before_a_wall();
+        let camera = small_camera();
+        let mut volume = TsdfVolume::new(settings, camera);
+        for pose in &views {
+            volume.allocate(&render_depth(&camera, pose, &[ball], Some(2.0)), pose);
+        }
+        // Seen free 30 times, past the weight cap of 20.
+        for _ in 0..3 {
+            fuse_views(&mut volume, &views, &[], Some(2.0));
+        }
+        let front = Vector3::new(0.0, 0.0, ball.0.z - ball.1);
+        let (block, _) = volume.voxel_at(&front).expect("allocated ahead");
+        assert!(block.free, "free space at the weight cap");
+        let before = (
+            block.sdf.clone(),
+            block.weight.clone(),
+            block.colour.clone(),
+        );
+        fuse_views(&mut volume, &views, &[], Some(2.0));
+        let (block, _) = volume.voxel_at(&front).unwrap();
+        let after = (
+            block.sdf.clone(),
+            block.weight.clone(),
+            block.colour.clone(),
+        );
+        assert!(before == after, "more free space changes nothing");
+        fuse_views(&mut volume, &views, &[ball], Some(2.0));
+        let (block, _) = volume.voxel_at(&front).unwrap();
+        assert!(
+            !block.free,
+            "the ball's surface is fused into the free block"
+        );
+        assert!(block.sdf.iter().any(|&f| f < 1.0));
+        assert!(block.colour_weight.iter().any(|&n| n > 0));
     }
 
     #[test]
