@@ -71,7 +71,13 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let run_dir = base.join("run");
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
     let dense = report.dense.clone().expect("the dense pass ran");
-    assert_eq!(dense.frames_fused, report.totals.tracked);
+    // Frames where the camera barely moved are left out (each fused frame counts for
+    // those before it): this slow camera fuses fewer than half.
+    assert_eq!(
+        dense.frames_fused + dense.frames_left_still,
+        report.totals.tracked
+    );
+    assert!(dense.frames_fused < report.totals.tracked, "{dense:?}");
     // report.json ends with the dense pass and each stage's time against the
     // recording's (150 frames at 30 fps: 5 s).
     let written: serde_json::Value =
