@@ -509,22 +509,12 @@ fn integrate_block(
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
     // behind it, but the free space in front of it still carves). First on the stack
     // alone: a block no voxel of which changes is not read (see [`Block::free`]).
-    let mut etas = [0f32; BLOCK_VOXELS];
-    let mut updates = [0f32; BLOCK_VOXELS];
-    let (mut any, mut within) = (false, false);
-    for (((eta, m), &d), (&z, &moving)) in etas
-        .iter_mut()
-        .zip(&mut updates)
-        .zip(&measured)
-        .zip(zs.iter().zip(&moving))
-    {
-        *eta = d - z;
-        let update = (d > 0.0) & (*eta >= -tau) & (!moving | (*eta > tau));
-        any |= update;
-        // A voxel of a free block changes only where this reading is not free space.
-        within |= update & ((*eta <= tau) | (*eta * inv_tau < 1.0));
-        *m = f32::from(u8::from(update));
-    }
+    let Updates {
+        etas,
+        updates,
+        any,
+        within,
+    } = updates(&measured, &zs, &moving, tau);
     if !any || (block.free && !within) {
         return;
     }
@@ -553,6 +543,52 @@ fn integrate_block(
         free &= (f == 1.0) & (w >= max_weight);
     }
     (block.surface, block.free) = (surface, free);
+}
+
+/// Which voxels of a block a frame updates ([`updates`]).
+struct Updates {
+    /// \(\eta = d - z\) per voxel.
+    etas: [f32; BLOCK_VOXELS],
+    /// 1 where the voxel is updated, else 0.
+    updates: [f32; BLOCK_VOXELS],
+    /// Some voxel is updated.
+    any: bool,
+    /// Some voxel is updated with a reading that is not free space (\(\eta \le \tau\)
+    /// or \(\eta / \tau < 1\)): the only updates that change a free block.
+    within: bool,
+}
+
+/// The updates of [`integrate_block`] from each voxel's `measured` depth (0: none), its
+/// depth `zs` in the camera and whether its pixel is `moving` (masked), with
+/// truncation `tau`.
+#[inline(always)]
+fn updates(
+    measured: &[f32; BLOCK_VOXELS],
+    zs: &[f32; BLOCK_VOXELS],
+    moving: &[bool; BLOCK_VOXELS],
+    tau: f32,
+) -> Updates {
+    let inv_tau = 1.0 / tau;
+    let mut out = Updates {
+        etas: [0.0; BLOCK_VOXELS],
+        updates: [0.0; BLOCK_VOXELS],
+        any: false,
+        within: false,
+    };
+    for (((eta, m), &d), (&z, &moving)) in out
+        .etas
+        .iter_mut()
+        .zip(&mut out.updates)
+        .zip(measured)
+        .zip(zs.iter().zip(moving))
+    {
+        *eta = d - z;
+        let update = (d > 0.0) & (*eta >= -tau) & (!moving | (*eta > tau));
+        out.any |= update;
+        out.within |= update & ((*eta <= tau) | (*eta * inv_tau < 1.0));
+        *m = f32::from(u8::from(update));
+    }
+    out
 }
 
 /// Where a block's voxels fall in a frame ([`project_block`]).
