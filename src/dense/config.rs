@@ -493,7 +493,7 @@ impl Default for DenseConfig {
             detections: DenseDetections {
                 every: 5,
                 model: DenseModel::Tracking,
-                tiles: 2,
+                tiles: 1,
             },
             masks: DenseMasks {
                 border: 6,
