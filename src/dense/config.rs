@@ -468,8 +468,8 @@ impl Default for DenseConfig {
             frames: DenseFrames {
                 which: FrameChoice::All,
                 step: 1,
-                min_translation: 0.01,
-                min_rotation: 0.5,
+                min_translation: 0.02,
+                min_rotation: 1.0,
                 max_gap: 3,
             },
             tsdf: DenseTsdf {

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::cloud::CloudBuilder;
-use super::free_space::{NeighbourWindow, PosedDepth};
-use super::inputs::{frame_depth, groups, load_group, sequence_frame};
+use super::free_space::{Evidence, NeighbourWindow, PosedDepth};
+use super::inputs::{check_interrupt, frame_depth, sequence_frame};
 use super::mask_layers::{MapRelease, MaskLayers};
 use super::masks::MaskSource;
 use super::outputs::save_png;
@@ -71,12 +71,15 @@ struct Loaded {
 
 /// Fuses the `chosen` frames in order, masked: into the volume (when given) and, the
 /// keyframes, into the cloud (when given); counts the fused pixels against the truth
-/// masks.
+/// masks. Each frame is loaded and its free-space evidence gathered beside the
+/// masking and fusion of the frame before it (`rayon::join`): the evidence reads the
+/// frames around, never the volume, and what follows it reads the volume as the
+/// frames before left it, as in a loop one frame at a time.
 pub(super) fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[Chosen],
-    mut sinks: FrameSinks,
+    sinks: FrameSinks,
 ) -> Result<Fused, IoError> {
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let extras = extras(inputs, config)?;
@@ -91,26 +94,94 @@ pub(super) fn fuse_frames(
         fusable_masked: 0,
         stages: DenseStages::default(),
     };
-    for group in groups(chosen) {
-        // Decode a few frames (and match stereo pairs) in parallel; fuse them in order.
-        let start = Instant::now();
-        let loaded = load_group(inputs, group, sequence_frame)?;
-        add_since(&mut fused.stages.loading_s, start);
-        for (&(_, pose, is_keyframe), frame) in group.iter().zip(loaded) {
-            let (timestamp, depth, rgb) = frame?;
-            let frame = Loaded {
-                timestamp,
-                pose,
-                is_keyframe,
-                depth,
-                rgb,
-            };
-            fuse_frame(inputs, config, &extras, &mut sinks, frame, &mut fused)?;
-            progress.inc(1);
+    let FrameSinks {
+        weights,
+        mask_source,
+        mut window,
+        volume,
+        cloud,
+        truth,
+    } = sinks;
+    let mut later = Later {
+        weights,
+        mask_source,
+        volume,
+        cloud,
+        truth,
+    };
+    let mut pending: Option<Prepared> = None;
+    for next in chosen.iter().map(Some).chain([None]) {
+        let window = window.as_deref_mut();
+        let (prepared, finished) = rayon::join(
+            || next.map(|&c| prepare(inputs, c, window)).transpose(),
+            || {
+                pending.take().map(|p| {
+                    progress.inc(1);
+                    fuse_frame(inputs, config, &extras, &mut later, p, &mut fused)
+                })
+            },
+        );
+        finished.transpose()?;
+        pending = prepared?;
+        if let Some(p) = &pending {
+            fused.stages.loading_s += p.loading_s;
+            fused.stages.free_space_s += p.free_space_s;
         }
     }
     progress.finish_and_clear();
     Ok(fused)
+}
+
+/// What fusing a prepared frame needs of [`FrameSinks`]: all but the window.
+struct Later<'a> {
+    weights: &'a [f32],
+    mask_source: &'a mut MaskSource,
+    volume: Option<&'a mut TsdfVolume>,
+    cloud: Option<&'a mut CloudBuilder>,
+    truth: &'a mut Option<TruthCounter>,
+}
+
+/// A frame loaded, with its free-space evidence, and the seconds each took.
+struct Prepared {
+    frame: Loaded,
+    evidence: Option<Evidence>,
+    loading_s: f64,
+    free_space_s: f64,
+}
+
+/// Loads the `chosen` frame and gathers its free-space evidence from the `window`
+/// (when there is one).
+fn prepare(
+    inputs: &DenseInputs,
+    (index, pose, is_keyframe): Chosen,
+    window: Option<&mut NeighbourWindow>,
+) -> Result<Prepared, IoError> {
+    check_interrupt(inputs)?;
+    let start = Instant::now();
+    let (timestamp, depth, rgb) = sequence_frame(inputs, index)?;
+    let loading_s = start.elapsed().as_secs_f64();
+    let start = Instant::now();
+    let posed = PosedDepth {
+        timestamp,
+        depth: &depth,
+        camera_from_world: &pose,
+    };
+    let evidence = match window {
+        Some(window) => Some(window.evidence(&inputs.camera, posed, |i| frame_depth(inputs, i))?),
+        None => None,
+    };
+    Ok(Prepared {
+        frame: Loaded {
+            timestamp,
+            pose,
+            is_keyframe,
+            depth,
+            rgb,
+        },
+        evidence,
+        loading_s,
+        free_space_s: start.elapsed().as_secs_f64(),
+    })
 }
 
 /// The mask pictures' folder, made when pictures are asked for, and the truth masks'
@@ -140,11 +211,14 @@ fn fuse_frame(
     inputs: &DenseInputs,
     config: &DenseConfig,
     extras: &Extras,
-    sinks: &mut FrameSinks,
-    frame: Loaded,
+    sinks: &mut Later,
+    prepared: Prepared,
     fused: &mut Fused,
 ) -> Result<(), IoError> {
-    let layers = frame_mask(inputs, config, sinks, &frame, fused)?;
+    let Prepared {
+        frame, evidence, ..
+    } = prepared;
+    let layers = frame_mask(inputs, config, sinks, &frame, evidence, fused);
     let Loaded {
         timestamp,
         pose,
@@ -196,26 +270,22 @@ fn fuse_frame(
     Ok(())
 }
 
-/// The frame's mask: the free-space evidence of the frames around, the mask source's
-/// layers, and the masked pixels the static map fused so far explains released.
+/// The frame's mask: the mask source's layers with the free-space `evidence` of the
+/// frames around, and the masked pixels the static map fused so far explains
+/// released.
 fn frame_mask(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    sinks: &mut FrameSinks,
+    sinks: &mut Later,
     frame: &Loaded,
+    evidence: Option<Evidence>,
     fused: &mut Fused,
-) -> Result<Option<MaskLayers>, IoError> {
+) -> Option<MaskLayers> {
     let posed = PosedDepth {
         timestamp: frame.timestamp,
         depth: &frame.depth,
         camera_from_world: &frame.pose,
     };
-    let start = Instant::now();
-    let evidence = match sinks.window.as_deref_mut() {
-        Some(window) => Some(window.evidence(&inputs.camera, posed, |i| frame_depth(inputs, i))?),
-        None => None,
-    };
-    add_since(&mut fused.stages.free_space_s, start);
     let start = Instant::now();
     let mut layers = sinks.mask_source.layers(
         frame.timestamp,
@@ -233,7 +303,7 @@ fn frame_mask(
         fused.released += m.release_on_map(posed, &inputs.camera, volume, release);
     }
     add_since(&mut fused.stages.masks_s, start);
-    Ok(layers)
+    layers
 }
 
 /// A frame being fused: its time, its mask's sources and what the volume takes.
@@ -249,7 +319,7 @@ fn side_outputs(
     inputs: &DenseInputs,
     config: &DenseConfig,
     extras: &Extras,
-    sinks: &mut FrameSinks,
+    sinks: &mut Later,
     frame: Fusing,
     fused_before: usize,
 ) -> Result<(), IoError> {

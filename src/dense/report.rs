@@ -81,8 +81,10 @@ pub struct DenseReport {
     pub outputs: Vec<PathBuf>,
 }
 
-/// Where the dense pass's time went, seconds of wall time (the stages run one after
-/// another; within each, rayon uses every core).
+/// Where the dense pass's time went, seconds of wall time (within each stage rayon
+/// uses every core). The stages run one after another, but for two: each frame's
+/// loading and free-space evidence run beside the masks, integration and cloud of the
+/// frame before it, so those five may sum to more than the time they took together.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DenseStages {
