@@ -153,9 +153,10 @@ struct Prepared {
 /// (when there is one).
 fn prepare(
     inputs: &DenseInputs,
-    (index, pose, is_keyframe): Chosen,
+    chosen: Chosen,
     window: Option<&mut NeighbourWindow>,
 ) -> Result<Prepared, IoError> {
+    let (index, pose, is_keyframe) = chosen;
     check_interrupt(inputs)?;
     let start = Instant::now();
     let (timestamp, depth, rgb) = sequence_frame(inputs, index)?;
