@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::cloud::CloudBuilder;
 use super::free_space::{Evidence, NeighbourWindow, PosedDepth};
-use super::inputs::{check_interrupt, frame_depth, sequence_frame};
+use super::inputs::{check_interrupt, frame_depth, sequence_frame_matched, FrameLookup};
 use super::mask_layers::{MapRelease, MaskLayers};
 use super::masks::MaskSource;
 use super::outputs::save_png;
@@ -45,6 +45,8 @@ pub(super) struct FrameSinks<'a> {
     /// The frames each fused frame stands for ([`super::tsdf::FrameInput::weight`]),
     /// in the order fused.
     pub weights: &'a [f32],
+    /// The frames' poses and depth for placing the detected objects.
+    pub lookup: &'a FrameLookup<'a>,
     pub mask_source: &'a mut MaskSource,
     pub window: Option<&'a mut NeighbourWindow>,
     pub volume: Option<&'a mut TsdfVolume>,
@@ -96,6 +98,7 @@ pub(super) fn fuse_frames(
     };
     let FrameSinks {
         weights,
+        lookup,
         mask_source,
         mut window,
         volume,
@@ -111,9 +114,22 @@ pub(super) fn fuse_frames(
     };
     let mut pending: Option<Prepared> = None;
     for next in chosen.iter().map(Some).chain([None]) {
+        // The objects the next frame's masks need, placed before it is loaded: a
+        // stereo pair matched for them is not matched again.
+        if let Some(&(index, ..)) = next {
+            let start = Instant::now();
+            let t = inputs.sequence.timestamp(index);
+            later
+                .mask_source
+                .place_through(t, &|t| lookup.pose(t), &|t| lookup.depth(t));
+            add_since(&mut fused.stages.inputs_s, start);
+        }
         let window = window.as_deref_mut();
         let (prepared, finished) = rayon::join(
-            || next.map(|&c| prepare(inputs, c, window)).transpose(),
+            || {
+                next.map(|&c| prepare(inputs, lookup, c, window))
+                    .transpose()
+            },
             || {
                 pending.take().map(|p| {
                     progress.inc(1);
@@ -149,17 +165,20 @@ struct Prepared {
     free_space_s: f64,
 }
 
-/// Loads the `chosen` frame and gathers its free-space evidence from the `window`
-/// (when there is one).
+/// Loads the `chosen` frame (a stereo pair's depth from `lookup` when placing the
+/// objects matched it) and gathers its free-space evidence from the `window` (when
+/// there is one).
 fn prepare(
     inputs: &DenseInputs,
+    lookup: &FrameLookup,
     chosen: Chosen,
     window: Option<&mut NeighbourWindow>,
 ) -> Result<Prepared, IoError> {
     let (index, pose, is_keyframe) = chosen;
     check_interrupt(inputs)?;
     let start = Instant::now();
-    let (timestamp, depth, rgb) = sequence_frame(inputs, index)?;
+    let (timestamp, depth, rgb) =
+        sequence_frame_matched(inputs, index, lookup.take_matched(index))?;
     let loading_s = start.elapsed().as_secs_f64();
     let start = Instant::now();
     let posed = PosedDepth {

@@ -175,6 +175,63 @@ pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
     serde_json::from_str(&text).map_err(|e| IoError::invalid(path, format!("malformed: {e}")))
 }
 
+/// The detected frames' poses and depth maps for placing their objects
+/// ([`super::masks::MaskSource::place_through`]), as fusion comes near them. A stereo
+/// pair matched for that is kept until fusion takes it ([`Self::take_matched`]), so
+/// each pair is matched once; what fusion passes by unfused is let go.
+pub(super) struct FrameLookup<'a> {
+    inputs: &'a DenseInputs<'a>,
+    poses: &'a HashMap<i64, Se3>,
+    index_of: HashMap<i64, usize>,
+    matched: std::sync::Mutex<HashMap<usize, DepthImage>>,
+}
+
+impl<'a> FrameLookup<'a> {
+    /// The frames of `inputs` with their final `poses` (`camera_from_world`).
+    pub fn new(inputs: &'a DenseInputs<'a>, poses: &'a HashMap<i64, Se3>) -> Self {
+        let sequence = inputs.sequence;
+        Self {
+            inputs,
+            poses,
+            index_of: (0..sequence.len())
+                .map(|i| (key(sequence.timestamp(i)), i))
+                .collect(),
+            matched: Default::default(),
+        }
+    }
+
+    /// The final `camera_from_world` of the frame at time `t`.
+    pub fn pose(&self, t: f64) -> Option<Se3> {
+        self.poses.get(&key(t)).copied()
+    }
+
+    /// The depth of the frame at time `t` (`None` when unreadable); a stereo pair's
+    /// is kept for fusion.
+    pub fn depth(&self, t: f64) -> Option<DepthImage> {
+        let i = *self.index_of.get(&key(t))?;
+        let depth = frame_depth(self.inputs, i).ok()?;
+        if self.inputs.stereo.is_some() {
+            self.matched_frames().insert(i, depth.clone());
+        }
+        Some(depth)
+    }
+
+    /// Frame `i`'s depth if it was matched for the placement, let go with those of
+    /// the frames before it.
+    pub fn take_matched(&self, i: usize) -> Option<DepthImage> {
+        let mut matched = self.matched_frames();
+        let depth = matched.remove(&i);
+        matched.retain(|&j, _| j > i);
+        depth
+    }
+
+    fn matched_frames(&self) -> std::sync::MutexGuard<'_, HashMap<usize, DepthImage>> {
+        self.matched
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
 /// Frame `i`'s depth alone: an RGB-D reader skips the colour image; a stereo pair is
 /// matched.
 pub(super) fn frame_depth(inputs: &DenseInputs, i: usize) -> Result<DepthImage, IoError> {
@@ -189,10 +246,27 @@ pub(super) type LoadedFrame = (f64, DepthImage, image::RgbImage);
 
 /// Frame `i` of the sequence.
 pub(super) fn sequence_frame(inputs: &DenseInputs, i: usize) -> Result<LoadedFrame, IoError> {
+    sequence_frame_matched(inputs, i, None)
+}
+
+/// Frame `i` of the sequence; a stereo pair with its depth `matched` already is not
+/// matched again.
+pub(super) fn sequence_frame_matched(
+    inputs: &DenseInputs,
+    i: usize,
+    matched: Option<DepthImage>,
+) -> Result<LoadedFrame, IoError> {
     let frame = inputs.sequence.load(i)?;
     let timestamp = frame.timestamp;
-    depth_and_colour(frame.images, inputs.stereo.as_ref(), inputs.run_dir)
-        .map(|(depth, rgb)| (timestamp, depth, rgb))
+    match (frame.images, matched) {
+        (FrameImages::Stereo { left, .. }, Some(depth)) => Ok((
+            timestamp,
+            depth,
+            image::DynamicImage::ImageLuma8(left).to_rgb8(),
+        )),
+        (images, _) => depth_and_colour(images, inputs.stereo.as_ref(), inputs.run_dir)
+            .map(|(depth, rgb)| (timestamp, depth, rgb)),
+    }
 }
 
 /// The chosen frames in groups of two per thread: each group is decoded in parallel,

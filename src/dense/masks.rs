@@ -85,8 +85,10 @@ pub struct KeyframeObjects {
     pub timestamp: f64,
     /// Its boxes.
     pub boxes: Vec<ObjectBox>,
-    /// The followed objects seen from it.
+    /// The followed objects seen from it (once placed, see [`MaskSource::place_through`]).
     pub objects: Vec<Object>,
+    /// Whether the DOP model follows each box's class.
+    followed: Vec<bool>,
 }
 
 /// Dynamic keypoints of one frame: `(x, y, depth)`.
@@ -127,6 +129,10 @@ pub struct MaskSource {
     dop: DopConfig,
     /// Sorted by time.
     keyframes: Vec<KeyframeObjects>,
+    /// How many of `keyframes` have their objects placed, and the tracks that
+    /// followed them.
+    placed: usize,
+    tracks: ObjectTracks,
     /// Sorted by time.
     keypoints: Vec<FrameKeypoints>,
     /// The segments kept in the latest masked frame.
@@ -137,14 +143,28 @@ impl MaskSource {
     /// Builds the detected frames' objects from their `detections`: `pose_at(t)`
     /// gives a frame's final `camera_from_world`, `depth_at(t)` its depth map (frames
     /// missing either keep their pixel boxes only); `keypoints` are the frames'
-    /// dynamic keypoints.
+    /// dynamic keypoints. [`Self::unplaced`] and [`Self::place_through`] do the same
+    /// as the frames come.
     pub fn new(
+        context: MaskContext,
+        settings: MaskSettings,
+        detections: Vec<FrameDetections>,
+        keypoints: Vec<FrameKeypoints>,
+        pose_at: PoseAt,
+        depth_at: DepthAt,
+    ) -> Self {
+        let mut source = Self::unplaced(context, settings, detections, keypoints);
+        source.place_through(f64::INFINITY, pose_at, depth_at);
+        source
+    }
+
+    /// The detected frames' boxes, their objects not placed yet: each frame's are
+    /// placed by [`Self::place_through`] before a frame near it is masked.
+    pub fn unplaced(
         context: MaskContext,
         settings: MaskSettings,
         mut detections: Vec<FrameDetections>,
         mut keypoints: Vec<FrameKeypoints>,
-        pose_at: PoseAt,
-        depth_at: DepthAt,
     ) -> Self {
         let MaskContext {
             masking,
@@ -154,48 +174,68 @@ impl MaskSource {
         } = context;
         detections.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
         keypoints.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-        let mut tracks = ObjectTracks::default();
-        let mut keyframes = Vec::with_capacity(detections.len());
-        for frame in &detections {
-            let (boxes, followed): (Vec<ObjectBox>, Vec<bool>) =
-                object_boxes(&frame.detections, dynamic_classes)
-                    .into_iter()
-                    .zip(&frame.detections)
-                    .filter(|(b, _)| b.dynamic)
-                    .map(|(b, d)| (snap_to_border(b, &camera), dop.follows(&d.class)))
-                    .unzip();
-            let mut objects = Vec::new();
-            if masking == Mode::Dop {
-                if let (Some(pose), Some(depth)) =
-                    (pose_at(frame.timestamp), depth_at(frame.timestamp))
-                {
-                    let samples = depth_samples(&depth, 4);
-                    let placed = place_objects(
-                        &boxes,
-                        &followed,
-                        &samples,
-                        &settings,
-                        dop,
-                        &camera,
-                        &pose.inverse(),
-                    );
-                    objects = follow_objects(&mut tracks, frame.timestamp, placed, dop);
+        let keyframes = detections
+            .iter()
+            .map(|frame| {
+                let (boxes, followed): (Vec<ObjectBox>, Vec<bool>) =
+                    object_boxes(&frame.detections, dynamic_classes)
+                        .into_iter()
+                        .zip(&frame.detections)
+                        .filter(|(b, _)| b.dynamic)
+                        .map(|(b, d)| (snap_to_border(b, &camera), dop.follows(&d.class)))
+                        .unzip();
+                KeyframeObjects {
+                    timestamp: frame.timestamp,
+                    boxes,
+                    objects: Vec::new(),
+                    followed,
                 }
-            }
-            keyframes.push(KeyframeObjects {
-                timestamp: frame.timestamp,
-                boxes,
-                objects,
-            });
-        }
+            })
+            .collect();
         Self {
             masking,
             settings,
             camera,
             dop: dop.clone(),
             keyframes,
+            placed: 0,
+            tracks: ObjectTracks::default(),
             keypoints,
             followed: Vec::new(),
+        }
+    }
+
+    /// Places the objects of the detected frames up to and including the first one at
+    /// or after `timestamp` (in time order, followed from one to the next), with
+    /// their poses and depth maps; a frame without a box needs no depth map.
+    pub fn place_through(&mut self, timestamp: f64, pose_at: PoseAt, depth_at: DepthAt) {
+        let through = self.keyframes.partition_point(|k| k.timestamp < timestamp) + 1;
+        while self.placed < through.min(self.keyframes.len()) {
+            let frame = &mut self.keyframes[self.placed];
+            self.placed += 1;
+            if self.masking != Mode::Dop {
+                continue;
+            }
+            let Some(pose) = pose_at(frame.timestamp) else {
+                continue;
+            };
+            let placed = if frame.boxes.is_empty() {
+                Vec::new()
+            } else {
+                let Some(depth) = depth_at(frame.timestamp) else {
+                    continue;
+                };
+                place_objects(
+                    &frame.boxes,
+                    &frame.followed,
+                    &depth_samples(&depth, 4),
+                    &self.settings,
+                    &self.dop,
+                    &self.camera,
+                    &pose.inverse(),
+                )
+            };
+            frame.objects = follow_objects(&mut self.tracks, frame.timestamp, placed, &self.dop);
         }
     }
 
@@ -263,6 +303,12 @@ impl MaskSource {
     /// `track_seconds`.
     fn near_keyframes(&self, timestamp: f64) -> Vec<KeyframeObjects> {
         let after = self.keyframes.partition_point(|k| k.timestamp < timestamp);
+        debug_assert!(
+            self.masking != Mode::Dop
+                || self.keyframes.is_empty()
+                || self.placed > after.min(self.keyframes.len() - 1),
+            "the objects near {timestamp} s are placed (place_through) before it is masked"
+        );
         [after.checked_sub(1), Some(after)]
             .into_iter()
             .flatten()
@@ -1164,6 +1210,71 @@ mod tests {
         );
         let mask = boxes.mask(1.0, &depth, &identity, None).expect("a mask");
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
+    }
+
+    #[test]
+    fn objects_placed_as_frames_come_mask_as_those_placed_first() {
+        let (camera, depth) = scene();
+        let person = |t: f64, x: f32| FrameDetections {
+            timestamp: t,
+            detections: vec![Detection {
+                class: "person".into(),
+                class_id: 0,
+                score: 0.9,
+                bbox: [x, 80.0, x + 180.0, 470.0],
+                instance: None,
+            }],
+        };
+        let empty = |t: f64| FrameDetections {
+            timestamp: t,
+            detections: vec![],
+        };
+        let frames = vec![
+            person(1.0, 230.0),
+            empty(1.4),
+            person(1.8, 260.0),
+            person(2.6, 300.0),
+        ];
+        let settings = MaskSettings {
+            border: 0,
+            keypoint_radius: 8,
+            foreground_share: 0.0,
+            depth_behind: 0.4,
+            skip_behind_objects: false,
+            disc_neighbours: 0,
+            keypoints_seen_moving: false,
+            segments: None,
+        };
+        let context = MaskContext {
+            masking: Mode::Dop,
+            camera,
+            dop: &DopConfig::default(),
+            dynamic_classes: &["person".to_string()],
+        };
+        let mut first = scene_source(settings, frames.clone(), vec![]);
+        let mut lazy = MaskSource::unplaced(context, settings, frames, vec![]);
+        let asked = std::cell::RefCell::new(Vec::new());
+        let depth_at = |t: f64| {
+            asked.borrow_mut().push(t);
+            Some(depth.clone())
+        };
+        let identity = Se3::identity();
+        for t in [0.9, 1.0, 1.2, 1.5, 1.8, 2.0, 2.5] {
+            lazy.place_through(t, &|_| Some(Se3::identity()), &depth_at);
+            assert_eq!(
+                lazy.mask(t, &depth, &identity, None),
+                first.mask(t, &depth, &identity, None),
+                "at {t} s"
+            );
+            // Placed up to the first detected frame at or after t: each boxed frame's
+            // depth asked once, the frame without a box never.
+            let through = [1.0, 1.4, 1.8, 2.6].into_iter().find(|&d| d >= t).unwrap();
+            let boxed: Vec<f64> = [1.0, 1.8, 2.6]
+                .into_iter()
+                .filter(|&d| d <= through)
+                .collect();
+            assert_eq!(*asked.borrow(), boxed, "at {t} s");
+        }
     }
 
     /// Depth samples on a 2-pixel grid of a 400 x 300 image: `depth_at(u, v)`.

@@ -43,13 +43,12 @@ use crate::detect::FrameDetections;
 use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::atomic::write_atomic;
-use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::IoError;
 use cloud::CloudBuilder;
 use free_space::NeighbourWindow;
 use fusion::{fuse_frames, FrameSinks};
-use inputs::{frame_depth, groups, key, load_group, RunInputs};
+use inputs::{frame_depth, groups, key, load_group, FrameLookup, RunInputs};
 use masks::{MaskContext, MaskSource};
 use outputs::{interrupted, write_maps, Maps};
 use tsdf::TsdfVolume;
@@ -178,16 +177,9 @@ fn dense_detections(
 }
 
 /// The masks' source, built from the run's detections and keypoints (taken out of
-/// `read`).
+/// `read`); fusion places the detected objects as it comes near them.
 fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs) -> MaskSource {
-    let sequence = inputs.sequence;
-    let index_of: HashMap<i64, usize> = (0..sequence.len())
-        .map(|i| (key(sequence.timestamp(i)), i))
-        .collect();
-    let load_depth =
-        |t: f64| -> Option<DepthImage> { frame_depth(inputs, *index_of.get(&key(t))?).ok() };
-    let poses = &read.poses;
-    MaskSource::new(
+    MaskSource::unplaced(
         MaskContext {
             masking: inputs.masking,
             camera: inputs.camera,
@@ -197,8 +189,6 @@ fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs)
         config.mask_settings(),
         std::mem::take(&mut read.detections),
         std::mem::take(&mut read.keypoints),
-        &|t| poses.get(&key(t)).copied(),
-        &load_depth,
     )
 }
 
@@ -236,8 +226,10 @@ fn fuse(
                 .collect();
             NeighbourWindow::new(config.free_space_settings(), posed)
         });
+    let lookup = FrameLookup::new(inputs, poses);
     let sinks = FrameSinks {
         weights,
+        lookup: &lookup,
         mask_source,
         window: window.as_mut(),
         volume: fuse_tsdf.then_some(&mut volume),

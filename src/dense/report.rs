@@ -88,13 +88,16 @@ pub struct DenseReport {
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DenseStages {
-    /// Reading the run folder, choosing the frames, placing the detected objects.
+    /// Reading the run folder, choosing the frames, placing the detected objects (as
+    /// fusion comes near them; a stereo pair matched for that is not matched again
+    /// when it is fused).
     pub inputs_s: f64,
     /// The dense pass's own detections ([`super::more_detections`]).
     pub detections_s: f64,
     /// The first pass of `allocate_first` (every frame's depth read once more).
     pub allocation_s: f64,
-    /// Reading the fused frames (colour and depth; stereo: matching).
+    /// Reading the fused frames (colour and depth; stereo: matching the pairs the
+    /// objects' placement did not).
     pub loading_s: f64,
     /// The free-space evidence: the frames around read and every pixel projected.
     pub free_space_s: f64,
@@ -115,8 +118,10 @@ pub struct DenseStages {
 }
 
 impl DenseStages {
-    /// The per-frame stages (loading to cloud frames) taken from `frames`.
+    /// The per-frame stages (loading to cloud frames) taken from `frames`, and the
+    /// objects' placement added to the inputs.
     pub fn frames_from(&mut self, frames: &DenseStages) {
+        self.inputs_s += frames.inputs_s;
         self.loading_s = frames.loading_s;
         self.free_space_s = frames.free_space_s;
         self.masks_s = frames.masks_s;
