@@ -1155,6 +1155,21 @@ mod tests {
         );
     }
 
+    /// Objects' masks alone: no border, no foreground share, discs around every
+    /// keypoint, no segments.
+    fn object_settings() -> MaskSettings {
+        MaskSettings {
+            border: 0,
+            keypoint_radius: 8,
+            foreground_share: 0.0,
+            depth_behind: 0.4,
+            skip_behind_objects: false,
+            disc_neighbours: 0,
+            keypoints_seen_moving: false,
+            segments: None,
+        }
+    }
+
     #[test]
     fn dop_masks_the_object_not_its_background_and_reaches_frames_between_keyframes() {
         let (camera, depth) = scene();
@@ -1169,16 +1184,7 @@ mod tests {
             timestamp: 1.0,
             detections: vec![detection],
         }];
-        let settings = MaskSettings {
-            border: 0,
-            keypoint_radius: 8,
-            foreground_share: 0.0,
-            depth_behind: 0.4,
-            skip_behind_objects: false,
-            disc_neighbours: 0,
-            keypoints_seen_moving: false,
-            segments: None,
-        };
+        let settings = object_settings();
         let identity = Se3::identity();
         let mut source = scene_source(settings, frames.clone(), vec![]);
         // A frame 0.2 s later, camera moved 10 cm to the right: the person shifts left.
@@ -1235,16 +1241,7 @@ mod tests {
             person(1.8, 260.0),
             person(2.6, 300.0),
         ];
-        let settings = MaskSettings {
-            border: 0,
-            keypoint_radius: 8,
-            foreground_share: 0.0,
-            depth_behind: 0.4,
-            skip_behind_objects: false,
-            disc_neighbours: 0,
-            keypoints_seen_moving: false,
-            segments: None,
-        };
+        let settings = object_settings();
         let context = MaskContext {
             masking: Mode::Dop,
             camera,
