@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::cloud::CloudBuilder;
 use super::free_space::{Evidence, NeighbourWindow, PosedDepth};
-use super::inputs::{check_interrupt, frame_depth, sequence_frame_matched, FrameLookup};
+use super::inputs::{check_interrupt, frame_depth, sequence_frame, FrameLookup};
 use super::mask_layers::{MapRelease, MaskLayers};
 use super::masks::MaskSource;
 use super::outputs::save_png;
@@ -40,15 +40,19 @@ fn add_since(total: &mut f64, start: Instant) {
     *total += start.elapsed().as_secs_f64();
 }
 
-/// Where [`fuse_frames`] takes masks and free-space evidence from and puts the frames.
+/// What [`fuse_frames`] reads beside the fusion of the frame before: the frames'
+/// poses and depth (for placing the detected objects, too) and the free-space window.
+pub(super) struct FrameSources<'a> {
+    pub lookup: &'a FrameLookup<'a>,
+    pub window: Option<&'a mut NeighbourWindow>,
+}
+
+/// Where [`fuse_frames`] takes masks from and puts the frames.
 pub(super) struct FrameSinks<'a> {
     /// The frames each fused frame stands for ([`super::tsdf::FrameInput::weight`]),
     /// in the order fused.
     pub weights: &'a [f32],
-    /// The frames' poses and depth for placing the detected objects.
-    pub lookup: &'a FrameLookup<'a>,
     pub mask_source: &'a mut MaskSource,
-    pub window: Option<&'a mut NeighbourWindow>,
     pub volume: Option<&'a mut TsdfVolume>,
     pub cloud: Option<&'a mut CloudBuilder>,
     pub truth: &'a mut Option<TruthCounter>,
@@ -81,7 +85,8 @@ pub(super) fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
     chosen: &[Chosen],
-    sinks: FrameSinks,
+    sources: FrameSources,
+    mut sinks: FrameSinks,
 ) -> Result<Fused, IoError> {
     let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
     let extras = extras(inputs, config)?;
@@ -96,22 +101,7 @@ pub(super) fn fuse_frames(
         fusable_masked: 0,
         stages: DenseStages::default(),
     };
-    let FrameSinks {
-        weights,
-        lookup,
-        mask_source,
-        mut window,
-        volume,
-        cloud,
-        truth,
-    } = sinks;
-    let mut later = Later {
-        weights,
-        mask_source,
-        volume,
-        cloud,
-        truth,
-    };
+    let FrameSources { lookup, mut window } = sources;
     let mut pending: Option<Prepared> = None;
     for next in chosen.iter().map(Some).chain([None]) {
         // The objects the next frame's masks need, placed before it is loaded: a
@@ -119,7 +109,7 @@ pub(super) fn fuse_frames(
         if let Some(&(index, ..)) = next {
             let start = Instant::now();
             let t = inputs.sequence.timestamp(index);
-            later
+            sinks
                 .mask_source
                 .place_through(t, &|t| lookup.pose(t), &|t| lookup.depth(t));
             add_since(&mut fused.stages.inputs_s, start);
@@ -133,7 +123,7 @@ pub(super) fn fuse_frames(
             || {
                 pending.take().map(|p| {
                     progress.inc(1);
-                    fuse_frame(inputs, config, &extras, &mut later, p, &mut fused)
+                    fuse_frame(inputs, config, &extras, &mut sinks, p, &mut fused)
                 })
             },
         );
@@ -146,15 +136,6 @@ pub(super) fn fuse_frames(
     }
     progress.finish_and_clear();
     Ok(fused)
-}
-
-/// What fusing a prepared frame needs of [`FrameSinks`]: all but the window.
-struct Later<'a> {
-    weights: &'a [f32],
-    mask_source: &'a mut MaskSource,
-    volume: Option<&'a mut TsdfVolume>,
-    cloud: Option<&'a mut CloudBuilder>,
-    truth: &'a mut Option<TruthCounter>,
 }
 
 /// A frame loaded, with its free-space evidence, and the seconds each took.
@@ -177,8 +158,7 @@ fn prepare(
     let (index, pose, is_keyframe) = chosen;
     check_interrupt(inputs)?;
     let start = Instant::now();
-    let (timestamp, depth, rgb) =
-        sequence_frame_matched(inputs, index, lookup.take_matched(index))?;
+    let (timestamp, depth, rgb) = sequence_frame(inputs, index, lookup.take_matched(index))?;
     let loading_s = start.elapsed().as_secs_f64();
     let start = Instant::now();
     let posed = PosedDepth {
@@ -231,7 +211,7 @@ fn fuse_frame(
     inputs: &DenseInputs,
     config: &DenseConfig,
     extras: &Extras,
-    sinks: &mut Later,
+    sinks: &mut FrameSinks,
     prepared: Prepared,
     fused: &mut Fused,
 ) -> Result<(), IoError> {
@@ -296,7 +276,7 @@ fn fuse_frame(
 fn frame_mask(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    sinks: &mut Later,
+    sinks: &mut FrameSinks,
     frame: &Loaded,
     evidence: Option<Evidence>,
     fused: &mut Fused,
@@ -339,7 +319,7 @@ fn side_outputs(
     inputs: &DenseInputs,
     config: &DenseConfig,
     extras: &Extras,
-    sinks: &mut Later,
+    sinks: &mut FrameSinks,
     frame: Fusing,
     fused_before: usize,
 ) -> Result<(), IoError> {

@@ -237,21 +237,16 @@ impl<'a> FrameLookup<'a> {
 pub(super) fn frame_depth(inputs: &DenseInputs, i: usize) -> Result<DepthImage, IoError> {
     match inputs.sequence.load_depth(i)? {
         Some(depth) => Ok(depth),
-        None => sequence_frame(inputs, i).map(|(_, depth, _)| depth),
+        None => sequence_frame(inputs, i, None).map(|(_, depth, _)| depth),
     }
 }
 
 /// A decoded frame: timestamp, depth and colour.
 pub(super) type LoadedFrame = (f64, DepthImage, image::RgbImage);
 
-/// Frame `i` of the sequence.
-pub(super) fn sequence_frame(inputs: &DenseInputs, i: usize) -> Result<LoadedFrame, IoError> {
-    sequence_frame_matched(inputs, i, None)
-}
-
-/// Frame `i` of the sequence; a stereo pair with its depth `matched` already is not
+/// Frame `i` of the sequence; a stereo pair whose depth was `matched` already is not
 /// matched again.
-pub(super) fn sequence_frame_matched(
+pub(super) fn sequence_frame(
     inputs: &DenseInputs,
     i: usize,
     matched: Option<DepthImage>,

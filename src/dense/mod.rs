@@ -47,7 +47,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::IoError;
 use cloud::CloudBuilder;
 use free_space::NeighbourWindow;
-use fusion::{fuse_frames, FrameSinks};
+use fusion::{fuse_frames, FrameSinks, FrameSources};
 use inputs::{frame_depth, groups, key, load_group, FrameLookup, RunInputs};
 use masks::{MaskContext, MaskSource};
 use outputs::{interrupted, write_maps, Maps};
@@ -227,16 +227,18 @@ fn fuse(
             NeighbourWindow::new(config.free_space_settings(), posed)
         });
     let lookup = FrameLookup::new(inputs, poses);
+    let sources = FrameSources {
+        lookup: &lookup,
+        window: window.as_mut(),
+    };
     let sinks = FrameSinks {
         weights,
-        lookup: &lookup,
         mask_source,
-        window: window.as_mut(),
         volume: fuse_tsdf.then_some(&mut volume),
         cloud: cloud_on.then_some(&mut cloud),
         truth: &mut truth,
     };
-    let fused = fuse_frames(inputs, config, chosen, sinks)?;
+    let fused = fuse_frames(inputs, config, chosen, sources, sinks)?;
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     report.released_on_map = fused.released;
     report.stages.frames_from(&fused.stages);
