@@ -2,7 +2,7 @@
 //! the file (and line or frame) and what is wrong, a non-zero exit, and keeps what was
 //! already computed. (More cases live in cli.rs, tracking.rs, layouts.rs, detect.rs.)
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -2,7 +2,7 @@
 //! the ATE equal to `dopslam eval` on the same files, a corrupt sequence recorded as
 //! failed while the rest complete, and resuming after an interruption.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

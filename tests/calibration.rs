@@ -1,6 +1,6 @@
 //! ORB-SLAM2 settings files from real setups (`../shared/data/calibration`).
 
-mod common;
+use crate::common;
 
 use dopslam::config::Config;
 use dopslam::io::orbslam_settings::OrbSlamSettings;

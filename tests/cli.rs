@@ -1,7 +1,7 @@
 //! The command line on bad input: a clear message naming the file (and line), a
 //! non-zero exit. And the demo end to end.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

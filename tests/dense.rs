@@ -2,7 +2,7 @@
 //! with DOP masks the walkers stay out of the fused map, without them they are in it;
 //! the files read back; the comparison tells the two apart.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! Runtime library (data/ort, from tools/setup.sh), the converted YOLOv4-tiny model
 //! (data/models) or the shared data skip, saying why, when those are absent.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -2,7 +2,7 @@
 //! oracle detections: it must beat ORB-SLAM2 behaviour (--no-dop) clearly, and the
 //! naive box masking must also run to the end.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

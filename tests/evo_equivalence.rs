@@ -2,7 +2,7 @@
 //! statistic of APE and RPE (delta 1 frame) to 1e-6, with SE(3) and Sim(3) alignment.
 //! The golden figures were computed by evo itself (`tools/evo_golden.py`).
 
-mod common;
+use crate::common;
 
 use dopslam::eval::associate::AssociationRule;
 use dopslam::eval::ate::PoseRelation;

@@ -4,7 +4,7 @@
 //! first, and each must rank the other first among the frames that are not its
 //! neighbours.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
@@ -64,20 +64,13 @@ fn a_revisited_place_ranks_its_true_match_first() {
 /// one turn in 30 s) from the candidates it found.
 #[test]
 fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut synth = SynthConfig::load(&root.join("configs/synth/loop_room.toml")).unwrap();
-    // 34 s: the camera passes its start and goes on for 4 s over the first views, so
-    // the three consecutive keyframes that a loop needs exist however the real-time
-    // run places its keyframes (with 30 s the loop hung on the last two, and a busy
-    // machine made the test fail).
-    synth.sequence.frames = 340;
-    synth.sequence.fps = 10.0;
-    let seq = common::temp_dir("global-thread").child("seq");
-    generate(&synth, &seq, false).unwrap();
+    // 34 s: the camera passes its start and goes on over the first views.
+    let seq = common::loop_room_34s();
+    let dir = common::temp_dir("global-thread");
     let mut config = dopslam::config::Config::default();
     config.detector.source = dopslam::detect::Source::None;
-    let sequence = dopslam::run::open_sequence(&seq, &config).unwrap();
-    let out = seq.parent().unwrap().join("run");
+    let sequence = dopslam::run::open_sequence(seq, &config).unwrap();
+    let out = dir.join("run");
     let options = dopslam::run::RunOptions::default();
     let report = dopslam::run::run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
     let global = report.global.expect("the global pass ran");

@@ -1,9 +1,9 @@
 //! The hostile inputs and situations of issue 34, each as a user or a careless script
 //! would meet it: the command, its exit status, the key words of its message, and that
-//! nothing computed was lost or overwritten. `cargo test --test hostile -- --nocapture`
+//! nothing computed was lost or overwritten. `cargo test --release --test suite hostile:: -- --nocapture`
 //! prints one table row per case.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};

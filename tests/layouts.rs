@@ -1,7 +1,7 @@
 //! The dataset readers on small folders laid out exactly as TUM RGB-D and KITTI
 //! odometry publish them.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -8,7 +8,7 @@
 //! saying why, without the shared data. The benchmark's comparison of each mode against
 //! no-DOP is tested on runs made up here (it needs no shared data).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -7,7 +7,7 @@
 //! (tools/test.sh installs `rosbags` there). Without it the tests skip, saying why,
 //! unless `DOPSLAM_REQUIRE_RECORDING_WRITERS` is set (tools/test.sh sets it).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

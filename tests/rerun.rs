@@ -5,7 +5,7 @@
 //! (tools/test.sh installs `rerun-sdk` there). Without it the tests skip, saying why,
 //! unless `DOPSLAM_REQUIRE_RECORDING_WRITERS` is set (tools/test.sh sets it).
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::os::unix::process::CommandExt;
@@ -97,11 +97,9 @@ fn a_run_logs_every_pose_keypoint_and_the_loop() {
     let Some(python) = reader_python("a_run_logs_every_pose_keypoint_and_the_loop") else {
         return;
     };
-    // 34 s at 10 fps: the camera passes its start (see tests/global.rs).
-    let (seq, dir) = sequence("rerun-loop", "loop_room", |synth| {
-        synth.sequence.frames = 340;
-        synth.sequence.fps = 10.0;
-    });
+    // 34 s at 10 fps: the camera passes its start.
+    let seq = common::loop_room_34s();
+    let dir = common::temp_dir("rerun-loop");
     let out = dir.join("run");
     let rrd = dir.join("loop.rrd");
     let (ok, _, err) = common::dopslam(&[

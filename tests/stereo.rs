@@ -2,7 +2,7 @@
 //! nothing outside the repository) tracked from its stereo pairs with the DOP model,
 //! its dense map from OpenCV's SGBM, and bad KITTI input refused by name.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::sync::OnceLock;

@@ -1,7 +1,7 @@
 //! `dopslam synth` on the static room: determinism, readability through the TUM
 //! reader, and depth consistent with the ground-truth poses and the scene.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,7 @@
 //! ORB finds enough well-spread keypoints on frames of every synth preset: the test bed's
 //! textures are rich enough for tracking at every pyramid level.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -2,7 +2,7 @@
 //! billboards, pushed objects of static classes, stereo output in the KITTI layout,
 //! motion blur and exposure drift.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -2,7 +2,7 @@
 //! (no depth, a missing image mid-sequence, an empty sequence) ends with a clear error
 //! and keeps the outputs of the frames already done.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

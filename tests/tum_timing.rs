@@ -1,7 +1,7 @@
 //! The readers on TUM's real index files (`../shared/data/tum-timing`): counts and
 //! the greedy association of TUM's associate.py.
 
-mod common;
+use crate::common;
 
 use dopslam::io::file_list::{associate_greedy, read_file_list};
 use dopslam::io::tum::read_association_file;

@@ -2,12 +2,13 @@
 # The Debian packages dopslam needs, installed when missing (as root; idempotent), and
 # the cargo features this machine can build (sourced: sets CARGO_FEATURES).
 #
-# A C toolchain and pkg-config for -sys crates; SQLite (ROS 2 bags' .db3); python3 and pip fetch the ONNX Runtime
+# A C toolchain and pkg-config for -sys crates; SQLite (ROS 2 bags' .db3) and zstd (their
+# compression, Debian's library instead of a bundled build); python3 and pip fetch the ONNX Runtime
 # wheel; DejaVu Sans labels the batch plots (PNG); OpenCV (libopencv-dev, with
 # clang/libclang-dev for the opencv crate's bindings) gives the dense depth of stereo
 # pairs (StereoSGBM). apt runs only when something is missing (about 1 min for OpenCV).
 need_apt=()
-for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates fonts-dejavu-core libsqlite3-dev libopencv-dev clang libclang-dev; do
+for pkg in build-essential pkg-config python3 python3-pip python3-venv unzip curl ca-certificates fonts-dejavu-core libsqlite3-dev libzstd-dev libopencv-dev clang libclang-dev; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if [ ${#need_apt[@]} -gt 0 ]; then

@@ -12,32 +12,41 @@ cd "$(dirname "$0")/.."
 bash tools/setup.sh --no-demo --no-build
 command -v cargo >/dev/null 2>&1 || export PATH="$HOME/.cargo/bin:$PATH"
 source tools/system_packages.sh
-# The independent writers the recording tests use (tests/recordings.rs: the Python
-# rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
-# venv setup.sh made, and Debian's ffmpeg Azure Kinect recordings; with them installed,
-# a test that cannot find them fails instead of skipping. pyrealsense2's wheel links libusb-1.0 (Debian libusb-1.0-0), a need of
-# the tests only. rerun-sdk (with its dataframe API) reads the runs' Rerun recordings
-# back (tests/rerun.rs): the same version as the `rerun` crate (Cargo.toml).
-# ffmpeg's libraries come with OpenCV's packages already.
-test_apt=()
-for pkg in libusb-1.0-0 ffmpeg; do
-    dpkg -s "$pkg" >/dev/null 2>&1 || test_apt+=("$pkg")
-done
-if [ ${#test_apt[@]} -gt 0 ] && [ "$(id -u)" = 0 ]; then
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${test_apt[@]}" >/dev/null
-fi
-{ [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
-data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" "rerun-sdk[datafusion]==0.36.3" pillow numpy
-# librealsense before 2.56 wrote ROS 1 bags: its Python package beside the venv's, for
-# the test that reads such a recording.
-[ -d data/pyrealsense2-2.55/pyrealsense2 ] \
-    || data/venv/bin/pip install -q --target data/pyrealsense2-2.55 "pyrealsense2==2.55.1.6486"
-export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 # The tests write their synthetic sequences under one temporary folder of this run,
 # removed when the run ends, however it ends (each test also removes its own).
 TMPDIR=$(mktemp -d "${TMPDIR:-/tmp}/dopslam-tests.XXXXXX")
 export TMPDIR
 trap 'rm -rf "$TMPDIR"' EXIT
+# The independent writers the recording tests use (tests/recordings.rs: the Python
+# rosbags package writes ROS 1 and ROS 2 bags, pyrealsense2 RealSense recordings), in the
+# venv setup.sh made, and Debian's ffmpeg Azure Kinect recordings; with them installed,
+# a test that cannot find them fails instead of skipping. pyrealsense2's wheel links
+# libusb-1.0 (Debian libusb-1.0-0), a need of the tests only. rerun-sdk (with its
+# dataframe API) reads the runs' Rerun recordings back (tests/rerun.rs): the same version
+# as the `rerun` crate (Cargo.toml). ffmpeg's libraries come with OpenCV's packages
+# already. Slurm and munge for tools/test_slurm.sh. They download while cargo compiles
+# (below): the build needs none of them, and they wait on the network, it on the CPU.
+install_test_tools() {
+    local test_apt=()
+    local pkg
+    local packages=(libusb-1.0-0 ffmpeg)
+    [ "${DOPSLAM_SKIP_SLURM:-0}" = 1 ] || packages+=(slurm-wlm munge)
+    for pkg in "${packages[@]}"; do
+        dpkg -s "$pkg" >/dev/null 2>&1 || test_apt+=("$pkg")
+    done
+    if [ ${#test_apt[@]} -gt 0 ] && [ "$(id -u)" = 0 ]; then
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${test_apt[@]}" >/dev/null
+    fi
+    { [ -x data/venv/bin/python ] || python3 -m venv data/venv; }
+    data/venv/bin/pip install -q "rosbags==0.11.*" "pyrealsense2==2.59.*" "rerun-sdk[datafusion]==0.36.3" pillow numpy
+    # librealsense before 2.56 wrote ROS 1 bags: its Python package beside the venv's,
+    # for the test that reads such a recording.
+    [ -d data/pyrealsense2-2.55/pyrealsense2 ] \
+        || data/venv/bin/pip install -q --target data/pyrealsense2-2.55 "pyrealsense2==2.55.1.6486"
+}
+install_test_tools >"$TMPDIR/test-tools.log" 2>&1 &
+test_tools=$!
+export DOPSLAM_REQUIRE_RECORDING_WRITERS=1
 free_mib=$(df -Pm "$TMPDIR" | awk 'NR == 2 { print $4 }')
 if [ "${free_mib:-0}" -lt 2048 ]; then
   echo "warning: ${free_mib} MiB free under $TMPDIR; the tests write up to about 0.5 GiB there at a time" >&2
@@ -55,6 +64,7 @@ python3 tools/spine_bar.py
 # (tools/clippy_rustc.sh), the dependencies are the release build's.
 export RUSTC_WORKSPACE_WRAPPER="$PWD/tools/clippy_rustc.sh"
 cargo test --release --all-targets --no-run "${CARGO_FEATURES[@]}"
+wait "$test_tools" || { cat "$TMPDIR/test-tools.log" >&2; echo "installing the tests' tools failed (above)" >&2; exit 1; }
 cargo test --release "${CARGO_FEATURES[@]}"
 # The batch on a real one-node Slurm cluster (DOPSLAM_SKIP_SLURM=1 skips it, saying so).
 bash tools/test_slurm.sh ./target/release/dopslam

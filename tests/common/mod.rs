@@ -175,3 +175,24 @@ pub fn synth_preset(preset: &std::path::Path, seq: &std::path::Path, frames: usi
     ]);
     assert!(ok, "{err}");
 }
+
+/// `loop_room` at 10 fps for 34 s (340 frames): one turn in 30 s, then 4 s more over
+/// the first views, so the three consecutive keyframes a loop needs exist however a
+/// real-time run places its keyframes (with 30 s the loop hung on the last two, and a
+/// busy machine made a test fail). Generated once per test process and shared by the
+/// tests that only read it (tests/global.rs, tests/rerun.rs), which write their runs
+/// in folders of their own. Kept for the whole process (a static is never dropped):
+/// tools/test.sh removes the temporary folder it gives the test run.
+pub fn loop_room_34s() -> &'static Path {
+    static SEQUENCE: std::sync::OnceLock<TestDir> = std::sync::OnceLock::new();
+    SEQUENCE.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let path = root.join("configs/synth/loop_room.toml");
+        let mut synth = dopslam::synth::SynthConfig::load(&path).unwrap();
+        synth.sequence.frames = 340;
+        synth.sequence.fps = 10.0;
+        let seq = temp_dir("loop-room-34s").child("seq");
+        dopslam::synth::generate(&synth, &seq, false).unwrap();
+        seq
+    })
+}
