@@ -1,6 +1,8 @@
 //! The process's peak memory, for the run report and the long-run benchmark
 //! (`tools/bench_memory.sh`), and how the allocator keeps freed memory.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 /// Where glibc's allocator hands memory back at once (its defaults), every frame's
 /// images cost fresh pages: freeing a frame's megabytes trims the heap (or unmaps
 /// them), and the next frame's touch faults them in again, zeroed by the kernel
@@ -33,12 +35,78 @@ pub const MMAP_THRESHOLD: i32 = 32 << 20;
 /// Free memory above this many bytes at the heap's top goes back to the system.
 pub const TRIM_THRESHOLD: i32 = 128 << 20;
 
-/// The peak resident set size in MiB (`VmHWM` of `/proc/self/status`), where the
-/// system reports it (Linux).
+/// The peak resident set size of the whole process so far in MiB (`VmHWM` of
+/// `/proc/self/status`), where the system reports it (Linux).
 pub fn peak_resident_mib() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     parse_peak(&status)
 }
+
+/// How often the sampler reads the resident memory.
+const SAMPLE_EVERY: std::time::Duration = std::time::Duration::from_millis(10);
+
+/// The largest resident memory sampled since the last part or stage ended, and since
+/// the last stage ended (bytes).
+static PART_PEAK: AtomicU64 = AtomicU64::new(0);
+static STAGE_PEAK: AtomicU64 = AtomicU64::new(0);
+
+/// The resident memory now, bytes (`/proc/self/statm`), where the system reports it.
+fn resident_bytes() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    // SAFETY: sysconf only reads a constant of the system.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    Some(pages * u64::try_from(page).ok()?)
+}
+
+/// Records the resident memory now into the part's and the stage's peaks.
+fn sample() -> Option<u64> {
+    let bytes = resident_bytes()?;
+    PART_PEAK.fetch_max(bytes, Ordering::Relaxed);
+    STAGE_PEAK.fetch_max(bytes, Ordering::Relaxed);
+    Some(bytes)
+}
+
+/// Starts the thread that samples the resident memory every [`SAMPLE_EVERY`] for
+/// [`part_peak_mib`] and [`stage_peak_mib`] (once per process; later calls do
+/// nothing). Sampling, not the kernel's high-water mark: resetting that
+/// (`/proc/self/clear_refs`) would also reset what `/usr/bin/time` and `getrusage`
+/// report for the whole process. A peak shorter than the interval can be missed.
+pub fn start_sampling() {
+    static STARTED: std::sync::Once = std::sync::Once::new();
+    STARTED.call_once(|| {
+        if sample().is_none() {
+            return;
+        }
+        let _ = std::thread::Builder::new()
+            .name("memory sampler".into())
+            .spawn(|| loop {
+                std::thread::sleep(SAMPLE_EVERY);
+                sample();
+            });
+    });
+}
+
+/// The peak resident memory (MiB) sampled since the last part or stage ended, for a
+/// part of a stage (the dense pass's fusion, mesh, cloud, files); the stage it belongs
+/// to still sees it ([`stage_peak_mib`]). `None` where the system does not tell.
+pub fn part_peak_mib() -> Option<f64> {
+    let now = sample()?;
+    let peak = PART_PEAK.swap(0, Ordering::Relaxed).max(now);
+    Some(peak as f64 / MIB)
+}
+
+/// The peak resident memory (MiB) sampled since the last stage ended, its parts
+/// included: a run's stages (tracking, global pass, outputs, dense pass) one after
+/// another.
+pub fn stage_peak_mib() -> Option<f64> {
+    let now = sample()?;
+    PART_PEAK.store(0, Ordering::Relaxed);
+    let peak = STAGE_PEAK.swap(0, Ordering::Relaxed).max(now);
+    Some(peak as f64 / MIB)
+}
+
+const MIB: f64 = 1024.0 * 1024.0;
 
 /// `VmHWM:  123456 kB` → MiB.
 fn parse_peak(status: &str) -> Option<f64> {
@@ -95,5 +163,20 @@ mod tests {
     #[cfg(target_os = "linux")]
     fn this_process_has_a_peak() {
         assert!(peak_resident_mib().is_some_and(|m| m > 0.0));
+    }
+
+    /// A part of a stage that holds 64 MiB: its peak is at least that, and the
+    /// process's high-water mark no lower. (Other tests run beside this one and may
+    /// end a stage of their own, so nothing finer holds here.)
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn a_part_s_peak_holds_what_it_held() {
+        start_sampling();
+        let held = std::hint::black_box(vec![1u8; 64 << 20]);
+        let part = part_peak_mib().unwrap();
+        drop(held);
+        assert!(part >= 64.0, "part {part} MiB");
+        assert!(stage_peak_mib().is_some());
+        assert!(peak_resident_mib().unwrap() >= part);
     }
 }

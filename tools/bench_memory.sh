@@ -6,18 +6,29 @@
 # its full length; needs ../shared/data), runs `dopslam run` on a 1000-frame prefix
 # and on the whole of each (real detector, default real-time mode, global pass on;
 # dense pass off unless --dense) and prints the peak resident memory from the report
-# (VmHWM) with the map's size.
+# (VmHWM) with the map's size, each stage's own peak (`times.stages`) and the dense
+# pass's parts' (`dense.memory`): fusion, marching cubes, the cloud, the files.
 #
-#   bash tools/bench_memory.sh [--dense] [room|street ...]
+#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street ...]
+#
+# --lengths: the prefixes run (default: 1000 frames and the whole sequence).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 dense=--no-dense
-if [ "${1:-}" = "--dense" ]; then dense=; shift; fi
+lengths=
+while [ $# -gt 0 ]; do
+  case $1 in
+    --dense) dense=; shift ;;
+    --lengths) lengths=$2; shift 2 ;;
+    *) break ;;
+  esac
+done
 which=("$@")
 if [ ${#which[@]} -eq 0 ]; then which=(room street); fi
 cargo build --release --quiet
 mkdir -p outputs/bench
-printf '%-8s %7s %9s %6s %9s %10s %10s %9s\n' sequence frames coverage kfs points "peak MiB" "MiB/kf" "dense MiB"
+printf '%-8s %7s %9s %6s %9s %9s %8s %8s %8s %8s %8s %8s %8s %8s %8s\n' sequence frames coverage kfs points "peak MiB" "MiB/kf" \
+  tracking global outputs dense fusion mesh cloud files
 for name in "${which[@]}"; do
   case $name in
     room) preset=loop_walking; frames=5000; seq=outputs/bench/long_room ;;
@@ -29,7 +40,7 @@ for name in "${which[@]}"; do
   fi
   input=$seq
   for kitti in "$seq"/kitti/sequences/*/; do [ -d "$kitti" ] && input=${kitti%/}; done
-  for n in 1000 "$frames"; do
+  for n in ${lengths:-1000 $frames}; do
     out=outputs/bench/memory-$name-$n
     rm -rf "$out"
     ./target/release/dopslam run "$input" --out "$out" --frames "$n" $dense >"$out.log" 2>&1 || echo "$name: dopslam run failed (see $out.log)"
@@ -38,10 +49,16 @@ import json, sys
 name, path = sys.argv[1], sys.argv[2]
 r = json.load(open(path))
 t = r["totals"]
-peak = t.get("peak_memory_mib") or 0.0
-dense = (r.get("dense") or {}).get("peak_memory_mib")
+times = r.get("times") or {}
+peak = times.get("peak_memory_mib") or t.get("peak_memory_mib") or 0.0
+# Each stage's own peak (report.json `times.stages`), the dense pass's parts (`dense.memory`).
+stages = {s["stage"]: s.get("peak_memory_mib") for s in times.get("stages", [])}
+parts = (r.get("dense") or {}).get("memory") or {}
+cell = lambda v: f"{v:8.0f}" if v is not None else f"{'-':>8}"
+cells = " ".join(cell(stages.get(k)) for k in ("tracking", "global", "outputs", "dense"))
+cells += " " + " ".join(cell(parts.get(k + "_mib")) for k in ("fusion", "mesh", "cloud", "writing"))
 print(f"{name:<8} {t['frames']:7d} {t['coverage_percent']:8.1f}% {t['keyframes']:6d} {t['map_points']:9d} "
-      f"{peak:10.0f} {peak / max(t['keyframes'], 1):10.2f} {dense if dense is not None else '-':>9}")
+      f"{peak:9.0f} {peak / max(t['keyframes'], 1):8.2f} {cells}")
 PY
   done
 done

@@ -193,6 +193,7 @@ pub fn print_dense(dense: &DenseReport) {
         .map(|(name, s)| format!("{name} {s:.1}"))
         .collect();
     println!("dense stages (s): {}", stages.join(", "));
+    print_dense_memory(&dense.memory);
     if dense.released_on_map > 0 {
         println!(
             "dense masks: {} masked pixels lay on the static map fused so far and were fused ([dense] mask_map_min_weight)",
@@ -214,5 +215,21 @@ pub fn print_dense(dense: &DenseReport) {
     }
     for path in &dense.outputs {
         println!("wrote {}", path.display());
+    }
+}
+
+/// Prints each part of the dense pass's peak memory, where it is known.
+fn print_dense_memory(memory: &dopslam::dense::report::DenseMemory) {
+    let peaks: Vec<String> = [
+        ("fusion", memory.fusion_mib),
+        ("mesh", memory.mesh_mib),
+        ("cloud", memory.cloud_mib),
+        ("files", memory.writing_mib),
+    ]
+    .iter()
+    .filter_map(|&(name, mib)| Some(format!("{name} {:.0}", mib?)))
+    .collect();
+    if !peaks.is_empty() {
+        println!("dense peak memory (MiB): {}", peaks.join(", "));
     }
 }

@@ -172,13 +172,24 @@ struct Piece {
 /// The mesh of the zero level set of `volume`.
 pub fn extract(volume: &TsdfVolume) -> Mesh {
     let table = table();
-    let pieces: Vec<Piece> = volume
-        .coords
-        .par_iter()
-        .map(|&coord| block_piece(volume, table, coord))
-        .collect();
-    weld(pieces)
+    let mut welded = Welded::default();
+    // Blocks in batches, each welded as it comes (in the blocks' order, as one batch
+    // of all would): the pieces of a whole volume, before welding, took several times
+    // the mesh's memory (real figures in docs/design.md).
+    for batch in volume.coords.chunks(WELD_BATCH) {
+        let pieces: Vec<Piece> = batch
+            .par_iter()
+            .map(|&coord| block_piece(volume, table, coord))
+            .collect();
+        for piece in pieces {
+            welded.add(piece);
+        }
+    }
+    welded.mesh
 }
+
+/// Blocks meshed in parallel before their pieces are welded.
+const WELD_BATCH: usize = 4096;
 
 /// The triangles of the cubes whose lower corner lies in the block at `coord` (cubes
 /// reach into the neighbouring blocks).
@@ -295,16 +306,23 @@ fn edge_vertex(values: &[Sample; 8], origin: [i64; 3], e: u8, voxel: f64) -> ([f
     (position, colour)
 }
 
-/// Joins the blocks' pieces, sharing vertices on the edges between blocks.
-fn weld(pieces: Vec<Piece>) -> Mesh {
-    let mut mesh = Mesh::default();
-    let mut global: FxMap<EdgeKey, u32> = FxMap::default();
-    for piece in pieces {
+/// The blocks' pieces joined so far, sharing vertices on the edges between blocks.
+#[derive(Default)]
+struct Welded {
+    mesh: Mesh,
+    /// Each vertex's index in `mesh`, by its edge.
+    index: FxMap<EdgeKey, u32>,
+}
+
+impl Welded {
+    /// Adds `piece`'s triangles, its vertices on edges met before taken from there.
+    fn add(&mut self, piece: Piece) {
+        let Self { mesh, index } = self;
         let map: Vec<u32> = piece
             .vertices
             .iter()
             .map(|(key, position, colour)| {
-                *global.entry(*key).or_insert_with(|| {
+                *index.entry(*key).or_insert_with(|| {
                     mesh.vertices.push(*position);
                     mesh.colours.push(*colour);
                     (mesh.vertices.len() - 1) as u32
@@ -314,7 +332,6 @@ fn weld(pieces: Vec<Piece>) -> Mesh {
         mesh.triangles
             .extend(piece.triangles.iter().map(|t| t.map(|i| map[i as usize])));
     }
-    mesh
 }
 
 #[cfg(test)]

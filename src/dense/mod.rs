@@ -82,6 +82,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .validate()
         .map_err(|m| IoError::invalid(inputs.run_dir, m.to_string()))?;
     let started = Instant::now();
+    // What came before the pass is not its own peak.
+    crate::memory::start_sampling();
+    crate::memory::part_peak_mib();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let mut read = inputs::read_run(&run, inputs.masking)?;
     let frames = frame_choice::choose_frames(inputs.sequence, &read, config);
@@ -239,6 +242,7 @@ fn fuse(
         truth: &mut truth,
     };
     let fused = fuse_frames(inputs, config, chosen, sources, sinks)?;
+    report.memory.fusion_mib = crate::memory::part_peak_mib();
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     report.released_on_map = fused.released;
     report.stages.frames_from(&fused.stages);

@@ -47,6 +47,7 @@ pub(super) fn write_maps(
         report.mesh_vertices_dropped = dropped.vertices;
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
+        report.memory.mesh_mib = crate::memory::part_peak_mib();
         mesh
     });
     let points = cloud.map(|cloud| {
@@ -57,6 +58,7 @@ pub(super) fn write_maps(
         report.stages.cloud_s = report.cloud_ms / 1e3;
         report.cloud_points = points.len();
         report.cloud_seen_through = dropped;
+        report.memory.cloud_mib = crate::memory::part_peak_mib();
         points
     });
     drop(volume);
@@ -77,6 +79,7 @@ pub(super) fn write_maps(
         write_pictures(out, map, trajectory, report)?;
     }
     report.stages.writing_s = start.elapsed().as_secs_f64();
+    report.memory.writing_mib = crate::memory::part_peak_mib();
     Ok(())
 }
 

@@ -75,6 +75,9 @@ pub struct DenseReport {
     pub released_on_map: u64,
     /// The process's peak resident memory at the end of the pass (MiB, Linux).
     pub peak_memory_mib: Option<f64>,
+    /// The peak memory of each part of the pass.
+    #[serde(default)]
+    pub memory: DenseMemory,
     /// Against the synthetic truth masks.
     pub truth: Option<FusedTruth>,
     /// The files written.
@@ -115,6 +118,23 @@ pub struct DenseStages {
     pub cloud_s: f64,
     /// The files and pictures.
     pub writing_s: f64,
+}
+
+/// The peak resident memory of each part of the dense pass, MiB, sampled every 10 ms
+/// (what was resident before it included; `None` where the system cannot tell,
+/// [`crate::memory::part_peak_mib`]).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DenseMemory {
+    /// From the pass's start to the last frame fused: the inputs, the pass's own
+    /// detections, the volume and the cloud's frames as they grow.
+    pub fusion_mib: Option<f64>,
+    /// Marching cubes (the volume and the mesh).
+    pub mesh_mib: Option<f64>,
+    /// The cloud (the volume, the mesh and the cloud).
+    pub cloud_mib: Option<f64>,
+    /// The files and pictures.
+    pub writing_mib: Option<f64>,
 }
 
 impl DenseStages {

@@ -18,7 +18,7 @@ use ply_rs_bw::ply::{
 };
 use ply_rs_bw::writer::Writer;
 
-use super::atomic::write_atomic;
+use super::atomic::write_atomic_with;
 use super::IoError;
 use crate::geometry::mesh::Mesh;
 
@@ -211,39 +211,46 @@ pub fn write_ply(
     if !mesh.triangles.is_empty() {
         vertices.header.elements.add(face.clone());
     }
-    let records: Vec<Record> = (0..mesh.len())
-        .map(|i| Record {
+    let write = |out: &mut dyn Write| -> std::io::Result<()> {
+        let mut out = out;
+        Writer::<Record>::new().write_header(&mut out, &vertices.header)?;
+        // In pieces: the file's bytes and ply-rs's records of a whole mesh would take
+        // several times the mesh's own memory.
+        let record = |i: usize| Record {
             position: mesh.vertices[i].map(f64::from),
             normal: mesh.normals.get(i).copied().unwrap_or_default(),
             colour: mesh.colours.get(i).copied().unwrap_or_default(),
             scalar: scalar.and_then(|s| s.get(i)).copied().unwrap_or_default(),
             indices: Vec::new(),
-        })
-        .collect();
-    let writer = Writer::<Record>::new();
-    let mut buffer = Vec::new();
-    let err = |e: std::io::Error| IoError::Write {
-        path: path.to_path_buf(),
-        source: e,
+        };
+        for start in (0..mesh.len()).step_by(PIECE) {
+            let records: Vec<Record> = (start..mesh.len().min(start + PIECE)).map(record).collect();
+            Writer::<Record>::new().write_payload_of_element(
+                &mut out,
+                &records,
+                &vertex,
+                &vertices.header,
+            )?;
+        }
+        for piece in mesh.triangles.chunks(PIECE) {
+            let faces: Vec<Face> = piece
+                .iter()
+                .map(|t| Face(t.map(|i| i as i32).to_vec()))
+                .collect();
+            Writer::<Face>::new().write_payload_of_element(
+                &mut out,
+                &faces,
+                &face,
+                &vertices.header,
+            )?;
+        }
+        Ok(())
     };
-    writer
-        .write_header(&mut buffer, &vertices.header)
-        .map_err(err)?;
-    writer
-        .write_payload_of_element(&mut buffer, &records, &vertex, &vertices.header)
-        .map_err(err)?;
-    if !mesh.triangles.is_empty() {
-        let faces: Vec<Face> = mesh
-            .triangles
-            .iter()
-            .map(|t| Face(t.map(|i| i as i32).to_vec()))
-            .collect();
-        Writer::<Face>::new()
-            .write_payload_of_element(&mut buffer, &faces, &face, &vertices.header)
-            .map_err(err)?;
-    }
-    write_atomic(path, &buffer)
+    write_atomic_with(path, write)
 }
+
+/// Vertices or faces written at a time.
+const PIECE: usize = 1 << 16;
 
 impl PropertyAccess for Face {
     fn new() -> Self {
@@ -317,8 +324,7 @@ pub fn read_ply(path: &Path) -> Result<Mesh, IoError> {
 /// 0-1, the extension MeshLab and Open3D read) and vertex normals when present.
 pub fn write_obj(path: &Path, mesh: &Mesh, comment: &str) -> Result<(), IoError> {
     mesh.validate().map_err(|m| IoError::invalid(path, m))?;
-    let mut out = Vec::with_capacity(mesh.len() * 48 + mesh.triangles.len() * 24);
-    let mut put = || -> std::io::Result<()> {
+    let put = |out: &mut dyn Write| -> std::io::Result<()> {
         writeln!(out, "# {comment}")?;
         writeln!(
             out,
@@ -352,11 +358,7 @@ pub fn write_obj(path: &Path, mesh: &Mesh, comment: &str) -> Result<(), IoError>
         }
         Ok(())
     };
-    put().map_err(|source| IoError::Write {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    write_atomic(path, &out)
+    write_atomic_with(path, put)
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ pub mod report;
 pub mod run;
 pub mod setup;
 
-pub use report::{FrameLine, RunReport, RunTimes, RunTotals, SegmentSpan, StageTime};
+pub use report::{FrameLine, Lap, RunReport, RunTimes, RunTotals, SegmentSpan, StageTime};
 pub use run::{MapFigures, RunFigures, RunInputs, RunRecord, RunStatus};
 pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied, TakenOut};
 

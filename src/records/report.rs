@@ -174,7 +174,8 @@ pub struct RunReport {
     pub times: Option<RunTimes>,
 }
 
-/// The wall time of a run's stages against the recording's duration.
+/// The wall time of a run's stages against the recording's duration, and the memory
+/// each held at its peak.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct RunTimes {
     /// The recording's duration over the frames read, seconds (`None` when their
@@ -186,9 +187,12 @@ pub struct RunTimes {
     pub total_s: f64,
     /// `total_s` over `recording_s`: below 1 the run keeps up with the recording.
     pub real_time_factor: Option<f64>,
+    /// The process's peak resident memory over the whole run, MiB (Linux).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_memory_mib: Option<f64>,
 }
 
-/// One stage's wall time.
+/// One stage's wall time and peak memory.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StageTime {
     /// `tracking`, `global`, `outputs` or `dense`.
@@ -197,29 +201,53 @@ pub struct StageTime {
     pub seconds: f64,
     /// `seconds` over the recording's duration.
     pub real_time_factor: Option<f64>,
+    /// The peak resident memory while the stage ran, MiB, sampled every 10 ms (what
+    /// the stages before it left resident included; `None` where the system cannot
+    /// tell, [`crate::memory::stage_peak_mib`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_memory_mib: Option<f64>,
+}
+
+/// A stage as it ended: its name, wall time and peak memory.
+#[derive(Debug, Clone, Copy)]
+pub struct Lap {
+    /// The stage's name.
+    pub stage: &'static str,
+    /// Its wall time, seconds.
+    pub seconds: f64,
+    /// Its peak resident memory, MiB.
+    pub peak_memory_mib: Option<f64>,
 }
 
 impl RunTimes {
-    /// The times of `stages` (name, seconds) and of the whole run, `total_s`, against
-    /// a recording of `recording_s`.
-    pub fn new(recording_s: Option<f64>, stages: &[(&str, f64)], total_s: f64) -> Self {
+    /// The times of the stages' `laps` and of the whole run, `total_s`, against a
+    /// recording of `recording_s`; `peak_memory_mib`, the whole run's.
+    pub fn new(
+        recording_s: Option<f64>,
+        laps: &[Lap],
+        total_s: f64,
+        peak_memory_mib: Option<f64>,
+    ) -> Self {
         let factor = |seconds: f64| recording_s.map(|r| seconds / r);
         Self {
             recording_s,
-            stages: stages
+            stages: laps
                 .iter()
-                .map(|&(stage, seconds)| StageTime {
-                    stage: stage.into(),
-                    seconds,
-                    real_time_factor: factor(seconds),
+                .map(|lap| StageTime {
+                    stage: lap.stage.into(),
+                    seconds: lap.seconds,
+                    real_time_factor: factor(lap.seconds),
+                    peak_memory_mib: lap.peak_memory_mib,
                 })
                 .collect(),
             total_s,
             real_time_factor: factor(total_s),
+            peak_memory_mib,
         }
     }
 
-    /// One line for the console: each stage's seconds and the run's factor.
+    /// Lines for the console: each stage's seconds and the run's factor, and each
+    /// stage's peak memory where it is known.
     pub fn summary(&self) -> String {
         let stages: Vec<String> = self
             .stages
@@ -230,11 +258,23 @@ impl RunTimes {
             (Some(f), Some(r)) => format!(": {f:.2} x the recording's {r:.1} s"),
             _ => String::new(),
         };
-        format!(
+        let mut summary = format!(
             "wall time: {}; the run {:.1} s{factor}",
             stages.join(", "),
             self.total_s
-        )
+        );
+        let peaks: Vec<String> = self
+            .stages
+            .iter()
+            .filter_map(|s| Some(format!("{} {:.0}", s.stage, s.peak_memory_mib?)))
+            .collect();
+        if let Some(run) = self.peak_memory_mib.filter(|_| !peaks.is_empty()) {
+            summary += &format!(
+                "\npeak memory (MiB): {}; the run {run:.0}",
+                peaks.join(", ")
+            );
+        }
+        summary
     }
 }
 
@@ -263,15 +303,25 @@ mod tests {
 
     #[test]
     fn run_times_give_each_stage_and_the_run_against_the_recording() {
-        let times = RunTimes::new(Some(30.0), &[("tracking", 45.0), ("dense", 15.0)], 63.0);
+        let lap = |stage, seconds, peak_memory_mib| Lap {
+            stage,
+            seconds,
+            peak_memory_mib,
+        };
+        let laps = [
+            lap("tracking", 45.0, Some(900.4)),
+            lap("dense", 15.0, Some(1500.0)),
+        ];
+        let times = RunTimes::new(Some(30.0), &laps, 63.0, Some(1500.0));
         let factors: Vec<Option<f64>> = times.stages.iter().map(|s| s.real_time_factor).collect();
         assert_eq!(factors, vec![Some(1.5), Some(0.5)]);
         assert_eq!(times.real_time_factor, Some(2.1));
         assert_eq!(
             times.summary(),
-            "wall time: tracking 45.0 s, dense 15.0 s; the run 63.0 s: 2.10 x the recording's 30.0 s"
+            "wall time: tracking 45.0 s, dense 15.0 s; the run 63.0 s: 2.10 x the recording's 30.0 s\n\
+             peak memory (MiB): tracking 900, dense 1500; the run 1500"
         );
-        let unknown = RunTimes::new(None, &[("tracking", 1.0)], 1.0);
+        let unknown = RunTimes::new(None, &[lap("tracking", 1.0, None)], 1.0, Some(80.0));
         assert_eq!(unknown.real_time_factor, None);
         assert_eq!(
             unknown.summary(),

@@ -158,15 +158,17 @@ fn dense_of(
     Some(dense_pass(&pass))
 }
 
-/// The wall time of a run's stages, one lap each.
+/// The wall time and peak memory of a run's stages, one lap each.
 struct Stopwatch {
     start: std::time::Instant,
     last: std::time::Instant,
-    laps: Vec<(&'static str, f64)>,
+    laps: Vec<crate::records::Lap>,
 }
 
 impl Stopwatch {
     fn start() -> Self {
+        crate::memory::start_sampling();
+        crate::memory::stage_peak_mib();
         let now = std::time::Instant::now();
         Self {
             start: now,
@@ -175,17 +177,23 @@ impl Stopwatch {
         }
     }
 
-    /// The time since the last lap (or the start) as stage `name`.
+    /// The time since the last lap (or the start) as stage `name`, with the peak
+    /// memory since then.
     fn lap(&mut self, name: &'static str) {
         let now = std::time::Instant::now();
-        self.laps.push((name, (now - self.last).as_secs_f64()));
+        self.laps.push(crate::records::Lap {
+            stage: name,
+            seconds: (now - self.last).as_secs_f64(),
+            peak_memory_mib: crate::memory::stage_peak_mib(),
+        });
         self.last = now;
     }
 
     /// The laps and the whole, against a recording of `recording_s` seconds.
     fn times(&self, recording_s: Option<f64>) -> crate::records::RunTimes {
         let total = self.start.elapsed().as_secs_f64();
-        crate::records::RunTimes::new(recording_s, &self.laps, total)
+        let peak = crate::memory::peak_resident_mib();
+        crate::records::RunTimes::new(recording_s, &self.laps, total, peak)
     }
 }
 
