@@ -166,8 +166,10 @@ mod tests {
     }
 
     /// A part of a stage that holds 64 MiB: its peak is at least that, and the
-    /// process's high-water mark no lower. (Other tests run beside this one and may
-    /// end a stage of their own, so nothing finer holds here.)
+    /// process's high-water mark no lower, within the kernel's counters' own slack
+    /// (they are per-CPU and read approximately: a sample can read a little above
+    /// `VmHWM`). Other tests run beside this one and may end a stage of their own, so
+    /// nothing finer holds here.
     #[test]
     #[cfg(target_os = "linux")]
     fn a_part_s_peak_holds_what_it_held() {
@@ -177,6 +179,10 @@ mod tests {
         drop(held);
         assert!(part >= 64.0, "part {part} MiB");
         assert!(stage_peak_mib().is_some());
-        assert!(peak_resident_mib().unwrap() >= part);
+        let high_water = peak_resident_mib().unwrap();
+        assert!(
+            high_water + 16.0 >= part,
+            "VmHWM {high_water} MiB, part {part}"
+        );
     }
 }
