@@ -211,8 +211,7 @@ pub fn write_ply(
     if !mesh.triangles.is_empty() {
         vertices.header.elements.add(face.clone());
     }
-    let write = |out: &mut dyn Write| -> std::io::Result<()> {
-        let mut out = out;
+    let write = |mut out: &mut dyn Write| -> std::io::Result<()> {
         Writer::<Record>::new().write_header(&mut out, &vertices.header)?;
         // In pieces: the file's bytes and ply-rs's records of a whole mesh would take
         // several times the mesh's own memory.
