@@ -70,13 +70,15 @@ fn main() {
     let frames: Vec<usize> = (0..FRAMES).collect();
     let ms = time(&frames, 1, |&i| {
         let camera_from_world = world.poses[i * 20].inverse();
-        volume.integrate(&FrameInput {
-            depth: &rendered[i].depth,
-            colour: &rendered[i].rgb,
-            dynamic: None,
-            camera_from_world: &camera_from_world,
-            weight: 1.0,
-        });
+        volume
+            .integrate(&FrameInput {
+                depth: &rendered[i].depth,
+                colour: &rendered[i].rgb,
+                dynamic: None,
+                camera_from_world: &camera_from_world,
+                weight: 1.0,
+            })
+            .expect("no spill file");
     });
     println!(
         "TSDF integration 640x480 (voxel {} m): {ms:.2} ms median per frame ({} blocks)",

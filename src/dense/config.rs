@@ -107,7 +107,7 @@ pub struct DenseFrames {
     pub max_gap: usize,
 }
 
-/// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `far_carves`, `image_margin`, `allocate_first`).
+/// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `far_carves`, `image_margin`, `allocate_first`, `tsdf_memory_mb`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseTsdf {
     /// Voxel edge, metres.
@@ -130,6 +130,11 @@ pub struct DenseTsdf {
     /// also counts the free space seen before a mover came (see
     /// [`TsdfVolume::allocate`]).
     pub allocate_first: bool,
+    /// The most block voxels held in memory, MB: beyond it the blocks the camera left
+    /// longest ago go to a spill file in the output folder (removed at the end) and
+    /// come back when needed, with the same result ([`TsdfVolume::spill_to`]); 0: no
+    /// limit.
+    pub memory_mb: f64,
 }
 
 /// The keyframes' point cloud (`[dense]` keys `cloud_voxel`, `cloud_stride`, `outlier_neighbours`, `outlier_std`, `normal_neighbours`, `cloud_free_space`).
@@ -276,6 +281,7 @@ pub struct DenseFile {
     far_carves: bool,
     image_margin: u32,
     allocate_first: bool,
+    tsdf_memory_mb: f64,
     frames: FrameChoice,
     frame_step: usize,
     frame_min_translation: f64,
@@ -344,6 +350,7 @@ impl From<DenseFile> for DenseConfig {
                 far_carves: file.far_carves,
                 image_margin: file.image_margin,
                 allocate_first: file.allocate_first,
+                memory_mb: file.tsdf_memory_mb,
             },
             cloud: DenseCloud {
                 voxel: file.cloud_voxel,
@@ -419,6 +426,7 @@ impl From<DenseConfig> for DenseFile {
             far_carves: tsdf.far_carves,
             image_margin: tsdf.image_margin,
             allocate_first: tsdf.allocate_first,
+            tsdf_memory_mb: tsdf.memory_mb,
             cloud_voxel: cloud.voxel,
             cloud_stride: cloud.stride,
             outlier_neighbours: cloud.outlier_neighbours,
@@ -481,6 +489,7 @@ impl Default for DenseConfig {
                 far_carves: tsdf.far_carves,
                 image_margin: tsdf.margin,
                 allocate_first: true,
+                memory_mb: 512.0,
             },
             cloud: DenseCloud {
                 voxel: 0.01,
@@ -570,6 +579,7 @@ impl DenseConfig {
                 ("frame_min_translation", self.frames.min_translation),
                 ("frame_min_rotation", self.frames.min_rotation),
                 ("mask_map_min_weight", self.masks.map_min_weight.into()),
+                ("tsdf_memory_mb", self.tsdf.memory_mb),
             ],
         )?;
         checks::unit_interval(

@@ -254,7 +254,7 @@ fn fuse_frame(
     add_since(&mut fused.stages.truth_s, start);
     let start = Instant::now();
     if let Some(volume) = sinks.volume.as_deref_mut() {
-        volume.integrate(&input);
+        volume.integrate(&input)?;
     }
     fused
         .integration_ms

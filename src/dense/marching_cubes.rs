@@ -169,15 +169,20 @@ struct Piece {
     triangles: Vec<[u32; 3]>,
 }
 
-/// The mesh of the zero level set of `volume`.
-pub fn extract(volume: &TsdfVolume) -> Mesh {
+/// The mesh of the zero level set of `volume`; an error only from its spill file.
+pub fn extract(volume: &mut TsdfVolume) -> Result<Mesh, crate::io::IoError> {
     let table = table();
     let mut welded = Welded::default();
     // Blocks in batches, each welded as it comes (in the blocks' order, as one batch
     // of all would): the pieces of a whole volume, before welding, took several times
-    // the mesh's memory (real figures in docs/design.md).
-    for batch in volume.coords.chunks(WELD_BATCH) {
-        let pieces: Vec<Piece> = batch
+    // the mesh's memory (real figures in docs/design.md). A volume with a budget
+    // brings each batch's blocks (and their neighbours) into memory first.
+    let total = volume.coords.len();
+    for first in (0..total).step_by(WELD_BATCH) {
+        let last = (first + WELD_BATCH).min(total);
+        volume.load_for_meshing(first, last)?;
+        let volume = &*volume;
+        let pieces: Vec<Piece> = volume.coords[first..last]
             .par_iter()
             .map(|&coord| block_piece(volume, table, coord))
             .collect();
@@ -185,7 +190,7 @@ pub fn extract(volume: &TsdfVolume) -> Mesh {
             welded.add(piece);
         }
     }
-    welded.mesh
+    Ok(welded.mesh)
 }
 
 /// Blocks meshed in parallel before their pieces are welded.
@@ -310,23 +315,38 @@ fn edge_vertex(values: &[Sample; 8], origin: [i64; 3], e: u8, voxel: f64) -> ([f
 #[derive(Default)]
 struct Welded {
     mesh: Mesh,
-    /// Each vertex's index in `mesh`, by its edge.
+    /// The index in `mesh` of each vertex on an edge between blocks, by its edge (a
+    /// quarter of the vertices: the others belong to one block's piece alone).
     index: FxMap<EdgeKey, u32>,
+}
+
+/// Whether the edge `key` can be shared by the cubes of two blocks: the four cubes
+/// around an edge along axis \(a\) have their lower corners at the edge's lower corner
+/// less 0 or 1 on each other axis, so they fall into more than one block exactly when
+/// the edge lies on a block face across one of those axes.
+fn on_block_boundary(key: &EdgeKey) -> bool {
+    let (lower, axis) = key;
+    (0..3).any(|i| i != *axis as usize && lower[i].rem_euclid(BLOCK as i64) == 0)
 }
 
 impl Welded {
     /// Adds `piece`'s triangles, its vertices on edges met before taken from there.
     fn add(&mut self, piece: Piece) {
         let Self { mesh, index } = self;
+        let mut push = |position: &[f32; 3], colour: &[u8; 3]| {
+            mesh.vertices.push(*position);
+            mesh.colours.push(*colour);
+            (mesh.vertices.len() - 1) as u32
+        };
         let map: Vec<u32> = piece
             .vertices
             .iter()
             .map(|(key, position, colour)| {
-                *index.entry(*key).or_insert_with(|| {
-                    mesh.vertices.push(*position);
-                    mesh.colours.push(*colour);
-                    (mesh.vertices.len() - 1) as u32
-                })
+                if on_block_boundary(key) {
+                    *index.entry(*key).or_insert_with(|| push(position, colour))
+                } else {
+                    push(position, colour)
+                }
             })
             .collect();
         mesh.triangles
@@ -372,7 +392,7 @@ mod tests {
         for bz in 0..3 {
             for by in 0..3 {
                 for bx in 0..3 {
-                    let block = volume.block_mut([bx, by, bz]);
+                    let block = volume.block_mut([bx, by, bz]).unwrap();
                     for z in 0..BLOCK {
                         for y in 0..BLOCK {
                             for x in 0..BLOCK {
@@ -391,7 +411,7 @@ mod tests {
                 }
             }
         }
-        let mesh = extract(&volume);
+        let mesh = extract(&mut volume).unwrap();
         assert!(mesh.triangles.len() > 1000);
         assert_closed(&mesh);
     }
@@ -407,7 +427,7 @@ mod tests {
         let mut volume =
             TsdfVolume::new(settings, crate::geometry::camera::PinholeCamera::tum_fr3());
         for (bx, by) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let block = volume.block_mut([bx, by, 0]);
+            let block = volume.block_mut([bx, by, 0]).unwrap();
             for z in 0..BLOCK {
                 for y in 0..BLOCK {
                     for x in 0..BLOCK {
@@ -420,7 +440,7 @@ mod tests {
                 }
             }
         }
-        let mesh = extract(&volume);
+        let mesh = extract(&mut volume).unwrap();
         assert!(mesh.triangles.len() > 100);
         let mut positions: Vec<[u32; 3]> =
             mesh.vertices.iter().map(|v| v.map(f32::to_bits)).collect();

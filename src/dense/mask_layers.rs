@@ -287,13 +287,15 @@ mod tests {
         let colour = image::RgbImage::new(camera.width, camera.height);
         let wall = render_depth(&camera, &pose, &[], Some(2.0));
         for _ in 0..4 {
-            volume.integrate(&FrameInput {
-                depth: &wall,
-                colour: &colour,
-                dynamic: None,
-                camera_from_world: &pose,
-                weight: 1.0,
-            });
+            volume
+                .integrate(&FrameInput {
+                    depth: &wall,
+                    colour: &colour,
+                    dynamic: None,
+                    camera_from_world: &pose,
+                    weight: 1.0,
+                })
+                .expect("no spill file");
         }
         let ball = [(Vector3::new(0.0, 0.0, 1.2), 0.3)];
         let depth = render_depth(&camera, &pose, &ball, Some(2.0));

@@ -31,6 +31,7 @@ pub mod outputs;
 pub mod render;
 pub mod report;
 pub mod segments;
+mod spill;
 pub mod truth;
 pub mod tsdf;
 
@@ -212,6 +213,9 @@ fn fuse(
     let fuse_tsdf = config.fuses_tsdf();
     let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
+    if fuse_tsdf && config.tsdf.memory_mb > 0.0 {
+        volume.spill_to(inputs.out_dir, (config.tsdf.memory_mb * 1e6) as usize)?;
+    }
     if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
         let start = Instant::now();
         allocate_blocks(&mut volume, inputs, chosen)?;

@@ -34,12 +34,12 @@ pub(super) fn write_maps(
         "dopslam dense map, masking {:?}, voxel {} m",
         masking, config.tsdf.voxel
     );
-    let Maps { volume, cloud } = maps;
+    let Maps { mut volume, cloud } = maps;
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.
-    let mesh = config.fuses_tsdf().then(|| {
+    let mesh = if config.fuses_tsdf() {
         let start = Instant::now();
-        let (mesh, dropped) = marching_cubes::extract(&volume)
+        let (mesh, dropped) = marching_cubes::extract(&mut volume)?
             .without_small_pieces(config.outputs.mesh_min_piece_area);
         report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
         report.stages.mesh_s = report.marching_cubes_ms / 1e3;
@@ -48,8 +48,10 @@ pub(super) fn write_maps(
         report.mesh_vertices = mesh.len();
         report.mesh_triangles = mesh.triangles.len();
         report.memory.mesh_mib = crate::memory::part_peak_mib();
-        mesh
-    });
+        Some(mesh)
+    } else {
+        None
+    };
     let points = cloud.map(|cloud| {
         let start = Instant::now();
         let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
@@ -61,6 +63,7 @@ pub(super) fn write_maps(
         report.memory.cloud_mib = crate::memory::part_peak_mib();
         points
     });
+    report.tsdf_spill = volume.spill_counts()?;
     drop(volume);
     interrupted(
         out.root(),

@@ -35,8 +35,13 @@ pub struct DenseReport {
     pub masked_fusable_percent: f64,
     /// TSDF blocks allocated.
     pub tsdf_blocks: usize,
-    /// Their memory, MB.
+    /// Their voxels' size, MB (in memory or in the spill file).
     pub tsdf_memory_mb: f64,
+    /// What the memory budget (`[dense] tsdf_memory_mb`) made the volume do: blocks
+    /// written to the spill file and read back, the file's size, the most voxels in
+    /// memory at once.
+    #[serde(default)]
+    pub tsdf_spill: crate::dense::tsdf::SpillCounts,
     /// Mesh vertices.
     pub mesh_vertices: usize,
     /// Mesh triangles.

@@ -19,8 +19,16 @@
 //! Integration is rayon-parallel over the blocks a frame touches: those within
 //! \(\tau\) of its depth (allocated) and, for carving, existing surface blocks that
 //! lie in front of the depth they project onto.
+//!
+//! With a memory budget ([`TsdfVolume::spill_to`]) the voxels of the blocks least
+//! recently touched are written to a spill file once the blocks in memory exceed it,
+//! and read back when a frame changes them again (the camera returned), when meshing
+//! reaches them, or (one voxel at a time) when a query asks for them: the same
+//! arithmetic on the same values, so the same volume as without a budget.
 
 use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Mutex;
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -28,6 +36,9 @@ use rayon::prelude::*;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
+use crate::io::IoError;
+
+use super::spill::SpillFile;
 
 /// A fast hasher for integer keys (the Fx hash of rustc): block lookups dominate
 /// integration and meshing, and SipHash's resistance to flooding is not needed here.
@@ -59,6 +70,9 @@ pub type FxMap<K, V> = HashMap<K, V, std::hash::BuildHasherDefault<FxHasher>>;
 /// Voxels along one side of a block.
 pub const BLOCK: usize = 8;
 const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
+/// Bytes of one block's voxels: field and weight (`f32`), colour (3 `u8`), colour
+/// count (`u16`); a record of the spill file in this order, little-endian.
+pub const BLOCK_BYTES: usize = BLOCK_VOXELS * (4 + 4 + 3 + 2);
 
 /// Settings of a volume.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -127,7 +141,8 @@ fn key_block(key: u64) -> [i32; 3] {
     [field(42), field(21), field(0)]
 }
 
-/// One block of voxels, x fastest.
+/// One block of voxels, x fastest. Its voxel arrays are empty while it is out of
+/// memory: spilled ([`TsdfVolume::spill_to`]), or allocated ahead and not yet changed.
 #[derive(Debug, Clone)]
 pub struct Block {
     /// Signed distance per voxel, in truncation units.
@@ -148,23 +163,114 @@ pub struct Block {
     /// integration left it: a reading that sees the whole block as free space (or does
     /// not see it) changes nothing, and integration skips it without reading its voxels.
     free: bool,
-    /// The last integration that touched this block.
+    /// The last integration (or meshing batch) that touched this block.
     stamp: u32,
+    /// Its record in the spill file, once written there.
+    slot: Option<u32>,
+    /// Changed since it was last written to its slot (or never written).
+    dirty: bool,
 }
 
 impl Block {
-    fn new() -> Self {
+    /// A block out of memory that has never been written: unobserved voxels.
+    fn unloaded() -> Self {
         Self {
-            sdf: vec![1.0; BLOCK_VOXELS],
-            weight: vec![0.0; BLOCK_VOXELS],
-            colour: vec![[0; 3]; BLOCK_VOXELS],
-            colour_weight: vec![0; BLOCK_VOXELS],
+            sdf: Vec::new(),
+            weight: Vec::new(),
+            colour: Vec::new(),
+            colour_weight: Vec::new(),
             surface: false,
             ahead: false,
             free: false,
             stamp: 0,
+            slot: None,
+            dirty: false,
         }
     }
+
+    /// Whether its voxels are in memory.
+    pub fn resident(&self) -> bool {
+        !self.sdf.is_empty()
+    }
+
+    /// Unobserved voxels (\(F = 1\), \(W = 0\)) in memory, in `arrays`.
+    fn fill_unobserved(&mut self, arrays: Voxels) {
+        self.put(arrays);
+        self.sdf.resize(BLOCK_VOXELS, 1.0);
+        self.weight.resize(BLOCK_VOXELS, 0.0);
+        self.colour.resize(BLOCK_VOXELS, [0; 3]);
+        self.colour_weight.resize(BLOCK_VOXELS, 0);
+        self.dirty = true;
+    }
+
+    /// Its voxels as a spill record ([`BLOCK_BYTES`]).
+    fn write_record(&self, out: &mut Vec<u8>) {
+        out.clear();
+        out.extend(self.sdf.iter().flat_map(|f| f.to_le_bytes()));
+        out.extend(self.weight.iter().flat_map(|w| w.to_le_bytes()));
+        out.extend(self.colour.iter().flatten());
+        out.extend(self.colour_weight.iter().flat_map(|n| n.to_le_bytes()));
+    }
+
+    /// Its voxels from a spill record, in `arrays`.
+    fn read_record(&mut self, bytes: &[u8], arrays: Voxels) {
+        self.put(arrays);
+        let (sdf, rest) = bytes.split_at(4 * BLOCK_VOXELS);
+        let (weight, rest) = rest.split_at(4 * BLOCK_VOXELS);
+        let (colour, counts) = rest.split_at(3 * BLOCK_VOXELS);
+        let f32s = |into: &mut Vec<f32>, b: &[u8]| {
+            into.extend(
+                b.chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            )
+        };
+        f32s(&mut self.sdf, sdf);
+        f32s(&mut self.weight, weight);
+        (self.colour).extend(colour.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
+        (self.colour_weight).extend(
+            counts
+                .chunks_exact(2)
+                .map(|c| u16::from_le_bytes([c[0], c[1]])),
+        );
+        self.dirty = false;
+    }
+
+    /// Takes `arrays` (emptied) as its voxel arrays.
+    fn put(&mut self, arrays: Voxels) {
+        let Voxels {
+            mut sdf,
+            mut weight,
+            mut colour,
+            mut colour_weight,
+        } = arrays;
+        sdf.clear();
+        weight.clear();
+        colour.clear();
+        colour_weight.clear();
+        (self.sdf, self.weight, self.colour, self.colour_weight) =
+            (sdf, weight, colour, colour_weight);
+    }
+
+    /// Takes its voxel arrays out (it is then out of memory).
+    fn unload(&mut self) -> Voxels {
+        Voxels {
+            sdf: std::mem::take(&mut self.sdf),
+            weight: std::mem::take(&mut self.weight),
+            colour: std::mem::take(&mut self.colour),
+            colour_weight: std::mem::take(&mut self.colour_weight),
+        }
+    }
+}
+
+/// A block's voxel arrays without the block: those of blocks that went out of memory
+/// are kept for the next ones that come in, so that the volume's memory stays at its
+/// budget instead of leaving freed pieces through the heap.
+#[derive(Debug, Default)]
+struct Voxels {
+    sdf: Vec<f32>,
+    weight: Vec<f32>,
+    colour: Vec<[u8; 3]>,
+    colour_weight: Vec<u16>,
 }
 
 /// The index of voxel `(x, y, z)` inside a block.
@@ -191,7 +297,7 @@ pub struct FrameInput<'a> {
 }
 
 /// A sparse TSDF volume.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct TsdfVolume {
     /// Its settings.
     pub settings: TsdfSettings,
@@ -204,6 +310,42 @@ pub struct TsdfVolume {
     frames: u32,
     /// \(2^{16} / (n + 1)\) for colour counts \(n\) up to the weight cap.
     colour_reciprocals: Vec<u32>,
+    /// Blocks whose voxels are in memory.
+    resident: usize,
+    /// The most that ever were.
+    peak_resident: usize,
+    /// Where blocks go beyond the budget, when there is one.
+    spill: Option<Spill>,
+}
+
+/// A volume's spill file and budget ([`TsdfVolume::spill_to`]).
+#[derive(Debug)]
+struct Spill {
+    file: SpillFile,
+    /// Blocks in memory allowed before the least recently touched are written out.
+    budget: usize,
+    /// Blocks written to the file, and read back from it.
+    written: u64,
+    reloaded: u64,
+    /// The first error of a query's read (queries answer `false` and keep it).
+    failed: Mutex<Option<IoError>>,
+    /// The arrays of blocks that went out, for those that come in.
+    spare: Vec<Voxels>,
+    /// One record's bytes, written or read.
+    bytes: Vec<u8>,
+}
+
+/// What a volume's budget made it do ([`TsdfVolume::spill_counts`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SpillCounts {
+    /// Block records written to the spill file (a block written again counts again).
+    pub blocks_written: u64,
+    /// Block records read back into memory.
+    pub blocks_reloaded: u64,
+    /// The spill file's size at the end, MB.
+    pub file_mb: f64,
+    /// The most block voxels in memory at once, MB.
+    pub peak_resident_mb: f64,
 }
 
 impl TsdfVolume {
@@ -219,7 +361,45 @@ impl TsdfVolume {
             colour_reciprocals: (0..=settings.max_weight.clamp(0.0, u16::MAX as f32) as u32)
                 .map(|n| (65536.0 / f64::from(n + 1)).round() as u32)
                 .collect(),
+            resident: 0,
+            peak_resident: 0,
+            spill: None,
         }
+    }
+
+    /// Keeps at most `budget_bytes` of block voxels in memory (at least one frame's
+    /// blocks): beyond it, the blocks least recently touched go to a spill file in
+    /// `dir`, removed when the volume is dropped.
+    pub fn spill_to(&mut self, dir: &Path, budget_bytes: usize) -> Result<(), IoError> {
+        self.spill = Some(Spill {
+            file: SpillFile::create(dir, BLOCK_BYTES)?,
+            budget: (budget_bytes / BLOCK_BYTES).max(1),
+            written: 0,
+            reloaded: 0,
+            failed: Mutex::new(None),
+            spare: Vec::new(),
+            bytes: Vec::with_capacity(BLOCK_BYTES),
+        });
+        Ok(())
+    }
+
+    /// What the budget made the volume do so far (zeros without one), or the first
+    /// error reading the spill file met by a query.
+    pub fn spill_counts(&self) -> Result<SpillCounts, IoError> {
+        let mb = |blocks: usize| (blocks * BLOCK_BYTES) as f64 / 1e6;
+        let mut counts = SpillCounts {
+            peak_resident_mb: mb(self.peak_resident),
+            ..SpillCounts::default()
+        };
+        if let Some(spill) = &self.spill {
+            if let Some(e) = spill.failed.lock().expect("not poisoned").take() {
+                return Err(e);
+            }
+            counts.blocks_written = spill.written;
+            counts.blocks_reloaded = spill.reloaded;
+            counts.file_mb = spill.file.bytes() as f64 / 1e6;
+        }
+        Ok(counts)
     }
 
     /// Edge of a block, metres.
@@ -227,20 +407,104 @@ impl TsdfVolume {
         self.settings.voxel * BLOCK as f64
     }
 
-    /// The block at `coord`, if allocated.
+    /// The block at `coord`, if allocated and in memory.
     pub fn block(&self, coord: [i32; 3]) -> Option<&Block> {
-        self.index.get(&coord).map(|&i| &self.blocks[i as usize])
+        let block = &self.blocks[*self.index.get(&coord)? as usize];
+        block.resident().then_some(block)
     }
 
-    /// The block at `coord`, allocated if it was not.
-    pub fn block_mut(&mut self, coord: [i32; 3]) -> &mut Block {
+    /// The block at `coord` in memory, allocated if it was not.
+    pub fn block_mut(&mut self, coord: [i32; 3]) -> Result<&mut Block, IoError> {
+        let i = self.index_of(coord);
+        self.load(i)?;
+        Ok(&mut self.blocks[i])
+    }
+
+    /// The index of the block at `coord`, allocated (out of memory) if it was not.
+    fn index_of(&mut self, coord: [i32; 3]) -> usize {
         let next = self.blocks.len() as u32;
         let i = *self.index.entry(coord).or_insert(next);
         if i == next {
-            self.blocks.push(Block::new());
+            self.blocks.push(Block::unloaded());
             self.coords.push(coord);
         }
-        &mut self.blocks[i as usize]
+        i as usize
+    }
+
+    /// Brings block `i`'s voxels into memory: from its spill record, or unobserved.
+    fn load(&mut self, i: usize) -> Result<(), IoError> {
+        let block = &mut self.blocks[i];
+        if block.resident() {
+            return Ok(());
+        }
+        let arrays = (self.spill.as_mut())
+            .and_then(|s| s.spare.pop())
+            .unwrap_or_default();
+        match (block.slot, self.spill.as_mut()) {
+            (Some(slot), Some(spill)) => {
+                spill.bytes.resize(BLOCK_BYTES, 0);
+                spill.file.read(slot, &mut spill.bytes)?;
+                block.read_record(&spill.bytes, arrays);
+                spill.reloaded += 1;
+            }
+            _ => block.fill_unobserved(arrays),
+        }
+        self.resident += 1;
+        self.peak_resident = self.peak_resident.max(self.resident);
+        Ok(())
+    }
+
+    /// Within the budget: when the blocks in memory exceed it, the least recently
+    /// touched (never those of the current stamp) go to the spill file until a
+    /// quarter of the budget is free, so that this runs now and then, not every frame.
+    fn keep_within_budget(&mut self) -> Result<(), IoError> {
+        let Some(spill) = self.spill.as_mut() else {
+            return Ok(());
+        };
+        if self.resident <= spill.budget {
+            return Ok(());
+        }
+        let now = self.frames;
+        let mut old: Vec<(u32, u32)> = (self.blocks.iter().enumerate())
+            .filter(|(_, b)| b.resident() && b.stamp != now)
+            .map(|(i, b)| (b.stamp, i as u32))
+            .collect();
+        let surplus = (self.resident - spill.budget * 3 / 4).min(old.len());
+        if surplus == 0 {
+            return Ok(());
+        }
+        old.select_nth_unstable(surplus - 1);
+        for &(_, i) in &old[..surplus] {
+            let block = &mut self.blocks[i as usize];
+            if block.dirty || block.slot.is_none() {
+                block.write_record(&mut spill.bytes);
+                block.slot = Some(spill.file.write(block.slot, &spill.bytes)?);
+                block.dirty = false;
+                spill.written += 1;
+            }
+            spill.spare.push(block.unload());
+        }
+        self.resident -= surplus;
+        Ok(())
+    }
+
+    /// Brings the blocks that meshing the blocks `first..last` reads into memory
+    /// (each with its neighbours above it on each axis), touched now, and keeps
+    /// within the budget.
+    pub(crate) fn load_for_meshing(&mut self, first: usize, last: usize) -> Result<(), IoError> {
+        self.frames += 1;
+        let now = self.frames;
+        for i in first..last {
+            let c = self.coords[i];
+            for k in 0..8 {
+                let n = [c[0] + (k & 1), c[1] + ((k >> 1) & 1), c[2] + ((k >> 2) & 1)];
+                if let Some(&j) = self.index.get(&n) {
+                    self.blocks[j as usize].stamp = now;
+                    self.load(j as usize)?;
+                }
+            }
+        }
+        self.keep_within_budget()
     }
 
     /// Whether the voxel nearest to world point `p` is observed free space: weight above
@@ -248,8 +512,8 @@ impl TsdfVolume {
     /// front of every surface seen there). A point the depth once put there belonged to
     /// something that has since been seen through, a mover that left.
     pub fn seen_through(&self, p: &Vector3<f64>, limit: f32) -> bool {
-        self.voxel_at(p)
-            .is_some_and(|(block, k)| block.weight[k] > 0.0 && block.sdf[k] > limit)
+        self.voxel(p)
+            .is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit)
     }
 
     /// Whether world point `p` lies on a surface fused with at least `min_weight`: the
@@ -257,29 +521,52 @@ impl TsdfVolume {
     /// point more than `band` truncations in front of every surface seen there is in
     /// free space).
     pub fn on_surface(&self, p: &Vector3<f64>, min_weight: f32, band: f32) -> bool {
-        self.voxel_at(p)
-            .is_some_and(|(block, k)| block.weight[k] >= min_weight && block.sdf[k] <= band)
+        self.voxel(p)
+            .is_some_and(|(sdf, weight)| weight >= min_weight && sdf <= band)
     }
 
-    /// The block holding the voxel nearest to world point `p` and the voxel's index in
-    /// it, when the block is allocated.
-    fn voxel_at(&self, p: &Vector3<f64>) -> Option<(&Block, usize)> {
+    /// The field and weight of the voxel nearest to world point `p`, when its block
+    /// is allocated and has been observed: from memory, or read from the spill file.
+    fn voxel(&self, p: &Vector3<f64>) -> Option<(f32, f32)> {
+        let (i, k) = self.voxel_index_at(p)?;
+        let block = &self.blocks[i];
+        if block.resident() {
+            return Some((block.sdf[k], block.weight[k]));
+        }
+        let (slot, spill) = (block.slot?, self.spill.as_ref()?);
+        let mut sdf = [0u8; 4];
+        let mut weight = [0u8; 4];
+        let read = spill.file.read_part(slot, 4 * k, &mut sdf).and_then(|()| {
+            spill
+                .file
+                .read_part(slot, 4 * (BLOCK_VOXELS + k), &mut weight)
+        });
+        if let Err(e) = read {
+            spill.failed.lock().expect("not poisoned").get_or_insert(e);
+            return None;
+        }
+        Some((f32::from_le_bytes(sdf), f32::from_le_bytes(weight)))
+    }
+
+    /// The block holding the voxel nearest to world point `p` (when allocated) and the
+    /// voxel's index in it.
+    fn voxel_index_at(&self, p: &Vector3<f64>) -> Option<(usize, usize)> {
         // Voxel centres lie at integer multiples of the voxel edge.
         let v = |x: f64| floor(x / self.settings.voxel + 0.5);
         let (x, y, z) = (v(p.x), v(p.y), v(p.z));
         let b = BLOCK as i32;
-        let block = self.block([x.div_euclid(b), y.div_euclid(b), z.div_euclid(b)])?;
+        let coord = [x.div_euclid(b), y.div_euclid(b), z.div_euclid(b)];
         let k = voxel_index(
             x.rem_euclid(b) as usize,
             y.rem_euclid(b) as usize,
             z.rem_euclid(b) as usize,
         );
-        Some((block, k))
+        Some((*self.index.get(&coord)? as usize, k))
     }
 
-    /// Bytes held by the voxel data.
+    /// Bytes the whole volume's voxels take (in memory or not).
     pub fn memory_bytes(&self) -> usize {
-        self.blocks.len() * BLOCK_VOXELS * (4 + 4 + 3 + 2)
+        self.blocks.len() * BLOCK_BYTES
     }
 
     /// Allocates the blocks within \(\tau\) of a frame's depth without fusing it. An
@@ -290,12 +577,13 @@ impl TsdfVolume {
     /// by the earlier frames.
     pub fn allocate(&mut self, depth: &DepthImage, camera_from_world: &Se3) {
         for coord in self.blocks_near_surface(depth, None, camera_from_world) {
-            self.block_mut(coord).ahead = true;
+            let i = self.index_of(coord);
+            self.blocks[i].ahead = true;
         }
     }
 
-    /// Fuses one frame (see the module doc).
-    pub fn integrate(&mut self, frame: &FrameInput) {
+    /// Fuses one frame (see the module doc); an error only from the spill file.
+    pub fn integrate(&mut self, frame: &FrameInput) -> Result<(), IoError> {
         self.frames += 1;
         let stamp = self.frames;
         let carved = if self.settings.carve {
@@ -307,18 +595,20 @@ impl TsdfVolume {
             self.blocks[i as usize].stamp = stamp;
         }
         for coord in self.blocks_near_surface(frame.depth, frame.dynamic, frame.camera_from_world) {
-            self.block_mut(coord).stamp = stamp;
+            let i = self.index_of(coord);
+            self.blocks[i].stamp = stamp;
         }
+        self.load_changed(frame)?;
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
         let reciprocals = &self.colour_reciprocals;
         let mut chosen: Vec<(&mut Block, &[i32; 3])> = self
             .blocks
             .iter_mut()
             .zip(&self.coords)
-            .filter(|(b, _)| b.stamp == stamp)
+            .filter(|(b, _)| b.stamp == stamp && b.resident())
             .collect();
         chosen.par_iter_mut().for_each(|(block, coord)| {
-            integrate_block(
+            let changed = integrate_block(
                 block,
                 coord,
                 block_size,
@@ -326,8 +616,26 @@ impl TsdfVolume {
                 &camera,
                 reciprocals,
                 frame,
-            )
+            );
+            block.dirty |= changed;
         });
+        self.keep_within_budget()
+    }
+
+    /// Brings into memory the blocks of this frame (those of the current stamp) that
+    /// it changes and that are out of memory; those it leaves as they are stay out.
+    fn load_changed(&mut self, frame: &FrameInput) -> Result<(), IoError> {
+        let now = self.frames;
+        let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
+        let needed: Vec<usize> = (self.blocks.par_iter().zip(&self.coords).enumerate())
+            .filter(|(_, (b, _))| b.stamp == now && !b.resident())
+            .filter(|(_, (b, coord))| changes(b.free, coord, block_size, &settings, &camera, frame))
+            .map(|(i, _)| i)
+            .collect();
+        for i in needed {
+            self.load(i)?;
+        }
+        Ok(())
     }
 
     /// Block coordinates within \(\tau\) of the frame's depth (every 4th pixel of every
@@ -478,9 +786,84 @@ fn integrate_block(
     camera: &PinholeCamera,
     reciprocals: &[u32],
     frame: &FrameInput,
-) {
+) -> bool {
+    let Seen {
+        pixels,
+        mut measured,
+        updates:
+            Updates {
+                etas,
+                updates,
+                any,
+                within,
+            },
+    } = seen(coord, block_size, settings, camera, frame);
+    if !any || (block.free && !within) {
+        return false;
+    }
     let tau = settings.truncation as f32;
     let inv_tau = 1.0 / tau;
+    let max_weight = settings.max_weight;
+    let k = frame.weight;
+    let sdf = &mut block.sdf[..BLOCK_VOXELS];
+    let weight = &mut block.weight[..BLOCK_VOXELS];
+    for ((((f, w), d), &eta), &m) in sdf
+        .iter_mut()
+        .zip(weight.iter_mut())
+        .zip(measured.iter_mut())
+        .zip(&etas)
+        .zip(&updates)
+    {
+        // Blends with 0/1 factors, not branches, so that this loop vectorises.
+        let fused = (*f * *w + k * (eta * inv_tau).min(1.0)) / (*w + k);
+        *f += m * (fused - *f);
+        *w += m * ((*w + k).min(max_weight) - *w);
+        // Colour only within the band; `measured` becomes that flag.
+        *d = m * f32::from(u8::from(eta <= tau));
+    }
+    fuse_colour(block, &pixels, &measured, reciprocals, frame);
+    let (mut surface, mut free) = (false, true);
+    for (&f, &w) in block.sdf.iter().zip(&block.weight) {
+        surface |= (f < 0.0) & (w > 0.0);
+        free &= (f == 1.0) & (w >= max_weight);
+    }
+    (block.surface, block.free) = (surface, free);
+    true
+}
+
+/// Whether `frame` changes a block at `coord` (`free`: [`Block::free`]), as
+/// [`integrate_block`] finds before it reads the voxels.
+fn changes(
+    free: bool,
+    coord: &[i32; 3],
+    block_size: f64,
+    settings: &TsdfSettings,
+    camera: &PinholeCamera,
+    frame: &FrameInput,
+) -> bool {
+    let Updates { any, within, .. } = seen(coord, block_size, settings, camera, frame).updates;
+    any && (within || !free)
+}
+
+/// What a frame says about a block's voxels, before they are read ([`seen`]).
+struct Seen {
+    /// Each voxel's pixel ([`project_block`]).
+    pixels: [i32; BLOCK_VOXELS],
+    /// Each voxel's measured depth (0: none).
+    measured: [f32; BLOCK_VOXELS],
+    updates: Updates,
+}
+
+/// The block at `coord` seen by `frame`: its voxels' pixels, depths and updates.
+#[inline(always)]
+fn seen(
+    coord: &[i32; 3],
+    block_size: f64,
+    settings: &TsdfSettings,
+    camera: &PinholeCamera,
+    frame: &FrameInput,
+) -> Seen {
+    let tau = settings.truncation as f32;
     let max_depth = settings.max_depth as f32;
     let far_carves = settings.far_carves;
     let Projected { pixels, zs, rims } = project_block(coord, block_size, settings, camera, frame);
@@ -509,40 +892,12 @@ fn integrate_block(
     // masked pixel only where \(\eta > \tau\) (a mover's depth fuses nothing at or
     // behind it, but the free space in front of it still carves). First on the stack
     // alone: a block no voxel of which changes is not read (see [`Block::free`]).
-    let Updates {
-        etas,
+    let updates = updates(&measured, &zs, &moving, tau);
+    Seen {
+        pixels,
+        measured,
         updates,
-        any,
-        within,
-    } = updates(&measured, &zs, &moving, tau);
-    if !any || (block.free && !within) {
-        return;
     }
-    let max_weight = settings.max_weight;
-    let k = frame.weight;
-    let sdf = &mut block.sdf[..BLOCK_VOXELS];
-    let weight = &mut block.weight[..BLOCK_VOXELS];
-    for ((((f, w), d), &eta), &m) in sdf
-        .iter_mut()
-        .zip(weight.iter_mut())
-        .zip(measured.iter_mut())
-        .zip(&etas)
-        .zip(&updates)
-    {
-        // Blends with 0/1 factors, not branches, so that this loop vectorises.
-        let fused = (*f * *w + k * (eta * inv_tau).min(1.0)) / (*w + k);
-        *f += m * (fused - *f);
-        *w += m * ((*w + k).min(max_weight) - *w);
-        // Colour only within the band; `measured` becomes that flag.
-        *d = m * f32::from(u8::from(eta <= tau));
-    }
-    fuse_colour(block, &pixels, &measured, reciprocals, frame);
-    let (mut surface, mut free) = (false, true);
-    for (&f, &w) in block.sdf.iter().zip(&block.weight) {
-        surface |= (f < 0.0) & (w > 0.0);
-        free &= (f == 1.0) & (w >= max_weight);
-    }
-    (block.surface, block.free) = (surface, free);
 }
 
 /// Which voxels of a block a frame updates ([`updates`]).
@@ -751,6 +1106,81 @@ pub(crate) mod tests {
         (settings, (Vector3::new(0.0, 0.0, 1.2), 0.2), views)
     }
 
+    /// A camera that pans 3 m along a wall past a ball and back after the ball left:
+    /// the blocks it left go to the spill file and come back, carved, on the return.
+    #[test]
+    fn a_volume_over_its_budget_spills_and_gives_the_same_map() {
+        let (settings, ball, _) = ball_before_a_wall();
+        let camera = small_camera();
+        let out: Vec<Se3> = (0..30)
+            .map(|k| {
+                let x = -1.5 + 0.1 * k as f64;
+                looking_at(Vector3::new(x, 0.0, 0.0), Vector3::new(x, 0.0, 2.0))
+            })
+            .collect();
+        let back: Vec<Se3> = out.iter().rev().copied().collect();
+        let fused = |budget: Option<usize>, dir: &std::path::Path| {
+            let mut volume = TsdfVolume::new(settings, camera);
+            if let Some(blocks) = budget {
+                volume.spill_to(dir, blocks * BLOCK_BYTES).unwrap();
+            }
+            for pose in &out {
+                let depth = render_depth(&camera, pose, &[ball], Some(2.0));
+                volume.allocate(&depth, pose);
+            }
+            fuse_views(&mut volume, &out, &[ball], Some(2.0));
+            fuse_views(&mut volume, &back, &[], Some(2.0));
+            volume
+        };
+        let dir = std::env::temp_dir().join(format!("dopslam-tsdf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut whole = fused(None, &dir);
+        let mut spilled = fused(Some(40), &dir);
+        let counts = spilled.spill_counts().unwrap();
+        let all = whole.spill_counts().unwrap();
+        assert!(
+            counts.blocks_written > 0 && counts.blocks_reloaded > 0,
+            "{counts:?}"
+        );
+        assert!(
+            counts.peak_resident_mb < 0.6 * all.peak_resident_mb,
+            "{counts:?} {all:?}"
+        );
+        // Queries read spilled voxels from the file.
+        let mut rng = crate::random::Rng::new(3);
+        for _ in 0..2000 {
+            let p = Vector3::new(
+                -1.8 + 3.6 * rng.uniform(),
+                -0.8 + 1.6 * rng.uniform(),
+                0.8 + 1.4 * rng.uniform(),
+            );
+            assert_eq!(whole.seen_through(&p, 0.5), spilled.seen_through(&p, 0.5));
+            assert_eq!(
+                whole.on_surface(&p, 2.0, 0.5),
+                spilled.on_surface(&p, 2.0, 0.5)
+            );
+        }
+        let (a, b) = (extract(&mut whole).unwrap(), extract(&mut spilled).unwrap());
+        assert!(a.triangles.len() > 1000);
+        assert_eq!(a.vertices, b.vertices);
+        assert_eq!(a.colours, b.colours);
+        assert_eq!(a.triangles, b.triangles);
+        let path = spilled.spill.as_ref().unwrap().file.path().to_path_buf();
+        assert!(path.exists());
+        drop(spilled);
+        assert!(!path.exists(), "the spill file goes with the volume");
+        std::fs::remove_dir(&dir).unwrap();
+        let front = Vector3::new(0.0, 0.0, ball.0.z - ball.1);
+        assert!(whole.seen_through(&front, 0.5), "the ball was carved");
+    }
+
+    /// The block in memory holding the voxel nearest to `p`, and the voxel's index.
+    fn voxel_at<'a>(volume: &'a TsdfVolume, p: &Vector3<f64>) -> Option<(&'a Block, usize)> {
+        let (i, k) = volume.voxel_index_at(p)?;
+        let block = &volume.blocks[i];
+        block.resident().then_some((block, k))
+    }
+
     #[test]
     fn a_place_seen_through_after_it_was_a_surface_reads_as_free_space() {
         let (settings, ball, views) = ball_before_a_wall();
@@ -786,7 +1216,7 @@ pub(crate) mod tests {
             fuse_views(&mut volume, &views, &[], Some(2.0));
         }
         let front = Vector3::new(0.0, 0.0, ball.0.z - ball.1);
-        let (block, _) = volume.voxel_at(&front).expect("allocated ahead");
+        let (block, _) = voxel_at(&volume, &front).expect("allocated ahead");
         assert!(block.free, "free space at the weight cap");
         let before = (
             block.sdf.clone(),
@@ -794,7 +1224,7 @@ pub(crate) mod tests {
             block.colour.clone(),
         );
         fuse_views(&mut volume, &views, &[], Some(2.0));
-        let (block, _) = volume.voxel_at(&front).unwrap();
+        let (block, _) = voxel_at(&volume, &front).unwrap();
         let after = (
             block.sdf.clone(),
             block.weight.clone(),
@@ -802,7 +1232,7 @@ pub(crate) mod tests {
         );
         assert!(before == after, "more free space changes nothing");
         fuse_views(&mut volume, &views, &[ball], Some(2.0));
-        let (block, _) = volume.voxel_at(&front).unwrap();
+        let (block, _) = voxel_at(&volume, &front).unwrap();
         assert!(
             !block.free,
             "the ball's surface is fused into the free block"
@@ -937,13 +1367,15 @@ pub(crate) mod tests {
         let backdrop = wall.is_none().then_some(2.5);
         for pose in views {
             let depth = render_with_backdrop(&camera, pose, spheres, wall, backdrop);
-            volume.integrate(&FrameInput {
-                depth: &depth,
-                colour: &colour,
-                dynamic: None,
-                camera_from_world: pose,
-                weight: 1.0,
-            });
+            volume
+                .integrate(&FrameInput {
+                    depth: &depth,
+                    colour: &colour,
+                    dynamic: None,
+                    camera_from_world: pose,
+                    weight: 1.0,
+                })
+                .unwrap();
         }
     }
 
@@ -972,7 +1404,7 @@ pub(crate) mod tests {
         views.push(looking_at(centre + Vector3::new(0.0, -1.0, 0.01), centre));
         views.push(looking_at(centre + Vector3::new(0.0, 1.0, 0.01), centre));
         fuse_views(&mut volume, &views, &[(centre, radius)], None);
-        let mesh = extract(&volume);
+        let mesh = extract(&mut volume).unwrap();
         // The sphere's part of the mesh (the backdrop lies 1.5 m from its centre).
         let near = |i: u32| (mesh.vertex(i as usize) - centre).norm() < 0.6;
         let triangles: Vec<[u32; 3]> = mesh
@@ -1042,14 +1474,14 @@ pub(crate) mod tests {
                     weight: 1.0,
                 };
                 if fuse {
-                    volume.integrate(&input);
+                    volume.integrate(&input).unwrap();
                 } else {
                     volume.allocate(depth, pose);
                 }
             }
         };
-        let ball_vertices = |volume: &TsdfVolume| {
-            let mesh = extract(volume);
+        let ball_vertices = |volume: &mut TsdfVolume| {
+            let mesh = extract(volume).unwrap();
             let near = (0..mesh.len())
                 .filter(|&i| (mesh.vertex(i) - ball.0).norm() < ball.1 + 0.05)
                 .count();
@@ -1057,7 +1489,7 @@ pub(crate) mod tests {
         };
         let mut online = TsdfVolume::new(settings, camera);
         each(&mut online, true);
-        let (stays, _) = ball_vertices(&online);
+        let (stays, _) = ball_vertices(&mut online);
         assert!(
             stays > 50,
             "fused in one pass, the late ball stays ({stays})"
@@ -1065,7 +1497,7 @@ pub(crate) mod tests {
         let mut offline = TsdfVolume::new(settings, camera);
         each(&mut offline, false);
         each(&mut offline, true);
-        let (near, all) = ball_vertices(&offline);
+        let (near, all) = ball_vertices(&mut offline);
         assert_eq!(near, 0, "the earlier views carve the ball");
         assert!(all > 100, "the wall is there ({all} vertices)");
     }
@@ -1087,7 +1519,7 @@ pub(crate) mod tests {
             };
             let mut volume = TsdfVolume::new(settings, camera);
             fuse_views(&mut volume, &[pose; 3], &[ball], Some(2.0));
-            let mesh = extract(&volume);
+            let mesh = extract(&mut volume).unwrap();
             let near = (0..mesh.len())
                 .filter(|&i| (mesh.vertex(i) - ball.0).norm() < ball.1 + 0.02)
                 .count();
@@ -1103,8 +1535,8 @@ pub(crate) mod tests {
     #[test]
     fn a_ball_that_leaves_is_carved_away_and_masked_pixels_are_not_fused() {
         let (settings, ball, views) = ball_before_a_wall();
-        let near_ball = |volume: &TsdfVolume| {
-            let mesh = extract(volume);
+        let near_ball = |volume: &mut TsdfVolume| {
+            let mesh = extract(volume).unwrap();
             (0..mesh.len())
                 .filter(|&i| (mesh.vertex(i) - ball.0).norm() < ball.1 + 0.05)
                 .count()
@@ -1112,14 +1544,14 @@ pub(crate) mod tests {
         let mut volume = TsdfVolume::new(settings, small_camera());
         fuse_views(&mut volume, &views, &[ball], Some(2.0));
         assert!(
-            near_ball(&volume) > 50,
+            near_ball(&mut volume) > 50,
             "the ball is in the map while it is there"
         );
         // It leaves: the wall behind is seen through where it was.
         for _ in 0..3 {
             fuse_views(&mut volume, &views, &[], Some(2.0));
         }
-        assert_eq!(near_ball(&volume), 0, "the ball is carved away");
+        assert_eq!(near_ball(&mut volume), 0, "the ball is carved away");
         // Masked as dynamic, it never enters.
         let camera = small_camera();
         let mut clean = TsdfVolume::new(settings, camera);
@@ -1127,15 +1559,20 @@ pub(crate) mod tests {
         for pose in &views {
             let depth = render_depth(&camera, pose, &[ball], Some(2.0));
             let mask: Vec<bool> = depth.metres.iter().map(|&d| d < 1.9).collect();
-            clean.integrate(&FrameInput {
-                depth: &depth,
-                colour: &colour,
-                dynamic: Some(&mask),
-                camera_from_world: pose,
-                weight: 1.0,
-            });
+            clean
+                .integrate(&FrameInput {
+                    depth: &depth,
+                    colour: &colour,
+                    dynamic: Some(&mask),
+                    camera_from_world: pose,
+                    weight: 1.0,
+                })
+                .unwrap();
         }
-        assert_eq!(near_ball(&clean), 0);
-        assert!(extract(&clean).len() > 100, "the wall is there");
+        assert_eq!(near_ball(&mut clean), 0);
+        assert!(
+            extract(&mut clean).unwrap().len() > 100,
+            "the wall is there"
+        );
     }
 }

@@ -1,0 +1,128 @@
+//! The file a TSDF volume spills its blocks into when they exceed its memory budget
+//! ([`super::tsdf::TsdfVolume::spill_to`]): fixed-size records, one slot per block,
+//! written and read in place (`pwrite`/`pread`, so that readers on several threads
+//! need no lock). The file is the run's own temporary: created new (never one that
+//! exists), and removed when the volume is dropped.
+
+use std::fs::{File, OpenOptions};
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use crate::io::IoError;
+
+/// A spill file of records of `record` bytes.
+#[derive(Debug)]
+pub struct SpillFile {
+    path: PathBuf,
+    file: File,
+    record: usize,
+    slots: u32,
+}
+
+impl SpillFile {
+    /// Creates `dir/.dopslam-tsdf-spill-<pid>-<n>.tmp` (an error if it exists; `n`
+    /// counts this process's spill files) for records of `record` bytes.
+    pub fn create(dir: &Path, record: usize) -> Result<Self, IoError> {
+        static CREATED: AtomicU32 = AtomicU32::new(0);
+        let n = CREATED.fetch_add(1, Ordering::Relaxed);
+        let name = format!(".dopslam-tsdf-spill-{}-{n}.tmp", std::process::id());
+        let path = dir.join(name);
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .open(&path)
+            .map_err(|source| IoError::Write {
+                path: path.clone(),
+                source,
+            })?;
+        Ok(Self {
+            path,
+            file,
+            record,
+            slots: 0,
+        })
+    }
+
+    /// Where the file is.
+    #[cfg(test)]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Bytes the file holds.
+    pub fn bytes(&self) -> u64 {
+        self.slots as u64 * self.record as u64
+    }
+
+    /// Writes `bytes` (one record) into `slot`, or into a new slot when `None`; the slot.
+    pub fn write(&mut self, slot: Option<u32>, bytes: &[u8]) -> Result<u32, IoError> {
+        debug_assert_eq!(bytes.len(), self.record);
+        let slot = slot.unwrap_or_else(|| {
+            self.slots += 1;
+            self.slots - 1
+        });
+        self.file
+            .write_all_at(bytes, self.offset(slot))
+            .map_err(|source| IoError::Write {
+                path: self.path.clone(),
+                source,
+            })?;
+        Ok(slot)
+    }
+
+    /// Reads the record in `slot` into `bytes`.
+    pub fn read(&self, slot: u32, bytes: &mut [u8]) -> Result<(), IoError> {
+        debug_assert_eq!(bytes.len(), self.record);
+        self.read_part(slot, 0, bytes)
+    }
+
+    /// Reads `bytes.len()` bytes at `at` within the record in `slot`.
+    pub fn read_part(&self, slot: u32, at: usize, bytes: &mut [u8]) -> Result<(), IoError> {
+        debug_assert!(at + bytes.len() <= self.record);
+        self.file
+            .read_exact_at(bytes, self.offset(slot) + at as u64)
+            .map_err(|e| IoError::read(&self.path, e))
+    }
+
+    fn offset(&self, slot: u32) -> u64 {
+        slot as u64 * self.record as u64
+    }
+}
+
+impl Drop for SpillFile {
+    fn drop(&mut self) {
+        // Ours alone (created new); nothing else reads it.
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_come_back_as_written_and_the_file_goes_with_it() {
+        let dir = std::env::temp_dir().join(format!("dopslam-spill-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut file = SpillFile::create(&dir, 4).unwrap();
+        let a = file.write(None, &[1, 2, 3, 4]).unwrap();
+        let b = file.write(None, &[5, 6, 7, 8]).unwrap();
+        assert_eq!(file.write(Some(a), &[9, 9, 9, 9]).unwrap(), a);
+        let mut back = [0; 4];
+        file.read(b, &mut back).unwrap();
+        assert_eq!(back, [5, 6, 7, 8]);
+        file.read(a, &mut back).unwrap();
+        assert_eq!(back, [9; 4]);
+        let mut part = [0; 2];
+        file.read_part(b, 2, &mut part).unwrap();
+        assert_eq!(part, [7, 8]);
+        assert_eq!(file.bytes(), 8);
+        let path = file.path().to_path_buf();
+        assert!(path.exists());
+        drop(file);
+        assert!(!path.exists());
+        std::fs::remove_dir(&dir).unwrap();
+    }
+}
