@@ -101,18 +101,25 @@ impl CloudBuilder {
         }
     }
 
-    /// The cloud: voxel means, those `drop` names removed, outliers removed, normals
-    /// estimated. Sorted by voxel so that the output does not depend on hash order.
-    /// Also returns how many `drop` removed.
-    pub fn finish(self, drop: impl Fn(&Vector3<f64>) -> bool + Sync) -> (Mesh, usize) {
+    /// The voxel means, those `drop` names removed (it answers for a piece of the
+    /// means at a time, neighbours together), sorted by voxel so that the output does
+    /// not depend on hash order; and how many `drop` removed. [`Carved::finish`] makes
+    /// the cloud of them (after the volume that `drop` reads is gone).
+    pub fn carve(self, drop: impl Fn(&[Vector3<f64>]) -> Vec<bool>) -> (Carved, usize) {
         let all = self.voxels.len();
-        let mut voxels: Vec<([i32; 3], Voxel)> = self
-            .voxels
-            .into_par_iter()
-            .filter(|(_, v)| !drop(&(Vector3::from(v.sum) / v.count as f64)))
-            .collect();
+        let mut voxels: Vec<([i32; 3], Voxel)> = self.voxels.into_iter().collect();
+        voxels.par_sort_unstable_by_key(|(k, _)| *k);
+        let mut kept = Vec::with_capacity(voxels.len());
+        for piece in voxels.chunks(1 << 16) {
+            let means: Vec<Vector3<f64>> = (piece.iter())
+                .map(|(_, v)| Vector3::from(v.sum) / v.count as f64)
+                .collect();
+            let dropped = drop(&means);
+            kept.extend(dropped.iter().map(|&d| !d));
+        }
+        let mut keep = kept.into_iter();
+        voxels.retain(|_| keep.next().unwrap_or(true));
         let dropped = all - voxels.len();
-        voxels.sort_unstable_by_key(|(k, _)| *k);
         let mut cloud = Mesh::default();
         let mut views = Vec::with_capacity(voxels.len());
         for (_, v) in &voxels {
@@ -123,7 +130,32 @@ impl CloudBuilder {
                 .push(v.colour.map(|c| (c as f64 / n).round() as u8));
             views.push(Vector3::from(v.view));
         }
-        let s = self.settings;
+        let settings = self.settings;
+        let carved = Carved {
+            settings,
+            cloud,
+            views,
+        };
+        (carved, dropped)
+    }
+}
+
+/// The cloud's points before outliers and normals ([`CloudBuilder::carve`]).
+pub struct Carved {
+    settings: CloudSettings,
+    cloud: Mesh,
+    /// Each point's summed directions to the cameras that saw it.
+    views: Vec<Vector3<f64>>,
+}
+
+impl Carved {
+    /// The cloud: outliers removed, normals estimated.
+    pub fn finish(self) -> Mesh {
+        let Self {
+            settings: s,
+            mut cloud,
+            mut views,
+        } = self;
         if s.outlier_neighbours > 0 && cloud.len() > s.outlier_neighbours {
             let keep = inliers(&cloud.vertices, s.outlier_neighbours, s.outlier_std);
             let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
@@ -134,7 +166,7 @@ impl CloudBuilder {
         if s.normal_neighbours >= 3 && cloud.len() > s.normal_neighbours {
             cloud.normals = normals(&cloud.vertices, &views, s.normal_neighbours);
         }
-        (cloud, dropped)
+        cloud
     }
 }
 
@@ -226,7 +258,7 @@ mod tests {
             camera_from_world: &pose,
             weight: 1.0,
         });
-        let (cloud, _) = builder.finish(|_| false);
+        let cloud = builder.carve(|means| vec![false; means.len()]).0.finish();
         assert!(cloud.len() > 1000);
         assert!(
             cloud.vertices.iter().all(|v| (v[2] - 2.0).abs() < 1e-4),

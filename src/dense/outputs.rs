@@ -52,10 +52,20 @@ pub(super) fn write_maps(
     } else {
         None
     };
-    let points = cloud.map(|cloud| {
-        let start = Instant::now();
-        let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
-        let (points, dropped) = cloud.finish(|p| carved && volume.seen_through(p, limit));
+    // The cloud carved by the volume, which then goes before the cloud's neighbour
+    // searches.
+    let start = Instant::now();
+    let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
+    let carved = cloud.map(|cloud| {
+        cloud.carve(|means| match carved {
+            true => volume.seen_through_each(means, limit),
+            false => vec![false; means.len()],
+        })
+    });
+    report.tsdf_spill = volume.spill_counts()?;
+    drop(volume);
+    let points = carved.map(|(carved, dropped)| {
+        let points = carved.finish();
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
         report.stages.cloud_s = report.cloud_ms / 1e3;
         report.cloud_points = points.len();
@@ -63,8 +73,6 @@ pub(super) fn write_maps(
         report.memory.cloud_mib = crate::memory::part_peak_mib();
         points
     });
-    report.tsdf_spill = volume.spill_counts()?;
-    drop(volume);
     interrupted(
         out.root(),
         "the dense map was not written; the earlier one is as it was",

@@ -548,6 +548,68 @@ impl TsdfVolume {
         Some((f32::from_le_bytes(sdf), f32::from_le_bytes(weight)))
     }
 
+    /// [`Self::seen_through`] for each of `points`, reading each block out of memory
+    /// once (not once a point).
+    pub fn seen_through_each(&self, points: &[Vector3<f64>], limit: f32) -> Vec<bool> {
+        let values = self.voxels(points);
+        let seen =
+            |v: Option<(f32, f32)>| v.is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit);
+        values.into_iter().map(seen).collect()
+    }
+
+    /// [`Self::voxel`] for each of `points`: those in blocks out of memory grouped by
+    /// block, whose fields and weights are read from the spill file once.
+    fn voxels(&self, points: &[Vector3<f64>]) -> Vec<Option<(f32, f32)>> {
+        let at: Vec<Option<(usize, usize)>> =
+            points.par_iter().map(|p| self.voxel_index_at(p)).collect();
+        let mut values: Vec<Option<(f32, f32)>> = (at.par_iter())
+            .map(|&a| {
+                let (i, k) = a?;
+                let block = &self.blocks[i];
+                block.resident().then(|| (block.sdf[k], block.weight[k]))
+            })
+            .collect();
+        let Some(spill) = &self.spill else {
+            return values;
+        };
+        // (block, voxel, point) of the points in spilled blocks, by block.
+        let mut out: Vec<(u32, u32, u32)> = (at.iter().enumerate())
+            .filter_map(|(n, a)| {
+                let (i, k) = (*a)?;
+                let block = &self.blocks[i];
+                (!block.resident() && block.slot.is_some())
+                    .then_some((i as u32, k as u32, n as u32))
+            })
+            .collect();
+        out.par_sort_unstable();
+        let read: Vec<(u32, Option<(f32, f32)>)> = out
+            .par_chunk_by(|a, b| a.0 == b.0)
+            .flat_map_iter(|group| {
+                let slot = self.blocks[group[0].0 as usize].slot.expect("spilled");
+                let mut bytes = vec![0u8; 8 * BLOCK_VOXELS];
+                let read = spill.file.read_part(slot, 0, &mut bytes);
+                let failed = read.is_err();
+                if let Err(e) = read {
+                    spill.failed.lock().expect("not poisoned").get_or_insert(e);
+                }
+                let f32_at =
+                    |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+                group
+                    .iter()
+                    .map(|&(_, k, n)| {
+                        let k = k as usize;
+                        let v = (!failed).then(|| (f32_at(4 * k), f32_at(4 * (BLOCK_VOXELS + k))));
+                        (n, v)
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        for (n, v) in read {
+            values[n as usize] = v;
+        }
+        values
+    }
+
     /// The block holding the voxel nearest to world point `p` (when allocated) and the
     /// voxel's index in it.
     fn voxel_index_at(&self, p: &Vector3<f64>) -> Option<(usize, usize)> {
