@@ -194,6 +194,13 @@ pub fn print_dense(dense: &DenseReport) {
         .collect();
     println!("dense stages (s): {}", stages.join(", "));
     print_dense_memory(&dense.memory);
+    let spill = &dense.tsdf_spill;
+    if spill.blocks_written > 0 {
+        println!(
+            "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, removed), {} read back",
+            spill.peak_resident_mb, spill.blocks_written, spill.file_mb, spill.blocks_reloaded
+        );
+    }
     if dense.released_on_map > 0 {
         println!(
             "dense masks: {} masked pixels lay on the static map fused so far and were fused ([dense] mask_map_min_weight)",
