@@ -83,7 +83,8 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         .validate()
         .map_err(|m| IoError::invalid(inputs.run_dir, m.to_string()))?;
     let started = Instant::now();
-    // What came before the pass is not its own peak.
+    // What came before the pass is not its own peak, and its freed pages go back.
+    crate::memory::release_freed_memory();
     crate::memory::start_sampling();
     crate::memory::part_peak_mib();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));

@@ -35,6 +35,8 @@ pub(super) fn write_maps(
         masking, config.tsdf.voxel
     );
     let Maps { mut volume, cloud } = maps;
+    // The frames' buffers are gone: their pages go back before the mesh is made.
+    crate::memory::release_freed_memory();
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.
     let mesh = if config.fuses_tsdf() {
@@ -55,15 +57,16 @@ pub(super) fn write_maps(
     // The cloud carved by the volume, which then goes before the cloud's neighbour
     // searches.
     let start = Instant::now();
-    let (carved, limit) = (config.cloud_carved(), config.cloud.free_space);
+    let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
     let carved = cloud.map(|cloud| {
-        cloud.carve(|means| match carved {
+        cloud.carve(|means| match carving {
             true => volume.seen_through_each(means, limit),
             false => vec![false; means.len()],
         })
     });
     report.tsdf_spill = volume.spill_counts()?;
     drop(volume);
+    crate::memory::release_freed_memory();
     let points = carved.map(|(carved, dropped)| {
         let points = carved.finish();
         report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
