@@ -194,13 +194,7 @@ pub fn print_dense(dense: &DenseReport) {
         .collect();
     println!("dense stages (s): {}", stages.join(", "));
     print_dense_memory(&dense.memory);
-    let spill = &dense.tsdf_spill;
-    if spill.blocks_written > 0 {
-        println!(
-            "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, removed), {} read back",
-            spill.peak_resident_mb, spill.blocks_written, spill.file_mb, spill.blocks_reloaded
-        );
-    }
+    print_dense_spill(&dense.tsdf_spill);
     if dense.released_on_map > 0 {
         println!(
             "dense masks: {} masked pixels lay on the static map fused so far and were fused ([dense] mask_map_min_weight)",
@@ -226,6 +220,16 @@ pub fn print_dense(dense: &DenseReport) {
 }
 
 /// Prints each part of the dense pass's peak memory, where it is known.
+/// What the volume's memory budget made it do, when it wrote blocks out.
+fn print_dense_spill(spill: &dopslam::dense::tsdf::SpillCounts) {
+    if spill.blocks_written > 0 {
+        println!(
+            "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, removed), {} read back",
+            spill.peak_resident_mb, spill.blocks_written, spill.file_mb, spill.blocks_reloaded
+        );
+    }
+}
+
 fn print_dense_memory(memory: &dopslam::dense::report::DenseMemory) {
     let peaks: Vec<String> = [
         ("fusion", memory.fusion_mib),
