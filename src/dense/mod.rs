@@ -215,11 +215,6 @@ fn fuse(
     let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
     if fuse_tsdf && config.tsdf.memory_mb > 0.0 {
-        // The spill file lives in the output folder, made now if it is new.
-        std::fs::create_dir_all(inputs.out_dir).map_err(|source| IoError::Write {
-            path: inputs.out_dir.to_path_buf(),
-            source,
-        })?;
         volume.spill_to(inputs.out_dir, (config.tsdf.memory_mb * 1e6) as usize)?;
     }
     if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {

@@ -22,8 +22,13 @@ pub struct SpillFile {
 
 impl SpillFile {
     /// Creates `dir/.dopslam-tsdf-spill-<pid>-<n>.tmp` (an error if it exists; `n`
-    /// counts this process's spill files) for records of `record` bytes.
+    /// counts this process's spill files) for records of `record` bytes, and `dir`
+    /// when it is new (an output folder not written yet).
     pub fn create(dir: &Path, record: usize) -> Result<Self, IoError> {
+        std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+            path: dir.to_path_buf(),
+            source,
+        })?;
         static CREATED: AtomicU32 = AtomicU32::new(0);
         let n = CREATED.fetch_add(1, Ordering::Relaxed);
         let name = format!(".dopslam-tsdf-spill-{}-{n}.tmp", std::process::id());

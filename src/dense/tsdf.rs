@@ -335,6 +335,22 @@ struct Spill {
     bytes: Vec<u8>,
 }
 
+impl Spill {
+    /// `read` as it was, its error also kept (the first one) for
+    /// [`TsdfVolume::spill_counts`]: queries answer as if the voxel were unobserved.
+    fn keep_error(&self, read: Result<(), IoError>) -> Result<(), ()> {
+        read.map_err(|e| {
+            self.failed.lock().expect("not poisoned").get_or_insert(e);
+        })
+    }
+}
+
+/// Observed free space: a voxel's `(field, weight)` with weight above zero and
+/// \(F > \) `limit` ([`TsdfVolume::seen_through`]).
+fn free_space(voxel: Option<(f32, f32)>, limit: f32) -> bool {
+    voxel.is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit)
+}
+
 /// What a volume's budget made it do ([`TsdfVolume::spill_counts`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SpillCounts {
@@ -512,8 +528,7 @@ impl TsdfVolume {
     /// front of every surface seen there). A point the depth once put there belonged to
     /// something that has since been seen through, a mover that left.
     pub fn seen_through(&self, p: &Vector3<f64>, limit: f32) -> bool {
-        self.voxel(p)
-            .is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit)
+        free_space(self.voxel(p), limit)
     }
 
     /// Whether world point `p` lies on a surface fused with at least `min_weight`: the
@@ -541,10 +556,7 @@ impl TsdfVolume {
                 .file
                 .read_part(slot, 4 * (BLOCK_VOXELS + k), &mut weight)
         });
-        if let Err(e) = read {
-            spill.failed.lock().expect("not poisoned").get_or_insert(e);
-            return None;
-        }
+        spill.keep_error(read).ok()?;
         Some((f32::from_le_bytes(sdf), f32::from_le_bytes(weight)))
     }
 
@@ -552,9 +564,7 @@ impl TsdfVolume {
     /// once (not once a point).
     pub fn seen_through_each(&self, points: &[Vector3<f64>], limit: f32) -> Vec<bool> {
         let values = self.voxels(points);
-        let seen =
-            |v: Option<(f32, f32)>| v.is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit);
-        values.into_iter().map(seen).collect()
+        values.into_iter().map(|v| free_space(v, limit)).collect()
     }
 
     /// [`Self::voxel`] for each of `points`: those in blocks out of memory grouped by
@@ -587,11 +597,9 @@ impl TsdfVolume {
             .flat_map_iter(|group| {
                 let slot = self.blocks[group[0].0 as usize].slot.expect("spilled");
                 let mut bytes = vec![0u8; 8 * BLOCK_VOXELS];
-                let read = spill.file.read_part(slot, 0, &mut bytes);
-                let failed = read.is_err();
-                if let Err(e) = read {
-                    spill.failed.lock().expect("not poisoned").get_or_insert(e);
-                }
+                let failed = spill
+                    .keep_error(spill.file.read_part(slot, 0, &mut bytes))
+                    .is_err();
                 let f32_at =
                     |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
                 group
@@ -687,6 +695,9 @@ impl TsdfVolume {
     /// Brings into memory the blocks of this frame (those of the current stamp) that
     /// it changes and that are out of memory; those it leaves as they are stay out.
     fn load_changed(&mut self, frame: &FrameInput) -> Result<(), IoError> {
+        if self.resident == self.blocks.len() {
+            return Ok(());
+        }
         let now = self.frames;
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
         let needed: Vec<usize> = (self.blocks.par_iter().zip(&self.coords).enumerate())
