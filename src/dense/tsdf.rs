@@ -661,14 +661,18 @@ impl TsdfVolume {
         } else {
             Vec::new()
         };
+        // The frame's blocks out of memory, gathered as they are stamped.
+        let mut out = Vec::new();
         for i in carved {
             self.blocks[i as usize].stamp = stamp;
+            out.extend((!self.blocks[i as usize].resident()).then_some(i as usize));
         }
         for coord in self.blocks_near_surface(frame.depth, frame.dynamic, frame.camera_from_world) {
             let i = self.index_of(coord);
             self.blocks[i].stamp = stamp;
+            out.extend((!self.blocks[i].resident()).then_some(i));
         }
-        self.load_changed(frame)?;
+        self.load_changed(frame, out)?;
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
         let reciprocals = &self.colour_reciprocals;
         let mut chosen: Vec<(&mut Block, &[i32; 3])> = self
@@ -692,20 +696,27 @@ impl TsdfVolume {
         self.keep_within_budget()
     }
 
-    /// Brings into memory the blocks of this frame (those of the current stamp) that
-    /// it changes and that are out of memory; those it leaves as they are stay out.
-    fn load_changed(&mut self, frame: &FrameInput) -> Result<(), IoError> {
-        if self.resident == self.blocks.len() {
-            return Ok(());
-        }
-        let now = self.frames;
+    /// Brings into memory those of this frame's blocks `out` of memory that it changes;
+    /// those it leaves as they are stay out.
+    fn load_changed(&mut self, frame: &FrameInput, mut out: Vec<usize>) -> Result<(), IoError> {
+        // A block both carved and near the surface comes twice.
+        out.sort_unstable();
+        out.dedup();
         let (settings, camera, block_size) = (self.settings, self.camera, self.block_size());
-        let needed: Vec<usize> = (self.blocks.par_iter().zip(&self.coords).enumerate())
-            .filter(|(_, (b, _))| b.stamp == now && !b.resident())
-            .filter(|(_, (b, coord))| changes(b.free, coord, block_size, &settings, &camera, frame))
-            .map(|(i, _)| i)
+        let (blocks, coords) = (&self.blocks, &self.coords);
+        let out: Vec<usize> = (out.into_par_iter())
+            .filter(|&i| {
+                changes(
+                    blocks[i].free,
+                    &coords[i],
+                    block_size,
+                    &settings,
+                    &camera,
+                    frame,
+                )
+            })
             .collect();
-        for i in needed {
+        for i in out {
             self.load(i)?;
         }
         Ok(())
