@@ -194,7 +194,7 @@ pub fn print_dense(dense: &DenseReport) {
         .collect();
     println!("dense stages (s): {}", stages.join(", "));
     print_dense_memory(&dense.memory);
-    print_dense_spill(&dense.tsdf_spill);
+    print_dense_spill(dense);
     if dense.released_on_map > 0 {
         println!(
             "dense masks: {} masked pixels lay on the static map fused so far and were fused ([dense] mask_map_min_weight)",
@@ -219,17 +219,26 @@ pub fn print_dense(dense: &DenseReport) {
     }
 }
 
-/// Prints each part of the dense pass's peak memory, where it is known.
-/// What the volume's memory budget made it do, when it wrote blocks out.
-fn print_dense_spill(spill: &dopslam::dense::tsdf::SpillCounts) {
-    if spill.blocks_written > 0 {
+/// What the memory budgets made the volume and the cloud do, when they wrote to their
+/// spill files.
+fn print_dense_spill(dense: &DenseReport) {
+    let tsdf = &dense.tsdf_spill;
+    if tsdf.blocks_written > 0 {
         println!(
             "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, removed), {} read back",
-            spill.peak_resident_mb, spill.blocks_written, spill.file_mb, spill.blocks_reloaded
+            tsdf.peak_resident_mb, tsdf.blocks_written, tsdf.file_mb, tsdf.blocks_reloaded
+        );
+    }
+    let cloud = &dense.cloud_spill;
+    if cloud.chunks_written > 0 {
+        println!(
+            "dense cloud: at most {:.0} MB of voxel sums in memory ([dense] cloud_memory_mb); {} chunks written to the spill file ({:.0} MB, removed), {} read back",
+            cloud.peak_resident_mb, cloud.chunks_written, cloud.file_mb, cloud.chunks_reloaded
         );
     }
 }
 
+/// Prints each part of the dense pass's peak memory, where it is known.
 fn print_dense_memory(memory: &dopslam::dense::report::DenseMemory) {
     let peaks: Vec<String> = [
         ("fusion", memory.fusion_mib),

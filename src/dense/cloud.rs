@@ -6,15 +6,17 @@
 //! given normals (the least-variance axis of its k neighbours, turned towards the
 //! cameras that saw it).
 
-use std::collections::HashMap;
+use std::path::Path;
 
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
+use super::cloud_voxels::{CloudSpillCounts, CloudVoxels, Voxel};
 use super::neighbours::PointIndex;
 use super::tsdf::FrameInput;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::mesh::Mesh;
+use crate::io::IoError;
 
 /// Settings of the point cloud.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,20 +38,11 @@ pub struct CloudSettings {
     pub margin: u32,
 }
 
-#[derive(Debug, Clone, Copy, Default)]
-struct Voxel {
-    sum: [f64; 3],
-    colour: [u32; 3],
-    /// Sum of unit directions from the point to the cameras that saw it.
-    view: [f64; 3],
-    count: u32,
-}
-
 /// Accumulates frames into voxels.
 pub struct CloudBuilder {
     settings: CloudSettings,
     camera: PinholeCamera,
-    voxels: HashMap<[i32; 3], Voxel>,
+    voxels: CloudVoxels,
 }
 
 impl CloudBuilder {
@@ -58,12 +51,24 @@ impl CloudBuilder {
         Self {
             settings,
             camera,
-            voxels: HashMap::new(),
+            voxels: CloudVoxels::default(),
         }
     }
 
-    /// Adds the unmasked pixels of one frame.
-    pub fn add(&mut self, frame: &FrameInput) {
+    /// Keeps at most `budget_bytes` of voxel sums in memory while frames are added:
+    /// beyond it the chunks the camera left longest ago go to a spill file in `dir`
+    /// (removed with the cloud) and come back when a frame adds to them.
+    pub fn spill_to(&mut self, dir: &Path, budget_bytes: usize) -> Result<(), IoError> {
+        self.voxels.spill_to(dir, budget_bytes)
+    }
+
+    /// What the budget made the cloud do.
+    pub fn spill_counts(&self) -> CloudSpillCounts {
+        self.voxels.spill_counts()
+    }
+
+    /// Adds the unmasked pixels of one frame; an error only from the spill file.
+    pub fn add(&mut self, frame: &FrameInput) -> Result<(), IoError> {
         let (w, h) = (frame.depth.width as usize, frame.depth.height as usize);
         let world_from_camera = frame.camera_from_world.inverse();
         let centre = world_from_camera.translation.vector;
@@ -90,7 +95,7 @@ impl CloudBuilder {
             .collect();
         for (p, c) in points {
             let key = [0, 1, 2].map(|k| (p[k] / s.voxel).floor() as i32);
-            let voxel = self.voxels.entry(key).or_default();
+            let voxel = self.voxels.voxel_mut(key)?;
             let view = (centre - p).normalize();
             for k in 0..3 {
                 voxel.sum[k] += p[k];
@@ -99,63 +104,78 @@ impl CloudBuilder {
             }
             voxel.count += 1;
         }
+        self.voxels.end_frame()
     }
 
-    /// The voxel means, those `drop` names removed (it answers for a piece of the
-    /// means at a time, neighbours together), sorted by voxel so that the output does
-    /// not depend on hash order; and how many `drop` removed. [`Carved::finish`] makes
-    /// the cloud of them (after the volume that `drop` reads is gone).
-    pub fn carve(self, drop: impl Fn(&[Vector3<f64>]) -> Vec<bool>) -> (Carved, usize) {
-        let all = self.voxels.len();
-        let mut voxels: Vec<([i32; 3], Voxel)> = self.voxels.into_iter().collect();
-        voxels.par_sort_unstable_by_key(|(k, _)| *k);
-        let mut kept = Vec::with_capacity(voxels.len());
-        for piece in voxels.chunks(1 << 16) {
-            let means: Vec<Vector3<f64>> = (piece.iter())
+    /// The voxel means, those `drop` names removed (it answers for a chunk of
+    /// neighbouring means at a time), in voxel order so that the output does not
+    /// depend on hash order or on the budget; and how many `drop` removed.
+    /// [`Carved::finish`] makes the cloud of them (after the volume that `drop` reads
+    /// is gone).
+    pub fn carve(
+        self,
+        drop: impl Fn(&[Vector3<f64>]) -> Vec<bool>,
+    ) -> Result<(Carved, usize), IoError> {
+        let mut kept: Vec<([i32; 3], Point)> = Vec::with_capacity(self.voxels.len());
+        let mut dropped = 0;
+        self.voxels.drain_sorted(|voxels| {
+            let means: Vec<Vector3<f64>> = (voxels.iter())
                 .map(|(_, v)| Vector3::from(v.sum) / v.count as f64)
                 .collect();
-            let dropped = drop(&means);
-            kept.extend(dropped.iter().map(|&d| !d));
-        }
-        let mut keep = kept.into_iter();
-        voxels.retain(|_| keep.next().unwrap_or(true));
-        let dropped = all - voxels.len();
-        let mut cloud = Mesh::default();
-        let mut views = Vec::with_capacity(voxels.len());
-        for (_, v) in &voxels {
-            let n = v.count as f64;
-            cloud.vertices.push(v.sum.map(|c| (c / n) as f32));
-            cloud
-                .colours
-                .push(v.colour.map(|c| (c as f64 / n).round() as u8));
-            views.push(Vector3::from(v.view));
-        }
+            let gone = drop(&means);
+            dropped += gone.iter().filter(|&&d| d).count();
+            let points = voxels.iter().zip(gone).filter(|(_, d)| !d);
+            kept.extend(points.map(|((k, v), _)| (*k, Point::of(v))));
+        })?;
+        // Chunk by chunk is not the voxels' order: sorted once more.
+        kept.par_sort_unstable_by_key(|(k, _)| *k);
         let settings = self.settings;
         let carved = Carved {
             settings,
-            cloud,
-            views,
+            points: kept,
         };
-        (carved, dropped)
+        Ok((carved, dropped))
+    }
+}
+
+/// A voxel's point: its mean position and colour, and its summed view directions.
+struct Point {
+    position: [f32; 3],
+    colour: [u8; 3],
+    view: [f64; 3],
+}
+
+impl Point {
+    fn of(voxel: &Voxel) -> Self {
+        let n = voxel.count as f64;
+        Self {
+            position: voxel.sum.map(|c| (c / n) as f32),
+            colour: voxel.colour.map(|c| (c as f64 / n).round() as u8),
+            view: voxel.view,
+        }
     }
 }
 
 /// The cloud's points before outliers and normals ([`CloudBuilder::carve`]).
 pub struct Carved {
     settings: CloudSettings,
-    cloud: Mesh,
-    /// Each point's summed directions to the cameras that saw it.
-    views: Vec<Vector3<f64>>,
+    /// The points in voxel order.
+    points: Vec<([i32; 3], Point)>,
 }
 
 impl Carved {
     /// The cloud: outliers removed, normals estimated.
     pub fn finish(self) -> Mesh {
-        let Self {
-            settings: s,
-            mut cloud,
-            mut views,
-        } = self;
+        let s = self.settings;
+        let n = self.points.len();
+        let mut cloud = Mesh::default();
+        (cloud.vertices, cloud.colours) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut views = Vec::with_capacity(n);
+        for (_, point) in self.points {
+            cloud.vertices.push(point.position);
+            cloud.colours.push(point.colour);
+            views.push(Vector3::from(point.view));
+        }
         if s.outlier_neighbours > 0 && cloud.len() > s.outlier_neighbours {
             let keep = inliers(&cloud.vertices, s.outlier_neighbours, s.outlier_std);
             let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
@@ -251,14 +271,19 @@ mod tests {
         mask[..(camera.width * 10) as usize]
             .iter_mut()
             .for_each(|m| *m = true);
-        builder.add(&FrameInput {
-            depth: &depth,
-            colour: &colour,
-            dynamic: Some(&mask),
-            camera_from_world: &pose,
-            weight: 1.0,
-        });
-        let cloud = builder.carve(|means| vec![false; means.len()]).0.finish();
+        builder
+            .add(&FrameInput {
+                depth: &depth,
+                colour: &colour,
+                dynamic: Some(&mask),
+                camera_from_world: &pose,
+                weight: 1.0,
+            })
+            .unwrap();
+        let cloud = (builder.carve(|means| vec![false; means.len()]))
+            .unwrap()
+            .0
+            .finish();
         assert!(cloud.len() > 1000);
         assert!(
             cloud.vertices.iter().all(|v| (v[2] - 2.0).abs() < 1e-4),
@@ -272,5 +297,70 @@ mod tests {
         // The masked top rows are not fused.
         let top = camera.unproject(&Vector2::new(0.0, 9.0), 2.0).y as f32;
         assert!(cloud.vertices.iter().all(|v| v[1] > top));
+    }
+
+    /// A camera pans 3 m along a wall and back: with a budget of a frame's voxels, the
+    /// chunks it left go to the spill file and come back on the return; the same cloud.
+    #[test]
+    fn a_cloud_over_its_budget_spills_and_gives_the_same_points() {
+        let camera = PinholeCamera::tum_fr3();
+        let mut depth = DepthImage::new(camera.width, camera.height);
+        depth.metres.iter_mut().for_each(|d| *d = 2.0);
+        let colour = image::RgbImage::from_fn(camera.width, camera.height, |u, v| {
+            image::Rgb([(u % 256) as u8, (v % 256) as u8, 7])
+        });
+        let settings = CloudSettings {
+            voxel: 0.02,
+            stride: 4,
+            max_depth: 4.0,
+            outlier_neighbours: 8,
+            outlier_std: 2.0,
+            normal_neighbours: 10,
+            margin: 0,
+        };
+        let xs: Vec<f64> = (0..13)
+            .chain((0..12).rev())
+            .map(|k| 0.25 * k as f64)
+            .collect();
+        let dir = std::env::temp_dir().join(format!("dopslam-cloud-{}", std::process::id()));
+        let built = |budget: Option<usize>| {
+            let mut builder = CloudBuilder::new(settings, camera);
+            if let Some(bytes) = budget {
+                builder.spill_to(&dir, bytes).unwrap();
+            }
+            for x in &xs {
+                let pose = crate::geometry::se3::Se3::translation(-x, 0.0, 0.0);
+                (builder.add(&FrameInput {
+                    depth: &depth,
+                    colour: &colour,
+                    dynamic: None,
+                    camera_from_world: &pose,
+                    weight: 1.0,
+                }))
+                .unwrap();
+            }
+            let counts = builder.spill_counts();
+            let (carved, dropped) = (builder
+                .carve(|means| means.iter().map(|p| (2.5..2.6).contains(&p.x)).collect()))
+            .unwrap();
+            (carved.finish(), dropped, counts)
+        };
+        let (whole, whole_dropped, all) = built(None);
+        let (spilled, dropped, counts) = built(Some(1_000_000));
+        assert!(
+            counts.chunks_written > 0 && counts.chunks_reloaded > 0,
+            "{counts:?}"
+        );
+        assert!(
+            counts.peak_resident_mb < 0.7 * all.peak_resident_mb,
+            "{counts:?} {all:?}"
+        );
+        assert!(whole_dropped > 0 && dropped == whole_dropped);
+        assert!(whole.len() > 10_000);
+        assert_eq!(spilled.vertices, whole.vertices);
+        assert_eq!(spilled.colours, whole.colours);
+        assert_eq!(spilled.normals, whole.normals);
+        // The spill file went with the cloud.
+        std::fs::remove_dir(&dir).unwrap();
     }
 }

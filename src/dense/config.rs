@@ -137,7 +137,7 @@ pub struct DenseTsdf {
     pub memory_mb: f64,
 }
 
-/// The keyframes' point cloud (`[dense]` keys `cloud_voxel`, `cloud_stride`, `outlier_neighbours`, `outlier_std`, `normal_neighbours`, `cloud_free_space`).
+/// The keyframes' point cloud (`[dense]` keys `cloud_voxel`, `cloud_stride`, `outlier_neighbours`, `outlier_std`, `normal_neighbours`, `cloud_free_space`, `cloud_memory_mb`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseCloud {
     /// Voxel edge, metres.
@@ -154,6 +154,11 @@ pub struct DenseCloud {
     /// missed by the masks that later left): \(F\) above this, in truncation units
     /// (1 or more: off; needs the mesh).
     pub free_space: f32,
+    /// The most voxel sums held in memory while frames are added, MB: beyond it the
+    /// chunks the camera left longest ago go to a spill file in the output folder
+    /// (removed at the end), with the same cloud ([`super::cloud::CloudBuilder::spill_to`]);
+    /// 0: no limit.
+    pub memory_mb: f64,
 }
 
 /// The dense pass's own detections (`[dense]` keys `detect_every`, `detect_model`, `detect_tiles`).
@@ -298,6 +303,7 @@ pub struct DenseFile {
     outlier_std: f64,
     normal_neighbours: usize,
     cloud_free_space: f32,
+    cloud_memory_mb: f64,
     detect_every: usize,
     detect_model: DenseModel,
     detect_tiles: u32,
@@ -359,6 +365,7 @@ impl From<DenseFile> for DenseConfig {
                 outlier_std: file.outlier_std,
                 normal_neighbours: file.normal_neighbours,
                 free_space: file.cloud_free_space,
+                memory_mb: file.cloud_memory_mb,
             },
             detections: DenseDetections {
                 every: file.detect_every,
@@ -433,6 +440,7 @@ impl From<DenseConfig> for DenseFile {
             outlier_std: cloud.outlier_std,
             normal_neighbours: cloud.normal_neighbours,
             cloud_free_space: cloud.free_space,
+            cloud_memory_mb: cloud.memory_mb,
             detect_every: detections.every,
             detect_model: detections.model,
             detect_tiles: detections.tiles,
@@ -498,6 +506,7 @@ impl Default for DenseConfig {
                 outlier_std: 2.0,
                 normal_neighbours: 16,
                 free_space: 0.5,
+                memory_mb: 256.0,
             },
             detections: DenseDetections {
                 every: 5,
@@ -580,6 +589,7 @@ impl DenseConfig {
                 ("frame_min_rotation", self.frames.min_rotation),
                 ("mask_map_min_weight", self.masks.map_min_weight.into()),
                 ("tsdf_memory_mb", self.tsdf.memory_mb),
+                ("cloud_memory_mb", self.cloud.memory_mb),
             ],
         )?;
         checks::unit_interval(

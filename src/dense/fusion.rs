@@ -262,7 +262,7 @@ fn fuse_frame(
     add_since(&mut fused.stages.integration_s, start);
     if let (Some(cloud), true) = (sinks.cloud.as_deref_mut(), is_keyframe) {
         let start = Instant::now();
-        cloud.add(&input);
+        cloud.add(&input)?;
         fused.keyframes_in_cloud += 1;
         add_since(&mut fused.stages.cloud_frames_s, start);
     }

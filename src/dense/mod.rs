@@ -14,6 +14,7 @@
 //! synthetic sequence's masks); [`config`] is the `[dense]` section.
 
 pub mod cloud;
+pub mod cloud_voxels;
 pub mod compare_maps;
 pub mod config;
 pub mod disparity;
@@ -223,6 +224,9 @@ fn fuse(
         report.stages.allocation_s = start.elapsed().as_secs_f64();
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
+    if cloud_on && config.cloud.memory_mb > 0.0 {
+        cloud.spill_to(inputs.out_dir, (config.cloud.memory_mb * 1e6) as usize)?;
+    }
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
     let mut window =
         (inputs.masking == Mode::Dop && config.masks.free_space_seconds > 0.0).then(|| {

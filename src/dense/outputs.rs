@@ -58,12 +58,16 @@ pub(super) fn write_maps(
     // searches.
     let start = Instant::now();
     let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
-    let carved = cloud.map(|cloud| {
-        cloud.carve(|means| match carving {
-            true => volume.seen_through_each(means, limit),
-            false => vec![false; means.len()],
-        })
-    });
+    let carved = match cloud {
+        Some(cloud) => {
+            report.cloud_spill = cloud.spill_counts();
+            Some(cloud.carve(|means| match carving {
+                true => volume.seen_through_each(means, limit),
+                false => vec![false; means.len()],
+            })?)
+        }
+        None => None,
+    };
     report.tsdf_spill = volume.spill_counts()?;
     drop(volume);
     crate::memory::release_freed_memory();

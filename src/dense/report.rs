@@ -42,6 +42,11 @@ pub struct DenseReport {
     /// memory at once.
     #[serde(default)]
     pub tsdf_spill: crate::dense::tsdf::SpillCounts,
+    /// What the memory budget (`[dense] cloud_memory_mb`) made the cloud's voxel sums
+    /// do while frames were added: chunks written to the spill file and read back, the
+    /// file's size, the most sums in memory at once.
+    #[serde(default)]
+    pub cloud_spill: crate::dense::cloud_voxels::CloudSpillCounts,
     /// Mesh vertices.
     pub mesh_vertices: usize,
     /// Mesh triangles.

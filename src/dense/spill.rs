@@ -1,8 +1,10 @@
 //! The file a TSDF volume spills its blocks into when they exceed its memory budget
 //! ([`super::tsdf::TsdfVolume::spill_to`]): fixed-size records, one slot per block,
 //! written and read in place (`pwrite`/`pread`, so that readers on several threads
-//! need no lock). The file is the run's own temporary: created new (never one that
-//! exists), and removed when the volume is dropped.
+//! need no lock); and the file the point cloud's voxel sums spill into
+//! ([`super::cloud::CloudBuilder::spill_to`]): records of any size appended at its
+//! end. Either is the run's own temporary: created new (never one that exists), and
+//! removed when its owner is dropped.
 
 use std::fs::{File, OpenOptions};
 use std::os::unix::fs::FileExt;
@@ -11,27 +13,28 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use crate::io::IoError;
 
-/// A spill file of records of `record` bytes.
+/// A spill file of records of `record` bytes (or of any size: [`SpillFile::append`]).
 #[derive(Debug)]
 pub struct SpillFile {
     path: PathBuf,
     file: File,
     record: usize,
-    slots: u32,
+    /// Bytes written up to the end of the file.
+    len: u64,
 }
 
 impl SpillFile {
-    /// Creates `dir/.dopslam-tsdf-spill-<pid>-<n>.tmp` (an error if it exists; `n`
+    /// Creates `dir/.dopslam-<kind>-spill-<pid>-<n>.tmp` (an error if it exists; `n`
     /// counts this process's spill files) for records of `record` bytes, and `dir`
     /// when it is new (an output folder not written yet).
-    pub fn create(dir: &Path, record: usize) -> Result<Self, IoError> {
+    pub fn create(dir: &Path, kind: &str, record: usize) -> Result<Self, IoError> {
         std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
             path: dir.to_path_buf(),
             source,
         })?;
         static CREATED: AtomicU32 = AtomicU32::new(0);
         let n = CREATED.fetch_add(1, Ordering::Relaxed);
-        let name = format!(".dopslam-tsdf-spill-{}-{n}.tmp", std::process::id());
+        let name = format!(".dopslam-{kind}-spill-{}-{n}.tmp", std::process::id());
         let path = dir.join(name);
         let file = OpenOptions::new()
             .read(true)
@@ -46,7 +49,7 @@ impl SpillFile {
             path,
             file,
             record,
-            slots: 0,
+            len: 0,
         })
     }
 
@@ -58,23 +61,40 @@ impl SpillFile {
 
     /// Bytes the file holds.
     pub fn bytes(&self) -> u64 {
-        self.slots as u64 * self.record as u64
+        self.len
     }
 
     /// Writes `bytes` (one record) into `slot`, or into a new slot when `None`; the slot.
     pub fn write(&mut self, slot: Option<u32>, bytes: &[u8]) -> Result<u32, IoError> {
         debug_assert_eq!(bytes.len(), self.record);
-        let slot = slot.unwrap_or_else(|| {
-            self.slots += 1;
-            self.slots - 1
-        });
+        let slot = slot.unwrap_or((self.len / self.record as u64) as u32);
+        self.write_at(self.offset(slot), bytes)?;
+        Ok(slot)
+    }
+
+    /// Writes `bytes` (a record of any size) at the end of the file; where it went.
+    pub fn append(&mut self, bytes: &[u8]) -> Result<u64, IoError> {
+        let at = self.len;
+        self.write_at(at, bytes)?;
+        Ok(at)
+    }
+
+    fn write_at(&mut self, at: u64, bytes: &[u8]) -> Result<(), IoError> {
         self.file
-            .write_all_at(bytes, self.offset(slot))
+            .write_all_at(bytes, at)
             .map_err(|source| IoError::Write {
                 path: self.path.clone(),
                 source,
             })?;
-        Ok(slot)
+        self.len = self.len.max(at + bytes.len() as u64);
+        Ok(())
+    }
+
+    /// Reads `bytes.len()` bytes at `at` (where [`SpillFile::append`] put them).
+    pub fn read_at(&self, at: u64, bytes: &mut [u8]) -> Result<(), IoError> {
+        self.file
+            .read_exact_at(bytes, at)
+            .map_err(|e| IoError::read(&self.path, e))
     }
 
     /// Reads the record in `slot` into `bytes`.
@@ -86,9 +106,7 @@ impl SpillFile {
     /// Reads `bytes.len()` bytes at `at` within the record in `slot`.
     pub fn read_part(&self, slot: u32, at: usize, bytes: &mut [u8]) -> Result<(), IoError> {
         debug_assert!(at + bytes.len() <= self.record);
-        self.file
-            .read_exact_at(bytes, self.offset(slot) + at as u64)
-            .map_err(|e| IoError::read(&self.path, e))
+        self.read_at(self.offset(slot) + at as u64, bytes)
     }
 
     fn offset(&self, slot: u32) -> u64 {
@@ -111,7 +129,7 @@ mod tests {
     fn records_come_back_as_written_and_the_file_goes_with_it() {
         let dir = std::env::temp_dir().join(format!("dopslam-spill-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let mut file = SpillFile::create(&dir, 4).unwrap();
+        let mut file = SpillFile::create(&dir, "test", 4).unwrap();
         let a = file.write(None, &[1, 2, 3, 4]).unwrap();
         let b = file.write(None, &[5, 6, 7, 8]).unwrap();
         assert_eq!(file.write(Some(a), &[9, 9, 9, 9]).unwrap(), a);
@@ -124,6 +142,16 @@ mod tests {
         file.read_part(b, 2, &mut part).unwrap();
         assert_eq!(part, [7, 8]);
         assert_eq!(file.bytes(), 8);
+        let name = file.path().file_name().unwrap().to_string_lossy();
+        assert!(name.starts_with(&format!(".dopslam-test-spill-{}-", std::process::id())));
+        let mut log = SpillFile::create(&dir, "log", 1).unwrap();
+        let first = log.append(&[1, 2, 3]).unwrap();
+        let second = log.append(&[4, 5]).unwrap();
+        assert_eq!((first, second, log.bytes()), (0, 3, 5));
+        let mut back = [0; 2];
+        log.read_at(second, &mut back).unwrap();
+        assert_eq!(back, [4, 5]);
+        drop(log);
         let path = file.path().to_path_buf();
         assert!(path.exists());
         drop(file);

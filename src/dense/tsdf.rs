@@ -388,7 +388,7 @@ impl TsdfVolume {
     /// `dir`, removed when the volume is dropped.
     pub fn spill_to(&mut self, dir: &Path, budget_bytes: usize) -> Result<(), IoError> {
         self.spill = Some(Spill {
-            file: SpillFile::create(dir, BLOCK_BYTES)?,
+            file: SpillFile::create(dir, "tsdf", BLOCK_BYTES)?,
             budget: (budget_bytes / BLOCK_BYTES).max(1),
             written: 0,
             reloaded: 0,
