@@ -4,7 +4,10 @@
 //! distance \(\bar d_i\) to its k nearest neighbours exceeds
 //! \(\mu + s\,\sigma\) of all \(\bar d\) goes, as PCL's and Open3D's filters do) and
 //! given normals (the least-variance axis of its k neighbours, turned towards the
-//! cameras that saw it).
+//! cameras that saw it). The sums are kept in chunks under a memory budget
+//! ([`CloudBuilder::spill_to`]), and the cloud is written chunk by chunk
+//! ([`Carved::write`]): no step holds the whole cloud but its positions (the neighbour
+//! searches').
 
 use std::path::Path;
 
@@ -16,6 +19,8 @@ use super::neighbours::PointIndex;
 use super::tsdf::FrameInput;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::mesh::Mesh;
+use crate::io::ply::PlyEncoding;
+use crate::io::ply_stream::{PlyPointStream, PointRows};
 use crate::io::IoError;
 
 /// Settings of the point cloud.
@@ -104,90 +109,133 @@ impl CloudBuilder {
             }
             voxel.count += 1;
         }
-        self.voxels.end_frame()
+        self.voxels.end_step()
     }
 
-    /// The voxel means, those `drop` names removed (it answers for a chunk of
-    /// neighbouring means at a time), in voxel order so that the output does not
-    /// depend on hash order or on the budget; and how many `drop` removed.
-    /// [`Carved::finish`] makes the cloud of them (after the volume that `drop` reads
-    /// is gone).
+    /// The voxels whose means `drop` names removed (it answers for a chunk of
+    /// neighbouring means at a time), and how many it removed. [`Carved::write`]
+    /// makes the cloud of the rest (after the volume that `drop` reads is gone).
     pub fn carve(
-        self,
+        mut self,
         drop: impl Fn(&[Vector3<f64>]) -> Vec<bool>,
     ) -> Result<(Carved, usize), IoError> {
-        let mut kept: Vec<([i32; 3], Point)> = Vec::with_capacity(self.voxels.len());
-        let mut dropped = 0;
-        self.voxels.drain_sorted(|voxels| {
+        let before = self.voxels.len();
+        for at in self.voxels.chunk_keys() {
+            let voxels = self.voxels.sorted(at)?;
             let means: Vec<Vector3<f64>> = (voxels.iter())
                 .map(|(_, v)| Vector3::from(v.sum) / v.count as f64)
                 .collect();
-            let gone = drop(&means);
-            dropped += gone.iter().filter(|&&d| d).count();
-            let points = voxels.iter().zip(gone).filter(|(_, d)| !d);
-            kept.extend(points.map(|((k, v), _)| (*k, Point::of(v))));
-        })?;
-        // Chunk by chunk is not the voxels' order: sorted once more.
-        kept.par_sort_unstable_by_key(|(k, _)| *k);
-        let settings = self.settings;
+            let keep: Vec<bool> = drop(&means).into_iter().map(|d| !d).collect();
+            self.voxels.retain(at, &keep)?;
+            self.voxels.end_step()?;
+        }
+        let dropped = before - self.voxels.len();
         let carved = Carved {
-            settings,
-            points: kept,
+            settings: self.settings,
+            voxels: self.voxels,
         };
         Ok((carved, dropped))
     }
 }
 
-/// A voxel's point: its mean position and colour, and its summed view directions.
-struct Point {
-    position: [f32; 3],
-    colour: [u8; 3],
-    view: [f64; 3],
-}
-
-impl Point {
-    fn of(voxel: &Voxel) -> Self {
-        let n = voxel.count as f64;
-        Self {
-            position: voxel.sum.map(|c| (c / n) as f32),
-            colour: voxel.colour.map(|c| (c as f64 / n).round() as u8),
-            view: voxel.view,
-        }
-    }
-}
-
-/// The cloud's points before outliers and normals ([`CloudBuilder::carve`]).
+/// The cloud's voxels before outliers and normals ([`CloudBuilder::carve`]).
 pub struct Carved {
     settings: CloudSettings,
-    /// The points in voxel order.
-    points: Vec<([i32; 3], Point)>,
+    voxels: CloudVoxels,
+}
+
+/// The cloud as written ([`Carved::write`]).
+pub struct WrittenCloud {
+    /// The file's rows, to be finished ([`PlyPointStream::finish`]).
+    pub stream: PlyPointStream,
+    /// At most the asked number of its points, evenly spread over the file's order
+    /// (pictures).
+    pub sample: Mesh,
+    /// What the memory budget made the voxel sums do.
+    pub spill: CloudSpillCounts,
 }
 
 impl Carved {
-    /// The cloud: outliers removed, normals estimated.
-    pub fn finish(self) -> Mesh {
+    /// The cloud written chunk by chunk into `path` (as a stream, finished later):
+    /// outliers removed and normals estimated over the whole cloud's positions (the
+    /// only per-point data held whole), colours and view directions read chunk by
+    /// chunk; a sample of at most `sample` points.
+    pub fn write(
+        mut self,
+        path: &Path,
+        encoding: PlyEncoding,
+        comment: &str,
+        sample: usize,
+    ) -> Result<WrittenCloud, IoError> {
         let s = self.settings;
-        let n = self.points.len();
-        let mut cloud = Mesh::default();
-        (cloud.vertices, cloud.colours) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        let mut views = Vec::with_capacity(n);
-        for (_, point) in self.points {
-            cloud.vertices.push(point.position);
-            cloud.colours.push(point.colour);
-            views.push(Vector3::from(point.view));
+        let chunks = self.voxels.chunk_keys();
+        let Positions {
+            mut keys,
+            mut positions,
+        } = self.positions(&chunks)?;
+        let keep = match s.outlier_neighbours > 0 && positions.len() > s.outlier_neighbours {
+            true => inliers(&positions, s.outlier_neighbours, s.outlier_std),
+            false => vec![true; positions.len()],
+        };
+        let mut kept = keep.iter();
+        positions.retain(|_| *kept.next().expect("one flag a point"));
+        let mut kept = keep.iter();
+        keys.retain(|_| *kept.next().expect("one flag a point"));
+        drop(keep);
+        let normals = s.normal_neighbours >= 3 && positions.len() > s.normal_neighbours;
+        let rows = PointRows {
+            normals,
+            colours: !positions.is_empty(),
+        };
+        let index = normals.then(|| PointIndex::new(&positions));
+        let mut stream = PlyPointStream::create(path, rows, encoding, comment)?;
+        let mut picked = Sample::new(sample);
+        for &at in &chunks {
+            // The chunk's kept points, and where they are in `positions`.
+            let (own, points): (Vec<usize>, Vec<Point>) = (self.voxels.sorted(at)?.iter())
+                .filter_map(|(key, v)| Some((keys.binary_search(key).ok()?, Point::of(v))))
+                .unzip();
+            let mut piece = Mesh::points(own.iter().map(|&i| positions[i]).collect());
+            piece.colours = points.iter().map(|p| p.colour).collect();
+            if let Some(index) = &index {
+                piece.normals = (own.par_iter().zip(points.par_iter()))
+                    .map(|(&i, p)| {
+                        normal(index, &positions, i, &p.view.into(), s.normal_neighbours)
+                    })
+                    .collect();
+            }
+            stream.push(&piece)?;
+            picked.add(&piece);
+            self.voxels.end_step()?;
         }
-        if s.outlier_neighbours > 0 && cloud.len() > s.outlier_neighbours {
-            let keep = inliers(&cloud.vertices, s.outlier_neighbours, s.outlier_std);
-            let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
-            cloud.vertices = kept.iter().map(|&i| cloud.vertices[i]).collect();
-            cloud.colours = kept.iter().map(|&i| cloud.colours[i]).collect();
-            views = kept.iter().map(|&i| views[i]).collect();
-        }
-        if s.normal_neighbours >= 3 && cloud.len() > s.normal_neighbours {
-            cloud.normals = normals(&cloud.vertices, &views, s.normal_neighbours);
-        }
-        cloud
+        Ok(WrittenCloud {
+            stream,
+            sample: picked.mesh,
+            spill: self.voxels.spill_counts(),
+        })
     }
+}
+
+impl Carved {
+    /// Every point's voxel key and position, in the keys' order (the neighbour
+    /// searches' ties are then broken as they always were).
+    fn positions(&mut self, chunks: &[[i32; 3]]) -> Result<Positions, IoError> {
+        let mut keyed = Vec::with_capacity(self.voxels.len());
+        for &at in chunks {
+            let voxels = self.voxels.sorted(at)?;
+            keyed.extend(voxels.iter().map(|(k, v)| (*k, Point::of(v).position)));
+            self.voxels.end_step()?;
+        }
+        keyed.par_sort_unstable_by_key(|(k, _)| *k);
+        let (keys, positions) = keyed.into_iter().unzip();
+        Ok(Positions { keys, positions })
+    }
+}
+
+/// The cloud's points' voxel keys and positions, in the keys' order.
+struct Positions {
+    keys: Vec<[i32; 3]>,
+    positions: Vec<[f32; 3]>,
 }
 
 /// Statistical outlier removal: which points to keep.
@@ -212,38 +260,201 @@ pub fn inliers(points: &[[f32; 3]], k: usize, std_ratio: f64) -> Vec<bool> {
     mean_distances.iter().map(|&d| d <= limit).collect()
 }
 
-/// Unit normals: least-variance axis of the `k` nearest points, towards `views`.
-pub fn normals(points: &[[f32; 3]], views: &[Vector3<f64>], k: usize) -> Vec<[f32; 3]> {
-    let index = PointIndex::new(points);
-    points
-        .par_iter()
-        .zip(views.par_iter())
-        .map(|(p, view)| {
-            let near = index.nearest(p, k);
-            let pts: Vec<Vector3<f64>> = near
-                .iter()
-                .map(|&(i, _)| Vector3::from(points[i as usize].map(f64::from)))
-                .collect();
-            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-            let cov: Matrix3<f64> = pts
-                .iter()
-                .map(|q| (q - mean) * (q - mean).transpose())
-                .sum();
-            let eigen = cov.symmetric_eigen();
-            let smallest = eigen.eigenvalues.imin();
-            let mut n: Vector3<f64> = eigen.eigenvectors.column(smallest).into_owned();
-            if n.dot(view) < 0.0 {
-                n = -n;
+/// A bounded sample of the points pushed: every `step`-th, the step doubled (and every
+/// other point kept dropped) whenever more than `max` are kept.
+struct Sample {
+    mesh: Mesh,
+    step: usize,
+    seen: usize,
+    max: usize,
+}
+
+impl Sample {
+    fn new(max: usize) -> Self {
+        Self {
+            mesh: Mesh::default(),
+            step: 1,
+            seen: 0,
+            max: max.max(1),
+        }
+    }
+
+    fn add(&mut self, piece: &Mesh) {
+        for i in 0..piece.len() {
+            if self.seen.is_multiple_of(self.step) {
+                self.mesh.vertices.push(piece.vertices[i]);
+                self.mesh.colours.extend(piece.colours.get(i));
             }
-            n.map(|c| c as f32).into()
-        })
-        .collect()
+            self.seen += 1;
+            if self.mesh.len() > self.max {
+                let mesh = &mut self.mesh;
+                mesh.vertices = mesh.vertices.iter().copied().step_by(2).collect();
+                mesh.colours = mesh.colours.iter().copied().step_by(2).collect();
+                self.step *= 2;
+            }
+        }
+    }
+}
+
+/// A voxel's point: its mean position and colour, and its summed view directions.
+struct Point {
+    position: [f32; 3],
+    colour: [u8; 3],
+    view: [f64; 3],
+}
+
+impl Point {
+    fn of(voxel: &Voxel) -> Self {
+        let n = voxel.count as f64;
+        Self {
+            position: voxel.sum.map(|c| (c / n) as f32),
+            colour: voxel.colour.map(|c| (c as f64 / n).round() as u8),
+            view: voxel.view,
+        }
+    }
+}
+
+/// The unit normal at `points[i]`: the least-variance axis of its `k` nearest, towards
+/// `view`.
+fn normal(
+    index: &PointIndex,
+    points: &[[f32; 3]],
+    i: usize,
+    view: &Vector3<f64>,
+    k: usize,
+) -> [f32; 3] {
+    let near = index.nearest(&points[i], k);
+    let pts: Vec<Vector3<f64>> = near
+        .iter()
+        .map(|&(j, _)| Vector3::from(points[j as usize].map(f64::from)))
+        .collect();
+    let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+    let cov: Matrix3<f64> = pts
+        .iter()
+        .map(|q| (q - mean) * (q - mean).transpose())
+        .sum();
+    let eigen = cov.symmetric_eigen();
+    let smallest = eigen.eigenvalues.imin();
+    let mut n: Vector3<f64> = eigen.eigenvectors.column(smallest).into_owned();
+    if n.dot(view) < 0.0 {
+        n = -n;
+    }
+    n.map(|c| c as f32).into()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::io::image_files::DepthImage;
+
+    /// `carved` written to a file and read back, and its sample.
+    fn written(carved: Carved, name: &str, sample: usize) -> (Mesh, Mesh) {
+        let dir = std::env::temp_dir().join(format!("dopslam-cloud-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("points.ply");
+        let cloud = (carved.write(&path, PlyEncoding::Binary, "test", sample)).unwrap();
+        cloud.stream.finish().unwrap();
+        let mesh = crate::io::ply::read_ply(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        (mesh, cloud.sample)
+    }
+
+    /// Outliers and normals of `points` held whole, in their own order.
+    fn whole_cloud(points: &[[f32; 3]], views: &[Vector3<f64>], s: &CloudSettings) -> Mesh {
+        let keep = inliers(points, s.outlier_neighbours, s.outlier_std);
+        let kept: Vec<usize> = (0..points.len()).filter(|&i| keep[i]).collect();
+        let mut cloud = Mesh::points(kept.iter().map(|&i| points[i]).collect());
+        let index = PointIndex::new(&cloud.vertices);
+        cloud.normals = (0..kept.len())
+            .map(|i| {
+                normal(
+                    &index,
+                    &cloud.vertices,
+                    i,
+                    &views[kept[i]],
+                    s.normal_neighbours,
+                )
+            })
+            .collect();
+        cloud
+    }
+
+    /// A wall, a thin pole before it and stray points, written chunk by chunk (in
+    /// chunk order) and finished whole in the points' own order: the same points go
+    /// and the same normals come.
+    #[test]
+    fn a_cloud_written_in_chunks_is_the_cloud_finished_whole() {
+        let s = CloudSettings {
+            voxel: 0.02,
+            stride: 1,
+            max_depth: 10.0,
+            outlier_neighbours: 16,
+            outlier_std: 2.0,
+            normal_neighbours: 16,
+            margin: 0,
+        };
+        let mut rng = crate::random::Rng::new(5);
+        let mut candidates: Vec<[f32; 3]> = Vec::new();
+        for i in 0..150 {
+            for j in 0..60 {
+                let z = 2.01 + 0.002 * rng.uniform() as f32;
+                candidates.push([0.02 * i as f32 + 0.01, 0.02 * j as f32 + 0.01, z]);
+            }
+        }
+        for j in 0..60 {
+            candidates.push([1.51, 0.02 * j as f32 + 0.01, 1.01]);
+        }
+        for _ in 0..40 {
+            let r = [3.0, 1.2, 1.0].map(|size| size * rng.uniform() as f32);
+            candidates.push([r[0], r[1], 0.5 + r[2]]);
+        }
+        // One point a voxel, as the voxel means are.
+        let key = |p: &[f32; 3]| [0, 1, 2].map(|k| (p[k] as f64 / s.voxel).floor() as i32);
+        let mut seen = std::collections::HashSet::new();
+        let points: Vec<[f32; 3]> = candidates
+            .into_iter()
+            .filter(|p| seen.insert(key(p)))
+            .collect();
+        let mut builder = CloudBuilder::new(s, PinholeCamera::tum_fr3());
+        for p in &points {
+            let voxel = builder.voxels.voxel_mut(key(p)).unwrap();
+            *voxel = Voxel {
+                sum: p.map(f64::from),
+                colour: [1, 2, 3],
+                view: [0.0, 0.0, -1.0],
+                count: 1,
+            };
+        }
+        builder.voxels.end_step().unwrap();
+        let (carved, _) = builder.carve(|m| vec![false; m.len()]).unwrap();
+        let (chunked, sample) = written(carved, "whole", 500);
+        let views = vec![Vector3::new(0.0, 0.0, -1.0); points.len()];
+        let whole = whole_cloud(&points, &views, &s);
+        let sorted = |m: &Mesh| {
+            let mut rows: Vec<([u32; 3], [f32; 3])> = (0..m.len())
+                .map(|i| (m.vertices[i].map(f32::to_bits), m.normals[i]))
+                .collect();
+            rows.sort_unstable_by_key(|r| r.0);
+            rows
+        };
+        let (a, b) = (sorted(&chunked), sorted(&whole));
+        assert!(
+            whole.len() < points.len() && whole.len() > 8500,
+            "{}",
+            whole.len()
+        );
+        assert_eq!(a.len(), b.len());
+        for ((pa, na), (pb, nb)) in a.iter().zip(&b) {
+            assert_eq!(pa, pb);
+            let dot: f32 = (0..3).map(|k| na[k] * nb[k]).sum();
+            assert!(dot > 0.9999, "{na:?} {nb:?}");
+        }
+        assert!(
+            sample.len() <= 500 && sample.len() > 250,
+            "{}",
+            sample.len()
+        );
+    }
 
     #[test]
     fn a_wall_becomes_a_flat_cloud_with_normals_to_the_camera_and_no_outliers() {
@@ -280,10 +491,8 @@ mod tests {
                 weight: 1.0,
             })
             .unwrap();
-        let cloud = (builder.carve(|means| vec![false; means.len()]))
-            .unwrap()
-            .0
-            .finish();
+        let (carved, _) = (builder.carve(|means| vec![false; means.len()])).unwrap();
+        let (cloud, _) = written(carved, "wall", 1000);
         assert!(cloud.len() > 1000);
         assert!(
             cloud.vertices.iter().all(|v| (v[2] - 2.0).abs() < 1e-4),
@@ -343,7 +552,8 @@ mod tests {
             let (carved, dropped) = (builder
                 .carve(|means| means.iter().map(|p| (2.5..2.6).contains(&p.x)).collect()))
             .unwrap();
-            (carved.finish(), dropped, counts)
+            let (cloud, _) = written(carved, &format!("{budget:?}"), 1000);
+            (cloud, dropped, counts)
         };
         let (whole, whole_dropped, all) = built(None);
         let (spilled, dropped, counts) = built(Some(1_000_000));

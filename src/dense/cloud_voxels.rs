@@ -1,9 +1,9 @@
 //! The point cloud's voxel sums ([`super::cloud::CloudBuilder`]) in chunks of 16³
 //! voxels. Under a memory budget ([`CloudVoxels::spill_to`]) the chunks least recently
-//! added to are written to a spill file once the chunks in memory exceed it, and read
-//! back when a frame adds to them again; [`CloudVoxels::drain_sorted`] hands every
-//! chunk out once, in order, from memory or from the file. The sums are the same
-//! numbers added in the same order either way, so the cloud is the same.
+//! used are written to a spill file once the chunks in memory exceed it, and read
+//! back when a frame adds to them again or the cloud's carving and finishing reach
+//! them, chunk by chunk. The sums are the same numbers added in the same order either
+//! way, so the cloud is the same.
 
 use std::collections::hash_map::Entry;
 use std::path::Path;
@@ -109,18 +109,31 @@ pub(super) struct CloudVoxels {
     len: usize,
 }
 
-/// A voxel's chunk and its place in it.
+/// A voxel's chunk and its place in it (places in the order of the keys).
 fn chunk_of(key: [i32; 3]) -> ([i32; 3], u16) {
     let chunk = key.map(|k| k.div_euclid(CHUNK));
     let [x, y, z] = key.map(|k| k.rem_euclid(CHUNK) as u16);
-    (chunk, (z * CHUNK as u16 + y) * CHUNK as u16 + x)
+    (chunk, (x * CHUNK as u16 + y) * CHUNK as u16 + z)
 }
 
 /// The voxel key of `place` in `chunk`.
 fn key_of(chunk: [i32; 3], place: u16) -> [i32; 3] {
     let c = CHUNK as u16;
-    let local = [place % c, place / c % c, place / (c * c)];
+    let local = [place / (c * c), place / c % c, place % c];
     [0, 1, 2].map(|k| chunk[k] * CHUNK + local[k] as i32)
+}
+
+/// The Morton code of `key` (each coordinate taken from `min`): chunks in this order
+/// follow each other in space, so that a chunk's neighbours were mostly just used.
+fn morton(key: [i32; 3], min: [i32; 3]) -> u64 {
+    let mut code = 0u64;
+    for k in 0..3 {
+        let v = (key[k] as i64 - min[k] as i64) as u64;
+        for bit in 0..21 {
+            code |= ((v >> bit) & 1) << (3 * bit + k);
+        }
+    }
+    code
 }
 
 impl CloudVoxels {
@@ -140,16 +153,10 @@ impl CloudVoxels {
     /// is out of memory.
     pub fn voxel_mut(&mut self, key: [i32; 3]) -> Result<&mut Voxel, IoError> {
         let (at, place) = chunk_of(key);
-        let chunk = self.chunks.entry(at).or_default();
-        if !chunk.resident {
-            if let (Some(record), Some(spill)) = (chunk.record, self.spill.as_mut()) {
-                chunk.voxels = read_chunk(spill, record)?;
-                self.counts.chunks_reloaded += 1;
-            }
-            chunk.resident = true;
-            self.resident += chunk.voxels.len();
-        }
-        (chunk.stamp, chunk.dirty) = (self.stamp, true);
+        self.chunks.entry(at).or_default();
+        self.load(at)?;
+        let chunk = self.chunks.get_mut(&at).expect("just made");
+        chunk.dirty = true;
         Ok(match chunk.voxels.entry(place) {
             Entry::Occupied(voxel) => voxel.into_mut(),
             Entry::Vacant(place) => {
@@ -160,10 +167,63 @@ impl CloudVoxels {
         })
     }
 
-    /// Ends a frame: when more than the budget's voxels are in memory, the chunks
-    /// least recently added to (not this frame's) go to the spill file until a quarter
-    /// of the budget is free.
-    pub fn end_frame(&mut self) -> Result<(), IoError> {
+    /// Brings chunk `at`'s voxels into memory (from its spill record) and stamps it.
+    fn load(&mut self, at: [i32; 3]) -> Result<(), IoError> {
+        let chunk = self.chunks.get_mut(&at).expect("a chunk of the cloud");
+        if !chunk.resident {
+            if let (Some(record), Some(spill)) = (chunk.record, self.spill.as_mut()) {
+                chunk.voxels = read_chunk(spill, record)?;
+                self.counts.chunks_reloaded += 1;
+            }
+            chunk.resident = true;
+            self.resident += chunk.voxels.len();
+        }
+        chunk.stamp = self.stamp;
+        Ok(())
+    }
+
+    /// The chunks' keys, in Morton order.
+    pub fn chunk_keys(&self) -> Vec<[i32; 3]> {
+        let mut keys: Vec<[i32; 3]> = self.chunks.keys().copied().collect();
+        let min = [0, 1, 2].map(|k| keys.iter().map(|c| c[k]).min().unwrap_or(0));
+        keys.sort_unstable_by_key(|c| morton(*c, min));
+        keys
+    }
+
+    /// Chunk `at`'s voxels, sorted by key (read back first when out of memory).
+    pub fn sorted(&mut self, at: [i32; 3]) -> Result<Vec<([i32; 3], Voxel)>, IoError> {
+        self.load(at)?;
+        let chunk = &self.chunks[&at];
+        let mut voxels: Vec<(u16, Voxel)> = chunk.voxels.iter().map(|(p, v)| (*p, *v)).collect();
+        voxels.sort_unstable_by_key(|(p, _)| *p);
+        Ok(voxels
+            .into_iter()
+            .map(|(p, v)| (key_of(at, p), v))
+            .collect())
+    }
+
+    /// Keeps those of chunk `at`'s voxels (in [`CloudVoxels::sorted`]'s order) that
+    /// `keep` marks.
+    pub fn retain(&mut self, at: [i32; 3], keep: &[bool]) -> Result<(), IoError> {
+        let voxels = self.sorted(at)?;
+        let gone: Vec<u16> = (voxels.iter().zip(keep))
+            .filter(|(_, &keep)| !keep)
+            .map(|((key, _), _)| chunk_of(*key).1)
+            .collect();
+        let chunk = self.chunks.get_mut(&at).expect("loaded");
+        for place in &gone {
+            chunk.voxels.remove(place);
+        }
+        chunk.dirty |= !gone.is_empty();
+        self.resident -= gone.len();
+        self.len -= gone.len();
+        Ok(())
+    }
+
+    /// Ends a step (a frame added, a chunk carved or finished): when more than the
+    /// budget's voxels are in memory, the chunks least recently used (not this
+    /// step's) go to the spill file until a quarter of the budget is free.
+    pub fn end_step(&mut self) -> Result<(), IoError> {
         let memory = self.resident * VOXEL_MEMORY;
         self.counts.peak_resident_mb = self.counts.peak_resident_mb.max(memory as f64 / 1e6);
         self.stamp += 1;
@@ -210,29 +270,6 @@ impl CloudVoxels {
             ..self.counts
         }
     }
-
-    /// Every chunk's voxels once, chunks in key order, each chunk's sorted by key:
-    /// `each` takes them; the chunk is gone from memory before the next one comes.
-    pub fn drain_sorted(
-        mut self,
-        mut each: impl FnMut(Vec<([i32; 3], Voxel)>),
-    ) -> Result<(), IoError> {
-        let mut keys: Vec<[i32; 3]> = self.chunks.keys().copied().collect();
-        keys.sort_unstable();
-        for at in keys {
-            let chunk = self.chunks.remove(&at).expect("listed");
-            let voxels = match (chunk.resident, chunk.record, self.spill.as_mut()) {
-                (false, Some(record), Some(spill)) => read_chunk(spill, record)?,
-                _ => chunk.voxels,
-            };
-            let mut voxels: Vec<([i32; 3], Voxel)> = (voxels.into_iter())
-                .map(|(place, v)| (key_of(at, place), v))
-                .collect();
-            voxels.sort_unstable_by_key(|(k, _)| *k);
-            each(voxels);
-        }
-        Ok(())
-    }
 }
 
 fn write_chunk(spill: &mut CloudSpill, voxels: &FxMap<u16, Voxel>) -> Result<Record, IoError> {
@@ -267,6 +304,20 @@ mod tests {
             assert_eq!(key_of(chunk, place), key);
         }
         assert_eq!(chunk_of([-1, 0, 16]).0, [-1, 0, 1]);
+        // Places follow the keys' order within a chunk.
+        let mut keys = vec![[3, 1, 2], [0, 15, 15], [15, 0, 0], [3, 0, 9]];
+        let mut places: Vec<u16> = keys.iter().map(|k| chunk_of(*k).1).collect();
+        keys.sort_unstable();
+        places.sort_unstable();
+        assert_eq!(
+            places
+                .iter()
+                .map(|p| key_of([0; 3], *p))
+                .collect::<Vec<_>>(),
+            keys
+        );
+        assert!(morton([1, 0, 0], [0; 3]) < morton([0, 0, 1], [0; 3]));
+        assert!(morton([1, 1, 1], [0; 3]) < morton([2, 0, 0], [0; 3]));
     }
 
     #[test]

@@ -11,8 +11,13 @@ use crate::dop::Mode;
 use crate::geometry::mesh::Mesh;
 use crate::io::atomic::write_atomic;
 use crate::io::ply::{write_obj, write_ply};
+use crate::io::ply_stream::PlyPointStream;
 use crate::io::run_dir::{names, RunDir};
 use crate::io::{IoError, Trajectory};
+
+/// The most cloud points the pictures are drawn from when there is no mesh (a sample
+/// spread over the whole cloud).
+const PICTURE_POINTS: usize = 2_000_000;
 
 /// The fused volume and the keyframe cloud (when one is made).
 pub(super) struct Maps {
@@ -59,41 +64,41 @@ pub(super) fn write_maps(
     let start = Instant::now();
     let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
     let carved = match cloud {
-        Some(cloud) => {
-            report.cloud_spill = cloud.spill_counts();
-            Some(cloud.carve(|means| match carving {
-                true => volume.seen_through_each(means, limit),
-                false => vec![false; means.len()],
-            })?)
-        }
+        Some(cloud) => Some(cloud.carve(|means| match carving {
+            true => volume.seen_through_each(means, limit),
+            false => vec![false; means.len()],
+        })?),
         None => None,
     };
     report.tsdf_spill = volume.spill_counts()?;
     drop(volume);
     crate::memory::release_freed_memory();
-    let points = carved.map(|(carved, dropped)| {
-        let points = carved.finish();
-        report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
-        report.stages.cloud_s = report.cloud_ms / 1e3;
-        report.cloud_points = points.len();
-        report.cloud_seen_through = dropped;
-        report.memory.cloud_mib = crate::memory::part_peak_mib();
-        points
-    });
+    let points = match carved {
+        Some((carved, dropped)) => {
+            let path = out.file(names::DENSE_POINTS);
+            let encoding = config.outputs.ply_encoding;
+            let points = carved.write(&path, encoding, &comment, PICTURE_POINTS)?;
+            report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
+            report.stages.cloud_s = report.cloud_ms / 1e3;
+            report.cloud_points = points.stream.len();
+            report.cloud_seen_through = dropped;
+            report.cloud_spill = points.spill;
+            report.memory.cloud_mib = crate::memory::part_peak_mib();
+            Some(points)
+        }
+        None => None,
+    };
     interrupted(
         out.root(),
         "the dense map was not written; the earlier one is as it was",
     )?;
     let start = Instant::now();
-    write_files(
-        out,
-        config,
-        mesh.as_ref(),
-        points.as_ref(),
-        &comment,
-        report,
-    )?;
-    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(points.as_ref())) {
+    let (stream, sample) = match points {
+        Some(points) => (Some(points.stream), Some(points.sample)),
+        None => (None, None),
+    };
+    write_files(out, config, mesh.as_ref(), stream, &comment, report)?;
+    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(sample.as_ref())) {
         write_pictures(out, map, trajectory, report)?;
     }
     report.stages.writing_s = start.elapsed().as_secs_f64();
@@ -101,12 +106,13 @@ pub(super) fn write_maps(
     Ok(())
 }
 
-/// The `mesh` (PLY, and OBJ when asked) and the cloud `points` (PLY) into `out`.
+/// The `mesh` (PLY, and OBJ when asked) and the cloud `points` (PLY, its rows
+/// streamed already) into `out`.
 fn write_files(
     out: &RunDir,
     config: &DenseConfig,
     mesh: Option<&Mesh>,
-    points: Option<&Mesh>,
+    points: Option<PlyPointStream>,
     comment: &str,
     report: &mut DenseReport,
 ) -> Result<(), IoError> {
@@ -121,9 +127,8 @@ fn write_files(
         }
     }
     if let Some(points) = points {
-        let path = out.file(names::DENSE_POINTS);
-        write_ply(&path, points, None, config.outputs.ply_encoding, comment)?;
-        report.outputs.push(path);
+        points.finish()?;
+        report.outputs.push(out.file(names::DENSE_POINTS));
     }
     Ok(())
 }

@@ -10,6 +10,7 @@ pub mod kitti;
 pub mod orbslam_settings;
 pub mod output;
 pub mod ply;
+pub mod ply_stream;
 pub mod recording;
 pub mod run_dir;
 pub mod sequence;

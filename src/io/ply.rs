@@ -13,7 +13,7 @@ use std::path::Path;
 
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{
-    Addable, ElementDef, Encoding, Ply, PropertyAccess, PropertyAccessResult, PropertyDef,
+    Addable, ElementDef, Encoding, Header, Ply, PropertyAccess, PropertyAccessResult, PropertyDef,
     PropertyType, ScalarType,
 };
 use ply_rs_bw::writer::Writer;
@@ -154,6 +154,15 @@ pub enum PlyEncoding {
 /// The vertex element's properties: position, then normals, colours and the scalar
 /// field when the mesh has them.
 fn vertex_element(mesh: &Mesh, with_scalar: bool) -> ElementDef {
+    vertex_properties(
+        !mesh.normals.is_empty(),
+        !mesh.colours.is_empty(),
+        with_scalar,
+    )
+}
+
+/// The vertex element: position, then normals, colours and the scalar field as asked.
+pub(super) fn vertex_properties(normals: bool, colours: bool, with_scalar: bool) -> ElementDef {
     let float = PropertyType::Scalar(ScalarType::Float);
     let uchar = PropertyType::Scalar(ScalarType::UChar);
     let mut vertex = ElementDef::new("vertex".to_string());
@@ -162,14 +171,14 @@ fn vertex_element(mesh: &Mesh, with_scalar: bool) -> ElementDef {
             .properties
             .add(PropertyDef::new(name.into(), float.clone()));
     }
-    if !mesh.normals.is_empty() {
+    if normals {
         for name in ["nx", "ny", "nz"] {
             vertex
                 .properties
                 .add(PropertyDef::new(name.into(), float.clone()));
         }
     }
-    if !mesh.colours.is_empty() {
+    if colours {
         for name in ["red", "green", "blue"] {
             vertex
                 .properties
@@ -194,14 +203,8 @@ pub fn write_ply(
 ) -> Result<(), IoError> {
     mesh.validate().map_err(|m| IoError::invalid(path, m))?;
     let mut vertex = vertex_element(mesh, scalar.is_some());
-    let mut vertices: Ply<Record> = Ply::new();
-    vertices.header.encoding = match encoding {
-        PlyEncoding::Binary => Encoding::BinaryLittleEndian,
-        PlyEncoding::Ascii => Encoding::Ascii,
-    };
-    vertices.header.comments.push(comment.to_string());
     vertex.count = mesh.len();
-    vertices.header.elements.add(vertex.clone());
+    let mut header = header(encoding, comment, &vertex);
     let mut face = ElementDef::new("face".to_string());
     face.properties.add(PropertyDef::new(
         "vertex_indices".into(),
@@ -209,43 +212,63 @@ pub fn write_ply(
     ));
     face.count = mesh.triangles.len();
     if !mesh.triangles.is_empty() {
-        vertices.header.elements.add(face.clone());
+        header.elements.add(face.clone());
     }
     let write = |mut out: &mut dyn Write| -> std::io::Result<()> {
-        Writer::<Record>::new().write_header(&mut out, &vertices.header)?;
-        // In pieces: the file's bytes and ply-rs's records of a whole mesh would take
-        // several times the mesh's own memory.
-        let record = |i: usize| Record {
-            position: mesh.vertices[i].map(f64::from),
-            normal: mesh.normals.get(i).copied().unwrap_or_default(),
-            colour: mesh.colours.get(i).copied().unwrap_or_default(),
-            scalar: scalar.and_then(|s| s.get(i)).copied().unwrap_or_default(),
-            indices: Vec::new(),
-        };
-        for start in (0..mesh.len()).step_by(PIECE) {
-            let records: Vec<Record> = (start..mesh.len().min(start + PIECE)).map(record).collect();
-            Writer::<Record>::new().write_payload_of_element(
-                &mut out,
-                &records,
-                &vertex,
-                &vertices.header,
-            )?;
-        }
+        write_header(out, &header)?;
+        write_vertices(out, mesh, scalar, &vertex, &header)?;
         for piece in mesh.triangles.chunks(PIECE) {
             let faces: Vec<Face> = piece
                 .iter()
                 .map(|t| Face(t.map(|i| i as i32).to_vec()))
                 .collect();
-            Writer::<Face>::new().write_payload_of_element(
-                &mut out,
-                &faces,
-                &face,
-                &vertices.header,
-            )?;
+            Writer::<Face>::new().write_payload_of_element(&mut out, &faces, &face, &header)?;
         }
         Ok(())
     };
     write_atomic_with(path, write)
+}
+
+/// A file's header: `encoding`, `comment`, and the `vertex` element.
+pub(super) fn header(encoding: PlyEncoding, comment: &str, vertex: &ElementDef) -> Header {
+    let mut header = Ply::<Record>::new().header;
+    header.encoding = match encoding {
+        PlyEncoding::Binary => Encoding::BinaryLittleEndian,
+        PlyEncoding::Ascii => Encoding::Ascii,
+    };
+    header.comments.push(comment.to_string());
+    header.elements.add(vertex.clone());
+    header
+}
+
+/// Writes `header`.
+pub(super) fn write_header(mut out: &mut dyn Write, header: &Header) -> std::io::Result<()> {
+    Writer::<Record>::new().write_header(&mut out, header)?;
+    Ok(())
+}
+
+/// Writes `mesh`'s vertices (and `scalar`) as `vertex` rows of a file with `header`.
+pub(super) fn write_vertices(
+    mut out: &mut dyn Write,
+    mesh: &Mesh,
+    scalar: Option<&[f32]>,
+    vertex: &ElementDef,
+    header: &Header,
+) -> std::io::Result<()> {
+    // In pieces: the file's bytes and ply-rs's records of a whole mesh would take
+    // several times the mesh's own memory.
+    let record = |i: usize| Record {
+        position: mesh.vertices[i].map(f64::from),
+        normal: mesh.normals.get(i).copied().unwrap_or_default(),
+        colour: mesh.colours.get(i).copied().unwrap_or_default(),
+        scalar: scalar.and_then(|s| s.get(i)).copied().unwrap_or_default(),
+        indices: Vec::new(),
+    };
+    for start in (0..mesh.len()).step_by(PIECE) {
+        let records: Vec<Record> = (start..mesh.len().min(start + PIECE)).map(record).collect();
+        Writer::<Record>::new().write_payload_of_element(&mut out, &records, vertex, header)?;
+    }
+    Ok(())
 }
 
 /// Vertices or faces written at a time.
