@@ -88,11 +88,11 @@ struct CloudSpill {
 pub struct CloudSpillCounts {
     /// Chunk records written to the spill file (a chunk written again counts again).
     pub chunks_written: u64,
-    /// Chunk records read back into memory while frames were added.
+    /// Chunk records read back into memory (by frames, the carving and the writing).
     pub chunks_reloaded: u64,
     /// The spill file's size at the end, MB.
     pub file_mb: f64,
-    /// The most voxel sums in memory at once, MB.
+    /// The most voxel sums in memory at once (hash table entries), MB.
     pub peak_resident_mb: f64,
 }
 

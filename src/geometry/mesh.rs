@@ -114,10 +114,35 @@ impl Mesh {
     /// vertices, as Open3D's `cluster_connected_triangles` and a size filter do. The
     /// vertices kept keep their order, colours and normals. A point cloud (no
     /// triangles) and `min_area <= 0` keep everything.
-    pub fn without_small_pieces(self, min_area: f64) -> (Mesh, Pruned) {
+    pub fn without_small_pieces(mut self, min_area: f64) -> (Mesh, Pruned) {
         if self.triangles.is_empty() || min_area <= 0.0 {
             return (self, Pruned::default());
         }
+        let keep = self.in_large_pieces(min_area);
+        // In place: a second mesh beside this one would double the peak.
+        let mut index = vec![u32::MAX; keep.flags.len()];
+        let mut kept = 0u32;
+        for (v, _) in keep.flags.iter().enumerate().filter(|(_, &k)| k) {
+            index[v] = kept;
+            kept += 1;
+        }
+        retain_flagged(&mut self.vertices, &keep.flags);
+        retain_flagged(&mut self.colours, &keep.flags);
+        retain_flagged(&mut self.normals, &keep.flags);
+        self.triangles.retain(|t| index[t[0] as usize] != u32::MAX);
+        for t in &mut self.triangles {
+            *t = t.map(|i| index[i as usize]);
+        }
+        let pruned = Pruned {
+            pieces: keep.pieces_dropped,
+            vertices: keep.flags.len() - kept as usize,
+        };
+        (self, pruned)
+    }
+
+    /// Which vertices are in a piece of at least `min_area` (m²), and how many pieces
+    /// are not.
+    fn in_large_pieces(&self, min_area: f64) -> Kept {
         let mut pieces = petgraph::unionfind::UnionFind::<u32>::new(self.vertices.len());
         // Vertices in no triangle go too.
         let mut used = vec![false; self.vertices.len()];
@@ -134,36 +159,31 @@ impl Mesh {
             area[pieces.find(t[0]) as usize] += (b - a).cross(&(c - a)).norm() / 2.0;
         }
         let dropped = |root: u32| area[root as usize] < min_area;
-        let mut pruned = Pruned {
-            pieces: (0..self.vertices.len() as u32)
-                .filter(|&v| used[v as usize] && pieces.find(v) == v && dropped(v))
-                .count(),
-            vertices: 0,
-        };
-        let mut index = vec![u32::MAX; self.vertices.len()];
-        let mut mesh = Mesh::default();
-        for (v, vertex) in self.vertices.iter().enumerate() {
-            if !used[v] || dropped(pieces.find(v as u32)) {
-                pruned.vertices += 1;
-                continue;
-            }
-            index[v] = mesh.vertices.len() as u32;
-            mesh.vertices.push(*vertex);
-            if let Some(colour) = self.colours.get(v) {
-                mesh.colours.push(*colour);
-            }
-            if let Some(normal) = self.normals.get(v) {
-                mesh.normals.push(*normal);
-            }
-        }
-        mesh.triangles = self
-            .triangles
-            .iter()
-            .filter(|t| index[t[0] as usize] != u32::MAX)
-            .map(|t| t.map(|i| index[i as usize]))
+        let pieces_dropped = (0..self.vertices.len() as u32)
+            .filter(|&v| used[v as usize] && pieces.find(v) == v && dropped(v))
+            .count();
+        let flags = (0..self.vertices.len())
+            .map(|v| used[v] && !dropped(pieces.find(v as u32)))
             .collect();
-        (mesh, pruned)
+        Kept {
+            flags,
+            pieces_dropped,
+        }
     }
+}
+
+/// Keeps the items of `items` whose flag is set (an empty `items` stays empty).
+fn retain_flagged<T>(items: &mut Vec<T>, flags: &[bool]) {
+    let mut flags = flags.iter();
+    items.retain(|_| flags.next().copied().unwrap_or(false));
+}
+
+/// The vertices [`Mesh::without_small_pieces`] keeps.
+struct Kept {
+    /// One a vertex: in a piece large enough.
+    flags: Vec<bool>,
+    /// Pieces (with a triangle) too small.
+    pieces_dropped: usize,
 }
 
 /// A unit square at z = 0, two triangles (for tests).
