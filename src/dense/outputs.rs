@@ -60,7 +60,10 @@ pub(super) fn write_maps(
         None
     };
     // The cloud carved by the volume, which then goes before the cloud's neighbour
-    // searches.
+    // searches. The carving only queries the volume: with a budget, its voxels wait in
+    // the spill file meanwhile.
+    volume.spill_everything()?;
+    crate::memory::release_freed_memory();
     let start = Instant::now();
     let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
     let carved = match cloud {
@@ -84,6 +87,9 @@ pub(super) fn write_maps(
             report.cloud_seen_through = dropped;
             report.cloud_spill = points.spill;
             report.memory.cloud_mib = crate::memory::part_peak_mib();
+            // The positions and their k-d tree are gone: their pages go back before
+            // the files are written.
+            crate::memory::release_freed_memory();
             Some(points)
         }
         None => None,

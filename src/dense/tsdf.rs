@@ -345,6 +345,18 @@ impl Spill {
     }
 }
 
+/// Writes `block` to the spill file when it changed since it was last written there,
+/// and takes its arrays out of memory.
+fn spill_block(spill: &mut Spill, block: &mut Block) -> Result<Voxels, IoError> {
+    if block.dirty || block.slot.is_none() {
+        block.write_record(&mut spill.bytes);
+        block.slot = Some(spill.file.write(block.slot, &spill.bytes)?);
+        block.dirty = false;
+        spill.written += 1;
+    }
+    Ok(block.unload())
+}
+
 /// Observed free space: a voxel's `(field, weight)` with weight above zero and
 /// \(F > \) `limit` ([`TsdfVolume::seen_through`]).
 fn free_space(voxel: Option<(f32, f32)>, limit: f32) -> bool {
@@ -491,16 +503,26 @@ impl TsdfVolume {
         }
         old.select_nth_unstable(surplus - 1);
         for &(_, i) in &old[..surplus] {
-            let block = &mut self.blocks[i as usize];
-            if block.dirty || block.slot.is_none() {
-                block.write_record(&mut spill.bytes);
-                block.slot = Some(spill.file.write(block.slot, &spill.bytes)?);
-                block.dirty = false;
-                spill.written += 1;
-            }
-            spill.spare.push(block.unload());
+            let arrays = spill_block(spill, &mut self.blocks[i as usize])?;
+            spill.spare.push(arrays);
         }
         self.resident -= surplus;
+        Ok(())
+    }
+
+    /// With a budget: every block in memory goes to the spill file (those not changed
+    /// since they were read back are only dropped), and no spare arrays stay, so that
+    /// the volume holds no voxels; queries read them from the file. Meshing is done by
+    /// then, and the cloud's carving only queries.
+    pub fn spill_everything(&mut self) -> Result<(), IoError> {
+        let Some(spill) = self.spill.as_mut() else {
+            return Ok(());
+        };
+        for block in self.blocks.iter_mut().filter(|b| b.resident()) {
+            spill_block(spill, block)?;
+        }
+        self.resident = 0;
+        spill.spare = Vec::new();
         Ok(())
     }
 
@@ -1249,6 +1271,18 @@ pub(crate) mod tests {
         assert_eq!(a.vertices, b.vertices);
         assert_eq!(a.colours, b.colours);
         assert_eq!(a.triangles, b.triangles);
+        // With every block in the file, the grouped queries answer the same.
+        spilled.spill_everything().unwrap();
+        assert!(spilled.blocks.iter().all(|b| !b.resident()));
+        let points: Vec<Vector3<f64>> = (0..2000)
+            .map(|_| {
+                let r = [3.6, 1.6, 1.4].map(|size| size * rng.uniform());
+                Vector3::new(r[0] - 1.8, r[1] - 0.8, r[2] + 0.8)
+            })
+            .collect();
+        let seen = whole.seen_through_each(&points, 0.5);
+        assert!(seen.iter().any(|&s| s) && seen.iter().any(|&s| !s));
+        assert_eq!(spilled.seen_through_each(&points, 0.5), seen);
         let path = spilled.spill.as_ref().unwrap().file.path().to_path_buf();
         assert!(path.exists());
         drop(spilled);
