@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use super::cloud::CloudBuilder;
+use super::cloud::{CloudBuilder, WrittenCloud};
 use super::tsdf::TsdfVolume;
 use super::{marching_cubes, render, DenseConfig, DenseReport};
 use crate::dop::Mode;
@@ -59,40 +59,13 @@ pub(super) fn write_maps(
     } else {
         None
     };
-    // The cloud carved by the volume, which then goes before the cloud's neighbour
-    // searches. The carving only queries the volume: with a budget, its voxels wait in
-    // the spill file meanwhile.
-    volume.spill_everything()?;
-    crate::memory::release_freed_memory();
-    let start = Instant::now();
-    let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
-    let carved = match cloud {
-        Some(cloud) => Some(cloud.carve(|means| match carving {
-            true => volume.seen_through_each(means, limit),
-            false => vec![false; means.len()],
-        })?),
-        None => None,
-    };
-    report.tsdf_spill = volume.spill_counts()?;
-    drop(volume);
-    crate::memory::release_freed_memory();
-    let points = match carved {
-        Some((carved, dropped)) => {
-            let path = out.file(names::DENSE_POINTS);
-            let encoding = config.outputs.ply_encoding;
-            let points = carved.write(&path, encoding, &comment, PICTURE_POINTS)?;
-            report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
-            report.stages.cloud_s = report.cloud_ms / 1e3;
-            report.cloud_points = points.stream.len();
-            report.cloud_seen_through = dropped;
-            report.cloud_spill = points.spill;
-            report.memory.cloud_mib = crate::memory::part_peak_mib();
-            // The positions and their k-d tree are gone: their pages go back before
-            // the files are written.
-            crate::memory::release_freed_memory();
-            Some(points)
+    let points = match cloud {
+        Some(cloud) => Some(write_cloud(out, config, cloud, volume, &comment, report)?),
+        None => {
+            report.tsdf_spill = volume.spill_counts()?;
+            drop(volume);
+            None
         }
-        None => None,
     };
     interrupted(
         out.root(),
@@ -110,6 +83,44 @@ pub(super) fn write_maps(
     report.stages.writing_s = start.elapsed().as_secs_f64();
     report.memory.writing_mib = crate::memory::part_peak_mib();
     Ok(())
+}
+
+/// The cloud carved by the `volume` (dropped before the cloud's neighbour searches),
+/// its rows streamed to `out`'s cloud file (finished with the other files).
+fn write_cloud(
+    out: &RunDir,
+    config: &DenseConfig,
+    cloud: CloudBuilder,
+    mut volume: TsdfVolume,
+    comment: &str,
+    report: &mut DenseReport,
+) -> Result<WrittenCloud, IoError> {
+    // The carving only queries the volume: with a budget, its voxels wait in the
+    // spill file meanwhile.
+    volume.spill_everything()?;
+    crate::memory::release_freed_memory();
+    let start = Instant::now();
+    let (carving, limit) = (config.cloud_carved(), config.cloud.free_space);
+    let (carved, dropped) = cloud.carve(|means| match carving {
+        true => volume.seen_through_each(means, limit),
+        false => vec![false; means.len()],
+    })?;
+    report.tsdf_spill = volume.spill_counts()?;
+    drop(volume);
+    crate::memory::release_freed_memory();
+    let path = out.file(names::DENSE_POINTS);
+    let encoding = config.outputs.ply_encoding;
+    let points = carved.write(&path, encoding, comment, PICTURE_POINTS)?;
+    report.cloud_ms = start.elapsed().as_secs_f64() * 1e3;
+    report.stages.cloud_s = report.cloud_ms / 1e3;
+    report.cloud_points = points.stream.len();
+    report.cloud_seen_through = dropped;
+    report.cloud_spill = points.spill;
+    report.memory.cloud_mib = crate::memory::part_peak_mib();
+    // The positions and their k-d tree are gone: their pages go back before the
+    // files are written.
+    crate::memory::release_freed_memory();
+    Ok(points)
 }
 
 /// The `mesh` (PLY, and OBJ when asked) and the cloud `points` (PLY, its rows
