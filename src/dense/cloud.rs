@@ -67,6 +67,12 @@ impl CloudBuilder {
         self.voxels.spill_to(dir, budget_bytes)
     }
 
+    /// With a budget: every chunk of sums in memory goes to the spill file (the mesh
+    /// is made meanwhile); they come back as the cloud is carved.
+    pub fn spill_everything(&mut self) -> Result<(), IoError> {
+        self.voxels.spill_everything()
+    }
+
     /// What the budget made the cloud do.
     pub fn spill_counts(&self) -> CloudSpillCounts {
         self.voxels.spill_counts()

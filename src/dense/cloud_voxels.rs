@@ -245,14 +245,22 @@ impl CloudVoxels {
                 break;
             }
             let chunk = self.chunks.get_mut(&key).expect("listed");
-            if chunk.dirty || chunk.record.is_none() {
-                chunk.record = Some(write_chunk(spill, &chunk.voxels)?);
-                self.counts.chunks_written += 1;
-            }
-            let n = chunk.voxels.len();
-            (chunk.voxels, chunk.resident, chunk.dirty) = (FxMap::default(), false, false);
+            let n = spill_chunk(spill, chunk, &mut self.counts)?;
             self.resident -= n;
             over = over.saturating_sub(n);
+        }
+        Ok(())
+    }
+
+    /// With a budget: every chunk in memory goes to the spill file (those not
+    /// changed since they were read back are only dropped), so that the sums hold no
+    /// memory while the mesh is made.
+    pub fn spill_everything(&mut self) -> Result<(), IoError> {
+        let Some(spill) = self.spill.as_mut() else {
+            return Ok(());
+        };
+        for chunk in self.chunks.values_mut().filter(|c| c.resident) {
+            self.resident -= spill_chunk(spill, chunk, &mut self.counts)?;
         }
         Ok(())
     }
@@ -270,6 +278,22 @@ impl CloudVoxels {
             ..self.counts
         }
     }
+}
+
+/// Writes `chunk` to the spill file when it changed since it was last written there,
+/// and takes its voxels out of memory; how many there were.
+fn spill_chunk(
+    spill: &mut CloudSpill,
+    chunk: &mut Chunk,
+    counts: &mut CloudSpillCounts,
+) -> Result<usize, IoError> {
+    if chunk.dirty || chunk.record.is_none() {
+        chunk.record = Some(write_chunk(spill, &chunk.voxels)?);
+        counts.chunks_written += 1;
+    }
+    let n = chunk.voxels.len();
+    (chunk.voxels, chunk.resident, chunk.dirty) = (FxMap::default(), false, false);
+    Ok(n)
 }
 
 fn write_chunk(spill: &mut CloudSpill, voxels: &FxMap<u16, Voxel>) -> Result<Record, IoError> {

@@ -176,10 +176,13 @@ pub fn extract(volume: &mut TsdfVolume) -> Result<Mesh, crate::io::IoError> {
     // Blocks in batches, each welded as it comes (in the blocks' order, as one batch
     // of all would): the pieces of a whole volume, before welding, took several times
     // the mesh's memory (real figures in docs/design.md). A volume with a budget
-    // brings each batch's blocks (and their neighbours) into memory first.
+    // brings each batch's blocks (and their neighbours) into memory first, after
+    // sending those it holds to its spill file: meshing then holds one batch's blocks
+    // beside the mesh, not the budget's.
     let total = volume.coords.len();
     for first in (0..total).step_by(WELD_BATCH) {
         let last = (first + WELD_BATCH).min(total);
+        volume.spill_resident()?;
         volume.load_for_meshing(first, last)?;
         let volume = &*volume;
         let pieces: Vec<Piece> = volume.coords[first..last]

@@ -39,8 +39,15 @@ pub(super) fn write_maps(
         "dopslam dense map, masking {:?}, voxel {} m",
         masking, config.tsdf.voxel
     );
-    let Maps { mut volume, cloud } = maps;
-    // The frames' buffers are gone: their pages go back before the mesh is made.
+    let Maps {
+        mut volume,
+        mut cloud,
+    } = maps;
+    // The frames' buffers are gone, and with a budget the cloud's sums wait in their
+    // spill file: their pages go back before the mesh is made.
+    if let Some(cloud) = cloud.as_mut() {
+        cloud.spill_everything()?;
+    }
     crate::memory::release_freed_memory();
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.

@@ -515,14 +515,25 @@ impl TsdfVolume {
     /// the volume holds no voxels; queries read them from the file. Meshing is done by
     /// then, and the cloud's carving only queries.
     pub fn spill_everything(&mut self) -> Result<(), IoError> {
+        self.spill_resident()?;
+        if let Some(spill) = self.spill.as_mut() {
+            spill.spare = Vec::new();
+        }
+        Ok(())
+    }
+
+    /// With a budget: every block in memory goes to the spill file, its arrays kept
+    /// for the blocks that come in next (meshing: before each batch, so that it holds
+    /// one batch's blocks, not the budget's).
+    pub(crate) fn spill_resident(&mut self) -> Result<(), IoError> {
         let Some(spill) = self.spill.as_mut() else {
             return Ok(());
         };
         for block in self.blocks.iter_mut().filter(|b| b.resident()) {
-            spill_block(spill, block)?;
+            let arrays = spill_block(spill, block)?;
+            spill.spare.push(arrays);
         }
         self.resident = 0;
-        spill.spare = Vec::new();
         Ok(())
     }
 
