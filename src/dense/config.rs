@@ -154,10 +154,10 @@ pub struct DenseCloud {
     /// missed by the masks that later left): \(F\) above this, in truncation units
     /// (1 or more: off; needs the mesh).
     pub free_space: f32,
-    /// The most voxel sums held in memory while frames are added, MB: beyond it the
-    /// chunks the camera left longest ago go to a spill file in the output folder
-    /// (removed at the end), with the same cloud ([`super::cloud::CloudBuilder::spill_to`]);
-    /// 0: no limit.
+    /// The most voxel sums held in memory (as frames are added, and as the cloud is
+    /// carved and written), MB: beyond it the chunks least recently used go to a spill
+    /// file in the output folder (removed at the end), with the same cloud
+    /// ([`super::cloud::CloudBuilder::spill_to`]); 0: no limit.
     pub memory_mb: f64,
 }
 
