@@ -266,15 +266,15 @@ pub fn inliers(points: &[[f32; 3]], k: usize, std_ratio: f64) -> Vec<bool> {
 
 /// A bounded sample of the points pushed: every `step`-th, the step doubled (and every
 /// other point kept dropped) whenever more than `max` are kept.
-struct Sample {
-    mesh: Mesh,
+pub(super) struct Sample {
+    pub(super) mesh: Mesh,
     step: usize,
     seen: usize,
     max: usize,
 }
 
 impl Sample {
-    fn new(max: usize) -> Self {
+    pub(super) fn new(max: usize) -> Self {
         Self {
             mesh: Mesh::default(),
             step: 1,
@@ -283,7 +283,7 @@ impl Sample {
         }
     }
 
-    fn add(&mut self, piece: &Mesh) {
+    pub(super) fn add(&mut self, piece: &Mesh) {
         for i in 0..piece.len() {
             if self.seen.is_multiple_of(self.step) {
                 self.mesh.vertices.push(piece.vertices[i]);

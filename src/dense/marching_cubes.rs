@@ -169,8 +169,50 @@ struct Piece {
     triangles: Vec<[u32; 3]>,
 }
 
-/// The mesh of the zero level set of `volume`; an error only from its spill file.
+/// The mesh of the zero level set of `volume`, whole in memory (for small volumes and
+/// tests; the dense pass streams it: [`extract_with`]); an error only from its spill
+/// file.
 pub fn extract(volume: &mut TsdfVolume) -> Result<Mesh, crate::io::IoError> {
+    let mut mesh = Mesh::default();
+    extract_with(volume, |batch| {
+        mesh.vertices.extend_from_slice(&batch.vertices);
+        mesh.colours.extend_from_slice(&batch.colours);
+        mesh.triangles.extend_from_slice(&batch.triangles);
+        Ok(())
+    })?;
+    Ok(mesh)
+}
+
+/// A batch of the mesh as it is welded: the vertices new in it (numbered on from the
+/// batches before), its triangles (numbers in the whole mesh) and their areas (m²).
+#[derive(Debug, Default)]
+pub struct MeshBatch {
+    /// Positions (metres, world frame) of the vertices new in this batch.
+    pub vertices: Vec<[f32; 3]>,
+    /// Their colours.
+    pub colours: Vec<[u8; 3]>,
+    /// Triangles as vertex numbers in the whole mesh.
+    pub triangles: Vec<[u32; 3]>,
+    /// Each triangle's area, [`crate::geometry::mesh::triangle_area`].
+    pub areas: Vec<f64>,
+}
+
+/// The mesh of the zero level set of `volume`, handed to `sink` batch by batch (the
+/// same vertices and triangles, in the same order, as one mesh of all): no step holds
+/// the whole mesh. An error from the volume's spill file or from `sink`.
+pub fn extract_with(
+    volume: &mut TsdfVolume,
+    sink: impl FnMut(MeshBatch) -> Result<(), crate::io::IoError>,
+) -> Result<(), crate::io::IoError> {
+    extract_in_batches(volume, WELD_BATCH, sink)
+}
+
+/// [`extract_with`] in batches of `size` blocks.
+fn extract_in_batches(
+    volume: &mut TsdfVolume,
+    size: usize,
+    mut sink: impl FnMut(MeshBatch) -> Result<(), crate::io::IoError>,
+) -> Result<(), crate::io::IoError> {
     let table = table();
     let mut welded = Welded::default();
     // Blocks in batches, each welded as it comes (in the blocks' order, as one batch
@@ -178,10 +220,10 @@ pub fn extract(volume: &mut TsdfVolume) -> Result<Mesh, crate::io::IoError> {
     // the mesh's memory (real figures in docs/design.md). A volume with a budget
     // brings each batch's blocks (and their neighbours) into memory first, after
     // sending those it holds to its spill file: meshing then holds one batch's blocks
-    // beside the mesh, not the budget's.
+    // beside the batch of the mesh, not the budget's.
     let total = volume.coords.len();
-    for first in (0..total).step_by(WELD_BATCH) {
-        let last = (first + WELD_BATCH).min(total);
+    for first in (0..total).step_by(size.max(1)) {
+        let last = first.saturating_add(size.max(1)).min(total);
         volume.spill_resident()?;
         volume.load_for_meshing(first, last)?;
         let volume = &*volume;
@@ -189,11 +231,14 @@ pub fn extract(volume: &mut TsdfVolume) -> Result<Mesh, crate::io::IoError> {
             .par_iter()
             .map(|&coord| block_piece(volume, table, coord))
             .collect();
-        for piece in pieces {
-            welded.add(piece);
+        let mut batch = MeshBatch::default();
+        for (number, piece) in (first as u32..).zip(pieces) {
+            welded.add(piece, Order { volume, number }, &mut batch);
         }
+        welded.forget_before(last as u32);
+        sink(batch)?;
     }
-    Ok(welded.mesh)
+    Ok(())
 }
 
 /// Blocks meshed in parallel before their pieces are welded.
@@ -317,10 +362,44 @@ fn edge_vertex(values: &[Sample; 8], origin: [i64; 3], e: u8, voxel: f64) -> ([f
 /// The blocks' pieces joined so far, sharing vertices on the edges between blocks.
 #[derive(Default)]
 struct Welded {
-    mesh: Mesh,
-    /// The index in `mesh` of each vertex on an edge between blocks, by its edge (a
-    /// quarter of the vertices: the others belong to one block's piece alone).
-    index: FxMap<EdgeKey, u32>,
+    /// Vertices so far.
+    count: u32,
+    /// The number of each vertex on an edge between blocks (a quarter of the
+    /// vertices: the others belong to one block's piece alone), by its edge, with the
+    /// number of the last block whose piece can meet it: it goes once that block is
+    /// welded, so the index holds the blocks' frontier, not the route.
+    index: FxMap<EdgeKey, (u32, u32)>,
+}
+
+/// A block's place in the meshing order: its `number` among `volume`'s blocks.
+#[derive(Clone, Copy)]
+struct Order<'a> {
+    volume: &'a TsdfVolume,
+    number: u32,
+}
+
+impl Order<'_> {
+    /// The last block (in meshing order) whose cubes can have the edge `key`: the
+    /// four cubes around an edge along axis \(a\) have their lower corners at the
+    /// edge's lower corner less 0 or 1 on each other axis.
+    fn last_to_meet(&self, (lower, axis): &EdgeKey) -> u32 {
+        let (b, c) = match axis {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
+        let mut last = self.number;
+        for k in 0..4 {
+            let mut cube = *lower;
+            cube[b] -= k & 1;
+            cube[c] -= k >> 1;
+            let block = cube.map(|c| c.div_euclid(BLOCK as i64) as i32);
+            if let Some(n) = self.volume.block_number(block) {
+                last = last.max(n);
+            }
+        }
+        last
+    }
 }
 
 /// Whether the edge `key` can be shared by the cubes of two blocks: the four cubes
@@ -333,32 +412,51 @@ fn on_block_boundary(key: &EdgeKey) -> bool {
 }
 
 impl Welded {
-    /// Adds `piece`'s triangles, its vertices on edges met before taken from there.
-    fn add(&mut self, piece: Piece) {
-        let Self { mesh, index } = self;
+    /// Adds `piece` (of the block at `order`) to `batch`: its triangles, its vertices
+    /// on edges met before taken from there, the others numbered on.
+    fn add(&mut self, piece: Piece, order: Order, batch: &mut MeshBatch) {
+        let Self { count, index } = self;
         let mut push = |position: &[f32; 3], colour: &[u8; 3]| {
-            mesh.vertices.push(*position);
-            mesh.colours.push(*colour);
-            (mesh.vertices.len() - 1) as u32
+            batch.vertices.push(*position);
+            batch.colours.push(*colour);
+            *count += 1;
+            *count - 1
         };
         let map: Vec<u32> = piece
             .vertices
             .iter()
             .map(|(key, position, colour)| {
-                if on_block_boundary(key) {
-                    *index.entry(*key).or_insert_with(|| push(position, colour))
-                } else {
-                    push(position, colour)
+                if !on_block_boundary(key) {
+                    return push(position, colour);
                 }
+                if let Some(&(number, _)) = index.get(key) {
+                    return number;
+                }
+                let number = push(position, colour);
+                let last = order.last_to_meet(key);
+                if last > order.number {
+                    index.insert(*key, (number, last));
+                }
+                number
             })
             .collect();
-        mesh.triangles
-            .extend(piece.triangles.iter().map(|t| t.map(|i| map[i as usize])));
+        for t in &piece.triangles {
+            batch.triangles.push(t.map(|i| map[i as usize]));
+            let corners = t.map(|i| piece.vertices[i as usize].1);
+            batch
+                .areas
+                .push(crate::geometry::mesh::triangle_area(corners));
+        }
+    }
+
+    /// Forgets the vertices that no block from `number` on can meet.
+    fn forget_before(&mut self, number: u32) {
+        self.index.retain(|_, &mut (_, last)| last >= number);
     }
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::dense::tsdf::{TsdfSettings, TsdfVolume};
     use std::collections::HashMap;
@@ -381,42 +479,82 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_fully_observed_random_field_gives_a_closed_surface() {
-        // Random signs on a 3x3x3-block grid, positive on its outer layer.
+    /// Random signs on a grid of `side`³ blocks (0.1 m voxels), positive on its outer
+    /// layer, the blocks made in a shuffled order: many pieces, large and small, and
+    /// many edges between blocks met far apart in the blocks' order.
+    pub(crate) fn random_field(side: i32, seed: u64) -> TsdfVolume {
         let settings = TsdfSettings {
             voxel: 0.1,
             ..TsdfSettings::default()
         };
         let mut volume =
             TsdfVolume::new(settings, crate::geometry::camera::PinholeCamera::tum_fr3());
-        let mut rng = crate::random::Rng::new(7);
-        let n = 3 * BLOCK as i32;
-        for bz in 0..3 {
-            for by in 0..3 {
-                for bx in 0..3 {
-                    let block = volume.block_mut([bx, by, bz]).unwrap();
-                    for z in 0..BLOCK {
-                        for y in 0..BLOCK {
-                            for x in 0..BLOCK {
-                                let g = [bx * 8 + x as i32, by * 8 + y as i32, bz * 8 + z as i32];
-                                let border = g.iter().any(|&c| c == 0 || c == n - 1);
-                                let i = voxel_index(x, y, z);
-                                block.sdf[i] = if border {
-                                    0.5
-                                } else {
-                                    rng.uniform() as f32 - 0.5
-                                };
-                                block.weight[i] = 1.0;
-                            }
-                        }
-                    }
-                }
+        let mut rng = crate::random::Rng::new(seed);
+        let n = side * BLOCK as i32;
+        let mut coords: Vec<[i32; 3]> = (0..side * side * side)
+            .map(|k| [k % side, k / side % side, k / (side * side)])
+            .collect();
+        for k in (1..coords.len()).rev() {
+            coords.swap(k, (rng.uniform() * (k + 1) as f64) as usize % (k + 1));
+        }
+        for [bx, by, bz] in coords {
+            let block = volume.block_mut([bx, by, bz]).unwrap();
+            for i in 0..BLOCK * BLOCK * BLOCK {
+                let local = [i % BLOCK, i / BLOCK % BLOCK, i / (BLOCK * BLOCK)];
+                let g = [0, 1, 2].map(|k| [bx, by, bz][k] * BLOCK as i32 + local[k] as i32);
+                let border = g.iter().any(|&c| c == 0 || c == n - 1);
+                let i = voxel_index(local[0], local[1], local[2]);
+                block.sdf[i] = if border {
+                    0.5
+                } else {
+                    rng.uniform() as f32 - 0.5
+                };
+                block.weight[i] = 1.0;
+                block.colour[i] = [local[0] as u8 * 30, local[1] as u8 * 30, 90];
+                block.colour_weight[i] = 1;
             }
         }
-        let mesh = extract(&mut volume).unwrap();
+        volume
+    }
+
+    #[test]
+    fn a_fully_observed_random_field_gives_a_closed_surface() {
+        let mesh = extract(&mut random_field(3, 7)).unwrap();
         assert!(mesh.triangles.len() > 1000);
         assert_closed(&mesh);
+    }
+
+    /// The weld forgets the vertices no later block can meet: batches of any size give
+    /// the same mesh, vertex for vertex, as one batch of every block.
+    #[test]
+    fn batches_of_any_size_weld_the_same_mesh() {
+        let mut volume = random_field(4, 11);
+        let whole = |volume: &mut TsdfVolume, size: usize| {
+            let mut mesh = Mesh::default();
+            let mut areas = Vec::new();
+            extract_in_batches(volume, size, |batch| {
+                mesh.vertices.extend_from_slice(&batch.vertices);
+                mesh.colours.extend_from_slice(&batch.colours);
+                mesh.triangles.extend_from_slice(&batch.triangles);
+                areas.extend_from_slice(&batch.areas);
+                Ok(())
+            })
+            .unwrap();
+            (mesh, areas)
+        };
+        let (all, areas) = whole(&mut volume, usize::MAX);
+        assert!(all.triangles.len() > 5000);
+        assert_closed(&all);
+        for (t, area) in all.triangles.iter().zip(&areas) {
+            let corners = t.map(|i| all.vertices[i as usize]);
+            assert_eq!(*area, crate::geometry::mesh::triangle_area(corners));
+        }
+        for size in [1, 5, 17] {
+            assert!(
+                whole(&mut volume, size) == (all.clone(), areas.clone()),
+                "{size}"
+            );
+        }
     }
 
     /// A field that is exactly 0 at some voxels (depth that falls on the lattice) gives

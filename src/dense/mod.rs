@@ -26,6 +26,7 @@ pub mod map_figures;
 pub mod marching_cubes;
 pub mod mask_layers;
 pub mod masks;
+pub mod mesh_file;
 pub mod more_detections;
 pub mod neighbours;
 pub mod outputs;

@@ -5,18 +5,17 @@ use std::path::Path;
 use std::time::Instant;
 
 use super::cloud::{CloudBuilder, WrittenCloud};
+use super::mesh_file::{MeshOnDisk, PrunedMesh};
 use super::tsdf::TsdfVolume;
-use super::{marching_cubes, render, DenseConfig, DenseReport};
+use super::{render, DenseConfig, DenseReport};
 use crate::dop::Mode;
-use crate::geometry::mesh::Mesh;
 use crate::io::atomic::write_atomic;
-use crate::io::ply::{write_obj, write_ply};
 use crate::io::ply_stream::PlyPointStream;
 use crate::io::run_dir::{names, RunDir};
 use crate::io::{IoError, Trajectory};
 
-/// The most cloud points the pictures are drawn from when there is no mesh (a sample
-/// spread over the whole cloud).
+/// The most mesh vertices or cloud points the pictures are drawn from (a sample spread
+/// over the whole map).
 const PICTURE_POINTS: usize = 2_000_000;
 
 /// The fused volume and the keyframe cloud (when one is made).
@@ -51,20 +50,9 @@ pub(super) fn write_maps(
     crate::memory::release_freed_memory();
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.
-    let mesh = if config.fuses_tsdf() {
-        let start = Instant::now();
-        let (mesh, dropped) = marching_cubes::extract(&mut volume)?
-            .without_small_pieces(config.outputs.mesh_min_piece_area);
-        report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
-        report.stages.mesh_s = report.marching_cubes_ms / 1e3;
-        report.mesh_pieces_dropped = dropped.pieces;
-        report.mesh_vertices_dropped = dropped.vertices;
-        report.mesh_vertices = mesh.len();
-        report.mesh_triangles = mesh.triangles.len();
-        report.memory.mesh_mib = crate::memory::part_peak_mib();
-        Some(mesh)
-    } else {
-        None
+    let mesh = match config.fuses_tsdf() {
+        true => Some(make_mesh(out, config, &mut volume, report)?),
+        false => None,
     };
     let points = match cloud {
         Some(cloud) => Some(write_cloud(out, config, cloud, volume, &comment, report)?),
@@ -84,12 +72,39 @@ pub(super) fn write_maps(
         None => (None, None),
     };
     write_files(out, config, mesh.as_ref(), stream, &comment, report)?;
-    if let (true, Some(map)) = (config.outputs.pictures, mesh.as_ref().or(sample.as_ref())) {
-        write_pictures(out, map, trajectory, report)?;
+    if config.outputs.pictures {
+        let map = match &mesh {
+            Some(mesh) => Some(mesh.sample(PICTURE_POINTS)?),
+            None => sample,
+        };
+        if let Some(map) = map {
+            write_pictures(out, &map, trajectory, report)?;
+        }
     }
     report.stages.writing_s = start.elapsed().as_secs_f64();
     report.memory.writing_mib = crate::memory::part_peak_mib();
     Ok(())
+}
+
+/// The mesh of `volume`, made on disk beside `out`'s files, without its small pieces.
+fn make_mesh(
+    out: &RunDir,
+    config: &DenseConfig,
+    volume: &mut TsdfVolume,
+    report: &mut DenseReport,
+) -> Result<PrunedMesh, IoError> {
+    let start = Instant::now();
+    let mesh = MeshOnDisk::extract(volume, out.root())?;
+    let mesh = mesh.prune(config.outputs.mesh_min_piece_area)?;
+    report.marching_cubes_ms = start.elapsed().as_secs_f64() * 1e3;
+    report.stages.mesh_s = report.marching_cubes_ms / 1e3;
+    let dropped = mesh.pruned();
+    report.mesh_pieces_dropped = dropped.pieces;
+    report.mesh_vertices_dropped = dropped.vertices;
+    report.mesh_vertices = mesh.len();
+    report.mesh_triangles = mesh.triangles();
+    report.memory.mesh_mib = crate::memory::part_peak_mib();
+    Ok(mesh)
 }
 
 /// The cloud carved by the `volume` (dropped before the cloud's neighbour searches),
@@ -135,18 +150,18 @@ fn write_cloud(
 fn write_files(
     out: &RunDir,
     config: &DenseConfig,
-    mesh: Option<&Mesh>,
+    mesh: Option<&PrunedMesh>,
     points: Option<PlyPointStream>,
     comment: &str,
     report: &mut DenseReport,
 ) -> Result<(), IoError> {
     if let Some(mesh) = mesh {
         let path = out.file(names::DENSE_MESH_PLY);
-        write_ply(&path, mesh, None, config.outputs.ply_encoding, comment)?;
+        mesh.write_ply(&path, config.outputs.ply_encoding, comment)?;
         report.outputs.push(path);
         if config.outputs.obj {
             let path = out.file(names::DENSE_MESH_OBJ);
-            write_obj(&path, mesh, comment)?;
+            mesh.write_obj(&path, comment)?;
             report.outputs.push(path);
         }
     }

@@ -441,6 +441,12 @@ impl TsdfVolume {
         block.resident().then_some(block)
     }
 
+    /// The number of the block at `coord` (its place in `coords` and `blocks`), if
+    /// there is one.
+    pub fn block_number(&self, coord: [i32; 3]) -> Option<u32> {
+        self.index.get(&coord).copied()
+    }
+
     /// The block at `coord` in memory, allocated if it was not.
     pub fn block_mut(&mut self, coord: [i32; 3]) -> Result<&mut Block, IoError> {
         let i = self.index_of(coord);

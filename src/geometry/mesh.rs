@@ -113,62 +113,158 @@ impl Mesh {
     /// \rVert\) over its triangles is below `min_area` (m²) is dropped with its
     /// vertices, as Open3D's `cluster_connected_triangles` and a size filter do. The
     /// vertices kept keep their order, colours and normals. A point cloud (no
-    /// triangles) and `min_area <= 0` keep everything.
+    /// triangles) and `min_area <= 0` keep everything. [`Pieces`] does the same for a
+    /// mesh that comes triangle by triangle.
     pub fn without_small_pieces(mut self, min_area: f64) -> (Mesh, Pruned) {
-        if self.triangles.is_empty() || min_area <= 0.0 {
-            return (self, Pruned::default());
+        let mut pieces = Pieces::default();
+        pieces.add_vertices(self.vertices.len());
+        for &t in &self.triangles {
+            pieces.join(t);
         }
-        let keep = self.in_large_pieces(min_area);
+        let mut areas = pieces.into_areas();
+        for &t in &self.triangles {
+            areas.add(t, triangle_area(t.map(|i| self.vertices[i as usize])));
+        }
+        let kept = areas.keep(min_area);
+        if kept.pruned == Pruned::default() {
+            return (self, kept.pruned);
+        }
         // In place: a second mesh beside this one would double the peak.
-        let mut index = vec![u32::MAX; keep.flags.len()];
-        let mut kept = 0u32;
-        for (v, _) in keep.flags.iter().enumerate().filter(|(_, &k)| k) {
-            index[v] = kept;
-            kept += 1;
-        }
-        retain_flagged(&mut self.vertices, &keep.flags);
-        retain_flagged(&mut self.colours, &keep.flags);
-        retain_flagged(&mut self.normals, &keep.flags);
-        self.triangles.retain(|t| index[t[0] as usize] != u32::MAX);
+        let flags: Vec<bool> = kept.index.iter().map(|&i| i != u32::MAX).collect();
+        retain_flagged(&mut self.vertices, &flags);
+        retain_flagged(&mut self.colours, &flags);
+        retain_flagged(&mut self.normals, &flags);
+        self.triangles.retain(|&t| kept.triangle(t).is_some());
         for t in &mut self.triangles {
-            *t = t.map(|i| index[i as usize]);
+            *t = t.map(|i| kept.index[i as usize]);
         }
-        let pruned = Pruned {
-            pieces: keep.pieces_dropped,
-            vertices: keep.flags.len() - kept as usize,
-        };
-        (self, pruned)
+        (self, kept.pruned)
+    }
+}
+
+/// The area of the triangle with corners `corners` (m²): \(\tfrac12 \lVert (b - a)
+/// \times (c - a) \rVert\), in double precision.
+pub fn triangle_area(corners: [[f32; 3]; 3]) -> f64 {
+    let [a, b, c] = corners.map(|[x, y, z]| Vector3::new(x as f64, y as f64, z as f64));
+    (b - a).cross(&(c - a)).norm() / 2.0
+}
+
+/// The connected pieces of a mesh's triangles (triangles that share a vertex belong to
+/// one piece), built as vertices and triangles come, without the mesh: 6 bytes a
+/// vertex. [`Pieces::into_areas`] then sums each piece's area, triangle by triangle in
+/// the same order, and [`PieceAreas::keep`] drops the small pieces.
+#[derive(Default)]
+pub struct Pieces {
+    sets: petgraph::unionfind::UnionFind<u32>,
+    /// Whether each vertex is in a triangle.
+    used: Vec<bool>,
+    triangles: usize,
+}
+
+impl Pieces {
+    /// `n` more vertices, each in a piece of its own until a triangle joins it.
+    pub fn add_vertices(&mut self, n: usize) {
+        for _ in 0..n {
+            self.sets.new_set();
+        }
+        self.used.resize(self.used.len() + n, false);
     }
 
-    /// Which vertices are in a piece of at least `min_area` (m²), and how many pieces
-    /// are not.
-    fn in_large_pieces(&self, min_area: f64) -> Kept {
-        let mut pieces = petgraph::unionfind::UnionFind::<u32>::new(self.vertices.len());
-        // Vertices in no triangle go too.
-        let mut used = vec![false; self.vertices.len()];
-        for &[a, b, c] in &self.triangles {
-            pieces.union(a, b);
-            pieces.union(a, c);
-            for i in [a, b, c] {
-                used[i as usize] = true;
-            }
+    /// Joins the pieces of the triangle `t`'s corners.
+    pub fn join(&mut self, [a, b, c]: [u32; 3]) {
+        self.sets.union(a, b);
+        self.sets.union(a, c);
+        for i in [a, b, c] {
+            self.used[i as usize] = true;
         }
-        let mut area = vec![0.0; self.vertices.len()];
-        for t in &self.triangles {
-            let [a, b, c] = t.map(|i| self.vertex(i as usize));
-            area[pieces.find(t[0]) as usize] += (b - a).cross(&(c - a)).norm() / 2.0;
+        self.triangles += 1;
+    }
+
+    /// Every triangle joined: each vertex's piece, with no area yet.
+    pub fn into_areas(self) -> PieceAreas {
+        let n = self.used.len();
+        PieceAreas {
+            pieces: self.sets.into_labeling(),
+            used: self.used,
+            area: vec![0.0; n],
+            triangles: self.triangles,
         }
-        let dropped = |root: u32| area[root as usize] < min_area;
-        let pieces_dropped = (0..self.vertices.len() as u32)
-            .filter(|&v| used[v as usize] && pieces.find(v) == v && dropped(v))
-            .count();
-        let flags = (0..self.vertices.len())
-            .map(|v| used[v] && !dropped(pieces.find(v as u32)))
-            .collect();
-        Kept {
-            flags,
-            pieces_dropped,
+    }
+}
+
+/// Each vertex's piece (its root vertex) and the area of each piece so far.
+pub struct PieceAreas {
+    pieces: Vec<u32>,
+    used: Vec<bool>,
+    /// By root vertex: the area of its piece (m²).
+    area: Vec<f64>,
+    triangles: usize,
+}
+
+impl PieceAreas {
+    /// Adds the triangle `t` (joined before) of area `area` (m²) to its piece.
+    pub fn add(&mut self, t: [u32; 3], area: f64) {
+        self.area[self.pieces[t[0] as usize] as usize] += area;
+    }
+
+    /// The vertices in pieces of at least `min_area` (m²), each numbered anew in
+    /// order; vertices in no triangle go too. No triangle or `min_area <= 0`: all.
+    pub fn keep(self, min_area: f64) -> KeptVertices {
+        let Self {
+            mut pieces,
+            used,
+            area,
+            triangles,
+        } = self;
+        if triangles == 0 || min_area <= 0.0 {
+            return KeptVertices {
+                index: (0..pieces.len() as u32).collect(),
+                pruned: Pruned::default(),
+            };
         }
+        let (mut kept, mut dropped_pieces) = (0u32, 0);
+        // In place: each vertex's root becomes its new number.
+        for (v, slot) in pieces.iter_mut().enumerate() {
+            let root = *slot as usize;
+            let small = area[root] < min_area;
+            dropped_pieces += usize::from(used[v] && root == v && small);
+            *slot = if used[v] && !small { kept } else { u32::MAX };
+            kept += u32::from(*slot != u32::MAX);
+        }
+        let pruned = Pruned {
+            pieces: dropped_pieces,
+            vertices: pieces.len() - kept as usize,
+        };
+        KeptVertices {
+            index: pieces,
+            pruned,
+        }
+    }
+}
+
+/// The vertices [`PieceAreas::keep`] keeps, and what went.
+pub struct KeptVertices {
+    /// One a vertex: its number among those kept, or `u32::MAX` when it goes.
+    pub index: Vec<u32>,
+    /// What went.
+    pub pruned: Pruned,
+}
+
+impl KeptVertices {
+    /// The number of vertices kept.
+    pub fn len(&self) -> usize {
+        self.index.len() - self.pruned.vertices
+    }
+
+    /// Whether no vertex is kept.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The triangle `t` renumbered, or `None` when it went (its piece is one).
+    pub fn triangle(&self, t: [u32; 3]) -> Option<[u32; 3]> {
+        let first = self.index[t[0] as usize];
+        (first != u32::MAX).then(|| t.map(|i| self.index[i as usize]))
     }
 }
 
@@ -176,14 +272,6 @@ impl Mesh {
 fn retain_flagged<T>(items: &mut Vec<T>, flags: &[bool]) {
     let mut flags = flags.iter();
     items.retain(|_| flags.next().copied().unwrap_or(false));
-}
-
-/// The vertices [`Mesh::without_small_pieces`] keeps.
-struct Kept {
-    /// One a vertex: in a piece large enough.
-    flags: Vec<bool>,
-    /// Pieces (with a triangle) too small.
-    pieces_dropped: usize,
 }
 
 /// A unit square at z = 0, two triangles (for tests).

@@ -204,29 +204,77 @@ pub fn write_ply(
     mesh.validate().map_err(|m| IoError::invalid(path, m))?;
     let mut vertex = vertex_element(mesh, scalar.is_some());
     vertex.count = mesh.len();
-    let mut header = header(encoding, comment, &vertex);
-    let mut face = ElementDef::new("face".to_string());
-    face.properties.add(PropertyDef::new(
-        "vertex_indices".into(),
-        PropertyType::List(ScalarType::UChar, ScalarType::Int),
-    ));
-    face.count = mesh.triangles.len();
-    if !mesh.triangles.is_empty() {
-        header.elements.add(face.clone());
+    let rows = PlyMeshRows::new(encoding, comment, vertex, mesh.triangles.len());
+    let write = |out: &mut dyn Write| -> std::io::Result<()> {
+        rows.header(out)?;
+        write_vertices(out, mesh, scalar, &rows.vertex, &rows.header)?;
+        rows.faces(out, &mesh.triangles)
+    };
+    write_atomic_with(path, write)
+}
+
+/// A mesh file's parts written piece by piece, the counts known first (for a mesh no
+/// step holds whole): the header, then every vertex, then every face; the same bytes
+/// as [`write_ply`] of the whole mesh.
+pub struct PlyMeshRows {
+    header: Header,
+    vertex: ElementDef,
+    face: ElementDef,
+}
+
+impl PlyMeshRows {
+    /// The rows of a coloured mesh of `vertices` and `triangles`.
+    pub fn coloured(
+        encoding: PlyEncoding,
+        comment: &str,
+        vertices: usize,
+        triangles: usize,
+    ) -> Self {
+        let mut vertex = vertex_properties(false, true, false);
+        vertex.count = vertices;
+        Self::new(encoding, comment, vertex, triangles)
     }
-    let write = |mut out: &mut dyn Write| -> std::io::Result<()> {
-        write_header(out, &header)?;
-        write_vertices(out, mesh, scalar, &vertex, &header)?;
-        for piece in mesh.triangles.chunks(PIECE) {
+
+    fn new(encoding: PlyEncoding, comment: &str, vertex: ElementDef, triangles: usize) -> Self {
+        let mut header = header(encoding, comment, &vertex);
+        let mut face = ElementDef::new("face".to_string());
+        face.properties.add(PropertyDef::new(
+            "vertex_indices".into(),
+            PropertyType::List(ScalarType::UChar, ScalarType::Int),
+        ));
+        face.count = triangles;
+        if triangles > 0 {
+            header.elements.add(face.clone());
+        }
+        Self {
+            header,
+            vertex,
+            face,
+        }
+    }
+
+    /// Writes the header.
+    pub fn header(&self, out: &mut dyn Write) -> std::io::Result<()> {
+        write_header(out, &self.header)
+    }
+
+    /// Writes `piece`'s vertices (positions and colours) as the next vertex rows.
+    pub fn vertices(&self, out: &mut dyn Write, piece: &Mesh) -> std::io::Result<()> {
+        write_vertices(out, piece, None, &self.vertex, &self.header)
+    }
+
+    /// Writes `triangles` as the next face rows.
+    pub fn faces(&self, mut out: &mut dyn Write, triangles: &[[u32; 3]]) -> std::io::Result<()> {
+        for piece in triangles.chunks(PIECE) {
             let faces: Vec<Face> = piece
                 .iter()
                 .map(|t| Face(t.map(|i| i as i32).to_vec()))
                 .collect();
-            Writer::<Face>::new().write_payload_of_element(&mut out, &faces, &face, &header)?;
+            let writer = Writer::<Face>::new();
+            writer.write_payload_of_element(&mut out, &faces, &self.face, &self.header)?;
         }
         Ok(())
-    };
-    write_atomic_with(path, write)
+    }
 }
 
 /// A file's header: `encoding`, `comment`, and the `vertex` element.
@@ -347,40 +395,58 @@ pub fn read_ply(path: &Path) -> Result<Mesh, IoError> {
 pub fn write_obj(path: &Path, mesh: &Mesh, comment: &str) -> Result<(), IoError> {
     mesh.validate().map_err(|m| IoError::invalid(path, m))?;
     let put = |out: &mut dyn Write| -> std::io::Result<()> {
-        writeln!(out, "# {comment}")?;
-        writeln!(
-            out,
-            "# {} vertices, {} triangles",
-            mesh.len(),
-            mesh.triangles.len()
-        )?;
-        for (i, [x, y, z]) in mesh.vertices.iter().enumerate() {
-            match mesh.colours.get(i) {
-                Some(c) => writeln!(
-                    out,
-                    "v {x} {y} {z} {:.4} {:.4} {:.4}",
-                    c[0] as f32 / 255.0,
-                    c[1] as f32 / 255.0,
-                    c[2] as f32 / 255.0
-                )?,
-                None => writeln!(out, "v {x} {y} {z}")?,
-            }
-        }
+        write_obj_head(out, comment, mesh.len(), mesh.triangles.len())?;
+        write_obj_vertices(out, mesh)?;
         for [x, y, z] in &mesh.normals {
             writeln!(out, "vn {x} {y} {z}")?;
         }
-        let with_normals = !mesh.normals.is_empty();
+        if mesh.normals.is_empty() {
+            return write_obj_faces(out, &mesh.triangles);
+        }
         for t in &mesh.triangles {
             let [a, b, c] = t.map(|i| i + 1);
-            if with_normals {
-                writeln!(out, "f {a}//{a} {b}//{b} {c}//{c}")?;
-            } else {
-                writeln!(out, "f {a} {b} {c}")?;
-            }
+            writeln!(out, "f {a}//{a} {b}//{b} {c}//{c}")?;
         }
         Ok(())
     };
     write_atomic_with(path, put)
+}
+
+/// An OBJ file's first lines: `comment` and the counts.
+pub fn write_obj_head(
+    out: &mut dyn Write,
+    comment: &str,
+    vertices: usize,
+    triangles: usize,
+) -> std::io::Result<()> {
+    writeln!(out, "# {comment}")?;
+    writeln!(out, "# {vertices} vertices, {triangles} triangles")
+}
+
+/// `piece`'s vertices as OBJ `v` lines (with colours from 0 to 1 when it has them).
+pub fn write_obj_vertices(out: &mut dyn Write, piece: &Mesh) -> std::io::Result<()> {
+    for (i, [x, y, z]) in piece.vertices.iter().enumerate() {
+        match piece.colours.get(i) {
+            Some(c) => writeln!(
+                out,
+                "v {x} {y} {z} {:.4} {:.4} {:.4}",
+                c[0] as f32 / 255.0,
+                c[1] as f32 / 255.0,
+                c[2] as f32 / 255.0
+            )?,
+            None => writeln!(out, "v {x} {y} {z}")?,
+        }
+    }
+    Ok(())
+}
+
+/// `triangles` (vertex numbers from 0) as OBJ `f` lines (numbers from 1).
+pub fn write_obj_faces(out: &mut dyn Write, triangles: &[[u32; 3]]) -> std::io::Result<()> {
+    for t in triangles {
+        let [a, b, c] = t.map(|i| i + 1);
+        writeln!(out, "f {a} {b} {c}")?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
