@@ -196,6 +196,53 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         assert!(a == b, "{name} differs between thread counts");
     }
 
+    // Under budgets small enough to send most blocks and chunks to their spill files:
+    // the same mesh (bytes) and cloud (the same rows, in another order), and no
+    // temporary file left behind.
+    let mut small = config.clone();
+    small.dense.tsdf.memory_mb = 0.5;
+    small.dense.cloud.memory_mb = 0.02;
+    let spilled_dir = base.join("spilled");
+    let spilled = dense_pass(&dopslam::run::DensePass {
+        sequence: sequence.as_ref(),
+        setup: &DenseSetup::resolve(sequence.as_ref(), &small).unwrap(),
+        run_dir: &run_dir,
+        out_dir: &spilled_dir,
+        masking: Mode::Dop,
+        sequence_dir: Some(&seq),
+        progress: false,
+    })
+    .unwrap();
+    assert!(
+        spilled.tsdf_spill.blocks_reloaded > 0 && spilled.cloud_spill.chunks_reloaded > 0,
+        "{:?} {:?}",
+        spilled.tsdf_spill,
+        spilled.cloud_spill
+    );
+    for name in ["dense_mesh.ply", "dense_mesh.obj"] {
+        let same = std::fs::read(run_dir.join(name)).unwrap()
+            == std::fs::read(spilled_dir.join(name)).unwrap();
+        assert!(same, "{name} differs under small budgets");
+    }
+    let rows = |dir: &Path| {
+        let cloud = read_ply(&dir.join("dense_points.ply")).unwrap();
+        let mut rows: Vec<String> = (0..cloud.len())
+            .map(|i| {
+                let (v, n, c) = (cloud.vertices[i], cloud.normals[i], cloud.colours[i]);
+                format!("{v:?} {n:?} {c:?}")
+            })
+            .collect();
+        rows.sort();
+        rows
+    };
+    assert!(rows(&run_dir) == rows(&spilled_dir), "the cloud differs");
+    let left: Vec<_> = std::fs::read_dir(&spilled_dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with('.') && name != ".dopslam.lock")
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
     let unmasked = dense_pass(&dopslam::run::DensePass {

@@ -2,14 +2,15 @@
 # Benchmark (not a test): peak memory of long runs. Images are streamed, so memory
 # should follow the map (keyframes and map points), not the number of frames. Makes
 # (once, into outputs/bench/) a 5000-frame room (loop_walking: 5.5 turns around the
-# room with two walkers) and the full 4541-frame KITTI 00 street (street_kitti00 at
-# its full length; needs ../shared/data), runs `dopslam run` on a 1000-frame prefix
+# room with two walkers), the full 4541-frame KITTI 00 street (street_kitti00 at
+# its full length; needs ../shared/data) and, when asked, the 2836-frame RGB-D desk
+# loop (desk_far_people: TUM fr2_desk's real path, walkers behind the desk), runs `dopslam run` on a 1000-frame prefix
 # and on the whole of each (real detector, default real-time mode, global pass on;
 # dense pass off unless --dense) and prints the peak resident memory from the report
 # (VmHWM) with the map's size, each stage's own peak (`times.stages`) and the dense
 # pass's parts' (`dense.memory`): fusion, marching cubes, the cloud, the files.
 #
-#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street ...]
+#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street|desk ...]
 #
 # --lengths: the prefixes run (default: 1000 frames and the whole sequence).
 set -euo pipefail
@@ -33,7 +34,8 @@ for name in "${which[@]}"; do
   case $name in
     room) preset=loop_walking; frames=5000; seq=outputs/bench/long_room ;;
     street) preset=street_kitti00; frames=4541; seq=outputs/bench/long_street ;;
-    *) echo "unknown: $name (room or street)" >&2; exit 2 ;;
+    desk) preset=desk_far_people; frames=2836; seq=outputs/bench/desk_loop ;;
+    *) echo "unknown: $name (room, street or desk)" >&2; exit 2 ;;
   esac
   if [ ! -f "$seq/scene.toml" ]; then
     ./target/release/dopslam synth --config "configs/synth/$preset.toml" --frames "$frames" --out "$seq" --force >/dev/null

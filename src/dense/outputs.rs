@@ -48,6 +48,8 @@ pub(super) fn write_maps(
         cloud.spill_everything()?;
     }
     crate::memory::release_freed_memory();
+    // The mesh's part starts here: what the budgets held until now is fusion's.
+    crate::memory::part_peak_mib();
     // Everything is computed before anything is written: an interrupt until then
     // leaves the earlier dense map as it was.
     let mesh = match config.fuses_tsdf() {
