@@ -50,6 +50,32 @@ fn deterministic_run(
     (sequence, report)
 }
 
+/// A run's folder fused again: the sequence (opened, and its folder), the config and
+/// the run.
+struct Fused<'a> {
+    sequence: &'a dyn Sequence,
+    seq: &'a Path,
+    config: &'a Config,
+    run_dir: &'a Path,
+}
+
+/// The dense pass of `fused` into `out_dir`, masked as `masking` asks.
+fn fuse_again(
+    fused: Fused,
+    out_dir: &Path,
+    masking: Mode,
+) -> Result<dopslam::dense::DenseReport, dopslam::run::RunError> {
+    dense_pass(&dopslam::run::DensePass {
+        sequence: fused.sequence,
+        setup: &DenseSetup::resolve(fused.sequence, fused.config).unwrap(),
+        run_dir: fused.run_dir,
+        out_dir,
+        masking,
+        sequence_dir: Some(fused.seq),
+        progress: false,
+    })
+}
+
 /// The default config with the oracle boxes and the DOP model.
 fn oracle_config() -> Config {
     let mut config = Config::default();
@@ -163,27 +189,29 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         .build()
         .unwrap()
         .install(|| {
-            dense_pass(&dopslam::run::DensePass {
-                sequence: sequence.as_ref(),
-                setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
-                run_dir: &run_dir,
-                out_dir: &one_dir,
-                masking: Mode::Dop,
-                sequence_dir: Some(&seq),
-                progress: false,
-            })
+            fuse_again(
+                Fused {
+                    sequence: sequence.as_ref(),
+                    seq: &seq,
+                    config: &config,
+                    run_dir: &run_dir,
+                },
+                &one_dir,
+                Mode::Dop,
+            )
         })
         .unwrap();
     // Fused again into the run's folder: the detections come from its cache.
-    let again = dense_pass(&dopslam::run::DensePass {
-        sequence: sequence.as_ref(),
-        setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
-        run_dir: &run_dir,
-        out_dir: &run_dir,
-        masking: Mode::Dop,
-        sequence_dir: Some(&seq),
-        progress: false,
-    })
+    let again = fuse_again(
+        Fused {
+            sequence: sequence.as_ref(),
+            seq: &seq,
+            config: &config,
+            run_dir: &run_dir,
+        },
+        &run_dir,
+        Mode::Dop,
+    )
     .unwrap()
     .extra_detections
     .unwrap();
@@ -203,15 +231,16 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     small.dense.tsdf.memory_mb = 0.5;
     small.dense.cloud.memory_mb = 0.02;
     let spilled_dir = base.join("spilled");
-    let spilled = dense_pass(&dopslam::run::DensePass {
-        sequence: sequence.as_ref(),
-        setup: &DenseSetup::resolve(sequence.as_ref(), &small).unwrap(),
-        run_dir: &run_dir,
-        out_dir: &spilled_dir,
-        masking: Mode::Dop,
-        sequence_dir: Some(&seq),
-        progress: false,
-    })
+    let spilled = fuse_again(
+        Fused {
+            sequence: sequence.as_ref(),
+            seq: &seq,
+            config: &small,
+            run_dir: &run_dir,
+        },
+        &spilled_dir,
+        Mode::Dop,
+    )
     .unwrap();
     assert!(
         spilled.tsdf_spill.blocks_reloaded > 0 && spilled.cloud_spill.chunks_reloaded > 0,
@@ -245,15 +274,16 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
-    let unmasked = dense_pass(&dopslam::run::DensePass {
-        sequence: sequence.as_ref(),
-        setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
-        run_dir: &run_dir,
-        out_dir: &unmasked_dir,
-        masking: Mode::Off,
-        sequence_dir: Some(&seq),
-        progress: false,
-    })
+    let unmasked = fuse_again(
+        Fused {
+            sequence: sequence.as_ref(),
+            seq: &seq,
+            config: &config,
+            run_dir: &run_dir,
+        },
+        &unmasked_dir,
+        Mode::Off,
+    )
     .unwrap();
     assert_eq!(unmasked.truth.unwrap().dynamic_removed, 0.0);
 
@@ -354,15 +384,16 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         config.dense.masks.free_space_seconds = seconds;
         config.dense.masks.free_space_far_seconds = far_seconds;
         let out = base.join(name);
-        let report = dense_pass(&dopslam::run::DensePass {
-            sequence: sequence.as_ref(),
-            setup: &DenseSetup::resolve(sequence.as_ref(), &config).unwrap(),
-            run_dir: &run_dir,
-            out_dir: &out,
-            masking: Mode::Dop,
-            sequence_dir: Some(&seq),
-            progress: false,
-        })
+        let report = fuse_again(
+            Fused {
+                sequence: sequence.as_ref(),
+                seq: &seq,
+                config: &config,
+                run_dir: &run_dir,
+            },
+            &out,
+            Mode::Dop,
+        )
         .unwrap();
         report.truth.expect("ground-truth masks were counted")
     };

@@ -47,6 +47,9 @@ pub(super) fn write_maps(
     if let Some(cloud) = cloud.as_mut() {
         cloud.spill_everything()?;
     }
+    // So do the volume's voxels, with no spare arrays: meshing brings one batch of
+    // blocks back at a time.
+    volume.spill_everything()?;
     crate::memory::release_freed_memory();
     // The mesh's part starts here: what the budgets held until now is fusion's.
     crate::memory::part_peak_mib();
