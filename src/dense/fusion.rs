@@ -103,6 +103,7 @@ pub(super) fn fuse_frames(
     };
     let FrameSources { lookup, mut window } = sources;
     let mut pending: Option<Prepared> = None;
+    let mut step = 0;
     for next in chosen.iter().map(Some).chain([None]) {
         // The objects the next frame's masks need, placed before it is loaded: a
         // stereo pair matched for them is not matched again.
@@ -129,6 +130,13 @@ pub(super) fn fuse_frames(
         );
         finished.transpose()?;
         pending = prepared?;
+        // The blocks and chunks that go to their spill files, and the frames' buffers,
+        // leave free pages the allocator would keep in its heaps (a fifth of the peak
+        // on a long loop: docs/design.md): handed back every few frames.
+        step += 1;
+        if step % RELEASE_EVERY == 0 {
+            crate::memory::release_freed_memory();
+        }
         if let Some(p) = &pending {
             fused.stages.loading_s += p.loading_s;
             fused.stages.free_space_s += p.free_space_s;
@@ -137,6 +145,9 @@ pub(super) fn fuse_frames(
     progress.finish_and_clear();
     Ok(fused)
 }
+
+/// Frames fused between two hand-backs of the allocator's free pages.
+const RELEASE_EVERY: usize = 16;
 
 /// A frame loaded, with its free-space evidence, and the seconds each took.
 struct Prepared {
