@@ -31,7 +31,8 @@ pub fn keep_freed_memory() {
 /// Hands the free pages inside the heap back to the system (glibc's `malloc_trim`), at
 /// a boundary between stages: [`keep_freed_memory`] keeps what one stage freed for
 /// the next frames, and a stage that allocates otherwise (the dense pass after
-/// tracking) would add its own pages to those. Elsewhere it does nothing.
+/// tracking) would add its own pages to those; and every few frames while the dense
+/// pass fuses, as its blocks go to their spill files. Elsewhere it does nothing.
 pub fn release_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: malloc_trim only returns free memory; it takes the allocator's locks.
