@@ -52,6 +52,7 @@ fn deterministic_run(
 
 /// A run's folder fused again: the sequence (opened, and its folder), the config and
 /// the run.
+#[derive(Clone, Copy)]
 struct Fused<'a> {
     sequence: &'a dyn Sequence,
     seq: &'a Path,
@@ -96,6 +97,12 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     config.dense.outputs.mesh_min_piece_area = 0.0;
     let run_dir = base.join("run");
     let (sequence, report) = deterministic_run(&seq, &config, &run_dir, true);
+    let run = Fused {
+        sequence: sequence.as_ref(),
+        seq: &seq,
+        config: &config,
+        run_dir: &run_dir,
+    };
     let dense = report.dense.clone().expect("the dense pass ran");
     // Frames where the camera barely moved are left out (each fused frame counts for
     // those before it): this slow camera fuses fewer than half.
@@ -188,33 +195,13 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         .num_threads(1)
         .build()
         .unwrap()
-        .install(|| {
-            fuse_again(
-                Fused {
-                    sequence: sequence.as_ref(),
-                    seq: &seq,
-                    config: &config,
-                    run_dir: &run_dir,
-                },
-                &one_dir,
-                Mode::Dop,
-            )
-        })
+        .install(|| fuse_again(run, &one_dir, Mode::Dop))
         .unwrap();
     // Fused again into the run's folder: the detections come from its cache.
-    let again = fuse_again(
-        Fused {
-            sequence: sequence.as_ref(),
-            seq: &seq,
-            config: &config,
-            run_dir: &run_dir,
-        },
-        &run_dir,
-        Mode::Dop,
-    )
-    .unwrap()
-    .extra_detections
-    .unwrap();
+    let again = fuse_again(run, &run_dir, Mode::Dop)
+        .unwrap()
+        .extra_detections
+        .unwrap();
     assert_eq!((again.detected, again.cached), (0, extra.detected));
     for name in ["dense_mesh.ply", "dense_points.ply", "dense_mesh.obj"] {
         let (a, b) = (
@@ -233,10 +220,8 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
     let spilled_dir = base.join("spilled");
     let spilled = fuse_again(
         Fused {
-            sequence: sequence.as_ref(),
-            seq: &seq,
             config: &small,
-            run_dir: &run_dir,
+            ..run
         },
         &spilled_dir,
         Mode::Dop,
@@ -274,17 +259,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
 
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");
-    let unmasked = fuse_again(
-        Fused {
-            sequence: sequence.as_ref(),
-            seq: &seq,
-            config: &config,
-            run_dir: &run_dir,
-        },
-        &unmasked_dir,
-        Mode::Off,
-    )
-    .unwrap();
+    let unmasked = fuse_again(run, &unmasked_dir, Mode::Off).unwrap();
     assert_eq!(unmasked.truth.unwrap().dynamic_removed, 0.0);
 
     let align = run_alignment(&run_dir);
@@ -384,17 +359,13 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         config.dense.masks.free_space_seconds = seconds;
         config.dense.masks.free_space_far_seconds = far_seconds;
         let out = base.join(name);
-        let report = fuse_again(
-            Fused {
-                sequence: sequence.as_ref(),
-                seq: &seq,
-                config: &config,
-                run_dir: &run_dir,
-            },
-            &out,
-            Mode::Dop,
-        )
-        .unwrap();
+        let run = Fused {
+            sequence: sequence.as_ref(),
+            seq: &seq,
+            config: &config,
+            run_dir: &run_dir,
+        };
+        let report = fuse_again(run, &out, Mode::Dop).unwrap();
         report.truth.expect("ground-truth masks were counted")
     };
     let without = fuse((0.0, 0.0), "without");
