@@ -382,7 +382,8 @@ impl Order<'_> {
     /// The last block (in meshing order) whose cubes can have the edge `key`: the
     /// four cubes around an edge along axis \(a\) have their lower corners at the
     /// edge's lower corner less 0 or 1 on each other axis.
-    fn last_to_meet(&self, (lower, axis): &EdgeKey) -> u32 {
+    fn last_to_meet(&self, key: &EdgeKey) -> u32 {
+        let (lower, axis) = key;
         let (b, c) = match axis {
             0 => (1, 2),
             1 => (0, 2),
