@@ -103,8 +103,7 @@ pub(super) fn fuse_frames(
     };
     let FrameSources { lookup, mut window } = sources;
     let mut pending: Option<Prepared> = None;
-    let mut step = 0;
-    for next in chosen.iter().map(Some).chain([None]) {
+    for (step, next) in chosen.iter().map(Some).chain([None]).enumerate() {
         // The objects the next frame's masks need, placed before it is loaded: a
         // stereo pair matched for them is not matched again.
         if let Some(&(index, ..)) = next {
@@ -133,8 +132,7 @@ pub(super) fn fuse_frames(
         // The blocks and chunks that go to their spill files, and the frames' buffers,
         // leave free pages the allocator would keep in its heaps (a fifth of the peak
         // on a long loop: docs/design.md): handed back every few frames.
-        step += 1;
-        if step % RELEASE_EVERY == 0 {
+        if (step + 1) % RELEASE_EVERY == 0 {
             crate::memory::release_freed_memory();
         }
         if let Some(p) = &pending {

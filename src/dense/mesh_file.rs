@@ -34,8 +34,6 @@ pub struct MeshOnDisk {
     vertices: SpillFile,
     triangles: SpillFile,
     pieces: Pieces,
-    vertex_count: usize,
-    triangle_count: usize,
 }
 
 impl MeshOnDisk {
@@ -45,8 +43,6 @@ impl MeshOnDisk {
             vertices: SpillFile::create(dir, "mesh-vertices", VERTEX)?,
             triangles: SpillFile::create(dir, "mesh-triangles", TRIANGLE)?,
             pieces: Pieces::default(),
-            vertex_count: 0,
-            triangle_count: 0,
         };
         extract_with(volume, |batch| mesh.append(batch))?;
         Ok(mesh)
@@ -62,7 +58,6 @@ impl MeshOnDisk {
         }
         self.vertices.append(&bytes)?;
         self.pieces.add_vertices(batch.vertices.len());
-        self.vertex_count += batch.vertices.len();
         bytes.clear();
         for (&t, area) in batch.triangles.iter().zip(&batch.areas) {
             self.pieces.join(t);
@@ -72,7 +67,6 @@ impl MeshOnDisk {
             bytes.extend_from_slice(&area.to_le_bytes());
         }
         self.triangles.append(&bytes)?;
-        self.triangle_count += batch.triangles.len();
         Ok(())
     }
 
@@ -80,7 +74,7 @@ impl MeshOnDisk {
     /// [`Mesh::without_small_pieces`] gives it.
     pub fn prune(self, min_area: f64) -> Result<PrunedMesh, IoError> {
         let mut areas = self.pieces.into_areas();
-        each_piece(&self.triangles, self.triangle_count, TRIANGLE, |bytes| {
+        each_piece(&self.triangles, TRIANGLE, |bytes| {
             for record in bytes.chunks_exact(TRIANGLE) {
                 let (t, area) = triangle(record);
                 areas.add(t, area);
@@ -88,20 +82,20 @@ impl MeshOnDisk {
             Ok(())
         })?;
         let kept = areas.keep(min_area);
-        let mut mesh = PrunedMesh {
-            vertices: self.vertices,
-            triangles: self.triangles,
-            all: (self.vertex_count, self.triangle_count),
-            kept,
-            triangles_kept: 0,
-        };
-        let mut count = 0;
-        mesh.each_triangles(|piece| {
-            count += piece.len();
+        let mut triangles_kept = 0;
+        each_piece(&self.triangles, TRIANGLE, |bytes| {
+            let records = bytes.chunks_exact(TRIANGLE);
+            triangles_kept += records
+                .filter(|record| kept.triangle(triangle(record).0).is_some())
+                .count();
             Ok(())
         })?;
-        mesh.triangles_kept = count;
-        Ok(mesh)
+        Ok(PrunedMesh {
+            vertices: self.vertices,
+            triangles: self.triangles,
+            kept,
+            triangles_kept,
+        })
     }
 }
 
@@ -121,13 +115,13 @@ fn vertex(record: &[u8]) -> ([f32; 3], [u8; 3]) {
     )
 }
 
-/// Hands `each` the `count` records of `record` bytes in `file`, [`READ`] at a time.
+/// Hands `each` the records of `record` bytes in `file`, [`READ`] at a time.
 fn each_piece(
     file: &SpillFile,
-    count: usize,
     record: usize,
     mut each: impl FnMut(&[u8]) -> Result<(), IoError>,
 ) -> Result<(), IoError> {
+    let count = file.bytes() as usize / record;
     let mut bytes = vec![0; READ * record];
     for first in (0..count).step_by(READ) {
         let n = READ.min(count - first);
@@ -141,8 +135,6 @@ fn each_piece(
 pub struct PrunedMesh {
     vertices: SpillFile,
     triangles: SpillFile,
-    /// Vertices and triangles before the small pieces went.
-    all: (usize, usize),
     kept: KeptVertices,
     triangles_kept: usize,
 }
@@ -175,7 +167,7 @@ impl PrunedMesh {
     ) -> Result<(), IoError> {
         let mut piece = Mesh::default();
         let mut number = 0;
-        each_piece(&self.vertices, self.all.0, VERTEX, |bytes| {
+        each_piece(&self.vertices, VERTEX, |bytes| {
             piece.vertices.clear();
             piece.colours.clear();
             for record in bytes.chunks_exact(VERTEX) {
@@ -197,7 +189,7 @@ impl PrunedMesh {
         mut each: impl FnMut(&[[u32; 3]]) -> Result<(), IoError>,
     ) -> Result<(), IoError> {
         let mut piece = Vec::new();
-        each_piece(&self.triangles, self.all.1, TRIANGLE, |bytes| {
+        each_piece(&self.triangles, TRIANGLE, |bytes| {
             piece.clear();
             let kept = bytes.chunks_exact(TRIANGLE);
             piece.extend(kept.filter_map(|record| self.kept.triangle(triangle(record).0)));
@@ -269,7 +261,7 @@ mod tests {
         let (pruned_whole, pruned) = whole.clone().without_small_pieces(min_area);
         assert!(pruned.pieces > 0 && pruned_whole.len() > 1000, "{pruned:?}");
         let on_disk = MeshOnDisk::extract(&mut volume, &dir).unwrap();
-        assert_eq!(on_disk.vertex_count, whole.len());
+        assert_eq!(on_disk.vertices.bytes() as usize / VERTEX, whole.len());
         let mesh = on_disk.prune(min_area).unwrap();
         assert_eq!(mesh.pruned(), pruned);
         assert_eq!(
