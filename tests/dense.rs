@@ -77,6 +77,68 @@ fn fuse_again(
     })
 }
 
+/// A pass that keeps its state (`keep_state`, under `budgets`), then passes into the
+/// same folder: with other output settings the state is reused (not fused again) and
+/// the files equal a pass that fuses with those settings; with another fusion setting
+/// it is fused again. The kept files are never written.
+fn kept_states_are_reused_when_only_the_outputs_change(run: Fused, budgets: &Config, base: &Path) {
+    let state_files = |dir: &Path| {
+        let mut files: Vec<(PathBuf, Vec<u8>)> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .map(|p| (p.clone(), std::fs::read(p).unwrap()))
+            .collect();
+        files.sort();
+        files
+    };
+    let mut keeping = budgets.clone();
+    keeping.dense.outputs.keep_state = true;
+    let kept_dir = base.join("kept");
+    let pass =
+        |config: &Config, dir: &Path| fuse_again(Fused { config, ..run }, dir, Mode::Dop).unwrap();
+    let first = pass(&keeping, &kept_dir);
+    let state = kept_dir.join("dense_state");
+    assert_eq!(first.kept_state.as_deref(), Some(state.as_path()));
+    assert!(first.reused_state.is_none());
+    let kept = state_files(&state);
+    assert_eq!(
+        kept.len(),
+        5,
+        "state.json, the volume's and the cloud's files and tables"
+    );
+
+    let mut other = budgets.clone();
+    let outputs = &mut other.dense.outputs;
+    (outputs.mesh_min_piece_area, outputs.ply_encoding) = (0.01, PlyEncoding::Ascii);
+    other.dense.cloud.outlier_neighbours = 4;
+    let reused = pass(&other, &kept_dir);
+    let from = reused
+        .reused_state
+        .as_ref()
+        .expect("the kept state reused")
+        .from
+        .clone();
+    assert_eq!(from, state);
+    assert_eq!(
+        (reused.frames_fused, reused.masked_percent),
+        (first.frames_fused, first.masked_percent)
+    );
+    let fresh_dir = base.join("fresh");
+    assert!(pass(&other, &fresh_dir).reused_state.is_none());
+    for name in ["dense_mesh.ply", "dense_mesh.obj", "dense_points.ply"] {
+        let same = std::fs::read(kept_dir.join(name)).unwrap()
+            == std::fs::read(fresh_dir.join(name)).unwrap();
+        assert!(same, "{name}: the kept state's differs from a fresh pass's");
+    }
+    assert!(state_files(&state) == kept, "the kept state was written to");
+
+    // Another fusion setting: fused again, nothing kept or reused, the state as it was.
+    other.dense.tsdf.max_depth -= 0.5;
+    let again = pass(&other, &kept_dir);
+    assert!(again.reused_state.is_none() && again.kept_state.is_none());
+    assert!(state_files(&state) == kept, "the kept state was written to");
+}
+
 /// The default config with the oracle boxes and the DOP model.
 fn oracle_config() -> Config {
     let mut config = Config::default();
@@ -256,6 +318,7 @@ fn dop_masks_keep_the_walkers_out_of_the_dense_map() {
         .filter(|name| name.starts_with('.') && name != ".dopslam.lock")
         .collect();
     assert!(left.is_empty(), "left behind: {left:?}");
+    kept_states_are_reused_when_only_the_outputs_change(run, &small, &base);
 
     // The same poses without masks: the walkers come in.
     let unmasked_dir = base.join("unmasked");

@@ -4,13 +4,16 @@
 # (once, into outputs/bench/) a 5000-frame room (loop_walking: 5.5 turns around the
 # room with two walkers), the full 4541-frame KITTI 00 street (street_kitti00 at
 # its full length; needs ../shared/data) and, when asked, the 2836-frame RGB-D desk
-# loop (desk_far_people: TUM fr2_desk's real path, walkers behind the desk), runs `dopslam run` on a 1000-frame prefix
+# loop (desk_far_people: TUM fr2_desk's real path, walkers behind the desk) and the
+# street driven three times (`laps`: KITTI 00's path three times over, joined by
+# U-turns, tools/laps_path.py; 14,321 frames, 11.5 km, about 22 GB and an hour to
+# render), runs `dopslam run` on a 1000-frame prefix
 # and on the whole of each (real detector, default real-time mode, global pass on;
 # dense pass off unless --dense) and prints the peak resident memory from the report
 # (VmHWM) with the map's size, each stage's own peak (`times.stages`) and the dense
 # pass's parts' (`dense.memory`): fusion, marching cubes, the cloud, the files.
 #
-#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street|desk ...]
+#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street|desk|laps ...]
 #
 # --lengths: the prefixes run (default: 1000 frames and the whole sequence).
 set -euo pipefail
@@ -35,10 +38,23 @@ for name in "${which[@]}"; do
     room) preset=loop_walking; frames=5000; seq=outputs/bench/long_room ;;
     street) preset=street_kitti00; frames=4541; seq=outputs/bench/long_street ;;
     desk) preset=desk_far_people; frames=2836; seq=outputs/bench/desk_loop ;;
-    *) echo "unknown: $name (room, street or desk)" >&2; exit 2 ;;
+    laps) preset=street_laps; seq=outputs/bench/three_laps ;;
+    *) echo "unknown: $name (room, street, desk or laps)" >&2; exit 2 ;;
   esac
+  config=configs/synth/$preset.toml
+  if [ "$name" = laps ]; then
+    # The street preset along a path that drives KITTI 00 three times.
+    path=$PWD/outputs/bench/three_laps_path
+    mkdir -p "$path"
+    python=python3; [ -x data/venv/bin/python3 ] && python=data/venv/bin/python3  # numpy
+    $python tools/laps_path.py ../shared/data/kitti-poses/00.txt "$path/00.txt" --laps 3
+    frames=$(wc -l <"$path/00.txt")
+    config=$path/street_laps.toml
+    sed -e 's/^name = .*/name = "street_laps"/' -e "s|^file = .*|file = \"$path/00.txt\"|" \
+      configs/synth/street_kitti00.toml >"$config"
+  fi
   if [ ! -f "$seq/scene.toml" ]; then
-    ./target/release/dopslam synth --config "configs/synth/$preset.toml" --frames "$frames" --out "$seq" --force >/dev/null
+    ./target/release/dopslam synth --config "$config" --frames "$frames" --out "$seq" --force >/dev/null
   fi
   input=$seq
   for kitti in "$seq"/kitti/sequences/*/; do [ -d "$kitti" ] && input=${kitti%/}; done

@@ -40,6 +40,12 @@ pub struct FuseArgs {
     /// Fuse keyframes only into the TSDF.
     #[arg(long)]
     pub keyframes_only: bool,
+    /// Keep the fused volume and cloud in RUN/dense_state/ (as `run --keep-state`).
+    /// A state kept there by an earlier pass is reused, without fusing again, whenever
+    /// this pass would fuse the same (every setting but the outputs' and the memory
+    /// budgets' the same, the same run and sequence): only the maps are written.
+    #[arg(long)]
+    pub keep_state: bool,
     /// An ORB-SLAM2 settings file (default: the one the run used, `run --settings`,
     /// as its report.json names it).
     #[arg(long)]
@@ -84,6 +90,9 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     }
     if args.keyframes_only {
         config.dense.frames.which = FrameChoice::Keyframes;
+    }
+    if args.keep_state {
+        config.dense.outputs.keep_state = true;
     }
     let run = RunDir::new(&args.run);
     let report = dopslam::records::read_report(&run)
@@ -222,18 +231,35 @@ pub fn print_dense(dense: &DenseReport) {
 /// What the memory budgets made the volume and the cloud do, when they wrote to their
 /// spill files.
 fn print_dense_spill(dense: &DenseReport) {
+    let fate = match dense.kept_state {
+        Some(_) => "kept",
+        None => "removed",
+    };
     let tsdf = &dense.tsdf_spill;
     if tsdf.blocks_written > 0 {
         println!(
-            "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, removed), {} read back",
+            "dense volume: at most {:.0} MB of voxels in memory ([dense] tsdf_memory_mb); {} blocks written to the spill file ({:.0} MB, {fate}), {} read back",
             tsdf.peak_resident_mb, tsdf.blocks_written, tsdf.file_mb, tsdf.blocks_reloaded
         );
     }
     let cloud = &dense.cloud_spill;
     if cloud.chunks_written > 0 {
         println!(
-            "dense cloud: at most {:.0} MB of voxel sums in memory ([dense] cloud_memory_mb); {} chunks written to the spill file ({:.0} MB, removed), {} read back",
+            "dense cloud: at most {:.0} MB of voxel sums in memory ([dense] cloud_memory_mb); {} chunks written to the spill file ({:.0} MB, {fate}), {} read back",
             cloud.peak_resident_mb, cloud.chunks_written, cloud.file_mb, cloud.chunks_reloaded
+        );
+    }
+    if let Some(dir) = &dense.kept_state {
+        println!(
+            "dense state kept in {} ([dense] keep_state): `dopslam fuse` with other output settings reuses it",
+            dir.display()
+        );
+    }
+    if let Some(reused) = &dense.reused_state {
+        println!(
+            "dense state reused from {}: the frames were not fused again (fusion took {:.1} s when it was kept); the figures of the frames fused are that pass's",
+            reused.from.display(),
+            reused.fusion_s
         );
     }
 }

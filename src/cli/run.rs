@@ -66,6 +66,12 @@ pub struct RunArgs {
     /// Skip the dense map (the config's [dense] enabled = false does the same).
     #[arg(long)]
     no_dense: bool,
+    /// Keep the dense pass's fused volume and cloud in OUT/dense_state/ (the config's
+    /// [dense] keep_state = true does the same), so that `dopslam fuse` with other
+    /// output settings (mesh_min_piece_area, the cloud's filters, obj, ply_encoding)
+    /// writes the maps again without fusing again. GBs on long routes.
+    #[arg(long, conflicts_with = "no_dense")]
+    keep_state: bool,
     /// Skip the global pass (loop closing, essential graph, full BA): trajectory.txt is then the tracking pass's.
     #[arg(long)]
     no_global: bool,
@@ -198,6 +204,9 @@ pub fn run_config(args: &RunArgs) -> Result<dopslam::config::Config> {
     }
     if args.no_global {
         config.global.enabled = false;
+    }
+    if args.keep_state {
+        config.dense.outputs.keep_state = true;
     }
     if args.no_dop {
         config.dop.mode = dopslam::dop::Mode::Off;

@@ -14,7 +14,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
-use super::cloud_voxels::{CloudSpillCounts, CloudVoxels, Voxel};
+use super::cloud_voxels::{CloudSpillCounts, CloudVoxels, KeptCloud, Voxel};
 use super::neighbours::PointIndex;
 use super::tsdf::FrameInput;
 use crate::geometry::camera::PinholeCamera;
@@ -71,6 +71,28 @@ impl CloudBuilder {
     /// is made meanwhile); they come back as the cloud is carved.
     pub fn spill_everything(&mut self) -> Result<(), IoError> {
         self.voxels.spill_everything()
+    }
+
+    /// Keeps the sums in `dir` (see [`CloudVoxels::keep`]).
+    pub fn keep(&self, dir: &Path) -> Result<KeptCloud, IoError> {
+        self.voxels.keep(dir)
+    }
+
+    /// The cloud of `camera`'s frames with `settings` whose sums [`CloudBuilder::keep`]
+    /// left in `dir` (see [`CloudVoxels::from_kept`]).
+    pub fn from_kept(
+        settings: CloudSettings,
+        camera: PinholeCamera,
+        dir: &Path,
+        kept: &KeptCloud,
+        spill_dir: &Path,
+        budget_bytes: usize,
+    ) -> Result<Self, IoError> {
+        Ok(Self {
+            settings,
+            camera,
+            voxels: CloudVoxels::from_kept(dir, kept, spill_dir, budget_bytes)?,
+        })
     }
 
     /// What the budget made the cloud do.

@@ -10,7 +10,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::spill::SpillFile;
+use super::spill::{read_table, write_table, SpillFile};
 use super::tsdf::FxMap;
 use crate::io::IoError;
 
@@ -21,6 +21,22 @@ const CHUNK: i32 = 16;
 const VOXEL_BYTES: usize = 2 + 3 * 8 + 3 * 4 + 3 * 8 + 4;
 /// Bytes a voxel takes in memory (a hash table entry and its control byte).
 const VOXEL_MEMORY: usize = std::mem::size_of::<(u16, Voxel)>() + 1;
+
+/// Kept sums ([`CloudVoxels::keep`]): the spill file's records.
+pub const KEPT_SUMS: &str = "cloud.bin";
+/// Kept sums' chunks: per chunk its key (3 `i32`), where its record lies in
+/// [`KEPT_SUMS`] (`u64`, `u64::MAX` for none) and its voxels (`u32`), little-endian.
+pub const KEPT_CHUNKS: &str = "cloud_chunks.bin";
+const KEPT_ENTRY: usize = 24;
+
+/// What kept sums' files hold ([`CloudVoxels::keep`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct KeptCloud {
+    /// Chunks in the table.
+    pub chunks: usize,
+    /// Bytes of the sums' file that the table refers to.
+    pub bytes: u64,
+}
 
 /// One voxel's sums.
 #[derive(Debug, Clone, Copy, Default)]
@@ -147,6 +163,74 @@ impl CloudVoxels {
             bytes: Vec::new(),
         });
         Ok(())
+    }
+
+    /// Keeps the sums in `dir` ([`super::kept`]): the spill file linked as
+    /// [`KEPT_SUMS`], the chunks' table written as [`KEPT_CHUNKS`]. Every chunk is in
+    /// the file by then ([`CloudVoxels::spill_everything`]); an error without one.
+    pub fn keep(&self, dir: &Path) -> Result<KeptCloud, IoError> {
+        let Some(spill) = &self.spill else {
+            return Err(IoError::invalid(
+                dir,
+                "a cloud without a spill file cannot be kept",
+            ));
+        };
+        if self.resident > 0 || self.chunks.values().any(|c| c.resident) {
+            return Err(IoError::invalid(
+                dir,
+                "a cloud is kept with every chunk spilled",
+            ));
+        }
+        spill.file.keep_as(&dir.join(KEPT_SUMS))?;
+        let mut table = Vec::with_capacity(self.chunks.len() * KEPT_ENTRY);
+        for (key, chunk) in &self.chunks {
+            let record = chunk.record.unwrap_or(Record {
+                at: u64::MAX,
+                voxels: 0,
+            });
+            key.iter().for_each(|k| table.extend(k.to_le_bytes()));
+            table.extend(record.at.to_le_bytes());
+            table.extend(record.voxels.to_le_bytes());
+        }
+        write_table(&dir.join(KEPT_CHUNKS), &table)?;
+        Ok(KeptCloud {
+            chunks: self.chunks.len(),
+            bytes: spill.file.bytes(),
+        })
+    }
+
+    /// The sums [`CloudVoxels::keep`] left in `dir`, as `kept` describes them: read
+    /// from there and never written, chunks beyond `budget_bytes` spilled into a new
+    /// spill file in `spill_dir`.
+    pub fn from_kept(
+        dir: &Path,
+        kept: &KeptCloud,
+        spill_dir: &Path,
+        budget_bytes: usize,
+    ) -> Result<Self, IoError> {
+        let table = read_table(&dir.join(KEPT_CHUNKS), kept.chunks * KEPT_ENTRY)?;
+        let mut sums = Self::default();
+        for entry in table.chunks_exact(KEPT_ENTRY) {
+            let half = |at: usize| -> [u8; 4] { entry[at..at + 4].try_into().expect("4 bytes") };
+            let key = [0, 4, 8].map(|at| i32::from_le_bytes(half(at)));
+            let at = u64::from_le_bytes(entry[12..20].try_into().expect("8 bytes"));
+            let voxels = u32::from_le_bytes(half(20));
+            let record = (at != u64::MAX).then_some(Record { at, voxels });
+            sums.len += voxels as usize;
+            sums.chunks.insert(
+                key,
+                Chunk {
+                    record,
+                    ..Chunk::default()
+                },
+            );
+        }
+        sums.spill = Some(CloudSpill {
+            file: SpillFile::over(&dir.join(KEPT_SUMS), kept.bytes, spill_dir, "cloud", 1)?,
+            budget: budget_bytes,
+            bytes: Vec::new(),
+        });
+        Ok(sums)
     }
 
     /// The voxel at `key`, new (zero) if none was; its chunk read back first when it

@@ -248,7 +248,7 @@ pub struct DenseMasks {
     pub map_release_bodies: bool,
 }
 
-/// What the dense pass writes (`[dense]` keys `mesh`, `obj`, `mesh_min_piece_area`, `cloud`, `pictures`, `mask_pictures_every`, `ply_encoding`).
+/// What the dense pass writes (`[dense]` keys `mesh`, `obj`, `mesh_min_piece_area`, `cloud`, `pictures`, `mask_pictures_every`, `ply_encoding`, `keep_state`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseOutputs {
     /// The mesh (PLY).
@@ -269,6 +269,9 @@ pub struct DenseOutputs {
     pub mask_pictures_every: usize,
     /// PLY encoding: binary (little endian) or ascii.
     pub ply_encoding: PlyEncoding,
+    /// Keep the fused volume and cloud in `dense_state/` ([`super::kept`]) for a
+    /// later `dopslam fuse` with other output settings to reuse (GBs on long routes).
+    pub keep_state: bool,
 }
 
 /// The `[dense]` section as the file spells it: flat keys, read into [`DenseConfig`]'s
@@ -327,6 +330,7 @@ pub struct DenseFile {
     mask_map_release_bodies: bool,
     mask_pictures_every: usize,
     ply_encoding: PlyEncoding,
+    keep_state: bool,
 }
 
 impl Default for DenseFile {
@@ -400,6 +404,7 @@ impl From<DenseFile> for DenseConfig {
                 pictures: file.pictures,
                 mask_pictures_every: file.mask_pictures_every,
                 ply_encoding: file.ply_encoding,
+                keep_state: file.keep_state,
             },
         }
     }
@@ -469,6 +474,7 @@ impl From<DenseConfig> for DenseFile {
             pictures: outputs.pictures,
             mask_pictures_every: outputs.mask_pictures_every,
             ply_encoding: outputs.ply_encoding,
+            keep_state: outputs.keep_state,
         }
     }
 }
@@ -541,6 +547,7 @@ impl Default for DenseConfig {
                 pictures: true,
                 mask_pictures_every: 0,
                 ply_encoding: PlyEncoding::Binary,
+                keep_state: false,
             },
         }
     }

@@ -22,6 +22,7 @@ mod frame_choice;
 pub mod free_space;
 mod fusion;
 pub mod inputs;
+pub mod kept;
 pub mod map_figures;
 pub mod marching_cubes;
 pub mod mask_layers;
@@ -45,7 +46,6 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::detect::FrameDetections;
 use crate::dop::Mode;
 use crate::geometry::se3::Se3;
-use crate::io::atomic::write_atomic;
 use crate::io::run_dir::RunDir;
 use crate::io::IoError;
 use cloud::CloudBuilder;
@@ -79,7 +79,9 @@ pub fn frames_bar(label: &str, len: usize, shown: bool) -> ProgressBar {
 }
 
 /// Fuses a finished run (see the module doc): reads the run, chooses the frames, adds
-/// the dense pass's own detections, makes the masks, fuses, writes.
+/// the dense pass's own detections, makes the masks, fuses, writes; or takes the
+/// state an earlier pass kept in the output folder ([`kept`]) when it would fuse the
+/// same, and only writes.
 pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseReport, IoError> {
     config
         .validate()
@@ -91,6 +93,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     crate::memory::part_peak_mib();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
     let mut read = inputs::read_run(&run, inputs.masking)?;
+    if let Some(report) = kept::reuse(inputs, config, &read.trajectory, started)? {
+        return Ok(report);
+    }
     let frames = frame_choice::choose_frames(inputs.sequence, &read, config);
     let chosen = &frames.fused;
     let inputs_s = started.elapsed().as_secs_f64();
@@ -110,7 +115,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     };
     report.stages.inputs_s = inputs_s + start.elapsed().as_secs_f64();
     report.stages.detections_s = detections_s;
-    let (maps, truth) = fuse(
+    let (mut maps, truth) = fuse(
         inputs,
         config,
         &frames,
@@ -118,6 +123,15 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &read.poses,
         &mut report,
     )?;
+    report.truth = truth.map(TruthCounter::finish);
+    let (first, last) = (
+        candidates.first().map_or(0, |c| c.0),
+        candidates.last().map_or(0, |c| c.0),
+    );
+    let recording = crate::io::sequence::duration_of(inputs.sequence, first, last);
+    if config.outputs.keep_state {
+        kept::keep_fused(inputs, config, &mut maps, &mut report, started, recording)?;
+    }
     write_maps(
         &out,
         inputs.masking,
@@ -126,25 +140,10 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         &read.trajectory,
         &mut report,
     )?;
-    report.truth = truth.map(TruthCounter::finish);
-    report.total_s = started.elapsed().as_secs_f64();
-    let (first, last) = (
-        candidates.first().map_or(0, |c| c.0),
-        candidates.last().map_or(0, |c| c.0),
-    );
-    report.real_time_factor = crate::io::sequence::duration_of(inputs.sequence, first, last)
-        .map(|recording| report.total_s / recording);
-    report.peak_memory_mib = crate::memory::peak_resident_mib();
-    report.schema = crate::io::run_dir::SCHEMA;
-    let json = serde_json::to_string_pretty(&report).expect("report serialises");
-    write_atomic(&out.dense_report(), json.as_bytes())?;
-    // A request that came while the files were written: they were finished whole, and
-    // the command still ends as interrupted.
-    interrupted(
-        out.root(),
-        "asked while the dense map was written: it was finished whole",
-    )?;
-    Ok(report)
+    if config.outputs.keep_state {
+        kept::trim(&out)?;
+    }
+    outputs::finish_report(&out, report, started, recording)
 }
 
 /// A frame to fuse: its index in the sequence, final `camera_from_world`, and whether
@@ -216,8 +215,17 @@ fn fuse(
     let fuse_tsdf = config.fuses_tsdf();
     let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
-    if fuse_tsdf && config.tsdf.memory_mb > 0.0 {
-        volume.spill_to(inputs.out_dir, (config.tsdf.memory_mb * 1e6) as usize)?;
+    // Kept states are the spill files: a pass that keeps one spills without a budget too.
+    let keep = config.outputs.keep_state;
+    let budget = |mb: f64| {
+        if mb > 0.0 {
+            (mb * 1e6) as usize
+        } else {
+            usize::MAX
+        }
+    };
+    if fuse_tsdf && (config.tsdf.memory_mb > 0.0 || keep) {
+        volume.spill_to(inputs.out_dir, budget(config.tsdf.memory_mb))?;
     }
     if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
         let start = Instant::now();
@@ -225,8 +233,8 @@ fn fuse(
         report.stages.allocation_s = start.elapsed().as_secs_f64();
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
-    if cloud_on && config.cloud.memory_mb > 0.0 {
-        cloud.spill_to(inputs.out_dir, (config.cloud.memory_mb * 1e6) as usize)?;
+    if cloud_on && (config.cloud.memory_mb > 0.0 || keep) {
+        cloud.spill_to(inputs.out_dir, budget(config.cloud.memory_mb))?;
     }
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
     let mut window =

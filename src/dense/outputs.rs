@@ -19,9 +19,22 @@ use crate::io::{IoError, Trajectory};
 const PICTURE_POINTS: usize = 2_000_000;
 
 /// The fused volume and the keyframe cloud (when one is made).
-pub(super) struct Maps {
+pub struct Maps {
+    /// The volume (empty when no mesh is made).
     pub volume: TsdfVolume,
+    /// The cloud's sums.
     pub cloud: Option<CloudBuilder>,
+}
+
+impl Maps {
+    /// With budgets: every voxel and sum goes to its spill file, with no spare arrays
+    /// left (the mesh is made next, one batch of blocks at a time).
+    pub fn spill_everything(&mut self) -> Result<(), IoError> {
+        if let Some(cloud) = self.cloud.as_mut() {
+            cloud.spill_everything()?;
+        }
+        self.volume.spill_everything()
+    }
 }
 
 /// Writes the mesh (marching cubes over the volume, when it was fused), the point
@@ -38,18 +51,12 @@ pub(super) fn write_maps(
         "dopslam dense map, masking {:?}, voxel {} m",
         masking, config.tsdf.voxel
     );
-    let Maps {
-        mut volume,
-        mut cloud,
-    } = maps;
-    // The frames' buffers are gone, and with a budget the cloud's sums wait in their
-    // spill file: their pages go back before the mesh is made.
-    if let Some(cloud) = cloud.as_mut() {
-        cloud.spill_everything()?;
-    }
-    // So do the volume's voxels, with no spare arrays: meshing brings one batch of
-    // blocks back at a time.
-    volume.spill_everything()?;
+    // The frames' buffers are gone, and with budgets the cloud's sums and the
+    // volume's voxels wait in their spill files: their pages go back before the mesh
+    // is made, which brings one batch of blocks back at a time.
+    let mut maps = maps;
+    maps.spill_everything()?;
+    let Maps { mut volume, cloud } = maps;
     crate::memory::release_freed_memory();
     // The mesh's part starts here: what the budgets held until now is fusion's.
     crate::memory::part_peak_mib();
@@ -235,4 +242,27 @@ pub(super) fn interrupted(dir: &Path, what: &str) -> Result<(), IoError> {
         ));
     }
     Ok(())
+}
+
+/// Sets `report`'s totals (the time since `started`, of the `recording`'s seconds, and
+/// the peak memory) and writes it as `dense.json`.
+pub(super) fn finish_report(
+    out: &RunDir,
+    mut report: DenseReport,
+    started: Instant,
+    recording: Option<f64>,
+) -> Result<DenseReport, IoError> {
+    report.total_s = started.elapsed().as_secs_f64();
+    report.real_time_factor = recording.map(|recording| report.total_s / recording);
+    report.peak_memory_mib = crate::memory::peak_resident_mib();
+    report.schema = crate::io::run_dir::SCHEMA;
+    let json = serde_json::to_string_pretty(&report).expect("report serialises");
+    write_atomic(&out.dense_report(), json.as_bytes())?;
+    // A request that came while the files were written: they were finished whole, and
+    // the command still ends as interrupted.
+    interrupted(
+        out.root(),
+        "asked while the dense map was written: it was finished whole",
+    )?;
+    Ok(report)
 }

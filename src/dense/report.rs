@@ -92,6 +92,24 @@ pub struct DenseReport {
     pub truth: Option<FusedTruth>,
     /// The files written.
     pub outputs: Vec<PathBuf>,
+    /// Where this pass kept its fused state (`[dense] keep_state`), for a later
+    /// `dopslam fuse` to reuse.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kept_state: Option<PathBuf>,
+    /// This pass reused a kept state instead of fusing: the figures of the frames fused
+    /// and masked, `truth`, the stages up to integration and `memory.fusion_mib` are
+    /// those of the pass that kept it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reused_state: Option<ReusedState>,
+}
+
+/// A kept fused state a pass reused ([`super::kept`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ReusedState {
+    /// Its folder.
+    pub from: PathBuf,
+    /// Seconds the pass that kept it took up to the end of fusion.
+    pub fusion_s: f64,
 }
 
 /// Where the dense pass's time went, seconds of wall time (within each stage rayon

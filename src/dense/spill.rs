@@ -4,7 +4,9 @@
 //! need no lock); and the file the point cloud's voxel sums spill into
 //! ([`super::cloud::CloudBuilder::spill_to`]): records of any size appended at its
 //! end. Either is the run's own temporary: created new (never one that exists), and
-//! removed when its owner is dropped.
+//! removed when its owner is dropped. A spill file can also be linked into a kept
+//! dense state ([`SpillFile::keep_as`], [`super::kept`]), and laid over a kept file
+//! ([`SpillFile::over`]): the kept bytes are read beneath it and never written.
 
 use std::fs::{File, OpenOptions};
 use std::os::unix::fs::FileExt;
@@ -19,7 +21,18 @@ pub struct SpillFile {
     path: PathBuf,
     file: File,
     record: usize,
-    /// Bytes written up to the end of the file.
+    /// Bytes written up to the end of the file (the kept file's beneath it included).
+    len: u64,
+    /// A kept file read beneath this one ([`SpillFile::over`]).
+    base: Option<Base>,
+}
+
+/// A kept file beneath a spill file: its first `len` bytes are offsets `0..len`, and
+/// the spill file's own bytes come after them.
+#[derive(Debug)]
+struct Base {
+    path: PathBuf,
+    file: File,
     len: u64,
 }
 
@@ -50,7 +63,57 @@ impl SpillFile {
             file,
             record,
             len: 0,
+            base: None,
         })
+    }
+
+    /// A new spill file in `dir` (as [`SpillFile::create`]) laid over the first `len`
+    /// bytes of the kept file `kept`, opened read-only: reads below `len` come from
+    /// it, records written or appended go to the new file; writing below `len` is an
+    /// error. An error too when `kept` is missing or shorter than `len` (cut short).
+    pub fn over(
+        kept: &Path,
+        len: u64,
+        dir: &Path,
+        kind: &str,
+        record: usize,
+    ) -> Result<Self, IoError> {
+        let file = File::open(kept).map_err(|e| IoError::read(kept, e))?;
+        let size = file.metadata().map_err(|e| IoError::read(kept, e))?.len();
+        if size < len {
+            return Err(IoError::invalid(
+                kept,
+                format!("holds {size} bytes where its table needs {len}: the file was cut short"),
+            ));
+        }
+        let mut spill = Self::create(dir, kind, record)?;
+        spill.len = len;
+        spill.base = Some(Base {
+            path: kept.to_path_buf(),
+            file,
+            len,
+        });
+        Ok(spill)
+    }
+
+    /// Links the file at `path` too (copies it where a link cannot be made), so that it
+    /// outlives this spill file: what was written so far is kept there. The caller
+    /// writes nothing more into the records it keeps.
+    pub fn keep_as(&self, path: &Path) -> Result<(), IoError> {
+        let write_error = |source| IoError::Write {
+            path: path.to_path_buf(),
+            source,
+        };
+        if self.base.is_some() {
+            return Err(IoError::invalid(
+                path,
+                "a spill file laid over a kept file is not kept again",
+            ));
+        }
+        if std::fs::hard_link(&self.path, path).is_err() {
+            std::fs::copy(&self.path, path).map_err(write_error)?;
+        }
+        Ok(())
     }
 
     /// Where the file is.
@@ -80,8 +143,17 @@ impl SpillFile {
     }
 
     fn write_at(&mut self, at: u64, bytes: &[u8]) -> Result<(), IoError> {
+        let beneath = self.base.as_ref().map_or(0, |b| b.len);
+        if at < beneath {
+            let kept = self
+                .base
+                .as_ref()
+                .map(|b| b.path.clone())
+                .unwrap_or_default();
+            return Err(IoError::invalid(kept, "a kept dense state is read only"));
+        }
         self.file
-            .write_all_at(bytes, at)
+            .write_all_at(bytes, at - beneath)
             .map_err(|source| IoError::Write {
                 path: self.path.clone(),
                 source,
@@ -92,9 +164,17 @@ impl SpillFile {
 
     /// Reads `bytes.len()` bytes at `at` (where [`SpillFile::append`] put them).
     pub fn read_at(&self, at: u64, bytes: &mut [u8]) -> Result<(), IoError> {
-        self.file
-            .read_exact_at(bytes, at)
-            .map_err(|e| IoError::read(&self.path, e))
+        match &self.base {
+            Some(base) if at < base.len => (base.file)
+                .read_exact_at(bytes, at)
+                .map_err(|e| IoError::read(&base.path, e)),
+            _ => {
+                let beneath = self.base.as_ref().map_or(0, |b| b.len);
+                (self.file)
+                    .read_exact_at(bytes, at - beneath)
+                    .map_err(|e| IoError::read(&self.path, e))
+            }
+        }
     }
 
     /// Reads the record in `slot` into `bytes`.
@@ -112,6 +192,30 @@ impl SpillFile {
     fn offset(&self, slot: u32) -> u64 {
         slot as u64 * self.record as u64
     }
+}
+
+/// Writes a kept state's table (`bytes`) to `path`.
+pub fn write_table(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    std::fs::write(path, bytes).map_err(|source| IoError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a kept state's table of `len` bytes from `path`: an error when it holds
+/// another number of bytes.
+pub fn read_table(path: &Path, len: usize) -> Result<Vec<u8>, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::read(path, e))?;
+    if bytes.len() != len {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "holds {} bytes where the state says {len}: cut short or changed",
+                bytes.len()
+            ),
+        ));
+    }
+    Ok(bytes)
 }
 
 impl Drop for SpillFile {
@@ -151,7 +255,25 @@ mod tests {
         let mut back = [0; 2];
         log.read_at(second, &mut back).unwrap();
         assert_eq!(back, [4, 5]);
+        // Kept, then laid under a new spill file: read beneath, never written.
+        let kept = dir.join("kept.bin");
+        log.keep_as(&kept).unwrap();
         drop(log);
+        let mut over = SpillFile::over(&kept, 5, &dir, "over", 1).unwrap();
+        assert!(
+            over.write_at(4, &[0]).is_err(),
+            "the kept bytes are read only"
+        );
+        assert_eq!(over.append(&[6, 7]).unwrap(), 5);
+        let mut all = [0; 7];
+        over.read_at(0, &mut all[..5]).unwrap();
+        over.read_at(5, &mut all[5..]).unwrap();
+        assert_eq!(all, [1, 2, 3, 4, 5, 6, 7]);
+        drop(over);
+        assert_eq!(std::fs::read(&kept).unwrap(), [1, 2, 3, 4, 5]);
+        let short = SpillFile::over(&kept, 6, &dir, "over", 1).unwrap_err();
+        assert!(short.to_string().contains("cut short"), "{short}");
+        std::fs::remove_file(&kept).unwrap();
         let path = file.path().to_path_buf();
         assert!(path.exists());
         drop(file);

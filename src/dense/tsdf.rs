@@ -38,7 +38,7 @@ use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::io::IoError;
 
-use super::spill::SpillFile;
+use super::spill::{read_table, write_table, SpillFile};
 
 /// A fast hasher for integer keys (the Fx hash of rustc): block lookups dominate
 /// integration and meshing, and SipHash's resistance to flooding is not needed here.
@@ -193,14 +193,16 @@ impl Block {
         !self.sdf.is_empty()
     }
 
-    /// Unobserved voxels (\(F = 1\), \(W = 0\)) in memory, in `arrays`.
+    /// Unobserved voxels (\(F = 1\), \(W = 0\)) in memory, in `arrays`. Not dirty: a
+    /// block without a slot that nothing changed is unobserved again when it comes
+    /// back, so it leaves memory without a record (and meshing or queries never write).
     fn fill_unobserved(&mut self, arrays: Voxels) {
         self.put(arrays);
         self.sdf.resize(BLOCK_VOXELS, 1.0);
         self.weight.resize(BLOCK_VOXELS, 0.0);
         self.colour.resize(BLOCK_VOXELS, [0; 3]);
         self.colour_weight.resize(BLOCK_VOXELS, 0);
-        self.dirty = true;
+        self.dirty = false;
     }
 
     /// Its voxels as a spill record ([`BLOCK_BYTES`]).
@@ -345,10 +347,10 @@ impl Spill {
     }
 }
 
-/// Writes `block` to the spill file when it changed since it was last written there,
-/// and takes its arrays out of memory.
+/// Writes `block` to the spill file when it changed since it was last written there
+/// (or since it came in unobserved), and takes its arrays out of memory.
 fn spill_block(spill: &mut Spill, block: &mut Block) -> Result<Voxels, IoError> {
-    if block.dirty || block.slot.is_none() {
+    if block.dirty {
         block.write_record(&mut spill.bytes);
         block.slot = Some(spill.file.write(block.slot, &spill.bytes)?);
         block.dirty = false;
@@ -361,6 +363,25 @@ fn spill_block(spill: &mut Spill, block: &mut Block) -> Result<Voxels, IoError> 
 /// \(F > \) `limit` ([`TsdfVolume::seen_through`]).
 fn free_space(voxel: Option<(f32, f32)>, limit: f32) -> bool {
     voxel.is_some_and(|(sdf, weight)| weight > 0.0 && sdf > limit)
+}
+
+/// A kept volume's voxels ([`TsdfVolume::keep`]): the spill file's records.
+pub const KEPT_VOXELS: &str = "tsdf.bin";
+/// A kept volume's blocks: per block its coordinates (3 `i32`), its slot in
+/// [`KEPT_VOXELS`] (`u32`, `u32::MAX` for none: unobserved) and its flags (`u8`: bit 0
+/// surface, 1 allocated ahead, 2 free space), little-endian.
+pub const KEPT_BLOCKS: &str = "tsdf_blocks.bin";
+const KEPT_ENTRY: usize = 17;
+
+/// What a kept volume's files hold ([`TsdfVolume::keep`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct KeptVolume {
+    /// Blocks in the table.
+    pub blocks: usize,
+    /// Bytes of the voxels' file that the table refers to.
+    pub bytes: u64,
+    /// Frames fused (and meshing batches) when it was kept.
+    pub frames: u32,
 }
 
 /// What a volume's budget made it do ([`TsdfVolume::spill_counts`]).
@@ -399,8 +420,14 @@ impl TsdfVolume {
     /// blocks): beyond it, the blocks least recently touched go to a spill file in
     /// `dir`, removed when the volume is dropped.
     pub fn spill_to(&mut self, dir: &Path, budget_bytes: usize) -> Result<(), IoError> {
+        let file = SpillFile::create(dir, "tsdf", BLOCK_BYTES)?;
+        self.spill_into(file, budget_bytes);
+        Ok(())
+    }
+
+    fn spill_into(&mut self, file: SpillFile, budget_bytes: usize) {
         self.spill = Some(Spill {
-            file: SpillFile::create(dir, "tsdf", BLOCK_BYTES)?,
+            file,
             budget: (budget_bytes / BLOCK_BYTES).max(1),
             written: 0,
             reloaded: 0,
@@ -408,7 +435,75 @@ impl TsdfVolume {
             spare: Vec::new(),
             bytes: Vec::with_capacity(BLOCK_BYTES),
         });
-        Ok(())
+    }
+
+    /// Keeps the volume in `dir` ([`super::kept`]): its spill file linked as
+    /// [`KEPT_VOXELS`], its blocks' table written as [`KEPT_BLOCKS`]. Every voxel is
+    /// in the file by then ([`TsdfVolume::spill_everything`]); an error without one.
+    pub fn keep(&self, dir: &Path) -> Result<KeptVolume, IoError> {
+        let Some(spill) = &self.spill else {
+            return Err(IoError::invalid(
+                dir,
+                "a volume without a spill file cannot be kept",
+            ));
+        };
+        if self.resident > 0 {
+            return Err(IoError::invalid(
+                dir,
+                "a volume is kept with every block spilled",
+            ));
+        }
+        spill.file.keep_as(&dir.join(KEPT_VOXELS))?;
+        let mut table = Vec::with_capacity(self.blocks.len() * KEPT_ENTRY);
+        for (block, coord) in self.blocks.iter().zip(&self.coords) {
+            coord.iter().for_each(|c| table.extend(c.to_le_bytes()));
+            table.extend(block.slot.unwrap_or(u32::MAX).to_le_bytes());
+            let flags = [block.surface, block.ahead, block.free];
+            table.push((0..3).fold(0u8, |f, k| f | (u8::from(flags[k]) << k)));
+        }
+        write_table(&dir.join(KEPT_BLOCKS), &table)?;
+        Ok(KeptVolume {
+            blocks: self.blocks.len(),
+            bytes: spill.file.bytes(),
+            frames: self.frames,
+        })
+    }
+
+    /// The volume [`TsdfVolume::keep`] left in `dir`, as `kept` describes it: its voxels
+    /// read from there and never written, blocks beyond `budget_bytes` spilled into a
+    /// new spill file in `spill_dir`.
+    pub fn from_kept(
+        settings: TsdfSettings,
+        camera: PinholeCamera,
+        dir: &Path,
+        kept: &KeptVolume,
+        spill_dir: &Path,
+        budget_bytes: usize,
+    ) -> Result<Self, IoError> {
+        let mut volume = Self::new(settings, camera);
+        let table = read_table(&dir.join(KEPT_BLOCKS), kept.blocks * KEPT_ENTRY)?;
+        for entry in table.chunks_exact(KEPT_ENTRY) {
+            let word =
+                |k: usize| -> [u8; 4] { entry[4 * k..4 * k + 4].try_into().expect("4 bytes") };
+            let coord = [0, 1, 2].map(|k| i32::from_le_bytes(word(k)));
+            let i = volume.index_of(coord);
+            let block = &mut volume.blocks[i];
+            let slot = u32::from_le_bytes(word(3));
+            block.slot = (slot != u32::MAX).then_some(slot);
+            let flags = entry[16];
+            (block.surface, block.ahead, block.free) =
+                (flags & 1 != 0, flags & 2 != 0, flags & 4 != 0);
+        }
+        volume.frames = kept.frames;
+        let file = SpillFile::over(
+            &dir.join(KEPT_VOXELS),
+            kept.bytes,
+            spill_dir,
+            "tsdf",
+            BLOCK_BYTES,
+        )?;
+        volume.spill_into(file, budget_bytes);
+        Ok(volume)
     }
 
     /// What the budget made the volume do so far (zeros without one), or the first

@@ -109,12 +109,14 @@ pub mod names {
     pub const RERUN: &str = "run.rrd";
     /// An earlier run's outputs, moved aside.
     pub const PREVIOUS: &str = "previous";
+    /// The dense pass's fused state, kept for `dopslam fuse` (`[dense] keep_state`).
+    pub const DENSE_STATE: &str = "dense_state";
 }
 
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,
 /// `log.txt` and `run.json` beside them are the batch's own): what
 /// [`super::output::move_previous_outputs`] moves aside.
-pub const RUN_OUTPUTS: [&str; 23] = [
+pub const RUN_OUTPUTS: [&str; 24] = [
     names::TRAJECTORY,
     names::TRACKING_TRAJECTORY,
     names::KEYFRAMES,
@@ -138,6 +140,7 @@ pub const RUN_OUTPUTS: [&str; 23] = [
     names::UNMASKED,
     names::COMPARE_NO_DOP,
     names::RERUN,
+    names::DENSE_STATE,
 ];
 
 impl RunDir {
