@@ -51,8 +51,8 @@ impl Fingerprint {
         let mut parts = Vec::new();
         for (name, same) in [
             ("settings", self.settings == other.settings),
-            ("the run's files", self.run == other.run),
-            ("the sequence", self.sequence == other.sequence),
+            ("run files", self.run == other.run),
+            ("sequence frames", self.sequence == other.sequence),
         ] {
             if !same {
                 parts.push(name);
@@ -144,10 +144,16 @@ pub fn fingerprint(inputs: &DenseInputs, config: &DenseConfig) -> Result<Fingerp
         .collect();
     Ok(Fingerprint {
         settings: hash(settings.iter().map(|s| s.as_bytes())),
+        // Named within their folders: the same run however its path is spelled.
         run: hash(
             files
                 .iter()
-                .map(|f| f.as_os_str().as_encoded_bytes())
+                .map(|f| {
+                    let within = f
+                        .strip_prefix(inputs.run_dir)
+                        .or(f.strip_prefix(inputs.out_dir));
+                    within.unwrap_or(f).as_os_str().as_encoded_bytes()
+                })
                 .chain(contents.iter().map(Vec::as_slice)),
         ),
         sequence: hash([stamps.as_slice()]),
