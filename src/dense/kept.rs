@@ -23,7 +23,7 @@ use super::tsdf::{KeptVolume, TsdfVolume};
 use super::{DenseConfig, DenseReport, Fusion};
 use crate::io::atomic::write_atomic;
 use crate::io::run_dir::{names, RunDir};
-use crate::io::IoError;
+use crate::io::{content_hash, IoError};
 
 /// The layout version of `dense_state/`.
 pub const FORMAT: u32 = 1;
@@ -89,19 +89,23 @@ pub enum Found {
     Same(Box<(Maps, DenseReport)>),
 }
 
-/// FNV-1a (64 bits, hex) of the byte strings `parts`, each preceded by its length.
+/// [`content_hash`] of the byte strings `parts`, each preceded by its length.
 fn hash<'a>(parts: impl IntoIterator<Item = &'a [u8]>) -> String {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    let mut add = |bytes: &[u8]| {
-        for &b in bytes {
-            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-        }
-    };
+    let mut bytes = Vec::new();
     for part in parts {
-        add(&(part.len() as u64).to_le_bytes());
-        add(part);
+        bytes.extend((part.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(part);
     }
-    format!("{h:016x}")
+    content_hash(&bytes)
+}
+
+/// A memory budget of `mb` megabytes in bytes (0: no limit).
+pub(super) fn budget_bytes(mb: f64) -> usize {
+    if mb > 0.0 {
+        (mb * 1e6) as usize
+    } else {
+        usize::MAX
+    }
 }
 
 /// The fingerprint of a pass over `inputs` with `config`.
@@ -293,17 +297,10 @@ pub fn find(inputs: &DenseInputs, config: &DenseConfig) -> Result<Found, IoError
         (_, _, true, None) => return Ok(Found::Other("it has no cloud".into())),
         (tsdf, volume, cloud, sums) => (volume.filter(|_| tsdf), sums.filter(|_| cloud)),
     };
-    let budget = |mb: f64| {
-        if mb > 0.0 {
-            (mb * 1e6) as usize
-        } else {
-            usize::MAX
-        }
-    };
     let (settings, camera) = (config.tsdf(), inputs.camera);
     let volume = match volume {
         Some(kept) => {
-            let budget = budget(config.tsdf.memory_mb);
+            let budget = budget_bytes(config.tsdf.memory_mb);
             TsdfVolume::from_kept(settings, camera, &dir, &kept, inputs.out_dir, budget)?
         }
         None => TsdfVolume::new(settings, camera),
@@ -315,7 +312,7 @@ pub fn find(inputs: &DenseInputs, config: &DenseConfig) -> Result<Found, IoError
             &dir,
             &kept,
             inputs.out_dir,
-            budget(config.cloud.memory_mb),
+            budget_bytes(config.cloud.memory_mb),
         )?),
         None => None,
     };

@@ -217,15 +217,8 @@ fn fuse(
     let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
     // Kept states are the spill files: a pass that keeps one spills without a budget too.
     let keep = config.outputs.keep_state;
-    let budget = |mb: f64| {
-        if mb > 0.0 {
-            (mb * 1e6) as usize
-        } else {
-            usize::MAX
-        }
-    };
     if fuse_tsdf && (config.tsdf.memory_mb > 0.0 || keep) {
-        volume.spill_to(inputs.out_dir, budget(config.tsdf.memory_mb))?;
+        volume.spill_to(inputs.out_dir, kept::budget_bytes(config.tsdf.memory_mb))?;
     }
     if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
         let start = Instant::now();
@@ -234,7 +227,7 @@ fn fuse(
     }
     let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
     if cloud_on && (config.cloud.memory_mb > 0.0 || keep) {
-        cloud.spill_to(inputs.out_dir, budget(config.cloud.memory_mb))?;
+        cloud.spill_to(inputs.out_dir, kept::budget_bytes(config.cloud.memory_mb))?;
     }
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
     let mut window =

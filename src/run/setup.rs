@@ -339,14 +339,7 @@ pub fn first_frame_hash(sequence: &dyn Sequence) -> Option<String> {
     Some(content_hash(bytes))
 }
 
-/// FNV-1a (64 bits, hex) of `bytes`: the fingerprints of a sequence and of a batch
-/// run's inputs.
-pub fn content_hash(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    });
-    format!("{hash:016x}")
-}
+pub use crate::io::content_hash;
 
 impl RunSetup {
     /// What `sequence` runs with under `config` and `calibration`.
