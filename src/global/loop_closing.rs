@@ -432,12 +432,16 @@ impl<'a> LoopCloser<'a> {
 
 /// Moves the keyframes a loop correction carries with `key` (its pose \(T_{kw}\) becomes
 /// `corrected` \(T'_{kw}\)): first its covisible `neighbourhood`, then every later
-/// keyframe of its segment outside the loop group, all by the same
-/// \(M = T_{kw}^{-1} T'_{kw}\) ([`move_rigidly`]). Online, keyframes after a loop are
-/// tracked on the corrected map; offline they already exist, and left in place they
-/// would start the essential graph with the whole correction on one edge (a kink that
-/// on a 4.5 km street left the optimisation unconverged and the map bent). Returns the
-/// poses before the move and the keyframe that placed each point.
+/// keyframe of its segment outside the loop group whose spanning-tree parent was
+/// carried, all by the same \(M = T_{kw}^{-1} T'_{kw}\) ([`move_rigidly`]). Online,
+/// keyframes after a loop are tracked on the corrected map; offline they already exist,
+/// and left in place they would start the essential graph with the whole correction on
+/// one edge (a kink that on a 4.5 km street left the optimisation unconverged and the
+/// map bent). A later keyframe tracked against an older part of the map (a revisit:
+/// its parent is older than the loop and was not carried) stays with that part: moved
+/// with the loop, it and the old points it sees would be torn from their place (three
+/// laps of one street ended 300 m off). Returns the poses before the move and the
+/// keyframe that placed each point.
 fn carry_correction(
     map: &mut Map,
     key: KeyFrameKey,
@@ -447,41 +451,64 @@ fn carry_correction(
 ) -> (HashMap<KeyFrameKey, Se3>, HashMap<MapPointKey, KeyFrameKey>) {
     let m = map.keyframes()[key].world_from_camera() * corrected;
     let (id, segment) = (map.keyframes()[key].id, map.keyframes()[key].segment);
-    let later = map.keyframe_order().iter().copied().filter(|k| {
-        map.keyframes()
-            .get(*k)
-            .is_some_and(|kf| kf.id > id && kf.segment == segment)
-            && !neighbourhood.contains(k)
-            && !loop_group.contains(k)
-    });
-    let carried: Vec<KeyFrameKey> = neighbourhood.iter().copied().chain(later).collect();
-    move_rigidly(map, &carried, &m)
+    let mut carried: Vec<KeyFrameKey> = neighbourhood.to_vec();
+    let mut member: HashSet<KeyFrameKey> = carried.iter().copied().collect();
+    // Keyframe order is id order and a parent is older than its children: one pass.
+    for &k in map.keyframe_order() {
+        let Some(kf) = map.keyframes().get(k) else {
+            continue;
+        };
+        let follows = kf.parent.is_some_and(|p| member.contains(&p));
+        let later = kf.id > id && kf.segment == segment && !loop_group.contains(&k);
+        if later && follows && member.insert(k) {
+            carried.push(k);
+        }
+    }
+    let moved = Moved {
+        keyframes: &carried,
+        all_points_of: neighbourhood.len(),
+    };
+    move_rigidly(map, moved, &m)
 }
 
-/// Moves `keyframes` and the points they observe rigidly: \(T'_{nw} = T_{nw} M\),
-/// \(X' = M^{-1} X\), each point once. Returns the poses before the move and, per
-/// point, the first of the keyframes that observes it.
+/// Keyframes moved together: every point the first `all_points_of` see moves with
+/// them; of the points the others see, those one of them found first.
+#[derive(Clone, Copy)]
+struct Moved<'k> {
+    keyframes: &'k [KeyFrameKey],
+    all_points_of: usize,
+}
+
+/// Moves the keyframes rigidly, \(T'_{nw} = T_{nw} M\), and their points as
+/// [`Moved`] says, \(X' = M^{-1} X\), each once (a point an older, unmoved keyframe
+/// found first stays with it). Returns the poses before the move and, per moved
+/// point, the keyframe it moved with.
 fn move_rigidly(
     map: &mut Map,
-    keyframes: &[KeyFrameKey],
+    moved: Moved,
     m: &Se3,
 ) -> (HashMap<KeyFrameKey, Se3>, HashMap<MapPointKey, KeyFrameKey>) {
+    let keyframes = moved.keyframes;
     let m_inverse = m.inverse();
     let mut before = HashMap::new();
-    let mut placed_by = HashMap::new();
     for &n in keyframes {
         let old = map.keyframes()[n].camera_from_world;
         before.insert(n, old);
         map.set_keyframe_pose(n, se3::normalised(&(old * m)));
+    }
+    let mut placed_by = HashMap::new();
+    for (i, &n) in keyframes.iter().enumerate() {
         for p in map.keyframes()[n].observed_points() {
-            if placed_by.contains_key(&p) {
+            let Some(point) = map.points().get(p) else {
+                continue;
+            };
+            let found_first = point.observations.first().map(|o| o.0) == Some(n);
+            if placed_by.contains_key(&p) || (i >= moved.all_points_of && !found_first) {
                 continue;
             }
-            if let Some(point) = map.points().get(p) {
-                let position = (m_inverse * Point3::from(point.position)).coords;
-                map.set_point_position(p, position);
-                placed_by.insert(p, n);
-            }
+            let position = (m_inverse * Point3::from(point.position)).coords;
+            map.set_point_position(p, position);
+            placed_by.insert(p, n);
         }
     }
     (before, placed_by)
@@ -519,7 +546,11 @@ fn merge_segments(
                 .is_some_and(|kf| kf.segment == segment)
         })
         .collect();
-    let (_, moved) = move_rigidly(map, &members, &m);
+    let whole = Moved {
+        keyframes: &members,
+        all_points_of: members.len(),
+    };
+    let (_, moved) = move_rigidly(map, whole, &m);
     for &k in &members {
         map.set_keyframe_segment(k, into);
     }
@@ -579,26 +610,39 @@ mod tests {
     #[test]
     fn a_loop_correction_carries_the_later_keyframes_of_its_segment_and_their_points() {
         let mut map = Map::default();
-        // A path of keyframes 0..8 in segment 0, then one in segment 1.
-        let k: Vec<KeyFrameKey> = (0..8)
-            .map(|i| {
-                let step = i as f64;
-                map.add_keyframe(keyframe(
-                    0,
-                    pose([-0.5 * step, 0.0, 0.1 * step], [0.0, 0.05 * step, 0.0]),
-                ))
-            })
-            .collect();
+        // A path of keyframes 0..8 in segment 0, each attached to the one before, then
+        // one in segment 1, then a revisit of keyframe 1's place (attached to it) and
+        // one after it.
+        let mut k: Vec<KeyFrameKey> = Vec::new();
+        for i in 0..8 {
+            let step = i as f64;
+            let mut kf = keyframe(
+                0,
+                pose([-0.5 * step, 0.0, 0.1 * step], [0.0, 0.05 * step, 0.0]),
+            );
+            kf.parent = k.last().copied();
+            k.push(map.add_keyframe(kf));
+        }
         let other = map.add_keyframe(keyframe(1, pose([2.0, 0.0, 0.0], [0.0, 0.3, 0.0])));
+        let mut revisit = keyframe(0, pose([-0.4, 0.0, 0.1], [0.0, 0.06, 0.0]));
+        revisit.parent = Some(k[1]);
+        let revisit = map.add_keyframe(revisit);
+        let mut after_revisit = keyframe(0, pose([-0.9, 0.0, 0.2], [0.0, 0.1, 0.0]));
+        after_revisit.parent = Some(revisit);
+        let after_revisit = map.add_keyframe(after_revisit);
         let early = observed_point(&mut map, k[1], [0.0, 0.0, 2.0]);
+        map.add_observation(early, k[7], 1);
+        map.add_observation(early, revisit, 1);
         let late = observed_point(&mut map, k[7], [0.3, 0.2, 2.5]);
         let elsewhere = observed_point(&mut map, other, [0.1, 0.1, 1.0]);
+        let revisited = observed_point(&mut map, after_revisit, [-0.2, 0.1, 3.0]);
         let before: Vec<Se3> = map
             .keyframes()
             .values()
             .map(|kf| kf.camera_from_world)
             .collect();
-        let positions = |map: &Map| [early, late, elsewhere].map(|p| map.points()[p].position);
+        let positions =
+            |map: &Map| [early, late, elsewhere, revisited].map(|p| map.points()[p].position);
         let (points_before, late_in_camera) = (
             positions(&map),
             map.keyframes()[k[7]].camera_from_world * Point3::from(map.points()[late].position),
@@ -613,8 +657,8 @@ mod tests {
 
         let moved: HashSet<KeyFrameKey> = uncorrected.keys().copied().collect();
         assert_eq!(moved, HashSet::from([k[3], k[4], k[5], k[6], k[7]]));
-        for (i, kf) in [k[0], k[1], k[2], other].into_iter().enumerate() {
-            let index = [0, 1, 2, 8][i];
+        let unmoved = [k[0], k[1], k[2], other, revisit, after_revisit];
+        for (kf, index) in unmoved.into_iter().zip([0, 1, 2, 8, 9, 10]) {
             assert_eq!(map.keyframes()[kf].camera_from_world, before[index]);
         }
         assert!(
@@ -629,10 +673,14 @@ mod tests {
             map.keyframes()[k[7]].camera_from_world * Point3::from(map.points()[late].position);
         assert!((late_after - late_in_camera).norm() < 1e-9);
         assert_eq!(placed_by.get(&late), Some(&k[7]));
+        // The point keyframe 1 found stays with it though keyframe 7 sees it too; the
+        // revisit's points stay with the revisit.
         let points_after = positions(&map);
-        assert_eq!(points_after[0], points_before[0]);
-        assert_eq!(points_after[2], points_before[2]);
+        for i in [0, 2, 3] {
+            assert_eq!(points_after[i], points_before[i]);
+        }
         assert!((points_after[1] - points_before[1]).norm() > 10.0);
+        assert!(!placed_by.contains_key(&early));
     }
 
     /// Keyframes on a 200-step circle whose tracking drifted 0.3 degrees of yaw a step,
