@@ -134,6 +134,21 @@ pub struct GlobalReport {
     /// Why loop detection did not run, when it did not.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// The peak resident memory of each part of the pass.
+    #[serde(default)]
+    pub memory: GlobalMemory,
+}
+
+/// The peak resident memory (MiB, sampled; the process's, so each includes the map)
+/// of each part of the global pass, where the system reports it.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct GlobalMemory {
+    /// Loop verification and correction.
+    pub loops_mib: Option<f64>,
+    /// Full BA, with the disparity offset's rounds.
+    pub full_ba_mib: Option<f64>,
+    /// The frames estimated again and smoothed.
+    pub frames_mib: Option<f64>,
 }
 
 /// What the pass needs of the system.
@@ -208,6 +223,7 @@ pub fn run<'a>(
 ) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
+    crate::memory::part_peak_mib();
     match recognised {
         Ok(recognition) => {
             let mut closer = LoopCloser::with_recognition(inputs, recognition);
@@ -217,6 +233,7 @@ pub fn run<'a>(
         Err(why) => report.note = Some(why.to_string()),
     }
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
+    report.memory.loops_mib = crate::memory::part_peak_mib();
     let mut frames: Vec<&mut FrameRecord> = frames.collect();
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
@@ -231,6 +248,7 @@ pub fn run<'a>(
             );
         }
     }
+    report.memory.full_ba_mib = crate::memory::part_peak_mib();
     if config.refine_frames {
         report.frames = Some(frame_refinement::refine_frames(
             map,
@@ -245,6 +263,7 @@ pub fn run<'a>(
             frames.into_iter(),
         ));
     }
+    report.memory.frames_mib = crate::memory::part_peak_mib();
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
     report
 }
