@@ -10,8 +10,9 @@
 # render), runs `dopslam run` on a 1000-frame prefix
 # and on the whole of each (real detector, default real-time mode, global pass on;
 # dense pass off unless --dense) and prints the peak resident memory from the report
-# (VmHWM) with the map's size, each stage's own peak (`times.stages`) and the dense
-# pass's parts' (`dense.memory`): fusion, marching cubes, the cloud, the files.
+# (VmHWM) with the map's size, each stage's own peak (`times.stages`), the global
+# pass's parts' (`global.memory`: loops, full BA, frames) and the dense pass's
+# (`dense.memory`): fusion, marching cubes, the cloud, the files.
 #
 #   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street|desk|laps ...]
 #
@@ -31,8 +32,8 @@ which=("$@")
 if [ ${#which[@]} -eq 0 ]; then which=(room street); fi
 cargo build --release --quiet
 mkdir -p outputs/bench
-printf '%-8s %7s %9s %6s %9s %9s %8s %8s %8s %8s %8s %8s %8s %8s %8s\n' sequence frames coverage kfs points "peak MiB" "MiB/kf" \
-  tracking global outputs dense fusion mesh cloud files
+printf '%-8s %7s %9s %6s %9s %9s %8s %8s %8s %8s %8s %8s %8s %8s %8s %8s %8s %8s\n' sequence frames coverage kfs points "peak MiB" "MiB/kf" \
+  tracking global outputs dense loops full_ba frames fusion mesh cloud files
 for name in "${which[@]}"; do
   case $name in
     room) preset=loop_walking; frames=5000; seq=outputs/bench/long_room ;;
@@ -69,11 +70,14 @@ r = json.load(open(path))
 t = r["totals"]
 times = r.get("times") or {}
 peak = times.get("peak_memory_mib") or t.get("peak_memory_mib") or 0.0
-# Each stage's own peak (report.json `times.stages`), the dense pass's parts (`dense.memory`).
+# Each stage's own peak (report.json `times.stages`), the global pass's parts
+# (`global.memory`) and the dense pass's (`dense.memory`).
 stages = {s["stage"]: s.get("peak_memory_mib") for s in times.get("stages", [])}
 parts = (r.get("dense") or {}).get("memory") or {}
 cell = lambda v: f"{v:8.0f}" if v is not None else f"{'-':>8}"
 cells = " ".join(cell(stages.get(k)) for k in ("tracking", "global", "outputs", "dense"))
+glob = (r.get("global") or {}).get("memory") or {}
+cells += " " + " ".join(cell(glob.get(k + "_mib")) for k in ("loops", "full_ba", "frames"))
 cells += " " + " ".join(cell(parts.get(k + "_mib")) for k in ("fusion", "mesh", "cloud", "writing"))
 print(f"{name:<8} {t['frames']:7d} {t['coverage_percent']:8.1f}% {t['keyframes']:6d} {t['map_points']:9d} "
       f"{peak:9.0f} {peak / max(t['keyframes'], 1):8.2f} {cells}")

@@ -123,6 +123,16 @@ pub enum LoopReject {
         /// Matches needed.
         needed: usize,
     },
+    /// Stage 3: the next keyframes that found the place verified loops of their own,
+    /// and each places the keyframe elsewhere ([`super::loop_confirmation`]).
+    Contradicted {
+        /// Later loops verified.
+        checked: usize,
+        /// The closest of their placements: centimetres apart.
+        cm: u32,
+        /// And tenths of a degree.
+        decidegrees: u32,
+    },
 }
 
 impl std::fmt::Display for LoopOutcome {
@@ -167,6 +177,16 @@ impl std::fmt::Display for LoopReject {
             } => write!(
                 f,
                 "{inliers} inliers, but {found} matches after guided search, {needed} needed"
+            ),
+            LoopReject::Contradicted {
+                checked,
+                cm,
+                decidegrees,
+            } => write!(
+                f,
+                "contradicted: the loops of the next {checked} keyframes place it {:.2} m / {:.1} deg away or more",
+                cm as f64 / 100.0,
+                decidegrees as f64 / 10.0
             ),
         }
     }

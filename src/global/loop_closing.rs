@@ -32,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
+use super::loop_confirmation::Disagreement;
 use super::place_recognition::PlaceRecognition;
 use super::rigid_motion::RigidMotion;
 use super::word_matching::{match_by_words, static_point, Worded};
@@ -46,6 +47,9 @@ use crate::random::Rng;
 /// The seed of stage 3's RANSAC: the same samples in every run, so that a run's loops
 /// do not depend on the clock.
 const LOOP_RANSAC_SEED: u64 = 7;
+
+/// A keyframe that place recognition found candidates for, with them and their scores.
+type Found = (KeyFrameKey, Vec<(KeyFrameKey, f64)>);
 
 /// A loop that passed stage 3: the corrected pose \(T_{kc} T_{cw}\), the figures, and
 /// the candidate's group with its static points.
@@ -130,12 +134,13 @@ impl<'a> LoopCloser<'a> {
     /// beside tracking (keyframes within `gap` after a loop closed here are passed).
     pub fn close_found(&mut self, map: &mut Map) {
         let found = std::mem::take(&mut self.recognition.found);
-        for (key, candidates) in found {
+        for (i, (key, candidates)) in found.iter().enumerate() {
+            let key = *key;
             if !map.keyframes().contains_key(key) {
                 continue;
             }
             if self.recent(map, key) {
-                for (c, score) in candidates {
+                for &(c, score) in candidates {
                     if map.keyframes().contains_key(c) {
                         let gap = self.recognition.config.gap;
                         let reject = LoopReject::TooSoon { gap };
@@ -148,22 +153,28 @@ impl<'a> LoopCloser<'a> {
                 }
                 continue;
             }
-            self.verify(map, key, candidates);
+            self.verify(map, key, candidates, &found[i + 1..]);
         }
     }
 
-    /// Stages 3 and 4 for the candidates until one closes a loop.
-    fn verify(&mut self, map: &mut Map, key: KeyFrameKey, candidates: Vec<(KeyFrameKey, f64)>) {
-        for candidate in candidates {
-            if !map.keyframes().contains_key(candidate.0) {
+    /// Stages 3 and 4 for the candidates until one closes a loop; `upcoming`: what
+    /// place recognition found for the keyframes after `key`.
+    fn verify(
+        &mut self,
+        map: &mut Map,
+        key: KeyFrameKey,
+        candidates: &[(KeyFrameKey, f64)],
+        upcoming: &[Found],
+    ) {
+        for &(matched, score) in candidates {
+            if !map.keyframes().contains_key(matched) {
                 continue;
             }
-            let (matched, score) = candidate;
             let keys = LoopKeys {
                 keyframe: key,
                 matched,
             };
-            if self.verify_and_correct(map, keys, score) {
+            if self.verify_and_correct(map, keys, score, upcoming) {
                 break;
             }
         }
@@ -183,8 +194,20 @@ impl<'a> LoopCloser<'a> {
     }
 
     /// Stages 3 and 4 for one candidate; `true` when the loop was closed.
-    fn verify_and_correct(&mut self, map: &mut Map, keys: LoopKeys, score: f64) -> bool {
-        let verified = match self.verify_geometry(map, keys.keyframe, keys.matched) {
+    fn verify_and_correct(
+        &mut self,
+        map: &mut Map,
+        keys: LoopKeys,
+        score: f64,
+        upcoming: &[Found],
+    ) -> bool {
+        let verified = self
+            .verify_geometry(map, keys.keyframe, keys.matched)
+            .and_then(|v| {
+                self.confirm(map, keys.keyframe, &v.corrected, upcoming)
+                    .map(|()| v)
+            });
+        let verified = match verified {
             Ok(verified) => verified,
             Err(reject) => {
                 self.record(map, keys, score, LoopOutcome::Rejected(reject));
@@ -198,6 +221,56 @@ impl<'a> LoopCloser<'a> {
         self.record(map, keys, score, outcome);
         self.correct_loop(map, keys, verified);
         true
+    }
+
+    /// The loop placing `key` at `corrected`, against the loops of the next keyframes
+    /// that found the place (up to `confirmations`, within `4 gap` keyframes), each
+    /// verified on its own without closing it ([`loop_confirmation`]): `Err` when some
+    /// verified and none agrees.
+    fn confirm(
+        &mut self,
+        map: &Map,
+        key: KeyFrameKey,
+        corrected: &Se3,
+        upcoming: &[Found],
+    ) -> Result<(), LoopReject> {
+        let config = &self.recognition.config;
+        let (wanted, id) = (config.confirmations, map.keyframes()[key].id);
+        let within = id + 4 * config.gap;
+        let later: Vec<&Found> = upcoming
+            .iter()
+            .filter(|(k, _)| map.keyframes().get(*k).is_some_and(|kf| kf.id <= within))
+            .take(wanted)
+            .collect();
+        let mut closest: Option<Disagreement> = None;
+        let mut checked = 0;
+        for (later_key, candidates) in later {
+            let placed = candidates
+                .iter()
+                .filter(|(c, _)| map.keyframes().contains_key(*c))
+                .find_map(|(c, _)| self.verify_geometry(map, *later_key, *c).ok());
+            let Some(placed) = placed else {
+                continue;
+            };
+            checked += 1;
+            let pose = |k: KeyFrameKey| map.keyframes()[k].camera_from_world;
+            let d =
+                Disagreement::between(&pose(key), corrected, &pose(*later_key), &placed.corrected);
+            if d.agrees() {
+                return Ok(());
+            }
+            if closest.is_none_or(|c| d.degrees < c.degrees) {
+                closest = Some(d);
+            }
+        }
+        match closest {
+            None => Ok(()),
+            Some(d) => Err(LoopReject::Contradicted {
+                checked,
+                cm: (d.metres * 100.0).round() as u32,
+                decidegrees: (d.degrees * 10.0).round() as u32,
+            }),
+        }
     }
 
     /// Stage 3 for one candidate: the vocabulary matches, the rigid motion by RANSAC,

@@ -14,6 +14,7 @@ pub mod disparity_offset;
 pub mod essential_graph;
 pub mod frame_refinement;
 pub mod loop_closing;
+pub mod loop_confirmation;
 pub mod place_recognition;
 pub mod rigid_motion;
 pub mod trajectory_smoothing;

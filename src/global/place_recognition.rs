@@ -32,6 +32,11 @@ pub struct LoopConfig {
     pub ransac_iterations: usize,
     /// Lowe's ratio for matching through the vocabulary.
     pub ratio: f32,
+    /// A verified loop is checked against the loops of up to this many of the next
+    /// keyframes that found the place (within `4 gap` keyframes), each verified on
+    /// its own: when all of those that verify place the keyframe elsewhere, the loop
+    /// is not closed ([`super::loop_confirmation`]; 0: off).
+    pub confirmations: usize,
 }
 
 impl Default for LoopConfig {
@@ -45,6 +50,7 @@ impl Default for LoopConfig {
             covisibility_weight: 100,
             ransac_iterations: 300,
             ratio: 0.75,
+            confirmations: 3,
         }
     }
 }
