@@ -198,26 +198,24 @@ impl Frame {
             .then_some((cx as usize, cy as usize))
     }
 
-    /// A counting sort of the keypoints by cell (stable: index order within a cell).
+    /// A counting sort of the keypoints by cell (stable: index order within a cell):
+    /// counts, their running sums (each cell's end), then the keypoints placed from
+    /// the last back, each cell's end moving down to its start.
     fn build_grid(&mut self) {
-        let cells: Vec<Option<usize>> = self
-            .keypoints
-            .iter()
-            .map(|k| self.cell(k.x, k.y).map(|(cx, cy)| cy * GRID_COLUMNS + cx))
-            .collect();
-        let mut start = vec![0u32; GRID_COLUMNS * GRID_ROWS + 1];
-        for c in cells.iter().flatten() {
-            start[c + 1] += 1;
+        let cells = GRID_COLUMNS * GRID_ROWS;
+        let cell_of = |k: &KeyPoint| self.cell(k.x, k.y).map(|(cx, cy)| cy * GRID_COLUMNS + cx);
+        let mut start = vec![0u32; cells + 1];
+        for c in self.keypoints.iter().filter_map(cell_of) {
+            start[c] += 1;
         }
-        for c in 0..GRID_COLUMNS * GRID_ROWS {
-            start[c + 1] += start[c];
+        for c in 1..=cells {
+            start[c] += start[c - 1];
         }
-        let mut next = start.clone();
-        let mut items = vec![0u32; start[GRID_COLUMNS * GRID_ROWS] as usize];
-        for (i, c) in cells.iter().enumerate() {
-            if let Some(c) = c {
-                items[next[*c] as usize] = i as u32;
-                next[*c] += 1;
+        let mut items = vec![0u32; start[cells] as usize];
+        for (i, k) in self.keypoints.iter().enumerate().rev() {
+            if let Some(c) = cell_of(k) {
+                start[c] -= 1;
+                items[start[c] as usize] = i as u32;
             }
         }
         self.grid = Grid { start, items };

@@ -33,7 +33,7 @@ use serde::{Deserialize, Serialize};
 use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
 use super::loop_confirmation::Disagreement;
-use super::place_recognition::PlaceRecognition;
+use super::place_recognition::{Found, PlaceRecognition};
 use super::rigid_motion::RigidMotion;
 use super::word_matching::{match_by_words, static_point, Worded};
 use super::GlobalInputs;
@@ -47,9 +47,6 @@ use crate::random::Rng;
 /// The seed of stage 3's RANSAC: the same samples in every run, so that a run's loops
 /// do not depend on the clock.
 const LOOP_RANSAC_SEED: u64 = 7;
-
-/// A keyframe that place recognition found candidates for, with them and their scores.
-type Found = (KeyFrameKey, Vec<(KeyFrameKey, f64)>);
 
 /// A loop that passed stage 3: the corrected pose \(T_{kc} T_{cw}\), the figures, and
 /// the candidate's group with its static points.

@@ -55,6 +55,10 @@ impl Default for LoopConfig {
     }
 }
 
+/// A keyframe that place recognition found consistent candidates for, with them and
+/// their scores.
+pub type Found = (KeyFrameKey, Vec<(KeyFrameKey, f64)>);
+
 /// Stages 1 and 2 (place recognition and consistency), apart from the correction:
 /// run on each keyframe as local mapping finishes it during the tracking pass (in its
 /// own thread or inline, `system::stages::Recognition`).
@@ -67,7 +71,7 @@ pub struct PlaceRecognition {
     groups: Vec<(HashSet<KeyFrameKey>, usize)>,
     /// Each keyframe searched that has consistent candidates, in order, with them and
     /// their scores.
-    pub found: Vec<(KeyFrameKey, Vec<(KeyFrameKey, f64)>)>,
+    pub found: Vec<Found>,
     /// Candidates that failed the consistency check.
     pub rejected: Vec<Candidate>,
     /// Time spent, milliseconds.
