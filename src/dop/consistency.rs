@@ -35,7 +35,7 @@
 use super::DopConfig;
 
 /// Consistency runs of one map point.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Consistency {
     /// Tracked frames in a row where the point was inconsistent.
     pub outlier_run: u32,

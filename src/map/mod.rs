@@ -1,6 +1,7 @@
 //! The sparse map: keyframes and map points in arenas with typed keys (`slotmap`), so
 //! that removing an entity is safe and a key of one kind can never index the other.
 
+pub mod file;
 pub mod record;
 pub mod visibility;
 
@@ -100,6 +101,10 @@ pub struct KeyFrame {
     /// The map segment: tracking that stays lost starts a new one (0 for the first),
     /// unrelated to the others until a loop merges them.
     pub segment: usize,
+    /// The recording that made it ([`Map::recordings`]): the current one, or one whose
+    /// map was loaded (`dopslam run --map`), whose frame indices are not this
+    /// sequence's.
+    pub recording: u32,
 }
 
 impl KeyFrame {
@@ -117,6 +122,7 @@ impl KeyFrame {
             children: Vec::new(),
             detections: None,
             segment: 0,
+            recording: 0,
         }
     }
 
@@ -180,6 +186,9 @@ pub struct Map {
     /// them wait (DOP with `[tracking] wait_near_boxes_only`); `None`: every new point
     /// waits (the rule is off, or no detection came back yet).
     wait_zones: Option<Vec<crate::dop::boxes::ObjectBox>>,
+    /// The recordings whose keyframes the map holds (their sequences' names), the
+    /// current one last: new keyframes are the last one's.
+    recordings: Vec<String>,
 }
 
 /// Reads.
@@ -202,6 +211,33 @@ impl Map {
     /// How many keyframes were ever inserted (the next keyframe's id).
     pub fn keyframes_created(&self) -> usize {
         self.keyframes_created
+    }
+
+    /// The recordings whose keyframes the map holds, the current one last (empty
+    /// before [`Map::begin_recording`]).
+    pub fn recordings(&self) -> &[String] {
+        &self.recordings
+    }
+
+    /// The current recording's number (new keyframes carry it).
+    pub fn current_recording(&self) -> u32 {
+        self.recordings.len().saturating_sub(1) as u32
+    }
+
+    /// Whether keyframe `key` was made by the current recording (not loaded).
+    pub fn is_current(&self, key: KeyFrameKey) -> bool {
+        self.keyframes
+            .get(key)
+            .is_some_and(|kf| kf.recording == self.current_recording())
+    }
+
+    /// The segments the map's keyframes use (a new segment is numbered from here).
+    pub fn segments_used(&self) -> usize {
+        self.keyframes
+            .values()
+            .map(|kf| kf.segment + 1)
+            .max()
+            .unwrap_or(0)
     }
 }
 
@@ -295,6 +331,12 @@ impl Map {
 }
 
 impl Map {
+    /// A new recording (sequence `name`) starts adding keyframes to the map: a run's
+    /// own, or one that continues a loaded map.
+    pub fn begin_recording(&mut self, name: &str) {
+        self.recordings.push(name.to_string());
+    }
+
     /// Culling's counters after a frame: the points predicted `visible` in it, and
     /// those `found` there as inliers of its pose (a point is culled when found in too
     /// few of the frames that should see it).
@@ -339,6 +381,7 @@ impl Map {
     /// Inserts a keyframe, giving it the next id.
     pub fn add_keyframe(&mut self, mut keyframe: KeyFrame) -> KeyFrameKey {
         keyframe.id = self.keyframes_created;
+        keyframe.recording = self.current_recording();
         self.keyframes_created += 1;
         let key = self.keyframes.insert(keyframe);
         self.keyframe_order.push(key);

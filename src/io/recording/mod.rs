@@ -12,7 +12,7 @@
 pub mod convert;
 pub mod frames;
 pub mod kinect;
-mod mapped;
+pub mod mapped;
 pub mod matroska;
 mod mcap_chunks;
 pub mod messages;
