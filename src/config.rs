@@ -525,6 +525,10 @@ impl Config {
         )?;
         checks::unit_interval("mapping.redundancy", self.mapping.redundancy)?;
         checks::at_least_one(
+            "tracking.place_within_frames",
+            self.tracking.place_within_frames as u64,
+        )?;
+        checks::at_least_one(
             "mapping.local_ba_keyframes",
             self.mapping.local_ba_keyframes as u64,
         )?;

@@ -83,6 +83,18 @@ pub struct RunArgs {
     /// (OUT/compare_no_dop/: table, distance-coloured PLYs, pictures with ghosts in red).
     #[arg(long, conflicts_with = "no_dense")]
     compare_no_dop: bool,
+    /// Track the sequence in the map an earlier run left: RUN is its folder (or its
+    /// slam_map.bin). Frames wait until one is placed in that map by relocalisation
+    /// ([tracking] place_within_frames); trajectory.txt is then in the map's world
+    /// frame, new keyframes and points join the map, the global pass runs over both
+    /// recordings, and OUT/slam_map.bin holds the combined map. RUN is never written.
+    #[arg(long, value_name = "RUN", conflicts_with = "compare_no_dop")]
+    map: Option<PathBuf>,
+    /// With --map: localisation only. The loaded map does not change (no keyframes,
+    /// no points, no loop closing or full BA; each frame is still refined on it), and
+    /// OUT has no slam_map.bin.
+    #[arg(long, requires = "map")]
+    map_frozen: bool,
     #[command(flatten)]
     rerun: super::view::RerunArgs,
 }
@@ -148,6 +160,11 @@ pub fn run_run(args: RunArgs) -> Result<()> {
         dense: !args.no_dense && config.dense.enabled,
         pace: args.pace,
         rerun: given.as_ref().map(|l| l.handle()),
+        base_map: args
+            .map
+            .as_deref()
+            .map(|run| dopslam::run::base_map(run, args.map_frozen))
+            .transpose()?,
     };
     let plan = RunPlan::resolve(sequence.as_ref(), &config, &args.out, options)?;
     print_plan(&plan);

@@ -92,6 +92,23 @@ impl PlaceRecognition {
         }
     }
 
+    /// The words of every keyframe already in `map` (a loaded one), in the database
+    /// without a search: later keyframes can find them.
+    pub fn seed(&mut self, vocabulary: &Vocabulary, map: &Map) {
+        use rayon::prelude::*;
+        let start = std::time::Instant::now();
+        let keys = map.keyframe_order();
+        let words: Vec<_> = keys
+            .par_iter()
+            .map(|k| vocabulary.transform(&map.keyframes()[*k].frame.descriptors))
+            .collect();
+        for (key, words) in keys.iter().zip(words) {
+            self.database.add(*key, &words.0);
+            self.words.insert(*key, words);
+        }
+        self.milliseconds += start.elapsed().as_secs_f64() * 1e3;
+    }
+
     /// The keyframe's words, its consistent candidates (searched once the database
     /// holds `gap` keyframes), then it joins the database.
     pub fn process(&mut self, vocabulary: &Vocabulary, map: &Map, key: KeyFrameKey) {

@@ -69,6 +69,8 @@ pub mod names {
     pub const KEYFRAMES: &str = "keyframes.txt";
     /// The sparse map (binary PLY).
     pub const SPARSE_MAP: &str = "map.ply";
+    /// The SLAM map a later run can track in (`dopslam run --map`; docs/map_format.md).
+    pub const SLAM_MAP: &str = "slam_map.bin";
     /// What the run did.
     pub const REPORT: &str = "report.json";
     /// Each tracked frame's timestamp and map segment after the loops' merges.
@@ -116,8 +118,9 @@ pub mod names {
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,
 /// `log.txt` and `run.json` beside them are the batch's own): what
 /// [`super::output::move_previous_outputs`] moves aside.
-pub const RUN_OUTPUTS: [&str; 24] = [
+pub const RUN_OUTPUTS: [&str; 25] = [
     names::TRAJECTORY,
+    names::SLAM_MAP,
     names::TRACKING_TRAJECTORY,
     names::KEYFRAMES,
     names::SPARSE_MAP,
@@ -172,6 +175,11 @@ impl RunDir {
     /// `keyframes.txt`.
     pub fn keyframes(&self) -> PathBuf {
         self.file(names::KEYFRAMES)
+    }
+
+    /// `slam_map.bin`: the SLAM map a later run can track in.
+    pub fn slam_map(&self) -> PathBuf {
+        self.file(names::SLAM_MAP)
     }
 
     /// `map.ply`.

@@ -8,10 +8,12 @@
 pub mod report;
 pub mod run;
 pub mod setup;
+pub mod slam_map;
 
 pub use report::{FrameLine, Lap, RunReport, RunTimes, RunTotals, SegmentSpan, StageTime};
 pub use run::{MapFigures, RunFigures, RunInputs, RunRecord, RunStatus};
 pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied, TakenOut};
+pub use slam_map::{LoadedMap, SavedMap, SlamMapReport};
 
 use crate::dense::DenseReport;
 use crate::io::errors::read_text;

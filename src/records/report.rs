@@ -172,6 +172,9 @@ pub struct RunReport {
     /// run's end).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub times: Option<RunTimes>,
+    /// The map the run loaded (`--map`) and the one it saved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slam_map: Option<super::SlamMapReport>,
 }
 
 /// The wall time of a run's stages against the recording's duration, and the memory

@@ -55,6 +55,10 @@ pub enum StopReason {
     /// what the frames had.
     #[error("{0}")]
     NeverStarted(String),
+    /// With a loaded map (`--map`): no frame of the first `[tracking]
+    /// place_within_frames` was placed in it; the message names the map.
+    #[error("{0}")]
+    NotPlaced(String),
 }
 
 impl serde::Serialize for StopReason {

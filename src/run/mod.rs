@@ -12,6 +12,7 @@
 //! keypoints for the dense masks, the ground-truth scorer) is an observer
 //! ([`observers`], [`truth`]).
 
+pub mod base_map;
 pub mod dense_pass;
 pub mod error;
 pub mod global_pass;
@@ -29,9 +30,10 @@ use std::borrow::Cow;
 use std::path::Path;
 
 pub use crate::records::{FrameLine, RunReport, RunTotals, SegmentSpan};
+pub use base_map::base_map;
 pub use dense_pass::{dense_pass, DensePass, DenseSetup};
 pub use error::{RunError, StopReason};
-pub use options::RunOptions;
+pub use options::{BaseMap, RunOptions};
 pub use plan::{finish_recording, RunPlan};
 pub use setup::{
     check_sequence_folder, content_hash, detection_source, effective_mode, first_frame_hash,
@@ -45,7 +47,7 @@ use global_pass::global_pass;
 use observers::{DebugFrames, DynamicKeypoints, FrameObserver, Progress};
 use outputs::Computed;
 use rerun_log::RerunLog;
-use tracking_pass::{open_detector, tracking_pass, TrackingInputs, TrackingPass};
+use tracking_pass::{open_detector, tracking_pass, LoadedBase, TrackingInputs, TrackingPass};
 use truth::TruthScorer;
 
 /// Runs the passes over `sequence` and writes their outputs into `out`: the plan
@@ -74,6 +76,15 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     let mut clock = Stopwatch::start();
     // Loaded before any tracking, and only once.
     let detector = open_detector(&plan.setup, &plan.options)?;
+    let (base, loaded) = match &plan.options.base_map {
+        Some(base) => {
+            let (map, loaded) = base_map::load(base)?;
+            clock.lap("map");
+            let frozen = base.frozen;
+            (Some(LoadedBase { map, frozen }), Some(loaded))
+        }
+        None => (None, None),
+    };
     let setup = Cow::Borrowed(&plan.setup);
     if let Some(log) = plan.log() {
         log_pinhole(log, &setup.calibration.camera);
@@ -85,6 +96,7 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
         detector,
         options: &plan.options,
         run: &plan.run,
+        base,
     };
     let mut pass = tracking_pass(inputs, &mut watch.observers())?;
     clock.lap("tracking");
@@ -98,7 +110,8 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
         clock.lap("global");
     }
     let stop = pass.stop.clone();
-    let computed = watch.computed(plan, &setup, pass, global)?;
+    let mut computed = watch.computed(plan, &setup, pass, global)?;
+    computed.loaded = loaded;
     let mut report = outputs::write(&plan.run, computed)?;
     clock.lap("outputs");
     let dense_due = stop.is_some() || report.totals.tracked > 0;
@@ -285,6 +298,10 @@ impl Watchers {
             records,
             stopped: stop,
             global,
+            map_header: (setup.config.output.slam_map
+                && !plan.options.base_map.as_ref().is_some_and(|b| b.frozen))
+            .then(|| base_map::header_of(setup, 0.0)),
+            loaded: None,
         };
         Ok(computed)
     }

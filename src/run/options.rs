@@ -28,6 +28,18 @@ pub struct RunOptions {
     /// The Rerun recording the run logs into (`--rerun`, `--rerun-connect`); without
     /// one, `[output] rerun` makes `run.rrd` in the run folder.
     pub rerun: Option<crate::view::LogHandle>,
+    /// Track in the map an earlier run left (`--map RUN`), frozen or continued.
+    pub base_map: Option<BaseMap>,
+}
+
+/// The map an earlier run left, to track the sequence in (`dopslam run --map`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BaseMap {
+    /// Its `slam_map.bin`.
+    pub file: PathBuf,
+    /// Localisation only (`--map-frozen`): no keyframe or point is added, nothing is
+    /// optimised, and the run writes no map of its own.
+    pub frozen: bool,
 }
 
 impl RunOptions {

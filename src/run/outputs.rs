@@ -115,6 +115,11 @@ pub struct Computed<'a> {
     pub stopped: Option<StopReason>,
     /// The global pass's report and the tracking pass's trajectory, when it ran.
     pub global: Option<(GlobalReport, Trajectory)>,
+    /// The header to write the map under (`slam_map.bin`; its disparity offset is
+    /// the run's, set here); `None`: no map is written.
+    pub map_header: Option<crate::map::file::MapHeader>,
+    /// The map the run was tracked in (`--map`), when there was one.
+    pub loaded: Option<crate::records::LoadedMap>,
 }
 
 /// Writes trajectory, keyframes, map, segments and report; evaluates against ground
@@ -135,6 +140,8 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         records,
         stopped,
         global,
+        map_header,
+        loaded,
     } = computed;
     let map = &map;
     let trajectory = trajectory_of(map, &records);
@@ -153,7 +160,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         Some((report, tracking)) => (Some(report), ate_of(&tracking)),
         None => (None, None),
     };
-    let report = RunReport {
+    let mut report = RunReport {
         schema: crate::records::SCHEMA,
         sequence: sequence.name().to_string(),
         setup,
@@ -169,7 +176,9 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         stopped: stopped.map(|reason| reason.to_string()),
         dense: None,
         times: None,
+        slam_map: None,
     };
+    report.slam_map = slam_map_of(run, map, map_header, loaded, &report)?;
     write_report(run, &report)?;
     Ok(report)
 }
@@ -181,10 +190,50 @@ pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
     Ok(())
 }
 
-/// `keyframes.txt` and `map.ply`.
+/// What the run did with saved maps: the one it loaded (`loaded`, with the first
+/// frame placed in it) and `slam_map.bin`, written under `header` (the run's disparity
+/// offset set) when there is one and this recording made a keyframe.
+fn slam_map_of(
+    run: &RunDir,
+    map: &Map,
+    header: Option<crate::map::file::MapHeader>,
+    loaded: Option<crate::records::LoadedMap>,
+    report: &RunReport,
+) -> Result<Option<crate::records::SlamMapReport>, RunError> {
+    let loaded = loaded.map(|loaded| crate::records::LoadedMap {
+        placed_at_frame: report
+            .frames
+            .iter()
+            .find(|l| l.tracking.state == TrackingState::Ok)
+            .map(|l| l.tracking.index),
+        ..loaded
+    });
+    let made_keyframes = map.keyframe_order().iter().any(|k| map.is_current(*k));
+    let saved = match header {
+        Some(mut header) if made_keyframes => {
+            let start = std::time::Instant::now();
+            header.disparity_offset_px = report.disparity_offset_px();
+            let file = run.slam_map();
+            crate::map::file::write_map(&file, map, &header)?;
+            Some(crate::records::SavedMap {
+                bytes: std::fs::metadata(&file).map_or(0, |m| m.len()),
+                file,
+                recordings: map.recordings().to_vec(),
+                keyframes: map.keyframes().len(),
+                points: map.points().len(),
+                write_s: start.elapsed().as_secs_f64(),
+            })
+        }
+        _ => None,
+    };
+    Ok((loaded.is_some() || saved.is_some())
+        .then_some(crate::records::SlamMapReport { loaded, saved }))
+}
+
+/// `keyframes.txt` (this recording's keyframes) and `map.ply` (the whole sparse map).
 fn write_keyframes_and_map(run: &RunDir, map: &Map) -> Result<(), RunError> {
     let mut keyframes = Trajectory::default();
-    for key in map.keyframe_order() {
+    for key in map.keyframe_order().iter().filter(|k| map.is_current(**k)) {
         let kf = &map.keyframes()[*key];
         keyframes.push(kf.frame.timestamp, kf.world_from_camera());
     }

@@ -47,7 +47,11 @@ impl<'a> RunPlan<'a> {
         out: &Path,
         mut options: RunOptions,
     ) -> Result<Self, RunError> {
-        let setup = Setup::resolve(sequence, config)?;
+        let mut setup = Setup::resolve(sequence, config)?;
+        if let Some(base) = &options.base_map {
+            let header = super::base_map::check(&setup, base, out)?;
+            setup = super::base_map::adjust(setup, &header, base.frozen);
+        }
         let lock = outputs::prepare(out, &options)?;
         let run = RunDir::new(out);
         let own_recording = match options.rerun {

@@ -71,6 +71,16 @@ pub struct TrackingInputs<'a> {
     pub options: &'a RunOptions,
     /// The run folder (the detection cache).
     pub run: &'a RunDir,
+    /// The map to track in (`--map`), when there is one.
+    pub base: Option<LoadedBase>,
+}
+
+/// A loaded map to track the sequence in.
+pub struct LoadedBase {
+    /// The map.
+    pub map: crate::map::Map,
+    /// Localisation only.
+    pub frozen: bool,
 }
 
 /// Tracks the frames of `inputs.sequence` (up to `options.max_frames`) with its
@@ -81,7 +91,16 @@ pub fn tracking_pass(
 ) -> Result<TrackingPass, RunError> {
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let execution = Execution::of(options.deterministic);
-    let mut system = start_system(setup, inputs.detector, inputs.run, execution);
+    let placing = inputs.base.is_some();
+    let started = StartInputs {
+        detector: inputs.detector,
+        run: inputs.run,
+        execution,
+        base: inputs.base,
+        recording: sequence.name(),
+    };
+    let mut system = start_system(setup, started);
+    let mut placed = !placing;
     let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
     let mut records = Vec::with_capacity(total);
@@ -134,6 +153,16 @@ pub fn tracking_pass(
             tracking_ms,
             truth: None,
         });
+        placed |= lines
+            .last()
+            .is_some_and(|l| l.tracking.state == TrackingState::Ok);
+        if !placed && index + 1 >= setup.config.tracking.place_within_frames {
+            stop = Some(StopReason::NotPlaced(format!(
+                "none of the first {} frames was placed in the loaded map (--map) by relocalisation: is this a recording of the same place? ([tracking] place_within_frames)",
+                index + 1
+            )));
+            break;
+        }
         if let Some(search) = offset_search.as_mut() {
             loader.offset += search
                 .after_frame(&mut system, &mut records, setup, index)
@@ -190,18 +219,37 @@ fn end_pass(
     }
 }
 
-/// The system of the run, with its helpers: the vocabulary and the detector.
-fn start_system(
-    setup: &Setup,
+/// What the system of a run starts with besides its set-up.
+struct StartInputs<'a> {
     detector: Option<Box<dyn Detector>>,
-    run: &RunDir,
+    run: &'a RunDir,
     execution: Execution,
-) -> System {
+    base: Option<LoadedBase>,
+    /// The sequence's name: the map's recording.
+    recording: &'a str,
+}
+
+/// The system of the run, with its helpers (the vocabulary and the detector), on a
+/// new map or the loaded one.
+fn start_system(setup: &Setup, inputs: StartInputs) -> System {
     let helpers = Helpers {
         vocabulary: setup.vocabulary.clone(),
-        detector: detector.map(|d| (d, setup.config.detector.latency())),
+        detector: inputs
+            .detector
+            .map(|d| (d, setup.config.detector.latency())),
     };
-    System::start(&setup.system(execution, run.detections()), helpers)
+    let (mut map, placing) = match inputs.base {
+        Some(base) => (
+            base.map,
+            Some(crate::system::Placing {
+                frozen: base.frozen,
+            }),
+        ),
+        None => (crate::map::Map::default(), None),
+    };
+    map.begin_recording(inputs.recording);
+    let system = setup.system(inputs.execution, inputs.run.detections());
+    System::start_in(&system, helpers, map, placing)
 }
 
 /// Where the pass's frames come from, and how each is made ready.

@@ -60,6 +60,11 @@ pub struct SceneConfig {
     /// width, height]` in metres (the length along the mean viewing direction); none
     /// when absent. A camera circling it looks down at it, as in TUM's fr2_desk.
     pub table: Option<[f64; 3]>,
+    /// Render the room of another synth config (its walls and furniture, as its own
+    /// camera path and movers shaped them; relative to this file) instead of one laid
+    /// out around this config's path: a second recording of the same room, with
+    /// movers of its own. The other config must not name a room of its own.
+    pub room_of: Option<PathBuf>,
 }
 
 /// `[scene] look`.
@@ -81,6 +86,7 @@ impl Default for SceneConfig {
             clearance: 0.9,
             look: SceneLook::Blocks,
             table: None,
+            room_of: None,
         }
     }
 }
@@ -169,6 +175,7 @@ impl SynthConfig {
             &mut self.people.sprite,
             &mut self.seated.sprite,
             &mut self.motion.file,
+            &mut self.scene.room_of,
         ]
         .into_iter()
         .flatten()

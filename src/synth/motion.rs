@@ -49,8 +49,10 @@ pub struct MotionConfig {
     /// Multiplies the speed of procedural motions; for `file`, the file's time units
     /// per second of the sequence (10 for KITTI poses at 10 Hz: one pose a frame).
     pub speed: f64,
-    /// For `file`: where frame 0 starts, in the file's time units after its first
-    /// stamp (KITTI poses: a pose index; 200 starts at the 201st pose).
+    /// Where frame 0 starts: for `file`, in the file's time units after its first
+    /// stamp (KITTI poses: a pose index; 200 starts at the 201st pose); for the
+    /// procedural motions, seconds into the motion (a second recording of a room that
+    /// starts elsewhere on the same path: `loop` with 15 starts half a turn on).
     pub start: f64,
 }
 
@@ -162,7 +164,7 @@ pub fn poses_at(config: &MotionConfig, times: &[f64]) -> Result<Vec<Se3>, IoErro
     if config.kind != MotionKind::File {
         return Ok(times
             .iter()
-            .map(|&t| procedural_pose(config.kind, t * config.speed))
+            .map(|&t| procedural_pose(config.kind, config.start + t * config.speed))
             .collect());
     }
     let path = config.file.as_ref().ok_or_else(|| {

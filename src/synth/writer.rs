@@ -462,6 +462,21 @@ fn write_depth_camera_file(config: &SynthConfig, out: &Path) -> Result<(), Synth
     )?)
 }
 
+/// The room (walls and furniture) the synth config at `path` renders.
+fn room_of(path: &Path) -> Result<Scene, SynthError> {
+    let other =
+        SynthConfig::load(path).map_err(|e| SynthError::Config(format!("[scene] room_of: {e}")))?;
+    if other.scene.room_of.is_some() {
+        return Err(SynthError::Config(format!(
+            "[scene] room_of: {} names a room of its own; name that config instead",
+            path.display()
+        )));
+    }
+    let (times, _) = frame_times(&other)?;
+    let poses = poses_at(&other.motion, &times)?;
+    Ok(scene_and_movers(&other, &poses)?.0)
+}
+
 /// Loads a cut-out named by the config, if any.
 fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>, SynthError> {
     path.as_deref()
@@ -473,7 +488,10 @@ fn load_sprite(path: &Option<PathBuf>) -> Result<Option<std::sync::Arc<Sprite>>,
 /// The static scene and the movers of a config along the given camera poses (no movers
 /// with `without_movers`, in the same scene).
 pub fn build_world(config: &SynthConfig, poses: &[Se3]) -> Result<(Scene, Vec<Mover>), SynthError> {
-    let (scene, mut movers) = scene_and_movers(config, poses)?;
+    let (mut scene, mut movers) = scene_and_movers(config, poses)?;
+    if let Some(other) = &config.scene.room_of {
+        scene = room_of(other)?;
+    }
     if config.sequence.without_movers {
         movers.clear();
     }

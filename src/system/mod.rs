@@ -114,13 +114,30 @@ pub struct System {
     execution: Execution,
 }
 
+/// A map loaded for the run to track in (`dopslam run --map`).
+pub struct Placing {
+    /// Localisation only: the tracker adds no keyframe.
+    pub frozen: bool,
+}
+
 impl System {
     /// Creates the map and starts the helpers.
     pub fn start(setup: &SystemSetup, helpers: Helpers) -> Self {
+        Self::start_in(setup, helpers, Map::default(), None)
+    }
+
+    /// Starts the helpers on `map` (empty, or loaded with `placing`: the frames then
+    /// wait until relocalisation places one in it, and place recognition knows its
+    /// keyframes).
+    pub fn start_in(
+        setup: &SystemSetup,
+        helpers: Helpers,
+        map: Map,
+        placing: Option<Placing>,
+    ) -> Self {
         let config = setup.config;
-        let map = SharedMap::default();
         let size = (setup.pinhole.width, setup.pinhole.height);
-        let tracker = Tracker::new(
+        let mut tracker = Tracker::new(
             config.tracking.clone(),
             setup.camera,
             setup.pyramid.clone(),
@@ -128,6 +145,9 @@ impl System {
             size.1,
         )
         .with_depth_noise(setup.depth_noise);
+        if let Some(placing) = &placing {
+            tracker = tracker.placing_in(map.segments_used(), placing.frozen);
+        }
         let mut mapper = LocalMapper::new(
             config.mapping.clone(),
             setup.camera,
@@ -136,10 +156,15 @@ impl System {
             setup.close_depth,
         );
         mapper.removal_threshold = setup.mode.removal_threshold(&config.dop);
+        let map = SharedMap::new(std::sync::RwLock::new(map));
         let recognition = helpers.vocabulary.map(|vocabulary| {
             vocabulary.map(|vocabulary| {
+                let mut recognition =
+                    PlaceRecognition::new(&vocabulary, config.global.loops.clone());
+                // A loaded map's keyframes can be found again.
+                recognition.seed(&vocabulary, &map.read().expect("map lock poisoned"));
                 let stage = Recognition {
-                    recognition: PlaceRecognition::new(&vocabulary, config.global.loops.clone()),
+                    recognition,
                     vocabulary,
                     map: map.clone(),
                 };

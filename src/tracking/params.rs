@@ -89,6 +89,10 @@ pub struct TrackerConfig {
     /// segment starts at the last tracked pose; a loop that connects it to an older
     /// one merges them in the global pass.
     pub new_map_after_seconds: f64,
+    /// With a loaded map (`dopslam run --map`): the frames wait, each relocalised
+    /// against the map, until one is placed in it; when none of the first this many
+    /// is, the run stops with an error (a recording of another place).
+    pub place_within_frames: usize,
     /// Real-time mode: points created by a keyframe whose detection has not come back
     /// stay out of the pose when at least this many other matches remain.
     pub held_out_min_points: usize,
@@ -129,6 +133,7 @@ impl Default for TrackerConfig {
             keyframe_min_translation: 0.05,
             keyframe_min_rotation_deg: 3.0,
             new_map_after_seconds: 3.0,
+            place_within_frames: 300,
             held_out_min_points: 60,
             probation_frames: 2,
             wait_near_boxes_only: false,

@@ -42,6 +42,9 @@ pub struct OutputConfig {
     pub rerun_max_points: usize,
     /// Entries the logging thread may fall behind by before images are dropped.
     pub rerun_queue: usize,
+    /// Write the SLAM map a later run can track in (`slam_map.bin`, `dopslam run
+    /// --map`).
+    pub slam_map: bool,
 }
 
 impl Default for OutputConfig {
@@ -53,6 +56,7 @@ impl Default for OutputConfig {
             rerun_depth: false,
             rerun_max_points: 500_000,
             rerun_queue: 64,
+            slam_map: true,
         }
     }
 }

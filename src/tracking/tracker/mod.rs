@@ -63,6 +63,8 @@ pub struct Tracker {
     height: f32,
     /// The sensor's depth noise, for the rigidity test.
     depth_noise: DepthNoise,
+    /// Localisation only: no keyframe is made and no segment started.
+    frozen: bool,
 }
 
 /// What the tracker's searches look at: the map (read), the frame, and which points
@@ -136,6 +138,19 @@ impl Tracker {
             width: width as f32,
             height: height as f32,
             depth_noise: DepthNoise::Rgbd,
+            frozen: false,
+        }
+    }
+
+    /// The tracker of a recording in a loaded map whose keyframes use `segments`
+    /// segments: lost until relocalisation places a frame in it (new segments are
+    /// numbered after the map's); `frozen`: it adds nothing to the map.
+    pub fn placing_in(self, segments: usize, frozen: bool) -> Self {
+        Self {
+            state: TrackingState::Lost,
+            segments,
+            frozen,
+            ..self
         }
     }
 
@@ -303,7 +318,7 @@ impl Tracker {
         report.stats.state = TrackingState::Lost;
         report.stats.lost = Some(reject);
         let since = *self.lost_since.get_or_insert(frame.timestamp);
-        if frame.timestamp - since >= self.config.new_map_after_seconds {
+        if !self.frozen && frame.timestamp - since >= self.config.new_map_after_seconds {
             if let Some(last) = self.last.as_ref().map(|l| l.camera_from_world) {
                 self.start_segment(map, gate, frame, last, report);
             }
@@ -344,7 +359,7 @@ impl Tracker {
             frame: &frame,
             gate: &counted,
         };
-        let need = self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
+        let need = !self.frozen && self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
         let (pose, points) = if need {
             self.insert_keyframe(map, &frame, gate, pose, points, false);
             let key = self.reference.expect("just inserted");
