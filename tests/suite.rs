@@ -24,6 +24,7 @@ mod layouts;
 mod real_kitti;
 mod recordings;
 mod rerun;
+mod sessions;
 mod stereo;
 mod synth;
 mod synth_features;

@@ -224,6 +224,7 @@ pub fn run<'a>(
 ) -> GlobalReport {
     let start = Instant::now();
     let mut report = GlobalReport::default();
+    let gauge = Gauge::of(map);
     crate::memory::part_peak_mib();
     match recognised {
         Ok(recognition) => {
@@ -250,6 +251,9 @@ pub fn run<'a>(
         }
     }
     report.memory.full_ba_mib = crate::memory::part_peak_mib();
+    if let Some(gauge) = gauge {
+        gauge.restore(map, &mut frames);
+    }
     if config.refine_frames {
         report.frames = Some(frame_refinement::refine_frames(
             map,
@@ -267,6 +271,44 @@ pub fn run<'a>(
     report.memory.frames_mib = crate::memory::part_peak_mib();
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
     report
+}
+
+/// The world frame the tracking pass left: its oldest keyframe's pose (the first
+/// keyframe of the run, or of the loaded map). Loop corrections may move that
+/// keyframe too (tracking matches old points on a revisit, so the loop keyframe's
+/// neighbourhood can hold it), so the pass ends by moving the whole map back rigidly
+/// onto it: the trajectory stays in the frame ORB-SLAM2 gives it, and in the loaded
+/// map's frame (`dopslam run --map`).
+struct Gauge {
+    key: crate::map::KeyFrameKey,
+    camera_from_world: crate::geometry::se3::Se3,
+}
+
+impl Gauge {
+    fn of(map: &Map) -> Option<Self> {
+        let key = *map.keyframe_order().first()?;
+        Some(Self {
+            key,
+            camera_from_world: map.keyframes()[key].camera_from_world,
+        })
+    }
+
+    /// The map and the frames' tracked poses moved rigidly so that the keyframe is
+    /// where it was (nothing when it is gone).
+    fn restore(&self, map: &mut Map, frames: &mut [&mut FrameRecord]) {
+        let Some(now) = map.keyframes().get(self.key).map(|k| k.camera_from_world) else {
+            return;
+        };
+        // T_cw' = T_cw S^-1 = T_before  =>  S = T_before^-1 T_cw.
+        let change = self.camera_from_world.inverse() * now;
+        map.transform_world(&change);
+        let inverse = change.inverse();
+        for frame in frames.iter_mut() {
+            if let Some(pose) = frame.camera_from_world.as_mut() {
+                *pose *= inverse;
+            }
+        }
+    }
 }
 
 /// At most this many rounds of estimate, correction and full BA.
@@ -360,4 +402,59 @@ pub fn full_bundle_adjustment(
         outliers_removed: removed,
         milliseconds: start.elapsed().as_secs_f64() * 1e3,
     })
+}
+
+#[cfg(test)]
+mod gauge_tests {
+    use super::*;
+    use crate::frame::Frame;
+    use crate::geometry::se3;
+    use crate::map::{KeyFrame, MapPoint};
+    use nalgebra::Vector3;
+
+    #[test]
+    fn the_pass_ends_in_the_world_frame_of_the_oldest_keyframe() {
+        let mut map = Map::default();
+        let pose = |x: f64, yaw: f64| {
+            se3::from_parts(
+                Vector3::new(x, 0.1, 0.0),
+                *nalgebra::Rotation3::from_euler_angles(0.0, yaw, 0.02).matrix(),
+            )
+        };
+        let first = map.add_keyframe(KeyFrame::new(Frame::blank(1, (640, 480)), pose(0.0, 0.1)));
+        let second = map.add_keyframe(KeyFrame::new(Frame::blank(1, (640, 480)), pose(1.0, 0.3)));
+        let point = map.insert_point(MapPoint::new(
+            Vector3::new(0.5, 0.2, 3.0),
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            0,
+        ));
+        map.add_observation(point, second, 0);
+        let relative = |m: &Map| {
+            let (a, b) = (&m.keyframes()[first], &m.keyframes()[second]);
+            let seen = b.camera_from_world * nalgebra::Point3::from(m.points()[point].position);
+            (a.camera_from_world * b.world_from_camera(), seen)
+        };
+        let before = (map.keyframes()[first].camera_from_world, relative(&map));
+        let gauge = Gauge::of(&map).unwrap();
+        // A correction that moved everything, the oldest keyframe too.
+        map.transform_world(&pose(0.4, -0.5));
+        let mut record = crate::map::record::FrameRecord {
+            camera_from_world: Some(map.keyframes()[second].camera_from_world),
+            ..Default::default()
+        };
+        gauge.restore(&mut map, &mut [&mut record]);
+        let close = |a: &crate::geometry::se3::Se3, b: &crate::geometry::se3::Se3| {
+            (a.to_homogeneous() - b.to_homogeneous()).norm() < 1e-9
+        };
+        assert!(close(&map.keyframes()[first].camera_from_world, &before.0));
+        let (pose_after, seen_after) = relative(&map);
+        assert!(close(&pose_after, &before.1 .0));
+        assert!((seen_after - before.1 .1).norm() < 1e-9);
+        assert!(close(
+            &record.camera_from_world.unwrap(),
+            &map.keyframes()[second].camera_from_world
+        ));
+    }
 }

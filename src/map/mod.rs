@@ -279,6 +279,21 @@ impl Map {
         }
     }
 
+    /// Poses and positions: the whole map moved rigidly by `world_change` (\(X' = S
+    /// X\): every keyframe's pose becomes \(T_{cw} S^{-1}\), every point and its
+    /// viewing direction move with it). Relative poses (culled keyframes', frames')
+    /// are unchanged.
+    pub fn transform_world(&mut self, world_change: &Se3) {
+        let inverse = world_change.inverse();
+        for kf in self.keyframes.values_mut() {
+            kf.camera_from_world *= inverse;
+        }
+        for p in self.points.values_mut() {
+            p.position = (world_change * nalgebra::Point3::from(p.position)).coords;
+            p.normal = world_change.rotation * p.normal;
+        }
+    }
+
     /// Positions: point `key` at `position` (world); nothing when the point is gone.
     /// Its normal and distances follow with [`Map::update_point`].
     pub fn set_point_position(&mut self, key: MapPointKey, position: Vector3<f64>) {
