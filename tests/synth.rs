@@ -246,6 +246,8 @@ fn every_preset_loads_and_validates() {
             "loop_walking",
             "moving_chair",
             "people_from_photos",
+            "revisit_a",
+            "revisit_b",
             "seated_leaves",
             "sitting",
             "static_room",

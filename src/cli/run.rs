@@ -237,6 +237,35 @@ pub fn run_config(args: &RunArgs) -> Result<dopslam::config::Config> {
 
 /// What `dopslam run` prints of its report: tracking, map segments, times, the
 /// global pass, ATE and the dense map.
+/// The map a run loaded (`--map`) and the one it saved.
+fn print_slam_map(maps: &dopslam::records::SlamMapReport) {
+    if let Some(loaded) = &maps.loaded {
+        let placed = loaded
+            .placed_at_frame
+            .map_or("no frame was placed in it".to_string(), |f| {
+                format!("placed at frame {f}")
+            });
+        println!(
+            "map {} ({}{} keyframes, {} points, read in {:.2} s): {placed}",
+            loaded.file.display(),
+            if loaded.frozen { "frozen, " } else { "" },
+            loaded.keyframes,
+            loaded.points,
+            loaded.load_s
+        );
+    }
+    if let Some(saved) = &maps.saved {
+        println!(
+            "saved the map of {} recording(s) ({} keyframes, {} points, {:.1} MB) to {}",
+            saved.recordings.len(),
+            saved.keyframes,
+            saved.points,
+            saved.bytes as f64 / 1e6,
+            saved.file.display()
+        );
+    }
+}
+
 pub fn print_run_summary(report: &dopslam::run::RunReport) {
     let t = &report.totals;
     println!(
@@ -273,6 +302,9 @@ pub fn print_run_summary(report: &dopslam::run::RunReport) {
     );
     if let Some(offset) = &report.setup.disparity_offset {
         println!("{}", offset.summary());
+    }
+    if let Some(maps) = &report.slam_map {
+        print_slam_map(maps);
     }
     if let Some(global) = &report.global {
         print_global(global);
