@@ -370,6 +370,7 @@ pub fn read_map(path: &Path) -> Result<(MapHeader, Map), IoError> {
     let bytes = crate::io::recording::mapped::map(path)?;
     let (header, body) = split(path, &bytes)?;
     let damaged = |what: String| IoError::invalid(path, format!("the map is damaged: {what}"));
+    let broken = |n: usize, kind: &str, e: Damage| damaged(format!("{kind} {n}: {}", e.0));
     let mut reader = body;
     let limit = body.len() as u64;
     let mut map = Map {
@@ -384,17 +385,17 @@ pub fn read_map(path: &Path) -> Result<(MapHeader, Map), IoError> {
             .deserialize_from(&mut reader)
             .map_err(|e| damaged(format!("keyframe {n}: {e}")))?;
         let (key, connections, parent) =
-            insert_keyframe(&mut map, record).map_err(|e| damaged(format!("keyframe {n}: {e}")))?;
+            insert_keyframe(&mut map, record).map_err(|e| broken(n, "keyframe", e))?;
         links.push((key, connections, parent));
     }
     let keys: Vec<KeyFrameKey> = links.iter().map(|l| l.0).collect();
-    link_keyframes(&mut map, &keys, links).map_err(damaged)?;
+    link_keyframes(&mut map, &keys, links).map_err(|e| damaged(e.0))?;
     for n in 0..header.points {
         let record: PointRecord = codec()
             .with_limit(limit)
             .deserialize_from(&mut reader)
             .map_err(|e| damaged(format!("point {n}: {e}")))?;
-        insert_point(&mut map, &keys, record).map_err(|e| damaged(format!("point {n}: {e}")))?;
+        insert_point(&mut map, &keys, record).map_err(|e| broken(n, "point", e))?;
     }
     if !reader.is_empty() {
         return Err(damaged(format!(
@@ -405,10 +406,13 @@ pub fn read_map(path: &Path) -> Result<(MapHeader, Map), IoError> {
     Ok((header, map))
 }
 
+/// What is wrong with a record that passed the checksum (a writer's fault).
+struct Damage(String);
+
 /// A keyframe's key, its covisible keyframes (record numbers, weights) and parent.
 type Links = (KeyFrameKey, Vec<(u32, u32)>, Option<u32>);
 
-fn insert_keyframe(map: &mut Map, record: KeyFrameRecord) -> Result<Links, String> {
+fn insert_keyframe(map: &mut Map, record: KeyFrameRecord) -> Result<Links, Damage> {
     let n = record.keypoints.len();
     let lengths = [
         record.descriptors.len(),
@@ -417,9 +421,9 @@ fn insert_keyframe(map: &mut Map, record: KeyFrameRecord) -> Result<Links, Strin
         record.moving.len(),
     ];
     if lengths.iter().any(|&l| l != n) {
-        return Err(format!(
+        return Err(Damage(format!(
             "{n} keypoints but {lengths:?} descriptors, depths, right columns, probabilities"
-        ));
+        )));
     }
     let mut frame = Frame::from_parts(
         record.index as usize,
@@ -443,17 +447,17 @@ fn insert_keyframe(map: &mut Map, record: KeyFrameRecord) -> Result<Links, Strin
 }
 
 /// Covisibility edges and the spanning tree, once every keyframe has its key.
-fn link_keyframes(map: &mut Map, keys: &[KeyFrameKey], links: Vec<Links>) -> Result<(), String> {
+fn link_keyframes(map: &mut Map, keys: &[KeyFrameKey], links: Vec<Links>) -> Result<(), Damage> {
     let key_of = |n: u32| {
         keys.get(n as usize)
             .copied()
-            .ok_or_else(|| format!("keyframe number {n} of {}", keys.len()))
+            .ok_or_else(|| Damage(format!("keyframe number {n} of {}", keys.len())))
     };
     for (key, connections, parent) in links {
         let connections = connections
             .into_iter()
             .map(|(n, w)| Ok((key_of(n)?, w as usize)))
-            .collect::<Result<Vec<_>, String>>()?;
+            .collect::<Result<Vec<_>, Damage>>()?;
         map.keyframes[key].connections = connections;
         if let Some(parent) = parent.map(key_of).transpose()? {
             map.keyframes[key].parent = Some(parent);
@@ -463,7 +467,7 @@ fn link_keyframes(map: &mut Map, keys: &[KeyFrameKey], links: Vec<Links>) -> Res
     Ok(())
 }
 
-fn insert_point(map: &mut Map, keys: &[KeyFrameKey], record: PointRecord) -> Result<(), String> {
+fn insert_point(map: &mut Map, keys: &[KeyFrameKey], record: PointRecord) -> Result<(), Damage> {
     let mut point = MapPoint::new(
         record.position.into(),
         record.descriptor,
@@ -477,9 +481,9 @@ fn insert_point(map: &mut Map, keys: &[KeyFrameKey], record: PointRecord) -> Res
     for (n, index) in record.observations {
         let keyframe = *keys
             .get(n as usize)
-            .ok_or_else(|| format!("observed by keyframe number {n} of {}", keys.len()))?;
+            .ok_or_else(|| Damage(format!("observed by keyframe number {n} of {}", keys.len())))?;
         if index as usize >= map.keyframes[keyframe].map_points.len() {
-            return Err(format!("keypoint {index} of a keyframe with fewer"));
+            return Err(Damage(format!("keypoint {index} of a keyframe with fewer")));
         }
         map.add_observation(key, keyframe, index as usize);
     }

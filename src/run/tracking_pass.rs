@@ -91,16 +91,8 @@ pub fn tracking_pass(
 ) -> Result<TrackingPass, RunError> {
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let execution = Execution::of(options.deterministic);
-    let placing = inputs.base.is_some();
-    let started = StartInputs {
-        detector: inputs.detector,
-        run: inputs.run,
-        execution,
-        base: inputs.base,
-        recording: sequence.name(),
-    };
-    let mut system = start_system(setup, started);
-    let mut placed = !placing;
+    let mut placed = inputs.base.is_none();
+    let mut system = start_system(setup, StartInputs::of(inputs, execution));
     let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
     let mut records = Vec::with_capacity(total);
@@ -146,6 +138,7 @@ pub fn tracking_pass(
         system.receive_detections();
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
+        placed |= stats.state == TrackingState::Ok;
         records.push(record);
         lines.push(FrameLine {
             tracking: stats,
@@ -153,14 +146,8 @@ pub fn tracking_pass(
             tracking_ms,
             truth: None,
         });
-        placed |= lines
-            .last()
-            .is_some_and(|l| l.tracking.state == TrackingState::Ok);
-        if !placed && index + 1 >= setup.config.tracking.place_within_frames {
-            stop = Some(StopReason::NotPlaced(format!(
-                "none of the first {} frames was placed in the loaded map (--map) by relocalisation: is this a recording of the same place? ([tracking] place_within_frames)",
-                index + 1
-            )));
+        if let Some(reason) = not_placed(placed, index, &setup.config) {
+            stop = Some(reason);
             break;
         }
         if let Some(search) = offset_search.as_mut() {
@@ -219,6 +206,17 @@ fn end_pass(
     }
 }
 
+/// With a loaded map, the reason to stop after frame `index` when no frame up to it
+/// was `placed` and `[tracking] place_within_frames` have passed.
+fn not_placed(placed: bool, index: usize, config: &Config) -> Option<StopReason> {
+    (!placed && index + 1 >= config.tracking.place_within_frames).then(|| {
+        StopReason::NotPlaced(format!(
+            "none of the first {} frames was placed in the loaded map (--map) by relocalisation: is this a recording of the same place? ([tracking] place_within_frames)",
+            index + 1
+        ))
+    })
+}
+
 /// What the system of a run starts with besides its set-up.
 struct StartInputs<'a> {
     detector: Option<Box<dyn Detector>>,
@@ -227,6 +225,18 @@ struct StartInputs<'a> {
     base: Option<LoadedBase>,
     /// The sequence's name: the map's recording.
     recording: &'a str,
+}
+
+impl<'a> StartInputs<'a> {
+    fn of(inputs: TrackingInputs<'a>, execution: Execution) -> Self {
+        Self {
+            detector: inputs.detector,
+            run: inputs.run,
+            execution,
+            base: inputs.base,
+            recording: inputs.sequence.name(),
+        }
+    }
 }
 
 /// The system of the run, with its helpers (the vocabulary and the detector), on a

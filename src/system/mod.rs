@@ -94,6 +94,22 @@ pub struct Tracked {
     pub applied: Vec<Applied>,
 }
 
+/// The tracker of `setup`, placing frames in `map` when it was loaded (`placing`).
+fn tracker_of(setup: &SystemSetup, map: &Map, placing: Option<&Placing>) -> Tracker {
+    let tracker = Tracker::new(
+        setup.config.tracking.clone(),
+        setup.camera,
+        setup.pyramid.clone(),
+        setup.pinhole.width,
+        setup.pinhole.height,
+    )
+    .with_depth_noise(setup.depth_noise);
+    match placing {
+        Some(placing) => tracker.placing_in(map.segments_used(), placing.frozen),
+        None => tracker,
+    }
+}
+
 /// The recent keyframes' map points ([`System::recent_map_points`]).
 #[derive(Debug, Clone, Default)]
 pub struct RecentMap {
@@ -137,17 +153,7 @@ impl System {
     ) -> Self {
         let config = setup.config;
         let size = (setup.pinhole.width, setup.pinhole.height);
-        let mut tracker = Tracker::new(
-            config.tracking.clone(),
-            setup.camera,
-            setup.pyramid.clone(),
-            size.0,
-            size.1,
-        )
-        .with_depth_noise(setup.depth_noise);
-        if let Some(placing) = &placing {
-            tracker = tracker.placing_in(map.segments_used(), placing.frozen);
-        }
+        let tracker = tracker_of(setup, &map, placing.as_ref());
         let mut mapper = LocalMapper::new(
             config.mapping.clone(),
             setup.camera,

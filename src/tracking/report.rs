@@ -60,6 +60,24 @@ impl TrackedFrame {
         self.stats.keyframe = key.is_some();
         self.record.keyframe = key;
     }
+
+    /// The frame started map segment `segment` as its first keyframe `key`, at
+    /// `camera_from_world`, with `with_depth` keypoints that have depth.
+    pub fn started_segment(
+        &mut self,
+        segment: usize,
+        key: Option<crate::map::KeyFrameKey>,
+        camera_from_world: Se3,
+        with_depth: usize,
+    ) {
+        self.made_keyframe(key);
+        self.stats.state = TrackingState::Ok;
+        self.stats.lost = None;
+        self.in_segment(segment);
+        self.record.camera_from_world = Some(camera_from_world);
+        self.record.reference = key.map(|k| (k, Se3::identity()));
+        self.stats.inliers = with_depth;
+    }
 }
 
 /// What tracking one frame did, for the report (one line of `report.json`).

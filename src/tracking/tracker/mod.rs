@@ -142,16 +142,10 @@ impl Tracker {
         }
     }
 
-    /// The tracker of a recording in a loaded map whose keyframes use `segments`
-    /// segments: lost until relocalisation places a frame in it (new segments are
-    /// numbered after the map's); `frozen`: it adds nothing to the map.
-    pub fn placing_in(self, segments: usize, frozen: bool) -> Self {
-        Self {
-            state: TrackingState::Lost,
-            segments,
-            frozen,
-            ..self
-        }
+    /// Lost in a loaded map of `segments` segments until placed; `frozen`: adds nothing.
+    pub fn placing_in(mut self, segments: usize, frozen: bool) -> Self {
+        (self.state, self.segments, self.frozen) = (TrackingState::Lost, segments, frozen);
+        self
     }
 
     /// The tracker with `depth_noise` as its sensor's (RGB-D by default).
@@ -359,8 +353,8 @@ impl Tracker {
             frame: &frame,
             gate: &counted,
         };
-        let need = !self.frozen && self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
-        let (pose, points) = if need {
+        let need = self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
+        let (pose, points) = if need && !self.frozen {
             self.insert_keyframe(map, &frame, gate, pose, points, false);
             let key = self.reference.expect("just inserted");
             report.made_keyframe(Some(key));
@@ -406,13 +400,7 @@ impl Tracker {
             vec![None; frame.len()],
             true,
         );
-        report.made_keyframe(self.reference);
-        report.stats.state = TrackingState::Ok;
-        report.stats.lost = None;
-        report.in_segment(self.segment);
-        report.record.camera_from_world = Some(camera_from_world);
-        report.record.reference = self.reference.map(|k| (k, Se3::identity()));
-        report.stats.inliers = with_depth;
+        report.started_segment(self.segment, self.reference, camera_from_world, with_depth);
         self.state = TrackingState::Ok;
         self.velocity = None;
         self.lost_since = None;
