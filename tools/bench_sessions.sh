@@ -6,7 +6,8 @@
 # its own, with `--map` (continued) and with `--map --map-frozen`, each N times (real
 # detector, default real-time mode, dense pass off), and prints
 # tools/sessions_table.py's table: the second's ATE in the first's world frame without
-# alignment (goal <= 1 cm), the frame it was placed at (goal: within 30 frames of its
+# alignment (goal <= 1 cm; the first run's row gives its own map's error, which the
+# second inherits), the frame it was placed at (goal: within 30 frames of its
 # first view of a mapped place, frame 0 here), keyframes, tracking time per frame
 # (frozen against its own run: goal no slower), the map file's size and load time.
 #
@@ -29,6 +30,6 @@ for i in $(seq 1 "$runs"); do
   "$dopslam" run "$base/revisit_b" --out "$out/alone" --no-dense > /dev/null
   "$dopslam" run "$base/revisit_b" --out "$out/continued" --no-dense --map "$out/first" > /dev/null
   "$dopslam" run "$base/revisit_b" --out "$out/frozen" --no-dense --map "$out/first" --map-frozen > /dev/null
-  dirs+=("$out/alone" "$out/continued" "$out/frozen")
+  dirs+=("$out/first" "$out/alone" "$out/continued" "$out/frozen")
 done
 "$python" tools/sessions_table.py "$base/revisit_a" "$base/revisit_b" "${dirs[@]}"

@@ -32,13 +32,19 @@ def pose(v):
 def main():
     first, second, runs = sys.argv[1], sys.argv[2], sys.argv[3:]
     origin = np.linalg.inv(min(read_tum(f"{first}/groundtruth.txt").items())[1])
-    truth = {t: origin @ p for t, p in read_tum(f"{second}/groundtruth.txt").items()}
+    in_map = {
+        seq: {t: origin @ p for t, p in read_tum(f"{seq}/groundtruth.txt").items()}
+        for seq in (first, second)
+    }
     print(f"{'run':<28} {'ATE in map frame':>16} {'aligned ATE':>11} {'placed at':>9} "
           f"{'keyframes':>9} {'new kfs':>7} {'ms/frame':>8} {'map MB':>7} {'load s':>6} {'s/1000 kf':>9}")
     for run in runs:
         est = read_tum(f"{run}/trajectory.txt")
-        errors = [np.linalg.norm(p[:3, 3] - truth[t][:3, 3]) for t, p in est.items() if t in truth]
         report = json.load(open(f"{run}/report.json"))
+        # The first recording's run makes the map: its frame is the map's.
+        makes_map = report["sequence_path"].rstrip("/").endswith(first.rstrip("/").split("/")[-1])
+        truth = in_map[first if makes_map else second]
+        errors = [np.linalg.norm(p[:3, 3] - truth[t][:3, 3]) for t, p in est.items() if t in truth]
         totals = report["totals"]
         loaded = (report.get("slam_map") or {}).get("loaded")
         aligned = (report.get("ate") or {}).get("ape", {}).get("statistics", {}).get("rmse")
@@ -48,7 +54,7 @@ def main():
         load = f"{loaded['load_s']:.3f}" if loaded else "-"
         per_k = f"{loaded['load_s'] / loaded['keyframes'] * 1000:.3f}" if loaded else "-"
         # A run on its own has its own world frame: the first column is not its.
-        ate = f"{np.sqrt(np.mean(np.square(errors))):.4f}" if errors and loaded else "-"
+        ate = f"{np.sqrt(np.mean(np.square(errors))):.4f}" if errors and (loaded or makes_map) else "-"
         print(f"{run:<28} {ate:>14} m {aligned or float('nan'):>9.4f} m {placed!s:>9} "
               f"{totals['keyframes']:>9} {own:>7} {totals['median_tracking_ms']:>8.1f} {size:>7} {load:>6} {per_k:>9}")
 
