@@ -31,6 +31,8 @@ enum Command {
     Run(cli::run::RunArgs),
     /// Fuse a finished run's frames again into a dense map, with other settings, without tracking again.
     Fuse(cli::fuse::FuseArgs),
+    /// One dense static map of several recordings of one place tracked in one map (`run --map`), free space carved across them.
+    Merge(cli::merge::MergeArgs),
     /// Compare dense maps (PLY) against a static reference and each other: accuracy, completion, ghosts, SA/DA.
     CompareMaps(cli::compare_maps::CompareArgs),
     /// Describe a sequence folder (TUM/Bonn RGB-D or KITTI stereo layout) or a recording (ROS bag, MCAP): frames, pairing, topics, calibration, ground truth.
@@ -65,7 +67,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     if matches!(
         cli.command,
-        Command::Run(_) | Command::Fuse(_) | Command::Batch(_)
+        Command::Run(_) | Command::Fuse(_) | Command::Merge(_) | Command::Batch(_)
     ) {
         dopslam::interrupt::install();
     }
@@ -78,6 +80,7 @@ fn main() -> ExitCode {
             .and_then(|config| cli::convert::run_convert(args, config)),
         Command::Run(args) => cli::run::run_run(args),
         Command::Fuse(args) => cli::fuse::run_fuse(args),
+        Command::Merge(args) => cli::merge::run_merge(args),
         Command::CompareMaps(args) => cli::compare_maps::run_compare(args),
         Command::Detect(args) => cli::detect::run_detect(args),
         Command::Vocab(args) => cli::vocab::run_vocab(args),

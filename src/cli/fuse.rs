@@ -79,6 +79,65 @@ pub fn same_frames(
     Ok(())
 }
 
+/// A finished run opened again: its report, the config with the settings file it
+/// used (or `settings`), and its sequence (or `sequence`), checked to be the one it
+/// tracked.
+pub struct OpenedRun {
+    pub report: dopslam::run::RunReport,
+    pub config: Config,
+    pub sequence_dir: PathBuf,
+    pub sequence: Box<dyn dopslam::io::sequence::Sequence>,
+}
+
+/// Opens the finished run `run` with `config` (see [`OpenedRun`]).
+pub fn open_run(
+    run_dir: &Path,
+    mut config: Config,
+    settings: Option<&Path>,
+    sequence: Option<&Path>,
+) -> Result<OpenedRun> {
+    let run = RunDir::new(run_dir);
+    let report = dopslam::records::read_report(&run)
+        .with_context(|| format!("{} is not a finished run", run_dir.display()))?;
+    // The settings file the run used unless another is named: the camera it tracked
+    // with is the one its frames are fused with.
+    let recorded = report.setup.settings.as_ref().map(|s| s.file.as_path());
+    if let Some(path) = settings.or(recorded) {
+        apply_settings(&mut config, path).with_context(|| match settings {
+            Some(_) => format!("--settings {}", path.display()),
+            None => format!(
+                "the settings file {} names (pass --settings to use another)",
+                run.report().display()
+            ),
+        })?;
+    }
+    let sequence_dir = match (sequence, &report.sequence_path) {
+        (Some(dir), _) => dir.to_path_buf(),
+        (None, Some(dir)) => dir.clone(),
+        (None, None) => bail!(
+            "{} does not say which sequence it tracked: pass --sequence",
+            run.report().display()
+        ),
+    };
+    let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
+    same_frames(&run, sequence.as_ref(), &sequence_dir)?;
+    if let Some(recorded) = report.first_frame_hash() {
+        if dopslam::run::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
+            bail!(
+                "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
+                sequence_dir.display(),
+                run_dir.display()
+            );
+        }
+    }
+    Ok(OpenedRun {
+        report,
+        config,
+        sequence_dir,
+        sequence,
+    })
+}
+
 pub fn run_fuse(args: FuseArgs) -> Result<()> {
     let mut config = match &args.config {
         Some(path) => Config::load(path)?,
@@ -94,28 +153,18 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     if args.keep_state {
         config.dense.outputs.keep_state = true;
     }
-    let run = RunDir::new(&args.run);
-    let report = dopslam::records::read_report(&run)
-        .with_context(|| format!("{} is not a finished run", args.run.display()))?;
-    // The settings file the run used unless another is named: the camera it tracked
-    // with is the one its frames are fused with.
-    let recorded = report.setup.settings.as_ref().map(|s| &s.file);
-    if let Some(path) = args.settings.as_ref().or(recorded) {
-        apply_settings(&mut config, path).with_context(|| match &args.settings {
-            Some(_) => format!("--settings {}", path.display()),
-            None => format!(
-                "the settings file {} names (pass --settings to use another)",
-                run.report().display()
-            ),
-        })?;
-    }
-    let sequence_dir = match (&args.sequence, &report.sequence_path) {
-        (Some(dir), _) | (None, Some(dir)) => dir.clone(),
-        (None, None) => bail!(
-            "{} does not say which sequence it tracked: pass --sequence",
-            run.report().display()
-        ),
-    };
+    let opened = open_run(
+        &args.run,
+        config,
+        args.settings.as_deref(),
+        args.sequence.as_deref(),
+    )?;
+    let OpenedRun {
+        report,
+        config,
+        sequence_dir,
+        sequence,
+    } = opened;
     let masking = if args.no_dop {
         Mode::Off
     } else if args.mask_boxes {
@@ -126,17 +175,6 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
         // How the run treated movers, as its report says.
         report.mode
     };
-    let sequence = dopslam::run::open_sequence(&sequence_dir, &config)?;
-    same_frames(&run, sequence.as_ref(), &sequence_dir)?;
-    if let Some(recorded) = report.first_frame_hash() {
-        if dopslam::run::first_frame_hash(sequence.as_ref()).as_deref() != Some(recorded) {
-            bail!(
-                "{} is not the sequence {} tracked: its first frame differs from the one the run recorded; the dense map was left as it was",
-                sequence_dir.display(),
-                args.run.display()
-            );
-        }
-    }
     let dense = dense_pass(&dopslam::run::DensePass {
         sequence: sequence.as_ref(),
         setup: &DenseSetup::resolve(sequence.as_ref(), &config)?

@@ -19,6 +19,7 @@ pub mod eval;
 pub mod fuse;
 pub mod graph;
 pub mod info;
+pub mod merge;
 pub mod run;
 pub mod settings;
 pub mod stereo;

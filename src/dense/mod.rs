@@ -24,9 +24,11 @@ mod fusion;
 pub mod inputs;
 pub mod kept;
 pub mod map_figures;
+mod maps;
 pub mod marching_cubes;
 pub mod mask_layers;
 pub mod masks;
+pub mod merge;
 pub mod mesh_file;
 pub mod more_detections;
 pub mod neighbours;
@@ -38,7 +40,6 @@ mod spill;
 pub mod truth;
 pub mod tsdf;
 
-use std::collections::HashMap;
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -48,13 +49,10 @@ use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::run_dir::RunDir;
 use crate::io::IoError;
-use cloud::CloudBuilder;
-use free_space::NeighbourWindow;
-use fusion::{fuse_frames, FrameSinks, FrameSources};
-use inputs::{frame_depth, groups, key, load_group, FrameLookup, RunInputs};
+use inputs::{key, RunInputs};
+use maps::{allocate_blocks, fuse, fuse_into, new_maps};
 use masks::{MaskContext, MaskSource};
-use outputs::{interrupted, write_maps, Maps};
-use tsdf::TsdfVolume;
+use outputs::{interrupted, write_maps};
 
 pub use config::{DenseConfig, FrameChoice, Fusion};
 pub use inputs::{read_detections, read_keypoints, DenseInputs};
@@ -196,96 +194,4 @@ fn mask_source(inputs: &DenseInputs, config: &DenseConfig, read: &mut RunInputs)
         std::mem::take(&mut read.detections),
         std::mem::take(&mut read.keypoints),
     )
-}
-
-/// Fuses the chosen `frames` (each weighted by the frames it stands for), masked by `mask_source` (with the free-space evidence
-/// of the frames around, posed by `poses`): the TSDF volume and the keyframe cloud as
-/// `config` asks, the fused pixels counted against the truth masks; the per-frame
-/// figures go into `report`.
-fn fuse(
-    inputs: &DenseInputs,
-    config: &DenseConfig,
-    frames: &frame_choice::ChosenFrames,
-    mask_source: &mut MaskSource,
-    poses: &HashMap<i64, Se3>,
-    report: &mut DenseReport,
-) -> Result<(Maps, Option<TruthCounter>), IoError> {
-    let (chosen, weights) = (frames.fused.as_slice(), frames.weights.as_slice());
-    let sequence = inputs.sequence;
-    let fuse_tsdf = config.fuses_tsdf();
-    let cloud_on = config.outputs.cloud || config.fusion != Fusion::Tsdf;
-    let mut volume = TsdfVolume::new(config.tsdf(), inputs.camera);
-    // Kept states are the spill files: a pass that keeps one spills without a budget too.
-    let keep = config.outputs.keep_state;
-    if fuse_tsdf && (config.tsdf.memory_mb > 0.0 || keep) {
-        volume.spill_to(inputs.out_dir, kept::budget_bytes(config.tsdf.memory_mb))?;
-    }
-    if fuse_tsdf && config.tsdf.carve && config.tsdf.allocate_first {
-        let start = Instant::now();
-        allocate_blocks(&mut volume, inputs, chosen)?;
-        report.stages.allocation_s = start.elapsed().as_secs_f64();
-    }
-    let mut cloud = CloudBuilder::new(config.cloud_settings(), inputs.camera);
-    if cloud_on && (config.cloud.memory_mb > 0.0 || keep) {
-        cloud.spill_to(inputs.out_dir, kept::budget_bytes(config.cloud.memory_mb))?;
-    }
-    let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
-    let mut window =
-        (inputs.masking == Mode::Dop && config.masks.free_space_seconds > 0.0).then(|| {
-            let posed = (0..sequence.len())
-                .filter_map(|i| {
-                    let t = sequence.timestamp(i);
-                    Some((t, i, *poses.get(&key(t))?))
-                })
-                .collect();
-            NeighbourWindow::new(config.free_space_settings(), posed)
-        });
-    let lookup = FrameLookup::new(inputs, poses);
-    let sources = FrameSources {
-        lookup: &lookup,
-        window: window.as_mut(),
-    };
-    let sinks = FrameSinks {
-        weights,
-        mask_source,
-        volume: fuse_tsdf.then_some(&mut volume),
-        cloud: cloud_on.then_some(&mut cloud),
-        truth: &mut truth,
-    };
-    let fused = fuse_frames(inputs, config, chosen, sources, sinks)?;
-    report.memory.fusion_mib = crate::memory::part_peak_mib();
-    (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
-    report.released_on_map = fused.released;
-    report.stages.frames_from(&fused.stages);
-    let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
-    report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
-    report.masked_fusable_percent =
-        100.0 * fused.fusable_masked as f64 / fused.fusable.max(1) as f64;
-    report.median_integration_ms = crate::eval::stats::median(&mut integration_ms);
-    report.tsdf_blocks = volume.blocks.len();
-    report.tsdf_memory_mb = volume.memory_bytes() as f64 / 1e6;
-    let maps = Maps {
-        volume,
-        cloud: cloud_on.then_some(cloud),
-    };
-    Ok((maps, truth))
-}
-
-/// The first pass of `allocate_first`: every chosen frame's blocks, without masks
-/// (blocks where masked movers stood only take free-space observations).
-fn allocate_blocks(
-    volume: &mut TsdfVolume,
-    inputs: &DenseInputs,
-    chosen: &[Chosen],
-) -> Result<(), IoError> {
-    let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
-    for group in groups(chosen) {
-        let depths = load_group(inputs, group, frame_depth)?;
-        for (&(_, pose, _), depth) in group.iter().zip(depths) {
-            volume.allocate(&depth?, &pose);
-            progress.inc(1);
-        }
-    }
-    progress.finish_and_clear();
-    Ok(())
 }

@@ -113,12 +113,16 @@ pub mod names {
     pub const PREVIOUS: &str = "previous";
     /// The dense pass's fused state, kept for `dopslam fuse` (`[dense] keep_state`).
     pub const DENSE_STATE: &str = "dense_state";
+    /// `dopslam merge`: what each recording gave to the merged map.
+    pub const MERGE_REPORT: &str = "merge.json";
+    /// `dopslam merge`: each recording's side files (its dense pass's detections).
+    pub const MERGED_RECORDINGS: &str = "recordings";
 }
 
 /// The files and folders a run writes into its output folder (a batch's `config.toml`,
 /// `log.txt` and `run.json` beside them are the batch's own): what
 /// [`super::output::move_previous_outputs`] moves aside.
-pub const RUN_OUTPUTS: [&str; 25] = [
+pub const RUN_OUTPUTS: [&str; 27] = [
     names::TRAJECTORY,
     names::SLAM_MAP,
     names::TRACKING_TRAJECTORY,
@@ -144,6 +148,8 @@ pub const RUN_OUTPUTS: [&str; 25] = [
     names::COMPARE_NO_DOP,
     names::RERUN,
     names::DENSE_STATE,
+    names::MERGE_REPORT,
+    names::MERGED_RECORDINGS,
 ];
 
 impl RunDir {

@@ -89,6 +89,33 @@ pub struct DensePass<'a> {
 
 /// The dense pass of `pass` (see [`crate::dense`]).
 pub fn dense_pass(pass: &DensePass) -> Result<DenseReport, RunError> {
+    let inputs = inputs_of(pass)?;
+    Ok(fuse_run(&inputs, &pass.setup.config.dense)?)
+}
+
+/// One dense map of the runs of `passes` (one place, tracked in one map's frame:
+/// `dopslam merge`) in `out_dir`, with the first's `[dense]` settings (see
+/// [`crate::dense::merge`]); each pass's `out_dir` takes its side files.
+pub fn merge_pass(
+    passes: &[DensePass],
+    out_dir: &Path,
+) -> Result<crate::dense::merge::MergeReport, RunError> {
+    let inputs = passes
+        .iter()
+        .map(inputs_of)
+        .collect::<Result<Vec<_>, _>>()?;
+    let Some(first) = passes.first() else {
+        return Err(RunError::Input("no run to merge".into()));
+    };
+    Ok(crate::dense::merge::merge(
+        &inputs,
+        out_dir,
+        &first.setup.config.dense,
+    )?)
+}
+
+/// What the dense pass of `pass` reads, its dense detector opened (DOP masks).
+fn inputs_of<'a>(pass: &DensePass<'a>) -> Result<DenseInputs<'a>, RunError> {
     let DensePass {
         sequence,
         setup,
@@ -106,7 +133,7 @@ pub fn dense_pass(pass: &DensePass) -> Result<DenseReport, RunError> {
             .map_err(|e| RunError::Input(e.to_string()))?,
         _ => None,
     };
-    let inputs = DenseInputs {
+    Ok(DenseInputs {
         sequence,
         camera: setup.camera,
         run_dir,
@@ -118,6 +145,5 @@ pub fn dense_pass(pass: &DensePass) -> Result<DenseReport, RunError> {
         progress,
         stereo: setup.stereo,
         detector: detector.map(|d| (std::sync::Mutex::new(d), dense_detector.describe())),
-    };
-    Ok(fuse_run(&inputs, &config.dense)?)
+    })
 }

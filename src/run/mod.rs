@@ -31,7 +31,7 @@ use std::path::Path;
 
 pub use crate::records::{FrameLine, RunReport, RunTotals, SegmentSpan};
 pub use base_map::base_map;
-pub use dense_pass::{dense_pass, DensePass, DenseSetup};
+pub use dense_pass::{dense_pass, merge_pass, DensePass, DenseSetup};
 pub use error::{RunError, StopReason};
 pub use options::{BaseMap, RunOptions};
 pub use plan::{finish_recording, RunPlan};
