@@ -209,3 +209,118 @@ fn a_recording_of_another_place_is_never_placed_and_stops() {
     assert!(!ok && err.contains("another camera"), "{err}");
     assert!(!dir.join("camera").exists(), "nothing is written");
 }
+
+/// `dopslam compare-maps MAP --json` against the static scene and the movers of
+/// `seq`, the map moved into its frame by the run in `run` (its trajectory fitted to
+/// the ground truth): (map vertices, vertices on the movers).
+fn movers_in(map: &Path, run: &Path, seq: &Path, dir: &Path) -> (f64, f64) {
+    let judged = dir.join(format!(
+        "judged-{}",
+        map.parent().unwrap().file_name().unwrap().to_string_lossy()
+    ));
+    std::fs::create_dir_all(&judged).unwrap();
+    for file in ["trajectory.txt", "report.json"] {
+        std::fs::copy(run.join(file), judged.join(file)).unwrap();
+    }
+    std::fs::copy(map, judged.join("dense_mesh.ply")).unwrap();
+    let (ok, out, err) = common::dopslam(&[
+        "compare-maps",
+        &judged.join("dense_mesh.ply").to_string_lossy(),
+        "--reference",
+        &seq.join("static_scene.ply").to_string_lossy(),
+        "--movers",
+        &seq.join("movers.ply").to_string_lossy(),
+        "--align",
+        "--json",
+        "--out",
+        &judged.join("compare").to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let map = &json["maps"][0];
+    (
+        map["points"].as_f64().unwrap(),
+        map["mover_points"].as_f64().unwrap(),
+    )
+}
+
+#[test]
+fn a_merged_map_carves_a_person_who_sat_through_one_recording_and_left() {
+    let presets = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth");
+    let dir = common::temp_dir("sessions-merge");
+    // Recording A: two people sit still through it (the `sitting` preset); B: the
+    // same room with nobody, starting elsewhere on the camera's path.
+    let mut first = SynthConfig::load(&presets.join("sitting.toml")).unwrap();
+    first.sequence.frames = 120;
+    let first_config = dir.join("first.toml");
+    std::fs::write(&first_config, toml::to_string(&first).unwrap()).unwrap();
+    let mut second = first.clone();
+    second.name = "empty".into();
+    second.motion.start = 12.0;
+    second.seated.count = 0;
+    second.scene.room_of = Some(first_config);
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    generate(&first, &a, false).unwrap();
+    generate(&second, &b, false).unwrap();
+    let path = |p: &Path| p.to_string_lossy().into_owned();
+    let (run_a, run_b, merged) = (dir.join("run_a"), dir.join("run_b"), dir.join("merged"));
+    // No detector: nothing tells A that its sitters are people, as a detector that
+    // misses a still sitter (or takes him for furniture) would not.
+    let run = |args: &[&str]| {
+        let mut all = vec!["run", "--deterministic", "--detections", "none"];
+        all.extend(args);
+        let (ok, _, err) = common::dopslam(&all);
+        assert!(ok, "{err}");
+    };
+    run(&[&path(&a), "--out", &path(&run_a)]);
+    run(&[
+        &path(&b),
+        "--out",
+        &path(&run_b),
+        "--map",
+        &path(&run_a),
+        "--no-dense",
+    ]);
+    let (ok, _, err) = common::dopslam(&[
+        "merge",
+        &path(&run_a),
+        &path(&run_b),
+        "--out",
+        &path(&merged),
+    ]);
+    assert!(ok, "{err}");
+    let (own, own_on_people) = movers_in(&run_a.join("dense_mesh.ply"), &run_a, &a, &dir);
+    // A's own map keeps the people: nothing in A says they are not furniture.
+    assert!(own_on_people > 0.01 * own, "{own_on_people} of {own}");
+    let (all, on_people) = movers_in(&merged.join("dense_mesh.ply"), &run_a, &a, &dir);
+    assert!(
+        on_people <= 0.001 * all,
+        "merged: {on_people} of {all} vertices on the people"
+    );
+    assert!(
+        all > 0.8 * own,
+        "the static scene stays: {all} against {own}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(merged.join("merge.json")).unwrap()).unwrap();
+    assert_eq!(report["recordings"].as_array().unwrap().len(), 2);
+    // A run of its own frame is refused, and so is an output folder that is a run.
+    let alone = dir.join("alone");
+    run(&[&path(&b), "--out", &path(&alone), "--no-dense"]);
+    let (ok, _, err) = common::dopslam(&[
+        "merge",
+        &path(&run_a),
+        &path(&alone),
+        "--out",
+        &path(&dir.join("m2")),
+    ]);
+    assert!(!ok && err.contains("not tracked in the same map"), "{err}");
+    let (ok, _, err) = common::dopslam(&[
+        "merge",
+        &path(&run_a),
+        &path(&run_b),
+        "--out",
+        &path(&run_b),
+    ]);
+    assert!(!ok && err.contains("inside"), "{err}");
+}
