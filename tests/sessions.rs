@@ -208,6 +208,20 @@ fn a_recording_of_another_place_is_never_placed_and_stops() {
     ]);
     assert!(!ok && err.contains("another camera"), "{err}");
     assert!(!dir.join("camera").exists(), "nothing is written");
+    // Nor is anything written inside the loaded map's run folder.
+    let inside = run_a.join("inside");
+    let (ok, _, err) = common::dopslam(&[
+        "run",
+        &other.to_string_lossy(),
+        "--out",
+        &inside.to_string_lossy(),
+        "--detections",
+        "none",
+        "--map",
+        &run_a.to_string_lossy(),
+    ]);
+    assert!(!ok && err.contains("inside the input"), "{err}");
+    assert!(!inside.exists());
 }
 
 /// `dopslam compare-maps MAP --json` against the static scene and the movers of

@@ -83,8 +83,8 @@ pub fn check(setup: &Setup, base: &BaseMap, out: &Path) -> Result<MapHeader, Run
         )));
     }
     let folder = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_path_buf());
-    let map_dir = base.file.parent().map(folder).unwrap_or_default();
-    if folder(out) == map_dir {
+    let map_dir = base.run_folder().map(folder);
+    if map_dir.is_some_and(|dir| folder(out) == dir) {
         return Err(RunError::Input(format!(
             "--out {} is the folder of the map it loads ({}), which a run never writes: choose another output folder",
             out.display(),

@@ -42,6 +42,20 @@ pub struct BaseMap {
     pub frozen: bool,
 }
 
+impl BaseMap {
+    /// The run folder the map belongs to (the folder of a `slam_map.bin`), which a
+    /// run never writes into; `None` for a map file of another name.
+    pub fn run_folder(&self) -> Option<&std::path::Path> {
+        let name = crate::io::run_dir::names::SLAM_MAP;
+        self.file
+            .file_name()
+            .is_some_and(|n| n == name)
+            .then(|| self.file.parent())
+            .flatten()
+            .filter(|p| !p.as_os_str().is_empty())
+    }
+}
+
 impl RunOptions {
     /// How many of a sequence's `len` frames the run tracks (`max_frames` at most).
     pub fn frames_of(&self, len: usize) -> usize {

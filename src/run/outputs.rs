@@ -34,7 +34,14 @@ use crate::tracking::TrackingState;
 /// `previous/` (nothing is deleted).
 pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::DirLock, RunError> {
     use crate::io::output;
-    let inputs: Vec<&Path> = options.sequence_dir.as_deref().into_iter().collect();
+    // The sequence, and the folder of the map the run loads: neither is written.
+    let map_dir = options.base_map.as_ref().and_then(|b| b.run_folder());
+    let inputs: Vec<&Path> = options
+        .sequence_dir
+        .as_deref()
+        .into_iter()
+        .chain(map_dir)
+        .collect();
     if let Some(dir) = inputs.first().filter(|d| d.to_str().is_none()) {
         return Err(RunError::Input(format!(
             "the sequence path {} is not valid UTF-8, which report.json cannot name: link it under a UTF-8 name (ln -s) and run that",
