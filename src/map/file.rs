@@ -579,7 +579,7 @@ mod tests {
             );
             let point = map.insert_point(point);
             for (j, key) in keys.iter().enumerate() {
-                if (p as usize + j) % 3 != 0 {
+                if !(p as usize + j).is_multiple_of(3) {
                     map.add_observation(point, *key, (p as usize * 7 + j) % 50);
                 }
             }
@@ -677,7 +677,7 @@ mod tests {
         let bytes = std::fs::read(&path).unwrap();
         let error = |bytes: &[u8]| {
             std::fs::write(&path, bytes).unwrap();
-            let message = read_map(&path).err().expect("an error").to_string();
+            let message = read_map(&path).expect_err("an error").to_string();
             assert!(message.contains(&path.display().to_string()), "{message}");
             message
         };
