@@ -21,33 +21,31 @@ use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::IoError;
 
-/// Fuses the chosen `frames` (each weighted by the frames it stands for), masked by `mask_source` (with the free-space evidence
-/// of the frames around, posed by `poses`): the TSDF volume and the keyframe cloud as
+/// What a recording's frames are fused with: the chosen frames (each weighted by the
+/// frames it stands for), their masks' source, and the final poses by time (the
+/// free-space evidence of the frames around).
+pub(super) struct Fusing<'a> {
+    pub frames: &'a frame_choice::ChosenFrames,
+    pub mask_source: &'a mut MaskSource,
+    pub poses: &'a HashMap<i64, Se3>,
+}
+
+/// Fuses a run's frames (`fusing`): the TSDF volume and the keyframe cloud as
 /// `config` asks, the fused pixels counted against the truth masks; the per-frame
 /// figures go into `report`.
 pub(super) fn fuse(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    frames: &frame_choice::ChosenFrames,
-    mask_source: &mut MaskSource,
-    poses: &HashMap<i64, Se3>,
+    fusing: Fusing,
     report: &mut DenseReport,
 ) -> Result<(Maps, Option<TruthCounter>), IoError> {
     let mut maps = new_maps(inputs.camera, inputs.out_dir, config)?;
     if config.fuses_tsdf() && config.tsdf.carve && config.tsdf.allocate_first {
         let start = Instant::now();
-        allocate_blocks(&mut maps.volume, inputs, &frames.fused)?;
+        allocate_blocks(&mut maps.volume, inputs, &fusing.frames.fused)?;
         report.stages.allocation_s = start.elapsed().as_secs_f64();
     }
-    let truth = fuse_into(
-        inputs,
-        config,
-        frames,
-        mask_source,
-        poses,
-        report,
-        &mut maps,
-    )?;
+    let truth = fuse_into(inputs, config, fusing, report, &mut maps)?;
     report.tsdf_blocks = maps.volume.blocks.len();
     report.tsdf_memory_mb = maps.volume.memory_bytes() as f64 / 1e6;
     Ok((maps, truth))
@@ -81,12 +79,15 @@ pub(super) fn new_maps(
 pub(super) fn fuse_into(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    frames: &frame_choice::ChosenFrames,
-    mask_source: &mut MaskSource,
-    poses: &HashMap<i64, Se3>,
+    fusing: Fusing,
     report: &mut DenseReport,
     maps: &mut Maps,
 ) -> Result<Option<TruthCounter>, IoError> {
+    let Fusing {
+        frames,
+        mask_source,
+        poses,
+    } = fusing;
     let (chosen, weights) = (frames.fused.as_slice(), frames.weights.as_slice());
     let sequence = inputs.sequence;
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());

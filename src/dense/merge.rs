@@ -16,7 +16,7 @@ use super::outputs::{finish_report, write_maps};
 use super::tsdf::{FrameInput, TsdfVolume};
 use super::{
     allocate_blocks, dense_detections, frame_choice, fuse_into, mask_source, new_maps, DenseConfig,
-    DenseReport, FusedTruth, TruthCounter,
+    DenseReport, FusedTruth, Fusing, TruthCounter,
 };
 use crate::io::run_dir::RunDir;
 use crate::io::{IoError, Trajectory};
@@ -142,15 +142,12 @@ fn fuse_each(
         )?;
         let mut masks = mask_source(inputs, config, &mut run);
         let mut report = DenseReport::default();
-        let truth = fuse_into(
-            inputs,
-            config,
-            &frames,
-            &mut masks,
-            &run.poses,
-            &mut report,
-            maps,
-        )?;
+        let fusing = Fusing {
+            frames: &frames,
+            mask_source: &mut masks,
+            poses: &run.poses,
+        };
+        let truth = fuse_into(inputs, config, fusing, &mut report, maps)?;
         parts.push(MergedRecording {
             run: inputs.run_dir.to_path_buf(),
             frames_fused: report.frames_fused,

@@ -50,7 +50,7 @@ use crate::geometry::se3::Se3;
 use crate::io::run_dir::RunDir;
 use crate::io::IoError;
 use inputs::{key, RunInputs};
-use maps::{allocate_blocks, fuse, fuse_into, new_maps};
+use maps::{allocate_blocks, fuse, fuse_into, new_maps, Fusing};
 use masks::{MaskContext, MaskSource};
 use outputs::{interrupted, write_maps};
 
@@ -113,14 +113,12 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     };
     report.stages.inputs_s = inputs_s + start.elapsed().as_secs_f64();
     report.stages.detections_s = detections_s;
-    let (mut maps, truth) = fuse(
-        inputs,
-        config,
-        &frames,
-        &mut mask_source,
-        &read.poses,
-        &mut report,
-    )?;
+    let fusing = Fusing {
+        frames: &frames,
+        mask_source: &mut mask_source,
+        poses: &read.poses,
+    };
+    let (mut maps, truth) = fuse(inputs, config, fusing, &mut report)?;
     report.truth = truth.map(TruthCounter::finish);
     let (first, last) = (
         candidates.first().map_or(0, |c| c.0),
