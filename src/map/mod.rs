@@ -347,10 +347,9 @@ impl Map {
 
 impl Map {
     /// A new recording (sequence `name`) starts adding keyframes to the map: a run's
-    /// own, or one that continues a loaded map.
-    /// The points' runs of consistent frames (the DOP model's geometric check) are
-    /// the earlier recording's, on its clock: they start again; moving probabilities
-    /// stay.
+    /// own, or one that continues a loaded map. The points' runs of consistent frames
+    /// (the DOP model's geometric check) were counted on the earlier recording's
+    /// clock: they start again; the moving probabilities stay.
     pub fn begin_recording(&mut self, name: &str) {
         self.recordings.push(name.to_string());
         for point in self.points.values_mut() {
