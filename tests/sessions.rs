@@ -224,22 +224,13 @@ fn a_recording_of_another_place_is_never_placed_and_stops() {
     assert!(!inside.exists());
 }
 
-/// `dopslam compare-maps MAP --json` against the static scene and the movers of
-/// `seq`, the map moved into its frame by the run in `run` (its trajectory fitted to
-/// the ground truth): (map vertices, vertices on the movers).
-fn movers_in(map: &Path, run: &Path, seq: &Path, dir: &Path) -> (f64, f64) {
-    let judged = dir.join(format!(
-        "judged-{}",
-        map.parent().unwrap().file_name().unwrap().to_string_lossy()
-    ));
-    std::fs::create_dir_all(&judged).unwrap();
-    for file in ["trajectory.txt", "report.json"] {
-        std::fs::copy(run.join(file), judged.join(file)).unwrap();
-    }
-    std::fs::copy(map, judged.join("dense_mesh.ply")).unwrap();
-    let (ok, out, err) = common::dopslam(&[
+/// `dopslam compare-maps MAP --json --align` against the static scene and the movers
+/// of `seq` (the map moved into its frame by its run, or by the first run its
+/// `merge.json` names): (map vertices, vertices on the movers).
+fn movers_in(map: &Path, seq: &Path, out: &Path) -> (f64, f64) {
+    let (ok, json, err) = common::dopslam(&[
         "compare-maps",
-        &judged.join("dense_mesh.ply").to_string_lossy(),
+        &map.to_string_lossy(),
         "--reference",
         &seq.join("static_scene.ply").to_string_lossy(),
         "--movers",
@@ -247,10 +238,10 @@ fn movers_in(map: &Path, run: &Path, seq: &Path, dir: &Path) -> (f64, f64) {
         "--align",
         "--json",
         "--out",
-        &judged.join("compare").to_string_lossy(),
+        &out.to_string_lossy(),
     ]);
     assert!(ok, "{err}");
-    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&json).unwrap();
     let map = &json["maps"][0];
     (
         map["points"].as_f64().unwrap(),
@@ -303,10 +294,10 @@ fn a_merged_map_carves_a_person_who_sat_through_one_recording_and_left() {
         &path(&merged),
     ]);
     assert!(ok, "{err}");
-    let (own, own_on_people) = movers_in(&run_a.join("dense_mesh.ply"), &run_a, &a, &dir);
+    let (own, own_on_people) = movers_in(&run_a.join("dense_mesh.ply"), &a, &dir.join("c1"));
     // A's own map keeps the people: nothing in A says they are not furniture.
     assert!(own_on_people > 0.01 * own, "{own_on_people} of {own}");
-    let (all, on_people) = movers_in(&merged.join("dense_mesh.ply"), &run_a, &a, &dir);
+    let (all, on_people) = movers_in(&merged.join("dense_mesh.ply"), &a, &dir.join("c2"));
     assert!(
         on_people <= 0.001 * all,
         "merged: {on_people} of {all} vertices on the people"

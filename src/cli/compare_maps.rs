@@ -29,7 +29,8 @@ pub struct CompareArgs {
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
     /// Move each map into the reference's frame: its run's poses (trajectory.txt and
-    /// report.json beside the map, or one folder up) fitted to the ground truth of the
+    /// report.json beside the map, or one folder up; for a merged map, the first run
+    /// its merge.json names) fitted to the ground truth of the
     /// sequence the run names. Needed against a synthetic static_scene.ply.
     #[arg(long)]
     pub align: bool,
@@ -80,10 +81,14 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
                 return Ok(None);
             }
             let dir = path.parent().unwrap_or(Path::new("."));
-            match run_alignment(dir).or_else(|| run_alignment(dir.parent()?)) {
+            let merged = || run_alignment(&first_merged_run(dir)?);
+            match run_alignment(dir)
+                .or_else(merged)
+                .or_else(|| run_alignment(dir.parent()?))
+            {
                 Some(pose) => Ok(Some(pose)),
                 None => bail!(
-                    "--align: no run beside {} (or one folder up) whose trajectory.txt and report.json lead to a sequence with groundtruth.txt",
+                    "--align: no run beside {} (or one folder up, or the first run its merge.json names) whose trajectory.txt and report.json lead to a sequence with groundtruth.txt",
                     path.display()
                 ),
             }
@@ -103,6 +108,15 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
         out: &args.out,
     })?;
     print_comparison(&comparison, args.json)
+}
+
+/// The first run a merged map's `merge.json` in `dir` names: the merged map lies in
+/// its world frame (`dopslam merge`).
+fn first_merged_run(dir: &Path) -> Option<PathBuf> {
+    let name = dopslam::io::run_dir::names::MERGE_REPORT;
+    let text = std::fs::read_to_string(dir.join(name)).ok()?;
+    let report: dopslam::dense::merge::MergeReport = serde_json::from_str(&text).ok()?;
+    report.recordings.first().map(|r| r.run.clone())
 }
 
 /// Prints a comparison as a table or JSON.

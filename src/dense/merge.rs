@@ -37,7 +37,7 @@ pub struct MergeReport {
 /// What one recording gave to a merged map.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MergedRecording {
-    /// Its run folder.
+    /// Its run folder (absolute).
     pub run: PathBuf,
     /// Frames fused with its own masks.
     pub frames_fused: usize,
@@ -149,7 +149,7 @@ fn fuse_each(
         };
         let truth = fuse_into(inputs, config, fusing, &mut report, maps)?;
         parts.push(MergedRecording {
-            run: inputs.run_dir.to_path_buf(),
+            run: (inputs.run_dir.canonicalize()).unwrap_or_else(|_| inputs.run_dir.into()),
             frames_fused: report.frames_fused,
             masked_percent: report.masked_percent,
             keyframes_in_cloud: report.keyframes_in_cloud,
