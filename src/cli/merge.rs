@@ -125,14 +125,8 @@ fn prepare_output(
     use dopslam::io::output;
     let mut inputs: Vec<&Path> = opened.iter().map(|o| o.sequence_dir.as_path()).collect();
     inputs.extend(runs.iter().map(PathBuf::as_path));
+    // A run folder is an input: the output may not be one, nor lie inside one.
     output::prepare_dir(out, "output", &inputs)?;
-    let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_path_buf());
-    if runs.iter().any(|r| canonical(r) == canonical(out)) {
-        bail!(
-            "--out {} is one of the runs merged, which merge never writes: choose another folder",
-            out.display()
-        );
-    }
     let lock = output::DirLock::take(out)?;
     let (moved, to) = output::move_previous_outputs(out, &[])?;
     if let Some(to) = to {

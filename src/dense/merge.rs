@@ -73,21 +73,22 @@ pub fn merge(
     crate::memory::start_sampling();
     let mut maps = new_maps(first.camera, out_dir, config)?;
     let mut read = Vec::with_capacity(recordings.len());
+    // Each recording's fused frames, kept for the free-space pass.
+    let mut chosen = Vec::with_capacity(recordings.len());
     for inputs in recordings {
         let run = read_run(&RunDir::new(inputs.run_dir), inputs.masking)?;
         let frames = frame_choice::choose_frames(inputs.sequence, &run, config);
         if config.fuses_tsdf() && config.tsdf.carve && config.tsdf.allocate_first {
             allocate_blocks(&mut maps.volume, inputs, &frames.fused)?;
         }
+        chosen.push(frames.fused.clone());
         read.push((run, frames));
     }
     let (parts, trajectory) = fuse_each(recordings, read, config, &mut maps)?;
     let start = Instant::now();
     if config.fuses_tsdf() && config.tsdf.carve {
-        for inputs in recordings {
-            let run = read_run(&RunDir::new(inputs.run_dir), inputs.masking)?;
-            let frames = frame_choice::choose_frames(inputs.sequence, &run, config);
-            carve(&mut maps.volume, inputs, &frames.fused)?;
+        for (inputs, frames) in recordings.iter().zip(&chosen) {
+            carve(&mut maps.volume, inputs, frames)?;
         }
     }
     let carve_s = start.elapsed().as_secs_f64();
@@ -149,7 +150,7 @@ fn fuse_each(
         };
         let truth = fuse_into(inputs, config, fusing, &mut report, maps)?;
         parts.push(MergedRecording {
-            run: (inputs.run_dir.canonicalize()).unwrap_or_else(|_| inputs.run_dir.into()),
+            run: crate::io::output::resolved(inputs.run_dir),
             frames_fused: report.frames_fused,
             masked_percent: report.masked_percent,
             keyframes_in_cloud: report.keyframes_in_cloud,

@@ -3,7 +3,7 @@
 //! set-up adjusted to it ([`adjust`]), the map read when the run starts ([`load`]),
 //! and the header a run writes its own map under ([`header_of`]).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use super::error::RunError;
@@ -72,22 +72,14 @@ fn sensor_name(sensor: SensorKind) -> &'static str {
 }
 
 /// Before any work: the map file is whole (its checksum), of a format this build
-/// reads, made with this sensor, camera and ORB pyramid, and not in the output
-/// folder (a loaded map's folder is never written). Returns its header.
-pub fn check(setup: &Setup, base: &BaseMap, out: &Path) -> Result<MapHeader, RunError> {
+/// reads, and made with this sensor, camera, ORB pyramid and vocabulary. Returns its
+/// header. (The map's run folder is never written: the output check counts it as an
+/// input, [`super::outputs::prepare`].)
+pub fn check(setup: &Setup, base: &BaseMap) -> Result<MapHeader, RunError> {
     let header = read_header(&base.file)?;
     if let Some(why) = header.mismatch(&header_of(setup, header.disparity_offset_px)) {
         return Err(RunError::Input(format!(
             "--map {}: {why}",
-            base.file.display()
-        )));
-    }
-    let folder = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_path_buf());
-    let map_dir = base.run_folder().map(folder);
-    if map_dir.is_some_and(|dir| folder(out) == dir) {
-        return Err(RunError::Input(format!(
-            "--out {} is the folder of the map it loads ({}), which a run never writes: choose another output folder",
-            out.display(),
             base.file.display()
         )));
     }
@@ -96,7 +88,8 @@ pub fn check(setup: &Setup, base: &BaseMap, out: &Path) -> Result<MapHeader, Run
 
 /// The set-up of a run in a loaded map: a stereo map's disparity offset is the
 /// run's (not searched again, nor estimated by the global pass); a frozen map is not
-/// optimised (no loop closing, no full BA).
+/// optimised (no loop closing, so no place recognition beside tracking either, and
+/// no full BA).
 pub fn adjust(mut setup: Setup, header: &MapHeader, frozen: bool) -> Setup {
     if setup.sensor == SensorKind::Stereo {
         setup.disparity_offset = Some(RigOffset {
@@ -112,6 +105,9 @@ pub fn adjust(mut setup: Setup, header: &MapHeader, frozen: bool) -> Setup {
     if frozen {
         global.loops.enabled = false;
         global.full_ba = false;
+        if setup.vocabulary.is_some() {
+            setup.vocabulary = Some(Err(crate::global::NoLoops::TurnedOff));
+        }
     }
     setup
 }
@@ -122,7 +118,7 @@ pub fn load(base: &BaseMap) -> Result<(Map, LoadedMap), RunError> {
     let start = Instant::now();
     let (header, map) = read_map(&base.file)?;
     let loaded = LoadedMap {
-        file: absolute(&base.file),
+        file: crate::io::output::resolved(&base.file),
         frozen: base.frozen,
         recordings: header.recordings,
         keyframes: map.keyframes().len(),
@@ -132,8 +128,4 @@ pub fn load(base: &BaseMap) -> Result<(Map, LoadedMap), RunError> {
         placed_at_frame: None,
     };
     Ok((map, loaded))
-}
-
-fn absolute(path: &Path) -> PathBuf {
-    path.canonicalize().unwrap_or_else(|_| path.to_path_buf())
 }

@@ -49,7 +49,7 @@ impl<'a> RunPlan<'a> {
     ) -> Result<Self, RunError> {
         let mut setup = Setup::resolve(sequence, config)?;
         if let Some(base) = &options.base_map {
-            let header = super::base_map::check(&setup, base, out)?;
+            let header = super::base_map::check(&setup, base)?;
             setup = super::base_map::adjust(setup, &header, base.frozen);
         }
         let lock = outputs::prepare(out, &options)?;
