@@ -42,6 +42,23 @@ pub enum BatchError {
         /// The sequence's name.
         sequence: String,
     },
+    /// The output folder lies inside a run folder whose map a sequence loads.
+    #[error(
+        "the output folder {} is inside {}, the run whose map {sequence} loads: choose another --out (a batch never writes into its inputs)",
+        out.display(),
+        map.display()
+    )]
+    OutputInMap {
+        /// The output folder.
+        out: PathBuf,
+        /// The run folder.
+        map: PathBuf,
+        /// The sequence that loads it.
+        sequence: String,
+    },
+    /// `dopslam merge` of a group's runs failed (its own error line, or where its log is).
+    #[error("{0}")]
+    MergeFailed(String),
     /// Another batch holds the output folder's lock.
     #[error("another dopslam batch is writing into {}: wait for it to end or choose another --out", .0.display())]
     Busy(PathBuf),

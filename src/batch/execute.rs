@@ -40,6 +40,24 @@ pub struct RunJob {
     pub dir: PathBuf,
     /// What decides its result ([`super::fingerprint`]); filled in before it runs.
     pub inputs: super::fingerprint::RunInputs,
+    /// The map it loads (`--map`), if any.
+    pub map: Option<JobMap>,
+}
+
+/// The map a run loads.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobMap {
+    /// The run folder whose `slam_map.bin` it loads.
+    pub run: PathBuf,
+    /// That run's sequence, when it is a run of the batch (which must finish first).
+    pub sequence: Option<usize>,
+    /// `--map-frozen`.
+    pub frozen: bool,
+    /// The run that fixed the map's frame (its first keyframe is the origin): the head
+    /// of a `map_from` chain, or `run` itself.
+    pub origin: PathBuf,
+    /// That run's sequence, when it is a run of the batch.
+    pub origin_sequence: Option<usize>,
 }
 
 /// How the runs are executed.
@@ -64,6 +82,79 @@ pub struct Executor<'a> {
     pub progress: bool,
 }
 
+/// The runs not started yet, and the folders of those running.
+struct Pending {
+    queue: VecDeque<RunJob>,
+    running: Vec<PathBuf>,
+}
+
+/// What a worker does next.
+enum Next {
+    /// Nothing is left.
+    Done,
+    /// Every run left waits for a map being made.
+    Wait,
+    /// This run.
+    Run(RunJob),
+    /// This run cannot start: the run whose map it loads failed (why).
+    Fail(RunJob, String),
+}
+
+impl Pending {
+    /// The first run whose map (if it loads one from the batch) is made, marked running.
+    fn take(&mut self) -> Next {
+        if self.queue.is_empty() {
+            return Next::Done;
+        }
+        for k in 0..self.queue.len() {
+            let state = self.map_state(&self.queue[k]);
+            let Some(job) = (state != MapState::Waiting)
+                .then(|| self.queue.remove(k))
+                .flatten()
+            else {
+                continue;
+            };
+            self.running.push(job.dir.clone());
+            return match state {
+                MapState::Failed(why) => Next::Fail(job, why),
+                _ => Next::Run(job),
+            };
+        }
+        Next::Wait
+    }
+
+    /// Whether the batch run whose map `job` loads is finished.
+    fn map_state(&self, job: &RunJob) -> MapState {
+        let Some(map) = job.map.as_ref().filter(|m| m.sequence.is_some()) else {
+            return MapState::Ready;
+        };
+        let pending = self.queue.iter().any(|j| j.dir == map.run);
+        if pending || self.running.contains(&map.run) {
+            return MapState::Waiting;
+        }
+        match RunRecord::read(&map.run) {
+            Some(r) if r.status == RunStatus::Ok => MapState::Ready,
+            Some(r) => MapState::Failed(format!(
+                "not run: the run whose map it loads ({}) failed: {}",
+                map.run.display(),
+                r.error.as_deref().unwrap_or("?")
+            )),
+            None => MapState::Failed(format!(
+                "not run: the run whose map it loads ({}) did not finish",
+                map.run.display()
+            )),
+        }
+    }
+}
+
+/// Where the map a run loads stands.
+#[derive(Debug, PartialEq)]
+enum MapState {
+    Ready,
+    Waiting,
+    Failed(String),
+}
+
 /// What a pass over the runs did.
 #[derive(Debug, Default)]
 pub struct Executed {
@@ -76,10 +167,15 @@ pub struct Executed {
 }
 
 impl Executor<'_> {
-    /// Runs `jobs` (those without `run.json`), `self.jobs` at a time.
+    /// Runs `jobs` (those without `run.json`), `self.jobs` at a time; a run that loads
+    /// another run's map starts once that run finished (and fails, saying so, when it
+    /// failed).
     pub fn run_all(&self, jobs: Vec<RunJob>) -> Executed {
-        let queue = Mutex::new(VecDeque::from(jobs));
-        let total = queue.lock().map_or(0, |q| q.len());
+        let total = jobs.len();
+        let queue = Mutex::new(Pending {
+            queue: VecDeque::from(jobs),
+            running: Vec::new(),
+        });
         let bar = if self.progress {
             ProgressBar::new(total as u64)
         } else {
@@ -100,15 +196,28 @@ impl Executor<'_> {
                     if crate::interrupt::requested() {
                         return;
                     }
-                    let Some(job) = queue.lock().ok().and_then(|mut q| q.pop_front()) else {
-                        return;
+                    let next = queue.lock().map_or(Next::Done, |mut q| q.take());
+                    let (job, blocked) = match next {
+                        Next::Done => return,
+                        Next::Wait => {
+                            std::thread::sleep(Duration::from_millis(200));
+                            continue;
+                        }
+                        Next::Run(job) => (job, None),
+                        Next::Fail(job, why) => (job, Some(why)),
                     };
                     let label = self.label(&job);
                     if let Ok(mut r) = running.lock() {
                         r.push(label.clone());
                         bar.set_message(r.join(", "));
                     }
-                    let outcome = self.run_one(&job);
+                    let outcome = match blocked {
+                        None => self.run_one(&job),
+                        Some(why) => Some(self.record_blocked(&job, why)),
+                    };
+                    if let Ok(mut q) = queue.lock() {
+                        q.running.retain(|dir| dir != &job.dir);
+                    }
                     if let Ok(mut r) = running.lock() {
                         r.retain(|l| l != &label);
                         bar.set_message(r.join(", "));
@@ -131,8 +240,24 @@ impl Executor<'_> {
         });
         bar.finish_and_clear();
         let mut executed = executed.into_inner().unwrap_or_default();
-        executed.interrupted += queue.into_inner().map_or(0, |q| q.len());
+        executed.interrupted += queue.into_inner().map_or(0, |q| q.queue.len());
         executed
+    }
+
+    /// A run not started because the run whose map it loads did not finish: recorded
+    /// failed with `why`.
+    fn record_blocked(&self, job: &RunJob, why: String) -> RunRecord {
+        let sequence = &self.sequences[job.sequence];
+        let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
+        record.inputs = job.inputs.clone();
+        record.error = Some(why);
+        let written = std::fs::create_dir_all(&job.dir)
+            .map_err(|e| e.to_string())
+            .and_then(|()| record.write(&job.dir).map_err(|e| e.to_string()));
+        if let Err(e) = written {
+            record.error = Some(e);
+        }
+        record
     }
 
     fn label(&self, job: &RunJob) -> String {
@@ -150,6 +275,11 @@ impl Executor<'_> {
         let start = Instant::now();
         let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
         record.inputs = job.inputs.clone();
+        if let Some(map) = &job.map {
+            // The map as it is now that its run finished.
+            let now = super::fingerprint::map_input(&map.run, map.frozen);
+            record.inputs.insert("map".into(), now);
+        }
         let result = self
             .start(job)
             .and_then(|child| wait(child, &job.dir))
@@ -216,6 +346,12 @@ impl Executor<'_> {
             .arg(job.mode.flag());
         if let Some(frames) = sequence.frames {
             command.arg("--frames").arg(frames.to_string());
+        }
+        if let Some(map) = &job.map {
+            command.arg("--map").arg(&map.run);
+            if map.frozen {
+                command.arg("--map-frozen");
+            }
         }
         if self.deterministic {
             command.arg("--deterministic");
@@ -289,8 +425,13 @@ impl Executor<'_> {
                 let report = evaluate_file(names::TRACKING_TRAJECTORY, PoseRelation::TransPart)?;
                 figures.ate_tracking_rmse = Some(report.ape.statistics.rmse);
             }
+            if let Some(map) = &job.map {
+                figures.ate_map_frame_rmse = self.ate_in_map_frame(job, map, &reference)?;
+            }
         }
-        if let Some(map) = compare_with_static_scene(&job.dir, sequence_dir)? {
+        if let Some(map) =
+            compare_with_static_scene(&job.dir, sequence_dir, run_alignment(&job.dir))?
+        {
             let dense = figures.map.take().unwrap_or_default();
             figures.map = Some(MapFigures {
                 dynamic_removed_percent: dense.dynamic_removed_percent,
@@ -299,6 +440,83 @@ impl Executor<'_> {
         }
         Ok(figures)
     }
+}
+
+impl Executor<'_> {
+    /// The ATE of `job`'s trajectory in the frame of the map it loaded, without
+    /// alignment: the map's frame is put on the ground truth's by the first pose of
+    /// the run that fixed it (the head of a `map_from` chain: exact, its first keyframe
+    /// is the map's origin). `None` when that run's sequence has no ground truth.
+    fn ate_in_map_frame(
+        &self,
+        job: &RunJob,
+        map: &JobMap,
+        truth: &Trajectory,
+    ) -> Result<Option<f64>, BatchError> {
+        let Some(reference_truth) = self.map_truth(map)? else {
+            return Ok(None);
+        };
+        let origin = RunDir::new(&map.origin).trajectory();
+        let made_map = Trajectory::read(&origin, TrajectoryFormat::Tum)?;
+        let sequence = &self.sequences[job.sequence];
+        let max_diff = sequence.config.eval.max_diff.unwrap_or(0.02);
+        let Some(truth_from_map) = frame_on_truth(&made_map, &reference_truth, max_diff) else {
+            return Ok(None);
+        };
+        let mut estimate =
+            Trajectory::read(&RunDir::new(&job.dir).trajectory(), TrajectoryFormat::Tum)?;
+        for pose in &mut estimate.poses {
+            *pose = truth_from_map * *pose;
+        }
+        let mut config = sequence.config.clone();
+        config.eval.align = crate::eval::report::AlignMode::None;
+        let rpe = RpeSpec {
+            delta: self.rpe_seconds,
+            unit: DeltaUnit::Seconds,
+        };
+        let evaluation = evaluate_run(truth, &estimate, &config, rpe, PoseRelation::TransPart)?;
+        Ok(Some(evaluation.report.ape.statistics.rmse))
+    }
+
+    /// The ground truth of the sequence whose run fixed `map`'s frame: a batch
+    /// sequence's, or the one its `report.json` names.
+    fn map_truth(&self, map: &JobMap) -> Result<Option<Trajectory>, BatchError> {
+        if let Some(r) = map.origin_sequence {
+            return Ok(ground_truth(
+                &self.sequence_dirs[r],
+                &self.sequences[r].config,
+            )?);
+        }
+        let run = RunDir::new(&map.origin);
+        let report = crate::records::read_report(&run)?;
+        let Some(sequence) = report.sequence_path else {
+            return Ok(None);
+        };
+        let config = Config::load(&run.file("config.toml")).unwrap_or_default();
+        Ok(ground_truth(&sequence, &config)?)
+    }
+}
+
+/// `truth_from_map`: the pose that takes the map's frame onto the ground truth's,
+/// from the first pose of `made_map` with a ground-truth pose within `max_diff` s.
+fn frame_on_truth(
+    made_map: &Trajectory,
+    truth: &Trajectory,
+    max_diff: f64,
+) -> Option<crate::geometry::se3::Se3> {
+    made_map
+        .timestamps
+        .iter()
+        .zip(&made_map.poses)
+        .find_map(|(t, estimate)| {
+            let (k, gap) = truth
+                .timestamps
+                .iter()
+                .map(|r| (r - t).abs())
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            (gap <= max_diff).then(|| truth.poses[k] * estimate.inverse())
+        })
 }
 
 /// The config a run of `sequence` in `mode` is given (its `config.toml`): the
@@ -415,10 +633,12 @@ pub fn evaluate_trajectory(
     evaluate_run(reference, &estimate, config, rpe, rpe_relation)
 }
 
-/// The run's dense map against a synthetic sequence's static scene and movers.
-fn compare_with_static_scene(
+/// The dense map in `run` (a run's folder, or a merged map's) against a synthetic
+/// sequence's static scene and movers, its frame put on the scene's by `alignment`.
+pub fn compare_with_static_scene(
     run: &Path,
     sequence_dir: &Path,
+    alignment: Option<crate::geometry::se3::Se3>,
 ) -> Result<Option<MapFigures>, BatchError> {
     let static_scene = sequence_dir.join("static_scene.ply");
     let mesh = [names::DENSE_MESH_PLY, names::DENSE_POINTS]
@@ -432,7 +652,7 @@ fn compare_with_static_scene(
     let maps = [("map".to_string(), mesh)];
     let comparison = compare_maps(&CompareInputs {
         maps: &maps,
-        alignments: &[run_alignment(run)],
+        alignments: &[alignment],
         reference: &static_scene,
         movers: movers.exists().then_some(movers.as_path()),
         cameras: None,

@@ -71,6 +71,14 @@ pub enum ManifestProblem {
     #[error("two sequences are named {0:?}: give them distinct `name`s")]
     /// Two sequences share a name.
     SameName(String),
+    #[error("sequence {sequence}: {problem}")]
+    /// A sequence's `map_from` that cannot be followed.
+    MapFrom {
+        /// The sequence.
+        sequence: String,
+        /// What is wrong.
+        problem: String,
+    },
     #[error("sequence name {0:?}: use letters, digits, '-', '_' and '.' only")]
     /// A name unfit for a folder.
     UnsafeName(String),
@@ -117,6 +125,12 @@ pub enum EntryProblem {
     #[error("preset {} does not exist", .0.display())]
     /// The preset's file does not exist.
     NoPresetFile(PathBuf),
+    #[error("give one of map and map_from, not both")]
+    /// Both `map` and `map_from`.
+    TwoMaps,
+    #[error("map_frozen needs a map to load: give map or map_from")]
+    /// `map_frozen` without a map.
+    FrozenWithoutMap,
     #[error("no preset named {name:?} (looked for {file})")]
     /// No preset has the name.
     NoPreset {
@@ -231,6 +245,14 @@ pub struct SequenceEntry {
     pub detections: Option<Source>,
     /// The dense map for this sequence's runs (instead of `[batch] dense`).
     pub dense: Option<bool>,
+    /// A finished run folder whose map (`slam_map.bin`) this sequence's runs load
+    /// (`dopslam run --map`): tracked in its world frame.
+    pub map: Option<PathBuf>,
+    /// The batch sequence whose runs' maps this sequence's runs load: run `r<k>` in
+    /// mode M loads the map of that sequence's run `r<k>` in mode M, once it finished.
+    pub map_from: Option<String>,
+    /// Localise only in the loaded map (`--map-frozen`).
+    pub map_frozen: bool,
 }
 
 impl SequenceEntry {
@@ -251,6 +273,12 @@ impl SequenceEntry {
         }
         if let Some(scale) = self.depth_scale {
             checks::positive("depth_scale", scale)?;
+        }
+        if self.map.is_some() && self.map_from.is_some() {
+            return Err(EntryProblem::TwoMaps);
+        }
+        if self.map_frozen && self.map.is_none() && self.map_from.is_none() {
+            return Err(EntryProblem::FrozenWithoutMap);
         }
         Ok(())
     }
@@ -302,6 +330,27 @@ pub struct PlannedSequence {
     pub repetitions: usize,
     /// Frames per run (else all).
     pub frames: Option<usize>,
+    /// The map its runs load, if any.
+    pub map: Option<MapSource>,
+}
+
+/// The map a sequence's runs load (`dopslam run --map`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapSource {
+    /// A run folder outside the batch, or a sequence of the batch.
+    pub from: MapFrom,
+    /// `--map-frozen`.
+    pub frozen: bool,
+}
+
+/// Where a loaded map comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MapFrom {
+    /// A finished run folder (absolute).
+    Run(PathBuf),
+    /// The batch sequence of this index: each run loads its run of the same mode and
+    /// repetition.
+    Sequence(usize),
 }
 
 impl Manifest {
@@ -360,6 +409,8 @@ impl Manifest {
     pub fn plan(&self) -> Result<Vec<PlannedSequence>, ManifestProblem> {
         let base_config = self.load_config(self.batch.config.as_deref())?;
         let mut planned = Vec::new();
+        // Each planned sequence's entry, for its map once every name is known.
+        let mut entries = Vec::new();
         for (i, entry) in self.sequences.iter().enumerate() {
             let context = |problem| ManifestProblem::Entry {
                 entry: i + 1,
@@ -384,7 +435,9 @@ impl Manifest {
                         .unwrap_or_else(|| self.batch.modes.clone()),
                     repetitions: entry.repetitions.unwrap_or(self.batch.repetitions),
                     frames: entry.frames.or(self.batch.frames),
+                    map: None,
                 });
+                entries.push(entry);
             }
         }
         let mut names: Vec<&str> = planned.iter().map(|p| p.name.as_str()).collect();
@@ -395,7 +448,58 @@ impl Manifest {
         if let Some(bad) = planned.iter().find(|p| !safe_name(&p.name)) {
             return Err(ManifestProblem::UnsafeName(bad.name.clone()));
         }
+        self.plan_maps(&mut planned, &entries)?;
         Ok(planned)
+    }
+
+    /// Each sequence's map: a run folder, or a sequence of the batch that runs every
+    /// mode and repetition it does, with no circle of sequences loading each other's.
+    fn plan_maps(
+        &self,
+        planned: &mut [PlannedSequence],
+        entries: &[&SequenceEntry],
+    ) -> Result<(), ManifestProblem> {
+        for k in 0..planned.len() {
+            let entry = entries[k];
+            let from = match (&entry.map, &entry.map_from) {
+                (Some(run), _) => MapFrom::Run(absolute(&self.resolve(run))),
+                (None, Some(name)) => {
+                    let missing = || ManifestProblem::MapFrom {
+                        sequence: planned[k].name.clone(),
+                        problem: format!("map_from {name:?} names no other sequence of the batch"),
+                    };
+                    let reference = planned.iter().position(|p| &p.name == name);
+                    let reference = reference.filter(|&r| r != k).ok_or_else(missing)?;
+                    check_reference(&planned[k], &planned[reference])?;
+                    MapFrom::Sequence(reference)
+                }
+                (None, None) => continue,
+            };
+            planned[k].map = Some(MapSource {
+                from,
+                frozen: entry.map_frozen,
+            });
+        }
+        for k in 0..planned.len() {
+            if let Some(MapFrom::Sequence(r)) = planned[k].map.as_ref().map(|m| &m.from) {
+                if planned[*r].map.as_ref().is_some_and(|m| m.frozen) {
+                    return Err(ManifestProblem::MapFrom {
+                        sequence: planned[k].name.clone(),
+                        problem: format!(
+                            "map_from {:?}, whose runs are frozen (map_frozen: localisation only) and save no map",
+                            planned[*r].name
+                        ),
+                    });
+                }
+            }
+            if root_sequence(planned, k).is_none() {
+                return Err(ManifestProblem::MapFrom {
+                    sequence: planned[k].name.clone(),
+                    problem: "its map_from leads back to itself: one sequence of a group must load no batch sequence's map".into(),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The config of one `[[sequence]]` entry: its own file or the batch's, then its
@@ -520,6 +624,44 @@ impl Manifest {
             file,
         })
     }
+}
+
+/// `sequence`'s runs can load `reference`'s maps: every mode and repetition they run,
+/// it runs.
+fn check_reference(
+    sequence: &PlannedSequence,
+    reference: &PlannedSequence,
+) -> Result<(), ManifestProblem> {
+    let problem = |what: String| ManifestProblem::MapFrom {
+        sequence: sequence.name.clone(),
+        problem: format!("map_from {:?} {what}", reference.name),
+    };
+    if let Some(mode) = sequence.modes.iter().find(|m| !reference.modes.contains(m)) {
+        return Err(problem(format!(
+            "has no {} runs, whose maps this sequence's {0} runs would load",
+            mode.name()
+        )));
+    }
+    if sequence.repetitions > reference.repetitions {
+        return Err(problem(format!(
+            "runs {} repetitions, this sequence {}: each run loads the map of the run of its own repetition",
+            reference.repetitions, sequence.repetitions
+        )));
+    }
+    Ok(())
+}
+
+/// The sequence at the head of `k`'s `map_from` chain (`k` itself when it loads no
+/// batch sequence's map); `None` on a circle.
+pub fn root_sequence(planned: &[PlannedSequence], k: usize) -> Option<usize> {
+    let mut at = k;
+    for _ in 0..=planned.len() {
+        match planned[at].map.as_ref().map(|m| &m.from) {
+            Some(MapFrom::Sequence(next)) => at = *next,
+            _ => return Some(at),
+        }
+    }
+    None
 }
 
 /// A path made absolute against the current folder (runs happen in other folders).

@@ -27,6 +27,7 @@ pub mod manifest;
 pub mod plots;
 
 pub mod results;
+pub mod sessions;
 pub mod shard;
 pub mod slurm;
 
@@ -35,9 +36,9 @@ use std::path::{Path, PathBuf};
 use crate::dop::Mode;
 use crate::records::{RunRecord, RunStatus};
 pub use error::BatchError;
-use execute::{Executed, Executor, RunJob};
+use execute::{Executed, Executor, JobMap, RunJob};
 use machine::{budget_jobs, machine_description};
-use manifest::{absolute, Manifest, ManifestError, PlannedSequence, SequenceSource};
+use manifest::{absolute, Manifest, ManifestError, MapFrom, PlannedSequence, SequenceSource};
 use results::GroupSummary;
 
 use crate::eval::report::RpeSpec;
@@ -212,7 +213,13 @@ pub fn run_batch(path: &Path, options: &BatchOptions) -> Result<BatchSummary, Ba
         }
     }
     if summary.tables {
-        summary.groups = write_tables(&plan, path, &fingerprinter, &sequence_dirs, &mut notes)?;
+        let tables = Tables {
+            path,
+            fingerprinter: &fingerprinter,
+            sequence_dirs: &sequence_dirs,
+            options,
+        };
+        summary.groups = write_tables(&plan, &tables, &mut notes)?;
     }
     summary.notes = notes;
     Ok(summary)
@@ -237,7 +244,8 @@ fn keep_manifest(path: &Path, out: &Path, collect: bool) -> Result<(), BatchErro
 }
 
 /// Refuses an output folder that is, or lies inside, one of the batch's recorded
-/// sequence folders: a batch never writes into its inputs.
+/// sequence folders or a run folder whose map a sequence loads: a batch never writes
+/// into its inputs.
 fn check_not_an_input(plan: &BatchPlan) -> Result<(), BatchError> {
     for sequence in &plan.planned {
         if let SequenceSource::Folder(input) = &sequence.source {
@@ -245,6 +253,15 @@ fn check_not_an_input(plan: &BatchPlan) -> Result<(), BatchError> {
                 return Err(BatchError::OutputInInput {
                     out: plan.out.clone(),
                     input: input.clone(),
+                    sequence: sequence.name.clone(),
+                });
+            }
+        }
+        if let Some(MapFrom::Run(map)) = sequence.map.as_ref().map(|m| &m.from) {
+            if crate::io::output::is_within(&plan.out, map) {
+                return Err(BatchError::OutputInMap {
+                    out: plan.out.clone(),
+                    map: map.clone(),
                     sequence: sequence.name.clone(),
                 });
             }
@@ -355,7 +372,7 @@ fn execute(plan: &BatchPlan, work: Work) -> Result<(Executed, usize), BatchError
         fingerprinter,
     } = work;
     let mut todo = Vec::new();
-    let mut skipped = 0;
+    let mut kept = Vec::new();
     let mut unavailable_runs = 0;
     for job in mine {
         let mut job = job.clone();
@@ -365,13 +382,14 @@ fn execute(plan: &BatchPlan, work: Work) -> Result<(Executed, usize), BatchError
         }
         let record = match RunRecord::read(&job.dir) {
             Some(r) if r.inputs != job.inputs && !options.keep_stale => {
-                set_aside_stale(plan, &job, &r)?;
+                let reasons = fingerprint::differences(&r.inputs, &job.inputs).join(", ");
+                set_aside_stale(plan, &job, &reasons)?;
                 None
             }
             other => other,
         };
         match record {
-            Some(r) if r.status == RunStatus::Ok || !options.retry_failed => skipped += 1,
+            Some(r) if r.status == RunStatus::Ok || !options.retry_failed => kept.push(job),
             _ => match &unavailable[job.sequence] {
                 Some(problem) => {
                     record_unavailable(&job, &plan.planned[job.sequence], problem)?;
@@ -381,6 +399,10 @@ fn execute(plan: &BatchPlan, work: Work) -> Result<(Executed, usize), BatchError
             },
         }
     }
+    if !options.keep_stale {
+        redo_dependents(plan, &mut kept, &mut todo)?;
+    }
+    let skipped = kept.len();
     if options.progress {
         eprintln!(
             "batch {}{}: {} runs ({} finished before), {} to do, {jobs} at a time",
@@ -418,6 +440,30 @@ fn execute(plan: &BatchPlan, work: Work) -> Result<(Executed, usize), BatchError
     Ok((executed, skipped))
 }
 
+/// Moves from `kept` to `todo` every finished run whose loaded map's run is to be
+/// made again (and so on down a chain): its map will be another.
+fn redo_dependents(
+    plan: &BatchPlan,
+    kept: &mut Vec<RunJob>,
+    todo: &mut Vec<RunJob>,
+) -> Result<(), BatchError> {
+    loop {
+        let again = kept.iter().position(|job| {
+            job.map
+                .as_ref()
+                .is_some_and(|map| todo.iter().any(|t| t.dir == map.run))
+        });
+        let Some(k) = again else {
+            return Ok(());
+        };
+        let job = kept.remove(k);
+        if job.dir.exists() {
+            set_aside_stale(plan, &job, "the run whose map it loads is made again")?;
+        }
+        todo.push(job);
+    }
+}
+
 /// What decides the result of `job` today ([`fingerprint`]).
 fn run_inputs(
     fingerprinter: &fingerprint::Fingerprinter,
@@ -430,20 +476,23 @@ fn run_inputs(
         deterministic: plan.manifest.batch.deterministic,
         pace: plan.manifest.batch.pace,
     };
-    fingerprinter.inputs(
+    let mut inputs = fingerprinter.inputs(
         &sequence_dirs[job.sequence],
         sequence.frames,
         job.mode.flag(),
         &execute::run_config(sequence, job.mode),
         execution,
-    )
+    );
+    if let Some(map) = &job.map {
+        inputs.insert("map".into(), fingerprint::map_input(&map.run, map.frozen));
+    }
+    inputs
 }
 
 /// A finished run made with other inputs than `job`'s: says what differs and moves
 /// its folder to `OUT/stale/<sequence>/<mode>/r<k>-<UTC time>/` (never deleted), so
 /// that it is run again.
-fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result<(), BatchError> {
-    let reasons = fingerprint::differences(&record.inputs, &job.inputs).join(", ");
+fn set_aside_stale(plan: &BatchPlan, job: &RunJob, reasons: &str) -> Result<(), BatchError> {
     let label = plan.label(job);
     let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
     let to = plan
@@ -461,26 +510,31 @@ fn set_aside_stale(plan: &BatchPlan, job: &RunJob, record: &RunRecord) -> Result
     Ok(())
 }
 
-/// The tables, plots and report from the finished runs; the groups' summaries.
+/// What making the tables needs beside the plan.
+struct Tables<'a> {
+    /// The manifest's file.
+    path: &'a Path,
+    fingerprinter: &'a fingerprint::Fingerprinter,
+    /// Each planned sequence's folder.
+    sequence_dirs: &'a [PathBuf],
+    options: &'a BatchOptions,
+}
+
+/// The tables, plots and report from the finished runs (and the groups' merged maps);
+/// the groups' summaries.
 fn write_tables(
     plan: &BatchPlan,
-    path: &Path,
-    fingerprinter: &fingerprint::Fingerprinter,
-    sequence_dirs: &[PathBuf],
+    tables: &Tables,
     notes: &mut Vec<String>,
 ) -> Result<Vec<GroupSummary>, BatchError> {
     let (manifest, planned, out) = (&plan.manifest, &plan.planned, &plan.out);
-    let records: Vec<RunRecord> = plan
-        .runs
-        .iter()
-        .filter_map(|j| {
-            let mut record = RunRecord::read(&j.dir)?;
-            let now = run_inputs(fingerprinter, plan, j, sequence_dirs);
-            let reasons = fingerprint::differences(&record.inputs, &now);
-            record.stale = (!reasons.is_empty()).then(|| reasons.join(", "));
-            Some(record)
-        })
-        .collect();
+    let Tables {
+        path,
+        fingerprinter,
+        sequence_dirs,
+        options,
+    } = *tables;
+    let records = finished_records(plan, fingerprinter, sequence_dirs);
     let stale: Vec<String> = records
         .iter()
         .filter_map(|r| {
@@ -494,14 +548,7 @@ fn write_tables(
         })
         .collect();
     let names: Vec<String> = planned.iter().map(|p| p.name.clone()).collect();
-    let mut modes: Vec<Mode> = manifest.batch.modes.clone();
-    for p in planned {
-        for m in &p.modes {
-            if !modes.contains(m) {
-                modes.push(*m);
-            }
-        }
-    }
+    let modes = all_modes(manifest, planned);
     let groups = results::summarise(&records, &names, &modes);
     let finished = records.iter().filter(|r| r.status == RunStatus::Ok).count();
     let failed = records.len() - finished;
@@ -512,11 +559,26 @@ fn write_tables(
             stale.join("; ")
         ));
     }
+    let in_map = sessions::in_map_summaries(planned, &records, &modes);
+    let merged = sessions::merge_groups(plan, &options.program, sequence_dirs, options.progress);
+    for m in merged.iter().filter(|m| m.error.is_some()) {
+        let why = m.error.as_deref().unwrap_or_default();
+        notes.push(format!(
+            "{}/{}/r{}: no merged map: {why}",
+            m.group,
+            m.mode.name(),
+            m.repetition
+        ));
+    }
     results::write_results(
         out,
         &records,
         &groups,
         &format!("# Batch results\n\n{}", header.join("  \n")),
+        &results::Sessions {
+            in_map: &in_map,
+            merged: &merged,
+        },
     )?;
     let rpe = RpeSpec {
         delta: manifest.batch.rpe_seconds,
@@ -538,6 +600,38 @@ fn write_tables(
     Ok(groups)
 }
 
+/// The records of the batch's runs that have one, each marked stale when its inputs
+/// differ from what the batch would run with now.
+fn finished_records(
+    plan: &BatchPlan,
+    fingerprinter: &fingerprint::Fingerprinter,
+    sequence_dirs: &[PathBuf],
+) -> Vec<RunRecord> {
+    plan.runs
+        .iter()
+        .filter_map(|j| {
+            let mut record = RunRecord::read(&j.dir)?;
+            let now = run_inputs(fingerprinter, plan, j, sequence_dirs);
+            let reasons = fingerprint::differences(&record.inputs, &now);
+            record.stale = (!reasons.is_empty()).then(|| reasons.join(", "));
+            Some(record)
+        })
+        .collect()
+}
+
+/// The batch's modes, then any other a sequence runs.
+fn all_modes(manifest: &Manifest, planned: &[PlannedSequence]) -> Vec<Mode> {
+    let mut modes: Vec<Mode> = manifest.batch.modes.clone();
+    for p in planned {
+        for m in &p.modes {
+            if !modes.contains(m) {
+                modes.push(*m);
+            }
+        }
+    }
+    modes
+}
+
 /// Every run of the batch, repetition by repetition (an interrupted batch has whole
 /// rounds), in the manifest's order of sequences and modes.
 fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
@@ -549,12 +643,35 @@ fn run_list(planned: &[PlannedSequence], out: &Path) -> Vec<RunJob> {
                 continue;
             }
             for &mode in &sequence.modes {
+                let run_of = |k: usize| {
+                    crate::records::run::run_dir(out, &planned[k].name, mode, repetition)
+                };
+                let map = sequence.map.as_ref().map(|source| match &source.from {
+                    MapFrom::Run(run) => JobMap {
+                        run: run.clone(),
+                        sequence: None,
+                        frozen: source.frozen,
+                        origin: run.clone(),
+                        origin_sequence: None,
+                    },
+                    MapFrom::Sequence(r) => {
+                        let origin = manifest::root_sequence(planned, k).unwrap_or(*r);
+                        JobMap {
+                            run: run_of(*r),
+                            sequence: Some(*r),
+                            frozen: source.frozen,
+                            origin: run_of(origin),
+                            origin_sequence: Some(origin),
+                        }
+                    }
+                });
                 jobs.push(RunJob {
                     sequence: k,
                     mode,
                     repetition,
                     dir: crate::records::run::run_dir(out, &sequence.name, mode, repetition),
                     inputs: Default::default(),
+                    map,
                 });
             }
         }

@@ -435,20 +435,34 @@ pub fn results_md(groups: &[GroupSummary], header: &str) -> String {
     out
 }
 
+/// The batch's sessions ([`super::sessions`]): runs in a loaded map, merged maps.
+pub struct Sessions<'a> {
+    /// Sequences tracked in another's map, per mode.
+    pub in_map: &'a [super::sessions::InMapSummary],
+    /// The groups' merged maps.
+    pub merged: &'a [super::sessions::MergedMap],
+}
+
 /// Writes `results.csv`, `results.json`, `results.md` and `runs.csv` into `out`.
 pub fn write_results(
     out: &Path,
     records: &[RunRecord],
     groups: &[GroupSummary],
     header: &str,
+    sessions: &Sessions,
 ) -> Result<(), IoError> {
     write_atomic(&out.join("results.csv"), results_csv(groups).as_bytes())?;
     write_atomic(&out.join("runs.csv"), runs_csv(records).as_bytes())?;
-    write_atomic(
-        &out.join("results.md"),
-        results_md(groups, header).as_bytes(),
-    )?;
-    let json = serde_json::json!({ "groups": groups, "runs": records });
+    let md = results_md(groups, header)
+        + &super::sessions::sessions_md(sessions.in_map, sessions.merged);
+    write_atomic(&out.join("results.md"), md.as_bytes())?;
+    let mut json = serde_json::json!({ "groups": groups, "runs": records });
+    if !sessions.in_map.is_empty() {
+        json["in_map"] = serde_json::json!(sessions.in_map);
+    }
+    if !sessions.merged.is_empty() {
+        json["merged"] = serde_json::json!(sessions.merged);
+    }
     let text = serde_json::to_string_pretty(&json).unwrap_or_default();
     write_atomic(&out.join("results.json"), text.as_bytes())
 }

@@ -15,7 +15,7 @@
 use std::path::Path;
 
 use super::execute::RunJob;
-use super::manifest::PlannedSequence;
+use super::manifest::{root_sequence, PlannedSequence};
 use super::BatchError;
 
 /// Part `index` (1-based) of `count`.
@@ -58,26 +58,26 @@ impl std::fmt::Display for Shard {
     }
 }
 
-/// The key that orders runs for the partition.
+/// The key that orders runs for the partition: the run's own, or for a run that loads
+/// another batch run's map (`map_from`), that of the run at the head of its chain, so
+/// that the runs of a chain go to one shard.
 fn key(job: &RunJob, planned: &[PlannedSequence]) -> (String, &'static str, usize) {
-    (
-        planned[job.sequence].name.clone(),
-        job.mode.name(),
-        job.repetition,
-    )
+    let head = root_sequence(planned, job.sequence).unwrap_or(job.sequence);
+    (planned[head].name.clone(), job.mode.name(), job.repetition)
 }
 
 /// The runs of `shard` among `runs` (see the module doc), in the batch's own order.
 pub fn select(runs: &[RunJob], planned: &[PlannedSequence], shard: Shard) -> Vec<RunJob> {
-    let mut order: Vec<usize> = (0..runs.len()).collect();
-    order.sort_by_key(|&i| key(&runs[i], planned));
-    let mut chosen = vec![false; runs.len()];
-    for (rank, &i) in order.iter().enumerate() {
-        chosen[i] = rank % shard.count + 1 == shard.index;
-    }
+    let keys: Vec<_> = runs.iter().map(|job| key(job, planned)).collect();
+    let mut order: Vec<&(String, &str, usize)> = keys.iter().collect();
+    order.sort();
+    order.dedup();
     runs.iter()
-        .zip(chosen)
-        .filter(|(_, c)| *c)
+        .zip(&keys)
+        .filter(|(_, k)| {
+            let rank = order.binary_search(k).unwrap_or(0);
+            rank % shard.count + 1 == shard.index
+        })
         .map(|(job, _)| job.clone())
         .collect()
 }
@@ -123,6 +123,7 @@ mod tests {
                 modes: vec![Mode::Dop, Mode::Off, Mode::MaskBoxes],
                 repetitions: 1,
                 frames: None,
+                map: None,
             })
             .collect()
     }
@@ -138,6 +139,7 @@ mod tests {
                         repetition: r,
                         dir: std::path::PathBuf::from(format!("{}/{}/{r}", p.name, mode.name())),
                         inputs: Default::default(),
+                        map: None,
                     });
                 }
             }

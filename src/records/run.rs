@@ -102,6 +102,14 @@ pub struct RunFigures {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     /// KITTI's rotation error, degrees per 100 m.
     pub kitti_rotation_deg_per_100m: Option<f64>,
+    /// A run in a loaded map (`--map`): the frame it was placed at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placed_at_frame: Option<usize>,
+    /// A run in a loaded map: ATE RMSE (m) in the map's frame, without alignment (the
+    /// map's frame put on the ground truth's by the first pose of the run that made
+    /// the map).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ate_map_frame_rmse: Option<f64>,
 }
 
 /// The dense map's figures.
@@ -141,6 +149,11 @@ impl RunFigures {
             keypoints_removed_per_frame: removed as f64 / t.tracked.max(1) as f64,
             map_points_removed: detection.map_points_removed,
             loops: report.global.as_ref().map_or(0, |g| g.loops.len()),
+            placed_at_frame: report
+                .slam_map
+                .as_ref()
+                .and_then(|m| m.loaded.as_ref())
+                .and_then(|l| l.placed_at_frame),
             map: dense.and_then(|d| d.truth).map(|truth| MapFigures {
                 dynamic_removed_percent: Some(100.0 * truth.dynamic_removed),
                 ..MapFigures::default()

@@ -1,0 +1,301 @@
+//! Groups of sequences tracked in one map (`map_from` in a manifest): each run's ATE
+//! in the map's frame, the frame it was placed at, and one merged dense map per
+//! group, mode and repetition (`dopslam merge` of the group's runs into
+//! `OUT/merged/<group>/<mode>/r<k>/`), made when the tables are.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde::Serialize;
+
+use super::execute::compare_with_static_scene;
+use super::manifest::{root_sequence, MapFrom, PlannedSequence};
+use super::results::{spread_text, Spread};
+use super::{BatchError, BatchPlan};
+use crate::dense::merge::MergeReport;
+use crate::dop::Mode;
+use crate::records::{MapFigures, RunRecord, RunStatus};
+
+/// A sequence tracked in another's map, in one mode, over its repetitions.
+#[derive(Debug, Clone, Serialize)]
+pub struct InMapSummary {
+    /// The sequence.
+    pub sequence: String,
+    /// The mode.
+    pub mode: Mode,
+    /// The sequence (or run folder) whose map its runs loaded.
+    pub map_of: String,
+    /// Localisation only.
+    pub frozen: bool,
+    /// Runs finished.
+    pub runs: usize,
+    /// ATE RMSE in the map's frame without alignment, m.
+    pub ate_map_frame_rmse: Option<Spread>,
+    /// ATE RMSE after SE(3) alignment, m.
+    pub ate_rmse: Option<Spread>,
+    /// The frame it was placed at.
+    pub placed_at_frame: Option<Spread>,
+}
+
+/// One merged map of a group (`OUT/merged/<group>/<mode>/r<k>/`).
+#[derive(Debug, Clone, Serialize)]
+pub struct MergedMap {
+    /// The group: the sequence whose runs made the first map.
+    pub group: String,
+    /// The mode.
+    pub mode: Mode,
+    /// The repetition.
+    pub repetition: usize,
+    /// The sequences merged, the group's first first.
+    pub sequences: Vec<String>,
+    /// The merged map's folder.
+    pub dir: PathBuf,
+    /// Mesh vertices.
+    pub mesh_vertices: Option<usize>,
+    /// Frames that carved free space, over all recordings.
+    pub carving_frames: Option<usize>,
+    /// Merging took, seconds (`dense.json`'s total).
+    pub seconds: Option<f64>,
+    /// On a synthetic sequence: the merged map against the group's first sequence's
+    /// static scene.
+    pub map: Option<MapFigures>,
+    /// Why it was not made.
+    pub error: Option<String>,
+}
+
+/// The sequences that load a batch sequence's map, per mode.
+pub fn in_map_summaries(
+    planned: &[PlannedSequence],
+    records: &[RunRecord],
+    modes: &[Mode],
+) -> Vec<InMapSummary> {
+    let mut rows = Vec::new();
+    for sequence in planned {
+        let Some(map) = &sequence.map else { continue };
+        let map_of = match &map.from {
+            MapFrom::Run(run) => run.display().to_string(),
+            MapFrom::Sequence(r) => planned[*r].name.clone(),
+        };
+        for &mode in modes.iter().filter(|m| sequence.modes.contains(m)) {
+            let figures: Vec<_> = records
+                .iter()
+                .filter(|r| r.sequence == sequence.name && r.mode == mode)
+                .filter(|r| r.status == RunStatus::Ok)
+                .filter_map(|r| r.figures.as_ref())
+                .collect();
+            let spread = |f: &dyn Fn(&crate::records::RunFigures) -> Option<f64>| {
+                Spread::of(figures.iter().filter_map(|r| f(r)))
+            };
+            rows.push(InMapSummary {
+                sequence: sequence.name.clone(),
+                mode,
+                map_of: map_of.clone(),
+                frozen: map.frozen,
+                runs: figures.len(),
+                ate_map_frame_rmse: spread(&|f| f.ate_map_frame_rmse),
+                ate_rmse: spread(&|f| f.ate_rmse),
+                placed_at_frame: spread(&|f| f.placed_at_frame.map(|p| p as f64)),
+            });
+        }
+    }
+    rows
+}
+
+/// The groups: each sequence that heads a `map_from` chain, with the sequences that
+/// load its map (directly or down the chain), in the manifest's order.
+fn groups(planned: &[PlannedSequence]) -> Vec<(usize, Vec<usize>)> {
+    let mut groups: Vec<(usize, Vec<usize>)> = Vec::new();
+    for k in 0..planned.len() {
+        let Some(MapFrom::Sequence(_)) = planned[k].map.as_ref().map(|m| &m.from) else {
+            continue;
+        };
+        let Some(root) = root_sequence(planned, k) else {
+            continue;
+        };
+        match groups.iter_mut().find(|(r, _)| *r == root) {
+            Some((_, members)) => members.push(k),
+            None => groups.push((root, vec![k])),
+        }
+    }
+    groups
+}
+
+/// Merges each group's runs of each mode and repetition whose runs all finished with
+/// a dense map, with `program merge`; a merged map newer than every run it merges is
+/// kept. Says what it does when `progress`.
+pub fn merge_groups(
+    plan: &BatchPlan,
+    program: &Path,
+    sequence_dirs: &[PathBuf],
+    progress: bool,
+) -> Vec<MergedMap> {
+    let mut merged = Vec::new();
+    for (root, members) in groups(&plan.planned) {
+        let all: Vec<usize> = std::iter::once(root).chain(members).collect();
+        if !all.iter().all(|&k| plan.planned[k].config.dense.enabled) {
+            continue;
+        }
+        for job in plan.runs.iter().filter(|j| j.sequence == root) {
+            let runs: Vec<&super::RunJob> = all
+                .iter()
+                .filter_map(|&k| {
+                    plan.runs.iter().find(|j| {
+                        j.sequence == k && j.mode == job.mode && j.repetition == job.repetition
+                    })
+                })
+                .collect();
+            if runs.len() < 2 {
+                continue;
+            }
+            let dir = plan
+                .out
+                .join("merged")
+                .join(&plan.planned[root].name)
+                .join(job.mode.name())
+                .join(format!("r{}", job.repetition));
+            let mut row = MergedMap {
+                group: plan.planned[root].name.clone(),
+                mode: job.mode,
+                repetition: job.repetition,
+                sequences: runs
+                    .iter()
+                    .map(|j| plan.planned[j.sequence].name.clone())
+                    .collect(),
+                dir,
+                mesh_vertices: None,
+                carving_frames: None,
+                seconds: None,
+                map: None,
+                error: None,
+            };
+            let run_dirs: Vec<&Path> = runs.iter().map(|j| j.dir.as_path()).collect();
+            let made = merge_runs(program, &run_dirs, &row.dir, progress);
+            match made.and_then(|report| {
+                let map = compare_with_static_scene(
+                    &row.dir,
+                    &sequence_dirs[root],
+                    crate::records::run_alignment(&job.dir),
+                )?;
+                Ok((report, map))
+            }) {
+                Ok((report, map)) => {
+                    row.mesh_vertices = Some(report.dense.mesh_vertices);
+                    row.carving_frames =
+                        Some(report.recordings.iter().map(|r| r.carving_frames).sum());
+                    row.seconds = Some(report.dense.total_s);
+                    row.map = map;
+                }
+                Err(e) => row.error = Some(e.to_string()),
+            }
+            merged.push(row);
+        }
+    }
+    merged
+}
+
+/// `program merge RUNS --out DIR` (its output in `DIR.log`), unless `DIR/merge.json`
+/// is newer than every run's `run.json`; every run must have finished.
+fn merge_runs(
+    program: &Path,
+    runs: &[&Path],
+    dir: &Path,
+    progress: bool,
+) -> Result<MergeReport, BatchError> {
+    let mut newest = None;
+    for run in runs {
+        let record = RunRecord::read(run);
+        if record.as_ref().map(|r| r.status) != Some(RunStatus::Ok) {
+            let why = format!("{} failed or did not finish", run.display());
+            return Err(BatchError::MergeFailed(why));
+        }
+        let time = std::fs::metadata(run.join("run.json")).and_then(|m| m.modified());
+        newest = newest.max(time.ok());
+    }
+    let report_path = dir.join(crate::io::run_dir::names::MERGE_REPORT);
+    let made = std::fs::metadata(&report_path).and_then(|m| m.modified());
+    if !made.is_ok_and(|made| Some(made) >= newest) {
+        if progress {
+            eprintln!("merging {}", dir.display());
+        }
+        let output = Command::new(program)
+            .arg("merge")
+            .args(runs)
+            .arg("--out")
+            .arg(dir)
+            .arg("--config")
+            .arg(runs[0].join("config.toml"))
+            .output()
+            .map_err(|source| BatchError::Process {
+                action: "start",
+                program: program.to_path_buf(),
+                source,
+            })?;
+        let log = dir.with_extension("log");
+        let text = [output.stdout.as_slice(), output.stderr.as_slice()].concat();
+        std::fs::write(&log, text).map_err(BatchError::file("write", &log))?;
+        if !output.status.success() {
+            let said = String::from_utf8_lossy(&output.stderr);
+            let error = said.lines().rev().find_map(|l| l.strip_prefix("error: "));
+            return Err(BatchError::MergeFailed(error.map_or_else(
+                || format!("dopslam merge failed (see {})", log.display()),
+                str::to_string,
+            )));
+        }
+    }
+    let text = std::fs::read(&report_path).map_err(BatchError::file("read", &report_path))?;
+    serde_json::from_slice(&text)
+        .map_err(|e| BatchError::MergeFailed(format!("{}: {e}", report_path.display())))
+}
+
+/// `results.md`'s sections on sessions: runs in a loaded map and merged maps.
+pub fn sessions_md(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
+    let mut out = String::new();
+    if !in_map.is_empty() {
+        out += "\n## Runs in a loaded map\n\nATE in the map's frame: no alignment; the map's frame is put on the ground truth's by the first pose of the run that made the map.\n\n\
+                | sequence | mode | map of | frozen | runs | ATE in the map's frame (m) | ATE RMSE, aligned (m) | placed at frame |\n|---|---|---|---|---|---|---|---|\n";
+        for row in in_map {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                row.sequence,
+                row.mode.name(),
+                row.map_of,
+                if row.frozen { "yes" } else { "no" },
+                row.runs,
+                spread_text(row.ate_map_frame_rmse, 4, "[", "]"),
+                spread_text(row.ate_rmse, 4, "[", "]"),
+                spread_text(row.placed_at_frame, 0, "[", "]"),
+            );
+        }
+    }
+    if !merged.is_empty() {
+        out += "\n## Merged maps (one per group, mode and repetition)\n\n\
+                | group | mode | run | sequences | mesh vertices | carving frames | ghost points | accuracy, median (m) | seconds | folder |\n|---|---|---|---|---|---|---|---|---|---|\n";
+        for m in merged {
+            let figures = m.map.as_ref();
+            let cell = |v: Option<String>| v.unwrap_or_else(|| "-".into());
+            let _ = writeln!(
+                out,
+                "| {} | {} | r{} | {} | {} | {} | {} | {} | {} | {} |",
+                m.group,
+                m.mode.name(),
+                m.repetition,
+                m.sequences.join(", "),
+                cell(m.mesh_vertices.map(|v| v.to_string())),
+                cell(m.carving_frames.map(|v| v.to_string())),
+                cell(figures.and_then(|f| f.ghost_points).map(|v| v.to_string())),
+                cell(
+                    figures
+                        .and_then(|f| f.accuracy_median)
+                        .map(|v| format!("{v:.4}"))
+                ),
+                cell(m.seconds.map(|v| format!("{v:.1}"))),
+                m.error
+                    .as_deref()
+                    .map_or_else(|| m.dir.display().to_string(), |e| format!("not made: {e}")),
+            );
+        }
+    }
+    out
+}
