@@ -548,3 +548,94 @@ fn a_batch_is_alone_on_its_folder_never_in_its_inputs_and_submits_no_empty_array
         "{stdout}\n{stderr}"
     );
 }
+
+/// A group tracked in one map (`map_from`): the second sequence's runs load the first's
+/// map, the third's the second's, frozen. Two at a time, each starts after the run whose
+/// map it loads; the tables give each one's ATE in the map's frame, and one merged map
+/// of the three is made. When the first is made again, the two are made again after it
+/// (their old runs and the old merged map set aside, never deleted).
+#[test]
+fn a_group_in_one_map_runs_in_order_is_evaluated_in_its_frame_and_merged() {
+    let dir = temp_dir("batch-maps");
+    let coarse = dir.join("coarse.toml");
+    std::fs::write(
+        &coarse,
+        "[dense]\nvoxel = 0.02\ntruncation = 0.06\ncloud_voxel = 0.02\n",
+    )
+    .unwrap();
+    let room = "preset = \"static_room\"\nsynth_frames = 16\n";
+    let path = dir.join("group.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "[batch]\nmodes = [\"dop\"]\ndeterministic = true\ndetections = \"oracle\"\njobs = 2\n\
+             config = \"{}\"\n\n\
+             [[sequence]]\n{room}name = \"first\"\nseeds = [1]\n\n\
+             [[sequence]]\n{room}name = \"second\"\nseeds = [2]\nmap_from = \"first\"\n\n\
+             [[sequence]]\n{room}name = \"third\"\nseeds = [3]\nmap_from = \"second\"\nmap_frozen = true\n",
+            coarse.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let (stdout, _) = batch(&path, &out);
+    assert!(stdout.contains("3 done now, 0 failed"), "{stdout}");
+    let run = |name: &str| out.join(format!("runs/{name}/dop/r1"));
+    let loaded = |name: &str| {
+        let text = std::fs::read_to_string(run(name).join("report.json")).unwrap();
+        let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+        report["slam_map"]["loaded"].clone()
+    };
+    let second = loaded("second");
+    assert_eq!(
+        second["file"].as_str().unwrap(),
+        run("first").join("slam_map.bin").to_string_lossy()
+    );
+    assert_eq!(loaded("third")["frozen"], serde_json::json!(true));
+    assert!(loaded("first").is_null());
+    let text = std::fs::read_to_string(out.join("results.json")).unwrap();
+    let results: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let in_map = results["in_map"].as_array().unwrap();
+    assert_eq!(in_map.len(), 2, "{in_map:?}");
+    for row in in_map {
+        let ate = row["ate_map_frame_rmse"]["median"].as_f64().unwrap();
+        assert!(ate < 0.02, "{row}");
+        assert!(
+            row["placed_at_frame"]["median"].as_f64().unwrap() < 5.0,
+            "{row}"
+        );
+    }
+    let merged = &results["merged"][0];
+    assert_eq!(
+        merged["sequences"],
+        serde_json::json!(["first", "second", "third"])
+    );
+    assert!(merged["error"].is_null(), "{merged}");
+    assert!(merged["mesh_vertices"].as_u64().unwrap() > 1000, "{merged}");
+    let merge_json = out.join("merged/first/dop/r1/merge.json");
+    let text = std::fs::read_to_string(&merge_json).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(report["recordings"].as_array().unwrap().len(), 3);
+    // Nothing changed: nothing runs, the merged map stays.
+    let (stdout, _) = batch(&path, &out);
+    assert!(stdout.contains("3 finished before, 0 done now"), "{stdout}");
+    assert!(!out.join("stale").exists());
+    // The first made again: so are the two in its map, after it.
+    std::fs::remove_file(run("first").join("run.json")).unwrap();
+    let (stdout, stderr) = batch(&path, &out);
+    assert!(stdout.contains("0 finished before, 3 done now"), "{stdout}");
+    assert!(
+        stderr.contains(
+            "second/dop/r1: made with other settings (the run whose map it loads is made again)"
+        ),
+        "{stderr}"
+    );
+    for kept in [
+        "stale/second/dop",
+        "stale/third/dop",
+        "stale/merged/first/dop",
+    ] {
+        assert_eq!(common::sorted_files(&out.join(kept)).len(), 1, "{kept}");
+    }
+    assert!(merge_json.exists());
+}

@@ -750,6 +750,61 @@ mod tests {
         );
     }
 
+    /// `map_from` chains are followed to their head; what cannot be followed is
+    /// refused by sequence and by what is wrong.
+    #[test]
+    fn map_from_chains_and_what_they_refuse() {
+        let room = "preset = \"static_room\"\n";
+        let entries = |extra: [&str; 3]| {
+            format!(
+                "[batch]\nmodes = [\"dop\"]\n[[sequence]]\n{room}name = \"a\"\n{}\n\
+                 [[sequence]]\n{room}name = \"b\"\n{}\n[[sequence]]\n{room}name = \"c\"\n{}\n",
+                extra[0], extra[1], extra[2]
+            )
+        };
+        let plan = |extra| parse(&entries(extra)).and_then(|m| m.plan().map_err(|e| e.to_string()));
+        let planned = plan([
+            "",
+            "map_from = \"a\"",
+            "map_from = \"b\"\nmap_frozen = true",
+        ])
+        .unwrap();
+        assert_eq!(planned[1].map.as_ref().unwrap().from, MapFrom::Sequence(0));
+        assert!(planned[2].map.as_ref().unwrap().frozen);
+        assert_eq!(root_sequence(&planned, 2), Some(0));
+        assert_eq!(root_sequence(&planned, 0), Some(0));
+        let refused = [
+            (["", "map_from = \"x\"", ""], "names no other sequence"),
+            (["", "map_from = \"b\"", ""], "names no other sequence"),
+            (
+                ["map_from = \"c\"", "map_from = \"a\"", "map_from = \"b\""],
+                "leads back",
+            ),
+            (
+                [
+                    "",
+                    "map_from = \"a\"\nmap_frozen = true",
+                    "map_from = \"b\"",
+                ],
+                "save no map",
+            ),
+            (
+                ["", "map_from = \"a\"\nmodes = [\"no-dop\"]", ""],
+                "has no no-dop runs",
+            ),
+            (
+                ["", "map_from = \"a\"\nrepetitions = 2", ""],
+                "runs 1 repetitions",
+            ),
+            (["", "map_from = \"a\"\nmap = \"/tmp\"", ""], "not both"),
+            (["map_frozen = true", "", ""], "needs a map"),
+        ];
+        for (extra, said) in refused {
+            let error = plan(extra).unwrap_err();
+            assert!(error.contains(said), "{extra:?}: {error}");
+        }
+    }
+
     #[test]
     fn a_planned_config_survives_the_file_the_runs_read() {
         let m =

@@ -215,6 +215,9 @@ fn merge_runs(
     let report_path = dir.join(crate::io::run_dir::names::MERGE_REPORT);
     let made = std::fs::metadata(&report_path).and_then(|m| m.modified());
     if !made.is_ok_and(|made| Some(made) >= newest) {
+        if dir.exists() {
+            set_aside(dir)?;
+        }
         if progress {
             eprintln!("merging {}", dir.display());
         }
@@ -246,6 +249,26 @@ fn merge_runs(
     let text = std::fs::read(&report_path).map_err(BatchError::file("read", &report_path))?;
     serde_json::from_slice(&text)
         .map_err(|e| BatchError::MergeFailed(format!("{}: {e}", report_path.display())))
+}
+
+/// Moves an out-of-date merged map `OUT/merged/<group>/<mode>/r<k>` to
+/// `OUT/stale/merged/<group>/<mode>/r<k>-<UTC time>` (never deleted), as stale runs are.
+fn set_aside(dir: &Path) -> Result<(), BatchError> {
+    let parts: Vec<&std::ffi::OsStr> = dir.iter().collect();
+    let (Some(out), true) = (dir.ancestors().nth(4), parts.len() >= 4) else {
+        return Ok(());
+    };
+    let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
+    let tail = &parts[parts.len() - 3..];
+    let to = out
+        .join("stale/merged")
+        .join(tail[0])
+        .join(tail[1])
+        .join(format!("{}-{stamp}", tail[2].to_string_lossy()));
+    if let Some(parent) = to.parent() {
+        std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
+    }
+    std::fs::rename(dir, &to).map_err(BatchError::file("move an out-of-date merged map to", &to))
 }
 
 /// `results.md`'s sections on sessions: runs in a loaded map and merged maps.

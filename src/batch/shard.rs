@@ -201,6 +201,35 @@ mod tests {
         }
     }
 
+    /// The runs of a `map_from` chain go to one shard: the later run needs the map the
+    /// earlier one leaves.
+    #[test]
+    fn a_map_chain_stays_in_one_shard() {
+        use crate::batch::manifest::{MapFrom, MapSource};
+        let mut planned = planned(&["a", "b", "c", "d"]);
+        for (k, from) in [(1, 0), (2, 1)] {
+            planned[k].map = Some(MapSource {
+                from: MapFrom::Sequence(from),
+                frozen: false,
+            });
+        }
+        let all = runs(&planned, 2);
+        for count in 1..=4 {
+            for index in 1..=count {
+                let part = select(&all, &planned, Shard { index, count });
+                for job in part.iter().filter(|j| j.sequence > 0 && j.sequence < 3) {
+                    let head = (0, job.mode, job.repetition);
+                    assert!(
+                        part.iter()
+                            .any(|j| (j.sequence, j.mode, j.repetition) == head),
+                        "{count} shards: {:?} without its chain's head",
+                        job.dir
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn a_folder_is_made_once_by_concurrent_callers() {
         let base = std::env::temp_dir().join(format!("dopslam-once-{}", std::process::id()));
