@@ -309,6 +309,7 @@ fn a_merged_map_carves_a_person_who_sat_through_one_recording_and_left() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(merged.join("merge.json")).unwrap()).unwrap();
     assert_eq!(report["recordings"].as_array().unwrap().len(), 2);
+    view_merged(&merged, &dir.join("merged.rrd"));
     // A run of its own frame is refused, and so is an output folder that is a run.
     let alone = dir.join("alone");
     run(&[&path(&b), "--out", &path(&alone), "--no-dense"]);
@@ -328,4 +329,51 @@ fn a_merged_map_carves_a_person_who_sat_through_one_recording_and_left() {
         &path(&run_b),
     ]);
     assert!(!ok && err.contains("inside"), "{err}");
+}
+
+/// `dopslam view` of a merged folder: each recording under its own entity path, the
+/// merged map under `world/merged`, read back by rerun-sdk (tools/read_rerun.py).
+fn view_merged(merged: &Path, rrd: &Path) {
+    let (ok, stdout, err) = common::dopslam(&[
+        "view",
+        &merged.to_string_lossy(),
+        "-o",
+        &rrd.to_string_lossy(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("2 recordings"), "{stdout}");
+    let test = "a_merged_map_carves_a_person_who_sat_through_one_recording_and_left";
+    let Some(python) = common::test_python(test, "rerun, datafusion") else {
+        return;
+    };
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
+    let output = std::process::Command::new(python)
+        .arg(script)
+        .arg(rrd)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let read: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let entities: Vec<&str> = read["static_entities"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v.as_str())
+        .collect();
+    for entity in [
+        "world/merged/dense/mesh",
+        "world/merged/dense/cloud",
+        "world/recordings/1_a/trajectory/final",
+        "world/recordings/1_a/dense/mesh",
+        "world/recordings/2_b/trajectory/final",
+    ] {
+        assert!(
+            entities.contains(&entity),
+            "{entity} missing from {entities:?}"
+        );
+    }
 }

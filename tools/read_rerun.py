@@ -47,7 +47,12 @@ def main():
         dataset = server.client().get_dataset("run")
         # The per-frame entities only: a static column (the dense mesh) would be
         # repeated on every row.
-        temporal = columns_of(dataset.filter_contents(TEMPORAL).reader(index="frame").to_arrow_table())
+        # A recording with no frames (a merged map's: static entities only) has no
+        # frame index.
+        try:
+            temporal = columns_of(dataset.filter_contents(TEMPORAL).reader(index="frame").to_arrow_table())
+        except ValueError:
+            temporal = {"frame": []}
         static = columns_of(dataset.reader(index=None).to_arrow_table())
     columns = [c for c in temporal if ":" in c]
     static_columns = [c for c in static if ":" in c and not c.startswith("property:")]

@@ -246,9 +246,9 @@ fn merge_runs(
             )));
         }
     }
-    let text = std::fs::read(&report_path).map_err(BatchError::file("read", &report_path))?;
-    serde_json::from_slice(&text)
-        .map_err(|e| BatchError::MergeFailed(format!("{}: {e}", report_path.display())))
+    Ok(crate::records::read_merge(
+        &crate::io::run_dir::RunDir::new(dir),
+    )?)
 }
 
 /// Moves an out-of-date merged map `OUT/merged/<group>/<mode>/r<k>` to

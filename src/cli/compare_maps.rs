@@ -113,9 +113,7 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
 /// The first run a merged map's `merge.json` in `dir` names: the merged map lies in
 /// its world frame (`dopslam merge`).
 fn first_merged_run(dir: &Path) -> Option<PathBuf> {
-    let name = dopslam::io::run_dir::names::MERGE_REPORT;
-    let text = std::fs::read_to_string(dir.join(name)).ok()?;
-    let report: dopslam::dense::merge::MergeReport = serde_json::from_str(&text).ok()?;
+    let report = dopslam::records::read_merge(&dopslam::io::run_dir::RunDir::new(dir)).ok()?;
     report.recordings.first().map(|r| r.run.clone())
 }
 

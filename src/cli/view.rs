@@ -131,39 +131,23 @@ pub fn run_view(args: ViewArgs, config: Config) -> Result<()> {
         );
     }
     let run = RunDir::new(&args.run);
+    let merged = run.file(dopslam::io::run_dir::names::MERGE_REPORT);
+    if !run.report().exists() && merged.exists() {
+        return view_merged(&args, &config);
+    }
     if !run.report().exists() {
         bail!(
-            "{}: not a finished run folder (it has no report.json)",
+            "{}: not a finished run folder (it has no report.json) nor a merged map (merge.json)",
             args.run.display()
         );
     }
     let report = dopslam::records::read_report(&run)?;
-    let logger = match (&args.connect, &args.out) {
-        (Some(address), _) => match connect(address, &config)? {
-            Some(logger) => logger,
-            None => bail!("--connect {address}: no viewer answers there"),
-        },
-        (None, out) => {
-            let path = out.clone().unwrap_or_else(|| default_out(&args.run));
-            refuse_inside("-o", &path, &args.run)?;
-            Logger::open(Target::File(path), &config.output, "dopslam")?
-        }
-    };
+    let logger = open_view(&args, &config)?;
     let target = logger.target.clone();
     let replayed = match replay(&logger, &run, &report, &config) {
         Ok(replayed) => replayed,
-        Err(e) => {
-            // The recording was made new by this command: a partial one goes.
-            drop(logger);
-            if let Target::File(path) = &target {
-                let _ = std::fs::remove_file(path);
-                bail!(
-                    "{e:#} (the partial recording {} was removed)",
-                    path.display()
-                );
-            }
-            return Err(e);
-        }
+        // The recording was made new by this command: a partial one goes.
+        Err(e) => return Err(discard_partial(logger, e)),
     };
     dopslam::run::finish_recording(logger, false)?;
     println!(
@@ -196,6 +180,80 @@ fn replay(
         dopslam::view::results::log_results(&log, &baseline, "no_dop", None)?;
     }
     Ok(replayed)
+}
+
+/// The recording of a merged map's folder (`dopslam merge --out DIR`): each recording's
+/// trajectory, ground truth and own dense map under `world/recordings/<k>_<sequence>/`,
+/// the merged map under `world/merged/`, all in the one world frame they share.
+fn view_merged(args: &ViewArgs, config: &Config) -> Result<()> {
+    let dir = RunDir::new(&args.run);
+    let merge = dopslam::records::read_merge(&dir)?;
+    let logger = open_view(args, config)?;
+    let target = logger.target.clone();
+    let logged = (|| -> Result<usize> {
+        let log = logger.waiting_handle();
+        for (k, recording) in merge.recordings.iter().enumerate() {
+            let run = RunDir::new(&recording.run);
+            let report = dopslam::records::read_report(&run).with_context(|| {
+                format!(
+                    "recording {} of {}",
+                    k + 1,
+                    dir.file("merge.json").display()
+                )
+            })?;
+            if k == 0 {
+                dopslam::run::log_pinhole(&log, &report.setup.calibration.camera);
+            }
+            let sequence = open_reported_sequence(report.sequence_path.as_deref(), config);
+            let truth = sequence.as_deref().and_then(|s| s.ground_truth());
+            let prefix = format!("recordings/{}_{}", k + 1, report.sequence);
+            dopslam::view::results::log_results(&log, &run, &prefix, truth)?;
+        }
+        dopslam::view::results::log_dense(&log, &dir, "merged")?;
+        Ok(merge.recordings.len())
+    })();
+    let recordings = match logged {
+        Ok(n) => n,
+        Err(e) => return Err(discard_partial(logger, e)),
+    };
+    dopslam::run::finish_recording(logger, false)?;
+    println!(
+        "{recordings} recordings and their merged map into {}",
+        target.name()
+    );
+    Ok(())
+}
+
+/// The recording `view` writes: a new file (default: NAME.rrd in the working folder),
+/// or a viewer at `--connect`.
+fn open_view(args: &ViewArgs, config: &Config) -> Result<Logger> {
+    match (&args.connect, &args.out) {
+        (Some(address), _) => match connect(address, config)? {
+            Some(logger) => Ok(logger),
+            None => bail!("--connect {address}: no viewer answers there"),
+        },
+        (None, out) => {
+            let path = out.clone().unwrap_or_else(|| default_out(&args.run));
+            refuse_inside("-o", &path, &args.run)?;
+            Ok(Logger::open(Target::File(path), &config.output, "dopslam")?)
+        }
+    }
+}
+
+/// `error`, after removing the partial recording file this command made.
+fn discard_partial(logger: Logger, error: anyhow::Error) -> anyhow::Error {
+    let target = logger.target.clone();
+    drop(logger);
+    match &target {
+        Target::File(path) => {
+            let _ = std::fs::remove_file(path);
+            anyhow::anyhow!(
+                "{error:#} (the partial recording {} was removed)",
+                path.display()
+            )
+        }
+        Target::Connect(_) => error,
+    }
 }
 
 /// `NAME.rrd` in the working folder for the run folder `NAME`.

@@ -36,6 +36,12 @@ pub fn read_dense(run: &RunDir) -> Result<Option<DenseReport>, IoError> {
     read_versioned(&path, "dense report (dense.json)").map(Some)
 }
 
+/// A merged map's `merge.json` (`dopslam merge`) in the folder `merged`.
+pub fn read_merge(merged: &RunDir) -> Result<crate::dense::merge::MergeReport, IoError> {
+    let path = merged.file(crate::io::run_dir::names::MERGE_REPORT);
+    read_versioned(&path, "merge report (merge.json)")
+}
+
 /// The alignment of a run's trajectory to its sequence's ground truth
 /// ([`crate::dense::compare_maps::pose_alignment`]; the run's `report.json` names the
 /// sequence), if both exist.

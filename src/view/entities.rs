@@ -17,7 +17,10 @@
 //! | `world/dense/mesh`, `world/dense/cloud` | the dense map |
 //! | `events`, `events/loops` | keyframes, tracking lost and relocalised; loops closed |
 //!
-//! A prefix (`no_dop` for `--compare-no-dop`'s baseline) goes after `world/`.
+//! A prefix goes after `world/`: `no_dop` for `--compare-no-dop`'s baseline;
+//! `recordings/<k>_<sequence>` for each recording of a merged map (`dopslam view` of a
+//! `dopslam merge` folder: its trajectories, ground truth and own dense map, each
+//! recording in its own colour) and `merged` for the merged map itself.
 
 #[cfg(feature = "rerun")]
 pub use with_rerun::{open_stream, Stream};
@@ -221,7 +224,7 @@ mod with_rerun {
             message: &Message,
             config: &OutputConfig,
         ) -> rerun::RecordingStreamResult<()> {
-            let (prefix, at) = (message.prefix, message.at);
+            let (prefix, at) = (message.prefix.as_ref(), message.at);
             let scale = config.rerun_image_scale as f32;
             let at_path = |rest: &str| path(prefix, rest);
             match &message.entry {
@@ -285,7 +288,7 @@ mod with_rerun {
             message: &Message,
             config: &OutputConfig,
         ) -> rerun::RecordingStreamResult<()> {
-            let (prefix, at) = (message.prefix, message.at);
+            let (prefix, at) = (message.prefix.as_ref(), message.at);
             let scale = config.rerun_image_scale as f32;
             let at_path = |rest: &str| path(prefix, rest);
             match &message.entry {
@@ -330,7 +333,7 @@ mod with_rerun {
 
         /// The world: map points, keyframes, trajectories, events, loops, the dense map.
         fn log_world(&self, message: &Message) -> rerun::RecordingStreamResult<()> {
-            let (prefix, at) = (message.prefix, message.at);
+            let (prefix, at) = (message.prefix.as_ref(), message.at);
             let at_path = |rest: &str| path(prefix, rest);
             match &message.entry {
                 Entry::MapPoints { fixed, moving } => {
@@ -350,7 +353,7 @@ mod with_rerun {
                     self.send(at, at_path(KEYFRAMES), &points)
                 }
                 Entry::Trajectory { name, centres } => {
-                    let colour = trajectory_colour(name, !prefix.is_empty());
+                    let colour = trajectory_colour(name, prefix);
                     let strip = LineStrips3D::new([centres.iter().map(vec3).collect::<Vec<_>>()])
                         .with_colors([colour]);
                     self.send(at, at_path(&format!("{TRAJECTORY}/{name}")), &strip)
@@ -454,11 +457,28 @@ mod with_rerun {
 
     /// A trajectory's colour: the ground truth grey, a baseline's (`no_dop`) red, the
     /// run's green (final) and blue (tracking).
-    fn trajectory_colour(name: &str, baseline: bool) -> Color {
-        match (name, baseline) {
-            ("truth", _) => Color::from_rgb(120, 120, 120),
-            (_, true) => Color::from_rgb(230, 60, 60),
-            ("final", false) => Color::from_rgb(40, 200, 80),
+    /// A trajectory's colour: the truth grey; the run's final green, its tracking
+    /// pass blue; a baseline's red; a merged map's recordings each their own.
+    fn trajectory_colour(name: &str, prefix: &str) -> Color {
+        const RECORDINGS: [(u8, u8, u8); 6] = [
+            (40, 200, 80),
+            (255, 150, 30),
+            (60, 160, 255),
+            (200, 80, 220),
+            (240, 220, 40),
+            (30, 210, 200),
+        ];
+        let recording = prefix
+            .strip_prefix("recordings/")
+            .and_then(|rest| rest.split('_').next()?.parse::<usize>().ok());
+        match (name, prefix.is_empty(), recording) {
+            ("truth", _, _) => Color::from_rgb(120, 120, 120),
+            (_, false, Some(k)) => {
+                let (r, g, b) = RECORDINGS[k.saturating_sub(1) % RECORDINGS.len()];
+                Color::from_rgb(r, g, b)
+            }
+            (_, false, None) => Color::from_rgb(230, 60, 60),
+            ("final", true, _) => Color::from_rgb(40, 200, 80),
             _ => Color::from_rgb(60, 120, 255),
         }
     }

@@ -1,5 +1,6 @@
 //! The typed entries of a run's recording: what is logged, when, and where it goes.
 
+use std::borrow::Cow;
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
@@ -132,11 +133,12 @@ impl Entry {
 }
 
 /// One entry under an entity path prefix (`""` for the run, `no_dop` for the baseline
-/// of `--compare-no-dop`), at a time.
+/// of `--compare-no-dop`, `recordings/<k>_<sequence>` for a merged map's recordings),
+/// at a time.
 #[derive(Debug, Clone)]
 pub struct Message {
     /// The entity path prefix.
-    pub prefix: &'static str,
+    pub prefix: Cow<'static, str>,
     /// When.
     pub at: At,
     /// What.

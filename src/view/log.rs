@@ -117,7 +117,8 @@ impl LogHandle {
     /// Logs `entry` under `prefix` at `at`. An image is dropped when the queue is
     /// full; anything else waits for room. A recording whose thread stopped (its
     /// error is reported by [`Logger::finish`]) takes nothing more.
-    pub fn log(&self, prefix: &'static str, at: At, entry: Entry) {
+    pub fn log(&self, prefix: impl Into<std::borrow::Cow<'static, str>>, at: At, entry: Entry) {
+        let prefix = prefix.into();
         let command = Command::Log(Box::new(Message { prefix, at, entry }));
         let droppable =
             self.drops_images && matches!(&command, Command::Log(m) if m.entry.droppable());

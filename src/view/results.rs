@@ -85,7 +85,7 @@ pub fn events_entry(index: usize, events: Vec<(Level, String)>) -> Option<Entry>
 pub fn log_results(
     log: &LogHandle,
     run: &RunDir,
-    prefix: &'static str,
+    prefix: &str,
     truth: Option<&Trajectory>,
 ) -> Result<(), ViewError> {
     let final_path = run.trajectory();
@@ -96,7 +96,7 @@ pub fn log_results(
     };
     if let Some(estimate) = &estimate {
         log.log(
-            prefix,
+            prefix.to_string(),
             At::Always,
             Entry::Trajectory {
                 name: "final",
@@ -105,7 +105,7 @@ pub fn log_results(
         );
         if let Some(aligned) = truth.and_then(|t| aligned_truth(t, estimate)) {
             log.log(
-                prefix,
+                prefix.to_string(),
                 At::Always,
                 Entry::Trajectory {
                     name: "truth",
@@ -229,14 +229,14 @@ fn centre_at(trajectory: &Trajectory, seconds: f64) -> Option<Vector3<f64>> {
 
 /// The dense mesh and cloud, decimated to `rerun_max_points` (every n-th triangle or
 /// point).
-fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), ViewError> {
+pub fn log_dense(log: &LogHandle, run: &RunDir, prefix: &str) -> Result<(), ViewError> {
     let limit = log.config.rerun_max_points;
     let mesh_path = run.file(crate::io::run_dir::names::DENSE_MESH_PLY);
     if mesh_path.exists() {
         let mesh = crate::io::ply::read_ply(&mesh_path)?;
         let step = mesh.triangles.len().div_ceil(limit).max(1);
         let kept: Vec<[u32; 3]> = mesh.triangles.iter().step_by(step).copied().collect();
-        log.log(prefix, At::Always, compact_mesh(&mesh, kept));
+        log.log(prefix.to_string(), At::Always, compact_mesh(&mesh, kept));
     }
     let cloud_path = run.file(crate::io::run_dir::names::DENSE_POINTS);
     if cloud_path.exists() {
@@ -248,7 +248,7 @@ fn log_dense(log: &LogHandle, run: &RunDir, prefix: &'static str) -> Result<(), 
             Vec::new()
         };
         log.log(
-            prefix,
+            prefix.to_string(),
             At::Always,
             Entry::Cloud {
                 points: cloud.vertices.iter().step_by(step).copied().collect(),
