@@ -23,7 +23,8 @@ pub struct SequenceSection {
     pub runs: Vec<(String, String)>,
 }
 
-fn escape(text: &str) -> String {
+/// `text` with HTML's special characters escaped.
+pub fn escape(text: &str) -> String {
     text.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -31,7 +32,7 @@ fn escape(text: &str) -> String {
 }
 
 /// An `<img>` with the PNG inlined, or nothing when it cannot be read.
-fn image(path: &Path, alt: &str) -> String {
+pub fn image(path: &Path, alt: &str) -> String {
     match std::fs::read(path) {
         Ok(bytes) => format!(
             "<img alt=\"{}\" src=\"data:image/png;base64,{}\">",
@@ -74,6 +75,7 @@ pub fn report_html(
     header_lines: &[String],
     groups: &[GroupSummary],
     sections: &[SequenceSection],
+    sessions: &str,
 ) -> String {
     let mut out = String::new();
     let _ = write!(
@@ -116,6 +118,7 @@ th{{background:#eee}}img{{max-width:48%;margin:4px;border:1px solid #ddd}}figure
         }
         out += "</table>\n";
     }
+    out += sessions;
     for section in sections {
         section_html(&mut out, section);
     }

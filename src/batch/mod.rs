@@ -595,7 +595,14 @@ fn write_tables(
             Err(e) => notes.push(format!("{}: figures not made: {e}", sequence.name)),
         }
     }
-    let html = html::report_html("dopslam batch report", &header, &groups, &sections);
+    let sessions = sessions::sessions_html(&in_map, &merged);
+    let html = html::report_html(
+        "dopslam batch report",
+        &header,
+        &groups,
+        &sections,
+        &sessions,
+    );
     write_atomic(&out.join("report.html"), html.as_bytes())?;
     Ok(groups)
 }

@@ -51,6 +51,8 @@ pub struct MergedMap {
     pub sequences: Vec<String>,
     /// The merged map's folder.
     pub dir: PathBuf,
+    /// The run folders merged, in the order of `sequences`.
+    pub runs: Vec<PathBuf>,
     /// Mesh vertices.
     pub mesh_vertices: Option<usize>,
     /// Frames that carved free space, over all recordings.
@@ -163,6 +165,7 @@ pub fn merge_groups(
                     .map(|j| plan.planned[j.sequence].name.clone())
                     .collect(),
                 dir,
+                runs: runs.iter().map(|j| j.dir.clone()).collect(),
                 mesh_vertices: None,
                 carving_frames: None,
                 seconds: None,
@@ -319,6 +322,53 @@ pub fn sessions_md(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
                     .map_or_else(|| m.dir.display().to_string(), |e| format!("not made: {e}")),
             );
         }
+    }
+    out
+}
+
+/// `report.html`'s sections on sessions: the runs in a loaded map, and each merged map
+/// beside its recordings' own (their comparison with the static scene, ghosts in red,
+/// where the sequence is a render).
+pub fn sessions_html(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
+    use super::html::{escape, image};
+    let mut out = String::new();
+    if !in_map.is_empty() {
+        out += "<h2>Runs in a loaded map</h2>\n<p>ATE in the map's frame: no alignment.</p>\n<table><tr><th>sequence</th><th>mode</th><th>map of</th><th>frozen</th><th>runs</th><th>ATE in the map's frame (m)</th><th>ATE, aligned (m)</th><th>placed at frame</th></tr>\n";
+        for row in in_map {
+            let cells = [
+                row.sequence.clone(),
+                row.mode.name().to_string(),
+                row.map_of.clone(),
+                if row.frozen { "yes" } else { "no" }.to_string(),
+                row.runs.to_string(),
+                spread_text(row.ate_map_frame_rmse, 4, "[", "]"),
+                spread_text(row.ate_rmse, 4, "[", "]"),
+                spread_text(row.placed_at_frame, 0, "[", "]"),
+            ];
+            let cells: Vec<String> = cells.iter().map(|c| escape(c)).collect();
+            let _ = writeln!(out, "<tr><td>{}</td></tr>", cells.join("</td><td>"));
+        }
+        out += "</table>\n";
+    }
+    if !merged.is_empty() {
+        out += "<h2>Merged maps (ghosts in red)</h2>\n";
+    }
+    let picture = |dir: &Path, caption: &str| {
+        let path = dir.join("map_compare/compare_perspective.png");
+        path.exists().then(|| format!("<figure style=\"display:inline-block;max-width:32%\">{}<figcaption>{}</figcaption></figure>", image(&path, caption), escape(caption)))
+    };
+    for m in merged {
+        let title = format!("{} / {} / r{}", m.group, m.mode.name(), m.repetition);
+        let _ = writeln!(out, "<h3>{}</h3>", escape(&title));
+        if let Some(error) = &m.error {
+            let _ = writeln!(out, "<p>not made: {}</p>", escape(error));
+            continue;
+        }
+        for (sequence, run) in m.sequences.iter().zip(&m.runs) {
+            out += &picture(run, &format!("{sequence}'s own")).unwrap_or_default();
+        }
+        out += &picture(&m.dir, "merged").unwrap_or_default();
+        out += "\n";
     }
     out
 }

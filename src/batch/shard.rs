@@ -4,7 +4,10 @@
 //! The partition is stable: the runs are ordered by their key (sequence name, mode,
 //! repetition), which does not depend on the order the manifest lists its sequences in,
 //! and run \(i\) of that order goes to shard \((i \bmod N) + 1\). Every run is in exactly
-//! one shard, and the shards' sizes differ by at most one.
+//! one shard, and the shards' sizes differ by at most one. A run that loads another
+//! batch run's map (`map_from`) takes the key of the first run of its chain, so a chain
+//! is one unit of the partition and stays in one shard (sizes then differ by at most a
+//! chain).
 //!
 //! Synthetic sequences are generated once, whatever the number of shards that start
 //! together: a shard takes an exclusive `flock` on `sequences/<name>.lock`, generates
