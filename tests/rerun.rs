@@ -18,23 +18,9 @@ fn reader_python(test: &str) -> Option<PathBuf> {
     common::test_python(test, "rerun, datafusion")
 }
 
-/// What tools/read_rerun.py reads from `rrd`, or its error.
-fn try_read(python: &Path, rrd: &Path) -> Result<Value, String> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
-    let output = std::process::Command::new(python)
-        .arg(script)
-        .arg(rrd)
-        .output()
-        .unwrap();
-    if !output.status.success() {
-        return Err(String::from_utf8_lossy(&output.stderr).into_owned());
-    }
-    serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())
-}
-
 /// What tools/read_rerun.py reads from `rrd`.
 fn read(python: &Path, rrd: &Path) -> Value {
-    try_read(python, rrd).unwrap()
+    common::read_rerun(python, rrd).unwrap()
 }
 
 fn report(run: &Path) -> Value {
@@ -409,7 +395,7 @@ fn streaming_to_a_listening_server_delivers_every_pose() {
     for _ in 0..50 {
         std::thread::sleep(std::time::Duration::from_millis(200));
         // (A file caught mid-write may not read yet.)
-        if let Ok(got) = try_read(&python, &received) {
+        if let Ok(got) = common::read_rerun(&python, &received) {
             poses = got["pose_frames"].as_array().unwrap().len();
             if poses == tracked {
                 break;

@@ -346,18 +346,7 @@ fn view_merged(merged: &Path, rrd: &Path) {
     let Some(python) = common::test_python(test, "rerun, datafusion") else {
         return;
     };
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
-    let output = std::process::Command::new(python)
-        .arg(script)
-        .arg(rrd)
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let read: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let read = common::read_rerun(&python, rrd).unwrap();
     let entities: Vec<&str> = read["static_entities"]
         .as_array()
         .unwrap()

@@ -274,25 +274,28 @@ fn set_aside(dir: &Path) -> Result<(), BatchError> {
     std::fs::rename(dir, &to).map_err(BatchError::file("move an out-of-date merged map to", &to))
 }
 
+/// A row of the table of runs in a loaded map (`results.md`, `report.html`).
+fn in_map_cells(row: &InMapSummary) -> [String; 8] {
+    [
+        row.sequence.clone(),
+        row.mode.name().to_string(),
+        row.map_of.clone(),
+        if row.frozen { "yes" } else { "no" }.to_string(),
+        row.runs.to_string(),
+        spread_text(row.ate_map_frame_rmse, 4, "[", "]"),
+        spread_text(row.ate_rmse, 4, "[", "]"),
+        spread_text(row.placed_at_frame, 0, "[", "]"),
+    ]
+}
+
 /// `results.md`'s sections on sessions: runs in a loaded map and merged maps.
 pub fn sessions_md(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
     let mut out = String::new();
     if !in_map.is_empty() {
-        out += "\n## Runs in a loaded map\n\nATE in the map's frame: no alignment; the map's frame is put on the ground truth's by the first pose of the run that made the map.\n\n\
+        out += "\n## Runs in a loaded map\n\nATE in the map's frame: no alignment; the map's frame is put on the ground truth's by the first pose of the run at the head of the chain (the map's origin).\n\n\
                 | sequence | mode | map of | frozen | runs | ATE in the map's frame (m) | ATE RMSE, aligned (m) | placed at frame |\n|---|---|---|---|---|---|---|---|\n";
         for row in in_map {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                row.sequence,
-                row.mode.name(),
-                row.map_of,
-                if row.frozen { "yes" } else { "no" },
-                row.runs,
-                spread_text(row.ate_map_frame_rmse, 4, "[", "]"),
-                spread_text(row.ate_rmse, 4, "[", "]"),
-                spread_text(row.placed_at_frame, 0, "[", "]"),
-            );
+            let _ = writeln!(out, "| {} |", in_map_cells(row).join(" | "));
         }
     }
     if !merged.is_empty() {
@@ -335,17 +338,7 @@ pub fn sessions_html(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
     if !in_map.is_empty() {
         out += "<h2>Runs in a loaded map</h2>\n<p>ATE in the map's frame: no alignment.</p>\n<table><tr><th>sequence</th><th>mode</th><th>map of</th><th>frozen</th><th>runs</th><th>ATE in the map's frame (m)</th><th>ATE, aligned (m)</th><th>placed at frame</th></tr>\n";
         for row in in_map {
-            let cells = [
-                row.sequence.clone(),
-                row.mode.name().to_string(),
-                row.map_of.clone(),
-                if row.frozen { "yes" } else { "no" }.to_string(),
-                row.runs.to_string(),
-                spread_text(row.ate_map_frame_rmse, 4, "[", "]"),
-                spread_text(row.ate_rmse, 4, "[", "]"),
-                spread_text(row.placed_at_frame, 0, "[", "]"),
-            ];
-            let cells: Vec<String> = cells.iter().map(|c| escape(c)).collect();
+            let cells: Vec<String> = in_map_cells(row).iter().map(|c| escape(c)).collect();
             let _ = writeln!(out, "<tr><td>{}</td></tr>", cells.join("</td><td>"));
         }
         out += "</table>\n";

@@ -196,3 +196,18 @@ pub fn loop_room_34s() -> &'static Path {
         seq
     })
 }
+
+/// What tools/read_rerun.py (rerun-sdk, an independent reader) reads from the
+/// recording `rrd` with `python`, or its error.
+pub fn read_rerun(python: &Path, rrd: &Path) -> Result<serde_json::Value, String> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/read_rerun.py");
+    let output = std::process::Command::new(python)
+        .arg(script)
+        .arg(rrd)
+        .output()
+        .map_err(|e| e.to_string())?;
+    if !output.status.success() {
+        return Err(String::from_utf8_lossy(&output.stderr).into_owned());
+    }
+    serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())
+}
