@@ -137,7 +137,7 @@ impl Default for TrackerConfig {
             held_out_min_points: 60,
             probation_frames: 2,
             wait_near_boxes_only: false,
-            prediction_gate_share: 0.7,
+            prediction_gate_share: 0.6,
         }
     }
 }
