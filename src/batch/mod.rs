@@ -561,15 +561,7 @@ fn write_tables(
     }
     let in_map = sessions::in_map_summaries(planned, &records, &modes);
     let merged = sessions::merge_groups(plan, &options.program, sequence_dirs, options.progress);
-    for m in merged.iter().filter(|m| m.error.is_some()) {
-        let why = m.error.as_deref().unwrap_or_default();
-        notes.push(format!(
-            "{}/{}/r{}: no merged map: {why}",
-            m.group,
-            m.mode.name(),
-            m.repetition
-        ));
-    }
+    notes.extend(sessions::merge_notes(&merged));
     results::write_results(
         out,
         &records,

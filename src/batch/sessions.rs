@@ -197,6 +197,22 @@ pub fn merge_groups(
     merged
 }
 
+/// A line for each merged map that could not be made, saying why.
+pub fn merge_notes(merged: &[MergedMap]) -> Vec<String> {
+    merged
+        .iter()
+        .filter_map(|m| {
+            let why = m.error.as_deref()?;
+            Some(format!(
+                "{}/{}/r{}: no merged map: {why}",
+                m.group,
+                m.mode.name(),
+                m.repetition
+            ))
+        })
+        .collect()
+}
+
 /// `program merge RUNS --out DIR` (its output in `DIR.log`), unless `DIR/merge.json`
 /// is newer than every run's `run.json`; every run must have finished.
 fn merge_runs(
