@@ -250,6 +250,7 @@ fn every_preset_loads_and_validates() {
             "revisit_b",
             "seated_leaves",
             "sitting",
+            "sitting_empty",
             "static_room",
             "street_demo",
             "street_kitti00",

@@ -567,10 +567,7 @@ fn write_tables(
         &records,
         &groups,
         &format!("# Batch results\n\n{}", header.join("  \n")),
-        &results::Sessions {
-            in_map: &in_map,
-            merged: &merged,
-        },
+        &sessions::results(&in_map, &merged),
     )?;
     let rpe = RpeSpec {
         delta: manifest.batch.rpe_seconds,

@@ -435,12 +435,14 @@ pub fn results_md(groups: &[GroupSummary], header: &str) -> String {
     out
 }
 
-/// The batch's sessions ([`super::sessions`]): runs in a loaded map, merged maps.
-pub struct Sessions<'a> {
-    /// Sequences tracked in another's map, per mode.
-    pub in_map: &'a [super::sessions::InMapSummary],
-    /// The groups' merged maps.
-    pub merged: &'a [super::sessions::MergedMap],
+/// Sections beyond the groups' (the batch's sessions, [`super::sessions`]): appended
+/// to `results.md`, and keys of `results.json`.
+#[derive(Debug, Default)]
+pub struct MoreResults {
+    /// Markdown after the tables.
+    pub markdown: String,
+    /// `results.json`'s further keys and their values.
+    pub json: Vec<(&'static str, serde_json::Value)>,
 }
 
 /// Writes `results.csv`, `results.json`, `results.md` and `runs.csv` into `out`.
@@ -449,19 +451,15 @@ pub fn write_results(
     records: &[RunRecord],
     groups: &[GroupSummary],
     header: &str,
-    sessions: &Sessions,
+    more: &MoreResults,
 ) -> Result<(), IoError> {
     write_atomic(&out.join("results.csv"), results_csv(groups).as_bytes())?;
     write_atomic(&out.join("runs.csv"), runs_csv(records).as_bytes())?;
-    let md = results_md(groups, header)
-        + &super::sessions::sessions_md(sessions.in_map, sessions.merged);
+    let md = results_md(groups, header) + &more.markdown;
     write_atomic(&out.join("results.md"), md.as_bytes())?;
     let mut json = serde_json::json!({ "groups": groups, "runs": records });
-    if !sessions.in_map.is_empty() {
-        json["in_map"] = serde_json::json!(sessions.in_map);
-    }
-    if !sessions.merged.is_empty() {
-        json["merged"] = serde_json::json!(sessions.merged);
+    for (key, value) in &more.json {
+        json[key] = value.clone();
     }
     let text = serde_json::to_string_pretty(&json).unwrap_or_default();
     write_atomic(&out.join("results.json"), text.as_bytes())

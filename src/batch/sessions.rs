@@ -304,8 +304,23 @@ fn in_map_cells(row: &InMapSummary) -> [String; 8] {
     ]
 }
 
+/// What the sessions add to `results.md` and `results.json` (`in_map`, `merged`).
+pub fn results(in_map: &[InMapSummary], merged: &[MergedMap]) -> super::results::MoreResults {
+    let mut json = Vec::new();
+    if !in_map.is_empty() {
+        json.push(("in_map", serde_json::json!(in_map)));
+    }
+    if !merged.is_empty() {
+        json.push(("merged", serde_json::json!(merged)));
+    }
+    super::results::MoreResults {
+        markdown: sessions_md(in_map, merged),
+        json,
+    }
+}
+
 /// `results.md`'s sections on sessions: runs in a loaded map and merged maps.
-pub fn sessions_md(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
+fn sessions_md(in_map: &[InMapSummary], merged: &[MergedMap]) -> String {
     let mut out = String::new();
     if !in_map.is_empty() {
         out += "\n## Runs in a loaded map\n\nATE in the map's frame: no alignment; the map's frame is put on the ground truth's by the first pose of the run at the head of the chain (the map's origin).\n\n\
