@@ -805,6 +805,26 @@ mod tests {
         }
     }
 
+    /// The shipped manifests (`configs/batch/`) load and plan: their presets exist, and
+    /// their `map_from` chains can be followed.
+    #[test]
+    fn the_shipped_manifests_plan() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/batch");
+        let mut planned = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            let manifest = Manifest::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            let plan = manifest.plan();
+            let plan = plan.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            planned += plan.len();
+            if path.ends_with("sessions.toml") {
+                let maps = plan.iter().filter(|p| p.map.is_some()).count();
+                assert_eq!(maps, 3, "{}", path.display());
+            }
+        }
+        assert!(planned > 0);
+    }
+
     #[test]
     fn a_planned_config_survives_the_file_the_runs_read() {
         let m =
