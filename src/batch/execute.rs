@@ -247,17 +247,12 @@ impl Executor<'_> {
     /// A run not started because the run whose map it loads did not finish: recorded
     /// failed with `why`.
     fn record_blocked(&self, job: &RunJob, why: String) -> RunRecord {
-        let sequence = &self.sequences[job.sequence];
-        let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
-        record.inputs = job.inputs.clone();
-        record.error = Some(why);
-        let written = std::fs::create_dir_all(&job.dir)
-            .map_err(|e| e.to_string())
-            .and_then(|()| record.write(&job.dir).map_err(|e| e.to_string()));
-        if let Err(e) = written {
-            record.error = Some(e);
-        }
-        record
+        let name = &self.sequences[job.sequence].name;
+        record_failed(job, name, why, job.inputs.clone()).unwrap_or_else(|e| {
+            let mut record = RunRecord::new(name, job.mode, job.repetition);
+            record.error = Some(e.to_string());
+            record
+        })
     }
 
     fn label(&self, job: &RunJob) -> String {
@@ -459,8 +454,12 @@ impl Executor<'_> {
         let origin = RunDir::new(&map.origin).trajectory();
         let made_map = Trajectory::read(&origin, TrajectoryFormat::Tum)?;
         let sequence = &self.sequences[job.sequence];
-        let max_diff = sequence.config.eval.max_diff.unwrap_or(0.02);
-        let Some(truth_from_map) = frame_on_truth(&made_map, &reference_truth, max_diff) else {
+        let (rule, max_diff) = (
+            sequence.config.eval.association,
+            sequence.config.eval.max_diff.unwrap_or(0.02),
+        );
+        let Some(truth_from_map) = frame_on_truth(&made_map, &reference_truth, rule, max_diff)
+        else {
             return Ok(None);
         };
         let mut estimate =
@@ -498,25 +497,33 @@ impl Executor<'_> {
 }
 
 /// `truth_from_map`: the pose that takes the map's frame onto the ground truth's,
-/// from the first pose of `made_map` with a ground-truth pose within `max_diff` s.
+/// from the first pose of `made_map` paired with a ground-truth pose (the eval's
+/// association, within `max_diff` s).
 fn frame_on_truth(
     made_map: &Trajectory,
     truth: &Trajectory,
+    rule: crate::eval::associate::AssociationRule,
     max_diff: f64,
 ) -> Option<crate::geometry::se3::Se3> {
-    made_map
-        .timestamps
-        .iter()
-        .zip(&made_map.poses)
-        .find_map(|(t, estimate)| {
-            let (k, gap) = truth
-                .timestamps
-                .iter()
-                .map(|r| (r - t).abs())
-                .enumerate()
-                .min_by(|a, b| a.1.total_cmp(&b.1))?;
-            (gap <= max_diff).then(|| truth.poses[k] * estimate.inverse())
-        })
+    let pairs = crate::eval::associate::associate(truth, made_map, rule, max_diff, 0.0).pairs;
+    let &(r, e) = pairs.first()?;
+    Some(truth.poses[r] * made_map.poses[e].inverse())
+}
+
+/// Records `job`, a run of the sequence `name`, as failed with `error` without running
+/// it: its folder made and its `run.json` written, with `inputs`.
+pub fn record_failed(
+    job: &RunJob,
+    name: &str,
+    error: String,
+    inputs: super::fingerprint::RunInputs,
+) -> Result<RunRecord, BatchError> {
+    std::fs::create_dir_all(&job.dir).map_err(BatchError::file("create", &job.dir))?;
+    let mut record = RunRecord::new(name, job.mode, job.repetition);
+    record.inputs = inputs;
+    record.error = Some(error);
+    record.write(&job.dir)?;
+    Ok(record)
 }
 
 /// The config a run of `sequence` in `mode` is given (its `config.toml`): the

@@ -104,24 +104,12 @@ fn collect_files(root: &Path, dir: &Path, depth: usize, out: &mut Vec<(PathBuf, 
 }
 
 /// A loaded map's part of a run's inputs (key `map`): the run folder, frozen or not,
-/// and the map file's length and checksum, read from its trailer (the last 16 bytes:
-/// the body's length, its CRC-32 and `DEND`, [`crate::map::file`]) without reading
-/// the rest; `no slam_map.bin` when the run has none (yet).
+/// and the map file's length and CRC-32 ([`crate::map::file::checksum`], from its
+/// trailer without reading the rest); `no slam_map.bin` when the run has none (yet).
 pub fn map_input(run: &Path, frozen: bool) -> String {
-    use std::io::{Read, Seek, SeekFrom};
     let path = crate::io::run_dir::RunDir::new(run).slam_map();
-    let trailer = std::fs::File::open(&path).and_then(|mut file| {
-        let length = file.seek(SeekFrom::End(0))?;
-        file.seek(SeekFrom::End(-16))?;
-        let mut bytes = [0u8; 16];
-        file.read_exact(&mut bytes)?;
-        Ok((length, bytes))
-    });
-    let what = match trailer {
-        Ok((length, bytes)) => format!(
-            "{length} bytes, crc {:08x}",
-            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]])
-        ),
+    let what = match crate::map::file::checksum(&path) {
+        Ok((length, crc)) => format!("{length} bytes, crc {crc:08x}"),
         Err(_) => "no slam_map.bin".into(),
     };
     let mode = if frozen { "frozen" } else { "continued" };

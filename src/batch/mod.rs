@@ -494,20 +494,25 @@ fn run_inputs(
 /// that it is run again.
 fn set_aside_stale(plan: &BatchPlan, job: &RunJob, reasons: &str) -> Result<(), BatchError> {
     let label = plan.label(job);
-    let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
-    let to = plan
-        .out
-        .join("stale")
-        .join(&label)
-        .with_file_name(format!("r{}-{stamp}", job.repetition));
-    let parent = to.parent().unwrap_or(&plan.out);
-    std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
-    std::fs::rename(&job.dir, &to).map_err(BatchError::file("move a stale run to", &to))?;
+    let to = move_to_stale(&plan.out, &label, &job.dir)?;
     eprintln!(
         "{label}: made with other settings ({reasons}): run again; the old run is in {} (--keep-stale keeps such runs)",
         to.display()
     );
     Ok(())
+}
+
+/// Moves the folder `from` (never deleted) to `OUT/stale/<label>-<UTC time>` (`label`
+/// as `sequence/mode/r<k>`, or `merged/<group>/<mode>/r<k>`); where it went.
+fn move_to_stale(out: &Path, label: &str, from: &Path) -> Result<PathBuf, BatchError> {
+    let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
+    let to = out.join("stale").join(label);
+    let name = to.file_name().map(|n| n.to_string_lossy().into_owned());
+    let to = to.with_file_name(format!("{}-{stamp}", name.unwrap_or_default()));
+    let parent = to.parent().unwrap_or(out);
+    std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
+    std::fs::rename(from, &to).map_err(BatchError::file("move aside to", &to))?;
+    Ok(to)
 }
 
 /// What making the tables needs beside the plan.
@@ -760,10 +765,8 @@ fn record_unavailable(
     sequence: &PlannedSequence,
     problem: &str,
 ) -> Result<(), BatchError> {
-    std::fs::create_dir_all(&job.dir).map_err(BatchError::file("create", &job.dir))?;
-    let mut record = RunRecord::new(&sequence.name, job.mode, job.repetition);
-    record.error = Some(problem.to_string());
-    Ok(record.write(&job.dir)?)
+    let no_inputs = Default::default();
+    execute::record_failed(job, &sequence.name, problem.to_string(), no_inputs).map(drop)
 }
 
 /// Where the dense map ran: `on`, `off` or `on for <sequences>`.

@@ -150,12 +150,13 @@ pub fn merge_groups(
             if runs.len() < 2 {
                 continue;
             }
-            let dir = plan
-                .out
-                .join("merged")
-                .join(&plan.planned[root].name)
-                .join(job.mode.name())
-                .join(format!("r{}", job.repetition));
+            let label = format!(
+                "merged/{}/{}/r{}",
+                plan.planned[root].name,
+                job.mode.name(),
+                job.repetition
+            );
+            let dir = plan.out.join(&label);
             let mut row = MergedMap {
                 group: plan.planned[root].name.clone(),
                 mode: job.mode,
@@ -173,7 +174,11 @@ pub fn merge_groups(
                 error: None,
             };
             let run_dirs: Vec<&Path> = runs.iter().map(|j| j.dir.as_path()).collect();
-            let made = merge_runs(program, &run_dirs, &row.dir, progress);
+            let place = Place {
+                out: &plan.out,
+                label: &label,
+            };
+            let made = merge_runs(program, &run_dirs, place, progress);
             match made.and_then(|report| {
                 let map = compare_with_static_scene(
                     &row.dir,
@@ -213,14 +218,23 @@ pub fn merge_notes(merged: &[MergedMap]) -> Vec<String> {
         .collect()
 }
 
+/// Where a merged map goes: `OUT/<label>`, `label` being `merged/<group>/<mode>/r<k>`.
+#[derive(Clone, Copy)]
+struct Place<'a> {
+    out: &'a Path,
+    label: &'a str,
+}
+
 /// `program merge RUNS --out DIR` (its output in `DIR.log`), unless `DIR/merge.json`
-/// is newer than every run's `run.json`; every run must have finished.
+/// is newer than every run's `run.json`; every run must have finished. An older
+/// merged map is moved to `OUT/stale/` first.
 fn merge_runs(
     program: &Path,
     runs: &[&Path],
-    dir: &Path,
+    place: Place,
     progress: bool,
 ) -> Result<MergeReport, BatchError> {
+    let dir = &place.out.join(place.label);
     let mut newest = None;
     for run in runs {
         let record = RunRecord::read(run);
@@ -235,7 +249,7 @@ fn merge_runs(
     let made = std::fs::metadata(&report_path).and_then(|m| m.modified());
     if !made.is_ok_and(|made| Some(made) >= newest) {
         if dir.exists() {
-            set_aside(dir)?;
+            super::move_to_stale(place.out, place.label, dir)?;
         }
         if progress {
             eprintln!("merging {}", dir.display());
@@ -268,26 +282,6 @@ fn merge_runs(
     Ok(crate::records::read_merge(
         &crate::io::run_dir::RunDir::new(dir),
     )?)
-}
-
-/// Moves an out-of-date merged map `OUT/merged/<group>/<mode>/r<k>` to
-/// `OUT/stale/merged/<group>/<mode>/r<k>-<UTC time>` (never deleted), as stale runs are.
-fn set_aside(dir: &Path) -> Result<(), BatchError> {
-    let parts: Vec<&std::ffi::OsStr> = dir.iter().collect();
-    let (Some(out), true) = (dir.ancestors().nth(4), parts.len() >= 4) else {
-        return Ok(());
-    };
-    let stamp = crate::io::output::utc_stamp(std::time::SystemTime::now());
-    let tail = &parts[parts.len() - 3..];
-    let to = out
-        .join("stale/merged")
-        .join(tail[0])
-        .join(tail[1])
-        .join(format!("{}-{stamp}", tail[2].to_string_lossy()));
-    if let Some(parent) = to.parent() {
-        std::fs::create_dir_all(parent).map_err(BatchError::file("create", parent))?;
-    }
-    std::fs::rename(dir, &to).map_err(BatchError::file("move an out-of-date merged map to", &to))
 }
 
 /// A row of the table of runs in a loaded map (`results.md`, `report.html`).

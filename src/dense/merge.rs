@@ -73,22 +73,19 @@ pub fn merge(
     crate::memory::start_sampling();
     let mut maps = new_maps(first.camera, out_dir, config)?;
     let mut read = Vec::with_capacity(recordings.len());
-    // Each recording's fused frames, kept for the free-space pass.
-    let mut chosen = Vec::with_capacity(recordings.len());
     for inputs in recordings {
         let run = read_run(&RunDir::new(inputs.run_dir), inputs.masking)?;
         let frames = frame_choice::choose_frames(inputs.sequence, &run, config);
         if config.fuses_tsdf() && config.tsdf.carve && config.tsdf.allocate_first {
             allocate_blocks(&mut maps.volume, inputs, &frames.fused)?;
         }
-        chosen.push(frames.fused.clone());
         read.push((run, frames));
     }
-    let (parts, trajectory) = fuse_each(recordings, read, config, &mut maps)?;
+    let (parts, trajectory) = fuse_each(recordings, &mut read, config, &mut maps)?;
     let start = Instant::now();
     if config.fuses_tsdf() && config.tsdf.carve {
-        for (inputs, frames) in recordings.iter().zip(&chosen) {
-            carve(&mut maps.volume, inputs, frames)?;
+        for (inputs, (_, frames)) in recordings.iter().zip(&read) {
+            carve(&mut maps.volume, inputs, &frames.fused)?;
         }
     }
     let carve_s = start.elapsed().as_secs_f64();
@@ -124,14 +121,14 @@ pub fn merge(
 /// frames): what each gave, and their trajectories one after the other.
 fn fuse_each(
     recordings: &[DenseInputs],
-    read: Vec<(super::inputs::RunInputs, frame_choice::ChosenFrames)>,
+    read: &mut [(super::inputs::RunInputs, frame_choice::ChosenFrames)],
     config: &DenseConfig,
     maps: &mut super::outputs::Maps,
 ) -> Result<(Vec<MergedRecording>, Trajectory), IoError> {
     let carves = config.fuses_tsdf() && config.tsdf.carve;
     let mut parts = Vec::with_capacity(recordings.len());
     let mut trajectory = Trajectory::default();
-    for (inputs, (mut run, frames)) in recordings.iter().zip(read) {
+    for (inputs, (run, frames)) in recordings.iter().zip(read) {
         let start = Instant::now();
         let out = RunDir::new(inputs.out_dir);
         dense_detections(
@@ -141,10 +138,10 @@ fn fuse_each(
             &out,
             &mut run.detections,
         )?;
-        let mut masks = mask_source(inputs, config, &mut run);
+        let mut masks = mask_source(inputs, config, run);
         let mut report = DenseReport::default();
         let fusing = Fusing {
-            frames: &frames,
+            frames,
             mask_source: &mut masks,
             poses: &run.poses,
         };
@@ -158,8 +155,9 @@ fn fuse_each(
             truth: truth.map(TruthCounter::finish),
             fuse_s: start.elapsed().as_secs_f64(),
         });
-        trajectory.timestamps.extend(run.trajectory.timestamps);
-        trajectory.poses.extend(run.trajectory.poses);
+        let own = std::mem::take(&mut run.trajectory);
+        trajectory.timestamps.extend(own.timestamps);
+        trajectory.poses.extend(own.poses);
     }
     Ok((parts, trajectory))
 }

@@ -311,6 +311,20 @@ fn keyframe_record(kf: &KeyFrame, number: &SecondaryMap<KeyFrameKey, u32>) -> Ke
     }
 }
 
+/// The map file's length and the CRC-32 its trailer records, read from its last
+/// [`TRAILER_BYTES`] bytes alone (what identifies a map without reading it; the
+/// trailer is not checked here: [`read_header`] and [`read_map`] do).
+pub fn checksum(path: &Path) -> std::io::Result<(u64, u32)> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path)?;
+    let length = file.seek(SeekFrom::End(0))?;
+    file.seek(SeekFrom::End(-(TRAILER_BYTES as i64)))?;
+    let mut trailer = [0u8; TRAILER_BYTES];
+    file.read_exact(&mut trailer)?;
+    let crc = u32::from_le_bytes(trailer[8..12].try_into().expect("4 bytes"));
+    Ok((length, crc))
+}
+
 /// The header of the map file at `path`, checked as far as it goes without the body.
 pub fn read_header(path: &Path) -> Result<MapHeader, IoError> {
     let bytes = crate::io::recording::mapped::map(path)?;
