@@ -244,7 +244,7 @@ pub fn run<'a>(
                 map,
                 inputs,
                 config,
-                config.disparity_offset_min_px,
+                disparity_offset::OffsetTest::First(config.disparity_offset_min_px),
                 &mut report.full_ba,
                 &mut frames,
             );
@@ -318,19 +318,25 @@ const MIN_OFFSET_PX: f64 = 0.05;
 
 /// Rounds of [`disparity_offset::estimate`], [`disparity_offset::correct`] and full BA:
 /// nothing is taken out unless the first estimate passes the confidence test
-/// ([`disparity_offset::Estimate::verdict`] at `min_px`), and
+/// ([`disparity_offset::Estimate::verdict`] as `test` says), and
 /// the rounds end when one falls below [`MIN_OFFSET_PX`]; `full_ba` becomes the last
 /// BA's report. `None` when the map has too few points with parallax for an estimate.
 pub fn take_out_disparity_offset(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
-    min_px: f64,
+    test: disparity_offset::OffsetTest,
     full_ba: &mut Option<FullBaReport>,
     frames: &mut [&mut FrameRecord],
 ) -> Option<disparity_offset::OffsetReport> {
     let first = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)?;
-    let verdict = first.verdict(min_px.max(MIN_OFFSET_PX));
+    let test = match test {
+        disparity_offset::OffsetTest::First(min_px) => {
+            disparity_offset::OffsetTest::First(min_px.max(MIN_OFFSET_PX))
+        }
+        residual => residual,
+    };
+    let verdict = first.verdict(test);
     let mut offset = disparity_offset::OffsetReport::first(&first, &verdict);
     if verdict != disparity_offset::Verdict::Apply {
         return Some(offset);

@@ -14,12 +14,12 @@
 //! catch up, full BA runs, the estimate is tested again on its map, and when it passes
 //! the offset is taken out of the map, the frames tracked so far and the tracker's last
 //! frame, and added to every later frame's matches; later probes take out what is
-//! left ([`RESIDUAL_MIN_PX`]). No frame is tracked twice (`docs/design.md`, "The
+//! left ([`OffsetTest::Residual`]). No frame is tracked twice (`docs/design.md`, "The
 //! rig's disparity offset").
 
 use super::setup::Setup;
 use crate::global::disparity_offset::{
-    offset_frame, OffsetReport, Verdict, MIN_PAIRS, MIN_PARALLAX_DEG,
+    offset_frame, OffsetReport, OffsetTest, Verdict, MIN_PAIRS, MIN_PARALLAX_DEG,
 };
 use crate::global::{full_bundle_adjustment, take_out_disparity_offset};
 use crate::io::sequence::SensorKind;
@@ -32,10 +32,6 @@ const FIRST_PROBE_KEYFRAMES: usize = 5;
 /// After a probe, the next waits for this many more keyframes, or for a quarter more
 /// keyframes than the map has, whichever is more (a probe reads the whole map).
 const PROBE_EVERY_KEYFRAMES: usize = 2;
-/// Once an offset was taken out, later probes take out what is left when it passes the
-/// confidence test at this threshold, pixels: a first estimate from a few keyframes
-/// may fall short (the highway preset's 1.2 px rig: 0.95 px at frame 5).
-pub const RESIDUAL_MIN_PX: f64 = 0.1;
 /// At most this many corrections in one tracking pass.
 const MAX_CORRECTIONS: usize = 3;
 
@@ -103,8 +99,8 @@ impl OffsetSearch {
         let probe = system.with_map(|map| {
             crate::global::disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
         })?;
-        let min_px = self.threshold();
-        let verdict = probe.verdict(min_px);
+        let test = self.test();
+        let verdict = probe.verdict(test);
         self.at_frame = index + 1;
         self.last = Some(OffsetReport::first(&probe, &verdict));
         match verdict {
@@ -113,16 +109,18 @@ impl OffsetSearch {
                 self.done = true;
                 None
             }
-            Verdict::Apply => self.take_out(system, records, setup, min_px),
+            Verdict::Apply => self.take_out(system, records, setup, test),
         }
     }
 
-    /// The confidence test's threshold: `[global] disparity_offset_min_px` for the
-    /// first correction, [`RESIDUAL_MIN_PX`] for what a correction left.
-    fn threshold(&self) -> f64 {
+    /// The confidence test: at `[global] disparity_offset_min_px` for the first
+    /// correction, [`OffsetTest::Residual`] for what a correction left (a first
+    /// estimate from a few keyframes may fall short, the highway preset's 1.2 px rig:
+    /// 0.95 px at frame 5, or overshoot, real KITTI 01: 2.09 px at frame 9).
+    fn test(&self) -> OffsetTest {
         match self.taken.is_empty() {
-            true => self.min_px,
-            false => RESIDUAL_MIN_PX,
+            true => OffsetTest::First(self.min_px),
+            false => OffsetTest::Residual,
         }
     }
 
@@ -134,7 +132,7 @@ impl OffsetSearch {
         system: &mut System,
         records: &mut [FrameRecord],
         setup: &Setup,
-        min_px: f64,
+        test: OffsetTest,
     ) -> Option<f64> {
         let inputs = setup.global_inputs();
         let config = &setup.config.global;
@@ -145,7 +143,7 @@ impl OffsetSearch {
                 let mut ba = full_bundle_adjustment(map, &inputs, config);
                 ba.as_ref()?;
                 let mut frames: Vec<&mut FrameRecord> = records.iter_mut().collect();
-                take_out_disparity_offset(map, &inputs, config, min_px, &mut ba, &mut frames)
+                take_out_disparity_offset(map, &inputs, config, test, &mut ba, &mut frames)
             },
             &last,
             |found, frame| offset_frame(frame, bf, found.as_ref().map_or(0.0, |f| f.offset_px)),
