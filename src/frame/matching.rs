@@ -4,7 +4,7 @@
 //! histogram (30 bins of the keypoint angle difference; only the three fullest bins are
 //! kept) for frame-to-frame matches.
 
-use super::Frame;
+use super::{Area, Frame};
 use crate::features::{hamming, Descriptor, KeyPoint, TH_HIGH, TH_LOW};
 
 const HISTOGRAM_BINS: usize = 30;
@@ -44,23 +44,23 @@ pub fn search_by_projection(
     // Best distance per keypoint so a better query can take over a keypoint.
     let mut owner: Vec<Option<(usize, u32)>> = vec![None; frame.len()];
     for (q, query) in queries.iter().enumerate() {
-        let candidates = frame.features_in_area(
-            query.u,
-            query.v,
-            query.radius,
-            query.min_level,
-            query.max_level,
-        );
+        let area = Area {
+            x: query.u,
+            y: query.v,
+            radius: query.radius,
+            min_level: query.min_level,
+            max_level: query.max_level,
+        };
         let (mut best, mut best_level, mut second, mut best_index) =
             (u32::MAX, 0u8, u32::MAX, None);
         let mut second_level = 0u8;
-        for i in candidates {
+        frame.for_features_in_area(area, |i| {
             if taken[i] {
-                continue;
+                return;
             }
             if let Some(ur) = query.right_u {
                 if frame.right_u[i] > 0.0 && (frame.right_u[i] - ur).abs() > query.radius {
-                    continue;
+                    return;
                 }
             }
             let d = hamming(&query.descriptor, &frame.descriptors[i]);
@@ -74,7 +74,7 @@ pub fn search_by_projection(
                 second = d;
                 second_level = frame.keypoints[i].level;
             }
-        }
+        });
         let Some(i) = best_index else { continue };
         if best > TH_HIGH {
             continue;

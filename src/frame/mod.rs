@@ -241,6 +241,30 @@ impl Frame {
         max_level: u8,
     ) -> Vec<usize> {
         let mut found = Vec::new();
+        self.for_features_in_area(
+            Area {
+                x,
+                y,
+                radius,
+                min_level,
+                max_level,
+            },
+            |i| found.push(i),
+        );
+        found
+    }
+
+    /// Calls `visit` with each keypoint in `area`, in the order of
+    /// [`Frame::features_in_area`], allocating nothing (the projection searches ask
+    /// this of every map point they project).
+    pub fn for_features_in_area(&self, area: Area, mut visit: impl FnMut(usize)) {
+        let Area {
+            x,
+            y,
+            radius,
+            min_level,
+            max_level,
+        } = area;
         let cell_w = self.width as f32 / GRID_COLUMNS as f32;
         let cell_h = self.height as f32 / GRID_ROWS as f32;
         let x0 = ((x - radius) / cell_w).floor().max(0.0) as usize;
@@ -248,7 +272,7 @@ impl Frame {
         let y0 = ((y - radius) / cell_h).floor().max(0.0) as usize;
         let y1 = (((y + radius) / cell_h).floor() as isize).min(GRID_ROWS as isize - 1);
         if x1 < 0 || y1 < 0 {
-            return found;
+            return;
         }
         for cy in y0..=y1 as usize {
             for cx in x0..=x1 as usize {
@@ -259,13 +283,28 @@ impl Frame {
                     }
                     let (dx, dy) = (k.x - x, k.y - y);
                     if dx.abs() < radius && dy.abs() < radius {
-                        found.push(i as usize);
+                        visit(i as usize);
                     }
                 }
             }
         }
-        found
     }
+}
+
+/// A window of the image: keypoints within `radius` pixels of `(x, y)` (along each
+/// axis) on levels `min_level..=max_level`.
+#[derive(Debug, Clone, Copy)]
+pub struct Area {
+    /// Centre column, level-0 pixels.
+    pub x: f32,
+    /// Centre row.
+    pub y: f32,
+    /// Half the window's side, level-0 pixels.
+    pub radius: f32,
+    /// The lowest pyramid level.
+    pub min_level: u8,
+    /// The highest pyramid level.
+    pub max_level: u8,
 }
 
 #[cfg(test)]

@@ -78,6 +78,14 @@ impl MapPoint {
     }
 }
 
+/// A set of map keys with foldhash's fast fixed-seed hasher: the local-map search
+/// hashes some ten thousand keys a frame, where SipHash's resistance to flooding buys
+/// nothing; the seed is fixed, so nothing depends on a per-process random state.
+pub type KeySet<K> = std::collections::HashSet<K, foldhash::fast::FixedState>;
+
+/// A map from map keys with the hasher of [`KeySet`].
+pub type KeyMap<K, V> = std::collections::HashMap<K, V, foldhash::fast::FixedState>;
+
 /// A keyframe: a frame kept in the map.
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
@@ -657,7 +665,7 @@ impl Map {
         points: impl Iterator<Item = MapPointKey>,
         limit: usize,
     ) -> Vec<KeyFrameKey> {
-        let mut counts: std::collections::HashMap<KeyFrameKey, usize> = Default::default();
+        let mut counts: KeyMap<KeyFrameKey, usize> = Default::default();
         for key in points {
             if let Some(point) = self.points.get(key) {
                 for (kf, _) in &point.observations {
@@ -666,7 +674,7 @@ impl Map {
             }
         }
         let mut ranked: Vec<(KeyFrameKey, usize)> = counts.into_iter().collect();
-        let order: std::collections::HashMap<KeyFrameKey, usize> = self
+        let order: KeyMap<KeyFrameKey, usize> = self
             .keyframe_order
             .iter()
             .enumerate()

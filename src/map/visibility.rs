@@ -45,8 +45,10 @@ pub fn predict_view(
     if !(u >= 0.0 && v >= 0.0 && u < width && v < height) {
         return None;
     }
-    let centre = camera_from_world.inverse().translation.vector;
-    let offset = point.position - centre;
+    // The point less the camera centre, \(X - C = R^T (R X + t)\): no inverse pose.
+    let offset = camera_from_world
+        .rotation
+        .inverse_transform_vector(&p.coords);
     let distance = offset.norm();
     if distance < 0.8 * point.min_distance || distance > 1.2 * point.max_distance {
         return None;

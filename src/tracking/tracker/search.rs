@@ -4,14 +4,13 @@
 //! covisible keyframes projected with scale prediction); each followed by pose-only
 //! optimisation ([`super::pose`]).
 
-use std::collections::HashSet;
 use std::time::Instant;
 
 use super::{Timing, TrackInput, Tracker};
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
 use crate::geometry::se3::{self, Se3};
-use crate::map::{KeyFrame, KeyFrameKey, Map, MapPointKey};
+use crate::map::{KeyFrame, KeyFrameKey, KeySet, Map, MapPointKey};
 use crate::tracking::params::*;
 use crate::tracking::report::{PoseEstimate, Reject};
 
@@ -175,7 +174,7 @@ impl Tracker {
             points.iter().flatten().copied(),
             self.config.local_keyframes,
         );
-        let matched: HashSet<MapPointKey> = points.iter().flatten().copied().collect();
+        let matched: KeySet<MapPointKey> = points.iter().flatten().copied().collect();
         let (keys, queries) =
             self.projector()
                 .local_queries(map, gate, &local, &matched, &pose, &mut seen.dynamic);
