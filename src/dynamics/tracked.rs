@@ -17,7 +17,7 @@ use crate::dop::consistency::Judgement;
 use crate::dop::rigidity::{agreement, Matched};
 use crate::dop::DopConfig;
 use crate::features::{hamming, ScalePyramid, TH_LOW};
-use crate::frame::Frame;
+use crate::frame::{Area, Frame};
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::se3::Se3;
 use crate::geometry::stereo_camera::StereoCamera;
@@ -270,19 +270,22 @@ fn moving_probabilities(
                     return None;
                 }
                 let k = &frame.keypoints[i];
-                let candidates = last.features_in_area(
-                    k.x,
-                    k.y,
-                    PROPAGATION_RADIUS,
-                    k.level.saturating_sub(1),
-                    k.level + 1,
-                );
-                candidates
-                    .into_iter()
-                    .map(|j| (hamming(&frame.descriptors[i], &last.descriptors[j]), j))
-                    .filter(|(d, _)| *d <= TH_LOW)
-                    .min()
-                    .map(|(_, j)| last.moving[j])
+                let area = Area {
+                    x: k.x,
+                    y: k.y,
+                    radius: PROPAGATION_RADIUS,
+                    min_level: k.level.saturating_sub(1),
+                    max_level: k.level + 1,
+                };
+                // The nearest descriptor within TH_LOW (the lowest index of equals).
+                let mut best: Option<(u32, usize)> = None;
+                last.for_features_in_area(area, |j| {
+                    let candidate = (hamming(&frame.descriptors[i], &last.descriptors[j]), j);
+                    if candidate.0 <= TH_LOW && best.is_none_or(|b| candidate < b) {
+                        best = Some(candidate);
+                    }
+                });
+                best.map(|(_, j)| last.moving[j])
             })
             .collect(),
         _ => vec![None; frame.len()],

@@ -65,6 +65,8 @@ pub struct Tracker {
     depth_noise: DepthNoise,
     /// Localisation only: no keyframe is made and no segment started.
     frozen: bool,
+    /// A frozen map's local map, kept while its keyframes stay the same.
+    frozen_local: Option<std::cell::RefCell<projection::FrozenLocalMap>>,
 }
 
 /// What the tracker's searches look at: the map (read), the frame, and which points
@@ -139,12 +141,14 @@ impl Tracker {
             height: height as f32,
             depth_noise: DepthNoise::Rgbd,
             frozen: false,
+            frozen_local: None,
         }
     }
 
     /// Lost in a loaded map of `segments` segments until placed; `frozen`: adds nothing.
     pub fn placing_in(mut self, segments: usize, frozen: bool) -> Self {
         (self.state, self.segments, self.frozen) = (TrackingState::Lost, segments, frozen);
+        self.frozen_local = frozen.then(Default::default);
         self
     }
 

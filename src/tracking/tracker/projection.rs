@@ -3,6 +3,8 @@
 //! prediction, a window by viewing angle) and of relocalisation's search of a
 //! keyframe's points.
 
+use std::cell::RefCell;
+
 use nalgebra::{Point3, Vector3};
 
 use crate::dynamics::frames::Participation;
@@ -39,7 +41,7 @@ impl Projector<'_> {
         (u >= 0.0 && v >= 0.0 && u < self.size.0 && v < self.size.1).then_some((u, v, uvr.z as f32))
     }
 
-    /// The local map's points not matched yet (each once, in the keyframes' order),
+    /// The local map's points (`unique`: each once, [`local_points`]) not matched yet,
     /// each with its predicted view as a query; counts the points left out as dynamic.
     /// (Reading the keyframes' two halves on two threads when local mapping's core is
     /// idle, in a frozen map, made this slower: 0.42 -> 0.50 ms a frame on the desk
@@ -48,26 +50,23 @@ impl Projector<'_> {
         &self,
         map: &Map,
         gate: &Participation,
-        local: &[KeyFrameKey],
+        unique: &[MapPointKey],
         matched: &KeySet<MapPointKey>,
         pose: &Se3,
         dynamic: &mut usize,
     ) -> (Vec<MapPointKey>, Vec<Query>) {
         let (mut keys, mut queries) = (Vec::new(), Vec::new());
-        let mut seen = KeySet::default();
-        for &kf in local {
-            for key in map.keyframes()[kf].map_points.iter().flatten() {
-                if matched.contains(key) || !seen.insert(*key) {
-                    continue;
-                }
-                let Some(point) = map.points().get(*key) else {
-                    continue;
-                };
-                *dynamic += gate.excluded(point) as usize;
-                if let Some(query) = self.local_query(point, pose) {
-                    keys.push(*key);
-                    queries.push(query);
-                }
+        for key in unique {
+            if matched.contains(key) {
+                continue;
+            }
+            let Some(point) = map.points().get(*key) else {
+                continue;
+            };
+            *dynamic += gate.excluded(point) as usize;
+            if let Some(query) = self.local_query(point, pose) {
+                keys.push(*key);
+                queries.push(query);
             }
         }
         (keys, queries)
@@ -135,5 +134,106 @@ impl Projector<'_> {
             });
         }
         (query_keys, queries)
+    }
+}
+
+/// The local map of a frame matched to `matches`: the points of the `limit` keyframes
+/// that share most of them ([`Map::covisible_keyframes`]), each once, in their order;
+/// in a frozen map (`frozen`), kept from the last frame while the keyframes are the
+/// same set.
+pub(super) fn local_points(
+    frozen: Option<&RefCell<FrozenLocalMap>>,
+    map: &Map,
+    matches: &[Option<MapPointKey>],
+    limit: usize,
+) -> Vec<MapPointKey> {
+    let local = map.covisible_keyframes(matches.iter().flatten().copied(), limit);
+    match frozen {
+        Some(cache) => cache.borrow_mut().points(map, &local).to_vec(),
+        None => unique_points(map, &local),
+    }
+}
+
+/// The points of `keyframes`, each once, in their order.
+fn unique_points(map: &Map, keyframes: &[KeyFrameKey]) -> Vec<MapPointKey> {
+    let mut seen = KeySet::default();
+    keyframes
+        .iter()
+        .flat_map(|&kf| map.keyframes()[kf].map_points.iter().flatten())
+        .filter(|key| seen.insert(**key))
+        .copied()
+        .collect()
+}
+
+/// A frozen map's local map, kept while the local keyframes stay the same: their
+/// points, each once (the map does not change, so neither do they).
+#[derive(Default)]
+pub(super) struct FrozenLocalMap {
+    keyframes: Vec<KeyFrameKey>,
+    points: Vec<MapPointKey>,
+}
+
+impl FrozenLocalMap {
+    /// The points of `local`'s keyframes, each once: kept from the last call when the
+    /// keyframes are the same set.
+    pub fn points(&mut self, map: &Map, local: &[KeyFrameKey]) -> &[MapPointKey] {
+        let mut sorted = local.to_vec();
+        sorted.sort_unstable();
+        if sorted != self.keyframes {
+            self.points = unique_points(map, local);
+            self.keyframes = sorted;
+        }
+        &self.points
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::Frame;
+    use crate::map::KeyFrame;
+    use nalgebra::Vector3;
+
+    /// A map of three keyframes of 8 keypoints; keyframe k sees points 4k..4k+8 (so
+    /// neighbours share four), and the frame's matches: one point of each keyframe.
+    fn three_keyframes() -> (Map, Vec<KeyFrameKey>, Vec<Option<MapPointKey>>) {
+        let mut map = Map::default();
+        let blank = || KeyFrame::new(Frame::blank(8, (640, 480)), Se3::identity());
+        let keyframes: Vec<KeyFrameKey> = (0..3).map(|_| map.add_keyframe(blank())).collect();
+        let points: Vec<MapPointKey> = (0..16)
+            .map(|_| {
+                let at = Vector3::new(0.0, 0.0, 2.0);
+                map.insert_point(MapPoint::new(at, [0; 4], Vector3::z(), (0.1, 10.0), 0))
+            })
+            .collect();
+        for (k, &kf) in keyframes.iter().enumerate() {
+            for i in 0..8 {
+                map.add_observation(points[4 * k + i], kf, i);
+            }
+        }
+        let matches = vec![Some(points[0]), Some(points[9])];
+        (map, keyframes, matches)
+    }
+
+    #[test]
+    fn the_local_map_lists_each_point_once_and_a_frozen_map_keeps_it() {
+        let (mut map, _, matches) = three_keyframes();
+        let fresh = local_points(None, &map, &matches, 20);
+        // Points 0-15 once each: the three keyframes' 24 slots less 8 shared.
+        assert_eq!(fresh.len(), 16);
+        assert_eq!(fresh.iter().collect::<KeySet<_>>().len(), 16);
+        let cache = RefCell::new(FrozenLocalMap::default());
+        assert_eq!(local_points(Some(&cache), &map, &matches, 20), fresh);
+        // The same keyframes: the kept list, even when a point seen by one keyframe
+        // alone went (a frozen map's never do: this shows the list was not read again).
+        let only_once = *fresh.last().unwrap();
+        let (kf, index) = map.points()[only_once].observations[0];
+        map.remove_observation(kf, index);
+        assert_eq!(local_points(Some(&cache), &map, &matches, 20), fresh);
+        assert_ne!(local_points(None, &map, &matches, 20), fresh);
+        // Fewer local keyframes: another set, read again.
+        let two = local_points(Some(&cache), &map, &matches, 2);
+        assert_eq!(two, local_points(None, &map, &matches, 2));
+        assert!(two.len() < fresh.len());
     }
 }

@@ -6,6 +6,7 @@
 
 use std::time::Instant;
 
+use super::projection::local_points;
 use super::{Timing, TrackInput, Tracker};
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
@@ -170,14 +171,12 @@ impl Tracker {
         let TrackInput { map, frame, gate } = input;
         let start = Instant::now();
         let (pose, mut points) = (found.camera_from_world, found.matches);
-        let local = map.covisible_keyframes(
-            points.iter().flatten().copied(),
-            self.config.local_keyframes,
-        );
         let matched: KeySet<MapPointKey> = points.iter().flatten().copied().collect();
+        let limit = self.config.local_keyframes;
+        let unique = local_points(self.frozen_local.as_ref(), map, &points, limit);
         let (keys, queries) =
             self.projector()
-                .local_queries(map, gate, &local, &matched, &pose, &mut seen.dynamic);
+                .local_queries(map, gate, &unique, &matched, &pose, &mut seen.dynamic);
         let mut taken: Vec<bool> = points.iter().map(|p| p.is_some()).collect();
         let matches =
             search_by_projection(frame, &queries, &mut taken, LOCAL_MAP_MATCH_RATIO, false);
