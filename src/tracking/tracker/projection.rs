@@ -166,7 +166,8 @@ fn unique_points(map: &Map, keyframes: &[KeyFrameKey]) -> Vec<MapPointKey> {
 }
 
 /// A frozen map's local map, kept while the local keyframes stay the same: their
-/// points, each once (the map does not change, so neither do they).
+/// points, each once (a frozen run adds no keyframe or point, so the list stays
+/// whole; a point removed meanwhile is skipped where it is looked up).
 #[derive(Default)]
 pub(super) struct FrozenLocalMap {
     keyframes: Vec<KeyFrameKey>,
