@@ -674,13 +674,10 @@ impl Map {
             }
         }
         let mut ranked: Vec<(KeyFrameKey, usize)> = counts.into_iter().collect();
-        let order: KeyMap<KeyFrameKey, usize> = self
-            .keyframe_order
-            .iter()
-            .enumerate()
-            .map(|(i, k)| (*k, i))
-            .collect();
-        ranked.sort_by(|a, b| b.1.cmp(&a.1).then(order[&b.0].cmp(&order[&a.0])));
+        // Ties go to the newer keyframe: ids follow `keyframe_order` (both are the
+        // insertion order, kept by the map file), so no per-call index of every keyframe.
+        let id = |k: KeyFrameKey| self.keyframes.get(k).map_or(0, |kf| kf.id);
+        ranked.sort_by(|a, b| b.1.cmp(&a.1).then(id(b.0).cmp(&id(a.0))));
         ranked.into_iter().take(limit).map(|(k, _)| k).collect()
     }
 
