@@ -12,11 +12,14 @@
 # (frozen against its own run: goal no slower), the map file's size and load time.
 #
 #   bash tools/bench_sessions.sh [N]
+#
+# DOPSLAM_BIN: the binary (default ./target/release/dopslam, built when unset); OUT:
+# where the runs go (default outputs/bench/sessions/runs).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=${1:-1}
-cargo build --release --quiet
-dopslam=target/release/dopslam
+dopslam=${DOPSLAM_BIN:-./target/release/dopslam}
+[ -n "${DOPSLAM_BIN:-}" ] || cargo build --release --quiet
 python=data/venv/bin/python
 base=outputs/bench/sessions
 mkdir -p "$base"
@@ -25,7 +28,7 @@ for name in revisit_a revisit_b; do
 done
 dirs=()
 for i in $(seq 1 "$runs"); do
-  out=$base/runs/$i
+  out=${OUT:-$base/runs}/$i
   "$dopslam" run "$base/revisit_a" --out "$out/first" --no-dense > /dev/null
   "$dopslam" run "$base/revisit_b" --out "$out/alone" --no-dense > /dev/null
   "$dopslam" run "$base/revisit_b" --out "$out/continued" --no-dense --map "$out/first" > /dev/null

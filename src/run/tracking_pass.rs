@@ -91,6 +91,13 @@ pub fn tracking_pass(
 ) -> Result<TrackingPass, RunError> {
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let execution = Execution::of(options.deterministic);
+    // Without local mapping beside it (a frozen map, or inline), tracking has the cores
+    // to itself and works in its own pool (`join_own_pool`: docs/design.md, "Tracking's
+    // own thread pool"); beside local mapping it made stereo tracking slower.
+    let frozen = inputs.base.as_ref().is_some_and(|base| base.frozen);
+    if frozen || matches!(execution, Execution::Inline) {
+        crate::threads::join_own_pool();
+    }
     let mut placed = inputs.base.is_none();
     let mut system = start_system(setup, StartInputs::of(inputs, execution));
     let total = options.frames_of(sequence.len());
