@@ -1,6 +1,7 @@
 //! Thread priorities: the real-time mode keeps tracking ahead of its helpers by giving
 //! the local mapping and detection threads a higher nice value (lower priority), so on
-//! a machine with few cores they use the time tracking leaves.
+//! a machine with few cores they use the time tracking leaves. And a rayon pool that a
+//! pass's own thread works in ([`join_own_pool`]).
 
 /// Raises the calling thread's nice value by `increment` (Linux applies
 /// `setpriority(PRIO_PROCESS, 0, ..)` to the calling thread only). Failure is harmless
@@ -17,7 +18,8 @@ pub fn lower_priority(increment: i32) {
     let _ = increment;
 }
 
-/// Workers in a pass's own pool: the calling thread and one more a core, up to this.
+/// Threads in a pass's own pool (one a core, the calling thread among them): at most
+/// this many.
 const MAX_POOL_THREADS: usize = 8;
 
 thread_local! {
@@ -34,9 +36,9 @@ thread_local! {
 /// pyramid levels). From outside a pool, that thread hands the levels to the global
 /// pool and sleeps until they are done, so every frame waits for workers to wake.
 /// With nothing keeping the second core busy (a frozen map: no local mapping), that
-/// made extraction about 1.5 ms (25 %) slower a frame. As a worker, the tracking
-/// thread starts on the levels itself at once and the others take what is left
-/// (docs/design.md, "Tracking's own thread pool").
+/// made extraction about 1.7 ms (30 %) slower a frame on average. As a worker, the
+/// tracking thread starts on the levels itself at once and the others take what is
+/// left (docs/design.md, "Tracking's own thread pool").
 pub fn join_own_pool() {
     if rayon::current_thread_index().is_some() {
         return;
