@@ -91,13 +91,6 @@ pub fn tracking_pass(
 ) -> Result<TrackingPass, RunError> {
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let execution = Execution::of(options.deterministic);
-    // Without local mapping beside it (a frozen map, or inline), tracking has the cores
-    // to itself and works in its own pool (`join_own_pool`: docs/design.md, "Tracking's
-    // own thread pool"); beside local mapping it made stereo tracking slower.
-    let frozen = inputs.base.as_ref().is_some_and(|base| base.frozen);
-    if frozen || matches!(execution, Execution::Inline) {
-        crate::threads::join_own_pool();
-    }
     let mut placed = inputs.base.is_none();
     let mut system = start_system(setup, StartInputs::of(inputs, execution));
     let total = options.frames_of(sequence.len());
@@ -247,7 +240,8 @@ impl<'a> StartInputs<'a> {
 }
 
 /// The system of the run, with its helpers (the vocabulary and the detector), on a
-/// new map or the loaded one.
+/// new map or the loaded one; the calling thread (tracking's) joins its own pool when
+/// no local mapping runs beside it.
 fn start_system(setup: &Setup, inputs: StartInputs) -> System {
     let helpers = Helpers {
         vocabulary: setup.vocabulary.clone(),
@@ -265,6 +259,13 @@ fn start_system(setup: &Setup, inputs: StartInputs) -> System {
         None => (crate::map::Map::default(), None),
     };
     map.begin_recording(inputs.recording);
+    // Without local mapping beside it (a frozen map, or inline), tracking has the cores
+    // to itself and works in its own pool (`join_own_pool`: docs/design.md, "Tracking's
+    // own thread pool"); beside local mapping it made stereo tracking slower.
+    let frozen = placing.as_ref().is_some_and(|placing| placing.frozen);
+    if frozen || matches!(inputs.execution, Execution::Inline) {
+        crate::threads::join_own_pool();
+    }
     let system = setup.system(inputs.execution, inputs.run.detections());
     System::start_in(&system, helpers, map, placing)
 }
