@@ -175,7 +175,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -190,6 +190,13 @@ pub struct DenseMasks {
     /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
     /// behind the front of their body.
     pub depth_behind: f32,
+    /// A followed person the detector missed on a detected frame is masked with the
+    /// box their track predicts there, grown on every side by this speed (m/s) times
+    /// the time since they were seen (the tracking pass's boxes grow at `[dop]
+    /// track_max_speed`). The prediction already moves with the person's velocity;
+    /// the margin only covers its error. Gaps between two detections of a person
+    /// need none ([`super::masks`]).
+    pub track_margin_speed: f32,
     /// Discs also around dynamic keypoints inside a detected mover's box but behind
     /// it (false: none there; more static pixels fused, but a second mover behind the
     /// first loses its discs).
@@ -314,6 +321,7 @@ pub struct DenseFile {
     keypoint_radius: u32,
     mask_foreground_share: f32,
     mask_depth_behind: f32,
+    mask_track_margin_speed: f32,
     mask_discs_behind_objects: bool,
     mask_disc_neighbours: usize,
     mask_keypoints_seen_moving: bool,
@@ -381,6 +389,7 @@ impl From<DenseFile> for DenseConfig {
                 keypoint_radius: file.keypoint_radius,
                 foreground_share: file.mask_foreground_share,
                 depth_behind: file.mask_depth_behind,
+                track_margin_speed: file.mask_track_margin_speed,
                 discs_behind_objects: file.mask_discs_behind_objects,
                 disc_neighbours: file.mask_disc_neighbours,
                 keypoints_seen_moving: file.mask_keypoints_seen_moving,
@@ -453,6 +462,7 @@ impl From<DenseConfig> for DenseFile {
             keypoint_radius: masks.keypoint_radius,
             mask_foreground_share: masks.foreground_share,
             mask_depth_behind: masks.depth_behind,
+            mask_track_margin_speed: masks.track_margin_speed,
             mask_discs_behind_objects: masks.discs_behind_objects,
             mask_disc_neighbours: masks.disc_neighbours,
             mask_keypoints_seen_moving: masks.keypoints_seen_moving,
@@ -524,6 +534,7 @@ impl Default for DenseConfig {
                 keypoint_radius: 10,
                 foreground_share: 0.10,
                 depth_behind: 0.6,
+                track_margin_speed: 0.75,
                 discs_behind_objects: true,
                 disc_neighbours: 6,
                 keypoints_seen_moving: true,
@@ -574,37 +585,12 @@ impl DenseConfig {
                 format!("must be a number above -1, got {}", self.cloud.free_space),
             ));
         }
-        checks::each(
-            "dense",
-            checks::non_negative,
-            &[
-                (
-                    "mask_segment_follow_seconds",
-                    self.masks.segment_follow_seconds,
-                ),
-                (
-                    "mask_segment_radius_metres",
-                    self.masks.segment_radius_metres.into(),
-                ),
-                ("mask_free_space_seconds", self.masks.free_space_seconds),
-                (
-                    "mask_free_space_far_seconds",
-                    self.masks.free_space_far_seconds,
-                ),
-                ("mesh_min_piece_area", self.outputs.mesh_min_piece_area),
-                ("frame_min_translation", self.frames.min_translation),
-                ("frame_min_rotation", self.frames.min_rotation),
-                ("mask_map_min_weight", self.masks.map_min_weight.into()),
-                ("tsdf_memory_mb", self.tsdf.memory_mb),
-                ("cloud_memory_mb", self.cloud.memory_mb),
-            ],
-        )?;
+        self.validate_non_negative()?;
         checks::unit_interval(
             "dense.mask_segment_edge_share",
             self.masks.segment_edge_share,
         )?;
         checks::unit_interval("dense.mask_foreground_share", self.masks.foreground_share)?;
-        checks::non_negative("dense.mask_depth_behind", self.masks.depth_behind)?;
         if self.tsdf.truncation < self.tsdf.voxel {
             return Err(BadValue::new(
                 "dense.truncation",
@@ -633,6 +619,40 @@ impl DenseConfig {
         checks::at_least_one("dense.cloud_stride", self.cloud.stride as u64)
     }
 
+    /// The keys that may be 0 but not negative.
+    fn validate_non_negative(&self) -> Result<(), BadValue> {
+        checks::each(
+            "dense",
+            checks::non_negative,
+            &[
+                (
+                    "mask_segment_follow_seconds",
+                    self.masks.segment_follow_seconds,
+                ),
+                (
+                    "mask_segment_radius_metres",
+                    self.masks.segment_radius_metres.into(),
+                ),
+                ("mask_free_space_seconds", self.masks.free_space_seconds),
+                (
+                    "mask_free_space_far_seconds",
+                    self.masks.free_space_far_seconds,
+                ),
+                ("mesh_min_piece_area", self.outputs.mesh_min_piece_area),
+                ("frame_min_translation", self.frames.min_translation),
+                ("frame_min_rotation", self.frames.min_rotation),
+                ("mask_map_min_weight", self.masks.map_min_weight.into()),
+                ("tsdf_memory_mb", self.tsdf.memory_mb),
+                ("cloud_memory_mb", self.cloud.memory_mb),
+                ("mask_depth_behind", self.masks.depth_behind.into()),
+                (
+                    "mask_track_margin_speed",
+                    self.masks.track_margin_speed.into(),
+                ),
+            ],
+        )
+    }
+
     /// The detector of the dense pass's own detections: the run's `tracking` one, with
     /// [`Self::detect_model`] and [`Self::detect_tiles`] when it is ONNX (an oracle or
     /// a cache stays what it is), on every core: nothing else runs while it detects
@@ -659,6 +679,7 @@ impl DenseConfig {
             keypoint_radius: self.masks.keypoint_radius,
             foreground_share: self.masks.foreground_share,
             depth_behind: self.masks.depth_behind,
+            track_margin_speed: self.masks.track_margin_speed,
             skip_behind_objects: !self.masks.discs_behind_objects,
             disc_neighbours: self.masks.disc_neighbours,
             keypoints_seen_moving: self.masks.keypoints_seen_moving,

@@ -2,7 +2,11 @@
 //!
 //! With the DOP model (`Mode::Dop`) a frame's mask is the union of
 //! 1. the dynamic objects of the detected keyframes nearest before and after it
-//!    (within `track_seconds`), each a box refined by depth as in the paper's
+//!    (within `track_seconds`); an object followed from the one to the other (the same
+//!    [`Object::track`]) is placed once, between the two as far as the frame's time
+//!    lies between theirs (`objects_at`: a walker moves on between detections, and
+//!    two boxes, one where they were and one where they will be, hold as much static
+//!    scene as person). Each is a box refined by depth as in the paper's
 //!    Algorithm 1: the box's object depth \(z_{obj}\) is the dominant depth of its
 //!    central region (from the keyframe's depth map; with `mask_foreground_share`, the
 //!    default, the nearest depth mode holding that share of the whole box: the mover
@@ -54,6 +58,9 @@ pub struct MaskSettings {
     /// The objects' depth: [`foreground_depth`] of the box's pixels with this share;
     /// 0: [`object_depth`] (the dominant depth of its centre).
     pub foreground_share: f32,
+    /// How fast a track's predicted box grows, m/s (`mask_track_margin_speed`; its
+    /// margin was made at `[dop] track_max_speed`).
+    pub track_margin_speed: f32,
     /// How far behind its depth an object's mask reaches, metres (in front: `delta_z`).
     pub depth_behind: f32,
     /// No disc around a dynamic keypoint inside an object's box but behind it.
@@ -87,8 +94,19 @@ pub struct KeyframeObjects {
     pub boxes: Vec<ObjectBox>,
     /// The followed objects seen from it (once placed, see [`MaskSource::place_through`]).
     pub objects: Vec<Object>,
-    /// Whether the DOP model follows each box's class.
-    followed: Vec<bool>,
+    /// Each box's class: followed, moving on its own.
+    classes: Vec<BoxClass>,
+}
+
+/// What a detected box's class tells.
+#[derive(Debug, Clone, Copy)]
+struct BoxClass {
+    /// The DOP model follows it ([`DopConfig::follows`]).
+    followed: bool,
+    /// It moves on its own (`never_static_classes`: people): masked whatever the
+    /// free-space evidence says. The others (a car, a truck, a false alarm of one on a
+    /// table) are masked where evidence is gathered only when it saw them move.
+    self_moving: bool,
 }
 
 /// Dynamic keypoints of one frame: `(x, y, depth)`.
@@ -177,18 +195,24 @@ impl MaskSource {
         let keyframes = detections
             .iter()
             .map(|frame| {
-                let (boxes, followed): (Vec<ObjectBox>, Vec<bool>) =
+                let (boxes, classes): (Vec<ObjectBox>, Vec<BoxClass>) =
                     object_boxes(&frame.detections, dynamic_classes)
                         .into_iter()
                         .zip(&frame.detections)
                         .filter(|(b, _)| b.dynamic)
-                        .map(|(b, d)| (snap_to_border(b, &camera), dop.follows(&d.class)))
+                        .map(|(b, d)| {
+                            let class = BoxClass {
+                                followed: dop.follows(&d.class),
+                                self_moving: dop.never_static_classes.contains(&d.class),
+                            };
+                            (snap_to_border(b, &camera), class)
+                        })
                         .unzip();
                 KeyframeObjects {
                     timestamp: frame.timestamp,
                     boxes,
                     objects: Vec::new(),
-                    followed,
+                    classes,
                 }
             })
             .collect();
@@ -206,13 +230,21 @@ impl MaskSource {
     }
 
     /// Places the objects of the detected frames up to and including the first one at
-    /// or after `timestamp` (in time order, followed from one to the next), with
-    /// their poses and depth maps; a frame without a box needs no depth map.
+    /// or after `timestamp` plus `track_seconds` (in time order, followed from one to
+    /// the next), with their poses and depth maps; a frame without a box needs no depth
+    /// map. Looking that far ahead, a person the detector missed on some frames and
+    /// found again is known on both sides of the gap before a frame in it is masked
+    /// ([`fill_gaps`]).
     pub fn place_through(&mut self, timestamp: f64, pose_at: PoseAt, depth_at: DepthAt) {
-        let through = self.keyframes.partition_point(|k| k.timestamp < timestamp) + 1;
+        let track_seconds = self.dop.track_seconds as f64;
+        let ahead = timestamp + track_seconds;
+        let through = self.keyframes.partition_point(|k| k.timestamp < ahead) + 1;
         while self.placed < through.min(self.keyframes.len()) {
-            let frame = &mut self.keyframes[self.placed];
+            let placed_so_far = &mut self.keyframes[..=self.placed];
             self.placed += 1;
+            let Some(frame) = placed_so_far.last_mut() else {
+                continue;
+            };
             if self.masking != Mode::Dop {
                 continue;
             }
@@ -227,7 +259,7 @@ impl MaskSource {
                 };
                 place_objects(
                     &frame.boxes,
-                    &frame.followed,
+                    &frame.classes,
                     &depth_samples(&depth, 4),
                     &self.settings,
                     &self.dop,
@@ -236,6 +268,11 @@ impl MaskSource {
                 )
             };
             frame.objects = follow_objects(&mut self.tracks, frame.timestamp, placed, &self.dop);
+            fill_gaps(
+                placed_so_far,
+                track_seconds,
+                self.dop.track_max_speed as f64,
+            );
         }
     }
 
@@ -334,10 +371,17 @@ impl MaskSource {
             camera_from_world,
         } = frame;
         let (w, h) = (depth.width as usize, depth.height as usize);
-        let objects: Vec<ObjectBox> = near
+        let body = (self.dop.delta_z, self.settings.depth_behind);
+        let speed = self.dop.track_max_speed as f64;
+        let objects: Vec<ObjectBox> = objects_at(near, timestamp, speed)
             .iter()
-            .flat_map(|k| &k.objects)
-            .filter_map(|object| object.to_box(&self.camera, camera_from_world))
+            .filter_map(|object| {
+                let object = &self.with_mask_margin(object);
+                let b = object.to_box(&self.camera, camera_from_world)?;
+                let moves =
+                    object.self_moving || evidence.is_none_or(|e| seen_moving(e, depth, &b, body));
+                moves.then_some(b)
+            })
             .collect();
         let mut any = self.object_masks(sources, depth, &objects);
         let keypoints = self.shown_keypoints(timestamp, evidence, (w, h));
@@ -356,6 +400,17 @@ impl MaskSource {
             any |= self.segment_masks(sources, frame, seeds, moving, &objects);
         }
         any
+    }
+
+    /// `object` with the margin of a prediction grown at `mask_track_margin_speed`
+    /// instead of `track_max_speed`.
+    fn with_mask_margin(&self, object: &Object) -> Object {
+        let made_at = self.dop.track_max_speed.max(f32::MIN_POSITIVE);
+        let share = f64::from(self.settings.track_margin_speed / made_at);
+        Object {
+            margin: object.margin * share,
+            ..*object
+        }
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
@@ -535,6 +590,143 @@ impl MaskSource {
     }
 }
 
+/// The objects at time `t` of the detected frames `near` it (the one before, the one
+/// at or after; [`MaskSource::near_keyframes`]): an object of a track seen in both is
+/// placed between its two places ([`between`], margins growing at `speed`); the
+/// others as their frame saw them.
+fn objects_at(near: &[KeyframeObjects], t: f64, speed: f64) -> Vec<Object> {
+    let [before, after] = near else {
+        return near
+            .iter()
+            .flat_map(|k| k.objects.iter().copied())
+            .collect();
+    };
+    let when = Between {
+        t0: before.timestamp,
+        t1: after.timestamp,
+        t,
+        speed,
+    };
+    let partner = |o: &Object| {
+        o.track
+            .and_then(|id| after.objects.iter().find(|a| a.track == Some(id)))
+    };
+    let mut objects: Vec<Object> = before
+        .objects
+        .iter()
+        .map(|o| partner(o).map_or(*o, |a| between(o, a, &when)))
+        .collect();
+    let paired = |a: &&Object| {
+        a.track
+            .is_some_and(|id| before.objects.iter().any(|o| o.track == Some(id)))
+    };
+    objects.extend(after.objects.iter().filter(|a| !paired(a)).copied());
+    objects
+}
+
+/// The share of an object's body pixels (its box's pixels from `body.0` in front of
+/// its depth to `body.1` behind it) that the free-space evidence must see moving for an
+/// object of a class that does not move on its own to be masked: 2 %. A parked car,
+/// or a table taken for a truck, is seen still, as the static scene it is.
+const OBJECT_MOVING_SHARE: f32 = 0.02;
+
+/// Whether the evidence saw [`OBJECT_MOVING_SHARE`] of box `b`'s body move.
+fn seen_moving(evidence: &Evidence, depth: &DepthImage, b: &ObjectBox, body: (f32, f32)) -> bool {
+    let z = b.depth.unwrap_or(0.0);
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
+    let (x1, y1) = (clip(b.bbox[0].floor(), w), clip(b.bbox[1].floor(), h));
+    let (x2, y2) = (clip(b.bbox[2].ceil(), w), clip(b.bbox[3].ceil(), h));
+    let (mut pixels, mut moving) = (0usize, 0usize);
+    for v in y1..y2 {
+        for i in v * w + x1..v * w + x2 {
+            let d = depth.metres[i];
+            if d > 0.0 && d >= z - body.0 && d <= z + body.1 {
+                pixels += 1;
+                moving += evidence.moving[i] as usize;
+            }
+        }
+    }
+    moving > 0 && moving as f32 >= OBJECT_MOVING_SHARE * pixels as f32
+}
+
+/// With `frames` placed through the last: each track detected on the last frame, and
+/// before that on an earlier frame within `2 * track_seconds`, is placed on the frames
+/// between as [`between`] the two detections (margins growing at `speed`). Those
+/// frames held the tracks' predictions from the first detection alone, whose margins
+/// grow with the time since it (at `track_max_speed`, a metre in two thirds of a
+/// second: most of the image for a person near the camera).
+fn fill_gaps(frames: &mut [KeyframeObjects], track_seconds: f64, speed: f64) {
+    let Some((last, earlier)) = frames.split_last_mut() else {
+        return;
+    };
+    for to in last.objects.iter().filter(|o| !o.predicted()) {
+        let Some(id) = to.track else {
+            continue;
+        };
+        let detected = |o: &&Object| o.track == Some(id) && !o.predicted();
+        let window = earlier
+            .iter()
+            .rev()
+            .take_while(|k| last.timestamp - k.timestamp <= 2.0 * track_seconds)
+            .count();
+        let first = earlier.len() - window;
+        let Some((i, from)) = earlier[first..]
+            .iter()
+            .enumerate()
+            .rev()
+            .find_map(|(i, k)| Some((first + i, *k.objects.iter().find(detected)?)))
+        else {
+            continue;
+        };
+        let (t0, t1) = (earlier[i].timestamp, last.timestamp);
+        for k in &mut earlier[i + 1..] {
+            let when = Between {
+                t0,
+                t1,
+                t: k.timestamp,
+                speed,
+            };
+            for o in k.objects.iter_mut().filter(|o| o.track == Some(id)) {
+                *o = between(&from, to, &when);
+            }
+        }
+    }
+}
+
+/// A time `t` between two of a track's frames, at `t0` and `t1`, and how fast a
+/// margin grows away from them (m/s).
+struct Between {
+    t0: f64,
+    t1: f64,
+    t: f64,
+    speed: f64,
+}
+
+/// A track's object at `when.t`, seen as `a` at `t0` and `b` at `t1`: as far from `a`
+/// to `b` as the time (a walk straight at an even pace; size and margin mixed alike),
+/// its margin grown by `speed` times the time to the nearer of the two (a walker
+/// turns: over a gap of a second and a half, a straight line from the one place to
+/// the other misses them).
+fn between(a: &Object, b: &Object, when: &Between) -> Object {
+    let span = when.t1 - when.t0;
+    let s = if span > 0.0 {
+        ((when.t - when.t0) / span).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let nearer = (when.t - when.t0).min(when.t1 - when.t).max(0.0);
+    let mix = |x: f64, y: f64| x + (y - x) * s;
+    Object {
+        centre: a.centre + (b.centre - a.centre) * s,
+        size: (mix(a.size.0, b.size.0), mix(a.size.1, b.size.1)),
+        margin: mix(a.margin, b.margin) + when.speed * nearer,
+        moved: a.moved || b.moved,
+        self_moving: a.self_moving || b.self_moving,
+        track: b.track,
+    }
+}
+
 /// Whether a pixel within `radius` of keypoint `p` was seen moving.
 fn moving_within(evidence: &Evidence, size: (usize, usize), p: &[f32; 3], radius: f32) -> bool {
     let (w, h) = size;
@@ -663,12 +855,12 @@ fn seeds_of(
 
 /// The dynamic `boxes` of a detected frame placed in the world at their object depth
 /// ([`box_depths`] with `mask_foreground_share`, else the model's), each with whether
-/// its class is followed; boxes without depth are left out. A box whose centre lies
+/// its class is followed (and [`Object::self_moving`] set from `classes`); boxes without depth are left out. A box whose centre lies
 /// behind its foreground ([`centre_behind`]) is placed a second time, at its centre's
 /// depth (not followed: only the frames around this one see it).
 fn place_objects(
     boxes: &[ObjectBox],
-    followed: &[bool],
+    classes: &[BoxClass],
     samples: &[Keypoint],
     settings: &MaskSettings,
     dop: &DopConfig,
@@ -685,13 +877,16 @@ fn place_objects(
     };
     boxes
         .iter()
-        .zip(followed)
+        .zip(classes)
         .zip(depths)
-        .flat_map(|((b, &follow), z)| {
+        .flat_map(|((b, class), z)| {
             let behind = z.and_then(|z| centre_behind(b, z, samples, dop, camera));
-            let place = |z: f32| Object::from_box(b.bbox, z, camera, world_from_camera);
+            let place = |z: f32| Object {
+                self_moving: class.self_moving,
+                ..Object::from_box(b.bbox, z, camera, world_from_camera)
+            };
             [
-                z.map(|z| (place(z), follow)),
+                z.map(|z| (place(z), class.followed)),
                 behind.map(|c| (place(c), false)),
             ]
         })
@@ -1004,6 +1199,7 @@ mod tests {
                 border: 0,
                 keypoint_radius: 0,
                 foreground_share,
+                track_margin_speed: 0.4,
                 depth_behind: 0.4,
                 skip_behind_objects: false,
                 disc_neighbours: 0,
@@ -1031,6 +1227,7 @@ mod tests {
             border: 0,
             keypoint_radius: 5,
             foreground_share: 0.1,
+            track_margin_speed: 0.4,
             depth_behind: 0.4,
             skip_behind_objects: true,
             disc_neighbours: 0,
@@ -1110,6 +1307,7 @@ mod tests {
             border: 0,
             keypoint_radius: 5,
             foreground_share: 0.1,
+            track_margin_speed: 0.4,
             depth_behind: 0.4,
             skip_behind_objects: true,
             disc_neighbours: 2,
@@ -1162,12 +1360,155 @@ mod tests {
             border: 0,
             keypoint_radius: 8,
             foreground_share: 0.0,
+            track_margin_speed: 0.4,
             depth_behind: 0.4,
             skip_behind_objects: false,
             disc_neighbours: 0,
             keypoints_seen_moving: false,
             segments: None,
         }
+    }
+
+    /// A detected frame holding `objects`.
+    fn detected_frame(timestamp: f64, objects: Vec<Object>) -> KeyframeObjects {
+        KeyframeObjects {
+            timestamp,
+            boxes: Vec::new(),
+            objects,
+            classes: Vec::new(),
+        }
+    }
+
+    /// An object of track `track` at `x` metres (2 m in front of the camera).
+    fn walker(track: u32, x: f64) -> Object {
+        Object {
+            centre: Vector3::new(x, 0.0, 2.0),
+            size: (0.5, 1.7),
+            margin: 0.0,
+            moved: true,
+            self_moving: true,
+            track: Some(track),
+        }
+    }
+
+    /// Between two detections of the same person, the person is placed once, as far
+    /// along as the time; someone seen on one side only stays where they were seen.
+    #[test]
+    fn a_person_seen_before_and_after_a_frame_is_placed_between_once() {
+        let before = detected_frame(1.0, vec![walker(1, 0.0), walker(2, -1.0)]);
+        let after = detected_frame(1.4, vec![walker(1, 0.4), walker(3, 1.0)]);
+        let objects = objects_at(&[before, after], 1.1, 1.5);
+        assert_eq!(objects.len(), 3, "{objects:?}");
+        let x = |track: u32| {
+            objects
+                .iter()
+                .find(|o| o.track == Some(track))
+                .map(|o| o.centre.x)
+        };
+        assert!((x(1).unwrap() - 0.1).abs() < 1e-9, "{objects:?}");
+        let margin = |track: u32| {
+            objects
+                .iter()
+                .find(|o| o.track == Some(track))
+                .unwrap()
+                .margin
+        };
+        assert!(
+            (margin(1) - 0.15).abs() < 1e-9,
+            "0.1 s from the nearer detection"
+        );
+        assert_eq!(margin(2), 0.0);
+        assert_eq!(x(2), Some(-1.0));
+        assert_eq!(x(3), Some(1.0));
+    }
+
+    /// A person missed on the frames between two detections is placed between them
+    /// there, with a margin for the time to the nearer detection; one never seen again
+    /// keeps the prediction.
+    #[test]
+    fn the_gap_between_two_detections_of_a_person_is_filled_in() {
+        let predicted = |track: u32, x: f64| Object {
+            margin: 0.6,
+            ..walker(track, x)
+        };
+        let mut frames = vec![
+            detected_frame(0.0, vec![walker(1, 0.0), walker(2, 3.0)]),
+            detected_frame(0.4, vec![predicted(1, 0.1), predicted(2, 3.0)]),
+            detected_frame(0.8, vec![walker(1, 0.8), predicted(2, 3.0)]),
+        ];
+        fill_gaps(&mut frames, 1.0, 0.5);
+        let gap = &frames[1].objects;
+        assert!((gap[0].centre.x - 0.4).abs() < 1e-9, "{gap:?}");
+        assert!(
+            (gap[0].margin - 0.2).abs() < 1e-9,
+            "0.4 s from either detection"
+        );
+        assert!(gap[1].predicted(), "track 2 was not seen again");
+        // Detections farther apart than twice track_seconds leave the gap alone.
+        let mut far = vec![
+            detected_frame(0.0, vec![walker(1, 0.0)]),
+            detected_frame(0.4, vec![predicted(1, 0.1)]),
+            detected_frame(2.5, vec![walker(1, 2.0)]),
+        ];
+        fill_gaps(&mut far, 1.0, 0.5);
+        assert!(far[1].objects[0].predicted());
+    }
+
+    /// A detected object of a class that does not move on its own (a truck: here a
+    /// false alarm on the slab) is masked only where the frames around saw it move; a
+    /// person is masked either way.
+    #[test]
+    fn an_object_seen_still_is_fused_unless_it_moves_on_its_own() {
+        let (camera, depth) = scene();
+        let n = depth.metres.len();
+        let still = Evidence {
+            moving: vec![false; n],
+            still: vec![true; n],
+        };
+        // The frames around saw a strip of the slab's edge move (7 of its 140 columns).
+        let mut moving = Evidence {
+            moving: vec![false; n],
+            still: vec![true; n],
+        };
+        for v in 100..460 {
+            for u in 250..257 {
+                moving.moving[(v * camera.width + u) as usize] = true;
+            }
+        }
+        let object_at_centre = |class: &str, evidence: &Evidence| {
+            let frames = vec![FrameDetections {
+                timestamp: 1.0,
+                detections: vec![Detection {
+                    class: class.into(),
+                    class_id: 0,
+                    score: 0.9,
+                    bbox: [230.0, 80.0, 410.0, 470.0],
+                    instance: None,
+                }],
+            }];
+            let (camera, depth) = scene();
+            let mut source = MaskSource::new(
+                MaskContext {
+                    masking: Mode::Dop,
+                    camera,
+                    dop: &DopConfig::default(),
+                    dynamic_classes: &["person".to_string(), "truck".to_string()],
+                },
+                object_settings(),
+                frames,
+                vec![],
+                &|_| Some(Se3::identity()),
+                &|_| Some(depth.clone()),
+            );
+            source
+                .layers(1.0, &depth, &Se3::identity(), Some(evidence))
+                .is_some_and(|m| {
+                    m.sources[(300 * camera.width + 320) as usize] & MaskLayer::Objects.bit() != 0
+                })
+        };
+        assert!(!object_at_centre("truck", &still), "a truck seen still");
+        assert!(object_at_centre("truck", &moving), "a truck seen moving");
+        assert!(object_at_centre("person", &still), "a person seen still");
     }
 
     #[test]
@@ -1263,9 +1604,12 @@ mod tests {
                 first.mask(t, &depth, &identity, None),
                 "at {t} s"
             );
-            // Placed up to the first detected frame at or after t: each boxed frame's
-            // depth asked once, the frame without a box never.
-            let through = [1.0, 1.4, 1.8, 2.6].into_iter().find(|&d| d >= t).unwrap();
+            // Placed up to the first detected frame at or after t + track_seconds (1 s):
+            // each boxed frame's depth asked once, the frame without a box never.
+            let through = [1.0, 1.4, 1.8, 2.6]
+                .into_iter()
+                .find(|&d| d >= t + 1.0)
+                .unwrap_or(2.6);
             let boxed: Vec<f64> = [1.0, 1.8, 2.6]
                 .into_iter()
                 .filter(|&d| d <= through)
@@ -1401,6 +1745,7 @@ mod tests {
                 border: 0,
                 keypoint_radius: 0,
                 foreground_share: 0.1,
+                track_margin_speed: 0.4,
                 depth_behind,
                 skip_behind_objects: false,
                 disc_neighbours: 0,

@@ -41,6 +41,10 @@ pub struct Object {
     pub moved: bool,
     /// Its class moves on its own (`never_static_classes`: people).
     pub self_moving: bool,
+    /// The track that follows it ([`ObjectTracks::update`] numbers them from 1; `None`
+    /// before it went through one): the same number in two detected frames is the
+    /// same object.
+    pub track: Option<u32>,
 }
 
 impl Object {
@@ -61,7 +65,14 @@ impl Object {
             margin: 0.0,
             moved: false,
             self_moving: false,
+            track: None,
         }
+    }
+
+    /// Whether it is a track's prediction (a margin for the time since the track was
+    /// seen), not a detection.
+    pub fn predicted(&self) -> bool {
+        self.margin > 0.0
     }
 
     /// Its box in a camera at `camera_from_world` (clipped to the image), with the
@@ -116,11 +127,13 @@ impl Track {
 #[derive(Debug, Clone, Default)]
 pub struct ObjectTracks {
     tracks: Vec<Track>,
+    /// The number of the tracks started so far.
+    started: u32,
 }
 
 impl ObjectTracks {
-    /// Takes the objects detected at time `t` and marks those whose track has moved;
-    /// returns the tracks that were not among them but were seen within
+    /// Takes the objects detected at time `t`, marks those whose track has moved and
+    /// gives each its track's number ([`Object::track`]); returns the tracks that were not among them but were seen within
     /// `track_seconds`, predicted to `t` (the boxes the detector missed).
     pub fn update(&mut self, t: f64, detected: &mut [Object], config: &DopConfig) -> Vec<Object> {
         let speed = config.track_max_speed as f64;
@@ -155,6 +168,7 @@ impl ObjectTracks {
                 || track.object.moved
                 || (detected[oi].centre - track.origin).norm() >= config.track_moved_metres as f64;
             detected[oi].moved = moved;
+            detected[oi].track = track.object.track;
             track.object = detected[oi];
             track.last_seen = t;
         }
@@ -168,10 +182,12 @@ impl ObjectTracks {
         self.tracks
             .retain(|track| t - track.last_seen <= config.track_seconds as f64);
         for (object, _) in detected
-            .iter()
+            .iter_mut()
             .zip(&object_used)
             .filter(|(_, used)| !**used)
         {
+            self.started += 1;
+            object.track = Some(self.started);
             self.tracks.push(Track {
                 object: *object,
                 velocity: Vector3::zeros(),
@@ -321,6 +337,7 @@ mod tests {
             margin: 0.0,
             moved: false,
             self_moving: false,
+            track: None,
         }
     }
 
