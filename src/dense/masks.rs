@@ -203,7 +203,7 @@ impl MaskSource {
                         .map(|(b, d)| {
                             let class = BoxClass {
                                 followed: dop.follows(&d.class),
-                                self_moving: dop.never_static_classes.contains(&d.class),
+                                self_moving: dop.moves_on_its_own(&d.class),
                             };
                             (snap_to_border(b, &camera), class)
                         })
@@ -240,11 +240,9 @@ impl MaskSource {
         let ahead = timestamp + track_seconds;
         let through = self.keyframes.partition_point(|k| k.timestamp < ahead) + 1;
         while self.placed < through.min(self.keyframes.len()) {
-            let placed_so_far = &mut self.keyframes[..=self.placed];
+            let index = self.placed;
             self.placed += 1;
-            let Some(frame) = placed_so_far.last_mut() else {
-                continue;
-            };
+            let frame = &mut self.keyframes[index];
             if self.masking != Mode::Dop {
                 continue;
             }
@@ -268,11 +266,8 @@ impl MaskSource {
                 )
             };
             frame.objects = follow_objects(&mut self.tracks, frame.timestamp, placed, &self.dop);
-            fill_gaps(
-                placed_so_far,
-                track_seconds,
-                self.dop.track_max_speed as f64,
-            );
+            let speed = self.dop.track_max_speed as f64;
+            fill_gaps(&mut self.keyframes[..=index], track_seconds, speed);
         }
     }
 
@@ -633,13 +628,11 @@ const OBJECT_MOVING_SHARE: f32 = 0.02;
 /// Whether the evidence saw [`OBJECT_MOVING_SHARE`] of box `b`'s body move.
 fn seen_moving(evidence: &Evidence, depth: &DepthImage, b: &ObjectBox, body: (f32, f32)) -> bool {
     let z = b.depth.unwrap_or(0.0);
-    let (w, h) = (depth.width as usize, depth.height as usize);
-    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
-    let (x1, y1) = (clip(b.bbox[0].floor(), w), clip(b.bbox[1].floor(), h));
-    let (x2, y2) = (clip(b.bbox[2].ceil(), w), clip(b.bbox[3].ceil(), h));
+    let w = depth.width as usize;
+    let (columns, rows) = box_pixels(b.bbox, ImageSize::from((depth.width, depth.height)));
     let (mut pixels, mut moving) = (0usize, 0usize);
-    for v in y1..y2 {
-        for i in v * w + x1..v * w + x2 {
+    for v in rows {
+        for i in v * w + columns.start..v * w + columns.end {
             let d = depth.metres[i];
             if d > 0.0 && d >= z - body.0 && d <= z + body.1 {
                 pixels += 1;
@@ -665,17 +658,12 @@ fn fill_gaps(frames: &mut [KeyframeObjects], track_seconds: f64, speed: f64) {
             continue;
         };
         let detected = |o: &&Object| o.track == Some(id) && !o.predicted();
-        let window = earlier
-            .iter()
-            .rev()
-            .take_while(|k| last.timestamp - k.timestamp <= 2.0 * track_seconds)
-            .count();
-        let first = earlier.len() - window;
-        let Some((i, from)) = earlier[first..]
+        let Some((i, from)) = earlier
             .iter()
             .enumerate()
             .rev()
-            .find_map(|(i, k)| Some((first + i, *k.objects.iter().find(detected)?)))
+            .take_while(|(_, k)| last.timestamp - k.timestamp <= 2.0 * track_seconds)
+            .find_map(|(i, k)| Some((i, *k.objects.iter().find(detected)?)))
         else {
             continue;
         };
@@ -1088,13 +1076,11 @@ fn fill_box(
     bbox: [f32; 4],
     keep: impl Fn(usize, usize) -> bool,
 ) -> bool {
-    let (w, h) = (size.width as usize, size.height as usize);
-    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
-    let (x1, y1) = (clip(bbox[0].floor(), w), clip(bbox[1].floor(), h));
-    let (x2, y2) = (clip(bbox[2].ceil(), w), clip(bbox[3].ceil(), h));
+    let w = size.width as usize;
+    let (columns, rows) = box_pixels(bbox, size);
     let mut any = false;
-    for v in y1..y2 {
-        for u in x1..x2 {
+    for v in rows {
+        for u in columns.clone() {
             if keep(u, v) {
                 sources[v * w + u] |= layer.bit();
                 any = true;
@@ -1102,6 +1088,16 @@ fn fill_box(
         }
     }
     any
+}
+
+/// The columns and rows of the pixels that `bbox` touches (outward to whole pixels),
+/// clipped to an image of `size`.
+fn box_pixels(bbox: [f32; 4], size: ImageSize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+    let (w, h) = (size.width as usize, size.height as usize);
+    let clip = |value: f32, limit: usize| (value.max(0.0) as usize).min(limit);
+    let (x1, y1) = (clip(bbox[0].floor(), w), clip(bbox[1].floor(), h));
+    let (x2, y2) = (clip(bbox[2].ceil(), w), clip(bbox[3].ceil(), h));
+    (x1..x2, y1..y2)
 }
 
 /// The keypoints of a tracked frame in a removed (dynamic) state, `(x, y, depth)`.
@@ -1144,13 +1140,23 @@ mod tests {
         frames: Vec<FrameDetections>,
         keypoints: Vec<FrameKeypoints>,
     ) -> MaskSource {
+        scene_source_of(&["person".to_string()], settings, frames, keypoints)
+    }
+
+    /// [`scene_source`] with the `dynamic_classes` given.
+    fn scene_source_of(
+        dynamic_classes: &[String],
+        settings: MaskSettings,
+        frames: Vec<FrameDetections>,
+        keypoints: Vec<FrameKeypoints>,
+    ) -> MaskSource {
         let (camera, depth) = scene();
         MaskSource::new(
             MaskContext {
                 masking: Mode::Dop,
                 camera,
                 dop: &DopConfig::default(),
-                dynamic_classes: &["person".to_string()],
+                dynamic_classes,
             },
             settings,
             frames,
@@ -1486,20 +1492,8 @@ mod tests {
                     instance: None,
                 }],
             }];
-            let (camera, depth) = scene();
-            let mut source = MaskSource::new(
-                MaskContext {
-                    masking: Mode::Dop,
-                    camera,
-                    dop: &DopConfig::default(),
-                    dynamic_classes: &["person".to_string(), "truck".to_string()],
-                },
-                object_settings(),
-                frames,
-                vec![],
-                &|_| Some(Se3::identity()),
-                &|_| Some(depth.clone()),
-            );
+            let classes = ["person".to_string(), "truck".to_string()];
+            let mut source = scene_source_of(&classes, object_settings(), frames, vec![]);
             source
                 .layers(1.0, &depth, &Se3::identity(), Some(evidence))
                 .is_some_and(|m| {

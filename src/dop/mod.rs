@@ -334,6 +334,11 @@ impl DopConfig {
         self.track_boxes && self.track_classes.iter().any(|c| c == class)
     }
 
+    /// Whether objects of `class` move on their own (`never_static_classes`: people).
+    pub fn moves_on_its_own(&self, class: &str) -> bool {
+        self.never_static_classes.iter().any(|c| c == class)
+    }
+
     /// Whether `p` is removed before pose estimation.
     pub fn removed(&self, p: f32) -> bool {
         p > self.removal_threshold

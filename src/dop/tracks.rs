@@ -133,8 +133,9 @@ pub struct ObjectTracks {
 
 impl ObjectTracks {
     /// Takes the objects detected at time `t`, marks those whose track has moved and
-    /// gives each its track's number ([`Object::track`]); returns the tracks that were not among them but were seen within
-    /// `track_seconds`, predicted to `t` (the boxes the detector missed).
+    /// gives each its track's number ([`Object::track`]); returns the tracks that were
+    /// not among them but were seen within `track_seconds`, predicted to `t` (the boxes
+    /// the detector missed).
     pub fn update(&mut self, t: f64, detected: &mut [Object], config: &DopConfig) -> Vec<Object> {
         let speed = config.track_max_speed as f64;
         let mut pairs: Vec<(f64, usize, usize)> = Vec::new();

@@ -70,7 +70,7 @@ fn model_boxes(
 ) -> Vec<ObjectBox> {
     let mut boxes = object_boxes(detections, dynamic_classes);
     for (b, d) in boxes.iter_mut().zip(detections) {
-        b.moved = config.never_static_classes.contains(&d.class);
+        b.moved = config.moves_on_its_own(&d.class);
     }
     boxes
 }
