@@ -175,7 +175,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -190,6 +190,12 @@ pub struct DenseMasks {
     /// the DOP model's `delta_z`): a walker's far leg and feet lie up to half a metre
     /// behind the front of their body.
     pub depth_behind: f32,
+    /// How far behind its depth an object's mask reaches at the pixels the frames
+    /// around did not see still (free-space evidence, DOP only), metres; below
+    /// `depth_behind`: no farther. A person partly hidden behind another in one box
+    /// stands up to a metre or more behind the front one, where the static scene
+    /// behind a walker is seen still from the frames around.
+    pub depth_behind_not_still: f32,
     /// A followed person the detector missed on a detected frame is masked with the
     /// box their track predicts there, grown on every side by this speed (m/s) times
     /// the time since they were seen (the tracking pass's boxes grow at `[dop]
@@ -321,6 +327,7 @@ pub struct DenseFile {
     keypoint_radius: u32,
     mask_foreground_share: f32,
     mask_depth_behind: f32,
+    mask_depth_behind_not_still: f32,
     mask_track_margin_speed: f32,
     mask_discs_behind_objects: bool,
     mask_disc_neighbours: usize,
@@ -389,6 +396,7 @@ impl From<DenseFile> for DenseConfig {
                 keypoint_radius: file.keypoint_radius,
                 foreground_share: file.mask_foreground_share,
                 depth_behind: file.mask_depth_behind,
+                depth_behind_not_still: file.mask_depth_behind_not_still,
                 track_margin_speed: file.mask_track_margin_speed,
                 discs_behind_objects: file.mask_discs_behind_objects,
                 disc_neighbours: file.mask_disc_neighbours,
@@ -462,6 +470,7 @@ impl From<DenseConfig> for DenseFile {
             keypoint_radius: masks.keypoint_radius,
             mask_foreground_share: masks.foreground_share,
             mask_depth_behind: masks.depth_behind,
+            mask_depth_behind_not_still: masks.depth_behind_not_still,
             mask_track_margin_speed: masks.track_margin_speed,
             mask_discs_behind_objects: masks.discs_behind_objects,
             mask_disc_neighbours: masks.disc_neighbours,
@@ -534,6 +543,7 @@ impl Default for DenseConfig {
                 keypoint_radius: 10,
                 foreground_share: 0.10,
                 depth_behind: 0.6,
+                depth_behind_not_still: 1.2,
                 track_margin_speed: 0.75,
                 discs_behind_objects: true,
                 disc_neighbours: 6,
@@ -646,6 +656,10 @@ impl DenseConfig {
                 ("cloud_memory_mb", self.cloud.memory_mb),
                 ("mask_depth_behind", self.masks.depth_behind.into()),
                 (
+                    "mask_depth_behind_not_still",
+                    self.masks.depth_behind_not_still.into(),
+                ),
+                (
                     "mask_track_margin_speed",
                     self.masks.track_margin_speed.into(),
                 ),
@@ -679,6 +693,7 @@ impl DenseConfig {
             keypoint_radius: self.masks.keypoint_radius,
             foreground_share: self.masks.foreground_share,
             depth_behind: self.masks.depth_behind,
+            depth_behind_not_still: self.masks.depth_behind_not_still,
             track_margin_speed: self.masks.track_margin_speed,
             skip_behind_objects: !self.masks.discs_behind_objects,
             disc_neighbours: self.masks.disc_neighbours,

@@ -63,6 +63,9 @@ pub struct MaskSettings {
     pub track_margin_speed: f32,
     /// How far behind its depth an object's mask reaches, metres (in front: `delta_z`).
     pub depth_behind: f32,
+    /// How far behind it reaches at the pixels the frames around did not see still
+    /// (with free-space evidence), metres.
+    pub depth_behind_not_still: f32,
     /// No disc around a dynamic keypoint inside an object's box but behind it.
     pub skip_behind_objects: bool,
     /// A disc only around a dynamic keypoint with at least this many other dynamic
@@ -378,7 +381,7 @@ impl MaskSource {
                 moves.then_some(b)
             })
             .collect();
-        let mut any = self.object_masks(sources, depth, &objects);
+        let mut any = self.object_masks(sources, depth, &objects, evidence);
         let keypoints = self.shown_keypoints(timestamp, evidence, (w, h));
         let keypoints = keypoints.as_ref();
         let keep = disc_keep(depth, &objects, evidence, self.dop.delta_z);
@@ -482,22 +485,33 @@ impl MaskSource {
     /// Each object's box, cut at its depth: the pixels from `delta_z` in front of it to
     /// `mask_depth_behind` behind it, and those without depth; within `delta_z` of it
     /// (and without depth) as [`MaskLayer::Objects`], farther behind as
-    /// [`MaskLayer::ObjectBand`].
-    fn object_masks(&self, sources: &mut [u8], depth: &DepthImage, objects: &[ObjectBox]) -> bool {
+    /// [`MaskLayer::ObjectBand`], which with `evidence` also takes the pixels up to
+    /// `mask_depth_behind_not_still` behind it that the frames around did not see
+    /// still (a person partly hidden behind the one the box is cut at).
+    fn object_masks(
+        &self,
+        sources: &mut [u8],
+        depth: &DepthImage,
+        objects: &[ObjectBox],
+        evidence: Option<&Evidence>,
+    ) -> bool {
         let size = ImageSize::from((depth.width, depth.height));
+        let w = size.width as usize;
         let mut any = false;
+        let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
+        // The body reaches `delta_z` behind the depth too, or less when the band does.
+        let body = front.min(behind);
+        let not_still = |u: usize, v: usize| evidence.is_some_and(|e| !e.still[v * w + u]);
+        let farther = self.settings.depth_behind_not_still;
         for b in objects {
             let z = b.depth.unwrap_or(0.0);
-            let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
-            // The body reaches `delta_z` behind the depth too, or less when the band does.
-            let body = front.min(behind);
             any |= fill_box(sources, MaskLayer::Objects, size, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
                 d == 0.0 || (d >= z - front && d <= z + body)
             });
             any |= fill_box(sources, MaskLayer::ObjectBand, size, b.bbox, |u, v| {
                 let d = depth.at(u as u32, v as u32);
-                d > z + body && d <= z + behind
+                d > z + body && (d <= z + behind || (d <= z + farther && not_still(u, v)))
             });
         }
         any
@@ -1207,6 +1221,7 @@ mod tests {
                 foreground_share,
                 track_margin_speed: 0.4,
                 depth_behind: 0.4,
+                depth_behind_not_still: 0.4,
                 skip_behind_objects: false,
                 disc_neighbours: 0,
                 keypoints_seen_moving: false,
@@ -1235,6 +1250,7 @@ mod tests {
             foreground_share: 0.1,
             track_margin_speed: 0.4,
             depth_behind: 0.4,
+            depth_behind_not_still: 0.4,
             skip_behind_objects: true,
             disc_neighbours: 0,
             keypoints_seen_moving: false,
@@ -1315,6 +1331,7 @@ mod tests {
             foreground_share: 0.1,
             track_margin_speed: 0.4,
             depth_behind: 0.4,
+            depth_behind_not_still: 0.4,
             skip_behind_objects: true,
             disc_neighbours: 2,
             keypoints_seen_moving: false,
@@ -1368,6 +1385,7 @@ mod tests {
             foreground_share: 0.0,
             track_margin_speed: 0.4,
             depth_behind: 0.4,
+            depth_behind_not_still: 0.4,
             skip_behind_objects: false,
             disc_neighbours: 0,
             keypoints_seen_moving: false,
@@ -1720,27 +1738,45 @@ mod tests {
         );
     }
 
-    /// An object's mask reaches `depth_behind` behind its depth and `delta_z` in front.
+    /// An object's mask reaches `depth_behind` behind its depth and `delta_z` in front;
+    /// with free-space evidence, `depth_behind_not_still` behind it where the frames
+    /// around did not see the pixel still.
     #[test]
     fn an_object_mask_reaches_its_far_leg_behind_it() {
         let (camera, mut depth) = scene();
-        // The far leg, 0.5 m behind the body, in the slab's lower left.
-        for v in 300..460 {
-            for u in 250..300 {
-                depth.metres[(v * camera.width + u) as usize] = 2.0;
+        let w = camera.width as usize;
+        let mut fill = |us: std::ops::Range<usize>, vs: std::ops::Range<usize>, z: f32| {
+            for v in vs {
+                for u in us.clone() {
+                    depth.metres[v * w + u] = z;
+                }
             }
+        };
+        // The far leg, 0.5 m behind the body, in the slab's lower left; in the box's
+        // upper right, 1 m behind the body, another person half hidden (not seen
+        // still) above a crate (seen still).
+        fill(250..300, 300..460, 2.0);
+        fill(390..400, 100..300, 2.5);
+        let crate_rows = 200..300;
+        let mut evidence = Evidence {
+            moving: vec![false; depth.metres.len()],
+            still: vec![false; depth.metres.len()],
+        };
+        for v in crate_rows {
+            evidence.still[v * w + 395] = true;
         }
         let object = ObjectBox {
             depth: Some(1.5),
             ..person_box([240.0, 90.0, 400.0, 470.0])
         };
-        let mask_with = |depth_behind| {
+        let mask_with = |depth_behind, depth_behind_not_still, evidence| {
             let settings = MaskSettings {
                 border: 0,
                 keypoint_radius: 0,
                 foreground_share: 0.1,
                 track_margin_speed: 0.4,
                 depth_behind,
+                depth_behind_not_still,
                 skip_behind_objects: false,
                 disc_neighbours: 0,
                 keypoints_seen_moving: false,
@@ -1748,13 +1784,12 @@ mod tests {
             };
             let source = scene_source(settings, Vec::new(), Vec::new());
             let mut sources = vec![0u8; depth.metres.len()];
-            source.object_masks(&mut sources, &depth, &[object]);
+            source.object_masks(&mut sources, &depth, &[object], evidence);
             sources
         };
-        let (narrow, wide) = (mask_with(0.4), mask_with(0.6));
-        let layer = |sources: &[u8], u: u32, v: u32| {
-            sources[(v * PinholeCamera::tum_fr3().width + u) as usize]
-        };
+        let (narrow, wide) = (mask_with(0.4, 0.4, None), mask_with(0.6, 0.6, None));
+        let farther = mask_with(0.6, 1.2, Some(&evidence));
+        let layer = |sources: &[u8], u: u32, v: u32| sources[v as usize * w + u as usize];
         let body = MaskLayer::Objects.bit();
         let band = MaskLayer::ObjectBand.bit();
         assert!(
@@ -1766,6 +1801,27 @@ mod tests {
             "the far leg, in the band"
         );
         assert_eq!(layer(&wide, 245, 200), 0, "the wall in the box");
+        assert_eq!(
+            layer(&wide, 395, 150),
+            0,
+            "the person behind, beyond the band"
+        );
+        assert_eq!(
+            layer(&farther, 395, 150),
+            band,
+            "the person behind, not seen still"
+        );
+        assert_eq!(layer(&farther, 395, 250), 0, "the crate behind, seen still");
+        assert_eq!(
+            layer(&farther, 245, 200),
+            0,
+            "the wall, beyond the farther band"
+        );
+        assert_eq!(
+            mask_with(0.6, 1.2, None),
+            wide,
+            "no evidence: no farther band"
+        );
     }
 
     /// A box of a close person's legs (1 m) before a wall (3 m), beside the person's
