@@ -44,6 +44,10 @@ pub struct DenseInputs<'a> {
     pub stereo: Option<StereoDepth>,
     /// The detector for `detect_every` (DOP masks only).
     pub detector: Option<(std::sync::Mutex<Box<dyn crate::detect::Detector>>, String)>,
+    /// The run's keyframe detections came from the same detector (its description):
+    /// a frame next to a detected keyframe is not detected again
+    /// ([`super::more_detections::Schedule`]).
+    pub keyframe_boxes_alike: bool,
 }
 
 /// What the dense pass reads from a finished run.

@@ -170,7 +170,10 @@ fn dense_detections(
             describe,
         },
         &fused,
-        config.detections.every,
+        more_detections::Schedule {
+            every: config.detections.every,
+            reuse_keyframes: inputs.keyframe_boxes_alike,
+        },
         &out.dense_detections(),
         detections,
         inputs.progress,

@@ -36,6 +36,21 @@ pub struct ExtraDetections {
     pub failed: usize,
     /// The first failure's message.
     pub first_error: Option<String>,
+    /// Frames not detected because a keyframe within `detect_every / 2` frames was
+    /// detected by the same detector in the tracking pass ([`Schedule`]).
+    #[serde(default)]
+    pub near_keyframes: usize,
+}
+
+/// Which frames the dense pass detects on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Schedule {
+    /// Every `every`-th fused frame (0: none).
+    pub every: usize,
+    /// The keyframes' detections came from the detector the dense pass runs: a frame
+    /// within `every / 2` frames of a detected keyframe takes its boxes (the same
+    /// detector on nearly the same image) and is not detected again.
+    pub reuse_keyframes: bool,
 }
 
 /// The detector the dense pass runs, and how it describes itself (kept in a cache's
@@ -49,15 +64,15 @@ pub struct Described<'a> {
 
 /// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
 /// in `cache` by the same detector (`describe`, kept in `cache/detector.txt`), then
-/// every `every`-th of the `fused` frames that has none yet, detected now and cached.
-/// A keyframe's own boxes stay, joined by the new ones that overlap none of its boxes
+/// every `every`-th of the `fused` frames that has none yet and no keyframe near it
+/// detected alike ([`Schedule`]), detected now and cached. A keyframe's own boxes stay, joined by the new ones that overlap none of its boxes
 /// of their class. Frames the detector fails on keep the keyframes' masks, with a
 /// warning.
 pub fn add(
     sequence: &dyn Sequence,
     detector: Described,
     fused: &[usize],
-    every: usize,
+    schedule: Schedule,
     cache: &Path,
     detections: &mut Vec<FrameDetections>,
     progress: bool,
@@ -65,9 +80,21 @@ pub fn add(
     let Described { detector, describe } = detector;
     let cached = cached_by(cache, describe)?;
     let known: HashSet<i64> = cached.iter().map(|f| super::key(f.timestamp)).collect();
-    let todo = frames_to_detect(fused, every, |i| sequence.timestamp(i), &known);
+    let keyframes: HashSet<i64> = match schedule.reuse_keyframes {
+        true => detections.iter().map(|f| super::key(f.timestamp)).collect(),
+        false => HashSet::new(),
+    };
+    let timestamp = |i: usize| sequence.timestamp(i);
+    let wanted = frames_to_detect(fused, schedule.every, timestamp, &known);
+    let away = Away {
+        reach: schedule.every / 2,
+        frames: sequence.len(),
+        keyframes: &keyframes,
+    };
+    let todo = away.from_keyframes(&wanted, timestamp);
     let mut extra = ExtraDetections {
         cached: cached.len(),
+        near_keyframes: wanted.len() - todo.len(),
         ..Default::default()
     };
     let found = detect_frames(sequence, detector, &todo, cache, progress, &mut extra)?;
@@ -156,6 +183,28 @@ pub fn frames_to_detect(
         .copied()
         .filter(|&i| i % every == 0 && !known.contains(&super::key(timestamp(i))))
         .collect()
+}
+
+/// Which frames are near a detected keyframe ([`Schedule::reuse_keyframes`]).
+struct Away<'a> {
+    /// Frames either side that count as near.
+    reach: usize,
+    /// The sequence's length.
+    frames: usize,
+    /// The detected keyframes' times ([`super::key`]).
+    keyframes: &'a HashSet<i64>,
+}
+
+impl Away<'_> {
+    /// The `wanted` frames with no detected keyframe within `reach` frames.
+    fn from_keyframes(&self, wanted: &[usize], timestamp: impl Fn(usize) -> f64) -> Vec<usize> {
+        let last = self.frames.saturating_sub(1);
+        let near = |i: usize| {
+            (i.saturating_sub(self.reach)..=(i + self.reach).min(last))
+                .any(|j| self.keyframes.contains(&super::key(timestamp(j))))
+        };
+        wanted.iter().copied().filter(|&i| !near(i)).collect()
+    }
 }
 
 /// Detects on `frames` of `sequence` and writes each result to `cache`; frames the
@@ -267,5 +316,26 @@ mod tests {
         assert_eq!(frames_to_detect(&fused, 5, time, &known), vec![0, 10, 15]);
         assert!(frames_to_detect(&fused, 0, time, &known).is_empty());
         assert_eq!(frames_to_detect(&fused, 1, time, &HashSet::new()), fused);
+    }
+
+    /// A frame within `every / 2` frames of a detected keyframe takes its boxes.
+    #[test]
+    fn frames_next_to_a_detected_keyframe_are_not_detected_again() {
+        let time = |i: usize| 100.0 + i as f64 / 30.0;
+        let keyframes: HashSet<i64> = [7, 19].map(|i| crate::dense::key(time(i))).into();
+        let away = |reach| Away {
+            reach,
+            frames: 20,
+            keyframes: &keyframes,
+        };
+        let wanted = [0, 5, 10, 15, 19];
+        assert_eq!(away(2).from_keyframes(&wanted, time), vec![0, 10, 15]);
+        assert_eq!(away(0).from_keyframes(&wanted, time), vec![0, 5, 10, 15]);
+        let none = HashSet::new();
+        let away_from_none = Away {
+            keyframes: &none,
+            ..away(2)
+        };
+        assert_eq!(away_from_none.from_keyframes(&wanted, time), wanted);
     }
 }

@@ -145,5 +145,6 @@ fn inputs_of<'a>(pass: &DensePass<'a>) -> Result<DenseInputs<'a>, RunError> {
         progress,
         stereo: setup.stereo,
         detector: detector.map(|d| (std::sync::Mutex::new(d), dense_detector.describe())),
+        keyframe_boxes_alike: dense_detector.describe() == config.detector.describe(),
     })
 }
