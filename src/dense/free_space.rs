@@ -254,12 +254,18 @@ fn nearest_depth(depth: &DepthImage, r: usize) -> Vec<f32> {
         .iter()
         .map(|&d| if d > 0.0 { d } else { f32::INFINITY })
         .collect();
-    let mut rows = vec![f32::INFINITY; w * h];
-    for v in 0..h {
-        let line = &far[v * w..(v + 1) * w];
-        for u in 0..w {
-            let (lo, hi) = (u.saturating_sub(r), (u + r).min(w - 1));
-            rows[v * w + u] = line[lo..=hi].iter().copied().fold(f32::INFINITY, f32::min);
+    // Each row's minimum over the shifted copies of itself, one shift at a time: whole
+    // slices, which the compiler vectorises (a fold per pixel over its window was 6 %
+    // of a dense pass).
+    let mut rows = far.clone();
+    for (row, line) in rows.chunks_mut(w).zip(far.chunks(w)) {
+        for k in 1..=r.min(w - 1) {
+            for (o, &m) in row[k..].iter_mut().zip(&line[..w - k]) {
+                *o = o.min(m);
+            }
+            for (o, &m) in row[..w - k].iter_mut().zip(&line[k..]) {
+                *o = o.min(m);
+            }
         }
     }
     let mut out = vec![f32::INFINITY; w * h];
@@ -738,6 +744,49 @@ mod tests {
         assert!(every.still.iter().any(|&s| s), "the wall is seen still");
         assert_eq!(second, every);
         assert_eq!(third, every);
+    }
+
+    /// The nearest valid depth around each pixel equals a scan of its window, at the
+    /// borders too, with holes (no depth) left out and windows without depth at 0.
+    #[test]
+    fn the_nearest_depth_is_the_smallest_valid_one_in_the_window() {
+        let (w, h) = (23usize, 7usize);
+        let mut depth = DepthImage::new(w as u32, h as u32);
+        let mut rng = crate::random::Rng::new(12345);
+        for d in depth.metres.iter_mut() {
+            let x = rng.uniform() as f32;
+            *d = if x < 0.3 { 0.0 } else { 0.5 + 4.0 * x };
+        }
+        for v in 0..h {
+            depth.metres[v * w + 20] = 0.0;
+            depth.metres[v * w + 21] = 0.0;
+            depth.metres[v * w + 22] = 0.0;
+        }
+        for r in [0, 1, 2, 5, 30] {
+            let fast = nearest_depth(&depth, r);
+            for v in 0..h {
+                for u in 0..w {
+                    let mut scan = f32::INFINITY;
+                    for y in v.saturating_sub(r)..=(v + r).min(h - 1) {
+                        for x in u.saturating_sub(r)..=(u + r).min(w - 1) {
+                            let d = depth.metres[y * w + x];
+                            if d > 0.0 {
+                                scan = scan.min(d);
+                            }
+                        }
+                    }
+                    let scan = if scan.is_finite() { scan } else { 0.0 };
+                    assert_eq!(fast[v * w + u], scan, "r {r}, pixel ({u}, {v})");
+                }
+            }
+        }
+        assert!(
+            nearest_depth(&depth, 0)
+                .iter()
+                .filter(|&&d| d == 0.0)
+                .count()
+                >= 3 * h
+        );
     }
 
     #[test]
