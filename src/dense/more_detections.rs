@@ -86,12 +86,12 @@ pub fn add(
     };
     let timestamp = |i: usize| sequence.timestamp(i);
     let wanted = frames_to_detect(fused, schedule.every, timestamp, &known);
-    let away = Away {
+    let near = KeyframesNear {
         reach: schedule.every / 2,
         frames: sequence.len(),
         keyframes: &keyframes,
     };
-    let todo = away.from_keyframes(&wanted, timestamp);
+    let todo = near.others(&wanted, timestamp);
     let mut extra = ExtraDetections {
         cached: cached.len(),
         near_keyframes: wanted.len() - todo.len(),
@@ -186,7 +186,7 @@ pub fn frames_to_detect(
 }
 
 /// Which frames are near a detected keyframe ([`Schedule::reuse_keyframes`]).
-struct Away<'a> {
+struct KeyframesNear<'a> {
     /// Frames either side that count as near.
     reach: usize,
     /// The sequence's length.
@@ -195,9 +195,9 @@ struct Away<'a> {
     keyframes: &'a HashSet<i64>,
 }
 
-impl Away<'_> {
+impl KeyframesNear<'_> {
     /// The `wanted` frames with no detected keyframe within `reach` frames.
-    fn from_keyframes(&self, wanted: &[usize], timestamp: impl Fn(usize) -> f64) -> Vec<usize> {
+    fn others(&self, wanted: &[usize], timestamp: impl Fn(usize) -> f64) -> Vec<usize> {
         let last = self.frames.saturating_sub(1);
         let near = |i: usize| {
             (i.saturating_sub(self.reach)..=(i + self.reach).min(last))
@@ -323,19 +323,19 @@ mod tests {
     fn frames_next_to_a_detected_keyframe_are_not_detected_again() {
         let time = |i: usize| 100.0 + i as f64 / 30.0;
         let keyframes: HashSet<i64> = [7, 19].map(|i| crate::dense::key(time(i))).into();
-        let away = |reach| Away {
+        let near = |reach| KeyframesNear {
             reach,
             frames: 20,
             keyframes: &keyframes,
         };
         let wanted = [0, 5, 10, 15, 19];
-        assert_eq!(away(2).from_keyframes(&wanted, time), vec![0, 10, 15]);
-        assert_eq!(away(0).from_keyframes(&wanted, time), vec![0, 5, 10, 15]);
+        assert_eq!(near(2).others(&wanted, time), vec![0, 10, 15]);
+        assert_eq!(near(0).others(&wanted, time), vec![0, 5, 10, 15]);
         let none = HashSet::new();
-        let away_from_none = Away {
+        let near_none = KeyframesNear {
             keyframes: &none,
-            ..away(2)
+            ..near(2)
         };
-        assert_eq!(away_from_none.from_keyframes(&wanted, time), wanted);
+        assert_eq!(near_none.others(&wanted, time), wanted);
     }
 }
