@@ -1801,22 +1801,19 @@ mod tests {
             "the far leg, in the band"
         );
         assert_eq!(layer(&wide, 245, 200), 0, "the wall in the box");
-        assert_eq!(
-            layer(&wide, 395, 150),
-            0,
-            "the person behind, beyond the band"
-        );
-        assert_eq!(
-            layer(&farther, 395, 150),
-            band,
-            "the person behind, not seen still"
-        );
-        assert_eq!(layer(&farther, 395, 250), 0, "the crate behind, seen still");
-        assert_eq!(
-            layer(&farther, 245, 200),
-            0,
-            "the wall, beyond the farther band"
-        );
+        for (sources, (u, v), expected, what) in [
+            (&wide, (395, 150), 0, "the person behind, beyond the band"),
+            (
+                &farther,
+                (395, 150),
+                band,
+                "the person behind, not seen still",
+            ),
+            (&farther, (395, 250), 0, "the crate behind, seen still"),
+            (&farther, (245, 200), 0, "the wall, beyond the farther band"),
+        ] {
+            assert_eq!(layer(sources, u, v), expected, "{what}");
+        }
         assert_eq!(
             mask_with(0.6, 1.2, None),
             wide,
