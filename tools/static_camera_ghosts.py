@@ -19,7 +19,7 @@ instead of the far end (100, the default). A thin static object (a chair's leg, 
 desk's edge) flickers to the floor or the wall behind it in a few frames, so the far
 end puts it in front of its own background; the 95th percentile ignores the farthest
 5 % of a pixel's depths and still sees the background wherever the movers leave it
-free in more than 5 % of the frames. Both are reported by `tools/ist_ghosts.sh`.
+free in more than 5 % of the frames (docs/design.md, "The real people's measure").
 
     data/venv/bin/python tools/static_camera_ghosts.py SEQUENCE RUN_DIR [MESH.ply ...]
         [--settings S.yaml] [--margin 0.15] [--window 5] [--percentile 100] [--json]
@@ -144,12 +144,12 @@ def main():
                         help="each pixel's background: this percentile of its depths (100: the far end)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    if not 50.0 <= args.percentile <= 100.0:
+        sys.exit(f"--percentile {args.percentile}: must lie within 50-100 (a mover may cover a pixel in up to half the frames)")
     fx, fy, cx, cy, factor = settings(args.settings)
     stack = depths(args.sequence, factor)
     pose = first_pose(args.run_dir)
     meshes = args.meshes or [os.path.join(args.run_dir, "dense_mesh.ply")]
-    if not 50.0 <= args.percentile <= 100.0:
-        sys.exit(f"--percentile {args.percentile}: must lie within 50-100 (a mover may cover a pixel in up to half the frames)")
     rows = {m: judge(read_ply_vertices(m), stack, (fx, fy, cx, cy), pose, args.margin, args.window,
                      args.percentile)
             for m in meshes}

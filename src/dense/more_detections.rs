@@ -65,9 +65,9 @@ pub struct Described<'a> {
 /// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
 /// in `cache` by the same detector (`describe`, kept in `cache/detector.txt`), then
 /// every `every`-th of the `fused` frames that has none yet and no keyframe near it
-/// detected alike ([`Schedule`]), detected now and cached. A keyframe's own boxes stay, joined by the new ones that overlap none of its boxes
-/// of their class. Frames the detector fails on keep the keyframes' masks, with a
-/// warning.
+/// detected alike ([`Schedule`]), detected now and cached. A keyframe's own boxes
+/// stay, joined by the new ones that overlap none of its boxes of their class. Frames
+/// the detector fails on keep the keyframes' masks, with a warning.
 pub fn add(
     sequence: &dyn Sequence,
     detector: Described,
@@ -80,9 +80,10 @@ pub fn add(
     let Described { detector, describe } = detector;
     let cached = cached_by(cache, describe)?;
     let known: HashSet<i64> = cached.iter().map(|f| super::key(f.timestamp)).collect();
-    let keyframes: HashSet<i64> = match schedule.reuse_keyframes {
-        true => detections.iter().map(|f| super::key(f.timestamp)).collect(),
-        false => HashSet::new(),
+    let keyframes: HashSet<i64> = if schedule.reuse_keyframes {
+        detections.iter().map(|f| super::key(f.timestamp)).collect()
+    } else {
+        HashSet::new()
     };
     let timestamp = |i: usize| sequence.timestamp(i);
     let wanted = frames_to_detect(fused, schedule.every, timestamp, &known);
