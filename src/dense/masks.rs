@@ -369,7 +369,6 @@ impl MaskSource {
             camera_from_world,
         } = frame;
         let (w, h) = (depth.width as usize, depth.height as usize);
-        let body = (self.dop.delta_z, self.settings.depth_behind);
         let speed = self.dop.track_max_speed as f64;
         let objects: Vec<ObjectBox> = objects_at(near, timestamp, speed)
             .iter()
@@ -377,7 +376,7 @@ impl MaskSource {
                 let object = &self.with_mask_margin(object);
                 let b = object.to_box(&self.camera, camera_from_world)?;
                 let moves =
-                    object.self_moving || evidence.is_none_or(|e| seen_moving(e, depth, &b, body));
+                    object.self_moving || evidence.is_none_or(|e| self.seen_moving(e, depth, &b));
                 moves.then_some(b)
             })
             .collect();
@@ -409,6 +408,25 @@ impl MaskSource {
             margin: object.margin * share,
             ..*object
         }
+    }
+
+    /// Whether the evidence saw [`OBJECT_MOVING_SHARE`] of box `b`'s body move.
+    fn seen_moving(&self, evidence: &Evidence, depth: &DepthImage, b: &ObjectBox) -> bool {
+        let (front, behind) = (self.dop.delta_z, self.settings.depth_behind);
+        let z = b.depth.unwrap_or(0.0);
+        let w = depth.width as usize;
+        let (columns, rows) = box_pixels(b.bbox, ImageSize::from((depth.width, depth.height)));
+        let (mut pixels, mut moving) = (0usize, 0usize);
+        for v in rows {
+            for i in v * w + columns.start..v * w + columns.end {
+                let d = depth.metres[i];
+                if d > 0.0 && d >= z - front && d <= z + behind {
+                    pixels += 1;
+                    moving += evidence.moving[i] as usize;
+                }
+            }
+        }
+        moving > 0 && moving as f32 >= OBJECT_MOVING_SHARE * pixels as f32
     }
 
     /// The depth segments grown from the frame's keypoint `seeds` and from the segments
@@ -633,29 +651,11 @@ fn objects_at(near: &[KeyframeObjects], t: f64, speed: f64) -> Vec<Object> {
     objects
 }
 
-/// The share of an object's body pixels (its box's pixels from `body.0` in front of
-/// its depth to `body.1` behind it) that the free-space evidence must see moving for an
-/// object of a class that does not move on its own to be masked: 2 %. A parked car,
-/// or a table taken for a truck, is seen still, as the static scene it is.
+/// The share of an object's body pixels (its box's pixels from `delta_z` in front of
+/// its depth to `mask_depth_behind` behind it) that the free-space evidence must see
+/// moving for an object of a class that does not move on its own to be masked: 2 %. A
+/// parked car, or a table taken for a truck, is seen still, as the static scene it is.
 const OBJECT_MOVING_SHARE: f32 = 0.02;
-
-/// Whether the evidence saw [`OBJECT_MOVING_SHARE`] of box `b`'s body move.
-fn seen_moving(evidence: &Evidence, depth: &DepthImage, b: &ObjectBox, body: (f32, f32)) -> bool {
-    let z = b.depth.unwrap_or(0.0);
-    let w = depth.width as usize;
-    let (columns, rows) = box_pixels(b.bbox, ImageSize::from((depth.width, depth.height)));
-    let (mut pixels, mut moving) = (0usize, 0usize);
-    for v in rows {
-        for i in v * w + columns.start..v * w + columns.end {
-            let d = depth.metres[i];
-            if d > 0.0 && d >= z - body.0 && d <= z + body.1 {
-                pixels += 1;
-                moving += evidence.moving[i] as usize;
-            }
-        }
-    }
-    moving > 0 && moving as f32 >= OBJECT_MOVING_SHARE * pixels as f32
-}
 
 /// With `frames` placed through the last: each track detected on the last frame, and
 /// before that on an earlier frame within `2 * track_seconds`, is placed on the frames
@@ -857,9 +857,10 @@ fn seeds_of(
 
 /// The dynamic `boxes` of a detected frame placed in the world at their object depth
 /// ([`box_depths`] with `mask_foreground_share`, else the model's), each with whether
-/// its class is followed (and [`Object::self_moving`] set from `classes`); boxes without depth are left out. A box whose centre lies
-/// behind its foreground ([`centre_behind`]) is placed a second time, at its centre's
-/// depth (not followed: only the frames around this one see it).
+/// its class is followed (and [`Object::self_moving`] set from `classes`); boxes
+/// without depth are left out. A box whose centre lies behind its foreground
+/// ([`centre_behind`]) is placed a second time, at its centre's depth (not followed:
+/// only the frames around this one see it).
 fn place_objects(
     boxes: &[ObjectBox],
     classes: &[BoxClass],
