@@ -38,7 +38,14 @@ done
 [ -x "$bin" ] || { echo "bench_run_time.sh: no dopslam at $bin (cargo build --release)" >&2; exit 2; }
 [ -z "$base" ] || [ -x "$base" ] || { echo "bench_run_time.sh: no dopslam at $base" >&2; exit 2; }
 [ -x /usr/bin/time ] || { echo "bench_run_time.sh: needs /usr/bin/time (apt-get install time)" >&2; exit 2; }
+# The output folder is this script's own: a new one, or one it made before (marked),
+# whose earlier runs it replaces; it never clears a folder it did not make.
+if [ -d "$out" ] && [ -n "$(ls -A "$out")" ] && [ ! -f "$out/.bench_run_time" ]; then
+  echo "bench_run_time.sh: $out holds files this script did not write; name a new --out" >&2
+  exit 2
+fi
 mkdir -p "$out"
+touch "$out/.bench_run_time"
 rows=$out/rows.tsv
 : >"$rows"
 builds=(this)
