@@ -175,7 +175,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_map_min_weight`, `mask_map_release_bodies`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_free_space_no_return`, `mask_map_min_weight`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -250,6 +250,11 @@ pub struct DenseMasks {
     /// where they lie at the same depth and agree, and are judged themselves where
     /// they do not (1: every pixel judged).
     pub free_space_stride: usize,
+    /// A neighbour frame with no depth at all in the 11 x 11 pixels around where a
+    /// pixel's point projects saw through it, when the point lies within this many
+    /// metres of that frame: nothing was there, since a surface that near returns
+    /// depth (a walker's legs before a floor beyond the sensor's range). 0: off.
+    pub free_space_no_return: f32,
     /// A masked pixel whose depth lies on the static map fused so far, where the map
     /// has at least this weight (frames), is fused after all (`dense.json`'s
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
@@ -341,6 +346,7 @@ pub struct DenseFile {
     mask_free_space_seconds: f64,
     mask_free_space_far_seconds: f64,
     mask_free_space_stride: usize,
+    mask_free_space_no_return: f32,
     mask_map_min_weight: f32,
     mask_map_release_bodies: bool,
     mask_pictures_every: usize,
@@ -410,6 +416,7 @@ impl From<DenseFile> for DenseConfig {
                 free_space_seconds: file.mask_free_space_seconds,
                 free_space_far_seconds: file.mask_free_space_far_seconds,
                 free_space_stride: file.mask_free_space_stride,
+                free_space_no_return: file.mask_free_space_no_return,
                 map_min_weight: file.mask_map_min_weight,
                 map_release_bodies: file.mask_map_release_bodies,
             },
@@ -484,6 +491,7 @@ impl From<DenseConfig> for DenseFile {
             mask_free_space_seconds: masks.free_space_seconds,
             mask_free_space_far_seconds: masks.free_space_far_seconds,
             mask_free_space_stride: masks.free_space_stride,
+            mask_free_space_no_return: masks.free_space_no_return,
             mask_map_min_weight: masks.map_min_weight,
             mask_map_release_bodies: masks.map_release_bodies,
             mesh: outputs.mesh,
@@ -557,6 +565,7 @@ impl Default for DenseConfig {
                 free_space_seconds: free_space.seconds,
                 free_space_far_seconds: free_space.far_seconds,
                 free_space_stride: free_space.stride,
+                free_space_no_return: 4.0,
                 map_min_weight: 10.0,
                 map_release_bodies: false,
             },
@@ -645,6 +654,10 @@ impl DenseConfig {
                 ),
                 ("mask_free_space_seconds", self.masks.free_space_seconds),
                 (
+                    "mask_free_space_no_return",
+                    self.masks.free_space_no_return.into(),
+                ),
+                (
                     "mask_free_space_far_seconds",
                     self.masks.free_space_far_seconds,
                 ),
@@ -730,6 +743,7 @@ impl DenseConfig {
             seconds: self.masks.free_space_seconds,
             far_seconds: self.masks.free_space_far_seconds,
             stride: self.masks.free_space_stride,
+            no_return: self.masks.free_space_no_return,
             ..FreeSpaceSettings::default()
         }
     }

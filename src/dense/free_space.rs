@@ -15,12 +15,19 @@
 //!   puts on the far side, from counting.
 //! - *still*: \(|d_j - p_z| \le \tau(p_z)\) at \((u_j, v_j)\): the same surface, in the
 //!   same place.
+//! - *no return* (when `no_return` is set): no valid depth at all within `reach`
+//!   pixels of \((u_j, v_j)\), with \(p_z\) within `no_return` metres. A surface that
+//!   near returns depth, so \(X\) was likely gone (the floor behind a far walker
+//!   lies beyond the sensor's range), unless the sensor could not read it (dark,
+//!   shiny, at a grazing angle): weaker evidence than seeing through.
 //! - otherwise nothing is known: something stood in front of \(X\) at time \(j\), there
 //!   is no depth, or \(X\) falls outside \(j\)'s image.
 //!
 //! A pixel is *moving* when at least one neighbour saw through it and none saw it
-//! still, or two neighbours saw through it; isolated moving pixels are dropped (at
-//! least `density` of the moving test's \((2 \cdot 4 + 1)^2\) window must be moving).
+//! still, or two neighbours saw through it, or the neighbours that saw through it or
+//! returned nothing outnumber those that saw it still by two (a walker's foot stays
+//! put while it bears the weight); isolated moving pixels are dropped (at least
+//! `density` of the moving test's \((2 \cdot 4 + 1)^2\) window must be moving).
 //! A pixel is *still* when at least two neighbours saw it still and none saw through
 //! it. A person who stops is still while they stand: the detector's boxes keep them
 //! out of the map then, the free space the moment they walk on.
@@ -54,6 +61,13 @@ pub struct FreeSpaceSettings {
     /// the pixels between take the verdict of those around them where they lie at the
     /// same depth and agree, and are judged themselves elsewhere (1: every pixel).
     pub stride: usize,
+    /// A neighbour with no depth at all within `reach` pixels of where a point
+    /// projects, the point lying within this many metres of it, returned nothing
+    /// from it (0: off): a surface that near returns depth, so nothing was there (a
+    /// walker's legs before a floor beyond the sensor's range), unless the sensor
+    /// could not read it (dark, shiny, at a grazing angle). Weaker than seeing
+    /// through: see [`Counts::class`].
+    pub no_return: f32,
 }
 
 impl Default for FreeSpaceSettings {
@@ -65,6 +79,7 @@ impl Default for FreeSpaceSettings {
             reach: 2,
             density: 0.3,
             stride: 2,
+            no_return: 0.0,
         }
     }
 }
@@ -357,7 +372,7 @@ pub fn evidence(
         settings,
     }
     .verdicts();
-    let (raw, still): (Vec<bool>, Vec<bool>) = verdicts.into_iter().map(class).unzip();
+    let (raw, still): (Vec<bool>, Vec<bool>) = verdicts.into_iter().map(Counts::class).unzip();
     Evidence {
         moving: keep_dense(&raw, w, h, 4, settings.density),
         still,
@@ -374,14 +389,55 @@ struct Judge<'a> {
     settings: &'a FreeSpaceSettings,
 }
 
-/// A pixel's counts (seen through, seen still) as the pixel tests read them: (moving,
-/// still).
-fn class(counts: (u8, u8)) -> (bool, bool) {
-    let (through, still) = counts;
-    (
-        through >= 2 || (through == 1 && still == 0),
-        through == 0 && still >= 2,
-    )
+/// How many neighbours saw a pixel which way.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Counts {
+    /// Saw through it.
+    through: u8,
+    /// Saw it in the same place.
+    still: u8,
+    /// Returned no depth around it, this near (weaker than seeing through: a surface
+    /// a sensor cannot read, dark, shiny or at a grazing angle, returns none either).
+    no_return: u8,
+}
+
+impl Counts {
+    /// Adds one neighbour's verdict.
+    fn add(&mut self, seen: Option<Seen>) {
+        match seen {
+            Some(Seen::Through) => self.through += 1,
+            Some(Seen::Still) => self.still += 1,
+            Some(Seen::NoReturn) => self.no_return += 1,
+            None => {}
+        }
+    }
+
+    /// The pixel tests' reading: (moving, still). Moving: two neighbours saw through
+    /// it; or one did and none saw it still; or those that saw through it or returned
+    /// nothing outnumber those that saw it still by two (a walker's foot stays put
+    /// for a moment while it bears the weight).
+    fn class(self) -> (bool, bool) {
+        let Self {
+            through,
+            still,
+            no_return,
+        } = self;
+        (
+            through >= 2 || (still == 0 && through >= 1) || through + no_return >= still + 2,
+            through == 0 && still >= 2,
+        )
+    }
+}
+
+/// What one neighbour saw of a pixel's point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Seen {
+    /// Depth beyond it all around: nothing was there.
+    Through,
+    /// The same surface in the same place.
+    Still,
+    /// No depth at all around it, though it lies near enough to return some.
+    NoReturn,
 }
 
 impl Judge<'_> {
@@ -390,10 +446,10 @@ impl Judge<'_> {
     /// other pixel takes the counts of the grid pixels around it where they lie at its
     /// depth (within the tolerance) and agree, and is judged itself where they do not
     /// (a depth edge, a mover's outline).
-    fn verdicts(&self) -> Vec<(u8, u8)> {
+    fn verdicts(&self) -> Vec<Counts> {
         let (w, h) = (self.depth.width as usize, self.depth.height as usize);
         let s = self.settings.stride.max(1);
-        let mut grid = vec![(0u8, 0u8); w * h];
+        let mut grid = vec![Counts::default(); w * h];
         grid.par_chunks_mut(w)
             .enumerate()
             .filter(|(v, _)| v % s == 0)
@@ -420,11 +476,11 @@ impl Judge<'_> {
     /// tolerance of depth `z` and all agree.
     fn copied(
         &self,
-        grid: &[(u8, u8)],
+        grid: &[Counts],
         z: f32,
         rows: [usize; 2],
         columns: [usize; 2],
-    ) -> Option<(u8, u8)> {
+    ) -> Option<Counts> {
         let w = self.depth.width as usize;
         let tau = self.settings.tau(z);
         let first = grid[rows[0] * w + columns[0]];
@@ -433,58 +489,43 @@ impl Judge<'_> {
             .iter()
             .all(|&i| {
                 let zc = self.depth.metres[i];
-                zc > 0.0 && (zc - z).abs() <= tau && class(grid[i]) == class(first)
+                zc > 0.0 && (zc - z).abs() <= tau && grid[i].class() == first.class()
             })
             .then_some(first)
     }
 
     /// Row `v`'s pixels every `step` columns, one neighbour at a time along the row
     /// (its depth is read row by row).
-    fn judge_row(&self, v: usize, row: &mut [(u8, u8)], step: usize) {
+    fn judge_row(&self, v: usize, row: &mut [Counts], step: usize) {
         let w = row.len();
         let row_depth = &self.depth.metres[v * w..(v + 1) * w];
         for (n, ray) in self.neighbours.iter().zip(self.rays) {
             for u in (0..w).step_by(step) {
                 let z = row_depth[u];
                 if z > 0.0 {
-                    count(
-                        &mut row[u],
-                        judge(
-                            self.camera,
-                            n,
-                            ray.point(u as f32, v as f32, z),
-                            self.settings,
-                        ),
-                    );
+                    row[u].add(judge(
+                        self.camera,
+                        n,
+                        ray.point(u as f32, v as f32, z),
+                        self.settings,
+                    ));
                 }
             }
         }
     }
 
     /// Pixel `(u, v)` at depth `z`, judged by every neighbour.
-    fn judge_pixel(&self, u: usize, v: usize, z: f32) -> (u8, u8) {
-        let mut verdict = (0, 0);
+    fn judge_pixel(&self, u: usize, v: usize, z: f32) -> Counts {
+        let mut verdict = Counts::default();
         for (n, ray) in self.neighbours.iter().zip(self.rays) {
-            count(
-                &mut verdict,
-                judge(
-                    self.camera,
-                    n,
-                    ray.point(u as f32, v as f32, z),
-                    self.settings,
-                ),
-            );
+            verdict.add(judge(
+                self.camera,
+                n,
+                ray.point(u as f32, v as f32, z),
+                self.settings,
+            ));
         }
         verdict
-    }
-}
-
-/// Adds one neighbour's verdict to a pixel's counts.
-fn count(verdict: &mut (u8, u8), judged: Option<bool>) {
-    match judged {
-        Some(true) => verdict.0 += 1,
-        Some(false) => verdict.1 += 1,
-        None => {}
     }
 }
 
@@ -500,14 +541,13 @@ fn around(x: usize, s: usize, n: usize) -> [usize; 2] {
     }
 }
 
-/// `Some(true)`: neighbour `n` saw through `p` (in its camera frame); `Some(false)`:
-/// it saw the same surface there; `None`: it cannot tell.
+/// What neighbour `n` saw of `p` (in its camera frame); `None`: it cannot tell.
 fn judge(
     camera: &PinholeCamera,
     n: &Neighbour,
     [x, y, z]: [f32; 3],
     settings: &FreeSpaceSettings,
-) -> Option<bool> {
+) -> Option<Seen> {
     if z < 0.1 {
         return None;
     }
@@ -521,10 +561,13 @@ fn judge(
     let i = v as usize * n.depth.width as usize + u as usize;
     let tau = settings.tau(z);
     if n.nearest[i] > z + tau {
-        return Some(true);
+        return Some(Seen::Through);
     }
     let d = n.depth.metres[i];
-    (d > 0.0 && (d - z).abs() <= tau).then_some(false)
+    if d > 0.0 && (d - z).abs() <= tau {
+        return Some(Seen::Still);
+    }
+    (z <= settings.no_return && n.nearest[i] == 0.0).then_some(Seen::NoReturn)
 }
 
 /// The set pixels of `mask` with at least `share` of the square of side `2 r + 1`
@@ -607,6 +650,49 @@ mod tests {
             .filter(|&i| now.metres[i] > 2.0 && e.moving[i])
             .count();
         assert_eq!(wall_moving, 0);
+    }
+
+    /// The block of `scene` before a background the sensor cannot reach (no depth):
+    /// a walker before a floor beyond the range.
+    fn before_nothing(block: (usize, usize)) -> DepthImage {
+        let mut depth = scene(Some(block));
+        depth
+            .metres
+            .iter_mut()
+            .filter(|d| **d > 2.0)
+            .for_each(|d| *d = 0.0);
+        depth
+    }
+
+    #[test]
+    fn neighbours_that_return_nothing_where_a_block_stood_see_it_move() {
+        let on = FreeSpaceSettings {
+            no_return: 4.0,
+            ..FreeSpaceSettings::default()
+        };
+        let pose = Se3::identity();
+        let now = before_nothing((20, 36));
+        let neighbours = [(4, 20), (36, 52), (40, 56)]
+            .map(|block| Neighbour::new(0.0, pose, before_nothing(block), on.reach));
+        let judged = |settings: &FreeSpaceSettings, n: &[&Neighbour]| {
+            evidence(&camera(), &now, &pose, n, settings).moving[28 + 20 * 64]
+        };
+        let [a, b, c] = &neighbours;
+        // Two neighbours returning nothing there: moving; off, or only one: unknown.
+        assert!(judged(&on, &[a, b]));
+        assert!(!judged(&FreeSpaceSettings::default(), &[a, b]));
+        assert!(!judged(&on, &[a]));
+        // Farther than `no_return`: a surface there may return nothing.
+        let near = FreeSpaceSettings {
+            no_return: 1.4,
+            ..on
+        };
+        assert!(!judged(&near, &[a, b]));
+        // A neighbour that saw the block in place outweighs one more that returned
+        // nothing, not two more.
+        let still = Neighbour::new(0.0, pose, now.clone(), on.reach);
+        assert!(!judged(&on, &[a, b, &still]));
+        assert!(judged(&on, &[a, b, c, &still]));
     }
 
     #[test]
