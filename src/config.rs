@@ -249,6 +249,9 @@ pub struct StereoConfig {
     /// `dense.mask_free_space_seconds`: off by default, since each fused pair would
     /// need two more pairs matched, and the depth tolerance is a depth sensor's.
     pub mask_free_space_seconds: f64,
+    /// `dense.mask_free_space_no_return`: off, since a pixel SGBM leaves without a
+    /// disparity found no match there, which says nothing of what is there.
+    pub mask_free_space_no_return: f32,
     /// `tracking.wait_near_boxes_only`: on by default, since at street speed a
     /// keyframe's new points are the ones that matter.
     pub wait_near_boxes_only: bool,
@@ -286,6 +289,7 @@ impl Default for StereoConfig {
             far_carves: false,
             mask_map_min_weight: 0.0,
             mask_free_space_seconds: 0.0,
+            mask_free_space_no_return: 0.0,
             wait_near_boxes_only: true,
             sgbm_disparities: 128,
             sgbm_block: 5,
@@ -382,6 +386,12 @@ impl StereoConfig {
             d_masks.free_space_seconds,
         );
         p.set(
+            "dense.mask_free_space_no_return",
+            &mut masks.free_space_no_return,
+            self.mask_free_space_no_return,
+            d_masks.free_space_no_return,
+        );
+        p.set(
             "dense.mask_map_min_weight",
             &mut masks.map_min_weight,
             self.mask_map_min_weight,
@@ -408,6 +418,10 @@ impl StereoConfig {
             checks::non_negative,
             &[
                 ("mask_free_space_seconds", self.mask_free_space_seconds),
+                (
+                    "mask_free_space_no_return",
+                    self.mask_free_space_no_return.into(),
+                ),
                 ("mask_map_min_weight", self.mask_map_min_weight.into()),
                 ("bearing_baselines", self.bearing_baselines),
             ],
@@ -977,11 +991,14 @@ mod tests {
         let profile = profile.expect("a stereo profile");
         assert_eq!(stereo.dense.tsdf.voxel, 0.2);
         assert_eq!(stereo.orb.n_features, config.stereo.n_features);
-        assert_eq!(profile.set.len(), 12, "{:?}", profile.set);
+        assert_eq!(profile.set.len(), 13, "{:?}", profile.set);
         assert!(profile
             .set
             .contains(&"dense.far_carves = false".to_string()));
         assert!(profile.set.contains(&"dense.voxel = 0.2".to_string()));
+        assert!(profile
+            .set
+            .contains(&"dense.mask_free_space_no_return = 0".to_string()));
         // The config's own [dense] voxel is named; the defaults it never set are not.
         assert_eq!(
             profile.replaced,
