@@ -378,26 +378,35 @@ impl StereoConfig {
             self.cloud_voxel,
             d_cloud.voxel,
         );
-        let (masks, d_masks) = (&mut config.dense.masks, &default.dense.masks);
+        self.apply_masks(&mut config.dense.masks, &default.dense.masks, &mut p);
+        p
+    }
+
+    /// The profile's `[dense]` mask keys.
+    fn apply_masks(
+        &self,
+        masks: &mut crate::dense::config::DenseMasks,
+        default: &crate::dense::config::DenseMasks,
+        p: &mut ProfileApplied,
+    ) {
         p.set(
             "dense.mask_free_space_seconds",
             &mut masks.free_space_seconds,
             self.mask_free_space_seconds,
-            d_masks.free_space_seconds,
+            default.free_space_seconds,
         );
         p.set(
             "dense.mask_free_space_no_return",
             &mut masks.free_space_no_return,
             self.mask_free_space_no_return,
-            d_masks.free_space_no_return,
+            default.free_space_no_return,
         );
         p.set(
             "dense.mask_map_min_weight",
             &mut masks.map_min_weight,
             self.mask_map_min_weight,
-            d_masks.map_min_weight,
+            default.map_min_weight,
         );
-        p
     }
 
     fn validate(&self) -> Result<(), BadValue> {
