@@ -250,10 +250,12 @@ pub struct DenseMasks {
     /// where they lie at the same depth and agree, and are judged themselves where
     /// they do not (1: every pixel judged).
     pub free_space_stride: usize,
-    /// A neighbour frame with no depth at all in the 11 x 11 pixels around where a
-    /// pixel's point projects saw through it, when the point lies within this many
-    /// metres of that frame: nothing was there, since a surface that near returns
-    /// depth (a walker's legs before a floor beyond the sensor's range). 0: off.
+    /// A neighbour frame with no depth at all within 2 pixels of where a pixel's
+    /// point projects, the point lying within this many metres of that frame,
+    /// returned nothing from it: weaker evidence than seeing through that the point
+    /// was gone (a walker's legs before a floor beyond the sensor's range; a dark or
+    /// shiny static surface returns nothing either), see
+    /// [`crate::dense::free_space`]. 0: off.
     pub free_space_no_return: f32,
     /// A masked pixel whose depth lies on the static map fused so far, where the map
     /// has at least this weight (frames), is fused after all (`dense.json`'s
