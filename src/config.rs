@@ -983,6 +983,14 @@ mod tests {
                 "dop.never_static_classes",
             ),
             ("[dop]\ntrack_classes = [\"lorry\"]\n", "dop.track_classes"),
+            (
+                "[dense]\nmask_free_space_tolerance_growth = -0.01\n",
+                "dense.mask_free_space_tolerance_growth",
+            ),
+            (
+                "[dense]\nmask_free_space_no_return = nan\n",
+                "dense.mask_free_space_no_return",
+            ),
         ] {
             let message = Config::from_toml(text).unwrap_err().to_string();
             assert!(message.starts_with(key), "{message}");

@@ -175,7 +175,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_free_space_no_return`, `mask_map_min_weight`, `mask_map_release_bodies`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_free_space_no_return`, `mask_free_space_tolerance_growth`, `mask_map_min_weight`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -257,6 +257,10 @@ pub struct DenseMasks {
     /// shiny static surface returns nothing either), see
     /// [`crate::dense::free_space`]. 0: off.
     pub free_space_no_return: f32,
+    /// How fast the free-space test's depth tolerance grows with the depth:
+    /// \(\tau(z) = 0.03\,\mathrm{m} + g z^2\) (per metre). A neighbour's depth within
+    /// \(\tau\) of a point is the same surface; beyond it, seen through.
+    pub free_space_tolerance_growth: f32,
     /// A masked pixel whose depth lies on the static map fused so far, where the map
     /// has at least this weight (frames), is fused after all (`dense.json`'s
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
@@ -349,6 +353,7 @@ pub struct DenseFile {
     mask_free_space_far_seconds: f64,
     mask_free_space_stride: usize,
     mask_free_space_no_return: f32,
+    mask_free_space_tolerance_growth: f32,
     mask_map_min_weight: f32,
     mask_map_release_bodies: bool,
     mask_pictures_every: usize,
@@ -419,6 +424,7 @@ impl From<DenseFile> for DenseConfig {
                 free_space_far_seconds: file.mask_free_space_far_seconds,
                 free_space_stride: file.mask_free_space_stride,
                 free_space_no_return: file.mask_free_space_no_return,
+                free_space_tolerance_growth: file.mask_free_space_tolerance_growth,
                 map_min_weight: file.mask_map_min_weight,
                 map_release_bodies: file.mask_map_release_bodies,
             },
@@ -494,6 +500,7 @@ impl From<DenseConfig> for DenseFile {
             mask_free_space_far_seconds: masks.free_space_far_seconds,
             mask_free_space_stride: masks.free_space_stride,
             mask_free_space_no_return: masks.free_space_no_return,
+            mask_free_space_tolerance_growth: masks.free_space_tolerance_growth,
             mask_map_min_weight: masks.map_min_weight,
             mask_map_release_bodies: masks.map_release_bodies,
             mesh: outputs.mesh,
@@ -568,6 +575,7 @@ impl Default for DenseConfig {
                 free_space_far_seconds: free_space.far_seconds,
                 free_space_stride: free_space.stride,
                 free_space_no_return: 4.0,
+                free_space_tolerance_growth: free_space.tolerance.1,
                 map_min_weight: 10.0,
                 map_release_bodies: false,
             },
@@ -660,6 +668,10 @@ impl DenseConfig {
                     self.masks.free_space_no_return.into(),
                 ),
                 (
+                    "mask_free_space_tolerance_growth",
+                    self.masks.free_space_tolerance_growth.into(),
+                ),
+                (
                     "mask_free_space_far_seconds",
                     self.masks.free_space_far_seconds,
                 ),
@@ -746,6 +758,10 @@ impl DenseConfig {
             far_seconds: self.masks.free_space_far_seconds,
             stride: self.masks.free_space_stride,
             no_return: self.masks.free_space_no_return,
+            tolerance: (
+                FreeSpaceSettings::default().tolerance.0,
+                self.masks.free_space_tolerance_growth,
+            ),
             ..FreeSpaceSettings::default()
         }
     }

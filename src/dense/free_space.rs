@@ -75,7 +75,7 @@ impl Default for FreeSpaceSettings {
         Self {
             seconds: 0.5,
             far_seconds: 6.0,
-            tolerance: (0.03, 0.015),
+            tolerance: (0.03, 0.005),
             reach: 2,
             density: 0.3,
             stride: 2,
