@@ -575,7 +575,7 @@ impl Default for DenseConfig {
                 free_space_far_seconds: free_space.far_seconds,
                 free_space_stride: free_space.stride,
                 free_space_no_return: 4.0,
-                free_space_tolerance_growth: free_space.tolerance.1,
+                free_space_tolerance_growth: free_space.tolerance_growth,
                 map_min_weight: 10.0,
                 map_release_bodies: false,
             },
@@ -758,10 +758,7 @@ impl DenseConfig {
             far_seconds: self.masks.free_space_far_seconds,
             stride: self.masks.free_space_stride,
             no_return: self.masks.free_space_no_return,
-            tolerance: (
-                FreeSpaceSettings::default().tolerance.0,
-                self.masks.free_space_tolerance_growth,
-            ),
+            tolerance_growth: self.masks.free_space_tolerance_growth,
             ..FreeSpaceSettings::default()
         }
     }

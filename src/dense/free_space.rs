@@ -51,8 +51,10 @@ pub struct FreeSpaceSettings {
     /// window (a box set down, a person who waits) was elsewhere seconds before or
     /// after: those frames saw through where it stands.
     pub far_seconds: f64,
-    /// \(\tau_0\) (metres) and \(\tau_2\) (per metre) of the tolerance.
-    pub tolerance: (f32, f32),
+    /// \(\tau_0\) of the tolerance, metres.
+    pub tolerance_base: f32,
+    /// \(\tau_2\) of the tolerance, per metre.
+    pub tolerance_growth: f32,
     /// Pixels around the projection whose nearest depth decides "seen through".
     pub reach: usize,
     /// Share of the 9x9 window around a moving pixel that must be moving too.
@@ -75,7 +77,8 @@ impl Default for FreeSpaceSettings {
         Self {
             seconds: 0.5,
             far_seconds: 6.0,
-            tolerance: (0.03, 0.005),
+            tolerance_base: 0.03,
+            tolerance_growth: 0.005,
             reach: 2,
             density: 0.3,
             stride: 2,
@@ -118,7 +121,7 @@ impl FreeSpaceSettings {
     }
 
     fn tau(&self, z: f32) -> f32 {
-        self.tolerance.0 + self.tolerance.1 * z * z
+        self.tolerance_base + self.tolerance_growth * z * z
     }
 }
 
@@ -484,12 +487,13 @@ impl Judge<'_> {
         let w = self.depth.width as usize;
         let tau = self.settings.tau(z);
         let first = grid[rows[0] * w + columns[0]];
+        let class = first.class();
         let corners = [(0, 0), (0, 1), (1, 0), (1, 1)].map(|(a, b)| rows[a] * w + columns[b]);
         corners
             .iter()
             .all(|&i| {
                 let zc = self.depth.metres[i];
-                zc > 0.0 && (zc - z).abs() <= tau && grid[i].class() == first.class()
+                zc > 0.0 && (zc - z).abs() <= tau && grid[i].class() == class
             })
             .then_some(first)
     }
