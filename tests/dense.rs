@@ -465,3 +465,66 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
         far.static_kept
     );
 }
+
+/// A static camera's recording (a wall 2 m away; a block 1.2 m away in one frame):
+/// `tools/static_camera_truth.py` marks the block's pixels in that frame as a mover and
+/// nothing else, leaves the recording as it was, and refuses to write into a folder
+/// that holds something.
+#[test]
+fn the_static_camera_truth_marks_what_stands_before_the_background() {
+    let Some(python) = common::test_python("static_camera_truth", "numpy, PIL") else {
+        return;
+    };
+    let dir = common::temp_dir("static-camera-truth");
+    let seq = dir.join("seq");
+    std::fs::create_dir_all(seq.join("depth")).unwrap();
+    let (mut rgb, mut depth) = (String::from("# rgb\n"), String::from("# depth\n"));
+    for k in 0..8 {
+        let image = image::ImageBuffer::from_fn(32, 24, |u, v| {
+            let block = k == 3 && (8..16).contains(&u) && (6..14).contains(&v);
+            let metres = if block { 1.2 } else { 2.0 };
+            image::Luma([(metres * 5000.0) as u16])
+        });
+        image.save(seq.join(format!("depth/{k}.png"))).unwrap();
+        rgb.push_str(&format!("{:.6} rgb/{k}.png\n", 0.1 * k as f64));
+        depth.push_str(&format!("{:.6} depth/{k}.png\n", 0.1 * k as f64));
+    }
+    std::fs::write(seq.join("rgb.txt"), rgb).unwrap();
+    std::fs::write(seq.join("depth.txt"), depth).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/static_camera_truth.py");
+    let out = dir.join("truth");
+    let status = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(&seq)
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    for k in 0..8 {
+        let mask = image::open(out.join(format!("masks/{:.6}.png", 0.1 * k as f64)))
+            .unwrap()
+            .to_luma8();
+        let movers = mask.pixels().filter(|p| p[0] > 0).count();
+        assert_eq!(movers, if k == 3 { 64 } else { 0 }, "frame {k}");
+        if k == 3 {
+            assert!(mask.get_pixel(10, 8)[0] > 0 && mask.get_pixel(20, 8)[0] == 0);
+        }
+    }
+    assert!(out.join("depth.txt").exists(), "the recording is linked");
+    assert!(
+        !seq.join("masks").exists(),
+        "nothing written into the recording"
+    );
+    let again = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(&seq)
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("is not empty"));
+}

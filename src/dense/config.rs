@@ -577,7 +577,7 @@ impl Default for DenseConfig {
                 free_space_no_return: 4.0,
                 free_space_tolerance_growth: free_space.tolerance_growth,
                 map_min_weight: 10.0,
-                map_release_bodies: false,
+                map_release_bodies: true,
             },
             outputs: DenseOutputs {
                 mesh: true,
