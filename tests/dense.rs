@@ -493,12 +493,15 @@ fn the_static_camera_truth_marks_what_stands_before_the_background() {
     std::fs::write(seq.join("depth.txt"), depth).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/static_camera_truth.py");
     let out = dir.join("truth");
-    let status = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(&seq)
-        .arg(&out)
-        .output()
-        .unwrap();
+    let truth = || {
+        std::process::Command::new(&python)
+            .arg(&script)
+            .arg(&seq)
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let status = truth();
     assert!(
         status.status.success(),
         "{}",
@@ -519,12 +522,7 @@ fn the_static_camera_truth_marks_what_stands_before_the_background() {
         !seq.join("masks").exists(),
         "nothing written into the recording"
     );
-    let again = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(&seq)
-        .arg(&out)
-        .output()
-        .unwrap();
+    let again = truth();
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("is not empty"));
 }
