@@ -175,7 +175,7 @@ pub struct DenseDetections {
     pub tiles: u32,
 }
 
-/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_free_space_no_return`, `mask_free_space_tolerance_growth`, `mask_map_min_weight`, `mask_map_release_bodies`).
+/// How the movers are masked (`[dense]` keys `mask_border`, `keypoint_radius`, `mask_foreground_share`, `mask_depth_behind`, `mask_depth_behind_not_still`, `mask_track_margin_speed`, `mask_discs_behind_objects`, `mask_disc_neighbours`, `mask_keypoints_seen_moving`, `mask_segments`, `mask_segment_radius`, `mask_segment_radius_metres`, `mask_segment_edge_share`, `mask_segment_support`, `mask_segment_follow_seconds`, `mask_free_space_seconds`, `mask_free_space_far_seconds`, `mask_free_space_stride`, `mask_free_space_no_return`, `mask_free_space_tolerance_growth`, `mask_map_min_weight`, `mask_map_band`, `mask_map_release_bodies`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseMasks {
     /// Mask dilation, pixels.
@@ -266,6 +266,11 @@ pub struct DenseMasks {
     /// `map_agrees`): the wall behind a person's box, the floor around a disc. A mover
     /// stands in front of the map, or where the map has nothing yet. 0: off.
     pub map_min_weight: f32,
+    /// How far in front of the map's surface (metres) a masked pixel's depth may lie
+    /// and still be on it: the sensor's noise (a Kinect's or Xtion's is 2-3 cm at
+    /// 3.5 m). A mover's foot that close to the floor is fused with it. At most
+    /// `truncation` (the field says nothing farther out).
+    pub map_band: f32,
     /// The map also releases a detected object's body pixels that the free-space
     /// evidence saw still (the floor at a walker's feet, a desk beside them at their
     /// depth); a body in front of the map, or seen moving, stays masked.
@@ -355,6 +360,7 @@ pub struct DenseFile {
     mask_free_space_no_return: f32,
     mask_free_space_tolerance_growth: f32,
     mask_map_min_weight: f32,
+    mask_map_band: f32,
     mask_map_release_bodies: bool,
     mask_pictures_every: usize,
     ply_encoding: PlyEncoding,
@@ -426,6 +432,7 @@ impl From<DenseFile> for DenseConfig {
                 free_space_no_return: file.mask_free_space_no_return,
                 free_space_tolerance_growth: file.mask_free_space_tolerance_growth,
                 map_min_weight: file.mask_map_min_weight,
+                map_band: file.mask_map_band,
                 map_release_bodies: file.mask_map_release_bodies,
             },
             outputs: DenseOutputs {
@@ -502,6 +509,7 @@ impl From<DenseConfig> for DenseFile {
             mask_free_space_no_return: masks.free_space_no_return,
             mask_free_space_tolerance_growth: masks.free_space_tolerance_growth,
             mask_map_min_weight: masks.map_min_weight,
+            mask_map_band: masks.map_band,
             mask_map_release_bodies: masks.map_release_bodies,
             mesh: outputs.mesh,
             obj: outputs.obj,
@@ -577,6 +585,7 @@ impl Default for DenseConfig {
                 free_space_no_return: 4.0,
                 free_space_tolerance_growth: free_space.tolerance_growth,
                 map_min_weight: 10.0,
+                map_band: 0.025,
                 map_release_bodies: true,
             },
             outputs: DenseOutputs {
@@ -626,6 +635,15 @@ impl DenseConfig {
                 format!(
                     "({}) must be at least one voxel ({})",
                     self.tsdf.truncation, self.tsdf.voxel
+                ),
+            ));
+        }
+        if f64::from(self.masks.map_band) > self.tsdf.truncation {
+            return Err(BadValue::new(
+                "dense.mask_map_band",
+                format!(
+                    "({} m) must not exceed the truncation ({} m): the field says nothing beyond it",
+                    self.masks.map_band, self.tsdf.truncation
                 ),
             ));
         }
@@ -679,6 +697,7 @@ impl DenseConfig {
                 ("frame_min_translation", self.frames.min_translation),
                 ("frame_min_rotation", self.frames.min_rotation),
                 ("mask_map_min_weight", self.masks.map_min_weight.into()),
+                ("mask_map_band", self.masks.map_band.into()),
                 ("tsdf_memory_mb", self.tsdf.memory_mb),
                 ("cloud_memory_mb", self.cloud.memory_mb),
                 ("mask_depth_behind", self.masks.depth_behind.into()),

@@ -306,6 +306,7 @@ fn frame_mask(
     let release = MapRelease {
         min_weight: config.masks.map_min_weight,
         bodies_still: still.filter(|_| config.masks.map_release_bodies),
+        band: config.masks.map_band,
     };
     let on = release.min_weight > 0.0;
     if let (Some(m), Some(volume), true) = (&mut layers, sinks.volume.as_deref(), on) {

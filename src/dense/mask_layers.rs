@@ -103,6 +103,8 @@ pub struct MapRelease<'a> {
     /// detected object's body pixels seen still are released too (the floor at a
     /// walker's feet, a desk beside them at the same depth). `None`: no body pixel.
     pub bodies_still: Option<&'a [bool]>,
+    /// How far in front of the map's surface (metres) a pixel's depth may lie.
+    pub band: f32,
 }
 
 /// A frame's mask and the sources of its pixels.
@@ -146,7 +148,7 @@ impl MaskLayers {
     }
 
     /// Fuses the masked pixels of `frame` whose depth lies on the static map
-    /// `volume` holds with at least `release.min_weight` (up to half a truncation in
+    /// `volume` holds with at least `release.min_weight` (up to `release.band` in
     /// front of its surface, [`TsdfVolume::on_surface`]); how many. A mover stands in
     /// front of the static scene, or where the map holds nothing yet. Pixels seen
     /// moving by the frames around stay masked whatever the map says, and so do those
@@ -164,6 +166,7 @@ impl MaskLayers {
         let world_from_camera = frame.camera_from_world.inverse();
         let max_depth = volume.settings.max_depth as f32;
         let min_weight = release.min_weight;
+        let band = release.band / volume.settings.truncation as f32;
         let body = MaskLayer::Objects.bit();
         let kept = |i: usize, bits: u8| {
             bits & MaskLayer::FreeSpace.bit() != 0
@@ -186,7 +189,7 @@ impl MaskLayers {
                     let x = (u as f64 - camera.cx) / camera.fx * d;
                     let y = (v as f64 - camera.cy) / camera.fy * d;
                     let p = world_from_camera * nalgebra::Point3::new(x, y, d);
-                    volume.on_surface(&p.coords, min_weight, 0.5).then_some(i)
+                    volume.on_surface(&p.coords, min_weight, band).then_some(i)
                 })
             })
             .collect();
@@ -314,6 +317,7 @@ mod tests {
         let release = |min_weight, bodies: bool| MapRelease {
             min_weight,
             bodies_still: bodies.then_some(still.as_slice()),
+            band: 0.02,
         };
         assert_eq!(
             strict.release_on_map(frame, &camera, &volume, release(5.0, false)),
@@ -341,5 +345,23 @@ mod tests {
         assert!(bodies.dynamic[centre], "the ball stays masked as a body");
         assert!(!bodies.dynamic[corner], "the wall in its box is fused");
         assert!(released as usize > (w * h - on_ball) * 6 / 10, "{released}");
+        // The wall read 3 cm nearer (a sensor's noise far away): on the map within a
+        // band of 3.8 cm, not of 2 cm; the ball in front stays masked either way.
+        let nearer = render_depth(&camera, &pose, &ball, Some(1.97));
+        let frame = PosedDepth {
+            depth: &nearer,
+            ..frame
+        };
+        let mut narrow = masked();
+        narrow.release_on_map(frame, &camera, &volume, release(3.0, false));
+        assert!(narrow.dynamic[corner], "3 cm in front of a 2 cm band");
+        let mut wide = masked();
+        let within = MapRelease {
+            band: 0.038,
+            ..release(3.0, false)
+        };
+        wide.release_on_map(frame, &camera, &volume, within);
+        assert!(!wide.dynamic[corner], "3 cm in front within a 3.8 cm band");
+        assert!(wide.dynamic[centre], "the ball stays masked");
     }
 }
