@@ -992,7 +992,6 @@ mod tests {
                 "dense.mask_free_space_no_return",
             ),
             ("[dense]\nmask_map_band = -0.01\n", "dense.mask_map_band"),
-            ("[dense]\nmask_map_band = 0.05\n", "dense.mask_map_band"),
         ] {
             let message = Config::from_toml(text).unwrap_err().to_string();
             assert!(message.starts_with(key), "{message}");

@@ -268,8 +268,8 @@ pub struct DenseMasks {
     pub map_min_weight: f32,
     /// How far in front of the map's surface (metres) a masked pixel's depth may lie
     /// and still be on it: the sensor's noise (a Kinect's or Xtion's is 2-3 cm at
-    /// 3.5 m). A mover's foot that close to the floor is fused with it. At most
-    /// `truncation` (the field says nothing farther out).
+    /// 3.5 m). A mover's foot that close to the floor is fused with it. Taken as the
+    /// truncation where it is wider (the field says nothing farther out).
     pub map_band: f32,
     /// The map also releases a detected object's body pixels that the free-space
     /// evidence saw still (the floor at a walker's feet, a desk beside them at their
@@ -635,15 +635,6 @@ impl DenseConfig {
                 format!(
                     "({}) must be at least one voxel ({})",
                     self.tsdf.truncation, self.tsdf.voxel
-                ),
-            ));
-        }
-        if f64::from(self.masks.map_band) > self.tsdf.truncation {
-            return Err(BadValue::new(
-                "dense.mask_map_band",
-                format!(
-                    "({} m) must not exceed the truncation ({} m): the field says nothing beyond it",
-                    self.masks.map_band, self.tsdf.truncation
                 ),
             ));
         }

@@ -103,7 +103,8 @@ pub struct MapRelease<'a> {
     /// detected object's body pixels seen still are released too (the floor at a
     /// walker's feet, a desk beside them at the same depth). `None`: no body pixel.
     pub bodies_still: Option<&'a [bool]>,
-    /// How far in front of the map's surface (metres) a pixel's depth may lie.
+    /// How far in front of the map's surface (metres) a pixel's depth may lie (at most
+    /// the truncation).
     pub band: f32,
 }
 
@@ -166,7 +167,8 @@ impl MaskLayers {
         let world_from_camera = frame.camera_from_world.inverse();
         let max_depth = volume.settings.max_depth as f32;
         let min_weight = release.min_weight;
-        let band = release.band / volume.settings.truncation as f32;
+        // In truncations; the field says nothing beyond one.
+        let band = (release.band / volume.settings.truncation as f32).min(1.0);
         let body = MaskLayer::Objects.bit();
         let kept = |i: usize, bits: u8| {
             bits & MaskLayer::FreeSpace.bit() != 0
