@@ -58,11 +58,17 @@ def settings(path):
             value("DepthMapFactor", 5000.0))
 
 
+def tum_list(path):
+    """(timestamp, file) of each line of a TUM list (rgb.txt, depth.txt)."""
+    if not os.path.isfile(path):
+        sys.exit(f"{path}: missing (a TUM-layout sequence has rgb.txt and depth.txt)")
+    rows = [line.split() for line in open(path) if line.strip() and not line.startswith("#")]
+    return [(float(r[0]), r[1]) for r in rows]
+
+
 def depths(sequence, factor):
-    depth_list = [line.split() for line in open(os.path.join(sequence, "depth.txt"))
-                  if line.strip() and not line.startswith("#")]
     return np.stack([np.asarray(Image.open(os.path.join(sequence, name)), dtype=np.float32) / factor
-                     for _, name in depth_list])
+                     for _, name in tum_list(os.path.join(sequence, "depth.txt"))])
 
 
 def read_ply_vertices(path):

@@ -37,14 +37,6 @@ except ImportError as e:
     sys.exit(f"static_camera_truth.py needs numpy and Pillow ({e}): data/venv/bin/pip install pillow")
 
 
-def listed(path):
-    """(timestamp, file) of each line of a TUM list."""
-    if not os.path.isfile(path):
-        sys.exit(f"{path}: missing (a TUM-layout sequence has rgb.txt and depth.txt)")
-    rows = [line.split() for line in open(path) if line.strip() and not line.startswith("#")]
-    return [(float(r[0]), r[1]) for r in rows]
-
-
 def link_sequence(sequence, out):
     if os.path.exists(out) and os.listdir(out):
         sys.exit(f"{out}: exists and is not empty (give a new folder; nothing was written)")
@@ -69,8 +61,8 @@ def main():
     if args.margin <= 0 or args.window < 1 or args.max_depth <= 0:
         sys.exit("--margin, --window and --max-depth must be positive")
     factor = ghosts.settings(args.settings)[4] if args.settings else 5000.0
-    depth_list = listed(os.path.join(args.sequence, "depth.txt"))
-    rgb_times = [t for t, _ in listed(os.path.join(args.sequence, "rgb.txt"))]
+    depth_list = ghosts.tum_list(os.path.join(args.sequence, "depth.txt"))
+    rgb_times = [t for t, _ in ghosts.tum_list(os.path.join(args.sequence, "rgb.txt"))]
     stack = ghosts.depths(args.sequence, factor)
     near = ghosts.nearest_in_window(ghosts.background(stack, args.percentile), args.window)
     link_sequence(args.sequence, args.out)
