@@ -53,7 +53,16 @@ mkdir -p "$out"
 touch "$out/.bench_real_people"
 sequence=$(realpath "$sequence")
 settings=$(realpath "$settings")
-[ -d "$out/truth" ] || "$python" tools/static_camera_truth.py "$sequence" "$out/truth" --settings "$settings"
+# The truth is written once a recording: kept with what made it, never reused for another.
+made="$sequence $settings"
+if [ -d "$out/truth" ] && [ "$(cat "$out/truth.source" 2>/dev/null)" != "$made" ]; then
+  echo "bench_real_people.sh: $out/truth was made from another recording or settings; name a new --out" >&2
+  exit 2
+fi
+if [ ! -d "$out/truth" ]; then
+  "$python" tools/static_camera_truth.py "$sequence" "$out/truth" --settings "$settings"
+  echo "$made" >"$out/truth.source"
+fi
 rows=$out/rows.tsv
 : >"$rows"
 builds=(this)
