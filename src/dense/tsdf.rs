@@ -1040,12 +1040,13 @@ fn integrate_block(
         *d = m * f32::from(u8::from(eta <= tau));
     }
     fuse_colour(block, &pixels, &measured, reciprocals, frame);
-    let (mut surface, mut free) = (false, true);
+    // Counts again, so that the loop vectorises.
+    let (mut surface, mut held) = (0u32, 0u32);
     for (&f, &w) in block.sdf.iter().zip(&block.weight) {
-        surface |= (f < 0.0) & (w > 0.0);
-        free &= (f == 1.0) & (w >= max_weight);
+        surface += u32::from((f < 0.0) & (w > 0.0));
+        held += u32::from(!((f == 1.0) & (w >= max_weight)));
     }
-    (block.surface, block.free) = (surface, free);
+    (block.surface, block.free) = (surface > 0, held == 0);
     true
 }
 
@@ -1142,26 +1143,30 @@ fn updates(
     tau: f32,
 ) -> Updates {
     let inv_tau = 1.0 / tau;
-    let mut out = Updates {
-        etas: [0.0; BLOCK_VOXELS],
-        updates: [0.0; BLOCK_VOXELS],
-        any: false,
-        within: false,
-    };
-    for (((eta, m), &d), (&z, &moving)) in out
-        .etas
+    let mut etas = [0.0; BLOCK_VOXELS];
+    let mut updates = [0.0; BLOCK_VOXELS];
+    // Counts, not `|=` on flags: integer sums vectorise, flag reductions did not (a
+    // quarter of the integration's time on a static camera).
+    let (mut any, mut within) = (0u32, 0u32);
+    for (((eta, m), &d), (&z, &moving)) in etas
         .iter_mut()
-        .zip(&mut out.updates)
+        .zip(&mut updates)
         .zip(measured)
         .zip(zs.iter().zip(moving))
     {
-        *eta = d - z;
-        let update = (d > 0.0) & (*eta >= -tau) & (!moving | (*eta > tau));
-        out.any |= update;
-        out.within |= update & ((*eta <= tau) | (*eta * inv_tau < 1.0));
+        let e = d - z;
+        *eta = e;
+        let update = (d > 0.0) & (e >= -tau) & (!moving | (e > tau));
+        any += u32::from(update);
+        within += u32::from(update & ((e <= tau) | (e * inv_tau < 1.0)));
         *m = f32::from(u8::from(update));
     }
-    out
+    Updates {
+        etas,
+        updates,
+        any: any > 0,
+        within: within > 0,
+    }
 }
 
 /// Where a block's voxels fall in a frame ([`project_block`]).
