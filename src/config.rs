@@ -252,6 +252,9 @@ pub struct StereoConfig {
     /// `dense.mask_free_space_no_return`: off, since a pixel SGBM leaves without a
     /// disparity found no match there, which says nothing of what is there.
     pub mask_free_space_no_return: f32,
+    /// `dense.frame_still_gap`: 0 (off) by default, since a car waiting at a light
+    /// would have every pair matched for the little of the street its movers uncover.
+    pub frame_still_gap: usize,
     /// `tracking.wait_near_boxes_only`: on by default, since at street speed a
     /// keyframe's new points are the ones that matter.
     pub wait_near_boxes_only: bool,
@@ -290,6 +293,7 @@ impl Default for StereoConfig {
             mask_map_min_weight: 0.0,
             mask_free_space_seconds: 0.0,
             mask_free_space_no_return: 0.0,
+            frame_still_gap: 0,
             wait_near_boxes_only: true,
             sgbm_disparities: 128,
             sgbm_block: 5,
@@ -370,6 +374,12 @@ impl StereoConfig {
             &mut tsdf.far_carves,
             self.far_carves,
             d_tsdf.far_carves,
+        );
+        p.set(
+            "dense.frame_still_gap",
+            &mut config.dense.frames.still_gap,
+            self.frame_still_gap,
+            default.dense.frames.still_gap,
         );
         let (cloud, d_cloud) = (&mut config.dense.cloud, &default.dense.cloud);
         p.set(
@@ -1009,7 +1019,12 @@ mod tests {
         let profile = profile.expect("a stereo profile");
         assert_eq!(stereo.dense.tsdf.voxel, 0.2);
         assert_eq!(stereo.orb.n_features, config.stereo.n_features);
-        assert_eq!(profile.set.len(), 13, "{:?}", profile.set);
+        assert_eq!(profile.set.len(), 14, "{:?}", profile.set);
+        assert!(profile
+            .set
+            .contains(&"dense.frame_still_gap = 0".to_string()));
+        assert_eq!(stereo.dense.frames.still_gap, 0);
+        assert_eq!(rgbd.dense.frames.still_gap, 1);
         assert!(profile
             .set
             .contains(&"dense.far_carves = false".to_string()));

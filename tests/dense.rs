@@ -468,8 +468,9 @@ fn free_space_keeps_movers_no_detector_knows_out_of_the_map() {
 
 /// A static camera's recording (a wall 2 m away; a block 1.2 m away in one frame):
 /// `tools/static_camera_truth.py` marks the block's pixels in that frame as a mover and
-/// nothing else, leaves the recording as it was, and refuses to write into a folder
-/// that holds something.
+/// nothing else, clears exactly those from that frame's depth in the recording it
+/// writes `--without-movers`, leaves the recording as it was, and refuses to write
+/// into a folder that holds something.
 #[test]
 fn the_static_camera_truth_marks_what_stands_before_the_background() {
     let Some(python) = common::test_python("static_camera_truth", "numpy, PIL") else {
@@ -492,12 +493,14 @@ fn the_static_camera_truth_marks_what_stands_before_the_background() {
     std::fs::write(seq.join("rgb.txt"), rgb).unwrap();
     std::fs::write(seq.join("depth.txt"), depth).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/static_camera_truth.py");
-    let out = dir.join("truth");
+    let (out, without) = (dir.join("truth"), dir.join("without"));
     let truth = || {
         std::process::Command::new(&python)
             .arg(&script)
             .arg(&seq)
             .arg(&out)
+            .arg("--without-movers")
+            .arg(&without)
             .output()
             .unwrap()
     };
@@ -516,7 +519,21 @@ fn the_static_camera_truth_marks_what_stands_before_the_background() {
         if k == 3 {
             assert!(mask.get_pixel(10, 8)[0] > 0 && mask.get_pixel(20, 8)[0] == 0);
         }
+        let cleared = image::open(without.join(format!("depth/{k}.png")))
+            .unwrap()
+            .to_luma16();
+        let original = image::open(seq.join(format!("depth/{k}.png")))
+            .unwrap()
+            .to_luma16();
+        for (u, v, p) in cleared.enumerate_pixels() {
+            let expected = match mask.get_pixel(u, v)[0] {
+                0 => original.get_pixel(u, v)[0],
+                _ => 0,
+            };
+            assert_eq!(p[0], expected, "frame {k} pixel {u} {v}");
+        }
     }
+    assert!(without.join("depth.txt").exists() && without.join("masks").exists());
     assert!(out.join("depth.txt").exists(), "the recording is linked");
     assert!(
         !seq.join("masks").exists(),

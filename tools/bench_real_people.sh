@@ -11,6 +11,11 @@
 # depth there: a mover's ghost; a chair leg whose depth flickers to the floor behind it
 # is seen there in most), and the share of the background within 4 m its surface
 # covers (tools/static_camera_ghosts.py); one row a run and the medians a build.
+# Two reference rows come last: the recording with the truth's movers cleared from its
+# depth (static_camera_truth.py --without-movers) run without DOP and with it, judged
+# against the same background: what a perfect mask would leave, so the floor of each
+# figure (a static chair leg whose depth flickers to the floor lies in front of its
+# pixel's far end in every map).
 #
 #   bash tools/bench_real_people.sh [--runs 3] [--bin B] [--base-bin B] [--out DIR]
 #       [--sequence DIR] [--settings S.yaml]
@@ -32,7 +37,7 @@ while [ $# -gt 0 ]; do
     --out) out=$2; shift 2 ;;
     --sequence) sequence=$2; shift 2 ;;
     --settings) settings=$2; shift 2 ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
     *) echo "bench_real_people.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
   esac
 done
@@ -59,8 +64,10 @@ if [ -d "$out/truth" ] && [ "$(cat "$out/truth.source" 2>/dev/null)" != "$made" 
   echo "bench_real_people.sh: $out/truth was made from another recording or settings; name a new --out" >&2
   exit 2
 fi
-if [ ! -d "$out/truth" ]; then
-  "$python" tools/static_camera_truth.py "$sequence" "$out/truth" --settings "$settings"
+if [ ! -d "$out/truth" ] || [ ! -d "$out/without_movers" ]; then
+  rm -rf "$out/truth" "$out/without_movers"
+  "$python" tools/static_camera_truth.py "$sequence" "$out/truth" --settings "$settings" \
+    --without-movers "$out/without_movers"
   echo "$made" >"$out/truth.source"
 fi
 rows=$out/rows.tsv
@@ -94,10 +101,17 @@ for r in $(seq 1 "$runs"); do
     judge dop "$build" "$r" "$dir"
   done
 done
-rm -rf "$out/no_dop"
-"$bin" run "$out/truth" --settings "$settings" --no-dop --out "$out/no_dop" >"$out/no_dop.log" 2>&1 \
-  || { echo "run failed: $out/no_dop.log" >&2; tail -3 "$out/no_dop.log" >&2; exit 1; }
-judge no_dop this 1 "$out/no_dop"
+reference() { # reference NAME RECORDING [ARGS]: one run of this build, one row
+  local name=$1 recording=$2
+  shift 2
+  rm -rf "${out:?}/$name"
+  "$bin" run "$recording" --settings "$settings" "$@" --out "$out/$name" >"$out/$name.log" 2>&1 \
+    || { echo "run failed: $out/$name.log" >&2; tail -3 "$out/$name.log" >&2; exit 1; }
+  judge "$name" this 1 "$out/$name"
+}
+reference no_dop "$out/truth" --no-dop
+reference no_movers_no_dop "$out/without_movers" --no-dop
+reference no_movers_dop "$out/without_movers"
 python3 - "$rows" <<'PY'
 import statistics, sys
 rows = [line.rstrip("\n").split("\t") for line in open(sys.argv[1])]

@@ -212,7 +212,7 @@ pub fn print_dense(dense: &DenseReport) {
     }
     if dense.frames_left_still > 0 {
         println!(
-            "dense map: {} tracked frames not fused, taken from nearly where the last fused frame was ([dense] frame_min_translation, frame_min_rotation, frame_max_gap)",
+            "dense map: {} tracked frames not fused, taken from nearly where the last fused frame was ([dense] frame_min_translation, frame_min_rotation, frame_max_gap, frame_still_gap)",
             dense.frames_left_still
         );
     }

@@ -89,7 +89,7 @@ pub struct DenseConfig {
 }
 
 /// Which frames are fused (`[dense]` keys `frames`, `frame_step`,
-/// `frame_min_translation`, `frame_min_rotation`, `frame_max_gap`).
+/// `frame_min_translation`, `frame_min_rotation`, `frame_max_gap`, `frame_still_gap`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseFrames {
     /// Frames fused into the TSDF: all tracked frames or keyframes only.
@@ -105,6 +105,12 @@ pub struct DenseFrames {
     pub min_rotation: f64,
     /// At most this many of the chosen frames from one fused frame to the next.
     pub max_gap: usize,
+    /// While the camera stands still (it moved under a quarter of
+    /// [`Self::min_translation`] and turned under a quarter of [`Self::min_rotation`]
+    /// over the last [`Self::max_gap`] frames), this gap instead: the view does not
+    /// change, the scene does, and each frame shows background the movers hid in the
+    /// last (0: [`Self::max_gap`] throughout).
+    pub still_gap: usize,
 }
 
 /// The TSDF volume (`[dense]` keys `voxel`, `truncation`, `max_depth`, `max_weight`, `carve`, `far_carves`, `image_margin`, `allocate_first`, `tsdf_memory_mb`).
@@ -324,6 +330,7 @@ pub struct DenseFile {
     frame_min_translation: f64,
     frame_min_rotation: f64,
     frame_max_gap: usize,
+    frame_still_gap: usize,
     mesh: bool,
     obj: bool,
     mesh_min_piece_area: f64,
@@ -384,6 +391,7 @@ impl From<DenseFile> for DenseConfig {
                 min_translation: file.frame_min_translation,
                 min_rotation: file.frame_min_rotation,
                 max_gap: file.frame_max_gap,
+                still_gap: file.frame_still_gap,
             },
             tsdf: DenseTsdf {
                 voxel: file.voxel,
@@ -469,6 +477,7 @@ impl From<DenseConfig> for DenseFile {
             frame_min_translation: frames.min_translation,
             frame_min_rotation: frames.min_rotation,
             frame_max_gap: frames.max_gap,
+            frame_still_gap: frames.still_gap,
             voxel: tsdf.voxel,
             truncation: tsdf.truncation,
             max_depth: tsdf.max_depth,
@@ -537,6 +546,7 @@ impl Default for DenseConfig {
                 min_translation: 0.02,
                 min_rotation: 1.0,
                 max_gap: 3,
+                still_gap: 1,
             },
             tsdf: DenseTsdf {
                 voxel: tsdf.voxel,

@@ -1,7 +1,8 @@
 //! Which frames the dense pass fuses: every tracked frame of the largest map segment
 //! (or its keyframes), every `frame_step`-th of them, and of those the ones that add
 //! something: the camera moved or turned enough since the last fused frame, or a
-//! keyframe, or `frame_max_gap` frames have passed ([`super::config::DenseFrames`]).
+//! keyframe, or `frame_max_gap` frames have passed (`frame_still_gap` while the camera
+//! stands still) ([`super::config::DenseFrames`]).
 
 use super::config::{DenseConfig, DenseFrames};
 use super::inputs::{key, RunInputs};
@@ -53,13 +54,15 @@ fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>
     let mut taken: Vec<Chosen> = Vec::with_capacity(candidates.len());
     let mut weights = Vec::with_capacity(candidates.len());
     let mut since = 0;
-    for &candidate in candidates {
+    for (j, &candidate) in candidates.iter().enumerate() {
         since += 1;
+        let gap = match still(candidates, j, frames) {
+            true => frames.still_gap,
+            false => frames.max_gap,
+        };
         let adds = match taken.last() {
             None => true,
-            Some(last) => {
-                candidate.2 || since >= frames.max_gap || moved(&last.1, &candidate.1, frames)
-            }
+            Some(last) => candidate.2 || since >= gap || moved(&last.1, &candidate.1, frames),
         };
         if adds {
             taken.push(candidate);
@@ -73,12 +76,29 @@ fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>
 /// Whether the camera at `b` lies at least `min_translation` from `a` or is turned
 /// at least `min_rotation` from it (both `camera_from_world`).
 fn moved(a: &Se3, b: &Se3, frames: &DenseFrames) -> bool {
+    moved_by(a, b, frames.min_translation, frames.min_rotation)
+}
+
+/// Whether the camera stands still at candidate `j` (see
+/// [`DenseFrames::still_gap`]): it moved under a quarter of the fused frames' spacing
+/// over the last `max_gap` candidates.
+fn still(candidates: &[Chosen], j: usize, frames: &DenseFrames) -> bool {
+    let Some(before) = j.checked_sub(frames.max_gap).map(|i| &candidates[i]) else {
+        return false;
+    };
+    let (reach, turn) = (frames.min_translation / 4.0, frames.min_rotation / 4.0);
+    frames.still_gap > 0 && !moved_by(&before.1, &candidates[j].1, reach, turn)
+}
+
+/// Whether the camera at `b` lies at least `metres` from `a` or is turned at least
+/// `degrees` from it (both `camera_from_world`).
+fn moved_by(a: &Se3, b: &Se3, metres: f64, degrees: f64) -> bool {
     let (centre_a, centre_b) = (
         a.inverse().translation.vector,
         b.inverse().translation.vector,
     );
     let turned = (a.rotation * b.rotation.inverse()).angle().to_degrees();
-    (centre_a - centre_b).norm() >= frames.min_translation || turned >= frames.min_rotation
+    (centre_a - centre_b).norm() >= metres || turned >= degrees
 }
 
 #[cfg(test)]
@@ -110,6 +130,7 @@ mod tests {
             min_translation,
             min_rotation,
             max_gap,
+            still_gap: 0,
         }
     }
 
@@ -150,5 +171,28 @@ mod tests {
         );
         // Both thresholds at 0: every frame.
         assert_eq!(indices(adding(&slow, &settings(0.0, 0.0, 5))).len(), 10);
+    }
+
+    #[test]
+    fn a_camera_that_stands_still_is_fused_every_still_gap_frames() {
+        let with_still_gap = |gap| DenseFrames {
+            still_gap: gap,
+            ..settings(0.02, 1.0, 3)
+        };
+        // Still from the start: once `max_gap` frames show it, every frame.
+        let still = path(8, 0.0, 0.0);
+        assert_eq!(
+            indices(adding(&still, &with_still_gap(1))),
+            [0, 3, 4, 5, 6, 7]
+        );
+        assert_eq!(indices(adding(&still, &with_still_gap(2))), [0, 3, 5, 7]);
+        assert_eq!(indices(adding(&still, &with_still_gap(0))), [0, 3, 6]);
+        // 2 mm a frame is 6 mm over 3 frames, over a quarter of 2 cm: not still, and
+        // the camera is fused once it moved 2 cm or 3 frames passed.
+        let creeping = path(8, 0.002, 0.0);
+        assert_eq!(indices(adding(&creeping, &with_still_gap(1))), [0, 3, 6]);
+        // 1 mm a frame (3 mm over 3 frames): still.
+        let jitter = path(8, 0.001, 0.0);
+        assert_eq!(indices(adding(&jitter, &with_still_gap(1))).len(), 6);
     }
 }
