@@ -57,13 +57,19 @@ def link_sequence(sequence, out, own):
             os.symlink(os.path.abspath(os.path.join(sequence, name)), os.path.join(out, name))
 
 
+def check_depth_names(sequence, depth_list):
+    """--without-movers writes the depth maps into its own depth/: they must lie there."""
+    for _, name in depth_list:
+        if os.path.dirname(os.path.normpath(name)) != "depth":
+            sys.exit(f"{sequence}/depth.txt: {name} does not lie in depth/ "
+                     "(--without-movers writes only there; nothing was written)")
+
+
 def without_movers(sequence, out, masks, depth_list, movers):
     """Writes OUT: SEQUENCE's depth maps with `movers` (per depth map) cleared."""
     link_sequence(sequence, out, "depth")
     os.symlink(os.path.abspath(masks), os.path.join(out, "masks"))
     for (_, name), mover in zip(depth_list, movers):
-        if os.path.dirname(os.path.normpath(name)) != "depth":
-            sys.exit(f"{sequence}/depth.txt: {name} does not lie in depth/ (--without-movers writes only there)")
         raw = np.array(Image.open(os.path.join(sequence, name)))
         raw[mover] = 0
         Image.fromarray(raw).save(os.path.join(out, name))
@@ -92,6 +98,10 @@ def main():
     near = ghosts.nearest_in_window(ghosts.background(stack, args.percentile), args.window)
     for folder in filter(None, [args.out, args.without_movers]):
         refuse_filled(folder)
+    if args.without_movers:
+        if os.path.abspath(args.without_movers) == os.path.abspath(args.out):
+            sys.exit("--without-movers must name another folder than OUT")
+        check_depth_names(args.sequence, depth_list)
     link_sequence(args.sequence, args.out, "masks")
     depth_times = np.array([t for t, _ in depth_list])
     in_range = [(d > 0) & (d <= args.max_depth) for d in stack]
