@@ -189,6 +189,28 @@ pub fn run_fuse(args: FuseArgs) -> Result<()> {
     Ok(())
 }
 
+/// The summary's lines on the frames the dense pass chose (none when it took them all).
+fn print_frame_choice(dense: &DenseReport) {
+    if dense.frames_fused_still > 0 {
+        println!(
+            "dense map: {} frames fused while the camera stood still, closer together: each shows what the movers hid before ([dense] frame_still_gap; 0: as when it moves)",
+            dense.frames_fused_still
+        );
+    }
+    if dense.frames_left_still > 0 {
+        println!(
+            "dense map: {} tracked frames not fused, taken from nearly where the last fused frame was ([dense] frame_min_translation, frame_min_rotation, frame_max_gap, frame_still_gap)",
+            dense.frames_left_still
+        );
+    }
+    if dense.other_segment_frames > 0 {
+        println!(
+            "dense map: {} tracked frames left out, in map segments that no loop merged with the largest",
+            dense.other_segment_frames
+        );
+    }
+}
+
 /// Prints what the dense pass did.
 pub fn print_dense(dense: &DenseReport) {
     println!(
@@ -210,18 +232,7 @@ pub fn print_dense(dense: &DenseReport) {
             dense.mesh_pieces_dropped, dense.mesh_vertices_dropped
         );
     }
-    if dense.frames_left_still > 0 {
-        println!(
-            "dense map: {} tracked frames not fused, taken from nearly where the last fused frame was ([dense] frame_min_translation, frame_min_rotation, frame_max_gap, frame_still_gap)",
-            dense.frames_left_still
-        );
-    }
-    if dense.other_segment_frames > 0 {
-        println!(
-            "dense map: {} tracked frames left out, in map segments that no loop merged with the largest",
-            dense.other_segment_frames
-        );
-    }
+    print_frame_choice(dense);
     println!(
         "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s{}",
         dense.median_integration_ms,

@@ -21,6 +21,8 @@ pub(super) struct ChosenFrames {
     /// For each fused frame, the candidates it stands for: itself and those left out
     /// since the last fused one.
     pub weights: Vec<f32>,
+    /// Fused frames taken while the camera stood still ([`DenseFrames::still_gap`]).
+    pub still: usize,
 }
 
 /// The candidates (see [`ChosenFrames`]) and those of them fused.
@@ -39,24 +41,38 @@ pub(super) fn choose_frames(
         })
         .step_by(config.frames.step)
         .collect();
-    let (fused, weights) = adding(&candidates, &config.frames);
+    let Taken {
+        fused,
+        weights,
+        still,
+    } = adding(&candidates, &config.frames);
     ChosenFrames {
         candidates,
         fused,
         weights,
+        still,
     }
+}
+
+/// What [`adding`] took: the frames, their weights, and how many of them came while
+/// the camera stood still.
+struct Taken {
+    fused: Vec<Chosen>,
+    weights: Vec<f32>,
+    still: usize,
 }
 
 /// The `candidates` that add something to the last one taken (see
 /// [`DenseFrames::min_translation`]; the first always), each with the candidates it
 /// stands for (itself and those left out just before it).
-fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>) {
+fn adding(candidates: &[Chosen], frames: &DenseFrames) -> Taken {
     let mut taken: Vec<Chosen> = Vec::with_capacity(candidates.len());
     let mut weights = Vec::with_capacity(candidates.len());
-    let mut since = 0;
+    let (mut since, mut still_taken) = (0, 0);
     for (j, &candidate) in candidates.iter().enumerate() {
         since += 1;
-        let gap = match still(candidates, j, frames) {
+        let is_still = still(candidates, j, frames);
+        let gap = match is_still {
             true => frames.still_gap,
             false => frames.max_gap,
         };
@@ -68,9 +84,14 @@ fn adding(candidates: &[Chosen], frames: &DenseFrames) -> (Vec<Chosen>, Vec<f32>
             taken.push(candidate);
             weights.push(since as f32);
             since = 0;
+            still_taken += usize::from(is_still);
         }
     }
-    (taken, weights)
+    Taken {
+        fused: taken,
+        weights,
+        still: still_taken,
+    }
 }
 
 /// Whether the camera at `b` lies at least `min_translation` from `a` or is turned
@@ -135,9 +156,9 @@ mod tests {
     }
 
     /// The sequence indices of what [`adding`] took (as many as its weights).
-    fn indices(taken: (Vec<Chosen>, Vec<f32>)) -> Vec<usize> {
-        assert_eq!(taken.0.len(), taken.1.len());
-        taken.0.iter().map(|c| c.0).collect()
+    fn indices(taken: Taken) -> Vec<usize> {
+        assert_eq!(taken.fused.len(), taken.weights.len());
+        taken.fused.iter().map(|c| c.0).collect()
     }
 
     #[test]
@@ -150,7 +171,7 @@ mod tests {
         );
         // Each stands for itself and the frames left out before it.
         assert_eq!(
-            adding(&still, &settings(0.01, 0.5, 3)).1,
+            adding(&still, &settings(0.01, 0.5, 3)).weights,
             [1.0, 3.0, 1.0, 3.0]
         );
     }
@@ -187,10 +208,14 @@ mod tests {
         );
         assert_eq!(indices(adding(&still, &with_still_gap(2))), [0, 3, 5, 7]);
         assert_eq!(indices(adding(&still, &with_still_gap(0))), [0, 3, 6]);
+        // Frames 3-7 came while it stood still (frame 3 too: it has stood 3 frames).
+        assert_eq!(adding(&still, &with_still_gap(1)).still, 5);
+        assert_eq!(adding(&still, &with_still_gap(0)).still, 0);
         // 2 mm a frame is 6 mm over 3 frames, over a quarter of 2 cm: not still, and
         // the camera is fused once it moved 2 cm or 3 frames passed.
         let creeping = path(8, 0.002, 0.0);
         assert_eq!(indices(adding(&creeping, &with_still_gap(1))), [0, 3, 6]);
+        assert_eq!(adding(&creeping, &with_still_gap(1)).still, 0);
         // 1 mm a frame (3 mm over 3 frames): still.
         let jitter = path(8, 0.001, 0.0);
         assert_eq!(indices(adding(&jitter, &with_still_gap(1))).len(), 6);

@@ -108,6 +108,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         other_segment_frames: read.other_segment_frames,
         extra_detections,
         frames_left_still: candidates.len() - chosen.len(),
+        frames_fused_still: frames.still,
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         ..DenseReport::default()
     };

@@ -21,6 +21,10 @@ pub struct DenseReport {
     /// fused one (`[dense] frame_min_translation`, `frame_min_rotation`).
     #[serde(default)]
     pub frames_left_still: usize,
+    /// Frames fused while the camera stood still, every `[dense] frame_still_gap`-th
+    /// frame instead of every `frame_max_gap`-th.
+    #[serde(default)]
+    pub frames_fused_still: usize,
     /// Tracked frames left out because they are in a map segment that no loop merged
     /// with the largest one.
     pub other_segment_frames: usize,
