@@ -41,37 +41,19 @@ pub(super) fn choose_frames(
         })
         .step_by(config.frames.step)
         .collect();
-    let Taken {
-        fused,
-        weights,
-        still,
-    } = adding(&candidates, &config.frames);
-    ChosenFrames {
-        candidates,
-        fused,
-        weights,
-        still,
-    }
+    adding(candidates, &config.frames)
 }
 
-/// What [`adding`] took: the frames, their weights, and how many of them came while
-/// the camera stood still.
-struct Taken {
-    fused: Vec<Chosen>,
-    weights: Vec<f32>,
-    still: usize,
-}
-
-/// The `candidates` that add something to the last one taken (see
-/// [`DenseFrames::min_translation`]; the first always), each with the candidates it
-/// stands for (itself and those left out just before it).
-fn adding(candidates: &[Chosen], frames: &DenseFrames) -> Taken {
+/// The `candidates` with those of them that add something to the last one taken
+/// (see [`DenseFrames::min_translation`]; the first always), each with the candidates
+/// it stands for (itself and those left out just before it).
+fn adding(candidates: Vec<Chosen>, frames: &DenseFrames) -> ChosenFrames {
     let mut taken: Vec<Chosen> = Vec::with_capacity(candidates.len());
     let mut weights = Vec::with_capacity(candidates.len());
     let (mut since, mut still_taken) = (0, 0);
     for (j, &candidate) in candidates.iter().enumerate() {
         since += 1;
-        let is_still = still(candidates, j, frames);
+        let is_still = still(&candidates, j, frames);
         let gap = match is_still {
             true => frames.still_gap,
             false => frames.max_gap,
@@ -87,7 +69,8 @@ fn adding(candidates: &[Chosen], frames: &DenseFrames) -> Taken {
             still_taken += usize::from(is_still);
         }
     }
-    Taken {
+    ChosenFrames {
+        candidates,
         fused: taken,
         weights,
         still: still_taken,
@@ -156,7 +139,7 @@ mod tests {
     }
 
     /// The sequence indices of what [`adding`] took (as many as its weights).
-    fn indices(taken: Taken) -> Vec<usize> {
+    fn indices(taken: ChosenFrames) -> Vec<usize> {
         assert_eq!(taken.fused.len(), taken.weights.len());
         taken.fused.iter().map(|c| c.0).collect()
     }
@@ -166,12 +149,12 @@ mod tests {
         let mut still = path(10, 0.0, 0.0);
         still[4].2 = true;
         assert_eq!(
-            indices(adding(&still, &settings(0.01, 0.5, 3))),
+            indices(adding(still.clone(), &settings(0.01, 0.5, 3))),
             [0, 3, 4, 7]
         );
         // Each stands for itself and the frames left out before it.
         assert_eq!(
-            adding(&still, &settings(0.01, 0.5, 3)).weights,
+            adding(still.clone(), &settings(0.01, 0.5, 3)).weights,
             [1.0, 3.0, 1.0, 3.0]
         );
     }
@@ -181,17 +164,20 @@ mod tests {
         // 4 mm a frame: every third frame passes 1 cm.
         let slow = path(10, 0.004, 0.0);
         assert_eq!(
-            indices(adding(&slow, &settings(0.01, 0.5, 5))),
+            indices(adding(slow.clone(), &settings(0.01, 0.5, 5))),
             [0, 3, 6, 9]
         );
         // 0.3 degrees a frame: every second frame passes 0.5 degrees.
         let turning = path(7, 0.0, 0.3);
         assert_eq!(
-            indices(adding(&turning, &settings(0.01, 0.5, 5))),
+            indices(adding(turning.clone(), &settings(0.01, 0.5, 5))),
             [0, 2, 4, 6]
         );
         // Both thresholds at 0: every frame.
-        assert_eq!(indices(adding(&slow, &settings(0.0, 0.0, 5))).len(), 10);
+        assert_eq!(
+            indices(adding(slow.clone(), &settings(0.0, 0.0, 5))).len(),
+            10
+        );
     }
 
     #[test]
@@ -203,21 +189,30 @@ mod tests {
         // Still from the start: once `max_gap` frames show it, every frame.
         let still = path(8, 0.0, 0.0);
         assert_eq!(
-            indices(adding(&still, &with_still_gap(1))),
+            indices(adding(still.clone(), &with_still_gap(1))),
             [0, 3, 4, 5, 6, 7]
         );
-        assert_eq!(indices(adding(&still, &with_still_gap(2))), [0, 3, 5, 7]);
-        assert_eq!(indices(adding(&still, &with_still_gap(0))), [0, 3, 6]);
+        assert_eq!(
+            indices(adding(still.clone(), &with_still_gap(2))),
+            [0, 3, 5, 7]
+        );
+        assert_eq!(
+            indices(adding(still.clone(), &with_still_gap(0))),
+            [0, 3, 6]
+        );
         // Frames 3-7 came while it stood still (frame 3 too: it has stood 3 frames).
-        assert_eq!(adding(&still, &with_still_gap(1)).still, 5);
-        assert_eq!(adding(&still, &with_still_gap(0)).still, 0);
+        assert_eq!(adding(still.clone(), &with_still_gap(1)).still, 5);
+        assert_eq!(adding(still.clone(), &with_still_gap(0)).still, 0);
         // 2 mm a frame is 6 mm over 3 frames, over a quarter of 2 cm: not still, and
         // the camera is fused once it moved 2 cm or 3 frames passed.
         let creeping = path(8, 0.002, 0.0);
-        assert_eq!(indices(adding(&creeping, &with_still_gap(1))), [0, 3, 6]);
-        assert_eq!(adding(&creeping, &with_still_gap(1)).still, 0);
+        assert_eq!(
+            indices(adding(creeping.clone(), &with_still_gap(1))),
+            [0, 3, 6]
+        );
+        assert_eq!(adding(creeping.clone(), &with_still_gap(1)).still, 0);
         // 1 mm a frame (3 mm over 3 frames): still.
         let jitter = path(8, 0.001, 0.0);
-        assert_eq!(indices(adding(&jitter, &with_still_gap(1))).len(), 6);
+        assert_eq!(indices(adding(jitter.clone(), &with_still_gap(1))).len(), 6);
     }
 }
