@@ -10,8 +10,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::spill::{read_table, write_table, SpillFile};
 use super::tsdf::FxMap;
+use crate::io::spill::{read_table, write_table, SpillFile};
 use crate::io::IoError;
 
 /// Voxels along one side of a chunk.

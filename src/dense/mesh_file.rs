@@ -14,12 +14,12 @@ use std::path::Path;
 
 use super::cloud::Sample;
 use super::marching_cubes::{extract_with, MeshBatch};
-use super::spill::SpillFile;
 use super::tsdf::TsdfVolume;
 use crate::geometry::mesh::{KeptVertices, Mesh, Pieces, Pruned};
 use crate::io::atomic::write_atomic_with;
 use crate::io::ply::{write_obj_faces, write_obj_head, write_obj_vertices};
 use crate::io::ply::{PlyEncoding, PlyMeshRows};
+use crate::io::spill::SpillFile;
 use crate::io::IoError;
 
 /// Bytes of a vertex's record: position (3 × f32) and colour (3 × u8).

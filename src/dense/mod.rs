@@ -36,7 +36,6 @@ pub mod outputs;
 pub mod render;
 pub mod report;
 pub mod segments;
-mod spill;
 pub mod truth;
 pub mod tsdf;
 

@@ -38,7 +38,7 @@ use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::io::IoError;
 
-use super::spill::{read_table, write_table, SpillFile};
+use crate::io::spill::{read_table, write_table, SpillFile};
 
 /// A fast hasher for integer keys (the Fx hash of rustc): block lookups dominate
 /// integration and meshing, and SipHash's resistance to flooding is not needed here.

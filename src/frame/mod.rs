@@ -64,6 +64,16 @@ impl Grid {
 }
 
 impl Frame {
+    /// The bytes its arrays hold (their capacity), for the memory report.
+    pub fn heap_bytes(&self) -> usize {
+        use std::mem::size_of;
+        self.keypoints.capacity() * size_of::<KeyPoint>()
+            + self.descriptors.capacity() * size_of::<Descriptor>()
+            + (self.depth.capacity() + self.right_u.capacity() + self.moving.capacity())
+                * size_of::<f32>()
+            + (self.grid.start.capacity() + self.grid.items.capacity()) * size_of::<u32>()
+    }
+
     /// Its keypoints as the DOP model sees them: undistorted position and depth.
     pub fn dop_keypoints(&self) -> Vec<crate::dop::boxes::Keypoint> {
         self.keypoints

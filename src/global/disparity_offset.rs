@@ -25,7 +25,8 @@ use crate::eval::stats::median;
 use crate::frame::stereo::offset_disparity;
 use crate::frame::Frame;
 use crate::geometry::stereo_camera::StereoCamera;
-use crate::map::record::FrameRecord;
+use crate::io::IoError;
+use crate::map::record::{FrameObservation, FrameRecords};
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
 use crate::random::Rng;
@@ -425,14 +426,18 @@ impl Estimate {
 }
 
 /// Adds `offset` to every stereo disparity of the map's keyframes and of the tracked
-/// `frames`' observations: depths \(bf / (d + \delta)\), right columns \(u - d - \delta\).
-pub fn correct(map: &mut Map, frames: &mut [&mut FrameRecord], bf: f64, offset: f64) {
+/// `records`' observations: depths \(bf / (d + \delta)\), right columns \(u - d - \delta\)
+/// (`Err`: the records' spill file could not be read or written).
+pub fn correct(
+    map: &mut Map,
+    records: &mut FrameRecords,
+    bf: f64,
+    offset: f64,
+) -> Result<(), IoError> {
     for frame in map.keyframe_frames_mut() {
         offset_frame(frame, bf, offset);
     }
-    for record in frames.iter_mut() {
-        offset_record(record, offset);
-    }
+    records.change_observations(|o| offset_observation(o, offset))
 }
 
 /// Adds `offset` to the disparity of every keypoint of `frame` with a stereo depth.
@@ -449,12 +454,10 @@ pub fn offset_frame(frame: &mut Frame, bf: f64, offset: f64) {
     }
 }
 
-/// Adds `offset` to the disparity of every observation of `record` with a right column.
-pub fn offset_record(record: &mut FrameRecord, offset: f64) {
-    for o in &mut record.observations {
-        if o.right_u >= 0.0 {
-            o.right_u = o.x - offset_disparity((o.x - o.right_u) as f64, offset) as f32;
-        }
+/// Adds `offset` to the disparity of an observation with a right column.
+pub fn offset_observation(o: &mut FrameObservation, offset: f64) {
+    if o.right_u >= 0.0 {
+        o.right_u = o.x - offset_disparity((o.x - o.right_u) as f64, offset) as f32;
     }
 }
 

@@ -22,7 +22,8 @@ use serde::{Deserialize, Serialize};
 use super::GlobalInputs;
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
-use crate::map::record::{FrameObservation, FrameRecord};
+use crate::io::IoError;
+use crate::map::record::{FrameObservation, FrameRecord, FrameRecords, ObservationReader};
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
 
@@ -46,43 +47,58 @@ pub struct RefinementReport {
     pub milliseconds: f64,
 }
 
-/// Estimates every tracked frame of `frames` again on `map` (see the module doc).
-pub fn refine_frames<'a>(
+/// Estimates every tracked frame of `records` again on `map` (see the module doc);
+/// `Err` when their observations cannot be read.
+pub fn refine_frames(
     map: &Map,
     inputs: &GlobalInputs,
-    frames: impl Iterator<Item = &'a mut FrameRecord>,
-) -> RefinementReport {
+    records: &mut FrameRecords,
+) -> Result<RefinementReport, IoError> {
     let start = Instant::now();
-    let mut frames: Vec<&mut FrameRecord> = frames
-        .filter(|f| !f.is_keyframe() && f.reference.is_some() && !f.observations.is_empty())
+    let (records, reader) = records.split_mut();
+    let mut frames: Vec<&mut FrameRecord> = records
+        .iter_mut()
+        .filter(|f| !f.is_keyframe() && f.reference.is_some() && f.observation_count() > 0)
         .collect();
     let shifts: Vec<Option<f64>> = frames
         .par_iter_mut()
-        .map(|frame| refine(map, inputs, frame))
-        .collect();
+        .map(|frame| refine(map, inputs, reader, frame))
+        .collect::<Result<_, IoError>>()?;
     let mut moved: Vec<f64> = shifts.iter().flatten().map(|s| s * 1e3).collect();
     let refined = moved.len();
-    RefinementReport {
+    Ok(RefinementReport {
         frames: frames.len(),
         refined,
         kept: frames.len() - refined,
         median_shift_mm: median(&mut moved),
         max_shift_mm: moved.iter().copied().fold(0.0, f64::max),
         milliseconds: start.elapsed().as_secs_f64() * 1e3,
-    }
+    })
 }
 
 /// One frame: its new pose relative to its reference keyframe, and how far it moved
 /// (metres); `None` where it keeps its pose.
-fn refine(map: &Map, inputs: &GlobalInputs, frame: &mut FrameRecord) -> Option<f64> {
-    let (key, camera_from_reference) = frame.reference?;
-    let reference_from_world = map.keyframe_pose(key)?;
+fn refine(
+    map: &Map,
+    inputs: &GlobalInputs,
+    reader: ObservationReader,
+    frame: &mut FrameRecord,
+) -> Result<Option<f64>, IoError> {
+    let Some((key, camera_from_reference)) = frame.reference else {
+        return Ok(None);
+    };
+    let Some(reference_from_world) = map.keyframe_pose(key) else {
+        return Ok(None);
+    };
     let initial = camera_from_reference * reference_from_world;
-    let pose = refined_pose(map, inputs, &initial, &frame.observations)?;
+    let observations = reader.observations(frame)?;
+    let Some(pose) = refined_pose(map, inputs, &initial, &observations) else {
+        return Ok(None);
+    };
     frame.reference = Some((key, pose * reference_from_world.inverse()));
     frame.camera_from_world = Some(pose);
     let centre = |p: &Se3| p.inverse().translation.vector;
-    Some((centre(&pose) - centre(&initial)).norm())
+    Ok(Some((centre(&pose) - centre(&initial)).norm()))
 }
 
 /// `camera_from_world` optimised from `initial` against the static map points of

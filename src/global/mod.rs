@@ -29,7 +29,8 @@ use serde::{Deserialize, Serialize};
 use crate::bow::Vocabulary;
 use crate::features::ScalePyramid;
 use crate::geometry::stereo_camera::StereoCamera;
-use crate::map::record::FrameRecord;
+use crate::io::IoError;
+use crate::map::record::{FrameRecord, FrameRecords};
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use candidates::Candidate;
@@ -150,6 +151,28 @@ pub struct GlobalMemory {
     pub full_ba_mib: Option<f64>,
     /// The frames estimated again and smoothed.
     pub frames_mib: Option<f64>,
+    /// What the map held when the pass began (MiB): its keyframes (features, depth,
+    /// grid, observations) and its points.
+    #[serde(default)]
+    pub keyframes_held_mib: f64,
+    /// The map points' part of it.
+    #[serde(default)]
+    pub points_held_mib: f64,
+    /// The tracked frames' records (the map points each saw, for their estimate
+    /// on the final map).
+    #[serde(default)]
+    pub frame_records_held_mib: f64,
+}
+
+impl GlobalMemory {
+    /// Records what the map and the frames' records hold.
+    fn hold(&mut self, map: &Map, records: &FrameRecords) {
+        const MIB: f64 = 1024.0 * 1024.0;
+        let held = map.footprint();
+        self.keyframes_held_mib = held.keyframes as f64 / MIB;
+        self.points_held_mib = held.points as f64 / MIB;
+        self.frame_records_held_mib = records.heap_bytes() as f64 / MIB;
+    }
 }
 
 /// What the pass needs of the system.
@@ -214,14 +237,15 @@ pub fn load_vocabulary(config: &GlobalConfig) -> Result<Arc<Vocabulary>, NoLoops
 
 /// Runs the global pass on `map` in place: loops verified and corrected from what
 /// place recognition found beside tracking (`Err`: why it could not run), then full BA,
-/// then the tracked `frames` estimated again on the final map and smoothed.
-pub fn run<'a>(
+/// then the tracked frames' `records` estimated again on the final map and smoothed
+/// (`Err`: their observations could not be read or written).
+pub fn run(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
     recognised: Result<PlaceRecognition, NoLoops>,
-    frames: impl Iterator<Item = &'a mut FrameRecord>,
-) -> GlobalReport {
+    records: &mut FrameRecords,
+) -> Result<GlobalReport, IoError> {
     let start = Instant::now();
     let mut report = GlobalReport::default();
     let gauge = Gauge::of(map);
@@ -236,7 +260,7 @@ pub fn run<'a>(
     }
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
     report.memory.loops_mib = crate::memory::part_peak_mib();
-    let mut frames: Vec<&mut FrameRecord> = frames.collect();
+    report.memory.hold(map, records);
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
         if config.disparity_offset && inputs.stereo && report.full_ba.is_some() {
@@ -246,31 +270,27 @@ pub fn run<'a>(
                 config,
                 disparity_offset::OffsetTest::First(config.disparity_offset_min_px),
                 &mut report.full_ba,
-                &mut frames,
-            );
+                records,
+            )?;
         }
     }
     report.memory.full_ba_mib = crate::memory::part_peak_mib();
     if let Some(gauge) = gauge {
-        gauge.restore(map, &mut frames);
+        gauge.restore(map, records);
     }
     if config.refine_frames {
-        report.frames = Some(frame_refinement::refine_frames(
-            map,
-            inputs,
-            frames.iter_mut().map(|f| &mut **f),
-        ));
+        report.frames = Some(frame_refinement::refine_frames(map, inputs, records)?);
     }
     if config.smoothing.enabled {
         report.smoothing = Some(trajectory_smoothing::smooth_frames(
             map,
             &config.smoothing,
-            frames.into_iter(),
+            records.iter_mut(),
         ));
     }
     report.memory.frames_mib = crate::memory::part_peak_mib();
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
-    report
+    Ok(report)
 }
 
 /// The world frame the tracking pass left: its oldest keyframe's pose (the first
@@ -295,7 +315,7 @@ impl Gauge {
 
     /// The map and the frames' tracked poses moved rigidly so that the keyframe is
     /// where it was (nothing when it is gone).
-    fn restore(&self, map: &mut Map, frames: &mut [&mut FrameRecord]) {
+    fn restore(&self, map: &mut Map, frames: &mut [FrameRecord]) {
         let Some(now) = map.keyframes().get(self.key).map(|k| k.camera_from_world) else {
             return;
         };
@@ -320,16 +340,20 @@ const MIN_OFFSET_PX: f64 = 0.05;
 /// nothing is taken out unless the first estimate passes the confidence test
 /// ([`disparity_offset::Estimate::verdict`] as `test` says), and
 /// the rounds end when one falls below [`MIN_OFFSET_PX`]; `full_ba` becomes the last
-/// BA's report. `None` when the map has too few points with parallax for an estimate.
+/// BA's report. `None` when the map has too few points with parallax for an estimate;
+/// `Err` when the `records`' observations could not be corrected.
 pub fn take_out_disparity_offset(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
     test: disparity_offset::OffsetTest,
     full_ba: &mut Option<FullBaReport>,
-    frames: &mut [&mut FrameRecord],
-) -> Option<disparity_offset::OffsetReport> {
-    let first = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)?;
+    records: &mut FrameRecords,
+) -> Result<Option<disparity_offset::OffsetReport>, IoError> {
+    let Some(first) = disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
+    else {
+        return Ok(None);
+    };
     let test = match test {
         disparity_offset::OffsetTest::First(min_px) => {
             disparity_offset::OffsetTest::First(min_px.max(MIN_OFFSET_PX))
@@ -339,7 +363,7 @@ pub fn take_out_disparity_offset(
     let verdict = first.verdict(test);
     let mut offset = disparity_offset::OffsetReport::first(&first, &verdict);
     if verdict != disparity_offset::Verdict::Apply {
-        return Some(offset);
+        return Ok(Some(offset));
     }
     let mut found = first.offset_px;
     for round in 0..OFFSET_ROUNDS {
@@ -357,11 +381,11 @@ pub fn take_out_disparity_offset(
             }
             found = next.offset_px;
         }
-        disparity_offset::correct(map, frames, inputs.camera.bf, found);
+        disparity_offset::correct(map, records, inputs.camera.bf, found)?;
         offset.offset_px += found;
         *full_ba = full_bundle_adjustment(map, inputs, config);
     }
-    Some(offset)
+    Ok(Some(offset))
 }
 
 /// Keyframes with fewer static observations are held in full BA.
@@ -446,11 +470,12 @@ mod gauge_tests {
         let gauge = Gauge::of(&map).unwrap();
         // A correction that moved everything, the oldest keyframe too.
         map.transform_world(&pose(0.4, -0.5));
-        let mut record = crate::map::record::FrameRecord {
+        let mut records = [crate::map::record::FrameRecord {
             camera_from_world: Some(map.keyframes()[second].camera_from_world),
             ..Default::default()
-        };
-        gauge.restore(&mut map, &mut [&mut record]);
+        }];
+        gauge.restore(&mut map, &mut records);
+        let record = &records[0];
         let close = |a: &crate::geometry::se3::Se3, b: &crate::geometry::se3::Se3| {
             (a.to_homogeneous() - b.to_homogeneous()).norm() < 1e-9
         };

@@ -13,7 +13,9 @@ pub mod ply;
 pub mod ply_stream;
 pub mod recording;
 pub mod run_dir;
+
 pub mod sequence;
+pub mod spill;
 pub mod trajectory;
 pub mod tum;
 

@@ -86,6 +86,15 @@ pub type KeySet<K> = std::collections::HashSet<K, foldhash::fast::FixedState>;
 /// A map from map keys with the hasher of [`KeySet`].
 pub type KeyMap<K, V> = std::collections::HashMap<K, V, foldhash::fast::FixedState>;
 
+/// What the map holds, in bytes ([`Map::footprint`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MapFootprint {
+    /// The keyframes: features, depth, grid, observations, edges.
+    pub keyframes: usize,
+    /// The map points with their observation lists.
+    pub points: usize,
+}
+
 /// A keyframe: a frame kept in the map.
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
@@ -237,6 +246,32 @@ impl Map {
         self.keyframes
             .get(key)
             .is_some_and(|kf| kf.recording == self.current_recording())
+    }
+
+    /// The bytes the keyframes and the points hold (their structs and arrays, by
+    /// capacity; not the allocator's own overhead), for the memory report.
+    pub fn footprint(&self) -> MapFootprint {
+        use std::mem::size_of;
+        let keyframes = self
+            .keyframes
+            .values()
+            .map(|kf| {
+                size_of::<KeyFrame>()
+                    + kf.frame.heap_bytes()
+                    + kf.map_points.capacity() * size_of::<Option<MapPointKey>>()
+                    + kf.connections.capacity() * size_of::<(KeyFrameKey, usize)>()
+                    + kf.children.capacity() * size_of::<KeyFrameKey>()
+            })
+            .sum();
+        let points = self
+            .points
+            .values()
+            .map(|p| {
+                size_of::<MapPoint>()
+                    + p.observations.capacity() * size_of::<(KeyFrameKey, usize)>()
+            })
+            .sum();
+        MapFootprint { keyframes, points }
     }
 
     /// The segments the map's keyframes use (a new segment is numbered from here).

@@ -51,6 +51,10 @@ pub enum StopReason {
     /// An observer of the pass (debug pictures, the Rerun recording) failed.
     #[error("{0}")]
     Observer(String),
+    /// The frames' records could not be written to (or read back from) their spill
+    /// file in the run's folder: the message names the file and the error.
+    #[error("{0}")]
+    Records(String),
     /// No frame had enough keypoints with depth to start the map; the message says
     /// what the frames had.
     #[error("{0}")]

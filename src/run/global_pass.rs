@@ -31,7 +31,7 @@ pub fn global_pass(
         &inputs,
         &setup.config.global,
         recognised,
-        pass.records.iter_mut(),
-    );
+        &mut pass.records,
+    )?;
     Ok(Some((report, tracking)))
 }

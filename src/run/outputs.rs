@@ -20,7 +20,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::Trajectory;
-use crate::map::record::FrameRecord;
+use crate::map::record::{FrameRecord, FrameRecords};
 use crate::map::Map;
 use crate::mapping::MappingStats;
 use crate::records::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
@@ -117,7 +117,7 @@ pub struct Computed<'a> {
     /// One report line per frame.
     pub lines: Vec<FrameLine>,
     /// One record per frame (the trajectory).
-    pub records: Vec<FrameRecord>,
+    pub records: FrameRecords,
     /// Why the run stopped early, if it did.
     pub stopped: Option<StopReason>,
     /// The global pass's report and the tracking pass's trajectory, when it ran.

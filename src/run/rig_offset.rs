@@ -23,7 +23,8 @@ use crate::global::disparity_offset::{
 };
 use crate::global::{full_bundle_adjustment, take_out_disparity_offset};
 use crate::io::sequence::SensorKind;
-use crate::map::record::FrameRecord;
+use crate::io::IoError;
+use crate::map::record::FrameRecords;
 use crate::records::{RigOffset, TakenOut};
 use crate::system::System;
 
@@ -78,36 +79,39 @@ impl OffsetSearch {
     /// After frame `index` was tracked and its record pushed onto `records`: when it
     /// made a keyframe, a probe, and when the probe and the estimate after full BA pass
     /// the confidence test, the offset taken out of the map and of `records`. Returns
-    /// the offset to add to every later frame's matches, pixels, when it was taken out.
+    /// the offset to add to every later frame's matches, pixels, when it was taken out
+    /// (`Err`: the records' observations could not be read or written).
     pub fn after_frame(
         &mut self,
         system: &mut System,
-        records: &mut [FrameRecord],
+        records: &mut FrameRecords,
         setup: &Setup,
         index: usize,
-    ) -> Option<f64> {
+    ) -> Result<Option<f64>, IoError> {
         if self.done || index >= self.frames {
-            return None;
+            return Ok(None);
         }
         let is_keyframe = records.last().is_some_and(|r| r.is_keyframe());
         let keyframes = last_keyframes(system);
         if !is_keyframe || keyframes < self.next_probe {
-            return None;
+            return Ok(None);
         }
         self.next_probe = (keyframes + PROBE_EVERY_KEYFRAMES).max(keyframes * 5 / 4);
         let inputs = setup.global_inputs();
-        let probe = system.with_map(|map| {
+        let Some(probe) = system.with_map(|map| {
             crate::global::disparity_offset::estimate(map, inputs.camera, inputs.removal_threshold)
-        })?;
+        }) else {
+            return Ok(None);
+        };
         let test = self.test();
         let verdict = probe.verdict(test);
         self.at_frame = index + 1;
         self.last = Some(OffsetReport::first(&probe, &verdict));
         match verdict {
-            Verdict::Unsure(_) => None,
+            Verdict::Unsure(_) => Ok(None),
             Verdict::Needless(_) => {
                 self.done = true;
-                None
+                Ok(None)
             }
             Verdict::Apply => self.take_out(system, records, setup, test),
         }
@@ -130,10 +134,10 @@ impl OffsetSearch {
     fn take_out(
         &mut self,
         system: &mut System,
-        records: &mut [FrameRecord],
+        records: &mut FrameRecords,
         setup: &Setup,
         test: OffsetTest,
-    ) -> Option<f64> {
+    ) -> Result<Option<f64>, IoError> {
         let inputs = setup.global_inputs();
         let config = &setup.config.global;
         let bf = inputs.camera.bf;
@@ -141,26 +145,33 @@ impl OffsetSearch {
         let found = system.edit_map(
             |map| {
                 let mut ba = full_bundle_adjustment(map, &inputs, config);
-                ba.as_ref()?;
-                let mut frames: Vec<&mut FrameRecord> = records.iter_mut().collect();
-                take_out_disparity_offset(map, &inputs, config, test, &mut ba, &mut frames)
+                if ba.is_none() {
+                    return Ok(None);
+                }
+                take_out_disparity_offset(map, &inputs, config, test, &mut ba, records)
             },
             &last,
-            |found, frame| offset_frame(frame, bf, found.as_ref().map_or(0.0, |f| f.offset_px)),
+            |found, frame| {
+                let taken = found.as_ref().ok().and_then(Option::as_ref);
+                offset_frame(frame, bf, taken.map_or(0.0, |f| f.offset_px))
+            },
         )?;
+        let Some(found) = found else {
+            return Ok(None);
+        };
         let taken = found.offset_px;
         self.last = Some(found);
         if taken == 0.0 {
             // Full BA's map did not bear the probe out: wait longer before the next.
             self.next_probe = self.next_probe.max(last_keyframes(system) * 3 / 2);
-            return None;
+            return Ok(None);
         }
         self.taken.push(TakenOut {
             frames: self.at_frame,
             offset_px: taken,
         });
         self.done = self.taken.len() >= MAX_CORRECTIONS;
-        Some(taken)
+        Ok(Some(taken))
     }
 
     /// The offset the tracking pass took out, with its evidence: its last estimate and

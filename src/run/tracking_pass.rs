@@ -20,7 +20,7 @@ use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
-use crate::map::record::FrameRecord;
+use crate::map::record::FrameRecords;
 use crate::pacing::{Pace, Pacer};
 use crate::records::{FrameLine, RigOffset};
 use crate::system::worker::Execution;
@@ -37,8 +37,9 @@ pub struct TrackingPass {
     pub tracked: Tracked,
     /// One report line per frame.
     pub lines: Vec<FrameLine>,
-    /// One record per line, for the global pass and the final trajectory.
-    pub records: Vec<FrameRecord>,
+    /// One record per line, for the global pass and the final trajectory (their
+    /// observations in a spill file in the run's folder).
+    pub records: FrameRecords,
     /// Why the pass stopped before the last frame, if it did.
     pub stop: Option<StopReason>,
     /// Stereo: the rig's disparity offset the pass found and took out
@@ -92,10 +93,10 @@ pub fn tracking_pass(
     let (sequence, setup, options) = (inputs.sequence, inputs.setup, inputs.options);
     let execution = Execution::of(options.deterministic);
     let mut placed = inputs.base.is_none();
+    let mut records = FrameRecords::spilling_into(inputs.run.root())?;
     let mut system = start_system(setup, StartInputs::of(inputs, execution));
     let total = options.frames_of(sequence.len());
     let mut lines = Vec::with_capacity(total);
-    let mut records = Vec::with_capacity(total);
     let mut loader = Loader::new(sequence, setup, options, execution);
     let mut offset_search = OffsetSearch::of(setup);
     let mut stop = None;
@@ -139,7 +140,10 @@ pub fn tracking_pass(
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
         placed |= stats.state == TrackingState::Ok;
-        records.push(record);
+        if let Err(e) = records.push(record) {
+            stop = Some(StopReason::Records(e.to_string()));
+            break;
+        }
         lines.push(FrameLine {
             tracking: stats,
             extraction_ms,
@@ -151,9 +155,13 @@ pub fn tracking_pass(
             break;
         }
         if let Some(search) = offset_search.as_mut() {
-            loader.offset += search
-                .after_frame(&mut system, &mut records, setup, index)
-                .unwrap_or(0.0);
+            match search.after_frame(&mut system, &mut records, setup, index) {
+                Ok(taken) => loader.offset += taken.unwrap_or(0.0),
+                Err(e) => {
+                    stop = Some(StopReason::Records(e.to_string()));
+                    break;
+                }
+            }
         }
     }
     let log = FrameLog {
@@ -170,7 +178,7 @@ pub fn tracking_pass(
 /// early, if it did.
 struct FrameLog {
     lines: Vec<FrameLine>,
-    records: Vec<FrameRecord>,
+    records: FrameRecords,
     stop: Option<StopReason>,
 }
 

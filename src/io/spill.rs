@@ -1,11 +1,12 @@
-//! The file a TSDF volume spills its blocks into when they exceed its memory budget
-//! ([`super::tsdf::TsdfVolume::spill_to`]): fixed-size records, one slot per block,
-//! written and read in place (`pwrite`/`pread`, so that readers on several threads
-//! need no lock); and the file the point cloud's voxel sums spill into
-//! ([`super::cloud::CloudBuilder::spill_to`]): records of any size appended at its
-//! end. Either is the run's own temporary: created new (never one that exists), and
-//! removed when its owner is dropped. A spill file can also be linked into a kept
-//! dense state ([`SpillFile::keep_as`], [`super::kept`]), and laid over a kept file
+//! A run's own temporary file for what would otherwise grow in memory: the TSDF
+//! volume's blocks beyond its budget (`crate::dense::tsdf::TsdfVolume::spill_to`):
+//! fixed-size records, one slot per block, written and read in place (`pwrite`/`pread`,
+//! so that readers on several threads need no lock); the point cloud's voxel sums
+//! (`crate::dense::cloud::CloudBuilder::spill_to`) and the tracked frames' observations
+//! (`crate::map::record::FrameRecords`): records of any size appended at its end.
+//! Each is created new (never one that exists), and removed when its owner is
+//! dropped. A spill file can also be linked into a kept dense state
+//! ([`SpillFile::keep_as`], `crate::dense::kept`), and laid over a kept file
 //! ([`SpillFile::over`]): the kept bytes are read beneath it and never written.
 
 use std::fs::{File, OpenOptions};
@@ -140,6 +141,17 @@ impl SpillFile {
         let at = self.len;
         self.write_at(at, bytes)?;
         Ok(at)
+    }
+
+    /// Writes `bytes` over bytes appended before, at `at` (a record changed in place).
+    pub fn overwrite(&mut self, at: u64, bytes: &[u8]) -> Result<(), IoError> {
+        if at + bytes.len() as u64 > self.len {
+            return Err(IoError::invalid(
+                self.path.clone(),
+                "a change in place reaches past the end of the spill file",
+            ));
+        }
+        self.write_at(at, bytes)
     }
 
     fn write_at(&mut self, at: u64, bytes: &[u8]) -> Result<(), IoError> {
