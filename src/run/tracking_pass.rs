@@ -20,7 +20,7 @@ use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
-use crate::map::record::FrameRecords;
+use crate::map::record::{FrameRecord, FrameRecords};
 use crate::pacing::{Pace, Pacer};
 use crate::records::{FrameLine, RigOffset};
 use crate::system::worker::Execution;
@@ -140,28 +140,21 @@ pub fn tracking_pass(
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
         placed |= stats.state == TrackingState::Ok;
-        if let Err(e) = records.push(record) {
-            stop = Some(StopReason::Records(e.to_string()));
-            break;
-        }
         lines.push(FrameLine {
             tracking: stats,
             extraction_ms,
             tracking_ms,
             truth: None,
         });
+        let search = offset_search.as_mut();
+        let kept = keep_record(&mut records, record, search, &mut system, setup, index);
+        if let Err(e) = kept.map(|taken| loader.offset += taken) {
+            stop = Some(StopReason::Records(e.to_string()));
+            break;
+        }
         if let Some(reason) = not_placed(placed, index, &setup.config) {
             stop = Some(reason);
             break;
-        }
-        if let Some(search) = offset_search.as_mut() {
-            match search.after_frame(&mut system, &mut records, setup, index) {
-                Ok(taken) => loader.offset += taken.unwrap_or(0.0),
-                Err(e) => {
-                    stop = Some(StopReason::Records(e.to_string()));
-                    break;
-                }
-            }
         }
     }
     let log = FrameLog {
@@ -172,6 +165,26 @@ pub fn tracking_pass(
     let mut pass = end_pass(system, setup, log, observers);
     pass.offset = offset_search.map(OffsetSearch::finish);
     Ok(pass)
+}
+
+/// Keeps frame `index`'s record (its observations to the spill file); in a stereo
+/// run's first frames, the rig's offset search looks at the map after it. Returns the
+/// offset to add to every later frame's matches (0 when none was taken out).
+fn keep_record(
+    records: &mut FrameRecords,
+    record: FrameRecord,
+    search: Option<&mut OffsetSearch>,
+    system: &mut System,
+    setup: &Setup,
+    index: usize,
+) -> Result<f64, crate::io::IoError> {
+    records.push(record)?;
+    match search {
+        Some(search) => Ok(search
+            .after_frame(system, records, setup, index)?
+            .unwrap_or(0.0)),
+        None => Ok(0.0),
+    }
 }
 
 /// What the frame loop wrote down: a line and a record per frame, and why it stopped
