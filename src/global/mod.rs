@@ -260,6 +260,9 @@ pub fn run(
     }
     report.loop_closing_ms = start.elapsed().as_secs_f64() * 1e3;
     report.memory.loops_mib = crate::memory::part_peak_mib();
+    // Place recognition's words and database are gone: their pages go back before
+    // full BA builds its arrays (and after it, before the frames).
+    crate::memory::release_freed_memory();
     report.memory.hold(map, records);
     if config.full_ba {
         report.full_ba = full_bundle_adjustment(map, inputs, config);
@@ -275,6 +278,7 @@ pub fn run(
         }
     }
     report.memory.full_ba_mib = crate::memory::part_peak_mib();
+    crate::memory::release_freed_memory();
     if let Some(gauge) = gauge {
         gauge.restore(map, records);
     }

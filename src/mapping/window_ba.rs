@@ -102,8 +102,21 @@ impl Window {
         if !fixed.iter().any(|f| *f) {
             return None;
         }
-        let mut observations = Vec::new();
-        let mut sources = Vec::new();
+        // Counted first: a whole map's observations are the largest arrays of a full
+        // BA, and growing them by doubling would leave up to half of them unused.
+        let count = cameras
+            .iter()
+            .map(|k| {
+                let keyframe = &map.keyframes()[*k];
+                keyframe
+                    .map_points
+                    .iter()
+                    .filter(|p| p.is_some_and(|p| point_index.contains_key(&p)))
+                    .count()
+            })
+            .sum();
+        let mut observations = Vec::with_capacity(count);
+        let mut sources = Vec::with_capacity(count);
         for (c, k) in cameras.iter().enumerate() {
             let keyframe = &map.keyframes()[*k];
             for (i, p) in keyframe.map_points.iter().enumerate() {

@@ -338,13 +338,34 @@ fn levenberg_marquardt(
 /// What stays fixed over one solve: the free poses' indices in the reduced system
 /// (`usize::MAX` for a fixed pose), the reduced camera system's block pattern (free
 /// poses that share an active point), each point's active observations in observation
-/// order, and each point's pair slots in the order the Schur loop visits them.
+/// order, and each point's pair slots in the order the Schur loop visits them (all
+/// points' in one array, packed: a whole map's full BA has 2-3 pairs an observation).
 struct SchurLayout {
     free_index: Vec<usize>,
     free: usize,
     pattern: BlockPattern,
     observations_of: Vec<Vec<usize>>,
-    slots: Vec<Vec<Slot>>,
+    /// Per point, where its pairs begin in `slots` (one entry more than points).
+    slot_start: Vec<usize>,
+    /// Every point's pair slots, [`pack`]ed.
+    slots: Vec<u32>,
+}
+
+/// Points a chunk when the pair slots are found in parallel.
+const SLOT_CHUNK: usize = 4096;
+
+/// A slot in 4 bytes: its index (below \(2^{31}\): the pattern numbers its values in
+/// `u32`, 36 to a block) and whether it goes transposed.
+fn pack(slot: Slot) -> u32 {
+    ((slot.index as u32) << 1) | slot.transposed as u32
+}
+
+/// [`pack`] undone.
+fn unpack(packed: u32) -> Slot {
+    Slot {
+        index: (packed >> 1) as usize,
+        transposed: packed & 1 == 1,
+    }
 }
 
 impl SchurLayout {
@@ -372,33 +393,47 @@ impl SchurLayout {
                 .flat_map(move |(a, &c1)| cams[..a].iter().map(move |&c2| (c1, c2)))
         });
         let pattern = BlockPattern::new(free, 6, pairs)?;
+        let mut slot_start = Vec::with_capacity(n_points + 1);
+        slot_start.push(0);
+        for cams in &cameras_of {
+            let k = cams.len();
+            slot_start.push(slot_start[slot_start.len() - 1] + k * (k + 1) / 2);
+        }
+        drop(cameras_of);
         let mut observations_of: Vec<Vec<usize>> = vec![Vec::new(); n_points];
         for (i, _) in active.iter().enumerate().filter(|(_, &a)| a) {
             observations_of[problem.observations[i].point].push(i);
         }
         // The coupling blocks of a point follow its observations of free poses, one each.
-        let slots = observations_of
-            .par_iter()
-            .map(|indices| {
-                let cameras: Vec<usize> = indices
-                    .iter()
-                    .map(|&i| free_index[problem.observations[i].camera])
-                    .filter(|&c| c != usize::MAX)
-                    .collect();
-                let mut s = Vec::with_capacity(cameras.len() * (cameras.len() + 1) / 2);
-                for (a, &c1) in cameras.iter().enumerate() {
-                    for &c2 in &cameras[..=a] {
-                        s.push(pattern.slot(c1, c2).expect("pair in the pattern"));
+        let chunks: Vec<Vec<u32>> = observations_of
+            .par_chunks(SLOT_CHUNK)
+            .map(|points| {
+                let mut s = Vec::new();
+                for indices in points {
+                    let cameras: Vec<usize> = indices
+                        .iter()
+                        .map(|&i| free_index[problem.observations[i].camera])
+                        .filter(|&c| c != usize::MAX)
+                        .collect();
+                    for (a, &c1) in cameras.iter().enumerate() {
+                        for &c2 in &cameras[..=a] {
+                            s.push(pack(pattern.slot(c1, c2).expect("pair in the pattern")));
+                        }
                     }
                 }
                 s
             })
             .collect();
+        let mut slots = Vec::with_capacity(slot_start[n_points]);
+        for chunk in chunks {
+            slots.extend_from_slice(&chunk);
+        }
         Some(SchurLayout {
             free_index,
             free,
             pattern,
             observations_of,
+            slot_start,
             slots,
         })
     }
@@ -465,13 +500,15 @@ fn schur_complement(
                     continue;
                 };
                 let coupling = &blocks.coupling[j];
-                let mut pair = layout.slots[j].iter();
+                let mut pair = layout.slots[layout.slot_start[j]..layout.slot_start[j + 1]]
+                    .iter()
+                    .map(|&p| unpack(p));
                 for (a, &(c1, w1)) in coupling.iter().enumerate() {
                     let w1_vinv = w1 * v_inv;
                     let mut rows = rhs.fixed_rows_mut::<6>(6 * c1);
                     rows += w1_vinv * blocks.b_point[j];
                     for &(_, w2) in &coupling[..=a] {
-                        let slot = *pair.next().expect("one slot per pair");
+                        let slot = pair.next().expect("one slot per pair");
                         let m: Matrix6<f64> = -(w1_vinv * w2.transpose());
                         pattern.add_at(&mut values, slot, m.as_slice());
                     }
