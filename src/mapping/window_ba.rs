@@ -102,39 +102,10 @@ impl Window {
         if !fixed.iter().any(|f| *f) {
             return None;
         }
-        // Counted first: a whole map's observations are the largest arrays of a full
-        // BA, and growing them by doubling would leave up to half of them unused.
-        let count = cameras
-            .iter()
-            .map(|k| {
-                let keyframe = &map.keyframes()[*k];
-                keyframe
-                    .map_points
-                    .iter()
-                    .filter(|p| p.is_some_and(|p| point_index.contains_key(&p)))
-                    .count()
-            })
-            .sum();
-        let mut observations = Vec::with_capacity(count);
-        let mut sources = Vec::with_capacity(count);
-        for (c, k) in cameras.iter().enumerate() {
-            let keyframe = &map.keyframes()[*k];
-            for (i, p) in keyframe.map_points.iter().enumerate() {
-                let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
-                    continue;
-                };
-                let kp = &keyframe.frame.keypoints[i];
-                let right = keyframe.frame.right_u[i];
-                observations.push(BaObservation {
-                    camera: c,
-                    point: j,
-                    measurement: Vector3::new(kp.x as f64, kp.y as f64, right as f64),
-                    stereo: right > 0.0,
-                    information: pyramid.inverse_sigma2[kp.level as usize],
-                });
-                sources.push((*k, i));
-            }
-        }
+        let Gathered {
+            observations,
+            sources,
+        } = gather(map, &cameras, &point_index, pyramid);
         let problem = BaProblem {
             poses: cameras
                 .iter()
@@ -193,6 +164,59 @@ impl Window {
             map.update_point(*p, scale_factors);
         }
         removed
+    }
+}
+
+/// The observations of a window's points by its cameras, and the keypoint each came
+/// from.
+struct Gathered {
+    observations: Vec<BaObservation>,
+    sources: Vec<(KeyFrameKey, usize)>,
+}
+
+/// Every observation of a point of `point_index` by one of `cameras` (index in it).
+fn gather(
+    map: &Map,
+    cameras: &[KeyFrameKey],
+    point_index: &HashMap<MapPointKey, usize>,
+    pyramid: &ScalePyramid,
+) -> Gathered {
+    // Counted first: a whole map's observations are the largest arrays of a full
+    // BA, and growing them by doubling would leave up to half of them unused.
+    let count = cameras
+        .iter()
+        .map(|k| {
+            let keyframe = &map.keyframes()[*k];
+            keyframe
+                .map_points
+                .iter()
+                .filter(|p| p.is_some_and(|p| point_index.contains_key(&p)))
+                .count()
+        })
+        .sum();
+    let mut observations = Vec::with_capacity(count);
+    let mut sources = Vec::with_capacity(count);
+    for (c, k) in cameras.iter().enumerate() {
+        let keyframe = &map.keyframes()[*k];
+        for (i, p) in keyframe.map_points.iter().enumerate() {
+            let Some(&j) = p.and_then(|p| point_index.get(&p)) else {
+                continue;
+            };
+            let kp = &keyframe.frame.keypoints[i];
+            let right = keyframe.frame.right_u[i];
+            observations.push(BaObservation {
+                camera: c,
+                point: j,
+                measurement: Vector3::new(kp.x as f64, kp.y as f64, right as f64),
+                stereo: right > 0.0,
+                information: pyramid.inverse_sigma2[kp.level as usize],
+            });
+            sources.push((*k, i));
+        }
+    }
+    Gathered {
+        observations,
+        sources,
     }
 }
 
