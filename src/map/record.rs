@@ -108,6 +108,13 @@ pub struct FrameObservation {
 /// index, x, y, right column, level.
 const OBSERVATION_BYTES: usize = 8 + 4 + 4 + 4 + 4 + 1;
 
+/// Observations as [`FrameRecords`] writes them to disk.
+fn encode(observations: &[FrameObservation]) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(observations.len() * OBSERVATION_BYTES);
+    observations.iter().for_each(|o| o.write_to(&mut bytes));
+    bytes
+}
+
 impl FrameObservation {
     fn write_to(&self, out: &mut Vec<u8>) {
         use slotmap::Key;
@@ -133,10 +140,11 @@ impl FrameObservation {
     }
 }
 
-/// The tracked frames' records in frame order. With a spill file
+/// The tracked frames' records in frame order (their observations held in memory when
+/// made by `Default`). With a spill file
 /// ([`FrameRecords::spilling_into`]) each record's observations go to disk as it is
 /// pushed, so memory holds only the poses (about 150 bytes a frame, where the
-/// observations take 15-25 kB); they are read back, and changed in place, through
+/// observations take 10-15 kB on the renders); they are read back, and changed in place, through
 /// [`FrameRecords::observations`] and [`FrameRecords::change_observations`]. The file
 /// is removed with the records.
 #[derive(Debug, Default)]
@@ -146,14 +154,6 @@ pub struct FrameRecords {
 }
 
 impl FrameRecords {
-    /// Records whose observations stay in memory.
-    pub fn held(records: Vec<FrameRecord>) -> Self {
-        Self {
-            records,
-            file: None,
-        }
-    }
-
     /// Records whose observations go to a new spill file in `dir` (a run's folder).
     pub fn spilling_into(dir: &Path) -> Result<Self, IoError> {
         Ok(Self {
@@ -165,11 +165,7 @@ impl FrameRecords {
     /// Adds the next frame's record (its observations to disk, with a spill file).
     pub fn push(&mut self, mut record: FrameRecord) -> Result<(), IoError> {
         if let Some(file) = self.file.as_mut() {
-            let mut bytes = Vec::with_capacity(record.observations.len() * OBSERVATION_BYTES);
-            for o in &record.observations {
-                o.write_to(&mut bytes);
-            }
-            let at = file.append(&bytes)?;
+            let at = file.append(&encode(&record.observations))?;
             record.spilled = Some(Spilled {
                 at,
                 count: record.observations.len() as u32,
@@ -210,10 +206,8 @@ impl FrameRecords {
             };
             let mut observations = self.observations(&self.records[i])?.into_owned();
             observations.iter_mut().for_each(&mut change);
-            let mut bytes = Vec::with_capacity(observations.len() * OBSERVATION_BYTES);
-            observations.iter().for_each(|o| o.write_to(&mut bytes));
             if let Some(file) = self.file.as_mut() {
-                file.overwrite(spilled.at, &bytes)?;
+                file.overwrite(spilled.at, &encode(&observations))?;
             }
         }
         Ok(())
@@ -312,9 +306,10 @@ mod tests {
         let points: Vec<MapPointKey> = points.into_iter().chain([keys.insert(())]).collect();
         let dir = std::env::temp_dir().join(format!("dopslam-records-{}", std::process::id()));
         let originals = records_with(&points, 6);
-        let mut held = FrameRecords::held(originals.clone());
+        let mut held = FrameRecords::default();
         let mut spilled = FrameRecords::spilling_into(&dir).unwrap();
         for record in originals.clone() {
+            held.push(record.clone()).unwrap();
             spilled.push(record).unwrap();
         }
         assert!(spilled.iter().all(|r| r.observations.is_empty()));
