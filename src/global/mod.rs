@@ -13,6 +13,7 @@ pub mod candidates;
 pub mod disparity_offset;
 pub mod essential_graph;
 pub mod frame_refinement;
+pub mod keyframe_culling;
 pub mod loop_closing;
 pub mod loop_confirmation;
 pub mod place_recognition;
@@ -64,6 +65,9 @@ pub struct GlobalConfig {
     pub full_ba_robust_iterations: usize,
     /// Full BA iterations without it, on the inliers.
     pub full_ba_inlier_iterations: usize,
+    /// After loop closing (when a loop was closed), remove the keyframes a revisit made
+    /// redundant before full BA ([`keyframe_culling`]; `[mapping] redundancy`).
+    pub cull_keyframes: bool,
     /// After full BA, estimate every tracked frame's pose again against the final
     /// static map points it saw ([`frame_refinement`]).
     pub refine_frames: bool,
@@ -82,6 +86,7 @@ impl Default for GlobalConfig {
             disparity_offset_min_px: 0.75,
             full_ba_robust_iterations: 10,
             full_ba_inlier_iterations: 5,
+            cull_keyframes: true,
             refine_frames: true,
             smoothing: trajectory_smoothing::SmoothingConfig::default(),
         }
@@ -117,6 +122,9 @@ pub struct GlobalReport {
     pub loops: Vec<ClosedLoop>,
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
+    /// The keyframes culled after loop closing, when it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub culling: Option<keyframe_culling::CullingReport>,
     /// The full BA, when it ran (the last one, after the disparity offset's rounds).
     pub full_ba: Option<FullBaReport>,
     /// Stereo: the rig's disparity offset, when it was estimated.
@@ -190,6 +198,8 @@ pub struct GlobalInputs<'a> {
     /// The frames' refinement starts from the points its initial pose explains when
     /// they are this share of all (`[tracking] prediction_gate_share`; 0: off).
     pub prediction_gate_share: f64,
+    /// The redundant-keyframe test's settings.
+    pub redundancy: keyframe_culling::Redundancy,
 }
 
 impl GlobalConfig {
@@ -262,6 +272,9 @@ pub fn run(
     report.memory.loops_mib = crate::memory::part_peak_mib();
     // Place recognition's words and database are gone: their pages go back before
     // full BA builds its arrays (and after it, before the frames).
+    if config.cull_keyframes && !report.loops.is_empty() {
+        report.culling = Some(keyframe_culling::cull_redundant(map, inputs.redundancy));
+    }
     crate::memory::release_freed_memory();
     report.memory.hold(map, records);
     if config.full_ba {

@@ -127,6 +127,10 @@ impl Setup {
             } else {
                 0.0
             },
+            redundancy: crate::global::keyframe_culling::Redundancy {
+                close_depth: self.close_depth,
+                share: self.config.mapping.redundancy,
+            },
         }
     }
 
