@@ -387,6 +387,12 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
             );
         }
     }
+    if let Some(c) = &global.culling {
+        println!(
+            "  redundant keyframes after the loops: {} of {} culled, points {} -> {}, {:.0} ms",
+            c.keyframes_culled, c.keyframes_before, c.points_before, c.points_after, c.milliseconds
+        );
+    }
     if let Some(ba) = &global.full_ba {
         println!(
             "  full BA: {} keyframes, {} points, cost {:.4e} -> {:.4e}, {} outliers removed, {:.0} ms",
