@@ -83,8 +83,12 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
         "no loop from the end to the start: {:?}",
         global.candidates
     );
-    // A loop was closed, so the keyframes the revisit made redundant went before full BA.
-    let culling = global.culling.as_ref().expect("culling after the loop");
+    // A loop was closed, so the revisit was merged and the keyframes it made redundant
+    // went before full BA.
+    let culling = global
+        .revisits
+        .as_ref()
+        .expect("revisits merged after the loop");
     let full_ba = global.full_ba.as_ref().expect("full BA ran");
     assert_eq!(
         full_ba.keyframes,

@@ -387,10 +387,10 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
             );
         }
     }
-    if let Some(c) = &global.culling {
+    if let Some(r) = &global.revisits {
         println!(
-            "  redundant keyframes after the loops: {} of {} culled, points {} -> {}, {:.0} ms",
-            c.keyframes_culled, c.keyframes_before, c.points_before, c.points_after, c.milliseconds
+            "  places seen again: {} fusions into {} keyframes, {} of {} keyframes culled as redundant, points {} -> {}, {:.0} ms",
+            r.fusions, r.keyframes_fused, r.keyframes_culled, r.keyframes_before, r.points_before, r.points_after, r.milliseconds
         );
     }
     if let Some(ba) = &global.full_ba {

@@ -185,7 +185,7 @@ mod tests {
             size: (640.0, 480.0),
             removal_threshold: 0.6,
             prediction_gate_share: 0.7,
-            redundancy: crate::global::keyframe_culling::Redundancy {
+            redundancy: crate::global::revisits::Redundancy {
                 close_depth: 3.0,
                 share: 0.9,
             },

@@ -127,7 +127,7 @@ impl Setup {
             } else {
                 0.0
             },
-            redundancy: crate::global::keyframe_culling::Redundancy {
+            redundancy: crate::global::revisits::Redundancy {
                 close_depth: self.close_depth,
                 share: self.config.mapping.redundancy,
             },
