@@ -83,19 +83,6 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
         "no loop from the end to the start: {:?}",
         global.candidates
     );
-    // A loop was closed, so the revisit was merged and the keyframes it made redundant
-    // went before full BA.
-    let culling = global
-        .revisits
-        .as_ref()
-        .expect("revisits merged after the loop");
-    let full_ba = global.full_ba.as_ref().expect("full BA ran");
-    assert_eq!(
-        full_ba.keyframes,
-        culling.keyframes_before - culling.keyframes_culled,
-        "{culling:?}"
-    );
-    assert!(culling.points_after <= culling.points_before);
     // Place recognition's consistency rejections and the verdicts come in keyframe order.
     assert!(global
         .candidates

@@ -387,12 +387,6 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
             );
         }
     }
-    if let Some(r) = &global.revisits {
-        println!(
-            "  places seen again: {} fusions into {} keyframes, {} of {} keyframes culled as redundant, points {} -> {}, {:.0} ms",
-            r.fusions, r.keyframes_fused, r.keyframes_culled, r.keyframes_before, r.points_before, r.points_after, r.milliseconds
-        );
-    }
     if let Some(ba) = &global.full_ba {
         println!(
             "  full BA: {} keyframes, {} points, cost {:.4e} -> {:.4e}, {} outliers removed, {:.0} ms",

@@ -185,10 +185,6 @@ mod tests {
             size: (640.0, 480.0),
             removal_threshold: 0.6,
             prediction_gate_share: 0.7,
-            redundancy: crate::global::revisits::Redundancy {
-                close_depth: 3.0,
-                share: 0.9,
-            },
         };
         let truth = Se3::from_parts(
             Translation3::new(0.1, -0.05, 0.2),

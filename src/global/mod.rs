@@ -16,7 +16,6 @@ pub mod frame_refinement;
 pub mod loop_closing;
 pub mod loop_confirmation;
 pub mod place_recognition;
-pub mod revisits;
 pub mod rigid_motion;
 pub mod trajectory_smoothing;
 pub mod word_matching;
@@ -65,10 +64,6 @@ pub struct GlobalConfig {
     pub full_ba_robust_iterations: usize,
     /// Full BA iterations without it, on the inliers.
     pub full_ba_inlier_iterations: usize,
-    /// After loop closing (when a loop was closed), fuse the points of places seen
-    /// again and remove the keyframes that made redundant, before full BA
-    /// ([`revisits`]; `[mapping] redundancy`).
-    pub merge_revisits: bool,
     /// After full BA, estimate every tracked frame's pose again against the final
     /// static map points it saw ([`frame_refinement`]).
     pub refine_frames: bool,
@@ -87,7 +82,6 @@ impl Default for GlobalConfig {
             disparity_offset_min_px: 0.75,
             full_ba_robust_iterations: 10,
             full_ba_inlier_iterations: 5,
-            merge_revisits: true,
             refine_frames: true,
             smoothing: trajectory_smoothing::SmoothingConfig::default(),
         }
@@ -123,9 +117,6 @@ pub struct GlobalReport {
     pub loops: Vec<ClosedLoop>,
     /// Every loop candidate that reached consistency checking, with its outcome.
     pub candidates: Vec<Candidate>,
-    /// Places seen again, merged after loop closing, when it ran.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub revisits: Option<revisits::RevisitReport>,
     /// The full BA, when it ran (the last one, after the disparity offset's rounds).
     pub full_ba: Option<FullBaReport>,
     /// Stereo: the rig's disparity offset, when it was estimated.
@@ -199,8 +190,6 @@ pub struct GlobalInputs<'a> {
     /// The frames' refinement starts from the points its initial pose explains when
     /// they are this share of all (`[tracking] prediction_gate_share`; 0: off).
     pub prediction_gate_share: f64,
-    /// The redundant-keyframe test's settings.
-    pub redundancy: revisits::Redundancy,
 }
 
 impl GlobalConfig {
@@ -273,9 +262,6 @@ pub fn run(
     report.memory.loops_mib = crate::memory::part_peak_mib();
     // Place recognition's words and database are gone: their pages go back before
     // full BA builds its arrays (and after it, before the frames).
-    if config.merge_revisits && !report.loops.is_empty() {
-        report.revisits = Some(revisits::merge(map, inputs));
-    }
     crate::memory::release_freed_memory();
     report.memory.hold(map, records);
     if config.full_ba {

@@ -127,10 +127,6 @@ impl Setup {
             } else {
                 0.0
             },
-            redundancy: crate::global::revisits::Redundancy {
-                close_depth: self.close_depth,
-                share: self.config.mapping.redundancy,
-            },
         }
     }
 
