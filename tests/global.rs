@@ -89,3 +89,37 @@ fn the_loop_detection_thread_finds_the_loop_in_real_time_mode() {
         .windows(2)
         .all(|w| w[0].pair.keyframe <= w[1].pair.keyframe));
 }
+
+/// With `[global.loops] during_tracking` the loop of `loop_room` is closed while the
+/// tracking pass runs, inline (`--deterministic`) and beside tracking in real time:
+/// the frames after it are tracked in the map it joined, so the start is not found
+/// again keyframe after keyframe, as it is when every loop waits for the global pass.
+#[test]
+fn a_loop_closed_during_tracking_joins_the_map_the_frames_after_it_use() {
+    let seq = common::loop_room_34s();
+    let dir = common::temp_dir("global-during-tracking");
+    for deterministic in [true, false] {
+        let mut config = dopslam::config::Config::default();
+        config.detector.source = dopslam::detect::Source::None;
+        config.global.loops.during_tracking = true;
+        let sequence = dopslam::run::open_sequence(seq, &config).unwrap();
+        let out = dir.join(format!("run-{deterministic}"));
+        let options = dopslam::run::RunOptions {
+            deterministic,
+            ..Default::default()
+        };
+        let report =
+            dopslam::run::run_sequence(sequence.as_ref(), &config, &out, &options).unwrap();
+        let global = report.global.expect("the global pass ran");
+        let closed = &global.loops;
+        assert!(
+            closed
+                .iter()
+                .any(|l| l.during_tracking && l.pair.keyframe_time - l.pair.matched_time > 25.0),
+            "no loop from the end to the start during tracking: {closed:?}"
+        );
+        // Found once: after it the keyframes are covisible with the start's.
+        assert_eq!(closed.len(), 1, "{closed:?}");
+        assert!(global.loop_closing_during_tracking_ms > 0.0);
+    }
+}

@@ -368,16 +368,23 @@ fn compare_no_dop(args: &RunArgs, plan: &RunPlan, report: &dopslam::run::RunRepo
 /// Prints the global pass's summary.
 pub fn print_global(global: &dopslam::global::GlobalReport) {
     let rejected = global.candidates.iter().filter(|c| !c.accepted).count();
+    let during = global.loops.iter().filter(|l| l.during_tracking).count();
     println!(
-        "global pass: {} loop(s) closed, {} candidate(s) rejected (report.json lists why), {:.0} ms (place recognition beside tracking: {:.0} ms)",
+        "global pass: {} loop(s) closed ({during} during tracking, {:.0} ms), {} candidate(s) rejected (report.json lists why), {:.0} ms (place recognition beside tracking: {:.0} ms)",
         global.loops.len(),
+        global.loop_closing_during_tracking_ms,
         rejected,
         global.total_ms,
         global.loop_detection_ms
     );
     for l in &global.loops {
+        let when = if l.during_tracking {
+            ", during tracking"
+        } else {
+            ""
+        };
         println!(
-            "  loop: keyframe {} (t {:.2}) -> {} (t {:.2}), {} inliers, {} guided matches, moved {:.3} m / {:.2} deg, {} points fused",
+            "  loop: keyframe {} (t {:.2}) -> {} (t {:.2}), {} inliers, {} guided matches, moved {:.3} m / {:.2} deg, {} points fused{when}",
             l.pair.keyframe, l.pair.keyframe_time, l.pair.matched, l.pair.matched_time, l.inliers, l.guided_matches, l.correction_m, l.correction_deg, l.fused_points
         );
         if let Some(m) = l.merged {

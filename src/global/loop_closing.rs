@@ -33,10 +33,10 @@ use serde::{Deserialize, Serialize};
 use super::candidates::{Candidate, LoopKeys, LoopOutcome, LoopPair, LoopReject};
 use super::essential_graph;
 use super::loop_confirmation::Disagreement;
-use super::place_recognition::{Found, PlaceRecognition};
+use super::place_recognition::{Found, LoopConfig, PlaceRecognition, Words};
 use super::rigid_motion::RigidMotion;
 use super::word_matching::{match_by_words, static_point, Worded};
-use super::GlobalInputs;
+use super::LoopInputs;
 use crate::geometry::se3::{self, Se3};
 use crate::map::{KeyFrameKey, Map, MapPointKey};
 use crate::mapping::fusion;
@@ -47,6 +47,23 @@ use crate::random::Rng;
 /// The seed of stage 3's RANSAC: the same samples in every run, so that a run's loops
 /// do not depend on the clock.
 const LOOP_RANSAC_SEED: u64 = 7;
+
+/// Loop closing as the tracking pass hands it over: what place recognition found,
+/// and the closer (with the loops it closed during the pass, when it did).
+pub struct LoopState {
+    /// Place recognition's database, words and findings.
+    pub recognition: PlaceRecognition,
+    /// The closer.
+    pub closer: LoopCloser,
+}
+
+/// What verification reads beside the map: every keyframe's words, and what place
+/// recognition found for the keyframes after the one verified.
+#[derive(Clone, Copy)]
+struct Look<'a> {
+    words: &'a Words,
+    upcoming: &'a [Found],
+}
 
 /// A loop that passed stage 3: the corrected pose \(T_{kc} T_{cw}\), the figures, and
 /// the candidate's group with its static points.
@@ -80,6 +97,9 @@ pub struct ClosedLoop {
     /// moved rigidly onto the loop and merged into the matched keyframe's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub merged: Option<SegmentMerge>,
+    /// Closed during the tracking pass (`[global.loops] during_tracking`), not after it.
+    #[serde(default)]
+    pub during_tracking: bool,
 }
 
 /// A map segment merged into another by a loop.
@@ -92,10 +112,11 @@ pub struct SegmentMerge {
 }
 
 /// Loop closing across keyframes: verification and correction of what place
-/// recognition found beside the tracking pass (its config is theirs).
-pub struct LoopCloser<'a> {
-    inputs: &'a GlobalInputs<'a>,
-    recognition: PlaceRecognition,
+/// recognition found, during the tracking pass ([`Self::close_settled`], as
+/// ORB-SLAM2's loop closing thread does) or after it ([`Self::close_found`]).
+pub struct LoopCloser {
+    inputs: LoopInputs,
+    config: LoopConfig,
     last_loop: Option<usize>,
     /// The loops closed, keyframe and match.
     pub loops: Vec<(KeyFrameKey, KeyFrameKey)>,
@@ -103,19 +124,29 @@ pub struct LoopCloser<'a> {
     pub candidates: Vec<Candidate>,
     /// The loops closed, as reported.
     pub closed: Vec<ClosedLoop>,
+    /// Whether the loops closed now are closed during the tracking pass.
+    during_tracking: bool,
+    /// A loop verified by [`Self::screen`] waits at the head of place recognition's
+    /// findings.
+    ready: bool,
+    /// The time spent closing loops during the tracking pass, milliseconds.
+    pub during_tracking_ms: f64,
     rng: Rng,
 }
 
-impl<'a> LoopCloser<'a> {
-    /// Continues from place recognition that ran beside tracking.
-    pub fn with_recognition(inputs: &'a GlobalInputs<'a>, recognition: PlaceRecognition) -> Self {
+impl LoopCloser {
+    /// A closer with place recognition's `config`.
+    pub fn new(inputs: LoopInputs, config: LoopConfig) -> Self {
         Self {
             inputs,
-            recognition,
+            config,
             last_loop: None,
             loops: Vec::new(),
             candidates: Vec::new(),
             closed: Vec::new(),
+            during_tracking: false,
+            ready: false,
+            during_tracking_ms: 0.0,
             rng: Rng::new(LOOP_RANSAC_SEED),
         }
     }
@@ -124,44 +155,161 @@ impl<'a> LoopCloser<'a> {
     fn recent(&self, map: &Map, key: KeyFrameKey) -> bool {
         let id = map.keyframes().get(key).map_or(0, |kf| kf.id);
         self.last_loop
-            .is_some_and(|last| id < last + self.recognition.config.gap)
+            .is_some_and(|last| id < last + self.config.gap)
     }
 
-    /// Verifies and corrects, in order, the candidates that place recognition found
-    /// beside tracking (keyframes within `gap` after a loop closed here are passed).
-    pub fn close_found(&mut self, map: &mut Map) {
-        let found = std::mem::take(&mut self.recognition.found);
-        for (i, (key, candidates)) in found.iter().enumerate() {
-            let key = *key;
-            if !map.keyframes().contains_key(key) {
-                continue;
-            }
-            if self.recent(map, key) {
-                for &(c, score) in candidates {
-                    if map.keyframes().contains_key(c) {
-                        let gap = self.recognition.config.gap;
-                        let reject = LoopReject::TooSoon { gap };
-                        let keys = LoopKeys {
-                            keyframe: key,
-                            matched: c,
-                        };
-                        self.record(map, keys, score, LoopOutcome::Rejected(reject));
-                    }
+    /// Verifies and corrects, in order, everything place recognition found
+    /// (keyframes within `gap` after a loop closed here are passed).
+    pub fn close_found(&mut self, map: &mut Map, recognition: &mut PlaceRecognition) {
+        (self.during_tracking, self.ready) = (false, false);
+        let found = std::mem::take(&mut recognition.found);
+        self.close_first(map, &recognition.words, &found, found.len());
+    }
+
+    /// How many of the keyframes place recognition found have every confirmation
+    /// they can get: the next `confirmations` keyframes that found the place within
+    /// `4 gap` keyframes, or recognition has gone past that window.
+    fn settled(&self, map: &Map, recognition: &PlaceRecognition) -> usize {
+        let found = &recognition.found;
+        let newest = recognition.newest_id.unwrap_or(0);
+        let id = |k: KeyFrameKey| map.keyframes().get(k).map(|kf| kf.id);
+        (0..found.len())
+            .take_while(|&i| {
+                let Some(first) = id(found[i].0) else {
+                    return true;
+                };
+                let within = first + 4 * self.config.gap;
+                let later = found[i + 1..]
+                    .iter()
+                    .filter(|(k, _)| id(*k).is_some_and(|later| later <= within))
+                    .count();
+                newest > within || later >= self.config.confirmations
+            })
+            .count()
+    }
+
+    /// Whether a loop verified by [`Self::screen`] waits for [`Self::close_ready`].
+    pub fn is_ready(&self) -> bool {
+        self.ready
+    }
+
+    /// During the tracking pass, under the map's read lock (beside tracking, as
+    /// place recognition runs): stage 3 for the keyframes that are settled (their
+    /// confirmations are in), in order. Those with no loop leave with their
+    /// candidates recorded; the first with a loop that verifies waits for
+    /// [`Self::close_ready`], and so do the ones after it. Returns whether a loop waits.
+    pub fn screen(&mut self, map: &Map, recognition: &mut PlaceRecognition) -> bool {
+        if self.ready {
+            return true;
+        }
+        let count = self.settled(map, recognition);
+        if count == 0 {
+            return false;
+        }
+        let found = std::mem::take(&mut recognition.found);
+        let mut done = 0;
+        for (i, (key, candidates)) in found.iter().enumerate().take(count) {
+            if map.keyframes().contains_key(*key) && !self.pass_too_soon(map, &found[i]) {
+                let look = Look {
+                    words: &recognition.words,
+                    upcoming: &found[i + 1..],
+                };
+                let before = self.candidates.len();
+                if self.any_verifies(map, *key, candidates, look) {
+                    // Verified again, and recorded, when the loop is closed.
+                    self.candidates.truncate(before);
+                    self.ready = true;
+                    break;
                 }
+            }
+            done = i + 1;
+        }
+        recognition.found = found[done..].to_vec();
+        self.ready
+    }
+
+    /// Under the map's write lock (local mapping idle): verifies the loop that
+    /// [`Self::screen`] found once more on the map as it is now, and closes it.
+    /// Returns how many loops were closed (0 or 1).
+    pub fn close_ready(&mut self, map: &mut Map, recognition: &mut PlaceRecognition) -> usize {
+        if !std::mem::take(&mut self.ready) {
+            return 0;
+        }
+        self.during_tracking = true;
+        let before = self.closed.len();
+        let found = std::mem::take(&mut recognition.found);
+        self.close_first(map, &recognition.words, &found, 1);
+        recognition.found = found[1..].to_vec();
+        self.closed.len() - before
+    }
+
+    /// Whether `entry`'s keyframe comes too soon after the last loop: then its
+    /// candidates are recorded as passed.
+    fn pass_too_soon(&mut self, map: &Map, entry: &Found) -> bool {
+        let (key, candidates) = entry;
+        if !self.recent(map, *key) {
+            return false;
+        }
+        for &(c, score) in candidates {
+            if map.keyframes().contains_key(c) {
+                let gap = self.config.gap;
+                let reject = LoopReject::TooSoon { gap };
+                let keys = LoopKeys {
+                    keyframe: *key,
+                    matched: c,
+                };
+                self.record(map, keys, score, LoopOutcome::Rejected(reject));
+            }
+        }
+        true
+    }
+
+    /// Stage 3 for the candidates until one verifies (the others recorded).
+    fn any_verifies(
+        &mut self,
+        map: &Map,
+        key: KeyFrameKey,
+        candidates: &[(KeyFrameKey, f64)],
+        look: Look,
+    ) -> bool {
+        for &(matched, score) in candidates {
+            if !map.keyframes().contains_key(matched) {
                 continue;
             }
-            self.verify(map, key, candidates, &found[i + 1..]);
+            let keys = LoopKeys {
+                keyframe: key,
+                matched,
+            };
+            match self.check(map, keys, look) {
+                Ok(_) => return true,
+                Err(reject) => self.record(map, keys, score, LoopOutcome::Rejected(reject)),
+            }
+        }
+        false
+    }
+
+    /// Stages 3 and 4 for the first `count` keyframes of `found`, in order.
+    fn close_first(&mut self, map: &mut Map, words: &Words, found: &[Found], count: usize) {
+        for (i, entry) in found.iter().enumerate().take(count) {
+            let key = entry.0;
+            if !map.keyframes().contains_key(key) || self.pass_too_soon(map, entry) {
+                continue;
+            }
+            let look = Look {
+                words,
+                upcoming: &found[i + 1..],
+            };
+            self.verify(map, key, &entry.1, look);
         }
     }
 
-    /// Stages 3 and 4 for the candidates until one closes a loop; `upcoming`: what
-    /// place recognition found for the keyframes after `key`.
+    /// Stages 3 and 4 for the candidates until one closes a loop.
     fn verify(
         &mut self,
         map: &mut Map,
         key: KeyFrameKey,
         candidates: &[(KeyFrameKey, f64)],
-        upcoming: &[Found],
+        look: Look,
     ) {
         for &(matched, score) in candidates {
             if !map.keyframes().contains_key(matched) {
@@ -171,18 +319,21 @@ impl<'a> LoopCloser<'a> {
                 keyframe: key,
                 matched,
             };
-            if self.verify_and_correct(map, keys, score, upcoming) {
+            if self.verify_and_correct(map, keys, score, look) {
                 break;
             }
         }
     }
 
     /// Every candidate with its outcome, by keyframe; the time place recognition took.
-    pub fn finish(mut self) -> (Vec<ClosedLoop>, Vec<Candidate>, f64) {
-        let mut candidates = std::mem::take(&mut self.recognition.rejected);
+    pub fn finish(
+        mut self,
+        recognition: PlaceRecognition,
+    ) -> (Vec<ClosedLoop>, Vec<Candidate>, f64) {
+        let mut candidates = recognition.rejected;
         candidates.append(&mut self.candidates);
         candidates.sort_by_key(|c| c.pair.keyframe);
-        (self.closed, candidates, self.recognition.milliseconds)
+        (self.closed, candidates, recognition.milliseconds)
     }
 
     fn record(&mut self, map: &Map, keys: LoopKeys, score: f64, outcome: LoopOutcome) {
@@ -196,15 +347,9 @@ impl<'a> LoopCloser<'a> {
         map: &mut Map,
         keys: LoopKeys,
         score: f64,
-        upcoming: &[Found],
+        look: Look,
     ) -> bool {
-        let verified = self
-            .verify_geometry(map, keys.keyframe, keys.matched)
-            .and_then(|v| {
-                self.confirm(map, keys.keyframe, &v.corrected, upcoming)
-                    .map(|()| v)
-            });
-        let verified = match verified {
+        let verified = match self.check(map, keys, look) {
             Ok(verified) => verified,
             Err(reject) => {
                 self.record(map, keys, score, LoopOutcome::Rejected(reject));
@@ -220,6 +365,15 @@ impl<'a> LoopCloser<'a> {
         true
     }
 
+    /// Stage 3 for one candidate: its geometry, then the next keyframes' loops.
+    fn check(&mut self, map: &Map, keys: LoopKeys, look: Look) -> Result<Verified, LoopReject> {
+        self.verify_geometry(map, keys.keyframe, keys.matched, look.words)
+            .and_then(|v| {
+                self.confirm(map, keys.keyframe, &v.corrected, look)
+                    .map(|()| v)
+            })
+    }
+
     /// The loop placing `key` at `corrected`, against the loops of the next keyframes
     /// that found the place (up to `confirmations`, within `4 gap` keyframes), each
     /// verified on its own without closing it ([`loop_confirmation`]): `Err` when some
@@ -229,12 +383,13 @@ impl<'a> LoopCloser<'a> {
         map: &Map,
         key: KeyFrameKey,
         corrected: &Se3,
-        upcoming: &[Found],
+        look: Look,
     ) -> Result<(), LoopReject> {
-        let config = &self.recognition.config;
+        let config = &self.config;
         let (wanted, id) = (config.confirmations, map.keyframes()[key].id);
         let within = id + 4 * config.gap;
-        let later: Vec<&Found> = upcoming
+        let later: Vec<&Found> = look
+            .upcoming
             .iter()
             .filter(|(k, _)| map.keyframes().get(*k).is_some_and(|kf| kf.id <= within))
             .take(wanted)
@@ -245,7 +400,7 @@ impl<'a> LoopCloser<'a> {
             let placed = candidates
                 .iter()
                 .filter(|(c, _)| map.keyframes().contains_key(*c))
-                .find_map(|(c, _)| self.verify_geometry(map, *later_key, *c).ok());
+                .find_map(|(c, _)| self.verify_geometry(map, *later_key, *c, look.words).ok());
             let Some(placed) = placed else {
                 continue;
             };
@@ -277,8 +432,9 @@ impl<'a> LoopCloser<'a> {
         map: &Map,
         key: KeyFrameKey,
         candidate: KeyFrameKey,
+        words: &Words,
     ) -> Result<Verified, LoopReject> {
-        let config = &self.recognition.config;
+        let config = &self.config;
         let (min_inliers, min_guided) = (config.min_inliers, config.min_guided_matches);
         let matches = {
             let (a, b) = (&map.keyframes()[key], &map.keyframes()[candidate]);
@@ -286,11 +442,11 @@ impl<'a> LoopCloser<'a> {
                 map,
                 Worded {
                     keyframe: a,
-                    words: &self.recognition.words[&key].1,
+                    words: &words[&key].1,
                 },
                 Worded {
                     keyframe: b,
-                    words: &self.recognition.words[&candidate].1,
+                    words: &words[&candidate].1,
                 },
                 config.ratio,
                 self.inputs.removal_threshold,
@@ -323,8 +479,8 @@ impl<'a> LoopCloser<'a> {
             key,
             &corrected,
             &loop_points,
-            self.inputs.camera,
-            self.inputs.pyramid,
+            &self.inputs.camera,
+            &self.inputs.pyramid,
             self.inputs.size,
         );
         if guided.len() < min_guided {
@@ -374,6 +530,7 @@ impl<'a> LoopCloser<'a> {
             fused_points: fused,
             essential_graph: report,
             merged,
+            during_tracking: self.during_tracking,
         });
         self.last_loop = Some(pair.keyframe);
     }
@@ -411,10 +568,10 @@ impl<'a> LoopCloser<'a> {
                 matched: candidate,
             },
             matches,
-            self.inputs,
+            &self.inputs,
         );
         let rounds = Rounds {
-            iterations: self.recognition.config.ransac_iterations,
+            iterations: self.config.ransac_iterations,
             min_inliers: 0,
             refits: 2,
         };
@@ -463,8 +620,8 @@ impl<'a> LoopCloser<'a> {
                 map,
                 n,
                 loop_points,
-                self.inputs.camera,
-                self.inputs.pyramid,
+                &self.inputs.camera,
+                &self.inputs.pyramid,
                 self.inputs.size,
             );
             fused += fusion::apply(map, &found);
@@ -490,7 +647,7 @@ impl<'a> LoopCloser<'a> {
             &uncorrected,
             &placed_by,
             candidate,
-            self.recognition.config.covisibility_weight,
+            self.config.covisibility_weight,
         );
         let all: Vec<MapPointKey> = map.points().keys().collect();
         for p in all {
@@ -860,5 +1017,95 @@ mod tests {
             merge_segments(&mut map, keys(c, a), &corrected, &[1.0; 8]),
             None
         );
+    }
+
+    /// A closer over keyframes with ids 0..60 and place recognition that found
+    /// keyframes `found` (by id, one candidate each: keyframe 0) and searched up to
+    /// `newest`.
+    fn screened(found: &[usize], newest: usize) -> (Map, LoopCloser, PlaceRecognition) {
+        use crate::bow::vocabulary::TrainOptions;
+        use crate::bow::Vocabulary;
+        let mut map = Map::default();
+        let keys: Vec<KeyFrameKey> = (0..60)
+            .map(|i| map.add_keyframe(keyframe(0, pose([i as f64, 0.0, 0.0], [0.0; 3]))))
+            .collect();
+        let training = vec![vec![[0u64; 4], [u64::MAX; 4]]; 2];
+        let options = TrainOptions {
+            depth: 1,
+            ..TrainOptions::default()
+        };
+        let vocabulary = Vocabulary::train(&training, &options);
+        let config = LoopConfig::default();
+        let mut recognition = PlaceRecognition::new(&vocabulary, config.clone());
+        recognition.found = found
+            .iter()
+            .map(|&id| (keys[id], vec![(keys[0], 1.0)]))
+            .collect();
+        recognition.newest_id = Some(newest);
+        let inputs = LoopInputs {
+            camera: crate::geometry::stereo_camera::StereoCamera {
+                fx: 500.0,
+                fy: 500.0,
+                cx: 320.0,
+                cy: 240.0,
+                bf: 40.0,
+            },
+            pyramid: crate::features::ScalePyramid::new(8, 1.2),
+            size: (640.0, 480.0),
+            removal_threshold: 1.0,
+        };
+        (map, LoopCloser::new(inputs, config), recognition)
+    }
+
+    #[test]
+    fn a_found_keyframe_is_settled_once_its_confirmations_are_in_or_their_window_passed() {
+        // Defaults: 3 confirmations within 4 x 10 keyframes.
+        assert_eq!(LoopConfig::default().confirmations, 3);
+        assert_eq!(LoopConfig::default().gap, 10);
+        // Keyframe 10 has three later finds within 50; 11 has two, and recognition is
+        // at 31: it waits, and so does everything after it.
+        let (map, closer, recognition) = screened(&[10, 11, 12, 30], 31);
+        assert_eq!(closer.settled(&map, &recognition), 1);
+        // Recognition at 52: 11's window (to 51) has passed, 12's (to 52) has not.
+        let (map, closer, recognition) = screened(&[10, 11, 12, 30], 52);
+        assert_eq!(closer.settled(&map, &recognition), 2);
+        // Nothing found: nothing settled.
+        let (map, closer, recognition) = screened(&[], 59);
+        assert_eq!(closer.settled(&map, &recognition), 0);
+    }
+
+    #[test]
+    fn screening_drops_the_settled_keyframes_whose_loops_fail_and_keeps_the_rest() {
+        // The keyframes share no words and observe no points: every loop fails at
+        // stage 3, so nothing waits to be closed; the settled keyframes leave with
+        // their candidates recorded, the last one waits for its confirmations.
+        let (map, mut closer, mut recognition) = screened(&[10, 11, 12, 30], 31);
+        for (key, _) in &recognition.found {
+            let words = (Default::default(), Default::default());
+            recognition.words.insert(*key, words);
+        }
+        let first = map.keyframe_order()[0];
+        recognition
+            .words
+            .insert(first, (Default::default(), Default::default()));
+        assert!(!closer.screen(&map, &mut recognition));
+        assert!(!closer.is_ready());
+        let left: Vec<usize> = recognition
+            .found
+            .iter()
+            .map(|(k, _)| map.keyframes()[*k].id)
+            .collect();
+        assert_eq!(left, vec![11, 12, 30]);
+        assert_eq!(closer.candidates.len(), 1);
+        assert!(!closer.candidates[0].accepted);
+        let expected = LoopOutcome::Rejected(LoopReject::FewMatches {
+            found: 0,
+            needed: 20,
+        });
+        assert_eq!(closer.candidates[0].outcome, expected.to_string());
+        // Nothing is closed without a loop waiting.
+        let mut map = map;
+        assert_eq!(closer.close_ready(&mut map, &mut recognition), 0);
+        assert_eq!(recognition.found.len(), 3);
     }
 }

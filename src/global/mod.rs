@@ -34,8 +34,8 @@ use crate::map::record::{FrameRecord, FrameRecords};
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use candidates::Candidate;
-use loop_closing::{ClosedLoop, LoopCloser};
-use place_recognition::{LoopConfig, PlaceRecognition};
+use loop_closing::{ClosedLoop, LoopState};
+use place_recognition::LoopConfig;
 
 /// The `[global]` section of a config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -131,6 +131,10 @@ pub struct GlobalReport {
     pub loop_detection_ms: f64,
     /// Loop verification and correction in the global pass, milliseconds.
     pub loop_closing_ms: f64,
+    /// Loop verification and correction during the tracking pass (`[global.loops]
+    /// during_tracking`), milliseconds: part of the tracking pass's time.
+    #[serde(default)]
+    pub loop_closing_during_tracking_ms: f64,
     /// The global pass itself (loop closing and full BA).
     pub total_ms: f64,
     /// Why loop detection did not run, when it did not.
@@ -192,6 +196,32 @@ pub struct GlobalInputs<'a> {
     pub prediction_gate_share: f64,
 }
 
+/// What loop closing needs of the run, owned: the closer lives in the online system
+/// when loops are closed during tracking ([`loop_closing::LoopCloser`]).
+#[derive(Debug, Clone)]
+pub struct LoopInputs {
+    /// The camera and its baseline.
+    pub camera: StereoCamera,
+    /// The scale pyramid.
+    pub pyramid: ScalePyramid,
+    /// The image size, pixels.
+    pub size: (f32, f32),
+    /// Points above this moving probability are dynamic and take no part.
+    pub removal_threshold: f32,
+}
+
+impl GlobalInputs<'_> {
+    /// Loop closing's part of the inputs.
+    pub fn loops(&self) -> LoopInputs {
+        LoopInputs {
+            camera: *self.camera,
+            pyramid: self.pyramid.clone(),
+            size: self.size,
+            removal_threshold: self.removal_threshold,
+        }
+    }
+}
+
 impl GlobalConfig {
     /// The vocabulary file this config uses.
     pub fn vocabulary_file(&self) -> PathBuf {
@@ -243,7 +273,7 @@ pub fn run(
     map: &mut Map,
     inputs: &GlobalInputs,
     config: &GlobalConfig,
-    recognised: Result<PlaceRecognition, NoLoops>,
+    recognised: Result<LoopState, NoLoops>,
     records: &mut FrameRecords,
 ) -> Result<GlobalReport, IoError> {
     let start = Instant::now();
@@ -251,10 +281,14 @@ pub fn run(
     let gauge = Gauge::of(map);
     crate::memory::part_peak_mib();
     match recognised {
-        Ok(recognition) => {
-            let mut closer = LoopCloser::with_recognition(inputs, recognition);
-            closer.close_found(map);
-            (report.loops, report.candidates, report.loop_detection_ms) = closer.finish();
+        Ok(LoopState {
+            mut recognition,
+            mut closer,
+        }) => {
+            report.loop_closing_during_tracking_ms = closer.during_tracking_ms;
+            closer.close_found(map, &mut recognition);
+            (report.loops, report.candidates, report.loop_detection_ms) =
+                closer.finish(recognition);
         }
         Err(why) => report.note = Some(why.to_string()),
     }

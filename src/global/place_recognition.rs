@@ -37,6 +37,11 @@ pub struct LoopConfig {
     /// its own: when all of those that verify place the keyframe elsewhere, the loop
     /// is not closed ([`super::loop_confirmation`]; 0: off).
     pub confirmations: usize,
+    /// Close loops during the tracking pass, as soon as a loop's confirmations are in,
+    /// so that the frames after it are tracked in the map the loop joined; `false` (the
+    /// default: on a street driven again it cost accuracy, `docs/design.md`): every
+    /// loop is closed in the global pass, after tracking.
+    pub during_tracking: bool,
 }
 
 impl Default for LoopConfig {
@@ -51,6 +56,7 @@ impl Default for LoopConfig {
             ransac_iterations: 300,
             ratio: 0.75,
             confirmations: 3,
+            during_tracking: false,
         }
     }
 }
@@ -59,13 +65,18 @@ impl Default for LoopConfig {
 /// their scores.
 pub type Found = (KeyFrameKey, Vec<(KeyFrameKey, f64)>);
 
+/// Each keyframe's words (bag of words and direct index).
+pub type Words = HashMap<KeyFrameKey, (BowVector, FeatureVector)>;
+
 /// Stages 1 and 2 (place recognition and consistency), apart from the correction:
 /// run on each keyframe as local mapping finishes it during the tracking pass (in its
 /// own thread or inline, `system::stages::Recognition`).
 pub struct PlaceRecognition {
     pub(super) config: LoopConfig,
     database: Database<KeyFrameKey>,
-    pub(super) words: HashMap<KeyFrameKey, (BowVector, FeatureVector)>,
+    pub(super) words: Words,
+    /// The id of the newest keyframe searched.
+    pub newest_id: Option<usize>,
     /// Groups of the previous keyframe's candidates and how many keyframes in a row
     /// each has been seen.
     groups: Vec<(HashSet<KeyFrameKey>, usize)>,
@@ -85,11 +96,17 @@ impl PlaceRecognition {
             config,
             database: Database::new(vocabulary),
             words: HashMap::new(),
+            newest_id: None,
             groups: Vec::new(),
             found: Vec::new(),
             rejected: Vec::new(),
             milliseconds: 0.0,
         }
+    }
+
+    /// Its config.
+    pub fn config(&self) -> &LoopConfig {
+        &self.config
     }
 
     /// The words of every keyframe already in `map` (a loaded one), in the database
@@ -132,6 +149,7 @@ impl PlaceRecognition {
             return;
         }
         self.words.insert(key, words);
+        self.newest_id = Some(map.keyframes()[key].id);
         let candidates = if self.database.len() >= self.config.gap {
             self.consistent_candidates(map, key)
         } else {

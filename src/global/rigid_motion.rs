@@ -7,7 +7,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::candidates::LoopKeys;
-use super::GlobalInputs;
+use super::LoopInputs;
 use crate::geometry::se3::Se3;
 use crate::map::{KeyFrame, Map};
 use crate::optim::ransac::Estimator;
@@ -22,7 +22,7 @@ pub struct RigidMotion<'a> {
     in_a: Vec<Vector3<f64>>,
     /// \(P_c\): the same in the candidate's.
     in_b: Vec<Vector3<f64>>,
-    inputs: &'a GlobalInputs<'a>,
+    inputs: &'a LoopInputs,
 }
 
 impl<'a> RigidMotion<'a> {
@@ -31,7 +31,7 @@ impl<'a> RigidMotion<'a> {
         map: &'a Map,
         keys: LoopKeys,
         matches: &'a [(usize, usize)],
-        inputs: &'a GlobalInputs<'a>,
+        inputs: &'a LoopInputs,
     ) -> Self {
         let (a, b) = (
             &map.keyframes()[keys.keyframe],

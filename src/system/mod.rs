@@ -12,6 +12,7 @@
 //! [`System::finish`] joins the helpers and hands the map over owned and unlocked
 //! ([`Tracked`]), for the global pass.
 
+pub mod loops;
 pub mod stages;
 pub mod worker;
 
@@ -33,14 +34,16 @@ use crate::frame::Frame;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::depth_noise::DepthNoise;
 use crate::geometry::stereo_camera::StereoCamera;
+use crate::global::loop_closing::LoopState;
 use crate::global::place_recognition::PlaceRecognition;
-use crate::global::NoLoops;
+use crate::global::{LoopInputs, NoLoops};
 use crate::map::{Map, SharedMap};
 use crate::mapping::{LocalMapper, MappingStats};
 use crate::tracking::input::Picture;
 use crate::tracking::tracker::Located;
 use crate::tracking::{TrackedFrame, Tracker, TrackingState};
-use stages::{Detection, LocalMapping, Recognition};
+use loops::{Loops, LoopsSetup};
+use stages::{Detection, LocalMapping};
 use worker::{Execution, Worker};
 
 /// How long real-time mode waits for the first keyframe's detection.
@@ -84,8 +87,9 @@ pub struct Helpers {
 pub struct Tracked {
     /// The map.
     pub map: Map,
-    /// Place recognition's findings (`None` without a global pass).
-    pub recognised: Option<Result<PlaceRecognition, NoLoops>>,
+    /// Place recognition's findings and the loops closed during tracking (`None`
+    /// without a global pass).
+    pub recognised: Option<Result<LoopState, NoLoops>>,
     /// What local mapping did.
     pub mapping: MappingStats,
     /// What detection did.
@@ -110,6 +114,16 @@ fn tracker_of(setup: &SystemSetup, map: &Map, placing: Option<&Placing>) -> Trac
     }
 }
 
+/// What loop closing needs of the run (as [`crate::run`] gives the global pass).
+fn loop_inputs(setup: &SystemSetup) -> LoopInputs {
+    LoopInputs {
+        camera: setup.camera,
+        pyramid: setup.pyramid.clone(),
+        size: (setup.pinhole.width as f32, setup.pinhole.height as f32),
+        removal_threshold: setup.mode.removal_threshold(&setup.config.dop),
+    }
+}
+
 /// The recent keyframes' map points ([`System::recent_map_points`]).
 #[derive(Debug, Clone, Default)]
 pub struct RecentMap {
@@ -124,7 +138,7 @@ pub struct System {
     map: SharedMap,
     tracker: Tracker,
     mapping: Worker<LocalMapping>,
-    recognition: Option<Result<Worker<Recognition>, NoLoops>>,
+    recognition: Option<Result<Loops, NoLoops>>,
     detection: Option<Worker<Detection>>,
     dynamics: Dynamics,
     execution: Execution,
@@ -169,16 +183,17 @@ impl System {
                     PlaceRecognition::new(&vocabulary, config.global.loops.clone());
                 // A loaded map's keyframes can be found again.
                 recognition.seed(&vocabulary, &map.read().expect("map lock poisoned"));
-                let stage = Recognition {
+                let setup = LoopsSetup {
                     recognition,
                     vocabulary,
-                    map: map.clone(),
+                    inputs: loop_inputs(setup),
+                    execution: setup.execution,
                 };
-                Worker::start(stage, setup.execution)
+                Loops::start(setup, &map)
             })
         });
         if let Some(Ok(recognition)) = &recognition {
-            let mut submitter = recognition.submitter();
+            let mut submitter = recognition.worker().submitter();
             mapper.then = Some(Box::new(move |key| submitter.submit(key)));
         }
         let mapping = Worker::start(
@@ -328,6 +343,9 @@ impl System {
                 }
             }
         }
+        if let Some(Ok(loops)) = self.recognition.as_mut() {
+            loops.close_ready(&self.map, &self.mapping, &mut self.tracker, &report.record);
+        }
         (report, tracking_ms)
     }
 
@@ -398,9 +416,7 @@ impl System {
             let (stage, _) = self.mapping.finish();
             stage.mapper.stats
         };
-        let recognised = self
-            .recognition
-            .map(|r| r.map(|worker| worker.finish().0.recognition));
+        let recognised = self.recognition.map(|r| r.map(Loops::finish));
         let applied = self.dynamics.take_applied();
         drop(self.tracker);
         let Ok(lock) = Arc::try_unwrap(self.map) else {

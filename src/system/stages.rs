@@ -3,14 +3,14 @@
 //! keyframe detector.
 
 use std::sync::atomic::AtomicUsize;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::worker::Stage;
 use crate::bow::Vocabulary;
 use crate::detect::job::{run, skipped, Job, Outcome};
 use crate::detect::Detector;
-use crate::global::place_recognition::PlaceRecognition;
+use crate::global::loop_closing::LoopState;
 use crate::map::{KeyFrameKey, SharedMap};
 use crate::mapping::LocalMapper;
 
@@ -40,11 +40,15 @@ impl Stage for LocalMapping {
 /// Place recognition on each keyframe local mapping finished: the keyframe's
 /// descriptors are read under the map's read lock, its words computed without the
 /// lock, then the database query and the consistency check take the read lock again
-/// (they need the covisibility graph). Verification and correction wait for the global
-/// pass.
+/// (they need the covisibility graph) and then loop closing's lock (always in that
+/// order: the system takes both to close a loop). When loops are closed during
+/// tracking, the loops found are verified here too ([`crate::global::loop_closing::LoopCloser::screen`]), and the
+/// system corrects the map once one verifies; otherwise the global pass does both.
 pub struct Recognition {
-    /// Place recognition's state.
-    pub recognition: PlaceRecognition,
+    /// Place recognition and the closer, shared with the system.
+    pub state: Arc<Mutex<LoopState>>,
+    /// Verify the loops found here (loops closed during tracking).
+    pub screen: bool,
     /// The vocabulary.
     pub vocabulary: Arc<Vocabulary>,
     /// The shared map.
@@ -67,9 +71,20 @@ impl Stage for Recognition {
         };
         let start = std::time::Instant::now();
         let words = self.vocabulary.transform(&descriptors);
-        self.recognition.milliseconds += start.elapsed().as_secs_f64() * 1e3;
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
         let m = self.map.read().expect("map lock poisoned");
-        self.recognition.process_with_words(&m, key, words);
+        let mut state = self.state.lock().expect("loop closing lock poisoned");
+        let LoopState {
+            recognition,
+            closer,
+        } = &mut *state;
+        recognition.milliseconds += elapsed;
+        recognition.process_with_words(&m, key, words);
+        if self.screen {
+            let start = std::time::Instant::now();
+            closer.screen(&m, recognition);
+            closer.during_tracking_ms += start.elapsed().as_secs_f64() * 1e3;
+        }
     }
 }
 

@@ -35,6 +35,20 @@ use crate::tracking::report::{PoseEstimate, Reject, TrackedFrame, TrackingState}
 use projection::Projector;
 use search::LocalSearch;
 
+/// The tracker's reference keyframe and segment on `map` as it is now: a keyframe that
+/// local mapping culled gives way to its segment's newest, and a segment that a loop
+/// merged into an older one (during tracking) gives way to that one.
+fn reference_now(
+    map: &Map,
+    reference: Option<KeyFrameKey>,
+    segment: usize,
+) -> (Option<KeyFrameKey>, usize) {
+    match reference.and_then(|k| map.keyframes().get(k).map(|kf| (k, kf.segment))) {
+        Some((key, segment)) => (Some(key), segment),
+        None => (map.newest_of_segment(segment), segment),
+    }
+}
+
 /// The last tracked frame, kept for the motion model.
 struct LastFrame {
     frame: Frame,
@@ -214,13 +228,7 @@ impl Tracker {
             return Located::Started(Box::new(report));
         }
         let map = shared.read().expect("map lock poisoned");
-        // Local mapping may have culled the reference keyframe: take the segment's newest.
-        if self
-            .reference
-            .is_some_and(|k| !map.keyframes().contains_key(k))
-        {
-            self.reference = map.newest_of_segment(self.segment);
-        }
+        (self.reference, self.segment) = reference_now(&map, self.reference, self.segment);
         let input = TrackInput {
             map: &map,
             frame: &frame,
