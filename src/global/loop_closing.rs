@@ -2,7 +2,9 @@
 //! keyframes in the order they were made. Stages 1 and 2 ([`PlaceRecognition`], in
 //! [`super::place_recognition`]) run
 //! beside the tracking pass (`system::stages::Recognition`); stages 3 and 4
-//! ([`LoopCloser`]) in the global pass, no loop within `gap` keyframes after the last:
+//! ([`LoopCloser`]) in the global pass, or during the tracking pass with
+//! `[global.loops] during_tracking` (`system::loops`), no loop within `gap` keyframes
+//! after the last:
 //! 1. **Candidates**: database hits not covisible with the keyframe, scoring at least the
 //!    lowest score of its covisible keyframes, sharing at least 80 % of the best hit's
 //!    words; grouped with their covisible keyframes, groups within 75 % of the best
@@ -112,8 +114,9 @@ pub struct SegmentMerge {
 }
 
 /// Loop closing across keyframes: verification and correction of what place
-/// recognition found, during the tracking pass ([`Self::close_settled`], as
-/// ORB-SLAM2's loop closing thread does) or after it ([`Self::close_found`]).
+/// recognition found, during the tracking pass ([`Self::screen`] and
+/// [`Self::close_ready`], as ORB-SLAM2's loop closing thread does) or after it
+/// ([`Self::close_found`]).
 pub struct LoopCloser {
     inputs: LoopInputs,
     config: LoopConfig,
@@ -239,7 +242,7 @@ impl LoopCloser {
         let before = self.closed.len();
         let found = std::mem::take(&mut recognition.found);
         self.close_first(map, &recognition.words, &found, 1);
-        recognition.found = found[1..].to_vec();
+        recognition.found = found.into_iter().skip(1).collect();
         self.closed.len() - before
     }
 

@@ -210,18 +210,6 @@ pub struct LoopInputs {
     pub removal_threshold: f32,
 }
 
-impl GlobalInputs<'_> {
-    /// Loop closing's part of the inputs.
-    pub fn loops(&self) -> LoopInputs {
-        LoopInputs {
-            camera: *self.camera,
-            pyramid: self.pyramid.clone(),
-            size: self.size,
-            removal_threshold: self.removal_threshold,
-        }
-    }
-}
-
 impl GlobalConfig {
     /// The vocabulary file this config uses.
     pub fn vocabulary_file(&self) -> PathBuf {
