@@ -15,17 +15,21 @@
 # pass's parts' (`global.memory`: loops, full BA, frames) and the dense pass's
 # (`dense.memory`): fusion, marching cubes, the cloud, the files.
 #
-#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [room|street|desk|laps ...]
+#   bash tools/bench_memory.sh [--dense] [--lengths "1200 3600"] [--config FILE] [room|street|desk|laps ...]
 #
 # --lengths: the prefixes run (default: 1000 frames and the whole sequence).
+# --config: a partial config every run takes (for example `[global.loops]
+#   during_tracking = true`, docs/design.md "Loops closed during tracking").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 dense=--no-dense
 lengths=
+extra=()
 while [ $# -gt 0 ]; do
   case $1 in
     --dense) dense=; shift ;;
     --lengths) lengths=$2; shift 2 ;;
+    --config) extra=(--config "$(realpath "$2")"); shift 2 ;;
     *) break ;;
   esac
 done
@@ -70,7 +74,7 @@ for name in "${which[@]}"; do
   for n in ${lengths:-1000 $frames}; do
     out=outputs/bench/memory-$name-$n
     rm -rf "$out"
-    ./target/release/dopslam run "$input" --out "$out" --frames "$n" $dense >"$out.log" 2>&1 || echo "$name: dopslam run failed (see $out.log)"
+    ./target/release/dopslam run "$input" --out "$out" --frames "$n" $dense "${extra[@]}" >"$out.log" 2>&1 || echo "$name: dopslam run failed (see $out.log)"
     python3 - "$name" "$out/report.json" <<'PY'
 import json, sys
 name, path = sys.argv[1], sys.argv[2]
