@@ -42,8 +42,9 @@ impl Stage for LocalMapping {
 /// lock, then the database query and the consistency check take the read lock again
 /// (they need the covisibility graph) and then loop closing's lock (always in that
 /// order: the system takes both to close a loop). When loops are closed during
-/// tracking, the loops found are verified here too ([`crate::global::loop_closing::LoopCloser::screen`]), and the
-/// system corrects the map once one verifies; otherwise the global pass does both.
+/// tracking, the loops found are verified here too
+/// ([`crate::global::loop_closing::LoopCloser::screen`]), and the system corrects the
+/// map once one verifies; otherwise the global pass does both.
 pub struct Recognition {
     /// Place recognition and the closer, shared with the system.
     pub state: Arc<Mutex<LoopState>>,
