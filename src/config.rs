@@ -262,6 +262,9 @@ pub struct StereoConfig {
     pub sgbm_disparities: i32,
     /// The SGBM block size (odd).
     pub sgbm_block: i32,
+    /// SGBM matches the pair at 1/this of its size (1, 2 or 4), with this many times
+    /// fewer disparities: a quarter of the pixels and half the disparities at 2.
+    pub sgbm_downscale: u32,
     /// Keypoints farther than this many baselines are bearings only: their disparity
     /// still places new points, but adds no residual to the pose or bundle adjustment
     /// (0: every matched keypoint keeps its disparity residual). See
@@ -297,6 +300,7 @@ impl Default for StereoConfig {
             wait_near_boxes_only: true,
             sgbm_disparities: 128,
             sgbm_block: 5,
+            sgbm_downscale: 1,
             bearing_baselines: 22.0,
             disparity_offset_px: None,
             disparity_offset_frames: 150,
@@ -314,6 +318,7 @@ impl StereoConfig {
         crate::dense::disparity::SgbmSettings {
             disparities: self.sgbm_disparities,
             block: self.sgbm_block,
+            downscale: self.sgbm_downscale,
         }
     }
 
@@ -466,6 +471,12 @@ impl StereoConfig {
             return Err(BadValue::new(
                 "stereo.sgbm_block",
                 format!("must be odd, 1 to 21, got {}", self.sgbm_block),
+            ));
+        }
+        if ![1, 2, 4].contains(&self.sgbm_downscale) {
+            return Err(BadValue::new(
+                "stereo.sgbm_downscale",
+                format!("must be 1, 2 or 4, got {}", self.sgbm_downscale),
             ));
         }
         Ok(())
@@ -870,6 +881,7 @@ mod tests {
                 "[stereo]\nsgbm_disparities = -16\n",
                 "stereo.sgbm_disparities",
             ),
+            ("[stereo]\nsgbm_downscale = 3\n", "stereo.sgbm_downscale"),
             (
                 "[stereo]\nbearing_baselines = -1.0\n",
                 "stereo.bearing_baselines",

@@ -337,3 +337,77 @@ fn the_real_kitti_pair_matches_like_sgbm() {
         "{figures}"
     );
 }
+
+/// `dopslam stereo --downscale 2 --truth-depth`: a textured pair shifted by 24 pixels
+/// against its true depth \(bf / 24\): most pixels in range get a depth, and it is
+/// right; a truth of another size is an error naming the file.
+#[test]
+fn sgbm_at_half_size_is_measured_against_a_true_depth() {
+    if !cfg!(feature = "opencv") {
+        eprintln!("skipping sgbm_at_half_size_is_measured_against_a_true_depth: built without the opencv feature");
+        return;
+    }
+    let dir = temp_dir("stereo-truth-depth");
+    let texture = |x: u32, y: u32| ((x / 2 * 7919 + y / 2 * 104_729) % 251) as u8;
+    let left = image::GrayImage::from_fn(400, 160, |x, y| image::Luma([texture(x, y)]));
+    let right = image::GrayImage::from_fn(400, 160, |x, y| image::Luma([texture(x + 24, y)]));
+    left.save(dir.join("left.png")).unwrap();
+    right.save(dir.join("right.png")).unwrap();
+    let settings =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI00-02.yaml");
+    // Camera.bf 386.1694 / 24 px = 16.09 m, in millimetres.
+    let millimetres = (386.1694_f64 / 24.0 * 1000.0).round() as u16;
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(
+        400,
+        160,
+        image::Luma([millimetres]),
+    )
+    .save(dir.join("truth.png"))
+    .unwrap();
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(
+        200,
+        80,
+        image::Luma([millimetres]),
+    )
+    .save(dir.join("small.png"))
+    .unwrap();
+    let s = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let args = |truth: &str| {
+        vec![
+            "stereo".to_string(),
+            s("left.png"),
+            s("right.png"),
+            "--settings".into(),
+            settings.to_string_lossy().into_owned(),
+            "--downscale".into(),
+            "2".into(),
+            "--truth-depth".into(),
+            s(truth),
+            "--depth-scale".into(),
+            "1000".into(),
+            "--json".into(),
+            s("stereo.json"),
+        ]
+    };
+    let run = |truth: &str| {
+        let args = args(truth);
+        dopslam(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let (ok, stdout, err) = run("truth.png");
+    assert!(ok, "{stdout}\n{err}");
+    let figures = json(&dir.join("stereo.json"));
+    let depth = &figures["depth"];
+    assert_eq!(figures["sgbm_downscale"], 2, "{figures}");
+    assert_eq!(depth["truth_pixels"], 400 * 160, "{figures}");
+    assert!(depth["valid_percent"].as_f64().unwrap() > 60.0, "{figures}");
+    assert!(depth["median_error_m"].as_f64().unwrap() < 0.3, "{figures}");
+    assert!(
+        depth["within_tolerance_percent"].as_f64().unwrap() > 50.0,
+        "{figures}"
+    );
+    let (ok, _, err) = run("small.png");
+    assert!(
+        !ok && err.contains("small.png") && err.contains("200x80"),
+        "{err}"
+    );
+}

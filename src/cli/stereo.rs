@@ -30,6 +30,35 @@ pub struct StereoArgs {
     /// Also write the figures as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// SGBM matches the pair at 1/this of its size, as `[stereo] sgbm_downscale` does
+    /// in the dense pass (1, 2 or 4).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    pub downscale: u32,
+    /// A true depth image of the left camera (16-bit PNG, `--depth-scale` units a
+    /// metre, as `dopslam synth` writes): SGBM's depth is measured against it.
+    #[arg(long)]
+    pub truth_depth: Option<PathBuf>,
+    /// Units a metre in `--truth-depth` (TUM: 5000).
+    #[arg(long, default_value_t = 5000.0)]
+    pub depth_scale: f64,
+    /// Only truth depths up to this many metres count (the dense pass's `max_depth`).
+    #[arg(long, default_value_t = 25.0)]
+    pub max_depth: f64,
+}
+
+/// SGBM's depth against a true depth image, over the pixels whose true depth is within
+/// the range.
+#[derive(Debug, Serialize)]
+struct DepthFigures {
+    /// Pixels with a true depth in range.
+    truth_pixels: usize,
+    /// Of them, the share SGBM gave a depth.
+    valid_percent: f64,
+    /// Over those: the median and 90th percentile of |SGBM - truth|, metres.
+    median_error_m: f64,
+    p90_error_m: f64,
+    /// The share within 1 % of the true depth plus 5 cm.
+    within_tolerance_percent: f64,
 }
 
 /// What `dopslam stereo` measures.
@@ -48,6 +77,10 @@ struct StereoFigures {
     /// ORB on both images and the row matching.
     orb_and_matching_ms: f64,
     sgbm_ms: f64,
+    /// At `--downscale`.
+    sgbm_downscale: u32,
+    /// With `--truth-depth`.
+    depth: Option<DepthFigures>,
 }
 
 pub fn run_stereo(args: StereoArgs) -> Result<()> {
@@ -76,12 +109,11 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
     );
     let orb_and_matching_ms = start.elapsed().as_secs_f64() * 1e3;
     let start = Instant::now();
-    let sgbm = sgbm_disparity(
-        &left,
-        &right,
-        &dopslam::config::StereoConfig::default().sgbm(),
-    )
-    .map_err(anyhow::Error::msg)?;
+    let sgbm_settings = dopslam::dense::disparity::SgbmSettings {
+        downscale: args.downscale,
+        ..dopslam::config::StereoConfig::default().sgbm()
+    };
+    let sgbm = sgbm_disparity(&left, &right, &sgbm_settings).map_err(anyhow::Error::msg)?;
     let sgbm_ms = start.elapsed().as_secs_f64() * 1e3;
     let width = left.width() as usize;
     let mut signed: Vec<f64> = lf
@@ -119,12 +151,62 @@ pub fn run_stereo(args: StereoArgs) -> Result<()> {
             / sgbm.len().max(1) as f64,
         orb_and_matching_ms,
         sgbm_ms,
+        sgbm_downscale: args.downscale,
+        depth: match &args.truth_depth {
+            Some(path) => Some(depth_figures(&sgbm, bf, path, &args)?),
+            None => None,
+        },
     };
     print_figures(&figures);
     if let Some(path) = &args.json {
         write_atomic(path, serde_json::to_string_pretty(&figures)?.as_bytes())?;
     }
     Ok(())
+}
+
+/// SGBM's disparities `sgbm` as depth against the true depth image at `path`.
+fn depth_figures(
+    sgbm: &[f32],
+    bf: f64,
+    path: &std::path::Path,
+    args: &StereoArgs,
+) -> Result<DepthFigures> {
+    let truth = dopslam::io::image_files::read_depth(path, args.depth_scale)?;
+    anyhow::ensure!(
+        truth.metres.len() == sgbm.len(),
+        "{}: a {}x{} depth image for a pair of another size",
+        path.display(),
+        truth.width,
+        truth.height
+    );
+    let in_range: Vec<(f64, f32)> = truth
+        .metres
+        .iter()
+        .zip(sgbm)
+        .map(|(&t, &d)| (t as f64, d))
+        .filter(|&(t, _)| t > 0.0 && t <= args.max_depth)
+        .collect();
+    let mut errors: Vec<(f64, f64)> = in_range
+        .iter()
+        .filter(|&&(_, d)| d > 0.0)
+        .map(|&(t, d)| ((bf / d as f64 - t).abs(), t))
+        .collect();
+    let within = errors
+        .iter()
+        .filter(|&&(e, t)| e <= 0.01 * t + 0.05)
+        .count();
+    errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let quantile = |q: f64| match errors.len() {
+        0 => f64::NAN,
+        n => errors[((n - 1) as f64 * q).round() as usize].0,
+    };
+    Ok(DepthFigures {
+        truth_pixels: in_range.len(),
+        valid_percent: 100.0 * errors.len() as f64 / in_range.len().max(1) as f64,
+        median_error_m: quantile(0.5),
+        p90_error_m: quantile(0.9),
+        within_tolerance_percent: 100.0 * within as f64 / errors.len().max(1) as f64,
+    })
 }
 
 /// What `dopslam stereo` prints.
@@ -141,7 +223,17 @@ fn print_figures(figures: &StereoFigures) {
         figures.within_1px_percent
     );
     println!(
-        "time: ORB on both images and row matching {:.1} ms, SGBM {:.1} ms",
-        figures.orb_and_matching_ms, figures.sgbm_ms
+        "time: ORB on both images and row matching {:.1} ms, SGBM {:.1} ms (at 1/{} size)",
+        figures.orb_and_matching_ms, figures.sgbm_ms, figures.sgbm_downscale
     );
+    if let Some(depth) = &figures.depth {
+        println!(
+            "SGBM depth against the truth: {:.1} % of {} pixels in range have one; |error| median {:.3} m, 90th percentile {:.3} m; {:.1} % within 1 % + 5 cm",
+            depth.valid_percent,
+            depth.truth_pixels,
+            depth.median_error_m,
+            depth.p90_error_m,
+            depth.within_tolerance_percent
+        );
+    }
 }

@@ -17,6 +17,11 @@ pub struct SgbmSettings {
     pub disparities: i32,
     /// Block side (odd).
     pub block: i32,
+    /// The pair is matched at 1/`downscale` of its size (1, 2 or 4: each halving
+    /// averages 2x2 pixels) with `disparities / downscale` disparities, and the
+    /// disparities come back at full size (each small pixel's disparity times
+    /// `downscale`, to the pixels it covers).
+    pub downscale: u32,
 }
 
 /// What the dense pass needs to turn a stereo pair into depth.
@@ -33,9 +38,82 @@ pub struct StereoDepth {
 }
 
 /// The disparity map in pixels (row-major; negative where invalid) of a pair of one
-/// size (the readers check it).
-#[cfg(feature = "opencv")]
+/// size, at the pair's size whatever `settings.downscale` is.
 pub fn sgbm_disparity(
+    left: &GrayImage,
+    right: &GrayImage,
+    settings: &SgbmSettings,
+) -> Result<Vec<f32>, String> {
+    if settings.downscale <= 1 {
+        return sgbm_at_size(left, right, settings);
+    }
+    let (mut small_left, mut small_right) = (half_size(left), half_size(right));
+    let mut factor = 2;
+    while factor < settings.downscale {
+        small_left = half_size(&small_left);
+        small_right = half_size(&small_right);
+        factor *= 2;
+    }
+    let small_settings = SgbmSettings {
+        disparities: ((settings.disparities / factor as i32 + 15) / 16).max(1) * 16,
+        ..*settings
+    };
+    let small = sgbm_at_size(&small_left, &small_right, &small_settings)
+        .map_err(|e| format!("{e} (matched at 1/{factor} size: [stereo] sgbm_downscale)"))?;
+    Ok(upsample(
+        &small,
+        (small_left.width(), small_left.height()),
+        (left.width(), left.height()),
+        factor,
+    ))
+}
+
+/// The image at half its size (rounded down), each pixel the mean of a 2x2 block.
+fn half_size(image: &GrayImage) -> GrayImage {
+    let (width, height) = (image.width() / 2, image.height() / 2);
+    GrayImage::from_fn(width.max(1), height.max(1), |x, y| {
+        let (x0, y0) = (
+            (2 * x).min(image.width() - 1),
+            (2 * y).min(image.height() - 1),
+        );
+        let (x1, y1) = (
+            (x0 + 1).min(image.width() - 1),
+            (y0 + 1).min(image.height() - 1),
+        );
+        let sum: u32 = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .iter()
+            .map(|&(x, y)| image.get_pixel(x, y)[0] as u32)
+            .sum();
+        image::Luma([((sum + 2) / 4) as u8])
+    })
+}
+
+/// Disparities of a `small` map back at `full` size: each pixel takes the small
+/// pixel that covers it (the last row or column for the ones a halving dropped),
+/// its disparity times `factor`; invalid stays invalid.
+fn upsample(small: &[f32], small_size: (u32, u32), full: (u32, u32), factor: u32) -> Vec<f32> {
+    let (small_width, small_height) = (small_size.0 as usize, small_size.1 as usize);
+    let (width, height) = (full.0 as usize, full.1 as usize);
+    let columns: Vec<usize> = (0..width)
+        .map(|x| (x / factor as usize).min(small_width - 1))
+        .collect();
+    let mut out = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let row = &small[(y / factor as usize).min(small_height - 1) * small_width..];
+        out.extend(columns.iter().map(|&x| {
+            let d = row[x];
+            if d > 0.0 {
+                d * factor as f32
+            } else {
+                -1.0
+            }
+        }));
+    }
+    out
+}
+
+#[cfg(feature = "opencv")]
+fn sgbm_at_size(
     left: &GrayImage,
     right: &GrayImage,
     settings: &SgbmSettings,
@@ -101,7 +179,7 @@ pub fn check_size(
 
 /// Without OpenCV there is no dense stereo depth.
 #[cfg(not(feature = "opencv"))]
-pub fn sgbm_disparity(
+fn sgbm_at_size(
     _left: &GrayImage,
     _right: &GrayImage,
     _settings: &SgbmSettings,
@@ -147,6 +225,7 @@ mod tests {
         let settings = SgbmSettings {
             disparities: 32,
             block: 5,
+            downscale: 1,
         };
         let disparity = sgbm_disparity(&left, &right, &settings).unwrap();
         let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
@@ -169,5 +248,54 @@ mod tests {
         .unwrap();
         let centre = depth.metres[48 * 160 + 100];
         assert!((centre - 10.0).abs() < 0.5, "{centre} m");
+    }
+
+    #[test]
+    fn a_pair_matched_at_half_size_gives_its_disparity_at_full_size() {
+        // An odd size: the last column and row take the small map's last ones.
+        let texture = |x: u32, y: u32| ((x / 2 * 7919 + y / 2 * 104_729) % 251) as u8;
+        let left = GrayImage::from_fn(241, 97, |x, y| image::Luma([texture(x, y)]));
+        let right = GrayImage::from_fn(241, 97, |x, y| image::Luma([texture(x + 12, y)]));
+        let settings = SgbmSettings {
+            disparities: 32,
+            block: 5,
+            downscale: 2,
+        };
+        let disparity = sgbm_disparity(&left, &right, &settings).unwrap();
+        assert_eq!(disparity.len(), 241 * 97);
+        let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
+        assert!(valid.len() > disparity.len() / 2, "{} valid", valid.len());
+        let close = valid.iter().filter(|&&d| (d - 12.0).abs() <= 1.0).count();
+        assert!(
+            close * 10 >= valid.len() * 9,
+            "{close} of {} within 1 px",
+            valid.len()
+        );
+        assert!(disparity[96 * 241 + 240] > 0.0, "the last pixel has one");
+    }
+
+    #[test]
+    fn half_size_averages_blocks_and_upsample_scales_back() {
+        let image = GrayImage::from_fn(5, 3, |x, y| image::Luma([(10 * x + 100 * y) as u8]));
+        let half = half_size(&image);
+        assert_eq!(half.dimensions(), (2, 1));
+        // (0 + 10 + 100 + 110) / 4 = 55; (20 + 30 + 120 + 130) / 4 = 75.
+        assert_eq!((half.get_pixel(0, 0)[0], half.get_pixel(1, 0)[0]), (55, 75));
+        let full = upsample(&[3.0, -1.0], (2, 1), (5, 3), 2);
+        assert_eq!(full.len(), 15);
+        assert_eq!(&full[..5], &[6.0, 6.0, -1.0, -1.0, -1.0]);
+        assert_eq!(&full[10..], &full[..5]);
+    }
+
+    #[test]
+    fn a_pair_too_small_at_its_downscale_is_an_error_naming_the_key() {
+        let image = GrayImage::new(100, 40);
+        let settings = SgbmSettings {
+            disparities: 128,
+            block: 5,
+            downscale: 2,
+        };
+        let error = sgbm_disparity(&image, &image, &settings).unwrap_err();
+        assert!(error.contains("sgbm_downscale"), "{error}");
     }
 }
