@@ -40,6 +40,11 @@ pub struct CompareArgs {
     /// Ghost distance: map points farther than this from the reference, metres.
     #[arg(long, default_value_t = CompareSettings::default().ghost_distance)]
     pub ghost_distance: f64,
+    /// The reference surface is sampled this far apart for completion and recall,
+    /// metres; wider where that would give more than 10 million samples (a street's
+    /// scene), which the run says.
+    #[arg(long, default_value_t = CompareSettings::default().sample_spacing)]
+    pub sample_spacing: f64,
     /// Output folder: compare.md, compare.json, coloured PLYs, pictures.
     #[arg(long, default_value = "outputs/compare")]
     pub out: PathBuf,
@@ -52,6 +57,7 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
     for (name, value) in [
         ("--threshold", args.threshold),
         ("--ghost-distance", args.ghost_distance),
+        ("--sample-spacing", args.sample_spacing),
     ] {
         if !(value.is_finite() && value > 0.0) {
             bail!("{name} must be a positive distance in metres, not {value}");
@@ -103,10 +109,19 @@ pub fn run_compare(args: CompareArgs) -> Result<()> {
         settings: CompareSettings {
             threshold: args.threshold,
             ghost_distance: args.ghost_distance,
+            sample_spacing: args.sample_spacing,
             ..CompareSettings::default()
         },
         out: &args.out,
     })?;
+    if comparison.settings.sample_spacing > args.sample_spacing {
+        eprintln!(
+            "the reference's surface sampled every {:.3} m, not {} m: at that spacing it would give more than {} million samples (--sample-spacing)",
+            comparison.settings.sample_spacing,
+            args.sample_spacing,
+            dopslam::dense::compare_maps::MAX_REFERENCE_SAMPLES / 1e6
+        );
+    }
     print_comparison(&comparison, args.json)
 }
 

@@ -66,6 +66,18 @@ pub struct CompareInputs<'a> {
     pub out: &'a Path,
 }
 
+/// The most samples drawn on the reference surface for completion and recall (each
+/// is looked up in every map's k-d tree): at the default 2 cm, 4000 m² of surface.
+pub const MAX_REFERENCE_SAMPLES: f64 = 1e7;
+
+/// The spacing the reference is sampled at: `asked`, or wider where the surface at
+/// `asked` would give more than [`MAX_REFERENCE_SAMPLES`] (a street's static scene,
+/// hundreds of metres, would take hours and gigabytes at 2 cm).
+pub fn sample_spacing(reference: &Mesh, asked: f64) -> f64 {
+    let area = reference.surface_area();
+    asked.max((area / MAX_REFERENCE_SAMPLES).sqrt())
+}
+
 /// Judges the maps and writes the outputs (see the module doc).
 pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
     let reference_mesh = read_ply(inputs.reference)?;
@@ -75,7 +87,9 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
             "the reference has no vertices",
         ));
     }
-    let reference = StaticReference::new(&reference_mesh, inputs.settings.sample_spacing)
+    let mut settings = inputs.settings;
+    settings.sample_spacing = sample_spacing(&reference_mesh, settings.sample_spacing);
+    let reference = StaticReference::new(&reference_mesh, settings.sample_spacing)
         .map_err(|m| IoError::invalid(inputs.reference, m))?;
     let movers = match inputs.movers {
         Some(path) => Some(read_ply(path)?.vertices),
@@ -91,12 +105,7 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         if mesh.is_empty() {
             return Err(IoError::invalid(path, "the map has no vertices"));
         }
-        judged.push(judge(
-            &mesh,
-            &reference,
-            movers.as_deref(),
-            &inputs.settings,
-        ));
+        judged.push(judge(&mesh, &reference, movers.as_deref(), &settings));
         meshes.push((name.clone(), mesh));
     }
     if judged.len() >= 2 {
@@ -113,19 +122,20 @@ pub fn compare_maps(inputs: &CompareInputs) -> Result<Comparison, IoError> {
         names,
         reference: inputs.reference.to_path_buf(),
         movers: inputs.movers.map(Path::to_path_buf),
-        settings: inputs.settings,
+        settings,
         maps: judged.into_iter().map(|j| j.figures).collect(),
         outputs,
     };
     let json = serde_json::to_string_pretty(&comparison).expect("comparison serialises");
     write_atomic(&inputs.out.join("compare.json"), json.as_bytes())?;
     let md = format!(
-        "# Dense maps compared\n\nReference: `{}`{}\n\n{}\nPictures: left to right as the columns; ghosts (farther than {} m from the reference) in red.\n",
+        "# Dense maps compared\n\nReference: `{}`{}; sampled every {:.3} m for completion and recall\n\n{}\nPictures: left to right as the columns; ghosts (farther than {} m from the reference) in red.\n",
         inputs.reference.display(),
         inputs
             .movers
             .map(|m| format!("; movers' ground truth: `{}`", m.display()))
             .unwrap_or_default(),
+        settings.sample_spacing,
         comparison.table(),
         inputs.settings.ghost_distance
     );
@@ -299,6 +309,30 @@ mod tests {
     use super::*;
     use crate::geometry::se3;
     use proptest::prelude::*;
+
+    /// A square of `side` metres in two triangles.
+    fn square(side: f32) -> Mesh {
+        Mesh {
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            ..Mesh::points(vec![
+                [0.0, 0.0, 0.0],
+                [side, 0.0, 0.0],
+                [side, side, 0.0],
+                [0.0, side, 0.0],
+            ])
+        }
+    }
+
+    #[test]
+    fn a_street_sized_reference_is_sampled_wider_and_a_room_as_asked() {
+        assert!((square(10.0).surface_area() - 100.0).abs() < 1e-9);
+        assert_eq!(sample_spacing(&square(10.0), 0.02), 0.02);
+        // 1 km² at 2 cm would be 2.5e9 samples: 10 million at 31.6 cm.
+        let wide = sample_spacing(&square(1000.0), 0.02);
+        assert!((wide - 0.1_f64.sqrt()).abs() < 1e-9, "{wide}");
+        let count = square(1000.0).sample_surface(wide).len() as f64;
+        assert!(count <= 1.01 * MAX_REFERENCE_SAMPLES, "{count}");
+    }
 
     proptest! {
         /// A trajectory moved by any rigid transform, even one that stands still,

@@ -67,6 +67,17 @@ impl Mesh {
         Ok(())
     }
 
+    /// The triangles' total area.
+    pub fn surface_area(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.vertex(i as usize));
+                (b - a).cross(&(c - a)).norm() / 2.0
+            })
+            .sum()
+    }
+
     /// Area-weighted samples on the triangles, about one per `spacing`² of surface,
     /// at least one per triangle's area share (deterministic: a regular pattern in
     /// barycentric coordinates).
