@@ -357,20 +357,10 @@ fn sgbm_at_half_size_is_measured_against_a_true_depth() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/calibration/Stereo_KITTI00-02.yaml");
     // Camera.bf 386.1694 / 24 px = 16.09 m, in millimetres.
     let millimetres = (386.1694_f64 / 24.0 * 1000.0).round() as u16;
-    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(
-        400,
-        160,
-        image::Luma([millimetres]),
-    )
-    .save(dir.join("truth.png"))
-    .unwrap();
-    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(
-        200,
-        80,
-        image::Luma([millimetres]),
-    )
-    .save(dir.join("small.png"))
-    .unwrap();
+    for (name, width, height) in [("truth.png", 400, 160), ("small.png", 200, 80)] {
+        let depth = image::ImageBuffer::from_pixel(width, height, image::Luma([millimetres]));
+        depth.save(dir.join(name)).unwrap();
+    }
     let s = |name: &str| dir.join(name).to_string_lossy().into_owned();
     let args = |truth: &str| {
         vec![

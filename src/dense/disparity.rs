@@ -216,29 +216,50 @@ pub fn stereo_depth(
 mod tests {
     use super::*;
 
+    /// A `width` x `height` pair whose right pixel x shows left pixel x + 12: disparity
+    /// 12 everywhere it can be seen. The texture changes every `grain` pixels.
+    fn shifted_pair(width: u32, height: u32, grain: u32) -> (GrayImage, GrayImage) {
+        let texture = |x: u32, y: u32| ((x / grain * 7919 + y / grain * 104_729) % 251) as u8;
+        let left = GrayImage::from_fn(width, height, |x, y| image::Luma([texture(x, y)]));
+        let right = GrayImage::from_fn(width, height, |x, y| image::Luma([texture(x + 12, y)]));
+        (left, right)
+    }
+
+    /// Most pixels of `pair` matched with `settings` have a disparity, and 9 in 10 of
+    /// them lie within `tolerance` of 12; the disparities.
+    fn matched_at_12(
+        pair: &(GrayImage, GrayImage),
+        settings: &SgbmSettings,
+        tolerance: f32,
+    ) -> Vec<f32> {
+        let disparity = sgbm_disparity(&pair.0, &pair.1, settings).unwrap();
+        assert_eq!(disparity.len(), (pair.0.width() * pair.0.height()) as usize);
+        let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
+        assert!(valid.len() > disparity.len() / 2, "{} valid", valid.len());
+        let close = valid
+            .iter()
+            .filter(|&&d| (d - 12.0).abs() <= tolerance)
+            .count();
+        assert!(
+            close * 10 >= valid.len() * 9,
+            "{close} of {} within {tolerance} px",
+            valid.len()
+        );
+        disparity
+    }
+
     #[test]
     fn a_shifted_texture_gives_its_disparity() {
-        // Right pixel x shows left pixel x + 12: disparity 12 everywhere it can be seen.
-        let texture = |x: u32, y: u32| ((x * 7919 + y * 104_729) % 251) as u8;
-        let left = GrayImage::from_fn(160, 96, |x, y| image::Luma([texture(x, y)]));
-        let right = GrayImage::from_fn(160, 96, |x, y| image::Luma([texture(x + 12, y)]));
+        let pair = shifted_pair(160, 96, 1);
         let settings = SgbmSettings {
             disparities: 32,
             block: 5,
             downscale: 1,
         };
-        let disparity = sgbm_disparity(&left, &right, &settings).unwrap();
-        let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
-        assert!(valid.len() > disparity.len() / 2, "{} valid", valid.len());
-        let close = valid.iter().filter(|&&d| (d - 12.0).abs() <= 0.5).count();
-        assert!(
-            close * 10 >= valid.len() * 9,
-            "{close} of {} within 0.5 px",
-            valid.len()
-        );
+        matched_at_12(&pair, &settings, 0.5);
         let depth = stereo_depth(
-            &left,
-            &right,
+            &pair.0,
+            &pair.1,
             &StereoDepth {
                 bf: 120.0,
                 offset: 0.0,
@@ -253,24 +274,12 @@ mod tests {
     #[test]
     fn a_pair_matched_at_half_size_gives_its_disparity_at_full_size() {
         // An odd size: the last column and row take the small map's last ones.
-        let texture = |x: u32, y: u32| ((x / 2 * 7919 + y / 2 * 104_729) % 251) as u8;
-        let left = GrayImage::from_fn(241, 97, |x, y| image::Luma([texture(x, y)]));
-        let right = GrayImage::from_fn(241, 97, |x, y| image::Luma([texture(x + 12, y)]));
         let settings = SgbmSettings {
             disparities: 32,
             block: 5,
             downscale: 2,
         };
-        let disparity = sgbm_disparity(&left, &right, &settings).unwrap();
-        assert_eq!(disparity.len(), 241 * 97);
-        let valid: Vec<f32> = disparity.iter().copied().filter(|&d| d > 0.0).collect();
-        assert!(valid.len() > disparity.len() / 2, "{} valid", valid.len());
-        let close = valid.iter().filter(|&&d| (d - 12.0).abs() <= 1.0).count();
-        assert!(
-            close * 10 >= valid.len() * 9,
-            "{close} of {} within 1 px",
-            valid.len()
-        );
+        let disparity = matched_at_12(&shifted_pair(241, 97, 2), &settings, 1.0);
         assert!(disparity[96 * 241 + 240] > 0.0, "the last pixel has one");
     }
 
