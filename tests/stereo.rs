@@ -77,7 +77,24 @@ fn a_street_is_tracked_from_its_stereo_pairs_and_mapped_densely() {
     if dense {
         let fused = json(&run_dir.join("dense.json"));
         assert!(fused["frames_fused"].as_u64().unwrap() > 30, "{fused}");
+        assert_eq!(fused["sgbm"]["downscale"], 1, "{fused}");
         assert!(run_dir.join("dense_mesh.ply").exists());
+        // Fused again with SGBM at half size: the same frames, and dense.json says how.
+        let half = out.join("half.toml");
+        std::fs::write(&half, "[stereo]\nsgbm_downscale = 2\n").unwrap();
+        let (ok, stdout, err) = dopslam(&[
+            "fuse",
+            &run_dir.to_string_lossy(),
+            "--config",
+            &half.to_string_lossy(),
+        ]);
+        assert!(
+            ok && stdout.contains("matched at 1/2 size"),
+            "{stdout}\n{err}"
+        );
+        let refused = json(&run_dir.join("dense.json"));
+        assert_eq!(refused["sgbm"]["downscale"], 2, "{refused}");
+        assert_eq!(refused["frames_fused"], fused["frames_fused"], "{refused}");
     } else {
         eprintln!("built without the opencv feature: the dense map of stereo is not checked");
     }

@@ -232,6 +232,12 @@ pub fn print_dense(dense: &DenseReport) {
             dense.mesh_pieces_dropped, dense.mesh_vertices_dropped
         );
     }
+    if let Some(sgbm) = dense.sgbm.filter(|s| s.downscale > 1) {
+        println!(
+            "dense map: stereo depth matched at 1/{} size ([stereo] sgbm_downscale): faster, coarser",
+            sgbm.downscale
+        );
+    }
     print_frame_choice(dense);
     println!(
         "dense time: integration median {:.1} ms a frame, marching cubes {:.0} ms, cloud {:.0} ms, total {:.1} s{}",

@@ -11,7 +11,7 @@ use image::GrayImage;
 use crate::io::image_files::DepthImage;
 
 /// The matcher's settings.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SgbmSettings {
     /// Disparities searched, from 0 (a multiple of 16).
     pub disparities: i32,

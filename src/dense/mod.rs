@@ -109,6 +109,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         frames_left_still: candidates.len() - chosen.len(),
         frames_fused_still: frames.still,
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
+        sgbm: inputs.stereo.as_ref().map(|s| s.sgbm),
         ..DenseReport::default()
     };
     report.stages.inputs_s = inputs_s + start.elapsed().as_secs_f64();

@@ -68,6 +68,10 @@ pub struct DenseReport {
     /// Stereo: pixels added to every SGBM disparity (the rig's offset the run found).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub disparity_offset_px: Option<f64>,
+    /// Stereo: the semi-global matcher's settings the depth was made with
+    /// (`[stereo] sgbm_disparities`, `sgbm_block`, `sgbm_downscale`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sgbm: Option<crate::dense::disparity::SgbmSettings>,
     /// Milliseconds: TSDF integration per frame (median), marching cubes, cloud.
     pub median_integration_ms: f64,
     /// Marching cubes, milliseconds.
