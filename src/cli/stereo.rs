@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use clap::builder::TypedValueParser;
 use clap::Args;
 use dopslam::dense::disparity::sgbm_disparity;
 use dopslam::features::{OrbConfig, OrbExtractor};
@@ -32,7 +33,12 @@ pub struct StereoArgs {
     pub json: Option<PathBuf>,
     /// SGBM matches the pair at 1/this of its size, as `[stereo] sgbm_downscale` does
     /// in the dense pass (1, 2 or 4).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    #[arg(
+        long,
+        default_value = "1",
+        value_parser = clap::builder::PossibleValuesParser::new(["1", "2", "4"])
+            .map(|s| s.parse::<u32>().unwrap_or(1))
+    )]
     pub downscale: u32,
     /// A true depth image of the left camera (16-bit PNG, `--depth-scale` units a
     /// metre, as `dopslam synth` writes): SGBM's depth is measured against it.
