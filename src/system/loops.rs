@@ -7,6 +7,7 @@
 //! loop joined (`[global.loops] during_tracking`, off by default: `docs/design.md`,
 //! "Loops closed during tracking").
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -24,7 +25,9 @@ use crate::tracking::Tracker;
 pub struct Loops {
     worker: Worker<Recognition>,
     state: Arc<Mutex<LoopState>>,
-    during_tracking: bool,
+    /// Raised by the worker when a loop it verified waits (never without
+    /// `during_tracking`); lowered here once it is closed.
+    ready: Arc<AtomicBool>,
 }
 
 /// What [`Loops::start`] is built from.
@@ -43,21 +46,20 @@ impl Loops {
     /// Starts place recognition's worker on `map`.
     pub fn start(setup: LoopsSetup, map: &SharedMap) -> Self {
         let config = setup.recognition.config().clone();
-        let during_tracking = config.during_tracking;
-        let state = Arc::new(Mutex::new(LoopState {
-            recognition: setup.recognition,
-            closer: LoopCloser::new(setup.inputs, config),
-        }));
+        let ready = Arc::new(AtomicBool::new(false));
         let stage = Recognition {
-            state: state.clone(),
-            screen: during_tracking,
+            ready: config.during_tracking.then(|| ready.clone()),
+            state: Arc::new(Mutex::new(LoopState {
+                recognition: setup.recognition,
+                closer: LoopCloser::new(setup.inputs, config),
+            })),
             vocabulary: setup.vocabulary,
             map: map.clone(),
         };
         Self {
+            state: stage.state.clone(),
             worker: Worker::start(stage, setup.execution),
-            state,
-            during_tracking,
+            ready,
         }
     }
 
@@ -77,11 +79,8 @@ impl Loops {
         tracker: &mut Tracker,
         record: &FrameRecord,
     ) -> usize {
-        let waits = |state: &Mutex<LoopState>| {
-            let state = state.lock().expect("loop closing lock poisoned");
-            state.closer.is_ready()
-        };
-        if !self.during_tracking || !waits(&self.state) {
+        // Read every frame: the worker may hold loop closing's lock for a while.
+        if !self.ready.load(Ordering::Acquire) {
             return 0;
         }
         let start = Instant::now();
@@ -94,6 +93,8 @@ impl Loops {
             closer,
         } = &mut *state;
         let closed = closer.close_ready(&mut map, recognition);
+        // Lowered under the lock: the worker raises it again only after this.
+        self.ready.store(closer.is_ready(), Ordering::Release);
         if closed > 0 {
             let placed = record
                 .camera_from_world_on(|key| map.keyframes().get(key).map(|k| k.camera_from_world));

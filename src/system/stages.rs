@@ -2,7 +2,7 @@
 //! local mapping, as ORB-SLAM2's local mapping hands keyframes to loop closing) and the
 //! keyframe detector.
 
-use std::sync::atomic::AtomicUsize;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -48,8 +48,10 @@ impl Stage for LocalMapping {
 pub struct Recognition {
     /// Place recognition and the closer, shared with the system.
     pub state: Arc<Mutex<LoopState>>,
-    /// Verify the loops found here (loops closed during tracking).
-    pub screen: bool,
+    /// With loops closed during tracking: the loops found are verified here, and this
+    /// flag is raised when one waits for the system to close it (which reads it every
+    /// frame without taking loop closing's lock).
+    pub ready: Option<Arc<AtomicBool>>,
     /// The vocabulary.
     pub vocabulary: Arc<Vocabulary>,
     /// The shared map.
@@ -81,9 +83,11 @@ impl Stage for Recognition {
         } = &mut *state;
         recognition.milliseconds += elapsed;
         recognition.process_with_words(&m, key, words);
-        if self.screen {
+        if let Some(ready) = &self.ready {
             let start = std::time::Instant::now();
-            closer.screen(&m, recognition);
+            if closer.screen(&m, recognition) {
+                ready.store(true, Ordering::Release);
+            }
             closer.during_tracking_ms += start.elapsed().as_secs_f64() * 1e3;
         }
     }
