@@ -121,5 +121,21 @@ fn a_loop_closed_during_tracking_joins_the_map_the_frames_after_it_use() {
         // Found once: after it the keyframes are covisible with the start's.
         assert_eq!(closed.len(), 1, "{closed:?}");
         assert!(global.loop_closing_during_tracking_ms > 0.0);
+        // After the loop the frames are tracked as a revisit of the start, and make
+        // keyframes only where tracking weakens, not every second as on new ground.
+        let after: Vec<_> = report
+            .frames
+            .iter()
+            .map(|f| &f.tracking)
+            .filter(|f| f.timestamp > closed[0].pair.keyframe_time)
+            .collect();
+        let revisits = after.iter().filter(|f| f.revisiting).count();
+        let keyframes = after.iter().filter(|f| f.revisiting && f.keyframe).count();
+        // More revisit frames than the keyframe timeout (10 frames here) needs.
+        assert!(revisits > 10, "{revisits} of {}", after.len());
+        assert!(
+            keyframes * 10 < revisits,
+            "{keyframes} keyframes in {revisits} frames"
+        );
     }
 }

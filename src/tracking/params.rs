@@ -53,6 +53,14 @@ pub const KEYFRAME_UNTRACKED_CLOSE: usize = 70;
 pub const KEYFRAME_WEAK_RATIO: f64 = 0.75;
 /// The share of the reference keyframe's points below which tracking is very weak.
 pub const KEYFRAME_VERY_WEAK_RATIO: f64 = 0.25;
+/// A frame is on a revisit when the keyframe sharing most of its matches is more than
+/// this many keyframes older than the tracker's newest.
+pub const REVISIT_KEYFRAMES: usize = 20;
+/// On a revisit the local map also takes this many best covisible neighbours of each
+/// local keyframe (ORB-SLAM2's 10)...
+pub const REVISIT_NEIGHBOURS: usize = 10;
+/// ... up to this many keyframes in all.
+pub const REVISIT_LOCAL_KEYFRAMES: usize = 60;
 /// Inliers a frame needs to become a keyframe.
 pub const KEYFRAME_MIN_INLIERS: usize = 15;
 /// A keyframe makes points for its unmatched keypoints with depth, nearest first: the

@@ -99,6 +99,10 @@ pub struct FrameStats {
     pub inliers: usize,
     /// Whether the frame became a keyframe.
     pub keyframe: bool,
+    /// Whether the frame was tracked on a revisit: most of its points were made by
+    /// older keyframes than the tracker's recent ones (`Tracker::note_revisit`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub revisiting: bool,
     /// DOP: keypoints in a removed (dynamic) state, and local-map points left out as
     /// dynamic.
     pub dynamic_keypoints: usize,
@@ -135,6 +139,7 @@ impl FrameStats {
             matches: 0,
             inliers: 0,
             keyframe: false,
+            revisiting: false,
             dynamic_keypoints: 0,
             dynamic_map_points: 0,
             geometric_raised: 0,

@@ -4,7 +4,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::{TrackInput, Tracker};
+use super::{Settling, TrackInput, Tracker};
 use crate::dynamics::frames::Participation;
 use crate::dynamics::tracked::Sensor;
 use crate::frame::Frame;
@@ -31,6 +31,9 @@ pub struct KeyframeInputs {
     pub moved: bool,
     /// Whether local mapping has caught up.
     pub mapping_idle: bool,
+    /// Whether the frame is tracked on a revisit (most of its points were made by
+    /// older keyframes than the tracker's recent ones: [`Tracker::note_revisit`]).
+    pub revisiting: bool,
 }
 
 /// ORB-SLAM2's keyframe decision for RGB-D, adapted: a keyframe when enough frames
@@ -41,7 +44,9 @@ pub struct KeyframeInputs {
 /// points count: on slow static sequences that keeps the map fresh (loop_room,
 /// real-time mode: 0.0084 m, against 0.0299 m with ORB-SLAM2's rule, which made 15
 /// keyframes instead of 77). Weakness counts only once the camera has moved: a person
-/// walking in front of a still camera hides points without any new view to map.
+/// walking in front of a still camera hides points without any new view to map. On a
+/// revisit the timeout needs weakness too, as in ORB-SLAM2: a place the map already
+/// holds, tracked well, gets no keyframes of its own.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeyframePolicy {
     /// A keyframe at least this often.
@@ -58,6 +63,7 @@ impl KeyframePolicy {
         let timeout = inputs.frames_since_keyframe >= self.max_frames_between_keyframes;
         let very_weak = inliers < KEYFRAME_VERY_WEAK_RATIO * reference;
         let weak = inputs.moved && (inliers < KEYFRAME_WEAK_RATIO * reference || need_close);
+        let timeout = timeout && (weak || !inputs.revisiting);
         (timeout || very_weak || (weak && (inputs.mapping_idle || need_close)))
             && inputs.inliers > KEYFRAME_MIN_INLIERS
     }
@@ -72,7 +78,7 @@ impl Tracker {
         pose: &Se3,
         points: &[Option<MapPointKey>],
         inliers: usize,
-        mapping_idle: bool,
+        state: Settling,
     ) -> bool {
         let map = input.map;
         let Some(reference) = self.reference.and_then(|k| map.keyframes().get(k)) else {
@@ -92,8 +98,30 @@ impl Tracker {
             untracked_close: counted.untracked_close,
             frames_since_keyframe: self.frames_since_keyframe,
             moved,
-            mapping_idle,
+            mapping_idle: state.mapping_idle,
+            revisiting: state.revisiting,
         })
+    }
+
+    /// Whether the frame, tracked with `matches`, is on a revisit: most of its matched
+    /// points were made by keyframes more than [`REVISIT_KEYFRAMES`] older than the
+    /// newest this tracker made (all of them when it made none: a map loaded to track
+    /// in). Kept for the next frame, whose local map then reaches further
+    /// ([`super::projection::with_neighbours`]).
+    pub(super) fn note_revisit(&mut self, map: &Map, matches: &[Option<MapPointKey>]) -> bool {
+        let newest = self.newest_keyframe_id;
+        let old = |id: usize| newest.is_none_or(|newest| id + REVISIT_KEYFRAMES < newest);
+        let (mut matched, mut old_points) = (0, 0);
+        for point in matches
+            .iter()
+            .flatten()
+            .filter_map(|k| map.points().get(*k))
+        {
+            matched += 1;
+            old_points += usize::from(old(point.first_keyframe_id));
+        }
+        self.revisiting = old_points * 2 > matched;
+        self.revisiting
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).
@@ -246,6 +274,7 @@ mod tests {
             frames_since_keyframe: 3,
             moved: true,
             mapping_idle: true,
+            revisiting: false,
         }
     }
 
@@ -291,6 +320,27 @@ mod tests {
             ..inputs()
         };
         assert!(POLICY.need_keyframe(&very_weak));
+    }
+
+    #[test]
+    fn on_a_revisit_the_timeout_needs_weak_tracking() {
+        let late = KeyframeInputs {
+            frames_since_keyframe: 30,
+            revisiting: true,
+            ..inputs()
+        };
+        assert!(!POLICY.need_keyframe(&late));
+        // Weak tracking with local mapping busy: the timeout makes it a keyframe.
+        let weak = KeyframeInputs {
+            inliers: 200,
+            mapping_idle: false,
+            ..late
+        };
+        assert!(POLICY.need_keyframe(&weak));
+        assert!(!POLICY.need_keyframe(&KeyframeInputs {
+            frames_since_keyframe: 3,
+            ..weak
+        }));
     }
 
     #[test]

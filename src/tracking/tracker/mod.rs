@@ -49,6 +49,14 @@ fn reference_now(
     }
 }
 
+/// What the keyframe decision needs beside the frame: whether local mapping has caught
+/// up, and whether the frame is tracked on a revisit ([`Tracker::note_revisit`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Settling {
+    pub mapping_idle: bool,
+    pub revisiting: bool,
+}
+
 /// The last tracked frame, kept for the motion model.
 struct LastFrame {
     frame: Frame,
@@ -68,6 +76,9 @@ pub struct Tracker {
     frames_since_keyframe: usize,
     /// The id of the keyframe this tracker made last.
     newest_keyframe_id: Option<usize>,
+    /// Whether the last frame was tracked on a revisit ([`Tracker::note_revisit`]):
+    /// the next frame's local map then reaches further.
+    revisiting: bool,
     /// The active map segment, the number of segments started, and since when
     /// (timestamp) tracking is lost.
     segment: usize,
@@ -148,6 +159,7 @@ impl Tracker {
             reference: None,
             frames_since_keyframe: 0,
             newest_keyframe_id: None,
+            revisiting: false,
             segment: 0,
             segments: 0,
             lost_since: None,
@@ -285,7 +297,13 @@ impl Tracker {
             Err(reject) => self.lose(map, gate, frame, reject, &mut report),
             Ok(estimate) => {
                 report.stats.dynamic_map_points = seen.dynamic;
-                self.accept(map, gate, frame, estimate, mapping_idle, &mut report);
+                report.stats.revisiting = self.note_revisit(map, &estimate.matches);
+                let revisiting = report.stats.revisiting;
+                let state = Settling {
+                    mapping_idle,
+                    revisiting,
+                };
+                self.accept(map, gate, frame, estimate, state, &mut report);
             }
         }
         report
@@ -321,6 +339,7 @@ impl Tracker {
     ) {
         self.state = TrackingState::Lost;
         self.velocity = None;
+        self.revisiting = false;
         report.stats.state = TrackingState::Lost;
         report.stats.lost = Some(reject);
         let since = *self.lost_since.get_or_insert(frame.timestamp);
@@ -339,7 +358,7 @@ impl Tracker {
         gate: &Participation,
         frame: Frame,
         estimate: PoseEstimate,
-        mapping_idle: bool,
+        state: Settling,
         report: &mut TrackedFrame,
     ) {
         let PoseEstimate {
@@ -365,7 +384,7 @@ impl Tracker {
             frame: &frame,
             gate: &counted,
         };
-        let need = self.need_keyframe(input, &pose, &points, inliers, mapping_idle);
+        let need = self.need_keyframe(input, &pose, &points, inliers, state);
         let (pose, points) = if need && !self.frozen {
             self.insert_keyframe(map, &frame, gate, pose, points, false);
             let key = self.reference.expect("just inserted");

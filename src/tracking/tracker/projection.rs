@@ -137,20 +137,49 @@ impl Projector<'_> {
     }
 }
 
-/// The local map of a frame matched to `matches`: the points of the `limit` keyframes
-/// that share most of them ([`Map::covisible_keyframes`]), each once, in their order;
-/// in a frozen map (`frozen`), kept from the last frame while the keyframes are the
-/// same set.
-pub(super) fn local_points(
-    frozen: Option<&RefCell<FrozenLocalMap>>,
+/// The local keyframes of a frame matched to `matches`: the `limit` keyframes that
+/// share most of them ([`Map::covisible_keyframes`]), best first.
+pub(super) fn local_keyframes(
     map: &Map,
     matches: &[Option<MapPointKey>],
     limit: usize,
+) -> Vec<KeyFrameKey> {
+    map.covisible_keyframes(matches.iter().flatten().copied(), limit)
+}
+
+/// On a revisit, the local keyframes' best covisible neighbours too
+/// ([`REVISIT_NEIGHBOURS`] each, in the local keyframes' order), up to `limit`
+/// keyframes in all, as ORB-SLAM2's local map takes them: the keyframes of the earlier
+/// visit ahead of the camera, whose points the frame has not matched yet, so that
+/// tracking stays on the earlier visit's points instead of mapping the place again.
+pub(super) fn with_neighbours(map: &Map, local: &mut Vec<KeyFrameKey>, limit: usize) {
+    let mut listed: KeySet<KeyFrameKey> = local.iter().copied().collect();
+    for i in 0..local.len() {
+        let Some(keyframe) = map.keyframes().get(local[i]) else {
+            continue;
+        };
+        for neighbour in keyframe.best_covisible(REVISIT_NEIGHBOURS) {
+            if local.len() >= limit {
+                return;
+            }
+            if listed.insert(neighbour) {
+                local.push(neighbour);
+            }
+        }
+    }
+}
+
+/// The local map: the points of the `local` keyframes, each once, in their order; in
+/// a frozen map (`frozen`), kept from the last frame while the keyframes are the same
+/// set.
+pub(super) fn local_points(
+    frozen: Option<&RefCell<FrozenLocalMap>>,
+    map: &Map,
+    local: &[KeyFrameKey],
 ) -> Vec<MapPointKey> {
-    let local = map.covisible_keyframes(matches.iter().flatten().copied(), limit);
     match frozen {
-        Some(cache) => cache.borrow_mut().points(map, &local).to_vec(),
-        None => unique_points(map, &local),
+        Some(cache) => cache.borrow_mut().points(map, local).to_vec(),
+        None => unique_points(map, local),
     }
 }
 
@@ -219,22 +248,42 @@ mod tests {
     #[test]
     fn the_local_map_lists_each_point_once_and_a_frozen_map_keeps_it() {
         let (mut map, _, matches) = three_keyframes();
-        let fresh = local_points(None, &map, &matches, 20);
+        let twenty = local_keyframes(&map, &matches, 20);
+        let fresh = local_points(None, &map, &twenty);
         // Points 0-15 once each: the three keyframes' 24 slots less 8 shared.
         assert_eq!(fresh.len(), 16);
         assert_eq!(fresh.iter().collect::<KeySet<_>>().len(), 16);
         let cache = RefCell::new(FrozenLocalMap::default());
-        assert_eq!(local_points(Some(&cache), &map, &matches, 20), fresh);
+        assert_eq!(local_points(Some(&cache), &map, &twenty), fresh);
         // The same keyframes: the kept list, even when a point seen by one keyframe
         // alone went (a frozen map's never do: this shows the list was not read again).
         let only_once = *fresh.last().unwrap();
         let (kf, index) = map.points()[only_once].observations[0];
         map.remove_observation(kf, index);
-        assert_eq!(local_points(Some(&cache), &map, &matches, 20), fresh);
-        assert_ne!(local_points(None, &map, &matches, 20), fresh);
+        assert_eq!(local_points(Some(&cache), &map, &twenty), fresh);
+        assert_ne!(local_points(None, &map, &twenty), fresh);
         // Fewer local keyframes: another set, read again.
-        let two = local_points(Some(&cache), &map, &matches, 2);
-        assert_eq!(two, local_points(None, &map, &matches, 2));
+        let two_keyframes = local_keyframes(&map, &matches, 2);
+        let two = local_points(Some(&cache), &map, &two_keyframes);
+        assert_eq!(two, local_points(None, &map, &two_keyframes));
         assert!(two.len() < fresh.len());
+    }
+
+    #[test]
+    fn a_revisit_takes_the_local_keyframes_neighbours_but_not_theirs() {
+        let (mut map, keyframes, _) = three_keyframes();
+        for &kf in &keyframes {
+            map.update_connections(kf);
+        }
+        // Point 0 is seen by the first keyframe alone; the second shares four points
+        // with it, the third none (it shares with the second only).
+        let points = map.keyframes()[keyframes[0]].map_points.clone();
+        let matches = vec![points[0]];
+        let mut local = local_keyframes(&map, &matches, 20);
+        assert_eq!(local, vec![keyframes[0]]);
+        with_neighbours(&map, &mut local, 1);
+        assert_eq!(local, vec![keyframes[0]]);
+        with_neighbours(&map, &mut local, 60);
+        assert_eq!(local, vec![keyframes[0], keyframes[1]]);
     }
 }

@@ -274,7 +274,11 @@ fn points_that_wait_do_not_make_keyframes() {
             frame: &frame,
             gate: &gate,
         };
-        tracker.need_keyframe(input, &Se3::identity(), &tracked, room, true)
+        let state = Settling {
+            mapping_idle: true,
+            revisiting: false,
+        };
+        tracker.need_keyframe(input, &Se3::identity(), &tracked, room, state)
     };
     assert!(need(&map), "100 of 500 points: very weak");
     map.await_detection(7);
@@ -426,4 +430,39 @@ fn a_fixture_map_tracks_the_true_pose_and_names_why_a_frame_is_lost() {
         "{:?}",
         lost.stats.lost
     );
+}
+
+/// A frame is on a revisit when most of its matched points were made by keyframes
+/// more than `REVISIT_KEYFRAMES` older than the tracker's newest.
+#[test]
+fn a_frame_matching_mostly_old_points_is_a_revisit() {
+    let mut map = Map::default();
+    let point = |map: &mut Map, first| {
+        map.insert_point(MapPoint::new(
+            Vector3::z(),
+            [0; 4],
+            Vector3::z(),
+            (0.1, 10.0),
+            first,
+        ))
+    };
+    // Ten points of keyframe 2, four of keyframe 29.
+    let old: Vec<_> = (0..10).map(|_| Some(point(&mut map, 2))).collect();
+    let new: Vec<_> = (0..4).map(|_| Some(point(&mut map, 29))).collect();
+    let (_, mut tracker) = fr3_tracker();
+    tracker.newest_keyframe_id = Some(29);
+    let matches = [&old[..], &new[..]].concat();
+    assert!(tracker.note_revisit(&map, &matches));
+    assert!(tracker.revisiting);
+    // Three old points against four new ones: new ground.
+    let matches = [&old[..3], &new[..]].concat();
+    assert!(!tracker.note_revisit(&map, &matches));
+    // Keyframe 2 is only 20 keyframes older than a newest 22: not old yet.
+    tracker.newest_keyframe_id = Some(22);
+    assert!(!tracker.note_revisit(&map, &old));
+    // A tracker that made no keyframe tracks in a map it was given: every point is old.
+    tracker.newest_keyframe_id = None;
+    assert!(tracker.note_revisit(&map, &old));
+    // Matches to points removed meanwhile count for nothing.
+    assert!(!tracker.note_revisit(&Map::default(), &old));
 }
