@@ -61,6 +61,9 @@ pub const REVISIT_KEYFRAMES: usize = 20;
 pub const REVISIT_NEIGHBOURS: usize = 10;
 /// ... up to this many keyframes in all.
 pub const REVISIT_LOCAL_KEYFRAMES: usize = 60;
+/// On a revisit the keyframe decision counts the points of the old keyframe that
+/// shares most of the frame's matches seen by at least this many keyframes.
+pub const REVISIT_MIN_OBSERVATIONS: usize = 3;
 /// Inliers a frame needs to become a keyframe.
 pub const KEYFRAME_MIN_INLIERS: usize = 15;
 /// A keyframe makes points for its unmatched keypoints with depth, nearest first: the

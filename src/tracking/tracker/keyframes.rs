@@ -9,7 +9,7 @@ use crate::dynamics::frames::Participation;
 use crate::dynamics::tracked::Sensor;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
-use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey};
+use crate::map::{KeyFrame, KeyFrameKey, KeyMap, Map, MapPoint, MapPointKey};
 use crate::tracking::params::*;
 
 /// What the keyframe decision looks at for one tracked frame.
@@ -84,7 +84,12 @@ impl Tracker {
         let Some(reference) = self.reference.and_then(|k| map.keyframes().get(k)) else {
             return true;
         };
-        let counted = count_points(input, &reference.map_points, points, self.close_depth());
+        let revisited = state
+            .revisiting
+            .then(|| self.revisited_points(map, points))
+            .flatten();
+        let reference_points = revisited.as_deref().unwrap_or(&reference.map_points);
+        let counted = count_points(input, reference_points, points, self.close_depth());
         let relative = *pose * reference.world_from_camera();
         let moved = relative.translation.vector.norm() >= self.config.keyframe_min_translation
             || relative.rotation.angle().to_degrees() >= self.config.keyframe_min_rotation_deg;
@@ -122,6 +127,38 @@ impl Tracker {
         }
         self.revisiting = old_points * 2 > matched;
         self.revisiting
+    }
+
+    /// On a revisit, the points the keyframe decision weighs the frame against: those
+    /// of the old keyframe that shares most of the frame's matches (ORB-SLAM2's
+    /// reference keyframe, `pKFmax`), seen by at least [`REVISIT_MIN_OBSERVATIONS`]
+    /// keyframes (ORB-SLAM2's `nMinObs`).
+    fn revisited_points(
+        &self,
+        map: &Map,
+        points: &[Option<MapPointKey>],
+    ) -> Option<Vec<Option<MapPointKey>>> {
+        let newest = self.newest_keyframe_id;
+        let old = |id: usize| newest.is_none_or(|newest| id + REVISIT_KEYFRAMES < newest);
+        let mut votes: KeyMap<KeyFrameKey, usize> = KeyMap::default();
+        for point in points.iter().flatten().filter_map(|k| map.points().get(*k)) {
+            for (kf, _) in &point.observations {
+                if map.keyframes().get(*kf).is_some_and(|kf| old(kf.id)) {
+                    *votes.entry(*kf).or_default() += 1;
+                }
+            }
+        }
+        let id = |k: KeyFrameKey| map.keyframes()[k].id;
+        let (best, _) = votes
+            .into_iter()
+            .max_by(|a, b| a.1.cmp(&b.1).then(id(a.0).cmp(&id(b.0))))?;
+        let seen_enough = |k: &MapPointKey| {
+            map.points()
+                .get(*k)
+                .is_some_and(|p| p.observations.len() >= REVISIT_MIN_OBSERVATIONS)
+        };
+        let kept = map.keyframes()[best].map_points.iter();
+        Some(kept.map(|p| p.filter(seen_enough)).collect())
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).
