@@ -133,7 +133,7 @@ impl Tracker {
     /// of the old keyframe that shares most of the frame's matches (ORB-SLAM2's
     /// reference keyframe, `pKFmax`), seen by at least [`REVISIT_MIN_OBSERVATIONS`]
     /// keyframes (ORB-SLAM2's `nMinObs`).
-    fn revisited_points(
+    pub(super) fn revisited_points(
         &self,
         map: &Map,
         points: &[Option<MapPointKey>],

@@ -466,3 +466,43 @@ fn a_frame_matching_mostly_old_points_is_a_revisit() {
     // Matches to points removed meanwhile count for nothing.
     assert!(!tracker.note_revisit(&Map::default(), &old));
 }
+
+/// On a revisit the keyframe decision counts the points of the old keyframe that
+/// shares most of the frame's matches, those seen by three keyframes or more.
+#[test]
+fn a_revisit_is_weighed_against_the_old_keyframe_sharing_most_matches() {
+    let mut map = Map::default();
+    let blank = || KeyFrame::new(Frame::blank(20, (640, 480)), Se3::identity());
+    let keyframes: Vec<_> = (0..30).map(|_| map.add_keyframe(blank())).collect();
+    let points: Vec<_> = (0..10)
+        .map(|_| {
+            map.insert_point(MapPoint::new(
+                Vector3::z(),
+                [0; 4],
+                Vector3::z(),
+                (0.1, 10.0),
+                2,
+            ))
+        })
+        .collect();
+    // Keyframe 2 sees all ten, keyframe 3 the first six, keyframe 29 (new) the first
+    // four: points 0-3 are seen three times, 4-5 twice, 6-9 once.
+    for (i, &p) in points.iter().enumerate() {
+        map.add_observation(p, keyframes[2], i);
+        if i < 6 {
+            map.add_observation(p, keyframes[3], i);
+        }
+        if i < 4 {
+            map.add_observation(p, keyframes[29], i);
+        }
+    }
+    let (_, mut tracker) = fr3_tracker();
+    tracker.newest_keyframe_id = Some(29);
+    let matches: Vec<_> = points.iter().map(|&p| Some(p)).collect();
+    let counted = tracker.revisited_points(&map, &matches).unwrap();
+    let kept: Vec<_> = counted.iter().flatten().copied().collect();
+    assert_eq!(kept, points[..4].to_vec());
+    // No old keyframe shares a match: nothing to weigh against.
+    tracker.newest_keyframe_id = Some(10);
+    assert!(tracker.revisited_points(&map, &matches).is_none());
+}
