@@ -9,7 +9,7 @@ use crate::dynamics::frames::Participation;
 use crate::dynamics::tracked::Sensor;
 use crate::frame::Frame;
 use crate::geometry::se3::Se3;
-use crate::map::{KeyFrame, KeyFrameKey, KeyMap, Map, MapPoint, MapPointKey};
+use crate::map::{KeyFrame, KeyFrameKey, Map, MapPoint, MapPointKey};
 use crate::tracking::params::*;
 
 /// What the keyframe decision looks at for one tracked frame.
@@ -32,7 +32,7 @@ pub struct KeyframeInputs {
     /// Whether local mapping has caught up.
     pub mapping_idle: bool,
     /// Whether the frame is tracked on a revisit (most of its points were made by
-    /// older keyframes than the tracker's recent ones: [`Tracker::note_revisit`]).
+    /// older keyframes than the tracker's recent ones: [`super::revisit`]).
     pub revisiting: bool,
 }
 
@@ -84,12 +84,8 @@ impl Tracker {
         let Some(reference) = self.reference.and_then(|k| map.keyframes().get(k)) else {
             return true;
         };
-        let revisited = state
-            .revisiting
-            .then(|| self.revisited_points(map, points))
-            .flatten();
-        let reference_points = revisited.as_deref().unwrap_or(&reference.map_points);
-        let counted = count_points(input, reference_points, points, self.close_depth());
+        let weighed = state.weighed(&reference.map_points);
+        let counted = count_points(input, weighed, points, self.close_depth());
         let relative = *pose * reference.world_from_camera();
         let moved = relative.translation.vector.norm() >= self.config.keyframe_min_translation
             || relative.rotation.angle().to_degrees() >= self.config.keyframe_min_rotation_deg;
@@ -106,59 +102,6 @@ impl Tracker {
             mapping_idle: state.mapping_idle,
             revisiting: state.revisiting,
         })
-    }
-
-    /// Whether the frame, tracked with `matches`, is on a revisit: most of its matched
-    /// points were made by keyframes more than [`REVISIT_KEYFRAMES`] older than the
-    /// newest this tracker made (all of them when it made none: a map loaded to track
-    /// in). Kept for the next frame, whose local map then reaches further
-    /// ([`super::projection::with_neighbours`]).
-    pub(super) fn note_revisit(&mut self, map: &Map, matches: &[Option<MapPointKey>]) -> bool {
-        let newest = self.newest_keyframe_id;
-        let old = |id: usize| newest.is_none_or(|newest| id + REVISIT_KEYFRAMES < newest);
-        let (mut matched, mut old_points) = (0, 0);
-        for point in matches
-            .iter()
-            .flatten()
-            .filter_map(|k| map.points().get(*k))
-        {
-            matched += 1;
-            old_points += usize::from(old(point.first_keyframe_id));
-        }
-        self.revisiting = old_points * 2 > matched;
-        self.revisiting
-    }
-
-    /// On a revisit, the points the keyframe decision weighs the frame against: those
-    /// of the old keyframe that shares most of the frame's matches (ORB-SLAM2's
-    /// reference keyframe, `pKFmax`), seen by at least [`REVISIT_MIN_OBSERVATIONS`]
-    /// keyframes (ORB-SLAM2's `nMinObs`).
-    pub(super) fn revisited_points(
-        &self,
-        map: &Map,
-        points: &[Option<MapPointKey>],
-    ) -> Option<Vec<Option<MapPointKey>>> {
-        let newest = self.newest_keyframe_id;
-        let old = |id: usize| newest.is_none_or(|newest| id + REVISIT_KEYFRAMES < newest);
-        let mut votes: KeyMap<KeyFrameKey, usize> = KeyMap::default();
-        for point in points.iter().flatten().filter_map(|k| map.points().get(*k)) {
-            for (kf, _) in &point.observations {
-                if map.keyframes().get(*kf).is_some_and(|kf| old(kf.id)) {
-                    *votes.entry(*kf).or_default() += 1;
-                }
-            }
-        }
-        let id = |k: KeyFrameKey| map.keyframes()[k].id;
-        let (best, _) = votes
-            .into_iter()
-            .max_by(|a, b| a.1.cmp(&b.1).then(id(a.0).cmp(&id(b.0))))?;
-        let seen_enough = |k: &MapPointKey| {
-            map.points()
-                .get(*k)
-                .is_some_and(|p| p.observations.len() >= REVISIT_MIN_OBSERVATIONS)
-        };
-        let kept = map.keyframes()[best].map_points.iter();
-        Some(kept.map(|p| p.filter(seen_enough)).collect())
     }
 
     /// Depth (metres) below which a point is close (`ThDepth` baselines).

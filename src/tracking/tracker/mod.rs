@@ -17,6 +17,7 @@ pub mod keyframes;
 mod pose;
 mod projection;
 mod relocalise;
+mod revisit;
 mod search;
 #[cfg(test)]
 mod tests;
@@ -50,11 +51,42 @@ fn reference_now(
 }
 
 /// What the keyframe decision needs beside the frame: whether local mapping has caught
-/// up, and whether the frame is tracked on a revisit ([`Tracker::note_revisit`]).
-#[derive(Debug, Clone, Copy)]
+/// up, whether the frame is tracked on a revisit, and then the points it is weighed
+/// against ([`revisit`]).
+#[derive(Debug, Clone, Default)]
 pub(super) struct Settling {
     pub mapping_idle: bool,
     pub revisiting: bool,
+    pub revisited: Option<Vec<Option<MapPointKey>>>,
+}
+
+impl Settling {
+    /// The state of a frame tracked with `matches`, for a tracker whose newest
+    /// keyframe is `newest`.
+    fn of(
+        map: &Map,
+        mapping_idle: bool,
+        newest: Option<usize>,
+        matches: &[Option<MapPointKey>],
+    ) -> Self {
+        let revisiting = revisit::is_revisit(map, newest, matches);
+        Self {
+            mapping_idle,
+            revisiting,
+            revisited: revisiting
+                .then(|| revisit::revisited_points(map, newest, matches))
+                .flatten(),
+        }
+    }
+
+    /// The points the keyframe decision weighs the frame against: the revisited
+    /// keyframe's on a revisit, else the reference keyframe's `reference`.
+    pub fn weighed<'a>(
+        &'a self,
+        reference: &'a [Option<MapPointKey>],
+    ) -> &'a [Option<MapPointKey>] {
+        self.revisited.as_deref().unwrap_or(reference)
+    }
 }
 
 /// The last tracked frame, kept for the motion model.
@@ -76,8 +108,8 @@ pub struct Tracker {
     frames_since_keyframe: usize,
     /// The id of the keyframe this tracker made last.
     newest_keyframe_id: Option<usize>,
-    /// Whether the last frame was tracked on a revisit ([`Tracker::note_revisit`]):
-    /// the next frame's local map then reaches further.
+    /// Whether the last frame was tracked on a revisit ([`revisit`]): the next
+    /// frame's local map then reaches further.
     revisiting: bool,
     /// The active map segment, the number of segments started, and since when
     /// (timestamp) tracking is lost.
@@ -297,12 +329,9 @@ impl Tracker {
             Err(reject) => self.lose(map, gate, frame, reject, &mut report),
             Ok(estimate) => {
                 report.stats.dynamic_map_points = seen.dynamic;
-                report.stats.revisiting = self.note_revisit(map, &estimate.matches);
-                let revisiting = report.stats.revisiting;
-                let state = Settling {
-                    mapping_idle,
-                    revisiting,
-                };
+                let newest = self.newest_keyframe_id;
+                let state = Settling::of(map, mapping_idle, newest, &estimate.matches);
+                (self.revisiting, report.stats.revisiting) = (state.revisiting, state.revisiting);
                 self.accept(map, gate, frame, estimate, state, &mut report);
             }
         }
@@ -339,7 +368,6 @@ impl Tracker {
     ) {
         self.state = TrackingState::Lost;
         self.velocity = None;
-        self.revisiting = false;
         report.stats.state = TrackingState::Lost;
         report.stats.lost = Some(reject);
         let since = *self.lost_since.get_or_insert(frame.timestamp);

@@ -138,13 +138,19 @@ impl Projector<'_> {
 }
 
 /// The local keyframes of a frame matched to `matches`: the `limit` keyframes that
-/// share most of them ([`Map::covisible_keyframes`]), best first.
+/// share most of them ([`Map::covisible_keyframes`]), best first; after a revisit
+/// (`revisiting`) their neighbours too ([`with_neighbours`]).
 pub(super) fn local_keyframes(
     map: &Map,
     matches: &[Option<MapPointKey>],
     limit: usize,
+    revisiting: bool,
 ) -> Vec<KeyFrameKey> {
-    map.covisible_keyframes(matches.iter().flatten().copied(), limit)
+    let mut local = map.covisible_keyframes(matches.iter().flatten().copied(), limit);
+    if revisiting {
+        with_neighbours(map, &mut local, REVISIT_LOCAL_KEYFRAMES);
+    }
+    local
 }
 
 /// On a revisit, the local keyframes' best covisible neighbours too
@@ -152,7 +158,7 @@ pub(super) fn local_keyframes(
 /// keyframes in all, as ORB-SLAM2's local map takes them: the keyframes of the earlier
 /// visit ahead of the camera, whose points the frame has not matched yet, so that
 /// tracking stays on the earlier visit's points instead of mapping the place again.
-pub(super) fn with_neighbours(map: &Map, local: &mut Vec<KeyFrameKey>, limit: usize) {
+fn with_neighbours(map: &Map, local: &mut Vec<KeyFrameKey>, limit: usize) {
     let mut listed: KeySet<KeyFrameKey> = local.iter().copied().collect();
     for i in 0..local.len() {
         let Some(keyframe) = map.keyframes().get(local[i]) else {
@@ -248,7 +254,7 @@ mod tests {
     #[test]
     fn the_local_map_lists_each_point_once_and_a_frozen_map_keeps_it() {
         let (mut map, _, matches) = three_keyframes();
-        let twenty = local_keyframes(&map, &matches, 20);
+        let twenty = local_keyframes(&map, &matches, 20, false);
         let fresh = local_points(None, &map, &twenty);
         // Points 0-15 once each: the three keyframes' 24 slots less 8 shared.
         assert_eq!(fresh.len(), 16);
@@ -263,7 +269,7 @@ mod tests {
         assert_eq!(local_points(Some(&cache), &map, &twenty), fresh);
         assert_ne!(local_points(None, &map, &twenty), fresh);
         // Fewer local keyframes: another set, read again.
-        let two_keyframes = local_keyframes(&map, &matches, 2);
+        let two_keyframes = local_keyframes(&map, &matches, 2, false);
         let two = local_points(Some(&cache), &map, &two_keyframes);
         assert_eq!(two, local_points(None, &map, &two_keyframes));
         assert!(two.len() < fresh.len());
@@ -279,11 +285,12 @@ mod tests {
         // with it, the third none (it shares with the second only).
         let points = map.keyframes()[keyframes[0]].map_points.clone();
         let matches = vec![points[0]];
-        let mut local = local_keyframes(&map, &matches, 20);
+        let mut local = local_keyframes(&map, &matches, 20, false);
         assert_eq!(local, vec![keyframes[0]]);
         with_neighbours(&map, &mut local, 1);
         assert_eq!(local, vec![keyframes[0]]);
         with_neighbours(&map, &mut local, 60);
         assert_eq!(local, vec![keyframes[0], keyframes[1]]);
+        assert_eq!(local_keyframes(&map, &matches, 20, true), local);
     }
 }

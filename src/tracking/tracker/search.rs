@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use super::projection::{local_keyframes, local_points, with_neighbours};
+use super::projection::{local_keyframes, local_points};
 use super::{Timing, TrackInput, Tracker};
 use crate::features::Descriptor;
 use crate::frame::matching::{brute_force, search_by_projection, Query};
@@ -172,11 +172,7 @@ impl Tracker {
         let start = Instant::now();
         let (pose, mut points) = (found.camera_from_world, found.matches);
         let matched: KeySet<MapPointKey> = points.iter().flatten().copied().collect();
-        let limit = self.config.local_keyframes;
-        let mut local = local_keyframes(map, &points, limit);
-        if self.revisiting {
-            with_neighbours(map, &mut local, REVISIT_LOCAL_KEYFRAMES);
-        }
+        let local = local_keyframes(map, &points, self.config.local_keyframes, self.revisiting);
         let unique = local_points(self.frozen_local.as_ref(), map, &local);
         let (keys, queries) =
             self.projector()

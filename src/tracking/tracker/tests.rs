@@ -276,7 +276,7 @@ fn points_that_wait_do_not_make_keyframes() {
         };
         let state = Settling {
             mapping_idle: true,
-            revisiting: false,
+            ..Default::default()
         };
         tracker.need_keyframe(input, &Se3::identity(), &tracked, room, state)
     };
@@ -449,22 +449,17 @@ fn a_frame_matching_mostly_old_points_is_a_revisit() {
     // Ten points of keyframe 2, four of keyframe 29.
     let old: Vec<_> = (0..10).map(|_| Some(point(&mut map, 2))).collect();
     let new: Vec<_> = (0..4).map(|_| Some(point(&mut map, 29))).collect();
-    let (_, mut tracker) = fr3_tracker();
-    tracker.newest_keyframe_id = Some(29);
     let matches = [&old[..], &new[..]].concat();
-    assert!(tracker.note_revisit(&map, &matches));
-    assert!(tracker.revisiting);
+    assert!(revisit::is_revisit(&map, Some(29), &matches));
     // Three old points against four new ones: new ground.
     let matches = [&old[..3], &new[..]].concat();
-    assert!(!tracker.note_revisit(&map, &matches));
+    assert!(!revisit::is_revisit(&map, Some(29), &matches));
     // Keyframe 2 is only 20 keyframes older than a newest 22: not old yet.
-    tracker.newest_keyframe_id = Some(22);
-    assert!(!tracker.note_revisit(&map, &old));
+    assert!(!revisit::is_revisit(&map, Some(22), &old));
     // A tracker that made no keyframe tracks in a map it was given: every point is old.
-    tracker.newest_keyframe_id = None;
-    assert!(tracker.note_revisit(&map, &old));
+    assert!(revisit::is_revisit(&map, None, &old));
     // Matches to points removed meanwhile count for nothing.
-    assert!(!tracker.note_revisit(&Map::default(), &old));
+    assert!(!revisit::is_revisit(&Map::default(), None, &old));
 }
 
 /// On a revisit the keyframe decision counts the points of the old keyframe that
@@ -496,13 +491,10 @@ fn a_revisit_is_weighed_against_the_old_keyframe_sharing_most_matches() {
             map.add_observation(p, keyframes[29], i);
         }
     }
-    let (_, mut tracker) = fr3_tracker();
-    tracker.newest_keyframe_id = Some(29);
     let matches: Vec<_> = points.iter().map(|&p| Some(p)).collect();
-    let counted = tracker.revisited_points(&map, &matches).unwrap();
+    let counted = revisit::revisited_points(&map, Some(29), &matches).unwrap();
     let kept: Vec<_> = counted.iter().flatten().copied().collect();
     assert_eq!(kept, points[..4].to_vec());
     // No old keyframe shares a match: nothing to weigh against.
-    tracker.newest_keyframe_id = Some(10);
-    assert!(tracker.revisited_points(&map, &matches).is_none());
+    assert!(revisit::revisited_points(&map, Some(10), &matches).is_none());
 }
