@@ -53,8 +53,8 @@ pub const KEYFRAME_UNTRACKED_CLOSE: usize = 70;
 pub const KEYFRAME_WEAK_RATIO: f64 = 0.75;
 /// The share of the reference keyframe's points below which tracking is very weak.
 pub const KEYFRAME_VERY_WEAK_RATIO: f64 = 0.25;
-/// A frame is on a revisit when the keyframe sharing most of its matches is more than
-/// this many keyframes older than the tracker's newest.
+/// A frame is on a revisit when most of its matched points were made by keyframes
+/// more than this many keyframes older than the tracker's newest.
 pub const REVISIT_KEYFRAMES: usize = 20;
 /// On a revisit the local map also takes this many best covisible neighbours of each
 /// local keyframe (ORB-SLAM2's 10)...

@@ -100,7 +100,7 @@ pub struct FrameStats {
     /// Whether the frame became a keyframe.
     pub keyframe: bool,
     /// Whether the frame was tracked on a revisit: most of its points were made by
-    /// older keyframes than the tracker's recent ones (`Tracker::note_revisit`).
+    /// older keyframes than the tracker's recent ones (`tracker::revisit`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub revisiting: bool,
     /// DOP: keypoints in a removed (dynamic) state, and local-map points left out as

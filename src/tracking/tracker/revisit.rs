@@ -1,7 +1,7 @@
 //! Revisits: a frame tracked mostly on points an earlier visit made (ORB-SLAM2 tracks
 //! a place it maps again in the map it has). On a revisit the keyframe decision weighs
 //! the frame against the old keyframe that shares most of its matches, and the next
-//! frame's local map reaches further ([`super::projection::with_neighbours`]).
+//! frame's local map reaches further ([`super::projection::local_keyframes`]).
 //! `docs/design.md`, "Revisits tracked in the earlier visit's map".
 
 use crate::map::{KeyFrameKey, KeyMap, Map, MapPointKey};
