@@ -199,7 +199,8 @@ pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
 
 /// What the run did with saved maps: the one it loaded (`loaded`, with the first
 /// frame placed in it) and `slam_map.bin`, written under `header` (the run's disparity
-/// offset set) when there is one and this recording made a keyframe.
+/// offset set) when there is one and this recording made a keyframe or was placed in
+/// the loaded map.
 fn slam_map_of(
     run: &RunDir,
     map: &Map,
@@ -215,9 +216,12 @@ fn slam_map_of(
             .map(|l| l.tracking.index),
         ..loaded
     });
+    // A recording placed in a loaded map may make no keyframe (tracked there as a
+    // revisit): the map it leaves is still the one a later recording continues.
     let made_keyframes = map.keyframe_order().iter().any(|k| map.is_current(*k));
+    let placed = loaded.as_ref().is_some_and(|l| l.placed_at_frame.is_some());
     let saved = match header {
-        Some(mut header) if made_keyframes => {
+        Some(mut header) if made_keyframes || placed => {
             let start = std::time::Instant::now();
             header.disparity_offset_px = report.disparity_offset_px();
             let file = run.slam_map();
