@@ -11,19 +11,20 @@ use crate::geometry::se3::Se3;
 use crate::map::{KeyFrame, Map, MapPoint, MapPointKey};
 use nalgebra::Vector3;
 
+/// A point at (0, 0, 1) made by keyframe `first`.
+fn made_by(map: &mut Map, first: usize) -> MapPointKey {
+    map.insert_point(MapPoint::new(
+        Vector3::z(),
+        [0; 4],
+        Vector3::z(),
+        (0.1, 10.0),
+        first,
+    ))
+}
+
 fn map_with_points(n: usize) -> (Map, Vec<MapPointKey>) {
     let mut map = Map::default();
-    let keys = (0..n)
-        .map(|_| {
-            map.insert_point(MapPoint::new(
-                Vector3::z(),
-                [0; 4],
-                Vector3::z(),
-                (0.1, 10.0),
-                0,
-            ))
-        })
-        .collect();
+    let keys = (0..n).map(|_| made_by(&mut map, 0)).collect();
     (map, keys)
 }
 
@@ -437,18 +438,9 @@ fn a_fixture_map_tracks_the_true_pose_and_names_why_a_frame_is_lost() {
 #[test]
 fn a_frame_matching_mostly_old_points_is_a_revisit() {
     let mut map = Map::default();
-    let point = |map: &mut Map, first| {
-        map.insert_point(MapPoint::new(
-            Vector3::z(),
-            [0; 4],
-            Vector3::z(),
-            (0.1, 10.0),
-            first,
-        ))
-    };
     // Ten points of keyframe 2, four of keyframe 29.
-    let old: Vec<_> = (0..10).map(|_| Some(point(&mut map, 2))).collect();
-    let new: Vec<_> = (0..4).map(|_| Some(point(&mut map, 29))).collect();
+    let old: Vec<_> = (0..10).map(|_| Some(made_by(&mut map, 2))).collect();
+    let new: Vec<_> = (0..4).map(|_| Some(made_by(&mut map, 29))).collect();
     let matches = [&old[..], &new[..]].concat();
     assert!(revisit::is_revisit(&map, Some(29), &matches));
     // Three old points against four new ones: new ground.
@@ -469,17 +461,7 @@ fn a_revisit_is_weighed_against_the_old_keyframe_sharing_most_matches() {
     let mut map = Map::default();
     let blank = || KeyFrame::new(Frame::blank(20, (640, 480)), Se3::identity());
     let keyframes: Vec<_> = (0..30).map(|_| map.add_keyframe(blank())).collect();
-    let points: Vec<_> = (0..10)
-        .map(|_| {
-            map.insert_point(MapPoint::new(
-                Vector3::z(),
-                [0; 4],
-                Vector3::z(),
-                (0.1, 10.0),
-                2,
-            ))
-        })
-        .collect();
+    let points: Vec<_> = (0..10).map(|_| made_by(&mut map, 2)).collect();
     // Keyframe 2 sees all ten, keyframe 3 the first six, keyframe 29 (new) the first
     // four: points 0-3 are seen three times, 4-5 twice, 6-9 once.
     for (i, &p) in points.iter().enumerate() {
