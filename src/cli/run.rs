@@ -406,4 +406,7 @@ pub fn print_global(global: &dopslam::global::GlobalReport) {
     if let Some(note) = &global.note {
         println!("  {note}");
     }
+    if let Some(hint) = global.revisit_hint() {
+        println!("  {hint}");
+    }
 }

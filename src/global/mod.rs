@@ -145,6 +145,24 @@ pub struct GlobalReport {
     pub memory: GlobalMemory,
 }
 
+/// Loops closed after tracking, with none during it, from which a run's summary
+/// suggests closing them during tracking ([`GlobalReport::revisit_hint`]).
+pub const REVISIT_HINT_LOOPS: usize = 10;
+
+impl GlobalReport {
+    /// For a run whose tracking pass came back to places it had mapped many times (at
+    /// least [`REVISIT_HINT_LOOPS`] loops, all closed after tracking): that it mapped
+    /// them as new ground, and what `[global.loops] during_tracking` changes.
+    pub fn revisit_hint(&self) -> Option<String> {
+        let after = self.loops.iter().filter(|l| !l.during_tracking).count();
+        (after >= REVISIT_HINT_LOOPS && after == self.loops.len()).then(|| {
+            format!(
+                "hint: {after} loops were closed after tracking, so the tracking pass mapped the places it came back to as new ground; `[global.loops] during_tracking = true` tracks them in the earlier visit's map: fewer keyframes, and memory that stays flat on a route driven again (docs/configuration.md)"
+            )
+        })
+    }
+}
+
 /// The peak resident memory (MiB, sampled; the process's, so each includes the map)
 /// of each part of the global pass, where the system reports it.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -513,5 +531,48 @@ mod gauge_tests {
             &record.camera_from_world.unwrap(),
             &map.keyframes()[second].camera_from_world
         ));
+    }
+}
+
+#[cfg(test)]
+mod hint_tests {
+    use super::*;
+    use crate::global::candidates::LoopPair;
+
+    fn closed(during_tracking: bool) -> ClosedLoop {
+        ClosedLoop {
+            pair: LoopPair {
+                keyframe: 300,
+                matched: 10,
+                keyframe_time: 30.0,
+                matched_time: 1.0,
+            },
+            inliers: 40,
+            guided_matches: 200,
+            correction_m: 0.5,
+            correction_deg: 1.0,
+            fused_points: 500,
+            essential_graph: Default::default(),
+            merged: None,
+            during_tracking,
+        }
+    }
+
+    fn with_loops(after: usize, during: usize) -> GlobalReport {
+        let loops = (0..after).map(|_| closed(false));
+        GlobalReport {
+            loops: loops.chain((0..during).map(|_| closed(true))).collect(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn many_loops_closed_after_tracking_bring_the_hint_to_close_them_during_it() {
+        let hint = with_loops(REVISIT_HINT_LOOPS, 0).revisit_hint().unwrap();
+        assert!(hint.contains(&format!("{REVISIT_HINT_LOOPS} loops")), "{hint}");
+        assert!(hint.contains("during_tracking = true"), "{hint}");
+        assert_eq!(with_loops(REVISIT_HINT_LOOPS - 1, 0).revisit_hint(), None);
+        // Closed during tracking already: the option is on.
+        assert_eq!(with_loops(REVISIT_HINT_LOOPS, 1).revisit_hint(), None);
     }
 }
