@@ -569,7 +569,10 @@ mod hint_tests {
     #[test]
     fn many_loops_closed_after_tracking_bring_the_hint_to_close_them_during_it() {
         let hint = with_loops(REVISIT_HINT_LOOPS, 0).revisit_hint().unwrap();
-        assert!(hint.contains(&format!("{REVISIT_HINT_LOOPS} loops")), "{hint}");
+        assert!(
+            hint.contains(&format!("{REVISIT_HINT_LOOPS} loops")),
+            "{hint}"
+        );
         assert!(hint.contains("during_tracking = true"), "{hint}");
         assert_eq!(with_loops(REVISIT_HINT_LOOPS - 1, 0).revisit_hint(), None);
         // Closed during tracking already: the option is on.
