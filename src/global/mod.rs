@@ -157,7 +157,7 @@ impl GlobalReport {
         let after = self.loops.iter().filter(|l| !l.during_tracking).count();
         (after >= REVISIT_HINT_LOOPS && after == self.loops.len()).then(|| {
             format!(
-                "hint: {after} loops were closed after tracking, so the tracking pass mapped the places it came back to as new ground; `[global.loops] during_tracking = true` tracks them in the earlier visit's map: fewer keyframes, and memory that stays flat on a route driven again (docs/configuration.md)"
+                "hint: {after} loops were closed after tracking, so the tracking pass mapped the places it came back to as new ground; `[global.loops] during_tracking = true` tracks them in the earlier visit's map: fewer keyframes, and memory that stays flat on a route driven again, but tracking stops while each loop is corrected, and a street's trajectory spreads more between runs (docs/configuration.md)"
             )
         })
     }
