@@ -84,8 +84,8 @@ impl Tracker {
         let Some(reference) = self.reference.and_then(|k| map.keyframes().get(k)) else {
             return true;
         };
-        let weighed = state.weighed(&reference.map_points);
-        let counted = count_points(input, weighed, points, self.close_depth());
+        let weighed = state.weighed(map, points, &reference.map_points);
+        let counted = count_points(input, &weighed, points, self.close_depth());
         let relative = *pose * reference.world_from_camera();
         let moved = relative.translation.vector.norm() >= self.config.keyframe_min_translation
             || relative.rotation.angle().to_degrees() >= self.config.keyframe_min_rotation_deg;

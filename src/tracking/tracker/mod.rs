@@ -51,13 +51,13 @@ fn reference_now(
 }
 
 /// What the keyframe decision needs beside the frame: whether local mapping has caught
-/// up, whether the frame is tracked on a revisit, and then the points it is weighed
-/// against ([`revisit`]).
-#[derive(Debug, Clone, Default)]
+/// up, whether the frame is tracked on a revisit, and the tracker's newest keyframe,
+/// from which the points it is weighed against follow ([`revisit`]).
+#[derive(Debug, Clone, Copy, Default)]
 pub(super) struct Settling {
     pub mapping_idle: bool,
     pub revisiting: bool,
-    pub revisited: Option<Vec<Option<MapPointKey>>>,
+    pub newest: Option<usize>,
 }
 
 impl Settling {
@@ -69,23 +69,27 @@ impl Settling {
         newest: Option<usize>,
         matches: &[Option<MapPointKey>],
     ) -> Self {
-        let revisiting = revisit::is_revisit(map, newest, matches);
         Self {
             mapping_idle,
-            revisiting,
-            revisited: revisiting
-                .then(|| revisit::revisited_points(map, newest, matches))
-                .flatten(),
+            revisiting: revisit::is_revisit(map, newest, matches),
+            newest,
         }
     }
 
-    /// The points the keyframe decision weighs the frame against: the revisited
-    /// keyframe's on a revisit, else the reference keyframe's `reference`.
+    /// The points the keyframe decision weighs a frame matched to `matches` against:
+    /// on a revisit the revisited keyframe's ([`revisit::revisited_points`]), else
+    /// the reference keyframe's `reference`.
     pub fn weighed<'a>(
-        &'a self,
+        &self,
+        map: &Map,
+        matches: &[Option<MapPointKey>],
         reference: &'a [Option<MapPointKey>],
-    ) -> &'a [Option<MapPointKey>] {
-        self.revisited.as_deref().unwrap_or(reference)
+    ) -> std::borrow::Cow<'a, [Option<MapPointKey>]> {
+        let revisited = match self.revisiting {
+            true => revisit::revisited_points(map, self.newest, matches),
+            false => None,
+        };
+        revisited.map_or(std::borrow::Cow::Borrowed(reference), Into::into)
     }
 }
 
@@ -412,8 +416,8 @@ impl Tracker {
             frame: &frame,
             gate: &counted,
         };
-        let need = self.need_keyframe(input, &pose, &points, inliers, state);
-        let (pose, points) = if need && !self.frozen {
+        let need = !self.frozen && self.need_keyframe(input, &pose, &points, inliers, state);
+        let (pose, points) = if need {
             self.insert_keyframe(map, &frame, gate, pose, points, false);
             let key = self.reference.expect("just inserted");
             report.made_keyframe(Some(key));
