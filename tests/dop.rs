@@ -62,6 +62,8 @@ fn dop_removes_the_walkers_and_beats_orb_slam2_behaviour() {
     // The model did act: keypoints were removed, map points updated and culled.
     let removed: usize = dop
         .frames
+        .to_vec()
+        .unwrap()
         .iter()
         .map(|f| f.tracking.dynamic_keypoints)
         .sum();
@@ -74,7 +76,8 @@ fn dop_removes_the_walkers_and_beats_orb_slam2_behaviour() {
         "keyframes on {:.0} % of frames",
         100.0 * share
     );
-    assert!(off.frames.iter().all(|f| f.tracking.dynamic_keypoints == 0));
+    let off_frames = off.frames.to_vec().unwrap();
+    assert!(off_frames.iter().all(|f| f.tracking.dynamic_keypoints == 0));
     assert!(mask.detection.map_points_removed > 0);
 }
 
@@ -110,8 +113,10 @@ fn the_rigidity_test_and_the_prediction_gate_keep_a_box_out_of_the_pose() {
     let gate = run(false, true, "gate");
     let both = run(true, true, "both");
     let rmse = |r: &RunReport| r.ate.as_ref().unwrap().ape.statistics.rmse;
-    let moved =
-        |r: &RunReport| -> usize { r.frames.iter().map(|f| f.tracking.rigidity_outliers).sum() };
+    let moved = |r: &RunReport| -> usize {
+        let frames = r.frames.to_vec().unwrap();
+        frames.iter().map(|f| f.tracking.rigidity_outliers).sum()
+    };
     eprintln!(
         "ATE RMSE: neither {:.4} m, rigidity test {:.4} m ({} points found moved), \
          prediction gate {:.4} m, both {:.4} m",

@@ -132,14 +132,22 @@ fn a_loop_closed_during_tracking_joins_the_map_the_frames_after_it_use() {
         assert!(global.loop_closing_during_tracking_ms > 0.0);
         // After the loop the frames are tracked as a revisit of the start, and make
         // keyframes only where tracking weakens, not every second as on new ground.
-        let after: Vec<_> = report
-            .frames
+        let frames = report.frames.to_vec().unwrap();
+        let after: Vec<_> = frames
             .iter()
             .map(|f| &f.tracking)
             .filter(|f| f.timestamp > closed[0].pair.keyframe_time)
             .collect();
         let revisits = after.iter().filter(|f| f.revisiting).count();
         let keyframes = after.iter().filter(|f| f.revisiting && f.keyframe).count();
+        if !deterministic {
+            // In real time the loop is closed some frames after its keyframe, when
+            // place recognition and loop closing get to it: how many frames are left
+            // then depends on the machine's load, so only the switch is asserted here
+            // (counted in the repeatable run).
+            assert!(revisits > 0, "no revisit in {} frames", after.len());
+            continue;
+        }
         // More revisit frames than the keyframe timeout (10 frames here) needs.
         assert!(revisits > 10, "{revisits} of {}", after.len());
         assert!(

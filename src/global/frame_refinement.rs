@@ -23,7 +23,9 @@ use super::GlobalInputs;
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::io::IoError;
-use crate::map::record::{FrameObservation, FrameRecord, FrameRecords, ObservationReader};
+use crate::map::record::{
+    FrameObservation, FrameRecord, FrameRecords, ObservationReader, RECORD_CHUNK,
+};
 use crate::map::Map;
 use crate::optim::pose_only::{optimise_pose_predicted, PoseObservation};
 
@@ -55,21 +57,25 @@ pub fn refine_frames(
     records: &mut FrameRecords,
 ) -> Result<RefinementReport, IoError> {
     let start = Instant::now();
-    let (records, reader) = records.split_mut();
-    let mut frames: Vec<&mut FrameRecord> = records
-        .iter_mut()
-        .filter(|f| !f.is_keyframe() && f.reference.is_some() && f.observation_count() > 0)
-        .collect();
-    let shifts: Vec<Option<f64>> = frames
-        .par_iter_mut()
-        .map(|frame| refine(map, inputs, reader, frame))
-        .collect::<Result<_, IoError>>()?;
-    let mut moved: Vec<f64> = shifts.iter().flatten().map(|s| s * 1e3).collect();
+    let (mut tried, mut moved) = (0, Vec::new());
+    records.update(RECORD_CHUNK, |records, reader| {
+        let mut frames: Vec<&mut FrameRecord> = records
+            .iter_mut()
+            .filter(|f| !f.is_keyframe() && f.reference.is_some() && f.observation_count() > 0)
+            .collect();
+        let shifts: Vec<Option<f64>> = frames
+            .par_iter_mut()
+            .map(|frame| refine(map, inputs, reader, frame))
+            .collect::<Result<_, IoError>>()?;
+        tried += frames.len();
+        moved.extend(shifts.iter().flatten().map(|s| s * 1e3));
+        Ok::<(), IoError>(())
+    })?;
     let refined = moved.len();
     Ok(RefinementReport {
-        frames: frames.len(),
+        frames: tried,
         refined,
-        kept: frames.len() - refined,
+        kept: tried - refined,
         median_shift_mm: median(&mut moved),
         max_shift_mm: moved.iter().copied().fold(0.0, f64::max),
         milliseconds: start.elapsed().as_secs_f64() * 1e3,

@@ -30,7 +30,7 @@ use crate::bow::Vocabulary;
 use crate::features::ScalePyramid;
 use crate::geometry::stereo_camera::StereoCamera;
 use crate::io::IoError;
-use crate::map::record::{FrameRecord, FrameRecords};
+use crate::map::record::{FrameRecords, RECORD_CHUNK};
 use crate::map::Map;
 use crate::mapping::window_ba::Window;
 use candidates::Candidate;
@@ -320,17 +320,18 @@ pub fn run(
     report.memory.full_ba_mib = crate::memory::part_peak_mib();
     crate::memory::release_freed_memory();
     if let Some(gauge) = gauge {
-        gauge.restore(map, records);
+        gauge.restore(map, records)?;
     }
     if config.refine_frames {
         report.frames = Some(frame_refinement::refine_frames(map, inputs, records)?);
     }
     if config.smoothing.enabled {
-        report.smoothing = Some(trajectory_smoothing::smooth_frames(
-            map,
-            &config.smoothing,
-            records.iter_mut(),
-        ));
+        // The smoother solves each run of frames whole: the records are read at once.
+        records.update(usize::MAX, |frames, _| {
+            let smoothed = trajectory_smoothing::smooth_frames(map, &config.smoothing, frames);
+            report.smoothing = Some(smoothed);
+            Ok::<(), IoError>(())
+        })?;
     }
     report.memory.frames_mib = crate::memory::part_peak_mib();
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -359,19 +360,22 @@ impl Gauge {
 
     /// The map and the frames' tracked poses moved rigidly so that the keyframe is
     /// where it was (nothing when it is gone).
-    fn restore(&self, map: &mut Map, frames: &mut [FrameRecord]) {
+    fn restore(&self, map: &mut Map, frames: &mut FrameRecords) -> Result<(), IoError> {
         let Some(now) = map.keyframes().get(self.key).map(|k| k.camera_from_world) else {
-            return;
+            return Ok(());
         };
         // T_cw' = T_cw S^-1 = T_before  =>  S = T_before^-1 T_cw.
         let change = self.camera_from_world.inverse() * now;
         map.transform_world(&change);
         let inverse = change.inverse();
-        for frame in frames.iter_mut() {
-            if let Some(pose) = frame.camera_from_world.as_mut() {
-                *pose *= inverse;
+        frames.update(RECORD_CHUNK, |frames, _| {
+            for frame in frames.iter_mut() {
+                if let Some(pose) = frame.camera_from_world.as_mut() {
+                    *pose *= inverse;
+                }
             }
-        }
+            Ok(())
+        })
     }
 }
 
@@ -514,12 +518,14 @@ mod gauge_tests {
         let gauge = Gauge::of(&map).unwrap();
         // A correction that moved everything, the oldest keyframe too.
         map.transform_world(&pose(0.4, -0.5));
-        let mut records = [crate::map::record::FrameRecord {
+        let mut records = FrameRecords::default();
+        let record = crate::map::record::FrameRecord {
             camera_from_world: Some(map.keyframes()[second].camera_from_world),
             ..Default::default()
-        }];
-        gauge.restore(&mut map, &mut records);
-        let record = &records[0];
+        };
+        records.push(record).unwrap();
+        gauge.restore(&mut map, &mut records).unwrap();
+        let record = records.last().unwrap();
         let close = |a: &crate::geometry::se3::Se3, b: &crate::geometry::se3::Se3| {
             (a.to_homogeneous() - b.to_homogeneous()).norm() < 1e-9
         };

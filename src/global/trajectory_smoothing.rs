@@ -112,15 +112,16 @@ pub struct SmoothingReport {
 }
 
 /// Smooths the poses of the tracked `frames` (in sequence order) in place.
-pub fn smooth_frames<'a>(
+pub fn smooth_frames(
     map: &Map,
     config: &SmoothingConfig,
-    frames: impl Iterator<Item = &'a mut FrameRecord>,
+    frames: &mut [FrameRecord],
 ) -> SmoothingReport {
     let start = Instant::now();
     // Frames with a pose, their world_from_camera and their reference's
     // reference_from_world.
     let mut frames: Vec<(&mut FrameRecord, Se3, Se3)> = frames
+        .iter_mut()
         .filter_map(|f| {
             let (key, camera_from_reference) = f.reference?;
             let reference_from_world = map.keyframe_pose(key)?;

@@ -11,14 +11,21 @@ use super::IoError;
 /// `segments.txt`: each tracked frame's timestamp and map segment after the loops'
 /// merges, a `timestamp segment` line each (the tracking pass writes it, the dense pass
 /// fuses only the largest segment).
-pub fn write_segments(path: &Path, frames: &[(f64, usize)]) -> Result<(), IoError> {
-    let mut text = String::from(
-        "# timestamp segment: each tracked frame's map segment after the loops' merges\n",
-    );
-    for (timestamp, segment) in frames {
-        text.push_str(&format!("{timestamp:.6} {segment}\n"));
-    }
-    super::atomic::write_atomic(path, text.as_bytes())
+pub fn write_segments(
+    path: &Path,
+    frames: impl Iterator<Item = std::io::Result<(f64, usize)>>,
+) -> Result<(), IoError> {
+    super::atomic::write_atomic_with(path, |out| {
+        writeln!(
+            out,
+            "# timestamp segment: each tracked frame's map segment after the loops' merges"
+        )?;
+        for frame in frames {
+            let (timestamp, segment) = frame?;
+            writeln!(out, "{timestamp:.6} {segment}")?;
+        }
+        Ok(())
+    })
 }
 
 /// Reads [`write_segments`]'s file: `None` when there is none (a run written before

@@ -204,6 +204,30 @@ impl SpillFile {
     fn offset(&self, slot: u32) -> u64 {
         slot as u64 * self.record as u64
     }
+
+    /// Reads the whole file from its start, as a stream (records appended one after
+    /// another, read back in order).
+    pub fn reader(&self) -> SpillReader<'_> {
+        SpillReader { file: self, at: 0 }
+    }
+}
+
+/// A spill file read in order from its start ([`SpillFile::reader`]).
+#[derive(Debug)]
+pub struct SpillReader<'a> {
+    file: &'a SpillFile,
+    at: u64,
+}
+
+impl std::io::Read for SpillReader<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = (self.file.len - self.at).min(buf.len() as u64) as usize;
+        self.file
+            .read_at(self.at, &mut buf[..n])
+            .map_err(std::io::Error::other)?;
+        self.at += n as u64;
+        Ok(n)
+    }
 }
 
 /// Writes a kept state's table (`bytes`) to `path`.

@@ -140,39 +140,132 @@ impl FrameObservation {
     }
 }
 
-/// The tracked frames' records in frame order (their observations held in memory when
-/// made by `Default`). With a spill file
-/// ([`FrameRecords::spilling_into`]) each record's observations go to disk as it is
-/// pushed, so memory holds only the poses (about 150 bytes a frame, where the
-/// observations take 10-15 kB on the renders); they are read back, and changed in place, through
-/// [`FrameRecords::observations`] and [`FrameRecords::change_observations`]. The file
-/// is removed with the records.
+/// Bytes of a pose on disk: the rotation matrix (column order) and the translation.
+const POSE_BYTES: usize = 12 * 8;
+/// Bytes of a record on disk without its observations: timestamp, segment, which of
+/// the optional parts it has, keyframe key, tracked pose, reference key and pose,
+/// where its observations are and how many.
+const RECORD_BYTES: usize = 8 + 8 + 1 + 8 + POSE_BYTES + 8 + POSE_BYTES + 8 + 4;
+/// Records read or changed at a time from disk ([`FrameRecords::update`]).
+pub const RECORD_CHUNK: usize = 4096;
+
+/// The tracked frames' records in frame order (held in memory when made by
+/// `Default`). With spill files ([`FrameRecords::spilling_into`]) each record goes to
+/// disk as it is pushed, its observations to one file and the rest (poses, keys:
+/// [`RECORD_BYTES`]) to a slot of another, so that memory holds only the newest
+/// record whatever the number of frames; they are read back through
+/// [`FrameRecords::iter`], [`FrameRecords::observations`], and changed in place
+/// through [`FrameRecords::update`] and [`FrameRecords::change_observations`]. The
+/// files are removed with the records.
 #[derive(Debug, Default)]
 pub struct FrameRecords {
-    records: Vec<FrameRecord>,
+    held: Vec<FrameRecord>,
     file: Option<SpillFile>,
+    /// The records without their observations, one slot a frame.
+    heads: Option<SpillFile>,
+    len: usize,
+    /// The newest record (its observations on disk with spill files).
+    last: Option<FrameRecord>,
 }
 
 impl FrameRecords {
-    /// Records whose observations go to a new spill file in `dir` (a run's folder).
+    /// Records that go to new spill files in `dir` (a run's folder).
     pub fn spilling_into(dir: &Path) -> Result<Self, IoError> {
         Ok(Self {
-            records: Vec::new(),
             file: Some(SpillFile::create(dir, "frames", 1)?),
+            heads: Some(SpillFile::create(dir, "frame-poses", RECORD_BYTES)?),
+            ..Self::default()
         })
     }
 
-    /// Adds the next frame's record (its observations to disk, with a spill file).
+    /// Adds the next frame's record (to disk, with spill files).
     pub fn push(&mut self, mut record: FrameRecord) -> Result<(), IoError> {
-        if let Some(file) = self.file.as_mut() {
+        self.len += 1;
+        if let (Some(file), Some(heads)) = (self.file.as_mut(), self.heads.as_mut()) {
             let at = file.append(&encode(&record.observations))?;
             record.spilled = Some(Spilled {
                 at,
                 count: record.observations.len() as u32,
             });
             record.observations = Vec::new();
+            heads.write(None, &record.head_bytes())?;
+            self.last = Some(record);
+        } else {
+            self.held.push(record);
         }
-        self.records.push(record);
+        Ok(())
+    }
+
+    /// How many records there are.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The newest record.
+    pub fn last(&self) -> Option<&FrameRecord> {
+        match &self.heads {
+            Some(_) => self.last.as_ref(),
+            None => self.held.last(),
+        }
+    }
+
+    /// The records `start..start + n` (fewer at the end), read from disk.
+    fn read_chunk(&self, start: usize, n: usize) -> Result<Vec<FrameRecord>, IoError> {
+        let Some(heads) = &self.heads else {
+            return Ok(self.held[start..(start + n).min(self.len)].to_vec());
+        };
+        let n = n.min(self.len.saturating_sub(start));
+        let mut bytes = vec![0u8; n * RECORD_BYTES];
+        heads.read_at((start * RECORD_BYTES) as u64, &mut bytes)?;
+        Ok(bytes
+            .chunks_exact(RECORD_BYTES)
+            .map(FrameRecord::from_head_bytes)
+            .collect())
+    }
+
+    /// Every record in order (observations on disk stay there), [`RECORD_CHUNK`] read
+    /// at a time.
+    pub fn iter(&self) -> impl Iterator<Item = Result<FrameRecord, IoError>> + '_ {
+        (0..self.len)
+            .step_by(RECORD_CHUNK)
+            .flat_map(move |start| match self.read_chunk(start, RECORD_CHUNK) {
+                Ok(chunk) => chunk.into_iter().map(Ok).collect::<Vec<_>>(),
+                Err(e) => vec![Err(e)],
+            })
+    }
+
+    /// `change` on the records in order, `chunk` at a time (all at once with
+    /// `usize::MAX`), with the reader of their observations; what it changed goes
+    /// back to disk.
+    pub fn update<E: From<IoError>>(
+        &mut self,
+        chunk: usize,
+        mut change: impl FnMut(&mut [FrameRecord], ObservationReader) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let reader = ObservationReader {
+            file: self.file.as_ref(),
+        };
+        if self.heads.is_none() {
+            return change(&mut self.held, reader);
+        }
+        let chunk = chunk.clamp(1, self.len.max(1));
+        let mut written = Vec::new();
+        for start in (0..self.len).step_by(chunk) {
+            let mut records = self.read_chunk(start, chunk)?;
+            change(&mut records, reader)?;
+            records.iter().for_each(|r| r.write_head(&mut written));
+            let heads = self.heads.as_mut().expect("spilled records");
+            heads.overwrite((start * RECORD_BYTES) as u64, &written)?;
+            written.clear();
+            if start + records.len() == self.len {
+                self.last = records.pop();
+            }
+        }
         Ok(())
     }
 
@@ -196,46 +289,127 @@ impl FrameRecords {
         &mut self,
         mut change: impl FnMut(&mut FrameObservation),
     ) -> Result<(), IoError> {
-        for i in 0..self.records.len() {
-            let Some(spilled) = self.records[i].spilled else {
-                self.records[i]
-                    .observations
-                    .iter_mut()
-                    .for_each(&mut change);
-                continue;
-            };
-            let mut observations = self.observations(&self.records[i])?.into_owned();
-            observations.iter_mut().for_each(&mut change);
-            if let Some(file) = self.file.as_mut() {
-                file.overwrite(spilled.at, &encode(&observations))?;
+        if self.file.is_none() {
+            for record in &mut self.held {
+                record.observations.iter_mut().for_each(&mut change);
             }
+            return Ok(());
+        }
+        let spilled: Vec<Spilled> = self
+            .iter()
+            .filter_map(|r| r.map(|r| r.spilled).transpose())
+            .collect::<Result<_, _>>()?;
+        let file = self.file.as_mut().expect("a spill file");
+        for at in spilled {
+            let mut bytes = vec![0u8; at.count as usize * OBSERVATION_BYTES];
+            file.read_at(at.at, &mut bytes)?;
+            let mut observations: Vec<FrameObservation> = bytes
+                .chunks_exact(OBSERVATION_BYTES)
+                .map(FrameObservation::read_from)
+                .collect();
+            observations.iter_mut().for_each(&mut change);
+            file.overwrite(at.at, &encode(&observations))?;
         }
         Ok(())
     }
 
-    /// The records and the reader of their observations, apart (to change the records
-    /// while reading).
-    pub fn split_mut(&mut self) -> (&mut [FrameRecord], ObservationReader<'_>) {
-        (
-            &mut self.records,
-            ObservationReader {
-                file: self.file.as_ref(),
-            },
-        )
-    }
-
-    /// The bytes the records hold in memory (their observations on disk not counted).
+    /// The bytes the records hold in memory (what is on disk not counted).
     pub fn heap_bytes(&self) -> usize {
-        self.records
-            .iter()
-            .map(FrameRecord::heap_bytes)
-            .sum::<usize>()
-            + (self.records.capacity() - self.records.len()) * std::mem::size_of::<FrameRecord>()
+        self.held.iter().map(FrameRecord::heap_bytes).sum::<usize>()
+            + (self.held.capacity() - self.held.len()) * std::mem::size_of::<FrameRecord>()
+            + self.last.as_ref().map_or(0, FrameRecord::heap_bytes)
     }
 }
 
+impl FrameRecord {
+    /// The record without its observations, as [`FrameRecords`] writes it to disk.
+    fn head_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(RECORD_BYTES);
+        self.write_head(&mut out);
+        out
+    }
+
+    fn write_head(&self, out: &mut Vec<u8>) {
+        use slotmap::Key;
+        let start = out.len();
+        let key = |k: Option<KeyFrameKey>| k.map_or(0, |k| k.data().as_ffi());
+        let flags = u8::from(self.keyframe.is_some())
+            | u8::from(self.camera_from_world.is_some()) << 1
+            | u8::from(self.reference.is_some()) << 2
+            | u8::from(self.spilled.is_some()) << 3;
+        out.extend_from_slice(&self.timestamp.to_le_bytes());
+        out.extend_from_slice(&(self.segment as u64).to_le_bytes());
+        out.push(flags);
+        out.extend_from_slice(&key(self.keyframe).to_le_bytes());
+        write_pose(out, self.camera_from_world.as_ref());
+        out.extend_from_slice(&key(self.reference.map(|r| r.0)).to_le_bytes());
+        write_pose(out, self.reference.as_ref().map(|r| &r.1));
+        let spilled = self.spilled.unwrap_or(Spilled { at: 0, count: 0 });
+        out.extend_from_slice(&spilled.at.to_le_bytes());
+        out.extend_from_slice(&spilled.count.to_le_bytes());
+        debug_assert_eq!(out.len() - start, RECORD_BYTES);
+    }
+
+    fn from_head_bytes(bytes: &[u8]) -> Self {
+        let mut at = 0;
+        let mut take = |n: usize| {
+            let part = &bytes[at..at + n];
+            at += n;
+            part
+        };
+        let word = |b: &[u8]| u64::from_le_bytes(b.try_into().expect("8 bytes"));
+        let timestamp = f64::from_bits(word(take(8)));
+        let segment = word(take(8)) as usize;
+        let flags = take(1)[0];
+        let has = |bit: u8| flags & (1 << bit) != 0;
+        let key = |b: &[u8]| -> KeyFrameKey { slotmap::KeyData::from_ffi(word(b)).into() };
+        let keyframe = key(take(8));
+        let camera_from_world = read_pose(take(POSE_BYTES));
+        let reference_key = key(take(8));
+        let reference_pose = read_pose(take(POSE_BYTES));
+        let spilled = Spilled {
+            at: word(take(8)),
+            count: u32::from_le_bytes(take(4).try_into().expect("4 bytes")),
+        };
+        Self {
+            timestamp,
+            segment,
+            keyframe: has(0).then_some(keyframe),
+            camera_from_world: has(1).then_some(camera_from_world),
+            reference: has(2).then_some((reference_key, reference_pose)),
+            observations: Vec::new(),
+            spilled: has(3).then_some(spilled),
+        }
+    }
+}
+
+/// A pose's rotation matrix and translation, bit for bit (zeros for none).
+fn write_pose(out: &mut Vec<u8>, pose: Option<&Se3>) {
+    let values: [f64; 12] = pose.map_or([0.0; 12], |p| {
+        let mut v = [0.0; 12];
+        v[..9].copy_from_slice(p.rotation.matrix().as_slice());
+        v[9..].copy_from_slice(p.translation.vector.as_slice());
+        v
+    });
+    values
+        .iter()
+        .for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+}
+
+fn read_pose(bytes: &[u8]) -> Se3 {
+    let values: Vec<f64> = bytes
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+        .collect();
+    let rotation = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_column_slice(
+        &values[..9],
+    ));
+    let translation = nalgebra::Translation3::new(values[9], values[10], values[11]);
+    Se3::from_parts(translation, rotation)
+}
+
 /// Reads spilled observations while the records are borrowed mutably
-/// ([`FrameRecords::split_mut`]).
+/// ([`FrameRecords::update`]).
 #[derive(Debug, Clone, Copy)]
 pub struct ObservationReader<'a> {
     file: Option<&'a SpillFile>,
@@ -258,19 +432,6 @@ impl ObservationReader<'_> {
                 .map(FrameObservation::read_from)
                 .collect(),
         ))
-    }
-}
-
-impl std::ops::Deref for FrameRecords {
-    type Target = [FrameRecord];
-    fn deref(&self) -> &[FrameRecord] {
-        &self.records
-    }
-}
-
-impl std::ops::DerefMut for FrameRecords {
-    fn deref_mut(&mut self) -> &mut [FrameRecord] {
-        &mut self.records
     }
 }
 
@@ -299,26 +460,44 @@ mod tests {
     }
 
     #[test]
-    fn spilled_observations_come_back_and_change_like_held_ones() {
+    fn spilled_records_come_back_and_change_like_held_ones() {
         let mut keys: SlotMap<MapPointKey, ()> = SlotMap::with_key();
         let points: Vec<MapPointKey> = (0..7).map(|_| keys.insert(())).collect();
         keys.remove(points[2]);
         let points: Vec<MapPointKey> = points.into_iter().chain([keys.insert(())]).collect();
+        let mut keyframes: SlotMap<KeyFrameKey, ()> = SlotMap::with_key();
+        let keyframe = keyframes.insert(());
         let dir = std::env::temp_dir().join(format!("dopslam-records-{}", std::process::id()));
-        let originals = records_with(&points, 6);
+        let mut originals = records_with(&points, 6);
+        let pose = |x: f64| {
+            let rotation = nalgebra::Rotation3::from_euler_angles(0.1 * x, -0.2, 0.3 + x);
+            Se3::from_parts(nalgebra::Translation3::new(x, -x / 3.0, 1e-7), rotation)
+        };
+        originals[1].keyframe = Some(keyframe);
+        originals[2].camera_from_world = Some(pose(2.0));
+        originals[3].reference = Some((keyframe, pose(3.0)));
+        originals[4].segment = 3;
         let mut held = FrameRecords::default();
         let mut spilled = FrameRecords::spilling_into(&dir).unwrap();
         for record in originals.clone() {
             held.push(record.clone()).unwrap();
             spilled.push(record).unwrap();
         }
-        assert!(spilled.iter().all(|r| r.observations.is_empty()));
+        assert_eq!(spilled.len(), 6);
         assert!(spilled.heap_bytes() < held.heap_bytes());
-        for (i, original) in originals.iter().enumerate() {
-            assert_eq!(spilled[i].observation_count(), original.observations.len());
+        let back: Vec<FrameRecord> = spilled.iter().collect::<Result<_, _>>().unwrap();
+        for (original, back) in originals.iter().zip(&back) {
+            assert_eq!(back.observation_count(), original.observations.len());
+            assert_eq!(*spilled.observations(back).unwrap(), *original.observations);
+            assert_eq!(back.timestamp.to_bits(), original.timestamp.to_bits());
             assert_eq!(
-                *spilled.observations(&spilled[i]).unwrap(),
-                *original.observations
+                (back.segment, back.keyframe, back.camera_from_world, back.reference),
+                (
+                    original.segment,
+                    original.keyframe,
+                    original.camera_from_world,
+                    original.reference
+                )
             );
         }
         let shift = |o: &mut FrameObservation| {
@@ -328,16 +507,28 @@ mod tests {
         };
         held.change_observations(shift).unwrap();
         spilled.change_observations(shift).unwrap();
-        for i in 0..originals.len() {
-            assert_eq!(
-                spilled.observations(&spilled[i]).unwrap(),
-                held.observations(&held[i]).unwrap()
-            );
+        let moved = |records: &mut FrameRecords| {
+            records
+                .update(4, |chunk, _| {
+                    chunk.iter_mut().for_each(|r| r.camera_from_world = Some(pose(r.timestamp)));
+                    Ok::<(), IoError>(())
+                })
+                .unwrap()
+        };
+        moved(&mut held);
+        moved(&mut spilled);
+        let all = |records: &FrameRecords| -> Vec<FrameRecord> {
+            records.iter().collect::<Result<_, _>>().unwrap()
+        };
+        for (a, b) in all(&held).iter().zip(&all(&spilled)) {
+            assert_eq!(held.observations(a).unwrap(), spilled.observations(b).unwrap());
+            assert_eq!(a.camera_from_world, b.camera_from_world);
         }
-        assert_ne!(held[5].observations, originals[5].observations);
+        assert_eq!(spilled.last().unwrap().camera_from_world, Some(pose(0.5)));
+        assert_ne!(held.iter().last().unwrap().unwrap().observations, originals[5].observations);
         drop(spilled);
         let left = std::fs::read_dir(&dir).unwrap().count();
         std::fs::remove_dir(&dir).unwrap();
-        assert_eq!(left, 0, "the spill file goes with the records");
+        assert_eq!(left, 0, "the spill files go with the records");
     }
 }

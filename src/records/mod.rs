@@ -5,11 +5,13 @@
 //! the version of its layout ([`SCHEMA`]); a reader refuses another version by name
 //! instead of misreading it.
 
+pub mod frame_lines;
 pub mod report;
 pub mod run;
 pub mod setup;
 pub mod slam_map;
 
+pub use frame_lines::FrameLines;
 pub use report::{FrameLine, Lap, RunReport, RunTimes, RunTotals, SegmentSpan, StageTime};
 pub use run::{MapFigures, RunFigures, RunInputs, RunRecord, RunStatus};
 pub use setup::{ProfileApplied, RigOffset, RunSetup, SettingsApplied, TakenOut};

@@ -71,21 +71,25 @@ pub struct SegmentSpan {
     pub merged_into: Option<usize>,
 }
 
-/// The segments the tracked frames of `lines` were in, and the share of all frames in
-/// the largest after `merges` (segment, into).
-pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<SegmentSpan>, f64) {
-    let mut spans: Vec<SegmentSpan> = Vec::new();
-    for line in lines {
-        let t = &line.tracking;
+/// The segments the tracked frames were in, gathered frame by frame
+/// ([`SegmentSpans::add`]) as the frames' lines are read.
+#[derive(Debug, Default)]
+pub struct SegmentSpans {
+    spans: Vec<SegmentSpan>,
+}
+
+impl SegmentSpans {
+    /// Adds a frame (only a tracked one counts).
+    pub fn add(&mut self, t: &FrameStats) {
         if t.state != TrackingState::Ok {
-            continue;
+            return;
         }
-        match spans.iter_mut().find(|s| s.segment == t.segment) {
+        match self.spans.iter_mut().find(|s| s.segment == t.segment) {
             Some(span) => {
                 span.last_frame = t.index;
                 span.tracked_frames += 1;
             }
-            None => spans.push(SegmentSpan {
+            None => self.spans.push(SegmentSpan {
                 segment: t.segment,
                 first_frame: t.index,
                 last_frame: t.index,
@@ -94,15 +98,21 @@ pub fn segment_spans(lines: &[FrameLine], merges: &[(usize, usize)]) -> (Vec<Seg
             }),
         }
     }
-    let root = |s| final_segment(merges, s);
-    let mut merged: std::collections::BTreeMap<usize, usize> = Default::default();
-    for span in &mut spans {
-        let r = root(span.segment);
-        span.merged_into = (r != span.segment).then_some(r);
-        *merged.entry(r).or_default() += span.tracked_frames;
+
+    /// The spans, and the share of all `frames` in the largest after `merges`
+    /// (segment, into).
+    pub fn finish(self, merges: &[(usize, usize)], frames: usize) -> (Vec<SegmentSpan>, f64) {
+        let mut spans = self.spans;
+        let root = |s| final_segment(merges, s);
+        let mut merged: std::collections::BTreeMap<usize, usize> = Default::default();
+        for span in &mut spans {
+            let r = root(span.segment);
+            span.merged_into = (r != span.segment).then_some(r);
+            *merged.entry(r).or_default() += span.tracked_frames;
+        }
+        let largest = merged.values().max().copied().unwrap_or(0);
+        (spans, 100.0 * largest as f64 / frames.max(1) as f64)
     }
-    let largest = merged.values().max().copied().unwrap_or(0);
-    (spans, 100.0 * largest as f64 / lines.len().max(1) as f64)
 }
 
 /// The segment that `segment` ended in after `merges` (segment, into), in order.
@@ -160,8 +170,8 @@ pub struct RunReport {
     /// The global pass: loops, candidates, full BA.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub global: Option<GlobalReport>,
-    /// One line per frame.
-    pub frames: Vec<FrameLine>,
+    /// One line per frame (in a spill file while the run that makes them goes on).
+    pub frames: super::FrameLines,
     /// Why the run stopped before the last frame, if it did: the error's sentence.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped: Option<String>,

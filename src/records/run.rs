@@ -133,11 +133,10 @@ impl RunFigures {
         let report = crate::records::read_report(&run)?;
         let dense = crate::records::read_dense(&run)?;
         let (t, detection) = (&report.totals, &report.detection);
-        let removed: usize = report
+        let mut removed = 0;
+        report
             .frames
-            .iter()
-            .map(|f| f.tracking.dynamic_keypoints)
-            .sum();
+            .try_for_each(|f| removed += f.tracking.dynamic_keypoints)?;
         Ok(Self {
             frames: t.frames,
             tracked: t.tracked,

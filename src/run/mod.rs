@@ -269,14 +269,11 @@ impl Watchers {
     ) -> Result<Computed<'a>, RunError> {
         let TrackingPass {
             tracked,
-            mut lines,
+            lines,
             records,
             stop,
             offset: _,
         } = pass;
-        for (line, truth) in lines.iter_mut().zip(self.truth.per_frame) {
-            line.truth = truth;
-        }
         let mut detection = tracked.detection;
         detection.classification = self.truth.classification;
         detection.person_recall = self.truth.person_recall;

@@ -52,6 +52,10 @@ pub trait FrameObserver {
     /// After each frame; an error (a file it could not write) stops the pass.
     fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError>;
 
+    /// Adds what it found of the frame it just saw (after [`Self::on_frame`]) to the
+    /// frame's report line.
+    fn annotate(&mut self, _line: &mut crate::records::FrameLine) {}
+
     /// After detections were applied to their keyframes.
     fn on_applied(&mut self, _applied: &[Applied]) {}
 

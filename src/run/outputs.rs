@@ -20,10 +20,11 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::trajectory::TrajectoryFormat;
 use crate::io::Trajectory;
-use crate::map::record::{FrameRecord, FrameRecords};
+use crate::map::record::FrameRecords;
 use crate::map::Map;
 use crate::mapping::MappingStats;
-use crate::records::report::{final_segment, segment_spans, FrameLine, RunReport, RunTotals};
+use crate::records::report::{final_segment, FrameLine, RunReport, RunTotals, SegmentSpans};
+use crate::records::FrameLines;
 use crate::records::RunSetup;
 use crate::tracking::TrackingState;
 
@@ -68,23 +69,24 @@ pub fn prepare(out: &Path, options: &RunOptions) -> Result<crate::io::output::Di
 
 /// Every tracked frame's pose: relative to its reference keyframe, placed on that
 /// keyframe's current pose (so frames follow the keyframes' corrections).
-pub fn trajectory_of(map: &Map, records: &[FrameRecord]) -> Trajectory {
+pub fn trajectory_of(map: &Map, records: &FrameRecords) -> Result<Trajectory, RunError> {
     let mut trajectory = Trajectory::default();
-    for record in records {
+    for record in records.iter() {
+        let record = record?;
         if let Some(pose) = record.camera_from_world_on(|key| map.keyframe_pose(key)) {
             trajectory.push(record.timestamp, pose.inverse());
         }
     }
-    trajectory
+    Ok(trajectory)
 }
 
 /// The trajectory of the tracking pass, written before the global pass moves the map.
 pub fn write_tracking_trajectory(
     run: &RunDir,
     map: &Map,
-    records: &[FrameRecord],
+    records: &FrameRecords,
 ) -> Result<Trajectory, RunError> {
-    let tracking = trajectory_of(map, records);
+    let tracking = trajectory_of(map, records)?;
     tracking.write(&run.tracking_trajectory(), TrajectoryFormat::Tum)?;
     Ok(tracking)
 }
@@ -114,8 +116,8 @@ pub struct Computed<'a> {
     pub mapping: MappingStats,
     /// What detection did.
     pub detection: DetectionTotals,
-    /// One report line per frame.
-    pub lines: Vec<FrameLine>,
+    /// One report line per frame (in a spill file).
+    pub lines: FrameLines,
     /// One record per frame (the trajectory).
     pub records: FrameRecords,
     /// Why the run stopped early, if it did.
@@ -151,7 +153,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         loaded,
     } = computed;
     let map = &map;
-    let trajectory = trajectory_of(map, &records);
+    let trajectory = trajectory_of(map, &records)?;
     trajectory.write(&run.trajectory(), TrajectoryFormat::Tum)?;
     write_keyframes_and_map(run, map)?;
     let merges: Vec<(usize, usize)> = global
@@ -159,8 +161,9 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         .flat_map(|(g, _)| g.loops.iter().filter_map(|l| l.merged))
         .map(|m| (m.segment, m.into))
         .collect();
-    write_segments(run, &lines, &merges)?;
-    let totals = totals(map, &lines, &merges, trajectory.len());
+    let tally = tally_lines(run, &lines, &merges)?;
+    let placed_at_frame = tally.placed_at_frame;
+    let totals = tally.totals(map, &merges, trajectory.len());
     let ate_of = |trajectory: &Trajectory| ate(sequence, trajectory);
     let ate = ate_of(&trajectory);
     let (global, ate_tracking) = match global {
@@ -185,6 +188,10 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
         times: None,
         slam_map: None,
     };
+    let loaded = loaded.map(|loaded| crate::records::LoadedMap {
+        placed_at_frame,
+        ..loaded
+    });
     report.slam_map = slam_map_of(run, map, map_header, loaded, &report)?;
     write_report(run, &report)?;
     Ok(report)
@@ -192,13 +199,14 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
 
 /// `report.json` (again at the run's end, with the dense pass and the times).
 pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
-    let json = serde_json::to_string_pretty(report).map_err(|e| RunError::Input(e.to_string()))?;
-    write_atomic(&run.report(), json.as_bytes())?;
+    crate::io::atomic::write_atomic_with(&run.report(), |out| {
+        crate::records::frame_lines::write_json_pretty(out, report)
+    })?;
     Ok(())
 }
 
 /// What the run did with saved maps: the one it loaded (`loaded`, with the first
-/// frame placed in it) and `slam_map.bin`, written under `header` (the run's disparity
+/// frame placed in it set) and `slam_map.bin`, written under `header` (the run's disparity
 /// offset set) when there is one and this recording made a keyframe or was placed in
 /// the loaded map.
 fn slam_map_of(
@@ -208,14 +216,6 @@ fn slam_map_of(
     loaded: Option<crate::records::LoadedMap>,
     report: &RunReport,
 ) -> Result<Option<crate::records::SlamMapReport>, RunError> {
-    let loaded = loaded.map(|loaded| crate::records::LoadedMap {
-        placed_at_frame: report
-            .frames
-            .iter()
-            .find(|l| l.tracking.state == TrackingState::Ok)
-            .map(|l| l.tracking.index),
-        ..loaded
-    });
     // A recording placed in a loaded map may make no keyframe (tracked there as a
     // revisit): the map it leaves is still the one a later recording continues.
     let made_keyframes = map.keyframe_order().iter().any(|k| map.is_current(*k));
@@ -259,62 +259,96 @@ fn write_keyframes_and_map(run: &RunDir, map: &Map) -> Result<(), RunError> {
     Ok(())
 }
 
-/// `segments.txt` ([`crate::io::run_dir::write_segments`]): each tracked frame's map
-/// segment after the loops' `merges`.
-fn write_segments(
+/// Reads the frames' `lines` once: their totals' counts, spans and timing columns,
+/// and `segments.txt` ([`crate::io::run_dir::write_segments`]: each tracked frame's
+/// map segment after the loops' `merges`), written as the lines are read.
+fn tally_lines(
     run: &RunDir,
-    lines: &[FrameLine],
+    lines: &FrameLines,
     merges: &[(usize, usize)],
-) -> Result<(), RunError> {
-    let frames: Vec<(f64, usize)> = lines
-        .iter()
-        .filter(|l| l.tracking.state == TrackingState::Ok)
-        .map(|l| {
-            (
-                l.tracking.timestamp,
-                final_segment(merges, l.tracking.segment),
-            )
-        })
-        .collect();
-    Ok(crate::io::run_dir::write_segments(
-        &run.segments(),
-        &frames,
-    )?)
+) -> Result<LineTally, RunError> {
+    let mut tally = LineTally::default();
+    let tracked = lines.iter().filter_map(|line| match line {
+        Err(e) => Some(Err(std::io::Error::other(e))),
+        Ok(line) => {
+            tally.add(&line);
+            let t = &line.tracking;
+            (t.state == TrackingState::Ok).then(|| Ok((t.timestamp, final_segment(merges, t.segment))))
+        }
+    });
+    crate::io::run_dir::write_segments(&run.segments(), tracked)?;
+    Ok(tally)
 }
 
-/// The run's totals.
-fn totals(map: &Map, lines: &[FrameLine], merges: &[(usize, usize)], tracked: usize) -> RunTotals {
-    let mut lost_spans: Vec<(usize, usize)> = Vec::new();
-    for line in lines {
-        if line.tracking.state == TrackingState::Lost {
-            match lost_spans.last_mut() {
-                Some(span) if span.1 + 1 == line.tracking.index => span.1 = line.tracking.index,
-                _ => lost_spans.push((line.tracking.index, line.tracking.index)),
+/// What one reading of the frames' lines gathers for the run's totals (the timing
+/// columns are the only part that grows with the frames: 40 bytes a frame, for the
+/// medians, let go once the report is written).
+#[derive(Default)]
+struct LineTally {
+    frames: usize,
+    lost: usize,
+    not_initialised: usize,
+    lost_spans: Vec<(usize, usize)>,
+    segments: SegmentSpans,
+    /// The first frame tracked (placed in a loaded map).
+    placed_at_frame: Option<usize>,
+    tracking_ms: Vec<f64>,
+    extraction_ms: Vec<f64>,
+    matching_ms: Vec<f64>,
+    optimisation_ms: Vec<f64>,
+    dop_ms: Vec<f64>,
+}
+
+impl LineTally {
+    fn add(&mut self, line: &FrameLine) {
+        let t = &line.tracking;
+        self.frames += 1;
+        match t.state {
+            TrackingState::Lost => {
+                self.lost += 1;
+                match self.lost_spans.last_mut() {
+                    Some(span) if span.1 + 1 == t.index => span.1 = t.index,
+                    _ => self.lost_spans.push((t.index, t.index)),
+                }
+            }
+            TrackingState::NotInitialised => self.not_initialised += 1,
+            TrackingState::Ok => {
+                self.placed_at_frame.get_or_insert(t.index);
             }
         }
+        self.segments.add(t);
+        self.tracking_ms.push(line.tracking_ms);
+        self.extraction_ms.push(line.extraction_ms);
+        self.matching_ms.push(t.matching_ms);
+        self.optimisation_ms.push(t.optimisation_ms);
+        self.dop_ms.push(t.dop_ms);
     }
-    let (segments, largest_segment_percent) = segment_spans(lines, merges);
-    let count = |state| lines.iter().filter(|l| l.tracking.state == state).count();
-    let column = |f: fn(&FrameLine) -> f64| median(&mut lines.iter().map(f).collect::<Vec<_>>());
-    RunTotals {
-        frames: lines.len(),
-        tracked,
-        lost: count(TrackingState::Lost),
-        not_initialised: count(TrackingState::NotInitialised),
-        coverage_percent: 100.0 * tracked as f64 / lines.len().max(1) as f64,
-        lost_spans,
-        segments,
-        largest_segment_percent,
-        keyframes: map.keyframes().len(),
-        map_points: map.points().len(),
-        median_tracking_ms: column(|l| l.tracking_ms),
-        mean_tracking_ms: lines.iter().map(|l| l.tracking_ms).sum::<f64>()
-            / lines.len().max(1) as f64,
-        median_extraction_ms: column(|l| l.extraction_ms),
-        median_matching_ms: column(|l| l.tracking.matching_ms),
-        median_optimisation_ms: column(|l| l.tracking.optimisation_ms),
-        median_dop_ms: column(|l| l.tracking.dop_ms),
-        peak_memory_mib: crate::memory::peak_resident_mib(),
+
+    /// The run's totals, with the map's sizes, the loops' `merges` and the frames in
+    /// the trajectory (`tracked`).
+    fn totals(mut self, map: &Map, merges: &[(usize, usize)], tracked: usize) -> RunTotals {
+        let frames = self.frames;
+        let (segments, largest_segment_percent) = self.segments.finish(merges, frames);
+        let mean_tracking_ms = self.tracking_ms.iter().sum::<f64>() / frames.max(1) as f64;
+        RunTotals {
+            frames,
+            tracked,
+            lost: self.lost,
+            not_initialised: self.not_initialised,
+            coverage_percent: 100.0 * tracked as f64 / frames.max(1) as f64,
+            lost_spans: self.lost_spans,
+            segments,
+            largest_segment_percent,
+            keyframes: map.keyframes().len(),
+            map_points: map.points().len(),
+            median_tracking_ms: median(&mut self.tracking_ms),
+            mean_tracking_ms,
+            median_extraction_ms: median(&mut self.extraction_ms),
+            median_matching_ms: median(&mut self.matching_ms),
+            median_optimisation_ms: median(&mut self.optimisation_ms),
+            median_dop_ms: median(&mut self.dop_ms),
+            peak_memory_mib: crate::memory::peak_resident_mib(),
+        }
     }
 }
 

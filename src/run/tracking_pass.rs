@@ -22,7 +22,7 @@ use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, SensorKind, Sequence};
 use crate::map::record::{FrameRecord, FrameRecords};
 use crate::pacing::{Pace, Pacer};
-use crate::records::{FrameLine, RigOffset};
+use crate::records::{FrameLine, FrameLines, RigOffset};
 use crate::system::worker::Execution;
 use crate::system::{Helpers, System, Tracked};
 use crate::tracking::input::{DepthCheck, Picture};
@@ -35,8 +35,8 @@ const RECENT_KEYFRAMES: usize = 10;
 pub struct TrackingPass {
     /// What the system leaves for the global pass.
     pub tracked: Tracked,
-    /// One report line per frame.
-    pub lines: Vec<FrameLine>,
+    /// One report line per frame (in a spill file in the run's folder).
+    pub lines: FrameLines,
     /// One record per line, for the global pass and the final trajectory (their
     /// observations in a spill file in the run's folder).
     pub records: FrameRecords,
@@ -94,9 +94,9 @@ pub fn tracking_pass(
     let execution = Execution::of(options.deterministic);
     let mut placed = inputs.base.is_none();
     let mut records = FrameRecords::spilling_into(inputs.run.root())?;
+    let mut lines = FrameLines::spilling_into(inputs.run.root())?;
     let mut system = start_system(setup, StartInputs::of(inputs, execution));
     let total = options.frames_of(sequence.len());
-    let mut lines = Vec::with_capacity(total);
     let mut loader = Loader::new(sequence, setup, options, execution);
     let mut offset_search = OffsetSearch::of(setup);
     let mut stop = None;
@@ -140,14 +140,17 @@ pub fn tracking_pass(
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
         placed |= stats.state == TrackingState::Ok;
-        lines.push(FrameLine {
+        let mut line = FrameLine {
             tracking: stats,
             extraction_ms,
             tracking_ms,
             truth: None,
-        });
+        };
+        observers.iter_mut().for_each(|o| o.annotate(&mut line));
         let search = offset_search.as_mut();
-        let kept = keep_record(&mut records, record, search, &mut system, setup, index);
+        let kept = lines.push(line).and_then(|()| {
+            keep_record(&mut records, record, search, &mut system, setup, index)
+        });
         if let Err(e) = kept.map(|taken| loader.offset += taken) {
             stop = Some(StopReason::Records(e.to_string()));
             break;
@@ -190,7 +193,7 @@ fn keep_record(
 /// What the frame loop wrote down: a line and a record per frame, and why it stopped
 /// early, if it did.
 struct FrameLog {
-    lines: Vec<FrameLine>,
+    lines: FrameLines,
     records: FrameRecords,
     stop: Option<StopReason>,
 }
@@ -416,8 +419,12 @@ impl<'a> Loader<'a> {
 /// Why tracking never started, from what the frames showed: no keypoints (blank
 /// images), else too few with depth (the depth scale, the depth images, or for stereo
 /// a pair whose left and right are swapped).
-fn never_started(lines: &[FrameLine], config: &Config, sensor: SensorKind) -> String {
-    let mut keypoints: Vec<f64> = lines.iter().map(|l| l.tracking.keypoints as f64).collect();
+fn never_started(lines: &FrameLines, config: &Config, sensor: SensorKind) -> String {
+    let mut keypoints: Vec<f64> = lines
+        .iter()
+        .map_while(Result::ok)
+        .map(|l| l.tracking.keypoints as f64)
+        .collect();
     let median_keypoints = median(&mut keypoints);
     let needed = config.tracking.min_initial_points;
     if median_keypoints < needed as f64 {

@@ -17,8 +17,8 @@ use crate::io::IoError;
 #[derive(Default)]
 pub struct TruthScorer {
     sequence_dir: Option<PathBuf>,
-    /// One entry per frame observed, in order.
-    pub per_frame: Vec<Option<TruthCounts>>,
+    /// The last frame's counts, until they go to its report line.
+    latest: Option<TruthCounts>,
     /// Moving keypoints called moving, against the truth (DOP and mask boxes).
     pub classification: Option<Classification>,
     /// The detector's recall of people, when the sequence has person masks.
@@ -58,8 +58,12 @@ impl FrameObserver for TruthScorer {
                 .get_or_insert_with(Classification::default)
                 .add(counts);
         }
-        self.per_frame.push(counts);
+        self.latest = counts;
         Ok(())
+    }
+
+    fn annotate(&mut self, line: &mut crate::records::FrameLine) {
+        line.truth = self.latest.take();
     }
 
     fn on_applied(&mut self, applied: &[Applied]) {

@@ -18,7 +18,7 @@ use crate::geometry::se3::Se3;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, Sequence};
 use crate::io::trajectory::Trajectory;
-use crate::records::{FrameLine, RunReport};
+use crate::records::{FrameLines, RunReport};
 use crate::tracking::FrameStats;
 
 /// The tracking pass's trajectory is drawn again every this many frames.
@@ -202,9 +202,10 @@ fn log_loops(log: &LogHandle, report: &RunReport, estimate: Option<&Trajectory>)
 }
 
 /// Each report frame's index and time.
-fn frame_times(frames: &[FrameLine]) -> Vec<(usize, f64)> {
+fn frame_times(frames: &FrameLines) -> Vec<(usize, f64)> {
     frames
         .iter()
+        .map_while(Result::ok)
         .map(|f| (f.tracking.index, f.tracking.timestamp))
         .collect()
 }
@@ -330,8 +331,9 @@ pub fn replay_frames(
         path: Vec::new(),
         keyframes: Vec::new(),
     };
-    let last = report.frames.last().map(|f| f.tracking.index);
-    for frame in report.frames.iter().map(|f| &f.tracking) {
+    let lines = report.frames.to_vec()?;
+    let last = lines.last().map(|f| f.tracking.index);
+    for frame in lines.iter().map(|f| &f.tracking) {
         let at = At::Frame {
             index: frame.index,
             seconds: frame.timestamp,
