@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 
 use super::disparity::{stereo_depth, StereoDepth};
+use super::keypoint_feed::KeypointFeed;
 use super::masks::FrameKeypoints;
 use super::{interrupted, Chosen};
 use crate::detect::FrameDetections;
@@ -62,7 +63,7 @@ pub(super) struct RunInputs {
     /// The keyframes' detections and the frames' dynamic keypoints (none when the
     /// masking is off).
     pub detections: Vec<FrameDetections>,
-    pub keypoints: Vec<FrameKeypoints>,
+    pub keypoints: KeypointFeed,
 }
 
 /// Reads the run folder `run` for a dense pass masking with `masking`.
@@ -77,11 +78,11 @@ pub(super) fn read_run(run: &RunDir, masking: Mode) -> Result<RunInputs, IoError
         other_segment_frames = before - poses.len();
     }
     let (detections, keypoints) = if masking == Mode::Off {
-        (Vec::new(), Vec::new())
+        (Vec::new(), KeypointFeed::default())
     } else {
         (
             read_detections(&run.detections())?,
-            read_keypoints(&run.dynamic_keypoints())?,
+            KeypointFeed::from_file(&run.dynamic_keypoints())?,
         )
     };
     Ok(RunInputs {

@@ -36,6 +36,7 @@
 //! in place). `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
+use super::keypoint_feed::KeypointFeed;
 use super::free_space::{Evidence, PosedDepth};
 pub use super::mask_layers::{dilate, MaskLayer, MaskLayers};
 use super::segments::{grow_segments, Seed, SegmentSettings};
@@ -154,8 +155,8 @@ pub struct MaskSource {
     /// followed them.
     placed: usize,
     tracks: ObjectTracks,
-    /// Sorted by time.
-    keypoints: Vec<FrameKeypoints>,
+    /// The frames' dynamic keypoints, taken as the masked frames come.
+    keypoints: KeypointFeed,
     /// The segments kept in the latest masked frame.
     followed: Vec<FollowedSegment>,
 }
@@ -170,7 +171,7 @@ impl MaskSource {
         context: MaskContext,
         settings: MaskSettings,
         detections: Vec<FrameDetections>,
-        keypoints: Vec<FrameKeypoints>,
+        keypoints: impl Into<KeypointFeed>,
         pose_at: PoseAt,
         depth_at: DepthAt,
     ) -> Self {
@@ -185,7 +186,7 @@ impl MaskSource {
         context: MaskContext,
         settings: MaskSettings,
         mut detections: Vec<FrameDetections>,
-        mut keypoints: Vec<FrameKeypoints>,
+        keypoints: impl Into<KeypointFeed>,
     ) -> Self {
         let MaskContext {
             masking,
@@ -194,7 +195,6 @@ impl MaskSource {
             dynamic_classes,
         } = context;
         detections.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-        keypoints.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
         let keyframes = detections
             .iter()
             .map(|frame| {
@@ -227,7 +227,7 @@ impl MaskSource {
             keyframes,
             placed: 0,
             tracks: ObjectTracks::default(),
-            keypoints,
+            keypoints: keypoints.into(),
             followed: Vec::new(),
         }
     }
@@ -304,6 +304,7 @@ impl MaskSource {
         if self.masking == Mode::Off {
             return None;
         }
+        self.keypoints.advance_to(timestamp);
         let size = ImageSize::from((depth.width, depth.height));
         let mut sources = vec![0u8; depth.metres.len()];
         let evidence = evidence.filter(|_| self.masking == Mode::Dop);
@@ -605,15 +606,10 @@ impl MaskSource {
         }
     }
 
-    /// The dynamic keypoints of the frame at `timestamp` (none if it has no entry).
+    /// The dynamic keypoints of the frame at `timestamp` (none if it has no entry),
+    /// once [`Self::layers`] moved the feed on to it.
     fn frame_keypoints(&self, timestamp: f64) -> &[[f32; 3]] {
-        let i = self
-            .keypoints
-            .partition_point(|k| k.timestamp < timestamp - 1e-6);
-        self.keypoints
-            .get(i)
-            .filter(|k| (k.timestamp - timestamp).abs() < 1e-6)
-            .map_or(&[], |k| &k.points)
+        self.keypoints.at(timestamp)
     }
 }
 

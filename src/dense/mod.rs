@@ -21,6 +21,7 @@ pub mod disparity;
 mod frame_choice;
 pub mod free_space;
 mod fusion;
+pub mod keypoint_feed;
 pub mod inputs;
 pub mod kept;
 pub mod map_figures;

@@ -6,6 +6,7 @@ pub mod errors;
 pub mod file_list;
 pub mod g2o;
 pub mod image_files;
+pub mod json_array;
 pub mod kitti;
 pub mod orbslam_settings;
 pub mod output;

@@ -485,6 +485,9 @@ mod tests {
         }
         assert_eq!(spilled.len(), 6);
         assert!(spilled.heap_bytes() < held.heap_bytes());
+        // Memory holds the newest record alone, however many were pushed.
+        let newest = spilled.heap_bytes();
+        assert_eq!(newest, std::mem::size_of::<FrameRecord>());
         let back: Vec<FrameRecord> = spilled.iter().collect::<Result<_, _>>().unwrap();
         for (original, back) in originals.iter().zip(&back) {
             assert_eq!(back.observation_count(), original.observations.len());

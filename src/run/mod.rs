@@ -89,7 +89,7 @@ pub fn execute(plan: &RunPlan) -> Result<RunReport, RunError> {
     if let Some(log) = plan.log() {
         log_pinhole(log, &setup.calibration.camera);
     }
-    let mut watch = Watchers::new(plan.sequence, &plan.options);
+    let mut watch = Watchers::new(plan);
     let inputs = TrackingInputs {
         sequence: plan.sequence,
         setup: &setup,
@@ -233,13 +233,14 @@ struct Watchers {
 }
 
 impl Watchers {
-    fn new(sequence: &dyn Sequence, options: &RunOptions) -> Self {
-        let total = options.frames_of(sequence.len());
+    fn new(plan: &RunPlan) -> Self {
+        let options = &plan.options;
+        let total = options.frames_of(plan.sequence.len());
         Self {
             progress: Progress::new(total, options.progress),
             debug: options.debug_frames.clone().map(|dir| DebugFrames { dir }),
             rerun: options.rerun.clone().map(RerunLog::new),
-            keypoints: DynamicKeypoints::default(),
+            keypoints: DynamicKeypoints::new(plan.run.root().to_path_buf()),
             truth: TruthScorer::new(options.sequence_dir.clone()),
         }
     }
@@ -280,7 +281,7 @@ impl Watchers {
         // The set of outputs starts here: a second Ctrl-C from now on waits for all of it.
         let writing = crate::interrupt::Writing::start();
         if setup.mode == Mode::Dop {
-            outputs::write_dynamic_keypoints(&plan.run, &self.keypoints.frames)?;
+            outputs::write_dynamic_keypoints(&plan.run, &self.keypoints)?;
         }
         let computed = Computed {
             writing,

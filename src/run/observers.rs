@@ -6,11 +6,12 @@ use std::path::PathBuf;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::dense::masks::{dynamic_keypoints, FrameKeypoints};
+use crate::dense::masks::dynamic_keypoints;
 use crate::dop::DopConfig;
 use crate::dynamics::Applied;
 use crate::frame::Frame;
 use crate::io::image_files::DepthImage;
+use crate::io::spill::SpillFile;
 use crate::io::IoError;
 use crate::map::record::FrameRecord;
 use crate::tracking::input::Picture;
@@ -119,17 +120,48 @@ impl FrameObserver for DebugFrames {
     }
 }
 
-/// The dynamic keypoints of every tracked frame (DOP mode), for the dense pass.
-#[derive(Default)]
+/// The dynamic keypoints of every tracked frame (DOP mode), for the dense pass: each
+/// frame's goes to a spill file in the run's folder as it comes (one JSON value a
+/// line), and `dynamic_keypoints.json` is written from it ([`Self::write_json`]).
 pub struct DynamicKeypoints {
-    /// One entry per tracked frame.
-    pub frames: Vec<FrameKeypoints>,
+    dir: PathBuf,
+    spill: Option<SpillFile>,
+}
+
+impl DynamicKeypoints {
+    /// Keypoints to spill into `dir` (the run's folder) once a DOP frame comes.
+    pub fn new(dir: PathBuf) -> Self {
+        Self { dir, spill: None }
+    }
+
+    /// The frames' keypoints as one JSON array (as `serde_json` writes a list of
+    /// them), streamed from the spill file.
+    pub fn write_json(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
+        out.write_all(b"[")?;
+        if let Some(spill) = &self.spill {
+            let reader = std::io::BufReader::with_capacity(1 << 16, spill.reader());
+            for (i, line) in std::io::BufRead::lines(reader).enumerate() {
+                if i > 0 {
+                    out.write_all(b",")?;
+                }
+                out.write_all(line?.as_bytes())?;
+            }
+        }
+        out.write_all(b"]")
+    }
 }
 
 impl FrameObserver for DynamicKeypoints {
     fn on_frame(&mut self, view: &FrameView) -> Result<(), IoError> {
         if let (Some(dop), Some(frame)) = (view.dop, view.tracked()) {
-            self.frames.push(dynamic_keypoints(frame, dop));
+            let spill = match self.spill.as_mut() {
+                Some(spill) => spill,
+                None => self.spill.insert(SpillFile::create(&self.dir, "keypoints", 1)?),
+            };
+            let mut line = serde_json::to_vec(&dynamic_keypoints(frame, dop))
+                .expect("keypoints serialise");
+            line.push(b'\n');
+            spill.append(&line)?;
         }
         Ok(())
     }

@@ -9,13 +9,12 @@ use std::path::Path;
 
 use super::error::{RunError, StopReason};
 use super::options::RunOptions;
-use crate::dense::masks::FrameKeypoints;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
 use crate::eval::stats::median;
 use crate::global::GlobalReport;
-use crate::io::atomic::write_atomic;
+use crate::io::atomic::write_atomic_with;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::trajectory::TrajectoryFormat;
@@ -92,9 +91,12 @@ pub fn write_tracking_trajectory(
 }
 
 /// Each DOP frame's dynamic keypoints, for the dense pass's masks.
-pub fn write_dynamic_keypoints(run: &RunDir, keypoints: &[FrameKeypoints]) -> Result<(), RunError> {
-    let json = serde_json::to_string(keypoints).expect("keypoints serialise");
-    Ok(write_atomic(&run.dynamic_keypoints(), json.as_bytes())?)
+pub fn write_dynamic_keypoints(
+    run: &RunDir,
+    keypoints: &super::observers::DynamicKeypoints,
+) -> Result<(), RunError> {
+    let path = run.dynamic_keypoints();
+    Ok(write_atomic_with(&path, |out| keypoints.write_json(out))?)
 }
 
 /// What the passes computed, for [`write`].
@@ -199,7 +201,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
 
 /// `report.json` (again at the run's end, with the dense pass and the times).
 pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
-    crate::io::atomic::write_atomic_with(&run.report(), |out| {
+    write_atomic_with(&run.report(), |out| {
         crate::records::frame_lines::write_json_pretty(out, report)
     })?;
     Ok(())
