@@ -326,12 +326,8 @@ pub fn run(
         report.frames = Some(frame_refinement::refine_frames(map, inputs, records)?);
     }
     if config.smoothing.enabled {
-        // The smoother solves each run of frames whole: the records are read at once.
-        records.update(usize::MAX, |frames, _| {
-            let smoothed = trajectory_smoothing::smooth_frames(map, &config.smoothing, frames);
-            report.smoothing = Some(smoothed);
-            Ok::<(), IoError>(())
-        })?;
+        let smoothed = trajectory_smoothing::smooth_records(map, &config.smoothing, records)?;
+        report.smoothing = Some(smoothed);
     }
     report.memory.frames_mib = crate::memory::part_peak_mib();
     report.total_ms = start.elapsed().as_secs_f64() * 1e3;

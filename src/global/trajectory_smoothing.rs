@@ -37,7 +37,8 @@ use crate::checks::{self, positive, BadValue};
 use crate::eval::stats::median;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
-use crate::map::record::FrameRecord;
+use crate::io::IoError;
+use crate::map::record::{FrameRecord, FrameRecords};
 use crate::map::Map;
 use crate::optim::robust::huber_weight;
 
@@ -111,122 +112,304 @@ pub struct SmoothingReport {
     pub milliseconds: f64,
 }
 
-/// Smooths the poses of the tracked `frames` (in sequence order) in place.
-pub fn smooth_frames(
+/// How many records one solve reads into memory ([`smooth_records`]).
+#[derive(Debug, Clone, Copy)]
+struct Windows {
+    /// A run spanning no more records is smoothed whole, as one system; a longer one
+    /// in windows of this many, each overlapping its neighbours by `overlap` records
+    /// on either side and keeping only its core (the prior's pull decays within a few
+    /// keyframes, so the cores join as one solve would have them). Memory is then
+    /// bounded whatever the run's length.
+    len: usize,
+    /// Records on either side of a window's core that are solved and not kept.
+    overlap: usize,
+}
+
+/// The windows of a run: 32,768 records (18 minutes at 30 Hz) solved at once.
+const WINDOWS: Windows = Windows {
+    len: 1 << 15,
+    overlap: 1024,
+};
+/// The most values kept for one median ([`Sample`]).
+const SAMPLE_CAP: usize = 1 << 18;
+
+/// Values kept for a median: every value up to [`SAMPLE_CAP`], then an evenly spaced
+/// subsample (every second value dropped each time it fills), so that the median of
+/// any number of frames' values takes bounded memory and is exact below the cap.
+#[derive(Debug)]
+struct Sample {
+    values: Vec<f64>,
+    stride: usize,
+    seen: usize,
+}
+
+impl Default for Sample {
+    fn default() -> Self {
+        Self {
+            values: Vec::new(),
+            stride: 1,
+            seen: 0,
+        }
+    }
+}
+
+impl Sample {
+    fn push(&mut self, value: f64) {
+        if self.seen.is_multiple_of(self.stride) {
+            self.values.push(value);
+            if self.values.len() == SAMPLE_CAP {
+                let mut i = 0;
+                self.values.retain(|_| {
+                    i += 1;
+                    i % 2 == 1
+                });
+                self.stride *= 2;
+            }
+        }
+        self.seen += 1;
+    }
+
+    fn median(mut self) -> f64 {
+        median(&mut self.values)
+    }
+}
+
+/// A record with a pose on its reference keyframe, as the smoother reads it.
+#[derive(Debug, Clone, Copy)]
+struct Posed {
+    timestamp: f64,
+    segment: usize,
+    world_from_camera: Se3,
+}
+
+impl Posed {
+    /// `record` placed on its reference keyframe's pose in `map` (`None` without one),
+    /// and that pose, \(T_{rw}\).
+    fn of(map: &Map, record: &FrameRecord) -> Option<(Self, Se3)> {
+        let (key, camera_from_reference) = record.reference?;
+        let reference_from_world = map.keyframe_pose(key)?;
+        let pose = camera_from_reference * reference_from_world;
+        let posed = Self {
+            timestamp: record.timestamp,
+            segment: record.segment,
+            world_from_camera: pose.inverse(),
+        };
+        Some((posed, reference_from_world))
+    }
+}
+
+/// A run of consecutive posed frames: the records it spans (`first..=last`) and how
+/// many of them are posed.
+#[derive(Debug, Clone, Copy)]
+struct RunSpan {
+    first: usize,
+    last: usize,
+    frames: usize,
+}
+
+/// Smooths the poses of the tracked frames of `records` in place, reading them from
+/// disk: once for the frame interval, once for the runs and the noise, and then run by
+/// run ([`WINDOWS`]: 32,768 records at most at a time).
+pub fn smooth_records(
     map: &Map,
     config: &SmoothingConfig,
-    frames: &mut [FrameRecord],
-) -> SmoothingReport {
+    records: &mut FrameRecords,
+) -> Result<SmoothingReport, IoError> {
+    smooth_in_windows(map, config, records, WINDOWS)
+}
+
+fn smooth_in_windows(
+    map: &Map,
+    config: &SmoothingConfig,
+    records: &mut FrameRecords,
+    windows: Windows,
+) -> Result<SmoothingReport, IoError> {
     let start = Instant::now();
-    // Frames with a pose, their world_from_camera and their reference's
-    // reference_from_world.
-    let mut frames: Vec<(&mut FrameRecord, Se3, Se3)> = frames
-        .iter_mut()
-        .filter_map(|f| {
-            let (key, camera_from_reference) = f.reference?;
-            let reference_from_world = map.keyframe_pose(key)?;
-            let pose = camera_from_reference * reference_from_world;
-            Some((f, pose.inverse(), reference_from_world))
-        })
-        .collect();
-    let runs = runs_of(&frames);
-    let times: Vec<f64> = frames.iter().map(|f| f.0.timestamp).collect();
-    let anchors: Vec<bool> = frames.iter().map(|f| f.0.is_keyframe()).collect();
-    let centres: Vec<Vector3<f64>> = frames.iter().map(|f| f.1.translation.vector).collect();
-    let rotations: Vec<Rotation3<f64>> = frames.iter().map(|f| f.1.rotation).collect();
-    // Measured rotation increments, world frame.
-    let increments: Vec<Vector3<f64>> = rotations
-        .windows(2)
-        .map(|w| so3::log(&(w[1] * w[0].inverse())))
-        .collect();
-    let centre_noise = noise(&runs, |k| {
-        centres[k - 1] - 2.0 * centres[k] + centres[k + 1]
-    });
-    let rotation_noise = noise(&runs, |k| increments[k] - increments[k - 1]);
+    let typical = typical_interval(map, records)?;
+    let (runs, centre_noise, rotation_noise) = runs_and_noise(map, records, typical)?;
     let mut report = SmoothingReport {
         runs: runs.len(),
         centre_noise_mm: centre_noise * 1e3,
         rotation_noise_deg: rotation_noise.to_degrees(),
         ..SmoothingReport::default()
     };
-    let mut shifts = Vec::new();
+    let noise = Noise {
+        centre: centre_noise,
+        rotation: rotation_noise,
+    };
+    let mut shifts = Sample::default();
     for run in runs {
-        let t = &times[run.clone()];
-        let fixed = &anchors[run.clone()];
-        let new_centres = smooth_axes(
-            t,
-            fixed,
-            centre_noise,
-            config.acceleration,
-            |i| centres[run.start + i],
-            |_| Vector3::zeros(),
-        );
-        let corrections = smooth_axes(
-            t,
-            fixed,
-            rotation_noise,
-            config.angular_acceleration,
-            |_| Vector3::zeros(),
-            |k| increments[run.start + k],
-        );
-        for (i, (centre, delta)) in new_centres.iter().zip(&corrections).enumerate() {
-            let (frame, before, reference_from_world) = &mut frames[run.start + i];
-            let Some((key, _)) = frame.reference.filter(|_| !frame.is_keyframe()) else {
-                continue;
-            };
-            let rotation = so3::exp(delta) * rotations[run.start + i];
-            let world_from_camera = Se3::from_parts(Translation3::from(*centre), rotation);
-            let camera_from_world = world_from_camera.inverse();
-            frame.reference = Some((key, camera_from_world * reference_from_world.inverse()));
-            frame.camera_from_world = Some(camera_from_world);
-            shifts.push((centre - before.translation.vector).norm() * 1e3);
-            report.frames += 1;
+        let (end, overlap) = (run.last + 1, windows.overlap);
+        let step = match end - run.first <= windows.len {
+            true => end - run.first,
+            false => windows.len - 2 * overlap,
+        };
+        // A window's smoothed core is written once the next window has read its
+        // measurements, the overlap among them.
+        let mut smoothed: Option<(usize, Vec<FrameRecord>)> = None;
+        let mut core = run.first;
+        while core < end {
+            let core_end = (core + step).min(end);
+            let from = core.saturating_sub(overlap).max(run.first);
+            let to = (core_end + overlap).min(end);
+            let mut frames = records.read_chunk(from, to - from)?;
+            if let Some((at, done)) = smoothed.take() {
+                records.write_chunk(at, done)?;
+            }
+            let kept = core - from..core_end - from;
+            smooth_window(map, config, noise, &mut frames, kept.clone(), &mut report, &mut shifts);
+            smoothed = Some((core, frames.drain(kept).collect()));
+            core = core_end;
+        }
+        if let Some((at, done)) = smoothed {
+            records.write_chunk(at, done)?;
         }
     }
-    report.max_shift_mm = shifts.iter().copied().fold(0.0, f64::max);
-    report.median_shift_mm = median(&mut shifts);
+    report.median_shift_mm = shifts.median();
     report.milliseconds = start.elapsed().as_secs_f64() * 1e3;
-    report
+    Ok(report)
 }
 
-/// The runs of consecutive frames, as `[start, end)` ranges of at least 3 frames: a run
-/// breaks at a new map segment or a gap over [`MAX_GAP`] typical intervals.
-fn runs_of(frames: &[(&mut FrameRecord, Se3, Se3)]) -> Vec<std::ops::Range<usize>> {
-    let mut intervals: Vec<f64> = frames
-        .windows(2)
-        .map(|w| w[1].0.timestamp - w[0].0.timestamp)
-        .filter(|&dt| dt > 0.0)
-        .collect();
-    let typical = median(&mut intervals);
-    let mut runs = Vec::new();
-    let mut first = 0;
-    for i in 1..=frames.len() {
-        let breaks = i == frames.len() || {
-            let (a, b) = (&frames[i - 1].0, &frames[i].0);
+/// The median interval between consecutive posed frames (positive ones only).
+fn typical_interval(map: &Map, records: &FrameRecords) -> Result<f64, IoError> {
+    let mut intervals = Sample::default();
+    let mut previous: Option<f64> = None;
+    for record in records.iter() {
+        let Some((posed, _)) = Posed::of(map, &record?) else {
+            continue;
+        };
+        if let Some(dt) = previous.map(|t| posed.timestamp - t).filter(|&dt| dt > 0.0) {
+            intervals.push(dt);
+        }
+        previous = Some(posed.timestamp);
+    }
+    Ok(intervals.median())
+}
+
+/// The runs of at least 3 consecutive posed frames (a run breaks at a new map
+/// segment or a gap over [`MAX_GAP`] `typical` intervals), and \(\sigma_m\) of the
+/// centres and of the rotations: white noise of \(\sigma\) gives second differences
+/// of deviation \(\sqrt 6 \sigma\), so \(\sigma_m\) is the median absolute
+/// deviation of the second differences at the runs' inner frames (per axis, scaled to
+/// a standard deviation) over \(\sqrt 6\).
+fn runs_and_noise(
+    map: &Map,
+    records: &FrameRecords,
+    typical: f64,
+) -> Result<(Vec<RunSpan>, f64, f64), IoError> {
+    let (mut runs, mut centres, mut rotations) = (Vec::new(), Sample::default(), Sample::default());
+    let mut run: Option<RunSpan> = None;
+    // The run's last two posed frames, and the rotation increment between them.
+    let mut last: [Option<Posed>; 2] = [None, None];
+    for (index, record) in records.iter().enumerate() {
+        let Some((b, _)) = Posed::of(map, &record?) else {
+            continue;
+        };
+        let breaks = last[1].is_none_or(|a| {
             let dt = b.timestamp - a.timestamp;
             a.segment != b.segment || !(dt > 0.0 && dt <= MAX_GAP * typical)
-        };
+        });
         if breaks {
-            if i - first >= 3 {
-                runs.push(first..i);
-            }
-            first = i;
+            runs.extend(run.take().filter(|r| r.frames >= 3));
+            last = [None, None];
         }
+        let span = run.get_or_insert(RunSpan {
+            first: index,
+            last: index,
+            frames: 0,
+        });
+        (span.last, span.frames) = (index, span.frames + 1);
+        if let [Some(a), Some(k)] = last {
+            let (ca, ck, cb) = [a, k, b].map(|p| p.world_from_camera.translation.vector).into();
+            (ca - 2.0 * ck + cb).iter().for_each(|v| centres.push(v.abs()));
+            let [ra, rk, rb] = [a, k, b].map(|p| p.world_from_camera.rotation);
+            let second = so3::log(&(rb * rk.inverse())) - so3::log(&(rk * ra.inverse()));
+            second.iter().for_each(|v| rotations.push(v.abs()));
+        }
+        last = [last[1], Some(b)];
     }
-    runs
+    runs.extend(run.filter(|r| r.frames >= 3));
+    Ok((runs, white_noise(centres), white_noise(rotations)))
 }
 
-/// \(\sigma_m\) of white noise from the second differences `second(k)` at the inner
-/// frames of the runs (median absolute deviation, scaled to a standard deviation per
-/// axis, over \(\sqrt 6\)).
-fn noise(runs: &[std::ops::Range<usize>], second: impl Fn(usize) -> Vector3<f64>) -> f64 {
-    let mut deviations: Vec<f64> = runs
+/// \(\sigma\) of white noise from the absolute values of its second differences
+/// (their median absolute deviation, scaled to a standard deviation, over \(\sqrt 6\)).
+fn white_noise(second_differences: Sample) -> f64 {
+    1.4826 * second_differences.median() / 6f64.sqrt()
+}
+
+/// The measurement noise of centres (metres) and rotations (radians).
+#[derive(Debug, Clone, Copy)]
+struct Noise {
+    centre: f64,
+    rotation: f64,
+}
+
+/// Smooths the posed frames of `frames` (records of one run) as one system, and keeps
+/// the new poses of those in `kept` (the window's core).
+fn smooth_window(
+    map: &Map,
+    config: &SmoothingConfig,
+    noise: Noise,
+    frames: &mut [FrameRecord],
+    kept: std::ops::Range<usize>,
+    report: &mut SmoothingReport,
+    shifts: &mut Sample,
+) {
+    // Frames with a pose, where they are, their world_from_camera and their
+    // reference's reference_from_world.
+    let posed: Vec<(usize, Se3, Se3)> = frames
         .iter()
-        .flat_map(|r| r.start + 1..r.end - 1)
-        .flat_map(|k| <[f64; 3]>::from(second(k)))
-        .map(f64::abs)
+        .enumerate()
+        .filter_map(|(i, f)| Posed::of(map, f).map(|(p, rw)| (i, p.world_from_camera, rw)))
         .collect();
-    1.4826 * median(&mut deviations) / 6f64.sqrt()
+    if posed.len() < 3 {
+        return;
+    }
+    let times: Vec<f64> = posed.iter().map(|p| frames[p.0].timestamp).collect();
+    let anchors: Vec<bool> = posed.iter().map(|p| frames[p.0].is_keyframe()).collect();
+    let centres: Vec<Vector3<f64>> = posed.iter().map(|p| p.1.translation.vector).collect();
+    let rotations: Vec<Rotation3<f64>> = posed.iter().map(|p| p.1.rotation).collect();
+    // Measured rotation increments, world frame.
+    let increments: Vec<Vector3<f64>> = rotations
+        .windows(2)
+        .map(|w| so3::log(&(w[1] * w[0].inverse())))
+        .collect();
+    let new_centres = smooth_axes(
+        &times,
+        &anchors,
+        noise.centre,
+        config.acceleration,
+        |i| centres[i],
+        |_| Vector3::zeros(),
+    );
+    let corrections = smooth_axes(
+        &times,
+        &anchors,
+        noise.rotation,
+        config.angular_acceleration,
+        |_| Vector3::zeros(),
+        |k| increments[k],
+    );
+    for (i, (centre, delta)) in new_centres.iter().zip(&corrections).enumerate() {
+        let (at, before, reference_from_world) = posed[i];
+        let frame = &mut frames[at];
+        let Some((key, _)) = frame.reference.filter(|_| !frame.is_keyframe()) else {
+            continue;
+        };
+        if !kept.contains(&at) {
+            continue;
+        }
+        let rotation = so3::exp(delta) * rotations[i];
+        let world_from_camera = Se3::from_parts(Translation3::from(*centre), rotation);
+        let camera_from_world = world_from_camera.inverse();
+        frame.reference = Some((key, camera_from_world * reference_from_world.inverse()));
+        frame.camera_from_world = Some(camera_from_world);
+        let shift = (centre - before.translation.vector).norm() * 1e3;
+        report.max_shift_mm = report.max_shift_mm.max(shift);
+        shifts.push(shift);
+        report.frames += 1;
+    }
 }
 
 /// The three axes of one run smoothed: minimises
@@ -422,6 +605,92 @@ mod tests {
         (times, truth, measured)
     }
 
+    /// A map with a keyframe every 15th of `n` frames on a smooth path at 30 Hz, and
+    /// the frames' records: each on the keyframe before it, its pose off by jitter
+    /// (3 mm, 0.2 degrees).
+    fn jittered_records(n: usize, seed: u64) -> (Map, FrameRecords) {
+        use crate::frame::Frame;
+        use crate::map::KeyFrame;
+        let mut rng = Rng::new(seed);
+        let truth = |i: usize| {
+            let t = i as f64 / 30.0;
+            let centre = Vector3::new(2.0 * (0.1 * t).sin(), 0.3 * (0.07 * t).cos(), 0.02 * t);
+            let rotation = Rotation3::from_scaled_axis(Vector3::new(0.1 * t.sin(), 0.05 * t, 0.0));
+            Se3::from_parts(Translation3::from(centre), rotation).inverse()
+        };
+        let mut map = Map::default();
+        let mut records = FrameRecords::default();
+        let mut reference = None;
+        for i in 0..n {
+            let mut record = FrameRecord::start(i as f64 / 30.0, 0);
+            let camera_from_world = if i % 15 == 0 {
+                let key = map.add_keyframe(KeyFrame::new(Frame::blank(1, (640, 480)), truth(i)));
+                reference = Some((key, truth(i)));
+                record.keyframe = Some(key);
+                truth(i)
+            } else {
+                let jitter = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+                let turn = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.0035;
+                Se3::from_parts(
+                    Translation3::from(jitter * 0.003),
+                    Rotation3::from_scaled_axis(turn),
+                ) * truth(i)
+            };
+            let (key, reference_from_world) = reference.expect("a keyframe first");
+            record.reference = Some((key, camera_from_world * reference_from_world.inverse()));
+            record.camera_from_world = Some(camera_from_world);
+            records.push(record).unwrap();
+        }
+        (map, records)
+    }
+
+    #[test]
+    fn a_long_run_smoothed_in_windows_joins_as_one_solve_would() {
+        let config = SmoothingConfig::default();
+        let (map, mut whole) = jittered_records(3000, 5);
+        let (_, mut windowed) = jittered_records(3000, 5);
+        let one = Windows {
+            len: 4096,
+            overlap: 0,
+        };
+        let small = Windows {
+            len: 700,
+            overlap: 150,
+        };
+        let a = smooth_in_windows(&map, &config, &mut whole, one).unwrap();
+        let b = smooth_in_windows(&map, &config, &mut windowed, small).unwrap();
+        assert_eq!((a.runs, a.frames), (1, 3000 - 200));
+        assert_eq!((b.runs, b.frames), (a.runs, a.frames));
+        assert_eq!(a.centre_noise_mm, b.centre_noise_mm);
+        assert!(a.median_shift_mm > 0.5, "{a:?}");
+        let poses = |records: &FrameRecords| -> Vec<Se3> {
+            records
+                .iter()
+                .map(|r| r.unwrap().camera_from_world.unwrap())
+                .collect()
+        };
+        let largest = poses(&whole)
+            .iter()
+            .zip(&poses(&windowed))
+            .map(|(p, q)| (p.inverse().translation.vector - q.inverse().translation.vector).norm())
+            .fold(0.0, f64::max);
+        // Equal to the bit here (3 mm apart with no overlap).
+        assert!(largest < 1e-9, "windows and one solve differ by {largest} m");
+    }
+
+    #[test]
+    fn a_sample_keeps_every_value_below_its_cap_and_an_even_subsample_above() {
+        let mut below = Sample::default();
+        (0..1001).rev().for_each(|v| below.push(v as f64));
+        assert_eq!(below.median(), 500.0);
+        let mut above = Sample::default();
+        let n = 3 * SAMPLE_CAP + 7;
+        (0..n).for_each(|v| above.push(v as f64));
+        assert!(above.values.len() <= SAMPLE_CAP && above.values.len() > SAMPLE_CAP / 2);
+        let middle = above.median() / n as f64;
+        assert!((middle - 0.5).abs() < 1e-3, "{middle}");
+    }
+
     fn rmse(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
         (a.iter()
             .zip(b)
@@ -434,13 +703,12 @@ mod tests {
     #[test]
     fn smoothing_a_noisy_smooth_path_brings_it_closer_to_the_truth_and_keeps_anchors() {
         let (times, truth, measured) = noisy_path(5);
-        let runs = [std::ops::Range {
-            start: 0,
-            end: times.len(),
-        }];
-        let sigma = noise(&runs, |k| {
-            measured[k - 1] - 2.0 * measured[k] + measured[k + 1]
-        });
+        let mut second = Sample::default();
+        for k in 1..times.len() - 1 {
+            let d = measured[k - 1] - 2.0 * measured[k] + measured[k + 1];
+            d.iter().for_each(|v| second.push(v.abs()));
+        }
+        let sigma = white_noise(second);
         assert!((sigma - 0.003).abs() < 0.0006, "estimated noise {sigma}");
         let anchors: Vec<bool> = (0..times.len()).map(|i| i % 20 == 0).collect();
         let smoothed = smooth_axes(

@@ -215,7 +215,7 @@ impl FrameRecords {
     }
 
     /// The records `start..start + n` (fewer at the end), read from disk.
-    fn read_chunk(&self, start: usize, n: usize) -> Result<Vec<FrameRecord>, IoError> {
+    pub fn read_chunk(&self, start: usize, n: usize) -> Result<Vec<FrameRecord>, IoError> {
         let Some(heads) = &self.heads else {
             return Ok(self.held[start..(start + n).min(self.len)].to_vec());
         };
@@ -239,32 +239,54 @@ impl FrameRecords {
             })
     }
 
-    /// `change` on the records in order, `chunk` at a time (all at once with
-    /// `usize::MAX`), with the reader of their observations; what it changed goes
-    /// back to disk.
+    /// `change` on the records in order, `chunk` at a time, with the reader of their
+    /// observations; what it changed goes back to disk.
     pub fn update<E: From<IoError>>(
         &mut self,
         chunk: usize,
         mut change: impl FnMut(&mut [FrameRecord], ObservationReader) -> Result<(), E>,
     ) -> Result<(), E> {
+        let chunk = chunk.max(1);
+        for start in (0..self.len).step_by(chunk) {
+            self.update_range(start, (start + chunk).min(self.len), &mut change)?;
+        }
+        Ok(())
+    }
+
+    /// `change` on the records `start..end`, read into memory, with the reader of
+    /// their observations; what it changed goes back to disk.
+    pub fn update_range<E: From<IoError>>(
+        &mut self,
+        start: usize,
+        end: usize,
+        mut change: impl FnMut(&mut [FrameRecord], ObservationReader) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let end = end.min(self.len);
         let reader = ObservationReader {
             file: self.file.as_ref(),
         };
         if self.heads.is_none() {
-            return change(&mut self.held, reader);
+            return change(&mut self.held[start.min(end)..end], reader);
         }
-        let chunk = chunk.clamp(1, self.len.max(1));
-        let mut written = Vec::new();
-        for start in (0..self.len).step_by(chunk) {
-            let mut records = self.read_chunk(start, chunk)?;
-            change(&mut records, reader)?;
-            records.iter().for_each(|r| r.write_head(&mut written));
-            let heads = self.heads.as_mut().expect("spilled records");
-            heads.overwrite((start * RECORD_BYTES) as u64, &written)?;
-            written.clear();
-            if start + records.len() == self.len {
-                self.last = records.pop();
-            }
+        let mut records = self.read_chunk(start, end.saturating_sub(start))?;
+        change(&mut records, reader)?;
+        Ok(self.write_chunk(start, records)?)
+    }
+
+    /// Writes `records` over the records from `start` on (read by
+    /// [`Self::read_chunk`] and changed, their observations where they were).
+    pub fn write_chunk(&mut self, start: usize, mut records: Vec<FrameRecord>) -> Result<(), IoError> {
+        let end = start + records.len();
+        debug_assert!(end <= self.len);
+        let Some(heads) = self.heads.as_mut() else {
+            self.held.splice(start..end, records);
+            return Ok(());
+        };
+        let mut written = Vec::with_capacity(records.len() * RECORD_BYTES);
+        records.iter().for_each(|r| r.write_head(&mut written));
+        heads.overwrite((start * RECORD_BYTES) as u64, &written)?;
+        if end == self.len && !records.is_empty() {
+            self.last = records.pop();
         }
         Ok(())
     }
