@@ -133,7 +133,10 @@ mod tests {
         assert!(KeypointFeed::from_file(&dir.join("missing.json")).is_ok());
         std::fs::write(&path, r#"[{"timestamp": 1.0, "points": [[1, 2]]}]"#).unwrap();
         let bad = KeypointFeed::from_file(&path).err().unwrap().to_string();
-        assert!(bad.contains("dynamic_keypoints.json") && bad.contains("malformed"), "{bad}");
+        assert!(
+            bad.contains("dynamic_keypoints.json") && bad.contains("malformed"),
+            "{bad}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

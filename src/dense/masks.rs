@@ -36,8 +36,8 @@
 //! in place). `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
-use super::keypoint_feed::KeypointFeed;
 use super::free_space::{Evidence, PosedDepth};
+use super::keypoint_feed::KeypointFeed;
 pub use super::mask_layers::{dilate, MaskLayer, MaskLayers};
 use super::segments::{grow_segments, Seed, SegmentSettings};
 use crate::detect::FrameDetections;

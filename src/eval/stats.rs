@@ -105,6 +105,52 @@ pub fn median(values: &mut [f64]) -> f64 {
     median_of_sorted(values)
 }
 
+/// The most values a [`MedianSample`] keeps.
+pub const MEDIAN_SAMPLE_CAP: usize = 1 << 18;
+
+/// Values kept for a median: every value up to [`MEDIAN_SAMPLE_CAP`], then an evenly spaced
+/// subsample (every second value dropped each time it fills), so that the median of
+/// any number of frames' values takes bounded memory and is exact below the cap.
+#[derive(Debug)]
+pub struct MedianSample {
+    values: Vec<f64>,
+    stride: usize,
+    seen: usize,
+}
+
+impl Default for MedianSample {
+    fn default() -> Self {
+        Self {
+            values: Vec::new(),
+            stride: 1,
+            seen: 0,
+        }
+    }
+}
+
+impl MedianSample {
+    /// Adds a value.
+    pub fn push(&mut self, value: f64) {
+        if self.seen.is_multiple_of(self.stride) {
+            self.values.push(value);
+            if self.values.len() == MEDIAN_SAMPLE_CAP {
+                let mut i = 0;
+                self.values.retain(|_| {
+                    i += 1;
+                    i % 2 == 1
+                });
+                self.stride *= 2;
+            }
+        }
+        self.seen += 1;
+    }
+
+    /// The median of the values kept (0 without any).
+    pub fn median(mut self) -> f64 {
+        median(&mut self.values)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,5 +166,20 @@ mod tests {
         assert_eq!((s.min, s.max, s.count), (1.0, 6.0, 4));
         assert_eq!(Statistics::of(&[4.0, 1.0, 2.0]).unwrap().median, 2.0);
         assert!(Statistics::of(&[]).is_none());
+    }
+
+    #[test]
+    fn a_sample_keeps_every_value_below_its_cap_and_an_even_subsample_above() {
+        let mut below = MedianSample::default();
+        (0..1001).rev().for_each(|v| below.push(v as f64));
+        assert_eq!(below.median(), 500.0);
+        let mut above = MedianSample::default();
+        let n = 3 * MEDIAN_SAMPLE_CAP + 7;
+        (0..n).for_each(|v| above.push(v as f64));
+        assert!(
+            above.values.len() <= MEDIAN_SAMPLE_CAP && above.values.len() > MEDIAN_SAMPLE_CAP / 2
+        );
+        let middle = above.median() / n as f64;
+        assert!((middle - 0.5).abs() < 1e-3, "{middle}");
     }
 }

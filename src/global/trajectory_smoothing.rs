@@ -34,7 +34,7 @@ use nalgebra::{Rotation3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::checks::{self, positive, BadValue};
-use crate::eval::stats::median;
+use crate::eval::stats::MedianSample;
 use crate::geometry::se3::Se3;
 use crate::geometry::so3;
 use crate::io::IoError;
@@ -130,49 +130,6 @@ const WINDOWS: Windows = Windows {
     len: 1 << 15,
     overlap: 1024,
 };
-/// The most values kept for one median ([`Sample`]).
-const SAMPLE_CAP: usize = 1 << 18;
-
-/// Values kept for a median: every value up to [`SAMPLE_CAP`], then an evenly spaced
-/// subsample (every second value dropped each time it fills), so that the median of
-/// any number of frames' values takes bounded memory and is exact below the cap.
-#[derive(Debug)]
-struct Sample {
-    values: Vec<f64>,
-    stride: usize,
-    seen: usize,
-}
-
-impl Default for Sample {
-    fn default() -> Self {
-        Self {
-            values: Vec::new(),
-            stride: 1,
-            seen: 0,
-        }
-    }
-}
-
-impl Sample {
-    fn push(&mut self, value: f64) {
-        if self.seen.is_multiple_of(self.stride) {
-            self.values.push(value);
-            if self.values.len() == SAMPLE_CAP {
-                let mut i = 0;
-                self.values.retain(|_| {
-                    i += 1;
-                    i % 2 == 1
-                });
-                self.stride *= 2;
-            }
-        }
-        self.seen += 1;
-    }
-
-    fn median(mut self) -> f64 {
-        median(&mut self.values)
-    }
-}
 
 /// A record with a pose on its reference keyframe, as the smoother reads it.
 #[derive(Debug, Clone, Copy)]
@@ -237,7 +194,7 @@ fn smooth_in_windows(
         centre: centre_noise,
         rotation: rotation_noise,
     };
-    let mut shifts = Sample::default();
+    let mut shifts = MedianSample::default();
     for run in runs {
         let (end, overlap) = (run.last + 1, windows.overlap);
         let step = match end - run.first <= windows.len {
@@ -257,7 +214,15 @@ fn smooth_in_windows(
                 records.write_chunk(at, done)?;
             }
             let kept = core - from..core_end - from;
-            smooth_window(map, config, noise, &mut frames, kept.clone(), &mut report, &mut shifts);
+            smooth_window(
+                map,
+                config,
+                noise,
+                &mut frames,
+                kept.clone(),
+                &mut report,
+                &mut shifts,
+            );
             smoothed = Some((core, frames.drain(kept).collect()));
             core = core_end;
         }
@@ -272,7 +237,7 @@ fn smooth_in_windows(
 
 /// The median interval between consecutive posed frames (positive ones only).
 fn typical_interval(map: &Map, records: &FrameRecords) -> Result<f64, IoError> {
-    let mut intervals = Sample::default();
+    let mut intervals = MedianSample::default();
     let mut previous: Option<f64> = None;
     for record in records.iter() {
         let Some((posed, _)) = Posed::of(map, &record?) else {
@@ -297,7 +262,8 @@ fn runs_and_noise(
     records: &FrameRecords,
     typical: f64,
 ) -> Result<(Vec<RunSpan>, f64, f64), IoError> {
-    let (mut runs, mut centres, mut rotations) = (Vec::new(), Sample::default(), Sample::default());
+    let (mut runs, mut centres, mut rotations) =
+        (Vec::new(), MedianSample::default(), MedianSample::default());
     let mut run: Option<RunSpan> = None;
     // The run's last two posed frames, and the rotation increment between them.
     let mut last: [Option<Posed>; 2] = [None, None];
@@ -320,8 +286,12 @@ fn runs_and_noise(
         });
         (span.last, span.frames) = (index, span.frames + 1);
         if let [Some(a), Some(k)] = last {
-            let (ca, ck, cb) = [a, k, b].map(|p| p.world_from_camera.translation.vector).into();
-            (ca - 2.0 * ck + cb).iter().for_each(|v| centres.push(v.abs()));
+            let (ca, ck, cb) = [a, k, b]
+                .map(|p| p.world_from_camera.translation.vector)
+                .into();
+            (ca - 2.0 * ck + cb)
+                .iter()
+                .for_each(|v| centres.push(v.abs()));
             let [ra, rk, rb] = [a, k, b].map(|p| p.world_from_camera.rotation);
             let second = so3::log(&(rb * rk.inverse())) - so3::log(&(rk * ra.inverse()));
             second.iter().for_each(|v| rotations.push(v.abs()));
@@ -334,7 +304,7 @@ fn runs_and_noise(
 
 /// \(\sigma\) of white noise from the absolute values of its second differences
 /// (their median absolute deviation, scaled to a standard deviation, over \(\sqrt 6\)).
-fn white_noise(second_differences: Sample) -> f64 {
+fn white_noise(second_differences: MedianSample) -> f64 {
     1.4826 * second_differences.median() / 6f64.sqrt()
 }
 
@@ -354,7 +324,7 @@ fn smooth_window(
     frames: &mut [FrameRecord],
     kept: std::ops::Range<usize>,
     report: &mut SmoothingReport,
-    shifts: &mut Sample,
+    shifts: &mut MedianSample,
 ) {
     // Frames with a pose, where they are, their world_from_camera and their
     // reference's reference_from_world.
@@ -675,20 +645,10 @@ mod tests {
             .map(|(p, q)| (p.inverse().translation.vector - q.inverse().translation.vector).norm())
             .fold(0.0, f64::max);
         // Equal to the bit here (3 mm apart with no overlap).
-        assert!(largest < 1e-9, "windows and one solve differ by {largest} m");
-    }
-
-    #[test]
-    fn a_sample_keeps_every_value_below_its_cap_and_an_even_subsample_above() {
-        let mut below = Sample::default();
-        (0..1001).rev().for_each(|v| below.push(v as f64));
-        assert_eq!(below.median(), 500.0);
-        let mut above = Sample::default();
-        let n = 3 * SAMPLE_CAP + 7;
-        (0..n).for_each(|v| above.push(v as f64));
-        assert!(above.values.len() <= SAMPLE_CAP && above.values.len() > SAMPLE_CAP / 2);
-        let middle = above.median() / n as f64;
-        assert!((middle - 0.5).abs() < 1e-3, "{middle}");
+        assert!(
+            largest < 1e-9,
+            "windows and one solve differ by {largest} m"
+        );
     }
 
     fn rmse(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
@@ -703,7 +663,7 @@ mod tests {
     #[test]
     fn smoothing_a_noisy_smooth_path_brings_it_closer_to_the_truth_and_keeps_anchors() {
         let (times, truth, measured) = noisy_path(5);
-        let mut second = Sample::default();
+        let mut second = MedianSample::default();
         for k in 1..times.len() - 1 {
             let d = measured[k - 1] - 2.0 * measured[k] + measured[k + 1];
             d.iter().for_each(|v| second.push(v.abs()));

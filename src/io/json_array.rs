@@ -44,7 +44,10 @@ impl<T: DeserializeOwned> JsonArrayItems<T> {
     /// The next byte that is not white space, not taken (`None` at the end).
     fn peek(&mut self) -> Result<Option<u8>, IoError> {
         loop {
-            let buffer = self.reader.fill_buf().map_err(|e| IoError::read(&self.path, e))?;
+            let buffer = self
+                .reader
+                .fill_buf()
+                .map_err(|e| IoError::read(&self.path, e))?;
             let Some(&byte) = buffer.first() else {
                 return Ok(None);
             };
@@ -120,7 +123,10 @@ mod tests {
     fn items_of(text: &str) -> Vec<Result<Item, String>> {
         let dir = std::env::temp_dir().join(format!("dopslam-json-array-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join(format!("{:x}.json", text.len() * 31 + text.bytes().map(usize::from).sum::<usize>()));
+        let path = dir.join(format!(
+            "{:x}.json",
+            text.len() * 31 + text.bytes().map(usize::from).sum::<usize>()
+        ));
         std::fs::write(&path, text).unwrap();
         let items = JsonArrayItems::<Item>::open(&path)
             .unwrap()
@@ -150,9 +156,15 @@ mod tests {
         let cut = items_of(r#"[{"t": 1.0, "points": []}, {"t": 2.0, "poi"#);
         assert_eq!(cut.len(), 2);
         assert!(cut[0].is_ok());
-        assert!(cut[1].as_ref().unwrap_err().contains("malformed"), "{cut:?}");
+        assert!(
+            cut[1].as_ref().unwrap_err().contains("malformed"),
+            "{cut:?}"
+        );
         let cut = items_of(r#"[{"t": 1.0, "points": []}"#);
-        assert!(cut[1].as_ref().unwrap_err().contains("cut short"), "{cut:?}");
+        assert!(
+            cut[1].as_ref().unwrap_err().contains("cut short"),
+            "{cut:?}"
+        );
         let not = items_of(r#"{"t": 1.0}"#);
         assert!(not[0].as_ref().unwrap_err().contains("not a JSON array"));
     }

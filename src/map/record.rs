@@ -231,12 +231,12 @@ impl FrameRecords {
     /// Every record in order (observations on disk stay there), [`RECORD_CHUNK`] read
     /// at a time.
     pub fn iter(&self) -> impl Iterator<Item = Result<FrameRecord, IoError>> + '_ {
-        (0..self.len)
-            .step_by(RECORD_CHUNK)
-            .flat_map(move |start| match self.read_chunk(start, RECORD_CHUNK) {
+        (0..self.len).step_by(RECORD_CHUNK).flat_map(move |start| {
+            match self.read_chunk(start, RECORD_CHUNK) {
                 Ok(chunk) => chunk.into_iter().map(Ok).collect::<Vec<_>>(),
                 Err(e) => vec![Err(e)],
-            })
+            }
+        })
     }
 
     /// `change` on the records in order, `chunk` at a time, with the reader of their
@@ -275,7 +275,11 @@ impl FrameRecords {
 
     /// Writes `records` over the records from `start` on (read by
     /// [`Self::read_chunk`] and changed, their observations where they were).
-    pub fn write_chunk(&mut self, start: usize, mut records: Vec<FrameRecord>) -> Result<(), IoError> {
+    pub fn write_chunk(
+        &mut self,
+        start: usize,
+        mut records: Vec<FrameRecord>,
+    ) -> Result<(), IoError> {
         let end = start + records.len();
         debug_assert!(end <= self.len);
         let Some(heads) = self.heads.as_mut() else {
@@ -423,9 +427,9 @@ fn read_pose(bytes: &[u8]) -> Se3 {
         .chunks_exact(8)
         .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
         .collect();
-    let rotation = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_column_slice(
-        &values[..9],
-    ));
+    let rotation = nalgebra::Rotation3::from_matrix_unchecked(
+        nalgebra::Matrix3::from_column_slice(&values[..9]),
+    );
     let translation = nalgebra::Translation3::new(values[9], values[10], values[11]);
     Se3::from_parts(translation, rotation)
 }
@@ -516,7 +520,12 @@ mod tests {
             assert_eq!(*spilled.observations(back).unwrap(), *original.observations);
             assert_eq!(back.timestamp.to_bits(), original.timestamp.to_bits());
             assert_eq!(
-                (back.segment, back.keyframe, back.camera_from_world, back.reference),
+                (
+                    back.segment,
+                    back.keyframe,
+                    back.camera_from_world,
+                    back.reference
+                ),
                 (
                     original.segment,
                     original.keyframe,
@@ -535,7 +544,9 @@ mod tests {
         let moved = |records: &mut FrameRecords| {
             records
                 .update(4, |chunk, _| {
-                    chunk.iter_mut().for_each(|r| r.camera_from_world = Some(pose(r.timestamp)));
+                    chunk
+                        .iter_mut()
+                        .for_each(|r| r.camera_from_world = Some(pose(r.timestamp)));
                     Ok::<(), IoError>(())
                 })
                 .unwrap()
@@ -546,11 +557,17 @@ mod tests {
             records.iter().collect::<Result<_, _>>().unwrap()
         };
         for (a, b) in all(&held).iter().zip(&all(&spilled)) {
-            assert_eq!(held.observations(a).unwrap(), spilled.observations(b).unwrap());
+            assert_eq!(
+                held.observations(a).unwrap(),
+                spilled.observations(b).unwrap()
+            );
             assert_eq!(a.camera_from_world, b.camera_from_world);
         }
         assert_eq!(spilled.last().unwrap().camera_from_world, Some(pose(0.5)));
-        assert_ne!(held.iter().last().unwrap().unwrap().observations, originals[5].observations);
+        assert_ne!(
+            held.iter().last().unwrap().unwrap().observations,
+            originals[5].observations
+        );
         drop(spilled);
         let left = std::fs::read_dir(&dir).unwrap().count();
         std::fs::remove_dir(&dir).unwrap();

@@ -156,10 +156,12 @@ impl FrameObserver for DynamicKeypoints {
         if let (Some(dop), Some(frame)) = (view.dop, view.tracked()) {
             let spill = match self.spill.as_mut() {
                 Some(spill) => spill,
-                None => self.spill.insert(SpillFile::create(&self.dir, "keypoints", 1)?),
+                None => self
+                    .spill
+                    .insert(SpillFile::create(&self.dir, "keypoints", 1)?),
             };
-            let mut line = serde_json::to_vec(&dynamic_keypoints(frame, dop))
-                .expect("keypoints serialise");
+            let mut line =
+                serde_json::to_vec(&dynamic_keypoints(frame, dop)).expect("keypoints serialise");
             line.push(b'\n');
             spill.append(&line)?;
         }

@@ -12,7 +12,7 @@ use super::options::RunOptions;
 use crate::dop::Mode;
 use crate::dynamics::DetectionTotals;
 use crate::eval::report::{evaluate, EvalOptions, EvalReport};
-use crate::eval::stats::median;
+use crate::eval::stats::MedianSample;
 use crate::global::GlobalReport;
 use crate::io::atomic::write_atomic_with;
 use crate::io::run_dir::RunDir;
@@ -275,7 +275,8 @@ fn tally_lines(
         Ok(line) => {
             tally.add(&line);
             let t = &line.tracking;
-            (t.state == TrackingState::Ok).then(|| Ok((t.timestamp, final_segment(merges, t.segment))))
+            (t.state == TrackingState::Ok)
+                .then(|| Ok((t.timestamp, final_segment(merges, t.segment))))
         }
     });
     crate::io::run_dir::write_segments(&run.segments(), tracked)?;
@@ -283,8 +284,8 @@ fn tally_lines(
 }
 
 /// What one reading of the frames' lines gathers for the run's totals (the timing
-/// columns are the only part that grows with the frames: 40 bytes a frame, for the
-/// medians, let go once the report is written).
+/// columns' medians from bounded samples: exact up to
+/// [`crate::eval::stats::MEDIAN_SAMPLE_CAP`] frames).
 #[derive(Default)]
 struct LineTally {
     frames: usize,
@@ -294,11 +295,12 @@ struct LineTally {
     segments: SegmentSpans,
     /// The first frame tracked (placed in a loaded map).
     placed_at_frame: Option<usize>,
-    tracking_ms: Vec<f64>,
-    extraction_ms: Vec<f64>,
-    matching_ms: Vec<f64>,
-    optimisation_ms: Vec<f64>,
-    dop_ms: Vec<f64>,
+    tracking_ms_sum: f64,
+    tracking_ms: MedianSample,
+    extraction_ms: MedianSample,
+    matching_ms: MedianSample,
+    optimisation_ms: MedianSample,
+    dop_ms: MedianSample,
 }
 
 impl LineTally {
@@ -319,6 +321,7 @@ impl LineTally {
             }
         }
         self.segments.add(t);
+        self.tracking_ms_sum += line.tracking_ms;
         self.tracking_ms.push(line.tracking_ms);
         self.extraction_ms.push(line.extraction_ms);
         self.matching_ms.push(t.matching_ms);
@@ -328,10 +331,10 @@ impl LineTally {
 
     /// The run's totals, with the map's sizes, the loops' `merges` and the frames in
     /// the trajectory (`tracked`).
-    fn totals(mut self, map: &Map, merges: &[(usize, usize)], tracked: usize) -> RunTotals {
+    fn totals(self, map: &Map, merges: &[(usize, usize)], tracked: usize) -> RunTotals {
         let frames = self.frames;
         let (segments, largest_segment_percent) = self.segments.finish(merges, frames);
-        let mean_tracking_ms = self.tracking_ms.iter().sum::<f64>() / frames.max(1) as f64;
+        let mean_tracking_ms = self.tracking_ms_sum / frames.max(1) as f64;
         RunTotals {
             frames,
             tracked,
@@ -343,12 +346,12 @@ impl LineTally {
             largest_segment_percent,
             keyframes: map.keyframes().len(),
             map_points: map.points().len(),
-            median_tracking_ms: median(&mut self.tracking_ms),
+            median_tracking_ms: self.tracking_ms.median(),
             mean_tracking_ms,
-            median_extraction_ms: median(&mut self.extraction_ms),
-            median_matching_ms: median(&mut self.matching_ms),
-            median_optimisation_ms: median(&mut self.optimisation_ms),
-            median_dop_ms: median(&mut self.dop_ms),
+            median_extraction_ms: self.extraction_ms.median(),
+            median_matching_ms: self.matching_ms.median(),
+            median_optimisation_ms: self.optimisation_ms.median(),
+            median_dop_ms: self.dop_ms.median(),
             peak_memory_mib: crate::memory::peak_resident_mib(),
         }
     }

@@ -148,9 +148,9 @@ pub fn tracking_pass(
         };
         observers.iter_mut().for_each(|o| o.annotate(&mut line));
         let search = offset_search.as_mut();
-        let kept = lines.push(line).and_then(|()| {
-            keep_record(&mut records, record, search, &mut system, setup, index)
-        });
+        let kept = lines
+            .push(line)
+            .and_then(|()| keep_record(&mut records, record, search, &mut system, setup, index));
         if let Err(e) = kept.map(|taken| loader.offset += taken) {
             stop = Some(StopReason::Records(e.to_string()));
             break;
