@@ -140,13 +140,7 @@ pub fn tracking_pass(
         let applied = system.take_applied();
         observers.iter_mut().for_each(|o| o.on_applied(&applied));
         placed |= stats.state == TrackingState::Ok;
-        let mut line = FrameLine {
-            tracking: stats,
-            extraction_ms,
-            tracking_ms,
-            truth: None,
-        };
-        observers.iter_mut().for_each(|o| o.annotate(&mut line));
+        let line = frame_line(stats, extraction_ms, tracking_ms, observers);
         let search = offset_search.as_mut();
         let kept = lines
             .push(line)
@@ -168,6 +162,24 @@ pub fn tracking_pass(
     let mut pass = end_pass(system, setup, log, observers);
     pass.offset = offset_search.map(OffsetSearch::finish);
     Ok(pass)
+}
+
+/// A frame's report line from its tracking `stats` and its extraction and tracking
+/// times (milliseconds), with what the observers found of it.
+fn frame_line(
+    stats: crate::tracking::FrameStats,
+    extraction_ms: f64,
+    tracking_ms: f64,
+    observers: &mut [&mut dyn FrameObserver],
+) -> FrameLine {
+    let mut line = FrameLine {
+        tracking: stats,
+        extraction_ms,
+        tracking_ms,
+        truth: None,
+    };
+    observers.iter_mut().for_each(|o| o.annotate(&mut line));
+    line
 }
 
 /// Keeps frame `index`'s record (its observations to the spill file); in a stereo
