@@ -2,7 +2,8 @@
 //! synthetic frames (not a test; `tools/bench.sh` puts the figures in its report):
 //! ORB extraction at 640x480 (TUM) and 1241x376 (KITTI), TSDF integration of a
 //! 640x480 depth frame, the registration of an Azure Kinect depth frame (640x576) into
-//! the colour camera, and trajectory evaluation (ATE + RPE) of a 30 s trajectory.
+//! the colour camera, trajectory evaluation (ATE + RPE) of a 30 s trajectory, and
+//! what a frame writes to the run's spill files (its report line and its record).
 //! Prints one `name: median ms (...)` line each. `RAYON_NUM_THREADS` sets the threads.
 
 use std::time::Instant;
@@ -87,6 +88,7 @@ fn main() {
     );
 
     registration(&rendered);
+    spills();
 
     let (reference, estimate) = dopslam::demo::demo_trajectories(1, 30.0, 0.004);
     let options = EvalOptions {
@@ -156,4 +158,49 @@ fn registration(rendered: &[dopslam::synth::render::Rendered]) {
         valid = out.metres.iter().filter(|&&z| z > 0.0).count();
     });
     println!("depth registration 640x576 into 640x480 (rational lenses): {ms:.2} ms median ({valid} colour pixels with depth)");
+}
+
+/// A street frame's report line and its record with 370 observations (the street's
+/// median) pushed to spill files, as the tracking pass does each frame.
+fn spills() {
+    use dopslam::geometry::se3::Se3;
+    use dopslam::map::record::{FrameObservation, FrameRecord, FrameRecords};
+    use dopslam::records::{FrameLine, FrameLines};
+    let dir = std::env::temp_dir().join(format!("dopslam-bench-spills-{}", std::process::id()));
+    let line: FrameLine = serde_json::from_str(
+        r#"{"index": 100, "timestamp": 10.0, "state": "ok", "segment": 0, "keypoints": 2001,
+        "matches": 409, "inliers": 408, "keyframe": false, "dynamic_keypoints": 1,
+        "dynamic_map_points": 6, "geometric_raised": 4, "geometric_lowered": 82,
+        "rigidity_outliers": 1, "matching_ms": 0.883, "optimisation_ms": 0.524,
+        "dop_ms": 0.951, "extraction_ms": 18.44, "tracking_ms": 21.42}"#,
+    )
+    .expect("a frame line");
+    let mut points: slotmap::SlotMap<dopslam::map::MapPointKey, ()> = slotmap::SlotMap::with_key();
+    let observations: Vec<FrameObservation> = (0..370)
+        .map(|i| FrameObservation {
+            point: points.insert(()),
+            keypoint: i,
+            x: i as f32,
+            y: 2.0 * i as f32,
+            right_u: i as f32 - 3.0,
+            level: (i % 8) as u8,
+        })
+        .collect();
+    let record = FrameRecord {
+        camera_from_world: Some(Se3::identity()),
+        observations,
+        ..FrameRecord::start(10.0, 0)
+    };
+    let mut lines = FrameLines::spilling_into(&dir).expect("a spill file");
+    let mut records = FrameRecords::spilling_into(&dir).expect("spill files");
+    let frames: Vec<usize> = (0..2000).collect();
+    let ms = time(&frames, 1, |_| {
+        lines.push(line.clone()).expect("a line written");
+        records.push(record.clone()).expect("a record written");
+    });
+    drop((lines, records));
+    let _ = std::fs::remove_dir(&dir);
+    println!(
+        "a frame's report line and record (370 observations) to the spill files: {ms:.4} ms median"
+    );
 }

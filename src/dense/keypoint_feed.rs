@@ -5,9 +5,18 @@
 
 use std::path::Path;
 
-use super::masks::FrameKeypoints;
 use crate::io::json_array::JsonArrayItems;
 use crate::io::IoError;
+
+/// Dynamic keypoints of one frame: `(x, y, depth)` (one entry of
+/// `dynamic_keypoints.json`).
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct FrameKeypoints {
+    /// The frame's time.
+    pub timestamp: f64,
+    /// Its dynamic keypoints `(x, y, depth)`.
+    pub points: Vec<[f32; 3]>,
+}
 
 /// Two timestamps closer than this are the same frame's (seconds).
 const SAME_FRAME: f64 = 1e-6;

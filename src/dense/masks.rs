@@ -37,6 +37,7 @@
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
 use super::free_space::{Evidence, PosedDepth};
+pub use super::keypoint_feed::FrameKeypoints;
 use super::keypoint_feed::KeypointFeed;
 pub use super::mask_layers::{dilate, MaskLayer, MaskLayers};
 use super::segments::{grow_segments, Seed, SegmentSettings};
@@ -111,15 +112,6 @@ struct BoxClass {
     /// free-space evidence says. The others (a car, a truck, a false alarm of one on a
     /// table) are masked where evidence is gathered only when it saw them move.
     self_moving: bool,
-}
-
-/// Dynamic keypoints of one frame: `(x, y, depth)`.
-#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
-pub struct FrameKeypoints {
-    /// The frame's time.
-    pub timestamp: f64,
-    /// Its dynamic keypoints `(x, y, depth)`.
-    pub points: Vec<[f32; 3]>,
 }
 
 /// A frame's final `camera_from_world` by its timestamp, and its depth map.
