@@ -118,7 +118,6 @@ impl SpillFile {
     }
 
     /// Where the file is.
-    #[cfg(test)]
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -61,9 +61,7 @@ impl FrameLines {
         };
         let reader = BufReader::with_capacity(1 << 16, spill.reader());
         let lines = serde_json::Deserializer::from_reader(reader).into_iter::<FrameLine>();
-        Box::new(lines.map(|line| {
-            line.map_err(|e| IoError::invalid(Path::new("report.json frames"), e.to_string()))
-        }))
+        Box::new(lines.map(|line| line.map_err(|e| IoError::invalid(spill.path(), e.to_string()))))
     }
 
     /// All lines in memory (a short run's, or a test's).
