@@ -17,7 +17,7 @@ import rerun as rr
 
 
 # What a run logs per frame (the rest, trajectories and the dense map, is static).
-TEMPORAL = ["/world/camera/**", "/world/map/**", "/world/keyframes", "/world/trajectory/tracking", "/events/**"]
+TEMPORAL = ["/world/camera/**", "/world/map/**", "/world/keyframes", "/world/trajectory/tracking/**", "/events/**"]
 
 
 def entity_of(column):

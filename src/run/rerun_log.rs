@@ -8,7 +8,7 @@ use nalgebra::Vector3;
 use super::observers::{FrameObserver, FrameView};
 use crate::dynamics::Applied;
 use crate::io::IoError;
-use crate::view::results::{events_entry, frame_events, FrameFacts, TRAJECTORY_EVERY};
+use crate::view::results::{events_entry, frame_events, FrameFacts, PathPieces, TRAJECTORY_EVERY};
 use crate::view::{At, Entry, LogHandle};
 
 /// Logs the tracking pass (see the module doc).
@@ -17,7 +17,7 @@ pub struct RerunLog {
     /// The last frame's time: detections arriving are logged there.
     at: At,
     previous: Option<&'static str>,
-    path: Vec<Vector3<f64>>,
+    path: PathPieces,
     keyframes: Vec<Vector3<f64>>,
 }
 
@@ -28,7 +28,7 @@ impl RerunLog {
             log,
             at: At::Always,
             previous: None,
-            path: Vec::new(),
+            path: PathPieces::default(),
             keyframes: Vec::new(),
         }
     }
@@ -64,17 +64,16 @@ impl FrameObserver for RerunLog {
         if let Some(camera_from_world) = record.camera_from_world {
             let world_from_camera = camera_from_world.inverse();
             self.log(Entry::Camera { world_from_camera });
-            self.path.push(world_from_camera.translation.vector);
+            if let Some(full) = self.path.push(world_from_camera.translation.vector) {
+                self.log(full);
+            }
             if report.keyframe {
                 self.keyframes.push(world_from_camera.translation.vector);
                 self.log(Entry::Keyframes(self.keyframes.clone()));
             }
         }
         if view.index.is_multiple_of(TRAJECTORY_EVERY) {
-            self.log(Entry::Trajectory {
-                name: "tracking",
-                centres: self.path.clone(),
-            });
+            self.log(self.path.entry());
         }
         let state = report.state.as_str();
         let facts = FrameFacts {
@@ -131,9 +130,6 @@ impl FrameObserver for RerunLog {
     }
 
     fn finish(&mut self) {
-        self.log(Entry::Trajectory {
-            name: "tracking",
-            centres: self.path.clone(),
-        });
+        self.log(self.path.entry());
     }
 }

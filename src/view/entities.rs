@@ -12,7 +12,7 @@
 //! | `world/camera/image/depth` | depth (with `rerun_depth`) |
 //! | `world/map/static`, `world/map/moving` | the local map at keyframes |
 //! | `world/keyframes` | keyframe centres |
-//! | `world/trajectory/{tracking,final,truth}` | trajectories (blue, green, grey; a baseline's red) |
+//! | `world/trajectory/{final,truth}`, `world/trajectory/tracking/<piece>` | trajectories (blue, green, grey; a baseline's red); the tracking path in pieces of 300 centres |
 //! | `world/loops` | closed loops' edges |
 //! | `world/dense/mesh`, `world/dense/cloud` | the dense map |
 //! | `events`, `events/loops` | keyframes, tracking lost and relocalised; loops closed |
@@ -352,11 +352,19 @@ mod with_rerun {
                         .with_radii([0.03]);
                     self.send(at, at_path(KEYFRAMES), &points)
                 }
-                Entry::Trajectory { name, centres } => {
+                Entry::Trajectory {
+                    name,
+                    piece,
+                    centres,
+                } => {
                     let colour = trajectory_colour(name, prefix);
                     let strip = LineStrips3D::new([centres.iter().map(vec3).collect::<Vec<_>>()])
                         .with_colors([colour]);
-                    self.send(at, at_path(&format!("{TRAJECTORY}/{name}")), &strip)
+                    let path = match piece {
+                        Some(piece) => format!("{TRAJECTORY}/{name}/{piece}"),
+                        None => format!("{TRAJECTORY}/{name}"),
+                    };
+                    self.send(at, at_path(&path), &strip)
                 }
                 Entry::Event {
                     level,

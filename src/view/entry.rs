@@ -91,6 +91,9 @@ pub enum Entry {
     Trajectory {
         /// `tracking` or `final`.
         name: &'static str,
+        /// The piece of a path drawn in pieces (`world/trajectory/<name>/<piece>`;
+        /// [`super::results::PathPieces`]), `None` for a path drawn whole.
+        piece: Option<usize>,
         /// The camera centres.
         centres: Vec<Vector3<f64>>,
     },

@@ -24,6 +24,46 @@ use crate::tracking::FrameStats;
 /// The tracking pass's trajectory is drawn again every this many frames.
 pub const TRAJECTORY_EVERY: usize = 10;
 
+/// Camera centres in one piece of the tracking path
+/// (`world/trajectory/tracking/<piece>`, [`PathPieces`]).
+pub const PATH_PIECE: usize = 300;
+
+/// The tracking path as the recording draws it: in pieces of [`PATH_PIECE`] centres,
+/// the growing one drawn again every [`TRAJECTORY_EVERY`] frames and a full one left
+/// as it was last drawn, so that the memory and the recording grow with the frames,
+/// not with their square.
+#[derive(Debug, Default)]
+pub struct PathPieces {
+    piece: usize,
+    centres: Vec<Vector3<f64>>,
+}
+
+impl PathPieces {
+    /// Adds a camera centre; when the piece is full, the entry that draws it whole,
+    /// before the next piece starts where it ended (so the pieces join).
+    pub fn push(&mut self, centre: Vector3<f64>) -> Option<Entry> {
+        let full = (self.centres.len() > PATH_PIECE).then(|| {
+            let drawn = self.entry();
+            let last = *self.centres.last().expect("a full piece");
+            self.centres.clear();
+            self.centres.push(last);
+            self.piece += 1;
+            drawn
+        });
+        self.centres.push(centre);
+        full
+    }
+
+    /// The entry that draws the growing piece.
+    pub fn entry(&self) -> Entry {
+        Entry::Trajectory {
+            name: "tracking",
+            piece: Some(self.piece),
+            centres: self.centres.clone(),
+        }
+    }
+}
+
 /// What happened at one frame, for the events: its state, whether it made a keyframe,
 /// why it was lost.
 #[derive(Debug, Clone, PartialEq)]
@@ -100,6 +140,7 @@ pub fn log_results(
             At::Always,
             Entry::Trajectory {
                 name: "final",
+                piece: None,
                 centres: centres(&estimate.poses),
             },
         );
@@ -109,6 +150,7 @@ pub fn log_results(
                 At::Always,
                 Entry::Trajectory {
                     name: "truth",
+                    piece: None,
                     centres: aligned,
                 },
             );
@@ -328,7 +370,7 @@ pub fn replay_frames(
         log,
         replayed: Replayed::default(),
         previous: None,
-        path: Vec::new(),
+        path: PathPieces::default(),
         keyframes: Vec::new(),
     };
     let lines = report.frames.to_vec()?;
@@ -364,7 +406,7 @@ struct Replay<'a> {
     log: &'a LogHandle,
     replayed: Replayed,
     previous: Option<String>,
-    path: Vec<Vector3<f64>>,
+    path: PathPieces,
     keyframes: Vec<Vector3<f64>>,
 }
 
@@ -383,22 +425,16 @@ impl Replay<'_> {
                 },
             );
             self.replayed.poses += 1;
-            self.path.push(pose.translation.vector);
+            if let Some(full) = self.path.push(pose.translation.vector) {
+                log.log("", at, full);
+            }
             if frame.keyframe {
                 self.keyframes.push(pose.translation.vector);
                 log.log("", at, Entry::Keyframes(self.keyframes.clone()));
             }
         }
         if frame.index.is_multiple_of(TRAJECTORY_EVERY) || last {
-            let centres = self.path.clone();
-            log.log(
-                "",
-                at,
-                Entry::Trajectory {
-                    name: "tracking",
-                    centres,
-                },
-            );
+            log.log("", at, self.path.entry());
         }
         let facts = FrameFacts {
             index: frame.index,
@@ -492,6 +528,35 @@ mod tests {
             keyframe,
             lost: Some("few_inliers".into()),
         }
+    }
+
+    #[test]
+    fn the_path_comes_in_joined_pieces_each_drawn_whole_before_the_next() {
+        let mut path = PathPieces::default();
+        let mut full = Vec::new();
+        for i in 0..2 * PATH_PIECE + 10 {
+            full.extend(path.push(Vector3::new(i as f64, 0.0, 0.0)));
+        }
+        let pieces: Vec<(usize, Vec<Vector3<f64>>)> = full
+            .into_iter()
+            .chain([path.entry()])
+            .map(|e| match e {
+                Entry::Trajectory {
+                    piece: Some(p),
+                    centres,
+                    ..
+                } => (p, centres),
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(pieces.iter().map(|p| p.0).collect::<Vec<_>>(), [0, 1, 2]);
+        assert!(pieces.iter().all(|p| p.1.len() <= PATH_PIECE + 1));
+        // Each piece starts where the one before ended, and every centre is drawn.
+        for pair in pieces.windows(2) {
+            assert_eq!(pair[1].1[0], *pair[0].1.last().unwrap());
+        }
+        let drawn: usize = pieces.iter().map(|p| p.1.len()).sum::<usize>() - 2;
+        assert_eq!(drawn, 2 * PATH_PIECE + 10);
     }
 
     #[test]
