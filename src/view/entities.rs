@@ -360,11 +360,7 @@ mod with_rerun {
                     let colour = trajectory_colour(name, prefix);
                     let strip = LineStrips3D::new([centres.iter().map(vec3).collect::<Vec<_>>()])
                         .with_colors([colour]);
-                    let path = match piece {
-                        Some(piece) => format!("{TRAJECTORY}/{name}/{piece}"),
-                        None => format!("{TRAJECTORY}/{name}"),
-                    };
-                    self.send(at, at_path(&path), &strip)
+                    self.send(at, at_path(&trajectory_entity(name, *piece)), &strip)
                 }
                 Entry::Event {
                     level,
@@ -463,8 +459,14 @@ mod with_rerun {
         bytes
     }
 
-    /// A trajectory's colour: the ground truth grey, a baseline's (`no_dop`) red, the
-    /// run's green (final) and blue (tracking).
+    /// The entity of the trajectory `name` (of one `piece` of it, when drawn in pieces).
+    fn trajectory_entity(name: &str, piece: Option<usize>) -> String {
+        match piece {
+            Some(piece) => format!("{TRAJECTORY}/{name}/{piece}"),
+            None => format!("{TRAJECTORY}/{name}"),
+        }
+    }
+
     /// A trajectory's colour: the truth grey; the run's final green, its tracking
     /// pass blue; a baseline's red; a merged map's recordings each their own.
     fn trajectory_colour(name: &str, prefix: &str) -> Color {
