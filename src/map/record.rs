@@ -180,7 +180,6 @@ impl FrameRecords {
 
     /// Adds the next frame's record (to disk, with spill files).
     pub fn push(&mut self, mut record: FrameRecord) -> Result<(), IoError> {
-        self.len += 1;
         if let (Some(file), Some(heads)) = (self.file.as_mut(), self.heads.as_mut()) {
             let at = file.append(&encode(&record.observations))?;
             record.spilled = Some(Spilled {
@@ -193,6 +192,8 @@ impl FrameRecords {
         } else {
             self.held.push(record);
         }
+        // Counted once written: after a failed write the records stay whole.
+        self.len += 1;
         Ok(())
     }
 

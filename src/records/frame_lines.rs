@@ -33,14 +33,16 @@ impl FrameLines {
 
     /// Adds the next frame's line.
     pub fn push(&mut self, line: FrameLine) -> Result<(), IoError> {
+        match self.spill.as_mut() {
+            None => self.held.push(line),
+            Some(spill) => {
+                let mut bytes = serde_json::to_vec(&line).expect("a frame line serialises");
+                bytes.push(b'\n');
+                spill.append(&bytes)?;
+            }
+        }
+        // Counted once written: after a failed write the lines stay whole.
         self.len += 1;
-        let Some(spill) = self.spill.as_mut() else {
-            self.held.push(line);
-            return Ok(());
-        };
-        let mut bytes = serde_json::to_vec(&line).expect("a frame line serialises");
-        bytes.push(b'\n');
-        spill.append(&bytes)?;
         Ok(())
     }
 
