@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::GlobalInputs;
-use crate::eval::stats::median;
+use crate::eval::stats::MedianSample;
 use crate::geometry::se3::Se3;
 use crate::io::IoError;
 use crate::map::record::{
@@ -57,7 +57,8 @@ pub fn refine_frames(
     records: &mut FrameRecords,
 ) -> Result<RefinementReport, IoError> {
     let start = Instant::now();
-    let (mut tried, mut moved) = (0, Vec::new());
+    let (mut tried, mut refined, mut moved, mut max_shift_mm) =
+        (0, 0, MedianSample::default(), 0.0f64);
     records.update(RECORD_CHUNK, |records, reader| {
         let mut frames: Vec<&mut FrameRecord> = records
             .iter_mut()
@@ -68,16 +69,19 @@ pub fn refine_frames(
             .map(|frame| refine(map, inputs, reader, frame))
             .collect::<Result<_, IoError>>()?;
         tried += frames.len();
-        moved.extend(shifts.iter().flatten().map(|s| s * 1e3));
+        for shift_mm in shifts.iter().flatten().map(|s| s * 1e3) {
+            refined += 1;
+            max_shift_mm = max_shift_mm.max(shift_mm);
+            moved.push(shift_mm);
+        }
         Ok::<(), IoError>(())
     })?;
-    let refined = moved.len();
     Ok(RefinementReport {
         frames: tried,
         refined,
         kept: tried - refined,
-        median_shift_mm: median(&mut moved),
-        max_shift_mm: moved.iter().copied().fold(0.0, f64::max),
+        median_shift_mm: moved.median(),
+        max_shift_mm,
         milliseconds: start.elapsed().as_secs_f64() * 1e3,
     })
 }

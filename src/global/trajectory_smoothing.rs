@@ -265,7 +265,7 @@ fn runs_and_noise(
     let (mut runs, mut centres, mut rotations) =
         (Vec::new(), MedianSample::default(), MedianSample::default());
     let mut run: Option<RunSpan> = None;
-    // The run's last two posed frames, and the rotation increment between them.
+    // The run's last two posed frames.
     let mut last: [Option<Posed>; 2] = [None, None];
     for (index, record) in records.iter().enumerate() {
         let Some((b, _)) = Posed::of(map, &record?) else {

@@ -322,20 +322,16 @@ impl FrameRecords {
             }
             return Ok(());
         }
-        let spilled: Vec<Spilled> = self
-            .iter()
-            .filter_map(|r| r.map(|r| r.spilled).transpose())
-            .collect::<Result<_, _>>()?;
-        let file = self.file.as_mut().expect("a spill file");
-        for at in spilled {
-            let mut bytes = vec![0u8; at.count as usize * OBSERVATION_BYTES];
-            file.read_at(at.at, &mut bytes)?;
-            let mut observations: Vec<FrameObservation> = bytes
-                .chunks_exact(OBSERVATION_BYTES)
-                .map(FrameObservation::read_from)
-                .collect();
-            observations.iter_mut().for_each(&mut change);
-            file.overwrite(at.at, &encode(&observations))?;
+        for start in (0..self.len).step_by(RECORD_CHUNK) {
+            for record in self.read_chunk(start, RECORD_CHUNK)? {
+                let Some(spilled) = record.spilled else {
+                    continue;
+                };
+                let mut observations = self.observations(&record)?.into_owned();
+                observations.iter_mut().for_each(&mut change);
+                let file = self.file.as_mut().expect("a spill file");
+                file.overwrite(spilled.at, &encode(&observations))?;
+            }
         }
         Ok(())
     }
@@ -424,10 +420,10 @@ fn write_pose(out: &mut Vec<u8>, pose: Option<&Se3>) {
 }
 
 fn read_pose(bytes: &[u8]) -> Se3 {
-    let values: Vec<f64> = bytes
-        .chunks_exact(8)
-        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-        .collect();
+    let mut values = [0.0; 12];
+    for (value, b) in values.iter_mut().zip(bytes.chunks_exact(8)) {
+        *value = f64::from_le_bytes(b.try_into().expect("8 bytes"));
+    }
     let rotation = nalgebra::Rotation3::from_matrix_unchecked(
         nalgebra::Matrix3::from_column_slice(&values[..9]),
     );

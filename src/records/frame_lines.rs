@@ -3,7 +3,7 @@
 //! pass holds a line per frame, and `report.json` is written from that file as a
 //! stream. A report read back from disk holds its lines in memory.
 
-use std::io::{BufReader, Write};
+use std::io::BufReader;
 use std::path::Path;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
@@ -108,12 +108,6 @@ impl<'de> Deserialize<'de> for FrameLines {
     fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         Vec::<FrameLine>::deserialize(deserializer).map(Self::from)
     }
-}
-
-/// Writes `value` as pretty JSON into `out`, as a stream (a report's lines are never
-/// held as text).
-pub fn write_json_pretty(out: &mut dyn Write, value: &impl Serialize) -> std::io::Result<()> {
-    serde_json::to_writer_pretty(out, value).map_err(std::io::Error::other)
 }
 
 #[cfg(test)]

@@ -202,7 +202,7 @@ pub fn write(run: &RunDir, computed: Computed) -> Result<RunReport, RunError> {
 /// `report.json` (again at the run's end, with the dense pass and the times).
 pub fn write_report(run: &RunDir, report: &RunReport) -> Result<(), RunError> {
     write_atomic_with(&run.report(), |out| {
-        crate::records::frame_lines::write_json_pretty(out, report)
+        serde_json::to_writer_pretty(out, report).map_err(std::io::Error::other)
     })?;
     Ok(())
 }
