@@ -4,76 +4,149 @@
 //! keyframe, or `frame_max_gap` frames have passed (`frame_still_gap` while the camera
 //! stands still) ([`super::config::DenseFrames`]).
 
+use std::collections::VecDeque;
+
 use super::config::{DenseConfig, DenseFrames};
-use super::inputs::{key, RunInputs};
+use super::frame_table::FrameTable;
 use super::{Chosen, FrameChoice, Fusion};
 use crate::geometry::se3::Se3;
-use crate::io::sequence::Sequence;
+use crate::io::IoError;
 
-/// The frames the dense pass takes, in sequence order.
+/// The frames the dense pass takes, in sequence order: counted once, then read again
+/// from the [`FrameTable`] by whoever needs them ([`ChosenFrames::candidates`],
+/// [`ChosenFrames::fused`]), so no list of them is held.
 pub(super) struct ChosenFrames {
-    /// Every candidate: the frames the masks' own detections are spaced over, so a
-    /// frame left out of the fusion can still lend its boxes to the fused frames
-    /// around it.
-    pub candidates: Vec<Chosen>,
+    /// Candidates: the frames the masks' own detections are spaced over, so a frame
+    /// left out of the fusion can still lend its boxes to the fused frames around it.
+    pub candidates: usize,
     /// The frames fused.
-    pub fused: Vec<Chosen>,
-    /// For each fused frame, the candidates it stands for: itself and those left out
-    /// since the last fused one.
-    pub weights: Vec<f32>,
+    pub fused: usize,
     /// Fused frames taken while the camera stood still ([`DenseFrames::still_gap`]).
     pub still: usize,
+    /// The first and the last candidate's index in the sequence.
+    pub span: Option<(usize, usize)>,
+    every_frame: bool,
+    settings: DenseFrames,
 }
 
-/// The candidates (see [`ChosenFrames`]) and those of them fused.
+/// The candidates and the fused frames of `table` (see [`ChosenFrames`]), counted.
 pub(super) fn choose_frames(
-    sequence: &dyn Sequence,
-    read: &RunInputs,
+    table: &FrameTable,
     config: &DenseConfig,
-) -> ChosenFrames {
-    let every_frame = config.frames.which == FrameChoice::All && config.fusion != Fusion::Points;
-    let candidates: Vec<Chosen> = (0..sequence.len())
-        .filter_map(|i| {
-            let k = key(sequence.timestamp(i));
-            let pose = *read.poses.get(&k)?;
-            let is_keyframe = read.keyframe_times.contains(&k);
-            (every_frame || is_keyframe).then_some((i, pose, is_keyframe))
-        })
-        .step_by(config.frames.step)
-        .collect();
-    adding(candidates, &config.frames)
+) -> Result<ChosenFrames, IoError> {
+    let mut frames = ChosenFrames {
+        candidates: 0,
+        fused: 0,
+        still: 0,
+        span: None,
+        every_frame: config.frames.which == FrameChoice::All && config.fusion != Fusion::Points,
+        settings: config.frames.clone(),
+    };
+    let mut chooser = Chooser::new(&frames.settings);
+    for candidate in frames.candidates(table) {
+        let candidate = candidate?;
+        frames.candidates += 1;
+        let first = frames.span.map_or(candidate.0, |s| s.0);
+        frames.span = Some((first, candidate.0));
+        frames.fused += usize::from(chooser.offer(&candidate).is_some());
+    }
+    frames.still = chooser.still;
+    Ok(frames)
 }
 
-/// The `candidates` with those of them that add something to the last one taken
-/// (see [`DenseFrames::min_translation`]; the first always), each with the candidates
-/// it stands for (itself and those left out just before it).
-fn adding(candidates: Vec<Chosen>, frames: &DenseFrames) -> ChosenFrames {
-    let mut taken: Vec<Chosen> = Vec::with_capacity(candidates.len());
-    let mut weights = Vec::with_capacity(candidates.len());
-    let (mut since, mut still_taken) = (0, 0);
-    for (j, &candidate) in candidates.iter().enumerate() {
-        since += 1;
-        let is_still = still(&candidates, j, frames);
+impl ChosenFrames {
+    /// The candidates in sequence order: every posed frame (or keyframe), every
+    /// `frame_step`-th of them.
+    pub fn candidates<'t>(
+        &self,
+        table: &'t FrameTable,
+    ) -> impl Iterator<Item = Result<Chosen, IoError>> + 't {
+        let every_frame = self.every_frame;
+        let step = self.settings.step.max(1);
+        (0..table.len())
+            .filter_map(move |i| {
+                let is_keyframe = table.is_keyframe(i);
+                if !(every_frame || is_keyframe) {
+                    return None;
+                }
+                table
+                    .pose(i)
+                    .transpose()
+                    .map(|pose| Ok((i, pose?, is_keyframe)))
+            })
+            .step_by(step)
+    }
+
+    /// The fused frames in sequence order, each with the candidates it stands for
+    /// (itself and those left out since the fused frame before).
+    pub fn fused<'t>(
+        &'t self,
+        table: &'t FrameTable,
+    ) -> impl Iterator<Item = Result<(Chosen, f32), IoError>> + 't {
+        let mut chooser = Chooser::new(&self.settings);
+        self.candidates(table)
+            .filter_map(move |candidate| match candidate {
+                Ok(candidate) => chooser
+                    .offer(&candidate)
+                    .map(|weight| Ok((candidate, weight))),
+                Err(error) => Some(Err(error)),
+            })
+    }
+}
+
+/// Takes of the candidates, offered in order, those that add something to the last one
+/// taken (see [`DenseFrames::min_translation`]; the first always).
+struct Chooser<'s> {
+    frames: &'s DenseFrames,
+    /// The last taken candidate's pose.
+    last: Option<Se3>,
+    /// Candidates offered since then.
+    since: usize,
+    /// The poses of the latest `max_gap + 1` candidates (for [`still`]).
+    recent: VecDeque<Se3>,
+    /// Candidates taken while the camera stood still.
+    still: usize,
+}
+
+impl<'s> Chooser<'s> {
+    fn new(frames: &'s DenseFrames) -> Self {
+        Self {
+            frames,
+            last: None,
+            since: 0,
+            recent: VecDeque::new(),
+            still: 0,
+        }
+    }
+
+    /// Whether `candidate` is taken: with the candidates it stands for (itself and
+    /// those left out just before it).
+    fn offer(&mut self, candidate: &Chosen) -> Option<f32> {
+        let frames = self.frames;
+        self.since += 1;
+        if frames.still_gap > 0 {
+            self.recent.push_back(candidate.1);
+            if self.recent.len() > frames.max_gap + 1 {
+                self.recent.pop_front();
+            }
+        }
+        let is_still = still(&self.recent, frames);
         let gap = match is_still {
             true => frames.still_gap,
             false => frames.max_gap,
         };
-        let adds = match taken.last() {
+        let adds = match &self.last {
             None => true,
-            Some(last) => candidate.2 || since >= gap || moved(&last.1, &candidate.1, frames),
+            Some(last) => candidate.2 || self.since >= gap || moved(last, &candidate.1, frames),
         };
-        if adds {
-            taken.push(candidate);
-            weights.push(since as f32);
-            since = 0;
-            still_taken += usize::from(is_still);
+        if !adds {
+            return None;
         }
-    }
-    ChosenFrames {
-        candidates,
-        fused: taken,
-        weights,
-        still: still_taken,
+        let weight = self.since as f32;
+        self.last = Some(candidate.1);
+        self.since = 0;
+        self.still += usize::from(is_still);
+        Some(weight)
     }
 }
 
@@ -83,15 +156,18 @@ fn moved(a: &Se3, b: &Se3, frames: &DenseFrames) -> bool {
     moved_by(a, b, frames.min_translation, frames.min_rotation)
 }
 
-/// Whether the camera stands still at candidate `j` (see
+/// Whether the camera stands still at the latest of the `recent` candidates (see
 /// [`DenseFrames::still_gap`]): it moved under a quarter of the fused frames' spacing
 /// over the last `max_gap` candidates.
-fn still(candidates: &[Chosen], j: usize, frames: &DenseFrames) -> bool {
-    let Some(before) = j.checked_sub(frames.max_gap).map(|i| &candidates[i]) else {
+fn still(recent: &VecDeque<Se3>, frames: &DenseFrames) -> bool {
+    let (Some(before), Some(now)) = (recent.front(), recent.back()) else {
         return false;
     };
+    if recent.len() <= frames.max_gap {
+        return false;
+    }
     let (reach, turn) = (frames.min_translation / 4.0, frames.min_rotation / 4.0);
-    frames.still_gap > 0 && !moved_by(&before.1, &candidates[j].1, reach, turn)
+    frames.still_gap > 0 && !moved_by(before, now, reach, turn)
 }
 
 /// Whether the camera at `b` lies at least `metres` from `a` or is turned at least
@@ -138,8 +214,32 @@ mod tests {
         }
     }
 
+    /// What a [`Chooser`] took of some candidates.
+    struct Taken {
+        fused: Vec<Chosen>,
+        weights: Vec<f32>,
+        still: usize,
+    }
+
+    /// The `candidates` offered in order to a [`Chooser`] with `frames`.
+    fn adding(candidates: Vec<Chosen>, frames: &DenseFrames) -> Taken {
+        let mut chooser = Chooser::new(frames);
+        let (mut fused, mut weights) = (Vec::new(), Vec::new());
+        for candidate in candidates {
+            if let Some(weight) = chooser.offer(&candidate) {
+                fused.push(candidate);
+                weights.push(weight);
+            }
+        }
+        Taken {
+            fused,
+            weights,
+            still: chooser.still,
+        }
+    }
+
     /// The sequence indices of what [`adding`] took (as many as its weights).
-    fn indices(taken: ChosenFrames) -> Vec<usize> {
+    fn indices(taken: Taken) -> Vec<usize> {
         assert_eq!(taken.fused.len(), taken.weights.len());
         taken.fused.iter().map(|c| c.0).collect()
     }

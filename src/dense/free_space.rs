@@ -37,6 +37,7 @@ use rayon::prelude::*;
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
+use crate::io::IoError;
 
 /// How the neighbours are chosen and judged.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -173,20 +174,48 @@ impl Neighbour {
     }
 }
 
+/// The posed frames a [`NeighbourWindow`] takes its neighbours from.
+pub trait PosedFrames: Sync {
+    /// The posed frame nearest `time` (the earlier one on a tie), when one lies within
+    /// `within` seconds of it: its time, index in the sequence and `camera_from_world`.
+    fn nearest(&self, time: f64, within: f64) -> Result<Option<(f64, usize, Se3)>, IoError>;
+}
+
+/// Posed frames held in a list (time, index in the sequence, `camera_from_world`).
+pub struct PosedList(Vec<(f64, usize, Se3)>);
+
+impl PosedList {
+    /// The frames `posed`, sorted by time.
+    pub fn new(mut posed: Vec<(f64, usize, Se3)>) -> Self {
+        posed.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Self(posed)
+    }
+}
+
+impl PosedFrames for PosedList {
+    fn nearest(&self, time: f64, within: f64) -> Result<Option<(f64, usize, Se3)>, IoError> {
+        let i = self.0.partition_point(|p| p.0 < time);
+        let nearest = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|k| self.0.get(k))
+            .min_by(|a, b| (a.0 - time).abs().total_cmp(&(b.0 - time).abs()));
+        Ok(nearest.filter(|p| (p.0 - time).abs() <= within).copied())
+    }
+}
+
 /// The neighbour frames of the frames fused in time order: each posed frame is loaded
 /// once, when a fused frame first needs it, and let go once every later fused frame is
 /// past it.
-pub struct NeighbourWindow {
+pub struct NeighbourWindow<'a> {
     settings: FreeSpaceSettings,
-    /// Every posed frame: time, index in the sequence, `camera_from_world`; by time.
-    posed: Vec<(f64, usize, Se3)>,
+    posed: &'a dyn PosedFrames,
     loaded: std::collections::BTreeMap<usize, Neighbour>,
 }
 
-impl NeighbourWindow {
-    /// The window over the `posed` frames (time, index, pose).
-    pub fn new(settings: FreeSpaceSettings, mut posed: Vec<(f64, usize, Se3)>) -> Self {
-        posed.sort_by(|a, b| a.0.total_cmp(&b.0));
+impl<'a> NeighbourWindow<'a> {
+    /// The window over the `posed` frames.
+    pub fn new(settings: FreeSpaceSettings, posed: &'a dyn PosedFrames) -> Self {
         Self {
             settings,
             posed,
@@ -198,7 +227,7 @@ impl NeighbourWindow {
     /// the posed frames nearest its neighbour times (see
     /// [`FreeSpaceSettings::neighbour_times`]), loaded by `load` (a sequence index to
     /// its depth) when first needed, those new to the window in parallel.
-    pub fn evidence<E: Send>(
+    pub fn evidence<E: Send + From<IoError>>(
         &mut self,
         camera: &PinholeCamera,
         frame: PosedDepth,
@@ -214,25 +243,12 @@ impl NeighbourWindow {
             .retain(|_, n| n.timestamp >= timestamp - settings.kept_back(n.far) - 1e-6);
         let mut wanted: Vec<(f64, usize, Se3, bool)> = Vec::new();
         for target in settings.neighbour_times(timestamp) {
-            let i = self.posed.partition_point(|p| p.0 < target.time);
-            let nearest = [i.checked_sub(1), Some(i)]
-                .into_iter()
-                .flatten()
-                .filter_map(|k| self.posed.get(k))
-                .min_by(|a, b| {
-                    (a.0 - target.time)
-                        .abs()
-                        .total_cmp(&(b.0 - target.time).abs())
-                });
-            if let Some(&(t, index, pose)) = nearest {
-                let near_enough =
-                    (t - target.time).abs() <= target.within && (t - timestamp).abs() > 1e-6;
-                if near_enough {
-                    match wanted.iter_mut().find(|w| w.1 == index) {
-                        // Wanted near and far: kept loaded as long as a far one.
-                        Some(w) => w.3 |= target.far,
-                        None => wanted.push((t, index, pose, target.far)),
-                    }
+            let nearest = self.posed.nearest(target.time, target.within)?;
+            if let Some((t, index, pose)) = nearest.filter(|p| (p.0 - timestamp).abs() > 1e-6) {
+                match wanted.iter_mut().find(|w| w.1 == index) {
+                    // Wanted near and far: kept loaded as long as a far one.
+                    Some(w) => w.3 |= target.far,
+                    None => wanted.push((t, index, pose, target.far)),
                 }
             }
         }
@@ -742,7 +758,7 @@ mod tests {
         };
         let posed: Vec<(f64, usize, Se3)> =
             (0..300).map(|i| (time(i), i, Se3::identity())).collect();
-        let load = |i: usize| Ok::<_, ()>(scene(Some(block_at(time(i)))));
+        let load = |i: usize| Ok::<_, IoError>(scene(Some(block_at(time(i)))));
         let now = scene(Some(block_at(5.0)));
         let at_block = 28 + 20 * 64;
         let judged = |far_seconds: f64| {
@@ -750,7 +766,8 @@ mod tests {
                 far_seconds,
                 ..FreeSpaceSettings::default()
             };
-            let mut window = NeighbourWindow::new(settings, posed.clone());
+            let posed = PosedList::new(posed.clone());
+            let mut window = NeighbourWindow::new(settings, &posed);
             window
                 .evidence(
                     &camera(),

@@ -14,6 +14,7 @@ use super::report::DenseStages;
 use super::truth::{count_truth, unknown_instances, TruthCounter, TruthFrame};
 use super::tsdf::{FrameInput, TsdfVolume};
 use super::{frames_bar, render, Chosen, DenseConfig, DenseInputs};
+use crate::eval::stats::MedianSample;
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::{names, RunDir};
@@ -28,7 +29,7 @@ pub(super) struct Fused {
     /// Pixels with depth within `max_depth`, and those masked.
     pub fusable: u64,
     pub fusable_masked: u64,
-    pub integration_ms: Vec<f64>,
+    pub integration_ms: MedianSample,
     /// Masked pixels the static map explained, fused after all.
     pub released: u64,
     /// The per-frame stages' times (loading to cloud frames).
@@ -44,14 +45,18 @@ fn add_since(total: &mut f64, start: Instant) {
 /// poses and depth (for placing the detected objects, too) and the free-space window.
 pub(super) struct FrameSources<'a> {
     pub lookup: &'a FrameLookup<'a>,
-    pub window: Option<&'a mut NeighbourWindow>,
+    pub window: Option<&'a mut NeighbourWindow<'a>>,
+}
+
+/// The frames [`fuse_frames`] fuses, in order, each with the frames it stands for
+/// ([`super::tsdf::FrameInput::weight`]); `count` of them (for the progress bar).
+pub(super) struct FusedFrames<I> {
+    pub count: usize,
+    pub frames: I,
 }
 
 /// Where [`fuse_frames`] takes masks from and puts the frames.
 pub(super) struct FrameSinks<'a> {
-    /// The frames each fused frame stands for ([`super::tsdf::FrameInput::weight`]),
-    /// in the order fused.
-    pub weights: &'a [f32],
     pub mask_source: &'a mut MaskSource,
     pub volume: Option<&'a mut TsdfVolume>,
     pub cloud: Option<&'a mut CloudBuilder>,
@@ -65,12 +70,13 @@ struct Extras {
     unknown: Vec<bool>,
 }
 
-/// One loaded frame to fuse: its time, pose, whether it is a keyframe, depth and
-/// colour.
+/// One loaded frame to fuse: its time, pose, whether it is a keyframe, the frames it
+/// stands for, depth and colour.
 struct Loaded {
     timestamp: f64,
     pose: Se3,
     is_keyframe: bool,
+    weight: f32,
     depth: DepthImage,
     rgb: image::RgbImage,
 }
@@ -84,18 +90,18 @@ struct Loaded {
 pub(super) fn fuse_frames(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    chosen: &[Chosen],
+    chosen: FusedFrames<impl Iterator<Item = Result<(Chosen, f32), IoError>>>,
     sources: FrameSources,
     mut sinks: FrameSinks,
 ) -> Result<Fused, IoError> {
-    let progress = frames_bar("fuse  ", chosen.len(), inputs.progress);
+    let progress = frames_bar("fuse  ", chosen.count, inputs.progress);
     let extras = extras(inputs, config)?;
     let mut fused = Fused {
         frames: 0,
         keyframes_in_cloud: 0,
         masked: 0,
         pixels: 0,
-        integration_ms: Vec::with_capacity(chosen.len()),
+        integration_ms: MedianSample::default(),
         released: 0,
         fusable: 0,
         fusable_masked: 0,
@@ -103,10 +109,11 @@ pub(super) fn fuse_frames(
     };
     let FrameSources { lookup, mut window } = sources;
     let mut pending: Option<Prepared> = None;
-    for (step, next) in chosen.iter().map(Some).chain([None]).enumerate() {
+    for (step, next) in chosen.frames.map(Some).chain([None]).enumerate() {
+        let next = next.transpose()?;
         // The objects the next frame's masks need, placed before it is loaded: a
         // stereo pair matched for them is not matched again.
-        if let Some(&(index, ..)) = next {
+        if let Some(((index, ..), _)) = next {
             let start = Instant::now();
             let t = inputs.sequence.timestamp(index);
             sinks
@@ -117,7 +124,7 @@ pub(super) fn fuse_frames(
         let window = window.as_deref_mut();
         let (prepared, finished) = rayon::join(
             || {
-                next.map(|&c| prepare(inputs, lookup, c, window))
+                next.map(|(c, weight)| prepare(inputs, lookup, (c, weight), window))
                     .transpose()
             },
             || {
@@ -161,10 +168,10 @@ struct Prepared {
 fn prepare(
     inputs: &DenseInputs,
     lookup: &FrameLookup,
-    chosen: Chosen,
+    chosen: (Chosen, f32),
     window: Option<&mut NeighbourWindow>,
 ) -> Result<Prepared, IoError> {
-    let (index, pose, is_keyframe) = chosen;
+    let ((index, pose, is_keyframe), weight) = chosen;
     check_interrupt(inputs)?;
     let start = Instant::now();
     let (timestamp, depth, rgb) = sequence_frame(inputs, index, lookup.take_matched(index))?;
@@ -184,6 +191,7 @@ fn prepare(
             timestamp,
             pose,
             is_keyframe,
+            weight,
             depth,
             rgb,
         },
@@ -232,6 +240,7 @@ fn fuse_frame(
         timestamp,
         pose,
         is_keyframe,
+        weight,
         depth,
         rgb,
     } = frame;
@@ -250,7 +259,7 @@ fn fuse_frame(
         colour: &rgb,
         dynamic: layers.as_ref().map(|m| m.dynamic.as_slice()),
         camera_from_world: &pose,
-        weight: sinks.weights.get(fused.frames).copied().unwrap_or(1.0),
+        weight,
     };
     let start = Instant::now();
     let sources = layers.as_ref().map(|m| m.sources.as_slice());

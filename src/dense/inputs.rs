@@ -2,14 +2,16 @@
 //! detections and dynamic keypoints ([`read_run`]), and each frame's depth and colour
 //! from the sequence.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
 use super::disparity::{stereo_depth, StereoDepth};
+use super::frame_table::FrameTable;
 use super::keypoint_feed::KeypointFeed;
 use super::masks::FrameKeypoints;
+use super::outputs::CameraPaths;
 use super::{interrupted, Chosen};
 use crate::detect::FrameDetections;
 use crate::dop::{DopConfig, Mode};
@@ -18,8 +20,7 @@ use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::{FrameImages, Sequence};
-use crate::io::trajectory::TrajectoryFormat;
-use crate::io::{IoError, Trajectory};
+use crate::io::IoError;
 
 /// Where the dense pass finds its inputs.
 pub struct DenseInputs<'a> {
@@ -52,31 +53,26 @@ pub struct DenseInputs<'a> {
 }
 
 /// What the dense pass reads from a finished run.
-pub(super) struct RunInputs {
-    /// The final trajectory (`trajectory.txt`).
-    pub trajectory: Trajectory,
-    /// The final poses (`camera_from_world`) by time, of the largest map segment.
-    pub poses: HashMap<i64, Se3>,
-    /// Tracked frames left out: they lie in another map segment.
-    pub other_segment_frames: usize,
-    pub keyframe_times: HashSet<i64>,
+pub(super) struct RunInputs<'a> {
+    /// The frames with their final poses (`trajectory.txt`), keyframes and segments.
+    pub table: FrameTable<'a>,
+    /// The trajectory files the pictures' viewpoint comes from.
+    pub cameras: CameraPaths,
     /// The keyframes' detections and the frames' dynamic keypoints (none when the
     /// masking is off).
     pub detections: Vec<FrameDetections>,
     pub keypoints: KeypointFeed,
 }
 
-/// Reads the run folder `run` for a dense pass masking with `masking`.
-pub(super) fn read_run(run: &RunDir, masking: Mode) -> Result<RunInputs, IoError> {
-    let trajectory = Trajectory::read(&run.trajectory(), TrajectoryFormat::Tum)?;
-    let keyframes = Trajectory::read(&run.keyframes(), TrajectoryFormat::Tum).unwrap_or_default();
-    let mut poses = poses_by_time(&trajectory);
-    let mut other_segment_frames = 0;
-    if let Some(keep) = largest_segment(run)? {
-        let before = poses.len();
-        poses.retain(|t, _| keep.contains(t));
-        other_segment_frames = before - poses.len();
-    }
+/// Reads the run folder `run` of `sequence` for a dense pass masking with `masking`;
+/// the frame table's spill file goes into `spill_dir`.
+pub(super) fn read_run<'a>(
+    run: &RunDir,
+    sequence: &'a dyn Sequence,
+    masking: Mode,
+    spill_dir: &Path,
+) -> Result<RunInputs<'a>, IoError> {
+    let table = FrameTable::read(run, sequence, spill_dir)?;
     let (detections, keypoints) = if masking == Mode::Off {
         (Vec::new(), KeypointFeed::default())
     } else {
@@ -86,10 +82,8 @@ pub(super) fn read_run(run: &RunDir, masking: Mode) -> Result<RunInputs, IoError
         )
     };
     Ok(RunInputs {
-        keyframe_times: keyframes.timestamps.iter().map(|&t| key(t)).collect(),
-        trajectory,
-        poses,
-        other_segment_frames,
+        table,
+        cameras: CameraPaths(vec![run.trajectory()]),
         detections,
         keypoints,
     })
@@ -118,40 +112,6 @@ pub(super) fn depth_and_colour(
 /// Timestamps as keys (microseconds, as the file names carry them).
 pub(super) fn key(t: f64) -> i64 {
     (t * 1e6).round() as i64
-}
-
-/// The timestamps of the frames in the largest segment of the run's `segments.txt`
-/// ([`RunDir::segments`]: each tracked frame's timestamp and map segment after the
-/// loops' merges), when it lists more than one (`None`: fuse every frame; also for runs
-/// written before the file existed). Segments that no loop merged have unrelated
-/// frames of reference, so only the largest is fused.
-pub(super) fn largest_segment(run: &RunDir) -> Result<Option<HashSet<i64>>, IoError> {
-    let Some(lines) = crate::io::run_dir::read_segments(&run.segments())? else {
-        return Ok(None);
-    };
-    let mut frames: HashMap<usize, Vec<i64>> = HashMap::new();
-    for (t, segment) in lines {
-        frames.entry(segment).or_default().push(key(t));
-    }
-    if frames.len() < 2 {
-        return Ok(None);
-    }
-    // The most frames; ties go to the older segment.
-    let largest = frames
-        .into_iter()
-        .max_by(|a, b| a.1.len().cmp(&b.1.len()).then(b.0.cmp(&a.0)))
-        .map(|(_, times)| times.into_iter().collect());
-    Ok(largest)
-}
-
-/// The frames' final poses (`camera_from_world`) by timestamp.
-pub(super) fn poses_by_time(trajectory: &Trajectory) -> HashMap<i64, Se3> {
-    trajectory
-        .timestamps
-        .iter()
-        .zip(&trajectory.poses)
-        .map(|(&t, pose)| (key(t), pose.inverse()))
-        .collect()
 }
 
 /// Reads the keyframe detections a run cached (`detections/*.json`).
@@ -186,34 +146,29 @@ pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
 /// each pair is matched once; what fusion passes by unfused is let go.
 pub(super) struct FrameLookup<'a> {
     inputs: &'a DenseInputs<'a>,
-    poses: &'a HashMap<i64, Se3>,
-    index_of: HashMap<i64, usize>,
+    table: &'a FrameTable<'a>,
     matched: std::sync::Mutex<HashMap<usize, DepthImage>>,
 }
 
 impl<'a> FrameLookup<'a> {
-    /// The frames of `inputs` with their final `poses` (`camera_from_world`).
-    pub fn new(inputs: &'a DenseInputs<'a>, poses: &'a HashMap<i64, Se3>) -> Self {
-        let sequence = inputs.sequence;
+    /// The frames of `inputs` with their final poses in `table`.
+    pub fn new(inputs: &'a DenseInputs<'a>, table: &'a FrameTable<'a>) -> Self {
         Self {
             inputs,
-            poses,
-            index_of: (0..sequence.len())
-                .map(|i| (key(sequence.timestamp(i)), i))
-                .collect(),
+            table,
             matched: Default::default(),
         }
     }
 
     /// The final `camera_from_world` of the frame at time `t`.
     pub fn pose(&self, t: f64) -> Option<Se3> {
-        self.poses.get(&key(t)).copied()
+        self.table.pose_at(t)
     }
 
     /// The depth of the frame at time `t` (`None` when unreadable); a stereo pair's
     /// is kept for fusion.
     pub fn depth(&self, t: f64) -> Option<DepthImage> {
-        let i = *self.index_of.get(&key(t))?;
+        let i = self.table.index_at(t)?;
         let depth = frame_depth(self.inputs, i).ok()?;
         if self.inputs.stereo.is_some() {
             self.matched_frames().insert(i, depth.clone());
@@ -269,10 +224,25 @@ pub(super) fn sequence_frame(
     }
 }
 
-/// The chosen frames in groups of two per thread: each group is decoded in parallel,
-/// then used in order.
-pub(super) fn groups(chosen: &[Chosen]) -> std::slice::Chunks<'_, Chosen> {
-    chosen.chunks(rayon::current_num_threads().max(1) * 2)
+/// Hands the `chosen` frames to `each` in groups of two per thread: each group is
+/// decoded in parallel ([`load_group`]), then used in order.
+pub(super) fn for_each_group(
+    chosen: impl Iterator<Item = Result<Chosen, IoError>>,
+    mut each: impl FnMut(&[Chosen]) -> Result<(), IoError>,
+) -> Result<(), IoError> {
+    let size = rayon::current_num_threads().max(1) * 2;
+    let mut group = Vec::with_capacity(size);
+    for frame in chosen {
+        group.push(frame?);
+        if group.len() == size {
+            each(&group)?;
+            group.clear();
+        }
+    }
+    match group.is_empty() {
+        true => Ok(()),
+        false => each(&group),
+    }
 }
 
 /// A group of chosen frames, each loaded by `load` in parallel (after an interrupt
@@ -289,38 +259,4 @@ pub(super) fn load_group<T: Send>(
 /// `Err` once an interrupt was asked for: the dense map is then not written.
 pub(super) fn check_interrupt(inputs: &DenseInputs) -> Result<(), IoError> {
     interrupted(inputs.out_dir, "the dense map was not written")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::io::run_dir::names;
-
-    #[test]
-    fn only_the_largest_unmerged_segment_is_fused() {
-        let dir = std::env::temp_dir().join(format!("dopslam-segments-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let run = RunDir::new(&dir);
-        let with = |text: &str| {
-            std::fs::write(run.segments(), text).unwrap();
-            largest_segment(&run)
-        };
-        let keep = with("# t s\n1.0 0\n1.1 0\n2.0 1\n2.1 1\n2.2 1\n")
-            .unwrap()
-            .expect("two segments");
-        let expected: std::collections::HashSet<i64> = [2.0, 2.1, 2.2].map(key).into();
-        assert_eq!(keep, expected);
-        // One segment (or no file): every frame.
-        assert_eq!(with("1.0 0\n1.1 0\n").unwrap(), None);
-        assert_eq!(
-            largest_segment(&RunDir::new(dir.join("absent"))).unwrap(),
-            None
-        );
-        let error = with("1.0 0\n1.1 zero\n").unwrap_err().to_string();
-        assert!(
-            error.contains("line 2") && error.contains(names::SEGMENTS),
-            "{error}"
-        );
-        let _ = std::fs::remove_dir_all(&dir);
-    }
 }

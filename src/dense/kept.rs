@@ -352,13 +352,13 @@ pub(super) fn keep_fused(
 pub(super) fn reuse(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    trajectory: &crate::io::Trajectory,
+    cameras: &super::outputs::CameraPaths,
     started: Instant,
 ) -> Result<Option<DenseReport>, IoError> {
     match find(inputs, config)? {
         Found::Same(found) => {
             let (maps, fusion) = *found;
-            write_reused(inputs, config, maps, fusion, trajectory, started).map(Some)
+            write_reused(inputs, config, maps, fusion, cameras, started).map(Some)
         }
         Found::Other(why) => {
             let dir = RunDir::new(inputs.out_dir).file(names::DENSE_STATE);
@@ -379,7 +379,7 @@ fn write_reused(
     config: &DenseConfig,
     maps: Maps,
     fusion: DenseReport,
-    trajectory: &crate::io::Trajectory,
+    cameras: &super::outputs::CameraPaths,
     started: Instant,
 ) -> Result<DenseReport, IoError> {
     let out = RunDir::new(inputs.out_dir);
@@ -400,6 +400,6 @@ fn write_reused(
         }),
         ..fusion
     };
-    super::outputs::write_maps(&out, inputs.masking, config, maps, trajectory, &mut report)?;
+    super::outputs::write_maps(&out, inputs.masking, config, maps, cameras, &mut report)?;
     super::outputs::finish_report(&out, report, started, recording)
 }

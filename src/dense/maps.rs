@@ -3,13 +3,13 @@
 //! fused with their masks ([`fuse_into`]); [`fuse`] does the three for one run, and
 //! [`super::merge`] runs them over several recordings into one map.
 
-use std::collections::HashMap;
 use std::time::Instant;
 
 use super::cloud::CloudBuilder;
+use super::frame_table::FrameTable;
 use super::free_space::NeighbourWindow;
-use super::fusion::{fuse_frames, FrameSinks, FrameSources};
-use super::inputs::{frame_depth, groups, key, load_group, FrameLookup};
+use super::fusion::{fuse_frames, FrameSinks, FrameSources, FusedFrames};
+use super::inputs::{for_each_group, frame_depth, load_group, FrameLookup};
 use super::masks::MaskSource;
 use super::outputs::Maps;
 use super::tsdf::TsdfVolume;
@@ -18,16 +18,15 @@ use super::{
     TruthCounter,
 };
 use crate::dop::Mode;
-use crate::geometry::se3::Se3;
 use crate::io::IoError;
 
 /// What a recording's frames are fused with: the chosen frames (each weighted by the
-/// frames it stands for), their masks' source, and the final poses by time (the
-/// free-space evidence of the frames around).
+/// frames it stands for), their masks' source, and the frames' final poses (the
+/// free-space evidence of the frames around, too).
 pub(super) struct Fusing<'a> {
     pub frames: &'a frame_choice::ChosenFrames,
     pub mask_source: &'a mut MaskSource,
-    pub poses: &'a HashMap<i64, Se3>,
+    pub table: &'a FrameTable<'a>,
 }
 
 /// Fuses a run's frames (`fusing`): the TSDF volume and the keyframe cloud as
@@ -42,7 +41,8 @@ pub(super) fn fuse(
     let mut maps = new_maps(inputs.camera, inputs.out_dir, config)?;
     if config.fuses_tsdf() && config.tsdf.carve && config.tsdf.allocate_first {
         let start = Instant::now();
-        allocate_blocks(&mut maps.volume, inputs, &fusing.frames.fused)?;
+        let chosen = fusing.frames.fused(fusing.table).map(|c| c.map(|c| c.0));
+        allocate_blocks(&mut maps.volume, inputs, fusing.frames.fused, chosen)?;
         report.stages.allocation_s = start.elapsed().as_secs_f64();
     }
     let truth = fuse_into(inputs, config, fusing, report, &mut maps)?;
@@ -86,61 +86,56 @@ pub(super) fn fuse_into(
     let Fusing {
         frames,
         mask_source,
-        poses,
+        table,
     } = fusing;
-    let (chosen, weights) = (frames.fused.as_slice(), frames.weights.as_slice());
-    let sequence = inputs.sequence;
     let mut truth = inputs.truth_masks.as_ref().map(|_| TruthCounter::default());
-    let mut window =
-        (inputs.masking == Mode::Dop && config.masks.free_space_seconds > 0.0).then(|| {
-            let posed = (0..sequence.len())
-                .filter_map(|i| {
-                    let t = sequence.timestamp(i);
-                    Some((t, i, *poses.get(&key(t))?))
-                })
-                .collect();
-            NeighbourWindow::new(config.free_space_settings(), posed)
-        });
-    let lookup = FrameLookup::new(inputs, poses);
+    let free_space = inputs.masking == Mode::Dop && config.masks.free_space_seconds > 0.0;
+    let mut window = free_space.then(|| NeighbourWindow::new(config.free_space_settings(), table));
+    let lookup = FrameLookup::new(inputs, table);
     let sources = FrameSources {
         lookup: &lookup,
         window: window.as_mut(),
     };
     let sinks = FrameSinks {
-        weights,
         mask_source,
         volume: config.fuses_tsdf().then_some(&mut maps.volume),
         cloud: maps.cloud.as_mut(),
         truth: &mut truth,
     };
+    let chosen = FusedFrames {
+        count: frames.fused,
+        frames: frames.fused(table),
+    };
     let fused = fuse_frames(inputs, config, chosen, sources, sinks)?;
+    table.check()?;
     report.memory.fusion_mib = crate::memory::part_peak_mib();
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     report.released_on_map = fused.released;
     report.stages.frames_from(&fused.stages);
-    let (masked, pixels, mut integration_ms) = (fused.masked, fused.pixels, fused.integration_ms);
-    report.masked_percent = 100.0 * masked as f64 / pixels.max(1) as f64;
+    report.masked_percent = 100.0 * fused.masked as f64 / fused.pixels.max(1) as f64;
     report.masked_fusable_percent =
         100.0 * fused.fusable_masked as f64 / fused.fusable.max(1) as f64;
-    report.median_integration_ms = crate::eval::stats::median(&mut integration_ms);
+    report.median_integration_ms = fused.integration_ms.median();
     Ok(truth)
 }
 
-/// The first pass of `allocate_first`: every chosen frame's blocks, without masks
-/// (blocks where masked movers stood only take free-space observations).
+/// The first pass of `allocate_first`: the `count` `chosen` frames' blocks, without
+/// masks (blocks where masked movers stood only take free-space observations).
 pub(super) fn allocate_blocks(
     volume: &mut TsdfVolume,
     inputs: &DenseInputs,
-    chosen: &[Chosen],
+    count: usize,
+    chosen: impl Iterator<Item = Result<Chosen, IoError>>,
 ) -> Result<(), IoError> {
-    let progress = frames_bar("blocks ", chosen.len(), inputs.progress);
-    for group in groups(chosen) {
+    let progress = frames_bar("blocks ", count, inputs.progress);
+    for_each_group(chosen, |group| {
         let depths = load_group(inputs, group, frame_depth)?;
         for (&(_, pose, _), depth) in group.iter().zip(depths) {
             volume.allocate(&depth?, &pose);
             progress.inc(1);
         }
-    }
+        Ok(())
+    })?;
     progress.finish_and_clear();
     Ok(())
 }

@@ -11,15 +11,15 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::inputs::{groups, load_group, read_run, sequence_frame, DenseInputs};
-use super::outputs::{finish_report, write_maps};
+use super::inputs::{for_each_group, load_group, read_run, sequence_frame, DenseInputs};
+use super::outputs::{finish_report, write_maps, CameraPaths};
 use super::tsdf::{FrameInput, TsdfVolume};
 use super::{
     allocate_blocks, dense_detections, frame_choice, fuse_into, mask_source, new_maps, DenseConfig,
     DenseReport, FusedTruth, Fusing, TruthCounter,
 };
 use crate::io::run_dir::RunDir;
-use crate::io::{IoError, Trajectory};
+use crate::io::IoError;
 
 /// `merge.json`: what each recording gave and what the merge did.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -74,18 +74,21 @@ pub fn merge(
     let mut maps = new_maps(first.camera, out_dir, config)?;
     let mut read = Vec::with_capacity(recordings.len());
     for inputs in recordings {
-        let run = read_run(&RunDir::new(inputs.run_dir), inputs.masking)?;
-        let frames = frame_choice::choose_frames(inputs.sequence, &run, config);
+        let run_dir = RunDir::new(inputs.run_dir);
+        let run = read_run(&run_dir, inputs.sequence, inputs.masking, out_dir)?;
+        let frames = frame_choice::choose_frames(&run.table, config)?;
         if config.fuses_tsdf() && config.tsdf.carve && config.tsdf.allocate_first {
-            allocate_blocks(&mut maps.volume, inputs, &frames.fused)?;
+            let chosen = frames.fused(&run.table).map(|c| c.map(|c| c.0));
+            allocate_blocks(&mut maps.volume, inputs, frames.fused, chosen)?;
         }
         read.push((run, frames));
     }
-    let (parts, trajectory) = fuse_each(recordings, &mut read, config, &mut maps)?;
+    let (parts, cameras) = fuse_each(recordings, &mut read, config, &mut maps)?;
     let start = Instant::now();
     if config.fuses_tsdf() && config.tsdf.carve {
-        for (inputs, (_, frames)) in recordings.iter().zip(&read) {
-            carve(&mut maps.volume, inputs, &frames.fused)?;
+        for (inputs, (run, frames)) in recordings.iter().zip(&read) {
+            let chosen = frames.fused(&run.table).map(|c| c.map(|c| c.0));
+            carve(&mut maps.volume, inputs, frames.fused, chosen)?;
         }
     }
     let carve_s = start.elapsed().as_secs_f64();
@@ -103,7 +106,7 @@ pub fn merge(
         tsdf_memory_mb: maps.volume.memory_bytes() as f64 / 1e6,
         ..DenseReport::default()
     };
-    write_maps(&out, first.masking, config, maps, &trajectory, &mut dense)?;
+    write_maps(&out, first.masking, config, maps, &cameras, &mut dense)?;
     let dense = finish_report(&out, dense, started, None)?;
     let report = MergeReport {
         schema: crate::io::run_dir::SCHEMA,
@@ -124,17 +127,17 @@ fn fuse_each(
     read: &mut [(super::inputs::RunInputs, frame_choice::ChosenFrames)],
     config: &DenseConfig,
     maps: &mut super::outputs::Maps,
-) -> Result<(Vec<MergedRecording>, Trajectory), IoError> {
+) -> Result<(Vec<MergedRecording>, CameraPaths), IoError> {
     let carves = config.fuses_tsdf() && config.tsdf.carve;
     let mut parts = Vec::with_capacity(recordings.len());
-    let mut trajectory = Trajectory::default();
+    let mut cameras = CameraPaths::default();
     for (inputs, (run, frames)) in recordings.iter().zip(read) {
         let start = Instant::now();
         let out = RunDir::new(inputs.out_dir);
         dense_detections(
             inputs,
             config,
-            &frames.candidates,
+            frames.candidates(&run.table),
             &out,
             &mut run.detections,
         )?;
@@ -143,7 +146,7 @@ fn fuse_each(
         let fusing = Fusing {
             frames,
             mask_source: &mut masks,
-            poses: &run.poses,
+            table: &run.table,
         };
         let truth = fuse_into(inputs, config, fusing, &mut report, maps)?;
         parts.push(MergedRecording {
@@ -151,26 +154,25 @@ fn fuse_each(
             frames_fused: report.frames_fused,
             masked_percent: report.masked_percent,
             keyframes_in_cloud: report.keyframes_in_cloud,
-            carving_frames: if carves { frames.fused.len() } else { 0 },
+            carving_frames: if carves { frames.fused } else { 0 },
             truth: truth.map(TruthCounter::finish),
             fuse_s: start.elapsed().as_secs_f64(),
         });
-        let own = std::mem::take(&mut run.trajectory);
-        trajectory.timestamps.extend(own.timestamps);
-        trajectory.poses.extend(own.poses);
+        cameras.0.append(&mut run.cameras.0);
     }
-    Ok((parts, trajectory))
+    Ok((parts, cameras))
 }
 
-/// `chosen` frames of a recording integrated as free space only: every pixel masked,
-/// so each carves the volume in front of its depth and fuses nothing.
+/// The `count` `chosen` frames of a recording integrated as free space only: every
+/// pixel masked, so each carves the volume in front of its depth and fuses nothing.
 fn carve(
     volume: &mut TsdfVolume,
     inputs: &DenseInputs,
-    chosen: &[super::Chosen],
+    count: usize,
+    chosen: impl Iterator<Item = Result<super::Chosen, IoError>>,
 ) -> Result<(), IoError> {
-    let progress = super::frames_bar("carve ", chosen.len(), inputs.progress);
-    for group in groups(chosen) {
+    let progress = super::frames_bar("carve ", count, inputs.progress);
+    for_each_group(chosen, |group| {
         let frames = load_group(inputs, group, |inputs, i| sequence_frame(inputs, i, None))?;
         for (&(_, pose, _), frame) in group.iter().zip(frames) {
             let (_, depth, colour) = frame?;
@@ -184,7 +186,8 @@ fn carve(
             })?;
             progress.inc(1);
         }
-    }
+        Ok(())
+    })?;
     progress.finish_and_clear();
     Ok(())
 }

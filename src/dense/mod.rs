@@ -19,6 +19,7 @@ pub mod compare_maps;
 pub mod config;
 pub mod disparity;
 mod frame_choice;
+mod frame_table;
 pub mod free_space;
 mod fusion;
 pub mod inputs;
@@ -90,14 +91,13 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     crate::memory::start_sampling();
     crate::memory::part_peak_mib();
     let (run, out) = (RunDir::new(inputs.run_dir), RunDir::new(inputs.out_dir));
-    let mut read = inputs::read_run(&run, inputs.masking)?;
-    if let Some(report) = kept::reuse(inputs, config, &read.trajectory, started)? {
+    let mut read = inputs::read_run(&run, inputs.sequence, inputs.masking, inputs.out_dir)?;
+    if let Some(report) = kept::reuse(inputs, config, &read.cameras, started)? {
         return Ok(report);
     }
-    let frames = frame_choice::choose_frames(inputs.sequence, &read, config);
-    let chosen = &frames.fused;
+    let frames = frame_choice::choose_frames(&read.table, config)?;
     let inputs_s = started.elapsed().as_secs_f64();
-    let candidates = &frames.candidates;
+    let candidates = frames.candidates(&read.table);
     let extra_detections =
         dense_detections(inputs, config, candidates, &out, &mut read.detections)?;
     let detections_s = started.elapsed().as_secs_f64() - inputs_s;
@@ -105,9 +105,9 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let mut mask_source = mask_source(inputs, config, &mut read);
     let mut report = DenseReport {
         masking: Some(inputs.masking),
-        other_segment_frames: read.other_segment_frames,
+        other_segment_frames: read.table.other_segment_frames,
         extra_detections,
-        frames_left_still: candidates.len() - chosen.len(),
+        frames_left_still: frames.candidates - frames.fused,
         frames_fused_still: frames.still,
         disparity_offset_px: inputs.stereo.as_ref().map(|s| s.offset),
         sgbm: inputs.stereo.as_ref().map(|s| s.sgbm),
@@ -118,14 +118,11 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
     let fusing = Fusing {
         frames: &frames,
         mask_source: &mut mask_source,
-        poses: &read.poses,
+        table: &read.table,
     };
     let (mut maps, truth) = fuse(inputs, config, fusing, &mut report)?;
     report.truth = truth.map(TruthCounter::finish);
-    let (first, last) = (
-        candidates.first().map_or(0, |c| c.0),
-        candidates.last().map_or(0, |c| c.0),
-    );
+    let (first, last) = frames.span.unwrap_or_default();
     let recording = crate::io::sequence::duration_of(inputs.sequence, first, last);
     if config.outputs.keep_state {
         kept::keep_fused(inputs, config, &mut maps, &mut report, started, recording)?;
@@ -135,7 +132,7 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
         inputs.masking,
         config,
         maps,
-        &read.trajectory,
+        &read.cameras,
         &mut report,
     )?;
     if config.outputs.keep_state {
@@ -148,22 +145,30 @@ pub fn fuse_run(inputs: &DenseInputs, config: &DenseConfig) -> Result<DenseRepor
 /// it is a keyframe (the cloud takes keyframes only).
 pub(super) type Chosen = (usize, Se3, bool);
 
-/// The dense pass's own detections ([`more_detections`]) added to `detections`, with
-/// the DOP masks and a detector.
+/// The dense pass's own detections ([`more_detections`]) on the `candidates`, added to
+/// `detections`, with the DOP masks and a detector.
 fn dense_detections(
     inputs: &DenseInputs,
     config: &DenseConfig,
-    chosen: &[Chosen],
+    candidates: impl Iterator<Item = Result<Chosen, IoError>>,
     out: &RunDir,
     detections: &mut Vec<FrameDetections>,
 ) -> Result<Option<more_detections::ExtraDetections>, IoError> {
     let (Some((detector, describe)), Mode::Dop) = (&inputs.detector, inputs.masking) else {
         return Ok(None);
     };
-    if config.detections.every == 0 {
+    let every = config.detections.every;
+    if every == 0 {
         return Ok(None);
     }
-    let fused: Vec<usize> = chosen.iter().map(|c| c.0).collect();
+    // The detector's turn comes every `every` frames: only those candidates are listed.
+    let mut turns = Vec::new();
+    for candidate in candidates {
+        let index = candidate?.0;
+        if index.is_multiple_of(every) {
+            turns.push(index);
+        }
+    }
     let mut detector = detector.lock().expect("detector lock poisoned");
     more_detections::add(
         inputs.sequence,
@@ -171,9 +176,9 @@ fn dense_detections(
             detector: detector.as_mut(),
             describe,
         },
-        &fused,
+        &turns,
         more_detections::Schedule {
-            every: config.detections.every,
+            every,
             reuse_keyframes: inputs.keyframe_boxes_alike,
         },
         &out.dense_detections(),

@@ -1,7 +1,7 @@
 //! The dense pass's outputs: the mesh (PLY, OBJ), the point cloud (PLY) and the
 //! pictures, each computed before any file is written.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::cloud::{CloudBuilder, WrittenCloud};
@@ -12,7 +12,7 @@ use crate::dop::Mode;
 use crate::io::atomic::write_atomic;
 use crate::io::ply_stream::PlyPointStream;
 use crate::io::run_dir::{names, RunDir};
-use crate::io::{IoError, Trajectory};
+use crate::io::IoError;
 
 /// The most mesh vertices or cloud points the pictures are drawn from (a sample spread
 /// over the whole map).
@@ -37,6 +37,27 @@ impl Maps {
     }
 }
 
+/// The trajectory files (TUM) whose cameras the pictures look from, one recording's
+/// after another's: read twice as the pictures are made, never held.
+#[derive(Debug, Clone, Default)]
+pub(super) struct CameraPaths(pub Vec<PathBuf>);
+
+impl CameraPaths {
+    /// The pictures' viewpoint ([`render::Viewpoint::from_cameras`]) over every pose of
+    /// the files; `None` without any.
+    pub fn viewpoint(&self) -> Result<Option<render::Viewpoint>, IoError> {
+        render::Viewpoint::from_camera_reads(|each| {
+            for path in &self.0 {
+                crate::io::trajectory::for_each_tum(path, |_, pose| {
+                    each(&pose);
+                    Ok(())
+                })?;
+            }
+            Ok(())
+        })
+    }
+}
+
 /// Writes the mesh (marching cubes over the volume, when it was fused), the point
 /// cloud (carved by the volume when asked) and the pictures into `out`.
 pub(super) fn write_maps(
@@ -44,7 +65,7 @@ pub(super) fn write_maps(
     masking: Mode,
     config: &DenseConfig,
     maps: Maps,
-    trajectory: &Trajectory,
+    cameras: &CameraPaths,
     report: &mut DenseReport,
 ) -> Result<(), IoError> {
     let comment = format!(
@@ -90,7 +111,7 @@ pub(super) fn write_maps(
             None => sample,
         };
         if let Some(map) = map {
-            write_pictures(out, &map, trajectory, report)?;
+            write_pictures(out, &map, cameras, report)?;
         }
     }
     report.stages.writing_s = start.elapsed().as_secs_f64();
@@ -188,10 +209,10 @@ fn write_files(
 fn write_pictures(
     out: &RunDir,
     map: &crate::geometry::mesh::Mesh,
-    trajectory: &Trajectory,
+    cameras: &CameraPaths,
     report: &mut DenseReport,
 ) -> Result<(), IoError> {
-    let Some(view) = render::Viewpoint::from_cameras(&trajectory.poses) else {
+    let Some(view) = cameras.viewpoint()? else {
         return Ok(());
     };
     let colours = render::with_ghosts(map, &[]);

@@ -26,25 +26,39 @@ impl Viewpoint {
     /// axes (image up), the perspective camera is the first pose pulled back 1 m and
     /// raised 0.5 m, looking at the same point; the cut is 0.3 m above the highest camera.
     pub fn from_cameras(world_from_cameras: &[Se3]) -> Option<Self> {
-        let first = world_from_cameras.first()?;
-        let up = world_from_cameras
-            .iter()
-            .map(|p| -p.rotation.matrix().column(1).into_owned())
-            .sum::<Vector3<f64>>()
-            .try_normalize(1e-9)?;
-        let cut_height = world_from_cameras
-            .iter()
-            .map(|p| p.translation.vector.dot(&up))
-            .fold(f64::NEG_INFINITY, f64::max)
-            + 0.3;
+        let read = |each: &mut dyn FnMut(&Se3)| {
+            world_from_cameras.iter().for_each(each);
+            Ok::<_, std::convert::Infallible>(())
+        };
+        match Self::from_camera_reads(read) {
+            Ok(view) => view,
+            Err(never) => match never {},
+        }
+    }
+
+    /// [`Viewpoint::from_cameras`] from cameras read twice, not held: `read(each)`
+    /// hands every `world_from_camera` to `each`, in the same order each time.
+    pub fn from_camera_reads<E>(
+        mut read: impl FnMut(&mut dyn FnMut(&Se3)) -> Result<(), E>,
+    ) -> Result<Option<Self>, E> {
+        let (mut first, mut up) = (None, Vector3::zeros());
+        read(&mut |p: &Se3| {
+            first.get_or_insert(*p);
+            up += -p.rotation.matrix().column(1).into_owned();
+        })?;
+        let (Some(first), Some(up)) = (first, up.try_normalize(1e-9)) else {
+            return Ok(None);
+        };
+        let mut highest = f64::NEG_INFINITY;
+        read(&mut |p: &Se3| highest = highest.max(p.translation.vector.dot(&up)))?;
         let forward = first.rotation.matrix().column(2).into_owned();
         let target = first.translation.vector + forward * 2.0;
         let eye = first.translation.vector - forward * 1.0 + up * 0.5;
-        Some(Self {
-            camera_from_world: look_at(&eye, &target, &up)?,
+        Ok(look_at(&eye, &target, &up).map(|camera_from_world| Self {
+            camera_from_world,
             up,
-            cut_height,
-        })
+            cut_height: highest + 0.3,
+        }))
     }
 
     /// Without poses: up is the axis of least extent of the points, the camera stands

@@ -21,8 +21,13 @@ pub struct ListEntry {
 pub fn content_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.lines()
         .enumerate()
-        .map(|(index, raw)| (index + 1, raw.trim()))
-        .filter(|(_, line)| !line.is_empty() && !line.starts_with('#'))
+        .filter_map(|(index, raw)| Some((index + 1, content(raw)?)))
+}
+
+/// A line trimmed, when it holds data (not blank, not a `#` comment).
+pub fn content(raw: &str) -> Option<&str> {
+    let line = raw.trim();
+    (!line.is_empty() && !line.starts_with('#')).then_some(line)
 }
 
 /// Splits a line as TUM's scripts do: commas and tabs count as spaces.

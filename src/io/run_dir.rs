@@ -28,14 +28,19 @@ pub fn write_segments(
     })
 }
 
-/// Reads [`write_segments`]'s file: `None` when there is none (a run written before
-/// the file existed); a malformed line is an error naming it.
-pub fn read_segments(path: &Path) -> Result<Option<Vec<(f64, usize)>>, IoError> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Ok(None);
+/// Reads [`write_segments`]'s file line by line, handing each frame's timestamp and
+/// segment to `each`: `false` when there is none (a run written before the file
+/// existed); a malformed line is an error naming it.
+pub fn for_each_segment(
+    path: &Path,
+    mut each: impl FnMut(f64, usize) -> Result<(), IoError>,
+) -> Result<bool, IoError> {
+    use std::io::BufRead;
+    let Ok(file) = std::fs::File::open(path) else {
+        return Ok(false);
     };
-    let mut frames = Vec::new();
-    for (n, line) in text.lines().enumerate() {
+    for (n, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let line = line.map_err(|e| IoError::read(path, e))?;
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
@@ -45,15 +50,15 @@ pub fn read_segments(path: &Path) -> Result<Option<Vec<(f64, usize)>>, IoError> 
             (Some(t), Some(s), None) => t.parse::<f64>().ok().zip(s.parse::<usize>().ok()),
             _ => None,
         };
-        let Some(frame) = parsed else {
+        let Some((timestamp, segment)) = parsed else {
             return Err(IoError::invalid(
                 path,
                 format!("line {}: expected `timestamp segment`, got {line:?}", n + 1),
             ));
         };
-        frames.push(frame);
+        each(timestamp, segment)?;
     }
-    Ok(Some(frames))
+    Ok(true)
 }
 
 /// The layout version of `report.json` and `dense.json` this build writes and reads

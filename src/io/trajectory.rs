@@ -2,13 +2,14 @@
 //! `world_from_camera`, row-major, 12 numbers a line), read and written.
 
 use std::fmt::Write as _;
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 use nalgebra::{Matrix3, Vector3};
 
 use super::atomic::write_atomic;
-use super::errors::{read_text, IoError};
-use super::file_list::{content_lines, parse_numbers};
+use super::errors::{check_exists, read_text, IoError};
+use super::file_list::{content, content_lines, parse_numbers};
 use crate::geometry::se3::{self, Se3};
 
 /// Timestamped poses `world_from_camera`. KITTI files carry no timestamps; they get
@@ -92,41 +93,11 @@ impl Trajectory {
     /// other line must hold exactly eight numbers; timestamps must not decrease (real
     /// ground truth repeats some: see [`Trajectory::repeated_timestamp`]).
     pub fn read_tum(path: &Path) -> Result<Self, IoError> {
-        let text = read_text(path)?;
         let mut trajectory = Trajectory::default();
-        let mut previous: Option<(f64, usize)> = None;
-        for (line_number, line) in content_lines(&text) {
-            let values = parse_numbers(
-                path,
-                line_number,
-                line,
-                8,
-                "TUM: timestamp tx ty tz qx qy qz qw",
-            )?;
-            let q = [values[4], values[5], values[6], values[7]];
-            if q.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-                return Err(IoError::parse(
-                    path,
-                    line_number,
-                    "the quaternion has zero length",
-                ));
-            }
-            let timestamp = values[0];
-            if let Some((before, before_line)) = previous {
-                if timestamp < before {
-                    return Err(IoError::parse(
-                        path,
-                        line_number,
-                        format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
-                    ));
-                }
-            }
-            previous = Some((timestamp, line_number));
-            trajectory.push(
-                timestamp,
-                se3::from_translation_quaternion(Vector3::new(values[1], values[2], values[3]), q),
-            );
-        }
+        for_each_tum(path, |timestamp, pose| {
+            trajectory.push(timestamp, pose);
+            Ok(())
+        })?;
         Ok(trajectory)
     }
 
@@ -234,6 +205,56 @@ pub fn write_translation_quaternion(out: &mut String, pose: &Se3) {
         "{} {} {} {} {} {} {}",
         p.x, p.y, p.z, q[0], q[1], q[2], q[3]
     );
+}
+
+/// Reads a TUM trajectory line by line as [`Trajectory::read_tum`] does, handing each
+/// timestamp and pose (`world_from_camera`) to `each` in the file's order: no list is
+/// held. The number of poses.
+pub fn for_each_tum(
+    path: &Path,
+    mut each: impl FnMut(f64, Se3) -> Result<(), IoError>,
+) -> Result<usize, IoError> {
+    check_exists(path, "no such file")?;
+    let file = std::fs::File::open(path).map_err(|e| IoError::read(path, e))?;
+    let mut previous: Option<(f64, usize)> = None;
+    let mut poses = 0;
+    for (index, raw) in BufReader::new(file).lines().enumerate() {
+        let raw = raw.map_err(|e| IoError::read(path, e))?;
+        let line_number = index + 1;
+        let Some(line) = content(&raw) else {
+            continue;
+        };
+        let values = parse_numbers(
+            path,
+            line_number,
+            line,
+            8,
+            "TUM: timestamp tx ty tz qx qy qz qw",
+        )?;
+        let q = [values[4], values[5], values[6], values[7]];
+        if q.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+            return Err(IoError::parse(
+                path,
+                line_number,
+                "the quaternion has zero length",
+            ));
+        }
+        let timestamp = values[0];
+        if let Some((before, before_line)) = previous {
+            if timestamp < before {
+                return Err(IoError::parse(
+                    path,
+                    line_number,
+                    format!("timestamps are not sorted: {timestamp} comes after {before} (line {before_line})"),
+                ));
+            }
+        }
+        previous = Some((timestamp, line_number));
+        let translation = Vector3::new(values[1], values[2], values[3]);
+        each(timestamp, se3::from_translation_quaternion(translation, q))?;
+        poses += 1;
+    }
+    Ok(poses)
 }
 
 #[cfg(test)]
