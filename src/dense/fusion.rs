@@ -118,7 +118,7 @@ pub(super) fn fuse_frames(
             let t = inputs.sequence.timestamp(index);
             sinks
                 .mask_source
-                .place_through(t, &|t| lookup.pose(t), &|t| lookup.depth(t));
+                .place_through(t, &|t| lookup.pose(t), &|t| lookup.depth(t))?;
             add_since(&mut fused.stages.inputs_s, start);
         }
         let window = window.as_deref_mut();

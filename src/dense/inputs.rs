@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
+use super::detection_feed::DetectionFeed;
 use super::disparity::{stereo_depth, StereoDepth};
 use super::frame_table::FrameTable;
 use super::keypoint_feed::KeypointFeed;
 use super::masks::FrameKeypoints;
 use super::outputs::CameraPaths;
 use super::{interrupted, Chosen};
-use crate::detect::FrameDetections;
 use crate::dop::{DopConfig, Mode};
 use crate::geometry::camera::PinholeCamera;
 use crate::geometry::se3::Se3;
@@ -60,7 +60,7 @@ pub(super) struct RunInputs<'a> {
     pub cameras: CameraPaths,
     /// The keyframes' detections and the frames' dynamic keypoints (none when the
     /// masking is off).
-    pub detections: Vec<FrameDetections>,
+    pub detections: DetectionFeed,
     pub keypoints: KeypointFeed,
 }
 
@@ -73,14 +73,12 @@ pub(super) fn read_run<'a>(
     spill_dir: &Path,
 ) -> Result<RunInputs<'a>, IoError> {
     let table = FrameTable::read(run, sequence, spill_dir)?;
-    let (detections, keypoints) = if masking == Mode::Off {
-        (Vec::new(), KeypointFeed::default())
-    } else {
-        (
-            read_detections(&run.detections())?,
-            KeypointFeed::from_file(&run.dynamic_keypoints())?,
-        )
-    };
+    let mut detections = DetectionFeed::default();
+    let mut keypoints = KeypointFeed::default();
+    if masking != Mode::Off {
+        detections.add_folder(&run.detections())?;
+        keypoints = KeypointFeed::from_file(&run.dynamic_keypoints())?;
+    }
     Ok(RunInputs {
         table,
         cameras: CameraPaths(vec![run.trajectory()]),
@@ -112,23 +110,6 @@ pub(super) fn depth_and_colour(
 /// Timestamps as keys (microseconds, as the file names carry them).
 pub(super) fn key(t: f64) -> i64 {
     (t * 1e6).round() as i64
-}
-
-/// Reads the keyframe detections a run cached (`detections/*.json`).
-pub fn read_detections(dir: &Path) -> Result<Vec<FrameDetections>, IoError> {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return Ok(Vec::new());
-    };
-    let mut frames = Vec::new();
-    for entry in entries.flatten() {
-        let path = entry.path();
-        if path.extension().is_some_and(|e| e == "json") {
-            let frame = crate::detect::read_cache_file(&path)
-                .map_err(|e| IoError::invalid(&path, e.to_string()))?;
-            frames.push(frame);
-        }
-    }
-    Ok(frames)
 }
 
 /// Reads `dynamic_keypoints.json` (empty when the run had no DOP model).

@@ -36,6 +36,7 @@
 //! in place). `Mode::MaskBoxes` (`--mask-boxes`) masks whole
 //! dynamic boxes of the nearest keyframe; `Mode::Off` (`--no-dop`) fuses all.
 
+use super::detection_feed::DetectionFeed;
 use super::free_space::{Evidence, PosedDepth};
 pub use super::keypoint_feed::FrameKeypoints;
 use super::keypoint_feed::KeypointFeed;
@@ -49,6 +50,7 @@ use crate::dynamics::keyframes::object_boxes;
 use crate::geometry::camera::{ImageSize, PinholeCamera};
 use crate::geometry::se3::Se3;
 use crate::io::image_files::DepthImage;
+use crate::io::IoError;
 
 /// Settings of the masks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -133,6 +135,9 @@ pub struct MaskContext<'a> {
     pub dynamic_classes: &'a [String],
 }
 
+/// Detected frames let go together ([`MaskSource::let_go_before`]).
+const LET_GO_BATCH: usize = 64;
+
 /// Everything the masks are made from.
 pub struct MaskSource {
     /// DOP, mask boxes or none.
@@ -141,8 +146,13 @@ pub struct MaskSource {
     pub settings: MaskSettings,
     camera: PinholeCamera,
     dop: DopConfig,
-    /// Sorted by time.
+    /// The detected frames read so far, in time order; those no later frame needs
+    /// are let go ([`Self::let_go_before`]).
     keyframes: Vec<KeyframeObjects>,
+    /// The detected frames not read yet.
+    detections: DetectionFeed,
+    /// The COCO classes that move.
+    dynamic_classes: Vec<String>,
     /// How many of `keyframes` have their objects placed, and the tracks that
     /// followed them.
     placed: usize,
@@ -162,22 +172,22 @@ impl MaskSource {
     pub fn new(
         context: MaskContext,
         settings: MaskSettings,
-        detections: Vec<FrameDetections>,
+        detections: impl Into<DetectionFeed>,
         keypoints: impl Into<KeypointFeed>,
         pose_at: PoseAt,
         depth_at: DepthAt,
-    ) -> Self {
+    ) -> Result<Self, IoError> {
         let mut source = Self::unplaced(context, settings, detections, keypoints);
-        source.place_through(f64::INFINITY, pose_at, depth_at);
-        source
+        source.place_through(f64::INFINITY, pose_at, depth_at)?;
+        Ok(source)
     }
 
-    /// The detected frames' boxes, their objects not placed yet: each frame's are
-    /// placed by [`Self::place_through`] before a frame near it is masked.
+    /// The masks of the detected frames of `detections`, read and placed by
+    /// [`Self::place_through`] before a frame near them is masked.
     pub fn unplaced(
         context: MaskContext,
         settings: MaskSettings,
-        mut detections: Vec<FrameDetections>,
+        detections: impl Into<DetectionFeed>,
         keypoints: impl Into<KeypointFeed>,
     ) -> Self {
         let MaskContext {
@@ -186,42 +196,55 @@ impl MaskSource {
             dop,
             dynamic_classes,
         } = context;
-        detections.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
-        let keyframes = detections
-            .iter()
-            .map(|frame| {
-                let (boxes, classes): (Vec<ObjectBox>, Vec<BoxClass>) =
-                    object_boxes(&frame.detections, dynamic_classes)
-                        .into_iter()
-                        .zip(&frame.detections)
-                        .filter(|(b, _)| b.dynamic)
-                        .map(|(b, d)| {
-                            let class = BoxClass {
-                                followed: dop.follows(&d.class),
-                                self_moving: dop.moves_on_its_own(&d.class),
-                            };
-                            (snap_to_border(b, &camera), class)
-                        })
-                        .unzip();
-                KeyframeObjects {
-                    timestamp: frame.timestamp,
-                    boxes,
-                    objects: Vec::new(),
-                    classes,
-                }
-            })
-            .collect();
         Self {
             masking,
             settings,
             camera,
             dop: dop.clone(),
-            keyframes,
+            keyframes: Vec::new(),
+            detections: detections.into(),
+            dynamic_classes: dynamic_classes.to_vec(),
             placed: 0,
             tracks: ObjectTracks::default(),
             keypoints: keypoints.into(),
             followed: Vec::new(),
         }
+    }
+
+    /// A detected frame's boxes of moving classes, as the masks use them.
+    fn boxes_of(&self, frame: FrameDetections) -> KeyframeObjects {
+        let (boxes, classes): (Vec<ObjectBox>, Vec<BoxClass>) =
+            object_boxes(&frame.detections, &self.dynamic_classes)
+                .into_iter()
+                .zip(&frame.detections)
+                .filter(|(b, _)| b.dynamic)
+                .map(|(b, d)| {
+                    let class = BoxClass {
+                        followed: self.dop.follows(&d.class),
+                        self_moving: self.dop.moves_on_its_own(&d.class),
+                    };
+                    (snap_to_border(b, &self.camera), class)
+                })
+                .unzip();
+        KeyframeObjects {
+            timestamp: frame.timestamp,
+            boxes,
+            objects: Vec::new(),
+            classes,
+        }
+    }
+
+    /// Reads the detected frames up to and including the first one at or after
+    /// `ahead`.
+    fn read_through(&mut self, ahead: f64) -> Result<(), IoError> {
+        while self.keyframes.last().is_none_or(|k| k.timestamp < ahead) {
+            let Some(frame) = self.detections.take_next()? else {
+                break;
+            };
+            let objects = self.boxes_of(frame);
+            self.keyframes.push(objects);
+        }
+        Ok(())
     }
 
     /// Places the objects of the detected frames up to and including the first one at
@@ -230,9 +253,15 @@ impl MaskSource {
     /// map. Looking that far ahead, a person the detector missed on some frames and
     /// found again is known on both sides of the gap before a frame in it is masked
     /// ([`fill_gaps`]).
-    pub fn place_through(&mut self, timestamp: f64, pose_at: PoseAt, depth_at: DepthAt) {
+    pub fn place_through(
+        &mut self,
+        timestamp: f64,
+        pose_at: PoseAt,
+        depth_at: DepthAt,
+    ) -> Result<(), IoError> {
         let track_seconds = self.dop.track_seconds as f64;
         let ahead = timestamp + track_seconds;
+        self.read_through(ahead)?;
         let through = self.keyframes.partition_point(|k| k.timestamp < ahead) + 1;
         while self.placed < through.min(self.keyframes.len()) {
             let index = self.placed;
@@ -264,6 +293,7 @@ impl MaskSource {
             let speed = self.dop.track_max_speed as f64;
             fill_gaps(&mut self.keyframes[..=index], track_seconds, speed);
         }
+        Ok(())
     }
 
     /// The mask of the frame at `timestamp` (`true`: dynamic), or `None` when
@@ -297,6 +327,7 @@ impl MaskSource {
             return None;
         }
         self.keypoints.advance_to(timestamp);
+        self.let_go_before(timestamp);
         let size = ImageSize::from((depth.width, depth.height));
         let mut sources = vec![0u8; depth.metres.len()];
         let evidence = evidence.filter(|_| self.masking == Mode::Dop);
@@ -325,6 +356,29 @@ impl MaskSource {
             }
         };
         any.then(|| MaskLayers::dilated(sources, size, self.settings.border, evidence))
+    }
+
+    /// Lets the detected frames go that no frame masked from `timestamp` on needs:
+    /// placed, over a second older than `track_seconds` before it (the masks take the
+    /// detected frames within that: [`Self::near_keyframes`]) and than twice that
+    /// before the newest placed frame (the gaps a detection fills reach that far back:
+    /// [`fill_gaps`]). So the detected frames held span a few seconds, not the run.
+    fn let_go_before(&mut self, timestamp: f64) {
+        let Some(newest) = self
+            .placed
+            .checked_sub(1)
+            .map(|i| self.keyframes[i].timestamp)
+        else {
+            return;
+        };
+        let track_seconds = self.dop.track_seconds as f64;
+        let before = (timestamp - track_seconds).min(newest - 2.0 * track_seconds) - 1.0;
+        let old = self.keyframes[..self.placed].partition_point(|k| k.timestamp < before);
+        // In batches, so that the frames left move once per batch.
+        if old >= LET_GO_BATCH || (old > 0 && 2 * old >= self.keyframes.len()) {
+            self.keyframes.drain(..old);
+            self.placed -= old;
+        }
     }
 
     /// The detected keyframes nearest before and after `timestamp`, within
@@ -1167,6 +1221,7 @@ mod tests {
             &|_| Some(Se3::identity()),
             &|_| Some(depth.clone()),
         )
+        .expect("held detections")
     }
 
     /// The DOP mask at t = 1 of [`scene`] with one person detected in `bbox` at t = 1,
@@ -1555,7 +1610,8 @@ mod tests {
             vec![],
             &|_| None,
             &|_| None,
-        );
+        )
+        .expect("held detections");
         let mask = boxes.mask(1.0, &depth, &identity, None).expect("a mask");
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
     }
@@ -1599,7 +1655,8 @@ mod tests {
         };
         let identity = Se3::identity();
         for t in [0.9, 1.0, 1.2, 1.5, 1.8, 2.0, 2.5] {
-            lazy.place_through(t, &|_| Some(Se3::identity()), &depth_at);
+            lazy.place_through(t, &|_| Some(Se3::identity()), &depth_at)
+                .unwrap();
             assert_eq!(
                 lazy.mask(t, &depth, &identity, None),
                 first.mask(t, &depth, &identity, None),
@@ -1617,6 +1674,64 @@ mod tests {
                 .collect();
             assert_eq!(*asked.borrow(), boxed, "at {t} s");
         }
+    }
+
+    /// Over a long walk, the frames masked one after another, placing as they come and
+    /// letting the old detected frames go, get the masks a source that placed every
+    /// frame first and let none go gives; and hold a few seconds of detected frames.
+    #[test]
+    fn old_detected_frames_let_go_change_no_mask() {
+        let (camera, depth) = scene();
+        // A person detected every 0.4 s for 40 s, walking to and fro; missed from 10 to
+        // 11.2 s (a gap to fill) and absent from 20 to 24 s.
+        let frames: Vec<FrameDetections> = (0..100)
+            .map(|i| 0.4 * i as f64)
+            .map(|t| {
+                let x = 120.0 + (60.0 * t as f32) % 300.0;
+                let seen = !(10.0..11.3).contains(&t) && !(20.0..24.0).contains(&t);
+                FrameDetections {
+                    timestamp: t,
+                    detections: [x]
+                        .into_iter()
+                        .filter(|_| seen)
+                        .map(|x| Detection {
+                            class: "person".into(),
+                            class_id: 0,
+                            score: 0.9,
+                            bbox: [x, 80.0, x + 180.0, 470.0],
+                            instance: None,
+                        })
+                        .collect(),
+                }
+            })
+            .collect();
+        let settings = object_settings();
+        let context = MaskContext {
+            masking: Mode::Dop,
+            camera,
+            dop: &DopConfig::default(),
+            dynamic_classes: &["person".to_string()],
+        };
+        let mut lazy = MaskSource::unplaced(context, settings, frames.clone(), vec![]);
+        let (identity, mut most_held) = (Se3::identity(), 0);
+        for t in (0..80).map(|i| 0.5 * i as f64 + 0.05) {
+            lazy.place_through(t, &|_| Some(identity), &|_| Some(depth.clone()))
+                .unwrap();
+            let mask = lazy.mask(t, &depth, &identity, None);
+            // Every frame placed before any is masked (or let go).
+            let mut first = scene_source(settings, frames.clone(), vec![]);
+            assert_eq!(mask, first.mask(t, &depth, &identity, None), "at {t} s");
+            most_held = most_held.max(lazy.keyframes.len());
+        }
+        // Read as the frames come, let go once passed: some 5 s of them (1 s ahead,
+        // 2 s of gaps and 1 s of margin behind), up to twice that between two batches
+        // let go (17 here).
+        assert!(most_held <= 25, "{most_held} of 100 held");
+        assert!(
+            lazy.keyframes.len() < 20,
+            "{} held at the end",
+            lazy.keyframes.len()
+        );
     }
 
     /// Depth samples on a 2-pixel grid of a 400 x 300 image: `depth_at(u, v)`.

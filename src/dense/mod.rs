@@ -17,6 +17,7 @@ pub mod cloud;
 pub mod cloud_voxels;
 pub mod compare_maps;
 pub mod config;
+pub mod detection_feed;
 pub mod disparity;
 mod frame_choice;
 mod frame_table;
@@ -45,18 +46,18 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::detect::FrameDetections;
 use crate::dop::Mode;
 use crate::geometry::se3::Se3;
 use crate::io::run_dir::RunDir;
 use crate::io::IoError;
+use detection_feed::DetectionFeed;
 use inputs::{key, RunInputs};
 use maps::{allocate_blocks, fuse, fuse_into, new_maps, Fusing};
 use masks::{MaskContext, MaskSource};
 use outputs::{interrupted, write_maps};
 
 pub use config::{DenseConfig, FrameChoice, Fusion};
-pub use inputs::{read_detections, read_keypoints, DenseInputs};
+pub use inputs::{read_keypoints, DenseInputs};
 pub use outputs::save_png;
 pub use report::DenseReport;
 pub use truth::{FusedTruth, TruthCounter};
@@ -152,7 +153,7 @@ fn dense_detections(
     config: &DenseConfig,
     candidates: impl Iterator<Item = Result<Chosen, IoError>>,
     out: &RunDir,
-    detections: &mut Vec<FrameDetections>,
+    detections: &mut DetectionFeed,
 ) -> Result<Option<more_detections::ExtraDetections>, IoError> {
     let (Some((detector, describe)), Mode::Dop) = (&inputs.detector, inputs.masking) else {
         return Ok(None);

@@ -15,7 +15,9 @@ use std::collections::HashSet;
 use std::path::Path;
 use std::time::Instant;
 
+use super::detection_feed::DetectionFeed;
 use crate::detect::{write_cache, Detector, FrameDetections};
+use crate::eval::stats::MedianSample;
 use crate::io::atomic::write_atomic;
 use crate::io::output::{move_previous_outputs, RUN_OUTPUTS};
 use crate::io::run_dir::names;
@@ -65,25 +67,25 @@ pub struct Described<'a> {
 /// Adds the dense pass's own detections to `detections` (the keyframes'): those cached
 /// in `cache` by the same detector (`describe`, kept in `cache/detector.txt`), then
 /// every `every`-th of the `fused` frames that has none yet and no keyframe near it
-/// detected alike ([`Schedule`]), detected now and cached. A keyframe's own boxes
-/// stay, joined by the new ones that overlap none of its boxes of their class. Frames
-/// the detector fails on keep the keyframes' masks, with a warning.
+/// detected alike ([`Schedule`]), detected now and cached; the feed reads them from
+/// `cache`. A keyframe's own boxes stay, joined by the new ones that overlap none of
+/// its boxes of their class ([`super::detection_feed::join`]). Frames the detector
+/// fails on keep the keyframes' masks, with a warning.
 pub fn add(
     sequence: &dyn Sequence,
     detector: Described,
     fused: &[usize],
     schedule: Schedule,
     cache: &Path,
-    detections: &mut Vec<FrameDetections>,
+    detections: &mut DetectionFeed,
     progress: bool,
 ) -> Result<ExtraDetections, IoError> {
     let Described { detector, describe } = detector;
     let cached = cached_by(cache, describe)?;
-    let known: HashSet<i64> = cached.iter().map(|f| super::key(f.timestamp)).collect();
-    let keyframes: HashSet<i64> = if schedule.reuse_keyframes {
-        detections.iter().map(|f| super::key(f.timestamp)).collect()
-    } else {
-        HashSet::new()
+    let known = cached.keys();
+    let keyframes: HashSet<i64> = match schedule.reuse_keyframes {
+        true => detections.keys(),
+        false => HashSet::new(),
     };
     let timestamp = |i: usize| sequence.timestamp(i);
     let wanted = frames_to_detect(fused, schedule.every, timestamp, &known);
@@ -98,7 +100,7 @@ pub fn add(
         near_keyframes: wanted.len() - todo.len(),
         ..Default::default()
     };
-    let found = detect_frames(sequence, detector, &todo, cache, progress, &mut extra)?;
+    detect_frames(sequence, detector, &todo, cache, progress, &mut extra)?;
     if let Some(first) = &extra.first_error {
         eprintln!(
             "warning: the detector failed on {} of {} frames of the dense masks (first: {first}); their masks come from the keyframes",
@@ -106,7 +108,7 @@ pub fn add(
             todo.len()
         );
     }
-    merge(detections, cached.into_iter().chain(found));
+    detections.add_folder(cache)?;
     Ok(extra)
 }
 
@@ -114,11 +116,13 @@ pub fn add(
 /// detector (or of none named) is not used, nor mixed with the new boxes: it moves into
 /// the run folder's `previous/` ([`move_previous_outputs`], nothing is deleted), and a
 /// new `detector.txt` names the detector of the boxes detected now.
-fn cached_by(cache: &Path, describe: &str) -> Result<Vec<FrameDetections>, IoError> {
+fn cached_by(cache: &Path, describe: &str) -> Result<DetectionFeed, IoError> {
     let stamp = cache.join("detector.txt");
     let same = std::fs::read_to_string(&stamp).is_ok_and(|s| s.trim_end() == describe);
+    let mut cached = DetectionFeed::default();
     if same {
-        return crate::dense::read_detections(cache);
+        cached.add_folder(cache)?;
+        return Ok(cached);
     }
     if let Some(run) = cache.parent().filter(|_| cache.exists()) {
         let others: Vec<&str> = RUN_OUTPUTS
@@ -138,33 +142,7 @@ fn cached_by(cache: &Path, describe: &str) -> Result<Vec<FrameDetections>, IoErr
         source,
     })?;
     write_atomic(&stamp, format!("{describe}\n").as_bytes())?;
-    Ok(Vec::new())
-}
-
-/// Joins `more` into `detections`: a frame already there keeps its boxes and gains
-/// those of `more` that overlap none of its boxes of their class by more than 0.45 IoU.
-fn merge(detections: &mut Vec<FrameDetections>, more: impl Iterator<Item = FrameDetections>) {
-    let mut at: std::collections::HashMap<i64, usize> = detections
-        .iter()
-        .enumerate()
-        .map(|(i, f)| (super::key(f.timestamp), i))
-        .collect();
-    for frame in more {
-        let Some(&i) = at.get(&super::key(frame.timestamp)) else {
-            at.insert(super::key(frame.timestamp), detections.len());
-            detections.push(frame);
-            continue;
-        };
-        let known = &mut detections[i].detections;
-        for d in frame.detections {
-            let duplicate = known.iter().any(|k| {
-                k.class_id == d.class_id && crate::detect::yolo::iou(&k.bbox, &d.bbox) > 0.45
-            });
-            if !duplicate {
-                known.push(d);
-            }
-        }
-    }
+    Ok(cached)
 }
 
 /// The frames among `fused` (sequence indices, in order) to detect on: every
@@ -217,10 +195,9 @@ pub fn detect_frames(
     cache: &Path,
     progress: bool,
     report: &mut ExtraDetections,
-) -> Result<Vec<FrameDetections>, IoError> {
+) -> Result<(), IoError> {
     let bar = super::frames_bar("detect ", frames.len(), progress);
-    let mut found = Vec::with_capacity(frames.len());
-    let mut milliseconds = Vec::with_capacity(frames.len());
+    let mut milliseconds = MedianSample::default();
     for &i in frames {
         if crate::interrupt::requested() {
             break;
@@ -239,7 +216,7 @@ pub fn detect_frames(
                     detections,
                 };
                 write_cache(cache, &frame).map_err(|e| IoError::invalid(cache, e.to_string()))?;
-                found.push(frame);
+                report.detected += 1;
             }
             Err(e) => {
                 report.failed += 1;
@@ -251,9 +228,8 @@ pub fn detect_frames(
         bar.inc(1);
     }
     bar.finish_and_clear();
-    report.detected = found.len();
-    report.median_ms = crate::eval::stats::median(&mut milliseconds);
-    Ok(found)
+    report.median_ms = milliseconds.median();
+    Ok(())
 }
 
 #[cfg(test)]
@@ -274,23 +250,6 @@ mod tests {
                 })
                 .collect(),
         }
-    }
-
-    #[test]
-    fn a_keyframe_keeps_its_boxes_and_gains_only_new_ones() {
-        let mut detections = vec![frame(1.0, &[[0.0, 0.0, 10.0, 20.0]])];
-        let more = vec![
-            frame(1.0, &[[0.5, 0.0, 10.0, 20.0], [100.0, 100.0, 110.0, 120.0]]),
-            frame(2.0, &[[0.0, 0.0, 10.0, 20.0]]),
-        ];
-        merge(&mut detections, more.into_iter());
-        assert_eq!(detections.len(), 2);
-        assert_eq!(detections[0].detections.len(), 2);
-        assert_eq!(
-            detections[0].detections[1].bbox,
-            [100.0, 100.0, 110.0, 120.0]
-        );
-        assert_eq!(detections[1].timestamp, 2.0);
     }
 
     #[test]
