@@ -136,25 +136,27 @@ pub fn join(known: &mut Vec<Detection>, more: Vec<Detection>) {
     }
 }
 
+/// A frame with a person in each of `boxes` (for tests).
+#[cfg(test)]
+pub(super) fn frame(timestamp: f64, boxes: &[[f32; 4]]) -> FrameDetections {
+    FrameDetections {
+        timestamp,
+        detections: boxes
+            .iter()
+            .map(|&bbox| Detection {
+                class: "person".into(),
+                class_id: 0,
+                score: 0.5,
+                bbox,
+                instance: None,
+            })
+            .collect(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn frame(timestamp: f64, boxes: &[[f32; 4]]) -> FrameDetections {
-        FrameDetections {
-            timestamp,
-            detections: boxes
-                .iter()
-                .map(|&bbox| Detection {
-                    class: "person".into(),
-                    class_id: 0,
-                    score: 0.5,
-                    bbox,
-                    instance: None,
-                })
-                .collect(),
-        }
-    }
 
     /// Every frame left in `feed`, taken.
     fn taken(feed: &mut DetectionFeed) -> Vec<FrameDetections> {

@@ -1616,6 +1616,18 @@ mod tests {
         assert!(mask[(300 * camera.width + 240) as usize], "a whole box");
     }
 
+    /// A DOP mask source over [`scene`] with [`object_settings`], its detected frames
+    /// read and placed as the frames come ([`MaskSource::place_through`]).
+    fn lazy_source(frames: Vec<FrameDetections>) -> MaskSource {
+        let context = MaskContext {
+            masking: Mode::Dop,
+            camera: scene().0,
+            dop: &DopConfig::default(),
+            dynamic_classes: &["person".to_string()],
+        };
+        MaskSource::unplaced(context, object_settings(), frames, vec![])
+    }
+
     #[test]
     fn objects_placed_as_frames_come_mask_as_those_placed_first() {
         let (camera, depth) = scene();
@@ -1640,14 +1652,8 @@ mod tests {
             person(2.6, 300.0),
         ];
         let settings = object_settings();
-        let context = MaskContext {
-            masking: Mode::Dop,
-            camera,
-            dop: &DopConfig::default(),
-            dynamic_classes: &["person".to_string()],
-        };
         let mut first = scene_source(settings, frames.clone(), vec![]);
-        let mut lazy = MaskSource::unplaced(context, settings, frames, vec![]);
+        let mut lazy = lazy_source(frames);
         let asked = std::cell::RefCell::new(Vec::new());
         let depth_at = |t: f64| {
             asked.borrow_mut().push(t);
@@ -1706,13 +1712,7 @@ mod tests {
             })
             .collect();
         let settings = object_settings();
-        let context = MaskContext {
-            masking: Mode::Dop,
-            camera,
-            dop: &DopConfig::default(),
-            dynamic_classes: &["person".to_string()],
-        };
-        let mut lazy = MaskSource::unplaced(context, settings, frames.clone(), vec![]);
+        let mut lazy = lazy_source(frames.clone());
         let (identity, mut most_held) = (Se3::identity(), 0);
         for t in (0..80).map(|i| 0.5 * i as f64 + 0.05) {
             lazy.place_through(t, &|_| Some(identity), &|_| Some(depth.clone()))

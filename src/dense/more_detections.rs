@@ -234,23 +234,8 @@ pub fn detect_frames(
 
 #[cfg(test)]
 mod tests {
+    use super::super::detection_feed::frame;
     use super::*;
-
-    fn frame(timestamp: f64, boxes: &[[f32; 4]]) -> FrameDetections {
-        FrameDetections {
-            timestamp,
-            detections: boxes
-                .iter()
-                .map(|&bbox| crate::detect::Detection {
-                    class: "person".into(),
-                    class_id: 0,
-                    score: 0.5,
-                    bbox,
-                    instance: None,
-                })
-                .collect(),
-        }
-    }
 
     #[test]
     fn a_cache_of_another_detector_is_not_used() {

@@ -151,12 +151,7 @@ impl TruthCounter {
         truth.unknown_removed = (truth.unknown_mover_pixels > 0)
             .then(|| 1.0 - share(truth.unknown_mover_pixels_fused, truth.unknown_mover_pixels));
         truth.leaks.append(&mut open);
-        truth.leaks.sort_by(|a, b| {
-            b.pixels_fused
-                .cmp(&a.pixels_fused)
-                .then(a.first.total_cmp(&b.first))
-        });
-        truth.leaks.truncate(LEAKS_KEPT);
+        keep_largest(&mut truth.leaks);
         truth
     }
 
@@ -183,8 +178,24 @@ impl TruthCounter {
             still_open.push(leak);
         }
         self.figures.leaks.append(&mut self.open);
+        // The closed leaks that can no longer be among the largest go (a stable sort:
+        // the same as sorting them all at the end).
+        if self.figures.leaks.len() > 2 * LEAKS_KEPT {
+            keep_largest(&mut self.figures.leaks);
+        }
         self.open = still_open;
     }
+}
+
+/// The [`LEAKS_KEPT`] largest `leaks` (the most pixels fused; the earlier first), in
+/// that order.
+fn keep_largest(leaks: &mut Vec<Leak>) {
+    leaks.sort_by(|a, b| {
+        b.pixels_fused
+            .cmp(&a.pixels_fused)
+            .then(a.first.total_cmp(&b.first))
+    });
+    leaks.truncate(LEAKS_KEPT);
 }
 
 /// Which instance ids of the truth masks are movers no detector knows (a class that is
@@ -290,5 +301,30 @@ mod tests {
                 (1, 0.3, 0.3, 1, 10, 1)
             ]
         );
+    }
+
+    /// A long run's many leaks, kept few as they close, give the largest ones a sort
+    /// of them all gives (ties in the order they closed).
+    #[test]
+    fn the_largest_leaks_of_a_long_run_are_those_of_all_of_them() {
+        let mut truth = TruthCounter::default();
+        let mut closed = Vec::new();
+        for k in 0..500u64 {
+            let t = k as f64 * 0.1;
+            // One leak a frame, closed the next; sizes repeat, so ties abound.
+            let fused = (k * 37) % 23;
+            truth.count_leaks(t, &[((k % 7) as u16, 100, fused + 1)]);
+            truth.count_leaks(t + 0.05, &[]);
+            closed.push((t, fused + 1));
+            assert!(truth.figures.leaks.len() <= 2 * LEAKS_KEPT + 1);
+        }
+        closed.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.total_cmp(&b.0)));
+        let kept: Vec<(f64, u64)> = truth
+            .finish()
+            .leaks
+            .iter()
+            .map(|l| (l.first, l.pixels_fused))
+            .collect();
+        assert_eq!(kept, closed[..LEAKS_KEPT]);
     }
 }
