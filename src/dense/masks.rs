@@ -1630,7 +1630,7 @@ mod tests {
 
     #[test]
     fn objects_placed_as_frames_come_mask_as_those_placed_first() {
-        let (camera, depth) = scene();
+        let (_, depth) = scene();
         let person = |t: f64, x: f32| FrameDetections {
             timestamp: t,
             detections: vec![Detection {
@@ -1687,7 +1687,7 @@ mod tests {
     /// frame first and let none go gives; and hold a few seconds of detected frames.
     #[test]
     fn old_detected_frames_let_go_change_no_mask() {
-        let (camera, depth) = scene();
+        let (_, depth) = scene();
         // A person detected every 0.4 s for 40 s, walking to and fro; missed from 10 to
         // 11.2 s (a gap to fill) and absent from 20 to 24 s.
         let frames: Vec<FrameDetections> = (0..100)
