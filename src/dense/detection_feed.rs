@@ -9,7 +9,7 @@
 use std::collections::{HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 
-use super::inputs::key;
+use super::frame_table::key;
 use crate::detect::{cache_file, read_cache_file, Detection, FrameDetections};
 use crate::io::IoError;
 

@@ -11,13 +11,17 @@ use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::sync::Mutex;
 
-use super::inputs::key;
 use crate::geometry::se3::Se3;
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::spill::SpillFile;
 use crate::io::trajectory::{for_each_tum, TrajectoryFormat};
 use crate::io::{IoError, Trajectory};
+
+/// Timestamps as keys (microseconds, as the file names carry them).
+pub(super) fn key(t: f64) -> i64 {
+    (t * 1e6).round() as i64
+}
 
 /// A slot: flags, then `world_from_camera`'s rotation matrix (column major) and
 /// translation as little-endian `f64`s.

@@ -107,11 +107,6 @@ pub(super) fn depth_and_colour(
     }
 }
 
-/// Timestamps as keys (microseconds, as the file names carry them).
-pub(super) fn key(t: f64) -> i64 {
-    (t * 1e6).round() as i64
-}
-
 /// Reads `dynamic_keypoints.json` (empty when the run had no DOP model).
 pub fn read_keypoints(path: &Path) -> Result<Vec<FrameKeypoints>, IoError> {
     if !path.exists() {
