@@ -1,7 +1,7 @@
 //! The run's frames as the dense pass reads them, on disk: one fixed slot per frame of
 //! the sequence in a spill file of the output folder (removed when the pass ends),
-//! holding the frame's final pose from `trajectory.txt` bit for bit and its map segment
-//! from `segments.txt`. Both files are read line by line, so the pass holds no list
+//! holding the frame's final pose from `trajectory.txt` bit for bit and whether it lies
+//! in the largest map segment of `segments.txt`. Both files are read line by line, so the pass holds no list
 //! of frames: choosing the frames ([`super::frame_choice`]), placing the detected
 //! objects and the free-space neighbours read the slots they need, and a time comes
 //! to its frame by a binary search over the sequence's own timestamps
