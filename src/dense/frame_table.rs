@@ -9,9 +9,8 @@
 
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
-use std::sync::Mutex;
 
-use crate::geometry::se3::Se3;
+use crate::geometry::se3::{self, Se3, POSE_BYTES};
 use crate::io::run_dir::RunDir;
 use crate::io::sequence::Sequence;
 use crate::io::spill::SpillFile;
@@ -23,9 +22,8 @@ pub(super) fn key(t: f64) -> i64 {
     (t * 1e6).round() as i64
 }
 
-/// A slot: flags, then `world_from_camera`'s rotation matrix (column major) and
-/// translation as little-endian `f64`s.
-const SLOT: usize = 1 + 12 * 8;
+/// A slot: flags, then `world_from_camera` ([`se3::write_bytes`]).
+const SLOT: usize = 1 + POSE_BYTES;
 /// The frame has a pose in `trajectory.txt`.
 const POSED: u8 = 1;
 /// The frame lies in the largest map segment of `segments.txt`.
@@ -99,9 +97,6 @@ pub(super) struct FrameTable<'a> {
     keyframe_times: HashSet<i64>,
     /// Posed frames of the other segments, left out.
     pub other_segment_frames: usize,
-    /// The first error of a read through [`FrameTable::pose_at`], which answers
-    /// `None` for it: [`FrameTable::check`] returns it.
-    failed: Mutex<Option<IoError>>,
 }
 
 impl<'a> FrameTable<'a> {
@@ -121,16 +116,17 @@ impl<'a> FrameTable<'a> {
             segmented: false,
             keyframe_times: keyframes.timestamps.iter().map(|&t| key(t)).collect(),
             other_segment_frames: 0,
-            failed: Mutex::new(None),
         };
         if let Some(last) = sequence.len().checked_sub(1) {
             // Every slot reads as zeros (no pose) until written.
             table.file.write(Some(last as u32), &[0; SLOT])?;
         }
         for_each_tum(&run.trajectory(), |t, world_from_camera| {
+            let mut pose = Vec::with_capacity(POSE_BYTES);
+            se3::write_bytes(&mut pose, Some(&world_from_camera));
             table.each_frame_at(t, |slot| {
                 slot[0] |= POSED;
-                put_pose(slot, &world_from_camera);
+                slot[1..].copy_from_slice(&pose);
             })
         })?;
         table.mark_largest_segment(&run.segments())?;
@@ -206,7 +202,7 @@ impl<'a> FrameTable<'a> {
             true => POSED | IN_LARGEST,
             false => POSED,
         };
-        Ok((slot[0] & wanted == wanted).then(|| take_pose(&slot).inverse()))
+        Ok((slot[0] & wanted == wanted).then(|| se3::read_bytes(&slot[1..]).inverse()))
     }
 
     /// The frame at time `t` (the last one of that timestamp).
@@ -217,23 +213,12 @@ impl<'a> FrameTable<'a> {
         (key(self.sequence.timestamp(index)) == k).then_some(index)
     }
 
-    /// The final `camera_from_world` of the frame at time `t`: `None` too when the
-    /// slot could not be read ([`FrameTable::check`] says so).
-    pub fn pose_at(&self, t: f64) -> Option<Se3> {
-        match self.pose(self.index_at(t)?) {
-            Ok(pose) => pose,
-            Err(error) => {
-                let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
-                failed.get_or_insert(error);
-                None
-            }
+    /// The final `camera_from_world` of the frame at time `t`.
+    pub fn pose_at(&self, t: f64) -> Result<Option<Se3>, IoError> {
+        match self.index_at(t) {
+            Some(index) => self.pose(index),
+            None => Ok(None),
         }
-    }
-
-    /// The first error [`FrameTable::pose_at`] met.
-    pub fn check(&self) -> Result<(), IoError> {
-        let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
-        failed.take().map_or(Ok(()), Err)
     }
 
     /// The posed frame nearest `time` (the one before it on a tie), when one lies
@@ -252,49 +237,23 @@ impl<'a> FrameTable<'a> {
         };
         let near =
             |rank: usize| (sequence.timestamp(self.order.index(rank)) - time).abs() <= within;
-        let mut before = None;
-        for r in (0..rank).rev().take_while(|&r| near(r)) {
-            if let Some(found) = posed_at(r)? {
-                before = Some(found);
-                break;
+        // The first posed frame of `ranks` (outwards from `time`), within the reach.
+        let first_posed = |ranks: &mut dyn Iterator<Item = usize>| {
+            for rank in ranks.take_while(|&r| near(r)) {
+                if let Some(found) = posed_at(rank)? {
+                    return Ok(Some(found));
+                }
             }
-        }
-        let mut after = None;
-        for r in (rank..sequence.len()).take_while(|&r| near(r)) {
-            if let Some(found) = posed_at(r)? {
-                after = Some(found);
-                break;
-            }
-        }
+            Ok::<_, IoError>(None)
+        };
+        let before = first_posed(&mut (0..rank).rev())?;
+        let after = first_posed(&mut (rank..sequence.len()))?;
         Ok(match (before, after) {
             (Some(b), Some(a)) if (a.0 - time).abs() < (b.0 - time).abs() => Some(a),
             (Some(b), _) => Some(b),
             (None, a) => a,
         })
     }
-}
-
-/// Writes `pose` into a slot's pose bytes.
-fn put_pose(slot: &mut [u8; SLOT], pose: &Se3) {
-    let values = pose
-        .rotation
-        .matrix()
-        .iter()
-        .chain(pose.translation.vector.iter());
-    for (k, v) in values.enumerate() {
-        slot[1 + 8 * k..9 + 8 * k].copy_from_slice(&v.to_le_bytes());
-    }
-}
-
-/// The pose [`put_pose`] wrote.
-fn take_pose(slot: &[u8; SLOT]) -> Se3 {
-    let value = |k: usize| {
-        let bytes: [u8; 8] = slot[1 + 8 * k..9 + 8 * k].try_into().expect("8 bytes");
-        f64::from_le_bytes(bytes)
-    };
-    let rotation = nalgebra::Matrix3::from_fn(|r, c| value(c * 3 + r));
-    let translation = nalgebra::Vector3::new(value(9), value(10), value(11));
-    crate::geometry::se3::from_parts(translation, rotation)
 }
 
 impl super::free_space::PosedFrames for FrameTable<'_> {
@@ -386,7 +345,7 @@ mod tests {
                 .position(|&t| t == i)
                 .map(|k| written.poses[k].inverse());
             assert_eq!(table.pose(i).unwrap(), expected, "frame {i}");
-            assert_eq!(table.pose_at(t), expected);
+            assert_eq!(table.pose_at(t).unwrap(), expected);
             assert_eq!(table.index_at(t), Some(i));
         }
         assert!(table.is_keyframe(3) && !table.is_keyframe(4));

@@ -137,7 +137,7 @@ impl<'a> FrameLookup<'a> {
     }
 
     /// The final `camera_from_world` of the frame at time `t`.
-    pub fn pose(&self, t: f64) -> Option<Se3> {
+    pub fn pose(&self, t: f64) -> Result<Option<Se3>, IoError> {
         self.table.pose_at(t)
     }
 

@@ -107,7 +107,6 @@ pub(super) fn fuse_into(
         frames: frames.fused(table),
     };
     let fused = fuse_frames(inputs, config, chosen, sources, sinks)?;
-    table.check()?;
     report.memory.fusion_mib = crate::memory::part_peak_mib();
     (report.frames_fused, report.keyframes_in_cloud) = (fused.frames, fused.keyframes_in_cloud);
     report.released_on_map = fused.released;

@@ -117,7 +117,7 @@ struct BoxClass {
 }
 
 /// A frame's final `camera_from_world` by its timestamp, and its depth map.
-pub type PoseAt<'a> = &'a dyn Fn(f64) -> Option<Se3>;
+pub type PoseAt<'a> = &'a dyn Fn(f64) -> Result<Option<Se3>, IoError>;
 /// The depth of the frame at a time, if there is one.
 pub type DepthAt<'a> = &'a dyn Fn(f64) -> Option<DepthImage>;
 
@@ -270,7 +270,7 @@ impl MaskSource {
             if self.masking != Mode::Dop {
                 continue;
             }
-            let Some(pose) = pose_at(frame.timestamp) else {
+            let Some(pose) = pose_at(frame.timestamp)? else {
                 continue;
             };
             let placed = if frame.boxes.is_empty() {
@@ -1218,7 +1218,7 @@ mod tests {
             settings,
             frames,
             keypoints,
-            &|_| Some(Se3::identity()),
+            &|_| Ok(Some(Se3::identity())),
             &|_| Some(depth.clone()),
         )
         .expect("held detections")
@@ -1608,7 +1608,7 @@ mod tests {
             settings,
             frames,
             vec![],
-            &|_| None,
+            &|_| Ok(None),
             &|_| None,
         )
         .expect("held detections");
@@ -1661,7 +1661,7 @@ mod tests {
         };
         let identity = Se3::identity();
         for t in [0.9, 1.0, 1.2, 1.5, 1.8, 2.0, 2.5] {
-            lazy.place_through(t, &|_| Some(Se3::identity()), &depth_at)
+            lazy.place_through(t, &|_| Ok(Some(Se3::identity())), &depth_at)
                 .unwrap();
             assert_eq!(
                 lazy.mask(t, &depth, &identity, None),
@@ -1715,7 +1715,7 @@ mod tests {
         let mut lazy = lazy_source(frames.clone());
         let (identity, mut most_held) = (Se3::identity(), 0);
         for t in (0..80).map(|i| 0.5 * i as f64 + 0.05) {
-            lazy.place_through(t, &|_| Some(identity), &|_| Some(depth.clone()))
+            lazy.place_through(t, &|_| Ok(Some(identity)), &|_| Some(depth.clone()))
                 .unwrap();
             let mask = lazy.mask(t, &depth, &identity, None);
             // Every frame placed before any is masked (or let go).

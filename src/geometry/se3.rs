@@ -27,6 +27,35 @@ pub fn from_parts(translation: Vector3<f64>, rotation: Matrix3<f64>) -> Se3 {
     )
 }
 
+/// The bytes of a pose written by [`write_bytes`].
+pub const POSE_BYTES: usize = 12 * 8;
+
+/// Appends a pose's rotation matrix (column major) and translation to `out` as
+/// little-endian `f64`s, bit for bit (zeros for none): [`POSE_BYTES`] bytes.
+pub fn write_bytes(out: &mut Vec<u8>, pose: Option<&Se3>) {
+    let values: [f64; 12] = pose.map_or([0.0; 12], |p| {
+        let mut v = [0.0; 12];
+        v[..9].copy_from_slice(p.rotation.matrix().as_slice());
+        v[9..].copy_from_slice(p.translation.vector.as_slice());
+        v
+    });
+    values
+        .iter()
+        .for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+}
+
+/// The pose [`write_bytes`] wrote at the start of `bytes`.
+pub fn read_bytes(bytes: &[u8]) -> Se3 {
+    let mut values = [0.0; 12];
+    for (value, b) in values.iter_mut().zip(bytes.chunks_exact(8)) {
+        *value = f64::from_le_bytes(b.try_into().expect("8 bytes"));
+    }
+    from_parts(
+        Vector3::new(values[9], values[10], values[11]),
+        Matrix3::from_column_slice(&values[..9]),
+    )
+}
+
 /// Builds a pose from a translation and a quaternion `(qx, qy, qz, qw)`, which is
 /// normalised first (as evo and TUM's scripts do).
 pub fn from_translation_quaternion(translation: Vector3<f64>, q_xyzw: [f64; 4]) -> Se3 {

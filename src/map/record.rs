@@ -8,7 +8,7 @@ use std::borrow::Cow;
 use std::path::Path;
 
 use super::{KeyFrameKey, MapPointKey};
-use crate::geometry::se3::Se3;
+use crate::geometry::se3::{self, Se3, POSE_BYTES};
 use crate::io::spill::SpillFile;
 use crate::io::IoError;
 
@@ -141,7 +141,6 @@ impl FrameObservation {
 }
 
 /// Bytes of a pose on disk: the rotation matrix (column order) and the translation.
-const POSE_BYTES: usize = 12 * 8;
 /// Bytes of a record on disk without its observations: timestamp, segment, which of
 /// the optional parts it has, keyframe key, tracked pose, reference key and pose,
 /// where its observations are and how many.
@@ -364,9 +363,9 @@ impl FrameRecord {
         out.extend_from_slice(&(self.segment as u64).to_le_bytes());
         out.push(flags);
         out.extend_from_slice(&key(self.keyframe).to_le_bytes());
-        write_pose(out, self.camera_from_world.as_ref());
+        se3::write_bytes(out, self.camera_from_world.as_ref());
         out.extend_from_slice(&key(self.reference.map(|r| r.0)).to_le_bytes());
-        write_pose(out, self.reference.as_ref().map(|r| &r.1));
+        se3::write_bytes(out, self.reference.as_ref().map(|r| &r.1));
         let spilled = self.spilled.unwrap_or(Spilled { at: 0, count: 0 });
         out.extend_from_slice(&spilled.at.to_le_bytes());
         out.extend_from_slice(&spilled.count.to_le_bytes());
@@ -387,9 +386,9 @@ impl FrameRecord {
         let has = |bit: u8| flags & (1 << bit) != 0;
         let key = |b: &[u8]| -> KeyFrameKey { slotmap::KeyData::from_ffi(word(b)).into() };
         let keyframe = key(take(8));
-        let camera_from_world = read_pose(take(POSE_BYTES));
+        let camera_from_world = se3::read_bytes(take(POSE_BYTES));
         let reference_key = key(take(8));
-        let reference_pose = read_pose(take(POSE_BYTES));
+        let reference_pose = se3::read_bytes(take(POSE_BYTES));
         let spilled = Spilled {
             at: word(take(8)),
             count: u32::from_le_bytes(take(4).try_into().expect("4 bytes")),
@@ -404,31 +403,6 @@ impl FrameRecord {
             spilled: has(3).then_some(spilled),
         }
     }
-}
-
-/// A pose's rotation matrix and translation, bit for bit (zeros for none).
-fn write_pose(out: &mut Vec<u8>, pose: Option<&Se3>) {
-    let values: [f64; 12] = pose.map_or([0.0; 12], |p| {
-        let mut v = [0.0; 12];
-        v[..9].copy_from_slice(p.rotation.matrix().as_slice());
-        v[9..].copy_from_slice(p.translation.vector.as_slice());
-        v
-    });
-    values
-        .iter()
-        .for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
-}
-
-fn read_pose(bytes: &[u8]) -> Se3 {
-    let mut values = [0.0; 12];
-    for (value, b) in values.iter_mut().zip(bytes.chunks_exact(8)) {
-        *value = f64::from_le_bytes(b.try_into().expect("8 bytes"));
-    }
-    let rotation = nalgebra::Rotation3::from_matrix_unchecked(
-        nalgebra::Matrix3::from_column_slice(&values[..9]),
-    );
-    let translation = nalgebra::Translation3::new(values[9], values[10], values[11]);
-    Se3::from_parts(translation, rotation)
 }
 
 /// Reads spilled observations while the records are borrowed mutably
