@@ -16,13 +16,13 @@
 #      default real-time mode (the headline), ORB-SLAM2 behaviour, and oracle boxes in
 #      real time (an upper bound, never instead of the headline).
 #
-#   bash tools/results.sh [--seeds N] [--kitti-runs 5] [--real-runs 3] [PRESET ...]
+#   bash tools/results.sh [--seeds N] [--kitti-runs 10] [--real-runs 3] [PRESET ...]
 #                                     # default: 1 seed, the five cut-out presets
-# About 25 minutes on 2 cores with the defaults (12 without ../shared/data).
+# About 20 minutes on 2 cores with the defaults (12 without ../shared/data).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=1
-kitti_runs=5
+kitti_runs=10
 real_runs=3
 while [ $# -gt 0 ]; do
     case "$1" in
