@@ -4,8 +4,8 @@
 #   1. the demo (configs/synth/demo.toml, the quick start's scene; needs nothing outside
 #      the repository): ATE with and without DOP, mover points in each dense map; its
 #      picture becomes docs/images/demo_maps.png;
-#   2. real data first (needs ../shared/data, or DOPSLAM_SHARED_DATA): the real KITTI
-#      stereo clips 01 and 06 (tools/bench_kitti.sh: ATE with and without DOP, medians
+#   2. real data, shown first (needs ../shared/data, or DOPSLAM_SHARED_DATA): the real
+#      KITTI stereo clips 01 and 06 (tools/bench_kitti.sh: ATE with and without DOP, medians
 #      of --kitti-runs real-time runs each, interleaved), the real RGB-D recording of
 #      people walking before a static camera (tools/bench_real_people.sh: masks against
 #      its per-pixel truth, mesh vertices in front of the background, --real-runs runs)
