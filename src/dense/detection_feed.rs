@@ -30,6 +30,8 @@ pub struct DetectionFeed {
     index: VecDeque<Entry>,
 }
 
+/// Frames given whole, held (for tests: the dense pass reads its cache folders).
+#[cfg(test)]
 impl From<Vec<FrameDetections>> for DetectionFeed {
     fn from(frames: Vec<FrameDetections>) -> Self {
         let mut feed = Self::default();

@@ -168,7 +168,9 @@ impl MaskSource {
     /// gives a frame's final `camera_from_world`, `depth_at(t)` its depth map (frames
     /// missing either keep their pixel boxes only); `keypoints` are the frames'
     /// dynamic keypoints. [`Self::unplaced`] and [`Self::place_through`] do the same
-    /// as the frames come.
+    /// as the frames come, as the dense pass does: this, every frame placed first, is
+    /// what the tests hold that to.
+    #[cfg(test)]
     pub fn new(
         context: MaskContext,
         settings: MaskSettings,
